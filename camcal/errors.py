@@ -1,0 +1,11 @@
+"""The one exception type camcal raises for a user's bad input."""
+
+__all__ = ["CamcalError"]
+
+
+class CamcalError(ValueError):
+    """Bad input named in one line: the CLI prints it and exits with code 2.
+
+    Raised for a user's mistake (missing file, malformed JSON, too few points,
+    degenerate geometry...), never for a bug in camcal.
+    """
