@@ -121,6 +121,43 @@ def _register_calibrate(subparsers) -> None:
     dlt.set_defaults(func=_calibrate_dlt)
 
 
+# -- camcal solve --------------------------------------------------------------------
+
+
+def _solve(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from camcal.geometry.sfm import solve_sfm
+
+    folders = {Path(folder).name: Path(folder) for folder in args.folders}
+    if len(folders) != len(args.folders):
+        raise CamcalError("image folders must have distinct names (they name the cameras)")
+    result = solve_sfm(folders, Path(args.out), camera_model=args.camera_model, matcher=args.matcher,
+                       mapper=args.mapper, seed=args.seed)
+    print(f"registered {result.n_registered} / {result.n_images} images"
+          + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
+    per_camera = ", ".join(f"{name} {rms:.3f} px" for name, rms in result.per_camera_rms_px.items())
+    print(f"RMS reprojection error: {result.rms_px:.3f} px ({per_camera}); {result.n_points} points")
+    print(f"wrote {Path(args.out) / 'sfm.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
+    return 0
+
+
+def _register_solve(subparsers) -> None:
+    solve = subparsers.add_parser(
+        "solve",
+        help="cameras from images: pycolmap structure from motion",
+        description="One folder per camera; several folders form a rig whose frames are matched by file name. "
+        "Writes OUT/sfm.rig.json, OUT/points.ply and the COLMAP model.",
+    )
+    solve.add_argument("folders", nargs="+", metavar="DIR", help="image folder(s), one per camera")
+    solve.add_argument("--out", required=True, metavar="DIR")
+    solve.add_argument("--camera-model", default="SIMPLE_RADIAL", help="COLMAP camera model (default: SIMPLE_RADIAL)")
+    solve.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"))
+    solve.add_argument("--mapper", default="incremental", choices=("incremental", "global"))
+    solve.add_argument("--seed", type=int, default=0)
+    solve.set_defaults(func=_solve)
+
+
 # -- camcal demo ---------------------------------------------------------------------
 
 
@@ -146,4 +183,4 @@ def _register_demo(subparsers) -> None:
 
 
 # One entry per verb group; keep this list the only place verbs are wired in.
-_REGISTERS: list = [_register_rig, _register_calibrate, _register_demo]
+_REGISTERS: list = [_register_rig, _register_calibrate, _register_solve, _register_demo]
