@@ -6,7 +6,7 @@ import pytest
 
 from camcal.cli import main
 from camcal.geometry.distortion import Distortion
-from camcal.geometry.stmap import make_stmaps, pixels_from_st, read_exr, st_from_pixels, write_exr, write_stmaps
+from camcal.geometry.stmap import make_stmaps, pixels_from_st, read_exr, st_from_pixels, write_exr
 from camcal.geometry.undistort import make_undistorter
 from camcal.rig import Rig
 from camcal.synthetic import example_camera
