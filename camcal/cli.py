@@ -182,5 +182,156 @@ def _register_demo(subparsers) -> None:
     demo.set_defaults(func=_demo)
 
 
+# -- camcal distortion ---------------------------------------------------------------
+
+
+def _pattern(value: str) -> tuple[int, int]:
+    try:
+        cols, rows = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        raise CamcalError(f"--pattern must look like 9x6 (inner corners), got {value!r}") from None
+    if cols < 2 or rows < 2:
+        raise CamcalError(f"--pattern needs at least 2x2 inner corners, got {value!r}")
+    return cols, rows
+
+
+def _distortion_fit(args: argparse.Namespace) -> int:
+    import cv2
+
+    from camcal.geometry.plumbline import fit_plumbline, lines_from_images, read_lines
+    from camcal.io.jsonfile import write_json
+
+    if bool(args.images) == bool(args.lines):
+        raise CamcalError("give either IMAGES or --lines LINES.json (not both)")
+    if args.lines:
+        lines = read_lines(args.lines)
+        skipped: list[str] = []
+    else:
+        images = []
+        for path in args.images:
+            image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+            if image is None:
+                raise CamcalError(f"cannot read image {path}")
+            images.append(image)
+        pattern = _pattern(args.pattern) if args.pattern else None
+        lines, skipped_index = lines_from_images(images, pattern)
+        skipped = [args.images[i] for i in skipped_index]
+        what = "board" if pattern else "long straight edges"
+        print(f"{what} found in {len(images) - len(skipped)} / {len(images)} images"
+              + (f" (skipped: {', '.join(skipped)})" if skipped else ""))
+    result = fit_plumbline(lines, args.model, fit_center=args.fit_centre)
+    write_json(args.out, result.to_dict())
+    if args.report:
+        from pathlib import Path
+
+        write_json(Path(args.report) / "plumbline_report.json", {
+            **result.to_dict(),
+            "strand_hayman": {
+                "distortion": result.initial.distortion.to_dict(),
+                "lambda_per_line": result.initial.lambda_per_line.tolist(),
+                "weights": result.initial.weights.tolist(),
+            },
+            "rms_before_px": result.rms_before_px.tolist(),
+            "rms_after_px": result.rms_after_px.tolist(),
+        })
+    params = ", ".join(f"{k} {v:.6g}" for k, v in result.distortion.params.items())
+    centre = result.distortion.center or tuple(result.K[:2, 2])
+    print(f"{result.distortion.model}: {params} about ({centre[0]:.2f}, {centre[1]:.2f}) px")
+    print(f"straightness RMS: {result.straightness_rms_before_px:.3f} px before, "
+          f"{result.straightness_rms_px:.3f} px after (worst line {result.rms_after_px.max():.3f} px, "
+          f"{result.n_lines} lines, {result.n_points} points)")
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _register_distortion(subparsers) -> None:
+    distortion = subparsers.add_parser("distortion", help="lens distortion from straight lines")
+    verbs = distortion.add_subparsers(dest="distortion_verb", metavar="VERB")
+    verbs.required = True
+    fit = verbs.add_parser(
+        "fit",
+        help="plumb-line fit (Strand & Hayman, refined by Devernay & Faugeras)",
+        description="Fit a division or polynomial lens model so that straight lines become straight. "
+        "Lines come from chessboard rows/columns (--pattern), from long edges in IMAGES, or from "
+        'LINES.json: {"image_size": [W, H], "lines": [[[x, y], ...], ...]}.',
+    )
+    fit.add_argument("images", nargs="*", metavar="IMAGES", help="images of one camera")
+    fit.add_argument("--lines", metavar="LINES.json", help="line points instead of images")
+    fit.add_argument("--pattern", metavar="COLSxROWS", help="chessboard inner corners, e.g. 9x6 (default: edges)")
+    fit.add_argument("--model", choices=("division", "polynomial"), default="division")
+    fit.add_argument("--fit-centre", action="store_true", help="fit the distortion centre too")
+    fit.add_argument("--out", required=True, metavar="lens.json")
+    fit.add_argument("--report", metavar="DIR", help="write per-line figures to DIR/plumbline_report.json")
+    fit.set_defaults(func=_distortion_fit)
+
+
+# -- camcal undistort / stmap ------------------------------------------------------------
+
+
+def _undistort(args: argparse.Namespace) -> int:
+    from camcal.geometry.undistort import undistort_images
+    from camcal.rig import Rig
+
+    rig = Rig.load(args.rig)
+    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan)
+    camera = Rig.load(rig_path).camera(args.camera)
+    width, height = camera.image_size
+    print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
+          f"fx {camera.K[0, 0]:.3f} fy {camera.K[1, 1]:.3f} principal point ({camera.K[0, 2]:.2f}, {camera.K[1, 2]:.2f})")
+    print(f"wrote {rig_path} and {len(written)} image(s) in {args.out}")
+    return 0
+
+
+def _register_undistort(subparsers) -> None:
+    undistort = subparsers.add_parser(
+        "undistort",
+        help="undistort images of a rig camera",
+        description="Undistort images with one remap per image; writes them under their own names "
+        "and DIR/undistorted.rig.json with the new K and distortion none.",
+    )
+    undistort.add_argument("rig", metavar="RIG", help="a *.rig.json file")
+    undistort.add_argument("--camera", required=True, metavar="NAME")
+    undistort.add_argument("images", nargs="+", metavar="IMAGES")
+    undistort.add_argument("--mode", choices=("crop", "keep", "overscan"), default="crop",
+                           help="crop: no black borders; keep: every source pixel kept (bigger canvas); "
+                           "overscan: canvas --overscan times the plate (default: crop)")
+    undistort.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+    undistort.add_argument("--out", required=True, metavar="DIR")
+    undistort.set_defaults(func=_undistort)
+
+
+def _stmap(args: argparse.Namespace) -> int:
+    from camcal.geometry.stmap import write_stmaps
+    from camcal.rig import Rig
+
+    paths = write_stmaps(Rig.load(args.rig), args.camera, args.out, args.overscan)
+    print(f"ST-maps of {args.camera!r} with overscan {args.overscan:g}")
+    for path in paths:
+        print(f"wrote {path}")
+    return 0
+
+
+def _register_stmap(subparsers) -> None:
+    stmap = subparsers.add_parser(
+        "stmap",
+        help="undistort/redistort ST-maps (EXR) for comp packages",
+        description="Write NAME_undistort.exr and NAME_redistort.exr (R = (x + 0.5) / W, "
+        "G = 1 - (y + 0.5) / H of the pixel to sample) and the undistorted rig.",
+    )
+    stmap.add_argument("rig", metavar="RIG", help="a *.rig.json file")
+    stmap.add_argument("--camera", required=True, metavar="NAME")
+    stmap.add_argument("--overscan", type=float, default=1.1, help="undistorted canvas factor (default 1.1)")
+    stmap.add_argument("--out", required=True, metavar="DIR")
+    stmap.set_defaults(func=_stmap)
+
+
 # One entry per verb group; keep this list the only place verbs are wired in.
-_REGISTERS: list = [_register_rig, _register_calibrate, _register_solve, _register_demo]
+_REGISTERS: list = [
+    _register_rig,
+    _register_calibrate,
+    _register_distortion,
+    _register_undistort,
+    _register_stmap,
+    _register_solve,
+    _register_demo,
+]
