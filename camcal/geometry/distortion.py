@@ -144,6 +144,11 @@ class Distortion:
         """The identity model."""
         return cls("none", {})
 
+    @property
+    def is_identity(self) -> bool:
+        """True when the model leaves every point where it is."""
+        return all(value == 0.0 for value in self.params.values())
+
     # -- file boundary -------------------------------------------------------
 
     def to_dict(self) -> dict:
