@@ -965,7 +965,11 @@ def match_images(
     Notes
     -----
     SIFT and the ratio test (Lowe 2004) are OpenCV's; the outlier filter is
-    ``cv2.findFundamentalMat`` with RANSAC on undistorted pixels.
+    ``cv2.findFundamentalMat`` with RANSAC on undistorted pixels. In a
+    near-planar scene (a chessboard filling the view) F is weakly
+    constrained and wrong matches can pass the filter: on the stereo
+    chessboard test pair, 69 % of the kept matches lie within 1 px of their
+    calibrated rows. Prefer a matches file or calibration there.
     """
     sift = cv2.SIFT_create()
     features = {}

@@ -325,6 +325,24 @@ def test_write_puts_corresponding_corners_on_one_row(tmp_path):
     assert (tmp_path / "rep" / "rectification.json").is_file()
 
 
+def test_maps_match_opencv_init_undistort_rectify_map():
+    rng = np.random.default_rng(33)
+    rig = line_rig(2, rng, distortions=DISTORTIONS[:1])
+    small = [dataclasses.replace(c, image_size=(320, 180), K=np.diag([0.25, 0.25, 1.0]) @ c.K) for c in rig.cameras]
+    small[0] = dataclasses.replace(small[0], K=np.array([[250.0, 0, 160.2], [0, 249.5, 90.1], [0, 0, 1]]))
+    result = rectify_calibrated(dataclasses.replace(rig, cameras=tuple(small)))
+    warper = RectifyWarper(result.rig)
+    for camera in result.rig.cameras:
+        p = camera.distortion.params
+        D = np.array([p["k1"], p["k2"], p["p1"], p["p2"], p["k3"]])
+        map_x, map_y = cv2.initUndistortRectifyMap(camera.K, D, result.R_rect @ camera.R.T, result.K_rect,
+                                                   result.image_size, cv2.CV_32FC1)
+        maps = warper.maps(camera.name)
+        valid = (map_x > 0) & (map_x < 319) & (map_y > 0) & (map_y < 179)
+        assert valid.mean() > 0.9
+        assert np.abs(maps.map_x - map_x)[valid].max() < 1e-3 and np.abs(maps.map_y - map_y)[valid].max() < 1e-3
+
+
 def test_warper_caches_maps_per_camera():
     rng = np.random.default_rng(32)
     result = rectify_calibrated(line_rig(2, rng))
@@ -458,3 +476,18 @@ def test_real_pairs_rectify_at_least_as_well_as_opencv(stereo_calibration):
     (after,) = vertical_disparity(refined.rig, held_out)
     print(f"after the joint refinement: {after.rms_px:.4f} px")
     assert after.rms_px <= disparity.rms_px * 1.05
+
+
+def test_sift_matches_on_real_pairs_agree_with_the_calibration(stereo_calibration, shared_data):
+    rig, *_ = stereo_calibration
+    folder = shared_data / "stereo_chessboard"
+    matches = match_images(rig, {"left": folder / "left21.jpg", "right": folder / "right21.jpg"})
+    rectified = rectify_calibrated(rig).rig
+    ((xa, xb),) = matches.values()
+    rows = [vertical_disparity(rectified, {("left", "right"): (xa[i:i + 1], xb[i:i + 1])})[0].max_px
+            for i in range(len(xa))]
+    print(f"SIFT on pair 21: {len(rows)} matches, |vertical disparity| median {np.median(rows):.3f} px, "
+          f"share under 1 px {np.mean(np.array(rows) < 1.0):.0%}")
+    # the board dominates the scene (near-planar: F is weakly constrained), so some wrong matches
+    # pass the epipolar filter; the majority are true and sit on their rows
+    assert len(rows) >= 20 and np.median(rows) < 0.5
