@@ -383,7 +383,7 @@ def test_cli_bad_input(tmp_path, capsys, extra, message):
 def test_cli_missing_rig(tmp_path, capsys):
     out = tmp_path / "rect.rig.json"
     assert main(["rectify", str(tmp_path / "none.rig.json"), "--out", str(out)]) == 2
-    assert "camcal: error:" not in capsys.readouterr().out and not out.exists()
+    assert "camcal: error:" in capsys.readouterr().err and not out.exists()
 
 
 def test_cli_hartley_from_matches_file(tmp_path, capsys):
