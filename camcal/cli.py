@@ -240,6 +240,58 @@ def _distortion_fit(args: argparse.Namespace) -> int:
     print(f"straightness RMS: {result.straightness_rms_before_px:.3f} px before, "
           f"{result.straightness_rms_px:.3f} px after (worst line {result.rms_after_px.max():.3f} px, "
           f"{result.n_lines} lines, {result.n_points} points)")
+
+# -- camcal rectify ------------------------------------------------------------------
+
+
+def _parse_images(entries: Sequence[str]) -> dict[str, list[str]]:
+    import glob
+
+    images: dict[str, list[str]] = {}
+    for entry in entries:
+        name, sep, pattern = entry.partition("=")
+        if not sep or not name or not pattern:
+            raise CamcalError(f"--images takes NAME=GLOB, got {entry!r}")
+        images[name] = sorted(glob.glob(pattern))
+    return images
+
+
+def _rectify(args: argparse.Namespace) -> int:
+    from camcal.geometry.rectify import RectifyWarper, match_images, read_matches_csv, rectify
+    from camcal.io.jsonfile import write_json
+    from camcal.rig import Rig
+
+    if not 0.0 <= args.alpha <= 1.0:
+        raise CamcalError(f"--alpha must be in [0, 1], got {args.alpha}")
+    if args.write and not args.images:
+        raise CamcalError("--write needs --images NAME=GLOB for the cameras to rectify")
+    rig = Rig.load(args.rig)
+    images = _parse_images(args.images or [])
+    for name, files in images.items():
+        rig.camera(name)
+        if not files:
+            raise CamcalError(f"--images {name}=...: no file matches")
+    names = list(images) if len(images) >= 2 else None
+    if args.matches:
+        matches = read_matches_csv(args.matches)
+    elif images and (args.method == "hartley" or args.refine):
+        matches = match_images(rig, {name: files[0] for name, files in images.items()})
+    else:
+        matches = None
+    method = {"camera": "Nozick 2011" if args.refine else "camera", "hartley": "Hartley 1999"}[args.method]
+    result = rectify(rig, method, matches, names, args.alpha)
+    written = []
+    if args.write:
+        warper = RectifyWarper(result.rig)
+        for name in result.names:
+            written += warper.write(name, images.get(name, []), args.write)
+    result.rig.save(args.out)
+    print(result.summary())
+    if written:
+        print(f"wrote {len(written)} rectified image(s) to {args.write}")
+    if args.report:
+        report = write_json(f"{args.report}/rectification.json", result.to_report())
+        print(f"wrote {report}")
     print(f"wrote {args.out}")
     return 0
 
@@ -325,6 +377,30 @@ def _register_stmap(subparsers) -> None:
     stmap.set_defaults(func=_stmap)
 
 
+def _register_rectify(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "rectify",
+        help="rectify 2 or N views (calibrated, N-view refined, or Hartley from matches)",
+        description="Rectify a rig's cameras onto one image plane and store per camera "
+        "rectification {H, K_rect, image_size}, H mapping UNDISTORTED original pixels to "
+        "rectified pixels. --method camera uses the calibration (with --refine: the N-view "
+        "refinement of Nozick 2011 on matches); --method hartley uses only point matches "
+        "(Hartley 1999). Matches come from --matches (CSV camera_a,u_a,v_a,camera_b,u_b,v_b) "
+        "or from SIFT on the first image of each --images sequence.",
+    )
+    parser.add_argument("rig", metavar="RIG", help="a calibrated *.rig.json")
+    parser.add_argument("--method", choices=("camera", "hartley"), default="camera")
+    parser.add_argument("--refine", action="store_true", help="camera method: refine on matches (Nozick 2011)")
+    parser.add_argument("--images", nargs="+", metavar="NAME=GLOB", help="images per camera, e.g. left='L/*.png'")
+    parser.add_argument("--matches", metavar="FILE.csv", help="point matches in original pixels")
+    parser.add_argument("--alpha", type=float, default=0.0,
+                        help="0: only pixels all views see (default); 1: every source pixel")
+    parser.add_argument("--out", required=True, metavar="FILE.rig.json", help="the rectified rig")
+    parser.add_argument("--write", metavar="DIR", help="write rectified images to DIR/<camera>/")
+    parser.add_argument("--report", metavar="DIR", help="write DIR/rectification.json with the figures")
+    parser.set_defaults(func=_rectify)
+
+
 # One entry per verb group; keep this list the only place verbs are wired in.
 _REGISTERS: list = [
     _register_rig,
@@ -332,6 +408,7 @@ _REGISTERS: list = [
     _register_distortion,
     _register_undistort,
     _register_stmap,
+    _register_rectify,
     _register_solve,
     _register_demo,
 ]
