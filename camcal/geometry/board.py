@@ -285,6 +285,9 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         corners, ids, _, _ = cv2.aruco.CharucoDetector(board.charuco_board()).detectBoard(gray)
         if ids is None or len(ids) < MIN_CHARUCO_CORNERS:
             return None
+        # OpenCV <= 4.12 returns ChArUco corners biased by +0.5 px (opencv/opencv#25539): refine
+        # them again with cornerSubPix, which converges to the saddle point whatever the start
+        corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), _SUBPIX_CRITERIA)
         ids = ids.ravel().astype(np.int64)
         order = np.argsort(ids)
         return Detection(name, (width, height), ids[order], corners.reshape(-1, 2).astype(np.float64)[order], "charuco")
