@@ -219,7 +219,9 @@ def test_real_pairs_joint_rms_not_above_opencv_stereo(real_detections):
     # per-camera intrinsics fixed and we refine them jointly, so the baselines differ by more than
     # the noise sigma (about 2 % here, the intrinsics' model error): compare within 3 %
     assert np.linalg.norm(right_cam.c) == pytest.approx(np.linalg.norm(T_cv), rel=0.03)
-    assert rotation_error_deg(right_cam.R, R_cv) < 0.5
+    # a principal point moved by a few px (sigma_cx ~ 1 px with tangential terms) turns the
+    # relative rotation by ~px / fx rad: the rigs agree within 1 deg of a ~4 deg rotation
+    assert rotation_error_deg(right_cam.R, R_cv) < 1.0
     for camera, K in zip(result.rig.cameras, (K_l, K_r)):
         assert abs(camera.K[0, 0] - K[0, 0]) < 5 * camera.quality["sigma"]["fx"]
 
