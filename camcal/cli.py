@@ -104,6 +104,53 @@ def _calibrate_dlt(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate_board(args: argparse.Namespace) -> int:
+    import glob
+
+    import numpy as np
+
+    from camcal.geometry.board import detect_in_images, parse_board
+    from camcal.geometry.zhang import calibrate_board, write_report
+
+    board = parse_board(args.board)
+    cameras: dict[str, list[str]] = {}
+    for entry in args.camera:
+        name, sep, pattern = entry.partition("=")
+        if not sep or not name or not pattern:
+            raise CamcalError(f"--camera must be NAME=GLOB (e.g. left='shots/left*.jpg'), got {entry!r}")
+        if name in cameras:
+            raise CamcalError(f"camera {name!r} given twice")
+        files = sorted(glob.glob(pattern))
+        if not files:
+            raise CamcalError(f"camera {name!r}: no image matches {pattern!r}")
+        cameras[name] = files
+    detections = {}
+    for name, files in cameras.items():
+        report = detect_in_images(board, files, progress=f"detecting {name}")
+        print(f"{name}: {report.summary()}")
+        detections[name] = report.detections
+    result = calibrate_board(board, detections, model=args.model, units=args.units)
+    result.rig.save(args.out)
+    print(result.summary())
+    if result.outliers:
+        print("dropped as outliers: " + ", ".join(image for _, image in result.outliers))
+    for camera in result.rig.cameras:
+        K, sigma = camera.K, camera.quality["sigma"]
+        line = (
+            f"{camera.name}: fx {K[0, 0]:.2f} +/- {sigma['fx']:.2f}  fy {K[1, 1]:.2f} +/- {sigma['fy']:.2f}  "
+            f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) +/- ({sigma['cx']:.2f}, {sigma['cy']:.2f}) px  "
+            f"RMS {camera.quality['rms_px']:.3f} px"
+        )
+        if "baseline" in sigma:
+            line += f"  baseline {float(np.linalg.norm(camera.c)):.4f} +/- {sigma['baseline']:.4f} {result.rig.units}"
+        print(line)
+    print(f"wrote {args.out}")
+    if args.report:
+        for path in write_report(result, args.report):
+            print(f"wrote {path}")
+    return 0
+
+
 def _register_calibrate(subparsers) -> None:
     calibrate = subparsers.add_parser("calibrate", help="calibrate cameras from targets or correspondences")
     verbs = calibrate.add_subparsers(dest="calibrate_verb", metavar="METHOD")
@@ -119,6 +166,27 @@ def _register_calibrate(subparsers) -> None:
     dlt.add_argument("--name", default="camera", help="camera name in the rig (default: camera)")
     dlt.add_argument("--out", required=True, metavar="FILE.rig.json")
     dlt.set_defaults(func=_calibrate_dlt)
+    board = verbs.add_parser(
+        "board",
+        help="one camera or an N-camera rig from chessboard / ChArUco images (joint refinement)",
+        description="Detect the board in every image, calibrate each camera with OpenCV, then refine "
+        "all intrinsics, distortion and camera poses jointly. Views of several cameras are matched by "
+        "the frame number in their file names; the first camera is the reference (R = I, c = 0).",
+    )
+    board.add_argument(
+        "--board", required=True, metavar="SPEC",
+        help="chessboard:WxH:SQUARE (inner corners) or charuco:DICT:WxH:SQUARE:MARKER (squares)",
+    )
+    board.add_argument(
+        "--camera", required=True, action="append", metavar="NAME=GLOB",
+        help="a camera and its images, e.g. left='shots/left*.jpg' (repeat for every camera)",
+    )
+    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv"),
+                       help="distortion model (default: polynomial)")
+    board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
+    board.add_argument("--out", required=True, metavar="FILE.rig.json")
+    board.add_argument("--report", metavar="DIR", help="write PNG plots: residuals, per-image RMS, coverage")
+    board.set_defaults(func=_calibrate_board)
 
 
 # -- camcal solve --------------------------------------------------------------------
