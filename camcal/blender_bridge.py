@@ -20,7 +20,14 @@ from pathlib import Path
 
 from camcal.errors import CamcalError
 
-__all__ = ["ADDON_PACKAGE", "addon_dir", "load_addon", "import_rig_to_blend"]
+__all__ = [
+    "ADDON_PACKAGE",
+    "addon_dir",
+    "load_addon",
+    "import_rig_to_blend",
+    "extension_tool",
+    "build_extension",
+]
 
 ADDON_PACKAGE = "camcal_rig"
 
@@ -138,3 +145,49 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
         if line.startswith("CAMCAL_RESULT "):
             return json.loads(line[len("CAMCAL_RESULT "):])
     raise CamcalError("Blender import finished without a result")
+
+
+def extension_tool() -> Path:
+    """Blender's extension command-line tool (``blender_ext.py``) shipped in the bpy wheel."""
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or spec.origin is None:
+        raise CamcalError("the bpy module is not installed; install camcal[blender]")
+    tools = sorted(Path(spec.origin).parent.glob("*/scripts/addons_core/bl_pkg/cli/blender_ext.py"))
+    if not tools:
+        raise CamcalError(f"blender_ext.py not found in the bpy package at {Path(spec.origin).parent}")
+    return tools[-1]
+
+
+def build_extension(output_dir: str | os.PathLike = "dist") -> Path:
+    """Validate the add-on and build its extension zip with Blender's own tool.
+
+    Returns the path of the zip (``camcal_rig-<version>.zip``), itself
+    validated after the build.
+    """
+    tool = extension_tool()
+    source = addon_dir()
+    output = Path(output_dir).resolve()
+    output.mkdir(parents=True, exist_ok=True)
+
+    def run(*args):
+        proc = subprocess.run([sys.executable, str(tool), *args], capture_output=True, text=True)
+        if proc.returncode != 0:
+            lines = (proc.stdout + proc.stderr).strip().splitlines()
+            raise CamcalError(f"blender_ext {args[0]} failed: {lines[-1] if lines else proc.returncode}")
+        return proc.stdout
+
+    run("validate", str(source))
+    before = set(output.glob("*.zip"))
+    log = run("build", "--source-dir", str(source), "--output-dir", str(output))
+    created = [line.split('"')[1] for line in log.splitlines() if line.startswith("created:")]
+    zip_path = Path(created[0]) if created else max(set(output.glob("*.zip")) - before)
+    run("validate", str(zip_path))
+    return zip_path
+
+
+if __name__ == "__main__":  # ``python -m camcal.blender_bridge [DIST]``: build the extension zip
+    try:
+        print(build_extension(sys.argv[1] if len(sys.argv) > 1 else "dist"))
+    except CamcalError as error:
+        print(f"camcal: error: {error}", file=sys.stderr)
+        sys.exit(2)
