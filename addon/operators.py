@@ -21,6 +21,24 @@ SENSOR_FIT_ITEMS = (
 )
 
 
+class CamcalRigPreferences(bpy.types.AddonPreferences):
+    bl_idname = __package__
+
+    lens_directory: StringProperty(
+        name="Lens frames folder", subtype="DIR_PATH", default="",
+        description="Where blank lens frames for movie clips are written "
+        "(default: beside the saved .blend, else beside the rig file)",
+    )
+
+    def draw(self, context):
+        self.layout.prop(self, "lens_directory")
+
+
+def _preferences(context):
+    addon = context.preferences.addons.get(__package__)
+    return addon.preferences if addon is not None else None
+
+
 def _camcal_camera(obj):
     return obj is not None and obj.type == "CAMERA" and "camcal_image_size" in obj.data
 
@@ -65,6 +83,7 @@ class IMPORT_SCENE_OT_camcal_rig(bpy.types.Operator, ImportHelper):
                 distortion=self.distortion,
                 compositor=self.compositor,
                 overscan=self.overscan,
+                aux_directory=bpy.path.abspath(getattr(_preferences(context), "lens_directory", "")) or None,
             )
         except (RigFileError, OSError, ValueError) as error:
             self.report({"ERROR"}, str(error))
@@ -132,6 +151,7 @@ def menu_import(self, context):
 
 
 classes = (
+    CamcalRigPreferences,
     IMPORT_SCENE_OT_camcal_rig,
     CAMCAL_OT_set_active_camera,
     CAMCAL_OT_apply_resolution,

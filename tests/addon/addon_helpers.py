@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+ADDON_DIR = Path(__file__).resolve().parents[2] / "addon"
+
 
 def rotation(rx=0.0, ry=0.0, rz=0.0):
     """A rotation matrix from Euler angles (radians), as nested lists."""

@@ -10,13 +10,10 @@ Reference projections use plain numpy with camcal's convention:
 from __future__ import annotations
 
 import importlib
-from pathlib import Path
 
 import pytest
 
 from camcal.blender_bridge import load_addon
-
-ADDON_DIR = Path(__file__).resolve().parents[2] / "addon"
 
 
 @pytest.fixture(scope="session")

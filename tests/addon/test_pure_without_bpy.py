@@ -4,7 +4,7 @@ import subprocess
 import sys
 import textwrap
 
-from conftest import ADDON_DIR
+from addon_helpers import ADDON_DIR
 
 
 def test_pure_modules_need_no_bpy_or_numpy():
