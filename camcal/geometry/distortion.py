@@ -1,0 +1,309 @@
+"""Lens distortion models: map undistorted pixels to distorted pixels and back.
+
+Conventions (DESIGN.md): pixel (0, 0) is the centre of the top-left pixel;
+``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]``.
+
+Models
+------
+``none``
+    Identity.
+``polynomial`` (k1, k2[, k3])
+    Radial, in normalised coordinates ``x_n = K^-1 u`` centred on the
+    principal point (as OpenCV, COLMAP and Blender's POLYNOMIAL):
+    ``x_d = x_u (1 + k1 r_u^2 + k2 r_u^4 + k3 r_u^6)``, ``r_u = |x_u|``.
+``opencv`` (k1, k2, p1, p2, k3)
+    Brown-Conrady as in OpenCV, normalised coordinates:
+    ``x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)``,
+    ``y_d = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y``.
+``division`` (lambda)
+    Strand & Hayman's one-parameter division model in PIXELS around the
+    distortion centre ``center`` (default: the principal point):
+    ``x_u = c + (x_d - c) / (1 + lambda r_d^2)``, ``r_d = |x_d - c|`` in px,
+    ``lambda`` in 1/px^2 (negative for barrel distortion).
+
+The division model inverts in closed form; the polynomial models invert by
+Newton iterations to 1e-10 px.
+
+References
+----------
+Strand, R. & Hayman, E. (2005). Correcting radial distortion by circle
+fitting. BMVC.
+Brown, D. C. (1966). Decentering distortion of lenses. Photogrammetric
+Engineering.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from camcal.errors import CamcalError
+
+__all__ = ["MODEL_PARAMS", "Distortion"]
+
+#: Parameter names of each model: (required, optional).
+MODEL_PARAMS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = MappingProxyType(
+    {
+        "none": ((), ()),
+        "polynomial": (("k1", "k2"), ("k3",)),
+        "opencv": (("k1", "k2", "p1", "p2", "k3"), ()),
+        "division": (("lambda",), ()),
+    }
+)
+
+_NEWTON_TOL_PX = 1e-10
+_NEWTON_MAX_ITER = 50
+
+
+def _as_points(points: ArrayLike, name: str = "points") -> NDArray[np.float64]:
+    array = np.asarray(points, dtype=np.float64)
+    if array.ndim != 2 or array.shape[1] != 2:
+        raise CamcalError(f"{name} must have shape (N, 2), got {array.shape}")
+    return array
+
+
+@dataclass(frozen=True)
+class Distortion:
+    """A lens distortion model with its parameters.
+
+    Parameters
+    ----------
+    model : str
+        One of ``none``, ``polynomial``, ``opencv``, ``division``.
+    params : Mapping[str, float]
+        The model's parameters (see the module docstring), exactly the
+        required names plus any optional ones.
+    center : tuple of float, optional
+        Distortion centre in pixels, only for ``division``; ``None`` means
+        the principal point of the camera's K.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> d = Distortion("division", {"lambda": -1e-7}, center=(959.5, 539.5))
+    >>> K = np.array([[1000., 0, 959.5], [0, 1000., 539.5], [0, 0, 1]])
+    >>> u = np.array([[1800.0, 1000.0]])
+    >>> bool(np.allclose(d.undistort(d.distort(u, K), K), u, atol=1e-9))
+    True
+    """
+
+    model: str
+    params: Mapping[str, float] = field(default_factory=dict)
+    center: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.model not in MODEL_PARAMS:
+            raise CamcalError(
+                f"unknown distortion model {self.model!r}, expected one of: "
+                + ", ".join(MODEL_PARAMS)
+            )
+        required, optional = MODEL_PARAMS[self.model]
+        given = set(self.params)
+        missing = [name for name in required if name not in given]
+        if missing:
+            raise CamcalError(
+                f"distortion model {self.model!r} needs parameter(s) {', '.join(missing)}"
+            )
+        unknown = sorted(given - set(required) - set(optional))
+        if unknown:
+            raise CamcalError(
+                f"distortion model {self.model!r} has no parameter(s) {', '.join(unknown)}; "
+                f"allowed: {', '.join(required + optional) or 'none'}"
+            )
+        params = {}
+        for name, value in self.params.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+                raise CamcalError(f"distortion parameter {name!r} must be a number, got {value!r}")
+            if not math.isfinite(value):
+                raise CamcalError(f"distortion parameter {name!r} is not finite ({value})")
+            params[name] = float(value)
+        object.__setattr__(self, "params", MappingProxyType(params))
+        if self.center is not None:
+            if self.model != "division":
+                raise CamcalError(
+                    f"distortion model {self.model!r} is centred on the principal point; "
+                    "'center' applies only to the division model"
+                )
+            center = tuple(float(v) for v in self.center)
+            if len(center) != 2 or not all(math.isfinite(v) for v in center):
+                raise CamcalError(f"distortion center must be two finite numbers, got {self.center!r}")
+            object.__setattr__(self, "center", center)
+
+    @classmethod
+    def none(cls) -> Distortion:
+        """The identity model."""
+        return cls("none", {})
+
+    # -- file boundary -------------------------------------------------------
+
+    def to_dict(self) -> dict:
+        """The rig-file form: ``{"model", "params"[, "center"]}``."""
+        out: dict = {"model": self.model, "params": dict(self.params)}
+        if self.center is not None:
+            out["center"] = list(self.center)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping) -> Distortion:
+        """Inverse of :meth:`to_dict`; unknown keys are rejected."""
+        if not isinstance(data, Mapping):
+            raise CamcalError(f"distortion must be an object, got {type(data).__name__}")
+        unknown = sorted(set(data) - {"model", "params", "center"})
+        if unknown:
+            raise CamcalError(f"distortion has unknown key(s): {', '.join(unknown)}")
+        if "model" not in data:
+            raise CamcalError("distortion is missing key 'model'")
+        params = data.get("params", {})
+        if not isinstance(params, Mapping):
+            raise CamcalError("distortion 'params' must be an object")
+        center = data.get("center")
+        if center is not None and (not isinstance(center, (list, tuple)) or len(center) != 2):
+            raise CamcalError(f"distortion 'center' must be [x, y], got {center!r}")
+        return cls(str(data["model"]), dict(params), None if center is None else tuple(center))
+
+    # -- mappings --------------------------------------------------------------
+
+    def _centre(self, K: NDArray[np.float64]) -> NDArray[np.float64]:
+        if self.center is not None:
+            return np.asarray(self.center, dtype=np.float64)
+        return np.asarray(K, dtype=np.float64)[:2, 2]
+
+    def distort(self, points_px: ArrayLike, K: ArrayLike) -> NDArray[np.float64]:
+        """Map undistorted pixels to distorted pixels.
+
+        Parameters
+        ----------
+        points_px : array_like, shape (N, 2)
+            Undistorted (ideal pinhole) pixel coordinates.
+        K : array_like, shape (3, 3)
+            Camera matrix: normalises the ``polynomial`` / ``opencv`` models
+            and gives the default ``division`` centre.
+
+        Returns
+        -------
+        ndarray, shape (N, 2)
+            Distorted pixel coordinates. For the division model a point
+            beyond the model's range (``1 - 4 lambda r_u^2 < 0``) maps to NaN.
+        """
+        points = _as_points(points_px)
+        K = np.asarray(K, dtype=np.float64)
+        if self.model == "none":
+            return points.copy()
+        if self.model == "division":
+            return self._division_distort(points, self._centre(K))
+        normalised = _pixels_to_normalised(points, K)
+        return _normalised_to_pixels(self.distort_normalised(normalised), K)
+
+    def undistort(self, points_px: ArrayLike, K: ArrayLike) -> NDArray[np.float64]:
+        """Map distorted pixels to undistorted pixels (inverse of :meth:`distort`).
+
+        Parameters
+        ----------
+        points_px : array_like, shape (N, 2)
+            Distorted pixel coordinates.
+        K : array_like, shape (3, 3)
+            Camera matrix (see :meth:`distort`).
+
+        Returns
+        -------
+        ndarray, shape (N, 2)
+            Undistorted pixel coordinates; closed form for ``division``,
+            Newton iterations to 1e-10 px otherwise.
+        """
+        points = _as_points(points_px)
+        K = np.asarray(K, dtype=np.float64)
+        if self.model == "none":
+            return points.copy()
+        if self.model == "division":
+            centre = self._centre(K)
+            offset = points - centre
+            r2 = np.sum(offset**2, axis=1, keepdims=True)
+            return centre + offset / (1.0 + self.params["lambda"] * r2)
+        # Newton on the normalised coordinates; tolerance scaled to pixels.
+        target = _pixels_to_normalised(points, K)
+        tol = _NEWTON_TOL_PX / max(K[0, 0], K[1, 1])
+        estimate = target.copy()
+        for _ in range(_NEWTON_MAX_ITER):
+            residual = self.distort_normalised(estimate) - target
+            if np.all(np.abs(residual) < tol):
+                break
+            jac = self._jacobian_normalised(estimate)
+            estimate = estimate - np.linalg.solve(jac, residual[:, :, None])[:, :, 0]
+        return _normalised_to_pixels(estimate, K)
+
+    def distort_normalised(self, xy: ArrayLike) -> NDArray[np.float64]:
+        """Apply a ``polynomial`` / ``opencv`` model to normalised coordinates (N, 2)."""
+        xy = _as_points(xy, "normalised points")
+        if self.model not in ("polynomial", "opencv"):
+            raise CamcalError(f"model {self.model!r} is not defined in normalised coordinates")
+        p = self.params
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (p["k1"] + r2 * (p["k2"] + r2 * p.get("k3", 0.0)))
+        xd = x * radial
+        yd = y * radial
+        if self.model == "opencv":
+            p1, p2 = p["p1"], p["p2"]
+            xd = xd + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+            yd = yd + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        return np.stack([xd, yd], axis=1)
+
+    def _jacobian_normalised(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        """d(distort_normalised)/d(x, y), shape (N, 2, 2)."""
+        p = self.params
+        x, y = xy[:, 0], xy[:, 1]
+        k1, k2, k3 = p["k1"], p["k2"], p.get("k3", 0.0)
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        jac = np.empty((len(xy), 2, 2))
+        jac[:, 0, 0] = radial + 2.0 * x * x * dradial_dr2
+        jac[:, 0, 1] = 2.0 * x * y * dradial_dr2
+        jac[:, 1, 0] = jac[:, 0, 1]
+        jac[:, 1, 1] = radial + 2.0 * y * y * dradial_dr2
+        if self.model == "opencv":
+            p1, p2 = p["p1"], p["p2"]
+            jac[:, 0, 0] += 2.0 * p1 * y + 6.0 * p2 * x
+            jac[:, 0, 1] += 2.0 * p1 * x + 2.0 * p2 * y
+            jac[:, 1, 0] += 2.0 * p1 * x + 2.0 * p2 * y
+            jac[:, 1, 1] += 6.0 * p1 * y + 2.0 * p2 * x
+        return jac
+
+    def _division_distort(self, points: NDArray[np.float64], centre: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Closed-form inverse of the division model.
+
+        Notes
+        -----
+        With ``r_u = r_d / (1 + lambda r_d^2)``, ``r_d`` solves
+        ``lambda r_u r_d^2 - r_d + r_u = 0``; the root continuous at
+        ``r_u = 0`` is ``r_d = 2 r_u / (1 + sqrt(1 - 4 lambda r_u^2))``.
+        """
+        lam = self.params["lambda"]
+        offset = points - centre
+        r2_u = np.sum(offset**2, axis=1, keepdims=True)
+        discriminant = 1.0 - 4.0 * lam * r2_u
+        with np.errstate(invalid="ignore"):
+            scale = 2.0 / (1.0 + np.sqrt(discriminant))
+        scale = np.where(discriminant >= 0.0, scale, np.nan)
+        return centre + offset * scale
+
+
+def _pixels_to_normalised(points: NDArray[np.float64], K: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``x_n = K^-1 [u, v, 1]^T`` (skew included)."""
+    fx, s, cx = K[0]
+    fy, cy = K[1, 1], K[1, 2]
+    y = (points[:, 1] - cy) / fy
+    x = (points[:, 0] - cx - s * y) / fx
+    return np.stack([x, y], axis=1)
+
+
+def _normalised_to_pixels(xy: NDArray[np.float64], K: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``u = K [x, y, 1]^T``."""
+    fx, s, cx = K[0]
+    fy, cy = K[1, 1], K[1, 2]
+    return np.stack([fx * xy[:, 0] + s * xy[:, 1] + cx, fy * xy[:, 1] + cy], axis=1)

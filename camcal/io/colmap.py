@@ -1,0 +1,161 @@
+"""camcal cameras <-> COLMAP camera models, exactly, without importing pycolmap.
+
+COLMAP differs from camcal in two ways that matter here:
+
+- its pixel (0, 0) is the top-left CORNER, so the centre of the top-left
+  pixel is (0.5, 0.5): principal points shift by +0.5 going to COLMAP;
+- its distortion parameters act on normalised coordinates
+  ``x = (u - cx) / fx``; camcal's ``division`` model acts on pixels. For the
+  one-parameter division model ``x_u = x_d / (1 + k r_d^2)`` (COLMAP, r in
+  normalised units) and ``x_u = c + (x_d - c) / (1 + lambda r_d^2)`` (camcal,
+  r in pixels) are the same lens when ``fx = fy = f``, the centre is the
+  principal point and ``k = lambda f^2``.
+
+Exact mappings (camcal -> COLMAP):
+
+==========================  ==============================================
+camcal                      COLMAP
+==========================  ==============================================
+none                        PINHOLE (SIMPLE_PINHOLE when fx = fy)
+polynomial k1, k2           RADIAL when fx = fy, else OPENCV (p1 = p2 = 0)
+polynomial k1, k2, k3       FULL_OPENCV (p = 0, k4 = k5 = k6 = 0)
+opencv (k3 = 0)             OPENCV
+opencv                      FULL_OPENCV (k4 = k5 = k6 = 0)
+division, centre = pp       SIMPLE_DIVISION (needs fx = fy)
+==========================  ==============================================
+
+COLMAP -> camcal accepts SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL,
+OPENCV, FULL_OPENCV (with k4 = k5 = k6 = 0), SIMPLE_DIVISION and DIVISION
+(with fx = fy). Anything that has no exact counterpart is refused with the
+reason; camcal cameras with skew cannot be expressed in COLMAP.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from camcal.errors import CamcalError
+from camcal.geometry.camera import K_from_colmap, K_to_colmap
+from camcal.geometry.distortion import Distortion
+from camcal.rig import Camera
+
+__all__ = ["ColmapCamera", "camera_to_colmap", "camera_from_colmap"]
+
+
+@dataclass(frozen=True)
+class ColmapCamera:
+    """A COLMAP camera as model name, size and parameter list (COLMAP's order)."""
+
+    model: str
+    width: int
+    height: int
+    params: tuple[float, ...]
+
+
+def camera_to_colmap(camera: Camera) -> ColmapCamera:
+    """The COLMAP camera that projects exactly like ``camera``.
+
+    Raises
+    ------
+    CamcalError
+        Skew, or a division model off the principal point or with fx != fy.
+    """
+    K = K_to_colmap(camera.K)
+    if K[0, 1] != 0.0:
+        raise CamcalError(f"camera {camera.name!r} has skew {K[0, 1]:.3g}: COLMAP's models have none")
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    width, height = camera.image_size
+    model = camera.distortion.model
+    p = camera.distortion.params
+    square = fx == fy
+    if model == "none":
+        if square:
+            return ColmapCamera("SIMPLE_PINHOLE", width, height, (fx, cx, cy))
+        return ColmapCamera("PINHOLE", width, height, (fx, fy, cx, cy))
+    if model == "polynomial" and p.get("k3", 0.0) == 0.0:
+        if square:
+            return ColmapCamera("RADIAL", width, height, (fx, cx, cy, p["k1"], p["k2"]))
+        return ColmapCamera("OPENCV", width, height, (fx, fy, cx, cy, p["k1"], p["k2"], 0.0, 0.0))
+    if model in ("polynomial", "opencv"):
+        k1, k2, k3 = p["k1"], p["k2"], p.get("k3", 0.0)
+        p1, p2 = p.get("p1", 0.0), p.get("p2", 0.0)
+        if k3 == 0.0:
+            return ColmapCamera("OPENCV", width, height, (fx, fy, cx, cy, k1, k2, p1, p2))
+        return ColmapCamera("FULL_OPENCV", width, height, (fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0))
+    # division
+    centre = camera.distortion.center
+    if centre is not None and tuple(centre) != (camera.K[0, 2], camera.K[1, 2]):
+        raise CamcalError(
+            f"camera {camera.name!r}: COLMAP's division model is centred on the principal point, "
+            f"the lens centre is at {centre}"
+        )
+    if not square:
+        raise CamcalError(
+            f"camera {camera.name!r}: the pixel division model needs fx = fy to map to COLMAP "
+            f"(fx {fx!r}, fy {fy!r})"
+        )
+    return ColmapCamera("SIMPLE_DIVISION", width, height, (fx, cx, cy, p["lambda"] * fx * fx))
+
+
+def camera_from_colmap(
+    name: str,
+    model: str,
+    image_size: tuple[int, int],
+    params: ArrayLike,
+    R: ArrayLike,
+    c: ArrayLike,
+) -> Camera:
+    """The camcal camera that projects exactly like a COLMAP camera.
+
+    Parameters
+    ----------
+    name : str
+    model : str
+        COLMAP model name (``pycolmap.Camera.model.name``).
+    image_size : (int, int)
+    params : array_like
+        COLMAP's parameter vector, in COLMAP's pixel convention.
+    R, c : pose, world -> camera rotation and centre (see
+        :func:`camcal.geometry.camera.from_colmap`).
+    """
+    params = [float(v) for v in np.asarray(params, dtype=np.float64).ravel()]
+    expected = {
+        "SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5,
+        "OPENCV": 8, "FULL_OPENCV": 12, "SIMPLE_DIVISION": 4, "DIVISION": 5,
+    }
+    if model not in expected:
+        raise CamcalError(
+            f"COLMAP camera model {model!r} has no camcal counterpart; supported: {', '.join(expected)}"
+        )
+    if len(params) != expected[model]:
+        raise CamcalError(f"COLMAP model {model} takes {expected[model]} parameters, got {len(params)}")
+    if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "SIMPLE_DIVISION"):
+        fx = fy = params[0]
+        cx, cy = params[1], params[2]
+        extra = params[3:]
+    else:
+        fx, fy, cx, cy = params[:4]
+        extra = params[4:]
+    K = K_from_colmap([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    if model in ("SIMPLE_PINHOLE", "PINHOLE"):
+        distortion = Distortion.none()
+    elif model == "SIMPLE_RADIAL":
+        distortion = Distortion("polynomial", {"k1": extra[0], "k2": 0.0})
+    elif model == "RADIAL":
+        distortion = Distortion("polynomial", {"k1": extra[0], "k2": extra[1]})
+    elif model == "OPENCV":
+        k1, k2, p1, p2 = extra
+        distortion = Distortion("opencv", {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": 0.0})
+    elif model == "FULL_OPENCV":
+        k1, k2, p1, p2, k3, k4, k5, k6 = extra
+        if (k4, k5, k6) != (0.0, 0.0, 0.0):
+            raise CamcalError("FULL_OPENCV with rational terms k4, k5, k6 has no camcal counterpart")
+        distortion = Distortion("opencv", {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3})
+    else:  # SIMPLE_DIVISION, DIVISION
+        if fx != fy:
+            raise CamcalError(f"COLMAP DIVISION with fx != fy ({fx!r}, {fy!r}) is not camcal's pixel division model")
+        distortion = Distortion("division", {"lambda": extra[0] / (fx * fx)}, center=(K[0, 2], K[1, 2]))
+    return Camera(name=name, image_size=image_size, K=K, distortion=distortion, R=R, c=c)

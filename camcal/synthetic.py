@@ -1,0 +1,131 @@
+"""Synthetic cameras and scenes with known ground truth, for tests and the demo.
+
+Everything here is seeded (``numpy.random.Generator``) so a run can be
+repeated exactly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from camcal.geometry.camera import look_at
+from camcal.geometry.distortion import Distortion
+from camcal.rig import Camera
+
+__all__ = ["example_camera", "points_in_view", "procedural_texture", "room_corner_planes", "render_planes"]
+
+
+def example_camera(
+    name: str = "cam",
+    image_size: tuple[int, int] = (1920, 1080),
+    fx: float = 1500.0,
+    fy: float = 1490.0,
+    skew: float = 0.0,
+    principal_point: tuple[float, float] = (971.3, 533.8),
+    centre: tuple[float, float, float] = (0.6, -6.0, 1.4),
+    target: tuple[float, float, float] = (0.0, 0.0, 0.5),
+    distortion: Distortion | None = None,
+) -> Camera:
+    """A plausible HD camera looking at ``target`` from ``centre`` (world z up)."""
+    K = np.array([[fx, skew, principal_point[0]], [0.0, fy, principal_point[1]], [0.0, 0.0, 1.0]])
+    return Camera(
+        name=name,
+        image_size=image_size,
+        K=K,
+        distortion=distortion or Distortion.none(),
+        R=look_at(centre, target),
+        c=np.asarray(centre, dtype=np.float64),
+    )
+
+
+def points_in_view(
+    camera: Camera,
+    n: int,
+    rng: np.random.Generator,
+    depth_range: tuple[float, float] = (4.0, 9.0),
+    margin: float = 0.05,
+) -> NDArray[np.float64]:
+    """``n`` world points seen by ``camera``: uniform over the image (inside
+    a margin, as a fraction of the size) and over the depth range.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+    """
+    width, height = camera.image_size
+    u = rng.uniform(margin * width, (1 - margin) * width, n)
+    v = rng.uniform(margin * height, (1 - margin) * height, n)
+    depth = rng.uniform(*depth_range, n)
+    pixels = np.stack([u, v, np.ones(n)], axis=1)
+    rays = pixels @ np.linalg.inv(camera.K).T
+    points_cam = rays * depth[:, None]
+    return points_cam @ camera.R + camera.c
+
+
+def procedural_texture(rng: np.random.Generator, size: int = 1024) -> NDArray[np.uint8]:
+    """A grey texture with detail at every scale (noise octaves), for feature matching."""
+    import cv2  # noqa: PLC0415 - only the renderers need OpenCV
+
+    texture = np.zeros((size, size), np.float32)
+    for cells in (4, 16, 64, 256):
+        noise = rng.uniform(0.0, 1.0, (cells, cells)).astype(np.float32)
+        texture += cv2.resize(noise, (size, size), interpolation=cv2.INTER_CUBIC) * (cells ** -0.3)
+    texture -= texture.min()
+    return (255.0 * texture / texture.max()).astype(np.uint8)
+
+
+def room_corner_planes(extent: float = 8.0) -> tuple[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]], ...]:
+    """Three textured planes meeting at the world origin: floor z = 0 and walls
+    x = 0, y = 0, each as (origin, axis_s, axis_t) spanning ``extent`` metres."""
+    e = np.eye(3)
+    return (
+        (np.zeros(3), e[0] * extent, e[1] * extent),  # floor
+        (np.zeros(3), e[0] * extent, e[2] * extent),  # wall y = 0
+        (np.zeros(3), e[1] * extent, e[2] * extent),  # wall x = 0
+    )
+
+
+def render_planes(
+    camera: Camera,
+    planes: tuple[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]], ...],
+    textures: tuple[NDArray[np.uint8], ...],
+) -> NDArray[np.uint8]:
+    """Ray-cast textured planar patches through ``camera`` (its distortion included).
+
+    Each plane is ``origin + s axis_s + t axis_t`` for s, t in [0, 1], carrying
+    the matching texture. Pixel (0, 0) is the centre of the top-left pixel.
+
+    Returns
+    -------
+    ndarray, shape (H, W), uint8
+        The image; 0 where no plane is hit.
+    """
+    import cv2  # noqa: PLC0415
+
+    width, height = camera.image_size
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    pixels = camera.distortion.undistort(np.stack([u.ravel(), v.ravel()], axis=1), camera.K)
+    rays = np.hstack([pixels, np.ones((len(pixels), 1))]) @ np.linalg.inv(camera.K).T @ camera.R
+    best = np.full(len(rays), np.inf)
+    map_s = np.full(len(rays), -1.0, np.float32)
+    map_t = np.full(len(rays), -1.0, np.float32)
+    image = np.zeros(len(rays), np.float32)
+    for (origin, axis_s, axis_t), texture in zip(planes, textures):
+        normal = np.cross(axis_s, axis_t)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = ((origin - camera.c) @ normal) / (rays @ normal)
+        hits = camera.c + rays * depth[:, None] - origin
+        s = hits @ axis_s / (axis_s @ axis_s)
+        t = hits @ axis_t / (axis_t @ axis_t)
+        visible = (depth > 0) & (depth < best) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+        best[visible] = depth[visible]
+        size = texture.shape[0] - 1
+        map_s[:] = -1.0
+        map_t[:] = -1.0
+        map_s[visible] = s[visible] * size
+        map_t[visible] = t[visible] * size
+        sampled = cv2.remap(texture.astype(np.float32), map_s.reshape(height, width), map_t.reshape(height, width),
+                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).ravel()
+        image[visible] = sampled[visible]
+    return np.clip(image, 0, 255).round().astype(np.uint8).reshape(height, width)

@@ -1,0 +1,113 @@
+"""Distortion models: round trips, peers (OpenCV), closed forms, bad input."""
+
+import cv2
+import numpy as np
+import pytest
+
+from camcal.errors import CamcalError
+from camcal.geometry.distortion import Distortion
+
+W, H = 1920, 1080
+K = np.array([[1400.0, 0.0, 965.2], [0.0, 1395.0, 538.9], [0.0, 0.0, 1.0]])
+
+
+def frame_grid(step: int = 40, overscan: float = 0.0) -> np.ndarray:
+    """Pixel grid over the whole frame (optionally beyond it)."""
+    u = np.arange(-overscan * W, (1 + overscan) * W, step)
+    v = np.arange(-overscan * H, (1 + overscan) * H, step)
+    return np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2).astype(np.float64)
+
+
+MODELS = [
+    Distortion("polynomial", {"k1": -0.12, "k2": 0.03}),
+    Distortion("polynomial", {"k1": 0.08, "k2": -0.01, "k3": 0.002}),
+    Distortion("opencv", {"k1": -0.2, "k2": 0.05, "p1": 0.001, "p2": -0.0007, "k3": -0.004}),
+    Distortion("division", {"lambda": -1.5e-7}, center=(950.0, 545.0)),
+    Distortion("division", {"lambda": 8e-8}),
+    Distortion.none(),
+]
+
+
+@pytest.mark.parametrize("model", MODELS, ids=lambda d: f"{d.model}:{dict(d.params)}")
+def test_round_trip_over_the_frame(model):
+    undistorted = frame_grid()
+    distorted = model.distort(undistorted, K)
+    assert np.all(np.isfinite(distorted))
+    assert np.abs(model.undistort(distorted, K) - undistorted).max() < 1e-8
+    # and the other way: distorted pixels of the frame back and forth
+    grid = frame_grid()
+    assert np.abs(model.distort(model.undistort(grid, K), K) - grid).max() < 1e-8
+
+
+def test_opencv_model_matches_cv2_projection_and_undistortion():
+    model = MODELS[2]
+    p = model.params
+    coeffs = np.array([p["k1"], p["k2"], p["p1"], p["p2"], p["k3"]])
+    rng = np.random.default_rng(3)
+    X = np.column_stack([rng.uniform(-0.6, 0.6, (200, 2)), np.ones(200)]) * rng.uniform(1, 5, (200, 1))
+    cv_pixels, _ = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K, coeffs)
+    ideal = (X / X[:, 2:]) @ K.T
+    assert np.abs(model.distort(ideal[:, :2], K) - cv_pixels.reshape(-1, 2)).max() < 1e-9
+    # OpenCV's undistortPoints iterates a fixed number of times; ask for tight criteria.
+    cv_undistorted = cv2.undistortPointsIter(
+        cv_pixels, K, coeffs, None, K, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+    ).reshape(-1, 2)
+    assert np.abs(model.undistort(cv_pixels.reshape(-1, 2), K) - cv_undistorted).max() < 1e-6
+
+
+def test_polynomial_is_opencv_without_tangential_terms():
+    poly = Distortion("polynomial", {"k1": -0.1, "k2": 0.02, "k3": 0.001})
+    brown = Distortion("opencv", {"k1": -0.1, "k2": 0.02, "p1": 0.0, "p2": 0.0, "k3": 0.001})
+    grid = frame_grid()
+    assert np.array_equal(poly.distort(grid, K), brown.distort(grid, K))
+
+
+def test_division_model_definition_and_closed_form():
+    """x_u = c + (x_d - c) / (1 + lambda r_d^2), with r_d measured in pixels."""
+    lam, centre = -2e-7, np.array([940.0, 520.0])
+    model = Distortion("division", {"lambda": lam}, center=tuple(centre))
+    distorted = np.array([[1800.0, 1000.0], [100.0, 50.0], [940.0, 520.0]])
+    r2 = np.sum((distorted - centre) ** 2, axis=1, keepdims=True)
+    expected = centre + (distorted - centre) / (1 + lam * r2)
+    assert np.allclose(model.undistort(distorted, K), expected, rtol=0, atol=1e-12)
+    assert np.allclose(model.distort(expected, K), distorted, rtol=0, atol=1e-9)
+    # barrel: undistorted points lie further out than distorted ones
+    assert np.linalg.norm(expected[0] - centre) > np.linalg.norm(distorted[0] - centre)
+
+
+def test_division_default_centre_is_principal_point():
+    model = Distortion("division", {"lambda": 1e-7})
+    assert np.allclose(model.distort(K[:2, 2][None], K), K[:2, 2][None])
+
+
+def test_division_out_of_range_is_nan():
+    model = Distortion("division", {"lambda": 1e-6})
+    # 1 - 4 lambda r^2 < 0 beyond r = 500 px: no distorted point maps there
+    far = K[:2, 2] + np.array([[600.0, 0.0]])
+    assert np.all(np.isnan(model.distort(far, K)))
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(model="poly", params={}), "unknown distortion model 'poly'"),
+        (dict(model="polynomial", params={"k1": 0.1}), "needs parameter"),
+        (dict(model="division", params={"lambda": 1e-7, "k1": 0.1}), "no parameter"),
+        (dict(model="division", params={"lambda": float("nan")}), "not finite"),
+        (dict(model="division", params={"lambda": "x"}), "must be a number"),
+        (dict(model="polynomial", params={"k1": 0.1, "k2": 0.0}, center=(1.0, 2.0)), "only to the division"),
+        (dict(model="division", params={"lambda": 1e-7}, center=(1.0, float("inf"))), "finite"),
+    ],
+)
+def test_bad_parameters_are_named(kwargs, message):
+    with pytest.raises(CamcalError, match=message):
+        Distortion(**kwargs)
+
+
+def test_dict_round_trip_and_unknown_keys():
+    for model in MODELS:
+        assert Distortion.from_dict(model.to_dict()) == model
+    with pytest.raises(CamcalError, match="unknown key"):
+        Distortion.from_dict({"model": "none", "params": {}, "centre": [0, 0]})
+    with pytest.raises(CamcalError, match="shape"):
+        MODELS[0].distort(np.zeros((3, 3)), K)
