@@ -65,7 +65,6 @@ class _Cam:
     size: tuple
     distortion: rigfile.Distortion
     sensor_width_mm: float
-    rotation_from_original: tuple  # R_eff = Q @ R_original (identity unless rectified)
     source: rigfile.RigCamera
 
 
@@ -100,12 +99,13 @@ def import_rig(
         The cameras' sensor fit; the projection is exact with each.
     use_rectified : bool
         Import the rectified cameras (``K_rect``, rectified rotation and size,
-        no distortion) and rectified plates.
+        no distortion); plates then come from ``plates`` / ``plate_directory``.
     frame_start : int
-        Blender frame of rig frame 0 (per-frame poses become keyframes).
+        Blender frame of rig frame index 0 (the rig's per-frame poses become
+        keyframes on the rig root).
     import_plates : bool
-        Camera background images from ``frames[*].images`` (first frame that
-        has one), from ``plates`` or from ``plate_directory``.
+        Camera background images from ``frames[*].images`` (the first frame
+        that has one), from ``plates`` or from ``plate_directory``.
     plates : dict, optional
         ``{camera name: image path}``, overriding the rig's plates.
     plate_directory : str, optional
@@ -144,7 +144,8 @@ def import_rig(
     scene.collection.children.link(collection)
     root = bpy.data.objects.new(rig.name, None)
     root.empty_display_type = "PLAIN_AXES"
-    root.matrix_world = Matrix(mapping.up_axis_matrix(up_axis))
+    root.rotation_mode = "QUATERNION"
+    root.matrix_basis = Matrix(mapping.up_axis_matrix(up_axis))
     root["camcal_rig_path"] = rig.path
     root["camcal_up_axis"] = up_axis
     root["camcal_rectified"] = bool(use_rectified)
@@ -156,7 +157,7 @@ def import_rig(
     for cam in cams:
         obj = _build_camera(cam, base, sensor_fit, collection, root, result)
         result.cameras[cam.name] = obj
-    _keyframe_poses(rig, cams, result, frame_start, scene)
+    _keyframe_rig(rig, root, up_axis, frame_start, scene)
 
     first = result.cameras[cams[0].name]
     scene.camera = first
@@ -170,7 +171,7 @@ def import_rig(
     if stereo and len(cams) >= 2:
         _setup_views(scene, cams, result)
 
-    plate_paths = _plate_paths(rig, cams, use_rectified, plates, plate_directory) if import_plates else {}
+    plate_paths = _plate_paths(rig, cams, use_rectified, plates, plate_directory, result) if import_plates else {}
     for cam in cams:
         obj = result.cameras[cam.name]
         plate = plate_paths.get(cam.name)
@@ -198,18 +199,15 @@ def import_rig(
 
 
 def _effective_camera(cam, use_rectified):
-    identity = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     if not use_rectified:
-        return _Cam(cam.name, cam.K, cam.R, cam.c, cam.image_size, cam.distortion,
-                    cam.sensor_width_mm, identity, cam)
+        return _Cam(cam.name, cam.K, cam.R, cam.c, cam.image_size, cam.distortion, cam.sensor_width_mm, cam)
     if cam.rectification is None:
         raise RigFileError(f"camera {cam.name!r}: no rectification in the rig, cannot import rectified")
     try:
         K, R, size = mapping.rectified_camera(cam.K, cam.R, cam.rectification)
     except ValueError as error:
         raise RigFileError(f"camera {cam.name!r}.rectification: {error}") from None
-    Q = mapping.matmul(R, mapping.transpose(cam.R))
-    return _Cam(cam.name, K, R, cam.c, size, rigfile.Distortion(), cam.sensor_width_mm, Q, cam)
+    return _Cam(cam.name, K, R, cam.c, size, rigfile.Distortion(), cam.sensor_width_mm, cam)
 
 
 def _unique_base(name, camera_names):
@@ -283,29 +281,29 @@ def apply_resolution(scene, camera_object):
     render.pixel_aspect_x, render.pixel_aspect_y = float(ax), float(ay)
 
 
-def _keyframe_poses(rig, cams, result, frame_start, scene):
-    numbers = []
-    for cam in cams:
-        obj = result.cameras[cam.name]
-        previous = None
-        for frame in rig.frames:
-            if cam.name not in frame.poses:
-                continue
-            R, c = frame.poses[cam.name]
-            R = mapping.matmul(cam.rotation_from_original, R)
-            obj.matrix_basis = Matrix(mapping.camera_matrix_local(R, c))
-            q = obj.rotation_quaternion.copy()
-            if previous is not None and q.dot(previous) < 0:
-                q.negate()
-                obj.rotation_quaternion = q
-            previous = q
-            number = frame_start + frame.frame
-            obj.keyframe_insert("location", frame=number)
-            obj.keyframe_insert("rotation_quaternion", frame=number)
-            numbers.append(number)
-    if numbers:
-        scene.frame_start, scene.frame_end = min(numbers), max(numbers)
-        scene.frame_set(scene.frame_start)
+def _keyframe_rig(rig, root, up_axis, frame_start, scene):
+    """Per-frame rig poses (``rig_from_world``) as keyframes on the rig root.
+
+    The cameras stay put under the root (their ``R, c`` are ``cam_from_rig``),
+    so each camera's world pose at a frame is camcal's ``camera_at_frame``.
+    """
+    if not rig.frames:
+        return
+    up = Matrix(mapping.up_axis_matrix(up_axis))
+    previous = None
+    for frame in sorted(rig.frames, key=lambda f: f.index):
+        root.matrix_basis = up @ Matrix(mapping.rig_matrix(frame.R, frame.c))
+        q = root.rotation_quaternion.copy()
+        if previous is not None and q.dot(previous) < 0:  # keep quaternions continuous
+            q.negate()
+            root.rotation_quaternion = q
+        previous = q
+        number = frame_start + frame.index
+        root.keyframe_insert("location", frame=number)
+        root.keyframe_insert("rotation_quaternion", frame=number)
+    numbers = [frame_start + f.index for f in rig.frames]
+    scene.frame_start, scene.frame_end = min(numbers), max(numbers)
+    scene.frame_set(scene.frame_start)
 
 
 def _setup_views(scene, cams, result):
@@ -339,18 +337,20 @@ def _setup_views(scene, cams, result):
 # Plates, clips and colour.
 
 
-def _plate_paths(rig, cams, use_rectified, plates, plate_directory):
+def _plate_paths(rig, cams, use_rectified, plates, plate_directory, result):
+    """Plate per camera: the first frame that has one, a plate folder, or ``plates``.
+
+    The rig's plates are the images the cameras were solved on; rectified
+    cameras take plates only from ``plates`` or ``plate_directory``.
+    """
     paths = {}
-    order = ("rectified",) if use_rectified else ("raw", "undistorted")
-    for cam in cams:
-        for frame in rig.frames:
-            entry = frame.images.get(cam.name)
-            if not entry:
-                continue
-            chosen = next((entry[k] for k in order if k in entry), None)
-            if chosen is not None:
-                paths[cam.name] = chosen
-                break
+    if use_rectified:
+        if any(frame.images for frame in rig.frames):
+            result.warnings.append("the rig's plates are not rectified: give rectified plates as a folder")
+    else:
+        for frame in sorted(rig.frames, key=lambda f: f.index):
+            for name, path in frame.images.items():
+                paths.setdefault(name, path)
     if plate_directory:
         for cam in cams:
             for ext in IMAGE_EXTENSIONS:
@@ -411,7 +411,7 @@ def _load_clip(name, filepath):
     return clip
 
 
-def _set_lens(clip, lens, sensor_width_mm, image_width):
+def _set_lens(clip, lens, sensor_width_mm):
     tc = clip.tracking.camera
     tc.sensor_width = sensor_width_mm
     tc.pixel_aspect = 1.0
@@ -441,7 +441,7 @@ def _lens_clip(cam, obj, plate, result, rig_path, aux_directory, scene):
             _apply_colour_space(clip, cam.name)
     if clip is None:
         clip = _load_clip(f"{obj.name} lens", _blank_frame(obj.name, cam.size, rig_path, aux_directory))
-    _set_lens(clip, lens, cam.sensor_width_mm, cam.size[0])
+    _set_lens(clip, lens, cam.sensor_width_mm)
     clip.frame_start = scene.frame_start
     obj.data["camcal_clip"] = clip.name
     return clip
@@ -564,7 +564,7 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     clip = _load_clip(
         f"{obj.name} lens overscan", _blank_frame(f"{obj.name}_overscan", size_os, rig_path, aux_directory)
     )
-    _set_lens(clip, lens, cam.sensor_width_mm * size_os[0] / W, size_os[0])
+    _set_lens(clip, lens, cam.sensor_width_mm * size_os[0] / W)
 
     dist_scene = bpy.data.scenes.new(f"{obj.name} distorted")
     _copy_render_settings(scene, dist_scene)

@@ -40,6 +40,7 @@ __all__ = [
     "camera_rotation_blender",
     "camera_matrix_local",
     "up_axis_matrix",
+    "rig_matrix",
     "rectified_camera",
     "overscan_margins",
     "blender_lens",
@@ -240,6 +241,12 @@ def camera_matrix_local(R, c):
         (Rt[2][0], Rt[2][1], Rt[2][2], float(c[2])),
         (0.0, 0.0, 0.0, 1.0),
     )
+
+
+def rig_matrix(R, c):
+    """4x4 rig-to-world matrix from a frame's ``rig_from_world`` pose ``(R, c)``: ``[[R^T, c], [0, 1]]``."""
+    Rt = transpose(R)
+    return tuple(tuple(Rt[i]) + (float(c[i]),) for i in range(3)) + ((0.0, 0.0, 0.0, 1.0),)
 
 
 def up_axis_matrix(up_axis="Z"):

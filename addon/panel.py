@@ -8,7 +8,7 @@ __all__ = ["register", "unregister", "classes"]
 
 
 def _quality_text(data):
-    """'RMS 0.21 px, ±0.3 px' style summary of a camera's stored quality."""
+    """'RMS 0.21 px, sigma.fx ±0.3' style summary of a camera's stored quality."""
     parts = []
     if "camcal_rms_px" in data:
         parts.append(f"RMS {data['camcal_rms_px']:.3g} px")
@@ -16,10 +16,20 @@ def _quality_text(data):
         quality = json.loads(data.get("camcal_quality", "{}"))
     except ValueError:
         quality = {}
-    for key, value in quality.items():
+    for key, value in _flatten(quality):
         if ("sigma" in key or "uncertainty" in key) and isinstance(value, (int, float)):
-            parts.append(f"{key} {value:.3g}")
+            parts.append(f"{key} ±{value:.3g}")
     return ", ".join(parts) or "no quality figures"
+
+
+def _flatten(tree, prefix=""):
+    """``{"sigma": {"fx": 0.3}}`` -> ``[("sigma.fx", 0.3)]``."""
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            yield from _flatten(value, name + ".")
+        else:
+            yield name, value
 
 
 class VIEW3D_PT_camcal(bpy.types.Panel):

@@ -10,13 +10,13 @@ Conventions (camcal's DESIGN): ``P = K [R | -R c]``; ``R`` rotates world to
 camera, ``c`` is the camera centre in world coordinates; camera axes x
 right, y down, z forward; pixel (0, 0) is the centre of the top-left pixel.
 
-Per-frame data (``frames``) is read as a list of objects, each with an
-optional ``frame`` number (default: its position, starting at 0), optional
-per-camera poses ``poses: {camera: {"R": ..., "c": ...}}`` and optional
-per-camera plates ``images: {camera: path}``. A plate is a path string, or
-an object ``{"raw": path, "undistorted": path, "rectified": path}`` (any
-subset). Paths are relative to the rig file. ``points`` is ``null``, a path
-to a PLY file, or ``{"path": ...}``.
+Frames (``camcal.rig``): ``frames`` holds the rig's pose per frame,
+``{"index", "R", "c", "images"?}`` with ``R, c`` the ``rig_from_world``
+pose; the cameras' own ``R, c`` are then relative to the rig
+(``cam_from_rig``), so a camera's world pose at a frame is
+``R_world = R_cam R_frame``, ``c_world = c_frame + R_frame^T c_cam``.
+``images`` maps camera names to plate paths. Paths (plates, ``points``: a
+sibling PLY or null) are relative to the rig file.
 """
 
 from __future__ import annotations
@@ -45,8 +45,8 @@ RIG_VERSIONS = (1,)
 DISTORTION_PARAMS = {
     "none": ((), ()),
     "division": (("lambda",), ()),
-    "polynomial": (("k1",), ("k2", "k3")),
-    "opencv": (("k1", "k2", "p1", "p2"), ("k3",)),
+    "polynomial": (("k1", "k2"), ("k3",)),
+    "opencv": (("k1", "k2", "p1", "p2", "k3"), ()),
 }
 
 ORTHONORMAL_TOL = 1e-6
@@ -58,7 +58,13 @@ class RigFileError(Exception):
 
 @dataclass(frozen=True)
 class Distortion:
-    """A lens distortion model in pixels around ``center`` (pixel centres at integers)."""
+    """A lens distortion model (undistorted -> distorted pixels).
+
+    ``center`` is the distortion centre in pixels (pixel centres at
+    integers): the division model's own centre, the principal point for the
+    others (``polynomial`` and ``opencv`` work in normalised coordinates
+    around it).
+    """
 
     model: str = "none"
     params: dict = field(default_factory=dict)
@@ -92,10 +98,11 @@ class RigCamera:
 
 @dataclass(frozen=True)
 class RigFrame:
-    """One frame: its number, per-camera poses ``{name: (R, c)}`` and plates."""
+    """One frame: its index, the rig's pose ``rig_from_world`` (R, c), plates by camera."""
 
-    frame: int
-    poses: dict
+    index: int
+    R: tuple
+    c: tuple
     images: dict
 
 
@@ -178,9 +185,11 @@ def parse_rig(data, path="<memory>"):
     frames_data = data.get("frames") or []
     if not isinstance(frames_data, list):
         raise RigFileError(f"frames: expected a list, got {type(frames_data).__name__}")
-    frames = tuple(
-        _parse_frame(f, i, f"frames[{i}]", set(names), base) for i, f in enumerate(frames_data)
-    )
+    frames = tuple(_parse_frame(f, f"frames[{i}]", set(names), base) for i, f in enumerate(frames_data))
+    indices = [f.index for f in frames]
+    for index in indices:
+        if indices.count(index) > 1:
+            raise RigFileError(f"frames: duplicate frame index {index}")
 
     points = data.get("points")
     if isinstance(points, dict):
@@ -287,7 +296,7 @@ def _parse_distortion(data, where, K):
     for key in required + optional:
         if key in params and not _is_number(params[key]):
             raise RigFileError(f"{where}.params.{key}: expected a finite number, got {params[key]!r}")
-    center = data.get("center")
+    center = data.get("center") if model == "division" else None
     if center is None:
         center = (K[0][2], K[1][2])
     else:
@@ -298,23 +307,15 @@ def _parse_distortion(data, where, K):
     return Distortion(model=model, params=clean, center=center)
 
 
-def _parse_frame(data, index, where, names, base):
+def _parse_frame(data, where, names, base):
     if not isinstance(data, dict):
         raise RigFileError(f"{where}: expected an object, got {type(data).__name__}")
-    number = data.get("frame", data.get("index", index))
-    if not isinstance(number, int) or isinstance(number, bool):
-        raise RigFileError(f"{where}.frame: expected an integer, got {number!r}")
-    poses = {}
-    poses_data = data.get("poses") or {}
-    if not isinstance(poses_data, dict):
-        raise RigFileError(f"{where}.poses: expected an object {{camera: {{R, c}}}}")
-    for cam, pose in poses_data.items():
-        if cam not in names:
-            raise RigFileError(f"{where}.poses: unknown camera {cam!r}")
-        pwhere = f"{where}.poses.{cam}"
-        if not isinstance(pose, dict):
-            raise RigFileError(f"{pwhere}: expected an object with R and c")
-        poses[cam] = (_rotation(pose, "R", pwhere), _vector(pose, "c", 3, pwhere))
+    index = _require(data, "index", int, where)
+    if isinstance(index, bool):
+        raise RigFileError(f"{where}.index: expected an integer, got {index!r}")
+    where = f"{where} (index {index})"
+    R = _rotation(data, "R", where)
+    c = _vector(data, "c", 3, where)
     images = {}
     images_data = data.get("images") or {}
     if not isinstance(images_data, dict):
@@ -322,13 +323,10 @@ def _parse_frame(data, index, where, names, base):
     for cam, entry in images_data.items():
         if cam not in names:
             raise RigFileError(f"{where}.images: unknown camera {cam!r}")
-        iwhere = f"{where}.images.{cam}"
-        if isinstance(entry, str):
-            entry = {"raw": entry}
-        if not isinstance(entry, dict) or not all(isinstance(v, str) for v in entry.values()):
-            raise RigFileError(f"{iwhere}: expected a path or {{raw|undistorted|rectified: path}}")
-        images[cam] = {k: os.path.normpath(os.path.join(base, v)) for k, v in entry.items()}
-    return RigFrame(frame=number, poses=poses, images=images)
+        if not isinstance(entry, str) or not entry:
+            raise RigFileError(f"{where}.images.{cam}: expected a path, got {entry!r}")
+        images[cam] = os.path.normpath(os.path.join(base, entry))
+    return RigFrame(index=index, R=R, c=c, images=images)
 
 
 def _require(data, key, kind, where):

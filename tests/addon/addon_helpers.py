@@ -1,11 +1,18 @@
-"""Helpers shared by the add-on's tests: synthetic rigs and projections."""
+"""Helpers shared by the add-on's tests: synthetic rigs and projections.
+
+Rig files are written by camcal itself (``camcal.rig.Rig.save``), and the
+reference projection is ``camcal.rig.Camera.project``: the add-on must agree
+with camcal on both.
+"""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
+
+from camcal.geometry.distortion import Distortion
+from camcal.rig import Camera, Rig
 
 ADDON_DIR = Path(__file__).resolve().parents[2] / "addon"
 
@@ -36,8 +43,16 @@ def camera_dict(name, size, K, R=None, c=(0.0, 0.0, 0.0), distortion=None, **ext
     return cam
 
 
+def frame(index, R=None, c=(0.0, 0.0, 0.0), images=None):
+    """One frame of a rig file: the rig's pose ``rig_from_world`` and its plates."""
+    out = {"index": index, "R": (np.eye(3) if R is None else np.asarray(R)).tolist(), "c": [float(v) for v in c]}
+    if images:
+        out["images"] = images
+    return out
+
+
 def write_rig(path, cameras, frames=None, points=None):
-    """Write a rig file and return its path."""
+    """Write a rig file with camcal (validated by ``camcal.rig``) and return its path."""
     rig = {
         "format": "camcal.rig",
         "version": 1,
@@ -47,15 +62,17 @@ def write_rig(path, cameras, frames=None, points=None):
         "points": points,
         "provenance": {"tool": "camcal tests", "method": "synthetic", "created": "2026-01-01"},
     }
-    Path(path).write_text(json.dumps(rig), encoding="utf-8")
-    return Path(path)
+    return Rig.from_dict(rig).save(path)
 
 
-def project_ref(K, R, c, X):
-    """camcal's pinhole projection in numpy: pixels (N, 2), centres at integers."""
-    K, R, c, X = (np.asarray(a, dtype=float) for a in (K, R, c, X))
-    x = (K @ (R @ (X - c).T)).T
-    return x[:, :2] / x[:, 2:]
+def project_ref(K, R, c, X, distortion=None):
+    """camcal's projection (``Camera.project``): pixels (N, 2), centres at integers."""
+    camera = Camera(
+        name="reference", image_size=(1, 1), K=np.asarray(K, dtype=float),
+        distortion=Distortion.from_dict(distortion or {"model": "none"}),
+        R=np.asarray(R, dtype=float), c=np.asarray(c, dtype=float),
+    )
+    return camera.project(np.asarray(X, dtype=float))
 
 
 def blender_project(bpy, obj, scene, X):

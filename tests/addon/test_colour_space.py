@@ -7,7 +7,7 @@ import textwrap
 
 import pytest
 
-from addon_helpers import camera_dict, write_rig
+from addon_helpers import camera_dict, frame, write_rig
 
 K = [[300.0, 0, 160.0], [0, 300.0, 120.0], [0, 0, 1]]
 
@@ -32,7 +32,7 @@ def test_plate_colour_space(tmp_path, with_config):
     if with_config:
         _config_with_camera_space(cfg, "left")
     rig = write_rig(tmp_path / "c.rig.json", [camera_dict("left", (320, 240), K), camera_dict("right", (320, 240), K, c=(1, 0, 0))],
-                    frames=[{"images": {"left": "left.png", "right": "right.png"}}])
+                    frames=[frame(0, images={"left": "left.png", "right": "right.png"})])
     script = textwrap.dedent(
         f"""
         import bpy

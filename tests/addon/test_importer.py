@@ -6,7 +6,8 @@ import struct
 import numpy as np
 import pytest
 
-from addon_helpers import blender_project, camera_dict, points_in_view, project_ref, rotation, write_rig
+from addon_helpers import blender_project, camera_dict, frame, points_in_view, project_ref, rotation, write_rig
+from camcal.rig import Rig
 
 # (image size, fx, fy, principal point offset from the centre in px)
 CASES = [
@@ -116,20 +117,25 @@ def test_three_cameras_are_multiview(bpy, addon, tmp_path):
         assert result.cameras[name].name == base + view.camera_suffix
 
 
-def test_frames_become_keyframes(bpy, addon, tmp_path):
+def test_frames_animate_the_rig_root(bpy, addon, tmp_path):
     K = [[700.0, 0, 320.0], [0, 700.0, 240.0], [0, 0, 1]]
     rng = np.random.default_rng(3)
-    poses = [(rotation(*rng.uniform(-3, 3, 3)), rng.uniform(-2, 2, 3)) for _ in range(4)]
-    frames = [{"frame": i, "poses": {"cam": {"R": R.tolist(), "c": c.tolist()}}} for i, (R, c) in enumerate(poses)]
-    path = write_rig(tmp_path / "seq.rig.json", [camera_dict("cam", (640, 480), K, *poses[0])], frames=frames)
+    cams = [camera_dict("a", (640, 480), K, rotation(0.0, -0.1, 0.0), (-0.05, 0, 0)),
+            camera_dict("b", (640, 480), K, rotation(0.0, 0.1, 0.0), (0.05, 0, 0))]
+    frames = [frame(i, rotation(*rng.uniform(-3, 3, 3)), rng.uniform(-2, 2, 3)) for i in range(4)]
+    path = write_rig(tmp_path / "seq.rig.json", cams, frames=frames)
+    rig = Rig.load(path)
     scene = bpy.context.scene
-    result = addon.import_rig(scene, str(path), frame_start=10)
+    result = addon.import_rig(scene, str(path), frame_start=10, up_axis="-Y")
     assert (scene.frame_start, scene.frame_end) == (10, 13)
-    obj = result.cameras["cam"]
-    for i, (R, c) in enumerate(poses):
+    M = np.array(addon.mapping.up_axis_matrix("-Y"))[:3, :3]
+    for i in range(4):
         scene.frame_set(10 + i)
-        X = points_in_view(K, R, c, (640, 480), 30, rng)
-        assert np.abs(blender_project(bpy, obj, scene, X) - project_ref(K, R, c, X)).max() < 1e-3
+        for name in ("a", "b"):
+            cam = rig.camera_at_frame(name, i)  # camcal's world pose of the camera at this frame
+            X = points_in_view(cam.K, cam.R, cam.c, (640, 480), 30, rng)
+            got = blender_project(bpy, result.cameras[name], scene, (M @ X.T).T)
+            assert np.abs(got - cam.project(X)).max() < 1e-3
 
 
 def _write_png(bpy, path, w, h):
@@ -148,7 +154,7 @@ def test_plates_points_and_lens_clip(bpy, addon, tmp_path):
     division = {"model": "division", "params": {"lambda": -2e-6}, "center": [158.0, 121.0]}
     cams = [camera_dict("left", (320, 240), K, distortion=division),
             camera_dict("right", (320, 240), K, c=(0.2, 0, 0.01))]
-    frames = [{"images": {"left": "plates/left.png", "right": "plates/right.png"}}]
+    frames = [frame(0, images={"left": "plates/left.png", "right": "plates/right.png"})]
     header = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
     body = b"".join(struct.pack("<fffBBB", *p) for p in [(0, 0, 5, 255, 0, 0), (1, 0, 5, 0, 255, 0), (0, 1, 6, 0, 0, 255)])
     (tmp_path / "pts.ply").write_bytes(header + body)

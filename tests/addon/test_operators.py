@@ -58,8 +58,9 @@ def test_import_operator_reports_errors(registered, tmp_path):
 
 def test_panel_draws(registered, tmp_path, addon):
     bpy = registered
-    path = write_rig(tmp_path / "p.rig.json", [camera_dict("a", (640, 480), K)])
+    quality = {"rms_px": 0.21, "n_views": 18, "sigma": {"fx": 0.3, "cx": 0.12}}
+    path = write_rig(tmp_path / "p.rig.json", [camera_dict("a", (640, 480), K, quality=quality)])
     addon.import_rig(bpy.context.scene, str(path))
     text = addon.panel._quality_text(bpy.data.objects["p_a"].data)
-    assert text == "RMS 0.21 px"
+    assert text == "RMS 0.21 px, sigma.fx ±0.3, sigma.cx ±0.12"
     assert np.isclose(bpy.data.objects["p_a"].data["camcal_rms_px"], 0.21)

@@ -5,17 +5,14 @@ import json
 import numpy as np
 import pytest
 
-from addon_helpers import camera_dict, rotation, write_rig
+from addon_helpers import camera_dict, frame, rotation, write_rig
 
 K = [[800.0, 0.0, 640.2], [0.0, 790.0, 355.7], [0.0, 0.0, 1.0]]
 
 
 def test_reads_cameras_frames_points_with_relative_paths(addon, tmp_path):
     R = rotation(0.1, -0.2, 0.3)
-    frames = [
-        {"frame": 3, "poses": {"left": {"R": R.tolist(), "c": [1, 2, 3]}},
-         "images": {"left": "plates/left_0003.png", "right": {"rectified": "rect/right.png"}}},
-    ]
+    frames = [frame(3, R, (1, 2, 3), {"left": "plates/left_0003.png", "right": "right_0003.png"}), frame(4)]
     path = write_rig(
         tmp_path / "stereo.rig.json",
         [camera_dict("left", (1280, 720), K, R), camera_dict("right", (1280, 720), K, R, c=(0.1, 0, 0))],
@@ -31,13 +28,21 @@ def test_reads_cameras_frames_points_with_relative_paths(addon, tmp_path):
     assert cam.distortion.model == "none"
     assert cam.distortion.center == (640.2, 355.7)  # defaults to the principal point
     assert rig.points == str(tmp_path / "stereo_points.ply")
-    frame = rig.frames[0]
-    assert frame.frame == 3
-    assert frame.images["left"] == {"raw": str(tmp_path / "plates" / "left_0003.png")}
-    assert frame.images["right"] == {"rectified": str(tmp_path / "rect" / "right.png")}
-    assert frame.poses["left"][1] == (1.0, 2.0, 3.0)
+    first = rig.frames[0]
+    assert first.index == 3 and first.c == (1.0, 2.0, 3.0) and np.allclose(first.R, R, atol=0, rtol=0)
+    assert first.images == {"left": str(tmp_path / "plates" / "left_0003.png"),
+                            "right": str(tmp_path / "right_0003.png")}
+    assert rig.frames[1].images == {}
     with pytest.raises(KeyError, match="cameras: left, right"):
         rig.camera("centre")
+
+
+def test_polynomial_centre_is_the_principal_point(addon, tmp_path):
+    K = [[800.0, 0.0, 640.5], [0.0, 800.0, 360.25], [0.0, 0.0, 1.0]]
+    dist = {"model": "polynomial", "params": {"k1": -0.1, "k2": 0.01}}
+    path = write_rig(tmp_path / "p.rig.json", [camera_dict("a", (1280, 720), K, distortion=dist)])
+    d = addon.rigfile.load_rig(path).cameras[0].distortion
+    assert d.model == "polynomial" and d.center == (640.5, 360.25) and d.params == {"k1": -0.1, "k2": 0.01}
 
 
 def test_double_precision_survives(addon, tmp_path):
@@ -62,9 +67,13 @@ def test_double_precision_survives(addon, tmp_path):
         (lambda r: r["cameras"][0].update(image_size=[0, 10]), "image_size: must be positive"),
         (lambda r: r["cameras"][0].update(distortion={"model": "poly"}), "unknown model 'poly', expected one of"),
         (lambda r: r["cameras"][0].update(distortion={"model": "division", "params": {}}), "needs 'lambda'"),
+        (lambda r: r["cameras"][0].update(distortion={"model": "polynomial", "params": {"k1": 0.1}}), "needs 'k2'"),
         (lambda r: r["cameras"].append(dict(r["cameras"][0])), "duplicate camera name 'a'"),
-        (lambda r: r.update(frames=[{"poses": {"b": {}}}]), r"frames\[0\]\.poses: unknown camera 'b'"),
-        (lambda r: r.update(frames=[{"images": {"a": 3}}]), r"frames\[0\]\.images\.a: expected a path"),
+        (lambda r: r.update(frames=[{"R": np.eye(3).tolist(), "c": [0, 0, 0]}]), r"frames\[0\]: missing key 'index'"),
+        (lambda r: r.update(frames=[frame(0, images={"b": "b.png"})]), r"frames\[0\] \(index 0\)\.images: unknown camera 'b'"),
+        (lambda r: r.update(frames=[frame(0, images={"a": 3})]), r"\.images\.a: expected a path"),
+        (lambda r: r.update(frames=[frame(0), frame(0)]), "duplicate frame index 0"),
+        (lambda r: r.update(frames=[frame(0, R=np.diag([1, 1, -1.0]))]), r"\(index 0\)\.R: a reflection"),
         (lambda r: r.update(points=5), "points: expected a PLY path or null"),
     ],
 )
