@@ -1,4 +1,9 @@
-"""Helpers shared by the add-on's tests: synthetic rigs and projections.
+"""Helpers and fixtures shared by the add-on's tests: synthetic rigs, projections.
+
+Test modules import the fixtures ``addon`` and ``bpy`` from here (a second
+``conftest.py`` under tests/ would clash with the top-level one). The add-on
+is loaded as package ``camcal_rig`` (as Blender loads it, with relative
+imports); ``bpy`` resets Blender to its empty factory state around each test.
 
 Rig files are written by camcal itself (``camcal.rig.Rig.save``), and the
 reference projection is ``camcal.rig.Camera.project``: the add-on must agree
@@ -7,14 +12,35 @@ with camcal on both.
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 
 import numpy as np
+import pytest
 
+from camcal.blender_bridge import load_addon
 from camcal.geometry.distortion import Distortion
 from camcal.rig import Camera, Rig
 
 ADDON_DIR = Path(__file__).resolve().parents[2] / "addon"
+
+
+@pytest.fixture(scope="session")
+def addon():
+    """The add-on package with its pure modules imported (usable without bpy)."""
+    package = load_addon()
+    for name in ("rigfile", "mapping", "plyfile", "pngfile"):
+        importlib.import_module(f"{package.__name__}.{name}")
+    return package
+
+
+@pytest.fixture
+def bpy():
+    """The bpy module, reset to an empty factory scene for each test."""
+    bpy = pytest.importorskip("bpy")
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    yield bpy
+    bpy.ops.wm.read_factory_settings(use_empty=True)
 
 
 def rotation(rx=0.0, ry=0.0, rz=0.0):

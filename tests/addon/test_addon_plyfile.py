@@ -5,6 +5,8 @@ import zlib
 
 import pytest
 
+from addon_helpers import addon  # noqa: F401  (fixtures)
+
 
 def test_ascii_ply_with_colours(addon, tmp_path):
     path = tmp_path / "p.ply"

@@ -14,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from addon_helpers import project_ref, rotation
+from addon_helpers import addon  # noqa: F401  (fixtures)
 
 
 def _blender_project(b, Xc):

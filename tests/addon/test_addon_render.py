@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from addon_helpers import camera_dict, project_ref, rotation, write_rig
+from addon_helpers import addon, bpy  # noqa: F401  (fixtures)
 
 pytestmark = pytest.mark.slow
 

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from addon_helpers import camera_dict, write_rig
+from addon_helpers import addon, bpy  # noqa: F401  (fixtures)
 
 K = [[700.0, 0, 320.0], [0, 700.0, 240.0], [0, 0, 1]]
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from addon_helpers import camera_dict, frame, rotation, write_rig
+from addon_helpers import addon  # noqa: F401  (fixtures)
 
 K = [[800.0, 0.0, 640.2], [0.0, 790.0, 355.7], [0.0, 0.0, 1.0]]
 
