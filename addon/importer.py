@@ -139,6 +139,12 @@ def import_rig(
     if not overscan >= 1.0:
         raise RigFileError(f"overscan: must be >= 1, got {overscan}")
     cams = [_effective_camera(c, use_rectified) for c in rig.cameras]
+    cloud = None
+    if import_points and rig.points is not None:  # read before creating anything
+        try:
+            cloud = plyfile.read_ply_points(rig.points)
+        except plyfile.PlyError as error:
+            raise RigFileError(f"points: {error}") from None
 
     collection = bpy.data.collections.new(rig.name)
     scene.collection.children.link(collection)
@@ -189,8 +195,8 @@ def import_rig(
         if plate is not None:
             _background(cam, obj, plate, clip, result)
 
-    if import_points and rig.points is not None:
-        result.points = _point_cloud(rig, base, collection, root, result)
+    if cloud is not None:
+        result.points = _point_cloud(rig, cloud, base, collection, root)
     return result
 
 
@@ -463,11 +469,8 @@ def _background(cam, obj, plate, clip, result):
     bg.image = image
 
 
-def _point_cloud(rig, base, collection, root, result):
-    try:
-        points, colours = plyfile.read_ply_points(rig.points)
-    except plyfile.PlyError as error:
-        raise RigFileError(f"points: {error}") from None
+def _point_cloud(rig, cloud, base, collection, root):
+    points, colours = cloud
     mesh = bpy.data.meshes.new(f"{base} points")
     mesh.vertices.add(len(points))
     mesh.vertices.foreach_set("co", [v for p in points for v in p])

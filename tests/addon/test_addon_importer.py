@@ -217,3 +217,4 @@ def test_bad_inputs_raise_rig_file_errors(bpy, addon, tmp_path):
     path = write_rig(tmp_path / "p.rig.json", [camera_dict("a", (100, 80), K)], points="bad.ply")
     with pytest.raises(addon.rigfile.RigFileError, match="points: .*not a PLY file"):
         addon.import_rig(bpy.context.scene, str(path))
+    assert len(bpy.data.objects) == 0 and len(bpy.data.cameras) == 0  # nothing half-built

@@ -2,7 +2,7 @@
 
 ``_blender_project`` re-implements Blender's camera projection
 (``BKE_camera_params_compute_viewplane``) from its settings, so the mapping
-is checked here against an independent model and, in test_importer.py,
+is checked here against an independent model and, in test_addon_importer.py,
 against Blender itself.
 """
 

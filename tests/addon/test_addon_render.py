@@ -131,3 +131,57 @@ def test_movie_distortion_matches_camcal_lens_within_0_1_px(bpy, addon, tmp_path
           f"lens moves dots up to {moved:.1f} px; Blender's offset {shift} px compensated")
     assert moved > 2.0
     assert err.max() < 0.1
+
+
+def _render_views(bpy, scene, folder, samples):
+    """Render every view of a multi-view scene to its own EXR; {view name: image}."""
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = samples
+    scene.cycles.use_denoising = False
+    scene.view_settings.view_transform = "Standard"
+    settings = scene.render.image_settings
+    settings.file_format = "OPEN_EXR"
+    settings.views_format = "INDIVIDUAL"
+    scene.render.filepath = str(folder / "view")
+    bpy.ops.render.render(write_still=True, scene=scene.name)
+    images = {}
+    for view in scene.render.views:
+        if not view.use:
+            continue
+        path = folder / f"view{view.file_suffix}.exr"
+        image = bpy.data.images.load(str(path))
+        pixels = np.empty(len(image.pixels), dtype=np.float32)
+        image.pixels.foreach_get(pixels)
+        w, h = image.size
+        bpy.data.images.remove(image)
+        images[view.name] = pixels.reshape(h, w, 4)[::-1, :, :3].mean(axis=2)
+    return images
+
+
+@pytest.mark.parametrize("layout", ["stereo", "multiview"])
+def test_stereo_and_multiview_renders_match_each_camera(bpy, addon, tmp_path, layout):
+    size = (200, 150)
+    K = np.array([[220.0, 0.0, 104.2], [0.0, 220.0, 71.3], [0.0, 0.0, 1.0]])
+    R = rotation(0.05, -0.1, 0.02)
+    c_left = np.array([0.0, 0.0, 0.0])
+    if layout == "stereo":  # rectified pair: parallel, baseline on the left camera's +x
+        poses = {"left": (R, c_left), "right": (R, c_left + R.T @ [0.3, 0.0, 0.0])}
+    else:
+        poses = {"a": (R, c_left), "b": (rotation(0.05, 0.05, 0.0), c_left + [0.4, 0.05, 0.0]),
+                 "c": (rotation(0.0, -0.2, 0.03), c_left + [-0.3, 0.0, 0.1])}
+    X, radius = _scene_points(K, R, c_left, size, 20, np.random.default_rng(2), nx=5, ny=4)
+    scene = bpy.context.scene
+    _emissive_spheres(bpy, scene, X, radius)
+    cams = [camera_dict(name, size, K, Rc, cc) for name, (Rc, cc) in poses.items()]
+    result = addon.import_rig(scene, str(write_rig(tmp_path / "s.rig.json", cams)))
+    assert result.stereo_mode == ("STEREO_3D" if layout == "stereo" else "MULTIVIEW")
+    images = _render_views(bpy, scene, tmp_path, samples=32)
+    eyes = {"left": "left", "right": "right"} if layout == "stereo" else {n: n for n in poses}
+    for view, name in eyes.items():
+        Rc, cc = poses[name]
+        expected = project_ref(K, Rc, cc, X)
+        inside = (expected[:, 0] > 6) & (expected[:, 0] < size[0] - 7) & (expected[:, 1] > 6) & (expected[:, 1] < size[1] - 7)
+        err = np.hypot(*(_centroids(images[view], expected[inside]) - expected[inside]).T)
+        print(f"{layout} view {view}: max {err.max():.3f} px over {inside.sum()} spheres")
+        assert inside.sum() >= 8 and err.max() < 0.1
