@@ -5,7 +5,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: test test-all demo bench clean
+.PHONY: test test-all demo bench addon clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -25,5 +25,10 @@ demo: $(STAMP)
 bench: $(STAMP)
 	@for f in bench/bench_*.py; do $(PY) $$f || exit 1; done
 
+# The Blender extension zip (dist/camcal_rig-<version>.zip), validated and built
+# with the blender_ext.py tool that the bpy wheel ships.
+addon: $(STAMP)
+	$(PY) -m camcal.blender_bridge dist
+
 clean:
-	rm -rf $(VENV) demo_out build *.egg-info
+	rm -rf $(VENV) demo_out build dist *.egg-info

@@ -1,0 +1,508 @@
+"""camcal camera parameters -> Blender settings, in plain Python.
+
+No bpy, no numpy: the conversion maths runs and is tested outside Blender.
+Matrices are tuples or lists of rows.
+
+Conventions
+-----------
+camcal (DESIGN.md): ``x ~ K [R | -R c] X``; ``R`` rotates world to camera;
+camera axes x right, y down, z forward; pixel (0, 0) is the *centre* of the
+top-left pixel.
+
+Blender: the camera looks down -Z with +Y up, so the world-to-camera
+rotation in Blender's camera axes is ``R_blender = diag(1, -1, -1) @ R`` and
+the camera object's world matrix is ``[[R_blender^T, c], [0, 0, 0, 1]]``.
+Blender measures shifts and the tracking principal point from the image
+*edges* (the tracking camera from the bottom-left corner, y up).
+
+Intrinsics (checked against ``Object.calc_matrix_camera`` on bpy 5.0.1):
+pixel aspect ``ax / ay = fy / fx`` (the smaller one is 1);
+``ycor = ay / ax``; the effective sensor fit is horizontal when
+``W * ax >= H * ay`` (AUTO) or as set; ``viewfac = W`` (horizontal) or
+``H * ycor`` (vertical); ``lens = fx * sensor / viewfac`` with ``sensor`` the
+sensor height for a VERTICAL fit and the sensor width otherwise (AUTO always
+uses the width); ``shift_x = (W / 2 - (cx + 0.5)) / viewfac``;
+``shift_y = ((cy + 0.5) - H / 2) * ycor / viewfac``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = [
+    "CV_TO_BLENDER_CAMERA",
+    "UP_AXES",
+    "BlenderIntrinsics",
+    "BlenderLens",
+    "blender_intrinsics",
+    "intrinsics_from_blender",
+    "camera_rotation_blender",
+    "camera_matrix_local",
+    "up_axis_matrix",
+    "rig_matrix",
+    "rectified_camera",
+    "overscan_margins",
+    "blender_lens",
+    "division_distort",
+    "division_undistort",
+    "polynomial_distort",
+    "polynomial_undistort",
+    "opencv_distort",
+    "distort",
+    "to_blender_pixel",
+    "from_blender_pixel",
+    "relative_pose",
+    "is_parallel_pair",
+    "matmul",
+    "transpose",
+    "inverse3",
+]
+
+CV_TO_BLENDER_CAMERA = ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0))
+
+# camcal world axis that becomes Blender's +Z (up), as a rotation world -> Blender world.
+UP_AXES = {
+    "Z": ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)),
+    "Y": ((1.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0)),
+    "-Y": ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0)),
+}
+
+SENSOR_FITS = ("AUTO", "HORIZONTAL", "VERTICAL")
+
+
+# --------------------------------------------------------------------------
+# Small matrix helpers (3x3 and 4x4 as nested tuples).
+
+
+def matmul(A, B):
+    """Matrix product of two nested sequences."""
+    return tuple(
+        tuple(sum(A[i][k] * B[k][j] for k in range(len(B))) for j in range(len(B[0])))
+        for i in range(len(A))
+    )
+
+
+def transpose(A):
+    """Transpose of a nested sequence."""
+    return tuple(tuple(A[i][j] for i in range(len(A))) for j in range(len(A[0])))
+
+
+def _det3(A):
+    return (
+        A[0][0] * (A[1][1] * A[2][2] - A[1][2] * A[2][1])
+        - A[0][1] * (A[1][0] * A[2][2] - A[1][2] * A[2][0])
+        + A[0][2] * (A[1][0] * A[2][1] - A[1][1] * A[2][0])
+    )
+
+
+def inverse3(A):
+    """Inverse of a 3x3 matrix (cofactors); ``ValueError`` if singular."""
+    det = _det3(A)
+    if det == 0:
+        raise ValueError("singular 3x3 matrix")
+    cof = [[0.0] * 3 for _ in range(3)]
+    for i in range(3):
+        for j in range(3):
+            rows = [r for r in range(3) if r != i]
+            cols = [c for c in range(3) if c != j]
+            minor = A[rows[0]][cols[0]] * A[rows[1]][cols[1]] - A[rows[0]][cols[1]] * A[rows[1]][cols[0]]
+            cof[i][j] = (-1) ** (i + j) * minor
+    return tuple(tuple(cof[j][i] / det for j in range(3)) for i in range(3))
+
+
+# --------------------------------------------------------------------------
+# Intrinsics.
+
+
+@dataclass(frozen=True)
+class BlenderIntrinsics:
+    """Blender camera and render settings that reproduce a pinhole ``K``.
+
+    ``sensor_fit`` is what to set on the camera (as requested);
+    ``effective_fit`` is the fit Blender then uses (HORIZONTAL or VERTICAL).
+    ``skew`` is the skew of ``K``, which Blender cannot represent.
+    """
+
+    resolution_x: int
+    resolution_y: int
+    pixel_aspect_x: float
+    pixel_aspect_y: float
+    sensor_fit: str
+    effective_fit: str
+    sensor_width: float
+    sensor_height: float
+    lens: float
+    shift_x: float
+    shift_y: float
+    skew: float
+
+
+def blender_intrinsics(K, image_size, sensor_width_mm=36.0, sensor_fit="AUTO"):
+    """Blender settings that project like the pinhole ``K`` on ``image_size``.
+
+    Parameters
+    ----------
+    K : 3x3 nested sequence
+        ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` in pixels, pixel centres at
+        integers (camcal's convention).
+    image_size : (int, int)
+        Width and height in pixels.
+    sensor_width_mm : float
+        Physical sensor width; the sensor height follows from the pixel grid.
+    sensor_fit : {'AUTO', 'HORIZONTAL', 'VERTICAL'}
+        The camera's sensor fit; every choice is exact.
+
+    Returns
+    -------
+    BlenderIntrinsics
+
+    Notes
+    -----
+    Blender projects with ``fx = lens * viewfac / sensor`` and
+    ``fy = fx * ax / ay``; the principal point sits at
+    ``W / 2 - shift_x * viewfac`` from the left edge and
+    ``H / 2 + shift_y * viewfac / ycor`` from the top edge, i.e. at
+    ``cx + 0.5`` and ``cy + 0.5`` in edge coordinates.
+    """
+    if sensor_fit not in SENSOR_FITS:
+        raise ValueError(f"sensor_fit: unknown {sensor_fit!r}, expected one of: {', '.join(SENSOR_FITS)}")
+    W, H = int(image_size[0]), int(image_size[1])
+    fx, skew, cx = float(K[0][0]), float(K[0][1]), float(K[0][2])
+    fy, cy = float(K[1][1]), float(K[1][2])
+    if not (fx > 0 and fy > 0):
+        raise ValueError(f"focal lengths must be positive, got fx={fx}, fy={fy}")
+    if fy >= fx:
+        ax, ay = fy / fx, 1.0
+    else:
+        ax, ay = 1.0, fx / fy
+    ycor = ay / ax
+    if sensor_fit == "AUTO":
+        effective = "HORIZONTAL" if W * ax >= H * ay else "VERTICAL"
+    else:
+        effective = sensor_fit
+    viewfac = W if effective == "HORIZONTAL" else H * ycor
+    sensor_w = float(sensor_width_mm)
+    # The sensor height that keeps the physical pixel pitch of the width.
+    sensor_h = sensor_w * H * ycor / W
+    sensor = sensor_h if sensor_fit == "VERTICAL" else sensor_w
+    return BlenderIntrinsics(
+        resolution_x=W,
+        resolution_y=H,
+        pixel_aspect_x=ax,
+        pixel_aspect_y=ay,
+        sensor_fit=sensor_fit,
+        effective_fit=effective,
+        sensor_width=sensor_w,
+        sensor_height=sensor_h,
+        lens=fx * sensor / viewfac,
+        shift_x=(W / 2.0 - (cx + 0.5)) / viewfac,
+        shift_y=((cy + 0.5) - H / 2.0) * ycor / viewfac,
+        skew=skew,
+    )
+
+
+def intrinsics_from_blender(b):
+    """The ``K`` (pixel centres at integers) that Blender settings ``b`` project with.
+
+    The inverse of :func:`blender_intrinsics` (without skew), for checks.
+    """
+    W, H = b.resolution_x, b.resolution_y
+    ax, ay = b.pixel_aspect_x, b.pixel_aspect_y
+    ycor = ay / ax
+    if b.sensor_fit == "AUTO":
+        effective = "HORIZONTAL" if W * ax >= H * ay else "VERTICAL"
+    else:
+        effective = b.sensor_fit
+    viewfac = W if effective == "HORIZONTAL" else H * ycor
+    sensor = b.sensor_height if b.sensor_fit == "VERTICAL" else b.sensor_width
+    fx = b.lens * viewfac / sensor
+    fy = fx * ax / ay
+    cx = W / 2.0 - b.shift_x * viewfac - 0.5
+    cy = H / 2.0 + b.shift_y * viewfac / ycor - 0.5
+    return ((fx, 0.0, cx), (0.0, fy, cy), (0.0, 0.0, 1.0))
+
+
+# --------------------------------------------------------------------------
+# Poses.
+
+
+def camera_rotation_blender(R):
+    """World-to-camera rotation in Blender's camera axes: ``diag(1, -1, -1) @ R``."""
+    return matmul(CV_TO_BLENDER_CAMERA, R)
+
+
+def camera_matrix_local(R, c):
+    """The camera object's 4x4 matrix (camera to rig world) from camcal's ``R, c``."""
+    Rt = transpose(camera_rotation_blender(R))
+    return (
+        (Rt[0][0], Rt[0][1], Rt[0][2], float(c[0])),
+        (Rt[1][0], Rt[1][1], Rt[1][2], float(c[1])),
+        (Rt[2][0], Rt[2][1], Rt[2][2], float(c[2])),
+        (0.0, 0.0, 0.0, 1.0),
+    )
+
+
+def rig_matrix(R, c):
+    """4x4 rig-to-world matrix from a frame's ``rig_from_world`` pose ``(R, c)``: ``[[R^T, c], [0, 1]]``."""
+    Rt = transpose(R)
+    return tuple(tuple(Rt[i]) + (float(c[i]),) for i in range(3)) + ((0.0, 0.0, 0.0, 1.0),)
+
+
+def up_axis_matrix(up_axis="Z"):
+    """4x4 matrix taking camcal world coordinates to Blender world coordinates.
+
+    ``up_axis`` names the camcal world axis that should point up (+Z) in
+    Blender: ``'Z'`` (identity), ``'Y'`` or ``'-Y'`` (OpenCV-style worlds
+    whose y points down).
+    """
+    if up_axis not in UP_AXES:
+        raise ValueError(f"up_axis: unknown {up_axis!r}, expected one of: {', '.join(UP_AXES)}")
+    M = UP_AXES[up_axis]
+    return tuple(tuple(M[i]) + (0.0,) for i in range(3)) + ((0.0, 0.0, 0.0, 1.0),)
+
+
+def relative_pose(R1, c1, R2, c2):
+    """Pose of camera 2 in camera 1's axes: ``(R_21, t)`` with ``t`` = c2 in cam-1 coordinates."""
+    R21 = matmul(R2, transpose(R1))
+    d = [c2[i] - c1[i] for i in range(3)]
+    t = tuple(sum(R1[i][k] * d[k] for k in range(3)) for i in range(3))
+    return R21, t
+
+
+def is_parallel_pair(cam_a, cam_b, rotation_tol=1e-6, offset_tol=1e-6):
+    """Whether two cameras form a rectified (parallel) stereo pair, and the baseline.
+
+    Rectified: same rotation, same ``K`` and image size, and ``b`` sits on
+    ``a``'s +x axis (to its right). Returns ``(bool, baseline)``.
+    """
+    R21, t = relative_pose(cam_a[1], cam_a[2], cam_b[1], cam_b[2])
+    rot_err = max(abs(R21[i][j] - (1.0 if i == j else 0.0)) for i in range(3) for j in range(3))
+    baseline = math.sqrt(sum(v * v for v in t))
+    Ka, Kb = cam_a[0], cam_b[0]
+    same_K = all(abs(Ka[i][j] - Kb[i][j]) <= 1e-9 * max(1.0, abs(Ka[i][j])) for i in range(3) for j in range(3))
+    ok = (
+        rot_err <= rotation_tol
+        and same_K
+        and baseline > 0
+        and t[0] > 0
+        and abs(t[1]) <= offset_tol * baseline
+        and abs(t[2]) <= offset_tol * baseline
+    )
+    return ok, baseline
+
+
+def rectified_camera(K, R, rectification):
+    """``(K_rect, R_rect, image_size)`` of the rectified camera.
+
+    The rectifying homography maps original pixels to rectified ones,
+    ``x_rect ~ H x``, with both cameras at the same centre, so
+    ``H ~ K_rect R_rect R^T K^-1`` and ``R_rect = K_rect^-1 H K R`` up to
+    scale; the result is scaled to det +1 and re-orthonormalised.
+    """
+    M = matmul(matmul(matmul(inverse3(rectification.K_rect), rectification.H), K), R)
+    det = _det3(M)
+    if det == 0:
+        raise ValueError("degenerate rectification homography")
+    s = math.copysign(abs(det) ** (1.0 / 3.0), det)
+    Rr = tuple(tuple(v / s for v in row) for row in M)
+    for _ in range(20):  # Newton's polar iteration: R <- (R + R^-T) / 2
+        inv_t = transpose(inverse3(Rr))
+        Rr = tuple(tuple(0.5 * (Rr[i][j] + inv_t[i][j]) for j in range(3)) for i in range(3))
+    return rectification.K_rect, Rr, tuple(rectification.image_size)
+
+
+# --------------------------------------------------------------------------
+# Distortion.
+
+
+def to_blender_pixel(point, height):
+    """camcal pixel (centres at integers, y down) -> Blender tracking pixel (edges, y up)."""
+    return (point[0] + 0.5, height - 0.5 - point[1])
+
+
+def from_blender_pixel(point, height):
+    """Blender tracking pixel (edges, y up) -> camcal pixel (centres at integers, y down)."""
+    return (point[0] - 0.5, height - 0.5 - point[1])
+
+
+def division_undistort(point, center, lam):
+    """Strand & Hayman: ``x_u = c + (x_d - c) / (1 + lambda r_d^2)`` (pixels)."""
+    dx, dy = point[0] - center[0], point[1] - center[1]
+    f = 1.0 / (1.0 + lam * (dx * dx + dy * dy))
+    return (center[0] + dx * f, center[1] + dy * f)
+
+
+def division_distort(point, center, lam):
+    """Inverse of :func:`division_undistort`: the root of
+    ``lambda r_u r_d^2 - r_d + r_u = 0`` that is continuous at ``r_u = 0``."""
+    dx, dy = point[0] - center[0], point[1] - center[1]
+    ru = math.hypot(dx, dy)
+    if ru == 0.0 or lam == 0.0:
+        return (float(point[0]), float(point[1]))
+    disc = 1.0 - 4.0 * lam * ru * ru
+    if disc < 0:
+        raise ValueError(f"point at r = {ru:.1f} px is outside the division model's range")
+    rd = 2.0 * ru / (1.0 + math.sqrt(disc))
+    s = rd / ru
+    return (center[0] + dx * s, center[1] + dy * s)
+
+
+def polynomial_distort(point, center, focal, ks):
+    """``r_d = r_u (1 + k1 r_u^2 + k2 r_u^4 + k3 r_u^6)`` in coordinates normalised by ``focal``."""
+    x = (point[0] - center[0]) / focal
+    y = (point[1] - center[1]) / focal
+    r2 = x * x + y * y
+    f = 1.0
+    p = 1.0
+    for k in ks:
+        p *= r2
+        f += k * p
+    return (center[0] + x * f * focal, center[1] + y * f * focal)
+
+
+def polynomial_undistort(point, center, focal, ks, iterations=50):
+    """Inverse of :func:`polynomial_distort` (Newton on the radius)."""
+    xd = (point[0] - center[0]) / focal
+    yd = (point[1] - center[1]) / focal
+    rd = math.hypot(xd, yd)
+    if rd == 0.0:
+        return (float(point[0]), float(point[1]))
+    ru = rd
+    for _ in range(iterations):
+        r2 = ru * ru
+        f, fp, p = 1.0, 1.0, 1.0
+        for n, k in enumerate(ks, start=1):
+            p *= r2
+            f += k * p
+            fp += (2 * n + 1) * k * p
+        step = (ru * f - rd) / fp
+        ru -= step
+        if abs(step) < 1e-15:
+            break
+    s = ru / rd
+    return (center[0] + xd * s * focal, center[1] + yd * s * focal)
+
+
+def opencv_distort(point, center, focal, params):
+    """OpenCV's radial-tangential model (k1, k2, p1, p2[, k3]) in coordinates
+    normalised by one ``focal`` around ``center`` (y down)."""
+    x = (point[0] - center[0]) / focal
+    y = (point[1] - center[1]) / focal
+    r2 = x * x + y * y
+    k1, k2, k3 = params["k1"], params["k2"], params.get("k3", 0.0)
+    p1, p2 = params["p1"], params["p2"]
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return (center[0] + xd * focal, center[1] + yd * focal)
+
+
+def distort(distortion, point, center, focal):
+    """Undistorted -> distorted pixel for a :class:`rigfile.Distortion`, around ``center``.
+
+    ``focal`` (pixels) normalises the polynomial and OpenCV models.
+    """
+    p = distortion.params
+    if distortion.model == "division":
+        return division_distort(point, center, p["lambda"])
+    if distortion.model == "polynomial":
+        return polynomial_distort(point, center, focal, [p.get(k, 0.0) for k in ("k1", "k2", "k3")])
+    if distortion.model == "opencv":
+        return opencv_distort(point, center, focal, p)
+    return (float(point[0]), float(point[1]))
+
+
+def overscan_margins(image_size, overscan):
+    """Whole-pixel margins ``(mx, my)`` on each side for an overscan factor (>= 1)."""
+    if not overscan >= 1.0:
+        raise ValueError(f"overscan must be >= 1, got {overscan}")
+    W, H = image_size
+    # The small epsilon keeps e.g. 1.1 * 240 from rounding up a whole pixel.
+    return (
+        int(math.ceil((overscan - 1.0) * W / 2.0 - 1e-9)),
+        int(math.ceil((overscan - 1.0) * H / 2.0 - 1e-9)),
+    )
+
+
+@dataclass(frozen=True)
+class BlenderLens:
+    """Settings of a MovieClip's tracking camera that carry a camcal lens.
+
+    ``calibration_size`` is the size the clip's frame must have;
+    ``principal_point_pixels`` is the *distortion centre* in Blender's
+    tracking pixels (bottom-left origin, y up, edges). ``params`` maps
+    tracking-camera property names to values.
+    """
+
+    distortion_model: str
+    params: dict
+    focal_length_pixels: float
+    principal_point_pixels: tuple
+    calibration_size: tuple
+    exact: bool
+    note: str
+
+
+def blender_lens(distortion, K, image_size, margins=(0, 0)):
+    """The tracking-camera lens for a camcal distortion model.
+
+    Parameters
+    ----------
+    distortion : rigfile.Distortion
+        ``division`` becomes Blender's ``NUKE`` model (Strand & Hayman
+        distorted -> undistorted, radius normalised by ``max(W, H) / 2``):
+        ``nuke_k1 = lambda * (max(W, H) / 2) ** 2``; ``polynomial`` becomes
+        ``POLYNOMIAL`` (radius normalised by the focal length ``fx``).
+        ``opencv`` becomes ``BROWN`` with ``p1`` negated for Blender's y-up
+        axis (exact only with fx == fy).
+    K : 3x3
+        Gives the focal length (pixels) used for normalised models.
+    image_size : (W, H)
+    margins : (mx, my)
+        Overscan margins added on each side: the frame is then
+        ``(W + 2 mx, H + 2 my)`` and the centre moves by the margins.
+
+    Returns
+    -------
+    BlenderLens
+    """
+    W, H = image_size
+    mx, my = margins
+    Wc, Hc = W + 2 * mx, H + 2 * my
+    center = distortion.center if distortion.center is not None else (K[0][2], K[1][2])
+    pp = to_blender_pixel((center[0] + mx, center[1] + my), Hc)
+    fx, fy = float(K[0][0]), float(K[1][1])
+    model = distortion.model
+    p = distortion.params
+    exact = True
+    note = ""
+    if model == "none":
+        blender_model, params = "POLYNOMIAL", {"k1": 0.0, "k2": 0.0, "k3": 0.0}
+    elif model == "division":
+        half = max(Wc, Hc) / 2.0
+        blender_model, params = "NUKE", {"nuke_k1": p["lambda"] * half * half, "nuke_k2": 0.0}
+    elif model == "polynomial":
+        blender_model = "POLYNOMIAL"
+        params = {"k1": p.get("k1", 0.0), "k2": p.get("k2", 0.0), "k3": p.get("k3", 0.0)}
+        if abs(fx - fy) > 1e-9 * fx:
+            exact, note = False, "Blender normalises both axes by one focal length (fx)"
+    elif model == "opencv":
+        blender_model = "BROWN"
+        params = {
+            "brown_k1": p["k1"], "brown_k2": p["k2"], "brown_k3": p.get("k3", 0.0), "brown_k4": 0.0,
+            "brown_p1": -p["p1"], "brown_p2": p["p2"],
+        }
+        if abs(fx - fy) > 1e-9 * fx:
+            exact, note = False, "Blender normalises both axes by one focal length (fx)"
+    else:  # rigfile validates models; keep the error explicit anyway
+        raise ValueError(f"unknown distortion model {model!r}")
+    return BlenderLens(
+        distortion_model=blender_model,
+        params=params,
+        focal_length_pixels=fx,
+        principal_point_pixels=pp,
+        calibration_size=(Wc, Hc),
+        exact=exact,
+        note=note,
+    )

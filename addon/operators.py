@@ -1,0 +1,171 @@
+"""Operators: glue between the UI and :func:`.importer.import_rig`."""
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
+from bpy_extras.io_utils import ImportHelper
+
+from . import importer
+from .rigfile import RigFileError
+
+__all__ = ["register", "unregister", "classes"]
+
+UP_AXIS_ITEMS = (
+    ("Z", "Z up", "The rig's world z axis points up"),
+    ("-Y", "-Y up", "The rig's world y axis points down (OpenCV-style world)"),
+    ("Y", "Y up", "The rig's world y axis points up"),
+)
+SENSOR_FIT_ITEMS = (
+    ("AUTO", "Auto", "Blender's automatic fit (exact as well)"),
+    ("HORIZONTAL", "Horizontal", "Fit the sensor width to the image width"),
+    ("VERTICAL", "Vertical", "Fit the sensor height to the image height"),
+)
+
+
+class CamcalRigPreferences(bpy.types.AddonPreferences):
+    bl_idname = __package__
+
+    lens_directory: StringProperty(
+        name="Lens frames folder", subtype="DIR_PATH", default="",
+        description="Where blank lens frames for movie clips are written "
+        "(default: beside the saved .blend, else beside the rig file)",
+    )
+
+    def draw(self, context):
+        self.layout.prop(self, "lens_directory")
+
+
+def _preferences(context):
+    addon = context.preferences.addons.get(__package__)
+    return addon.preferences if addon is not None else None
+
+
+def _camcal_camera(obj):
+    return obj is not None and obj.type == "CAMERA" and "camcal_image_size" in obj.data
+
+
+class IMPORT_SCENE_OT_camcal_rig(bpy.types.Operator, ImportHelper):
+    """Import a camera rig solved by camcal (*.rig.json)"""
+
+    bl_idname = "import_scene.camcal_rig"
+    bl_label = "Import camcal rig"
+    bl_options = {"REGISTER", "UNDO", "PRESET"}
+
+    filename_ext = ".json"
+    filter_glob: StringProperty(default="*.rig.json;*.json", options={"HIDDEN"})
+
+    up_axis: EnumProperty(name="Up axis", items=UP_AXIS_ITEMS, default="Z")
+    sensor_fit: EnumProperty(name="Sensor fit", items=SENSOR_FIT_ITEMS, default="AUTO")
+    use_rectified: BoolProperty(name="Rectified cameras", default=False,
+                                description="Import the rectified cameras and plates")
+    import_plates: BoolProperty(name="Plates", default=True,
+                                description="Camera background images from the rig's frames")
+    plate_directory: StringProperty(name="Plate folder", subtype="DIR_PATH", default="",
+                                    description="Folder of <camera name>.<ext> plates (optional)")
+    import_points: BoolProperty(name="Sparse points", default=True)
+    stereo: BoolProperty(name="Stereo / multi-view", default=True)
+    distortion: BoolProperty(name="Lens distortion clips", default=True)
+    compositor: BoolProperty(name="Distortion compositor", default=True,
+                             description="Scenes that distort the render with Movie Distortion")
+    overscan: FloatProperty(name="Overscan", default=1.1, min=1.0, max=2.0)
+
+    def execute(self, context):
+        try:
+            result = importer.import_rig(
+                context,
+                self.filepath,
+                up_axis=self.up_axis,
+                sensor_fit=self.sensor_fit,
+                use_rectified=self.use_rectified,
+                import_plates=self.import_plates,
+                plate_directory=bpy.path.abspath(self.plate_directory) or None,
+                import_points=self.import_points,
+                stereo=self.stereo,
+                distortion=self.distortion,
+                compositor=self.compositor,
+                overscan=self.overscan,
+                aux_directory=bpy.path.abspath(getattr(_preferences(context), "lens_directory", "")) or None,
+            )
+        except (RigFileError, OSError, ValueError) as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        for warning in result.warnings:
+            self.report({"WARNING"}, warning)
+        self.report({"INFO"}, f"imported rig {result.rig.name!r}: {len(result.cameras)} camera(s)")
+        return {"FINISHED"}
+
+
+class CAMCAL_OT_set_active_camera(bpy.types.Operator):
+    """Make this camcal camera the scene camera, with its resolution, and look through it"""
+
+    bl_idname = "camcal.set_active_camera"
+    bl_label = "Set active camera"
+    bl_options = {"REGISTER", "UNDO"}
+
+    camera: StringProperty(name="Camera object")
+    view: BoolProperty(name="Look through", default=True)
+
+    def execute(self, context):
+        obj = bpy.data.objects.get(self.camera)
+        if not _camcal_camera(obj):
+            self.report({"ERROR"}, f"{self.camera!r} is not a camera imported by camcal")
+            return {"CANCELLED"}
+        context.scene.camera = obj
+        importer.apply_resolution(context.scene, obj)
+        space = context.space_data
+        if self.view and space is not None and space.type == "VIEW_3D":
+            space.region_3d.view_perspective = "CAMERA"
+        return {"FINISHED"}
+
+
+class CAMCAL_OT_apply_resolution(bpy.types.Operator):
+    """Set the render size and pixel aspect to those of the active camcal camera"""
+
+    bl_idname = "camcal.apply_resolution"
+    bl_label = "Re-apply resolution"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return _camcal_camera(context.scene.camera)
+
+    def execute(self, context):
+        importer.apply_resolution(context.scene, context.scene.camera)
+        return {"FINISHED"}
+
+
+class CAMCAL_OT_toggle_stereo(bpy.types.Operator):
+    """Switch stereo / multi-view rendering on or off"""
+
+    bl_idname = "camcal.toggle_stereo"
+    bl_label = "Toggle stereo"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        render = context.scene.render
+        render.use_multiview = not render.use_multiview
+        return {"FINISHED"}
+
+
+def menu_import(self, context):
+    self.layout.operator(IMPORT_SCENE_OT_camcal_rig.bl_idname, text="camcal rig (.rig.json)")
+
+
+classes = (
+    CamcalRigPreferences,
+    IMPORT_SCENE_OT_camcal_rig,
+    CAMCAL_OT_set_active_camera,
+    CAMCAL_OT_apply_resolution,
+    CAMCAL_OT_toggle_stereo,
+)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.TOPBAR_MT_file_import.append(menu_import)
+
+
+def unregister():
+    bpy.types.TOPBAR_MT_file_import.remove(menu_import)
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
