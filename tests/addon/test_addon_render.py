@@ -22,11 +22,9 @@ def _emissive_spheres(bpy, scene, points, radius):
     import bmesh
 
     world = bpy.data.worlds.new("black")
-    world.use_nodes = True
     world.node_tree.nodes["Background"].inputs[0].default_value = (0, 0, 0, 1)
     scene.world = world
     material = bpy.data.materials.new("emit")
-    material.use_nodes = True
     nodes = material.node_tree.nodes
     nodes.clear()
     emission = nodes.new("ShaderNodeEmission")
