@@ -159,6 +159,53 @@ def _calibrate_dlt(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate_board(args: argparse.Namespace) -> int:
+    import glob
+
+    import numpy as np
+
+    from camcal.geometry.board import detect_in_images, parse_board
+    from camcal.geometry.zhang import calibrate_board, write_report
+
+    board = parse_board(args.board)
+    cameras: dict[str, list[str]] = {}
+    for entry in args.camera:
+        name, sep, pattern = entry.partition("=")
+        if not sep or not name or not pattern:
+            raise CamcalError(f"--camera must be NAME=GLOB (e.g. left='shots/left*.jpg'), got {entry!r}")
+        if name in cameras:
+            raise CamcalError(f"camera {name!r} given twice")
+        files = sorted(glob.glob(pattern))
+        if not files:
+            raise CamcalError(f"camera {name!r}: no image matches {pattern!r}")
+        cameras[name] = files
+    detections = {}
+    for name, files in cameras.items():
+        report = detect_in_images(board, files, progress=f"detecting {name}")
+        print(f"{name}: {report.summary()}")
+        detections[name] = report.detections
+    result = calibrate_board(board, detections, model=args.model, units=args.units)
+    result.rig.save(args.out)
+    print(result.summary())
+    if result.outliers:
+        print("dropped as outliers: " + ", ".join(image for _, image in result.outliers))
+    for camera in result.rig.cameras:
+        K, sigma = camera.K, camera.quality["sigma"]
+        line = (
+            f"{camera.name}: fx {K[0, 0]:.2f} +/- {sigma['fx']:.2f}  fy {K[1, 1]:.2f} +/- {sigma['fy']:.2f}  "
+            f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) +/- ({sigma['cx']:.2f}, {sigma['cy']:.2f}) px  "
+            f"RMS {camera.quality['rms_px']:.3f} px"
+        )
+        if "baseline" in sigma:
+            line += f"  baseline {float(np.linalg.norm(camera.c)):.4f} +/- {sigma['baseline']:.4f} {result.rig.units}"
+        print(line)
+    print(f"wrote {args.out}")
+    if args.report:
+        for path in write_report(result, args.report):
+            print(f"wrote {path}")
+    return 0
+
+
 def _register_calibrate(subparsers) -> None:
     calibrate = subparsers.add_parser("calibrate", help="calibrate cameras from targets or correspondences")
     verbs = calibrate.add_subparsers(dest="calibrate_verb", metavar="METHOD")
@@ -174,6 +221,27 @@ def _register_calibrate(subparsers) -> None:
     dlt.add_argument("--name", default="camera", help="camera name in the rig (default: camera)")
     dlt.add_argument("--out", required=True, metavar="FILE.rig.json")
     dlt.set_defaults(func=_calibrate_dlt)
+    board = verbs.add_parser(
+        "board",
+        help="one camera or an N-camera rig from chessboard / ChArUco images (joint refinement)",
+        description="Detect the board in every image, calibrate each camera with OpenCV, then refine "
+        "all intrinsics, distortion and camera poses jointly. Views of several cameras are matched by "
+        "the frame number in their file names; the first camera is the reference (R = I, c = 0).",
+    )
+    board.add_argument(
+        "--board", required=True, metavar="SPEC",
+        help="chessboard:WxH:SQUARE (inner corners) or charuco:DICT:WxH:SQUARE:MARKER (squares)",
+    )
+    board.add_argument(
+        "--camera", required=True, action="append", metavar="NAME=GLOB",
+        help="a camera and its images, e.g. left='shots/left*.jpg' (repeat for every camera)",
+    )
+    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv"),
+                       help="distortion model (default: polynomial)")
+    board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
+    board.add_argument("--out", required=True, metavar="FILE.rig.json")
+    board.add_argument("--report", metavar="DIR", help="write PNG plots: residuals, per-image RMS, coverage")
+    board.set_defaults(func=_calibrate_board)
 
 
 # -- camcal solve --------------------------------------------------------------------
@@ -237,5 +305,234 @@ def _register_demo(subparsers) -> None:
     demo.set_defaults(func=_demo)
 
 
+# -- camcal distortion ---------------------------------------------------------------
+
+
+def _pattern(value: str) -> tuple[int, int]:
+    try:
+        cols, rows = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        raise CamcalError(f"--pattern must look like 9x6 (inner corners), got {value!r}") from None
+    if cols < 2 or rows < 2:
+        raise CamcalError(f"--pattern needs at least 2x2 inner corners, got {value!r}")
+    return cols, rows
+
+
+def _distortion_fit(args: argparse.Namespace) -> int:
+    import cv2
+
+    from camcal.geometry.plumbline import fit_plumbline, lines_from_images, read_lines
+    from camcal.io.jsonfile import write_json
+
+    if bool(args.images) == bool(args.lines):
+        raise CamcalError("give either IMAGES or --lines LINES.json (not both)")
+    if args.lines:
+        lines = read_lines(args.lines)
+        skipped: list[str] = []
+    else:
+        images = []
+        for path in args.images:
+            image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
+            if image is None:
+                raise CamcalError(f"cannot read image {path}")
+            images.append(image)
+        pattern = _pattern(args.pattern) if args.pattern else None
+        lines, skipped_index = lines_from_images(images, pattern)
+        skipped = [args.images[i] for i in skipped_index]
+        what = "board" if pattern else "long straight edges"
+        print(f"{what} found in {len(images) - len(skipped)} / {len(images)} images"
+              + (f" (skipped: {', '.join(skipped)})" if skipped else ""))
+    result = fit_plumbline(lines, args.model, fit_center=args.fit_centre)
+    write_json(args.out, result.to_dict())
+    if args.report:
+        from pathlib import Path
+
+        write_json(Path(args.report) / "plumbline_report.json", {
+            **result.to_dict(),
+            "strand_hayman": {
+                "distortion": result.initial.distortion.to_dict(),
+                "lambda_per_line": result.initial.lambda_per_line.tolist(),
+                "weights": result.initial.weights.tolist(),
+            },
+            "rms_before_px": result.rms_before_px.tolist(),
+            "rms_after_px": result.rms_after_px.tolist(),
+        })
+    params = ", ".join(f"{k} {v:.6g}" for k, v in result.distortion.params.items())
+    centre = result.distortion.center or tuple(result.K[:2, 2])
+    print(f"{result.distortion.model}: {params} about ({centre[0]:.2f}, {centre[1]:.2f}) px")
+    print(f"straightness RMS: {result.straightness_rms_before_px:.3f} px before, "
+          f"{result.straightness_rms_px:.3f} px after (worst line {result.rms_after_px.max():.3f} px, "
+          f"{result.n_lines} lines, {result.n_points} points)")
+
+# -- camcal rectify ------------------------------------------------------------------
+
+
+def _parse_images(entries: Sequence[str]) -> dict[str, list[str]]:
+    import glob
+
+    images: dict[str, list[str]] = {}
+    for entry in entries:
+        name, sep, pattern = entry.partition("=")
+        if not sep or not name or not pattern:
+            raise CamcalError(f"--images takes NAME=GLOB, got {entry!r}")
+        images[name] = sorted(glob.glob(pattern))
+    return images
+
+
+def _rectify(args: argparse.Namespace) -> int:
+    from camcal.geometry.rectify import RectifyWarper, match_images, read_matches_csv, rectify
+    from camcal.io.jsonfile import write_json
+    from camcal.rig import Rig
+
+    if not 0.0 <= args.alpha <= 1.0:
+        raise CamcalError(f"--alpha must be in [0, 1], got {args.alpha}")
+    if args.write and not args.images:
+        raise CamcalError("--write needs --images NAME=GLOB for the cameras to rectify")
+    rig = Rig.load(args.rig)
+    images = _parse_images(args.images or [])
+    for name, files in images.items():
+        rig.camera(name)
+        if not files:
+            raise CamcalError(f"--images {name}=...: no file matches")
+    names = list(images) if len(images) >= 2 else None
+    if args.matches:
+        matches = read_matches_csv(args.matches)
+    elif images and (args.method == "hartley" or args.refine):
+        matches = match_images(rig, {name: files[0] for name, files in images.items()})
+    else:
+        matches = None
+    method = {"camera": "Nozick 2011" if args.refine else "camera", "hartley": "Hartley 1999"}[args.method]
+    result = rectify(rig, method, matches, names, args.alpha)
+    written = []
+    if args.write:
+        warper = RectifyWarper(result.rig)
+        for name in result.names:
+            written += warper.write(name, images.get(name, []), args.write)
+    result.rig.save(args.out)
+    print(result.summary())
+    if written:
+        print(f"wrote {len(written)} rectified image(s) to {args.write}")
+    if args.report:
+        report = write_json(f"{args.report}/rectification.json", result.to_report())
+        print(f"wrote {report}")
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _register_distortion(subparsers) -> None:
+    distortion = subparsers.add_parser("distortion", help="lens distortion from straight lines")
+    verbs = distortion.add_subparsers(dest="distortion_verb", metavar="VERB")
+    verbs.required = True
+    fit = verbs.add_parser(
+        "fit",
+        help="plumb-line fit (Strand & Hayman, refined by Devernay & Faugeras)",
+        description="Fit a division or polynomial lens model so that straight lines become straight. "
+        "Lines come from chessboard rows/columns (--pattern), from long edges in IMAGES, or from "
+        'LINES.json: {"image_size": [W, H], "lines": [[[x, y], ...], ...]}.',
+    )
+    fit.add_argument("images", nargs="*", metavar="IMAGES", help="images of one camera")
+    fit.add_argument("--lines", metavar="LINES.json", help="line points instead of images")
+    fit.add_argument("--pattern", metavar="COLSxROWS", help="chessboard inner corners, e.g. 9x6 (default: edges)")
+    fit.add_argument("--model", choices=("division", "polynomial"), default="division")
+    fit.add_argument("--fit-centre", action="store_true", help="fit the distortion centre too")
+    fit.add_argument("--out", required=True, metavar="lens.json")
+    fit.add_argument("--report", metavar="DIR", help="write per-line figures to DIR/plumbline_report.json")
+    fit.set_defaults(func=_distortion_fit)
+
+
+# -- camcal undistort / stmap ------------------------------------------------------------
+
+
+def _undistort(args: argparse.Namespace) -> int:
+    from camcal.geometry.undistort import undistort_images
+    from camcal.rig import Rig
+
+    rig = Rig.load(args.rig)
+    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan)
+    camera = Rig.load(rig_path).camera(args.camera)
+    width, height = camera.image_size
+    print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
+          f"fx {camera.K[0, 0]:.3f} fy {camera.K[1, 1]:.3f} principal point ({camera.K[0, 2]:.2f}, {camera.K[1, 2]:.2f})")
+    print(f"wrote {rig_path} and {len(written)} image(s) in {args.out}")
+    return 0
+
+
+def _register_undistort(subparsers) -> None:
+    undistort = subparsers.add_parser(
+        "undistort",
+        help="undistort images of a rig camera",
+        description="Undistort images with one remap per image; writes them under their own names "
+        "and DIR/undistorted.rig.json with the new K and distortion none.",
+    )
+    undistort.add_argument("rig", metavar="RIG", help="a *.rig.json file")
+    undistort.add_argument("--camera", required=True, metavar="NAME")
+    undistort.add_argument("images", nargs="+", metavar="IMAGES")
+    undistort.add_argument("--mode", choices=("crop", "keep", "overscan"), default="crop",
+                           help="crop: no black borders; keep: every source pixel kept (bigger canvas); "
+                           "overscan: canvas --overscan times the plate (default: crop)")
+    undistort.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+    undistort.add_argument("--out", required=True, metavar="DIR")
+    undistort.set_defaults(func=_undistort)
+
+
+def _stmap(args: argparse.Namespace) -> int:
+    from camcal.geometry.stmap import write_stmaps
+    from camcal.rig import Rig
+
+    paths = write_stmaps(Rig.load(args.rig), args.camera, args.out, args.overscan)
+    print(f"ST-maps of {args.camera!r} with overscan {args.overscan:g}")
+    for path in paths:
+        print(f"wrote {path}")
+    return 0
+
+
+def _register_stmap(subparsers) -> None:
+    stmap = subparsers.add_parser(
+        "stmap",
+        help="undistort/redistort ST-maps (EXR) for comp packages",
+        description="Write NAME_undistort.exr and NAME_redistort.exr (R = (x + 0.5) / W, "
+        "G = 1 - (y + 0.5) / H of the pixel to sample) and the undistorted rig.",
+    )
+    stmap.add_argument("rig", metavar="RIG", help="a *.rig.json file")
+    stmap.add_argument("--camera", required=True, metavar="NAME")
+    stmap.add_argument("--overscan", type=float, default=1.1, help="undistorted canvas factor (default 1.1)")
+    stmap.add_argument("--out", required=True, metavar="DIR")
+    stmap.set_defaults(func=_stmap)
+
+
+def _register_rectify(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "rectify",
+        help="rectify 2 or N views (calibrated, N-view refined, or Hartley from matches)",
+        description="Rectify a rig's cameras onto one image plane and store per camera "
+        "rectification {H, K_rect, image_size}, H mapping UNDISTORTED original pixels to "
+        "rectified pixels. --method camera uses the calibration (with --refine: the N-view "
+        "refinement of Nozick 2011 on matches); --method hartley uses only point matches "
+        "(Hartley 1999). Matches come from --matches (CSV camera_a,u_a,v_a,camera_b,u_b,v_b) "
+        "or from SIFT on the first image of each --images sequence.",
+    )
+    parser.add_argument("rig", metavar="RIG", help="a calibrated *.rig.json")
+    parser.add_argument("--method", choices=("camera", "hartley"), default="camera")
+    parser.add_argument("--refine", action="store_true", help="camera method: refine on matches (Nozick 2011)")
+    parser.add_argument("--images", nargs="+", metavar="NAME=GLOB", help="images per camera, e.g. left='L/*.png'")
+    parser.add_argument("--matches", metavar="FILE.csv", help="point matches in original pixels")
+    parser.add_argument("--alpha", type=float, default=0.0,
+                        help="0: only pixels all views see (default); 1: every source pixel")
+    parser.add_argument("--out", required=True, metavar="FILE.rig.json", help="the rectified rig")
+    parser.add_argument("--write", metavar="DIR", help="write rectified images to DIR/<camera>/")
+    parser.add_argument("--report", metavar="DIR", help="write DIR/rectification.json with the figures")
+    parser.set_defaults(func=_rectify)
+
+
 # One entry per verb group; keep this list the only place verbs are wired in.
-_REGISTERS: list = [_register_rig, _register_calibrate, _register_solve, _register_demo, _register_blender]
+_REGISTERS: list = [
+    _register_rig,
+    _register_calibrate,
+    _register_distortion,
+    _register_undistort,
+    _register_stmap,
+    _register_rectify,
+    _register_solve,
+    _register_demo,
+    _register_blender,
+]

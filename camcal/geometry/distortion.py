@@ -24,6 +24,10 @@ Models
 The division model inverts in closed form; the polynomial models invert by
 Newton iterations to 1e-10 px.
 
+Conversions between models are fits (:func:`fit_distortion`): the target
+model that best reproduces the source model's distorted pixels over the
+image, returned with its RMS and max residual in pixels.
+
 References
 ----------
 Strand, R. & Hayman, E. (2005). Correcting radial distortion by circle
@@ -40,11 +44,12 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 
 import numpy as np
+import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from camcal.errors import CamcalError
 
-__all__ = ["MODEL_PARAMS", "Distortion"]
+__all__ = ["MODEL_PARAMS", "Distortion", "DistortionFit", "fit_distortion"]
 
 #: Parameter names of each model: (required, optional).
 MODEL_PARAMS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = MappingProxyType(
@@ -138,6 +143,11 @@ class Distortion:
     def none(cls) -> Distortion:
         """The identity model."""
         return cls("none", {})
+
+    @property
+    def is_identity(self) -> bool:
+        """True when the model leaves every point where it is."""
+        return all(value == 0.0 for value in self.params.values())
 
     # -- file boundary -------------------------------------------------------
 
@@ -307,3 +317,158 @@ def _normalised_to_pixels(xy: NDArray[np.float64], K: NDArray[np.float64]) -> ND
     fx, s, cx = K[0]
     fy, cy = K[1, 1], K[1, 2]
     return np.stack([fx * xy[:, 0] + s * xy[:, 1] + cx, fy * xy[:, 1] + cy], axis=1)
+
+
+# -- fits between models ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DistortionFit:
+    """A distortion model fitted to another one over an image.
+
+    Attributes
+    ----------
+    distortion : Distortion
+        The fitted model.
+    rms_px, max_px : float
+        RMS and maximum distance, in distorted pixels, between where the
+        source and the fitted model put the points of the sample grid.
+    n_points : int
+        Number of grid points the residuals cover.
+    """
+
+    distortion: Distortion
+    rms_px: float
+    max_px: float
+    n_points: int
+
+
+def _frame_grid(image_size: tuple[int, int], step_px: float) -> NDArray[np.float64]:
+    """Distorted pixels on a regular grid over the frame, edges included."""
+    width, height = image_size
+    u = np.unique(np.append(np.arange(0.0, width - 1, step_px), width - 1.0))
+    v = np.unique(np.append(np.arange(0.0, height - 1, step_px), height - 1.0))
+    return np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
+
+
+def _model_from_vector(model: str, names: tuple[str, ...], vector: NDArray, fit_center: bool) -> Distortion:
+    n = len(names)
+    center = (float(vector[n]), float(vector[n + 1])) if fit_center else None
+    return Distortion(model, dict(zip(names, (float(v) for v in vector[:n]))), center=center)
+
+
+def fit_distortion(
+    source: Distortion,
+    K: ArrayLike,
+    image_size: tuple[int, int],
+    model: str,
+    *,
+    fit_center: bool = False,
+    with_k3: bool = False,
+    step_px: float = 16.0,
+) -> DistortionFit:
+    """Fit a distortion model of another kind to ``source`` over the image.
+
+    Parameters
+    ----------
+    source : Distortion
+        The model to imitate.
+    K : array_like, shape (3, 3)
+        Camera matrix both models are used with (normalisation, and the
+        default division centre).
+    image_size : (int, int)
+        (width, height) in pixels; the fit covers the whole frame.
+    model : str
+        Target model: ``division``, ``polynomial`` or ``opencv``.
+    fit_center : bool
+        Division target only: fit the distortion centre too (else it is the
+        principal point).
+    with_k3 : bool
+        Polynomial target only: fit ``k3`` as well as ``k1, k2``.
+    step_px : float
+        Spacing of the sample grid in pixels.
+
+    Returns
+    -------
+    DistortionFit
+        The fitted model with its RMS and max residual in pixels.
+
+    Notes
+    -----
+    For each distorted pixel ``x_d`` of a grid over the frame, the ideal
+    pixel is ``x_u = source.undistort(x_d)``; the fit minimises
+    ``sum |target.distort(x_u) - x_d|^2`` (distances in the distorted image,
+    where an artist sees them) with ``scipy.optimize.least_squares``,
+    started from the linear least-squares solution of the target written
+    in the undistorting direction (the division model is linear in
+    ``lambda``: ``(x_u - c)(1 + lambda r_d^2) = x_d - c``; the polynomial
+    models are linear in their coefficients in normalised coordinates).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> K = np.array([[1000.0, 0, 639.5], [0, 1000.0, 359.5], [0, 0, 1]])
+    >>> lens = Distortion("polynomial", {"k1": -0.05, "k2": 0.0})
+    >>> fit = fit_distortion(lens, K, (1280, 720), "division")
+    >>> fit.distortion.params["lambda"] < 0, fit.max_px < 0.5
+    (True, True)
+    """
+    K = np.asarray(K, dtype=np.float64)
+    if model not in ("division", "polynomial", "opencv"):
+        raise CamcalError(f"cannot fit model {model!r}, expected one of: division, polynomial, opencv")
+    if fit_center and model != "division":
+        raise CamcalError("fit_center applies only to the division model")
+    if with_k3 and model != "polynomial":
+        raise CamcalError("with_k3 applies only to the polynomial model")
+    if step_px <= 0:
+        raise CamcalError(f"step_px must be positive, got {step_px}")
+    distorted = _frame_grid(image_size, step_px)
+    ideal = source.undistort(distorted, K)
+    keep = np.all(np.isfinite(ideal), axis=1)
+    distorted, ideal = distorted[keep], ideal[keep]
+    if len(distorted) < 10:
+        raise CamcalError("the source model maps too few pixels of the frame to finite points")
+
+    if model == "division":
+        names: tuple[str, ...] = ("lambda",)
+        centre = K[:2, 2]
+        offset_u, offset_d = ideal - centre, distorted - centre
+        r2 = np.sum(offset_d**2, axis=1)
+        a = (offset_u * r2[:, None]).ravel()
+        b = (offset_d - offset_u).ravel()
+        start = np.array([a @ b / (a @ a)]) if a @ a > 0 else np.zeros(1)
+        if fit_center:
+            start = np.append(start, centre)
+    else:
+        names = ("k1", "k2", "k3") if (model == "polynomial" and with_k3) else (
+            ("k1", "k2") if model == "polynomial" else ("k1", "k2", "p1", "p2", "k3"))
+        xy = _pixels_to_normalised(ideal, K)
+        xy_d = _pixels_to_normalised(distorted, K)
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        columns = {
+            "k1": np.concatenate([x * r2, y * r2]),
+            "k2": np.concatenate([x * r2**2, y * r2**2]),
+            "k3": np.concatenate([x * r2**3, y * r2**3]),
+            "p1": np.concatenate([2 * x * y, r2 + 2 * y * y]),
+            "p2": np.concatenate([r2 + 2 * x * x, 2 * x * y]),
+        }
+        design = np.stack([columns[name] for name in names], axis=1)
+        target = np.concatenate([xy_d[:, 0] - x, xy_d[:, 1] - y])
+        start = np.linalg.lstsq(design, target, rcond=None)[0]
+
+    def residuals(vector: NDArray[np.float64]) -> NDArray[np.float64]:
+        candidate = _model_from_vector(model, names, vector, fit_center)
+        predicted = candidate.distort(ideal, K)
+        # beyond the division model's range: a large finite penalty
+        return np.nan_to_num(predicted - distorted, nan=1e6).ravel()
+
+    solution = scipy.optimize.least_squares(residuals, start, x_scale="jac", method="lm", xtol=1e-15, ftol=1e-15)
+    fitted = _model_from_vector(model, names, solution.x, fit_center)
+    distances = np.linalg.norm(fitted.distort(ideal, K) - distorted, axis=1)
+    return DistortionFit(
+        distortion=fitted,
+        rms_px=float(np.sqrt(np.mean(distances**2))),
+        max_px=float(np.max(distances)),
+        n_points=int(len(distances)),
+    )

@@ -111,3 +111,56 @@ def test_dict_round_trip_and_unknown_keys():
         Distortion.from_dict({"model": "none", "params": {}, "centre": [0, 0]})
     with pytest.raises(CamcalError, match="shape"):
         MODELS[0].distort(np.zeros((3, 3)), K)
+
+
+# -- fits between models ------------------------------------------------------------
+
+from camcal.geometry.distortion import fit_distortion  # noqa: E402
+
+
+def test_fit_recovers_a_model_of_the_same_kind():
+    for truth, kwargs in [
+        (Distortion("division", {"lambda": -1.2e-7}, center=(940.0, 551.0)), dict(fit_center=True)),
+        (Distortion("polynomial", {"k1": -0.11, "k2": 0.025}), {}),
+        (MODELS[2], {}),
+    ]:
+        fit = fit_distortion(truth, K, (W, H), truth.model, **kwargs)
+        assert fit.max_px < 1e-6
+        for name, value in truth.params.items():
+            assert abs(fit.distortion.params[name] - value) <= 1e-6 * max(abs(value), 1e-3)
+        if truth.center is not None:
+            assert np.allclose(fit.distortion.center, truth.center, atol=1e-4)
+
+
+def test_fit_reports_its_true_residual_over_the_frame():
+    """The reported max / RMS equal an independent evaluation on a finer grid (to grid sampling)."""
+    source = Distortion("polynomial", {"k1": -0.12, "k2": 0.03})
+    fit = fit_distortion(source, K, (W, H), "division", fit_center=True)
+    distorted = frame_grid(step=5)
+    distorted = distorted[(distorted[:, 0] <= W - 1) & (distorted[:, 1] <= H - 1)]
+    ideal = source.undistort(distorted, K)
+    distance = np.linalg.norm(fit.distortion.distort(ideal, K) - distorted, axis=1)
+    assert fit.max_px == pytest.approx(distance.max(), rel=0.05)
+    # the RMS depends on the grid (the fit's always includes the last row and column)
+    assert fit.rms_px == pytest.approx(np.sqrt(np.mean(distance**2)), rel=0.1)
+    # one parameter cannot follow k1 and k2 exactly; it gets most of the way
+    assert 0.05 < fit.max_px < 5.0
+    none_max = np.linalg.norm(ideal - distorted, axis=1).max()
+    assert fit.max_px < 0.1 * none_max
+
+
+def test_richer_targets_fit_better():
+    source = Distortion("division", {"lambda": -1.5e-7})
+    two = fit_distortion(source, K, (W, H), "polynomial")
+    three = fit_distortion(source, K, (W, H), "polynomial", with_k3=True)
+    brown = fit_distortion(source, K, (W, H), "opencv")
+    assert three.max_px < two.max_px and brown.rms_px <= three.rms_px * 1.001
+    # the opencv fit of a radial lens has (nearly) no tangential part
+    assert abs(brown.distortion.params["p1"]) < 1e-4 and abs(brown.distortion.params["p2"]) < 1e-4
+
+
+def test_fit_bad_arguments():
+    with pytest.raises(CamcalError, match="cannot fit model 'none'"):
+        fit_distortion(MODELS[0], K, (W, H), "none")
+    with pytest.raises(CamcalError, match="fit_center applies only"):
+        fit_distortion(MODELS[0], K, (W, H), "polynomial", fit_center=True)

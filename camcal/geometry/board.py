@@ -1,0 +1,362 @@
+"""Calibration boards: definitions, parsing and detection in images.
+
+Two kinds of planar target:
+
+``chessboard:WxH:SQUARE``
+    A chessboard with ``W x H`` INNER corners (OpenCV's pattern size) and
+    squares of side ``SQUARE`` (in the board's units, e.g. metres, or 1.0
+    to measure in squares). Detected with ``cv2.findChessboardCornersSB``
+    (accuracy flags), falling back to ``cv2.findChessboardCorners`` +
+    ``cv2.cornerSubPix`` when the sector-based detector fails.
+``charuco:DICT:WxH:SQUARE:MARKER``
+    A ChArUco board of ``W x H`` SQUARES with ArUco markers from the
+    dictionary ``DICT`` (e.g. ``DICT_5X5_100``), detected with
+    ``cv2.aruco.CharucoDetector``; corners may be partially visible.
+
+Board coordinates: corner ``id`` of a chessboard is ``row * W + col`` at
+``(col * square, row * square, 0)``; ChArUco corners are those of
+``cv2.aruco.CharucoBoard.getChessboardCorners``. The board is the plane
+``z = 0``. Pixel (0, 0) is the centre of the top-left pixel (OpenCV).
+
+Corner order of a chessboard is made canonical so that every camera of a
+rig labels the same physical corner with the same id: the board's axes
+appear right-handed in the image (it is seen from its printed side), and,
+when ``W + H`` is odd, the first interior square is the darker end of the
+diagonal. When ``W + H`` is even the board is symmetric under a half turn
+and its labelling cannot be fixed from the image: prefer boards with
+``W + H`` odd (e.g. 9x6) for rigs.
+
+References
+----------
+Duda, A. & Frese, U. (2018). Accurate detection and localization of
+checkerboard corners for calibration. BMVC (findChessboardCornersSB).
+Garrido-Jurado, S. et al. (2014). Automatic generation and detection of
+highly reliable fiducial markers under occlusion. Pattern Recognition.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from camcal.errors import CamcalError
+
+__all__ = [
+    "Board",
+    "Detection",
+    "DetectionReport",
+    "parse_board",
+    "detect_board",
+    "detect_in_images",
+    "frame_number",
+]
+
+_SB_FLAGS = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_NORMALIZE_IMAGE
+_CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
+#: Fewest ChArUco corners kept in one image (a pose needs non-collinear points).
+MIN_CHARUCO_CORNERS = 6
+
+
+@dataclass(frozen=True)
+class Board:
+    """A planar calibration target.
+
+    Parameters
+    ----------
+    kind : str
+        ``"chessboard"`` or ``"charuco"``.
+    columns, rows : int
+        Chessboard: inner corners per row and per column (OpenCV's pattern
+        size). ChArUco: squares along x and y.
+    square : float
+        Side of one square, in the board's units.
+    marker : float, optional
+        ChArUco only: side of a marker, smaller than ``square``.
+    dictionary : str, optional
+        ChArUco only: an ``cv2.aruco`` predefined dictionary name.
+
+    Examples
+    --------
+    >>> board = parse_board("chessboard:9x6:0.025")
+    >>> board.object_points.shape
+    (54, 3)
+    """
+
+    kind: str
+    columns: int
+    rows: int
+    square: float
+    marker: float | None = None
+    dictionary: str | None = None
+    object_points: NDArray[np.float64] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("chessboard", "charuco"):
+            raise CamcalError(f"unknown board kind {self.kind!r}, expected one of: chessboard, charuco")
+        minimum = 2 if self.kind == "chessboard" else 3
+        if self.columns < minimum or self.rows < minimum:
+            what = "inner corners" if self.kind == "chessboard" else "squares"
+            raise CamcalError(f"a {self.kind} needs at least {minimum}x{minimum} {what}, got {self.columns}x{self.rows}")
+        if not np.isfinite(self.square) or self.square <= 0:
+            raise CamcalError(f"square size must be a positive number, got {self.square!r}")
+        if self.kind == "charuco":
+            if self.marker is None or not np.isfinite(self.marker) or not 0 < self.marker < self.square:
+                raise CamcalError(f"charuco marker size must be positive and below the square size, got {self.marker!r}")
+            if not hasattr(cv2.aruco, str(self.dictionary)) or not str(self.dictionary).startswith("DICT_"):
+                raise CamcalError(f"unknown ArUco dictionary {self.dictionary!r}, e.g. DICT_5X5_100")
+            points = np.asarray(self.charuco_board().getChessboardCorners(), dtype=np.float64)
+        else:
+            if self.marker is not None or self.dictionary is not None:
+                raise CamcalError("marker size and dictionary apply only to charuco boards")
+            col, row = np.meshgrid(np.arange(self.columns), np.arange(self.rows))
+            points = np.stack([col.ravel(), row.ravel(), np.zeros(col.size)], axis=1) * self.square
+        points.setflags(write=False)
+        object.__setattr__(self, "object_points", points)
+
+    @property
+    def n_corners(self) -> int:
+        """Number of corners with an id."""
+        return len(self.object_points)
+
+    def charuco_board(self) -> cv2.aruco.CharucoBoard:
+        """The OpenCV board object (ChArUco only)."""
+        if self.kind != "charuco":
+            raise CamcalError("not a charuco board")
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, str(self.dictionary)))
+        return cv2.aruco.CharucoBoard((self.columns, self.rows), self.square, self.marker, dictionary)
+
+    def spec(self) -> str:
+        """The string :func:`parse_board` reads back."""
+        if self.kind == "chessboard":
+            return f"chessboard:{self.columns}x{self.rows}:{self.square:g}"
+        return f"charuco:{self.dictionary}:{self.columns}x{self.rows}:{self.square:g}:{self.marker:g}"
+
+
+def parse_board(spec: str) -> Board:
+    """Parse ``chessboard:WxH:SQUARE`` or ``charuco:DICT:WxH:SQUARE:MARKER``.
+
+    Parameters
+    ----------
+    spec : str
+        E.g. ``chessboard:9x6:0.025`` (9x6 inner corners, 25 mm squares) or
+        ``charuco:DICT_5X5_100:7x5:0.04:0.03``.
+
+    Returns
+    -------
+    Board
+    """
+    parts = str(spec).strip().split(":")
+    usage = "expected chessboard:WxH:SQUARE or charuco:DICT:WxH:SQUARE:MARKER"
+    size_index = {"chessboard": 1, "charuco": 2}.get(parts[0])
+    expected_len = {"chessboard": 3, "charuco": 5}.get(parts[0])
+    if size_index is None or len(parts) != expected_len:
+        raise CamcalError(f"bad board {spec!r}: {usage}")
+    match = re.fullmatch(r"(\d+)x(\d+)", parts[size_index])
+    if not match:
+        raise CamcalError(f"bad board size {parts[size_index]!r} in {spec!r}: expected WxH, e.g. 9x6")
+    try:
+        numbers = [float(value) for value in parts[size_index + 1 :]]
+    except ValueError:
+        raise CamcalError(f"bad board {spec!r}: square and marker sizes must be numbers") from None
+    columns, rows = int(match.group(1)), int(match.group(2))
+    if parts[0] == "chessboard":
+        return Board("chessboard", columns, rows, numbers[0])
+    return Board("charuco", columns, rows, numbers[0], marker=numbers[1], dictionary=parts[1])
+
+
+@dataclass(frozen=True)
+class Detection:
+    """The board's corners found in one image.
+
+    Attributes
+    ----------
+    image : str
+        The image's file name (or a label).
+    image_size : (int, int)
+        Width, height in pixels.
+    ids : ndarray of int, shape (M,)
+        Corner ids (rows of :attr:`Board.object_points`), increasing.
+    corners_px : ndarray, shape (M, 2)
+        Corner pixels, pixel (0, 0) at the centre of the top-left pixel.
+    detector : str
+        ``"sb"``, ``"classic"`` or ``"charuco"``.
+    """
+
+    image: str
+    image_size: tuple[int, int]
+    ids: NDArray[np.int64]
+    corners_px: NDArray[np.float64]
+    detector: str
+
+
+@dataclass(frozen=True)
+class DetectionReport:
+    """Detections over a set of images of one camera.
+
+    Attributes
+    ----------
+    detections : tuple of Detection
+        One per image where the board was found.
+    skipped : tuple of str
+        Images where it was not found (or could not be read).
+    """
+
+    detections: tuple[Detection, ...]
+    skipped: tuple[str, ...]
+
+    @property
+    def n_images(self) -> int:
+        return len(self.detections) + len(self.skipped)
+
+    def summary(self) -> str:
+        """E.g. ``board found in 23 / 25 images (skipped: left07.jpg, left19.jpg)``."""
+        text = f"board found in {len(self.detections)} / {self.n_images} images"
+        if self.skipped:
+            text += f" (skipped: {', '.join(self.skipped)})"
+        return text
+
+
+def _canonical_chessboard(gray: NDArray[np.uint8], corners: NDArray[np.float64], columns: int, rows: int) -> NDArray[np.float64]:
+    """Reorder chessboard corners so that every camera labels them alike.
+
+    Notes
+    -----
+    1. Handedness: with ``a = x_1 - x_0`` (along a row) and ``b = x_W - x_0``
+       (down a column), a board seen from its printed side has
+       ``a_x b_y - a_y b_x > 0`` in an image with y down; otherwise the
+       rows are reversed (a mirror of the labelling).
+    2. Half turn (only decidable when ``W + H`` is odd, where the two
+       diagonal end squares differ in colour): the first interior square
+       (corners 0, 1, W, W+1) must be darker than the last one, otherwise
+       the order is reversed.
+    """
+    grid = corners.reshape(rows, columns, 2)
+    a = grid[0, 1] - grid[0, 0]
+    b = grid[1, 0] - grid[0, 0]
+    if a[0] * b[1] - a[1] * b[0] < 0:
+        grid = grid[:, ::-1]
+    if (columns + rows) % 2 == 1:
+
+        def mean_intensity(quad: NDArray[np.float64]) -> float:
+            centre = quad.mean(axis=0)
+            radius = max(1, int(0.2 * min(np.linalg.norm(quad[0] - quad[1]), np.linalg.norm(quad[0] - quad[2]))))
+            x, y = int(round(centre[0])), int(round(centre[1]))
+            patch = gray[max(0, y - radius) : y + radius + 1, max(0, x - radius) : x + radius + 1]
+            return float(patch.mean()) if patch.size else 0.0
+
+        first = mean_intensity(np.array([grid[0, 0], grid[0, 1], grid[1, 0], grid[1, 1]]))
+        last = mean_intensity(np.array([grid[-1, -1], grid[-1, -2], grid[-2, -1], grid[-2, -2]]))
+        if first > last:
+            grid = grid[::-1, ::-1]
+    return grid.reshape(-1, 2)
+
+
+def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection | None:
+    """Find ``board`` in one image.
+
+    Parameters
+    ----------
+    board : Board
+    image : ndarray, shape (H, W) or (H, W, 3)
+        8-bit grey or BGR image.
+    name : str
+        Label stored in the detection (the file name).
+
+    Returns
+    -------
+    Detection or None
+        ``None`` when the board is not found (chessboard: not every corner
+        found; ChArUco: fewer than :data:`MIN_CHARUCO_CORNERS` corners).
+    """
+    gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if gray.dtype != np.uint8:
+        raise CamcalError(f"{name}: expected an 8-bit image, got {gray.dtype}")
+    height, width = gray.shape
+    if board.kind == "charuco":
+        corners, ids, _, _ = cv2.aruco.CharucoDetector(board.charuco_board()).detectBoard(gray)
+        if ids is None or len(ids) < MIN_CHARUCO_CORNERS:
+            return None
+        # OpenCV <= 4.12 returns ChArUco corners biased by +0.5 px (opencv/opencv#25539): refine
+        # them again with cornerSubPix, which converges to the saddle point whatever the start
+        corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), _SUBPIX_CRITERIA)
+        ids = ids.ravel().astype(np.int64)
+        order = np.argsort(ids)
+        return Detection(name, (width, height), ids[order], corners.reshape(-1, 2).astype(np.float64)[order], "charuco")
+    pattern = (board.columns, board.rows)
+    found, corners = cv2.findChessboardCornersSB(gray, pattern, flags=_SB_FLAGS)
+    detector = "sb"
+    if not found:
+        found, corners = cv2.findChessboardCorners(gray, pattern, flags=_CLASSIC_FLAGS)
+        if not found:
+            return None
+        corners = cv2.cornerSubPix(gray, corners, (5, 5), (-1, -1), _SUBPIX_CRITERIA)
+        detector = "classic"
+    corners = _canonical_chessboard(gray, corners.reshape(-1, 2).astype(np.float64), board.columns, board.rows)
+    return Detection(name, (width, height), np.arange(board.n_corners, dtype=np.int64), corners, detector)
+
+
+def detect_in_images(
+    board: Board, paths: Iterable[str | os.PathLike], progress: str | None = None
+) -> DetectionReport:
+    """Detect ``board`` in every image; the ones where it is missing are listed, not fatal.
+
+    Parameters
+    ----------
+    board : Board
+    paths : iterable of path
+        Image files (anything ``cv2.imread`` reads).
+    progress : str, optional
+        When given, a progress line ``<progress>: i / n`` is written to
+        stderr as the images are processed.
+
+    Returns
+    -------
+    DetectionReport
+        Unreadable images are skipped like images without the board.
+
+    Raises
+    ------
+    CamcalError
+        No paths, or images of different sizes.
+    """
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise CamcalError("no images given")
+    detections, skipped = [], []
+    sizes = set()
+    for index, path in enumerate(paths, start=1):
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            skipped.append(path.name)
+        else:
+            sizes.add(image.shape[::-1])
+            if len(sizes) > 1:
+                raise CamcalError(f"images of one camera must share a size; {path.name} is {image.shape[1]}x{image.shape[0]}")
+            detection = detect_board(board, image, path.name)
+            if detection is None:
+                skipped.append(path.name)
+            else:
+                detections.append(detection)
+        if progress:
+            print(f"\r{progress}: {index} / {len(paths)} images", end="\n" if index == len(paths) else "", file=sys.stderr, flush=True)
+    return DetectionReport(tuple(detections), tuple(skipped))
+
+
+def frame_number(name: str) -> int:
+    """The frame number in an image's file name: the last group of digits of its stem.
+
+    ``left07.jpg`` -> 7, ``cam2_frame_0113.png`` -> 113.
+    """
+    digits = re.findall(r"\d+", Path(name).stem)
+    if not digits:
+        raise CamcalError(f"no frame number in the file name {name!r} (views of several cameras are matched by it)")
+    return int(digits[-1])

@@ -1,0 +1,261 @@
+"""Image undistortion: choose the new camera, build the map once, one ``cv2.remap`` per image.
+
+The undistorted image is that of a pinhole camera ``K_new`` (no distortion)
+with the source camera's pose. Three ways to choose ``K_new``:
+
+``crop``
+    Same image size; focal lengths scaled up about the principal point
+    until every output pixel samples inside the source frame (no black
+    borders, some source pixels lost at the edges).
+``keep``
+    Same focal lengths; the canvas grows (overscan) until every source
+    pixel lands inside it (nothing lost, black corners).
+``overscan``
+    Same focal lengths; the canvas is ``overscan`` times the source size,
+    centred (the convention of ST-maps for comp packages).
+
+Pixel (0, 0) is the centre of the top-left pixel in every image. The
+source pixel of each output pixel is ``distort(K K_new^-1 x_o)``
+(:func:`camcal.geometry.remap.build_maps`), float32 maps, bilinear.
+"""
+
+from __future__ import annotations
+
+import os
+
+# OpenCV decides at its first EXR read whether EXR is enabled: allow float
+# EXR plates (see camcal.geometry.stmap) unless the user chose otherwise.
+os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from camcal.errors import CamcalError
+from camcal.geometry.distortion import Distortion
+from camcal.geometry.remap import RemapMaps, build_maps, undistort_homography
+from camcal.io.atomic import atomic_path
+from camcal.rig import Camera, Rectification, Rig, make_provenance
+
+__all__ = ["MODES", "UndistortedView", "Undistorter", "undistorted_view", "make_undistorter", "undistort_images"]
+
+#: How K_new is chosen (see the module docstring).
+MODES = ("crop", "keep", "overscan")
+
+_BORDER_SAMPLES = 512
+
+
+@dataclass(frozen=True)
+class UndistortedView:
+    """The undistorted pinhole camera an undistortion produces.
+
+    Attributes
+    ----------
+    K_new : ndarray, shape (3, 3)
+        Intrinsics of the undistorted image.
+    image_size : (int, int)
+        (width, height) of the undistorted image.
+    """
+
+    K_new: NDArray[np.float64]
+    image_size: tuple[int, int]
+
+
+def _border(image_size: tuple[int, int], n: int = _BORDER_SAMPLES) -> NDArray[np.float64]:
+    """Points along the outer edge of the frame (pixel edges, not centres)."""
+    width, height = image_size
+    x = np.linspace(-0.5, width - 0.5, n)
+    y = np.linspace(-0.5, height - 0.5, n)
+    return np.concatenate([
+        np.stack([x, np.full(n, -0.5)], 1), np.stack([x, np.full(n, height - 0.5)], 1),
+        np.stack([np.full(n, -0.5), y], 1), np.stack([np.full(n, width - 0.5), y], 1),
+    ])
+
+
+def undistorted_view(camera: Camera, mode: str = "crop", overscan: float = 1.1) -> UndistortedView:
+    """Choose ``K_new`` and the output size for undistorting ``camera``'s images.
+
+    Parameters
+    ----------
+    camera : Camera
+        Source camera (K, distortion, image size).
+    mode : {"crop", "keep", "overscan"}
+        See the module docstring.
+    overscan : float
+        Canvas factor for ``mode="overscan"`` (>= 1).
+
+    Returns
+    -------
+    UndistortedView
+
+    Notes
+    -----
+    ``crop``: ``K_new = S K`` with ``S`` scaling by ``s`` about the principal
+    point; ``s`` is the smallest scale (bisection, to 1e-6) for which the
+    output frame's border, mapped by ``distort(K K_new^-1 x)``, stays inside
+    the source frame. ``keep``: the source border undistorted by the model
+    bounds the canvas; ``K_new = K`` shifted by the canvas origin.
+    """
+    if mode not in MODES:
+        raise CamcalError(f"unknown undistortion mode {mode!r}, expected one of: {', '.join(MODES)}")
+    width, height = camera.image_size
+    K = camera.K
+    if mode == "overscan":
+        if not math.isfinite(overscan) or overscan < 1.0:
+            raise CamcalError(f"overscan must be a number >= 1, got {overscan}")
+        new_width, new_height = int(round(width * overscan)), int(round(height * overscan))
+        K_new = K.copy()
+        K_new[0, 2] += (new_width - width) / 2.0
+        K_new[1, 2] += (new_height - height) / 2.0
+        return UndistortedView(K_new, (new_width, new_height))
+    if mode == "keep":
+        ideal = camera.distortion.undistort(_border(camera.image_size), K)
+        if not np.all(np.isfinite(ideal)):
+            raise CamcalError("the distortion model does not map the whole frame to finite points")
+        low = np.floor(ideal.min(axis=0) + 0.5)
+        high = np.ceil(ideal.max(axis=0) - 0.5)
+        K_new = K.copy()
+        K_new[:2, 2] -= low
+        return UndistortedView(K_new, (int(high[0] - low[0]) + 1, int(high[1] - low[1]) + 1))
+    # crop
+    output_border = _border(camera.image_size)
+    centre = K[:2, 2]
+
+    def inside(scale: float) -> bool:
+        ideal = centre + (output_border - centre) / scale
+        source = camera.distortion.distort(ideal, K)
+        return bool(np.all(np.isfinite(source)) and np.all(source >= -0.5 - 1e-9)
+                    and np.all(source <= np.array([width, height]) - 0.5 + 1e-9))
+
+    low, high = 1e-3, 1.0
+    while not inside(high):
+        high *= 2.0
+        if high > 1e3:
+            raise CamcalError("no crop of the undistorted image lies inside the source frame")
+    if inside(low):
+        high = low
+    while high - low > 1e-6 * high:
+        middle = 0.5 * (low + high)
+        if inside(middle):
+            high = middle
+        else:
+            low = middle
+    K_new = K.copy()
+    K_new[0, :2] *= high
+    K_new[1, 1] *= high
+    return UndistortedView(K_new, camera.image_size)
+
+
+@dataclass(frozen=True)
+class Undistorter:
+    """Undistortion of one camera's images: the map is built once, reused per image.
+
+    Attributes
+    ----------
+    camera : Camera
+        The source camera.
+    view : UndistortedView
+        The undistorted camera ``K_new`` and its image size.
+    maps : RemapMaps
+        float32 source-pixel maps of :func:`camcal.geometry.remap.build_maps`.
+    """
+
+    camera: Camera
+    view: UndistortedView
+    maps: RemapMaps
+
+    def apply(self, image: NDArray, interpolation: int = cv2.INTER_LINEAR) -> NDArray:
+        """Undistort one image (any depth, 1 to 4 channels) by ONE ``cv2.remap``."""
+        width, height = self.camera.image_size
+        if image.shape[:2] != (height, width):
+            raise CamcalError(
+                f"image is {image.shape[1]}x{image.shape[0]} px but camera {self.camera.name!r} is {width}x{height}"
+            )
+        return self.maps.apply(image, interpolation)
+
+    def undistorted_camera(self) -> Camera:
+        """The undistorted camera: ``K_new``, no distortion, same pose.
+
+        A rectification carries over as ``H' = H K K_new^-1`` (it maps the
+        new camera's pixels, which are undistorted already).
+        """
+        rect = self.camera.rectification
+        if rect is not None:
+            rect = Rectification(rect.H @ self.camera.K @ np.linalg.inv(self.view.K_new), rect.K_rect, rect.image_size)
+        return dataclasses.replace(
+            self.camera, K=self.view.K_new, image_size=self.view.image_size,
+            distortion=Distortion.none(), rectification=rect,
+        )
+
+
+def make_undistorter(camera: Camera, mode: str = "crop", overscan: float = 1.1) -> Undistorter:
+    """Choose ``K_new`` (:func:`undistorted_view`) and build the remap maps once."""
+    view = undistorted_view(camera, mode, overscan)
+    maps = build_maps(camera, undistort_homography(camera, view.K_new), view.image_size)
+    return Undistorter(camera, view, maps)
+
+
+def undistort_images(
+    rig: Rig,
+    camera_name: str,
+    images: Sequence[str | os.PathLike],
+    out_dir: str | os.PathLike,
+    mode: str = "crop",
+    overscan: float = 1.1,
+) -> tuple[Path, list[Path]]:
+    """Undistort image files of one rig camera and write the undistorted rig.
+
+    Parameters
+    ----------
+    rig : Rig
+    camera_name : str
+    images : sequence of path
+        Images of that camera, read with ``cv2.IMREAD_UNCHANGED`` (8/16 bit,
+        float EXR where OpenCV reads them).
+    out_dir : path
+        Receives each image under its own name and ``undistorted.rig.json``
+        (the rig with that camera replaced by its undistorted camera).
+    mode, overscan
+        See :func:`undistorted_view`.
+
+    Returns
+    -------
+    rig_path : Path
+    image_paths : list of Path
+
+    Notes
+    -----
+    Every image is read and checked before anything is written; each
+    output is written atomically.
+    """
+    camera = rig.camera(camera_name)
+    undistorter = make_undistorter(camera, mode, overscan)
+    out_dir = Path(out_dir)
+    loaded = []
+    for path in images:
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise CamcalError(f"cannot read image {path}")
+        width, height = camera.image_size
+        if image.shape[:2] != (height, width):
+            raise CamcalError(f"{path} is {image.shape[1]}x{image.shape[0]} px, camera {camera_name!r} is {width}x{height}")
+        loaded.append((Path(path), image))
+    if len({path.name for path, _ in loaded}) != len(loaded):
+        raise CamcalError("input images must have distinct file names (outputs keep them)")
+    written = []
+    for path, image in loaded:
+        target = out_dir / path.name
+        with atomic_path(target) as tmp:
+            if not cv2.imwrite(str(tmp), undistorter.apply(image)):
+                raise CamcalError(f"cannot write {target}")
+        written.append(target)
+    cameras = tuple(undistorter.undistorted_camera() if c.name == camera_name else c for c in rig.cameras)
+    provenance = make_provenance("undistort", source_camera=camera_name, mode=mode)
+    rig_path = Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(out_dir / "undistorted.rig.json")
+    return rig_path, written

@@ -1,0 +1,284 @@
+"""Board calibration of one camera and of rigs: synthetic truth, OpenCV as the peer, the CLI."""
+
+import math
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from camcal.cli import main
+from camcal.errors import CamcalError
+from camcal.geometry.board import Board, Detection, detect_in_images, frame_number
+from camcal.geometry.distortion import Distortion
+from camcal.geometry.zhang import calibrate_board, write_report
+from camcal.rig import Camera, Rig
+
+SIGMA_PX = 0.1
+BOARD = Board("chessboard", 12, 9, 0.04)  # 0.44 m x 0.32 m
+DISTORTIONS = {
+    "polynomial": Distortion("polynomial", {"k1": -0.12, "k2": 0.05}),
+    "division": Distortion("division", {"lambda": -2e-7}),
+    "opencv": Distortion("opencv", {"k1": -0.12, "k2": 0.05, "p1": 4e-4, "p2": -3e-4, "k3": 0.0}),
+}
+
+
+def true_rig(n_cameras: int, model: str) -> list[Camera]:
+    """Cameras 1280x800, 0.2 m apart along x, turned by a few degrees; the first at the origin."""
+    cameras = []
+    for k in range(n_cameras):
+        K = np.array([[1000.0 + 20 * k, 0, 645.0 - 7 * k], [0, 1003.0 + 20 * k, 398.0 + 5 * k], [0, 0, 1]])
+        R = Rotation.from_euler("xyz", [0.5 * k, -3.0 * k, 0.8 * k], degrees=True).as_matrix()
+        c = np.array([0.2 * k, 0.01 * k, -0.02 * k])
+        cameras.append(Camera(f"cam{k}", (1280, 800), K, DISTORTIONS[model], R, c))
+    return cameras
+
+
+def board_views(cameras, n_views, rng, sigma=SIGMA_PX):
+    """Board poses seen whole by every camera; corners projected with Camera.project plus noise."""
+    detections = {camera.name: [] for camera in cameras}
+    centred = BOARD.object_points - BOARD.object_points.mean(axis=0)
+    view = 0
+    while view < n_views:
+        R = Rotation.from_euler("xyz", rng.uniform(-35, 35, 3) * [1, 1, 0.3], degrees=True).as_matrix()
+        X = centred @ R.T + [0.1, 0, 0] + rng.uniform([-0.25, -0.15, 0.5], [0.25, 0.15, 0.9])
+        pixels = [camera.project(X) for camera in cameras]
+        if not all(np.all((p > 5) & (p < np.array(c.image_size) - 5)) for p, c in zip(pixels, cameras)):
+            continue
+        for camera, p in zip(cameras, pixels):
+            noisy = p + rng.normal(0.0, sigma, p.shape)
+            detections[camera.name].append(
+                Detection(f"{camera.name}_{view:03d}.png", camera.image_size, np.arange(BOARD.n_corners), noisy, "synthetic")
+            )
+        view += 1
+    return detections
+
+
+def rotation_error_deg(R_a, R_b) -> float:
+    return math.degrees(Rotation.from_matrix(R_a @ R_b.T).magnitude())
+
+
+def check_against_truth(result, truth):
+    """The issue's bounds for sigma = 0.1 px: fx 0.1 %, principal point 0.3 px, baseline 0.1 %, rotation 0.02 deg."""
+    for camera, true in zip(result.rig.cameras, truth):
+        assert abs(camera.K[0, 0] / true.K[0, 0] - 1) < 1e-3
+        assert abs(camera.K[1, 1] / true.K[1, 1] - 1) < 1e-3
+        assert np.linalg.norm(camera.K[:2, 2] - true.K[:2, 2]) < 0.3
+        # the reference camera is the world: relative poses are the rig's poses
+        R_rel_true = true.R @ truth[0].R.T
+        baseline_true = np.linalg.norm(truth[0].R @ (true.c - truth[0].c))
+        if camera is result.rig.cameras[0]:
+            assert np.array_equal(camera.R, np.eye(3)) and np.array_equal(camera.c, np.zeros(3))
+        else:
+            assert abs(np.linalg.norm(camera.c) / baseline_true - 1) < 1e-3
+            assert rotation_error_deg(camera.R, R_rel_true) < 0.02
+    # residual RMS of a 2D point with per-axis sigma: sqrt(2) sigma, less the fitted degrees of freedom
+    assert result.rms_px == pytest.approx(math.sqrt(2) * SIGMA_PX, rel=0.1)
+
+
+def test_two_cameras_polynomial_against_truth():
+    truth = true_rig(2, "polynomial")
+    result = calibrate_board(BOARD, board_views(truth, 30, np.random.default_rng(0)))
+    check_against_truth(result, truth)
+    assert result.n_outliers == 0
+    for camera, true in zip(result.rig.cameras, truth):
+        assert camera.distortion.params["k1"] == pytest.approx(true.distortion.params["k1"], abs=3e-3)
+        assert camera.quality["n_views"] == 30 and camera.quality["n_points"] == 30 * BOARD.n_corners
+    # the rig file holds what was fitted, exactly
+    assert Rig.from_dict(result.rig.to_dict()) == result.rig
+
+
+def test_three_cameras_division_against_truth():
+    truth = true_rig(3, "division")
+    result = calibrate_board(BOARD, board_views(truth, 30, np.random.default_rng(1)), model="division")
+    check_against_truth(result, truth)
+    for camera, true in zip(result.rig.cameras, truth):
+        assert camera.distortion.center is None  # centred on the principal point
+        assert camera.distortion.params["lambda"] == pytest.approx(-2e-7, rel=0.02)
+
+
+def test_one_camera_matches_opencv_calibrate_camera():
+    """One camera, OpenCV's model: the refinement reaches OpenCV's own minimum on the same corners."""
+    truth = true_rig(1, "opencv")
+    detections = board_views(truth, 15, np.random.default_rng(2))
+    result = calibrate_board(BOARD, detections, model="opencv")
+    views = detections["cam0"]
+    rms_cv, K_cv, dist_cv, _, _ = cv2.calibrateCamera(
+        [BOARD.object_points.astype(np.float32)] * len(views),
+        [d.corners_px.astype(np.float32) for d in views],
+        (1280, 800), None, None,
+    )
+    camera = result.rig.cameras[0]
+    sigma = camera.quality["sigma"]
+    assert abs(camera.K[0, 0] - K_cv[0, 0]) < 0.05 * sigma["fx"]
+    assert abs(camera.K[0, 2] - K_cv[0, 2]) < 0.05 * sigma["cx"]
+    assert camera.distortion.params["k1"] == pytest.approx(dist_cv[0, 0], abs=0.05 * sigma["k1"])
+    assert result.rms_px <= rms_cv + 1e-6
+
+
+def test_outlier_image_dropped_and_reported():
+    truth = true_rig(2, "polynomial")
+    rng = np.random.default_rng(3)
+    detections = board_views(truth, 30, rng)
+    bad = detections["cam1"][7]
+    detections["cam1"][7] = Detection(bad.image, bad.image_size, bad.ids, bad.corners_px + rng.normal(0, 3.0, bad.corners_px.shape), "synthetic")
+    result = calibrate_board(BOARD, detections)
+    assert result.outliers == (("cam1", bad.image),)
+    assert result.rig.cameras[1].quality["n_views"] == 29
+    check_against_truth(result, truth)
+
+
+def test_views_matched_by_frame_number_not_order():
+    """Shuffling one camera's list changes nothing: views are paired by frame number."""
+    truth = true_rig(2, "polynomial")
+    detections = board_views(truth, 12, np.random.default_rng(4))
+    reference = calibrate_board(BOARD, detections)
+    shuffled = dict(detections, cam1=detections["cam1"][::-1])
+    result = calibrate_board(BOARD, shuffled)
+    assert np.allclose(result.rig.cameras[1].c, reference.rig.cameras[1].c, atol=1e-8)
+    assert [frame_number(d.image) for d in shuffled["cam1"]][0] == 11
+
+
+def test_bad_inputs_raise_one_line():
+    truth = true_rig(2, "polynomial")
+    detections = board_views(truth, 4, np.random.default_rng(5))
+    cases = [
+        (dict(detections, cam1=detections["cam1"][:2]), {}, "at least 3"),
+        (detections, {"model": "fisheye"}, "unknown distortion model"),
+        ({}, {}, "no cameras"),
+        (dict(detections, cam1=[detections["cam1"][0]] * 3), {}, "same frame number"),
+    ]
+    # a camera whose frames never meet the reference's
+    lonely = [Detection(f"cam1_{100 + n}.png", d.image_size, d.ids, d.corners_px, "synthetic") for n, d in enumerate(detections["cam1"])]
+    cases.append((dict(detections, cam1=lonely), {}, "share no frame"))
+    for given, options, message in cases:
+        with pytest.raises(CamcalError, match=message) as info:
+            calibrate_board(BOARD, given, **options)
+        assert "\n" not in str(info.value)
+
+
+@pytest.mark.slow
+def test_sigmas_cover_the_true_error():
+    """Over 20 seeded 2-camera rigs, |error| < 3 sigma in >= 90 % of trials for every quantity."""
+    truth = true_rig(2, "polynomial")
+    baseline_true = np.linalg.norm(truth[1].c)
+    inside = {}
+    for seed in range(20):
+        result = calibrate_board(BOARD, board_views(truth, 20, np.random.default_rng(100 + seed)))
+        for camera, true in zip(result.rig.cameras, truth):
+            sigma = camera.quality["sigma"]
+            errors = {"fx": camera.K[0, 0] - true.K[0, 0], "fy": camera.K[1, 1] - true.K[1, 1],
+                      "cx": camera.K[0, 2] - true.K[0, 2], "cy": camera.K[1, 2] - true.K[1, 2],
+                      "k1": camera.distortion.params["k1"] - true.distortion.params["k1"]}
+            if "baseline" in sigma:
+                errors["baseline"] = np.linalg.norm(camera.c) - baseline_true
+            for name, error in errors.items():
+                inside.setdefault(f"{camera.name}.{name}", []).append(abs(error) < 3 * sigma[name])
+    coverage = {name: np.mean(hits) for name, hits in inside.items()}
+    assert all(value >= 0.9 for value in coverage.values()), coverage
+
+
+# -- the real stereo pairs, against OpenCV's calibrateCamera + stereoCalibrate ----------------
+
+
+@pytest.fixture(scope="module")
+def real_detections(shared_data):
+    """Detections of the 25 real pairs, once per module (detection is the slow part)."""
+    folder = shared_data / "stereo_chessboard"
+    board = Board("chessboard", 9, 6, 1.0)
+    reports = {name: detect_in_images(board, sorted(folder.glob(f"{name}*.jpg"))) for name in ("left", "right")}
+    return board, reports
+
+
+def test_real_pairs_joint_rms_not_above_opencv_stereo(real_detections):
+    board, reports = real_detections
+    assert all(report.n_images == 25 for report in reports.values())
+    left = {frame_number(d.image): d for d in reports["left"].detections}
+    right = {frame_number(d.image): d for d in reports["right"].detections}
+    frames = sorted(set(left) & set(right))
+    assert len(frames) >= 20
+    # the peer: per-camera calibrateCamera, then stereoCalibrate with the intrinsics fixed
+    object_points = [board.object_points.astype(np.float32)] * len(frames)
+    points_l = [left[f].corners_px.astype(np.float32) for f in frames]
+    points_r = [right[f].corners_px.astype(np.float32) for f in frames]
+    size = left[frames[0]].image_size
+    _, K_l, d_l, _, _ = cv2.calibrateCamera(object_points, points_l, size, None, None)
+    _, K_r, d_r, _, _ = cv2.calibrateCamera(object_points, points_r, size, None, None)
+    rms_cv, *_, R_cv, T_cv, _, _ = cv2.stereoCalibrate(
+        object_points, points_l, points_r, K_l, d_l, K_r, d_r, size, flags=cv2.CALIB_FIX_INTRINSIC
+    )
+    # ours: one joint refinement on the same detections (no outlier dropping, to compare like with like)
+    result = calibrate_board(
+        board, {"left": [left[f] for f in frames], "right": [right[f] for f in frames]},
+        model="opencv", units="squares", min_outlier_px=math.inf,
+    )
+    assert result.rms_px <= rms_cv
+    right_cam = result.rig.cameras[1]
+    # the same rig as OpenCV's (x_right = R x_left + T, so |c_right| = |T|); OpenCV keeps the
+    # per-camera intrinsics fixed and we refine them jointly, so the baselines differ by more than
+    # the noise sigma (about 2 % here, the intrinsics' model error): compare within 3 %
+    assert np.linalg.norm(right_cam.c) == pytest.approx(np.linalg.norm(T_cv), rel=0.03)
+    # a principal point moved by a few px (sigma_cx ~ 1 px with tangential terms) turns the
+    # relative rotation by ~px / fx rad: the rigs agree within 1 deg of a ~4 deg rotation
+    assert rotation_error_deg(right_cam.R, R_cv) < 1.0
+    for camera, K in zip(result.rig.cameras, (K_l, K_r)):
+        assert abs(camera.K[0, 0] - K[0, 0]) < 5 * camera.quality["sigma"]["fx"]
+
+
+def test_real_pairs_report_plots(real_detections, tmp_path):
+    board, reports = real_detections
+    detections = {name: report.detections[:8] for name, report in reports.items()}
+    result = calibrate_board(board, detections, units="squares")
+    written = write_report(result, tmp_path / "report")
+    assert sorted(p.name for p in written) == sorted(
+        ["residuals_left.png", "coverage_left.png", "residuals_right.png", "coverage_right.png", "per_image_rms.png"]
+    )
+    for path in written:
+        image = cv2.imread(str(path))
+        assert image is not None and image.min() < 128  # something was drawn
+
+
+# -- the command ----------------------------------------------------------------------------
+
+
+def test_cli_calibrates_a_real_subset(shared_data, tmp_path, capsys):
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    for number in range(2, 8):
+        for side in ("left", "right"):
+            shutil.copy(shared_data / "stereo_chessboard" / f"{side}{number:02d}.jpg", folder)
+    out = tmp_path / "stereo.rig.json"
+    code = main([
+        "calibrate", "board", "--board", "chessboard:9x6:1", "--units", "squares",
+        "--camera", f"left={folder}/left*.jpg", "--camera", f"right={folder}/right*.jpg",
+        "--out", str(out), "--report", str(tmp_path / "report"),
+    ])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "left: board found in 6 / 6 images" in printed and "RMS reprojection error" in printed
+    rig = Rig.load(out)
+    assert [c.name for c in rig.cameras] == ["left", "right"] and rig.units == "squares"
+    assert rig.cameras[1].quality["rms_px"] < 1.0 and (tmp_path / "report" / "per_image_rms.png").exists()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--board", "chessboard:9x6:1", "--camera", "left=/nonexistent/left*.jpg"], "no image matches"),
+        (["--board", "chessboard:9by6:1", "--camera", "left=x*.jpg"], "bad board size"),
+        (["--board", "chessboard:9x6:1", "--camera", "left"], "NAME=GLOB"),
+    ],
+)
+def test_cli_bad_input_exit_2_no_output(tmp_path, capsys, args, message):
+    out = tmp_path / "rig.rig.json"
+    assert main(["calibrate", "board", *args, "--out", str(out)]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("camcal: error:") and message in error and error.count("\n") == 1
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_cli_help(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["calibrate", "board", "--help"])
+    assert info.value.code == 0 and "--camera" in capsys.readouterr().out
