@@ -454,8 +454,9 @@ def blender_lens(distortion, K, image_size, margins=(0, 0)):
         distorted -> undistorted, radius normalised by ``max(W, H) / 2``):
         ``nuke_k1 = lambda * (max(W, H) / 2) ** 2``; ``polynomial`` becomes
         ``POLYNOMIAL`` (radius normalised by the focal length ``fx``).
-        ``opencv`` becomes ``BROWN`` with ``p1`` negated for Blender's y-up
-        axis (exact only with fx == fy).
+        ``opencv`` becomes ``BROWN`` with ``brown_p1 = p2`` and
+        ``brown_p2 = -p1`` (libmv swaps OpenCV's tangential terms, and
+        Blender's y axis points up); exact only with fx == fy.
     K : 3x3
         Gives the focal length (pixels) used for normalised models.
     image_size : (W, H)
@@ -491,7 +492,8 @@ def blender_lens(distortion, K, image_size, margins=(0, 0)):
         blender_model = "BROWN"
         params = {
             "brown_k1": p["k1"], "brown_k2": p["k2"], "brown_k3": p.get("k3", 0.0), "brown_k4": 0.0,
-            "brown_p1": -p["p1"], "brown_p2": p["p2"],
+            # libmv's Brown model swaps OpenCV's p1 and p2, and Blender's y axis points up.
+            "brown_p1": p["p2"], "brown_p2": -p["p1"],
         }
         if abs(fx - fy) > 1e-9 * fx:
             exact, note = False, "Blender normalises both axes by one focal length (fx)"

@@ -103,8 +103,9 @@ def test_cycles_render_centroids_within_0_1_px(bpy, addon, tmp_path):
         ((240, 180), {"model": "division", "params": {"lambda": -4e-6}, "center": [123.0, 92.0]}),
         ((200, 150), {"model": "division", "params": {"lambda": 3e-6}, "center": [96.0, 71.0]}),
         ((240, 180), {"model": "polynomial", "params": {"k1": -0.08, "k2": 0.01}}),
+        ((240, 180), {"model": "opencv", "params": {"k1": -0.06, "k2": 0.01, "p1": 0.002, "p2": -0.003, "k3": 0.0}}),
     ],
-    ids=["division-barrel", "division-pincushion", "polynomial"],
+    ids=["division-barrel", "division-pincushion", "polynomial", "opencv"],
 )
 def test_movie_distortion_matches_camcal_lens_within_0_1_px(bpy, addon, tmp_path, size, distortion):
     K = np.array([[260.0, 0.0, size[0] / 2 + 6.3], [0.0, 260.0, size[1] / 2 - 5.4], [0.0, 0.0, 1.0]])
