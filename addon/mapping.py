@@ -138,6 +138,15 @@ class BlenderIntrinsics:
     skew: float
 
 
+def _fit(W, H, ax, ay, sensor_fit):
+    """Blender's effective sensor fit and ``viewfac`` (pixels across the fitted sensor side)."""
+    if sensor_fit == "AUTO":
+        effective = "HORIZONTAL" if W * ax >= H * ay else "VERTICAL"
+    else:
+        effective = sensor_fit
+    return effective, (W if effective == "HORIZONTAL" else H * ay / ax)
+
+
 def blender_intrinsics(K, image_size, sensor_width_mm=36.0, sensor_fit="AUTO"):
     """Blender settings that project like the pinhole ``K`` on ``image_size``.
 
@@ -177,11 +186,7 @@ def blender_intrinsics(K, image_size, sensor_width_mm=36.0, sensor_fit="AUTO"):
     else:
         ax, ay = 1.0, fx / fy
     ycor = ay / ax
-    if sensor_fit == "AUTO":
-        effective = "HORIZONTAL" if W * ax >= H * ay else "VERTICAL"
-    else:
-        effective = sensor_fit
-    viewfac = W if effective == "HORIZONTAL" else H * ycor
+    effective, viewfac = _fit(W, H, ax, ay, sensor_fit)
     sensor_w = float(sensor_width_mm)
     # The sensor height that keeps the physical pixel pitch of the width.
     sensor_h = sensor_w * H * ycor / W
@@ -210,11 +215,7 @@ def intrinsics_from_blender(b):
     W, H = b.resolution_x, b.resolution_y
     ax, ay = b.pixel_aspect_x, b.pixel_aspect_y
     ycor = ay / ax
-    if b.sensor_fit == "AUTO":
-        effective = "HORIZONTAL" if W * ax >= H * ay else "VERTICAL"
-    else:
-        effective = b.sensor_fit
-    viewfac = W if effective == "HORIZONTAL" else H * ycor
+    viewfac = _fit(W, H, ax, ay, b.sensor_fit)[1]
     sensor = b.sensor_height if b.sensor_fit == "VERTICAL" else b.sensor_width
     fx = b.lens * viewfac / sensor
     fy = fx * ax / ay
