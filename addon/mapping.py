@@ -487,8 +487,6 @@ def blender_lens(distortion, K, image_size, margins=(0, 0)):
     elif model == "polynomial":
         blender_model = "POLYNOMIAL"
         params = {"k1": p.get("k1", 0.0), "k2": p.get("k2", 0.0), "k3": p.get("k3", 0.0)}
-        if abs(fx - fy) > 1e-9 * fx:
-            exact, note = False, "Blender normalises both axes by one focal length (fx)"
     elif model == "opencv":
         blender_model = "BROWN"
         params = {
@@ -496,10 +494,11 @@ def blender_lens(distortion, K, image_size, margins=(0, 0)):
             # libmv's Brown model swaps OpenCV's p1 and p2, and Blender's y axis points up.
             "brown_p1": p["p2"], "brown_p2": -p["p1"],
         }
-        if abs(fx - fy) > 1e-9 * fx:
-            exact, note = False, "Blender normalises both axes by one focal length (fx)"
     else:  # rigfile validates models; keep the error explicit anyway
         raise ValueError(f"unknown distortion model {model!r}")
+    if model in ("polynomial", "opencv") and (abs(fx - fy) > 1e-9 * fx or K[0][1] != 0):
+        # camcal normalises with K^-1 (fx, fy and skew); Blender with fx alone.
+        exact, note = False, "Blender normalises both axes by one focal length (fx), without skew"
     return BlenderLens(
         distortion_model=blender_model,
         params=params,
