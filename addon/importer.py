@@ -193,7 +193,7 @@ def import_rig(
                     scene, cam, obj, overscan, result, path, aux_directory
                 )
         if plate is not None:
-            _background(cam, obj, plate, clip, result)
+            _background(cam, obj, plate, clip)
 
     if cloud is not None:
         result.points = _point_cloud(rig, cloud, base, collection, root)
@@ -453,7 +453,7 @@ def _lens_clip(cam, obj, plate, result, rig_path, aux_directory, scene):
     return clip
 
 
-def _background(cam, obj, plate, clip, result):
+def _background(cam, obj, plate, clip):
     data = obj.data
     data.show_background_images = True
     bg = data.background_images.new()

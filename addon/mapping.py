@@ -138,6 +138,15 @@ class BlenderIntrinsics:
     skew: float
 
 
+def _fit(W, H, ax, ay, sensor_fit):
+    """Blender's effective sensor fit and ``viewfac`` (pixels across the fitted sensor side)."""
+    if sensor_fit == "AUTO":
+        effective = "HORIZONTAL" if W * ax >= H * ay else "VERTICAL"
+    else:
+        effective = sensor_fit
+    return effective, (W if effective == "HORIZONTAL" else H * ay / ax)
+
+
 def blender_intrinsics(K, image_size, sensor_width_mm=36.0, sensor_fit="AUTO"):
     """Blender settings that project like the pinhole ``K`` on ``image_size``.
 
@@ -177,11 +186,7 @@ def blender_intrinsics(K, image_size, sensor_width_mm=36.0, sensor_fit="AUTO"):
     else:
         ax, ay = 1.0, fx / fy
     ycor = ay / ax
-    if sensor_fit == "AUTO":
-        effective = "HORIZONTAL" if W * ax >= H * ay else "VERTICAL"
-    else:
-        effective = sensor_fit
-    viewfac = W if effective == "HORIZONTAL" else H * ycor
+    effective, viewfac = _fit(W, H, ax, ay, sensor_fit)
     sensor_w = float(sensor_width_mm)
     # The sensor height that keeps the physical pixel pitch of the width.
     sensor_h = sensor_w * H * ycor / W
@@ -210,11 +215,7 @@ def intrinsics_from_blender(b):
     W, H = b.resolution_x, b.resolution_y
     ax, ay = b.pixel_aspect_x, b.pixel_aspect_y
     ycor = ay / ax
-    if b.sensor_fit == "AUTO":
-        effective = "HORIZONTAL" if W * ax >= H * ay else "VERTICAL"
-    else:
-        effective = b.sensor_fit
-    viewfac = W if effective == "HORIZONTAL" else H * ycor
+    viewfac = _fit(W, H, ax, ay, b.sensor_fit)[1]
     sensor = b.sensor_height if b.sensor_fit == "VERTICAL" else b.sensor_width
     fx = b.lens * viewfac / sensor
     fy = fx * ax / ay
@@ -454,8 +455,9 @@ def blender_lens(distortion, K, image_size, margins=(0, 0)):
         distorted -> undistorted, radius normalised by ``max(W, H) / 2``):
         ``nuke_k1 = lambda * (max(W, H) / 2) ** 2``; ``polynomial`` becomes
         ``POLYNOMIAL`` (radius normalised by the focal length ``fx``).
-        ``opencv`` becomes ``BROWN`` with ``p1`` negated for Blender's y-up
-        axis (exact only with fx == fy).
+        ``opencv`` becomes ``BROWN`` with ``brown_p1 = p2`` and
+        ``brown_p2 = -p1`` (libmv swaps OpenCV's tangential terms, and
+        Blender's y axis points up); exact only with fx == fy.
     K : 3x3
         Gives the focal length (pixels) used for normalised models.
     image_size : (W, H)
@@ -485,18 +487,18 @@ def blender_lens(distortion, K, image_size, margins=(0, 0)):
     elif model == "polynomial":
         blender_model = "POLYNOMIAL"
         params = {"k1": p.get("k1", 0.0), "k2": p.get("k2", 0.0), "k3": p.get("k3", 0.0)}
-        if abs(fx - fy) > 1e-9 * fx:
-            exact, note = False, "Blender normalises both axes by one focal length (fx)"
     elif model == "opencv":
         blender_model = "BROWN"
         params = {
             "brown_k1": p["k1"], "brown_k2": p["k2"], "brown_k3": p.get("k3", 0.0), "brown_k4": 0.0,
-            "brown_p1": -p["p1"], "brown_p2": p["p2"],
+            # libmv's Brown model swaps OpenCV's p1 and p2, and Blender's y axis points up.
+            "brown_p1": p["p2"], "brown_p2": -p["p1"],
         }
-        if abs(fx - fy) > 1e-9 * fx:
-            exact, note = False, "Blender normalises both axes by one focal length (fx)"
     else:  # rigfile validates models; keep the error explicit anyway
         raise ValueError(f"unknown distortion model {model!r}")
+    if model in ("polynomial", "opencv") and (abs(fx - fy) > 1e-9 * fx or K[0][1] != 0):
+        # camcal normalises with K^-1 (fx, fy and skew); Blender with fx alone.
+        exact, note = False, "Blender normalises both axes by one focal length (fx), without skew"
     return BlenderLens(
         distortion_model=blender_model,
         params=params,

@@ -136,8 +136,9 @@ def test_lens_mapping(addon):
     assert lens.focal_length_pixels == 1000 and lens.principal_point_pixels == (949.5, 548.5)
     K2 = [[1000, 0, 950], [0, 1010, 530], [0, 0, 1]]
     assert not m.blender_lens(Distortion("polynomial", {"k1": -0.1}, (949.0, 531.0)), K2, (1920, 1080)).exact
-    lens = m.blender_lens(Distortion("opencv", {"k1": 0.1, "k2": 0.0, "p1": 0.01, "p2": 0.02}, (950, 530)), K, (1920, 1080))
-    assert lens.distortion_model == "BROWN" and lens.params["brown_p1"] == -0.01
+    lens = m.blender_lens(Distortion("opencv", {"k1": 0.1, "k2": 0.0, "p1": 0.01, "p2": 0.02, "k3": 0.0}, (950, 530)), K, (1920, 1080))
+    assert lens.distortion_model == "BROWN"
+    assert (lens.params["brown_p1"], lens.params["brown_p2"]) == (0.02, -0.01)
 
 
 def test_pixel_conventions_and_margins(addon):

@@ -22,11 +22,9 @@ def _emissive_spheres(bpy, scene, points, radius):
     import bmesh
 
     world = bpy.data.worlds.new("black")
-    world.use_nodes = True
     world.node_tree.nodes["Background"].inputs[0].default_value = (0, 0, 0, 1)
     scene.world = world
     material = bpy.data.materials.new("emit")
-    material.use_nodes = True
     nodes = material.node_tree.nodes
     nodes.clear()
     emission = nodes.new("ShaderNodeEmission")
@@ -44,21 +42,31 @@ def _emissive_spheres(bpy, scene, points, radius):
         scene.collection.objects.link(obj)
 
 
-def _render(bpy, scene, path, samples):
+def _use_cycles(scene, samples):
+    """Cycles on the CPU, no denoising, the Standard view transform (pixel values as rendered)."""
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
     scene.cycles.samples = samples
     scene.cycles.use_denoising = False
     scene.view_settings.view_transform = "Standard"
-    scene.render.image_settings.file_format = "OPEN_EXR"
-    scene.render.filepath = str(path)
-    bpy.ops.render.render(write_still=True, scene=scene.name)
+
+
+def _read_exr(bpy, path):
+    """An EXR as a grey (rows top-down) float array."""
     image = bpy.data.images.load(str(path))
     pixels = np.empty(len(image.pixels), dtype=np.float32)
     image.pixels.foreach_get(pixels)
     w, h = image.size
     bpy.data.images.remove(image)
-    return pixels.reshape(h, w, 4)[::-1, :, :3].mean(axis=2)  # rows top-down
+    return pixels.reshape(h, w, 4)[::-1, :, :3].mean(axis=2)
+
+
+def _render(bpy, scene, path, samples):
+    _use_cycles(scene, samples)
+    scene.render.image_settings.file_format = "OPEN_EXR"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True, scene=scene.name)
+    return _read_exr(bpy, path)
 
 
 def _centroids(image, expected, window=6):
@@ -105,8 +113,9 @@ def test_cycles_render_centroids_within_0_1_px(bpy, addon, tmp_path):
         ((240, 180), {"model": "division", "params": {"lambda": -4e-6}, "center": [123.0, 92.0]}),
         ((200, 150), {"model": "division", "params": {"lambda": 3e-6}, "center": [96.0, 71.0]}),
         ((240, 180), {"model": "polynomial", "params": {"k1": -0.08, "k2": 0.01}}),
+        ((240, 180), {"model": "opencv", "params": {"k1": -0.06, "k2": 0.01, "p1": 0.002, "p2": -0.003, "k3": 0.0}}),
     ],
-    ids=["division-barrel", "division-pincushion", "polynomial"],
+    ids=["division-barrel", "division-pincushion", "polynomial", "opencv"],
 )
 def test_movie_distortion_matches_camcal_lens_within_0_1_px(bpy, addon, tmp_path, size, distortion):
     K = np.array([[260.0, 0.0, size[0] / 2 + 6.3], [0.0, 260.0, size[1] / 2 - 5.4], [0.0, 0.0, 1.0]])
@@ -114,10 +123,7 @@ def test_movie_distortion_matches_camcal_lens_within_0_1_px(bpy, addon, tmp_path
     X, radius = _scene_points(K, R, c, size, 14, np.random.default_rng(1))
     scene = bpy.context.scene
     _emissive_spheres(bpy, scene, X, radius)
-    scene.render.engine = "CYCLES"
-    scene.cycles.samples = 64
-    scene.cycles.use_denoising = False
-    scene.view_settings.view_transform = "Standard"
+    _use_cycles(scene, 64)  # the distortion scenes copy the main scene's render settings
     path = write_rig(tmp_path / "d.rig.json", [camera_dict("cam", size, K, R, c, distortion=distortion)])
     result = addon.import_rig(scene, str(path), aux_directory=str(tmp_path / "lens"))
     dist_scene = result.distorted_scenes["cam"]
@@ -135,28 +141,13 @@ def test_movie_distortion_matches_camcal_lens_within_0_1_px(bpy, addon, tmp_path
 
 def _render_views(bpy, scene, folder, samples):
     """Render every view of a multi-view scene to its own EXR; {view name: image}."""
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = samples
-    scene.cycles.use_denoising = False
-    scene.view_settings.view_transform = "Standard"
+    _use_cycles(scene, samples)
     settings = scene.render.image_settings
     settings.file_format = "OPEN_EXR"
     settings.views_format = "INDIVIDUAL"
     scene.render.filepath = str(folder / "view")
     bpy.ops.render.render(write_still=True, scene=scene.name)
-    images = {}
-    for view in scene.render.views:
-        if not view.use:
-            continue
-        path = folder / f"view{view.file_suffix}.exr"
-        image = bpy.data.images.load(str(path))
-        pixels = np.empty(len(image.pixels), dtype=np.float32)
-        image.pixels.foreach_get(pixels)
-        w, h = image.size
-        bpy.data.images.remove(image)
-        images[view.name] = pixels.reshape(h, w, 4)[::-1, :, :3].mean(axis=2)
-    return images
+    return {v.name: _read_exr(bpy, folder / f"view{v.file_suffix}.exr") for v in scene.render.views if v.use}
 
 
 @pytest.mark.parametrize("layout", ["stereo", "multiview"])
