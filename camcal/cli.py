@@ -535,5 +535,4 @@ _REGISTERS: list = [
     _register_solve,
     _register_blender,
     _register_demo,
-    _register_blender,
 ]
