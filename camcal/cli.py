@@ -96,6 +96,8 @@ def _register_colour_fit(colour_verbs) -> None:
                              "| rbf[:KERNEL] (default: auto)")
     parser.add_argument("--objective", choices=("xyz", "de2000"), default=None,
                         help="least squares in XYZ or CIEDE2000 (default: xyz; auto tries both)")
+    parser.add_argument("--regularisation", type=float, default=0.0, metavar="LAMBDA",
+                        help="ridge lambda on the non-linear terms of a named model (auto picks its own)")
     parser.add_argument("--linearise", default=None, metavar="KIND",
                         help="none | gamma-offset | lut1d | named:FUNCTION (e.g. named:sRGB); "
                              "default: lut1d for --chart, none for --patches")
@@ -149,7 +151,8 @@ def _colour_fit(args: argparse.Namespace) -> int:
         white = args.illuminant
     test = read_patch_csv(args.test_patches) if args.test_patches else None
     outcome = characterise(
-        train, white=white, model=args.model, objective=args.objective, linearise=linearise,
+        train, white=white, model=args.model, objective=args.objective,
+        regularisation=args.regularisation, linearise=linearise,
         test=test, target_white=args.target_white, adaptation=args.adaptation,
         camera=args.camera, reference=reference, source=args.chart or args.patches,
     )

@@ -173,6 +173,7 @@ def characterise(
     white: str = "D50",
     model: str = "auto",
     objective: str | None = None,
+    regularisation: float = 0.0,
     linearise: str | Linearisation = "none",
     test: PatchSet | None = None,
     target_white: str | None = None,
@@ -196,6 +197,9 @@ def characterise(
     objective
         ``"xyz"`` or ``"de2000"``; ``None`` means ``xyz`` for a named
         model and both for ``auto``.
+    regularisation
+        Ridge ``lambda`` on the non-linear terms of a named model (``auto``
+        chooses its own).
     linearise
         ``"none"``, ``"gamma-offset"``, ``"lut1d"``, ``"named:FUNCTION"``
         (fitted on the neutral patches) or a :class:`Linearisation`.
@@ -253,7 +257,8 @@ def characterise(
     else:
         spec = parse_model_spec(model)
         chosen_objective = objective or "xyz"
-        regularisation = 0.0
+        if not (np.isfinite(regularisation) and regularisation >= 0):
+            raise CamcalError(f"regularisation must be a finite number >= 0, got {regularisation}")
 
     RGB_white = None
     if spec.white_preserving:

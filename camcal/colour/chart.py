@@ -129,11 +129,15 @@ def reference_chart(name: str = DEFAULT_CHART, illuminant: str = "D50") -> Refer
         sds = colour.SDS_COLOURCHECKERS[key]
         if illuminant not in colour.SDS_ILLUMINANTS:
             raise CamcalError(f"unknown illuminant {illuminant!r} for spectral chart {key!r}")
-        shape = colour.SpectralShape(380, 780, 5)
-        cmfs = colour.MSDS_CMFS[_CMFS].copy().align(shape)
-        S = colour.SDS_ILLUMINANTS[illuminant].copy().align(shape)
-        XYZ = np.array([colour.sd_to_XYZ(sd.copy().align(shape), cmfs, S) for sd in sds.values()]) / 100.0
-        white = np.asarray(colour.sd_to_XYZ(colour.sd_ones(shape), cmfs, S)) / 100.0
+        from camcal.colour.spectral import _resample
+
+        wavelengths = np.arange(380.0, 781.0, 5.0)
+        cmfs = _resample(colour.MSDS_CMFS[_CMFS], wavelengths)
+        S = _resample(colour.SDS_ILLUMINANTS[illuminant], wavelengths)
+        R = np.array([_resample(sd, wavelengths) for sd in sds.values()])
+        k = 1.0 / float(S @ cmfs[:, 1])
+        XYZ = (R * S) @ cmfs * k
+        white = S @ cmfs * k
         return ReferenceChart(key, tuple(sds.keys()), XYZ, illuminant, white, 4, 6)
     if key not in colour.CCS_COLOURCHECKERS:
         names = [k for k in colour.CCS_COLOURCHECKERS if " " in k] + list(_SPECTRAL)

@@ -63,8 +63,8 @@ def XYZ_to_Lab(XYZ: Any, white_XYZ: Any) -> np.ndarray:
 
     Examples
     --------
-    >>> XYZ_to_Lab([0.9505, 1.0, 1.089], [0.9505, 1.0, 1.089]).round(6) + 0
-    array([100.,   0.,   0.])
+    >>> [round(float(v), 6) + 0 for v in XYZ_to_Lab([0.9505, 1.0, 1.089], [0.9505, 1.0, 1.089])]
+    [100.0, 0.0, 0.0]
     """
     import colour
 

@@ -240,8 +240,8 @@ def expand(RGB: np.ndarray, terms: tuple[str, ...] | list[str]) -> np.ndarray:
 
     Examples
     --------
-    >>> expand(np.array([[0.5, 0.2, 0.8]]), ("R", "R*G", "(R*G)^(1/2)", "1"))
-    array([[0.5, 0.1, 0.31622777, 1. ]])
+    >>> expand(np.array([[0.5, 0.2, 0.8]]), ("R", "R*G", "(R*G)^(1/2)", "1")).round(6).tolist()
+    [[0.5, 0.1, 0.316228, 1.0]]
     """
     RGB = np.asarray(RGB, dtype=np.float64)
     R, G, B = RGB[..., 0], RGB[..., 1], RGB[..., 2]

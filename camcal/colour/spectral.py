@@ -142,8 +142,8 @@ def illuminant_white_XYZ(name: str) -> np.ndarray:
 
     Examples
     --------
-    >>> illuminant_white_XYZ("D65").round(4)
-    array([ 0.9505,  1.    ,  1.0888])
+    >>> illuminant_white_XYZ("D65").round(4).tolist()
+    [0.9505, 1.0, 1.0891]
     """
     import colour
 
