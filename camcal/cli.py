@@ -103,7 +103,8 @@ def _register_colour_fit(colour_verbs) -> None:
                              "default: lut1d for --chart, none for --patches")
     parser.add_argument("--illuminant", default="D50", metavar="WHITE",
                         help="white the reference XYZ are relative to: CIE name or x,y "
-                             "(default: D50, the ColorChecker references' own)")
+                             "(default: D50, the ColorChecker data's own; with --chart, another "
+                             "white adapts the chart's data to it with CAT02)")
     parser.add_argument("--target-white", default=None, metavar="WHITE",
                         help="white of the output XYZ (default: the training white)")
     parser.add_argument("--adaptation", choices=("CAT02", "Bradford"), default="CAT02",
@@ -134,14 +135,14 @@ def _colour_fit(args: argparse.Namespace) -> int:
     if args.chart:
         corners = _parse_corners(args.corners) if args.corners else None
         found = patches_from_chart(args.chart, args.reference, corners=corners,
-                                   keep_clipped=args.keep_clipped)
+                                   keep_clipped=args.keep_clipped, illuminant=args.illuminant)
         train = found.patches
         reference = found.reference.name
         excluded = f" (dropped clipped: {', '.join(found.excluded)})" if found.excluded else ""
         print(f"chart found by {found.detection.method}: {len(train)} / "
               f"{len(found.reference.patch_names)} patches used{excluded}")
         linearise = args.linearise or "lut1d"
-        white = found.reference.illuminant if args.illuminant == "D50" else args.illuminant
+        white = args.illuminant
     else:
         if args.corners:
             raise CamcalError("--corners applies to --chart only")

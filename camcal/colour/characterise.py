@@ -95,6 +95,7 @@ def patches_from_chart(
     *,
     corners: Any = None,
     keep_clipped: bool = False,
+    illuminant: str = "D50",
 ) -> ChartPatches:
     """Detect, sample and pair a chart photo's patches with reference XYZ.
 
@@ -108,6 +109,9 @@ def patches_from_chart(
         ``(4, 2)`` manual grid corners; ``None`` detects with cv2.mcc.
     keep_clipped
         Keep patches flagged clipped (dropped by default).
+    illuminant
+        White of the reference XYZ (the chart's data are adapted to it when
+        they were measured under another, see ``reference_chart``).
 
     Returns
     -------
@@ -115,7 +119,7 @@ def patches_from_chart(
         Code values normalised to [0, 1] and XYZ relative to the chart's
         white.
     """
-    chart = reference_chart(reference)
+    chart = reference_chart(reference, illuminant)
     image = read_image(image_path)
     if corners is None:
         detection = detect_chart(image, chart.rows, chart.columns)

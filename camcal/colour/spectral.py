@@ -14,6 +14,19 @@
 - :func:`adapt_XYZ` is chromatic adaptation (von Kries with CAT02 or
   Bradford, colour-science).
 
+Measured here (colour-science 0.4.6 data, CIE 1931 2 degree observer; the
+tests recompute them):
+
+=====================  ===================  ===============  ====================
+camera                 mu (equal energy)    mu (D65)         SSF recovery (190)
+=====================  ===================  ===============  ====================
+Nikon 5100 (NPL)       0.930                0.923            6.8 % relative RMS
+Sigma SDMerill (NPL)   0.808                0.815            8.2 % relative RMS
+=====================  ===================  ===============  ====================
+
+A colorimetric camera scores mu = 1. SSF recovery: 190 RAW-to-ACES
+reflectances under D65, 0.2 % noise, K-fold regularisation (all channels).
+
 Conventions: spectra are sampled on one wavelength grid ``wavelengths``
 (nm, shape ``(W,)``); integrals are sums on that grid. Camera RGB of a
 simulated camera is linear, normalised so the perfect white (reflectance 1)
