@@ -13,7 +13,8 @@ Peers:
   independent mean, an oracle pick that favours the peer.
 - ArgyllCMS ``colprof`` input profiles from a ``.ti3`` of the training
   patches (``-am`` matrix, ``-ag`` gamma+matrix, ``-as`` shaper+matrix,
-  ``-al`` Lab cLUT, ``-ax`` XYZ cLUT; ``-qm -u``), looked up with
+  ``-al`` Lab cLUT, ``-ax`` XYZ cLUT; ``-u``; quality ``-qm``, ``-ql`` for
+  the cLUTs, each run bounded to 240 s), looked up with
   ``xicclu -ff -ia -px`` (absolute colorimetric, XYZ). Device values are
   the linear RGB white balanced so the perfect white is 100, 100, 100.
 
@@ -57,7 +58,9 @@ COLOUR_SCIENCE = (
     + [("Finlayson 2015", {"degree": d}) for d in (1, 2, 3)]
     + [("Vandermonde", {"degree": d}) for d in (1, 2, 3)]
 )
-ARGYLL = [("m", "matrix"), ("g", "gamma+matrix"), ("s", "shaper+matrix"), ("l", "Lab cLUT"), ("x", "XYZ cLUT")]
+ARGYLL = [("m", "matrix", "m"), ("g", "gamma+matrix", "m"), ("s", "shaper+matrix", "m"),
+          ("l", "Lab cLUT", "l"), ("x", "XYZ cLUT", "l")]
+ARGYLL_TIMEOUT_S = 240
 
 
 def scene(camera: str, illuminant: str, seed: int = 0):
@@ -136,18 +139,24 @@ def run_argyll(train: PatchSet, test: PatchSet, white: np.ndarray, RGB_white: np
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         _write_ti3(tmp / "train.ti3", train.RGB, train.XYZ, scale)
-        for algo, name in ARGYLL:
+        for algo, name, quality in ARGYLL:
             profile = tmp / f"cam_{algo}.icc"
             start = time.perf_counter()
-            result = subprocess.run(["colprof", "-qm", f"-a{algo}", "-u", "-O", str(profile), str(tmp / "train")],
-                                    capture_output=True, text=True, check=False)
+            try:
+                result = subprocess.run(
+                    ["colprof", f"-q{quality}", f"-a{algo}", "-u", "-O", str(profile), str(tmp / "train")],
+                    capture_output=True, text=True, check=False, timeout=ARGYLL_TIMEOUT_S,
+                )
+            except subprocess.TimeoutExpired:
+                print(f"argyll colprof -a{algo}: timed out after {ARGYLL_TIMEOUT_S} s, row skipped")
+                continue
             seconds = time.perf_counter() - start
             if result.returncode != 0:
                 print(f"argyll colprof -a{algo} failed: {result.stderr.strip().splitlines()[-1:]}")
                 continue
             d_train = delta_E(_xicclu(profile, train.RGB, scale), train.XYZ, white)
             d_test = delta_E(_xicclu(profile, test.RGB, scale), test.XYZ, white)
-            rows.append(row(f"argyll colprof -a{algo} ({name})", d_train, d_test, seconds))
+            rows.append(row(f"argyll colprof -q{quality} -a{algo} ({name})", d_train, d_test, seconds))
     return rows
 
 

@@ -141,6 +141,9 @@ def _colour_fit(args: argparse.Namespace) -> int:
         excluded = f" (dropped clipped: {', '.join(found.excluded)})" if found.excluded else ""
         print(f"chart found by {found.detection.method}: {len(train)} / "
               f"{len(found.reference.patch_names)} patches used{excluded}")
+        noisy = [n for n, flag in zip(found.reference.patch_names, found.samples.noisy) if flag]
+        if noisy:
+            print(f"flagged noisy (kept): {', '.join(noisy)}")
         linearise = args.linearise or "lut1d"
         white = args.illuminant
     else:

@@ -39,7 +39,9 @@ from camcal.colour.chart import (
     sample_patches,
 )
 from camcal.colour.evaluate import (
+    DELTA_E_METHODS,
     ColourFitResult,
+    delta_E,
     XYZ_to_Lab,
     evaluate_model,
     patch_table,
@@ -349,7 +351,14 @@ def write_report(directory: str | os.PathLike, outcome: Characterisation, title:
                              f"{c.loo_p95:.4f},{'yes' if c is outcome.selection.picked else ''}\n")
         os.replace(tmp, path)
         written.append(path)
+    lines = [outcome.summary(), "", "mean Delta E by formula (colour-science):"]
+    sets = [("training", train.RGB, train.XYZ)]
+    if outcome.test is not None:
+        sets.append(("independent", outcome.test.RGB, outcome.test.XYZ))
+    for name, RGB, XYZ in sets:
+        means = [f"{m} {np.mean(delta_E(model.apply(RGB), XYZ, white, m)):.3f}" for m in DELTA_E_METHODS]
+        lines.append(f"  {name}: " + ", ".join(means))
     path = directory / "summary.txt"
-    path.write_text(outcome.summary() + "\n")
+    path.write_text("\n".join(lines) + "\n")
     written.append(path)
     return written
