@@ -259,7 +259,7 @@ def expand(RGB: np.ndarray, terms: tuple[str, ...] | list[str]) -> np.ndarray:
 
 
 def _nonlinear_mask(terms: tuple[str, ...]) -> np.ndarray:
-    """True for terms the ridge penalty applies to (degree > 1, non-root)."""
+    """True for terms the ridge penalty applies to: total degree > 1 (root or not)."""
     mask = []
     for term in terms:
         (a, b, c), root = _parse_term(term)
