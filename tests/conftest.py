@@ -1,6 +1,9 @@
-"""Shared test fixtures: the real-image folder beside the project."""
+"""Shared test fixtures: the real-image folder beside the project, simulated colour data."""
 
+from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 import pytest
 
@@ -13,3 +16,47 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real test images not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+# -- simulated camera colour data (tests/colour) ------------------------------------
+
+COLOUR_NOISE = 0.002
+
+
+@dataclass
+class SimData:
+    camera: object
+    RGB_train: np.ndarray
+    XYZ_train: np.ndarray
+    names_train: list
+    RGB_test: np.ndarray
+    XYZ_test: np.ndarray
+    names_test: list
+    white: np.ndarray
+
+
+def make_sim(camera="Nikon 5100 (NPL)", illuminant="D65", seed=0) -> SimData:
+    """Simulated camera data: Nikon 5100 (NPL) under D65 by default, 0.2 % noise;
+    training ColorChecker 24 (BabelColor Average), independent: 190 RAW-to-ACES reflectances."""
+    from camcal.colour.spectral import SimulatedCamera, reflectance_set
+
+    cam = SimulatedCamera.from_colour(camera, illuminant)
+    names_cc, R_cc = reflectance_set("BabelColor Average", cam.wavelengths)
+    names_ind, R_ind = reflectance_set("rawtoaces 190", cam.wavelengths)
+    return SimData(
+        cam,
+        cam.RGB(R_cc, COLOUR_NOISE, seed), cam.XYZ(R_cc), names_cc,
+        cam.RGB(R_ind, COLOUR_NOISE, seed + 100), cam.XYZ(R_ind), names_ind,
+        cam.white_XYZ,
+    )
+
+
+@pytest.fixture(scope="session")
+def sim() -> SimData:
+    return make_sim()
+
+
+@pytest.fixture(scope="session")
+def sim_factory():
+    """``make_sim(camera, illuminant, seed)`` for other cameras and scenes."""
+    return make_sim

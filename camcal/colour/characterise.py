@@ -1,0 +1,364 @@
+"""The ``colour fit`` pipeline: patches (or a chart photo) to a ``*.colour.json``.
+
+Steps, each a function the CLI calls:
+
+1. :func:`patches_from_chart`: read the image, detect the chart (cv2.mcc or
+   four manual corners), sample every patch, drop clipped patches, pair the
+   code values with the reference chart's XYZ.
+2. :func:`characterise`: fit the linearisation on the neutral patches
+   (or take the one given), adapt the reference to the target white if
+   asked, fit the model (``auto`` picks by leave-one-out, see
+   :mod:`camcal.colour.select`), evaluate CIEDE2000 on training,
+   leave-one-out and an independent set, and build the :class:`ColourFit`.
+3. :func:`write_report`: per-patch tables, the ``auto`` candidate table and
+   the plots.
+
+Encodings: the RGB of a patch set handed to :func:`characterise` are code
+values when a linearisation is fitted or given, linear RGB otherwise; an
+independent patch set is in the same encoding as the training set.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from camcal.colour.chart import (
+    ChartDetection,
+    PatchSamples,
+    ReferenceChart,
+    chart_from_corners,
+    detect_chart,
+    read_image,
+    reference_chart,
+    sample_patches,
+)
+from camcal.colour.evaluate import (
+    DELTA_E_METHODS,
+    ColourFitResult,
+    delta_E,
+    XYZ_to_Lab,
+    evaluate_model,
+    patch_table,
+    plot_report,
+    write_patch_table,
+)
+from camcal.colour.fitfile import ColourFit
+from camcal.colour.linearise import Linearisation, fit_linearisation
+from camcal.colour.models import fit_model, parse_model_spec
+from camcal.colour.patches import PatchSet
+from camcal.colour.select import Selection, select_model
+from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ
+from camcal.errors import CamcalError
+
+__all__ = ["ChartPatches", "Characterisation", "white_from_name", "patches_from_chart",
+           "neutral_indices", "characterise", "write_report"]
+
+
+def white_from_name(text: str) -> tuple[str, np.ndarray]:
+    """A white from a CIE illuminant name (``D50``) or chromaticity ``x,y``.
+
+    Returns
+    -------
+    name, XYZ
+        XYZ with Y = 1.
+    """
+    text = str(text).strip()
+    if "," in text:
+        try:
+            x, y = (float(v) for v in text.split(","))
+        except ValueError:
+            raise CamcalError(f"white {text!r}: expected a CIE name or 'x,y'") from None
+        if not (0 < x < 1 and 0 < y < 1 and x + y < 1):
+            raise CamcalError(f"white {text!r}: chromaticity out of range")
+        return f"x={x:g},y={y:g}", np.array([x / y, 1.0, (1 - x - y) / y])
+    return text, illuminant_white_XYZ(text)
+
+
+@dataclass(frozen=True, eq=False)
+class ChartPatches:
+    """What a chart photo gave: patches (code values) and how they were found."""
+
+    patches: PatchSet
+    reference: ReferenceChart
+    detection: ChartDetection
+    samples: PatchSamples
+    excluded: tuple[str, ...]
+
+
+def patches_from_chart(
+    image_path: str | os.PathLike,
+    reference: str = "ColorChecker24 - After November 2014",
+    *,
+    corners: Any = None,
+    keep_clipped: bool = False,
+    illuminant: str = "D50",
+) -> ChartPatches:
+    """Detect, sample and pair a chart photo's patches with reference XYZ.
+
+    Parameters
+    ----------
+    image_path
+        The photo (8/16-bit or float).
+    reference
+        Reference chart name (see :func:`camcal.colour.chart.reference_chart`).
+    corners
+        ``(4, 2)`` manual grid corners; ``None`` detects with cv2.mcc.
+    keep_clipped
+        Keep patches flagged clipped (dropped by default).
+    illuminant
+        White of the reference XYZ (the chart's data are adapted to it when
+        they were measured under another, see ``reference_chart``).
+
+    Returns
+    -------
+    ChartPatches
+        Code values normalised to [0, 1] and XYZ relative to the chart's
+        white.
+    """
+    chart = reference_chart(reference, illuminant)
+    image = read_image(image_path)
+    if corners is None:
+        detection = detect_chart(image, chart.rows, chart.columns)
+    else:
+        detection = chart_from_corners(corners, chart.rows, chart.columns)
+    samples = sample_patches(image, detection)
+    keep = np.ones(len(chart.patch_names), dtype=bool) if keep_clipped else ~samples.clipped
+    excluded = tuple(n for n, k in zip(chart.patch_names, keep) if not k)
+    patches = PatchSet(chart.patch_names, samples.RGB, chart.XYZ).subset(keep)
+    return ChartPatches(patches, chart, detection, samples, excluded)
+
+
+def neutral_indices(XYZ: Any, white_XYZ: Any, chroma: float = 4.0) -> np.ndarray:
+    """Indices of patches whose reference CIELAB chroma is below ``chroma``."""
+    Lab = XYZ_to_Lab(XYZ, white_XYZ)
+    return np.flatnonzero(np.hypot(Lab[:, 1], Lab[:, 2]) < chroma)
+
+
+@dataclass(frozen=True, eq=False)
+class Characterisation:
+    """The outcome of :func:`characterise`.
+
+    ``train`` and ``test`` hold LINEAR camera RGB and XYZ in the target
+    white; ``result`` the per-patch CIEDE2000; ``selection`` what ``auto``
+    compared (``None`` for a named model).
+    """
+
+    fit: ColourFit
+    result: ColourFitResult
+    train: PatchSet
+    test: PatchSet | None
+    selection: Selection | None
+
+    def summary(self) -> str:
+        """A few human lines: model, why, and CIEDE2000 on each set."""
+        lines = [f"model: {self.result.model.label} ({self.fit.model.to_dict().get('objective')}"
+                 + (f", lambda {self.fit.model.regularisation:g})" if hasattr(self.fit.model, "regularisation")
+                    else f", smoothing {self.fit.model.smoothing:g})")]
+        if self.selection is not None:
+            lines.append(f"auto picked it: {self.selection.reason}")
+        lines.append(f"linearisation: {self.fit.linearisation.label}"
+                     + (f" (neutral residual {100 * self.fit.linearisation.residual:.2f} %)"
+                        if self.fit.linearisation.residual is not None else ""))
+        lines.append(f"CIEDE2000 training:      {self.result.stats_train}")
+        if self.result.stats_loo is not None:
+            lines.append(f"CIEDE2000 leave-one-out: {self.result.stats_loo}")
+        if self.result.stats_test is not None:
+            lines.append(f"CIEDE2000 independent:   {self.result.stats_test}")
+        return "\n".join(lines)
+
+
+def characterise(
+    train: PatchSet,
+    *,
+    white: str = "D50",
+    model: str = "auto",
+    objective: str | None = None,
+    regularisation: float = 0.0,
+    linearise: str | Linearisation = "none",
+    test: PatchSet | None = None,
+    target_white: str | None = None,
+    adaptation: str = "CAT02",
+    camera: str | None = None,
+    reference: str | None = None,
+    source: str | None = None,
+    loo: bool = True,
+) -> Characterisation:
+    """Fit and evaluate a characterisation.
+
+    Parameters
+    ----------
+    train
+        Training patches: camera RGB (code values when ``linearise`` is not
+        ``"none"``) and XYZ relative to ``white`` (perfect white Y = 1).
+    white
+        Training illuminant: CIE name or ``"x,y"``.
+    model
+        ``"auto"`` or a model name (``"root-polynomial:2"``...).
+    objective
+        ``"xyz"`` or ``"de2000"``; ``None`` means ``xyz`` for a named
+        model and both for ``auto``.
+    regularisation
+        Ridge ``lambda`` on the non-linear terms of a named model (``auto``
+        chooses its own).
+    linearise
+        ``"none"``, ``"gamma-offset"``, ``"lut1d"``, ``"named:FUNCTION"``
+        (fitted on the neutral patches) or a :class:`Linearisation`.
+    test
+        Independent patches, same encoding and white as ``train``.
+    target_white
+        White of the output XYZ; ``None`` keeps ``white``. When it differs,
+        reference XYZ are adapted with ``adaptation`` (CAT02 or Bradford).
+    camera, reference, source
+        Recorded in the file.
+    loo
+        Compute leave-one-out figures (always on for ``auto``).
+
+    Returns
+    -------
+    Characterisation
+    """
+    white_name, white_XYZ = white_from_name(white)
+    if target_white is None:
+        target_name, target_XYZ, adapt = white_name, white_XYZ, None
+    else:
+        target_name, target_XYZ = white_from_name(target_white)
+        adapt = None if np.allclose(target_XYZ, white_XYZ, atol=1e-6) else adaptation
+    if objective is not None and objective not in ("xyz", "de2000"):
+        raise CamcalError(f"unknown objective {objective!r}, expected one of: xyz, de2000")
+
+    if isinstance(linearise, Linearisation):
+        linearisation = linearise
+    else:
+        if linearise == "none":
+            linearisation = Linearisation.identity()
+        else:
+            neutral = neutral_indices(train.XYZ, white_XYZ)
+            if neutral.size < 3 and not linearise.startswith("named"):
+                raise CamcalError(
+                    f"linearisation {linearise!r} needs at least 3 neutral patches, found {neutral.size}"
+                )
+            linearisation = fit_linearisation(train.RGB[neutral], train.XYZ[neutral, 1], linearise)
+
+    def prepare(patches: PatchSet) -> PatchSet:
+        XYZ = patches.XYZ if adapt is None else adapt_XYZ(patches.XYZ, white_XYZ, target_XYZ, adapt)
+        return PatchSet(patches.names, linearisation.apply(patches.RGB), XYZ)
+
+    train_lin = prepare(train)
+    test_lin = prepare(test) if test is not None else None
+    RGB, XYZ = train_lin.RGB, train_lin.XYZ
+
+    selection = None
+    if model == "auto":
+        objectives = ("xyz", "de2000") if objective is None else (objective,)
+        selection = select_model(RGB, XYZ, target_XYZ, objectives=objectives)
+        spec = selection.picked.spec
+        chosen_objective = selection.picked.objective
+        regularisation = selection.picked.regularisation
+    else:
+        spec = parse_model_spec(model)
+        chosen_objective = objective or "xyz"
+        if not (np.isfinite(regularisation) and regularisation >= 0):
+            raise CamcalError(f"regularisation must be a finite number >= 0, got {regularisation}")
+
+    RGB_white = None
+    if spec.white_preserving:
+        neutral = neutral_indices(XYZ, target_XYZ)
+        if neutral.size == 0:
+            raise CamcalError(f"{spec.label} needs neutral patches to find the camera white, found none")
+        Y = XYZ[neutral, 1]
+        RGB_white = (Y @ RGB[neutral]) / (Y @ Y)
+
+    def fit(R: np.ndarray, X: np.ndarray):
+        return fit_model(spec, R, X, objective=chosen_objective, regularisation=regularisation,
+                         white_XYZ=target_XYZ, RGB_white=RGB_white)
+
+    result = evaluate_model(
+        fit, RGB, XYZ, target_XYZ,
+        test=None if test_lin is None else (test_lin.RGB, test_lin.XYZ),
+        loo=loo or selection is not None,
+    )
+    from camcal import __version__
+
+    provenance = {"tool": f"camcal {__version__}",
+                  "created": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}
+    if source:
+        provenance["source"] = str(source)
+    colour_fit = ColourFit(
+        linearisation=linearisation,
+        model=result.model,
+        training_illuminant=white_name,
+        training_white_XYZ=tuple(float(v) for v in white_XYZ),  # type: ignore[arg-type]
+        target_white=target_name,
+        target_white_XYZ=tuple(float(v) for v in target_XYZ),  # type: ignore[arg-type]
+        evaluation=result.evaluation_dict(),
+        n_patches=len(train),
+        camera=camera,
+        reference=reference,
+        adaptation=adapt,
+        selection=None if selection is None else selection.to_dict(),
+        provenance=provenance,
+    )
+    return Characterisation(colour_fit, result, train_lin, test_lin, selection)
+
+
+def write_report(directory: str | os.PathLike, outcome: Characterisation, title: str = "") -> list[Path]:
+    """Write tables and plots for a characterisation into ``directory``.
+
+    Files: ``train_patches.csv`` (reference and fitted CIELAB, four Delta E),
+    ``loo_patches.csv`` (the same with leave-one-out predictions),
+    ``test_patches.csv`` (independent set), ``candidates.csv`` (``auto``),
+    ``summary.txt``, and the plots of
+    :func:`camcal.colour.evaluate.plot_report` under ``train/`` and
+    ``test/``.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    white = outcome.fit.target_white_XYZ
+    model = outcome.result.model
+    written: list[Path] = []
+    train = outcome.train
+    pred = model.apply(train.RGB)
+    path = directory / "train_patches.csv"
+    write_patch_table(path, patch_table(train.names, train.XYZ, pred, white))
+    written.append(path)
+    if outcome.result.XYZ_loo is not None:
+        path = directory / "loo_patches.csv"
+        write_patch_table(path, patch_table(train.names, train.XYZ, outcome.result.XYZ_loo, white))
+        written.append(path)
+    written += plot_report(directory / "train", train.names, train.XYZ, pred, white,
+                           title=f"{title} training: {model.label}".strip())
+    if outcome.test is not None:
+        test = outcome.test
+        test_pred = model.apply(test.RGB)
+        path = directory / "test_patches.csv"
+        write_patch_table(path, patch_table(test.names, test.XYZ, test_pred, white))
+        written.append(path)
+        written += plot_report(directory / "test", test.names, test.XYZ, test_pred, white,
+                               title=f"{title} independent: {model.label}".strip(), columns=10)
+    if outcome.selection is not None:
+        path = directory / "candidates.csv"
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "w") as handle:
+            handle.write("model,objective,regularisation,loo_mean,loo_p95,picked\n")
+            for c in sorted(outcome.selection.candidates, key=lambda c: c.loo_mean):
+                handle.write(f"{c.spec.label},{c.objective},{c.regularisation:g},{c.loo_mean:.4f},"
+                             f"{c.loo_p95:.4f},{'yes' if c is outcome.selection.picked else ''}\n")
+        os.replace(tmp, path)
+        written.append(path)
+    lines = [outcome.summary(), "", "mean Delta E by formula (colour-science):"]
+    sets = [("training", train.RGB, train.XYZ)]
+    if outcome.test is not None:
+        sets.append(("independent", outcome.test.RGB, outcome.test.XYZ))
+    for name, RGB, XYZ in sets:
+        means = [f"{m} {np.mean(delta_E(model.apply(RGB), XYZ, white, m)):.3f}" for m in DELTA_E_METHODS]
+        lines.append(f"  {name}: " + ", ".join(means))
+    path = directory / "summary.txt"
+    path.write_text("\n".join(lines) + "\n")
+    written.append(path)
+    return written

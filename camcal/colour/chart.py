@@ -1,0 +1,381 @@
+"""Reference colour charts, chart detection in an image, patch sampling.
+
+Reference charts come from colour-science:
+
+- ``ColorChecker24 - After November 2014`` (default; alias ``cc24``),
+  ``ColorChecker24 - Before November 2014`` (``cc24-2005``),
+  ``BabelColor Average`` (``babel``), ``ColorCheckerSG - After November
+  2014`` (``sg``, 140 patches) and the other ``CCS_COLOURCHECKERS`` entries:
+  xyY under their D50 illuminant;
+- ``ISO 17321-1`` and ``ColorChecker N Ohta``: reflectance spectra,
+  integrated with the CIE 1931 observer under the chosen illuminant.
+
+Reference XYZ are relative with Y = 1 for the perfect white. A chart's
+``illuminant`` is the white its XYZ are relative to (D50 for xyY data).
+
+Detection: OpenCV's ``cv2.mcc`` (contrib) finds a 24-patch ColorChecker and
+gives each patch's corners; a homography from the chart's patch grid to the
+image is fitted to the 24 patch centres. A manual override takes the four
+outer corners of the patch grid instead, in the order top-left (the corner
+of ``dark skin``), top-right (``bluish green``), bottom-right
+(``black``), bottom-left (``white``), pixel (0, 0) the centre of the
+top-left pixel.
+
+Sampling: the central ``fraction`` (default 0.5 of the cell width) of each
+patch, mapped through the homography, a trimmed mean per channel (the
+``trim`` fraction cut at each end), plus flags: ``clipped`` when more than
+1 % of the patch's pixels touch 0 or the maximum code value in any
+channel, ``noisy`` when a channel's standard deviation exceeds 5 % of the
+white's mean code value.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from camcal.errors import CamcalError
+
+__all__ = [
+    "CHART_ALIASES",
+    "ReferenceChart",
+    "reference_chart",
+    "read_image",
+    "ChartDetection",
+    "detect_chart",
+    "chart_from_corners",
+    "PatchSamples",
+    "sample_patches",
+]
+
+DEFAULT_CHART = "ColorChecker24 - After November 2014"
+CHART_ALIASES = {
+    "cc24": "ColorChecker24 - After November 2014",
+    "cc24-2014": "ColorChecker24 - After November 2014",
+    "cc24-2005": "ColorChecker24 - Before November 2014",
+    "babel": "BabelColor Average",
+    "sg": "ColorCheckerSG - After November 2014",
+    "sg-2005": "ColorCheckerSG - Before November 2014",
+}
+_SPECTRAL = ("ISO 17321-1", "ColorChecker N Ohta")
+_CMFS = "CIE 1931 2 Degree Standard Observer"
+
+
+@dataclass(frozen=True, eq=False)
+class ReferenceChart:
+    """A chart's patch names and reference XYZ (white Y = 1).
+
+    Attributes
+    ----------
+    name
+        colour-science's name of the data.
+    patch_names
+        ``N`` names in chart order (row by row from the top-left).
+    XYZ
+        ``(N, 3)`` relative XYZ under ``illuminant``.
+    illuminant
+        Name of the white the XYZ are relative to (e.g. ``"D50"``).
+    white_XYZ
+        XYZ of that white (Y = 1).
+    rows, columns
+        Patch grid.
+    """
+
+    name: str
+    patch_names: tuple[str, ...]
+    XYZ: np.ndarray
+    illuminant: str
+    white_XYZ: np.ndarray
+    rows: int
+    columns: int
+
+    @property
+    def neutral(self) -> np.ndarray:
+        """Indices of the neutral patches (CIELAB chroma below 4)."""
+        from camcal.colour.evaluate import XYZ_to_Lab
+
+        Lab = XYZ_to_Lab(self.XYZ, self.white_XYZ)
+        return np.flatnonzero(np.hypot(Lab[:, 1], Lab[:, 2]) < 4.0)
+
+
+def reference_chart(name: str = DEFAULT_CHART, illuminant: str = "D50") -> ReferenceChart:
+    """Reference XYZ of a colour chart from colour-science.
+
+    Parameters
+    ----------
+    name
+        A ``CCS_COLOURCHECKERS`` name, an alias of :data:`CHART_ALIASES`,
+        or a spectral set (``ISO 17321-1``, ``ColorChecker N Ohta``).
+    illuminant
+        For spectral sets, the CIE illuminant to integrate under; xyY charts
+        are measured under D50 and are chromatically adapted (CAT02) when
+        another illuminant is asked for.
+
+    Returns
+    -------
+    ReferenceChart
+    """
+    import colour
+
+    from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ
+
+    key = CHART_ALIASES.get(str(name).lower(), name)
+    white = illuminant_white_XYZ(illuminant)
+    if key in _SPECTRAL:
+        sds = colour.SDS_COLOURCHECKERS[key]
+        if illuminant not in colour.SDS_ILLUMINANTS:
+            raise CamcalError(f"unknown illuminant {illuminant!r} for spectral chart {key!r}")
+        from camcal.colour.spectral import _resample
+
+        wavelengths = np.arange(380.0, 781.0, 5.0)
+        cmfs = _resample(colour.MSDS_CMFS[_CMFS], wavelengths)
+        S = _resample(colour.SDS_ILLUMINANTS[illuminant], wavelengths)
+        R = np.array([_resample(sd, wavelengths) for sd in sds.values()])
+        k = 1.0 / float(S @ cmfs[:, 1])
+        XYZ = (R * S) @ cmfs * k
+        white = S @ cmfs * k
+        return ReferenceChart(key, tuple(sds.keys()), XYZ, illuminant, white, 4, 6)
+    if key not in colour.CCS_COLOURCHECKERS:
+        names = [k for k in colour.CCS_COLOURCHECKERS if " " in k] + list(_SPECTRAL)
+        raise CamcalError(
+            f"unknown reference chart {name!r}, expected one of: {', '.join(names)} "
+            f"(aliases: {', '.join(CHART_ALIASES)})"
+        )
+    cc = colour.CCS_COLOURCHECKERS[key]
+    xyY = np.array(list(cc.data.values()), dtype=np.float64)
+    XYZ = np.asarray(colour.xyY_to_XYZ(xyY), dtype=np.float64)
+    chart_white = np.asarray(colour.xy_to_XYZ(cc.illuminant), dtype=np.float64)
+    if np.allclose(colour.XYZ_to_xy(white), cc.illuminant, atol=1e-4):
+        white = chart_white
+    else:
+        XYZ = adapt_XYZ(XYZ, chart_white, white, "CAT02")
+    return ReferenceChart(key, tuple(cc.data.keys()), XYZ, illuminant, white, int(cc.rows), int(cc.columns))
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """Read an image as float RGB normalised code values ``(H, W, 3)`` in [0, 1].
+
+    8- and 16-bit integer images are divided by 255 or 65535; float images
+    (EXR, TIFF) are returned as they are.
+    """
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise CamcalError(f"chart image not found: {path}")
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH)
+    if image is None:
+        raise CamcalError(f"cannot read image {path} (not an image OpenCV can decode)")
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    image = image[:, :, :3][:, :, ::-1]
+    if image.dtype == np.uint8:
+        return image.astype(np.float64) / 255.0
+    if image.dtype == np.uint16:
+        return image.astype(np.float64) / 65535.0
+    return image.astype(np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class ChartDetection:
+    """Where the chart's patch grid is in the image.
+
+    Attributes
+    ----------
+    H
+        3x3 homography from grid coordinates (``u`` across the columns,
+        ``v`` down the rows, both 0 to 1 over the whole patch grid) to
+        pixels.
+    corners
+        ``(4, 2)`` pixel corners of the grid: top-left, top-right,
+        bottom-right, bottom-left.
+    rows, columns
+        Patch grid.
+    method
+        ``"cv2.mcc"`` or ``"manual"``.
+    fit_rms_px
+        RMS distance between the detector's patch centres and the fitted
+        grid (0 for manual corners).
+    """
+
+    H: np.ndarray
+    corners: np.ndarray
+    rows: int
+    columns: int
+    method: str
+    fit_rms_px: float = 0.0
+
+    def patch_centres(self) -> np.ndarray:
+        """``(rows * columns, 2)`` pixel centres in chart order."""
+        return _apply_H(self.H, _grid_centres(self.rows, self.columns))
+
+
+def _grid_centres(rows: int, columns: int) -> np.ndarray:
+    r, c = np.divmod(np.arange(rows * columns), columns)
+    return np.column_stack([(c + 0.5) / columns, (r + 0.5) / rows])
+
+
+def _apply_H(H: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    p = np.column_stack([uv, np.ones(len(uv))]) @ H.T
+    return p[:, :2] / p[:, 2:3]
+
+
+_UNIT_CORNERS = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+
+
+def chart_from_corners(corners: Any, rows: int = 4, columns: int = 6) -> ChartDetection:
+    """A detection from four manual corners of the patch grid.
+
+    Parameters
+    ----------
+    corners
+        ``(4, 2)`` pixels: top-left (dark skin), top-right (bluish green),
+        bottom-right (black), bottom-left (white).
+    """
+    import cv2
+
+    corners = np.asarray(corners, dtype=np.float64)
+    if corners.shape != (4, 2) or not np.all(np.isfinite(corners)):
+        raise CamcalError(f"need 4 corners as (x, y) pixel pairs, got shape {corners.shape}")
+    area = 0.5 * np.abs(np.dot(corners[:, 0], np.roll(corners[:, 1], 1)) - np.dot(corners[:, 1], np.roll(corners[:, 0], 1)))
+    if area < 16.0:
+        raise CamcalError("the 4 chart corners enclose no area")
+    H = cv2.getPerspectiveTransform(_UNIT_CORNERS.astype(np.float32), corners.astype(np.float32))
+    return ChartDetection(np.asarray(H, dtype=np.float64), corners, rows, columns, "manual")
+
+
+def detect_chart(image: np.ndarray, rows: int = 4, columns: int = 6) -> ChartDetection:
+    """Find a 24-patch ColorChecker with OpenCV's ``cv2.mcc``.
+
+    Parameters
+    ----------
+    image
+        ``(H, W, 3)`` RGB normalised code values (from :func:`read_image`).
+
+    Returns
+    -------
+    ChartDetection
+
+    Raises
+    ------
+    CamcalError
+        When no chart is found ("no ColorChecker found in the image").
+    """
+    import cv2
+
+    if (rows, columns) != (4, 6):
+        raise CamcalError(
+            "automatic detection supports the 24-patch ColorChecker only; give --corners "
+            "for other charts, or give --patches"
+        )
+    bgr = np.ascontiguousarray((np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)[:, :, ::-1])
+    detector = cv2.mcc.CCheckerDetector_create()
+    if not detector.process(bgr, cv2.mcc.MCC24, 1):
+        raise CamcalError(
+            "no ColorChecker found in the image (cv2.mcc); give its corners with --corners"
+        )
+    checker = detector.getBestColorChecker()
+    quads = np.asarray(checker.getColorCharts(), dtype=np.float64).reshape(-1, 4, 2)
+    if quads.shape[0] != rows * columns:
+        raise CamcalError(f"cv2.mcc returned {quads.shape[0]} patches, expected {rows * columns}")
+    centres = quads.mean(axis=1)
+    grid = _grid_centres(rows, columns)
+    H, _ = cv2.findHomography(grid.astype(np.float64), centres.astype(np.float64), 0)
+    if H is None:
+        raise CamcalError("cv2.mcc's patch centres do not form a chart grid")
+    fitted = _apply_H(H, grid)
+    rms = float(np.sqrt(np.mean(np.sum((fitted - centres) ** 2, axis=1))))
+    return ChartDetection(H, _apply_H(H, _UNIT_CORNERS), rows, columns, "cv2.mcc", rms)
+
+
+@dataclass(frozen=True, eq=False)
+class PatchSamples:
+    """Per-patch statistics of an image's patches (normalised code values).
+
+    Attributes
+    ----------
+    RGB
+        ``(N, 3)`` trimmed means.
+    std
+        ``(N, 3)`` standard deviations of the kept pixels.
+    n_pixels
+        ``(N,)`` pixels sampled per patch.
+    clipped, noisy
+        ``(N,)`` flags (see the module docstring).
+    """
+
+    RGB: np.ndarray
+    std: np.ndarray
+    n_pixels: np.ndarray
+    clipped: np.ndarray
+    noisy: np.ndarray
+
+
+def sample_patches(
+    image: np.ndarray,
+    detection: ChartDetection,
+    *,
+    fraction: float = 0.5,
+    trim: float = 0.1,
+    clip_low: float = 0.5 / 255,
+    clip_high: float = 254.5 / 255,
+) -> PatchSamples:
+    """Trimmed-mean code values of the central part of every patch.
+
+    Parameters
+    ----------
+    image
+        ``(H, W, 3)`` normalised code values.
+    detection
+        The chart's grid in the image.
+    fraction
+        Side of the sampled square as a fraction of the patch cell.
+    trim
+        Fraction cut at each end of every channel before averaging.
+    clip_low, clip_high
+        Code values counted as clipped (at or beyond).
+
+    Returns
+    -------
+    PatchSamples
+    """
+    import cv2
+
+    if not 0 < fraction <= 1 or not 0 <= trim < 0.5:
+        raise CamcalError(f"need 0 < fraction <= 1 and 0 <= trim < 0.5, got {fraction}, {trim}")
+    height, width = image.shape[:2]
+    rows, columns = detection.rows, detection.columns
+    N = rows * columns
+    RGB = np.zeros((N, 3))
+    std = np.zeros((N, 3))
+    n_pixels = np.zeros(N, dtype=int)
+    clipped = np.zeros(N, dtype=bool)
+    grid = _grid_centres(rows, columns)
+    half = np.array([0.5 / columns, 0.5 / rows]) * fraction
+    square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=np.float64)
+    for i in range(N):
+        quad = _apply_H(detection.H, grid[i] + square * half)
+        x0, y0 = np.floor(quad.min(axis=0)).astype(int)
+        x1, y1 = np.ceil(quad.max(axis=0)).astype(int) + 1
+        if x0 < 0 or y0 < 0 or x1 > width or y1 > height:
+            raise CamcalError(f"patch {i + 1} of the chart lies outside the image")
+        mask = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
+        cv2.fillConvexPoly(mask, np.round(quad - [x0, y0]).astype(np.int32), 1)
+        pixels = image[y0:y1, x0:x1][mask.astype(bool)]
+        if pixels.shape[0] < 4:
+            raise CamcalError(f"patch {i + 1} covers fewer than 4 pixels: the chart is too small")
+        n_pixels[i] = pixels.shape[0]
+        touching = np.any((pixels <= clip_low) | (pixels >= clip_high), axis=1)
+        clipped[i] = np.mean(touching) > 0.01
+        ordered = np.sort(pixels, axis=0)
+        k = int(np.floor(trim * ordered.shape[0]))
+        kept = ordered[k : ordered.shape[0] - k]
+        RGB[i] = kept.mean(axis=0)
+        std[i] = kept.std(axis=0)
+    white_level = max(float(np.max(RGB)), 1e-6)
+    noisy = np.any(std > 0.05 * white_level, axis=1)
+    return PatchSamples(RGB, std, n_pixels, clipped, noisy)

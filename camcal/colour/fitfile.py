@@ -1,0 +1,496 @@
+"""The colour fit file ``*.colour.json``: the contract between colour parts.
+
+Exporters (OCIO colour space, ICC input profile) and the camera-to-camera
+match read only this file. It is JSON, versioned, validated on load (one
+error naming the bad field; unknown keys are rejected), written atomically
+(temporary file + rename) and round-trips exactly (floats are written with
+Python's shortest repr, which reads back to the same double).
+
+Format, version 1, kind ``characterisation``::
+
+    {
+      "format": "camcal.colour",
+      "version": 1,
+      "kind": "characterisation",
+      "camera": "A7S-left" | null,
+      "linearisation": {
+        "channels": [CURVE_R, CURVE_G, CURVE_B],    # code values -> linear
+        "residual": 0.004                           # optional: RMS relative
+      },                                            # error on the neutrals
+      "model": MODEL,                               # linear RGB -> XYZ
+      "training": {
+        "illuminant": "D50",         # what the reference XYZ were under
+        "white_XYZ": [0.9642, 1.0, 0.8249],
+        "reference": "ColorChecker24 - After November 2014" | null,
+        "n_patches": 24,
+        "selection": null | {"method": str, "picked": CANDIDATE,
+                             "reason": str, "candidates": [CANDIDATE...]}
+      },
+      "target": {
+        "space": "XYZ",
+        "white": "D50",                     # the white of the output XYZ
+        "white_XYZ": [0.9642, 1.0, 0.8249], # Y of the perfect white = 1
+        "adaptation": null | "CAT02" | "Bradford"  # training -> target white
+      },
+      "evaluation": {
+        "metric": "CIE 2000",
+        "train": STATS, "loo": STATS | null, "test": STATS | null
+      },
+      "provenance": {"tool": "camcal 0.1.0", "created": "2026-...Z",
+                     "source": "chart.jpg"}     # source optional
+    }
+
+``CURVE`` (per channel; code values normalised to [0, 1]):
+``{"kind": "none"}``,
+``{"kind": "gamma-offset", "gamma": g, "offset": o, "gain": k}``
+(``L = k * max(V - o, 0) ** g``),
+``{"kind": "lut1d", "domain": [0.0, 1.0], "samples": [...]}`` (uniform
+samples, linear interpolation, linear extension beyond the domain),
+``{"kind": "named", "function": "sRGB", "scale": s}`` (colour-science's
+``CCTF_DECODINGS[function]`` times ``s``).
+
+``MODEL``: for ``matrix3x3``, ``polynomial``, ``root-polynomial``::
+
+    {"kind": "polynomial", "terms": ["R", "G", "B", "R*G", ..., "1"],
+     "coefficients": [[...T...], [...T...], [...T...]],   # rows X, Y, Z
+     "white_preserving": false, "objective": "xyz" | "de2000",
+     "regularisation": 0.0}
+
+with ``XYZ = coefficients @ terms(RGB)``; root terms read
+``"(R*G)^(1/2)"``. For ``rbf``::
+
+    {"kind": "rbf", "kernel": "polyharmonic-3" | "polyharmonic-1" | "thin-plate",
+     "smoothing": 1e-4, "centres": [[R, G, B], ...], "weights": [[X, Y, Z], ...],
+     "linear": {"terms": ["R", "G", "B", "1"], "coefficients": 3x4},
+     "objective": "xyz"}
+
+with ``XYZ = sum_j weights_j phi(|RGB - centres_j|) + linear @ [R, G, B, 1]``.
+
+``STATS``: ``{"n", "mean", "median", "p90", "p95", "max"}`` of CIEDE2000.
+``CANDIDATE``: ``{"model", "objective", "regularisation", "loo_mean",
+"loo_p95"}``.
+
+Using a fit::
+
+    fit = load_fit("cam.colour.json")
+    XYZ = fit.apply(RGB_linear)        # (N, 3) LINEAR camera RGB -> XYZ
+    RGB_linear = fit.linearise(codes)  # (N, 3) code values in [0, 1] -> linear
+    XYZ = fit.apply_codes(codes)       # both: code values -> XYZ
+
+XYZ is relative to the target white, Y = 1 for the perfect white.
+Other ``kind`` values (``match``) are added by registering a reader in
+:data:`KIND_READERS`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from camcal.colour.linearise import CURVE_KINDS, Linearisation
+from camcal.colour.models import MODEL_KINDS, OBJECTIVES, RBF_KERNELS, LinearTermsModel, RBFModel, model_from_dict
+from camcal.errors import CamcalError
+
+__all__ = [
+    "FORMAT",
+    "VERSION",
+    "KIND_READERS",
+    "ColourFit",
+    "load_fit",
+    "load_colour_file",
+    "read_colour_dict",
+    "write_json_atomic",
+]
+
+FORMAT = "camcal.colour"
+VERSION = 1
+
+
+# --------------------------------------------------------------------------
+# Schema checking: each helper names the field path in its error.
+
+
+def _keys(value: Any, where: str, required: tuple[str, ...], optional: tuple[str, ...] = ()) -> dict:
+    if not isinstance(value, dict):
+        raise CamcalError(f"{where}: expected an object, got {type(value).__name__}")
+    for key in required:
+        if key not in value:
+            raise CamcalError(f"{where}: missing key {key!r}")
+    allowed = set(required) | set(optional)
+    for key in value:
+        if key not in allowed:
+            raise CamcalError(f"{where}: unknown key {key!r} (allowed: {', '.join(sorted(allowed))})")
+    return value
+
+
+def _number(value: Any, where: str, minimum: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise CamcalError(f"{where}: expected a finite number, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise CamcalError(f"{where}: must be >= {minimum}, got {value!r}")
+    return float(value)
+
+
+def _integer(value: Any, where: str, minimum: int = 0) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise CamcalError(f"{where}: expected an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def _string(value: Any, where: str, choices: tuple[str, ...] | None = None, nullable: bool = False) -> Any:
+    if value is None and nullable:
+        return None
+    if not isinstance(value, str) or (choices is not None and value not in choices):
+        allowed = f" (one of: {', '.join(choices)})" if choices else ""
+        raise CamcalError(f"{where}: expected a string{allowed}, got {value!r}")
+    return value
+
+
+def _boolean(value: Any, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise CamcalError(f"{where}: expected true or false, got {value!r}")
+    return value
+
+
+def _vector(value: Any, where: str, n: int | None = None) -> list[float]:
+    if not isinstance(value, list) or (n is not None and len(value) != n) or not value:
+        size = f"{n} numbers" if n is not None else "a non-empty list of numbers"
+        raise CamcalError(f"{where}: expected {size}, got {value!r:.80}")
+    return [_number(v, f"{where}[{i}]") for i, v in enumerate(value)]
+
+
+def _matrix(value: Any, where: str, rows: int | None = None, columns: int | None = None) -> list[list[float]]:
+    if not isinstance(value, list) or not value or (rows is not None and len(value) != rows):
+        size = f"{rows} rows" if rows is not None else "a non-empty list of rows"
+        raise CamcalError(f"{where}: expected {size}, got {str(value)[:80]}")
+    out = [_vector(row, f"{where}[{i}]", columns) for i, row in enumerate(value)]
+    width = len(out[0])
+    for i, row in enumerate(out):
+        if len(row) != width:
+            raise CamcalError(f"{where}[{i}]: expected {width} numbers, got {len(row)}")
+    return out
+
+
+def _check_stats(value: Any, where: str, nullable: bool = True) -> None:
+    if value is None and nullable:
+        return
+    _keys(value, where, ("n", "mean", "median", "p90", "p95", "max"))
+    _integer(value["n"], f"{where}.n", 1)
+    for key in ("mean", "median", "p90", "p95", "max"):
+        _number(value[key], f"{where}.{key}", 0.0)
+
+
+def _check_curve(value: Any, where: str) -> None:
+    kind = _string(_keys(value, where, ("kind",), ("gamma", "offset", "gain", "domain", "samples",
+                                                    "function", "scale"))["kind"], f"{where}.kind", CURVE_KINDS)
+    required = {"none": (), "gamma-offset": ("gamma", "offset", "gain"), "lut1d": ("domain", "samples"),
+                "named": ("function", "scale")}[kind]
+    _keys(value, where, ("kind",) + required)
+    if kind == "gamma-offset":
+        _number(value["gamma"], f"{where}.gamma", 0.0)
+        _number(value["offset"], f"{where}.offset")
+        _number(value["gain"], f"{where}.gain", 0.0)
+    elif kind == "lut1d":
+        _vector(value["domain"], f"{where}.domain", 2)
+        samples = _vector(value["samples"], f"{where}.samples")
+        if len(samples) < 2:
+            raise CamcalError(f"{where}.samples: need at least 2 samples")
+        if any(b < a for a, b in zip(samples, samples[1:])):
+            raise CamcalError(f"{where}.samples: must be non-decreasing")
+    elif kind == "named":
+        _string(value["function"], f"{where}.function")
+        _number(value["scale"], f"{where}.scale")
+
+
+def _check_model(value: Any, where: str) -> None:
+    kind = _string(_keys(value, where, ("kind",), ("terms", "coefficients", "white_preserving", "objective",
+                                                    "regularisation", "kernel", "smoothing", "centres",
+                                                    "weights", "linear"))["kind"], f"{where}.kind", MODEL_KINDS)
+    if kind == "rbf":
+        _keys(value, where, ("kind", "kernel", "smoothing", "centres", "weights", "linear", "objective"))
+        _string(value["kernel"], f"{where}.kernel", RBF_KERNELS)
+        _number(value["smoothing"], f"{where}.smoothing", 0.0)
+        centres = _matrix(value["centres"], f"{where}.centres", None, 3)
+        _matrix(value["weights"], f"{where}.weights", len(centres), 3)
+        linear = _keys(value["linear"], f"{where}.linear", ("terms", "coefficients"))
+        if linear["terms"] != ["R", "G", "B", "1"]:
+            raise CamcalError(f"{where}.linear.terms: expected ['R', 'G', 'B', '1'], got {linear['terms']!r}")
+        _matrix(linear["coefficients"], f"{where}.linear.coefficients", 3, 4)
+        _string(value["objective"], f"{where}.objective", ("xyz",))
+        return
+    _keys(value, where, ("kind", "terms", "coefficients", "white_preserving", "objective", "regularisation"))
+    terms = value["terms"]
+    if not isinstance(terms, list) or not terms:
+        raise CamcalError(f"{where}.terms: expected a non-empty list of term strings, got {terms!r}")
+    for i, term in enumerate(terms):
+        _string(term, f"{where}.terms[{i}]")
+    _matrix(value["coefficients"], f"{where}.coefficients", 3, len(terms))
+    _boolean(value["white_preserving"], f"{where}.white_preserving")
+    _string(value["objective"], f"{where}.objective", OBJECTIVES)
+    _number(value["regularisation"], f"{where}.regularisation", 0.0)
+
+
+def _check_candidate(value: Any, where: str) -> None:
+    _keys(value, where, ("model", "objective", "regularisation", "loo_mean", "loo_p95"))
+    _string(value["model"], f"{where}.model")
+    _string(value["objective"], f"{where}.objective", OBJECTIVES)
+    _number(value["regularisation"], f"{where}.regularisation", 0.0)
+    _number(value["loo_mean"], f"{where}.loo_mean", 0.0)
+    _number(value["loo_p95"], f"{where}.loo_p95", 0.0)
+
+
+def _check_characterisation(data: dict) -> None:
+    _keys(data, "colour fit", ("format", "version", "kind", "camera", "linearisation", "model", "training",
+                               "target", "evaluation", "provenance"))
+    _string(data["camera"], "camera", nullable=True)
+    lin = _keys(data["linearisation"], "linearisation", ("channels",), ("residual",))
+    if not isinstance(lin["channels"], list) or len(lin["channels"]) != 3:
+        raise CamcalError("linearisation.channels: expected 3 curves (R, G, B)")
+    for i, curve in enumerate(lin["channels"]):
+        _check_curve(curve, f"linearisation.channels[{i}]")
+    if "residual" in lin:
+        _number(lin["residual"], "linearisation.residual", 0.0)
+    _check_model(data["model"], "model")
+    training = _keys(data["training"], "training", ("illuminant", "white_XYZ", "reference", "n_patches", "selection"))
+    _string(training["illuminant"], "training.illuminant")
+    _vector(training["white_XYZ"], "training.white_XYZ", 3)
+    _string(training["reference"], "training.reference", nullable=True)
+    _integer(training["n_patches"], "training.n_patches", 1)
+    selection = training["selection"]
+    if selection is not None:
+        _keys(selection, "training.selection", ("method", "picked", "reason", "candidates"))
+        _string(selection["method"], "training.selection.method")
+        _string(selection["reason"], "training.selection.reason")
+        _check_candidate(selection["picked"], "training.selection.picked")
+        if not isinstance(selection["candidates"], list):
+            raise CamcalError("training.selection.candidates: expected a list")
+        for i, c in enumerate(selection["candidates"]):
+            _check_candidate(c, f"training.selection.candidates[{i}]")
+    target = _keys(data["target"], "target", ("space", "white", "white_XYZ", "adaptation"))
+    _string(target["space"], "target.space", ("XYZ",))
+    _string(target["white"], "target.white")
+    white = _vector(target["white_XYZ"], "target.white_XYZ", 3)
+    if abs(white[1] - 1.0) > 1e-9:
+        raise CamcalError(f"target.white_XYZ: Y of the white must be 1, got {white[1]!r}")
+    _string(target["adaptation"], "target.adaptation", ("CAT02", "Bradford"), nullable=True)
+    evaluation = _keys(data["evaluation"], "evaluation", ("metric", "train", "loo", "test"))
+    _string(evaluation["metric"], "evaluation.metric", ("CIE 2000",))
+    _check_stats(evaluation["train"], "evaluation.train", nullable=False)
+    _check_stats(evaluation["loo"], "evaluation.loo")
+    _check_stats(evaluation["test"], "evaluation.test")
+    provenance = _keys(data["provenance"], "provenance", ("tool", "created"), ("source",))
+    for key in provenance:
+        _string(provenance[key], f"provenance.{key}")
+
+
+# --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class ColourFit:
+    """A camera characterisation: linearisation, model, whites, evaluation.
+
+    ``linearise(codes)`` maps code values (normalised to [0, 1]) to linear
+    camera RGB; ``apply(RGB)`` maps LINEAR camera RGB to XYZ relative to
+    ``target_white_XYZ`` (Y = 1 for the perfect white); ``apply_codes``
+    chains both. The other attributes mirror the file (see the module
+    docstring); ``evaluation``, ``selection`` and ``provenance`` are the
+    file's plain dictionaries.
+    """
+
+    linearisation: Linearisation
+    model: LinearTermsModel | RBFModel
+    training_illuminant: str
+    training_white_XYZ: tuple[float, float, float]
+    target_white: str
+    target_white_XYZ: tuple[float, float, float]
+    evaluation: dict
+    n_patches: int
+    camera: str | None = None
+    reference: str | None = None
+    adaptation: str | None = None
+    selection: dict | None = None
+    provenance: dict = field(default_factory=dict)
+
+    kind = "characterisation"
+
+    def linearise(self, codes: Any) -> np.ndarray:
+        """Code values ``(N, 3)`` in [0, 1] to linear camera RGB ``(N, 3)``."""
+        return self.linearisation.apply(codes)
+
+    def apply(self, RGB: Any) -> np.ndarray:
+        """LINEAR camera RGB ``(N, 3)`` to XYZ ``(N, 3)`` (target white Y = 1)."""
+        return self.model.apply(RGB)
+
+    def apply_codes(self, codes: Any) -> np.ndarray:
+        """Code values ``(N, 3)`` to XYZ: ``apply(linearise(codes))``."""
+        return self.apply(self.linearise(codes))
+
+    def to_dict(self) -> dict:
+        """The file's JSON object."""
+        from camcal import __version__
+
+        provenance = dict(self.provenance) or {"tool": f"camcal {__version__}", "created": ""}
+        return {
+            "format": FORMAT,
+            "version": VERSION,
+            "kind": "characterisation",
+            "camera": self.camera,
+            "linearisation": self.linearisation.to_dict(),
+            "model": self.model.to_dict(),
+            "training": {
+                "illuminant": self.training_illuminant,
+                "white_XYZ": [float(v) for v in self.training_white_XYZ],
+                "reference": self.reference,
+                "n_patches": int(self.n_patches),
+                "selection": self.selection,
+            },
+            "target": {
+                "space": "XYZ",
+                "white": self.target_white,
+                "white_XYZ": [float(v) for v in self.target_white_XYZ],
+                "adaptation": self.adaptation,
+            },
+            "evaluation": self.evaluation,
+            "provenance": provenance,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> ColourFit:
+        """Validate a file's JSON object and build the fit (errors name the field)."""
+        _check_header(data, "characterisation")
+        _check_characterisation(data)
+        training, target = data["training"], data["target"]
+        try:
+            model = model_from_dict(data["model"])
+            linearisation = Linearisation.from_dict(data["linearisation"])
+        except CamcalError as error:
+            message = str(error)
+            if not message.startswith(("model", "linearisation")):
+                message = f"model: {message}"
+            raise CamcalError(message) from None
+        return cls(
+            linearisation=linearisation,
+            model=model,
+            training_illuminant=training["illuminant"],
+            training_white_XYZ=tuple(training["white_XYZ"]),  # type: ignore[arg-type]
+            target_white=target["white"],
+            target_white_XYZ=tuple(target["white_XYZ"]),  # type: ignore[arg-type]
+            evaluation=data["evaluation"],
+            n_patches=training["n_patches"],
+            camera=data["camera"],
+            reference=training["reference"],
+            adaptation=target["adaptation"],
+            selection=training["selection"],
+            provenance=dict(data["provenance"]),
+        )
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the file atomically; returns its path."""
+        return write_json_atomic(path, self.to_dict())
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and self.to_dict() == other.to_dict()  # type: ignore[attr-defined]
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+def _check_header(data: Any, kind: str | None = None) -> str:
+    if not isinstance(data, dict):
+        raise CamcalError(f"colour fit: expected a JSON object, got {type(data).__name__}")
+    if data.get("format") != FORMAT:
+        raise CamcalError(f"format: expected {FORMAT!r}, got {data.get('format')!r}")
+    if data.get("version") != VERSION or isinstance(data.get("version"), bool):
+        raise CamcalError(f"version: this camcal reads version {VERSION}, got {data.get('version')!r}")
+    found = data.get("kind")
+    if found not in KIND_READERS:
+        raise CamcalError(f"kind: expected one of: {', '.join(KIND_READERS)}, got {found!r}")
+    if kind is not None and found != kind:
+        raise CamcalError(f"kind: expected {kind!r}, got {found!r}")
+    return found
+
+
+KIND_READERS: dict[str, Callable[[dict], Any]] = {"characterisation": ColourFit.from_dict}
+
+
+def read_colour_dict(path: str | os.PathLike) -> dict:
+    """The JSON object of a ``*.colour.json`` file (parsed, not validated)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CamcalError(f"colour fit file not found: {path}")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise CamcalError(f"{path}: not valid JSON ({error})") from None
+
+
+def load_colour_file(path: str | os.PathLike) -> Any:
+    """Load any kind of ``*.colour.json`` (dispatching on ``kind``)."""
+    data = read_colour_dict(path)
+    try:
+        kind = _check_header(data)
+        return KIND_READERS[kind](data)
+    except CamcalError as error:
+        raise CamcalError(f"{path}: {error}") from None
+
+
+def load_fit(path: str | os.PathLike) -> ColourFit:
+    """Load and validate a characterisation ``*.colour.json``.
+
+    Returns
+    -------
+    ColourFit
+        ``.apply(RGB_linear)`` gives XYZ (white Y = 1); ``.linearise(codes)``
+        gives linear RGB from code values.
+
+    Raises
+    ------
+    CamcalError
+        ``"<path>: <field>: <what is wrong>"`` for a bad file.
+    """
+    data = read_colour_dict(path)
+    try:
+        return ColourFit.from_dict(data)
+    except CamcalError as error:
+        raise CamcalError(f"{path}: {error}") from None
+
+
+def _dumps(value: Any, level: int = 0) -> str:
+    """JSON with 2-space indents and lists of scalars kept on one line."""
+    pad = "  " * (level + 1)
+    if isinstance(value, dict):
+        if not value:
+            return "{}"
+        items = [f"{pad}{json.dumps(str(k))}: {_dumps(v, level + 1)}" for k, v in value.items()]
+        return "{\n" + ",\n".join(items) + "\n" + "  " * level + "}"
+    if isinstance(value, (list, tuple)):
+        if all(not isinstance(v, (dict, list, tuple)) for v in value):
+            return "[" + ", ".join(json.dumps(v, allow_nan=False) for v in value) + "]"
+        items = [pad + _dumps(v, level + 1) for v in value]
+        return "[\n" + ",\n".join(items) + "\n" + "  " * level + "]"
+    return json.dumps(value, allow_nan=False)
+
+
+def write_json_atomic(path: str | os.PathLike, data: dict) -> Path:
+    """Write JSON to ``path`` through a temporary file and a rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = _dumps(data) + "\n"
+    handle, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8") as out:
+            out.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path

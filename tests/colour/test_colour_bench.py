@@ -1,0 +1,20 @@
+"""bench/bench_colour.py runs, and says so when ArgyllCMS is absent."""
+
+import importlib.util
+import shutil
+from pathlib import Path
+
+BENCH = Path(__file__).resolve().parents[2] / "bench" / "bench_colour.py"
+
+
+def test_bench_without_colprof_prints_skipped(monkeypatch, capsys):
+    spec = importlib.util.spec_from_file_location("bench_colour", BENCH)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    real_which = shutil.which
+    monkeypatch.setattr(bench.shutil, "which", lambda name: None if name in ("colprof", "xicclu") else real_which(name))
+    monkeypatch.setattr(bench, "SCENES", bench.SCENES[:1])
+    assert bench.main() == 0
+    out = capsys.readouterr().out
+    assert "skipped: colprof not installed" in out
+    assert "colour-science best" in out and "ratio" in out
