@@ -55,6 +55,7 @@ from camcal.colour.patches import PatchSet
 from camcal.colour.select import Selection, select_model
 from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ
 from camcal.errors import CamcalError
+from camcal.io.atomic import atomic_path
 
 __all__ = ["ChartPatches", "Characterisation", "white_from_name", "patches_from_chart",
            "neutral_indices", "characterise", "write_report"]
@@ -343,13 +344,11 @@ def write_report(directory: str | os.PathLike, outcome: Characterisation, title:
                                title=f"{title} independent: {model.label}".strip(), columns=10)
     if outcome.selection is not None:
         path = directory / "candidates.csv"
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "w") as handle:
+        with atomic_path(path) as tmp, open(tmp, "w") as handle:
             handle.write("model,objective,regularisation,loo_mean,loo_p95,picked\n")
             for c in sorted(outcome.selection.candidates, key=lambda c: c.loo_mean):
                 handle.write(f"{c.spec.label},{c.objective},{c.regularisation:g},{c.loo_mean:.4f},"
                              f"{c.loo_p95:.4f},{'yes' if c is outcome.selection.picked else ''}\n")
-        os.replace(tmp, path)
         written.append(path)
     lines = [outcome.summary(), "", "mean Delta E by formula (colour-science):"]
     sets = [("training", train.RGB, train.XYZ)]

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from camcal.errors import CamcalError
+from camcal.io.atomic import atomic_path
 
 __all__ = [
     "DELTA_E_METHODS",
@@ -286,14 +287,11 @@ def patch_table(
 
 def write_patch_table(path: str | os.PathLike, rows: list[dict]) -> None:
     """Write :func:`patch_table` rows as CSV (atomically)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as handle:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
         writer.writeheader()
         for row in rows:
             writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in row.items()})
-    os.replace(tmp, path)
 
 
 def _XYZ_to_display(XYZ: np.ndarray, white_XYZ: Any) -> np.ndarray:

@@ -84,10 +84,8 @@ Other ``kind`` values (``match``) are added by registering a reader in
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -98,6 +96,7 @@ import numpy as np
 from camcal.colour.linearise import CURVE_KINDS, Linearisation
 from camcal.colour.models import MODEL_KINDS, OBJECTIVES, RBF_KERNELS, LinearTermsModel, RBFModel, model_from_dict
 from camcal.errors import CamcalError
+from camcal.io.jsonfile import read_json, write_json
 
 __all__ = [
     "FORMAT",
@@ -107,7 +106,6 @@ __all__ = [
     "load_fit",
     "load_colour_file",
     "read_colour_dict",
-    "write_json_atomic",
 ]
 
 FORMAT = "camcal.colour"
@@ -395,7 +393,7 @@ class ColourFit:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the file atomically; returns its path."""
-        return write_json_atomic(path, self.to_dict())
+        return write_json(path, self.to_dict())
 
     def __eq__(self, other: object) -> bool:
         return type(other) is type(self) and self.to_dict() == other.to_dict()  # type: ignore[attr-defined]
@@ -423,13 +421,7 @@ KIND_READERS: dict[str, Callable[[dict], Any]] = {"characterisation": ColourFit.
 
 def read_colour_dict(path: str | os.PathLike) -> dict:
     """The JSON object of a ``*.colour.json`` file (parsed, not validated)."""
-    path = Path(path)
-    if not path.is_file():
-        raise CamcalError(f"colour fit file not found: {path}")
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise CamcalError(f"{path}: not valid JSON ({error})") from None
+    return read_json(path, "colour fit file")
 
 
 def load_colour_file(path: str | os.PathLike) -> Any:
@@ -461,36 +453,3 @@ def load_fit(path: str | os.PathLike) -> ColourFit:
         return ColourFit.from_dict(data)
     except CamcalError as error:
         raise CamcalError(f"{path}: {error}") from None
-
-
-def _dumps(value: Any, level: int = 0) -> str:
-    """JSON with 2-space indents and lists of scalars kept on one line."""
-    pad = "  " * (level + 1)
-    if isinstance(value, dict):
-        if not value:
-            return "{}"
-        items = [f"{pad}{json.dumps(str(k))}: {_dumps(v, level + 1)}" for k, v in value.items()]
-        return "{\n" + ",\n".join(items) + "\n" + "  " * level + "}"
-    if isinstance(value, (list, tuple)):
-        if all(not isinstance(v, (dict, list, tuple)) for v in value):
-            return "[" + ", ".join(json.dumps(v, allow_nan=False) for v in value) + "]"
-        items = [pad + _dumps(v, level + 1) for v in value]
-        return "[\n" + ",\n".join(items) + "\n" + "  " * level + "]"
-    return json.dumps(value, allow_nan=False)
-
-
-def write_json_atomic(path: str | os.PathLike, data: dict) -> Path:
-    """Write JSON to ``path`` through a temporary file and a rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = _dumps(data) + "\n"
-    handle, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as out:
-            out.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
