@@ -462,7 +462,8 @@ def _stage_render(ctx: DemoContext) -> StageResult:
 
     truth, config = ctx.truth, ctx.config
     board = parse_board(truth.board_spec)
-    renders = ctx.path("renders", "x").parent
+    renders = ctx.out_dir / "renders"
+    renders.mkdir(parents=True, exist_ok=True)
     texture = _chessboard_texture(board, renders / "chessboard.png")
     outline = _board_outline(board)
     quads, shots, plates = [], [], []
@@ -610,7 +611,8 @@ def _stage_distortion_fit(ctx: DemoContext) -> StageResult:
     outputs = (("plumb-line lens (left.lens.json)", lens),
                ("ST-map undistort, left (EXR)", stmap_dir / "left_undistort.exr"),
                ("ST-map redistort, left (EXR)", stmap_dir / "left_redistort.exr"))
-    body = (f"<pre>{html.escape(_command(argv, ctx))}</pre>"
+    shown = ["distortion", "fit", str(Path(images[0]).parent / "*.png"), *argv[2 + len(images):]]
+    body = (f"<pre>{html.escape(_command(shown, ctx))}</pre>"
             f"<p>Plumb-line fit on the rows and columns of the left camera's chessboard views: lambda "
             f"{lam_r:.4e} (true {lam_t:.4e}), centre ({centre_r[0]:.2f}, {centre_r[1]:.2f}) px (true "
             f"({centre_t[0]:.2f}, {centre_t[1]:.2f})). ST-maps of the board calibration's left camera for comp "
