@@ -287,9 +287,9 @@ def _register_solve(subparsers) -> None:
 def _demo(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from camcal.demo import FULL, QUICK, run_demo
+    from camcal.demo import FULL, run_demo
 
-    config = dataclasses.replace(QUICK if args.quick else FULL, seed=args.seed)
+    config = dataclasses.replace(FULL, seed=args.seed)
     if args.stages:
         config = dataclasses.replace(config, stages=tuple(s.strip() for s in args.stages.split(",")))
     report = run_demo(args.out, config)
@@ -317,7 +317,6 @@ def _register_demo(subparsers) -> None:
     )
     demo.add_argument("--out", default="demo_out", metavar="DIR", help="output folder (default: demo_out)")
     demo.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
-    demo.add_argument("--quick", action="store_true", help="a small run: fewer views, no structure from motion")
     demo.add_argument("--stages", metavar="A,B,...",
                       help="run only these stages (of: " + ", ".join(s.name for s in STAGES) + ")")
     demo.set_defaults(func=_demo)

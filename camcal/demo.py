@@ -150,8 +150,10 @@ class DemoConfig:
 
 #: What ``make demo`` runs.
 FULL = DemoConfig()
-#: A small real run (no SfM) for the fast tests: fewer board views.
-QUICK = DemoConfig(n_board_views=8, samples=16,
+#: A small real run for the fast tests: 6 board views, 8 samples, no SfM. Its renders are
+#: noisier and its views fewer than the tolerances of the issues assume: the calibration rows
+#: of a QUICK run may miss them (the tests check those that hold; ``make demo`` runs FULL).
+QUICK = DemoConfig(n_board_views=6, samples=8,
                    stages=("render", "calibrate board", "distortion fit", "rectify", "colour fit", "blender import"))
 
 
@@ -268,7 +270,21 @@ def _rotation(yaw_deg: float, pitch_deg: float, roll_deg: float) -> NDArray[np.f
 def make_truth(config: DemoConfig = FULL) -> DemoTruth:
     """The known rig, board poses, chart pose and room trajectory of a run.
 
-    The principal points sit at the image centre because COLMAP holds the
+    Parameters
+    ----------
+    config : DemoConfig
+        Image size (focal lengths and lambda scale with the width), number
+        of board views and rig positions, and the seed of the board poses.
+
+    Returns
+    -------
+    DemoTruth
+
+    Notes
+    -----
+    Board poses are drawn (tilts up to 35 deg, 0.38 to 0.75 m away) until
+    ``n_board_views`` show the whole printed board inside both distorted
+    images. The principal points sit at the image centre because COLMAP holds the
     principal point there (``solve`` could not recover another); the
     division model is centred on the principal point (what ``calibrate
     board --model division`` and COLMAP's SIMPLE_DIVISION assume).
