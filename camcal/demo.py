@@ -33,7 +33,10 @@ How the truth is made (stated in the report too):
   (``SimulatedCamera.RGB``), times one scale per camera. A sun of
   irradiance pi W/m^2 along the chart's normal makes Cycles' radiance
   ``albedo E / pi = albedo``: the rendered linear RGB is the simulated
-  camera RGB, and the true XYZ are the spectra integrated under D65.
+  camera RGB, and the true XYZ are the spectra integrated under D65 with the
+  CIE 1931 observer (:func:`reference_XYZ`, as the chart reference is). The
+  independent set (190 RAW-to-ACES reflectances) goes through the same
+  sensors and scale, without Blender.
 """
 
 from __future__ import annotations
@@ -71,6 +74,7 @@ __all__ = [
     "Stage",
     "StageResult",
     "make_truth",
+    "reference_XYZ",
     "run_demo",
     "write_html",
 ]
@@ -371,17 +375,46 @@ def _chessboard_texture(board, path: Path, px: int = 64) -> Path:
     return path
 
 
-def _chart_albedos(truth: DemoTruth) -> dict[str, tuple[NDArray, NDArray, float]]:
-    """Per camera: the chart's albedos, the test set's camera RGB (same scale) and XYZ, and the scale."""
+def reference_XYZ(reflectances: str, illuminant: str) -> NDArray[np.float64]:
+    """True XYZ (perfect white Y = 1) of a colour-science reflectance set under a CIE illuminant.
+
+    Integrated exactly as ``camcal.colour.chart.reference_chart`` integrates
+    the spectral charts (CIE 1931 2 degree observer, 380 to 780 nm every 5 nm),
+    so that training and independent references agree whatever a camera's
+    own spectral range (the Sigma's data stop at 400-680 nm).
+
+    Notes
+    -----
+    ``XYZ = k sum_l R(l) S(l) xyz(l)`` with ``k = 1 / sum_l S(l) y(l)``.
+    """
+    import colour  # noqa: PLC0415
+
+    from camcal.colour.spectral import reflectance_set  # noqa: PLC0415
+
+    shape = colour.SpectralShape(380, 780, 5)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape).values
+    S = colour.SDS_ILLUMINANTS[illuminant].copy().align(shape).values
+    _, R = reflectance_set(reflectances, shape.wavelengths)
+    return (R * S) @ cmfs / float(S @ cmfs[:, 1])
+
+
+def _chart_albedos(truth: DemoTruth) -> dict[str, tuple[NDArray, NDArray, NDArray]]:
+    """Per camera: the chart's albedos, and the independent set's camera RGB (same scale) and true XYZ.
+
+    The albedo of a patch is the camera's linear RGB for it under the light,
+    ``SimulatedCamera.RGB`` (white G = 1), times ``0.8 / max(RGB_white)`` so
+    that the perfect white would render at 0.8 at most.
+    """
     from camcal.colour.spectral import SimulatedCamera, reflectance_set  # noqa: PLC0415
 
+    test_XYZ = reference_XYZ("rawtoaces 190", truth.illuminant)
     out = {}
     for name, sensor in truth.sensors.items():
         sim = SimulatedCamera.from_colour(sensor, truth.illuminant)
         _, chart = reflectance_set("ISO 17321-1", sim.wavelengths)
         _, test = reflectance_set("rawtoaces 190", sim.wavelengths)
         scale = 0.8 / float(np.max(sim.RGB_white))
-        out[name] = (sim.RGB(chart) * scale, sim.RGB(test) * scale, sim.XYZ(test), scale)
+        out[name] = (sim.RGB(chart) * scale, sim.RGB(test) * scale, test_XYZ)
     return out
 
 
@@ -538,7 +571,8 @@ def _stage_render(ctx: DemoContext) -> StageResult:
         f"(left {html.escape(truth.sensors['left'])}, right {html.escape(truth.sensors['right'])}) under CIE "
         f"{truth.illuminant}; the patches' diffuse albedos are that sensor's linear RGB for the ISO 17321-1 "
         f"ColorChecker spectra, and a sun of irradiance &pi; W/m&sup2; along the chart's normal makes the "
-        f"rendered radiance equal to the albedo. The true XYZ are the spectra under {truth.illuminant}.</p>"
+        f"rendered radiance equal to the albedo. The true XYZ are the spectra under {truth.illuminant} (CIE 1931 observer, 380-780 nm), "
+        f"for the chart and for the independent set of 190 RAW-to-ACES reflectances alike.</p>"
         f"{_img(ctx, figure)}"
     )
     return StageResult(
@@ -790,7 +824,7 @@ def _stage_colour_fit(ctx: DemoContext) -> StageResult:
     rows, outputs, body = [], [], ""
     fits = {}
     for name, chart in charts.items():
-        chart_rgb, test_rgb, test_xyz, _scale = albedos[name]
+        chart_rgb, test_rgb, test_xyz = albedos[name]
         test_csv = ctx.path("colour", f"{name}_independent.csv")
         write_patch_csv(test_csv, PatchSet(tuple(f"rawtoaces{i:03d}" for i in range(len(test_rgb))), test_rgb, test_xyz))
         fit_path = ctx.path("colour", f"{name}.colour.json")

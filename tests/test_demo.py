@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.demo import COLOUR_EXPORTS_SECTION, QUICK, STAGES, make_truth, run_demo
+from camcal.demo import COLOUR_EXPORTS_SECTION, QUICK, STAGES, make_truth, reference_XYZ, run_demo
 from camcal.rig import Rig
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -73,6 +73,16 @@ def test_quick_run_plates_carry_the_true_lens(quick):
     errors = np.vstack(errors)
     # lens shifts the corners by up to 25 px; rendering + detection noise is ~0.1 px
     assert np.sqrt(np.mean(np.sum(errors**2, axis=1))) < 0.2
+
+
+@pytest.mark.parametrize("illuminant", ["D65", "A"])
+def test_independent_truth_integrates_like_the_chart_reference(illuminant):
+    """The independent set's true XYZ and the chart's reference XYZ come from one integration."""
+    from camcal.colour.chart import reference_chart
+
+    chart = reference_chart("ISO 17321-1", illuminant)
+    assert np.abs(reference_XYZ("ISO 17321-1", illuminant) - chart.XYZ).max() < 1e-12
+    assert reference_XYZ("rawtoaces 190", illuminant).shape == (190, 3)
 
 
 class _Page(html.parser.HTMLParser):
