@@ -893,7 +893,13 @@ def _stage_blender_import(ctx: DemoContext) -> StageResult:
     return StageResult(tuple(rows), tuple(outputs), (ReportSection("Blender", body, "blender"),))
 
 
-#: The demo's stages, in order. ``colour match`` and ``colour export`` go after ``colour fit``.
+#: The demo's stages, in order. ``colour match`` (issue 8) and ``colour export`` (issue 7) go
+#: after ``colour fit``; what they can read from ``ctx.artifacts``: ``"colour_fits"`` (camera ->
+#: its ``*.colour.json``), ``"chart_images"`` (camera -> its chart, linear 16-bit PNG; both
+#: cameras see the same chart through different sensors), ``"chart_truth"`` (camera -> chart
+#: albedos, independent RGB, independent true XYZ), ``"rectified_rig"``, ``"board_images"``.
+#: The export stage's links go in a ``ReportSection`` with ``anchor=COLOUR_EXPORTS_SECTION``,
+#: which replaces the report's placeholder.
 STAGES: list[Stage] = [
     Stage("render", _stage_render),
     Stage("calibrate board", _stage_calibrate_board),
