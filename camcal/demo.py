@@ -897,7 +897,8 @@ def _stage_blender_import(ctx: DemoContext) -> StageResult:
 #: after ``colour fit``; what they can read from ``ctx.artifacts``: ``"colour_fits"`` (camera ->
 #: its ``*.colour.json``), ``"chart_images"`` (camera -> its chart, linear 16-bit PNG; both
 #: cameras see the same chart through different sensors), ``"chart_truth"`` (camera -> chart
-#: albedos, independent RGB, independent true XYZ), ``"rectified_rig"``, ``"board_images"``.
+#: albedos, independent RGB, independent true XYZ), ``"chart_grid"`` (camera -> true pixels of
+#: the patch grid corners), ``"rectified_rig"``, ``"board_images"``.
 #: The export stage's links go in a ``ReportSection`` with ``anchor=COLOUR_EXPORTS_SECTION``,
 #: which replaces the report's placeholder.
 STAGES: list[Stage] = [
