@@ -129,6 +129,14 @@ def _register_rig(subparsers) -> None:
     show.set_defaults(func=_rig_show)
 
 
+def _name_value(entry: str, option: str, form: str) -> tuple[str, str]:
+    """Split a ``NAME=VALUE`` option value, or fail naming the option."""
+    name, sep, value = entry.partition("=")
+    if not sep or not name or not value:
+        raise CamcalError(f"{option} must be {form}, got {entry!r}")
+    return name, value
+
+
 # -- camcal calibrate ----------------------------------------------------------------
 
 
@@ -170,9 +178,7 @@ def _calibrate_board(args: argparse.Namespace) -> int:
     board = parse_board(args.board)
     cameras: dict[str, list[str]] = {}
     for entry in args.camera:
-        name, sep, pattern = entry.partition("=")
-        if not sep or not name or not pattern:
-            raise CamcalError(f"--camera must be NAME=GLOB (e.g. left='shots/left*.jpg'), got {entry!r}")
+        name, pattern = _name_value(entry, "--camera", "NAME=GLOB (e.g. left='shots/left*.jpg')")
         if name in cameras:
             raise CamcalError(f"camera {name!r} given twice")
         files = sorted(glob.glob(pattern))
@@ -250,34 +256,48 @@ def _register_calibrate(subparsers) -> None:
 def _solve(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from camcal.geometry.sfm import solve_sfm
+    from camcal.geometry.sfm import MODELS, collect_images, solve_sfm
+    from camcal.rig import Rig
 
-    folders = {Path(folder).name: Path(folder) for folder in args.folders}
-    if len(folders) != len(args.folders):
-        raise CamcalError("image folders must have distinct names (they name the cameras)")
-    result = solve_sfm(folders, Path(args.out), camera_model=args.camera_model, matcher=args.matcher,
-                       mapper=args.mapper, seed=args.seed)
+    globs = dict(_name_value(item, "--camera", "NAME=GLOB") for item in args.camera)
+    images = collect_images([Path(folder) for folder in args.folders], globs)
+    known_rig = Rig.load(args.rig) if args.rig else None
+    camera_model = MODELS[args.model] if args.model else args.camera_model
+    result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
+                       seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss)
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
     per_camera = ", ".join(f"{name} {rms:.3f} px" for name, rms in result.per_camera_rms_px.items())
     print(f"RMS reprojection error: {result.rms_px:.3f} px ({per_camera}); {result.n_points} points")
-    print(f"wrote {Path(args.out) / 'sfm.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
+    if result.bundle is not None:
+        print(result.bundle.summary())
+    print(f"wrote {Path(args.out) / 'solve.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
     return 0
 
 
 def _register_solve(subparsers) -> None:
     solve = subparsers.add_parser(
         "solve",
-        help="cameras from images: pycolmap structure from motion",
-        description="One folder per camera; several folders form a rig whose frames are matched by file name. "
-        "Writes OUT/sfm.rig.json, OUT/points.ply and the COLMAP model.",
+        help="cameras from images: pycolmap structure from motion + camcal bundle adjustment",
+        description="One folder per camera (or one folder of per-camera sub-folders, or --camera NAME=GLOB "
+        "inside one folder); several cameras form a rig whose frames pair up by sorted order. "
+        "Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.",
     )
-    solve.add_argument("folders", nargs="+", metavar="DIR", help="image folder(s), one per camera")
-    solve.add_argument("--out", required=True, metavar="DIR")
+    solve.add_argument("folders", nargs="+", metavar="IMAGES_DIR", help="image folder(s)")
+    solve.add_argument("--camera", action="append", default=[], metavar="NAME=GLOB",
+                       help="a camera's images inside IMAGES_DIR, e.g. left='*_L.png' (repeat per camera)")
+    solve.add_argument("--rig", metavar="KNOWN.rig.json",
+                       help="hold the cameras' relative poses at this calibration (and take its units)")
+    solve.add_argument("--model", choices=("division", "polynomial", "opencv", "none"),
+                       help="camcal lens model (COLMAP SIMPLE_DIVISION / RADIAL / OPENCV / SIMPLE_PINHOLE)")
     solve.add_argument("--camera-model", default="SIMPLE_RADIAL", help="COLMAP camera model (default: SIMPLE_RADIAL)")
     solve.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"))
     solve.add_argument("--mapper", default="incremental", choices=("incremental", "global"))
+    solve.add_argument("--loss", default="trivial", choices=("trivial", "huber", "soft_l1", "cauchy"),
+                       help="robust loss of camcal's bundle adjustment (scale 1 px)")
+    solve.add_argument("--no-refine", action="store_true", help="keep pycolmap's result, skip camcal's refinement")
     solve.add_argument("--seed", type=int, default=0)
+    solve.add_argument("--out", required=True, metavar="DIR")
     solve.set_defaults(func=_solve)
 
 
@@ -372,9 +392,7 @@ def _parse_images(entries: Sequence[str]) -> dict[str, list[str]]:
 
     images: dict[str, list[str]] = {}
     for entry in entries:
-        name, sep, pattern = entry.partition("=")
-        if not sep or not name or not pattern:
-            raise CamcalError(f"--images takes NAME=GLOB, got {entry!r}")
+        name, pattern = _name_value(entry, "--images", "NAME=GLOB")
         images[name] = sorted(glob.glob(pattern))
     return images
 

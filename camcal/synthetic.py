@@ -6,14 +6,19 @@ repeated exactly.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
+import cv2
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from camcal.geometry.camera import look_at
 from camcal.geometry.distortion import Distortion
 from camcal.rig import Camera
 
-__all__ = ["example_camera", "points_in_view", "procedural_texture", "room_corner_planes", "render_planes"]
+__all__ = ["example_camera", "points_in_view", "procedural_texture", "room_corner_planes", "render_planes",
+           "render_stereo_sequence"]
 
 
 def example_camera(
@@ -129,3 +134,39 @@ def render_planes(
                             cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).ravel()
         image[visible] = sampled[visible]
     return np.clip(image, 0, 255).round().astype(np.uint8).reshape(height, width)
+
+
+def render_stereo_sequence(
+    root: str | os.PathLike,
+    n_frames: int = 7,
+    K: ArrayLike = ((500.0, 0.0, 319.5), (0.0, 500.0, 239.5), (0.0, 0.0, 1.0)),
+    image_size: tuple[int, int] = (640, 480),
+    baseline: float = 0.3,
+    distortion: Distortion | None = None,
+    seed: int = 0,
+) -> dict[tuple[str, int], Camera]:
+    """Render a stereo rig moving through the textured room corner, for SfM.
+
+    Writes ``root/left/0000.png``, ``root/right/0000.png``... The rig's
+    right camera sits ``baseline`` along the left camera's x axis; the rig
+    moves along an arc looking at the corner.
+
+    Returns
+    -------
+    dict
+        ``(camera name, frame) -> Camera``: the ground truth (world poses).
+    """
+    root = Path(root)
+    rng = np.random.default_rng(seed)
+    textures = tuple(procedural_texture(rng) for _ in range(3))
+    lens = distortion if distortion is not None else Distortion("polynomial", {"k1": -0.05, "k2": 0.0})
+    truth = {}
+    for i in range(n_frames):
+        centre = np.array([5.5 - 0.4 * i, 4.0 + 0.3 * i, 1.6 + 0.05 * i])
+        R = look_at(centre, [1.5 + 0.1 * i, 1.5, 1.0])
+        for name, offset in (("left", 0.0), ("right", baseline)):
+            camera = Camera(name, image_size, np.asarray(K, dtype=np.float64), lens, R, centre + R[0] * offset)
+            (root / name).mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(root / name / f"{i:04d}.png"), render_planes(camera, room_corner_planes(), textures))
+            truth[name, i] = camera
+    return truth
