@@ -692,9 +692,10 @@ def add_look(config, look: LookSpec) -> None:
 def build_ocio_config(spec: ConfigSpec):
     """Build and validate the config a :class:`ConfigSpec` describes.
 
-    The base is loaded, ``luts`` is appended to its search path, the colour
-    spaces and looks are added and ``config.validate()`` runs; its errors
-    propagate (as :class:`CamcalError`).
+    The base is loaded, its search paths are made absolute (a file base's
+    own LUTs stay reachable from the new config's folder) and ``luts`` is
+    appended, the colour spaces and looks are added and ``config.validate()``
+    runs; its errors propagate (as :class:`CamcalError`).
 
     Returns
     -------
@@ -704,9 +705,12 @@ def build_ocio_config(spec: ConfigSpec):
     config = load_base_config(spec.base)
     if spec.name:
         config.setName(spec.name)
-    paths = [p for p in config.getSearchPath().split(":") if p] if config.getSearchPath() else []
-    if spec.files and LUT_DIR not in paths:
-        config.setSearchPath(":".join(paths + [LUT_DIR]))
+    # the base's own LUT folders, made absolute (the new config lives elsewhere), then luts/
+    working = config.getWorkingDir()
+    paths = [p if os.path.isabs(p) or not working else str(Path(working, p)) for p in config.getSearchPaths()]
+    config.clearSearchPaths()
+    for path in paths + ([LUT_DIR] if spec.files and LUT_DIR not in paths else []):
+        config.addSearchPath(path)
     for space in spec.colour_spaces:
         if config.getColorSpace(space.name) is not None:
             raise CamcalError(f"colour space {space.name!r} already exists in the base config")
