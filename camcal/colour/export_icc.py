@@ -21,9 +21,9 @@ media white (relative colorimetric, PCS white Y = 1).
   of shaped PCS XYZ and output tables undoing the shaper.
 - ``chad`` (§9.2.11, ``s15Fixed16ArrayType``): the Bradford adaptation from
   the fit's target white to D50 (ICC.1:2010 Annex E); ``wtpt`` (§9.2.36):
-  D50 in v4; the (unadapted) target white in v2, whose absolute intent
-  uses it. v2 has no ``chad`` tag; it is written too and v2 readers skip
-  unknown tags.
+  D50, the PCS white the XYZ were adapted to (also in v2, so absolute and
+  relative colorimetric agree: a camera has no media white). v2 has no
+  ``chad`` tag; it is written too and v2 readers skip unknown tags.
 - ``desc`` and ``cprt``: ``multiLocalizedUnicodeType`` (§10.13) in v4,
   ``textDescriptionType`` / ``textType`` (ICC.1:2001-04 §6.5.17, §6.5.18)
   in v2.
@@ -435,7 +435,7 @@ def icc_profile_from_fit(
     tags: list[tuple[bytes, bytes]] = [
         (b"desc", text(description)),
         (b"cprt", _mluc_type(copyright) if version == 4 else _text_type(copyright)),
-        (b"wtpt", _xyz_type(D50_XYZ if version == 4 else fit.target_white_XYZ)),
+        (b"wtpt", _xyz_type(D50_XYZ)),
         (b"chad", _sf32_type(chad)),
     ]
     if model.kind == "matrix3x3":
