@@ -159,14 +159,13 @@ def _mab_type(a_curves: Sequence[np.ndarray], clut: np.ndarray, m_curves: Sequen
     """lutAtoBType (§10.10): A curves, CLUT, M curves, matrix, identity B curves."""
     n = clut.shape[0]
     header_size = 32
-    parts: list[tuple[str, bytes]] = []
     b_curves = b"".join(_pad4(_curv_type(None)) for _ in range(3))
     mat = _pad4(_s15f16(np.concatenate([np.asarray(matrix).ravel(), np.asarray(offset).ravel()])))
     m_bytes = b"".join(_pad4(_curv_type(c)) for c in m_curves)
     grid = bytes([n, n, n] + [0] * 13) + bytes([2, 0, 0, 0])
     clut_bytes = _pad4(grid + _clut_values(clut))
     a_bytes = b"".join(_pad4(_curv_type(c)) for c in a_curves)
-    parts = [("B", b_curves), ("matrix", mat), ("M", m_bytes), ("CLUT", clut_bytes), ("A", a_bytes)]
+    parts: list[tuple[str, bytes]] = [("B", b_curves), ("matrix", mat), ("M", m_bytes), ("CLUT", clut_bytes), ("A", a_bytes)]
     offsets: dict[str, int] = {}
     position = header_size
     for name, data in parts:
