@@ -131,6 +131,8 @@ __all__ = [
     "stereo_correspondences",
     "match_images",
     "match_charts",
+    "match_image_files",
+    "match_patch_files",
     "write_match_report",
     "load_match",
 ]
@@ -1179,6 +1181,154 @@ def match_charts(
     )
     inliers = None if test_B is None else np.ones(test_B.shape[0], dtype=bool)
     return MatchResult(match, fit, lin_B, lin_A, test_B, test_A, inliers, None, fit_target)
+
+
+# --------------------------------------------------------------------------
+# From files (what the CLI calls)
+
+
+def _encoding(name: str) -> Linearisation:
+    """Linearisation of a named encoding: ``linear`` or a colour-science transfer function."""
+    from camcal.colour.linearise import ChannelCurve, named_function
+
+    if name == "linear":
+        return Linearisation.identity()
+    return Linearisation((ChannelCurve("named", {"function": named_function(name), "scale": 1.0}),) * 3)
+
+
+def match_image_files(
+    images: dict[str, str | os.PathLike],
+    *,
+    rig: Any = None,
+    rectified: bool = False,
+    fits: dict[str, ColourFit] | None = None,
+    encoding: str = "linear",
+    model: str = "matrix3x3",
+    robust: str = "lmeds-irls",
+    seed: int = 0,
+) -> MatchResult:
+    """The image route from files: read, linearise, rectify if needed, match.
+
+    Parameters
+    ----------
+    images
+        Two entries ``{target_name: path, source_name: path}`` in that order:
+        the first camera is the target (A), the second is matched to it (B).
+    rig
+        A :class:`camcal.rig.Rig` holding both cameras, or ``None``. With a
+        rig, the left view is the camera further along the rectified x axis'
+        negative side; unless ``rectified``, both images are rectified with
+        :func:`camcal.geometry.rectify.rectify_calibrated` (undistortion and
+        rectification in one remap) after linearisation.
+    rectified
+        The images are rectified already (required without a rig).
+    fits
+        Characterisations by camera name: a camera's fit gives its
+        linearisation, the target's fit the XYZ for Delta E.
+    encoding
+        Encoding of cameras without a fit: ``linear`` or a transfer
+        function name (``sRGB``, ``ITU-R BT.709``, ``ARRI LogC3``...).
+    model, robust, seed
+        See :func:`match_images`.
+
+    Returns
+    -------
+    MatchResult
+    """
+    from camcal.colour.chart import read_image
+
+    if len(images) != 2:
+        raise CamcalError(f"colour match needs exactly two cameras' images, got {len(images)}: {', '.join(images)}")
+    fits = fits or {}
+    for name in fits:
+        if name not in images:
+            raise CamcalError(f"a fit is given for camera {name!r}, which has no image")
+    target, source = list(images)
+    if rig is None and not rectified:
+        raise CamcalError("without a rig the images must already be rectified (say so with --rectified)")
+    linear = {}
+    linearisations = {}
+    for name, path in images.items():
+        lin = fits[name].linearisation if name in fits else _encoding(encoding)
+        linearisations[name] = lin
+        linear[name] = lin.apply(read_image(path))
+    a_is_left = None
+    if rig is not None:
+        from camcal.geometry.rectify import RectifyWarper, rectify_calibrated
+
+        for name in images:
+            rig.camera(name)
+        result = rectify_calibrated(rig, [target, source])
+        x = {name: float((result.R_rect @ rig.camera(name).c)[0]) for name in images}
+        a_is_left = x[target] < x[source]
+        if not rectified:
+            warper = RectifyWarper(result.rig)
+            linear = {name: warper.warp(name, image.astype(np.float32)).astype(np.float64)
+                      for name, image in linear.items()}
+    if linear[target].shape != linear[source].shape:
+        raise CamcalError(f"the two images differ in size: {linear[target].shape[1]}x{linear[target].shape[0]} "
+                          f"and {linear[source].shape[1]}x{linear[source].shape[0]} px")
+    return match_images(linear[target], linear[source], model=model, robust=robust, a_is_left=a_is_left,
+                        fit_target=fits.get(target), source=source, target=target,
+                        linearisation=linearisations[source], seed=seed,
+                        provenance_source=f"{images[target]}, {images[source]}")
+
+
+def match_patch_files(
+    fits: dict[str, ColourFit],
+    patches: dict[str, str | os.PathLike],
+    *,
+    test_patches: dict[str, str | os.PathLike] | None = None,
+    model: str = "matrix3x3",
+    robust: str = "none",
+) -> MatchResult:
+    """The chart route from files: two fits and the two cameras' patch CSVs.
+
+    Parameters
+    ----------
+    fits
+        ``{target_name: fit, source_name: fit}``, target first.
+    patches
+        Patch CSVs of the same chart by camera name (code values in each
+        fit's encoding; the target's XYZ column is the reference, adapted to
+        the target fit's white as that fit was).
+    test_patches
+        Independent patch CSVs by camera name, optional.
+    model, robust
+        See :func:`match_charts`.
+
+    Returns
+    -------
+    MatchResult
+    """
+    from camcal.colour.patches import read_patch_csv
+
+    if len(fits) != 2 or set(patches) != set(fits):
+        raise CamcalError("the chart route needs a fit and a patch file for each of two cameras, got fits for "
+                          f"{', '.join(fits) or 'none'} and patches for {', '.join(patches) or 'none'}")
+    target, source = list(fits)
+
+    def pair(files: dict) -> tuple:
+        if set(files) != set(fits):
+            raise CamcalError(f"patch files must name the cameras {target} and {source}, got {', '.join(files)}")
+        sets = {name: read_patch_csv(path) for name, path in files.items()}
+        if sets[target].names != sets[source].names:
+            raise CamcalError(f"the patch files of {target} and {source} list different patches "
+                              f"({len(sets[target])} and {len(sets[source])})")
+        return sets[source], sets[target]
+
+    train_B, train_A = pair(patches)
+    test = None
+    if test_patches:
+        test_B, test_A = pair(test_patches)
+        test = (test_B.RGB, test_A.RGB)
+    reference = train_A.XYZ
+    fit_A = fits[target]
+    if fit_A.adaptation is not None:
+        reference = adapt_XYZ(reference, fit_A.training_white_XYZ, fit_A.target_white_XYZ, fit_A.adaptation)
+    return match_charts(fits[source], fits[target], train_B.RGB, train_A.RGB, XYZ_reference=reference,
+                        test=test, model=model, robust=robust, source=source, target=target,
+                        provenance_source=f"{patches[target]}, {patches[source]}")
 
 
 # --------------------------------------------------------------------------
