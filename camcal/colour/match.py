@@ -99,23 +99,25 @@ from camcal.colour.evaluate import DeltaEStats, delta_E, plot_report
 from camcal.colour.fitfile import (
     KIND_READERS,
     ColourFit,
-    _check_curve,
+    LinearisedModel,
     _check_header,
+    _check_linearisation,
+    _check_provenance,
     _check_stats,
     _integer,
     _keys,
     _matrix,
+    _model_and_linearisation,
     _number,
     _string,
     _vector,
-    read_colour_dict,
+    load_colour_file,
 )
 from camcal.colour.linearise import Linearisation
 from camcal.colour.models import LinearTermsModel, expand, model_from_dict, parse_model_spec
 from camcal.colour.spectral import adapt_XYZ
 from camcal.errors import CamcalError
 from camcal.io.atomic import atomic_path
-from camcal.io.jsonfile import write_json
 
 __all__ = [
     "MATCH_MODELS",
@@ -547,11 +549,7 @@ def _check_match(data: dict) -> None:
                                  "fit", "evaluation", "provenance"))
     _string(data["source"], "source", nullable=True)
     _string(data["target"], "target", nullable=True)
-    lin = _keys(data["linearisation"], "linearisation", ("channels",), ("residual",))
-    if not isinstance(lin["channels"], list) or len(lin["channels"]) != 3:
-        raise CamcalError("linearisation.channels: expected 3 curves (R, G, B)")
-    for i, curve in enumerate(lin["channels"]):
-        _check_curve(curve, f"linearisation.channels[{i}]")
+    _check_linearisation(data["linearisation"])
     model = data["model"]
     kind = _string(_keys(model, "model", ("kind",), ("terms", "coefficients", "size", "domain_min", "domain_max",
                                                      "smoothing", "table"))["kind"], "model.kind", MATCH_MODELS)
@@ -592,9 +590,7 @@ def _check_match(data: dict) -> None:
         _check_stats(chart["common_reference"], "evaluation.chart.common_reference", nullable=False)
         _check_stats(chart["source_vs_reference"], "evaluation.chart.source_vs_reference")
         _check_stats(chart["target_vs_reference"], "evaluation.chart.target_vs_reference")
-    provenance = _keys(data["provenance"], "provenance", ("tool", "created"), ("source",))
-    for key in provenance:
-        _string(provenance[key], f"provenance.{key}")
+    _check_provenance(data["provenance"])
 
 
 def _model_from_block(block: dict) -> MatchModel:
@@ -606,7 +602,7 @@ def _model_from_block(block: dict) -> MatchModel:
 
 
 @dataclass(frozen=True, eq=False)
-class ColourMatch:
+class ColourMatch(LinearisedModel):
     """A camera-to-camera colour match: linear source (B) RGB -> linear target (A) RGB.
 
     ``apply(RGB)`` maps LINEAR camera-B RGB ``(N, 3)`` to camera-A RGB;
@@ -634,18 +630,6 @@ class ColourMatch:
             return None
         return np.array(self.model.M)
 
-    def apply(self, RGB: Any) -> np.ndarray:
-        """LINEAR camera-B RGB ``(N, 3)`` to camera-A RGB ``(N, 3)``."""
-        return self.model.apply(RGB)
-
-    def linearise(self, codes: Any) -> np.ndarray:
-        """Camera-B code values ``(N, 3)`` in [0, 1] to linear camera-B RGB."""
-        return self.linearisation.apply(codes)
-
-    def apply_codes(self, codes: Any) -> np.ndarray:
-        """Camera-B code values to linear camera-A RGB: ``apply(linearise(codes))``."""
-        return self.apply(self.linearise(codes))
-
     def to_dict(self) -> dict:
         """The file's JSON object."""
         model = self.model.to_dict()
@@ -669,20 +653,9 @@ class ColourMatch:
         """Validate a file's JSON object and build the match (errors name the field)."""
         _check_header(data, "match")
         _check_match(data)
-        try:
-            model = _model_from_block(data["model"])
-            linearisation = Linearisation.from_dict(data["linearisation"])
-        except CamcalError as error:
-            message = str(error)
-            if not message.startswith(("model", "linearisation")):
-                message = f"model: {message}"
-            raise CamcalError(message) from None
+        model, linearisation = _model_and_linearisation(data, _model_from_block)
         return cls(model=model, evaluation=data["evaluation"], fit=data["fit"], source=data["source"],
                    target=data["target"], linearisation=linearisation, provenance=dict(data["provenance"]))
-
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the file atomically; returns its path."""
-        return write_json(path, self.to_dict())
 
     def summary(self) -> str:
         """A few human lines: which way, model, fit, CIEDE2000."""
@@ -702,11 +675,6 @@ class ColourMatch:
             lines.append(f"held-out outliers (beyond the fit's threshold): {ev['n_test_outliers']}")
         return "\n".join(lines)
 
-    def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self.to_dict() == other.to_dict()  # type: ignore[attr-defined]
-
-    __hash__ = None  # type: ignore[assignment]
-
 
 KIND_READERS["match"] = ColourMatch.from_dict
 
@@ -719,11 +687,7 @@ def load_match(path: str | os.PathLike) -> ColourMatch:
     CamcalError
         ``"<path>: <field>: <what is wrong>"`` for a bad file.
     """
-    data = read_colour_dict(path)
-    try:
-        return ColourMatch.from_dict(data)
-    except CamcalError as error:
-        raise CamcalError(f"{path}: {error}") from None
+    return load_colour_file(path, "match")
 
 
 # --------------------------------------------------------------------------
