@@ -123,6 +123,7 @@ __all__ = [
     "MATCH_MODELS",
     "ROBUST_METHODS",
     "REC709_SPACE",
+    "rec709_XYZ",
     "Lut3DModel",
     "ColourMatch",
     "RobustFit",
@@ -468,6 +469,16 @@ def fit_match_model(
     ``min sum_i w_i |f(B_i) - A_i|^2 / s_i^2`` (closed form for the linear
     models; a sparse linear system for the LUT, with the smoothness
     penalty), until the weights change by less than 1e-4 on average.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> B = rng.uniform(0.05, 0.9, (500, 3))
+    >>> A = B @ np.diag([1.1, 1.0, 0.9])
+    >>> A[:50] += 0.3                      # 10 % speculars
+    >>> fit = fit_match_model(B, A, "matrix3x3")
+    >>> np.round(np.diag(fit.model.M), 6).tolist(), int((~fit.inliers).sum())
+    ([1.1, 1.0, 0.9], 50)
     """
     B = np.asarray(RGB_source, dtype=np.float64)
     A = np.asarray(RGB_target, dtype=np.float64)
@@ -694,7 +705,12 @@ def load_match(path: str | os.PathLike) -> ColourMatch:
 # Colour differences in the target camera's space
 
 
-def _rec709_XYZ(RGB: np.ndarray) -> np.ndarray:
+def rec709_XYZ(RGB: Any) -> np.ndarray:
+    """XYZ (white Y = 1, D65) of RGB read as linear Rec. 709 / sRGB primaries, ``(..., 3)``.
+
+    The Delta E space of a match when the target camera has no
+    characterisation (see :data:`REC709_SPACE`).
+    """
     import colour
 
     return np.asarray(RGB, dtype=np.float64) @ colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ.T
@@ -706,7 +722,7 @@ def _target_space(fit_target: ColourFit | None):
         import colour
 
         white = colour.xy_to_XYZ(colour.RGB_COLOURSPACES["sRGB"].whitepoint)
-        return _rec709_XYZ, np.asarray(white, dtype=np.float64), REC709_SPACE
+        return rec709_XYZ, np.asarray(white, dtype=np.float64), REC709_SPACE
     name = fit_target.camera or "target"
     return fit_target.apply, np.asarray(fit_target.target_white_XYZ), f"XYZ through the characterisation of {name}"
 

@@ -16,7 +16,7 @@ import pytest
 from camcal.colour.evaluate import delta_E
 from camcal.colour.match import (
     REC709_SPACE,
-    _rec709_XYZ,
+    rec709_XYZ,
     match_images,
     stereo_correspondences,
     write_match_report,
@@ -75,7 +75,7 @@ def pair():
 
 def _delta_E_vs_truth(match, G, source):
     """CIEDE2000 between the recovered and the true transform on the same B colours (Rec. 709 XYZ)."""
-    return delta_E(_rec709_XYZ(match.apply(source)), _rec709_XYZ(G(source)), D65)
+    return delta_E(rec709_XYZ(match.apply(source)), rec709_XYZ(G(source)), D65)
 
 
 def test_pair_has_ten_percent_outliers(pair):
