@@ -735,7 +735,90 @@ def _colour_export(args: argparse.Namespace) -> int:
     return 0
 
 
-_COLOUR_VERBS: list = [_register_colour_fit, _register_colour_export]
+def _named_paths(entries: Sequence[str] | None, option: str) -> dict[str, str]:
+    """``NAME=PATH`` entries in order; each name once."""
+    out: dict[str, str] = {}
+    for entry in entries or []:
+        name, path = _name_value(entry, option, "NAME=PATH")
+        if name in out:
+            raise CamcalError(f"{option}: camera {name!r} given twice")
+        out[name] = path
+    return out
+
+
+def _register_colour_match(colour_verbs) -> None:
+    parser = colour_verbs.add_parser(
+        "match",
+        help="match one camera's colours to another's (stereo pair or chart)",
+        description=(
+            "Fit a colour transform from camera B's linear RGB to camera A's. Image route: a "
+            "stereo pair (--images A=IMG --images B=IMG; the first camera is the target A), "
+            "rectified with the rig's calibration unless --rectified; SGBM disparity with a "
+            "left-right check picks reliable, unoccluded, unsaturated pixels, the fit is robust "
+            "(LMedS + IRLS) and judged by CIEDE2000 on held-out image tiles. Chart route: "
+            "--fits and --patches for both cameras (same chart): both go to XYZ, the residual "
+            "camera-to-camera CIEDE2000 is reported. Writes a *.colour.json of kind match."
+        ),
+    )
+    parser.add_argument("rig", nargs="?", metavar="RIG", help="a calibrated *.rig.json holding both cameras")
+    parser.add_argument("--images", nargs="+", action="extend", metavar="NAME=IMG",
+                        help="one image per camera, target first")
+    parser.add_argument("--rectified", action="store_true", help="the images are rectified already")
+    parser.add_argument("--fits", nargs="+", action="extend", metavar="NAME=FIT.colour.json",
+                        help="characterisations (linearisation; the target's gives XYZ for Delta E)")
+    parser.add_argument("--patches", nargs="+", action="extend", metavar="NAME=FILE.csv",
+                        help="chart route: each camera's patch CSV of the same chart, target first")
+    parser.add_argument("--test-patches", nargs="+", action="extend", metavar="NAME=FILE.csv",
+                        help="chart route: independent patches per camera")
+    parser.add_argument("--encoding", default="linear", metavar="NAME",
+                        help="image encoding of cameras without a fit: linear or a transfer function "
+                             "(sRGB, ITU-R BT.709, ARRI LogC3...; default: linear)")
+    parser.add_argument("--model", default="matrix3x3",
+                        help="matrix3x3 | root-polynomial:D | polynomial:N | lut3d[:N] (default: matrix3x3)")
+    parser.add_argument("--robust", choices=("lmeds-irls", "irls", "none"), default=None,
+                        help="robust fitting (default: lmeds-irls for images, none for charts)")
+    parser.add_argument("--out", required=True, metavar="MATCH.colour.json", help="match file to write")
+    parser.add_argument("--report", metavar="DIR", help="difference images and Delta E maps (or chart plots)")
+    parser.set_defaults(func=_colour_match)
+
+
+def _colour_match(args: argparse.Namespace) -> int:
+    from camcal.colour.fitfile import load_fit
+    from camcal.colour.match import match_image_files, match_patch_files, parse_match_model, write_match_report
+
+    parse_match_model(args.model)
+    images = _named_paths(args.images, "--images")
+    patches = _named_paths(args.patches, "--patches")
+    fits = {name: load_fit(path) for name, path in _named_paths(args.fits, "--fits").items()}
+    if images and patches:
+        raise CamcalError("give --images (image route) or --patches (chart route), not both")
+    if images:
+        rig = None
+        if args.rig:
+            from camcal.rig import Rig
+
+            rig = Rig.load(args.rig)
+        result = match_image_files(images, rig=rig, rectified=args.rectified, fits=fits, encoding=args.encoding,
+                                   model=args.model, robust=args.robust or "lmeds-irls")
+        counts = result.correspondences.counts
+        print(f"correspondences: {counts['valid']} of {counts['total']} pixels kept (disparity {counts['disparity']}, "
+              f"left-right consistent {counts['consistent']}, away from depth edges {counts['smooth']})")
+    elif patches:
+        fits = {name: fits[name] for name in patches if name in fits} | fits
+        result = match_patch_files(fits, patches, test_patches=_named_paths(args.test_patches, "--test-patches"),
+                                   model=args.model, robust=args.robust or "none")
+    else:
+        raise CamcalError("nothing to match: give --images NAME=IMG twice, or --fits and --patches for two cameras")
+    print(result.match.summary())
+    path = result.match.save(args.out)
+    print(f"wrote {path}")
+    if args.report:
+        files = write_match_report(args.report, result)
+        print(f"report: {len(files)} files in {args.report}")
+    return 0
+
+
+_COLOUR_VERBS: list = [_register_colour_fit, _register_colour_export, _register_colour_match]
 
 
 # One entry per verb group; keep this list the only place verbs are wired in.
