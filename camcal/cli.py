@@ -699,7 +699,7 @@ def _register_colour_export(colour_verbs) -> None:
 def _colour_export(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from camcal.colour.fitfile import load_fit
+    from camcal.colour.fitfile import ColourFit, load_colour_file
 
     if not args.ocio and not args.icc:
         raise CamcalError("nothing to write: give --ocio OUTDIR and/or --icc OUT.icc")
@@ -709,11 +709,16 @@ def _colour_export(args: argparse.Namespace) -> int:
         raise CamcalError(f"--icc writes one profile: give one fit, got {len(args.fits)}")
     if not (args.max_bake_error > 0):
         raise CamcalError(f"--max-bake-error must be > 0, got {args.max_bake_error}")
-    fits = []
+    fits, matches = [], []
     for path in args.fits:
-        fit = load_fit(path)
+        fit = load_colour_file(path)
+        if not isinstance(fit, ColourFit):
+            matches.append(fit)
+            continue
         name = args.camera_name or fit.camera or Path(path).name.removesuffix(".json").removesuffix(".colour")
         fits.append((name, fit))
+    if args.icc and not fits:
+        raise CamcalError("--icc needs a characterisation (kind characterisation); a camera match has no ICC profile")
     profile = None
     if args.icc:
         from camcal.colour.export_icc import icc_profile_from_fit, write_icc
@@ -723,10 +728,11 @@ def _colour_export(args: argparse.Namespace) -> int:
     if args.ocio:
         from camcal.colour.export_ocio import export_ocio
 
-        result = export_ocio(fits, args.ocio, base=args.base, cat=args.cat, max_delta_E=args.max_bake_error)
+        result = export_ocio(fits, args.ocio, base=args.base, cat=args.cat, max_delta_E=args.max_bake_error,
+                             matches=matches)
         for space in result.spaces:
             print(space.summary())
-        print(f"wrote {result.config_path} (base {result.base}, {len(result.spaces)} camera space(s))")
+        print(f"wrote {result.config_path} (base {result.base}, {len(fits)} camera space(s), {len(matches)} match Look(s))")
     if profile is not None:
         write_icc(profile, args.icc)
         how = ("matrix/TRC" if profile.kind == "matrix-trc" else

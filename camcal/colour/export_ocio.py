@@ -78,6 +78,8 @@ __all__ = [
     "LogShaper",
     "BakedTransform",
     "transform_from_callable",
+    "look_name",
+    "look_from_match",
     "linearisation_transforms",
     "XYZ_to_reference_matrix",
     "invert_model",
@@ -858,6 +860,54 @@ def colour_space_from_fit(
     return spec, report
 
 
+def look_name(source: str, target: str) -> str:
+    """The Look of a camera match: ``camcal match <source> to <target>``."""
+    return f"camcal match {source} to {target}"
+
+
+def look_from_match(match, config, *, max_delta_E: float = 0.2,
+                    lut_sizes: Sequence[int] = LUT_SIZES) -> tuple[LookSpec, SpaceExport]:
+    """A camera match (kind ``match``) as an OCIO Look on linear camera values.
+
+    The Look's process space is the config's ``data`` role (no conversion):
+    applied to camera B's *linear* RGB it gives camera A's linear RGB
+    (``match.apply``). A matrix match is an exact ``MatrixTransform``; the
+    others are baked like a characterisation (:func:`transform_from_callable`)
+    over a cube of linear RGB from 1/64 to 1, the error measured with the
+    outputs read as linear Rec. 709 / D65 (camera A's RGB has no XYZ here).
+    """
+    import colour  # noqa: PLC0415
+
+    ocio = _ocio()
+    process_space = config.getRoleColorSpace(ocio.ROLE_DATA) if config.hasRole(ocio.ROLE_DATA) else None
+    if not process_space:
+        raise CamcalError("the base config has no 'data' role: a match Look needs a space without conversion")
+    source, target = match.source or "B", match.target or "A"
+    name = look_name(source, target)
+    files: dict = {}
+    clf = None
+    if match.matrix is not None:
+        baked = transform_from_callable(match.apply, matrix=match.matrix)
+        transform = _matrix_transform(baked.matrix)
+    else:
+        levels = np.geomspace(1.0 / 64.0, 1.0, 9)
+        cube = np.stack(np.meshgrid(levels, levels, levels, indexing="ij"), axis=-1).reshape(-1, 3)
+        rec709 = colour.RGB_COLOURSPACES["ITU-R BT.709"]
+        baked = transform_from_callable(
+            match.apply, samples=cube, white_XYZ=colour.xy_to_XYZ(rec709.whitepoint),
+            to_XYZ=lambda RGB: RGB @ rec709.matrix_RGB_to_XYZ.T, max_delta_E=max_delta_E, lut_sizes=lut_sizes,
+        )
+        clf = f"{LUT_DIR}/camcal_match_{_slug(source)}_to_{_slug(target)}.clf"
+        files[clf] = baked.clf_text(f"camcal:match:{_slug(source)}:{_slug(target)}",
+                                    f"camcal {match.model.label}: linear {source} RGB to linear {target} RGB")
+        transform = ocio.FileTransform(Path(clf).name, interpolation=ocio.INTERP_TETRAHEDRAL)
+    description = (f"camcal colour match of camera {source} to camera {target} ({match.model.label}) on linear "
+                   f"camera values; {_held_out(match.evaluation)}")
+    look = LookSpec(name, process_space, transform, description=description, files=files)
+    report = SpaceExport(name, source, match.model.label, baked.kind, baked.lut_size, baked.bake_error, 0.0, clf)
+    return look, report
+
+
 def export_ocio(
     fits: Sequence[tuple[str, ColourFit]],
     directory: str | os.PathLike,
@@ -866,6 +916,7 @@ def export_ocio(
     cat: str = "Bradford",
     max_delta_E: float = 0.2,
     lut_sizes: Sequence[int] = LUT_SIZES,
+    matches: Sequence = (),
 ) -> OCIOExport:
     """Write ``directory/config.ocio`` (+ ``luts/*.clf``): ``base`` plus one space per camera.
 
@@ -877,10 +928,14 @@ def export_ocio(
         Output folder.
     base, cat, max_delta_E, lut_sizes
         See :class:`ConfigSpec` and :func:`colour_space_from_fit`.
+    matches
+        Camera matches (kind ``match``), each written as a Look
+        (:func:`look_from_match`).
 
     Returns
     -------
     OCIOExport
+        ``spaces`` lists the colour spaces, then the Looks.
     """
     names = [camera for camera, _ in fits]
     if len(set(names)) != len(names):
@@ -892,5 +947,10 @@ def export_ocio(
                                              lut_sizes=lut_sizes)
         specs.append(spec)
         reports.append(report)
-    path = write_ocio_config(ConfigSpec(base=str(base), colour_spaces=tuple(specs)), directory)
+    looks = []
+    for match in matches:
+        look, report = look_from_match(match, config, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+        looks.append(look)
+        reports.append(report)
+    path = write_ocio_config(ConfigSpec(base=str(base), colour_spaces=tuple(specs), looks=tuple(looks)), directory)
     return OCIOExport(path, str(base), tuple(reports))
