@@ -525,8 +525,9 @@ def _dask_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
         return
     if workers is not None and workers < 1:
         raise CamcalError(f"--workers must be at least 1, got {workers}")
+    # dashboard_address=":0": the scheduler's HTTP server (always started) on a free port, not 8787
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=None, silence_logs=logging.CRITICAL) as cluster, Client(cluster) as client:
+                      dashboard_address=":0", silence_logs=logging.CRITICAL) as cluster, Client(cluster) as client:
         yield client
 
 

@@ -153,6 +153,8 @@ def _read_exr(path: Path) -> ImageFrame:
 
     try:
         with OpenEXR.File(str(path), separate_channels=True) as exr:
+            if not exr.parts:
+                raise CamcalError(f"cannot read {path} (corrupt EXR: no readable part)")
             if len(exr.parts) != 1:
                 raise CamcalError(f"{path}: multi-part EXR ({len(exr.parts)} parts) is not supported")
             header = dict(exr.header())
