@@ -108,6 +108,11 @@ def parse_frames(text: str) -> tuple[int, ...]:
     -------
     tuple of int
         Sorted, without repeats.
+
+    Examples
+    --------
+    >>> parse_frames("1001-1009x4,1,2")
+    (1, 2, 1001, 1005, 1009)
     """
     frames: set[int] = set()
     for item in str(text).replace(" ", "").split(","):
@@ -136,7 +141,13 @@ def _check_pattern(pattern: str, what: str) -> str:
 
 
 def frame_path(pattern: str, frame: int) -> Path:
-    """``pattern % frame`` (``plates/left.%04d.exr``, 1001 -> ``plates/left.1001.exr``)."""
+    """``pattern % frame``.
+
+    Examples
+    --------
+    >>> frame_path("plates/left.%04d.exr", 7).as_posix()
+    'plates/left.0007.exr'
+    """
     return Path(pattern % frame)
 
 

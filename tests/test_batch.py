@@ -334,3 +334,13 @@ def test_bad_input_exits_2_and_writes_nothing(tmp_path, monkeypatch, capsys, cha
     error = capsys.readouterr().err
     assert error.startswith("camcal: error: ") and error.count("\n") == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_existing_scheduler_by_address(tmp_path, client):
+    rig = _rig(tmp_path)
+    pattern = _sequence(tmp_path, "exr", FRAMES[:4])
+    job = make_job(rig, "left", pattern, str(tmp_path / "out" / "left.%04d.exr"), "rectify")
+    report = run_batch(job, FRAMES[:4], scheduler=client.scheduler.address, progress=False)
+    assert report.ok and report.n_workers == 2 and len(report.written) == 4
+    reference = _single_process(job, FRAMES[:4], tmp_path / "single")
+    assert all(job.output_path(f).read_bytes() == reference.output_path(f).read_bytes() for f in FRAMES[:4])

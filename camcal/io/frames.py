@@ -48,7 +48,7 @@ from numpy.typing import NDArray  # noqa: E402
 from camcal.errors import CamcalError  # noqa: E402
 from camcal.io.atomic import atomic_path  # noqa: E402
 
-__all__ = ["FORMATS", "ImageFrame", "frame_format", "read_frame", "write_frame"]
+__all__ = ["FORMATS", "ImageFrame", "frame_format", "imread", "read_frame", "write_frame"]
 
 #: File name suffix -> format name, and the pixel types each format holds.
 FORMATS: Mapping[str, str] = MappingProxyType(
@@ -122,6 +122,23 @@ class ImageFrame:
         return self.channels.index(name)
 
 
+def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> NDArray:
+    """``cv2.imread`` that raises one-line :class:`CamcalError` instead of returning None.
+
+    Raises
+    ------
+    CamcalError
+        ``"cannot read <path> (...)"`` for a missing, corrupt or unsupported file.
+    """
+    try:
+        pixels = cv2.imread(str(path), flags)
+    except cv2.error as error:
+        raise CamcalError(f"cannot read {path} ({str(error).strip().splitlines()[-1]})") from None
+    if pixels is None:
+        raise CamcalError(f"cannot read {path} (missing, corrupt or not an image OpenCV reads)")
+    return pixels
+
+
 def read_frame(path: str | os.PathLike) -> ImageFrame:
     """Read one frame (see the module docstring for what is kept).
 
@@ -137,12 +154,7 @@ def read_frame(path: str | os.PathLike) -> ImageFrame:
         raise CamcalError(f"missing input {path}")
     if kind == "exr":
         return _read_exr(path)
-    try:
-        pixels = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    except cv2.error as error:
-        raise CamcalError(f"cannot read {path}: {str(error).strip().splitlines()[-1]}") from None
-    if pixels is None:
-        raise CamcalError(f"cannot read {path} (corrupt or not a {kind.upper()} image)")
+    pixels = imread(path)
     if pixels.ndim == 2:
         pixels = pixels[:, :, None]
     return ImageFrame(pixels, _CV_CHANNELS[pixels.shape[2]])
