@@ -592,7 +592,8 @@ def run_batch(
     if retries < 0:
         raise CamcalError(f"retries must be >= 0, got {retries}")
     skipped = completed_frames(job, frames) if resume else ()
-    todo = [frame for frame in frames if frame not in set(skipped)]
+    done = set(skipped)
+    todo = [frame for frame in frames if frame not in done]
     if not skipped and not any(job.input_path(frame).exists() for frame in frames):
         raise CamcalError(f"none of the {len(frames)} input frame(s) exists: {job.input_path(frames[0])} ... "
                           f"{job.input_path(frames[-1])}")
