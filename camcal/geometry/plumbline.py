@@ -48,6 +48,7 @@ import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from camcal.errors import CamcalError
+from camcal.geometry.board import Board, detect_board
 from camcal.geometry.distortion import Distortion, fit_distortion
 from camcal.io.jsonfile import read_json, write_json
 
@@ -161,17 +162,15 @@ def lines_from_chessboard(corners: ArrayLike, pattern_size: tuple[int, int], ima
 
 
 def detect_chessboard_lines(image: NDArray, pattern_size: tuple[int, int]) -> LineSet | None:
-    """Find a chessboard with ``cv2.findChessboardCornersSB``; its rows and columns.
+    """Find a chessboard (:func:`camcal.geometry.board.detect_board`); its rows and columns.
 
     Returns ``None`` when the board is not found in ``image``.
     """
     grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    found, corners = cv2.findChessboardCornersSB(
-        grey, tuple(pattern_size), flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
-    )
-    if not found:
+    found = detect_board(Board("chessboard", int(pattern_size[0]), int(pattern_size[1]), 1.0), grey)
+    if found is None:
         return None
-    return lines_from_chessboard(corners, pattern_size, (grey.shape[1], grey.shape[0]))
+    return lines_from_chessboard(found.corners_px, pattern_size, (grey.shape[1], grey.shape[0]))
 
 
 def _split_chains(contour: NDArray[np.intp]) -> list[NDArray[np.float64]]:
