@@ -129,6 +129,14 @@ def _register_rig(subparsers) -> None:
     show.set_defaults(func=_rig_show)
 
 
+def _name_value(entry: str, option: str, form: str) -> tuple[str, str]:
+    """Split a ``NAME=VALUE`` option value, or fail naming the option."""
+    name, sep, value = entry.partition("=")
+    if not sep or not name or not value:
+        raise CamcalError(f"{option} must be {form}, got {entry!r}")
+    return name, value
+
+
 # -- camcal calibrate ----------------------------------------------------------------
 
 
@@ -170,9 +178,7 @@ def _calibrate_board(args: argparse.Namespace) -> int:
     board = parse_board(args.board)
     cameras: dict[str, list[str]] = {}
     for entry in args.camera:
-        name, sep, pattern = entry.partition("=")
-        if not sep or not name or not pattern:
-            raise CamcalError(f"--camera must be NAME=GLOB (e.g. left='shots/left*.jpg'), got {entry!r}")
+        name, pattern = _name_value(entry, "--camera", "NAME=GLOB (e.g. left='shots/left*.jpg')")
         if name in cameras:
             raise CamcalError(f"camera {name!r} given twice")
         files = sorted(glob.glob(pattern))
@@ -250,34 +256,48 @@ def _register_calibrate(subparsers) -> None:
 def _solve(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from camcal.geometry.sfm import solve_sfm
+    from camcal.geometry.sfm import MODELS, collect_images, solve_sfm
+    from camcal.rig import Rig
 
-    folders = {Path(folder).name: Path(folder) for folder in args.folders}
-    if len(folders) != len(args.folders):
-        raise CamcalError("image folders must have distinct names (they name the cameras)")
-    result = solve_sfm(folders, Path(args.out), camera_model=args.camera_model, matcher=args.matcher,
-                       mapper=args.mapper, seed=args.seed)
+    globs = dict(_name_value(item, "--camera", "NAME=GLOB") for item in args.camera)
+    images = collect_images([Path(folder) for folder in args.folders], globs)
+    known_rig = Rig.load(args.rig) if args.rig else None
+    camera_model = MODELS[args.model] if args.model else args.camera_model
+    result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
+                       seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss)
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
     per_camera = ", ".join(f"{name} {rms:.3f} px" for name, rms in result.per_camera_rms_px.items())
     print(f"RMS reprojection error: {result.rms_px:.3f} px ({per_camera}); {result.n_points} points")
-    print(f"wrote {Path(args.out) / 'sfm.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
+    if result.bundle is not None:
+        print(result.bundle.summary())
+    print(f"wrote {Path(args.out) / 'solve.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
     return 0
 
 
 def _register_solve(subparsers) -> None:
     solve = subparsers.add_parser(
         "solve",
-        help="cameras from images: pycolmap structure from motion",
-        description="One folder per camera; several folders form a rig whose frames are matched by file name. "
-        "Writes OUT/sfm.rig.json, OUT/points.ply and the COLMAP model.",
+        help="cameras from images: pycolmap structure from motion + camcal bundle adjustment",
+        description="One folder per camera (or one folder of per-camera sub-folders, or --camera NAME=GLOB "
+        "inside one folder); several cameras form a rig whose frames pair up by sorted order. "
+        "Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.",
     )
-    solve.add_argument("folders", nargs="+", metavar="DIR", help="image folder(s), one per camera")
-    solve.add_argument("--out", required=True, metavar="DIR")
+    solve.add_argument("folders", nargs="+", metavar="IMAGES_DIR", help="image folder(s)")
+    solve.add_argument("--camera", action="append", default=[], metavar="NAME=GLOB",
+                       help="a camera's images inside IMAGES_DIR, e.g. left='*_L.png' (repeat per camera)")
+    solve.add_argument("--rig", metavar="KNOWN.rig.json",
+                       help="hold the cameras' relative poses at this calibration (and take its units)")
+    solve.add_argument("--model", choices=("division", "polynomial", "opencv", "none"),
+                       help="camcal lens model (COLMAP SIMPLE_DIVISION / RADIAL / OPENCV / SIMPLE_PINHOLE)")
     solve.add_argument("--camera-model", default="SIMPLE_RADIAL", help="COLMAP camera model (default: SIMPLE_RADIAL)")
     solve.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"))
     solve.add_argument("--mapper", default="incremental", choices=("incremental", "global"))
+    solve.add_argument("--loss", default="trivial", choices=("trivial", "huber", "soft_l1", "cauchy"),
+                       help="robust loss of camcal's bundle adjustment (scale 1 px)")
+    solve.add_argument("--no-refine", action="store_true", help="keep pycolmap's result, skip camcal's refinement")
     solve.add_argument("--seed", type=int, default=0)
+    solve.add_argument("--out", required=True, metavar="DIR")
     solve.set_defaults(func=_solve)
 
 
@@ -389,9 +409,7 @@ def _parse_images(entries: Sequence[str]) -> dict[str, list[str]]:
 
     images: dict[str, list[str]] = {}
     for entry in entries:
-        name, sep, pattern = entry.partition("=")
-        if not sep or not name or not pattern:
-            raise CamcalError(f"--images takes NAME=GLOB, got {entry!r}")
+        name, pattern = _name_value(entry, "--images", "NAME=GLOB")
         images[name] = sorted(glob.glob(pattern))
     return images
 
@@ -542,6 +560,54 @@ def _register_rectify(subparsers) -> None:
 
 
 # --------------------------------------------------------------------------
+# batch: plate sequences, locally or on a Dask cluster
+
+
+def _batch(args: argparse.Namespace) -> int:
+    from camcal.batch import make_job, parse_frames, run_batch
+
+    geometry = "undistort" if args.undistort else "rectify" if args.rectify else None
+    job = make_job(args.rig, args.camera, args.in_pattern, args.out, geometry, args.colour, args.mode, args.overscan)
+    frames = parse_frames(args.frames)
+    report = run_batch(job, frames, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
+                       retries=args.retries, progress=not args.quiet)
+    print(report.summary())
+    return 0 if report.ok else 1
+
+
+def _register_batch(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "batch",
+        help="undistort / rectify / colour-correct a plate sequence on Dask",
+        description="Process frames of a sequence, one Dask task per frame, on a local cluster "
+        "(--workers) or an existing scheduler (--scheduler). Maps and the colour step are built "
+        "once per worker. Outputs keep the inputs' format, bit depth and (EXR) metadata, are "
+        "written atomically, and a failed frame is retried, then reported by number.",
+        epilog="Exit status: 0 all frames written, 1 some frames failed (listed), 2 bad input.",
+    )
+    parser.add_argument("rig", metavar="RIG", help="a *.rig.json file")
+    parser.add_argument("--camera", required=True, metavar="NAME")
+    parser.add_argument("--in", dest="in_pattern", required=True, metavar="PATTERN",
+                        help="input frames, e.g. 'plates/left.%%04d.exr'")
+    parser.add_argument("--frames", required=True, metavar="RANGE", help="e.g. 1001-1240, 1001-1240x2, 1,5,10-12")
+    parser.add_argument("--out", required=True, metavar="PATTERN", help="output frames, e.g. 'out/left.%%04d.exr'")
+    geometry = parser.add_mutually_exclusive_group()
+    geometry.add_argument("--undistort", action="store_true", help="undistort (see `camcal undistort`)")
+    geometry.add_argument("--rectify", action="store_true", help="rectify with the camera's rectification")
+    parser.add_argument("--mode", choices=("crop", "keep", "overscan"), default="crop",
+                        help="how --undistort chooses the new camera (default: crop)")
+    parser.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+    parser.add_argument("--colour", metavar="FIT.colour.json", help="apply a characterisation (camera RGB -> XYZ)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="use a running Dask scheduler")
+    where.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per core)")
+    parser.add_argument("--resume", action="store_true", help="skip frames already complete and unchanged")
+    parser.add_argument("--retries", type=int, default=2, metavar="N", help="retries of a failed frame (default: 2)")
+    parser.add_argument("--quiet", action="store_true", help="no progress line")
+    parser.set_defaults(func=_batch)
+
+
+# --------------------------------------------------------------------------
 # colour: characterisation (fit); export and match register here too.
 
 
@@ -662,7 +728,168 @@ def _colour_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-_COLOUR_VERBS: list = [_register_colour_fit]
+def _register_colour_export(colour_verbs) -> None:
+    parser = colour_verbs.add_parser(
+        "export",
+        help="export fits as OCIO colour spaces (config + CLF) and ICC camera profiles",
+        description=(
+            "Export characterisations (*.colour.json) as input colour spaces 'camcal <camera>' "
+            "(family Input/camcal) of an OpenColorIO config, and/or as an ICC camera profile. "
+            "Matrix fits are exact; other models are baked (log2 shaper + 3D LUT) with the "
+            "bake error checked over the chart gamut."
+        ),
+        epilog=(
+            "--base: 'camcal' (camcal's small ACES config, ocio_configs/camcal_base.ocio), an "
+            "ocio:// built-in (default: ocio://studio-config-latest, which needs OCIO 2.6; "
+            "Blender 5.0 links OCIO 2.4: use 'camcal' or ocio://studio-config-v2.2.0_aces-v1.3_ocio-v2.4 "
+            "there) or a .ocio file with an aces_interchange role."
+        ),
+    )
+    parser.add_argument("fits", nargs="+", metavar="FIT.colour.json", help="characterisation files")
+    parser.add_argument("--camera-name", metavar="NAME",
+                        help="camera name (one fit only; default: the fit's camera, else the file name)")
+    parser.add_argument("--ocio", metavar="OUTDIR", help="write OUTDIR/config.ocio and OUTDIR/luts/*.clf")
+    parser.add_argument("--base", default="ocio://studio-config-latest", metavar="CONFIG",
+                        help="config to add the spaces to (default: %(default)s; see below)")
+    parser.add_argument("--cat", choices=("Bradford", "CAT02"), default="Bradford",
+                        help="adaptation from the fit's white to the ACES white (default: %(default)s)")
+    parser.add_argument("--icc", metavar="OUT.icc", help="write an ICC camera profile (one fit only)")
+    parser.add_argument("--icc-version", type=int, choices=(4, 2), default=4,
+                        help="ICC profile version: 4 (ICC.1:2010, default) or 2 (ICC.1:2001-04)")
+    parser.add_argument("--max-bake-error", type=float, default=0.2, metavar="DE",
+                        help="largest CIEDE2000 a baked LUT may add over the chart gamut (default: %(default)s)")
+    parser.set_defaults(func=_colour_export)
+
+
+def _colour_export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from camcal.colour.fitfile import ColourFit, load_colour_file
+
+    if not args.ocio and not args.icc:
+        raise CamcalError("nothing to write: give --ocio OUTDIR and/or --icc OUT.icc")
+    if args.camera_name and len(args.fits) > 1:
+        raise CamcalError(f"--camera-name needs exactly one fit, got {len(args.fits)}")
+    if args.icc and len(args.fits) > 1:
+        raise CamcalError(f"--icc writes one profile: give one fit, got {len(args.fits)}")
+    if not (args.max_bake_error > 0):
+        raise CamcalError(f"--max-bake-error must be > 0, got {args.max_bake_error}")
+    fits, matches = [], []
+    for path in args.fits:
+        fit = load_colour_file(path)
+        if not isinstance(fit, ColourFit):
+            matches.append(fit)
+            continue
+        name = args.camera_name or fit.camera or Path(path).name.removesuffix(".json").removesuffix(".colour")
+        fits.append((name, fit))
+    if args.icc and not fits:
+        raise CamcalError("--icc needs a characterisation (kind characterisation); a camera match has no ICC profile")
+    profile = None
+    if args.icc:
+        from camcal.colour.export_icc import icc_profile_from_fit, write_icc
+
+        profile = icc_profile_from_fit(fits[0][1], fits[0][0], version=args.icc_version,
+                                       max_delta_E=args.max_bake_error)
+    if args.ocio:
+        from camcal.colour.export_ocio import export_ocio
+
+        result = export_ocio(fits, args.ocio, base=args.base, cat=args.cat, max_delta_E=args.max_bake_error,
+                             matches=matches)
+        for space in result.spaces:
+            print(space.summary())
+        print(f"wrote {result.config_path} (base {result.base}, {len(fits)} camera space(s), {len(matches)} match Look(s))")
+    if profile is not None:
+        write_icc(profile, args.icc)
+        how = ("matrix/TRC" if profile.kind == "matrix-trc" else
+               f"A2B0 {profile.clut_size}^3 CLUT, bake error CIEDE2000 max {profile.bake_error.max:.3f}")
+        print(f"wrote {args.icc} (ICC v{profile.version}, {how})")
+    return 0
+
+
+def _named_paths(entries: Sequence[str] | None, option: str) -> dict[str, str]:
+    """``NAME=PATH`` entries in order; each name once."""
+    out: dict[str, str] = {}
+    for entry in entries or []:
+        name, path = _name_value(entry, option, "NAME=PATH")
+        if name in out:
+            raise CamcalError(f"{option}: camera {name!r} given twice")
+        out[name] = path
+    return out
+
+
+def _register_colour_match(colour_verbs) -> None:
+    parser = colour_verbs.add_parser(
+        "match",
+        help="match one camera's colours to another's (stereo pair or chart)",
+        description=(
+            "Fit a colour transform from camera B's linear RGB to camera A's. Image route: a "
+            "stereo pair (--images A=IMG --images B=IMG; the first camera is the target A), "
+            "rectified with the rig's calibration unless --rectified; SGBM disparity with a "
+            "left-right check picks reliable, unoccluded, unsaturated pixels, the fit is robust "
+            "(LMedS + IRLS) and judged by CIEDE2000 on held-out image tiles. Chart route: "
+            "--fits and --patches for both cameras (same chart): both go to XYZ, the residual "
+            "camera-to-camera CIEDE2000 is reported. Writes a *.colour.json of kind match."
+        ),
+    )
+    parser.add_argument("rig", nargs="?", metavar="RIG", help="a calibrated *.rig.json holding both cameras")
+    parser.add_argument("--images", nargs="+", action="extend", metavar="NAME=IMG",
+                        help="one image per camera, target first")
+    parser.add_argument("--rectified", action="store_true", help="the images are rectified already")
+    parser.add_argument("--fits", nargs="+", action="extend", metavar="NAME=FIT.colour.json",
+                        help="characterisations (linearisation; the target's gives XYZ for Delta E)")
+    parser.add_argument("--patches", nargs="+", action="extend", metavar="NAME=FILE.csv",
+                        help="chart route: each camera's patch CSV of the same chart, target first")
+    parser.add_argument("--test-patches", nargs="+", action="extend", metavar="NAME=FILE.csv",
+                        help="chart route: independent patches per camera")
+    parser.add_argument("--encoding", default="linear", metavar="NAME",
+                        help="image encoding of cameras without a fit: linear or a transfer function "
+                             "(sRGB, ITU-R BT.709, ARRI LogC3...; default: linear)")
+    parser.add_argument("--model", default="matrix3x3",
+                        help="matrix3x3 | root-polynomial:D | polynomial:N | lut3d[:N] (default: matrix3x3)")
+    parser.add_argument("--robust", choices=("lmeds-irls", "irls", "none"), default=None,
+                        help="robust fitting (default: lmeds-irls for images, none for charts)")
+    parser.add_argument("--out", required=True, metavar="MATCH.colour.json", help="match file to write")
+    parser.add_argument("--report", metavar="DIR", help="difference images and Delta E maps (or chart plots)")
+    parser.set_defaults(func=_colour_match)
+
+
+def _colour_match(args: argparse.Namespace) -> int:
+    from camcal.colour.fitfile import load_fit
+    from camcal.colour.match import match_image_files, match_patch_files, parse_match_model, write_match_report
+
+    parse_match_model(args.model)
+    images = _named_paths(args.images, "--images")
+    patches = _named_paths(args.patches, "--patches")
+    fits = {name: load_fit(path) for name, path in _named_paths(args.fits, "--fits").items()}
+    if images and patches:
+        raise CamcalError("give --images (image route) or --patches (chart route), not both")
+    if images:
+        rig = None
+        if args.rig:
+            from camcal.rig import Rig
+
+            rig = Rig.load(args.rig)
+        result = match_image_files(images, rig=rig, rectified=args.rectified, fits=fits, encoding=args.encoding,
+                                   model=args.model, robust=args.robust or "lmeds-irls")
+        counts = result.correspondences.counts
+        print(f"correspondences: {counts['valid']} of {counts['total']} pixels kept (disparity {counts['disparity']}, "
+              f"left-right consistent {counts['consistent']}, away from depth edges {counts['smooth']})")
+    elif patches:
+        fits = {name: fits[name] for name in patches if name in fits} | fits
+        result = match_patch_files(fits, patches, test_patches=_named_paths(args.test_patches, "--test-patches"),
+                                   model=args.model, robust=args.robust or "none")
+    else:
+        raise CamcalError("nothing to match: give --images NAME=IMG twice, or --fits and --patches for two cameras")
+    print(result.match.summary())
+    path = result.match.save(args.out)
+    print(f"wrote {path}")
+    if args.report:
+        files = write_match_report(args.report, result)
+        print(f"report: {len(files)} files in {args.report}")
+    return 0
+
+
+_COLOUR_VERBS: list = [_register_colour_fit, _register_colour_export, _register_colour_match]
 
 
 # One entry per verb group; keep this list the only place verbs are wired in.
@@ -676,5 +903,6 @@ _REGISTERS: list = [
     _register_solve,
     _register_blender,
     _register_colour,
+    _register_batch,
     _register_demo,
 ]

@@ -761,8 +761,8 @@ def _stage_solve(ctx: DemoContext) -> StageResult:
     os.environ.setdefault("GLOG_minloglevel", "1")
     argv = ["solve", *map(str, folders), "--out", str(out), "--camera-model", "SIMPLE_DIVISION", "--seed", str(ctx.config.seed)]
     _run_cli(argv, stage)
-    rig = Rig.load(out / "sfm.rig.json")
-    ctx.artifacts["sfm_rig"] = out / "sfm.rig.json"
+    rig = Rig.load(out / "solve.rig.json")
+    ctx.artifacts["solve_rig"] = out / "solve.rig.json"
     n_images = 2 * len(truth.rig.frames)
     solved = {(name, frame.index): rig.camera_at_frame(name, frame.index) for frame in rig.frames for name in frame.images}
     registered = len(solved)
@@ -790,7 +790,7 @@ def _stage_solve(ctx: DemoContext) -> StageResult:
             f"constraint, COLMAP camera model SIMPLE_DIVISION; RMS reprojection error through camcal's rig: "
             f"{quality}. Poses compared after a similarity (Umeyama 1991) to the true ones; "
             f"scene size {size:g} m.</p>")
-    return StageResult(tuple(rows), (("SfM rig (sfm.rig.json)", out / "sfm.rig.json"), ("sparse points (points.ply)", out / "points.ply")),
+    return StageResult(tuple(rows), (("SfM rig (solve.rig.json)", out / "solve.rig.json"), ("sparse points (points.ply)", out / "points.ply")),
                        (ReportSection("Structure from motion", body, "solve"),))
 
 
@@ -870,9 +870,9 @@ def _stage_blender_import(ctx: DemoContext) -> StageResult:
     _run_cli(argv, stage)
     outputs = [("Blender scene, board rig (rig.blend)", blend)]
     commands = [argv]
-    if "sfm_rig" in ctx.artifacts:
+    if "solve_rig" in ctx.artifacts:
         sfm_blend = ctx.path("blender", "sfm.blend")
-        sfm_argv = ["blender", "import", str(ctx.artifacts["sfm_rig"]), "--blend", str(sfm_blend)]
+        sfm_argv = ["blender", "import", str(ctx.artifacts["solve_rig"]), "--blend", str(sfm_blend)]
         _run_cli(sfm_argv, stage)
         outputs.append(("Blender scene, SfM rig with its points (sfm.blend)", sfm_blend))
         commands.append(sfm_argv)

@@ -6,14 +6,19 @@ repeated exactly.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
+import cv2
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from camcal.geometry.camera import look_at
 from camcal.geometry.distortion import Distortion
 from camcal.rig import Camera
 
-__all__ = ["example_camera", "points_in_view", "procedural_texture", "room_corner_planes", "render_planes"]
+__all__ = ["example_camera", "points_in_view", "procedural_texture", "colour_texture", "layered_stereo_pair",
+           "room_corner_planes", "render_planes", "render_stereo_sequence"]
 
 
 def example_camera(
@@ -75,6 +80,63 @@ def procedural_texture(rng: np.random.Generator, size: int = 1024) -> NDArray[np
     return (255.0 * texture / texture.max()).astype(np.uint8)
 
 
+def colour_texture(rng: np.random.Generator, size: int = 512, low: float = 0.03, high: float = 0.9) -> NDArray[np.float64]:
+    """A colourful linear RGB texture ``(size, size, 3)`` in ``[low, high]``: one
+    :func:`procedural_texture` per channel, so hues and saturations vary at every scale."""
+    channels = [procedural_texture(rng, size).astype(np.float64) / 255.0 for _ in range(3)]
+    return low + (high - low) * np.stack(channels, axis=2)
+
+
+def layered_stereo_pair(
+    rng: np.random.Generator,
+    width: int = 320,
+    height: int = 240,
+    background: tuple[int, int] = (8, 16),
+    foreground: int = 28,
+    box: tuple[float, float, float, float] = (0.4, 0.3, 0.3, 0.4),
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+    """A rectified stereo pair of a textured slanted background and a textured box in front.
+
+    The background's disparity grows row by row from ``background[0]`` (top)
+    to ``background[1]`` (bottom), whole pixels per row; the foreground
+    rectangle (``box`` = x, y, width, height as fractions of the left image)
+    has disparity ``foreground``. A point at column ``x`` of the left view
+    is at ``x - d`` in the right view (rows aligned, pixel centres at
+    integers), so the right view is the left's layers shifted exactly, with
+    no resampling.
+
+    Returns
+    -------
+    left, right : ndarray, shape (height, width, 3)
+        Linear RGB (:func:`colour_texture` values).
+    disparity : ndarray, shape (height, width)
+        True disparity of each left pixel.
+    occluded : ndarray, shape (height, width), bool
+        Left pixels the right view does not see (hidden by the box or out
+        of its frame).
+    """
+    margin = max(background[1], foreground) + 1
+    size = max(width + 2 * margin, height)
+    back = colour_texture(rng, size)[:height]
+    front = colour_texture(rng, size)[:height]
+    x0, y0 = int(box[0] * width), int(box[1] * height)
+    x1, y1 = x0 + int(box[2] * width), y0 + int(box[3] * height)
+    ys = np.arange(height)[:, None]
+    xs = np.arange(width)[None, :]
+    d_back = np.round(background[0] + (background[1] - background[0]) * ys / max(height - 1, 1)).astype(int)
+    in_box_rows = (ys >= y0) & (ys < y1)
+    left_front = in_box_rows & (xs >= x0) & (xs < x1)
+    x_back = np.broadcast_to(xs, (height, width))
+    left = np.where(left_front[..., None], front[ys, xs + margin], back[ys, x_back + margin])
+    right_front = in_box_rows & (xs + foreground >= x0) & (xs + foreground < x1)
+    right = np.where(right_front[..., None], front[ys, xs + foreground + margin], back[ys, xs + d_back + margin])
+    disparity = np.where(left_front, float(foreground), d_back.astype(np.float64) + 0 * xs)
+    x_right = xs - disparity.astype(int)
+    hidden = in_box_rows & (x_right + foreground >= x0) & (x_right + foreground < x1) & ~left_front
+    occluded = hidden | (x_right < 0)
+    return left, right, disparity, occluded
+
+
 def room_corner_planes(extent: float = 8.0) -> tuple[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]], ...]:
     """Three textured planes meeting at the world origin: floor z = 0 and walls
     x = 0, y = 0, each as (origin, axis_s, axis_t) spanning ``extent`` metres."""
@@ -129,3 +191,39 @@ def render_planes(
                             cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).ravel()
         image[visible] = sampled[visible]
     return np.clip(image, 0, 255).round().astype(np.uint8).reshape(height, width)
+
+
+def render_stereo_sequence(
+    root: str | os.PathLike,
+    n_frames: int = 7,
+    K: ArrayLike = ((500.0, 0.0, 319.5), (0.0, 500.0, 239.5), (0.0, 0.0, 1.0)),
+    image_size: tuple[int, int] = (640, 480),
+    baseline: float = 0.3,
+    distortion: Distortion | None = None,
+    seed: int = 0,
+) -> dict[tuple[str, int], Camera]:
+    """Render a stereo rig moving through the textured room corner, for SfM.
+
+    Writes ``root/left/0000.png``, ``root/right/0000.png``... The rig's
+    right camera sits ``baseline`` along the left camera's x axis; the rig
+    moves along an arc looking at the corner.
+
+    Returns
+    -------
+    dict
+        ``(camera name, frame) -> Camera``: the ground truth (world poses).
+    """
+    root = Path(root)
+    rng = np.random.default_rng(seed)
+    textures = tuple(procedural_texture(rng) for _ in range(3))
+    lens = distortion if distortion is not None else Distortion("polynomial", {"k1": -0.05, "k2": 0.0})
+    truth = {}
+    for i in range(n_frames):
+        centre = np.array([5.5 - 0.4 * i, 4.0 + 0.3 * i, 1.6 + 0.05 * i])
+        R = look_at(centre, [1.5 + 0.1 * i, 1.5, 1.0])
+        for name, offset in (("left", 0.0), ("right", baseline)):
+            camera = Camera(name, image_size, np.asarray(K, dtype=np.float64), lens, R, centre + R[0] * offset)
+            (root / name).mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(root / name / f"{i:04d}.png"), render_planes(camera, room_corner_planes(), textures))
+            truth[name, i] = camera
+    return truth

@@ -14,9 +14,12 @@ Modules: ``chart`` (reference charts, cv2.mcc detection, sampling),
 root-polynomial, rbf), ``select`` (``--model auto``), ``evaluate`` (Delta E
 statistics, leave-one-out, plots), ``spectral`` (simulated cameras,
 sensitivity estimation, mu-factor, chromatic adaptation), ``patches`` (patch
-CSV), ``characterise`` (the ``colour fit`` pipeline), ``fitfile`` (the file).
+CSV), ``characterise`` (the ``colour fit`` pipeline), ``fitfile`` (the file),
+``match`` (camera-to-camera matching: chart and stereo routes; importing the
+package registers its ``match`` kind in ``fitfile.KIND_READERS``).
 """
 
 from camcal.colour.fitfile import ColourFit, load_colour_file, load_fit
+from camcal.colour.match import ColourMatch, load_match
 
-__all__ = ["ColourFit", "load_fit", "load_colour_file"]
+__all__ = ["ColourFit", "ColourMatch", "load_fit", "load_colour_file", "load_match"]

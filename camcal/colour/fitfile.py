@@ -102,6 +102,7 @@ __all__ = [
     "FORMAT",
     "VERSION",
     "KIND_READERS",
+    "LinearisedModel",
     "ColourFit",
     "load_fit",
     "load_colour_file",
@@ -245,17 +246,38 @@ def _check_candidate(value: Any, where: str) -> None:
     _number(value["loo_p95"], f"{where}.loo_p95", 0.0)
 
 
-def _check_characterisation(data: dict) -> None:
-    _keys(data, "colour fit", ("format", "version", "kind", "camera", "linearisation", "model", "training",
-                               "target", "evaluation", "provenance"))
-    _string(data["camera"], "camera", nullable=True)
-    lin = _keys(data["linearisation"], "linearisation", ("channels",), ("residual",))
+def _check_linearisation(value: Any) -> None:
+    lin = _keys(value, "linearisation", ("channels",), ("residual",))
     if not isinstance(lin["channels"], list) or len(lin["channels"]) != 3:
         raise CamcalError("linearisation.channels: expected 3 curves (R, G, B)")
     for i, curve in enumerate(lin["channels"]):
         _check_curve(curve, f"linearisation.channels[{i}]")
     if "residual" in lin:
         _number(lin["residual"], "linearisation.residual", 0.0)
+
+
+def _check_provenance(value: Any) -> None:
+    provenance = _keys(value, "provenance", ("tool", "created"), ("source",))
+    for key in provenance:
+        _string(provenance[key], f"provenance.{key}")
+
+
+def _model_and_linearisation(data: dict, read_model: Callable[[dict], Any]) -> tuple[Any, Linearisation]:
+    """Build a checked file's model and linearisation; errors start with the field."""
+    try:
+        return read_model(data["model"]), Linearisation.from_dict(data["linearisation"])
+    except CamcalError as error:
+        message = str(error)
+        if not message.startswith(("model", "linearisation")):
+            message = f"model: {message}"
+        raise CamcalError(message) from None
+
+
+def _check_characterisation(data: dict) -> None:
+    _keys(data, "colour fit", ("format", "version", "kind", "camera", "linearisation", "model", "training",
+                               "target", "evaluation", "provenance"))
+    _string(data["camera"], "camera", nullable=True)
+    _check_linearisation(data["linearisation"])
     _check_model(data["model"], "model")
     training = _keys(data["training"], "training", ("illuminant", "white_XYZ", "reference", "n_patches", "selection"))
     _string(training["illuminant"], "training.illuminant")
@@ -284,16 +306,49 @@ def _check_characterisation(data: dict) -> None:
     _check_stats(evaluation["train"], "evaluation.train", nullable=False)
     _check_stats(evaluation["loo"], "evaluation.loo")
     _check_stats(evaluation["test"], "evaluation.test")
-    provenance = _keys(data["provenance"], "provenance", ("tool", "created"), ("source",))
-    for key in provenance:
-        _string(provenance[key], f"provenance.{key}")
+    _check_provenance(data["provenance"])
 
 
 # --------------------------------------------------------------------------
 
 
+class LinearisedModel:
+    """Shared methods of the colour files' objects (need ``linearisation``, ``model``, ``to_dict``).
+
+    ``linearise(codes)``: code values ``(N, 3)`` in [0, 1] to linear camera
+    RGB; ``apply(RGB)``: LINEAR camera RGB ``(N, 3)`` through the model
+    (XYZ for a characterisation, the other camera's RGB for a match);
+    ``apply_codes(codes)``: both, ``apply(linearise(codes))``; ``save``
+    writes the file atomically; equality compares the files' contents.
+    """
+
+    linearisation: Linearisation
+    model: Any
+
+    def linearise(self, codes: Any) -> np.ndarray:
+        """Code values ``(N, 3)`` in [0, 1] to linear camera RGB ``(N, 3)``."""
+        return self.linearisation.apply(codes)
+
+    def apply(self, RGB: Any) -> np.ndarray:
+        """LINEAR camera RGB ``(N, 3)`` through the model, ``(N, 3)``."""
+        return self.model.apply(RGB)
+
+    def apply_codes(self, codes: Any) -> np.ndarray:
+        """Code values ``(N, 3)`` through linearisation and model: ``apply(linearise(codes))``."""
+        return self.apply(self.linearise(codes))
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the file atomically; returns its path."""
+        return write_json(path, self.to_dict())  # type: ignore[attr-defined]
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and self.to_dict() == other.to_dict()  # type: ignore[attr-defined]
+
+    __hash__ = None  # type: ignore[assignment]
+
+
 @dataclass(frozen=True, eq=False)
-class ColourFit:
+class ColourFit(LinearisedModel):
     """A camera characterisation: linearisation, model, whites, evaluation.
 
     ``linearise(codes)`` maps code values (normalised to [0, 1]) to linear
@@ -319,18 +374,6 @@ class ColourFit:
     provenance: dict = field(default_factory=dict)
 
     kind = "characterisation"
-
-    def linearise(self, codes: Any) -> np.ndarray:
-        """Code values ``(N, 3)`` in [0, 1] to linear camera RGB ``(N, 3)``."""
-        return self.linearisation.apply(codes)
-
-    def apply(self, RGB: Any) -> np.ndarray:
-        """LINEAR camera RGB ``(N, 3)`` to XYZ ``(N, 3)`` (target white Y = 1)."""
-        return self.model.apply(RGB)
-
-    def apply_codes(self, codes: Any) -> np.ndarray:
-        """Code values ``(N, 3)`` to XYZ: ``apply(linearise(codes))``."""
-        return self.apply(self.linearise(codes))
 
     def to_dict(self) -> dict:
         """The file's JSON object."""
@@ -367,14 +410,7 @@ class ColourFit:
         _check_header(data, "characterisation")
         _check_characterisation(data)
         training, target = data["training"], data["target"]
-        try:
-            model = model_from_dict(data["model"])
-            linearisation = Linearisation.from_dict(data["linearisation"])
-        except CamcalError as error:
-            message = str(error)
-            if not message.startswith(("model", "linearisation")):
-                message = f"model: {message}"
-            raise CamcalError(message) from None
+        model, linearisation = _model_and_linearisation(data, model_from_dict)
         return cls(
             linearisation=linearisation,
             model=model,
@@ -391,14 +427,6 @@ class ColourFit:
             provenance=dict(data["provenance"]),
         )
 
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the file atomically; returns its path."""
-        return write_json(path, self.to_dict())
-
-    def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self.to_dict() == other.to_dict()  # type: ignore[attr-defined]
-
-    __hash__ = None  # type: ignore[assignment]
 
 
 def _check_header(data: Any, kind: str | None = None) -> str:
@@ -424,12 +452,25 @@ def read_colour_dict(path: str | os.PathLike) -> dict:
     return read_json(path, "colour fit file")
 
 
-def load_colour_file(path: str | os.PathLike) -> Any:
-    """Load any kind of ``*.colour.json`` (dispatching on ``kind``)."""
+def load_colour_file(path: str | os.PathLike, kind: str | None = None) -> Any:
+    """Load a ``*.colour.json`` of any kind (dispatching on ``kind`` in the file).
+
+    Parameters
+    ----------
+    path
+        The file.
+    kind
+        When given, the file must be of this kind.
+
+    Raises
+    ------
+    CamcalError
+        ``"<path>: <field>: <what is wrong>"`` for a bad file.
+    """
     data = read_colour_dict(path)
     try:
-        kind = _check_header(data)
-        return KIND_READERS[kind](data)
+        found = _check_header(data, kind)
+        return KIND_READERS[found](data)
     except CamcalError as error:
         raise CamcalError(f"{path}: {error}") from None
 
@@ -448,8 +489,4 @@ def load_fit(path: str | os.PathLike) -> ColourFit:
     CamcalError
         ``"<path>: <field>: <what is wrong>"`` for a bad file.
     """
-    data = read_colour_dict(path)
-    try:
-        return ColourFit.from_dict(data)
-    except CamcalError as error:
-        raise CamcalError(f"{path}: {error}") from None
+    return load_colour_file(path, "characterisation")

@@ -12,6 +12,12 @@ is the reference sensor, at the rig origin), plus a sibling PLY of the
 sparse points. COLMAP's pixel centre (0.5) is converted at the boundary
 (:mod:`camcal.io.colmap`).
 
+After mapping, camcal's bundle adjustment (:mod:`camcal.geometry.bundle`)
+refines the seed: intrinsics shared per camera, one rig pose for all frames,
+optionally held at a known calibration (``known_rig``, e.g. from
+``calibrate board``, which also gives the reconstruction its units), a robust
+loss, and the uncertainty of the intrinsics and the rig pose.
+
 pycolmap is imported only here (and in the bundle adjustment module).
 
 References
@@ -33,16 +39,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.errors import CamcalError
+from camcal.geometry.bundle import BundleOptions, BundleResult, bundle_adjust, hold_rig, state_from_reconstruction, state_to_reconstruction
 from camcal.geometry.camera import from_colmap
 from camcal.io.colmap import camera_from_colmap
 from camcal.io.ply import write_points_ply
 from camcal.rig import Frame, Rig, make_provenance
 
-__all__ = ["IMAGE_SUFFIXES", "SfmResult", "solve_sfm"]
+__all__ = ["IMAGE_SUFFIXES", "MODELS", "SfmResult", "collect_images", "solve_sfm"]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 MATCHERS = ("exhaustive", "sequential")
 MAPPERS = ("incremental", "global")
+#: camcal's distortion models and the COLMAP camera model that is exactly each of them.
+MODELS = {"division": "SIMPLE_DIVISION", "polynomial": "RADIAL", "opencv": "OPENCV", "none": "SIMPLE_PINHOLE"}
 
 
 @dataclass(frozen=True)
@@ -66,6 +75,9 @@ class SfmResult:
         The same per camera.
     reconstruction_dir : Path
         The COLMAP model (binary), for other tools.
+    bundle : BundleResult or None
+        camcal's refinement of the pycolmap seed (costs, RMS before/after,
+        sigmas), None when not refined.
     """
 
     rig: Rig
@@ -76,50 +88,88 @@ class SfmResult:
     rms_px: float
     per_camera_rms_px: dict[str, float]
     reconstruction_dir: Path
+    bundle: BundleResult | None = None
 
 
-def _list_images(folder: Path) -> list[str]:
+def _list_images(folder: Path, pattern: str = "*") -> list[Path]:
     if not folder.is_dir():
         raise CamcalError(f"image folder not found: {folder}")
-    names = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    if not names:
-        raise CamcalError(f"no images ({', '.join(IMAGE_SUFFIXES)}) in {folder}")
-    return names
+    images = sorted(p for p in folder.glob(pattern) if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not images:
+        raise CamcalError(f"no images ({', '.join(IMAGE_SUFFIXES)}) matching {pattern!r} in {folder}")
+    return images
 
 
-def _stage_images(folders: dict[str, Path], staging: Path) -> list[str]:
-    """Link each camera's images under ``staging/<camera>/`` (COLMAP's rig layout)."""
+def collect_images(folders: list[Path], camera_globs: dict[str, str] | None = None) -> dict[str, list[Path]]:
+    """Images per camera: one folder per camera (named after it), or globs in one folder.
+
+    Parameters
+    ----------
+    folders : list of Path
+        Image folders. Without ``camera_globs`` each is one camera; a single
+        folder holding only sub-folders of images is a rig, one camera per
+        sub-folder.
+    camera_globs : dict of str to str, optional
+        Camera name -> glob relative to the (single) folder, e.g.
+        ``{"left": "*_L.png", "right": "*_R.png"}``; frames pair up by sorted order.
+    """
+    folders = [Path(folder) for folder in folders]
+    if camera_globs:
+        if len(folders) != 1:
+            raise CamcalError("--camera NAME=GLOB selects images inside one folder: give exactly one")
+        return {name: _list_images(folders[0], pattern) for name, pattern in camera_globs.items()}
+    if len(folders) == 1 and folders[0].is_dir():
+        subfolders = sorted(p for p in folders[0].iterdir() if p.is_dir())
+        if subfolders and not any(p.suffix.lower() in IMAGE_SUFFIXES for p in folders[0].iterdir() if p.is_file()):
+            folders = subfolders
+    names = [folder.name for folder in folders]
+    if len(set(names)) != len(names):
+        raise CamcalError("image folders must have distinct names (they name the cameras)")
+    return {folder.name: _list_images(folder) for folder in folders}
+
+
+def _stage_images(images: dict[str, list[Path]], staging: Path) -> list[str]:
+    """Link each camera's images under ``staging/<camera>/`` (COLMAP's rig layout).
+
+    Frames pair up by position in each camera's sorted list: the k-th image
+    of every camera is linked under the same name ``<k>.<suffix>``.
+    """
     if staging.exists():
         shutil.rmtree(staging)
     names: list[str] = []
-    for camera, folder in folders.items():
+    for camera, paths in images.items():
         (staging / camera).mkdir(parents=True)
-        for name in _list_images(folder):
-            os.symlink((folder / name).resolve(), staging / camera / name)
+        for index, path in enumerate(paths):
+            name = f"{index:06d}{path.suffix.lower()}"
+            os.symlink(path.resolve(), staging / camera / name)
             names.append(f"{camera}/{name}")
     return names
 
 
 def solve_sfm(
-    folders: dict[str, Path],
+    folders: dict[str, Path | list[Path]],
     out_dir: Path,
     camera_model: str = "SIMPLE_RADIAL",
     matcher: str = "exhaustive",
     mapper: str = "incremental",
     seed: int = 0,
     num_threads: int = -1,
+    refine: bool = True,
+    known_rig: Rig | None = None,
+    loss: str = "trivial",
 ) -> SfmResult:
-    """Run pycolmap SfM on one folder per camera and convert the result to a Rig.
+    """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
     Parameters
     ----------
-    folders : dict of str to Path
-        Camera name -> its image folder. With several cameras, frames are
-        matched by file name (``left/0001.png`` with ``right/0001.png``); the
-        first camera is the rig's reference.
+    folders : dict of str to Path or list of Path
+        Camera name -> its image folder (or its images, see
+        :func:`collect_images`). With several cameras, frames pair up by the
+        sorted order of each camera's images; the first camera is the rig's
+        reference.
     out_dir : Path
         Receives ``database.db``, ``images/`` (links), ``sparse/`` (the COLMAP
-        model), ``sfm.rig.json`` and ``points.ply``.
+        model), ``solve.rig.json`` and ``points.ply``.
     camera_model : str
         COLMAP model for every camera: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL,
         RADIAL, OPENCV, SIMPLE_DIVISION... (one with a camcal counterpart).
@@ -130,6 +180,14 @@ def solve_sfm(
         The mapper's random seed (repeatable runs).
     num_threads : int
         -1 uses every core.
+    refine : bool
+        Run camcal's bundle adjustment after pycolmap's mapping.
+    known_rig : Rig, optional
+        A calibrated rig with the same camera names (``calibrate board``):
+        the cameras' relative poses are held at it and the reconstruction
+        takes its units.
+    loss : {"trivial", "huber", "soft_l1", "cauchy"}
+        Robust loss of the refinement (scale 1 px).
 
     Returns
     -------
@@ -148,7 +206,14 @@ def solve_sfm(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     image_dir = out_dir / "images"
-    image_names = _stage_images({name: Path(folder) for name, folder in folders.items()}, image_dir)
+    images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
+              for name, value in folders.items()}
+    if known_rig is not None:
+        missing = [name for name in images if name not in {camera.name for camera in known_rig.cameras}]
+        if missing:
+            raise CamcalError(f"the known rig has no camera named {', '.join(map(repr, missing))}")
+    options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None)
+    image_names = _stage_images(images, image_dir)
     if len(image_names) < 2:
         raise CamcalError(f"need at least 2 images, got {len(image_names)}")
     database = out_dir / "database.db"
@@ -194,10 +259,31 @@ def solve_sfm(
     if not models:
         raise CamcalError("structure from motion registered no images: too little texture or overlap?")
     reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
+    bundle = None
+    if refine:
+        _progress("bundle adjustment (camcal)")
+        names = {camera_id: _camera_name(reconstruction, camera_id) for camera_id in reconstruction.cameras}
+        state = state_from_reconstruction(reconstruction, names)
+        if known_rig is not None:
+            state = hold_rig(state, _relative_poses(known_rig, state.camera_names[0]))
+        bundle = bundle_adjust(state, options)
+        state_to_reconstruction(bundle.state, reconstruction)
     model_dir = sparse / "best"
     model_dir.mkdir(exist_ok=True)
     reconstruction.write(model_dir)
-    return _to_result(reconstruction, list(folders), image_names, out_dir, model_dir)
+    originals = {staged: Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
+                 for staged, path in zip(image_names, (p for paths in images.values() for p in paths))}
+    units = known_rig.units if known_rig is not None else "arbitrary"
+    return _to_result(reconstruction, list(folders), image_names, out_dir, model_dir, originals, units, bundle)
+
+
+def _relative_poses(rig: Rig, reference: str) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Each camera's ``cam_from_reference`` (R, t) in a calibrated rig (X_cam = R X_ref + t)."""
+    names = {camera.name for camera in rig.cameras}
+    if reference not in names:
+        raise CamcalError(f"the known rig has no camera named {reference!r}")
+    ref = rig.camera(reference)
+    return {camera.name: (camera.R @ ref.R.T, camera.R @ (ref.c - camera.c)) for camera in rig.cameras}
 
 
 def _map(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, seed: int, num_threads: int) -> dict:
@@ -209,7 +295,8 @@ def _map(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, s
     return pycolmap.global_mapping(database, image_dir, sparse)
 
 
-def _to_result(reconstruction, camera_names: list[str], image_names: list[str], out_dir: Path, model_dir: Path) -> SfmResult:
+def _to_result(reconstruction, camera_names: list[str], image_names: list[str], out_dir: Path, model_dir: Path,
+               originals: dict[str, str], units: str, bundle: BundleResult | None) -> SfmResult:
     """Convert a pycolmap reconstruction with one rig into camcal's Rig."""
     if reconstruction.num_rigs() != 1:
         raise CamcalError(f"expected one rig in the reconstruction, got {reconstruction.num_rigs()}")
@@ -239,7 +326,7 @@ def _to_result(reconstruction, camera_names: list[str], image_names: list[str], 
         images = {}
         for data_id in frame.image_ids:
             image = reconstruction.image(data_id.id)
-            images[camera_of_sensor[image.camera_id]] = f"images/{image.name}"
+            images[camera_of_sensor[image.camera_id]] = originals[image.name]
             registered.add(image.name)
         frames.append(Frame(frame_index, R, c, images))
     points_path = out_dir / "points.ply"
@@ -248,12 +335,13 @@ def _to_result(reconstruction, camera_names: list[str], image_names: list[str], 
     tracks = np.array([p.track.length() for p in reconstruction.points3D.values()], dtype=np.int32)
     write_points_ply(points_path, xyz, colours, tracks)
     result_rig = Rig(
-        tuple(cameras), units="arbitrary", frames=tuple(frames), points=points_path.name,
-        provenance=make_provenance("sfm (pycolmap)", images=len(image_names)),
+        tuple(cameras), units=units, frames=tuple(frames), points=points_path.name,
+        provenance=make_provenance("sfm (pycolmap)" + (" + camcal bundle adjustment" if bundle else ""),
+                                   images=len(image_names)),
     )
-    per_camera, rms = _reprojection_rms(reconstruction, result_rig, camera_of_sensor, frames)
-    result_rig = _with_quality(result_rig, per_camera)
-    result_rig.save(out_dir / "sfm.rig.json")
+    per_camera, rms = _reprojection_rms(reconstruction, result_rig, camera_of_sensor, frames, originals)
+    result_rig = _with_quality(result_rig, per_camera, bundle)
+    result_rig.save(out_dir / "solve.rig.json")
     return SfmResult(
         rig=result_rig,
         n_images=len(image_names),
@@ -263,6 +351,7 @@ def _to_result(reconstruction, camera_names: list[str], image_names: list[str], 
         rms_px=rms,
         per_camera_rms_px={name: value for name, (value, _) in per_camera.items()},
         reconstruction_dir=model_dir,
+        bundle=bundle,
     )
 
 
@@ -281,13 +370,15 @@ def _camera_name(reconstruction, camera_id: int) -> str:
     raise CamcalError(f"COLMAP camera {camera_id} has no registered image")
 
 
-def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str], frames: list[Frame]):
+def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str], frames: list[Frame],
+                      originals: dict[str, str]):
     """Reproject every observation through camcal's rig (checks the conversion too)."""
     squared: dict[str, list[NDArray[np.float64]]] = {}
+    staged = {original: name for name, original in originals.items()}
     frame_of_image = {}
     for frame in frames:
         for path in frame.images.values():
-            frame_of_image[path.removeprefix("images/")] = frame.index
+            frame_of_image[staged[path]] = frame.index
     for image in reconstruction.images.values():
         if image.name not in frame_of_image:
             continue
@@ -304,13 +395,19 @@ def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str]
     return per_camera, float(np.sqrt(np.mean(everything)))
 
 
-def _with_quality(rig: Rig, per_camera: dict[str, tuple[float, int]]) -> Rig:
-    cameras = tuple(
-        dataclasses.replace(camera, quality={"rms_px": per_camera[camera.name][0], "n_observations": per_camera[camera.name][1]})
-        if camera.name in per_camera else camera
-        for camera in rig.cameras
-    )
-    return dataclasses.replace(rig, cameras=cameras)
+def _with_quality(rig: Rig, per_camera: dict[str, tuple[float, int]], bundle: BundleResult | None) -> Rig:
+    cameras = []
+    for camera in rig.cameras:
+        if camera.name not in per_camera:
+            cameras.append(camera)
+            continue
+        quality: dict = {"rms_px": per_camera[camera.name][0], "n_observations": per_camera[camera.name][1]}
+        if bundle is not None:
+            quality["rms_seed_px"] = bundle.rms_before_px[camera.name]
+            prefix = f"{camera.name}."
+            quality["sigma"] = {key[len(prefix):]: value for key, value in bundle.sigmas.items() if key.startswith(prefix)}
+        cameras.append(dataclasses.replace(camera, quality=quality))
+    return dataclasses.replace(rig, cameras=tuple(cameras))
 
 
 def _progress(message: str) -> None:

@@ -40,6 +40,7 @@ from numpy.typing import NDArray  # noqa: E402
 from camcal.errors import CamcalError  # noqa: E402
 from camcal.geometry.undistort import make_undistorter  # noqa: E402
 from camcal.io.atomic import atomic_path  # noqa: E402
+from camcal.io.frames import imread  # noqa: E402
 from camcal.rig import Camera, Rig, make_provenance  # noqa: E402
 
 __all__ = ["STMaps", "st_from_pixels", "pixels_from_st", "make_stmaps", "write_exr", "read_exr", "write_stmaps"]
@@ -154,13 +155,7 @@ def write_exr(path: str | os.PathLike, rgb: NDArray) -> Path:
 
 def read_exr(path: str | os.PathLike) -> NDArray[np.float32]:
     """Read an EXR written by :func:`write_exr`, as RGB float32."""
-    try:
-        bgr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    except cv2.error as error:
-        raise CamcalError(f"OpenCV cannot read EXR {path}: {str(error).strip().splitlines()[-1]}") from None
-    if bgr is None:
-        raise CamcalError(f"cannot read {path}")
-    return bgr[..., ::-1].copy()
+    return imread(path)[..., ::-1].copy()
 
 
 def write_stmaps(rig: Rig, camera_name: str, out_dir: str | os.PathLike, overscan: float = 1.1) -> list[Path]:

@@ -2,6 +2,9 @@
 
 A reader never sees a half-written file, and a failure leaves no partial
 output behind (the temporary file is removed, an existing target is kept).
+The file gets the permissions a plain ``open(target, "w")`` would give
+(``0o666`` less the process umask), not ``mkstemp``'s private ``0o600``:
+outputs on a shared farm disk stay readable by the rest of the pipeline.
 """
 
 from __future__ import annotations
@@ -13,6 +16,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = ["atomic_path", "atomic_write_text"]
+
+# Read once at import (os.umask can only be read by setting it, which is not thread-safe).
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
 
 
 @contextlib.contextmanager
@@ -34,6 +41,7 @@ def atomic_path(target: str | os.PathLike, suffix: str | None = None) -> Iterato
     )
     os.close(fd)
     tmp = Path(tmp_name)
+    os.chmod(tmp, 0o666 & ~_UMASK)
     try:
         yield tmp
         os.replace(tmp, target)

@@ -3,37 +3,17 @@
 import subprocess
 import sys
 
-import cv2
 import numpy as np
 import pytest
 
+from camcal.cli import main
 from camcal.errors import CamcalError
-from camcal.geometry.camera import look_at
-from camcal.geometry.distortion import Distortion
-from camcal.geometry.sfm import solve_sfm
+from camcal.geometry.sfm import collect_images, solve_sfm
 from camcal.io.ply import read_points_ply, write_points_ply
-from camcal.rig import Camera, Rig
-from camcal.synthetic import procedural_texture, render_planes, room_corner_planes
+from camcal.rig import Rig
+from camcal.synthetic import render_stereo_sequence
 
-K = np.array([[500.0, 0.0, 319.5], [0.0, 500.0, 239.5], [0.0, 0.0, 1.0]])
 BASELINE = 0.3
-
-
-def render_stereo_sequence(root, n_frames=7):
-    """A stereo rig (baseline 0.3 m along its x axis) moving through a textured room corner."""
-    rng = np.random.default_rng(0)
-    textures = tuple(procedural_texture(rng) for _ in range(3))
-    lens = Distortion("polynomial", {"k1": -0.05, "k2": 0.0})
-    truth = {}
-    for i in range(n_frames):
-        centre = np.array([5.5 - 0.4 * i, 4.0 + 0.3 * i, 1.6 + 0.05 * i])
-        R = look_at(centre, [1.5 + 0.1 * i, 1.5, 1.0])
-        for name, offset in (("left", 0.0), ("right", BASELINE)):
-            camera = Camera(name, (640, 480), K, lens, R, centre + R[0] * offset)
-            (root / name).mkdir(parents=True, exist_ok=True)
-            cv2.imwrite(str(root / name / f"{i:04d}.png"), render_planes(camera, room_corner_planes(), textures))
-            truth[name, i] = camera
-    return truth
 
 
 def similarity(source, target):
@@ -53,7 +33,7 @@ def test_stereo_sequence_recovers_known_rig(tmp_path):
     result = solve_sfm({"left": tmp_path / "in/left", "right": tmp_path / "in/right"}, tmp_path / "out")
     assert result.n_registered == result.n_images == 14 and not result.unregistered
     assert result.rms_px < 0.5
-    rig = Rig.load(tmp_path / "out/sfm.rig.json")
+    rig = Rig.load(tmp_path / "out/solve.rig.json")
     for camera in rig.cameras:
         assert abs(camera.K[0, 0] / 500.0 - 1) < 0.005
     solved = {(name, frame.index): rig.camera_at_frame(name, frame.index) for frame in rig.frames for name in frame.images}
@@ -73,6 +53,24 @@ def test_stereo_sequence_recovers_known_rig(tmp_path):
     # the PLY holds the sparse points with their track lengths
     points = read_points_ply(tmp_path / "out" / rig.points)
     assert len(points) == result.n_points and points["track_length"].min() >= 2
+    # camcal's refinement never ends above its pycolmap seed, and reports per-camera figures
+    assert result.bundle is not None and result.bundle.final_cost <= result.bundle.initial_cost
+    assert set(result.bundle.rms_after_px) == {"left", "right"}
+    assert 0 < rig.camera("left").quality["sigma"]["f"] < 5.0
+    # frames point at the user's images
+    assert (tmp_path / "out" / rig.frames[0].images["left"]).resolve() == (tmp_path / "in/left/0000.png").resolve()
+
+    # the same images with the rig held at a known (board) calibration: metric units, exact baseline
+    known = Rig((truth["left", 0], truth["right", 0]), units="m")
+    known.save(tmp_path / "known.rig.json")
+    code = main(["solve", str(tmp_path / "in"), "--rig", str(tmp_path / "known.rig.json"), "--out", str(tmp_path / "metric")])
+    assert code == 0
+    metric = Rig.load(tmp_path / "metric/solve.rig.json")
+    assert metric.units == "m"
+    assert np.linalg.norm(metric.camera("right").c) == pytest.approx(BASELINE, rel=1e-9)
+    centres = np.array([metric.camera_at_frame("left", frame.index).c for frame in metric.frames])
+    true_centres = np.array([truth["left", i].c for i in range(len(centres))])
+    assert np.linalg.norm(centres[-1] - centres[0]) == pytest.approx(np.linalg.norm(true_centres[-1] - true_centres[0]), rel=0.005)
 
 
 def test_ply_round_trip(tmp_path):
@@ -94,10 +92,27 @@ def test_bad_inputs(tmp_path):
         solve_sfm({"a": tmp_path / "empty"}, tmp_path / "out", matcher="magic")
 
 
+def test_collect_images_by_folder_subfolder_and_glob(tmp_path):
+    for name in ("a_L.png", "a_R.png", "b_L.png", "b_R.png", "notes.txt"):
+        (tmp_path / "flat").mkdir(exist_ok=True)
+        (tmp_path / "flat" / name).write_bytes(b"")
+    by_glob = collect_images([tmp_path / "flat"], {"left": "*_L.png", "right": "*_R.png"})
+    assert [p.name for p in by_glob["left"]] == ["a_L.png", "b_L.png"] and len(by_glob["right"]) == 2
+    for camera in ("left", "right"):
+        (tmp_path / "rig" / camera).mkdir(parents=True)
+        (tmp_path / "rig" / camera / "0001.png").write_bytes(b"")
+    assert list(collect_images([tmp_path / "rig"])) == ["left", "right"]
+    assert list(collect_images([tmp_path / "rig" / "left"])) == ["left"]
+    with pytest.raises(CamcalError, match="no images"):
+        collect_images([tmp_path / "flat"], {"left": "*.jpg"})
+    with pytest.raises(CamcalError, match="exactly one"):
+        collect_images([tmp_path / "flat", tmp_path / "rig"], {"left": "*.png"})
+
+
 def test_solve_cli_help_and_bad_input(tmp_path):
     help_run = subprocess.run([sys.executable, "-m", "camcal", "solve", "--help"], capture_output=True, text=True)
     assert help_run.returncode == 0 and "usage: camcal solve" in help_run.stdout
     bad = subprocess.run([sys.executable, "-m", "camcal", "solve", str(tmp_path / "nope"), "--out", str(tmp_path / "o")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "image folder not found" in bad.stderr
-    assert not (tmp_path / "o" / "sfm.rig.json").exists()
+    assert not (tmp_path / "o" / "solve.rig.json").exists()

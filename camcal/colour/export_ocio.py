@@ -1,0 +1,956 @@
+"""OpenColorIO export: colour fits as input colour spaces, CLF files and Looks.
+
+A characterisation (``*.colour.json``) becomes one input colour space of an
+OCIO config, named ``camcal <camera>`` in the family ``Input/camcal``
+(the name the Blender add-on looks for), encoding ``scene-linear``, its
+description carrying the fit's held-out CIEDE2000. Its transform to the
+config's scene reference is, in order:
+
+1. the linearisation (code values in [0, 1] to linear camera RGB):
+   ``gamma-offset`` curves exactly as ``MatrixTransform`` (offset),
+   ``ExponentTransform`` (negative values clamp to 0) and a diagonal
+   ``MatrixTransform`` (gain); ``lut1d`` curves as a ``Lut1DTransform`` with
+   the fit's own samples; ``named`` curves sampled into a 4096-entry
+   ``Lut1DTransform`` (the largest relative error is reported). OCIO clamps
+   a ``Lut1DTransform``'s input to [0, 1], the range of code values.
+2. the model (linear camera RGB to XYZ under the fit's target white): a
+   ``matrix3x3`` fit exactly as a ``MatrixTransform``; any other model as a
+   ``FileTransform`` to a CLF file written by OCIO's own writer, holding a
+   log2 shaper, a tetrahedral ``Lut3D`` and the inverse shaper followed by
+   a 3x3 matrix (see :func:`transform_from_callable`).
+3. XYZ (target white) to the reference: chromatic adaptation from the
+   target white to the ACES white (von Kries with Bradford, as OCIO's ACES
+   configs do, or CAT02), the ACES2065-1 ``XYZ -> AP0`` matrix, then the
+   base config's ``aces_interchange`` space to its scene reference (an
+   identity for the ACES configs and camcal's base; a matrix for Blender's
+   config, whose reference is CIE XYZ E).
+
+The building blocks are generic so that other fits (the camera-to-camera
+match, ``kind: match``) plug in:
+
+- :func:`transform_from_callable` turns any ``apply(RGB (N, 3)) -> (N, 3)``
+  (linear RGB to linear RGB, or to XYZ) into OCIO transforms: an exact
+  ``MatrixTransform`` when a 3x3 matrix is given, otherwise a baked shaper +
+  Lut3D whose CIEDE2000 bake error is measured over sample points.
+- :class:`ColourSpaceSpec`, :class:`LookSpec`, :class:`ConfigSpec` describe
+  a config; :func:`build_ocio_config` builds and validates it;
+  :func:`write_ocio_config` writes it with its CLF files; :func:`add_look`
+  adds a Look to a config.
+
+PyOpenColorIO is imported only in this module (lazily, with a clear error).
+
+References
+----------
+- Academy of Motion Picture Arts and Sciences (2014). TB-2014-004:
+  Informative Notes on SMPTE ST 2065-1 - ACES (AP0 primaries, white).
+- SMPTE ST 2136-1 / Academy S-2014-006: Common LUT Format (CLF).
+- Lam, K. M. (1985). Metamerism and colour constancy (Bradford CAT).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from camcal.colour.evaluate import DeltaEStats, delta_E
+from camcal.colour.fitfile import ColourFit
+from camcal.colour.linearise import Linearisation
+from camcal.errors import CamcalError
+from camcal.io.atomic import atomic_write_text
+
+__all__ = [
+    "STUDIO_CONFIG",
+    "CAMCAL_BASE",
+    "FAMILY",
+    "CLF_FORMAT",
+    "LUT_SIZES",
+    "CATS",
+    "colour_space_name",
+    "base_config_path",
+    "load_base_config",
+    "LogShaper",
+    "BakedTransform",
+    "transform_from_callable",
+    "look_name",
+    "look_from_match",
+    "linearisation_transforms",
+    "XYZ_to_reference_matrix",
+    "invert_model",
+    "chart_gamut_samples",
+    "ColourSpaceSpec",
+    "LookSpec",
+    "ConfigSpec",
+    "add_look",
+    "build_ocio_config",
+    "write_ocio_config",
+    "SpaceExport",
+    "OCIOExport",
+    "colour_space_from_fit",
+    "export_ocio",
+]
+
+STUDIO_CONFIG = "ocio://studio-config-latest"
+CAMCAL_BASE = "camcal"
+FAMILY = "Input/camcal"
+CLF_FORMAT = "Academy/ASC Common LUT Format"
+LUT_SIZES = (17, 33, 49, 65)
+CATS = ("Bradford", "CAT02")
+CURVE_SAMPLES = 4096
+LUT_DIR = "luts"
+
+
+def _ocio():
+    try:
+        import PyOpenColorIO as ocio
+    except ImportError as error:  # pragma: no cover - opencolorio is a dependency
+        raise CamcalError(f"OpenColorIO's Python module is not available ({error}); pip install opencolorio") from None
+    return ocio
+
+
+def colour_space_name(camera: str) -> str:
+    """The colour space name of a camera: ``camcal <camera>`` (what the Blender add-on expects).
+
+    Examples
+    --------
+    >>> colour_space_name("A7S-left")
+    'camcal A7S-left'
+    """
+    return f"camcal {camera}"
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("_") or "camera"
+
+
+def base_config_path() -> Path:
+    """camcal's base config template, ``ocio_configs/camcal_base.ocio`` beside the package.
+
+    ``CAMCAL_OCIO_CONFIGS`` overrides the folder.
+    """
+    override = os.environ.get("CAMCAL_OCIO_CONFIGS")
+    folder = Path(override) if override else Path(__file__).resolve().parents[2] / "ocio_configs"
+    path = folder / "camcal_base.ocio"
+    if not path.is_file():
+        raise CamcalError(f"camcal's base OCIO config was not found at {path} (set CAMCAL_OCIO_CONFIGS)")
+    return path
+
+
+def load_base_config(base: str | os.PathLike = STUDIO_CONFIG):
+    """Load a base config: ``"camcal"``, an ``ocio://`` built-in name or a ``.ocio`` file.
+
+    Returns
+    -------
+    PyOpenColorIO.Config
+        A new (editable) config.
+
+    Raises
+    ------
+    CamcalError
+        Unknown built-in, missing or unreadable file.
+    """
+    ocio = _ocio()
+    text = str(base)
+    if text == CAMCAL_BASE:
+        text = str(base_config_path())
+    elif not text.startswith("ocio://") and not Path(text).is_file():
+        raise CamcalError(f"base OCIO config not found: {text} (give 'camcal', ocio://NAME or a .ocio file)")
+    try:
+        return ocio.Config.CreateFromFile(text)
+    except ocio.Exception as error:
+        raise CamcalError(f"cannot load the base OCIO config {text}: {error}") from None
+
+
+# --------------------------------------------------------------------------
+# The shaper and the baking of a callable.
+
+
+@dataclass(frozen=True)
+class LogShaper:
+    """A per-channel log2 shaper with a linear toe, OCIO's ``LogCameraTransform``.
+
+    ``s(x) = (log2(x) - low_stop) / (high_stop - low_stop)`` for
+    ``x >= 2**break_stop``; below the break, the tangent line (C1
+    continuous), so zero and small negative values stay inside [0, 1].
+    ``s = 1`` at ``x = 2**high_stop``. In a CLF file it is a ``Log`` node of
+    style ``cameraLinToLog``.
+
+    Attributes
+    ----------
+    low_stop, high_stop, break_stop
+        In stops (log2) of linear value; ``low_stop < break_stop < high_stop``.
+    """
+
+    low_stop: float = -8.0
+    high_stop: float = 3.0
+    break_stop: float = -6.0
+
+    def __post_init__(self) -> None:
+        if not (self.low_stop < self.break_stop < self.high_stop):
+            raise CamcalError(
+                f"shaper stops must satisfy low < break < high, got {self.low_stop}, {self.break_stop}, "
+                f"{self.high_stop}"
+            )
+
+    @property
+    def _span(self) -> float:
+        return self.high_stop - self.low_stop
+
+    def params(self) -> dict:
+        """Keyword arguments of ``PyOpenColorIO.LogCameraTransform``."""
+        span = self._span
+        return dict(base=2.0, logSideSlope=[1.0 / span] * 3, logSideOffset=[-self.low_stop / span] * 3,
+                    linSideSlope=[1.0] * 3, linSideOffset=[0.0] * 3, linSideBreak=[2.0**self.break_stop] * 3)
+
+    def transform(self, inverse: bool = False):
+        """The OCIO transform (``inverse``: shaped values back to linear)."""
+        ocio = _ocio()
+        direction = ocio.TRANSFORM_DIR_INVERSE if inverse else ocio.TRANSFORM_DIR_FORWARD
+        return ocio.LogCameraTransform(**self.params(), direction=direction)
+
+    def encode(self, x: Any) -> np.ndarray:
+        """``s(x)`` in numpy (any shape)."""
+        x = np.asarray(x, dtype=np.float64)
+        b = 2.0**self.break_stop
+        s_b = (self.break_stop - self.low_stop) / self._span
+        slope = 1.0 / (self._span * b * math.log(2.0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log = (np.log2(np.maximum(x, b)) - self.low_stop) / self._span
+        return np.where(x >= b, log, s_b + slope * (x - b))
+
+    def decode(self, s: Any) -> np.ndarray:
+        """``s^-1`` in numpy (any shape)."""
+        s = np.asarray(s, dtype=np.float64)
+        b = 2.0**self.break_stop
+        s_b = (self.break_stop - self.low_stop) / self._span
+        slope = 1.0 / (self._span * b * math.log(2.0))
+        exp = 2.0 ** (np.maximum(s, s_b) * self._span + self.low_stop)
+        return np.where(s >= s_b, exp, b + (s - s_b) / slope)
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        """Linear values mapped to 0 and 1 (a Lut3D clamps outside them)."""
+        return float(self.decode(0.0)), float(self.decode(1.0))
+
+
+def _matrix44(M: Any, offset: Any = (0.0, 0.0, 0.0)) -> tuple[list[float], list[float]]:
+    M = np.asarray(M, dtype=np.float64)
+    m44 = np.eye(4)
+    m44[:3, :3] = M
+    return [float(v) for v in m44.ravel()], [float(v) for v in offset] + [0.0]
+
+
+def _matrix_transform(M: Any, offset: Any = (0.0, 0.0, 0.0)):
+    ocio = _ocio()
+    m44, off = _matrix44(M, offset)
+    return ocio.MatrixTransform(m44, off)
+
+
+def _cpu(transform, config=None):
+    ocio = _ocio()
+    config = config if config is not None else ocio.Config.CreateRaw()
+    return config.getProcessor(transform).getDefaultCPUProcessor()
+
+
+def _apply_cpu(cpu, RGB: np.ndarray) -> np.ndarray:
+    pixels = np.ascontiguousarray(np.asarray(RGB, dtype=np.float32).reshape(-1, 3))
+    cpu.applyRGB(pixels)
+    return pixels.astype(np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class BakedTransform:
+    """An RGB -> RGB (or XYZ) function as OCIO transforms.
+
+    Attributes
+    ----------
+    kind
+        ``"matrix"`` (exact) or ``"lut3d"`` (baked).
+    transform
+        A ``PyOpenColorIO.GroupTransform``: one ``MatrixTransform``, or
+        ``[shaper, Lut3D, inverse shaper, MatrixTransform(matrix)]``.
+    matrix
+        ``(3, 3)``: the exact matrix, or the least-squares linear part that
+        the Lut3D's residual is taken relative to.
+    lut_size
+        Lut3D edge length, ``None`` for a matrix.
+    shaper
+        The :class:`LogShaper` (``None`` for a matrix).
+    bake_error
+        CIEDE2000 between the OCIO processor and the function over the
+        sample points (``None`` for a matrix, which is exact).
+    """
+
+    kind: str
+    transform: Any
+    matrix: np.ndarray
+    lut_size: int | None = None
+    shaper: LogShaper | None = None
+    bake_error: DeltaEStats | None = None
+
+    def clf_text(self, identifier: str, description: str = "") -> str:
+        """The transform as CLF (SMPTE ST 2136-1) text, written by OCIO's own writer."""
+        ocio = _ocio()
+        group = ocio.GroupTransform([t for t in self.transform])
+        metadata = group.getFormatMetadata()
+        metadata.setID(identifier)
+        if description:
+            metadata.addChildElement("Description", description)
+        return group.write(CLF_FORMAT, ocio.Config.CreateRaw())
+
+
+def _lut3d_group(apply: Callable, n: int, shaper: LogShaper, M: np.ndarray):
+    """``shaper -> Lut3D(s(M^-1 apply(s^-1(u)))) -> shaper^-1 -> M``: the residual of a linear part."""
+    ocio = _ocio()
+    g = np.linspace(0.0, 1.0, n)
+    grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)  # red slowest, blue fastest
+    x = shaper.decode(grid)
+    y = np.asarray(apply(x), dtype=np.float64).reshape(-1, 3) @ np.linalg.inv(M).T
+    table = shaper.encode(y)
+    if not np.all(np.isfinite(table)):
+        raise CamcalError("the function gave non-finite values inside the shaper's domain; cannot bake it")
+    lut = ocio.Lut3DTransform(n)
+    lut.setInterpolation(ocio.INTERP_TETRAHEDRAL)
+    lut.setData(np.ascontiguousarray(table, dtype=np.float32).ravel())
+    return ocio.GroupTransform([shaper.transform(), lut, shaper.transform(inverse=True), _matrix_transform(M)])
+
+
+def transform_from_callable(
+    apply: Callable[[np.ndarray], np.ndarray],
+    *,
+    matrix: Any = None,
+    samples: Any = None,
+    white_XYZ: Any = None,
+    to_XYZ: Callable[[np.ndarray], np.ndarray] | None = None,
+    max_delta_E: float = 0.2,
+    lut_sizes: Sequence[int] = LUT_SIZES,
+    shaper: LogShaper = LogShaper(),
+) -> BakedTransform:
+    """Turn a linear-RGB function into OCIO transforms: exact matrix or shaper + Lut3D.
+
+    Parameters
+    ----------
+    apply
+        ``apply(RGB (N, 3)) -> (N, 3)``: linear RGB to linear RGB (e.g. a
+        camera-to-camera match) or to XYZ (a characterisation).
+    matrix
+        ``(3, 3)``: when given, ``apply`` IS this matrix and the result is an
+        exact ``MatrixTransform`` (``samples`` etc. are not needed).
+    samples
+        ``(N, 3)`` inputs where accuracy matters (e.g. the chart gamut of
+        :func:`chart_gamut_samples`); the bake error is measured there.
+    white_XYZ
+        White for CIELAB/CIEDE2000 of the outputs (after ``to_XYZ``).
+    to_XYZ
+        Maps the function's outputs to XYZ for measuring the error (for an
+        RGB -> RGB function: e.g. camera A's characterisation); ``None`` when
+        the outputs are XYZ.
+    max_delta_E
+        Largest CIEDE2000 allowed between the baked transform and ``apply``
+        over ``samples``; the smallest size of ``lut_sizes`` that meets it
+        is used.
+    lut_sizes
+        Lut3D edge lengths to try, ascending (OCIO allows up to 129).
+    shaper
+        Input and output shaper (default: -8 to +3 stops, so linear values
+        up to 8 are inside the Lut3D's domain; above it they clamp).
+
+    Returns
+    -------
+    BakedTransform
+
+    Raises
+    ------
+    CamcalError
+        No size meets ``max_delta_E`` (the message gives the error reached),
+        missing samples/white, or a non-finite function.
+
+    Notes
+    -----
+    With ``M`` the least-squares matrix of ``apply`` over ``samples``, the
+    Lut3D stores ``s(M^-1 apply(s^-1(u)))`` on a uniform grid ``u`` of
+    shaped values and is followed by ``s^-1`` and ``M``. A linear function
+    bakes exactly this way (the stored function is the identity in shaped
+    coordinates) and an exposure-invariant one (root-polynomial) nearly so,
+    so the grid only has to follow the non-linear part. Interpolation is
+    tetrahedral.
+
+    Examples
+    --------
+    >>> M = np.array([[0.6, 0.3, 0.1], [0.2, 0.7, 0.1], [0.0, 0.1, 0.9]])
+    >>> transform_from_callable(lambda x: x @ M.T, matrix=M).kind
+    'matrix'
+    """
+    if matrix is not None:
+        M = np.asarray(matrix, dtype=np.float64)
+        if M.shape != (3, 3) or not np.all(np.isfinite(M)):
+            raise CamcalError(f"matrix must be a finite 3x3 array, got shape {M.shape}")
+        return BakedTransform("matrix", _ocio().GroupTransform([_matrix_transform(M)]), M)
+    if samples is None or white_XYZ is None:
+        raise CamcalError("baking a non-linear function needs sample points and a white for Delta E")
+    X = np.asarray(samples, dtype=np.float64).reshape(-1, 3)
+    if X.shape[0] < 4 or not np.all(np.isfinite(X)):
+        raise CamcalError(f"need at least 4 finite sample points (N, 3), got {X.shape}")
+    sizes = sorted(int(n) for n in lut_sizes)
+    if not sizes or sizes[0] < 2 or sizes[-1] > 129:
+        raise CamcalError(f"Lut3D sizes must lie in 2..129, got {list(lut_sizes)}")
+    to_XYZ = to_XYZ or (lambda values: values)
+    Y = np.asarray(apply(X), dtype=np.float64)
+    M = np.linalg.lstsq(X, Y, rcond=None)[0].T
+    if not np.all(np.isfinite(M)) or np.linalg.cond(M) > 1e8:
+        M = np.eye(3)
+    reference = to_XYZ(Y)
+    error = None
+    for n in sizes:
+        group = _lut3d_group(apply, n, shaper, M)
+        baked = _apply_cpu(_cpu(group), X)
+        error = DeltaEStats.from_values(delta_E(to_XYZ(baked), reference, white_XYZ))
+        if error.max <= max_delta_E:
+            return BakedTransform("lut3d", group, M, n, shaper, error)
+    raise CamcalError(
+        f"a {sizes[-1]}^3 Lut3D still leaves CIEDE2000 up to {error.max:.3f} over the samples "
+        f"(allowed {max_delta_E:g}); allow a larger bake error or refit with a smoother model"
+    )
+
+
+# --------------------------------------------------------------------------
+# Pieces of a camera colour space.
+
+
+def linearisation_transforms(linearisation: Linearisation) -> tuple[list, float]:
+    """OCIO transforms of a fit's linearisation, and their largest error.
+
+    Parameters
+    ----------
+    linearisation
+        The fit's per-channel curves.
+
+    Returns
+    -------
+    transforms, error
+        A list of OCIO transforms (empty for the identity) and the largest
+        relative error ``|L_ocio - L| / max(L(1), 1e-6)`` over code values in
+        [0, 1] (0 for exact forms: identity, gamma-offset, lut1d).
+
+    Notes
+    -----
+    ``gamma-offset`` ``L = k max(V - o, 0)^g`` is exact:
+    ``MatrixTransform(offset -o) -> ExponentTransform(g, negatives clamp)
+    -> MatrixTransform(diag k)``. ``lut1d`` curves of equal length are a
+    ``Lut1DTransform`` with their samples (linear interpolation, as in
+    camcal). Other curves (``named``, mixtures) are sampled at 4096 code
+    values.
+    """
+    ocio = _ocio()
+    channels = linearisation.channels
+    kinds = {c.kind for c in channels}
+    if kinds == {"none"}:
+        return [], 0.0
+    if kinds == {"gamma-offset"}:
+        p = [c.params for c in channels]
+        return [
+            _matrix_transform(np.eye(3), [-q["offset"] for q in p]),
+            ocio.ExponentTransform([q["gamma"] for q in p] + [1.0], negativeStyle=ocio.NEGATIVE_CLAMP),
+            _matrix_transform(np.diag([q["gain"] for q in p])),
+        ], 0.0
+    lengths = {len(c.params.get("samples", ())) for c in channels}
+    exact = kinds == {"lut1d"} and len(lengths) == 1
+    n = lengths.pop() if exact else CURVE_SAMPLES
+    codes = np.linspace(0.0, 1.0, n)
+    table = np.stack([np.asarray(c.params["samples"]) if exact else c.apply(codes) for c in channels], axis=-1)
+    lut = ocio.Lut1DTransform(n, False)
+    lut.setInterpolation(ocio.INTERP_LINEAR)
+    lut.setData(np.ascontiguousarray(table, dtype=np.float32).ravel())
+    if exact:
+        return [lut], 0.0
+    probe = np.linspace(0.0, 1.0, 4 * n + 1)
+    truth = linearisation.apply(np.repeat(probe[:, None], 3, axis=1))
+    got = _apply_cpu(_cpu(lut), np.repeat(probe[:, None], 3, axis=1))
+    scale = np.maximum(np.abs(truth[-1]), 1e-6)
+    return [lut], float(np.max(np.abs(got - truth) / scale))
+
+
+def _aces_to_reference(config) -> np.ndarray:
+    """Matrix from ACES2065-1 (the ``aces_interchange`` role) to the config's scene reference."""
+    ocio = _ocio()
+    name = config.getRoleColorSpace("aces_interchange") if config.hasRole("aces_interchange") else None
+    space = config.getColorSpace(name) if name else None
+    if space is None:
+        raise CamcalError("the base config has no aces_interchange role: cannot place camera XYZ in its reference")
+    to_ref = space.getTransform(ocio.COLORSPACE_DIR_TO_REFERENCE)
+    if to_ref is not None:
+        processor = config.getProcessor(to_ref)
+    else:
+        from_ref = space.getTransform(ocio.COLORSPACE_DIR_FROM_REFERENCE)
+        if from_ref is None:
+            return np.eye(3)
+        processor = config.getProcessor(from_ref, ocio.TRANSFORM_DIR_INVERSE)
+    cpu = processor.getDefaultCPUProcessor()
+    A = _apply_cpu(cpu, np.vstack([np.eye(3), np.zeros((1, 3))]))
+    M = (A[:3] - A[3]).T
+    probe = np.random.default_rng(0).uniform(0.0, 2.0, (16, 3))
+    if np.abs(A[3]).max() > 1e-6 or np.abs(_apply_cpu(cpu, probe) - probe @ M.T).max() > 1e-4:
+        raise CamcalError(f"the base config's {name!r} -> reference transform is not a matrix")
+    return M
+
+
+def XYZ_to_reference_matrix(config, white_XYZ: Any, cat: str = "Bradford") -> np.ndarray:
+    """Matrix from XYZ under ``white_XYZ`` (Y = 1) to the config's scene reference.
+
+    Parameters
+    ----------
+    config
+        The ``PyOpenColorIO.Config`` (needs the ``aces_interchange`` role).
+    white_XYZ
+        White of the XYZ (the fit's target white).
+    cat
+        ``"Bradford"`` (OCIO's ACES configs) or ``"CAT02"``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(3, 3)``: ``M_ref = A_ref @ M_AP0 @ CAT(white -> ACES white)`` with
+        ``M_AP0`` the ACES2065-1 ``XYZ -> RGB`` matrix (colour-science).
+    """
+    import colour
+
+    if cat not in CATS:
+        raise CamcalError(f"unknown adaptation {cat!r}, expected one of: {', '.join(CATS)}")
+    aces = colour.RGB_COLOURSPACES["ACES2065-1"]
+    aces_white = colour.xy_to_XYZ(aces.whitepoint)
+    adapt = colour.adaptation.matrix_chromatic_adaptation_VonKries(
+        np.asarray(white_XYZ, dtype=np.float64), aces_white, transform=cat)
+    return _aces_to_reference(config) @ aces.matrix_XYZ_to_RGB @ adapt
+
+
+def invert_model(apply: Callable[[np.ndarray], np.ndarray], XYZ: Any, iterations: int = 40) -> np.ndarray:
+    """Linear camera RGB whose ``apply`` gives ``XYZ``: damped Newton from the best linear inverse.
+
+    Parameters
+    ----------
+    apply
+        The fit's ``RGB -> XYZ``.
+    XYZ
+        ``(N, 3)`` targets.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N, 3)`` RGB (the last iterate where Newton did not converge).
+    """
+    XYZ = np.asarray(XYZ, dtype=np.float64).reshape(-1, 3)
+    g = np.linspace(0.05, 1.0, 5)
+    P = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    M = np.linalg.lstsq(P, apply(P), rcond=None)[0].T
+    x = XYZ @ np.linalg.inv(M).T
+    h = 1e-6
+    for _ in range(iterations):
+        F = apply(x) - XYZ
+        if np.abs(F).max() < 1e-12:
+            break
+        J = np.stack([(apply(x + h * e) - apply(x - h * e)) / (2 * h) for e in np.eye(3)], axis=-1)
+        try:
+            step = np.linalg.solve(J, F[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            break
+        x = x - np.clip(step, -0.1, 0.1)
+    return x
+
+
+def chart_gamut_samples(fit: ColourFit, n: int = 21) -> np.ndarray:
+    """Linear camera RGB spanning the chart gamut of a characterisation.
+
+    The chart is the fit's reference chart (the ColorChecker 24 when none is
+    recorded), its XYZ adapted (CAT02) to the fit's target white and
+    inverted through the fit (:func:`invert_model`); an RBF fit adds its
+    centres (its training patches). The samples are those patches plus the
+    points of a regular ``n^3`` grid over their bounding box that lie in the
+    convex hull of the patches and of the same patches two stops darker
+    (divided by 4). Black itself is left out: near it CIEDE2000 magnifies
+    absolute errors that no image shows.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(M, 3)`` linear camera RGB.
+    """
+    from scipy.spatial import Delaunay
+
+    from camcal.colour.chart import DEFAULT_CHART, reference_chart
+    from camcal.colour.spectral import adapt_XYZ
+
+    chart = reference_chart(fit.reference or DEFAULT_CHART, "D50")
+    white = np.asarray(fit.target_white_XYZ, dtype=np.float64)
+    XYZ = chart.XYZ if np.allclose(chart.white_XYZ, white, atol=1e-6) else adapt_XYZ(
+        chart.XYZ, chart.white_XYZ, white, "CAT02")
+    patches = invert_model(fit.apply, XYZ)
+    if getattr(fit.model, "kind", "") == "rbf":
+        patches = np.vstack([patches, fit.model.centres])
+    patches = patches[np.all(np.isfinite(patches), axis=1)]
+    vertices = np.vstack([patches, patches / 4.0])
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    axes = [np.linspace(lo, hi, n) for lo, hi in zip(low, high)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    inside = Delaunay(vertices).find_simplex(grid) >= 0
+    return np.vstack([patches, grid[inside]])
+
+
+# --------------------------------------------------------------------------
+# Describe, then build.
+
+
+@dataclass(frozen=True, eq=False)
+class ColourSpaceSpec:
+    """A colour space to add: its transform to the scene reference and its files.
+
+    Attributes
+    ----------
+    name, family, description, encoding
+        As OCIO takes them (``encoding``: ``scene-linear``, ``log``...).
+    to_reference
+        OCIO transforms applied in order, from this space to the reference.
+    files
+        ``{relative path: text}`` written beside the config (CLF files under
+        ``luts/``, which the config's search path holds).
+    categories
+        OCIO categories (``file-io`` lists it for reading images).
+    """
+
+    name: str
+    family: str
+    description: str
+    to_reference: tuple
+    encoding: str = "scene-linear"
+    files: dict = field(default_factory=dict)
+    categories: tuple[str, ...] = ("file-io",)
+
+
+@dataclass(frozen=True, eq=False)
+class LookSpec:
+    """A Look: a transform applied in ``process_space`` (e.g. a camera match).
+
+    ``transform`` is an OCIO transform (a ``FileTransform`` to a CLF listed in
+    ``files``, or an inline ``MatrixTransform``/``GroupTransform``).
+    """
+
+    name: str
+    process_space: str
+    transform: Any
+    description: str = ""
+    files: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class ConfigSpec:
+    """A config: a base plus colour spaces and looks.
+
+    ``base``: ``"camcal"`` (``ocio_configs/camcal_base.ocio``), an ``ocio://``
+    built-in (default: the ACES studio config) or a ``.ocio`` file.
+    """
+
+    base: str = STUDIO_CONFIG
+    colour_spaces: tuple[ColourSpaceSpec, ...] = ()
+    looks: tuple[LookSpec, ...] = ()
+    name: str | None = None
+
+    @property
+    def files(self) -> dict:
+        out: dict = {}
+        for item in (*self.colour_spaces, *self.looks):
+            out.update(item.files)
+        return out
+
+
+def add_look(config, look: LookSpec) -> None:
+    """Add a Look to an editable ``PyOpenColorIO.Config``.
+
+    Parameters
+    ----------
+    config
+        The config (``createEditableCopy()`` of a loaded one).
+    look
+        Name, process space (must exist in the config), transform.
+
+    Raises
+    ------
+    CamcalError
+        The process space is missing or the name is taken.
+    """
+    ocio = _ocio()
+    if config.getColorSpace(look.process_space) is None:
+        raise CamcalError(f"look {look.name!r}: process space {look.process_space!r} is not in the config")
+    if config.getLook(look.name) is not None:
+        raise CamcalError(f"look {look.name!r} already exists in the base config")
+    config.addLook(ocio.Look(name=look.name, processSpace=look.process_space, transform=look.transform,
+                             description=look.description))
+
+
+def build_ocio_config(spec: ConfigSpec):
+    """Build and validate the config a :class:`ConfigSpec` describes.
+
+    The base is loaded, its search paths are made absolute (a file base's
+    own LUTs stay reachable from the new config's folder) and ``luts`` is
+    appended, the colour spaces and looks are added and ``config.validate()``
+    runs; its errors propagate (as :class:`CamcalError`).
+
+    Returns
+    -------
+    PyOpenColorIO.Config
+    """
+    ocio = _ocio()
+    config = load_base_config(spec.base)
+    if spec.name:
+        config.setName(spec.name)
+    # the base's own LUT folders, made absolute (the new config lives elsewhere), then luts/
+    working = config.getWorkingDir()
+    paths = [p if os.path.isabs(p) or not working else str(Path(working, p)) for p in config.getSearchPaths()]
+    config.clearSearchPaths()
+    for path in paths + ([LUT_DIR] if spec.files and LUT_DIR not in paths else []):
+        config.addSearchPath(path)
+    for space in spec.colour_spaces:
+        if config.getColorSpace(space.name) is not None:
+            raise CamcalError(f"colour space {space.name!r} already exists in the base config")
+        cs = ocio.ColorSpace(referenceSpace=ocio.REFERENCE_SPACE_SCENE, name=space.name, family=space.family,
+                             encoding=space.encoding, description=space.description,
+                             categories=list(space.categories))
+        cs.setTransform(ocio.GroupTransform(list(space.to_reference)), ocio.COLORSPACE_DIR_TO_REFERENCE)
+        config.addColorSpace(cs)
+    for look in spec.looks:
+        add_look(config, look)
+    try:
+        config.validate()
+    except ocio.Exception as error:
+        raise CamcalError(f"the OCIO config does not validate: {error}") from None
+    return config
+
+
+def write_ocio_config(spec: ConfigSpec, directory: str | os.PathLike, filename: str = "config.ocio") -> Path:
+    """Write the config and its files into ``directory``, each atomically, the config last.
+
+    The config is built and validated before anything is written.
+
+    Returns
+    -------
+    Path
+        The config file.
+    """
+    config = build_ocio_config(spec)
+    text = config.serialize()
+    directory = Path(directory)
+    for relative, content in spec.files.items():
+        atomic_write_text(directory / relative, content)
+    path = directory / filename
+    atomic_write_text(path, text)
+    return path
+
+
+# --------------------------------------------------------------------------
+# Characterisation fits.
+
+
+@dataclass(frozen=True)
+class SpaceExport:
+    """What one exported camera colour space is, with its figures.
+
+    ``bake_error``: CIEDE2000 of the baked model over the chart gamut
+    (``None`` for an exact matrix); ``linearisation_error``: relative error
+    of a sampled linearisation (0 when exact); ``clf``: the CLF's path
+    relative to the config (``None`` for a matrix fit).
+    """
+
+    name: str
+    camera: str
+    model: str
+    kind: str
+    lut_size: int | None
+    bake_error: DeltaEStats | None
+    linearisation_error: float
+    clf: str | None
+
+    def summary(self) -> str:
+        line = f"{self.name}: {self.model}, "
+        if self.kind == "matrix":
+            line += "exact MatrixTransform"
+        else:
+            line += (f"{self.lut_size}^3 Lut3D in {self.clf}, bake error CIEDE2000 mean "
+                     f"{self.bake_error.mean:.3f}, max {self.bake_error.max:.3f} over the chart gamut")
+        if self.linearisation_error:
+            line += f"; sampled linearisation, relative error {self.linearisation_error:.1e}"
+        return line
+
+
+@dataclass(frozen=True)
+class OCIOExport:
+    """The written config and its camera spaces."""
+
+    config_path: Path
+    base: str
+    spaces: tuple[SpaceExport, ...]
+
+
+def _held_out(evaluation: dict) -> str:
+    for key, label in (("test", "independent patches"), ("loo", "leave-one-out"), ("train", "training")):
+        stats = evaluation.get(key)
+        if stats:
+            return (f"held-out CIEDE2000 ({label}, n = {stats['n']}): mean {stats['mean']:.2f}, "
+                    f"p95 {stats['p95']:.2f}, max {stats['max']:.2f}")
+    return ""  # pragma: no cover - train is always present
+
+
+def colour_space_from_fit(
+    fit: ColourFit,
+    camera: str,
+    config,
+    *,
+    cat: str = "Bradford",
+    max_delta_E: float = 0.2,
+    lut_sizes: Sequence[int] = LUT_SIZES,
+) -> tuple[ColourSpaceSpec, SpaceExport]:
+    """The input colour space of a characterisation, for ``config``'s reference.
+
+    Parameters
+    ----------
+    fit
+        The characterisation.
+    camera
+        Camera name; the space is ``camcal <camera>``.
+    config
+        The base config (its ``aces_interchange`` role places ACES2065-1).
+    cat, max_delta_E, lut_sizes
+        See :func:`XYZ_to_reference_matrix` and :func:`transform_from_callable`.
+
+    Returns
+    -------
+    ColourSpaceSpec, SpaceExport
+    """
+    ocio = _ocio()
+    name = colour_space_name(camera)
+    lin, lin_error = linearisation_transforms(fit.linearisation)
+    to_ref = XYZ_to_reference_matrix(config, fit.target_white_XYZ, cat)
+    model = fit.model
+    files: dict = {}
+    clf = None
+    if model.kind == "matrix3x3":
+        baked = transform_from_callable(model.apply, matrix=model.M)
+        steps = [*lin, _matrix_transform(to_ref @ baked.matrix)]
+        how = "exact matrix"
+    else:
+        baked = transform_from_callable(model.apply, samples=chart_gamut_samples(fit),
+                                        white_XYZ=fit.target_white_XYZ, max_delta_E=max_delta_E,
+                                        lut_sizes=lut_sizes)
+        clf = f"{LUT_DIR}/camcal_{_slug(camera)}.clf"
+        how = (f"baked as a log2 shaper and {baked.lut_size}^3 Lut3D ({clf}), bake error CIEDE2000 mean "
+               f"{baked.bake_error.mean:.3f}, max {baked.bake_error.max:.3f} over the chart gamut")
+        files[clf] = baked.clf_text(f"camcal:{_slug(camera)}",
+                                    f"camcal {model.label}: linear camera RGB of {camera} to CIE XYZ "
+                                    f"({fit.target_white}, white Y = 1)")
+        steps = [*lin, ocio.FileTransform(Path(clf).name, interpolation=ocio.INTERP_TETRAHEDRAL),
+                 _matrix_transform(to_ref)]
+    description = (f"camcal characterisation of camera {camera}: {model.label}, linearisation "
+                   f"{fit.linearisation.label}; {_held_out(fit.evaluation)}; XYZ ({fit.target_white}) "
+                   f"to the reference with {cat}; model {how}.")
+    spec = ColourSpaceSpec(name, FAMILY, description, tuple(steps), files=files)
+    report = SpaceExport(name, camera, model.label, baked.kind, baked.lut_size, baked.bake_error, lin_error, clf)
+    return spec, report
+
+
+def look_name(source: str, target: str) -> str:
+    """The Look of a camera match: ``camcal match <source> to <target>``."""
+    return f"camcal match {source} to {target}"
+
+
+def look_from_match(match, config, *, max_delta_E: float = 0.2,
+                    lut_sizes: Sequence[int] = LUT_SIZES) -> tuple[LookSpec, SpaceExport]:
+    """A camera match (kind ``match``) as an OCIO Look on linear camera values.
+
+    The Look's process space is the config's ``data`` role (no conversion):
+    applied to camera B's *linear* RGB it gives camera A's linear RGB
+    (``match.apply``). A matrix match is an exact ``MatrixTransform``; the
+    others are baked like a characterisation (:func:`transform_from_callable`)
+    over a cube of linear RGB from 1/64 to 1, the error measured with the
+    outputs read as linear Rec. 709 / D65 (camera A's RGB has no XYZ here).
+    """
+    import colour  # noqa: PLC0415
+
+    ocio = _ocio()
+    process_space = config.getRoleColorSpace(ocio.ROLE_DATA) if config.hasRole(ocio.ROLE_DATA) else None
+    if not process_space:
+        raise CamcalError("the base config has no 'data' role: a match Look needs a space without conversion")
+    source, target = match.source or "B", match.target or "A"
+    name = look_name(source, target)
+    files: dict = {}
+    clf = None
+    if match.matrix is not None:
+        baked = transform_from_callable(match.apply, matrix=match.matrix)
+        transform = _matrix_transform(baked.matrix)
+    else:
+        levels = np.geomspace(1.0 / 64.0, 1.0, 9)
+        cube = np.stack(np.meshgrid(levels, levels, levels, indexing="ij"), axis=-1).reshape(-1, 3)
+        rec709 = colour.RGB_COLOURSPACES["ITU-R BT.709"]
+        baked = transform_from_callable(
+            match.apply, samples=cube, white_XYZ=colour.xy_to_XYZ(rec709.whitepoint),
+            to_XYZ=lambda RGB: RGB @ rec709.matrix_RGB_to_XYZ.T, max_delta_E=max_delta_E, lut_sizes=lut_sizes,
+        )
+        clf = f"{LUT_DIR}/camcal_match_{_slug(source)}_to_{_slug(target)}.clf"
+        files[clf] = baked.clf_text(f"camcal:match:{_slug(source)}:{_slug(target)}",
+                                    f"camcal {match.model.label}: linear {source} RGB to linear {target} RGB")
+        transform = ocio.FileTransform(Path(clf).name, interpolation=ocio.INTERP_TETRAHEDRAL)
+    description = (f"camcal colour match of camera {source} to camera {target} ({match.model.label}) on linear "
+                   f"camera values; {_held_out(match.evaluation)}")
+    look = LookSpec(name, process_space, transform, description=description, files=files)
+    report = SpaceExport(name, source, match.model.label, baked.kind, baked.lut_size, baked.bake_error, 0.0, clf)
+    return look, report
+
+
+def export_ocio(
+    fits: Sequence[tuple[str, ColourFit]],
+    directory: str | os.PathLike,
+    *,
+    base: str = STUDIO_CONFIG,
+    cat: str = "Bradford",
+    max_delta_E: float = 0.2,
+    lut_sizes: Sequence[int] = LUT_SIZES,
+    matches: Sequence = (),
+) -> OCIOExport:
+    """Write ``directory/config.ocio`` (+ ``luts/*.clf``): ``base`` plus one space per camera.
+
+    Parameters
+    ----------
+    fits
+        ``(camera name, fit)`` pairs; names must be unique.
+    directory
+        Output folder.
+    base, cat, max_delta_E, lut_sizes
+        See :class:`ConfigSpec` and :func:`colour_space_from_fit`.
+    matches
+        Camera matches (kind ``match``), each written as a Look
+        (:func:`look_from_match`).
+
+    Returns
+    -------
+    OCIOExport
+        ``spaces`` lists the colour spaces, then the Looks.
+    """
+    names = [camera for camera, _ in fits]
+    if len(set(names)) != len(names):
+        raise CamcalError(f"camera names must be unique, got {', '.join(names)}")
+    config = load_base_config(base)
+    specs, reports = [], []
+    for camera, fit in fits:
+        spec, report = colour_space_from_fit(fit, camera, config, cat=cat, max_delta_E=max_delta_E,
+                                             lut_sizes=lut_sizes)
+        specs.append(spec)
+        reports.append(report)
+    looks = []
+    for match in matches:
+        look, report = look_from_match(match, config, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+        looks.append(look)
+        reports.append(report)
+    path = write_ocio_config(ConfigSpec(base=str(base), colour_spaces=tuple(specs), looks=tuple(looks)), directory)
+    return OCIOExport(path, str(base), tuple(reports))
