@@ -759,7 +759,7 @@ def _stage_solve(ctx: DemoContext) -> StageResult:
     out = ctx.out_dir / "solve"
     # COLMAP's INFO log (thousands of lines) would drown the demo's output; warnings still show
     os.environ.setdefault("GLOG_minloglevel", "1")
-    argv = ["solve", *map(str, folders), "--out", str(out), "--camera-model", "SIMPLE_DIVISION", "--seed", str(ctx.config.seed)]
+    argv = ["solve", *map(str, folders), "--out", str(out), "--model", "division", "--seed", str(ctx.config.seed)]
     _run_cli(argv, stage)
     rig = Rig.load(out / "solve.rig.json")
     ctx.artifacts["solve_rig"] = out / "solve.rig.json"
@@ -787,7 +787,7 @@ def _stage_solve(ctx: DemoContext) -> StageResult:
     rows.append(DemoRow(stage, "baseline direction error (rig constraint)", 0.0, angle, angle, 0.1, "deg", "issue 5"))
     quality = ", ".join(f"{c.name} {c.quality['rms_px']:.3f} px" for c in rig.cameras)
     body = (f"<pre>{html.escape(_command(argv, ctx))}</pre><p>pycolmap SIFT + incremental mapping with the rig "
-            f"constraint, COLMAP camera model SIMPLE_DIVISION; RMS reprojection error through camcal's rig: "
+            f"constraint (division lens: COLMAP's SIMPLE_DIVISION), then camcal's bundle adjustment; RMS reprojection error through camcal's rig: "
             f"{quality}. Poses compared after a similarity (Umeyama 1991) to the true ones; "
             f"scene size {size:g} m.</p>")
     return StageResult(tuple(rows), (("SfM rig (solve.rig.json)", out / "solve.rig.json"), ("sparse points (points.ply)", out / "points.ply")),
