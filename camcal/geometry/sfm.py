@@ -128,22 +128,27 @@ def collect_images(folders: list[Path], camera_globs: dict[str, str] | None = No
     return {folder.name: _list_images(folder) for folder in folders}
 
 
-def _stage_images(images: dict[str, list[Path]], staging: Path) -> list[str]:
+def _stage_images(images: dict[str, list[Path]], staging: Path) -> dict[str, Path]:
     """Link each camera's images under ``staging/<camera>/`` (COLMAP's rig layout).
 
     Frames pair up by position in each camera's sorted list: the k-th image
     of every camera is linked under the same name ``<k>.<suffix>``.
+
+    Returns
+    -------
+    dict
+        Staged name (``camera/<k>.<suffix>``, COLMAP's image name) -> the user's image.
     """
     if staging.exists():
         shutil.rmtree(staging)
-    names: list[str] = []
+    staged: dict[str, Path] = {}
     for camera, paths in images.items():
         (staging / camera).mkdir(parents=True)
         for index, path in enumerate(paths):
             name = f"{index:06d}{path.suffix.lower()}"
             os.symlink(path.resolve(), staging / camera / name)
-            names.append(f"{camera}/{name}")
-    return names
+            staged[f"{camera}/{name}"] = path
+    return staged
 
 
 def solve_sfm(
@@ -213,7 +218,8 @@ def solve_sfm(
         if missing:
             raise CamcalError(f"the known rig has no camera named {', '.join(map(repr, missing))}")
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None)
-    image_names = _stage_images(images, image_dir)
+    staged = _stage_images(images, image_dir)
+    image_names = list(staged)
     if len(image_names) < 2:
         raise CamcalError(f"need at least 2 images, got {len(image_names)}")
     database = out_dir / "database.db"
@@ -271,10 +277,10 @@ def solve_sfm(
     model_dir = sparse / "best"
     model_dir.mkdir(exist_ok=True)
     reconstruction.write(model_dir)
-    originals = {staged: Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
-                 for staged, path in zip(image_names, (p for paths in images.values() for p in paths))}
+    originals = {name: Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
+                 for name, path in staged.items()}
     units = known_rig.units if known_rig is not None else "arbitrary"
-    return _to_result(reconstruction, list(folders), image_names, out_dir, model_dir, originals, units, bundle)
+    return _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle)
 
 
 def _relative_poses(rig: Rig, reference: str) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
@@ -295,9 +301,13 @@ def _map(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, s
     return pycolmap.global_mapping(database, image_dir, sparse)
 
 
-def _to_result(reconstruction, camera_names: list[str], image_names: list[str], out_dir: Path, model_dir: Path,
+def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir: Path,
                originals: dict[str, str], units: str, bundle: BundleResult | None) -> SfmResult:
-    """Convert a pycolmap reconstruction with one rig into camcal's Rig."""
+    """Convert a pycolmap reconstruction with one rig into camcal's Rig.
+
+    ``originals`` maps every staged image name (COLMAP's) to the user's
+    image, relative to ``out_dir``: the frames point at those.
+    """
     if reconstruction.num_rigs() != 1:
         raise CamcalError(f"expected one rig in the reconstruction, got {reconstruction.num_rigs()}")
     rig = next(iter(reconstruction.rigs.values()))
@@ -319,7 +329,7 @@ def _to_result(reconstruction, camera_names: list[str], image_names: list[str], 
     cameras.sort(key=lambda camera: order[camera.name])
 
     frames = []
-    registered = set()
+    frame_of_image: dict[str, int] = {}
     for frame_index, frame_id in enumerate(sorted(reconstruction.reg_frame_ids())):
         frame = reconstruction.frame(frame_id)
         R, c = from_colmap(frame.rig_from_world.rotation.quat, frame.rig_from_world.translation)
@@ -327,7 +337,7 @@ def _to_result(reconstruction, camera_names: list[str], image_names: list[str], 
         for data_id in frame.image_ids:
             image = reconstruction.image(data_id.id)
             images[camera_of_sensor[image.camera_id]] = originals[image.name]
-            registered.add(image.name)
+            frame_of_image[image.name] = frame_index
         frames.append(Frame(frame_index, R, c, images))
     points_path = out_dir / "points.ply"
     xyz = np.array([p.xyz for p in reconstruction.points3D.values()]).reshape(-1, 3)
@@ -337,16 +347,16 @@ def _to_result(reconstruction, camera_names: list[str], image_names: list[str], 
     result_rig = Rig(
         tuple(cameras), units=units, frames=tuple(frames), points=points_path.name,
         provenance=make_provenance("sfm (pycolmap)" + (" + camcal bundle adjustment" if bundle else ""),
-                                   images=len(image_names)),
+                                   images=len(originals)),
     )
-    per_camera, rms = _reprojection_rms(reconstruction, result_rig, camera_of_sensor, frames, originals)
+    per_camera, rms = _reprojection_rms(reconstruction, result_rig, camera_of_sensor, frame_of_image)
     result_rig = _with_quality(result_rig, per_camera, bundle)
     result_rig.save(out_dir / "solve.rig.json")
     return SfmResult(
         rig=result_rig,
-        n_images=len(image_names),
-        n_registered=len(registered),
-        unregistered=tuple(sorted(set(image_names) - registered)),
+        n_images=len(originals),
+        n_registered=len(frame_of_image),
+        unregistered=tuple(sorted(set(originals) - set(frame_of_image))),
         n_points=len(xyz),
         rms_px=rms,
         per_camera_rms_px={name: value for name, (value, _) in per_camera.items()},
@@ -370,15 +380,9 @@ def _camera_name(reconstruction, camera_id: int) -> str:
     raise CamcalError(f"COLMAP camera {camera_id} has no registered image")
 
 
-def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str], frames: list[Frame],
-                      originals: dict[str, str]):
+def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str], frame_of_image: dict[str, int]):
     """Reproject every observation through camcal's rig (checks the conversion too)."""
     squared: dict[str, list[NDArray[np.float64]]] = {}
-    staged = {original: name for name, original in originals.items()}
-    frame_of_image = {}
-    for frame in frames:
-        for path in frame.images.values():
-            frame_of_image[staged[path]] = frame.index
     for image in reconstruction.images.values():
         if image.name not in frame_of_image:
             continue
