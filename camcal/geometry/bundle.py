@@ -309,7 +309,8 @@ def _residuals(state: BundleState) -> tuple[NDArray[np.float64], NDArray[np.floa
     return scene, _project(state, state.board.camera, state.board.frame, corners) - state.board.xy
 
 
-def _rms_per_camera(state: BundleState) -> dict[str, float]:
+def _measure(state: BundleState, options: BundleOptions) -> tuple[float, dict[str, float]]:
+    """Ceres' cost of a state and its plain reprojection RMS per camera (and ``"board"``)."""
     scene, board = _residuals(state)
     rms = {}
     for index, name in enumerate(state.camera_names):
@@ -318,21 +319,18 @@ def _rms_per_camera(state: BundleState) -> dict[str, float]:
             rms[name] = float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
     if board is not None:
         rms["board"] = float(np.sqrt(np.mean(np.sum(board * board, axis=1))))
-    return rms
-
-
-def _state_cost(state: BundleState, options: BundleOptions) -> float:
-    scene, board = _residuals(state)
     both = scene if board is None else np.vstack([scene, board])
-    return robust_cost(both, options.loss, options.loss_scale)
+    return robust_cost(both, options.loss, options.loss_scale), rms
 
 
 class _Layout:
     """Where each unknown lives in the parameter vector, and the gauge.
 
     Blocks, in order: free intrinsics per camera; ``sensor_from_rig``
-    (rotation-vector increment, translation) of cameras 1..C-1; ``rig_from_world``
-    of frames 1..F-1 and of frame... (frame 0 is held); the board pose; points.
+    (rotation-vector increment, translation) of cameras 1..C-1 when refined;
+    ``rig_from_world`` of every frame (frame 0 held when the points move, and
+    one translation coordinate of frame 1 when nothing else sets the scale);
+    the board pose; the points when refined.
     """
 
     def __init__(self, state: BundleState, options: BundleOptions):
@@ -506,15 +504,16 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(), 
         return np.nan_to_num(blocks, nan=1e6).ravel()
 
     x0 = layout.initial()
-    initial_cost = _state_cost(state, options)
+    initial_cost, rms_before = _measure(state, options)
     if verbose:
         print(f"camcal bundle: {len(x0)} unknowns, {len(state.obs_xy)} observations, cost {initial_cost:.6g}",
               file=sys.stderr, flush=True)
     x, r, J, n_iterations = _levenberg_marquardt(fun, x0, layout, options)
     refined = layout.unpack(x)
+    final_cost, rms_after = _measure(refined, options)
     result = BundleResult(
-        state=refined, initial_cost=initial_cost, final_cost=_state_cost(refined, options),
-        rms_before_px=_rms_per_camera(state), rms_after_px=_rms_per_camera(refined),
+        state=refined, initial_cost=initial_cost, final_cost=final_cost,
+        rms_before_px=rms_before, rms_after_px=rms_after,
         sigmas=_sigmas(layout, x, r, J), n_iterations=n_iterations, n_residuals=len(r), n_parameters=len(x0),
     )
     if verbose:
