@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import csv
 import io
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from camcal.errors import CamcalError
+from camcal.io.points_csv import finite_numbers
 
 __all__ = ["PatchSet", "read_patch_csv", "write_patch_csv"]
 
@@ -86,13 +86,7 @@ def read_patch_csv(path: str | os.PathLike) -> PatchSet:
             cells = cells[1:]
         else:
             names.append(f"patch{len(names) + 1}")
-        try:
-            numbers = [float(c) for c in cells]
-        except ValueError:
-            raise CamcalError(f"{path}:{number}: not a number in {','.join(cells)}") from None
-        if not all(math.isfinite(v) for v in numbers):
-            raise CamcalError(f"{path}:{number}: NaN or infinite value")
-        values.append(numbers)
+        values.append(finite_numbers(cells, f"{path}:{number}"))
     if not values:
         raise CamcalError(f"{path}: no patches after the header")
     array = np.array(values)

@@ -17,9 +17,20 @@ from numpy.typing import NDArray
 from camcal.errors import CamcalError
 from camcal.io.atomic import atomic_path
 
-__all__ = ["CORRESPONDENCE_HEADER", "read_correspondences", "write_correspondences"]
+__all__ = ["CORRESPONDENCE_HEADER", "finite_numbers", "read_correspondences", "write_correspondences"]
 
 CORRESPONDENCE_HEADER = ("X", "Y", "Z", "u", "v")
+
+
+def finite_numbers(cells: list[str], where: str) -> list[float]:
+    """The cells of a CSV row as finite floats, or one error naming ``where`` (file and line)."""
+    try:
+        values = [float(cell) for cell in cells]
+    except ValueError:
+        raise CamcalError(f"{where}: not a number in {','.join(cells)}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise CamcalError(f"{where}: NaN or infinite value in {','.join(cells)}")
+    return values
 
 
 def read_correspondences(path: str | os.PathLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -58,13 +69,7 @@ def read_correspondences(path: str | os.PathLike) -> tuple[NDArray[np.float64], 
                 line = reader.line_num
                 if len(row) != len(CORRESPONDENCE_HEADER):
                     raise CamcalError(f"{path}, line {line}: expected 5 values, got {len(row)}")
-                try:
-                    values = [float(cell) for cell in row]
-                except ValueError:
-                    raise CamcalError(f"{path}, line {line}: not a number in {','.join(row)}") from None
-                if not all(math.isfinite(v) for v in values):
-                    raise CamcalError(f"{path}, line {line}: NaN or infinite value in {','.join(row)}")
-                rows.append(values)
+                rows.append(finite_numbers(row, f"{path}, line {line}"))
         except (csv.Error, UnicodeDecodeError) as error:
             raise CamcalError(f"{path}: not a readable CSV file ({error})") from None
     data = np.array(rows, dtype=np.float64).reshape(-1, 5)
