@@ -49,12 +49,41 @@ def test_quick_run_rows_match_outputs_and_truth(quick):
         assert row.error == pytest.approx(100 * (camera.K[0, 0] / row.true - 1))
     # stages that hold with margin even on the small run
     for row in report.rows:
-        if row.stage in ("rectify", "blender import", "colour fit"):
+        if row.stage in ("rectify", "blender import", "colour fit", "colour match", "colour export"):
             assert row.ok, report.table()
         assert np.isfinite(row.recovered), row
     assert report.report == out / "report.html"
     for _, path in report.outputs:
         assert Path(path).exists(), path
+
+
+def test_quick_run_colour_exports(quick):
+    """The OCIO config holds both cameras and the match Look; a camera is refit as a matrix only when
+    the exporter really refuses its own fit."""
+    import PyOpenColorIO as ocio
+
+    from camcal.colour.export_icc import check_icc, icc_profile_from_fit
+    from camcal.colour.export_ocio import CAMCAL_BASE, colour_space_from_fit, load_base_config
+    from camcal.colour.fitfile import load_fit
+    from camcal.errors import CamcalError
+
+    out, report = quick
+    config = ocio.Config.CreateFromFile(str(out / "ocio" / "config.ocio"))
+    config.validate()
+    assert {"camcal left", "camcal right"} <= {space.getName() for space in config.getColorSpaces()}
+    assert config.getLook("camcal match right to left") is not None
+    base = load_base_config(CAMCAL_BASE)
+    for name in ("left", "right"):
+        assert check_icc((out / "icc" / f"{name}.icc").read_bytes()).version_major == 4
+        fit = load_fit(out / "colour" / f"{name}.colour.json")
+        try:
+            colour_space_from_fit(fit, name, base)
+            icc_profile_from_fit(fit, name)
+            bakes = True
+        except CamcalError:
+            bakes = False
+        assert (out / "colour" / f"{name}_matrix.colour.json").exists() is not bakes
+    assert sum(row.stage == "colour export" for row in report.rows) == 5
 
 
 def test_quick_run_plates_carry_the_true_lens(quick):
@@ -129,7 +158,8 @@ def test_report_opens_in_chromium(quick, tmp_path):
     page, errors, shot = open_in_chromium(out / "report.html", tmp_path)
     assert not errors, errors
     assert page.rows == ["pass" if row.ok else "fail" for row in report.rows]
-    anchors = {"verdict", "truth", "renders", "calibrate-board", "distortion", "rectify", "colour-fit", "blender",
+    anchors = {"verdict", "truth", "renders", "calibrate-board", "distortion", "rectify", "colour-fit",
+               "colour-match", "blender",
                COLOUR_EXPORTS_SECTION, "outputs", "timing"}
     assert anchors <= page.ids, anchors - page.ids
     assert len(page.images) >= 8
@@ -170,3 +200,5 @@ def test_full_demo_every_row_within_tolerance(tmp_path, capsys):
     stages = {line.split()[0] for line in out.splitlines() if line.startswith(("calibrate", "solve", "rectify"))}
     assert {"calibrate", "solve", "rectify"} <= stages
     assert (tmp_path / "demo_out" / "blender" / "sfm.blend").is_file()
+    assert (tmp_path / "demo_out" / "ocio" / "config.ocio").is_file()
+    assert all((tmp_path / "demo_out" / "icc" / f"{name}.icc").is_file() for name in ("left", "right"))

@@ -529,8 +529,32 @@ def XYZ_to_reference_matrix(config, white_XYZ: Any, cat: str = "Bradford") -> np
     return _aces_to_reference(config) @ aces.matrix_XYZ_to_RGB @ adapt
 
 
+def _newton_inverse(apply: Callable[[np.ndarray], np.ndarray], XYZ: np.ndarray, x: np.ndarray,
+                    iterations: int) -> np.ndarray:
+    """Damped Newton steps (central-difference Jacobians, steps clipped to 0.1) towards ``apply(x) = XYZ``."""
+    h = 1e-6
+    for _ in range(iterations):
+        F = apply(x) - XYZ
+        if np.abs(F).max() < 1e-12:
+            break
+        J = np.stack([(apply(x + h * e) - apply(x - h * e)) / (2 * h) for e in np.eye(3)], axis=-1)
+        try:
+            step = np.linalg.solve(J, F[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            break
+        x = x - np.clip(step, -0.1, 0.1)
+    return x
+
+
 def invert_model(apply: Callable[[np.ndarray], np.ndarray], XYZ: Any, iterations: int = 40) -> np.ndarray:
-    """Linear camera RGB whose ``apply`` gives ``XYZ``: damped Newton from the best linear inverse.
+    """Linear camera RGB whose ``apply`` gives ``XYZ``: damped Newton from two starts.
+
+    A non-linear fit (root-polynomial, polynomial) can map several RGB to the
+    same XYZ; the physical preimage of a reflective colour has non-negative
+    RGB. Newton starts from the nearest point (relative XYZ distance) of a
+    non-negative 25^3 RGB grid and from the best linear inverse; per target
+    the converged solution (residual < 1e-9) with the least negative
+    component is kept.
 
     Parameters
     ----------
@@ -545,22 +569,21 @@ def invert_model(apply: Callable[[np.ndarray], np.ndarray], XYZ: Any, iterations
         ``(N, 3)`` RGB (the last iterate where Newton did not converge).
     """
     XYZ = np.asarray(XYZ, dtype=np.float64).reshape(-1, 3)
-    g = np.linspace(0.05, 1.0, 5)
-    P = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-    M = np.linalg.lstsq(P, apply(P), rcond=None)[0].T
-    x = XYZ @ np.linalg.inv(M).T
-    h = 1e-6
-    for _ in range(iterations):
-        F = apply(x) - XYZ
-        if np.abs(F).max() < 1e-12:
-            break
-        J = np.stack([(apply(x + h * e) - apply(x - h * e)) / (2 * h) for e in np.eye(3)], axis=-1)
-        try:
-            step = np.linalg.solve(J, F[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            break
-        x = x - np.clip(step, -0.1, 0.1)
-    return x
+    g = np.linspace(0.0, 1.0, 25)
+    grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    mapped = apply(grid)
+    scale = np.linalg.norm(XYZ, axis=1) + 1e-3
+    nearest = np.array([np.argmin(np.linalg.norm(mapped - target, axis=1)) for target in XYZ], dtype=int)
+    coarse = grid[np.linspace(0, len(grid) - 1, 125).astype(int)]
+    M = np.linalg.lstsq(coarse, apply(coarse), rcond=None)[0].T
+    candidates = [_newton_inverse(apply, XYZ, start, iterations)
+                  for start in (grid[nearest], XYZ @ np.linalg.inv(M).T)]
+    scores = []
+    for x in candidates:
+        residual = np.abs(apply(x) - XYZ).max(axis=1) / scale
+        scores.append(np.where(residual < 1e-9, 0.0, 10.0 + residual) + np.maximum(-x.min(axis=1), 0.0))
+    best = np.argmin(np.stack(scores), axis=0)
+    return np.stack(candidates)[best, np.arange(len(XYZ))]
 
 
 def chart_gamut_samples(fit: ColourFit, n: int = 21) -> np.ndarray:
