@@ -219,3 +219,21 @@ def test_errors_leave_no_output(tmp_path, sim):
         build_ocio_config(ConfigSpec(base="camcal", looks=(LookSpec("x", "ACEScg", ocio.MatrixTransform()),
                                                              LookSpec("x", "ACEScg", ocio.MatrixTransform()))))
     assert not out.exists()
+
+
+def test_inverse_of_a_sigma_root_polynomial_is_the_cameras_own_rgb():
+    """A root-polynomial fit of the Sigma SDMerill (large cancelling coefficients) maps several RGB to
+    one XYZ; inverting it must give back the camera's non-negative RGB of each patch."""
+    from camcal.colour.characterise import characterise
+    from camcal.colour.export_ocio import invert_model
+    from camcal.colour.patches import PatchSet
+    from camcal.colour.spectral import SimulatedCamera, reflectance_set
+
+    camera = SimulatedCamera.from_colour("Sigma SDMerill (NPL)", "D65")
+    names, chart = reflectance_set("ISO 17321-1", camera.wavelengths)
+    RGB = camera.RGB(chart) * 0.8 / float(np.max(camera.RGB_white))
+    fit = characterise(PatchSet(tuple(names), RGB, camera.XYZ(chart)), white="D65", model="root-polynomial:2",
+                       objective="de2000", linearise="none", loo=False).fit
+    assert np.abs(np.asarray(fit.model.to_dict()["coefficients"])).max() > 5  # the hard case
+    found = invert_model(fit.apply, fit.apply(RGB))
+    np.testing.assert_allclose(found, RGB, atol=1e-6)
