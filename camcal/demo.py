@@ -692,7 +692,8 @@ def _stage_calibrate_board(ctx: DemoContext) -> StageResult:
     relative_t, relative_r = right_t.R @ left_t.R.T, right_r.R @ left_r.R.T
     rows.append(DemoRow(stage, "relative rotation error", 0.0, _angle_deg(relative_r @ relative_t.T),
                         _angle_deg(relative_r @ relative_t.T), 0.02, "deg", "issue 3"))
-    residual_plot = _plot_residuals(ctx.path("plots", "board_residuals.png"), result)
+    residual_plot = _plot_residuals(ctx.path("plots", "board_residuals.png"), result.rig.cameras,
+                                    result.camera_of_point, result.points_px, result.residuals_px)
     command = (f"camcal calibrate board --board {truth.board_spec} --camera left='images/board/left/*.png' "
                f"--camera right='images/board/right/*.png' --model division --out calibrate/board.rig.json "
                f"--report calibrate")
@@ -825,6 +826,26 @@ def _similarity(source: NDArray, target: NDArray) -> tuple[float, NDArray, NDArr
     return scale, R, mu_t - scale * R @ mu_s
 
 
+def _sfm_residuals(model_dir: Path, camera_names: list[str]) -> tuple[NDArray, NDArray, NDArray]:
+    """Camera index, observed pixel and residual (observed - projected) of every observation of the
+    refined COLMAP model ``solve`` wrote (image names are ``camera/file``)."""
+    import pycolmap  # noqa: PLC0415
+
+    reconstruction = pycolmap.Reconstruction(str(model_dir))
+    cameras, points, residuals = [], [], []
+    for image in reconstruction.images.values():
+        if not image.has_pose:
+            continue
+        index = camera_names.index(image.name.split("/", 1)[0])
+        for point in image.get_observation_points2D():
+            projected = image.project_point(reconstruction.points3D[point.point3D_id].xyz)
+            if projected is not None:
+                cameras.append(index)
+                points.append(point.xy)
+                residuals.append(point.xy - projected)
+    return np.asarray(cameras), np.asarray(points), np.asarray(residuals)
+
+
 def _stage_solve(ctx: DemoContext) -> StageResult:
     stage = "solve"
     truth = ctx.truth
@@ -859,10 +880,12 @@ def _stage_solve(ctx: DemoContext) -> StageResult:
     angle = float(np.degrees(np.arccos(np.clip(d_t @ d_r, -1.0, 1.0))))
     rows.append(DemoRow(stage, "baseline direction error (rig constraint)", 0.0, angle, angle, 0.1, "deg", "issue 5"))
     quality = ", ".join(f"{c.name} {c.quality['rms_px']:.3f} px" for c in rig.cameras)
+    residual_plot = _plot_residuals(ctx.path("plots", "solve_residuals.png"), rig.cameras,
+                                    *_sfm_residuals(out / "sparse" / "best", [c.name for c in rig.cameras]))
     body = (f"<pre>{html.escape(_command(argv, ctx))}</pre><p>pycolmap SIFT + incremental mapping with the rig "
             f"constraint (division lens: COLMAP's SIMPLE_DIVISION), then camcal's bundle adjustment; RMS reprojection error through camcal's rig: "
             f"{quality}. Poses compared after a similarity (Umeyama 1991) to the true ones; "
-            f"scene size {size:g} m.</p>")
+            f"scene size {size:g} m.</p>{_img(ctx, residual_plot)}")
     return StageResult(tuple(rows), (("SfM rig (solve.rig.json)", out / "solve.rig.json"), ("sparse points (points.ply)", out / "points.ply")),
                        (ReportSection("Structure from motion", body, "solve"),))
 
@@ -1269,14 +1292,14 @@ def _plot_images(path: Path, images: Sequence[str], titles: Sequence[str], colum
     return _save(fig, path)
 
 
-def _plot_residuals(path: Path, result) -> Path:
-    """Reprojection residuals of the board calibration: vectors over the image, and their spread."""
+def _plot_residuals(path: Path, cameras: Sequence[Camera], camera_of_point: NDArray, points_px: NDArray,
+                    residuals_px: NDArray) -> Path:
+    """Reprojection residuals (observed - projected): vectors over each camera's image, and their spread."""
     plt = _pyplot()
-    cameras = result.rig.cameras
     fig, axes = plt.subplots(2, len(cameras), figsize=(5.2 * len(cameras), 8.0), squeeze=False)
     for j, camera in enumerate(cameras):
-        mine = result.camera_of_point == j
-        points, residuals = result.points_px[mine], result.residuals_px[mine]
+        mine = camera_of_point == j
+        points, residuals = points_px[mine], residuals_px[mine]
         width, height = camera.image_size
         ax = axes[0, j]
         gain = 0.03 * width / max(float(np.percentile(np.linalg.norm(residuals, axis=1), 99)), 1e-9)
