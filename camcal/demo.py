@@ -881,7 +881,8 @@ def _stage_solve(ctx: DemoContext) -> StageResult:
     rows.append(DemoRow(stage, "baseline direction error (rig constraint)", 0.0, angle, angle, 0.1, "deg", "issue 5"))
     quality = ", ".join(f"{c.name} {c.quality['rms_px']:.3f} px" for c in rig.cameras)
     residual_plot = _plot_residuals(ctx.path("plots", "solve_residuals.png"), rig.cameras,
-                                    *_sfm_residuals(out / "sparse" / "best", [c.name for c in rig.cameras]))
+                                    *_sfm_residuals(out / "sparse" / "best", [c.name for c in rig.cameras]),
+                                    what="feature")
     body = (f"<pre>{html.escape(_command(argv, ctx))}</pre><p>pycolmap SIFT + incremental mapping with the rig "
             f"constraint (division lens: COLMAP's SIMPLE_DIVISION), then camcal's bundle adjustment; RMS reprojection error through camcal's rig: "
             f"{quality}. Poses compared after a similarity (Umeyama 1991) to the true ones; "
@@ -1293,9 +1294,11 @@ def _plot_images(path: Path, images: Sequence[str], titles: Sequence[str], colum
 
 
 def _plot_residuals(path: Path, cameras: Sequence[Camera], camera_of_point: NDArray, points_px: NDArray,
-                    residuals_px: NDArray) -> Path:
-    """Reprojection residuals (observed - projected): vectors over each camera's image, and their spread."""
+                    residuals_px: NDArray, what: str = "corner", max_arrows: int = 3000) -> Path:
+    """Reprojection residuals (observed - projected): vectors over each camera's image (at most
+    ``max_arrows``, a fixed random subset), and the spread of all of them."""
     plt = _pyplot()
+    rng = np.random.default_rng(0)
     fig, axes = plt.subplots(2, len(cameras), figsize=(5.2 * len(cameras), 8.0), squeeze=False)
     for j, camera in enumerate(cameras):
         mine = camera_of_point == j
@@ -1303,7 +1306,8 @@ def _plot_residuals(path: Path, cameras: Sequence[Camera], camera_of_point: NDAr
         width, height = camera.image_size
         ax = axes[0, j]
         gain = 0.03 * width / max(float(np.percentile(np.linalg.norm(residuals, axis=1), 99)), 1e-9)
-        ax.quiver(points[:, 0], points[:, 1], residuals[:, 0], -residuals[:, 1], color="tab:red",
+        shown = np.sort(rng.choice(len(points), min(len(points), max_arrows), replace=False))
+        ax.quiver(points[shown, 0], points[shown, 1], residuals[shown, 0], -residuals[shown, 1], color="tab:red",
                   angles="xy", scale_units="xy", scale=1 / gain, width=0.003)
         ax.set_xlim(0, width)
         ax.set_ylim(height, 0)
@@ -1316,7 +1320,7 @@ def _plot_residuals(path: Path, cameras: Sequence[Camera], camera_of_point: NDAr
         ax.set_aspect("equal")
         ax.set_xlabel("dx (px)")
         ax.set_ylabel("dy (px)")
-        ax.set_title(f"{camera.name}: {len(residuals)} corner residuals", fontsize=10)
+        ax.set_title(f"{camera.name}: {len(residuals)} {what} residuals", fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
 
