@@ -1112,6 +1112,7 @@ def _stage_colour_export(ctx: DemoContext) -> StageResult:
     D65 = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
     lcms = load_lcms()
     rows, outputs = [], [("OCIO config (config.ocio)", ocio_dir / "config.ocio")]
+    outputs += [(f"{name} matrix fit, exported instead ({fits[name].name})", fits[name]) for name in refused]
     commands.append(argv)
     for name, path in fits.items():
         fit = load_fit(path)
