@@ -574,7 +574,7 @@ def invert_model(apply: Callable[[np.ndarray], np.ndarray], XYZ: Any, iterations
     mapped = apply(grid)
     scale = np.linalg.norm(XYZ, axis=1) + 1e-3
     nearest = np.array([np.argmin(np.linalg.norm(mapped - target, axis=1)) for target in XYZ], dtype=int)
-    coarse = grid[np.linspace(0, len(grid) - 1, 125).astype(int)]
+    coarse = grid.reshape(25, 25, 25, 3)[::6, ::6, ::6].reshape(-1, 3)  # 5^3: 0, 0.25 ... 1
     M = np.linalg.lstsq(coarse, apply(coarse), rcond=None)[0].T
     candidates = [_newton_inverse(apply, XYZ, start, iterations)
                   for start in (grid[nearest], XYZ @ np.linalg.inv(M).T)]
