@@ -913,8 +913,12 @@ def _colour_fit_argv(ctx: DemoContext, name: str, model: str, out: Path) -> list
     """``camcal colour fit`` of camera ``name``'s rendered chart, judged on its independent patches."""
     return ["colour", "fit", "--chart", str(ctx.need("chart_images", "colour fit")[name]),
             "--reference", "ISO 17321-1", "--illuminant", ctx.truth.illuminant, "--linearise", "none",
-            "--model", model, "--test-patches", str(ctx.path("colour", f"{name}_independent.csv")),
-            "--camera", name, "--out", str(out)]
+            "--model", model, "--test-patches", str(_independent_csv(ctx, name)), "--camera", name, "--out", str(out)]
+
+
+def _independent_csv(ctx: DemoContext, name: str) -> Path:
+    """Where the colour fit stage writes camera ``name``'s independent patches (the 190 reflectances)."""
+    return ctx.path("colour", f"{name}_independent.csv")
 
 
 def _stage_colour_fit(ctx: DemoContext) -> StageResult:
@@ -930,7 +934,7 @@ def _stage_colour_fit(ctx: DemoContext) -> StageResult:
     fits, detected, tests = {}, {}, {}
     for name, chart in charts.items():
         chart_rgb, test_rgb, test_xyz = albedos[name]
-        test_csv = ctx.path("colour", f"{name}_independent.csv")
+        test_csv = _independent_csv(ctx, name)
         write_patch_csv(test_csv, PatchSet(tuple(f"rawtoaces{i:03d}" for i in range(len(test_rgb))), test_rgb, test_xyz))
         tests[name] = test_csv
         fit_path = ctx.path("colour", f"{name}.colour.json")
@@ -1043,17 +1047,9 @@ def _ocio_apply(processor, RGB: NDArray) -> NDArray[np.float64]:
     """OCIO's CPU processor without its fast approximations (lossless optimisation)."""
     import PyOpenColorIO as ocio  # noqa: PLC0415
 
-    pixels = np.ascontiguousarray(RGB, dtype=np.float32).copy()
-    processor.getOptimizedCPUProcessor(ocio.OPTIMIZATION_LOSSLESS).applyRGB(pixels)
-    return pixels.astype(np.float64)
+    from camcal.colour.export_ocio import _apply_cpu  # noqa: PLC0415
 
-
-def _adapt(XYZ: NDArray, white: Sequence[float], to_white: Sequence[float]) -> NDArray[np.float64]:
-    """Bradford von Kries adaptation by colour-science (the CAT ``colour export`` uses by default)."""
-    import colour  # noqa: PLC0415
-
-    return np.asarray(colour.chromatic_adaptation(XYZ, np.asarray(white), np.asarray(to_white),
-                                                  method="Von Kries", transform="Bradford"), dtype=np.float64)
+    return _apply_cpu(processor.getOptimizedCPUProcessor(ocio.OPTIMIZATION_LOSSLESS), RGB)
 
 
 def _exportable_fits(ctx: DemoContext, stage: str) -> tuple[dict[str, Path], dict[str, tuple[str, str]], list]:
@@ -1087,7 +1083,6 @@ def _exportable_fits(ctx: DemoContext, stage: str) -> tuple[dict[str, Path], dic
 
 
 def _stage_colour_export(ctx: DemoContext) -> StageResult:
-    import colour  # noqa: PLC0415
     import PyOpenColorIO as ocio  # noqa: PLC0415
 
     from camcal.colour.evaluate import delta_E  # noqa: PLC0415
@@ -1097,6 +1092,7 @@ def _stage_colour_export(ctx: DemoContext) -> StageResult:
     from camcal.colour.lcms import lcms_to_XYZ, load_lcms  # noqa: PLC0415
     from camcal.colour.match import load_match  # noqa: PLC0415
     from camcal.colour.patches import read_patch_csv  # noqa: PLC0415
+    from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ  # noqa: PLC0415
 
     stage = "colour export"
     fits, refused, commands = _exportable_fits(ctx, stage)
@@ -1109,7 +1105,7 @@ def _stage_colour_export(ctx: DemoContext) -> StageResult:
             "--ocio", str(ocio_dir), "--base", "camcal"]
     _run_cli(argv, stage)
     config = ocio.Config.CreateFromFile(str(ocio_dir / "config.ocio"))
-    D65 = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
+    D65 = illuminant_white_XYZ("D65")
     lcms = load_lcms()
     rows, outputs = [], [("OCIO config (config.ocio)", ocio_dir / "config.ocio")]
     outputs += [(f"{name} matrix fit, exported instead ({fits[name].name})", fits[name]) for name in refused]
@@ -1119,7 +1115,7 @@ def _stage_colour_export(ctx: DemoContext) -> StageResult:
         codes = samples[name]
         expected = fit.apply_codes(codes)
         got = _ocio_apply(config.getProcessor(colour_space_name(name), _OCIO_XYZ_D65), codes)
-        truth = _adapt(expected, fit.target_white_XYZ, D65)
+        truth = adapt_XYZ(expected, fit.target_white_XYZ, D65, "Bradford")
         what = f"{name} OCIO space vs fit"
         if fit.model.kind == "matrix3x3":
             err = float(np.abs(got - truth).max())
@@ -1134,7 +1130,7 @@ def _stage_colour_export(ctx: DemoContext) -> StageResult:
         outputs.append((f"ICC v4 camera profile, {name} ({name}.icc)", icc))
         err = float("nan")
         if lcms is not None:
-            D50 = _adapt(expected, fit.target_white_XYZ, D50_XYZ)
+            D50 = adapt_XYZ(expected, fit.target_white_XYZ, D50_XYZ, "Bradford")
             keep = D50[:, 1] > 0.01  # CIEDE2000 of near-black says nothing
             err = float(delta_E(lcms_to_XYZ(lcms, icc.read_bytes(), codes)[keep], D50[keep], D50_XYZ).max())
         rows.append(DemoRow(stage, f"{name} ICC (LittleCMS) vs fit, worst dE00", 0.0, err, err, 0.5,
