@@ -1,13 +1,20 @@
-# camcal: every target creates .venv (Python 3.11) on first use and installs
-# the package with all its extras into it.
-PYTHON ?= python3.11
+# camcal: every target creates .venv (Python 3.13, the VFX Reference Platform
+# CY2026 interpreter) on first use and installs the package with all its extras.
+# Another interpreter: make test PYTHON=/path/to/python3.13
+PYTHON ?= $(shell for p in python3.13 $$HOME/.pyenv/versions/3.13*/bin/python3.13 /usr/local/bin/python3.13 /usr/bin/python3.13; do \
+	$$p -c 'import sys; sys.exit(sys.version_info[:2] != (3, 13))' 2>/dev/null && { echo $$p; break; }; done)
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: test test-all demo bench addon clean
+.PHONY: test test-all demo bench addon clean python
 
-$(STAMP): pyproject.toml
+python:
+	@test -n "$(PYTHON)" || { echo "camcal: Python 3.13 not found (tried python3.13, ~/.pyenv/versions/3.13*/bin, /usr/local/bin, /usr/bin); install it or run make PYTHON=/path/to/python3.13" >&2; exit 2; }
+
+$(STAMP): pyproject.toml | python
+	@if [ -x $(PY) ] && ! $(PY) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 13))'; then \
+		echo "camcal: .venv is not Python 3.13; recreating it"; rm -rf $(VENV); fi
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[blender,test]"
