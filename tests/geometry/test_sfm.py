@@ -56,7 +56,7 @@ def test_stereo_sequence_recovers_known_rig(tmp_path):
     # camcal's refinement never ends above its pycolmap seed, and reports per-camera figures
     assert result.bundle is not None and result.bundle.final_cost <= result.bundle.initial_cost
     assert set(result.bundle.rms_after_px) == {"left", "right"}
-    assert 0 < rig.camera("left").quality["sigma"]["f"] < 5.0
+    assert 0 < rig.camera("left").quality["sigma"]["fx"] < 5.0
     # frames point at the user's images
     assert (tmp_path / "out" / rig.frames[0].images["left"]).resolve() == (tmp_path / "in/left/0000.png").resolve()
 
