@@ -1,5 +1,6 @@
 """pycolmap SfM -> camcal Rig, against a rendered scene with known cameras."""
 
+import json
 import subprocess
 import sys
 
@@ -28,7 +29,7 @@ def similarity(source, target):
 
 
 @pytest.mark.slow
-def test_stereo_sequence_recovers_known_rig(tmp_path):
+def test_stereo_sequence_recovers_known_rig(tmp_path, capsys):
     truth = render_stereo_sequence(tmp_path / "in")
     result = solve_sfm({"left": tmp_path / "in/left", "right": tmp_path / "in/right"}, tmp_path / "out")
     assert result.n_registered == result.n_images == 14 and not result.unregistered
@@ -63,9 +64,15 @@ def test_stereo_sequence_recovers_known_rig(tmp_path):
     # the same images with the rig held at a known (board) calibration: metric units, exact baseline
     known = Rig((truth["left", 0], truth["right", 0]), units="m")
     known.save(tmp_path / "known.rig.json")
-    code = main(["solve", str(tmp_path / "in"), "--rig", str(tmp_path / "known.rig.json"), "--out", str(tmp_path / "metric")])
+    capsys.readouterr()
+    code = main(["solve", str(tmp_path / "in"), "--rig", str(tmp_path / "known.rig.json"), "--out", str(tmp_path / "metric"),
+                 "--json"])
     assert code == 0
     metric = Rig.load(tmp_path / "metric/solve.rig.json")
+    summary = json.loads(capsys.readouterr().out)  # --json: one object on stdout
+    assert summary["verb"] == "solve" and summary["figures"]["n_registered"] == len(metric.frames) * 2
+    assert {"path": str(tmp_path / "metric" / "solve.rig.json"), "kind": "rig"} in summary["files"]
+    assert summary["figures"]["per_camera_rms_px"]["left"] == pytest.approx(metric.camera("left").quality["rms_px"])
     assert metric.units == "m"
     assert np.linalg.norm(metric.camera("right").c) == pytest.approx(BASELINE, rel=1e-9)
     centres = np.array([metric.camera_at_frame("left", frame.index).c for frame in metric.frames])
