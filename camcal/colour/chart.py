@@ -274,7 +274,14 @@ def detect_chart(image: np.ndarray, rows: int = 4, columns: int = 6) -> ChartDet
         )
     bgr = np.ascontiguousarray((np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)[:, :, ::-1])
     detector = cv2.mcc.CCheckerDetector_create()
-    if not detector.process(bgr, cv2.mcc.MCC24, 1):
+    if hasattr(detector, "setColorChartType"):
+        # OpenCV 5: the chart type is a detector setting (unset, it is not MCC24)
+        # and process() takes only (image, nc).
+        detector.setColorChartType(cv2.mcc.MCC24)
+        found = detector.process(bgr, 1)
+    else:  # OpenCV 4.x: process(image, chartType, nc)
+        found = detector.process(bgr, cv2.mcc.MCC24, 1)
+    if not found:
         raise CamcalError(
             "no ColorChecker found in the image (cv2.mcc); give its corners with --corners"
         )
