@@ -162,14 +162,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     8- and 16-bit integer images are divided by 255 or 65535; float images
     (EXR, TIFF) are returned as they are.
     """
-    import cv2
+    from camcal.io.frames import imread
 
     path = Path(path)
     if not path.is_file():
         raise CamcalError(f"chart image not found: {path}")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH)
-    if image is None:
-        raise CamcalError(f"cannot read image {path} (not an image OpenCV can decode)")
+    image = imread(path)
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)
     image = image[:, :, :3][:, :, ::-1]
