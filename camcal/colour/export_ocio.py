@@ -59,6 +59,7 @@ from typing import Any
 
 import numpy as np
 
+from camcal import resources
 from camcal.colour.evaluate import DeltaEStats, delta_E
 from camcal.colour.fitfile import ColourFit
 from camcal.colour.linearise import Linearisation
@@ -130,12 +131,12 @@ def _slug(text: str) -> str:
 
 
 def base_config_path() -> Path:
-    """camcal's base config template, ``ocio_configs/camcal_base.ocio`` beside the package.
+    """camcal's base config template, ``camcal_base.ocio`` of :func:`camcal.resources.ocio_configs_dir`.
 
     ``CAMCAL_OCIO_CONFIGS`` overrides the folder.
     """
     override = os.environ.get("CAMCAL_OCIO_CONFIGS")
-    folder = Path(override) if override else Path(__file__).resolve().parents[2] / "ocio_configs"
+    folder = Path(override) if override else resources.ocio_configs_dir()
     path = folder / "camcal_base.ocio"
     if not path.is_file():
         raise CamcalError(f"camcal's base OCIO config was not found at {path} (set CAMCAL_OCIO_CONFIGS)")
