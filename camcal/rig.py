@@ -50,7 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from camcal import __version__
 from camcal.errors import CamcalError
-from camcal.geometry.camera import compose_P, project_pinhole
+from camcal.geometry.camera import compose_P, project_pinhole, rotation_angle_deg
 from camcal.geometry.distortion import Distortion
 from camcal.io.atomic import atomic_write_text
 from camcal.io.jsonfile import dumps, read_json
@@ -466,8 +466,7 @@ class Rig(_DictEquality):
                 f"looking along ({view[0]:.3f}, {view[1]:.3f}, {view[2]:.3f})"
             )
             if camera is not reference:
-                relative = camera.R @ reference.R.T
-                angle = np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1, 1)))
+                angle = rotation_angle_deg(camera.R @ reference.R.T)
                 baseline = np.linalg.norm(camera.c - reference.c)
                 lines.append(f"  from {reference.name!r}: baseline {baseline:.4f} {self.units}, rotation {angle:.3f} deg")
             if camera.sensor_width_mm is not None:

@@ -187,9 +187,9 @@ def _ocio_apply(processor, RGB: NDArray) -> NDArray[np.float64]:
     """OCIO's CPU processor without its fast approximations (lossless optimisation)."""
     import PyOpenColorIO as ocio  # noqa: PLC0415
 
-    from camcal.colour.export_ocio import _apply_cpu  # noqa: PLC0415
+    from camcal.colour.export_ocio import apply_cpu  # noqa: PLC0415
 
-    return _apply_cpu(processor.getOptimizedCPUProcessor(ocio.OPTIMIZATION_LOSSLESS), RGB)
+    return apply_cpu(processor.getOptimizedCPUProcessor(ocio.OPTIMIZATION_LOSSLESS), RGB)
 
 
 def _exportable_fits(ctx: DemoContext, stage: str) -> tuple[dict[str, Path], dict[str, tuple[str, str]], list]:

@@ -12,7 +12,8 @@ from numpy.typing import NDArray
 
 from camcal.demo.core import DemoContext, DemoRow, ReportSection, StageResult, command_line, run_cli
 from camcal.demo.report import img_tag, plot_epipolar, plot_residuals
-from camcal.demo.truth import board_corners, rotation_angle_deg
+from camcal.demo.truth import board_corners
+from camcal.geometry.camera import pixels_from_colmap, rotation_angle_deg, similarity_Umeyama1991
 from camcal.geometry.distortion import Distortion
 from camcal.rig import Rig
 
@@ -183,17 +184,6 @@ def stage_rectify(ctx: DemoContext) -> StageResult:
 # -- stage: solve ------------------------------------------------------------------------------
 
 
-def _similarity(source: NDArray, target: NDArray) -> tuple[float, NDArray, NDArray]:
-    """Umeyama (1991): ``s, R, t`` minimising ``|target - (s R source + t)|``."""
-    mu_s, mu_t = source.mean(0), target.mean(0)
-    cov = (target - mu_t).T @ (source - mu_s) / len(source)
-    u, d, vt = np.linalg.svd(cov)
-    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    R = u @ sign @ vt
-    scale = float(np.trace(np.diag(d) @ sign) / np.mean(np.sum((source - mu_s) ** 2, axis=1)))
-    return scale, R, mu_t - scale * R @ mu_s
-
-
 def _sfm_residuals(model_dir: Path, camera_names: list[str]) -> tuple[NDArray, NDArray, NDArray]:
     """Camera index, observed pixel and residual (observed - projected) of every observation of the
     refined COLMAP model ``solve`` wrote (image names are ``camera/file``)."""
@@ -210,8 +200,8 @@ def _sfm_residuals(model_dir: Path, camera_names: list[str]) -> tuple[NDArray, N
             if projected is not None:
                 cameras.append(index)
                 points.append(point.xy)
-                residuals.append(point.xy - projected)
-    return np.asarray(cameras), np.asarray(points), np.asarray(residuals)
+                residuals.append(point.xy - projected)  # both in COLMAP pixels: the half pixel cancels
+    return np.asarray(cameras), pixels_from_colmap(np.asarray(points)), np.asarray(residuals)
 
 
 def stage_solve(ctx: DemoContext) -> StageResult:
@@ -236,7 +226,7 @@ def stage_solve(ctx: DemoContext) -> StageResult:
     index_of = {frame.index: int(Path(next(iter(frame.images.values()))).stem) for frame in rig.frames}
     keys = sorted(solved)
     true_cams = {k: truth.rig.camera_at_frame(k[0], index_of[k[1]]) for k in keys}
-    s, R_align, t = _similarity(np.array([solved[k].c for k in keys]), np.array([true_cams[k].c for k in keys]))
+    s, R_align, t = similarity_Umeyama1991(np.array([solved[k].c for k in keys]), np.array([true_cams[k].c for k in keys]))
     centre_err = max(float(np.linalg.norm(s * R_align @ solved[k].c + t - true_cams[k].c)) for k in keys)
     rot_err = max(rotation_angle_deg(true_cams[k].R @ (solved[k].R @ R_align.T).T) for k in keys)
     size = truth.room_extent_m

@@ -22,7 +22,6 @@ __all__ = [
     "make_truth",
     "reference_XYZ",
     "room_quads",
-    "rotation_angle_deg",
     "true_match_matrix",
 ]
 
@@ -120,10 +119,6 @@ def board_corners(board, R, t) -> NDArray[np.float64]:
     return X @ R.T + t
 
 
-def rotation_angle_deg(R: NDArray[np.float64]) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 def reference_XYZ(reflectances: str, illuminant: str) -> NDArray[np.float64]:
     """True XYZ (perfect white Y = 1) of a colour-science reflectance set under a CIE illuminant.
 
@@ -136,15 +131,11 @@ def reference_XYZ(reflectances: str, illuminant: str) -> NDArray[np.float64]:
     -----
     ``XYZ = k sum_l R(l) S(l) xyz(l)`` with ``k = 1 / sum_l S(l) y(l)``.
     """
-    import colour  # noqa: PLC0415
+    from camcal.colour.spectral import reflectance_set, reflectance_XYZ  # noqa: PLC0415
 
-    from camcal.colour.spectral import reflectance_set  # noqa: PLC0415
-
-    shape = colour.SpectralShape(380, 780, 5)
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape).values
-    S = colour.SDS_ILLUMINANTS[illuminant].copy().align(shape).values
-    _, R = reflectance_set(reflectances, shape.wavelengths)
-    return (R * S) @ cmfs / float(S @ cmfs[:, 1])
+    shape = (380.0, 780.0, 5.0)
+    _, R = reflectance_set(reflectances, np.arange(shape[0], shape[1] + shape[2], shape[2]))
+    return reflectance_XYZ(R, illuminant, shape)[0]
 
 
 def chart_albedos(truth: DemoTruth) -> dict[str, tuple[NDArray, NDArray, NDArray]]:

@@ -9,23 +9,13 @@ import pytest
 
 from camcal.cli import main
 from camcal.errors import CamcalError
+from camcal.geometry.camera import rotation_angle_deg, similarity_Umeyama1991
 from camcal.geometry.sfm import collect_images, solve_sfm
 from camcal.io.ply import read_points_ply, write_points_ply
 from camcal.rig import Rig
 from camcal.synthetic import render_stereo_sequence
 
 BASELINE = 0.3
-
-
-def similarity(source, target):
-    """Umeyama (1991): s, R, t minimising |target - (s R source + t)|."""
-    mu_s, mu_t = source.mean(0), target.mean(0)
-    cov = (target - mu_t).T @ (source - mu_s) / len(source)
-    u, d, vt = np.linalg.svd(cov)
-    sign = np.diag([1, 1, np.sign(np.linalg.det(u @ vt))])
-    R = u @ sign @ vt
-    scale = np.trace(np.diag(d) @ sign) / np.mean(np.sum((source - mu_s) ** 2, axis=1))
-    return scale, R, mu_t - scale * R @ mu_s
 
 
 @pytest.mark.slow
@@ -39,14 +29,12 @@ def test_stereo_sequence_recovers_known_rig(tmp_path, capsys):
         assert abs(camera.K[0, 0] / 500.0 - 1) < 0.005
     solved = {(name, frame.index): rig.camera_at_frame(name, frame.index) for frame in rig.frames for name in frame.images}
     keys = sorted(solved)
-    s, R_align, t = similarity(np.array([solved[k].c for k in keys]), np.array([truth[k].c for k in keys]))
+    s, R_align, t = similarity_Umeyama1991(np.array([solved[k].c for k in keys]), np.array([truth[k].c for k in keys]))
     scene_size = 8.0
     for key in keys:
         centre = s * R_align @ solved[key].c + t
         assert np.linalg.norm(centre - truth[key].c) < 0.005 * scene_size
-        relative = truth[key].R @ (solved[key].R @ R_align.T).T
-        angle = np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1, 1)))
-        assert angle < 0.1
+        assert rotation_angle_deg(truth[key].R @ (solved[key].R @ R_align.T).T) < 0.1
     # the rig constraint: one baseline, along the left camera's x axis
     right = rig.camera("right")
     direction = right.c / np.linalg.norm(right.c)
