@@ -946,8 +946,9 @@ def _parse_corners(text: str):
 def _colour_fit(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from camcal.colour.characterise import characterise, patches_from_chart, write_report
+    from camcal.colour.characterise import characterise, patches_from_chart
     from camcal.colour.patches import read_patch_csv
+    from camcal.report.characterisation import write_report
 
     reference = None
     if args.chart:
@@ -987,7 +988,7 @@ def _colour_fit(args: argparse.Namespace) -> int:
                 n_train=len(train), delta_E2000=stats)
     out.wrote(outcome.fit.save(args.out), "colour fit")
     if args.report:
-        files = write_report(args.report, outcome, title=args.camera or "")
+        files = write_report(outcome, args.report, title=args.camera or "")
         for file in files:
             out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")
@@ -1124,7 +1125,9 @@ def _register_colour_match(colour_verbs) -> None:
 
 def _colour_match(args: argparse.Namespace) -> int:
     from camcal.colour.fitfile import load_fit
-    from camcal.colour.match import match_image_files, match_patch_files, parse_match_model, write_match_report
+    from camcal.colour.match import match_image_files, match_patch_files
+    from camcal.colour.match_models import parse_match_model
+    from camcal.report.colour_match import write_report
 
     parse_match_model(args.model)
     images, patches = args.images, args.patches
@@ -1154,7 +1157,7 @@ def _colour_match(args: argparse.Namespace) -> int:
                 correspondences=dict(result.correspondences.counts) if images else None)
     out.wrote(result.match.save(args.out), "colour match")
     if args.report:
-        files = write_match_report(args.report, result)
+        files = write_report(result, args.report)
         for file in files:
             out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")

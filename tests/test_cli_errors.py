@@ -92,9 +92,7 @@ CASES = [
     ("solve unknown rig", "solve {in} --camera left=plain.png --rig {in}/corrupt.json --out {out}/s"),
     ("blender import missing", "blender import {in}/missing.rig.json --blend {out}/a.blend"),
     ("blender import corrupt", "blender import {in}/corrupt.json --blend {out}/a.blend"),
-    pytest.param("colour fit absent chart", "colour fit --chart {in}/plain.png --out {out}/a.colour.json",
-                 marks=pytest.mark.xfail(reason="OpenCV 5.0 changed cv2.mcc's process() signature: an internal "
-                                         "error until the platform helper (issue 20) ports chart.py", strict=False)),
+    ("colour fit absent chart", "colour fit --chart {in}/plain.png --out {out}/a.colour.json"),
     ("colour fit corrupt chart", "colour fit --chart {in}/garbage.png --out {out}/a.colour.json"),
     ("colour fit non-finite patches", "colour fit --patches {in}/patches.csv --out {out}/a.colour.json"),
     ("colour fit empty patches", "colour fit --patches {in}/empty.csv --out {out}/a.colour.json"),
@@ -113,7 +111,7 @@ CASES = [
 ]
 
 
-@pytest.mark.parametrize("case, argv", CASES, ids=[c.values[0] if hasattr(c, "values") else c[0] for c in CASES])
+@pytest.mark.parametrize("case, argv", CASES, ids=[case for case, _ in CASES])
 def test_bad_input_is_one_line_exit_2_nothing_written(case, argv, inputs, tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
