@@ -92,9 +92,9 @@ def _check_K(K: NDArray[np.float64], name: str) -> None:
     if K[1, 0] != 0.0 or K[2, 0] != 0.0 or K[2, 1] != 0.0:
         raise CamcalError(f"{name} must be upper triangular ([[fx, s, cx], [0, fy, cy], [0, 0, 1]])")
     if K[2, 2] != 1.0:
-        raise CamcalError(f"{name}[2][2] must be 1, got {K[2, 2]!r}")
+        raise CamcalError(f"{name}[2][2] must be 1, got {float(K[2, 2])!r}")  # numpy 2 reprs np.float64(x)
     if K[0, 0] <= 0.0 or K[1, 1] <= 0.0:
-        raise CamcalError(f"{name} must have positive fx and fy, got fx={K[0, 0]!r}, fy={K[1, 1]!r}")
+        raise CamcalError(f"{name} must have positive fx and fy, got fx={float(K[0, 0])!r}, fy={float(K[1, 1])!r}")
 
 
 def _check_rotation(R: NDArray[np.float64], name: str) -> None:
