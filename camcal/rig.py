@@ -7,7 +7,7 @@ The rig file is the one hand-off between camcal's parts (DESIGN.md)::
                   "sensor_width_mm"?, "rectification"?, "quality"?}, ...],
      "frames": [{"index", "R", "c", "images"?}, ...],
      "points": null | "points.ply",
-     "provenance": {"tool", "method", "created", ...}}
+     "provenance": {"tool", "method", "created", ...}}   (optional: "unknown")
 
 Conventions
 -----------
@@ -58,6 +58,7 @@ from camcal.io.jsonfile import dumps, read_json
 __all__ = [
     "RIG_FORMAT",
     "RIG_VERSION",
+    "UNKNOWN_PROVENANCE",
     "Camera",
     "Rectification",
     "Frame",
@@ -67,6 +68,8 @@ __all__ = [
 
 RIG_FORMAT = "camcal.rig"
 RIG_VERSION = 1
+#: What a rig file without ``provenance`` (or without one of its keys) gets on load.
+UNKNOWN_PROVENANCE = "unknown"
 
 _ORTHONORMAL_TOL = 1e-6
 
@@ -390,7 +393,8 @@ class Rig(_DictEquality):
     points : str, optional
         Sibling PLY of sparse points, relative to the rig file.
     provenance : mapping
-        ``tool``, ``method``, ``created`` and any further details.
+        ``tool``, ``method``, ``created`` and any further details; absent
+        keys are filled with :data:`UNKNOWN_PROVENANCE` ("unknown").
     """
 
     cameras: tuple[Camera, ...]
@@ -426,8 +430,10 @@ class Rig(_DictEquality):
             raise CamcalError(f"points must be null or a file name, got {self.points!r}")
         if not isinstance(self.provenance, Mapping):
             raise CamcalError("provenance must be an object")
-        _check_keys(self.provenance, "provenance", ("tool", "method", "created"), set(self.provenance))
-        object.__setattr__(self, "provenance", MappingProxyType(copy.deepcopy(dict(self.provenance))))
+        # optional metadata: a rig typed by hand or imported from another tool loads
+        provenance = {key: UNKNOWN_PROVENANCE for key in ("tool", "method", "created")}
+        provenance.update(copy.deepcopy(dict(self.provenance)))
+        object.__setattr__(self, "provenance", MappingProxyType(provenance))
 
     def camera(self, name: str) -> Camera:
         """The camera called ``name``."""
@@ -510,7 +516,7 @@ class Rig(_DictEquality):
     def from_dict(cls, data: Any) -> Rig:
         """Validate a rig file's JSON object; errors name the bad field."""
         _check_keys(
-            data, "rig", ("format", "version", "cameras", "provenance"), ("units", "frames", "points")
+            data, "rig", ("format", "version", "cameras"), ("units", "frames", "points", "provenance")
         )
         if data["format"] != RIG_FORMAT:
             raise CamcalError(f"format must be {RIG_FORMAT!r}, got {data['format']!r}")
@@ -541,7 +547,7 @@ class Rig(_DictEquality):
             units=data.get("units", "m"),
             frames=tuple(frames),
             points=data.get("points"),
-            provenance=data["provenance"],
+            provenance=data.get("provenance") or {},
         )
 
     def to_json(self) -> str:
