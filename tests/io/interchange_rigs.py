@@ -62,3 +62,14 @@ def world_points(rig: Rig, camera: Camera, n=400, seed=3):
     rays = np.column_stack([ideal, np.ones(n)]) @ np.linalg.inv(camera.K).T
     depth = rng.uniform(1.5, 8.0, (n, 1))
     return (rays * depth) @ camera.R + camera.c, pixels
+
+
+def relative_projection_error(rig: Rig, back: Rig) -> float:
+    """Max px between two rigs' projections of the same points, their first cameras taken as the common frame."""
+    worst = 0.0
+    ref_a, ref_b = rig.cameras[0], back.cameras[0]
+    for a, b in zip(rig.cameras, back.cameras):
+        X, _ = world_points(rig, a)
+        X_b = (X - ref_a.c) @ ref_a.R.T @ ref_b.R + ref_b.c  # rig a's world -> rig b's world
+        worst = max(worst, float(np.abs(a.project(X) - b.project(X_b)).max()))
+    return worst

@@ -9,18 +9,7 @@ from camcal.errors import CamcalError
 from camcal.io.interchange import export_rig, import_rig, max_pixel_residual
 from camcal.rig import Rig
 
-from interchange_rigs import division_rig, stereo_rig, world_points
-
-
-def relative_projection_error(rig: Rig, back: Rig) -> float:
-    """Max px between the two rigs' projections of points seen by every camera, in the first camera's frame."""
-    worst = 0.0
-    ref_a, ref_b = rig.cameras[0], back.cameras[0]
-    for a, b in zip(rig.cameras, back.cameras):
-        X, _ = world_points(rig, a)
-        X_b = (X - ref_a.c) @ ref_a.R.T @ ref_b.R + ref_b.c  # rig a's world -> rig b's world (cam0 frames agree)
-        worst = max(worst, float(np.abs(a.project(X) - b.project(X_b)).max()))
-    return worst
+from interchange_rigs import division_rig, relative_projection_error, stereo_rig, world_points
 
 
 @pytest.mark.parametrize("suffix", [".yaml", ".yml", ".xml"])
