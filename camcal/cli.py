@@ -181,6 +181,15 @@ def _rig_import(args: argparse.Namespace) -> int:
     result = import_rig(args.file, args.fmt)
     rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
     _print_conversions(result)
+    if result.points_xyz is not None:
+        from pathlib import Path
+
+        from camcal.io.ply import write_points_ply
+
+        out = Path(args.out)
+        points = out.with_name(out.name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
+        print(f"wrote {write_points_ply(points, result.points_xyz, result.points_rgb)} ({len(result.points_xyz)} points)")
+        rig = dataclasses.replace(rig, points=points.name)
     print(f"wrote {rig.save(args.out)} ({len(rig.cameras)} camera(s), {len(rig.frames)} frame(s))")
     return 0
 

@@ -103,13 +103,26 @@ class ExportResult:
     notes: tuple[str, ...] = ()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ImportResult:
-    """A rig read from another tool's file, with how each camera was converted."""
+    """A rig read from another tool's file, with how each camera was converted.
+
+    Attributes
+    ----------
+    rig : Rig
+    conversions : tuple of LensConversion
+    notes : tuple of str
+    points_xyz : ndarray, shape (N, 3), optional
+        Sparse points the file holds (world coordinates), to be written
+        beside the rig (:func:`camcal.io.ply.write_points_ply`).
+    points_rgb : ndarray, shape (N, 3), uint8, optional
+    """
 
     rig: Rig
     conversions: tuple[LensConversion, ...]
     notes: tuple[str, ...] = ()
+    points_xyz: NDArray[np.float64] | None = None
+    points_rgb: NDArray[np.uint8] | None = None
 
 
 def _frame_grid(image_size: tuple[int, int]) -> NDArray[np.float64]:
