@@ -349,12 +349,77 @@ def _rig_show(args: argparse.Namespace) -> int:
 
 
 def _register_rig(subparsers) -> None:
-    rig = subparsers.add_parser("rig", help="inspect rig files")
+    rig = subparsers.add_parser("rig", help="inspect rig files; export them to and import them from other tools")
     verbs = rig.add_subparsers(dest="rig_verb", metavar="VERB")
     verbs.required = True
     show = verbs.add_parser("show", help="print a readable summary of a rig file")
     show.add_argument("rig", metavar="FILE", help="a *.rig.json file")
     show.set_defaults(func=_rig_show)
+    _register_rig_interchange(verbs)
+
+
+def _register_rig_interchange(verbs) -> None:
+    from camcal.io.interchange import FORMATS
+
+    export = verbs.add_parser(
+        "export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke)",
+        description="Write RIG as FORMAT. opencv: .yaml/.yml/.xml FileStorage (one camera or a stereo pair); "
+        "kalibr: camchain.yaml; colmap: a directory with cameras.txt, images.txt, points3D.txt; usd: "
+        ".usda/.usdc/.usd; nuke: .nk. A lens or skew the format cannot hold is fitted with the nearest "
+        "model it holds and the max pixel residual is printed; exact conversions say so.")
+    export.add_argument("rig", metavar="RIG", help="a *.rig.json file")
+    export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
+    export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
+    export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
+    export.set_defaults(func=_rig_export)
+    imp = verbs.add_parser(
+        "import", help="read another tool's camera file as a rig",
+        description="Read FILE (a directory for colmap) written by FORMAT's tool and write a camcal rig.")
+    imp.add_argument("file", metavar="FILE", help="the other tool's file")
+    imp.add_argument("--from", dest="fmt", required=True, choices=FORMATS, metavar="FORMAT",
+                     help=f"one of: {', '.join(FORMATS)}")
+    imp.add_argument("--out", required=True, metavar="RIG.rig.json", help="the rig file to write")
+    imp.set_defaults(func=_rig_import)
+
+
+def _print_conversions(result) -> None:
+    for conversion in result.conversions:
+        print(conversion.describe())
+    for note in result.notes:
+        print(f"note: {note}")
+
+
+def _rig_export(args: argparse.Namespace) -> int:
+    from camcal.io.interchange import export_rig
+    from camcal.rig import Rig
+
+    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig)
+    _print_conversions(result)
+    for path in result.paths:
+        print(f"wrote {path}")
+    return 0
+
+
+def _rig_import(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from camcal.io.interchange import import_rig
+    from camcal.rig import make_provenance
+
+    result = import_rig(args.file, args.fmt)
+    rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
+    _print_conversions(result)
+    if result.points_xyz is not None:
+        from pathlib import Path
+
+        from camcal.io.ply import write_points_ply
+
+        out = Path(args.out)
+        points = out.with_name(out.name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
+        print(f"wrote {write_points_ply(points, result.points_xyz, result.points_rgb)} ({len(result.points_xyz)} points)")
+        rig = dataclasses.replace(rig, points=points.name)
+    print(f"wrote {rig.save(args.out)} ({len(rig.cameras)} camera(s), {len(rig.frames)} frame(s))")
+    return 0
 
 
 # -- camcal calibrate ----------------------------------------------------------------

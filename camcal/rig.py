@@ -7,7 +7,7 @@ The rig file is the one hand-off between camcal's parts (DESIGN.md)::
                   "sensor_width_mm"?, "rectification"?, "quality"?}, ...],
      "frames": [{"index", "R", "c", "images"?}, ...],
      "points": null | "points.ply",
-     "provenance": {"tool", "method", "created", ...}}
+     "provenance": {"tool", "method", "created", ...}}   (optional: "unknown")
 
 Conventions
 -----------
@@ -59,6 +59,7 @@ from camcal.quality import Quality
 __all__ = [
     "RIG_FORMAT",
     "RIG_VERSION",
+    "UNKNOWN_PROVENANCE",
     "Camera",
     "Rectification",
     "Frame",
@@ -68,6 +69,8 @@ __all__ = [
 
 RIG_FORMAT = "camcal.rig"
 RIG_VERSION = 1
+#: What a rig file without ``provenance`` (or without one of its keys) gets on load.
+UNKNOWN_PROVENANCE = "unknown"
 
 _ORTHONORMAL_TOL = 1e-6
 
@@ -93,9 +96,9 @@ def _check_K(K: NDArray[np.float64], name: str) -> None:
     if K[1, 0] != 0.0 or K[2, 0] != 0.0 or K[2, 1] != 0.0:
         raise CamcalError(f"{name} must be upper triangular ([[fx, s, cx], [0, fy, cy], [0, 0, 1]])")
     if K[2, 2] != 1.0:
-        raise CamcalError(f"{name}[2][2] must be 1, got {K[2, 2]!r}")
+        raise CamcalError(f"{name}[2][2] must be 1, got {float(K[2, 2])!r}")  # numpy 2 reprs np.float64(x)
     if K[0, 0] <= 0.0 or K[1, 1] <= 0.0:
-        raise CamcalError(f"{name} must have positive fx and fy, got fx={K[0, 0]!r}, fy={K[1, 1]!r}")
+        raise CamcalError(f"{name} must have positive fx and fy, got fx={float(K[0, 0])!r}, fy={float(K[1, 1])!r}")
 
 
 def _check_rotation(R: NDArray[np.float64], name: str) -> None:
@@ -380,7 +383,8 @@ class Rig(_DictEquality):
     points : str, optional
         Sibling PLY of sparse points, relative to the rig file.
     provenance : mapping
-        ``tool``, ``method``, ``created`` and any further details.
+        ``tool``, ``method``, ``created`` and any further details; absent
+        keys are filled with :data:`UNKNOWN_PROVENANCE` ("unknown").
     """
 
     cameras: tuple[Camera, ...]
@@ -416,8 +420,10 @@ class Rig(_DictEquality):
             raise CamcalError(f"points must be null or a file name, got {self.points!r}")
         if not isinstance(self.provenance, Mapping):
             raise CamcalError("provenance must be an object")
-        _check_keys(self.provenance, "provenance", ("tool", "method", "created"), set(self.provenance))
-        object.__setattr__(self, "provenance", MappingProxyType(copy.deepcopy(dict(self.provenance))))
+        # optional metadata: a rig typed by hand or imported from another tool loads
+        provenance = {key: UNKNOWN_PROVENANCE for key in ("tool", "method", "created")}
+        provenance.update(copy.deepcopy(dict(self.provenance)))
+        object.__setattr__(self, "provenance", MappingProxyType(provenance))
 
     def camera(self, name: str) -> Camera:
         """The camera called ``name``."""
@@ -499,7 +505,7 @@ class Rig(_DictEquality):
     def from_dict(cls, data: Any) -> Rig:
         """Validate a rig file's JSON object; errors name the bad field."""
         _check_keys(
-            data, "rig", ("format", "version", "cameras", "provenance"), ("units", "frames", "points")
+            data, "rig", ("format", "version", "cameras"), ("units", "frames", "points", "provenance")
         )
         if data["format"] != RIG_FORMAT:
             raise CamcalError(f"format must be {RIG_FORMAT!r}, got {data['format']!r}")
@@ -530,7 +536,7 @@ class Rig(_DictEquality):
             units=data.get("units", "m"),
             frames=tuple(frames),
             points=data.get("points"),
-            provenance=data["provenance"],
+            provenance=data.get("provenance") or {},
         )
 
     def to_json(self) -> str:
