@@ -9,8 +9,8 @@ import numpy as np
 
 from camcal.colour.evaluate import delta_E, plot_report
 from camcal.colour.match import MatchResult, target_space
-from camcal.errors import CamcalError
 from camcal.io.atomic import atomic_path
+from camcal.io.frames import imwrite
 
 __all__ = [
     "write_report",
@@ -19,15 +19,6 @@ __all__ = [
 
 # --------------------------------------------------------------------------
 # Report
-
-
-def _write_png(path: Path, image: np.ndarray) -> Path:
-    import cv2
-
-    with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), image):
-            raise CamcalError(f"cannot write image {path}")
-    return path
 
 
 def _display(RGB: np.ndarray, peak: float) -> np.ndarray:
@@ -94,7 +85,7 @@ def write_report(result: MatchResult, out_dir: str | os.PathLike, delta_E_max: f
             dE[corr.valid] = delta_E(to_XYZ(pred[corr.valid]), to_XYZ(A[corr.valid]), white)
             images[name] = _heat(dE, delta_E_max)
         for name, image in images.items():
-            written.append(_write_png(directory / name, image))
+            written.append(imwrite(directory / name, image))
     lines = [result.match.summary()]
     if corr is not None:
         counts = corr.counts
