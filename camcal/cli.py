@@ -301,7 +301,9 @@ def _register_blender(subparsers) -> None:
 
 def _blender_import(args: argparse.Namespace) -> int:
     from camcal.blender_bridge import import_rig_to_blend
+    from camcal.rig import Rig
 
+    Rig.load(args.rig)  # a bad rig file fails here, in one line, before Blender starts
     summary = import_rig_to_blend(
         args.rig,
         args.blend,
