@@ -384,11 +384,13 @@ def _register_rig_interchange(verbs) -> None:
     imp.set_defaults(func=_rig_import)
 
 
-def _print_conversions(result) -> None:
+def _print_conversions(result, summary: VerbSummary) -> None:
     for conversion in result.conversions:
         print(conversion.describe())
     for note in result.notes:
         print(f"note: {note}")
+    summary.figures(conversions=[{"camera": c.camera, "source": c.source, "target": c.target, "exact": c.exact,
+                                  "max_px": c.max_px} for c in result.conversions], notes=list(result.notes))
 
 
 def _rig_export(args: argparse.Namespace) -> int:
@@ -396,9 +398,10 @@ def _rig_export(args: argparse.Namespace) -> int:
     from camcal.rig import Rig
 
     result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig)
-    _print_conversions(result)
+    out = summary_of(args)
+    _print_conversions(result, out)
     for path in result.paths:
-        print(f"wrote {path}")
+        out.wrote(path, args.to)
     return 0
 
 
@@ -410,7 +413,8 @@ def _rig_import(args: argparse.Namespace) -> int:
 
     result = import_rig(args.file, args.fmt)
     rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
-    _print_conversions(result)
+    out = summary_of(args)
+    _print_conversions(result, out)
     if result.points_xyz is not None:
         from pathlib import Path
 
@@ -419,8 +423,10 @@ def _rig_import(args: argparse.Namespace) -> int:
         out = Path(args.out)
         points = out.with_name(out.name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
         print(f"wrote {write_points_ply(points, result.points_xyz, result.points_rgb)} ({len(result.points_xyz)} points)")
+        out.wrote(points, "points", say=False)
         rig = dataclasses.replace(rig, points=points.name)
     print(f"wrote {rig.save(args.out)} ({len(rig.cameras)} camera(s), {len(rig.frames)} frame(s))")
+    out.wrote(args.out, "rig", say=False)
     return 0
 
 
