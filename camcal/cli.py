@@ -193,7 +193,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     code = EXIT_BAD_INPUT
     error_line = None
     try:
-        args = parser.parse_args(argv)
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exit_:  # --help, --version, or argparse's own usage error (exit 2)
+            if want_json and exit_.code not in (0, None):
+                print(json.dumps(summary.to_dict(int(exit_.code), "malformed command line (see stderr)")), file=stdout)
+            raise
         debug, want_json = bool(getattr(args, "debug", False)), bool(getattr(args, "json", False))
         summary.verb = args._verb
         args._summary = summary

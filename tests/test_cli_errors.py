@@ -193,3 +193,11 @@ def test_camcal_error_is_not_a_value_error():
     from camcal.errors import CamcalError
 
     assert not issubclass(CamcalError, ValueError)
+
+
+def test_json_object_for_a_malformed_command_line(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["rectify", "--json"])  # RIG and --out missing: argparse's usage error
+    assert info.value.code == 2
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["exit_code"] == 2 and summary["error"] == "malformed command line (see stderr)"
