@@ -122,7 +122,9 @@ def reflectance_XYZ(reflectances: Any, illuminant: str,
     if illuminant not in colour.SDS_ILLUMINANTS:
         raise CamcalError(f"unknown illuminant {illuminant!r}, expected a name of colour.SDS_ILLUMINANTS")
     grid = colour.SpectralShape(*shape)
-    cmfs, S = colour.MSDS_CMFS[_CMFS], colour.SDS_ILLUMINANTS[illuminant]
+    # aligned here as colour-science would (reshape = align), so it does not warn that it aligns them
+    cmfs = colour.MSDS_CMFS[_CMFS].copy().align(grid)
+    S = colour.SDS_ILLUMINANTS[illuminant].copy().align(grid)
     if isinstance(reflectances, Mapping):
         reflectances = list(reflectances.values())
     if isinstance(reflectances, (list, tuple)):
