@@ -889,7 +889,92 @@ def _colour_match(args: argparse.Namespace) -> int:
     return 0
 
 
-_COLOUR_VERBS: list = [_register_colour_fit, _register_colour_export, _register_colour_match]
+def _register_colour_sensitivities(colour_verbs) -> None:
+    parser = colour_verbs.add_parser(
+        "sensitivities",
+        help="estimate (or load measured) camera spectral sensitivities: *.ssf.json + CSV",
+        description=(
+            "Estimate a camera's spectral sensitivities from chart captures (linear images: raw or "
+            "linear TIFF/EXR) and/or spectral patch CSVs, each under a known illuminant, with "
+            "positivity, smoothness and the regularisation chosen by K-fold cross-validation; "
+            "or read measured curves (--measured). Writes *.ssf.json and *.ssf.csv and prints the "
+            "Vora-Trussell mu-factor and the Luther-Ives deviation."
+        ),
+        epilog=(
+            "ILLUMINANT: a colour-science SDS_ILLUMINANTS name (D65, A, FL2, LED-B3...) or a CSV "
+            "wavelength,value. Spectral patch CSV header: name,R,G,B,<nm>,<nm>,... (linear camera "
+            "RGB then reflectance samples). Measured CSV: wavelength,R,G,B[,sigma_R,sigma_G,sigma_B]."
+        ),
+    )
+    parser.add_argument("--chart", nargs="+", action="extend", metavar="ILLUMINANT=IMAGE", default=[],
+                        help="a linear photo of a ColorChecker 24 under ILLUMINANT (repeatable)")
+    parser.add_argument("--patches", nargs="+", action="extend", metavar="ILLUMINANT=FILE.csv", default=[],
+                        help="patches with reflectance spectra under ILLUMINANT (repeatable)")
+    parser.add_argument("--measured", metavar="FILE.csv", help="measured sensitivities instead of an estimate")
+    parser.add_argument("--chart-spectra", default="BabelColor Average", metavar="NAME",
+                        help="reflectances of the chart's patches: BabelColor Average, ColorChecker N Ohta "
+                             "or ISO 17321-1 (default: %(default)s)")
+    parser.add_argument("--wavelengths", default="400,700,10", metavar="START,END,STEP",
+                        help="estimation grid in nm (default: %(default)s)")
+    parser.add_argument("--camera", default=None, help="camera name recorded in the file")
+    parser.add_argument("--compare", metavar="SSF", help="reference curves (*.ssf.json or CSV): print the "
+                                                         "relative RMS error and both mu-factors")
+    parser.add_argument("--out", required=True, metavar="CAMERA.ssf.json", help="file to write (+ .ssf.csv)")
+    parser.add_argument("--report", metavar="DIR", help="plot with 95 %% bands (sensitivities.png)")
+    parser.set_defaults(func=_colour_sensitivities)
+
+
+def _colour_sensitivities(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from camcal.colour.ssf import (capture_from_chart, estimate_from_captures, load_sensitivities,
+                                   plot_sensitivities, read_sensitivities_csv, read_spectral_patch_csv,
+                                   relative_rms_error, write_sensitivities)
+
+    try:
+        start, end, step = (float(v) for v in args.wavelengths.split(","))
+    except ValueError:
+        raise CamcalError(f"--wavelengths: expected START,END,STEP in nm, got {args.wavelengths!r}") from None
+    if not (0 < step and start + 2 * step <= end):
+        raise CamcalError(f"--wavelengths: need START < END with at least 3 steps, got {args.wavelengths!r}")
+    wavelengths = np.arange(start, end + step / 2, step)
+    reference = load_sensitivities(args.compare) if args.compare else None
+    if args.measured:
+        if args.chart or args.patches:
+            raise CamcalError("give --measured, or captures (--chart / --patches), not both")
+        sens = read_sensitivities_csv(args.measured, args.camera)
+    else:
+        captures = []
+        for entry in args.chart:
+            illuminant, path = _name_value(entry, "--chart", "ILLUMINANT=IMAGE")
+            captures.append(capture_from_chart(path, illuminant, wavelengths, reflectances=args.chart_spectra))
+        for entry in args.patches:
+            illuminant, path = _name_value(entry, "--patches", "ILLUMINANT=FILE.csv")
+            captures.append(read_spectral_patch_csv(path, illuminant, wavelengths))
+        if not captures:
+            raise CamcalError("nothing to estimate from: give --chart ILLUMINANT=IMAGE, --patches "
+                              "ILLUMINANT=FILE.csv or --measured FILE.csv")
+        for cap in captures:
+            print(f"{cap.source}: {len(cap.names)} patches under {cap.illuminant_name}")
+        sens = estimate_from_captures(captures, wavelengths, camera=args.camera)
+    print(sens.summary())
+    if reference is not None:
+        per_channel, overall = relative_rms_error(sens.values, reference.resampled(sens.wavelengths).values)
+        print(f"vs {args.compare}: relative RMS error R {100 * per_channel[0]:.1f} %, G {100 * per_channel[1]:.1f} %, "
+              f"B {100 * per_channel[2]:.1f} % (overall {100 * overall:.1f} %); mu-factor {sens.mu_factor():.4f} "
+              f"vs {reference.mu_factor():.4f}")
+    for path in write_sensitivities(args.out, sens):
+        print(f"wrote {path}")
+    if args.report:
+        from pathlib import Path
+
+        path = plot_sensitivities(Path(args.report) / "sensitivities.png", sens, reference, title=args.camera or "")
+        print(f"report: {path}")
+    return 0
+
+
+_COLOUR_VERBS: list = [_register_colour_fit, _register_colour_export, _register_colour_match,
+                       _register_colour_sensitivities]
 
 
 # One entry per verb group; keep this list the only place verbs are wired in.

@@ -282,6 +282,13 @@ class SensitivityEstimate:
         ``(3,)`` cross-validated RMS RGB error at the chosen ``lambda``.
     method
         ``"kfold"`` or ``"gcv"``.
+    covariance
+        ``(3, W, W)`` posterior covariance of each channel's curve at the
+        chosen ``lambda``: ``sigma^2 (A^T A + lambda' D^T D)^-1`` with
+        ``sigma^2 = |A s - c|^2 / (N - trace H)`` (the ridge read as a
+        Gaussian smoothness prior, positivity ignored). It covers the
+        RGB noise and what the smoothness prior leaves undetermined, not
+        a wrong illuminant or reflectance.
     """
 
     wavelengths: np.ndarray
@@ -289,6 +296,14 @@ class SensitivityEstimate:
     regularisation: np.ndarray
     cv_rms: np.ndarray
     method: str
+    covariance: np.ndarray | None = None
+
+    @property
+    def sigma(self) -> np.ndarray | None:
+        """``(W, 3)`` standard deviation of each curve (diagonal of :attr:`covariance`)."""
+        if self.covariance is None:
+            return None
+        return np.sqrt(np.maximum(np.diagonal(self.covariance, axis1=1, axis2=2), 0.0)).T
 
     def relative_rms_error(self, truth: Any) -> np.ndarray:
         """Per-channel ``|s_est - s_true| / |s_true|`` (root mean square ratio)."""
@@ -324,8 +339,10 @@ def estimate_sensitivities(
     wavelengths
         ``(W,)`` nm.
     method
-        ``"kfold"``: ``lambda`` minimising the K-fold cross-validated RGB
-        error of the constrained (non-negative) solution; ``"gcv"``:
+        ``"kfold"``: the largest ``lambda`` whose K-fold cross-validated RGB
+        error (of the constrained, non-negative solution) is within one
+        standard error of the smallest (the one-standard-error rule,
+        Hastie, Tibshirani & Friedman 2009, 7.10); ``"gcv"``:
         generalised cross-validation of the unconstrained ridge solution,
         which is then refitted with positivity.
     folds
@@ -363,30 +380,40 @@ def estimate_sensitivities(
     S = np.zeros((W, 3))
     chosen = np.zeros(3)
     cv_rms = np.zeros(3)
+    covariance = np.zeros((3, W, W))
     rng = np.random.default_rng(seed)
     order = rng.permutation(N)
     fold_of = np.empty(N, dtype=int)
     fold_of[order] = np.arange(N) % folds
     for ch in range(3):
         c = RGB[:, ch]
-        scores = []
+        scores, errors = [], []
         for lam in lams:
             if method == "gcv":
                 H = A @ np.linalg.solve(A.T @ A + lam * D.T @ D, A.T)
                 resid = c - H @ c
                 scores.append(N * float(resid @ resid) / (N - np.trace(H)) ** 2)
+                errors.append(0.0)
             else:
-                sq = 0.0
+                sq = np.zeros(N)
                 for k in range(folds):
                     test = fold_of == k
                     s = _nnls_ridge(A[~test], c[~test], D, lam)
-                    sq += float(np.sum((A[test] @ s - c[test]) ** 2))
-                scores.append(sq / N)
-        best = int(np.argmin(scores))
+                    sq[test] = (A[test] @ s - c[test]) ** 2
+                scores.append(float(sq.mean()))
+                errors.append(float(sq.std(ddof=1) / np.sqrt(N)))
+        # One-standard-error rule: the smoothest lambda whose CV error is within
+        # one standard error of the minimum (the minimum itself is noisy).
+        low = int(np.argmin(scores))
+        best = max(i for i in range(len(lams)) if scores[i] <= scores[low] + errors[low])
         chosen[ch] = lams[best] / unit
         cv_rms[ch] = np.sqrt(scores[best])
         S[:, ch] = _nnls_ridge(A, c, D, lams[best])
-    return SensitivityEstimate(wavelengths, S, chosen, cv_rms, method)
+        inverse = np.linalg.inv(A.T @ A + lams[best] * D.T @ D)
+        dof = max(N - float(np.trace(A @ inverse @ A.T)), 1.0)
+        resid = A @ S[:, ch] - c
+        covariance[ch] = float(resid @ resid) / dof * inverse
+    return SensitivityEstimate(wavelengths, S, chosen, cv_rms, method, covariance)
 
 
 def _projector(X: np.ndarray) -> np.ndarray:
