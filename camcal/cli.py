@@ -673,7 +673,53 @@ def _register_colour_fit(colour_verbs) -> None:
     parser.add_argument("--camera", default=None, help="camera name recorded in the file")
     parser.add_argument("--out", required=True, metavar="FIT.colour.json", help="fit file to write")
     parser.add_argument("--report", metavar="DIR", help="write per-patch tables and plots here")
+    _register_for_illuminant(parser)
     parser.set_defaults(func=_colour_fit)
+
+
+def _register_for_illuminant(parser) -> None:
+    """``colour fit --for-illuminant B --sensitivities SSF``: a fit for another light."""
+    group = parser.add_argument_group(
+        "another illuminant",
+        "fit for the light B the camera will be used under, from a chart shot under --illuminant A: the "
+        "spectral route (ACES P-2013-001: training reflectances through the sensitivities under B) vs the "
+        "chart fit white-balanced and adapted with CAT02 / Bradford; the better by CIEDE2000 on validation "
+        "reflectances is written (its camera name gets ' (B)', so one OCIO input space per illuminant). "
+        "The chart RGB must be linear (raw or --linearise none).")
+    group.add_argument("--for-illuminant", metavar="B", help="CIE illuminant name the fit is for (A, D50, FL2...)")
+    group.add_argument("--sensitivities", metavar="SSF", help="*.ssf.json or measured CSV (colour sensitivities)")
+    group.add_argument("--training-reflectances", default="rawtoaces 190", metavar="SET",
+                       help="spectral route training set (default: %(default)s)")
+    group.add_argument("--validation-reflectances", default="Munsell validation", metavar="SET",
+                       help="reflectances the routes are compared on (default: %(default)s)")
+    group.add_argument("--plausible-cameras", type=int, default=0, metavar="N",
+                       help="compare over N cameras drawn from the sensitivities' uncertainty (default: 0, "
+                            "the curves themselves)")
+
+
+def _colour_fit_for_illuminant(args: argparse.Namespace, train, reference, linearise: str) -> int:
+    from camcal.colour.illuminant import characterise_for_illuminant
+    from camcal.colour.ssf import load_sensitivities
+
+    if not args.sensitivities:
+        raise CamcalError("--for-illuminant needs --sensitivities SSF (from 'camcal colour sensitivities')")
+    if linearise != "none":
+        raise CamcalError(f"--for-illuminant needs linear camera RGB (--linearise none, raw input), got {linearise!r}")
+    if args.test_patches or args.target_white:
+        raise CamcalError("--for-illuminant judges on validation reflectances under B: drop --test-patches / --target-white")
+    if args.plausible_cameras < 0:
+        raise CamcalError(f"--plausible-cameras must be >= 0, got {args.plausible_cameras}")
+    sens = load_sensitivities(args.sensitivities)
+    camera = f"{args.camera} ({args.for_illuminant})" if args.camera else None
+    out = characterise_for_illuminant(
+        train, sens, illuminant=args.illuminant, for_illuminant=args.for_illuminant, model=args.model,
+        training_set=args.training_reflectances, validation_set=args.validation_reflectances,
+        n_cameras=args.plausible_cameras, camera=camera, reference=reference,
+        source=args.chart or args.patches)
+    print(out.summary())
+    path = out.fit.save(args.out)
+    print(f"wrote {path}")
+    return 0
 
 
 def _parse_corners(text: str):
@@ -703,7 +749,7 @@ def _colour_fit(args: argparse.Namespace) -> int:
         noisy = [n for n, flag in zip(found.reference.patch_names, found.samples.noisy) if flag]
         if noisy:
             print(f"flagged noisy (kept): {', '.join(noisy)}")
-        linearise = args.linearise or "lut1d"
+        linearise = args.linearise or ("none" if args.for_illuminant else "lut1d")
         white = args.illuminant
     else:
         if args.corners:
@@ -712,6 +758,10 @@ def _colour_fit(args: argparse.Namespace) -> int:
         print(f"read {len(train)} patches from {args.patches}")
         linearise = args.linearise or "none"
         white = args.illuminant
+    if args.for_illuminant:
+        return _colour_fit_for_illuminant(args, train, reference, linearise)
+    if args.sensitivities:
+        raise CamcalError("--sensitivities is used with --for-illuminant B")
     test = read_patch_csv(args.test_patches) if args.test_patches else None
     outcome = characterise(
         train, white=white, model=args.model, objective=args.objective,

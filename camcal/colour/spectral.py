@@ -43,6 +43,7 @@ References
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -66,7 +67,9 @@ __all__ = [
 ]
 
 CAMERAS = ("Nikon 5100 (NPL)", "Sigma SDMerill (NPL)")
-REFLECTANCE_SETS = ("BabelColor Average", "ColorChecker N Ohta", "ISO 17321-1", "PMC", "rawtoaces 190")
+REFLECTANCE_SETS = ("BabelColor Average", "ColorChecker N Ohta", "ISO 17321-1", "PMC", "rawtoaces 190",
+                    "CIE 1995 TCS", "NIST CQS 9.0", "Munsell validation", "Munsell held-out")
+MUNSELL_SUBSET = 300
 CAT_TRANSFORMS = ("CAT02", "Bradford")
 _CMFS = "CIE 1931 2 Degree Standard Observer"
 
@@ -124,8 +127,14 @@ def reflectance_set(name: str, wavelengths: Any) -> tuple[list[str], np.ndarray]
     ----------
     name
         ``"BabelColor Average"``, ``"ColorChecker N Ohta"``, ``"ISO 17321-1"``
-        (ColorChecker 24 spectra), ``"PMC"`` (30 skin-like patches) or
-        ``"rawtoaces 190"`` (the 190 training reflectances of RAW to ACES).
+        (ColorChecker 24 spectra), ``"PMC"`` (30 patches), ``"rawtoaces
+        190"`` (the 190 training reflectances of RAW to ACES), ``"CIE 1995
+        TCS"`` (the 14 test colour samples of CIE 13.3), ``"NIST CQS 9.0"``
+        (15 samples), or ``"Munsell validation"`` / ``"Munsell held-out"``:
+        two disjoint sets of :data:`MUNSELL_SUBSET` real Munsell colours
+        (renotation xyY under illuminant C, seeded draw) turned into
+        reflectances by Otsu et al. (2018) spectral recovery (smooth,
+        plausible surfaces; not measured spectra).
     wavelengths
         ``(W,)`` grid in nm; spectra are interpolated, and extended with
         their end values outside their measured range.
@@ -142,12 +151,41 @@ def reflectance_set(name: str, wavelengths: Any) -> tuple[list[str], np.ndarray]
         msds = colour.characterisation.read_training_data_rawtoaces_v1()
         values = _resample(msds, wavelengths).T
         return [str(label) for label in msds.labels], values
+    if name.startswith("Munsell "):
+        if name not in REFLECTANCE_SETS:
+            raise CamcalError(f"unknown reflectance set {name!r}, expected one of: {', '.join(REFLECTANCE_SETS)}")
+        names, grid, values = _munsell_reflectances(name.endswith("held-out"))
+        return list(names), np.array([np.interp(wavelengths, grid, v) for v in values])
+    if name in ("CIE 1995 TCS", "NIST CQS 9.0"):
+        from colour.quality.datasets import SDS_TCS, SDS_VS
+
+        sds = SDS_TCS["CIE 1995"] if name == "CIE 1995 TCS" else SDS_VS["NIST CQS 9.0"]
+        return list(sds.keys()), np.array([_resample(sd, wavelengths) for sd in sds.values()])
     if name not in colour.SDS_COLOURCHECKERS:
         raise CamcalError(
             f"unknown reflectance set {name!r}, expected one of: {', '.join(REFLECTANCE_SETS)}"
         )
     sds = colour.SDS_COLOURCHECKERS[name]
     return list(sds.keys()), np.array([_resample(sd, wavelengths) for sd in sds.values()])
+
+
+@functools.cache
+def _munsell_reflectances(held_out: bool) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
+    """Names, grid and reflectances of one of the two disjoint Munsell sets (cached)."""
+    import colour
+    from colour.notation.datasets import MUNSELL_COLOURS_REAL
+
+    order = np.random.default_rng(0).permutation(len(MUNSELL_COLOURS_REAL))
+    picked = order[MUNSELL_SUBSET:2 * MUNSELL_SUBSET] if held_out else order[:MUNSELL_SUBSET]
+    illuminant_C = colour.SDS_ILLUMINANTS["C"]
+    names, values = [], []
+    for i in picked:
+        (hue, value, chroma), xyY = MUNSELL_COLOURS_REAL[i]
+        XYZ = colour.xyY_to_XYZ(np.array([xyY[0], xyY[1], xyY[2] / 100.0]))
+        sd = colour.recovery.XYZ_to_sd_Otsu2018(XYZ, illuminant=illuminant_C)
+        names.append(f"{hue} {value:g}/{chroma:g}")
+        values.append(np.clip(sd.values, 0.0, 1.0))
+    return tuple(names), np.asarray(sd.wavelengths, dtype=np.float64), np.array(values)
 
 
 def illuminant_white_XYZ(name: str) -> np.ndarray:
