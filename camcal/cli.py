@@ -641,7 +641,8 @@ def _register_colour_fit(colour_verbs) -> None:
         ),
     )
     source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--chart", metavar="IMAGE", help="photo of a 24-patch ColorChecker")
+    source.add_argument("--chart", metavar="IMAGE", help="photo of a 24-patch ColorChecker (PNG/TIFF/JPEG/EXR, or "
+                                                          "raw: DNG, CR2, NEF, ARW... read as linear camera RGB)")
     source.add_argument("--patches", metavar="FILE.csv", help="training patches (see below)")
     parser.add_argument("--reference", default="ColorChecker24 - After November 2014", metavar="NAME",
                         help="reference chart for --chart (colour-science name or cc24, cc24-2005, "
@@ -698,8 +699,11 @@ def _register_for_illuminant(parser) -> None:
 
 
 def _colour_fit_for_illuminant(args: argparse.Namespace, train, reference, linearise: str) -> int:
+    from dataclasses import replace
+
     from camcal.colour.illuminant import characterise_for_illuminant
     from camcal.colour.ssf import load_sensitivities
+    from camcal.io.raw import is_raw, raw_metadata
 
     if not args.sensitivities:
         raise CamcalError("--for-illuminant needs --sensitivities SSF (from 'camcal colour sensitivities')")
@@ -717,7 +721,10 @@ def _colour_fit_for_illuminant(args: argparse.Namespace, train, reference, linea
         n_cameras=args.plausible_cameras, camera=camera, reference=reference,
         source=args.chart or args.patches)
     print(out.summary())
-    path = out.fit.save(args.out)
+    fit = out.fit
+    if args.chart and is_raw(args.chart):
+        fit = replace(fit, capture=raw_metadata(args.chart).to_dict())
+    path = fit.save(args.out)
     print(f"wrote {path}")
     return 0
 
@@ -733,8 +740,11 @@ def _parse_corners(text: str):
 
 
 def _colour_fit(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from camcal.colour.characterise import characterise, patches_from_chart, write_report
     from camcal.colour.patches import read_patch_csv
+    from camcal.io.raw import is_raw, raw_metadata
 
     reference = None
     if args.chart:
@@ -749,7 +759,7 @@ def _colour_fit(args: argparse.Namespace) -> int:
         noisy = [n for n, flag in zip(found.reference.patch_names, found.samples.noisy) if flag]
         if noisy:
             print(f"flagged noisy (kept): {', '.join(noisy)}")
-        linearise = args.linearise or ("none" if args.for_illuminant else "lut1d")
+        linearise = args.linearise or ("none" if args.for_illuminant or is_raw(args.chart) else "lut1d")
         white = args.illuminant
     else:
         if args.corners:
@@ -770,7 +780,10 @@ def _colour_fit(args: argparse.Namespace) -> int:
         camera=args.camera, reference=reference, source=args.chart or args.patches,
     )
     print(outcome.summary())
-    path = outcome.fit.save(args.out)
+    fit = outcome.fit
+    if args.chart and is_raw(args.chart):
+        fit = replace(fit, capture=raw_metadata(args.chart).to_dict())
+    path = fit.save(args.out)
     print(f"wrote {path}")
     if args.report:
         files = write_report(args.report, outcome, title=args.camera or "")
