@@ -692,7 +692,11 @@ def plot_sensitivities(
     truth: Sensitivities | None = None,
     title: str = "",
 ) -> Path:
-    """Plot the curves with 95 % bands (``+-1.96 sigma``) and, if given, other curves to compare.
+    """Plot the curves with ``+-1.96 sigma`` posterior bands and, if given, other curves to compare.
+
+    The band is nominally 95 %; on simulated cameras (tests/colour/
+    test_colour_ssf.py, slow) it covered only 65-86 % of the true curves'
+    samples: it misses part of the smoothing bias. Read it as a lower bound.
 
     ``truth`` is resampled on the grid and scaled by the common factor of
     :func:`relative_rms_error`. Written with matplotlib's Agg backend.
@@ -721,7 +725,7 @@ def plot_sensitivities(
                     label=f"{'RGB'[ch]} ({truth.camera or 'reference'})")
     ax.set_xlabel("wavelength (nm)")
     ax.set_ylabel("relative sensitivity")
-    band = ", band: 95 % (posterior)" if sigma is not None else ""
+    band = ", band: +-1.96 sigma posterior (under-covers)" if sigma is not None else ""
     ax.set_title((title + " " if title else "") + f"mu-factor {sens.mu_factor():.3f}{band}", fontsize=10)
     ax.legend(fontsize=7, ncol=2)
     ax.grid(alpha=0.3)
