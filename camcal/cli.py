@@ -1062,11 +1062,7 @@ def _parse_corners(text: str):
 
 
 def _colour_fit(args: argparse.Namespace) -> int:
-<<<<<<< HEAD
-    from dataclasses import replace
-=======
     import dataclasses
->>>>>>> main
 
     from camcal.colour.characterise import characterise, patches_from_chart, write_report
     from camcal.colour.patches import read_patch_csv
@@ -1106,21 +1102,16 @@ def _colour_fit(args: argparse.Namespace) -> int:
         camera=args.camera, reference=reference, source=args.chart or args.patches,
     )
     print(outcome.summary())
-<<<<<<< HEAD
     fit = outcome.fit
     if args.chart and is_raw(args.chart):
-        fit = replace(fit, capture=raw_metadata(args.chart).to_dict())
-    path = fit.save(args.out)
-    print(f"wrote {path}")
-=======
+        fit = dataclasses.replace(fit, capture=raw_metadata(args.chart).to_dict())
     out = summary_of(args)
     stats = {name: None if value is None else dataclasses.asdict(value) for name, value in (
         ("train", outcome.result.stats_train), ("loo", outcome.result.stats_loo), ("test", outcome.result.stats_test))}
     out.figures(model=outcome.result.model.label, linearisation=outcome.fit.linearisation.label,
                 selection=None if outcome.selection is None else outcome.selection.reason,
                 n_train=len(train), delta_E2000=stats)
-    out.wrote(outcome.fit.save(args.out), "colour fit")
->>>>>>> main
+    out.wrote(fit.save(args.out), "colour fit")
     if args.report:
         files = write_report(args.report, outcome, title=args.camera or "")
         for file in files:
