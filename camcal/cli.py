@@ -1037,17 +1037,20 @@ def _colour_fit_for_illuminant(args: argparse.Namespace, train, reference, linea
         raise CamcalError(f"--plausible-cameras must be >= 0, got {args.plausible_cameras}")
     sens = load_sensitivities(args.sensitivities)
     camera = f"{args.camera} ({args.for_illuminant})" if args.camera else None
-    out = characterise_for_illuminant(
+    outcome = characterise_for_illuminant(
         train, sens, illuminant=args.illuminant, for_illuminant=args.for_illuminant, model=args.model,
         training_set=args.training_reflectances, validation_set=args.validation_reflectances,
         n_cameras=args.plausible_cameras, camera=camera, reference=reference,
         source=args.chart or args.patches)
-    print(out.summary())
-    fit = out.fit
+    print(outcome.summary())
+    fit = outcome.fit
     if args.chart and is_raw(args.chart):
         fit = replace(fit, capture=raw_metadata(args.chart).to_dict())
-    path = fit.save(args.out)
-    print(f"wrote {path}")
+    out = summary_of(args)
+    out.figures(for_illuminant=args.for_illuminant, route=outcome.picked, model=fit.model.label,
+                n_train=len(train), reason=outcome.reason, validation_reflectances=args.validation_reflectances,
+                delta_E2000_validation={score.route: score.to_dict() for score in outcome.scores})
+    out.wrote(fit.save(args.out), "colour fit")
     return 0
 
 
@@ -1356,17 +1359,25 @@ def _colour_sensitivities(args: argparse.Namespace) -> int:
             print(f"{cap.source}: {len(cap.names)} patches under {cap.illuminant_name}")
         sens = estimate_from_captures(captures, wavelengths, camera=args.camera)
     print(sens.summary())
+    out = summary_of(args)
+    out.figures(source=sens.source, wavelengths_nm=[float(sens.wavelengths[0]), float(sens.wavelengths[-1]),
+                                                    float(sens.wavelengths[1] - sens.wavelengths[0])],
+                **sens.quality(), estimation=sens.estimation)
     if reference is not None:
         per_channel, overall = relative_rms_error(sens.values, reference.resampled(sens.wavelengths).values)
         print(f"vs {args.compare}: relative RMS error R {100 * per_channel[0]:.1f} %, G {100 * per_channel[1]:.1f} %, "
               f"B {100 * per_channel[2]:.1f} % (overall {100 * overall:.1f} %); mu-factor {sens.mu_factor():.4f} "
               f"vs {reference.mu_factor():.4f}")
-    for path in write_sensitivities(args.out, sens):
-        print(f"wrote {path}")
+        out.figures(compare={"reference": args.compare, "relative_rms_error": [float(v) for v in per_channel],
+                             "relative_rms_error_overall": overall, "mu_factor": reference.mu_factor()})
+    json_path, csv_path = write_sensitivities(args.out, sens)
+    out.wrote(json_path, "sensitivities")
+    out.wrote(csv_path, "sensitivities csv")
     if args.report:
         from pathlib import Path
 
         path = plot_sensitivities(Path(args.report) / "sensitivities.png", sens, reference, title=args.camera or "")
+        out.wrote(path, "report", say=False)
         print(f"report: {path}")
     return 0
 
