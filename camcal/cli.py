@@ -193,7 +193,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     code = EXIT_BAD_INPUT
     error_line = None
     try:
-        args = parser.parse_args(argv)
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exit_:  # --help, --version, or argparse's own usage error (exit 2)
+            if want_json and exit_.code not in (0, None):
+                print(json.dumps(summary.to_dict(int(exit_.code), "malformed command line (see stderr)")), file=stdout)
+            raise
         debug, want_json = bool(getattr(args, "debug", False)), bool(getattr(args, "json", False))
         summary.verb = args._verb
         args._summary = summary
@@ -301,7 +306,9 @@ def _register_blender(subparsers) -> None:
 
 def _blender_import(args: argparse.Namespace) -> int:
     from camcal.blender_bridge import import_rig_to_blend
+    from camcal.rig import Rig
 
+    Rig.load(args.rig)  # a bad rig file fails here, in one line, before Blender starts
     summary = import_rig_to_blend(
         args.rig,
         args.blend,
@@ -382,11 +389,13 @@ def _register_rig_interchange(verbs) -> None:
     imp.set_defaults(func=_rig_import)
 
 
-def _print_conversions(result) -> None:
+def _print_conversions(result, summary: VerbSummary) -> None:
     for conversion in result.conversions:
         print(conversion.describe())
     for note in result.notes:
         print(f"note: {note}")
+    summary.figures(conversions=[{"camera": c.camera, "source": c.source, "target": c.target, "exact": c.exact,
+                                  "max_px": c.max_px} for c in result.conversions], notes=list(result.notes))
 
 
 def _rig_export(args: argparse.Namespace) -> int:
@@ -394,9 +403,10 @@ def _rig_export(args: argparse.Namespace) -> int:
     from camcal.rig import Rig
 
     result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig)
-    _print_conversions(result)
+    out = summary_of(args)
+    _print_conversions(result, out)
     for path in result.paths:
-        print(f"wrote {path}")
+        out.wrote(path, args.to)
     return 0
 
 
@@ -408,7 +418,8 @@ def _rig_import(args: argparse.Namespace) -> int:
 
     result = import_rig(args.file, args.fmt)
     rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
-    _print_conversions(result)
+    out = summary_of(args)
+    _print_conversions(result, out)
     if result.points_xyz is not None:
         from pathlib import Path
 
@@ -417,8 +428,10 @@ def _rig_import(args: argparse.Namespace) -> int:
         out = Path(args.out)
         points = out.with_name(out.name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
         print(f"wrote {write_points_ply(points, result.points_xyz, result.points_rgb)} ({len(result.points_xyz)} points)")
+        out.wrote(points, "points", say=False)
         rig = dataclasses.replace(rig, points=points.name)
     print(f"wrote {rig.save(args.out)} ({len(rig.cameras)} camera(s), {len(rig.frames)} frame(s))")
+    out.wrote(args.out, "rig", say=False)
     return 0
 
 
@@ -1067,9 +1080,10 @@ def _parse_corners(text: str):
 def _colour_fit(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from camcal.colour.characterise import characterise, patches_from_chart, write_report
+    from camcal.colour.characterise import characterise, patches_from_chart
     from camcal.colour.patches import read_patch_csv
     from camcal.io.raw import is_raw, raw_metadata
+    from camcal.report.characterisation import write_report
 
     reference = None
     if args.chart:
@@ -1116,7 +1130,7 @@ def _colour_fit(args: argparse.Namespace) -> int:
                 n_train=len(train), delta_E2000=stats)
     out.wrote(fit.save(args.out), "colour fit")
     if args.report:
-        files = write_report(args.report, outcome, title=args.camera or "")
+        files = write_report(outcome, args.report, title=args.camera or "")
         for file in files:
             out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")
@@ -1253,7 +1267,9 @@ def _register_colour_match(colour_verbs) -> None:
 
 def _colour_match(args: argparse.Namespace) -> int:
     from camcal.colour.fitfile import load_fit
-    from camcal.colour.match import match_image_files, match_patch_files, parse_match_model, write_match_report
+    from camcal.colour.match import match_image_files, match_patch_files
+    from camcal.colour.match_models import parse_match_model
+    from camcal.report.colour_match import write_report
 
     parse_match_model(args.model)
     images, patches = args.images, args.patches
@@ -1283,7 +1299,7 @@ def _colour_match(args: argparse.Namespace) -> int:
                 correspondences=dict(result.correspondences.counts) if images else None)
     out.wrote(result.match.save(args.out), "colour match")
     if args.report:
-        files = write_match_report(args.report, result)
+        files = write_report(result, args.report)
         for file in files:
             out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")
