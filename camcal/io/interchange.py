@@ -132,20 +132,24 @@ def _frame_grid(image_size: tuple[int, int]) -> NDArray[np.float64]:
     return np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
 
 
-def max_pixel_residual(source: Camera, target: Camera) -> float:
+def max_pixel_residual(source: Camera, target: Camera, *, lens: bool = True) -> float:
     """Largest pixel distance between two cameras' projections of the same rays.
 
     For every pixel ``x`` of a 16 px grid over ``source``'s frame (edges
     included), the ray ``r = K_s^-1 undistort_s(x)`` is projected by
     ``target``: ``x' = distort_t(K_t r)``; the result is ``max |x' - x|``.
-    Only the intrinsics matter (both cameras share the pose).
+    With ``lens=False`` both sides are pinholes (for formats without a lens
+    model): ``max |K_t r - K_s r|`` over the same rays. Only the intrinsics
+    matter (both cameras share the pose).
     """
     distorted = _frame_grid(source.image_size)
     ideal = source.distortion.undistort(distorted, source.K)
     rays = np.column_stack([ideal, np.ones(len(ideal))]) @ np.linalg.inv(source.K).T
     mapped = rays @ target.K.T
-    projected = target.distortion.distort(mapped[:, :2] / mapped[:, 2:], target.K)
-    distance = np.linalg.norm(projected - distorted, axis=1)
+    projected = mapped[:, :2] / mapped[:, 2:]
+    if lens:
+        projected = target.distortion.distort(projected, target.K)
+    distance = np.linalg.norm(projected - (distorted if lens else ideal), axis=1)
     distance = distance[np.isfinite(distance)]
     if len(distance) == 0:
         raise CamcalError(f"camera {source.name!r}: no ray of the frame projects through the converted camera")
