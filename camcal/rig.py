@@ -50,10 +50,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from camcal import __version__
 from camcal.errors import CamcalError
-from camcal.geometry.camera import compose_P, project_pinhole
+from camcal.geometry.camera import compose_P, project_pinhole, rotation_angle_deg
 from camcal.geometry.distortion import Distortion
 from camcal.io.atomic import atomic_write_text
 from camcal.io.jsonfile import dumps, read_json
+from camcal.quality import Quality
 
 __all__ = [
     "RIG_FORMAT",
@@ -116,17 +117,6 @@ def _image_size(value: Any, name: str) -> tuple[int, int]:
     ):
         raise CamcalError(f"{name} must be [width, height] as two positive integers, got {value!r}")
     return int(value[0]), int(value[1])
-
-
-def _numbers_tree(value: Any, name: str) -> Any:
-    """Validate a nested object of finite numbers (quality entries)."""
-    if isinstance(value, Mapping):
-        return {str(k): _numbers_tree(v, f"{name}.{k}") for k, v in value.items()}
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise CamcalError(f"{name} must be a number or an object of numbers, got {value!r}")
-    if not math.isfinite(value):
-        raise CamcalError(f"{name} is not finite ({value})")
-    return value.item() if isinstance(value, (np.integer, np.floating)) else value
 
 
 def _check_keys(data: Any, name: str, required: Iterable[str], optional: Iterable[str] = ()) -> None:
@@ -217,9 +207,10 @@ class Camera(_DictEquality):
     sensor_width_mm : float, optional
         Physical sensor width, for Blender's lens in mm.
     rectification : Rectification, optional
-    quality : mapping, optional
-        Fit quality, numbers or nested objects of numbers, e.g.
-        ``{"rms_px": 0.21, "n_views": 18, "sigma": {"fx": 0.3}}``.
+    quality : Quality or mapping, optional
+        Fit quality with documented keys and units (:class:`camcal.quality.Quality`),
+        e.g. ``Quality(rms_px=0.21, n_views=18, sigma={"fx": 0.3})``; a mapping
+        of the file form (older key names too) is converted.
     """
 
     name: str
@@ -230,7 +221,7 @@ class Camera(_DictEquality):
     c: NDArray[np.float64]
     sensor_width_mm: float | None = None
     rectification: Rectification | None = None
-    quality: Mapping[str, Any] = field(default_factory=dict)
+    quality: Quality = field(default_factory=Quality)
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
@@ -252,9 +243,8 @@ class Camera(_DictEquality):
             object.__setattr__(self, "sensor_width_mm", float(width))
         if self.rectification is not None and not isinstance(self.rectification, Rectification):
             raise CamcalError("rectification must be a Rectification")
-        if not isinstance(self.quality, Mapping):
-            raise CamcalError("quality must be an object")
-        object.__setattr__(self, "quality", MappingProxyType(_numbers_tree(self.quality, "quality")))
+        quality = Quality.from_dict(self.quality, baseline_length=float(np.linalg.norm(self.c)))
+        object.__setattr__(self, "quality", quality)
 
     # -- geometry -------------------------------------------------------------------
 
@@ -295,7 +285,7 @@ class Camera(_DictEquality):
             out["sensor_width_mm"] = self.sensor_width_mm
         if self.rectification is not None:
             out["rectification"] = self.rectification.to_dict()
-        out["quality"] = copy.deepcopy(_plain(self.quality))
+        out["quality"] = self.quality.to_dict()
         return out
 
     @classmethod
@@ -482,8 +472,7 @@ class Rig(_DictEquality):
                 f"looking along ({view[0]:.3f}, {view[1]:.3f}, {view[2]:.3f})"
             )
             if camera is not reference:
-                relative = camera.R @ reference.R.T
-                angle = np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1, 1)))
+                angle = rotation_angle_deg(camera.R @ reference.R.T)
                 baseline = np.linalg.norm(camera.c - reference.c)
                 lines.append(f"  from {reference.name!r}: baseline {baseline:.4f} {self.units}, rotation {angle:.3f} deg")
             if camera.sensor_width_mm is not None:
