@@ -371,6 +371,8 @@ def _register_rig_interchange(verbs) -> None:
     export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
     export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
     export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
+    export.add_argument("--stmaps", action="store_true",
+                        help="usd: also write each lens' ST-maps beside the stage and reference them from its camera")
     export.set_defaults(func=_rig_export)
     imp = verbs.add_parser(
         "import", help="read another tool's camera file as a rig",
@@ -382,43 +384,48 @@ def _register_rig_interchange(verbs) -> None:
     imp.set_defaults(func=_rig_import)
 
 
-def _print_conversions(result) -> None:
+def _print_conversions(args: argparse.Namespace, result) -> None:
+    import dataclasses
+
     for conversion in result.conversions:
         print(conversion.describe())
     for note in result.notes:
         print(f"note: {note}")
+    summary_of(args).figures(conversions=[dataclasses.asdict(c) for c in result.conversions], notes=list(result.notes))
 
 
 def _rig_export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from camcal.io.interchange import export_rig
     from camcal.rig import Rig
 
-    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig)
-    _print_conversions(result)
+    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig,
+                        stmaps=args.stmaps)
+    _print_conversions(args, result)
     for path in result.paths:
-        print(f"wrote {path}")
+        summary_of(args).wrote(path, args.to if path == Path(args.out) or path.parent == Path(args.out) else "stmap")
     return 0
 
 
 def _rig_import(args: argparse.Namespace) -> int:
     import dataclasses
+    from pathlib import Path
 
     from camcal.io.interchange import import_rig
+    from camcal.io.ply import write_points_ply
     from camcal.rig import make_provenance
 
     result = import_rig(args.file, args.fmt)
     rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
-    _print_conversions(result)
+    _print_conversions(args, result)
+    out = summary_of(args)
     if result.points_xyz is not None:
-        from pathlib import Path
-
-        from camcal.io.ply import write_points_ply
-
-        out = Path(args.out)
-        points = out.with_name(out.name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
-        print(f"wrote {write_points_ply(points, result.points_xyz, result.points_rgb)} ({len(result.points_xyz)} points)")
+        points = Path(args.out).with_name(Path(args.out).name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
+        out.wrote(write_points_ply(points, result.points_xyz, result.points_rgb), "points")
         rig = dataclasses.replace(rig, points=points.name)
-    print(f"wrote {rig.save(args.out)} ({len(rig.cameras)} camera(s), {len(rig.frames)} frame(s))")
+    out.figures(n_cameras=len(rig.cameras), n_frames=len(rig.frames))
+    out.wrote(rig.save(args.out), "rig")
     return 0
 
 

@@ -212,6 +212,7 @@ def export_rig(
     *,
     cameras: Sequence[str] | None = None,
     rig_path: str | os.PathLike | None = None,
+    stmaps: bool = False,
 ) -> ExportResult:
     """Write ``rig`` in another tool's format.
 
@@ -226,6 +227,9 @@ def export_rig(
         Export only these cameras (all by default).
     rig_path : path, optional
         Where ``rig`` was read from: its sparse-points PLY is found beside it.
+    stmaps : bool
+        ``usd`` only: also write each lens' ST-maps beside the stage and
+        reference them from the camera (``nuke`` always writes them).
 
     Raises
     ------
@@ -234,7 +238,11 @@ def export_rig(
         output; nothing is written then.
     """
     module = _module(fmt)
-    return module.export(rig, Path(out), cameras=cameras, rig_path=None if rig_path is None else Path(rig_path))
+    if stmaps and fmt != "usd":
+        raise CamcalError(f"stmaps applies to usd only (nuke always writes them), not {fmt}")
+    extra = {"stmaps": True} if stmaps else {}
+    return module.export(rig, Path(out), cameras=cameras, rig_path=None if rig_path is None else Path(rig_path),
+                         **extra)
 
 
 def import_rig(path: str | os.PathLike, fmt: str) -> ImportResult:

@@ -28,7 +28,8 @@ so that USD's projection (``Gf.Camera`` frustum, NDC to pixels
 ``K`` exactly. USD has no skew (dropped, residual reported) and no lens
 model: the camcal lens (and ``K``, image size, camera-from-rig pose) is
 kept in the camera's ``customData`` under ``camcal:*`` keys; renderers
-ignore it, comp needs camcal's ST-maps. A moving rig writes one time
+ignore it, comp needs camcal's ST-maps (written and referenced there with
+``stmaps=True``, ``camcal rig export --stmaps``). A moving rig writes one time
 sample of the transform per frame (time code = frame number).
 """
 
@@ -110,9 +111,19 @@ def _pose(matrix) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     return U @ Vt, _D @ M[3, :3]
 
 
-def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_path: Path | None = None) -> ExportResult:
-    """Write the rig as a USD stage (see the module docstring)."""
-    from pxr import Tf, Usd, UsdGeom, Vt
+def export(
+    rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_path: Path | None = None, stmaps: bool = False
+) -> ExportResult:
+    """Write the rig as a USD stage (see the module docstring); with ``stmaps`` the lens ST-maps too.
+
+    The maps go to ``<stage>_stmaps/<camera>_undistort.exr`` / ``_redistort.exr``
+    (:func:`camcal.geometry.stmap.write_stmaps`) and the camera's customData
+    ``camcal.stmap_undistort`` / ``camcal.stmap_redistort`` hold their paths
+    relative to the stage.
+    """
+    from pxr import Sdf, Tf, Usd, UsdGeom, Vt
+
+    from camcal.geometry.stmap import write_stmaps
 
     if out.suffix.lower() not in SUFFIXES:
         raise CamcalError(f"a USD file must end in {', '.join(SUFFIXES)}, got {out.name!r}")
@@ -128,7 +139,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     if rig.frames:
         stage.SetStartTimeCode(min(f.index for f in rig.frames))
         stage.SetEndTimeCode(max(f.index for f in rig.frames))
-    conversions, used = [], set()
+    conversions, used, written = [], set(), []
     for camera in select_cameras(rig, cameras):
         converted, conversion = nearest_camera(camera, lambda d: True, "opencv", "UsdGeom.Camera (pinhole)")
         conversions.append(_float_attributes(camera, converted, conversion))
@@ -148,6 +159,11 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
         else:
             op.Set(_matrix(camera.R, camera.c))
         custom = {} if camera.sensor_width_mm is None else {"sensor_width_mm": camera.sensor_width_mm}
+        if stmaps and not camera.distortion.is_identity:
+            undistort, redistort, _ = write_stmaps(rig, camera.name, out.with_name(out.stem + "_stmaps"))
+            written += [undistort, redistort]
+            custom["stmap_undistort"] = Sdf.AssetPath(str(undistort.relative_to(out.parent)))
+            custom["stmap_redistort"] = Sdf.AssetPath(str(redistort.relative_to(out.parent)))
         usd_camera.GetPrim().SetCustomData({"camcal": {
             **custom,
             "name": camera.name,
@@ -157,8 +173,10 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
             "cam_from_rig": json.dumps({"R": camera.R.tolist(), "c": camera.c.tolist()}),
         }})
     if any(not camera.distortion.is_identity for camera in select_cameras(rig, cameras)):
-        notes.append("USD cameras have no lens distortion: renders are undistorted; the lens is in customData "
-                     "(camcal:distortion) and `camcal stmap` makes the ST-maps to apply it in comp")
+        maps = ("its ST-maps are written beside the stage and referenced there" if stmaps
+                else "`camcal stmap` (or --stmaps) makes the ST-maps to apply it in comp")
+        notes.append(f"USD cameras have no lens distortion: renders are undistorted; the lens is in customData "
+                     f"(camcal:distortion), {maps}")
     if rig.points is not None:
         if rig_path is None:
             notes.append(f"points {rig.points!r} not written: the rig file's folder is unknown")
@@ -174,7 +192,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     with atomic_path(out) as tmp:
         if not stage.GetRootLayer().Export(str(tmp)):
             raise CamcalError(f"cannot write USD {out}")
-    return ExportResult((out,), tuple(conversions), tuple(notes))
+    return ExportResult((out, *written), tuple(conversions), tuple(notes))
 
 
 def _float32(values: dict[str, float]) -> dict[str, float]:

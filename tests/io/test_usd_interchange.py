@@ -181,6 +181,18 @@ def test_bad_input_is_one_line(tmp_path, text, message):
     assert "\n" not in str(info.value)
 
 
+def test_stmaps_are_written_and_referenced(tmp_path):
+    rig = stereo_rig(rectified=False)
+    result = export_rig(rig, "usd", tmp_path / "rig.usda", stmaps=True)
+    assert [p.name for p in result.paths[1:]] == ["left_undistort.exr", "left_redistort.exr",
+                                                  "right_undistort.exr", "right_redistort.exr"]
+    stage = Usd.Stage.Open(str(tmp_path / "rig.usda"))
+    reference = stage.GetPrimAtPath("/rig/left").GetCustomDataByKey("camcal:stmap_undistort")
+    assert reference.path == "rig_stmaps/left_undistort.exr" and (tmp_path / reference.path).is_file()
+    with pytest.raises(CamcalError, match="stmaps applies to usd only"):
+        export_rig(rig, "opencv", tmp_path / "rig.yaml", stmaps=True)
+
+
 def test_nan_attribute_is_named(tmp_path):
     stage = Usd.Stage.CreateNew(str(tmp_path / "nan.usda"))
     camera = UsdGeom.Camera.Define(stage, "/rig/cam")
