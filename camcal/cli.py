@@ -378,6 +378,8 @@ def _register_rig_interchange(verbs) -> None:
     export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
     export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
     export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
+    export.add_argument("--stmaps", action="store_true",
+                        help="usd: also write each lens' ST-maps beside the stage and reference them from its camera")
     export.set_defaults(func=_rig_export)
     imp = verbs.add_parser(
         "import", help="read another tool's camera file as a rig",
@@ -389,49 +391,48 @@ def _register_rig_interchange(verbs) -> None:
     imp.set_defaults(func=_rig_import)
 
 
-def _print_conversions(result, summary: VerbSummary) -> None:
+def _print_conversions(args: argparse.Namespace, result) -> None:
+    import dataclasses
+
     for conversion in result.conversions:
         print(conversion.describe())
     for note in result.notes:
         print(f"note: {note}")
-    summary.figures(conversions=[{"camera": c.camera, "source": c.source, "target": c.target, "exact": c.exact,
-                                  "max_px": c.max_px} for c in result.conversions], notes=list(result.notes))
+    summary_of(args).figures(conversions=[dataclasses.asdict(c) for c in result.conversions], notes=list(result.notes))
 
 
 def _rig_export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from camcal.io.interchange import export_rig
     from camcal.rig import Rig
 
-    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig)
-    out = summary_of(args)
-    _print_conversions(result, out)
+    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig,
+                        stmaps=args.stmaps)
+    _print_conversions(args, result)
     for path in result.paths:
-        out.wrote(path, args.to)
+        summary_of(args).wrote(path, args.to if path == Path(args.out) or path.parent == Path(args.out) else "stmap")
     return 0
 
 
 def _rig_import(args: argparse.Namespace) -> int:
     import dataclasses
+    from pathlib import Path
 
     from camcal.io.interchange import import_rig
+    from camcal.io.ply import write_points_ply
     from camcal.rig import make_provenance
 
     result = import_rig(args.file, args.fmt)
     rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
+    _print_conversions(args, result)
     out = summary_of(args)
-    _print_conversions(result, out)
     if result.points_xyz is not None:
-        from pathlib import Path
-
-        from camcal.io.ply import write_points_ply
-
-        out = Path(args.out)
-        points = out.with_name(out.name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
-        print(f"wrote {write_points_ply(points, result.points_xyz, result.points_rgb)} ({len(result.points_xyz)} points)")
-        out.wrote(points, "points", say=False)
+        points = Path(args.out).with_name(Path(args.out).name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
+        out.wrote(write_points_ply(points, result.points_xyz, result.points_rgb), "points")
         rig = dataclasses.replace(rig, points=points.name)
-    print(f"wrote {rig.save(args.out)} ({len(rig.cameras)} camera(s), {len(rig.frames)} frame(s))")
-    out.wrote(args.out, "rig", say=False)
+    out.figures(n_cameras=len(rig.cameras), n_frames=len(rig.frames))
+    out.wrote(rig.save(args.out), "rig")
     return 0
 
 
