@@ -599,9 +599,9 @@ def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, pro
         names.extend(f"{state.camera_names[index]}.{all_names[k]}" for k in free)
         scales.extend([1.0] * len(free))
     rig = reconstruction.rig(1)
+    sensors = {sensor.id: pose for sensor, pose in rig.non_ref_sensors.items()}
     for index, cid in enumerate(colmap.camera_ids[1:], start=1):
-        pose = rig.sensor_from_rig(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cid))
-        block = pose.params  # (qx, qy, qz, qw, tx, ty, tz), tangent (rotation, translation)
+        block = sensors[cid].params  # (qx, qy, qz, qw, tx, ty, tz), tangent (rotation, translation)
         if not problem.has_parameter_block(block) or problem.is_parameter_block_constant(block):
             continue
         camera = state.camera_names[index]
