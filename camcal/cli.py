@@ -167,13 +167,34 @@ def _calibrate_dlt(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_holdout(text: str, frames: list[int]) -> set[int]:
+    """``--holdout``: frame numbers and ranges (``21-25,3``) or a fraction of the frames (``0.2``, evenly spaced)."""
+    import re
+
+    text = text.strip()
+    if re.fullmatch(r"0?\.\d+", text):
+        fraction = float(text)
+        count = max(1, round(fraction * len(frames)))
+        step = len(frames) / count
+        return {frames[min(len(frames) - 1, int((k + 0.5) * step))] for k in range(count)}
+    held: set[int] = set()
+    for part in text.split(","):
+        match = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        if not match:
+            raise CamcalError(f"bad --holdout {text!r}: expected frame numbers and ranges (21-25,3) or a fraction (0.2)")
+        first, last = int(match.group(1)), int(match.group(2) or match.group(1))
+        held.update(range(first, last + 1))
+    return held
+
+
 def _calibrate_board(args: argparse.Namespace) -> int:
     import glob
+    import os
 
     import numpy as np
 
-    from camcal.geometry.board import detect_in_images, parse_board
-    from camcal.geometry.zhang import calibrate_board, write_report
+    from camcal.geometry.board import default_cache_dir, detect_in_images, frame_number, parse_board
+    from camcal.geometry.zhang import calibrate_board, quality_problems, write_report
 
     board = parse_board(args.board)
     cameras: dict[str, list[str]] = {}
@@ -187,11 +208,31 @@ def _calibrate_board(args: argparse.Namespace) -> int:
         cameras[name] = files
     detections = {}
     for name, files in cameras.items():
-        report = detect_in_images(board, files, progress=f"detecting {name}")
+        report = detect_in_images(board, files, progress=f"detecting {name}", workers=args.workers or os.cpu_count() or 1,
+                                  cache=None if args.no_cache else (args.cache or default_cache_dir()))
         print(f"{name}: {report.summary()}")
         detections[name] = report.detections
-    result = calibrate_board(board, detections, model=args.model, units=args.units)
+    holdout: set[int] = set()
+    if args.holdout:
+        frames = sorted({frame_number(d.image) for views in detections.values() for d in views})
+        holdout = _parse_holdout(args.holdout, frames)
+    result = calibrate_board(board, detections, model=args.model, units=args.units, loss=args.loss,
+                             loss_scale=args.loss_scale, holdout=holdout)
+    problems = quality_problems(result)
+    if problems and not args.force:
+        raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)
+                          + " (--force writes it anyway)")
     result.rig.save(args.out)
+    for note in result.notes:
+        print(note)
+    if result.model_heldout_rms_px:
+        scores = ", ".join(f"{model} {rms:.4f} px" for model, rms in result.model_heldout_rms_px.items())
+        print(f"model auto: held-out RMS {scores}; chose {result.model}")
+    if result.relabelled:
+        print(f"relabelled by a half turn (symmetric board) to agree with the rig: "
+              + ", ".join(image for _, image in result.relabelled))
+    if result.dropped:
+        print("dropped (no corner labelling agrees with the rig): " + ", ".join(image for _, image in result.dropped))
     print(result.summary())
     if result.outliers:
         print("dropped as outliers: " + ", ".join(image for _, image in result.outliers))
@@ -202,14 +243,19 @@ def _calibrate_board(args: argparse.Namespace) -> int:
             f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) +/- ({sigma['cx']:.2f}, {sigma['cy']:.2f}) px  "
             f"RMS {camera.quality['rms_px']:.3f} px"
         )
+        if "heldout_rms_px" in camera.quality:
+            line += f" (held-out {camera.quality['heldout_rms_px']:.3f} px)"
         if "baseline" in sigma:
-            line += f"  baseline {float(np.linalg.norm(camera.c)):.4f} +/- {sigma['baseline']:.4f} {result.rig.units}"
+            line += (f"  baseline {float(np.linalg.norm(camera.c)):.4f} +/- {sigma['baseline']:.4f} {result.rig.units}"
+                     f"  rotation +/- {sigma['rotation_deg']:.3f} deg")
         print(line)
+    if problems:
+        print("warning: written with --force although " + "; ".join(problems))
     print(f"wrote {args.out}")
     if args.report:
         for path in write_report(result, args.report):
             print(f"wrote {path}")
-    return 0
+    return 3 if problems else 0
 
 
 def _register_calibrate(subparsers) -> None:
@@ -242,8 +288,23 @@ def _register_calibrate(subparsers) -> None:
         "--camera", required=True, action="append", metavar="NAME=GLOB",
         help="a camera and its images, e.g. left='shots/left*.jpg' (repeat for every camera)",
     )
-    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv"),
-                       help="distortion model (default: polynomial)")
+    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "auto"),
+                       help="distortion model; auto: the lowest held-out RMS (default: polynomial)")
+    board.add_argument("--holdout", metavar="FRAMES",
+                       help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
+                       "numbers and ranges (21-25) or a fraction (0.2)")
+    board.add_argument("--loss", default="trivial", choices=("trivial", "huber", "soft_l1", "cauchy"),
+                       help="robust loss on each corner (Ceres; default: trivial)")
+    board.add_argument("--loss-scale", type=float, default=1.0, metavar="PX", help="scale of the loss (default: 1 px)")
+    board.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="images detected at once (threads; default: the CPU count)")
+    board.add_argument("--cache", metavar="DIR",
+                       help="corner cache directory, keyed by image content and detector settings "
+                       "(default: $XDG_CACHE_HOME/camcal/corners)")
+    board.add_argument("--no-cache", action="store_true", help="detect again, do not read or write the cache")
+    board.add_argument("--force", action="store_true",
+                       help="write a rig that fails the quality gate (principal point outside the image, RMS over "
+                       "1.5 px, sigma fx over 5 %%) and exit 3 instead of refusing it")
     board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
     board.add_argument("--out", required=True, metavar="FILE.rig.json")
     board.add_argument("--report", metavar="DIR", help="write PNG plots: residuals, per-image RMS, coverage")
