@@ -6,7 +6,8 @@ Two kinds of planar target:
     A chessboard with ``W x H`` INNER corners (OpenCV's pattern size) and
     squares of side ``SQUARE`` (in the board's units, e.g. metres, or 1.0
     to measure in squares). Found by ``cv2.findChessboardCorners`` (the
-    fastest), falling back to ``cv2.findChessboardCornersSB`` (plain, then
+    fastest; on a half-size copy first when the image is 400 px or more
+    on both sides), falling back to ``cv2.findChessboardCornersSB`` (plain, then
     with its exhaustive and accuracy flags) when it fails; either way
     refined by ``cv2.cornerSubPix`` with a window of half-size
     ``0.45 x`` the smallest corner spacing in the image (3 to 15 px): a
@@ -81,13 +82,15 @@ __all__ = [
 _SB_FLAGS = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
+#: Images at least this large (both sides) are searched at half size first.
+_HALF_SIZE_MIN_PX = 400
 #: cornerSubPix half-window as a fraction of the smallest corner spacing, and its bounds in px.
 _SUBPIX_WINDOW_FRACTION = 0.45
 _SUBPIX_WINDOW_PX = (3, 15)
 #: Fewest ChArUco corners kept in one image (a pose needs non-collinear points).
 MIN_CHARUCO_CORNERS = 6
 #: Part of every cache key: change it whenever detection changes what it returns.
-_DETECTOR_VERSION = "classic-sb-subpix-adaptive-v3"
+_DETECTOR_VERSION = "half-classic-sb-subpix-adaptive-v4"
 
 
 @dataclass(frozen=True)
@@ -316,7 +319,16 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         order = np.argsort(ids)
         return Detection(name, (width, height), ids[order], corners.reshape(-1, 2).astype(np.float64)[order], "charuco")
     pattern = (board.columns, board.rows)
-    found, corners = cv2.findChessboardCorners(gray, pattern, flags=_CLASSIC_FLAGS)
+    found = False
+    if min(height, width) >= _HALF_SIZE_MIN_PX:
+        # find the board on a half-size image (4x fewer pixels, 5x faster on the real pairs);
+        # cornerSubPix below refines at full size from there: pixel centres map as 2 x + 0.5
+        half = cv2.resize(gray, (width // 2, height // 2), interpolation=cv2.INTER_AREA)
+        found, corners = cv2.findChessboardCorners(half, pattern, flags=_CLASSIC_FLAGS)
+        if found:
+            corners = 2.0 * corners + 0.5
+    if not found:
+        found, corners = cv2.findChessboardCorners(gray, pattern, flags=_CLASSIC_FLAGS)
     detector = "classic"
     if not found:
         detector = "sb"
