@@ -138,6 +138,8 @@ def test_detections_cached_by_content_and_threads_agree(tmp_path, monkeypatch):
     assert again.skipped == first.skipped and [d.image for d in again.detections] == [d.image for d in first.detections]
     assert all(np.array_equal(a.corners_px, b.corners_px) and np.array_equal(a.ids, b.ids)
                for a, b in zip(again.detections, first.detections))
-    cv2.imwrite(str(paths[2]), image)  # new content: not in the cache
+    changed = image.copy()
+    changed[0, 0] ^= 1
+    cv2.imwrite(str(paths[2]), changed)  # new content: not in the cache
     with pytest.raises(AssertionError, match="detected although cached"):
         detect_in_images(board, paths, cache=cache)
