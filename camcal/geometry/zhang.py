@@ -118,10 +118,12 @@ class CalibrationResult:
     rig : Rig
         The cameras; the first is the reference (``R = I``, ``c = 0``),
         lengths in the board's units. Each camera's ``quality`` holds
-        ``rms_px``, ``worst_px``, ``n_views``, ``n_points`` and ``sigma``
-        (one-sigma of fx, fy, cx, cy, the distortion parameters and, for
-        the other cameras, ``baseline`` and ``rotation_deg`` from the
-        reference).
+        ``rms_px``, ``worst_px``, ``n_views``, ``n_observations``,
+        ``heldout_rms_px`` (with held-out views) and ``sigma`` (one-sigma of
+        fx, fy, cx, cy, the distortion parameters and, for the other
+        cameras, ``rotation_deg``, ``baseline_rel`` and
+        ``baseline_direction_deg`` from the reference; see
+        :mod:`camcal.quality`).
     residuals_px : ndarray, shape (M, 2)
         ``projected - detected`` for every corner kept, in pixels.
     points_px : ndarray, shape (M, 2)
@@ -736,8 +738,10 @@ def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_
             rotation, translation = covariance[o:o + 3, o:o + 3], covariance[o + 3:o + 6, o + 3:o + 6]
             length = float(np.linalg.norm(t))
             along = t / max(length, 1e-300)
-            sigmas["baseline"] = float(np.sqrt(max(along @ translation @ along, 0.0)))
-            sigmas["baseline_rel"] = sigmas["baseline"] / max(length, 1e-300)
+            across = np.eye(3) - np.outer(along, along)
+            sigmas["baseline_rel"] = float(np.sqrt(max(along @ translation @ along, 0.0))) / max(length, 1e-300)
+            sigmas["baseline_direction_deg"] = float(
+                np.degrees(np.sqrt(max(np.trace(across @ translation @ across), 0.0)) / max(length, 1e-300)))
             sigmas["rotation_deg"] = float(np.degrees(np.sqrt(max(np.trace(rotation), 0.0))))
         cameras.append(
             Camera(
@@ -751,7 +755,7 @@ def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_
                     "rms_px": float(np.sqrt(np.mean(norms**2))),
                     "worst_px": float(norms.max()),
                     "n_views": int(len(np.unique(image_of_point[mine]))),
-                    "n_points": int(mine.sum()),
+                    "n_observations": int(mine.sum()),
                     "sigma": sigmas,
                 },
             )
