@@ -525,6 +525,8 @@ def calibrate_board(
         return _calibrate(board, names, by_frame, model, holdout, **options)
     frames = sorted(set().union(*[set(views) for views in by_frame]))
     trial = holdout or set(frames[3::4])
+    if not trial:
+        raise CamcalError(f"model auto chooses by held-out views: it needs at least 4 views, got {len(frames)}")
     scores = {candidate: _calibrate(board, names, by_frame, candidate, trial, **options).heldout_rms_px
               for candidate in MODELS}
     best = min(scores, key=scores.get)
