@@ -13,8 +13,9 @@
    (``mrcal-calibrate-cameras``, LENSMODEL_OPENCV8, Debian's package, run
    as its command-line tool; skipped with the reason when absent) whose
    model is posed the same way (its OPENCV8 is OpenCV's rational model).
-   camcal: ``model="auto"`` (chosen on the training frames only) and the
-   ``opencv`` model (the same model as OpenCV's), one camera at a time.
+   camcal: ``model="auto"`` (chosen on every 4th training frame; frames
+   21-25 never take part) and the ``opencv`` model (the same model as
+   OpenCV's), one camera at a time.
    A last row compares each pipeline with its own corners.
 
 Prints ``name: ours X, peer Y, ratio Y/X`` (seconds: larger ratio = we are

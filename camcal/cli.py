@@ -507,7 +507,7 @@ def _calibrate_board(args: argparse.Namespace) -> int:
         print(note)
     if result.model_heldout_rms_px:
         scores = ", ".join(f"{model} {rms:.4f} px" for model, rms in result.model_heldout_rms_px.items())
-        print(f"model auto: held-out RMS {scores}; chose {result.model}")
+        print(f"model auto: RMS on every 4th training frame, held out to choose: {scores}; chose {result.model}")
     if result.relabelled:
         print(f"relabelled by a half turn (symmetric board) to agree with the rig: "
               + ", ".join(image for _, image in result.relabelled))
@@ -581,7 +581,8 @@ def _register_calibrate(subparsers) -> None:
         "(several entries or a repeated option; globs absolute or relative)",
     )
     board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "auto"),
-                       help="distortion model; auto: the lowest held-out RMS (default: polynomial)")
+                       help="distortion model; auto: the lowest RMS on every 4th training frame held out "
+                       "(default: polynomial)")
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
                        "numbers and ranges (21-25) or a fraction (0.2)")

@@ -33,9 +33,9 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
 6. Held-out views (``holdout``) are not used in the fit; each is then
    posed by PnP with the fitted intrinsics held (the same engine, one frame
    per view) and their RMS is reported beside the training RMS. With
-   ``model="auto"`` every model is fitted and the one with the lowest
-   held-out RMS is kept (held-out frames given, or every 4th frame when
-   none are).
+   ``model="auto"`` every model is fitted with every 4th training frame
+   held out, the one with the lowest RMS on those is kept and fitted on
+   all training frames: the choice never sees ``holdout``.
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
@@ -150,7 +150,8 @@ class CalibrationResult:
     heldout_images : tuple of (str, str)
         ``(camera name, image name)`` of the held-out views.
     model_heldout_rms_px : dict of str to float
-        ``model="auto"``: the held-out RMS of every model tried.
+        ``model="auto"``: the RMS of every model tried on the training
+        frames it held out to choose (every 4th).
     relabelled : tuple of (str, str)
         Views whose corner labelling was turned by a half turn to agree with
         the rig (symmetric chessboards only).
@@ -481,7 +482,9 @@ def calibrate_board(
     model : str
         ``polynomial`` (k1, k2), ``opencv`` (k1, k2, p1, p2, k3),
         ``division`` (Strand & Hayman lambda, centred on the principal
-        point, fx = fy) or ``auto`` (the one with the lowest held-out RMS).
+        point, fx = fy) or ``auto`` (the one with the lowest RMS on every 4th
+        training frame, held out for the choice; ``holdout`` is never used
+        to choose).
     units : str
         Name of the board's length unit, stored in the rig.
     outlier_factor, min_outlier_px : float
@@ -523,11 +526,13 @@ def calibrate_board(
                    loss_scale=loss_scale)
     if model != "auto":
         return _calibrate(board, names, by_frame, model, holdout, **options)
-    frames = sorted(set().union(*[set(views) for views in by_frame]))
-    trial = holdout or set(frames[3::4])
+    # the choice never sees the held-out frames: it holds out every 4th of the training frames
+    training = [{f: d for f, d in views.items() if f not in holdout} for views in by_frame]
+    frames = sorted(set().union(*[set(views) for views in training]))
+    trial = set(frames[3::4])
     if not trial:
-        raise CamcalError(f"model auto chooses by held-out views: it needs at least 4 views, got {len(frames)}")
-    scores = {candidate: _calibrate(board, names, by_frame, candidate, trial, **options).heldout_rms_px
+        raise CamcalError(f"model auto chooses by held-out views: it needs at least 4 training views, got {len(frames)}")
+    scores = {candidate: _calibrate(board, names, training, candidate, trial, **options).heldout_rms_px
               for candidate in MODELS}
     best = min(scores, key=scores.get)
     result = _calibrate(board, names, by_frame, best, holdout, **options)
