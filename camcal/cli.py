@@ -1029,7 +1029,8 @@ def _register_colour_fit(colour_verbs) -> None:
         ),
     )
     source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--chart", metavar="IMAGE", help="photo of a 24-patch ColorChecker")
+    source.add_argument("--chart", metavar="IMAGE", help="photo of a 24-patch ColorChecker (PNG/TIFF/JPEG/EXR, or "
+                                                          "raw: DNG, CR2, NEF, ARW... read as linear camera RGB)")
     source.add_argument("--patches", metavar="FILE.csv", help="training patches (see below)")
     parser.add_argument("--reference", default="ColorChecker24 - After November 2014", metavar="NAME",
                         help="reference chart for --chart (colour-science name or cc24, cc24-2005, "
@@ -1061,7 +1062,62 @@ def _register_colour_fit(colour_verbs) -> None:
     parser.add_argument("--camera", default=None, help="camera name recorded in the file")
     parser.add_argument("--out", required=True, metavar="FIT.colour.json", help="fit file to write")
     parser.add_argument("--report", metavar="DIR", help="write per-patch tables and plots here")
+    _register_for_illuminant(parser)
     parser.set_defaults(func=_colour_fit)
+
+
+def _register_for_illuminant(parser) -> None:
+    """``colour fit --for-illuminant B --sensitivities SSF``: a fit for another light."""
+    group = parser.add_argument_group(
+        "another illuminant",
+        "fit for the light B the camera will be used under, from a chart shot under --illuminant A: the "
+        "spectral route (ACES P-2013-001: training reflectances through the sensitivities under B) vs the "
+        "chart fit white-balanced and adapted with CAT02 / Bradford; the better by CIEDE2000 on validation "
+        "reflectances is written (its camera name gets ' (B)', so one OCIO input space per illuminant). "
+        "The chart RGB must be linear (raw or --linearise none).")
+    group.add_argument("--for-illuminant", metavar="B", help="CIE illuminant name the fit is for (A, D50, FL2...)")
+    group.add_argument("--sensitivities", metavar="SSF", help="*.ssf.json or measured CSV (colour sensitivities)")
+    group.add_argument("--training-reflectances", default="rawtoaces 190", metavar="SET",
+                       help="spectral route training set (default: %(default)s)")
+    group.add_argument("--validation-reflectances", default="Munsell validation", metavar="SET",
+                       help="reflectances the routes are compared on (default: %(default)s)")
+    group.add_argument("--plausible-cameras", type=int, default=0, metavar="N",
+                       help="compare over N cameras drawn from the sensitivities' uncertainty (default: 0, "
+                            "the curves themselves)")
+
+
+def _colour_fit_for_illuminant(args: argparse.Namespace, train, reference, linearise: str) -> int:
+    from dataclasses import replace
+
+    from camcal.colour.illuminant import characterise_for_illuminant
+    from camcal.colour.ssf import load_sensitivities
+    from camcal.io.raw import is_raw, raw_metadata
+
+    if not args.sensitivities:
+        raise CamcalError("--for-illuminant needs --sensitivities SSF (from 'camcal colour sensitivities')")
+    if linearise != "none":
+        raise CamcalError(f"--for-illuminant needs linear camera RGB (--linearise none, raw input), got {linearise!r}")
+    if args.test_patches or args.target_white:
+        raise CamcalError("--for-illuminant judges on validation reflectances under B: drop --test-patches / --target-white")
+    if args.plausible_cameras < 0:
+        raise CamcalError(f"--plausible-cameras must be >= 0, got {args.plausible_cameras}")
+    sens = load_sensitivities(args.sensitivities)
+    camera = f"{args.camera} ({args.for_illuminant})" if args.camera else None
+    outcome = characterise_for_illuminant(
+        train, sens, illuminant=args.illuminant, for_illuminant=args.for_illuminant, model=args.model,
+        training_set=args.training_reflectances, validation_set=args.validation_reflectances,
+        n_cameras=args.plausible_cameras, camera=camera, reference=reference,
+        source=args.chart or args.patches)
+    print(outcome.summary())
+    fit = outcome.fit
+    if args.chart and is_raw(args.chart):
+        fit = replace(fit, capture=raw_metadata(args.chart).to_dict())
+    out = summary_of(args)
+    out.figures(for_illuminant=args.for_illuminant, route=outcome.picked, model=fit.model.label,
+                n_train=len(train), reason=outcome.reason, validation_reflectances=args.validation_reflectances,
+                delta_E2000_validation={score.route: score.to_dict() for score in outcome.scores})
+    out.wrote(fit.save(args.out), "colour fit")
+    return 0
 
 
 def _parse_corners(text: str):
@@ -1079,6 +1135,7 @@ def _colour_fit(args: argparse.Namespace) -> int:
 
     from camcal.colour.characterise import characterise, patches_from_chart, write_report
     from camcal.colour.patches import read_patch_csv
+    from camcal.io.raw import is_raw, raw_metadata
 
     reference = None
     if args.chart:
@@ -1093,7 +1150,7 @@ def _colour_fit(args: argparse.Namespace) -> int:
         noisy = [n for n, flag in zip(found.reference.patch_names, found.samples.noisy) if flag]
         if noisy:
             print(f"flagged noisy (kept): {', '.join(noisy)}")
-        linearise = args.linearise or "lut1d"
+        linearise = args.linearise or ("none" if args.for_illuminant or is_raw(args.chart) else "lut1d")
         white = args.illuminant
     else:
         if args.corners:
@@ -1102,6 +1159,10 @@ def _colour_fit(args: argparse.Namespace) -> int:
         print(f"read {len(train)} patches from {args.patches}")
         linearise = args.linearise or "none"
         white = args.illuminant
+    if args.for_illuminant:
+        return _colour_fit_for_illuminant(args, train, reference, linearise)
+    if args.sensitivities:
+        raise CamcalError("--sensitivities is used with --for-illuminant B")
     test = read_patch_csv(args.test_patches) if args.test_patches else None
     outcome = characterise(
         train, white=white, model=args.model, objective=args.objective,
@@ -1110,13 +1171,16 @@ def _colour_fit(args: argparse.Namespace) -> int:
         camera=args.camera, reference=reference, source=args.chart or args.patches,
     )
     print(outcome.summary())
+    fit = outcome.fit
+    if args.chart and is_raw(args.chart):
+        fit = dataclasses.replace(fit, capture=raw_metadata(args.chart).to_dict())
     out = summary_of(args)
     stats = {name: None if value is None else dataclasses.asdict(value) for name, value in (
         ("train", outcome.result.stats_train), ("loo", outcome.result.stats_loo), ("test", outcome.result.stats_test))}
     out.figures(model=outcome.result.model.label, linearisation=outcome.fit.linearisation.label,
                 selection=None if outcome.selection is None else outcome.selection.reason,
                 n_train=len(train), delta_E2000=stats)
-    out.wrote(outcome.fit.save(args.out), "colour fit")
+    out.wrote(fit.save(args.out), "colour fit")
     if args.report:
         files = write_report(args.report, outcome, title=args.camera or "")
         for file in files:
@@ -1292,7 +1356,100 @@ def _colour_match(args: argparse.Namespace) -> int:
     return 0
 
 
-_COLOUR_VERBS: list = [_register_colour_fit, _register_colour_export, _register_colour_match]
+def _register_colour_sensitivities(colour_verbs) -> None:
+    parser = colour_verbs.add_parser(
+        "sensitivities",
+        help="estimate (or load measured) camera spectral sensitivities: *.ssf.json + CSV",
+        description=(
+            "Estimate a camera's spectral sensitivities from chart captures (linear images: raw or "
+            "linear TIFF/EXR) and/or spectral patch CSVs, each under a known illuminant, with "
+            "positivity, smoothness and the regularisation chosen by K-fold cross-validation; "
+            "or read measured curves (--measured). Writes *.ssf.json and *.ssf.csv and prints the "
+            "Vora-Trussell mu-factor and the Luther-Ives deviation."
+        ),
+        epilog=(
+            "ILLUMINANT: a colour-science SDS_ILLUMINANTS name (D65, A, FL2, LED-B3...) or a CSV "
+            "wavelength,value. Spectral patch CSV header: name,R,G,B,<nm>,<nm>,... (linear camera "
+            "RGB then reflectance samples). Measured CSV: wavelength,R,G,B[,sigma_R,sigma_G,sigma_B]."
+        ),
+    )
+    parser.add_argument("--chart", nargs="+", action="extend", metavar="ILLUMINANT=IMAGE", default=[],
+                        help="a linear photo of a ColorChecker 24 under ILLUMINANT (repeatable)")
+    parser.add_argument("--patches", nargs="+", action="extend", metavar="ILLUMINANT=FILE.csv", default=[],
+                        help="patches with reflectance spectra under ILLUMINANT (repeatable)")
+    parser.add_argument("--measured", metavar="FILE.csv", help="measured sensitivities instead of an estimate")
+    parser.add_argument("--chart-spectra", default="BabelColor Average", metavar="NAME",
+                        help="reflectances of the chart's patches: BabelColor Average, ColorChecker N Ohta "
+                             "or ISO 17321-1 (default: %(default)s)")
+    parser.add_argument("--wavelengths", default="400,700,10", metavar="START,END,STEP",
+                        help="estimation grid in nm (default: %(default)s)")
+    parser.add_argument("--camera", default=None, help="camera name recorded in the file")
+    parser.add_argument("--compare", metavar="SSF", help="reference curves (*.ssf.json or CSV): print the "
+                                                         "relative RMS error and both mu-factors")
+    parser.add_argument("--out", required=True, metavar="CAMERA.ssf.json", help="file to write (+ .ssf.csv)")
+    parser.add_argument("--report", metavar="DIR", help="plot with 95 %% bands (sensitivities.png)")
+    parser.set_defaults(func=_colour_sensitivities)
+
+
+def _colour_sensitivities(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from camcal.colour.ssf import (capture_from_chart, estimate_from_captures, load_sensitivities,
+                                   plot_sensitivities, read_sensitivities_csv, read_spectral_patch_csv,
+                                   relative_rms_error, write_sensitivities)
+
+    try:
+        start, end, step = (float(v) for v in args.wavelengths.split(","))
+    except ValueError:
+        raise CamcalError(f"--wavelengths: expected START,END,STEP in nm, got {args.wavelengths!r}") from None
+    if not (0 < step and start + 2 * step <= end):
+        raise CamcalError(f"--wavelengths: need START < END with at least 3 steps, got {args.wavelengths!r}")
+    wavelengths = np.arange(start, end + step / 2, step)
+    reference = load_sensitivities(args.compare) if args.compare else None
+    if args.measured:
+        if args.chart or args.patches:
+            raise CamcalError("give --measured, or captures (--chart / --patches), not both")
+        sens = read_sensitivities_csv(args.measured, args.camera)
+    else:
+        captures = []
+        for entry in args.chart:
+            illuminant, path = _name_value(entry, "--chart", "ILLUMINANT=IMAGE")
+            captures.append(capture_from_chart(path, illuminant, wavelengths, reflectances=args.chart_spectra))
+        for entry in args.patches:
+            illuminant, path = _name_value(entry, "--patches", "ILLUMINANT=FILE.csv")
+            captures.append(read_spectral_patch_csv(path, illuminant, wavelengths))
+        if not captures:
+            raise CamcalError("nothing to estimate from: give --chart ILLUMINANT=IMAGE, --patches "
+                              "ILLUMINANT=FILE.csv or --measured FILE.csv")
+        for cap in captures:
+            print(f"{cap.source}: {len(cap.names)} patches under {cap.illuminant_name}")
+        sens = estimate_from_captures(captures, wavelengths, camera=args.camera)
+    print(sens.summary())
+    out = summary_of(args)
+    out.figures(source=sens.source, wavelengths_nm=[float(sens.wavelengths[0]), float(sens.wavelengths[-1]),
+                                                    float(sens.wavelengths[1] - sens.wavelengths[0])],
+                **sens.quality(), estimation=sens.estimation)
+    if reference is not None:
+        per_channel, overall = relative_rms_error(sens.values, reference.resampled(sens.wavelengths).values)
+        print(f"vs {args.compare}: relative RMS error R {100 * per_channel[0]:.1f} %, G {100 * per_channel[1]:.1f} %, "
+              f"B {100 * per_channel[2]:.1f} % (overall {100 * overall:.1f} %); mu-factor {sens.mu_factor():.4f} "
+              f"vs {reference.mu_factor():.4f}")
+        out.figures(compare={"reference": args.compare, "relative_rms_error": [float(v) for v in per_channel],
+                             "relative_rms_error_overall": overall, "mu_factor": reference.mu_factor()})
+    json_path, csv_path = write_sensitivities(args.out, sens)
+    out.wrote(json_path, "sensitivities")
+    out.wrote(csv_path, "sensitivities csv")
+    if args.report:
+        from pathlib import Path
+
+        path = plot_sensitivities(Path(args.report) / "sensitivities.png", sens, reference, title=args.camera or "")
+        out.wrote(path, "report", say=False)
+        print(f"report: {path}")
+    return 0
+
+
+_COLOUR_VERBS: list = [_register_colour_fit, _register_colour_export, _register_colour_match,
+                       _register_colour_sensitivities]
 
 
 # One entry per verb group; keep this list the only place verbs are wired in.
