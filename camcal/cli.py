@@ -468,11 +468,33 @@ def _calibrate_dlt(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_holdout(text: str, frames: list[int]) -> set[int]:
+    """``--holdout``: frame numbers and ranges (``21-25,3``) or a fraction of the frames (``0.2``, evenly spaced)."""
+    import re
+
+    text = text.strip()
+    if re.fullmatch(r"0?\.\d+", text):
+        fraction = float(text)
+        count = max(1, round(fraction * len(frames)))
+        step = len(frames) / count
+        return {frames[min(len(frames) - 1, int((k + 0.5) * step))] for k in range(count)}
+    held: set[int] = set()
+    for part in text.split(","):
+        match = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        if not match:
+            raise CamcalError(f"bad --holdout {text!r}: expected frame numbers and ranges (21-25,3) or a fraction (0.2)")
+        first, last = int(match.group(1)), int(match.group(2) or match.group(1))
+        held.update(range(first, last + 1))
+    return held
+
+
 def _calibrate_board(args: argparse.Namespace) -> int:
+    import os
+
     import numpy as np
 
-    from camcal.geometry.board import detect_in_images, parse_board
-    from camcal.geometry.zhang import calibrate_board, write_report
+    from camcal.geometry.board import default_cache_dir, detect_in_images, frame_number, parse_board
+    from camcal.geometry.zhang import calibrate_board, quality_problems, write_report
 
     board = parse_board(args.board)
     if not args.camera:
@@ -480,11 +502,31 @@ def _calibrate_board(args: argparse.Namespace) -> int:
     cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()}
     detections = {}
     for name, files in cameras.items():
-        report = detect_in_images(board, files, progress=f"detecting {name}")
+        report = detect_in_images(board, files, progress=f"detecting {name}", workers=args.workers or os.cpu_count() or 1,
+                                  cache=None if args.no_cache else (args.cache or default_cache_dir()))
         print(f"{name}: {report.summary()}")
         detections[name] = report.detections
-    result = calibrate_board(board, detections, model=args.model, units=args.units)
+    holdout: set[int] = set()
+    if args.holdout:
+        frames = sorted({frame_number(d.image) for views in detections.values() for d in views})
+        holdout = _parse_holdout(args.holdout, frames)
+    result = calibrate_board(board, detections, model=args.model, units=args.units, loss=args.loss,
+                             loss_scale=args.loss_scale, holdout=holdout)
+    problems = quality_problems(result)
+    if problems and not args.force:
+        raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)
+                          + " (--force writes it anyway)")
     result.rig.save(args.out)
+    for note in result.notes:
+        print(note)
+    if result.model_heldout_rms_px:
+        scores = ", ".join(f"{model} {rms:.4f} px" for model, rms in result.model_heldout_rms_px.items())
+        print(f"model auto: RMS on every 4th training frame, held out to choose: {scores}; chose {result.model}")
+    if result.relabelled:
+        print(f"relabelled by a half turn (symmetric board) to agree with the rig: "
+              + ", ".join(image for _, image in result.relabelled))
+    if result.dropped:
+        print("dropped (no corner labelling agrees with the rig): " + ", ".join(image for _, image in result.dropped))
     print(result.summary())
     if result.outliers:
         print("dropped as outliers: " + ", ".join(image for _, image in result.outliers))
@@ -495,22 +537,30 @@ def _calibrate_board(args: argparse.Namespace) -> int:
             f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) +/- ({sigma['cx']:.2f}, {sigma['cy']:.2f}) px  "
             f"RMS {camera.quality['rms_px']:.3f} px"
         )
+        if camera.quality.get("heldout_rms_px") is not None:
+            line += f" (held-out {camera.quality['heldout_rms_px']:.3f} px)"
         if "baseline_rel" in sigma:
             baseline = float(np.linalg.norm(camera.c))
-            line += f"  baseline {baseline:.4f} +/- {sigma['baseline_rel'] * baseline:.4f} {result.rig.units}"
+            line += (f"  baseline {baseline:.4f} +/- {sigma['baseline_rel'] * baseline:.4f} {result.rig.units}"
+                     f"  rotation +/- {sigma['rotation_deg']:.3f} deg")
         print(line)
     out = summary_of(args)
+    if problems:
+        out.warn("written with --force although " + "; ".join(problems))
     out.figures(
         summary=result.summary(), outliers=[image for _, image in result.outliers],
         detections={name: len(found) for name, found in detections.items()},
         cameras={camera.name: {"K": camera.K, "distortion": camera.distortion.to_dict(), "c": camera.c,
                                "quality": camera.quality.to_dict()} for camera in result.rig.cameras},
+        model=result.model, heldout_rms_px=result.heldout_rms_px, model_heldout_rms_px=dict(result.model_heldout_rms_px),
+        relabelled=[image for _, image in result.relabelled], dropped=[image for _, image in result.dropped],
+        quality_problems=problems,
     )
     out.wrote(args.out, "rig")
     if args.report:
         for path in write_report(result, args.report):
             out.wrote(path, "report")
-    return 0
+    return 3 if problems else 0
 
 
 def _register_calibrate(subparsers) -> None:
@@ -544,8 +594,24 @@ def _register_calibrate(subparsers) -> None:
         help="a camera and its images, e.g. left='shots/left*.jpg' right='shots/right*.jpg' "
         "(several entries or a repeated option; globs absolute or relative)",
     )
-    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv"),
-                       help="distortion model (default: polynomial)")
+    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "auto"),
+                       help="distortion model; auto: the lowest RMS on every 4th training frame held out "
+                       "(default: polynomial)")
+    board.add_argument("--holdout", metavar="FRAMES",
+                       help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
+                       "numbers and ranges (21-25) or a fraction (0.2)")
+    board.add_argument("--loss", default="trivial", choices=("trivial", "huber", "soft_l1", "cauchy"),
+                       help="robust loss on each corner (Ceres; default: trivial)")
+    board.add_argument("--loss-scale", type=float, default=1.0, metavar="PX", help="scale of the loss (default: 1 px)")
+    board.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="images detected at once (threads; default: the CPU count)")
+    board.add_argument("--cache", metavar="DIR",
+                       help="corner cache directory, keyed by image content and detector settings "
+                       "(default: $XDG_CACHE_HOME/camcal/corners)")
+    board.add_argument("--no-cache", action="store_true", help="detect again, do not read or write the cache")
+    board.add_argument("--force", action="store_true",
+                       help="write a rig that fails the quality gate (principal point outside the image, RMS over "
+                       "1.5 px, sigma fx over 5 %%) and exit 3 instead of refusing it")
     board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
     board.add_argument("--out", required=True, metavar="FILE.rig.json")
     board.add_argument("--report", metavar="DIR", help="write PNG plots: residuals, per-image RMS, coverage")
