@@ -1,8 +1,35 @@
 """The ``camcal`` command: parses arguments and calls the library.
 
-Every verb prints a short human summary, writes its outputs atomically and,
-on a user's mistake, prints one line ``camcal: error: ...`` and exits with
-code 2 (argparse does the same for malformed command lines).
+Every verb prints a short human summary and writes its outputs atomically.
+
+Errors, for every verb and every input:
+
+- a user's mistake (:class:`~camcal.errors.CamcalError`, an ``OSError`` on a
+  path the user gave, a file that does not decode) prints one line
+  ``camcal: error: ...`` on stderr and exits with code 2 (argparse does the
+  same for malformed command lines);
+- an internal error (a bug in camcal) prints one line naming the verb and
+  "run with --debug for the traceback" and exits with code 1;
+- ``--debug`` (before or after the verb) shows the full traceback instead.
+
+Options that name cameras take ``NAME=VALUE`` entries (:class:`NamedValues`):
+``--images left=A right=B`` is the same as ``--images left=A --images
+right=B``; a name given twice, an entry without ``=`` or a glob that matches
+nothing is one error line naming the option and the entry. Globs may be
+absolute or relative (:func:`expand_glob`).
+
+``--json`` (every verb) prints one versioned JSON object on stdout instead
+of the human summary (which then goes to stderr)::
+
+    {"format": "camcal.summary", "version": 1, "camcal": "0.x",
+     "verb": "rectify", "exit_code": 0,
+     "figures": {...the summary's numbers, named with their units...},
+     "files": [{"path": "out/rect.rig.json", "kind": "rig"}, ...],
+     "warnings": [...]}
+
+and on an error ``{"...", "exit_code": 2, "error": "the one line"}``.
+Handlers record figures and files on :func:`summary_of(args)
+<summary_of>` (:class:`VerbSummary`).
 
 Each verb group registers itself with a ``_register_<group>(subparsers)``
 function that sets ``func`` on its parser; the handler receives the parsed
@@ -12,40 +39,235 @@ namespace and returns the exit code.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import glob
+import json
+import os
 import sys
+import traceback
 from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
 from camcal import __version__
 from camcal.errors import CamcalError
 
-__all__ = ["main", "build_parser"]
+__all__ = [
+    "EXIT_BAD_INPUT",
+    "EXIT_INTERNAL",
+    "SUMMARY_FORMAT",
+    "SUMMARY_VERSION",
+    "NamedValues",
+    "VerbSummary",
+    "build_parser",
+    "expand_glob",
+    "main",
+    "summary_of",
+]
 
 EXIT_BAD_INPUT = 2
+EXIT_INTERNAL = 1
+SUMMARY_FORMAT = "camcal.summary"
+SUMMARY_VERSION = 1
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser with every verb registered."""
+    """The full argument parser with every verb registered.
+
+    Every leaf verb gets ``--json`` and ``--debug`` here, so a verb a module
+    registers has them without asking.
+    """
     parser = argparse.ArgumentParser(
         prog="camcal",
         description="Geometric and colour camera calibration for VFX pipelines.",
+        epilog="Exit status: 0 done, 1 internal error (or a verb's own partial failure), 2 bad input.",
     )
     parser.add_argument("--version", action="version", version=f"camcal {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an internal error")
     subparsers = parser.add_subparsers(dest="verb", metavar="VERB")
     subparsers.required = True
     for register in _REGISTERS:
         register(subparsers)
+    for path, leaf in _leaf_parsers(parser, ()):
+        leaf.add_argument("--json", action="store_true",
+                          help="print the summary's figures and written files as one JSON object on stdout")
+        leaf.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                          help="show the traceback of an internal error")
+        leaf.set_defaults(_verb=" ".join(path))
     return parser
+
+
+def _leaf_parsers(parser: argparse.ArgumentParser, path: tuple[str, ...]):
+    """``(verb path, parser)`` of every leaf verb below ``parser``."""
+    actions = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not actions:
+        yield path, parser
+        return
+    for name, sub in actions[0].choices.items():
+        yield from _leaf_parsers(sub, path + (name,))
+
+
+# -- errors, --debug and --json ------------------------------------------------------
+
+
+@dataclass
+class VerbSummary:
+    """What a verb reports: its figures and the files it wrote (``--json``).
+
+    Handlers fill it with :meth:`figures` and :meth:`wrote`; :func:`main`
+    prints it as one JSON object when ``--json`` is given.
+    """
+
+    verb: str
+    data: dict[str, Any] = field(default_factory=dict)
+    files: list[dict[str, str]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def figures(self, **values: Any) -> None:
+        """Record figures (numbers with their units in their names: ``rms_px``)."""
+        self.data.update(values)
+
+    def wrote(self, path: str | os.PathLike, kind: str = "file", say: bool = True) -> None:
+        """Record a written file; ``say`` also prints ``wrote PATH``."""
+        self.files.append({"path": str(path), "kind": kind})
+        if say:
+            print(f"wrote {path}")
+
+    def warn(self, message: str) -> None:
+        """Record and print a warning."""
+        self.warnings.append(message)
+        print(f"warning: {message}")
+
+    def to_dict(self, exit_code: int, error: str | None = None) -> dict[str, Any]:
+        """The versioned JSON object (see the module docstring)."""
+        out: dict[str, Any] = {
+            "format": SUMMARY_FORMAT, "version": SUMMARY_VERSION, "camcal": __version__,
+            "verb": self.verb, "exit_code": exit_code,
+            "figures": self.data, "files": self.files, "warnings": self.warnings,
+        }
+        if error is not None:
+            out["error"] = error
+        return out
+
+
+def summary_of(args: argparse.Namespace) -> VerbSummary:
+    """The :class:`VerbSummary` of this run (made by :func:`main`)."""
+    summary = getattr(args, "_summary", None)
+    if summary is None:  # a handler called without main(), e.g. from a test
+        summary = VerbSummary(getattr(args, "_verb", "camcal"))
+        args._summary = summary
+    return summary
+
+
+def _json_default(value: Any) -> Any:
+    """numpy scalars and arrays, paths and tuples as JSON."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, (set, frozenset)):
+        return sorted(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def _user_error(error: BaseException) -> str | None:
+    """The one line for a user's mistake, or None for an internal error."""
+    if isinstance(error, CamcalError):
+        return str(error)
+    if isinstance(error, OSError) and error.filename is not None:
+        reason = error.strerror or error.__class__.__name__
+        return f"{error.filename}: {reason}"
+    if isinstance(error, UnicodeDecodeError):
+        return f"a file is not text in the expected encoding ({error.reason} at byte {error.start})"
+    return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the process exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    debug = "--debug" in argv
+    want_json = "--json" in argv
+    summary = VerbSummary(next((a for a in argv if not a.startswith("-")), "camcal"))
+    stdout = sys.stdout
+    code = EXIT_BAD_INPUT
+    error_line = None
     try:
-        return int(args.func(args) or 0)
-    except CamcalError as error:
-        print(f"camcal: error: {error}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        args = parser.parse_args(argv)
+        debug, want_json = bool(getattr(args, "debug", False)), bool(getattr(args, "json", False))
+        summary.verb = args._verb
+        args._summary = summary
+        with contextlib.redirect_stdout(sys.stderr) if want_json else contextlib.nullcontext():
+            code = int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        error_line, code = "interrupted", 130
+        print("camcal: interrupted", file=sys.stderr)
+    except Exception as error:  # noqa: BLE001 - the one place every error becomes one line
+        user = _user_error(error)
+        if debug:
+            traceback.print_exc()
+        if user is not None:
+            error_line, code = user, EXIT_BAD_INPUT
+            print(f"camcal: error: {user}", file=sys.stderr)
+        else:
+            error_line, code = f"internal error in `camcal {summary.verb}`: {error.__class__.__name__}: {error}", EXIT_INTERNAL
+            hint = "" if debug else " (run with --debug for the traceback)"
+            print(f"camcal: {error_line}{hint}", file=sys.stderr)
+    if want_json:
+        text = json.dumps(summary.to_dict(code, error_line), default=_json_default, allow_nan=False)
+        print(text, file=stdout)
+    return code
+
+
+# -- NAME=VALUE options ----------------------------------------------------------------
+
+
+def _name_value(entry: str, option: str, form: str) -> tuple[str, str]:
+    """Split a ``NAME=VALUE`` option value, or fail naming the option."""
+    name, sep, value = entry.partition("=")
+    if not sep or not name or not value:
+        raise CamcalError(f"{option}: expected {form}, got {entry!r}")
+    return name, value
+
+
+class NamedValues(argparse.Action):
+    """A ``NAME=VALUE`` option: repeatable and multi-valued mean the same.
+
+    ``--images left=A right=B`` and ``--images left=A --images right=B`` both
+    give ``{"left": "A", "right": "B"}`` (in order). A name given twice or an
+    entry without ``=`` raises :class:`CamcalError` naming the option and the
+    entry. The default is an empty dict.
+    """
+
+    def __init__(self, option_strings, dest, nargs=None, default=None, **kwargs) -> None:
+        super().__init__(option_strings, dest, nargs="+", default={}, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        current = dict(getattr(namespace, self.dest, None) or {})
+        form = self.metavar if isinstance(self.metavar, str) else "NAME=VALUE"
+        for entry in values:
+            name, value = _name_value(entry, option_string, form)
+            if name in current:
+                raise CamcalError(f"{option_string} {entry}: name {name!r} given twice")
+            current[name] = value
+        setattr(namespace, self.dest, current)
+
+
+def expand_glob(option: str, name: str, pattern: str, root: str | os.PathLike | None = None,
+                what: str = "image") -> list[str]:
+    """The files a glob matches, sorted; absolute or relative (to ``root``, else the cwd).
+
+    Raises
+    ------
+    CamcalError
+        ``"--images left=L/*.png: no image matches"`` when nothing matches.
+    """
+    full = os.path.join(os.fspath(root), os.path.expanduser(pattern)) if root else os.path.expanduser(pattern)
+    files = sorted(path for path in glob.glob(full) if os.path.isfile(path))
+    if not files:
+        where = f" (in {root})" if root and not os.path.isabs(pattern) else ""
+        raise CamcalError(f"{option} {name}={pattern}: no {what} matches{where}")
+    return files
 
 
 def _register_blender(subparsers) -> None:
@@ -98,8 +320,12 @@ def _blender_import(args: argparse.Namespace) -> int:
     print(f"imported rig {summary['rig']!r} into {args.blend}: {len(summary['cameras'])} camera(s) "
           f"({cams}), stereo: {summary['stereo_mode'].lower()}, "
           f"distorted lenses: {len(summary['clips'])}")
+    out = summary_of(args)
+    out.figures(rig=summary["rig"], cameras=list(summary["cameras"]), stereo_mode=summary["stereo_mode"],
+                n_distorted_lenses=len(summary["clips"]))
+    out.wrote(args.blend, "blend", say=False)
     for warning in summary["warnings"]:
-        print(f"warning: {warning}")
+        out.warn(warning)
     return 0
 
 
@@ -116,25 +342,84 @@ def _image_size(value: Sequence[int]) -> tuple[int, int]:
 def _rig_show(args: argparse.Namespace) -> int:
     from camcal.rig import Rig
 
-    print(Rig.load(args.rig).summary())
+    rig = Rig.load(args.rig)
+    print(rig.summary())
+    summary_of(args).figures(rig=rig.to_dict())
     return 0
 
 
 def _register_rig(subparsers) -> None:
-    rig = subparsers.add_parser("rig", help="inspect rig files")
+    rig = subparsers.add_parser("rig", help="inspect rig files; export them to and import them from other tools")
     verbs = rig.add_subparsers(dest="rig_verb", metavar="VERB")
     verbs.required = True
     show = verbs.add_parser("show", help="print a readable summary of a rig file")
     show.add_argument("rig", metavar="FILE", help="a *.rig.json file")
     show.set_defaults(func=_rig_show)
+    _register_rig_interchange(verbs)
 
 
-def _name_value(entry: str, option: str, form: str) -> tuple[str, str]:
-    """Split a ``NAME=VALUE`` option value, or fail naming the option."""
-    name, sep, value = entry.partition("=")
-    if not sep or not name or not value:
-        raise CamcalError(f"{option} must be {form}, got {entry!r}")
-    return name, value
+def _register_rig_interchange(verbs) -> None:
+    from camcal.io.interchange import FORMATS
+
+    export = verbs.add_parser(
+        "export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke)",
+        description="Write RIG as FORMAT. opencv: .yaml/.yml/.xml FileStorage (one camera or a stereo pair); "
+        "kalibr: camchain.yaml; colmap: a directory with cameras.txt, images.txt, points3D.txt; usd: "
+        ".usda/.usdc/.usd; nuke: .nk. A lens or skew the format cannot hold is fitted with the nearest "
+        "model it holds and the max pixel residual is printed; exact conversions say so.")
+    export.add_argument("rig", metavar="RIG", help="a *.rig.json file")
+    export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
+    export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
+    export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
+    export.set_defaults(func=_rig_export)
+    imp = verbs.add_parser(
+        "import", help="read another tool's camera file as a rig",
+        description="Read FILE (a directory for colmap) written by FORMAT's tool and write a camcal rig.")
+    imp.add_argument("file", metavar="FILE", help="the other tool's file")
+    imp.add_argument("--from", dest="fmt", required=True, choices=FORMATS, metavar="FORMAT",
+                     help=f"one of: {', '.join(FORMATS)}")
+    imp.add_argument("--out", required=True, metavar="RIG.rig.json", help="the rig file to write")
+    imp.set_defaults(func=_rig_import)
+
+
+def _print_conversions(result) -> None:
+    for conversion in result.conversions:
+        print(conversion.describe())
+    for note in result.notes:
+        print(f"note: {note}")
+
+
+def _rig_export(args: argparse.Namespace) -> int:
+    from camcal.io.interchange import export_rig
+    from camcal.rig import Rig
+
+    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig)
+    _print_conversions(result)
+    for path in result.paths:
+        print(f"wrote {path}")
+    return 0
+
+
+def _rig_import(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from camcal.io.interchange import import_rig
+    from camcal.rig import make_provenance
+
+    result = import_rig(args.file, args.fmt)
+    rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
+    _print_conversions(result)
+    if result.points_xyz is not None:
+        from pathlib import Path
+
+        from camcal.io.ply import write_points_ply
+
+        out = Path(args.out)
+        points = out.with_name(out.name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
+        print(f"wrote {write_points_ply(points, result.points_xyz, result.points_rgb)} ({len(result.points_xyz)} points)")
+        rig = dataclasses.replace(rig, points=points.name)
+    print(f"wrote {rig.save(args.out)} ({len(rig.cameras)} camera(s), {len(rig.frames)} frame(s))")
+    return 0
 
 
 # -- camcal calibrate ----------------------------------------------------------------
@@ -163,28 +448,22 @@ def _calibrate_dlt(args: argparse.Namespace) -> int:
         f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) px  skew {K[0, 1]:.3g}"
     )
     print(f"camera centre ({result.c[0]:.4f}, {result.c[1]:.4f}, {result.c[2]:.4f})")
-    print(f"wrote {args.out}")
+    out = summary_of(args)
+    out.figures(rms_px=result.rms_px, worst_px=result.worst_px, n_points=len(X), K=K, sigma=sigma, c=result.c)
+    out.wrote(args.out, "rig")
     return 0
 
 
 def _calibrate_board(args: argparse.Namespace) -> int:
-    import glob
-
     import numpy as np
 
     from camcal.geometry.board import detect_in_images, parse_board
     from camcal.geometry.zhang import calibrate_board, write_report
 
     board = parse_board(args.board)
-    cameras: dict[str, list[str]] = {}
-    for entry in args.camera:
-        name, pattern = _name_value(entry, "--camera", "NAME=GLOB (e.g. left='shots/left*.jpg')")
-        if name in cameras:
-            raise CamcalError(f"camera {name!r} given twice")
-        files = sorted(glob.glob(pattern))
-        if not files:
-            raise CamcalError(f"camera {name!r}: no image matches {pattern!r}")
-        cameras[name] = files
+    if not args.camera:
+        raise CamcalError("--camera: give at least one camera, e.g. --camera left='shots/left*.jpg'")
+    cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()}
     detections = {}
     for name, files in cameras.items():
         report = detect_in_images(board, files, progress=f"detecting {name}")
@@ -202,13 +481,21 @@ def _calibrate_board(args: argparse.Namespace) -> int:
             f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) +/- ({sigma['cx']:.2f}, {sigma['cy']:.2f}) px  "
             f"RMS {camera.quality['rms_px']:.3f} px"
         )
-        if "baseline" in sigma:
-            line += f"  baseline {float(np.linalg.norm(camera.c)):.4f} +/- {sigma['baseline']:.4f} {result.rig.units}"
+        if "baseline_rel" in sigma:
+            baseline = float(np.linalg.norm(camera.c))
+            line += f"  baseline {baseline:.4f} +/- {sigma['baseline_rel'] * baseline:.4f} {result.rig.units}"
         print(line)
-    print(f"wrote {args.out}")
+    out = summary_of(args)
+    out.figures(
+        summary=result.summary(), outliers=[image for _, image in result.outliers],
+        detections={name: len(found) for name, found in detections.items()},
+        cameras={camera.name: {"K": camera.K, "distortion": camera.distortion.to_dict(), "c": camera.c,
+                               "quality": camera.quality.to_dict()} for camera in result.rig.cameras},
+    )
+    out.wrote(args.out, "rig")
     if args.report:
         for path in write_report(result, args.report):
-            print(f"wrote {path}")
+            out.wrote(path, "report")
     return 0
 
 
@@ -239,8 +526,9 @@ def _register_calibrate(subparsers) -> None:
         help="chessboard:WxH:SQUARE (inner corners) or charuco:DICT:WxH:SQUARE:MARKER (squares)",
     )
     board.add_argument(
-        "--camera", required=True, action="append", metavar="NAME=GLOB",
-        help="a camera and its images, e.g. left='shots/left*.jpg' (repeat for every camera)",
+        "--camera", required=True, action=NamedValues, metavar="NAME=GLOB",
+        help="a camera and its images, e.g. left='shots/left*.jpg' right='shots/right*.jpg' "
+        "(several entries or a repeated option; globs absolute or relative)",
     )
     board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv"),
                        help="distortion model (default: polynomial)")
@@ -259,8 +547,16 @@ def _solve(args: argparse.Namespace) -> int:
     from camcal.geometry.sfm import LENS_MODELS, MODELS, collect_images, solve_pycolmap_plain, solve_sfm
     from camcal.rig import Rig
 
-    globs = dict(_name_value(item, "--camera", "NAME=GLOB") for item in args.camera)
-    images = collect_images([Path(folder) for folder in args.folders], globs)
+    folders = [Path(folder) for folder in args.folders]
+    if args.camera:
+        if len(folders) != 1:
+            raise CamcalError(f"--camera NAME=GLOB selects images inside one folder: give exactly one, got {len(folders)}")
+        if not folders[0].is_dir():
+            raise CamcalError(f"image folder not found: {folders[0]}")
+        images = {name: [Path(f) for f in expand_glob("--camera", name, pattern, root=folders[0])]
+                  for name, pattern in args.camera.items()}
+    else:
+        images = collect_images(folders)
     known_rig = Rig.load(args.rig) if args.rig else None
     if args.features < 100:
         raise CamcalError(f"--features must be at least 100, got {args.features}")
@@ -291,6 +587,22 @@ def _solve(args: argparse.Namespace) -> int:
             print(f"{camera.name} (plain pycolmap): {_intrinsics_line(peer.cameras[camera.name], {})}; "
                   f"RMS {peer.rms_px[camera.name]:.3f} px")
     print(f"wrote {Path(args.out) / 'solve.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
+    out = summary_of(args)
+    out.figures(n_images=result.n_images, n_registered=result.n_registered, unregistered=list(result.unregistered),
+                rms_px=result.rms_px, per_camera_rms_px=dict(result.per_camera_rms_px), n_points=result.n_points,
+                bundle=None if result.bundle is None else result.bundle.summary(),
+                cameras={camera.name: dict(camera.quality) for camera in result.rig.cameras})
+    if result.self_calibration is not None:
+        calibration = result.self_calibration
+        out.figures(lens_models=calibration.lens_models, heldout_rms_px_by_model=calibration.heldout_rms_px,
+                    principal_point={d.camera: {"refined": d.refined, "sigma_px": d.sigma_px, "limit_px": d.limit_px,
+                                                "reason": d.reason} for d in calibration.principal_point})
+    if peer is not None:
+        out.figures(pycolmap={name: {"K": camera.K, "distortion": camera.distortion.to_dict(),
+                                     "rms_px": peer.rms_px.get(name)} for name, camera in peer.cameras.items()})
+    out.wrote(Path(args.out) / "solve.rig.json", "rig", say=False)
+    out.wrote(Path(args.out) / "points.ply", "points", say=False)
+    out.wrote(result.reconstruction_dir, "colmap model", say=False)
     return 0
 
 
@@ -317,8 +629,9 @@ def _register_solve(subparsers) -> None:
         "Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.",
     )
     solve.add_argument("folders", nargs="+", metavar="IMAGES_DIR", help="image folder(s)")
-    solve.add_argument("--camera", action="append", default=[], metavar="NAME=GLOB",
-                       help="a camera's images inside IMAGES_DIR, e.g. left='*_L.png' (repeat per camera)")
+    solve.add_argument("--camera", action=NamedValues, metavar="NAME=GLOB",
+                       help="a camera's images, e.g. left='*_L.png' right='*_R.png' (relative to "
+                       "IMAGES_DIR, or absolute; several entries or a repeated option)")
     solve.add_argument("--rig", metavar="KNOWN.rig.json",
                        help="hold the cameras' relative poses at this calibration (and take its units)")
     solve.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none"),
@@ -354,9 +667,16 @@ def _demo(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, stages=tuple(s.strip() for s in args.stages.split(",")))
     report = run_demo(args.out, config)
     print(report.table())
+    out = summary_of(args)
     for label, path in report.outputs:
         print(f"wrote {path} ({label})")
+        out.wrote(path, label, say=False)
     print(f"report: {report.report}")
+    out.wrote(report.report, "report", say=False)
+    out.figures(rows=[{"stage": row.stage, "quantity": row.quantity, "true": row.true, "recovered": row.recovered,
+                       "error": row.error, "tolerance": row.tolerance, "unit": row.unit, "ok": row.ok,
+                       "source": row.source} for row in report.rows],
+                seconds=dict(report.seconds), n_failed=len(report.failed))
     print("time per stage: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in report.seconds))
     if report.failed:
         print(f"outside tolerance: {', '.join(row.quantity for row in report.failed)}", file=sys.stderr)
@@ -398,7 +718,10 @@ def _pattern(value: str) -> tuple[int, int]:
 def _distortion_fit(args: argparse.Namespace) -> int:
     import cv2
 
+    from pathlib import Path
+
     from camcal.geometry.plumbline import fit_plumbline, lines_from_images, read_lines
+    from camcal.io.frames import imread
     from camcal.io.jsonfile import write_json
 
     if bool(args.images) == bool(args.lines):
@@ -409,10 +732,7 @@ def _distortion_fit(args: argparse.Namespace) -> int:
     else:
         images = []
         for path in args.images:
-            image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
-            if image is None:
-                raise CamcalError(f"cannot read image {path}")
-            images.append(image)
+            images.append(imread(path, cv2.IMREAD_GRAYSCALE))
         pattern = _pattern(args.pattern) if args.pattern else None
         lines, skipped_index = lines_from_images(images, pattern)
         skipped = [args.images[i] for i in skipped_index]
@@ -422,8 +742,6 @@ def _distortion_fit(args: argparse.Namespace) -> int:
     result = fit_plumbline(lines, args.model, fit_center=args.fit_centre)
     write_json(args.out, result.to_dict())
     if args.report:
-        from pathlib import Path
-
         write_json(Path(args.report) / "plumbline_report.json", {
             **result.to_dict(),
             "strand_hayman": {
@@ -437,21 +755,18 @@ def _distortion_fit(args: argparse.Namespace) -> int:
     params = ", ".join(f"{k} {v:.6g}" for k, v in result.distortion.params.items())
     centre = result.distortion.center or tuple(result.K[:2, 2])
     print(f"{result.distortion.model}: {params} about ({centre[0]:.2f}, {centre[1]:.2f}) px")
+    out = summary_of(args)
+    out.figures(distortion=result.distortion.to_dict(), straightness_rms_before_px=result.straightness_rms_before_px,
+                straightness_rms_px=result.straightness_rms_px, worst_line_rms_px=float(result.rms_after_px.max()),
+                n_lines=result.n_lines, n_points=result.n_points, skipped=skipped)
+    out.wrote(args.out, "lens", say=False)
+    if args.report:
+        out.wrote(Path(args.report) / "plumbline_report.json", "report", say=False)
     print(f"straightness RMS: {result.straightness_rms_before_px:.3f} px before, "
           f"{result.straightness_rms_px:.3f} px after (worst line {result.rms_after_px.max():.3f} px, "
           f"{result.n_lines} lines, {result.n_points} points)")
 
 # -- camcal rectify ------------------------------------------------------------------
-
-
-def _parse_images(entries: Sequence[str]) -> dict[str, list[str]]:
-    import glob
-
-    images: dict[str, list[str]] = {}
-    for entry in entries:
-        name, pattern = _name_value(entry, "--images", "NAME=GLOB")
-        images[name] = sorted(glob.glob(pattern))
-    return images
 
 
 def _rectify(args: argparse.Namespace) -> int:
@@ -464,11 +779,9 @@ def _rectify(args: argparse.Namespace) -> int:
     if args.write and not args.images:
         raise CamcalError("--write needs --images NAME=GLOB for the cameras to rectify")
     rig = Rig.load(args.rig)
-    images = _parse_images(args.images or [])
-    for name, files in images.items():
+    for name in args.images:
         rig.camera(name)
-        if not files:
-            raise CamcalError(f"--images {name}=...: no file matches")
+    images = {name: expand_glob("--images", name, pattern) for name, pattern in args.images.items()}
     names = list(images) if len(images) >= 2 else None
     if args.matches:
         matches = read_matches_csv(args.matches)
@@ -485,12 +798,15 @@ def _rectify(args: argparse.Namespace) -> int:
             written += warper.write(name, images.get(name, []), args.write)
     result.rig.save(args.out)
     print(result.summary())
+    out = summary_of(args)
+    out.figures(**result.to_report())
+    for path in written:
+        out.wrote(path, "image", say=False)
     if written:
         print(f"wrote {len(written)} rectified image(s) to {args.write}")
     if args.report:
-        report = write_json(f"{args.report}/rectification.json", result.to_report())
-        print(f"wrote {report}")
-    print(f"wrote {args.out}")
+        out.wrote(write_json(f"{args.report}/rectification.json", result.to_report()), "report")
+    out.wrote(args.out, "rig")
     return 0
 
 
@@ -529,6 +845,11 @@ def _undistort(args: argparse.Namespace) -> int:
     print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
           f"fx {camera.K[0, 0]:.3f} fy {camera.K[1, 1]:.3f} principal point ({camera.K[0, 2]:.2f}, {camera.K[1, 2]:.2f})")
     print(f"wrote {rig_path} and {len(written)} image(s) in {args.out}")
+    out = summary_of(args)
+    out.figures(camera=args.camera, mode=args.mode, image_size=[width, height], K=camera.K)
+    out.wrote(rig_path, "rig", say=False)
+    for path in written:
+        out.wrote(path, "image", say=False)
     return 0
 
 
@@ -556,8 +877,10 @@ def _stmap(args: argparse.Namespace) -> int:
 
     paths = write_stmaps(Rig.load(args.rig), args.camera, args.out, args.overscan)
     print(f"ST-maps of {args.camera!r} with overscan {args.overscan:g}")
+    out = summary_of(args)
+    out.figures(camera=args.camera, overscan=args.overscan)
     for path in paths:
-        print(f"wrote {path}")
+        out.wrote(path, "stmap" if str(path).endswith(".exr") else "rig")
     return 0
 
 
@@ -589,7 +912,9 @@ def _register_rectify(subparsers) -> None:
     parser.add_argument("rig", metavar="RIG", help="a calibrated *.rig.json")
     parser.add_argument("--method", choices=("camera", "hartley"), default="camera")
     parser.add_argument("--refine", action="store_true", help="camera method: refine on matches (Nozick 2011)")
-    parser.add_argument("--images", nargs="+", metavar="NAME=GLOB", help="images per camera, e.g. left='L/*.png'")
+    parser.add_argument("--images", action=NamedValues, metavar="NAME=GLOB",
+                        help="images per camera, e.g. left='L/*.png' right='R/*.png' "
+                        "(several entries or a repeated option; globs absolute or relative)")
     parser.add_argument("--matches", metavar="FILE.csv", help="point matches in original pixels")
     parser.add_argument("--alpha", type=float, default=0.0,
                         help="0: only pixels all views see (default); 1: every source pixel")
@@ -612,6 +937,12 @@ def _batch(args: argparse.Namespace) -> int:
     report = run_batch(job, frames, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                        retries=args.retries, progress=not args.quiet)
     print(report.summary())
+    out = summary_of(args)
+    out.figures(n_frames=len(report.frames), n_written=len(report.written), skipped=list(report.skipped),
+                failed={failure.frame: failure.message for failure in report.failed},
+                seconds=report.seconds, n_workers=report.n_workers)
+    for frame in report.written:
+        out.wrote(frame.output, "frame", say=False)
     return 0 if report.ok else 1
 
 
@@ -727,6 +1058,8 @@ def _parse_corners(text: str):
 
 
 def _colour_fit(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from camcal.colour.characterise import characterise, patches_from_chart, write_report
     from camcal.colour.patches import read_patch_csv
 
@@ -760,10 +1093,17 @@ def _colour_fit(args: argparse.Namespace) -> int:
         camera=args.camera, reference=reference, source=args.chart or args.patches,
     )
     print(outcome.summary())
-    path = outcome.fit.save(args.out)
-    print(f"wrote {path}")
+    out = summary_of(args)
+    stats = {name: None if value is None else dataclasses.asdict(value) for name, value in (
+        ("train", outcome.result.stats_train), ("loo", outcome.result.stats_loo), ("test", outcome.result.stats_test))}
+    out.figures(model=outcome.result.model.label, linearisation=outcome.fit.linearisation.label,
+                selection=None if outcome.selection is None else outcome.selection.reason,
+                n_train=len(train), delta_E2000=stats)
+    out.wrote(outcome.fit.save(args.out), "colour fit")
     if args.report:
         files = write_report(args.report, outcome, title=args.camera or "")
+        for file in files:
+            out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")
     return 0
 
@@ -802,6 +1142,7 @@ def _register_colour_export(colour_verbs) -> None:
 
 
 def _colour_export(args: argparse.Namespace) -> int:
+    import dataclasses
     from pathlib import Path
 
     from camcal.colour.fitfile import ColourFit, load_colour_file
@@ -814,6 +1155,7 @@ def _colour_export(args: argparse.Namespace) -> int:
         raise CamcalError(f"--icc writes one profile: give one fit, got {len(args.fits)}")
     if not (args.max_bake_error > 0):
         raise CamcalError(f"--max-bake-error must be > 0, got {args.max_bake_error}")
+    out = summary_of(args)
     fits, matches = [], []
     for path in args.fits:
         fit = load_colour_file(path)
@@ -838,23 +1180,24 @@ def _colour_export(args: argparse.Namespace) -> int:
         for space in result.spaces:
             print(space.summary())
         print(f"wrote {result.config_path} (base {result.base}, {len(fits)} camera space(s), {len(matches)} match Look(s))")
+        out.figures(base=result.base, n_matches=len(matches), spaces=[{
+            "name": space.name, "camera": space.camera, "model": space.model, "kind": space.kind,
+            "lut_size": space.lut_size, "clf": space.clf, "linearisation_error": space.linearisation_error,
+            "bake_error_delta_E2000": None if space.bake_error is None else dataclasses.asdict(space.bake_error),
+        } for space in result.spaces])
+        out.wrote(result.config_path, "ocio config", say=False)
+        for space in result.spaces:
+            if space.clf:
+                out.wrote(Path(args.ocio) / space.clf, "clf", say=False)
     if profile is not None:
         write_icc(profile, args.icc)
         how = ("matrix/TRC" if profile.kind == "matrix-trc" else
                f"A2B0 {profile.clut_size}^3 CLUT, bake error CIEDE2000 max {profile.bake_error.max:.3f}")
         print(f"wrote {args.icc} (ICC v{profile.version}, {how})")
+        out.figures(icc={"version": profile.version, "kind": profile.kind, "bake_error_delta_E2000":
+                         None if profile.kind == "matrix-trc" else dataclasses.asdict(profile.bake_error)})
+        out.wrote(args.icc, "icc", say=False)
     return 0
-
-
-def _named_paths(entries: Sequence[str] | None, option: str) -> dict[str, str]:
-    """``NAME=PATH`` entries in order; each name once."""
-    out: dict[str, str] = {}
-    for entry in entries or []:
-        name, path = _name_value(entry, option, "NAME=PATH")
-        if name in out:
-            raise CamcalError(f"{option}: camera {name!r} given twice")
-        out[name] = path
-    return out
 
 
 def _register_colour_match(colour_verbs) -> None:
@@ -872,14 +1215,14 @@ def _register_colour_match(colour_verbs) -> None:
         ),
     )
     parser.add_argument("rig", nargs="?", metavar="RIG", help="a calibrated *.rig.json holding both cameras")
-    parser.add_argument("--images", nargs="+", action="extend", metavar="NAME=IMG",
+    parser.add_argument("--images", action=NamedValues, metavar="NAME=IMG",
                         help="one image per camera, target first")
     parser.add_argument("--rectified", action="store_true", help="the images are rectified already")
-    parser.add_argument("--fits", nargs="+", action="extend", metavar="NAME=FIT.colour.json",
+    parser.add_argument("--fits", action=NamedValues, metavar="NAME=FIT.colour.json",
                         help="characterisations (linearisation; the target's gives XYZ for Delta E)")
-    parser.add_argument("--patches", nargs="+", action="extend", metavar="NAME=FILE.csv",
+    parser.add_argument("--patches", action=NamedValues, metavar="NAME=FILE.csv",
                         help="chart route: each camera's patch CSV of the same chart, target first")
-    parser.add_argument("--test-patches", nargs="+", action="extend", metavar="NAME=FILE.csv",
+    parser.add_argument("--test-patches", action=NamedValues, metavar="NAME=FILE.csv",
                         help="chart route: independent patches per camera")
     parser.add_argument("--encoding", default="linear", metavar="NAME",
                         help="image encoding of cameras without a fit: linear or a transfer function "
@@ -898,9 +1241,8 @@ def _colour_match(args: argparse.Namespace) -> int:
     from camcal.colour.match import match_image_files, match_patch_files, parse_match_model, write_match_report
 
     parse_match_model(args.model)
-    images = _named_paths(args.images, "--images")
-    patches = _named_paths(args.patches, "--patches")
-    fits = {name: load_fit(path) for name, path in _named_paths(args.fits, "--fits").items()}
+    images, patches = args.images, args.patches
+    fits = {name: load_fit(path) for name, path in args.fits.items()}
     if images and patches:
         raise CamcalError("give --images (image route) or --patches (chart route), not both")
     if images:
@@ -916,15 +1258,19 @@ def _colour_match(args: argparse.Namespace) -> int:
               f"left-right consistent {counts['consistent']}, away from depth edges {counts['smooth']})")
     elif patches:
         fits = {name: fits[name] for name in patches if name in fits} | fits
-        result = match_patch_files(fits, patches, test_patches=_named_paths(args.test_patches, "--test-patches"),
+        result = match_patch_files(fits, patches, test_patches=args.test_patches,
                                    model=args.model, robust=args.robust or "none")
     else:
         raise CamcalError("nothing to match: give --images NAME=IMG twice, or --fits and --patches for two cameras")
     print(result.match.summary())
-    path = result.match.save(args.out)
-    print(f"wrote {path}")
+    out = summary_of(args)
+    out.figures(model=args.model, evaluation=result.match.evaluation,
+                correspondences=dict(result.correspondences.counts) if images else None)
+    out.wrote(result.match.save(args.out), "colour match")
     if args.report:
         files = write_match_report(args.report, result)
+        for file in files:
+            out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")
     return 0
 

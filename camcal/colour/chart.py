@@ -62,7 +62,6 @@ CHART_ALIASES = {
     "sg-2005": "ColorCheckerSG - Before November 2014",
 }
 _SPECTRAL = ("ISO 17321-1", "ColorChecker N Ohta")
-_CMFS = "CIE 1931 2 Degree Standard Observer"
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,7 +120,7 @@ def reference_chart(name: str = DEFAULT_CHART, illuminant: str = "D50") -> Refer
     """
     import colour
 
-    from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ
+    from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ, reflectance_XYZ
 
     key = CHART_ALIASES.get(str(name).lower(), name)
     white = illuminant_white_XYZ(illuminant)
@@ -129,15 +128,7 @@ def reference_chart(name: str = DEFAULT_CHART, illuminant: str = "D50") -> Refer
         sds = colour.SDS_COLOURCHECKERS[key]
         if illuminant not in colour.SDS_ILLUMINANTS:
             raise CamcalError(f"unknown illuminant {illuminant!r} for spectral chart {key!r}")
-        from camcal.colour.spectral import _resample
-
-        wavelengths = np.arange(380.0, 781.0, 5.0)
-        cmfs = _resample(colour.MSDS_CMFS[_CMFS], wavelengths)
-        S = _resample(colour.SDS_ILLUMINANTS[illuminant], wavelengths)
-        R = np.array([_resample(sd, wavelengths) for sd in sds.values()])
-        k = 1.0 / float(S @ cmfs[:, 1])
-        XYZ = (R * S) @ cmfs * k
-        white = S @ cmfs * k
+        XYZ, white = reflectance_XYZ(sds, illuminant)
         return ReferenceChart(key, tuple(sds.keys()), XYZ, illuminant, white, 4, 6)
     if key not in colour.CCS_COLOURCHECKERS:
         names = [k for k in colour.CCS_COLOURCHECKERS if " " in k] + list(_SPECTRAL)
@@ -162,14 +153,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     8- and 16-bit integer images are divided by 255 or 65535; float images
     (EXR, TIFF) are returned as they are.
     """
-    import cv2
+    from camcal.io.frames import imread
 
     path = Path(path)
     if not path.is_file():
         raise CamcalError(f"chart image not found: {path}")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH)
-    if image is None:
-        raise CamcalError(f"cannot read image {path} (not an image OpenCV can decode)")
+    image = imread(path)
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)
     image = image[:, :, :3][:, :, ::-1]
@@ -274,7 +263,14 @@ def detect_chart(image: np.ndarray, rows: int = 4, columns: int = 6) -> ChartDet
         )
     bgr = np.ascontiguousarray((np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)[:, :, ::-1])
     detector = cv2.mcc.CCheckerDetector_create()
-    if not detector.process(bgr, cv2.mcc.MCC24, 1):
+    if hasattr(detector, "setColorChartType"):
+        # OpenCV 5: the chart type is a detector setting (unset, it is not MCC24)
+        # and process() takes only (image, nc).
+        detector.setColorChartType(cv2.mcc.MCC24)
+        found = detector.process(bgr, 1)
+    else:  # OpenCV 4.x: process(image, chartType, nc)
+        found = detector.process(bgr, cv2.mcc.MCC24, 1)
+    if not found:
         raise CamcalError(
             "no ColorChecker found in the image (cv2.mcc); give its corners with --corners"
         )
