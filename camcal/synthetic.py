@@ -12,12 +12,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 from camcal.geometry.camera import look_at
 from camcal.geometry.distortion import Distortion
 from camcal.rig import Camera
 
-__all__ = ["example_camera", "points_in_view", "procedural_texture", "colour_texture", "layered_stereo_pair",
+__all__ = ["example_camera", "example_stereo_rig", "points_in_view", "procedural_texture", "colour_texture", "layered_stereo_pair",
            "room_corner_planes", "orbit_set_planes", "render_planes", "render_stereo_sequence", "orbit_rig_poses",
            "render_rig_orbit"]
 
@@ -253,6 +254,51 @@ def render_stereo_sequence(
             cv2.imwrite(str(root / name / f"{i:04d}.png"), render_planes(camera, room_corner_planes(), textures))
             truth[name, i] = camera
     return truth
+
+
+def example_stereo_rig(
+    image_size: tuple[int, int] = (960, 720),
+    f: float = 675.0,
+    pp_offsets: ArrayLike = ((6.5, -5.2), (-7.8, 5.6)),
+    lam: tuple[float, float] = (-1.2e-7, -1.2e-7),
+    rig_euler_deg: ArrayLike = (0.8, -2.0, 0.5),
+    baseline: float = 0.3,
+    focal_ratio: float = 1.01,
+) -> tuple[Camera, Camera]:
+    """A stereo rig for self-calibration tests: principal points off the image centre, the right
+    focal ``focal_ratio`` times the left, division lenses.
+
+    Parameters
+    ----------
+    image_size : (int, int)
+    f : float
+        Left focal length (px).
+    pp_offsets : array_like, shape (2, 2)
+        Each camera's principal point minus the image centre ``((w - 1) / 2, (h - 1) / 2)``, px.
+    lam : (float, float)
+        Division lambda of each camera (camcal's pixel units, centred on the principal point).
+    rig_euler_deg : array_like, shape (3,)
+        The right camera's rotation from the left ("xyz" Euler angles, degrees).
+    baseline : float
+        Right camera centre ``(baseline, 0.01, -0.005)`` in the left camera's frame (m).
+    focal_ratio : float
+
+    Returns
+    -------
+    (Camera, Camera)
+        ``left`` (the rig frame: identity pose) and ``right`` (``cam_from_rig``).
+    """
+    width, height = image_size
+    offsets = np.asarray(pp_offsets, dtype=np.float64)
+    cameras = []
+    for k, name in enumerate(("left", "right")):
+        focal = f * (focal_ratio if k else 1.0)
+        K = np.array([[focal, 0.0, (width - 1) / 2 + offsets[k, 0]], [0.0, focal, (height - 1) / 2 + offsets[k, 1]],
+                      [0.0, 0.0, 1.0]])
+        R = np.eye(3) if k == 0 else Rotation.from_euler("xyz", rig_euler_deg, degrees=True).as_matrix()
+        c = np.zeros(3) if k == 0 else np.array([baseline, 0.01, -0.005])
+        cameras.append(Camera(name, image_size, K, Distortion("division", {"lambda": lam[k]}), R, c))
+    return cameras[0], cameras[1]
 
 
 def orbit_rig_poses(
