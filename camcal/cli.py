@@ -42,6 +42,7 @@ import argparse
 import contextlib
 import glob
 import json
+import math
 import os
 import sys
 import traceback
@@ -595,7 +596,8 @@ def _solve(args: argparse.Namespace) -> int:
     if result.self_calibration is not None:
         calibration = result.self_calibration
         out.figures(lens_models=calibration.lens_models, heldout_rms_px_by_model=calibration.heldout_rms_px,
-                    principal_point={d.camera: {"refined": d.refined, "sigma_px": d.sigma_px, "limit_px": d.limit_px,
+                    principal_point={d.camera: {"refined": d.refined, "limit_px": d.limit_px,
+                                                "sigma_px": [v if math.isfinite(v) else None for v in d.sigma_px],
                                                 "reason": d.reason} for d in calibration.principal_point})
     if peer is not None:
         out.figures(pycolmap={name: {"K": camera.K, "distortion": camera.distortion.to_dict(),

@@ -240,3 +240,16 @@ def test_solve_recovers_rendered_rig_at_least_as_well_as_plain_pycolmap(tmp_path
     with capsys.disabled():
         print("\n" + printed + "\n".join(rows))
     assert ours_deg < 0.05
+
+
+def test_solve_cli_bad_feature_count_is_one_line(tmp_path, capsys):
+    import cv2
+
+    from camcal.cli import main
+
+    (tmp_path / "left").mkdir()
+    cv2.imwrite(str(tmp_path / "left" / "0000.png"), np.zeros((8, 8), np.uint8))
+    assert main(["solve", str(tmp_path / "left"), "--out", str(tmp_path / "out"), "--features", "10"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["camcal: error: --features must be at least 100, got 10"]
+    assert not (tmp_path / "out").exists()
