@@ -400,13 +400,15 @@ def self_calibrate(
         determined = all(max(d.sigma_px) < d.limit_px for d in decisions)
         refined = determined or principal_point == "refine"
         for k, d in enumerate(decisions):
-            numbers = f"sigma(cx, cy) = ({d.sigma_px[0]:.3g}, {d.sigma_px[1]:.3g}) px"
+            numbers = (f"sigma(cx, cy) = ({d.sigma_px[0]:.3g}, {d.sigma_px[1]:.3g}) px" if np.all(np.isfinite(d.sigma_px))
+                       else "sigma(cx, cy) undefined (singular covariance)")
             if principal_point == "refine":
                 reason = f"principal point refined (asked; {numbers})"
             elif refined:
                 reason = f"principal point refined: {numbers} < {d.limit_px:.3g} px"
             elif max(d.sigma_px) >= d.limit_px:
-                reason = (f"principal point held at the image centre: {numbers} >= {d.limit_px:.3g} px, "
+                bound = f" >= {d.limit_px:.3g} px" if np.all(np.isfinite(d.sigma_px)) else ""
+                reason = (f"principal point held at the image centre: {numbers}{bound}, "
                           "the views do not determine it (add rotation and roll about the viewing axis)")
             else:
                 reason = (f"principal point held at the image centre: {numbers}, but another camera's is "
