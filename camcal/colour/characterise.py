@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -178,6 +179,7 @@ def characterise(
     reference: str | None = None,
     source: str | None = None,
     loo: bool = True,
+    candidates: Sequence[str] | None = None,
 ) -> Characterisation:
     """Fit and evaluate a characterisation.
 
@@ -208,6 +210,8 @@ def characterise(
         Recorded in the file.
     loo
         Compute leave-one-out figures (always on for ``auto``).
+    candidates
+        Models ``auto`` may pick (default: :func:`camcal.colour.select.select_model`'s list).
 
     Returns
     -------
@@ -246,7 +250,7 @@ def characterise(
     selection = None
     if model == "auto":
         objectives = ("xyz", "de2000") if objective is None else (objective,)
-        selection = select_model(RGB, XYZ, target_XYZ, objectives=objectives)
+        selection = select_model(RGB, XYZ, target_XYZ, objectives=objectives, candidates=candidates)
         spec = selection.picked.spec
         chosen_objective = selection.picked.objective
         regularisation = selection.picked.regularisation

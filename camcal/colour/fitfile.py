@@ -24,8 +24,13 @@ Format, version 1, kind ``characterisation``::
         "reference": "ColorChecker24 - After November 2014" | null,
         "n_patches": 24,
         "selection": null | {"method": str, "picked": CANDIDATE,
-                             "reason": str, "candidates": [CANDIDATE...]}
-      },
+                             "reason": str, "candidates": [CANDIDATE...]},
+        "illuminant_change": {...}   # optional: a fit made for another light
+      },                             # (camcal.colour.illuminant): for_illuminant,
+                                     # route, reason, candidates [{route, mean,
+                                     # p95, max}], the reflectance sets used
+      "capture": {...},              # optional: raw metadata (camcal.io.raw):
+                                     # make, model, black_level, white_level ...
       "target": {
         "space": "XYZ",
         "white": "D50",                     # the white of the output XYZ
@@ -229,13 +234,32 @@ def model_and_linearisation(data: dict, read_model: Callable[[dict], Any]) -> tu
         raise CamcalError(message) from None
 
 
+ILLUMINANT_CHANGE_KEYS = ("for_illuminant", "route", "training_reflectances", "validation_reflectances",
+                          "plausible_cameras", "sensitivities", "reason", "candidates")
+CAPTURE_KEYS = ("format", "make", "model", "black_level", "white_level", "cfa_pattern", "demosaic",
+                "saturated_fraction")
+
+
 def _check_characterisation(data: dict) -> None:
     _keys(data, "colour fit", ("format", "version", "kind", "camera", "linearisation", "model", "training",
-                               "target", "evaluation", "provenance"))
+                               "target", "evaluation", "provenance"), ("capture",))
+    if "capture" in data:
+        _keys(data["capture"], "capture", ("format", "make", "model"), CAPTURE_KEYS)
     _string(data["camera"], "camera", nullable=True)
     check_linearisation(data["linearisation"])
     _check_model(data["model"], "model")
-    training = _keys(data["training"], "training", ("illuminant", "white_XYZ", "reference", "n_patches", "selection"))
+    training = _keys(data["training"], "training", ("illuminant", "white_XYZ", "reference", "n_patches", "selection"),
+                     ("illuminant_change",))
+    if "illuminant_change" in training:
+        change = _keys(training["illuminant_change"], "training.illuminant_change", ILLUMINANT_CHANGE_KEYS)
+        _string(change["for_illuminant"], "training.illuminant_change.for_illuminant")
+        _string(change["route"], "training.illuminant_change.route")
+        if not isinstance(change["candidates"], list):
+            raise CamcalError("training.illuminant_change.candidates: expected a list")
+        for i, c in enumerate(change["candidates"]):
+            _keys(c, f"training.illuminant_change.candidates[{i}]", ("route", "mean", "p95", "max"))
+            for key in ("mean", "p95", "max"):
+                _number(c[key], f"training.illuminant_change.candidates[{i}].{key}", 0.0)
     _string(training["illuminant"], "training.illuminant")
     _vector(training["white_XYZ"], "training.white_XYZ", 3)
     _string(training["reference"], "training.reference", nullable=True)
@@ -328,6 +352,8 @@ class ColourFit(LinearisedModel):
     adaptation: str | None = None
     selection: dict | None = None
     provenance: dict = field(default_factory=dict)
+    illuminant_change: dict | None = None
+    capture: dict | None = None
 
     kind = "characterisation"
 
@@ -336,7 +362,7 @@ class ColourFit(LinearisedModel):
         from camcal import __version__
 
         provenance = dict(self.provenance) or {"tool": f"camcal {__version__}", "created": ""}
-        return {
+        data = {
             "format": FORMAT,
             "version": VERSION,
             "kind": "characterisation",
@@ -359,6 +385,11 @@ class ColourFit(LinearisedModel):
             "evaluation": self.evaluation,
             "provenance": provenance,
         }
+        if self.illuminant_change is not None:
+            data["training"]["illuminant_change"] = self.illuminant_change
+        if self.capture is not None:
+            data["capture"] = self.capture
+        return data
 
     @classmethod
     def from_dict(cls, data: dict) -> ColourFit:
@@ -381,6 +412,8 @@ class ColourFit(LinearisedModel):
             adaptation=target["adaptation"],
             selection=training["selection"],
             provenance=dict(data["provenance"]),
+            illuminant_change=training.get("illuminant_change"),
+            capture=data.get("capture"),
         )
 
 
