@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion, _frame_grid, fit_distortion
+from camcal.geometry.distortion import Distortion, fit_distortion
 from camcal.rig import Camera, Rig
 
 __all__ = [
@@ -129,6 +129,14 @@ class ImportResult:
     points_rgb: NDArray[np.uint8] | None = None
 
 
+def _frame_pixels(image_size: tuple[int, int]) -> NDArray[np.float64]:
+    """Pixels every 16 px over the frame, its last row and column included."""
+    width, height = image_size
+    u = np.unique(np.append(np.arange(0.0, width - 1, _GRID_STEP_PX), width - 1.0))
+    v = np.unique(np.append(np.arange(0.0, height - 1, _GRID_STEP_PX), height - 1.0))
+    return np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
+
+
 def max_pixel_residual(source: Camera, target: Camera, *, lens: bool = True) -> float:
     """Largest pixel distance between two cameras' projections of the same rays.
 
@@ -139,7 +147,7 @@ def max_pixel_residual(source: Camera, target: Camera, *, lens: bool = True) -> 
     model): ``max |K_t r - K_s r|`` over the same rays. Only the intrinsics
     matter (both cameras share the pose).
     """
-    distorted = _frame_grid(source.image_size, _GRID_STEP_PX)
+    distorted = _frame_pixels(source.image_size)
     ideal = source.distortion.undistort(distorted, source.K)
     rays = np.column_stack([ideal, np.ones(len(ideal))]) @ np.linalg.inv(source.K).T
     mapped = rays @ target.K.T
