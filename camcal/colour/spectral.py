@@ -359,22 +359,25 @@ class SensitivityEstimate:
         ``(3,)`` chosen ``lambda`` per channel (relative to the data scale,
         see :func:`estimate_sensitivities`).
     cv_rms
-        ``(3,)`` cross-validated RMS RGB error at the chosen ``lambda``.
+        ``(3,)`` cross-validated RMS RGB error at the chosen ``lambda``
+        (weighted: relative to the RGB with relative noise).
     method
         ``"kfold"`` or ``"gcv"``.
     covariance
         ``(3, W, W)`` uncertainty of each channel's curve, smoothing bias
         included: ``Sigma_0 + b b^T``. ``Sigma_0 = sigma_0^2 (A^T A +
         lambda_0 D^T D)^-1`` is the Gaussian posterior (the ridge read as
-        a smoothness prior, positivity ignored; ``sigma_0^2 = |A s_0 -
-        c|^2 / (N - trace H_0)``) at ``lambda_0``, the lambda of the
+        a smoothness prior, positivity ignored; ``sigma_0^2`` the larger of
+        ``|A s_0 - c|^2 / (N - trace H_0)`` and the cross-validated mean
+        squared error) at ``lambda_0``, the lambda of the
         smallest cross-validated error, whose fit ``s_0`` is the least
         biased; ``b = s - s_0`` estimates the extra smoothing bias of the
         returned (one-standard-error) curve ``s``. The posterior at the
         chosen lambda alone covered only 65-86 % of the true curves'
         samples with +-1.96 sigma on simulated cameras (the bias of the
         smoothing, largest at the Sigma's 660 nm cut-off, is not in it);
-        this one covers 92-93 % on average over seeded draws (slow test in
+        this one covers 94.2 % over 4 cases x 10 seeded draws (89.6-96.9 %
+        per case, 84-100 % per draw; slow test in
         tests/colour/test_colour_ssf.py). It does not cover a wrong
         illuminant or reflectance.
     """
@@ -411,12 +414,22 @@ def estimate_sensitivities(
     folds: int = 5,
     grid: Sequence[float] = LAMBDA_GRID,
     seed: int = 0,
+    relative_noise: bool = True,
 ) -> SensitivityEstimate:
     """Estimate camera spectral sensitivities from known stimuli and RGB.
 
-    Solves, for each channel, ``min |A s - c|^2 + lambda' |D s|^2`` subject to
-    ``s >= 0``, with ``A`` the stimuli (reflectance x illuminant), ``c`` the
-    channel's linear RGB and ``D`` the second difference (smoothness).
+    Solves, for each channel, ``min |W (A s - c)|^2 + lambda' |D s|^2``
+    subject to ``s >= 0``, with ``A`` the stimuli (reflectance x
+    illuminant), ``c`` the channel's linear RGB, ``D`` the second difference
+    (smoothness) and ``W`` the weights of the noise model: with
+    ``relative_noise`` (the default) ``W = diag(1 / max(c_i, 0.02 max c))``,
+    weighted least squares for errors proportional to the signal (gain
+    and exposure errors, the relative error of the patches' reflectance
+    data; floored so the darkest patches do not dominate), else ``W = I``.
+    On simulated ColorChecker captures under 5 lights with 0.2 %
+    multiplicative noise the weighting brought the mu-factor error of the
+    Sigma SDMerill from up to 0.032 to at most 0.017 over 20 draws
+    (tests/colour/test_colour_ssf.py, slow).
 
     Parameters
     ----------
@@ -436,8 +449,10 @@ def estimate_sensitivities(
     folds
         K for ``"kfold"``.
     grid
-        Candidate ``lambda``; each is scaled by ``trace(A^T A) / trace(D^T D)``
+        Candidate ``lambda``; each is scaled by ``trace(A^T W^2 A) / trace(D^T D)``
         so the grid does not depend on the units of the data.
+    relative_noise
+        Weight the residuals by ``1 / c`` (see above).
 
     Returns
     -------
@@ -463,8 +478,6 @@ def estimate_sensitivities(
     if method not in ("kfold", "gcv"):
         raise CamcalError(f"unknown method {method!r}, expected kfold or gcv")
     D = _second_difference(W)
-    unit = np.trace(A.T @ A) / np.trace(D.T @ D)
-    lams = np.asarray(grid, dtype=np.float64) * unit
     S = np.zeros((W, 3))
     chosen = np.zeros(3)
     cv_rms = np.zeros(3)
@@ -473,8 +486,15 @@ def estimate_sensitivities(
     order = rng.permutation(N)
     fold_of = np.empty(N, dtype=int)
     fold_of[order] = np.arange(N) % folds
+    if np.any(RGB.max(axis=0) <= 0):
+        raise CamcalError("sensitivity estimation needs a positive RGB value in every channel")
+    stimulus_all = A
     for ch in range(3):
-        c = RGB[:, ch]
+        # A and c below are the channel's weighted rows (W A, W c)
+        weight = 1.0 / np.maximum(RGB[:, ch], 0.02 * RGB[:, ch].max()) if relative_noise else np.ones(N)
+        A, c = stimulus_all * weight[:, None], RGB[:, ch] * weight
+        unit = np.trace(A.T @ A) / np.trace(D.T @ D)
+        lams = np.asarray(grid, dtype=np.float64) * unit
         scores, errors = [], []
         for lam in lams:
             if method == "gcv":
@@ -497,19 +517,24 @@ def estimate_sensitivities(
         chosen[ch] = lams[best] / unit
         cv_rms[ch] = np.sqrt(scores[best])
         S[:, ch] = _nnls_ridge(A, c, D, lams[best])
-        rough, rough_covariance = _ridge_posterior(A, c, D, lams[low])
+        rough, rough_covariance = _ridge_posterior(A, c, D, lams[low], scores[low] if method == "kfold" else 0.0)
         bias = S[:, ch] - rough
         covariance[ch] = rough_covariance + np.outer(bias, bias)
     return SensitivityEstimate(wavelengths, S, chosen, cv_rms, method, covariance)
 
 
-def _ridge_posterior(A: np.ndarray, c: np.ndarray, D: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
-    """Non-negative ridge solution and its Gaussian posterior ``sigma^2 (A^T A + lam D^T D)^-1``."""
+def _ridge_posterior(A: np.ndarray, c: np.ndarray, D: np.ndarray, lam: float,
+                     cv_mse: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Non-negative ridge solution and its Gaussian posterior ``sigma^2 (A^T A + lam D^T D)^-1``.
+
+    ``sigma^2`` is the residual variance ``|A s - c|^2 / (N - trace H)`` or,
+    when larger, the cross-validated mean squared error ``cv_mse``.
+    """
     s = _nnls_ridge(A, c, D, lam)
     inverse = np.linalg.inv(A.T @ A + lam * D.T @ D)
     dof = max(A.shape[0] - float(np.trace(A @ inverse @ A.T)), 1.0)
     resid = A @ s - c
-    return s, float(resid @ resid) / dof * inverse
+    return s, max(float(resid @ resid) / dof, cv_mse) * inverse
 
 
 def _projector(X: np.ndarray) -> np.ndarray:
