@@ -29,14 +29,13 @@ the few large errors of a fit that bends away outside its training
 colours, so a root-polynomial that explodes there is not picked (on the
 Sigma SDMerill the spectral route's root-polynomial:3 had the lowest
 validation mean but held-out max CIEDE2000 35-44; by RMS the pick is
-polynomial:10, max 14.5-22.1). Measured on simulated cameras (chart under
+polynomial:10, max 14.4-14.7). Measured on simulated cameras (chart under
 D65 with 0.2 % noise, judged on held-out reflectances by the true camera):
-used under A, the pick was the best route by held-out mean in all 6 cases
-of bench_illuminant (two cameras x measured / one-chart / five-light
-curves); used under D50, D55 and FL11 with curves estimated from the one
-D65 chart, in 5 of 6 (the Sigma under FL11 picked spectral where CAT02 was
-better by 0.39 CIEDE2000). Posterior sampling (``n_cameras``) is not the
-default.
+used under A, the pick was the best route by held-out mean, p95 and max
+in all 6 cases of bench_illuminant (two cameras x measured / one-chart /
+five-light curves); used under D50, D55 and FL11 with curves estimated
+from the one D65 chart, the best by held-out mean in 6 of 6. Posterior
+sampling (``n_cameras``) is not the default.
 
 Conventions: camera RGB under B is linear at the exposure where the perfect
 white has G = 1 (what :class:`~camcal.colour.spectral.SimulatedCamera`
