@@ -78,6 +78,7 @@ __all__ = [
     "fit_rbf",
     "delta_E2000_components",
     "model_from_dict",
+    "parse_term",
 ]
 
 MODEL_KINDS = ("matrix3x3", "polynomial", "root-polynomial", "rbf")
@@ -221,6 +222,10 @@ def _parse_term(term: str) -> tuple[tuple[int, int, int], bool]:
             f"model term {term!r} is not in canonical form {_term_name(exps, root)!r}"
         )
     return exps, root
+
+
+
+parse_term = _parse_term  # public name: exponents (R, G, B) and root flag of a term string
 
 
 def expand(RGB: np.ndarray, terms: tuple[str, ...] | list[str]) -> np.ndarray:
