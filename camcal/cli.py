@@ -1137,7 +1137,8 @@ def _register_for_illuminant(parser) -> None:
         "another illuminant",
         "fit for the light B the camera will be used under, from a chart shot under --illuminant A: the "
         "spectral route (ACES P-2013-001: training reflectances through the sensitivities under B) vs the "
-        "chart fit white-balanced and adapted with CAT02 / Bradford; the better by CIEDE2000 on validation "
+        "chart fit white-balanced and adapted with CAT02 / Bradford, each with each model under --model auto; the "
+        "pair with the lowest RMS CIEDE2000 on validation "
         "reflectances is written (its camera name gets ' (B)', so one OCIO input space per illuminant). "
         "The chart RGB must be linear (raw or --linearise none).")
     group.add_argument("--for-illuminant", metavar="B", help="CIE illuminant name the fit is for (A, D50, FL2...)")
