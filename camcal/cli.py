@@ -242,8 +242,8 @@ def _register_calibrate(subparsers) -> None:
         "--camera", required=True, action="append", metavar="NAME=GLOB",
         help="a camera and its images, e.g. left='shots/left*.jpg' (repeat for every camera)",
     )
-    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv"),
-                       help="distortion model (default: polynomial)")
+    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "kannala-brandt"),
+                       help="distortion model; kannala-brandt is OpenCV's fisheye model (default: polynomial)")
     board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
     board.add_argument("--out", required=True, metavar="FILE.rig.json")
     board.add_argument("--report", metavar="DIR", help="write PNG plots: residuals, per-image RMS, coverage")

@@ -3,7 +3,8 @@
 Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
 
 1. Per camera, OpenCV's ``calibrateCamera`` (Zhang's closed form + LM)
-   gives the starting K, distortion and one board pose per image.
+   gives the starting K, distortion and one board pose per image
+   (``cv2.fisheye.calibrate`` for the ``kannala-brandt`` model).
 2. Views of several cameras are matched by the frame number in their file
    names (:func:`camcal.geometry.board.frame_number`); each camera's pose
    relative to the reference (the first camera) is the robust average of
@@ -29,7 +30,9 @@ top-left pixel; skew is fixed at 0. Distortion models (see
 :mod:`camcal.geometry.distortion`): ``polynomial`` (k1, k2), ``opencv``
 (k1, k2, p1, p2, k3) or ``division`` (Strand & Hayman lambda in 1/px^2,
 centred on the principal point, refined here since OpenCV has no such model;
-it is initialised from OpenCV's k1 as ``lambda = -k1 / f^2``).
+it is initialised from OpenCV's k1 as ``lambda = -k1 / f^2``) or
+``kannala-brandt`` (k1..k4 of OpenCV's fisheye model, projected from the
+ray angle ``atan2(|(x, y)|, z)`` so views beyond 90 degrees count too).
 
 References
 ----------
@@ -70,7 +73,8 @@ __all__ = ["MODELS", "MIN_IMAGES", "CalibrationResult", "calibrate_board", "writ
 
 #: Distortion models and the parameters refined for each.
 MODELS: Mapping[str, tuple[str, ...]] = MappingProxyType(
-    {"polynomial": ("k1", "k2"), "opencv": ("k1", "k2", "p1", "p2", "k3"), "division": ("lambda",)}
+    {"polynomial": ("k1", "k2"), "opencv": ("k1", "k2", "p1", "p2", "k3"), "division": ("lambda",),
+     "kannala-brandt": ("k1", "k2", "k3", "k4")}
 )
 #: Fewest images with the board per camera.
 MIN_IMAGES = 3
@@ -236,9 +240,16 @@ class _Problem:
         R_view = Rotation.from_rotvec(view_poses[:, :3]).as_matrix()
         X_ref = np.einsum("mij,mj->mi", R_view[self.view], self.object_points) + view_poses[self.view, 3:]
         X_cam = np.einsum("mij,mj->mi", R_cam[self.camera], X_ref) + cam_poses[self.camera, 3:]
-        xy = X_cam[:, :2] / X_cam[:, 2:3]
         k = intrinsics[self.camera]
         f, centre, d = k[:, 0:2], k[:, 2:4], k[:, 4:]
+        if self.model == "kannala-brandt":
+            rho = np.hypot(X_cam[:, 0], X_cam[:, 1])
+            theta = np.arctan2(rho, X_cam[:, 2])
+            t2 = theta * theta
+            theta_d = theta * (1.0 + t2 * (d[:, 0] + t2 * (d[:, 1] + t2 * (d[:, 2] + t2 * d[:, 3]))))
+            scale = np.where(rho > 0.0, theta_d / np.maximum(rho, 1e-300), 0.0)
+            return centre + f * X_cam[:, :2] * scale[:, None]
+        xy = X_cam[:, :2] / X_cam[:, 2:3]
         if self.model == "division":
             lam = d[:, 0] / self.division_scale[self.camera] ** 2
             offset = f * xy
@@ -333,6 +344,8 @@ def _check_detections(
 def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name: str):
     """OpenCV's calibrateCamera: K, distortion vector and cam_from_board per view."""
     keys = sorted(views)
+    if model == "kannala-brandt":
+        return _opencv_fisheye_start(board, views, keys, name)
     object_points = [board.object_points[views[k].ids].astype(np.float32) for k in keys]
     image_points = [views[k].corners_px.astype(np.float32).reshape(-1, 1, 2) for k in keys]
     try:
@@ -345,7 +358,43 @@ def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name
     return K, dist.ravel(), poses
 
 
+def _fisheye_flags(*names: str) -> int:
+    """OpenCV's fisheye calibration flags (OpenCV 4 keeps them in ``cv2.fisheye``, OpenCV 5 in ``cv2``)."""
+    return sum(getattr(cv2.fisheye, n, None) or getattr(cv2, n) for n in names)
+
+
+def _opencv_fisheye_start(board: Board, views: Mapping[int, Detection], keys: list[int], name: str):
+    """``cv2.fisheye.calibrate`` (skew fixed at 0): K, (k1..k4) and cam_from_board per view.
+
+    Two stages: k1, k2 only (k3 = k4 = 0), then all four from there
+    (``CALIB_USE_INTRINSIC_GUESS``); OpenCV's own start for the four at
+    once can wander off on wide lenses.
+    """
+    object_points = [board.object_points[views[k].ids].reshape(1, -1, 3).astype(np.float64) for k in keys]
+    image_points = [views[k].corners_px.reshape(1, -1, 2).astype(np.float64) for k in keys]
+    flags = _fisheye_flags("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW")
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    size = views[keys[0]].image_size
+    try:
+        _, K, dist, _, _ = cv2.fisheye.calibrate(
+            object_points, image_points, size, None, None,
+            flags=flags | _fisheye_flags("CALIB_FIX_K3", "CALIB_FIX_K4"), criteria=criteria,
+        )
+        _, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
+            object_points, image_points, size, K, dist,
+            flags=flags | _fisheye_flags("CALIB_USE_INTRINSIC_GUESS"), criteria=criteria,
+        )
+    except cv2.error as error:
+        raise CamcalError(
+            f"camera {name!r}: OpenCV fisheye.calibrate failed ({str(error).strip().splitlines()[-1]})"
+        ) from None
+    poses = {k: (cv2.Rodrigues(r)[0], np.asarray(t, dtype=np.float64).ravel()) for k, r, t in zip(keys, rvecs, tvecs)}
+    return K, np.asarray(dist, dtype=np.float64).ravel(), poses
+
+
 def _initial_distortion(model: str, K: NDArray, dist: NDArray, scale: float) -> list[float]:
+    if model == "kannala-brandt":
+        return [dist[0], dist[1], dist[2], dist[3]]
     if model == "polynomial":
         return [dist[0], dist[1]]
     if model == "opencv":
@@ -396,8 +445,9 @@ def calibrate_board(
         is the reference. With several cameras, views are matched by the
         frame number in the image file names.
     model : str
-        ``polynomial`` (k1, k2), ``opencv`` (k1, k2, p1, p2, k3) or
-        ``division`` (Strand & Hayman lambda, centred on the principal point).
+        ``polynomial`` (k1, k2), ``opencv`` (k1, k2, p1, p2, k3),
+        ``division`` (Strand & Hayman lambda, centred on the principal point)
+        or ``kannala-brandt`` (fisheye k1..k4).
     units : str
         Name of the board's length unit, stored in the rig.
     outlier_factor, min_outlier_px : float
