@@ -47,7 +47,6 @@ import sys
 import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from camcal import __version__
@@ -321,8 +320,12 @@ def _blender_import(args: argparse.Namespace) -> int:
     print(f"imported rig {summary['rig']!r} into {args.blend}: {len(summary['cameras'])} camera(s) "
           f"({cams}), stereo: {summary['stereo_mode'].lower()}, "
           f"distorted lenses: {len(summary['clips'])}")
+    out = summary_of(args)
+    out.figures(rig=summary["rig"], cameras=list(summary["cameras"]), stereo_mode=summary["stereo_mode"],
+                n_distorted_lenses=len(summary["clips"]))
+    out.wrote(args.blend, "blend", say=False)
     for warning in summary["warnings"]:
-        print(f"warning: {warning}")
+        out.warn(warning)
     return 0
 
 
@@ -339,17 +342,84 @@ def _image_size(value: Sequence[int]) -> tuple[int, int]:
 def _rig_show(args: argparse.Namespace) -> int:
     from camcal.rig import Rig
 
-    print(Rig.load(args.rig).summary())
+    rig = Rig.load(args.rig)
+    print(rig.summary())
+    summary_of(args).figures(rig=rig.to_dict())
     return 0
 
 
 def _register_rig(subparsers) -> None:
-    rig = subparsers.add_parser("rig", help="inspect rig files")
+    rig = subparsers.add_parser("rig", help="inspect rig files; export them to and import them from other tools")
     verbs = rig.add_subparsers(dest="rig_verb", metavar="VERB")
     verbs.required = True
     show = verbs.add_parser("show", help="print a readable summary of a rig file")
     show.add_argument("rig", metavar="FILE", help="a *.rig.json file")
     show.set_defaults(func=_rig_show)
+    _register_rig_interchange(verbs)
+
+
+def _register_rig_interchange(verbs) -> None:
+    from camcal.io.interchange import FORMATS
+
+    export = verbs.add_parser(
+        "export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke)",
+        description="Write RIG as FORMAT. opencv: .yaml/.yml/.xml FileStorage (one camera or a stereo pair); "
+        "kalibr: camchain.yaml; colmap: a directory with cameras.txt, images.txt, points3D.txt; usd: "
+        ".usda/.usdc/.usd; nuke: .nk. A lens or skew the format cannot hold is fitted with the nearest "
+        "model it holds and the max pixel residual is printed; exact conversions say so.")
+    export.add_argument("rig", metavar="RIG", help="a *.rig.json file")
+    export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
+    export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
+    export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
+    export.set_defaults(func=_rig_export)
+    imp = verbs.add_parser(
+        "import", help="read another tool's camera file as a rig",
+        description="Read FILE (a directory for colmap) written by FORMAT's tool and write a camcal rig.")
+    imp.add_argument("file", metavar="FILE", help="the other tool's file")
+    imp.add_argument("--from", dest="fmt", required=True, choices=FORMATS, metavar="FORMAT",
+                     help=f"one of: {', '.join(FORMATS)}")
+    imp.add_argument("--out", required=True, metavar="RIG.rig.json", help="the rig file to write")
+    imp.set_defaults(func=_rig_import)
+
+
+def _print_conversions(result) -> None:
+    for conversion in result.conversions:
+        print(conversion.describe())
+    for note in result.notes:
+        print(f"note: {note}")
+
+
+def _rig_export(args: argparse.Namespace) -> int:
+    from camcal.io.interchange import export_rig
+    from camcal.rig import Rig
+
+    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig)
+    _print_conversions(result)
+    for path in result.paths:
+        print(f"wrote {path}")
+    return 0
+
+
+def _rig_import(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from camcal.io.interchange import import_rig
+    from camcal.rig import make_provenance
+
+    result = import_rig(args.file, args.fmt)
+    rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
+    _print_conversions(result)
+    if result.points_xyz is not None:
+        from pathlib import Path
+
+        from camcal.io.ply import write_points_ply
+
+        out = Path(args.out)
+        points = out.with_name(out.name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
+        print(f"wrote {write_points_ply(points, result.points_xyz, result.points_rgb)} ({len(result.points_xyz)} points)")
+        rig = dataclasses.replace(rig, points=points.name)
+    print(f"wrote {rig.save(args.out)} ({len(rig.cameras)} camera(s), {len(rig.frames)} frame(s))")
+    return 0
 
 
 # -- camcal calibrate ----------------------------------------------------------------
@@ -378,7 +448,9 @@ def _calibrate_dlt(args: argparse.Namespace) -> int:
         f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) px  skew {K[0, 1]:.3g}"
     )
     print(f"camera centre ({result.c[0]:.4f}, {result.c[1]:.4f}, {result.c[2]:.4f})")
-    print(f"wrote {args.out}")
+    out = summary_of(args)
+    out.figures(rms_px=result.rms_px, worst_px=result.worst_px, n_points=len(X), K=K, sigma=sigma, c=result.c)
+    out.wrote(args.out, "rig")
     return 0
 
 
@@ -409,13 +481,21 @@ def _calibrate_board(args: argparse.Namespace) -> int:
             f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) +/- ({sigma['cx']:.2f}, {sigma['cy']:.2f}) px  "
             f"RMS {camera.quality['rms_px']:.3f} px"
         )
-        if "baseline" in sigma:
-            line += f"  baseline {float(np.linalg.norm(camera.c)):.4f} +/- {sigma['baseline']:.4f} {result.rig.units}"
+        if "baseline_rel" in sigma:
+            baseline = float(np.linalg.norm(camera.c))
+            line += f"  baseline {baseline:.4f} +/- {sigma['baseline_rel'] * baseline:.4f} {result.rig.units}"
         print(line)
-    print(f"wrote {args.out}")
+    out = summary_of(args)
+    out.figures(
+        summary=result.summary(), outliers=[image for _, image in result.outliers],
+        detections={name: len(found) for name, found in detections.items()},
+        cameras={camera.name: {"K": camera.K, "distortion": camera.distortion.to_dict(), "c": camera.c,
+                               "quality": camera.quality.to_dict()} for camera in result.rig.cameras},
+    )
+    out.wrote(args.out, "rig")
     if args.report:
         for path in write_report(result, args.report):
-            print(f"wrote {path}")
+            out.wrote(path, "report")
     return 0
 
 
@@ -488,6 +568,13 @@ def _solve(args: argparse.Namespace) -> int:
     if result.bundle is not None:
         print(result.bundle.summary())
     print(f"wrote {Path(args.out) / 'solve.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
+    out = summary_of(args)
+    out.figures(n_images=result.n_images, n_registered=result.n_registered, unregistered=list(result.unregistered),
+                rms_px=result.rms_px, per_camera_rms_px=dict(result.per_camera_rms_px), n_points=result.n_points,
+                bundle=None if result.bundle is None else result.bundle.summary())
+    out.wrote(Path(args.out) / "solve.rig.json", "rig", say=False)
+    out.wrote(Path(args.out) / "points.ply", "points", say=False)
+    out.wrote(result.reconstruction_dir, "colmap model", say=False)
     return 0
 
 
@@ -524,20 +611,23 @@ def _register_solve(subparsers) -> None:
 def _demo(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from camcal.demo import FULL, STAGES, run_demo
+    from camcal.demo import FULL, run_demo
 
     config = dataclasses.replace(FULL, seed=args.seed)
     if args.stages:
         config = dataclasses.replace(config, stages=tuple(s.strip() for s in args.stages.split(",")))
-        unknown = [name for name in config.stages if name not in {stage.name for stage in STAGES}]
-        if unknown:
-            raise CamcalError(f"--stages: unknown stage(s) {', '.join(map(repr, unknown))}, expected some of: "
-                              + ", ".join(stage.name for stage in STAGES))
     report = run_demo(args.out, config)
     print(report.table())
+    out = summary_of(args)
     for label, path in report.outputs:
         print(f"wrote {path} ({label})")
+        out.wrote(path, label, say=False)
     print(f"report: {report.report}")
+    out.wrote(report.report, "report", say=False)
+    out.figures(rows=[{"stage": row.stage, "quantity": row.quantity, "true": row.true, "recovered": row.recovered,
+                       "error": row.error, "tolerance": row.tolerance, "unit": row.unit, "ok": row.ok,
+                       "source": row.source} for row in report.rows],
+                seconds=dict(report.seconds), n_failed=len(report.failed))
     print("time per stage: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in report.seconds))
     if report.failed:
         print(f"outside tolerance: {', '.join(row.quantity for row in report.failed)}", file=sys.stderr)
@@ -579,6 +669,8 @@ def _pattern(value: str) -> tuple[int, int]:
 def _distortion_fit(args: argparse.Namespace) -> int:
     import cv2
 
+    from pathlib import Path
+
     from camcal.geometry.plumbline import fit_plumbline, lines_from_images, read_lines
     from camcal.io.frames import imread
     from camcal.io.jsonfile import write_json
@@ -601,8 +693,6 @@ def _distortion_fit(args: argparse.Namespace) -> int:
     result = fit_plumbline(lines, args.model, fit_center=args.fit_centre)
     write_json(args.out, result.to_dict())
     if args.report:
-        from pathlib import Path
-
         write_json(Path(args.report) / "plumbline_report.json", {
             **result.to_dict(),
             "strand_hayman": {
@@ -616,6 +706,13 @@ def _distortion_fit(args: argparse.Namespace) -> int:
     params = ", ".join(f"{k} {v:.6g}" for k, v in result.distortion.params.items())
     centre = result.distortion.center or tuple(result.K[:2, 2])
     print(f"{result.distortion.model}: {params} about ({centre[0]:.2f}, {centre[1]:.2f}) px")
+    out = summary_of(args)
+    out.figures(distortion=result.distortion.to_dict(), straightness_rms_before_px=result.straightness_rms_before_px,
+                straightness_rms_px=result.straightness_rms_px, worst_line_rms_px=float(result.rms_after_px.max()),
+                n_lines=result.n_lines, n_points=result.n_points, skipped=skipped)
+    out.wrote(args.out, "lens", say=False)
+    if args.report:
+        out.wrote(Path(args.report) / "plumbline_report.json", "report", say=False)
     print(f"straightness RMS: {result.straightness_rms_before_px:.3f} px before, "
           f"{result.straightness_rms_px:.3f} px after (worst line {result.rms_after_px.max():.3f} px, "
           f"{result.n_lines} lines, {result.n_points} points)")
@@ -652,12 +749,15 @@ def _rectify(args: argparse.Namespace) -> int:
             written += warper.write(name, images.get(name, []), args.write)
     result.rig.save(args.out)
     print(result.summary())
+    out = summary_of(args)
+    out.figures(**result.to_report())
+    for path in written:
+        out.wrote(path, "image", say=False)
     if written:
         print(f"wrote {len(written)} rectified image(s) to {args.write}")
     if args.report:
-        report = write_json(f"{args.report}/rectification.json", result.to_report())
-        print(f"wrote {report}")
-    print(f"wrote {args.out}")
+        out.wrote(write_json(f"{args.report}/rectification.json", result.to_report()), "report")
+    out.wrote(args.out, "rig")
     return 0
 
 
@@ -696,6 +796,11 @@ def _undistort(args: argparse.Namespace) -> int:
     print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
           f"fx {camera.K[0, 0]:.3f} fy {camera.K[1, 1]:.3f} principal point ({camera.K[0, 2]:.2f}, {camera.K[1, 2]:.2f})")
     print(f"wrote {rig_path} and {len(written)} image(s) in {args.out}")
+    out = summary_of(args)
+    out.figures(camera=args.camera, mode=args.mode, image_size=[width, height], K=camera.K)
+    out.wrote(rig_path, "rig", say=False)
+    for path in written:
+        out.wrote(path, "image", say=False)
     return 0
 
 
@@ -723,8 +828,10 @@ def _stmap(args: argparse.Namespace) -> int:
 
     paths = write_stmaps(Rig.load(args.rig), args.camera, args.out, args.overscan)
     print(f"ST-maps of {args.camera!r} with overscan {args.overscan:g}")
+    out = summary_of(args)
+    out.figures(camera=args.camera, overscan=args.overscan)
     for path in paths:
-        print(f"wrote {path}")
+        out.wrote(path, "stmap" if str(path).endswith(".exr") else "rig")
     return 0
 
 
@@ -781,6 +888,12 @@ def _batch(args: argparse.Namespace) -> int:
     report = run_batch(job, frames, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                        retries=args.retries, progress=not args.quiet)
     print(report.summary())
+    out = summary_of(args)
+    out.figures(n_frames=len(report.frames), n_written=len(report.written), skipped=list(report.skipped),
+                failed={failure.frame: failure.message for failure in report.failed},
+                seconds=report.seconds, n_workers=report.n_workers)
+    for frame in report.written:
+        out.wrote(frame.output, "frame", say=False)
     return 0 if report.ok else 1
 
 
@@ -896,6 +1009,8 @@ def _parse_corners(text: str):
 
 
 def _colour_fit(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from camcal.colour.characterise import characterise, patches_from_chart, write_report
     from camcal.colour.patches import read_patch_csv
 
@@ -929,10 +1044,17 @@ def _colour_fit(args: argparse.Namespace) -> int:
         camera=args.camera, reference=reference, source=args.chart or args.patches,
     )
     print(outcome.summary())
-    path = outcome.fit.save(args.out)
-    print(f"wrote {path}")
+    out = summary_of(args)
+    stats = {name: None if value is None else dataclasses.asdict(value) for name, value in (
+        ("train", outcome.result.stats_train), ("loo", outcome.result.stats_loo), ("test", outcome.result.stats_test))}
+    out.figures(model=outcome.result.model.label, linearisation=outcome.fit.linearisation.label,
+                selection=None if outcome.selection is None else outcome.selection.reason,
+                n_train=len(train), delta_E2000=stats)
+    out.wrote(outcome.fit.save(args.out), "colour fit")
     if args.report:
         files = write_report(args.report, outcome, title=args.camera or "")
+        for file in files:
+            out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")
     return 0
 
@@ -971,6 +1093,7 @@ def _register_colour_export(colour_verbs) -> None:
 
 
 def _colour_export(args: argparse.Namespace) -> int:
+    import dataclasses
     from pathlib import Path
 
     from camcal.colour.fitfile import ColourFit, load_colour_file
@@ -983,6 +1106,7 @@ def _colour_export(args: argparse.Namespace) -> int:
         raise CamcalError(f"--icc writes one profile: give one fit, got {len(args.fits)}")
     if not (args.max_bake_error > 0):
         raise CamcalError(f"--max-bake-error must be > 0, got {args.max_bake_error}")
+    out = summary_of(args)
     fits, matches = [], []
     for path in args.fits:
         fit = load_colour_file(path)
@@ -1007,11 +1131,23 @@ def _colour_export(args: argparse.Namespace) -> int:
         for space in result.spaces:
             print(space.summary())
         print(f"wrote {result.config_path} (base {result.base}, {len(fits)} camera space(s), {len(matches)} match Look(s))")
+        out.figures(base=result.base, n_matches=len(matches), spaces=[{
+            "name": space.name, "camera": space.camera, "model": space.model, "kind": space.kind,
+            "lut_size": space.lut_size, "clf": space.clf, "linearisation_error": space.linearisation_error,
+            "bake_error_delta_E2000": None if space.bake_error is None else dataclasses.asdict(space.bake_error),
+        } for space in result.spaces])
+        out.wrote(result.config_path, "ocio config", say=False)
+        for space in result.spaces:
+            if space.clf:
+                out.wrote(Path(args.ocio) / space.clf, "clf", say=False)
     if profile is not None:
         write_icc(profile, args.icc)
         how = ("matrix/TRC" if profile.kind == "matrix-trc" else
                f"A2B0 {profile.clut_size}^3 CLUT, bake error CIEDE2000 max {profile.bake_error.max:.3f}")
         print(f"wrote {args.icc} (ICC v{profile.version}, {how})")
+        out.figures(icc={"version": profile.version, "kind": profile.kind, "bake_error_delta_E2000":
+                         None if profile.kind == "matrix-trc" else dataclasses.asdict(profile.bake_error)})
+        out.wrote(args.icc, "icc", say=False)
     return 0
 
 
@@ -1078,10 +1214,14 @@ def _colour_match(args: argparse.Namespace) -> int:
     else:
         raise CamcalError("nothing to match: give --images NAME=IMG twice, or --fits and --patches for two cameras")
     print(result.match.summary())
-    path = result.match.save(args.out)
-    print(f"wrote {path}")
+    out = summary_of(args)
+    out.figures(model=args.model, evaluation=result.match.evaluation,
+                correspondences=dict(result.correspondences.counts) if images else None)
+    out.wrote(result.match.save(args.out), "colour match")
     if args.report:
         files = write_match_report(args.report, result)
+        for file in files:
+            out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")
     return 0
 

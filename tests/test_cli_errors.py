@@ -92,9 +92,7 @@ CASES = [
     ("solve unknown rig", "solve {in} --camera left=plain.png --rig {in}/corrupt.json --out {out}/s"),
     ("blender import missing", "blender import {in}/missing.rig.json --blend {out}/a.blend"),
     ("blender import corrupt", "blender import {in}/corrupt.json --blend {out}/a.blend"),
-    pytest.param("colour fit absent chart", "colour fit --chart {in}/plain.png --out {out}/a.colour.json",
-                 marks=pytest.mark.xfail(reason="OpenCV 5.0 changed cv2.mcc's process() signature: an internal "
-                                         "error until the platform helper (issue 20) ports chart.py", strict=False)),
+    ("colour fit absent chart", "colour fit --chart {in}/plain.png --out {out}/a.colour.json"),
     ("colour fit corrupt chart", "colour fit --chart {in}/garbage.png --out {out}/a.colour.json"),
     ("colour fit non-finite patches", "colour fit --patches {in}/patches.csv --out {out}/a.colour.json"),
     ("colour fit empty patches", "colour fit --patches {in}/empty.csv --out {out}/a.colour.json"),

@@ -59,6 +59,7 @@ from typing import Any
 
 import numpy as np
 
+from camcal import resources
 from camcal.colour.evaluate import DeltaEStats, delta_E
 from camcal.colour.fitfile import ColourFit
 from camcal.colour.linearise import Linearisation
@@ -78,6 +79,7 @@ __all__ = [
     "LogShaper",
     "BakedTransform",
     "transform_from_callable",
+    "apply_cpu",
     "look_name",
     "look_from_match",
     "linearisation_transforms",
@@ -130,12 +132,12 @@ def _slug(text: str) -> str:
 
 
 def base_config_path() -> Path:
-    """camcal's base config template, ``ocio_configs/camcal_base.ocio`` beside the package.
+    """camcal's base config template, ``camcal_base.ocio`` of :func:`camcal.resources.ocio_configs_dir`.
 
     ``CAMCAL_OCIO_CONFIGS`` overrides the folder.
     """
     override = os.environ.get("CAMCAL_OCIO_CONFIGS")
-    folder = Path(override) if override else Path(__file__).resolve().parents[2] / "ocio_configs"
+    folder = Path(override) if override else resources.ocio_configs_dir()
     path = folder / "camcal_base.ocio"
     if not path.is_file():
         raise CamcalError(f"camcal's base OCIO config was not found at {path} (set CAMCAL_OCIO_CONFIGS)")
@@ -258,7 +260,8 @@ def _cpu(transform, config=None):
     return config.getProcessor(transform).getDefaultCPUProcessor()
 
 
-def _apply_cpu(cpu, RGB: np.ndarray) -> np.ndarray:
+def apply_cpu(cpu, RGB: np.ndarray) -> np.ndarray:
+    """Apply an OCIO CPU processor to ``(..., 3)`` values: ``(N, 3)`` float64 (OCIO computes in float32)."""
     pixels = np.ascontiguousarray(np.asarray(RGB, dtype=np.float32).reshape(-1, 3))
     cpu.applyRGB(pixels)
     return pixels.astype(np.float64)
@@ -409,7 +412,7 @@ def transform_from_callable(
     error = None
     for n in sizes:
         group = _lut3d_group(apply, n, shaper, M)
-        baked = _apply_cpu(_cpu(group), X)
+        baked = apply_cpu(_cpu(group), X)
         error = DeltaEStats.from_values(delta_E(to_XYZ(baked), reference, white_XYZ))
         if error.max <= max_delta_E:
             return BakedTransform("lut3d", group, M, n, shaper, error)
@@ -471,7 +474,7 @@ def linearisation_transforms(linearisation: Linearisation) -> tuple[list, float]
         return [lut], 0.0
     probe = np.linspace(0.0, 1.0, 4 * n + 1)
     truth = linearisation.apply(np.repeat(probe[:, None], 3, axis=1))
-    got = _apply_cpu(_cpu(lut), np.repeat(probe[:, None], 3, axis=1))
+    got = apply_cpu(_cpu(lut), np.repeat(probe[:, None], 3, axis=1))
     scale = np.maximum(np.abs(truth[-1]), 1e-6)
     return [lut], float(np.max(np.abs(got - truth) / scale))
 
@@ -492,10 +495,10 @@ def _aces_to_reference(config) -> np.ndarray:
             return np.eye(3)
         processor = config.getProcessor(from_ref, ocio.TRANSFORM_DIR_INVERSE)
     cpu = processor.getDefaultCPUProcessor()
-    A = _apply_cpu(cpu, np.vstack([np.eye(3), np.zeros((1, 3))]))
+    A = apply_cpu(cpu, np.vstack([np.eye(3), np.zeros((1, 3))]))
     M = (A[:3] - A[3]).T
     probe = np.random.default_rng(0).uniform(0.0, 2.0, (16, 3))
-    if np.abs(A[3]).max() > 1e-6 or np.abs(_apply_cpu(cpu, probe) - probe @ M.T).max() > 1e-4:
+    if np.abs(A[3]).max() > 1e-6 or np.abs(apply_cpu(cpu, probe) - probe @ M.T).max() > 1e-4:
         raise CamcalError(f"the base config's {name!r} -> reference transform is not a matrix")
     return M
 

@@ -43,7 +43,7 @@ References
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -63,6 +63,7 @@ __all__ = [
     "mu_factor",
     "adapt_XYZ",
     "illuminant_white_XYZ",
+    "reflectance_XYZ",
 ]
 
 CAMERAS = ("Nikon 5100 (NPL)", "Sigma SDMerill (NPL)")
@@ -88,6 +89,47 @@ def _resample(sd_or_msds, wavelengths: np.ndarray) -> np.ndarray:
     copy.interpolator_kwargs = {}
     copy.extrapolator_kwargs = {"method": "Constant", "left": None, "right": None}
     return np.asarray(copy.align(shape).values, dtype=np.float64)
+
+
+def reflectance_XYZ(reflectances: Any, illuminant: str,
+                    shape: tuple[float, float, float] = (380.0, 780.0, 5.0)) -> tuple[np.ndarray, np.ndarray]:
+    """XYZ of reflectance spectra under a CIE illuminant, and of the perfect white (Y = 1).
+
+    Parameters
+    ----------
+    reflectances : colour-science spectral distributions or array_like
+        A dict or list of ``SpectralDistribution``, a ``MultiSpectralDistributions``,
+        or ``(N, W)`` reflectances sampled on ``shape``.
+    illuminant : str
+        CIE illuminant name (``colour.SDS_ILLUMINANTS``).
+    shape : (start, end, interval)
+        Wavelength grid in nm of the integration (default 380 to 780 nm every 5 nm).
+
+    Returns
+    -------
+    XYZ : ndarray, shape (N, 3)
+    white : ndarray, shape (3,)
+
+    Notes
+    -----
+    ``XYZ = k sum_l R(l) S(l) xyz(l)``, ``k = 1 / sum_l S(l) y(l)`` with the CIE
+    1931 2 degree observer: colour-science's ``msds_to_XYZ`` / ``sd_to_XYZ``
+    (method ``"Integration"``, ASTM E308 without its tables) divided by 100.
+    """
+    import colour
+    from colour.colorimetry import sds_and_msds_to_msds
+
+    if illuminant not in colour.SDS_ILLUMINANTS:
+        raise CamcalError(f"unknown illuminant {illuminant!r}, expected a name of colour.SDS_ILLUMINANTS")
+    grid = colour.SpectralShape(*shape)
+    cmfs, S = colour.MSDS_CMFS[_CMFS], colour.SDS_ILLUMINANTS[illuminant]
+    if isinstance(reflectances, Mapping):
+        reflectances = list(reflectances.values())
+    if isinstance(reflectances, (list, tuple)):
+        reflectances = sds_and_msds_to_msds(reflectances)
+    XYZ = colour.msds_to_XYZ(reflectances, cmfs=cmfs, illuminant=S, method="Integration", shape=grid)
+    white = colour.sd_to_XYZ(colour.sd_ones(grid), cmfs=cmfs, illuminant=S, method="Integration")
+    return np.asarray(XYZ, dtype=np.float64) / 100.0, np.asarray(white, dtype=np.float64) / 100.0
 
 
 def camera_sensitivities(name: str, wavelengths: Any = None) -> tuple[np.ndarray, np.ndarray]:

@@ -84,7 +84,7 @@ def test_two_cameras_polynomial_against_truth():
     assert result.n_outliers == 0
     for camera, true in zip(result.rig.cameras, truth):
         assert camera.distortion.params["k1"] == pytest.approx(true.distortion.params["k1"], abs=3e-3)
-        assert camera.quality["n_views"] == 30 and camera.quality["n_points"] == 30 * BOARD.n_corners
+        assert camera.quality["n_views"] == 30 and camera.quality["n_observations"] == 30 * BOARD.n_corners
     # the rig file holds what was fitted, exactly
     assert Rig.from_dict(result.rig.to_dict()) == result.rig
 
