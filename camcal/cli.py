@@ -790,7 +790,8 @@ def _undistort(args: argparse.Namespace) -> int:
     from camcal.rig import Rig
 
     rig = Rig.load(args.rig)
-    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan)
+    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan,
+                                         args.max_fov)
     camera = Rig.load(rig_path).camera(args.camera)
     width, height = camera.image_size
     print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
@@ -818,6 +819,9 @@ def _register_undistort(subparsers) -> None:
                            help="crop: no black borders; keep: every source pixel kept (bigger canvas); "
                            "overscan: canvas --overscan times the plate (default: crop)")
     undistort.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+    undistort.add_argument("--max-fov", type=float, metavar="DEG",
+                           help="crop / keep: widest full angle about the axis the pinhole output holds "
+                           "(default: 120 for a kannala-brandt fisheye, no cap for the other lenses)")
     undistort.add_argument("--out", required=True, metavar="DIR")
     undistort.set_defaults(func=_undistort)
 

@@ -119,7 +119,7 @@ def undistorted_view(
     if mode not in MODES:
         raise CamcalError(f"unknown undistortion mode {mode!r}, expected one of: {', '.join(MODES)}")
     if max_fov_deg is not None and not (0.0 < max_fov_deg < 180.0):
-        raise CamcalError(f"max_fov_deg must be between 0 and 180 degrees, got {max_fov_deg}")
+        raise CamcalError(f"the field-of-view cap (max_fov_deg, --max-fov) must be between 0 and 180 degrees, got {max_fov_deg}")
     width, height = camera.image_size
     K = camera.K
     if mode == "overscan":

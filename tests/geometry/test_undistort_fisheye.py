@@ -104,3 +104,28 @@ def test_stmaps_undistort_and_redistort_are_inverse():
     beyond = angle_deg(CAMERA, np.column_stack([u.ravel(), v.ravel()])).reshape(H, W) >= 90.0
     assert beyond.any()
     assert np.all((maps.redistort[beyond][:, 0] < 0) | (maps.redistort[beyond][:, 0] > 1))
+
+
+def test_cli_undistorts_a_fisheye_plate_with_a_chosen_field_of_view(tmp_path, capsys):
+    import cv2
+
+    from camcal.cli import main
+    from camcal.rig import Rig
+
+    rig_path = Rig((CAMERA,)).save(tmp_path / "fish.rig.json")
+    plate = tmp_path / "plate.png"
+    cv2.imwrite(str(plate), procedural_texture(np.random.default_rng(8), 512)[:H, :W])
+    out = tmp_path / "out"
+    assert main(["undistort", str(rig_path), "--camera", "fish", str(plate), "--mode", "crop",
+                 "--max-fov", "100", "--out", str(out)]) == 0
+    camera = Rig.load(out / "undistorted.rig.json").camera("fish")
+    assert camera.distortion.model == "none"
+    expected = undistorted_view(CAMERA, "crop", max_fov_deg=100.0)
+    assert np.allclose(camera.K, expected.K_new)
+    assert cv2.imread(str(out / "plate.png")).shape[:2] == (H, W)
+    # out of range: one line, exit 2, nothing written
+    capsys.readouterr()
+    bad = tmp_path / "bad"
+    assert main(["undistort", str(rig_path), "--camera", "fish", str(plate), "--max-fov", "200", "--out", str(bad)]) == 2
+    assert "must be between 0 and 180 degrees, got 200" in capsys.readouterr().err
+    assert not bad.exists()
