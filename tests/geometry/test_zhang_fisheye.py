@@ -134,3 +134,41 @@ def test_kannala_brandt_sigmas_cover_the_error():
         inside.append(abs(camera.K[1, 2] - TRUTH.K[1, 2]) < 2.0 * sig["cy"])
     print(f"within 2 sigma: {np.mean(inside):.1%} of {len(inside)}")
     assert np.mean(inside) >= 0.85
+
+
+def test_fisheye_stereo_rig_against_truth():
+    """Two fisheye cameras 0.12 m apart, turned 10 degrees: the joint refinement recovers the rig."""
+    right = Camera(
+        "right", (1280, 960),
+        np.array([[398.0, 0.0, 634.8], [0.0, 397.1, 481.9], [0.0, 0.0, 1.0]]),
+        Distortion("kannala-brandt", {"k1": 0.028, "k2": -0.009, "k3": 0.0031, "k4": -0.00047}),
+        Rotation.from_euler("xyz", [1.0, -10.0, 0.5], degrees=True).as_matrix(), np.array([0.12, 0.004, -0.002]),
+    )
+    left = Camera("left", TRUTH.image_size, TRUTH.K, TRUTH.distortion, np.eye(3), np.zeros(3))
+    rng = np.random.default_rng(21)
+    detections = {"left": [], "right": []}
+    centred = BOARD.object_points - BOARD.object_points.mean(axis=0)
+    view = 0
+    while view < 16:
+        theta, phi = np.radians(rng.uniform(0.0, 60.0)), rng.uniform(-np.pi, np.pi)
+        direction = np.array([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+        face = Rotation.align_vectors([[0.0, 0.0, 1.0]], [direction])[0].inv()
+        R = (face * Rotation.from_euler("xyz", rng.uniform(-30, 30, 3), degrees=True)).as_matrix()
+        X = centred @ R.T + direction * rng.uniform(0.35, 0.6)
+        pixels = [camera.project(X) for camera in (left, right)]
+        if not all(np.all((p > 3) & (p < np.array(TRUTH.image_size) - 3)) for p in pixels):
+            continue
+        for camera, p in zip((left, right), pixels):
+            detections[camera.name].append(Detection(f"{camera.name}_{view:03d}.png", camera.image_size,
+                                                     np.arange(BOARD.n_corners), p + rng.normal(0, 0.1, p.shape),
+                                                     "synthetic"))
+        view += 1
+    result = calibrate_board(BOARD, detections, model="kannala-brandt")
+    got = result.rig.cameras[1]
+    angle = np.degrees(Rotation.from_matrix(got.R @ right.R.T).magnitude())
+    print(f"fisheye stereo: rotation error {angle:.4f} deg, baseline error "
+          f"{abs(np.linalg.norm(got.c) - np.linalg.norm(right.c)) * 1e3:.3f} mm, RMS {result.rms_px:.3f} px")
+    assert angle < 0.05
+    assert abs(np.linalg.norm(got.c) / np.linalg.norm(right.c) - 1) < 0.005
+    assert frame_error_px(got, right, 60.0) < 0.5
+    assert result.rms_px == pytest.approx(math.sqrt(2) * 0.1, rel=0.1)
