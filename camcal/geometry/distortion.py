@@ -349,31 +349,52 @@ class Distortion:
     def _theta_from_theta_d(self, theta_d: NDArray[np.float64]) -> NDArray[np.float64]:
         """Invert ``theta_d(theta)`` on ``[0, max_angle_rad]``; NaN beyond its range.
 
-        Safeguarded Newton: each step that would leave the bracket
-        ``[low, high]`` known to hold the root is replaced by bisection.
+        Start from a table of the monotone function (linear interpolation on
+        4097 angles), take two Newton steps (clipped to the range), then
+        finish any point not yet at 1e-15 rad with safeguarded Newton: a
+        step that would leave the bracket ``[low, high]`` known to hold the
+        root is replaced by bisection.
         """
         theta_max = self.max_angle_rad
         theta_d = np.asarray(theta_d, dtype=np.float64)
-        valid = np.isfinite(theta_d) & (theta_d >= 0.0) & (theta_d <= self.theta_d(theta_max))
-        target = np.where(valid, theta_d, 0.0)
-        low, high = np.zeros_like(target), np.full_like(target, theta_max)
-        theta = np.clip(target, 0.0, theta_max)
+        flat = theta_d.ravel()
+        valid = np.isfinite(flat) & (flat >= 0.0) & (flat <= self.theta_d(theta_max))
+        result = np.full(flat.size, np.nan)
+        active = np.flatnonzero(valid)
+        target = flat[active]
+        table = np.linspace(0.0, theta_max, 4097)
+        theta = np.interp(target, self.theta_d(table), table)
         p = self.params
-        for _ in range(100):
+
+        def newton_step(theta, target):
             t2 = theta * theta
             residual = self.theta_d(theta) - target
             slope = 1.0 + t2 * (3.0 * p["k1"] + t2 * (5.0 * p["k2"] + t2 * (7.0 * p["k3"] + t2 * 9.0 * p["k4"])))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return theta - residual / slope, residual
+
+        for _ in range(2):
+            theta = np.clip(newton_step(theta, target)[0], 0.0, theta_max)
+        step = newton_step(theta, target)[0]
+        done = np.abs(step - theta) <= 1e-15 * np.maximum(1.0, theta)
+        result[active[done]] = np.clip(step[done], 0.0, theta_max)
+        # the rest (near max_angle_rad, where the slope vanishes): safeguarded Newton
+        keep = ~done
+        active, target, theta = active[keep], target[keep], theta[keep]
+        low, high = np.zeros_like(target), np.full_like(target, theta_max)
+        for _ in range(100):
+            if not len(active):
+                break
+            step, residual = newton_step(theta, target)
             low = np.where(residual < 0.0, theta, low)
             high = np.where(residual > 0.0, theta, high)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                step = theta - residual / slope
-            bisect = ~((step > low) & (step < high))
-            new = np.where(bisect, 0.5 * (low + high), step)
+            new = np.where((step > low) & (step < high), step, 0.5 * (low + high))
             done = np.abs(new - theta) <= 1e-15 * np.maximum(1.0, theta)
-            theta = new
-            if np.all(done):
-                break
-        return np.where(valid, theta, np.nan)
+            result[active[done]] = new[done]
+            keep = ~done
+            active, target, low, high, theta = active[keep], target[keep], low[keep], high[keep], new[keep]
+        result[active] = theta
+        return result.reshape(theta_d.shape)
 
     def project_rays(self, rays: ArrayLike, K: ArrayLike) -> NDArray[np.float64]:
         """Distorted pixels of directions in the camera frame, wide angles included.

@@ -104,6 +104,11 @@ def test_max_angle_is_where_theta_d_turns():
     assert np.all(np.isnan(lens.project_rays(beyond, K)))
     edge = lens.theta_d(lens.max_angle_rad)
     assert np.all(np.isnan(lens.rays_from_pixels(K[:2, 2] + [[K[0, 0] * edge * 1.001, 0.0]], K)))
+    # up to the turning point, where the slope vanishes, the inverse still lands on theta_d
+    theta = np.linspace(lens.max_angle_rad - 1e-3, lens.max_angle_rad, 50)
+    rays = np.column_stack([np.sin(theta), np.zeros(50), np.cos(theta)])
+    back = lens.rays_from_pixels(lens.project_rays(rays, K), K)
+    assert np.abs(lens.theta_d(np.arccos(back[:, 2])) - lens.theta_d(theta)).max() < 1e-13
     assert LENSES[2].max_angle_rad == pytest.approx(np.pi)
     assert Distortion("polynomial", {"k1": 0.1, "k2": 0.0}).max_angle_rad == pytest.approx(np.pi / 2)
 
