@@ -169,8 +169,9 @@ class Distortion:
 
     @property
     def is_identity(self) -> bool:
-        """True when the model leaves every point where it is."""
-        return all(value == 0.0 for value in self.params.values())
+        """True when the model leaves every point where it is (never for ``kannala-brandt``:
+        with every k at 0 it is the equidistant fisheye, not the pinhole)."""
+        return self.model != "kannala-brandt" and all(value == 0.0 for value in self.params.values())
 
     # -- file boundary -------------------------------------------------------
 

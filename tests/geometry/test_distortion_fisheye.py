@@ -110,6 +110,7 @@ def test_max_angle_is_where_theta_d_turns():
     back = lens.rays_from_pixels(lens.project_rays(rays, K), K)
     assert np.abs(lens.theta_d(np.arccos(back[:, 2])) - lens.theta_d(theta)).max() < 1e-13
     assert LENSES[2].max_angle_rad == pytest.approx(np.pi)
+    assert not LENSES[2].is_identity  # all k = 0 is the equidistant fisheye
     assert Distortion("polynomial", {"k1": 0.1, "k2": 0.0}).max_angle_rad == pytest.approx(np.pi / 2)
 
 
