@@ -147,3 +147,30 @@ def test_cycles_render_of_the_fisheye_matches_camcal(bpy, addon, tmp_path):
     # windows are in there too; the formula test above holds the model itself to 0.0016 px)
     assert np.median(error) < 0.006
     assert error.max() < 0.0125
+
+
+def test_cli_blender_import_writes_the_fisheye_camera(addon, tmp_path, capsys):
+    """The headless ``camcal blender import`` path carries the fisheye camera into the .blend."""
+    import subprocess
+    import sys
+
+    from camcal.cli import main
+
+    pytest.importorskip("bpy")
+    rig = write_rig(tmp_path / "f.rig.json",
+                    [camera_dict("fish", SIZE, K, distortion={"model": "kannala-brandt", "params": PARAMS})])
+    out = tmp_path / "f.blend"
+    assert main(["blender", "import", str(rig), "--blend", str(out)]) == 0
+    assert "fisheye-polynomial" in capsys.readouterr().out
+    script = (
+        "import bpy, sys; bpy.ops.wm.open_mainfile(filepath=sys.argv[1]); "
+        "c = [o for o in bpy.data.objects if o.type == 'CAMERA'][0].data; "
+        "print(c.type, c.panorama_type, repr(c.fisheye_polynomial_k1), repr(c.shift_x))"
+    )
+    proc = subprocess.run([sys.executable, "-c", script, str(out)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    kind, panorama, k1, shift_x = proc.stdout.split()[-4:]
+    f = addon.mapping.blender_fisheye(K.tolist(), SIZE, PARAMS)
+    assert (kind, panorama) == ("PANO", "FISHEYE_LENS_POLYNOMIAL")
+    assert float(k1) == pytest.approx(f.polynomial[1], rel=1e-6)
+    assert float(shift_x) == pytest.approx(f.shift_x, abs=1e-7)
