@@ -618,7 +618,8 @@ class BlenderFisheye:
 
 
 def _pixel_pitch_mm(b):
-    """Millimetres per pixel across x and y on Cycles' panoramic sensor for intrinsics ``b``.
+    """Millimetres per pixel across x and y on Cycles' panoramic sensor for settings ``b``
+    (:class:`BlenderIntrinsics` or :class:`BlenderFisheye`).
 
     Cycles (blender/camera.cpp) sizes the fisheye sensor by the fit: with
     ``fx_ratio = W ax``, ``fy_ratio = H ay``, a horizontal fit (AUTO when
@@ -749,15 +750,14 @@ def fisheye_polynomial_ray(f, pixel):
     centres at integers, camera +x right, +y down, +z forward. Returns a
     unit 3-tuple, or ``None`` beyond ``fov / 2`` (Cycles renders black).
     """
-    b = f
-    W, H = b.resolution_x, b.resolution_y
-    pitch_x, pitch_y = _pixel_pitch_mm(b)
-    u = (pixel[0] - (W / 2.0 - b.shift_x * W - 0.5)) * pitch_x
-    v = (pixel[1] - (H / 2.0 + b.shift_y * H - 0.5)) * pitch_y
+    W, H = f.resolution_x, f.resolution_y
+    pitch_x, pitch_y = _pixel_pitch_mm(f)
+    u = (pixel[0] - (W / 2.0 - f.shift_x * W - 0.5)) * pitch_x
+    v = (pixel[1] - (H / 2.0 + f.shift_y * H - 0.5)) * pitch_y
     r = math.hypot(u, v)
-    k = b.polynomial
+    k = f.polynomial
     theta = -(k[0] + r * (k[1] + r * (k[2] + r * (k[3] + r * k[4]))))
-    if abs(theta) > 0.5 * b.fov:
+    if abs(theta) > 0.5 * f.fov:
         return None
     if r == 0.0:
         return (0.0, 0.0, 1.0)
