@@ -416,6 +416,16 @@ class Distortion:
             :attr:`max_angle_rad` (beyond the 90 degrees of a pinhole);
             other models: ``distort(K (x/z, y/z, 1))``. NaN where the model
             has no image of the ray (``z <= 0`` for the pinhole models).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> fisheye = Distortion("kannala-brandt", {"k1": 0.02, "k2": 0.0, "k3": 0.0, "k4": 0.0})
+        >>> K = np.array([[300.0, 0, 640.0], [0, 300.0, 480.0], [0, 0, 1]])
+        >>> behind = np.array([[1.0, 0.0, -0.2]])  # 101 degrees off the axis
+        >>> pixel = fisheye.project_rays(behind, K)
+        >>> bool(np.allclose(fisheye.rays_from_pixels(pixel, K), behind / np.linalg.norm(behind)))
+        True
         """
         rays = np.asarray(rays, dtype=np.float64)
         if rays.ndim != 2 or rays.shape[1] != 3:
