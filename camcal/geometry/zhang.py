@@ -743,9 +743,14 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict], model: str):
             continue
         keys = sorted(views)
         frame_R, frame_t = [], []
+        views = dict(views)
         for key in keys:
             d = views[key]
             ideal = camera.distortion.undistort(d.corners_px, camera.K)
+            front = np.all(np.isfinite(ideal), axis=1)  # a fisheye's corners beyond 90 degrees have no pinhole image
+            if not front.all():
+                d = views[key] = dataclasses.replace(d, ids=d.ids[front], corners_px=d.corners_px[front])
+                ideal = ideal[front]
             ok, rvec, tvec = cv2.solvePnP(board.object_points[d.ids], ideal, camera.K, None)
             if not ok:
                 raise CamcalError(f"camera {camera.name!r}, {d.image}: PnP failed on the held-out view")

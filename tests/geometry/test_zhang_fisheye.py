@@ -122,6 +122,17 @@ def test_cli_calibrates_a_fisheye(tmp_path, capsys, monkeypatch):
     assert frame_error_px(camera, TRUTH, 70.0) < 1.0
 
 
+def test_held_out_fisheye_views_at_the_noise_floor():
+    """Views held out of the fit (posed by PnP, intrinsics held): RMS ~ sqrt(2) sigma, as in training."""
+    detections, poses = board_views(TRUTH, 14, np.random.default_rng(12), 0.2)
+    # view 1 reaches 91.5 degrees off axis: its corners behind the image plane are left out of its PnP
+    assert np.min(poses[1][:, 2]) < 0
+    result = calibrate_board(BOARD, {"fish": detections}, model="kannala-brandt", holdout={1, 5, 9})
+    print(f"fisheye held-out RMS {result.heldout_rms_px:.3f} px, training {result.rms_px:.3f} px")
+    assert result.rms_px == pytest.approx(math.sqrt(2) * 0.2, rel=0.1)
+    assert result.heldout_rms_px == pytest.approx(math.sqrt(2) * 0.2, rel=0.2)
+
+
 @pytest.mark.slow
 def test_kannala_brandt_sigmas_cover_the_error():
     """Over 20 seeded scenes, |error| < 2 sigma for k1..k4, fx and the principal point in >= 85 % of cases."""
