@@ -58,9 +58,9 @@ import numpy as np
 from camcal.colour.characterise import Characterisation, characterise, neutral_indices, white_from_name
 from camcal.colour.evaluate import DeltaEStats, delta_E
 from camcal.colour.fitfile import ColourFit
-from camcal.colour.models import LinearTermsModel, _parse_term
+from camcal.colour.models import LinearTermsModel, parse_term
 from camcal.colour.patches import PatchSet
-from camcal.colour.spectral import CAT_TRANSFORMS, _CMFS, _resample, reflectance_set
+from camcal.colour.spectral import CAT_TRANSFORMS, CMFS_NAME, resample_spectra, reflectance_set
 from camcal.colour.ssf import Sensitivities, illuminant_spd
 from camcal.errors import CamcalError
 
@@ -97,7 +97,7 @@ def reflectance_XYZ(reflectances: str, illuminant: str) -> tuple[list[str], np.n
 
     names, R = reflectance_set(reflectances, _COLORIMETRY_GRID)
     L = illuminant_spd(illuminant, _COLORIMETRY_GRID)
-    cmfs = _resample(colour.MSDS_CMFS[_CMFS], _COLORIMETRY_GRID)
+    cmfs = resample_spectra(colour.MSDS_CMFS[CMFS_NAME], _COLORIMETRY_GRID)
     k = 1.0 / float(L @ cmfs[:, 1])
     return names, (R * L) @ cmfs * k, L @ cmfs * k
 
@@ -146,7 +146,7 @@ def adapt_model(model: Any, gains: Any, M: Any) -> LinearTermsModel:
         raise CamcalError(f"white balance gains must be 3 positive numbers, got {gains}")
     scale = []
     for term in model.terms:
-        exponents, root = _parse_term(term)
+        exponents, root = parse_term(term)
         factor = float(np.prod(gains ** np.array(exponents)))
         degree = sum(exponents)
         scale.append(factor ** (1.0 / degree) if root and degree > 1 else factor)

@@ -53,6 +53,10 @@ import numpy as np
 from camcal.errors import CamcalError
 
 __all__ = [
+    "CMFS_NAME",
+    "spectral_shape",
+    "resample_spectra",
+    "second_difference_matrix",
     "CAMERAS",
     "REFLECTANCE_SETS",
     "CAT_TRANSFORMS",
@@ -72,10 +76,11 @@ REFLECTANCE_SETS = ("BabelColor Average", "ColorChecker N Ohta", "ISO 17321-1", 
                     "CIE 1995 TCS", "NIST CQS 9.0", "Munsell validation", "Munsell held-out")
 MUNSELL_SUBSET = 300
 CAT_TRANSFORMS = ("CAT02", "Bradford")
-_CMFS = "CIE 1931 2 Degree Standard Observer"
+CMFS_NAME = "CIE 1931 2 Degree Standard Observer"
 
 
-def _shape(wavelengths: np.ndarray):
+def spectral_shape(wavelengths: np.ndarray):
+    """The colour-science ``SpectralShape`` of a regular 1-D wavelength grid (nm)."""
     import colour
 
     wavelengths = np.asarray(wavelengths, dtype=np.float64)
@@ -85,9 +90,9 @@ def _shape(wavelengths: np.ndarray):
     return colour.SpectralShape(float(wavelengths[0]), float(wavelengths[-1]), float(steps[0]))
 
 
-def _resample(sd_or_msds, wavelengths: np.ndarray) -> np.ndarray:
+def resample_spectra(sd_or_msds, wavelengths: np.ndarray) -> np.ndarray:
     """Values of a colour-science spectral object on ``wavelengths`` (extrapolated constant)."""
-    shape = _shape(wavelengths)
+    shape = spectral_shape(wavelengths)
     copy = sd_or_msds.copy()
     copy.interpolator_kwargs = {}
     copy.extrapolator_kwargs = {"method": "Constant", "left": None, "right": None}
@@ -125,7 +130,7 @@ def reflectance_XYZ(reflectances: Any, illuminant: str,
     if illuminant not in colour.SDS_ILLUMINANTS:
         raise CamcalError(f"unknown illuminant {illuminant!r}, expected a name of colour.SDS_ILLUMINANTS")
     grid = colour.SpectralShape(*shape)
-    cmfs, S = colour.MSDS_CMFS[_CMFS], colour.SDS_ILLUMINANTS[illuminant]
+    cmfs, S = colour.MSDS_CMFS[CMFS_NAME], colour.SDS_ILLUMINANTS[illuminant]
     if isinstance(reflectances, Mapping):
         reflectances = list(reflectances.values())
     if isinstance(reflectances, (list, tuple)):
@@ -159,7 +164,7 @@ def camera_sensitivities(name: str, wavelengths: Any = None) -> tuple[np.ndarray
     if wavelengths is None:
         wavelengths = msds.wavelengths
     wavelengths = np.asarray(wavelengths, dtype=np.float64)
-    return wavelengths, _resample(msds, wavelengths)
+    return wavelengths, resample_spectra(msds, wavelengths)
 
 
 def reflectance_set(name: str, wavelengths: Any) -> tuple[list[str], np.ndarray]:
@@ -191,7 +196,7 @@ def reflectance_set(name: str, wavelengths: Any) -> tuple[list[str], np.ndarray]
     wavelengths = np.asarray(wavelengths, dtype=np.float64)
     if name == "rawtoaces 190":
         msds = colour.characterisation.read_training_data_rawtoaces_v1()
-        values = _resample(msds, wavelengths).T
+        values = resample_spectra(msds, wavelengths).T
         return [str(label) for label in msds.labels], values
     if name.startswith("Munsell "):
         if name not in REFLECTANCE_SETS:
@@ -202,13 +207,13 @@ def reflectance_set(name: str, wavelengths: Any) -> tuple[list[str], np.ndarray]
         from colour.quality.datasets import SDS_TCS, SDS_VS
 
         sds = SDS_TCS["CIE 1995"] if name == "CIE 1995 TCS" else SDS_VS["NIST CQS 9.0"]
-        return list(sds.keys()), np.array([_resample(sd, wavelengths) for sd in sds.values()])
+        return list(sds.keys()), np.array([resample_spectra(sd, wavelengths) for sd in sds.values()])
     if name not in colour.SDS_COLOURCHECKERS:
         raise CamcalError(
             f"unknown reflectance set {name!r}, expected one of: {', '.join(REFLECTANCE_SETS)}"
         )
     sds = colour.SDS_COLOURCHECKERS[name]
-    return list(sds.keys()), np.array([_resample(sd, wavelengths) for sd in sds.values()])
+    return list(sds.keys()), np.array([resample_spectra(sd, wavelengths) for sd in sds.values()])
 
 
 @functools.cache
@@ -240,7 +245,7 @@ def illuminant_white_XYZ(name: str) -> np.ndarray:
     """
     import colour
 
-    table = colour.CCS_ILLUMINANTS[_CMFS]
+    table = colour.CCS_ILLUMINANTS[CMFS_NAME]
     if name not in table:
         raise CamcalError(f"unknown illuminant {name!r}, expected a CIE name such as D50, D65, A")
     return np.asarray(colour.xy_to_XYZ(table[name]), dtype=np.float64)
@@ -279,8 +284,8 @@ class SimulatedCamera:
         wavelengths, sens = camera_sensitivities(camera)
         if illuminant not in colour.SDS_ILLUMINANTS:
             raise CamcalError(f"unknown illuminant {illuminant!r}, expected a name of colour.SDS_ILLUMINANTS")
-        S = _resample(colour.SDS_ILLUMINANTS[illuminant], wavelengths)
-        cmfs = _resample(colour.MSDS_CMFS[_CMFS], wavelengths)
+        S = resample_spectra(colour.SDS_ILLUMINANTS[illuminant], wavelengths)
+        cmfs = resample_spectra(colour.MSDS_CMFS[CMFS_NAME], wavelengths)
         return cls(wavelengths, sens, S, cmfs, camera, illuminant)
 
     @property
@@ -328,7 +333,8 @@ class SimulatedCamera:
         return self.sensitivities * self.exposure
 
 
-def _second_difference(W: int) -> np.ndarray:
+def second_difference_matrix(W: int) -> np.ndarray:
+    """The (W - 2) x W second-difference operator D, (D s)_i = s_i - 2 s_{i+1} + s_{i+2} (smoothness penalty)."""
     D = np.zeros((W - 2, W))
     idx = np.arange(W - 2)
     D[idx, idx] = 1.0
@@ -462,7 +468,7 @@ def estimate_sensitivities(
         raise CamcalError(f"sensitivity estimation needs at least 10 patches, got {N}")
     if method not in ("kfold", "gcv"):
         raise CamcalError(f"unknown method {method!r}, expected kfold or gcv")
-    D = _second_difference(W)
+    D = second_difference_matrix(W)
     unit = np.trace(A.T @ A) / np.trace(D.T @ D)
     lams = np.asarray(grid, dtype=np.float64) * unit
     S = np.zeros((W, 3))

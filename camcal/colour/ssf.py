@@ -64,9 +64,9 @@ import numpy as np
 
 from camcal.colour.spectral import (
     SimulatedCamera,
-    _CMFS,
-    _resample,
-    _shape,
+    CMFS_NAME,
+    resample_spectra,
+    spectral_shape,
     estimate_sensitivities,
     mu_factor,
 )
@@ -106,7 +106,7 @@ def cmfs_on(wavelengths: Any) -> np.ndarray:
     """CIE 1931 2 degree colour matching functions on ``wavelengths``, ``(W, 3)``."""
     import colour
 
-    return _resample(colour.MSDS_CMFS[_CMFS], np.asarray(wavelengths, dtype=np.float64))
+    return resample_spectra(colour.MSDS_CMFS[CMFS_NAME], np.asarray(wavelengths, dtype=np.float64))
 
 
 def illuminant_spd(spec: str, wavelengths: Any) -> np.ndarray:
@@ -125,7 +125,7 @@ def illuminant_spd(spec: str, wavelengths: Any) -> np.ndarray:
 
     wavelengths = np.asarray(wavelengths, dtype=np.float64)
     if spec in colour.SDS_ILLUMINANTS:
-        values = _resample(colour.SDS_ILLUMINANTS[spec], wavelengths)
+        values = resample_spectra(colour.SDS_ILLUMINANTS[spec], wavelengths)
     elif str(spec).lower().endswith(".csv"):
         table = _read_numeric_csv(Path(spec), 2, "wavelength,value")
         values = np.interp(wavelengths, table[:, 0], table[:, 1])
@@ -266,7 +266,7 @@ class Sensitivities:
     def __post_init__(self) -> None:
         wl = np.array(self.wavelengths, dtype=np.float64)
         values = np.array(self.values, dtype=np.float64)
-        _shape(wl)
+        spectral_shape(wl)
         if values.shape != (wl.size, 3) or not np.all(np.isfinite(values)):
             raise CamcalError(f"sensitivities must be finite ({wl.size}, 3) on the grid, got {values.shape}")
         if np.any(values.max(axis=0) <= 0):
@@ -327,7 +327,7 @@ class Sensitivities:
     def resampled(self, wavelengths: Any) -> Sensitivities:
         """Curves linearly interpolated on another grid (zero outside their range; covariance dropped)."""
         wl = np.asarray(wavelengths, dtype=np.float64)
-        _shape(wl)
+        spectral_shape(wl)
         values = np.stack([np.interp(wl, self.wavelengths, self.values[:, c], left=0.0, right=0.0)
                            for c in range(3)], axis=1)
         return Sensitivities(wl, values, None, self.camera, self.source, self.estimation, dict(self.provenance))
@@ -553,7 +553,7 @@ def capture_from_chart(
     missing = [n for n in names if n not in sds]
     if missing:
         raise CamcalError(f"chart spectra {reflectances!r} lack patches: {', '.join(missing)}")
-    R = np.array([_resample(sds[n], wavelengths) for n in names])
+    R = np.array([resample_spectra(sds[n], wavelengths) for n in names])
     return Capture(names, R, found.patches.RGB, illuminant_spd(illuminant, wavelengths), illuminant, str(image_path))
 
 
@@ -609,7 +609,7 @@ def capture_exposures(captures: Sequence[Capture]) -> np.ndarray:
     """
     from scipy.optimize import minimize
 
-    from camcal.colour.spectral import _second_difference
+    from camcal.colour.spectral import second_difference_matrix
 
     if len(captures) == 1:
         return np.ones(1)
@@ -617,7 +617,7 @@ def capture_exposures(captures: Sequence[Capture]) -> np.ndarray:
     A = np.vstack([cap.stimulus for cap in captures])
     C = np.vstack([cap.RGB for cap in captures])
     sizes = np.array([len(cap.names) for cap in captures])
-    D = _second_difference(W)
+    D = second_difference_matrix(W)
     DtD = D.T @ D
     scale = float(np.sum(C**2))
 

@@ -67,7 +67,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from camcal.errors import CamcalError
 
-__all__ = ["MODEL_PARAMS", "Distortion", "DistortionFit", "fit_distortion"]
+__all__ = ["MODEL_PARAMS", "Distortion", "DistortionFit", "fit_distortion", "frame_grid"]
 
 #: Parameter names of each model: (required, optional).
 MODEL_PARAMS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = MappingProxyType(
@@ -552,7 +552,7 @@ class DistortionFit:
     n_points: int
 
 
-def _frame_grid(image_size: tuple[int, int], step_px: float) -> NDArray[np.float64]:
+def frame_grid(image_size: tuple[int, int], step_px: float) -> NDArray[np.float64]:
     """Distorted pixels on a regular grid over the frame, edges included."""
     width, height = image_size
     u = np.unique(np.append(np.arange(0.0, width - 1, step_px), width - 1.0))
@@ -640,7 +640,7 @@ def fit_distortion(
         raise CamcalError("with_k3 applies only to the polynomial and opencv models")
     if step_px <= 0:
         raise CamcalError(f"step_px must be positive, got {step_px}")
-    distorted = _frame_grid(image_size, step_px)
+    distorted = frame_grid(image_size, step_px)
     ideal = source.undistort(distorted, K)
     keep = np.all(np.isfinite(ideal), axis=1)
     distorted, ideal = distorted[keep], ideal[keep]

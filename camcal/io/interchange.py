@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion, _frame_grid, fit_distortion
+from camcal.geometry.distortion import Distortion, frame_grid, fit_distortion
 from camcal.rig import Camera, Rig
 
 __all__ = [
@@ -135,7 +135,7 @@ def max_pixel_residual(source: Camera, target: Camera, *, lens: bool = True) -> 
     model): ``max |K_t r - K_s r|`` over the same rays. Only the intrinsics
     matter (both cameras share the pose).
     """
-    distorted = _frame_grid(source.image_size, _GRID_STEP_PX)
+    distorted = frame_grid(source.image_size, _GRID_STEP_PX)
     ideal = source.distortion.undistort(distorted, source.K)
     rays = np.column_stack([ideal, np.ones(len(ideal))]) @ np.linalg.inv(source.K).T
     mapped = rays @ target.K.T
