@@ -42,6 +42,7 @@ import argparse
 import contextlib
 import glob
 import json
+import math
 import os
 import sys
 import traceback
@@ -193,7 +194,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     code = EXIT_BAD_INPUT
     error_line = None
     try:
-        args = parser.parse_args(argv)
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exit_:  # --help, --version, or argparse's own usage error (exit 2)
+            if want_json and exit_.code not in (0, None):
+                print(json.dumps(summary.to_dict(int(exit_.code), "malformed command line (see stderr)")), file=stdout)
+            raise
         debug, want_json = bool(getattr(args, "debug", False)), bool(getattr(args, "json", False))
         summary.verb = args._verb
         args._summary = summary
@@ -301,7 +307,9 @@ def _register_blender(subparsers) -> None:
 
 def _blender_import(args: argparse.Namespace) -> int:
     from camcal.blender_bridge import import_rig_to_blend
+    from camcal.rig import Rig
 
+    Rig.load(args.rig)  # a bad rig file fails here, in one line, before Blender starts
     summary = import_rig_to_blend(
         args.rig,
         args.blend,
@@ -371,6 +379,8 @@ def _register_rig_interchange(verbs) -> None:
     export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
     export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
     export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
+    export.add_argument("--stmaps", action="store_true",
+                        help="usd: also write each lens' ST-maps beside the stage and reference them from its camera")
     export.set_defaults(func=_rig_export)
     imp = verbs.add_parser(
         "import", help="read another tool's camera file as a rig",
@@ -382,43 +392,48 @@ def _register_rig_interchange(verbs) -> None:
     imp.set_defaults(func=_rig_import)
 
 
-def _print_conversions(result) -> None:
+def _print_conversions(args: argparse.Namespace, result) -> None:
+    import dataclasses
+
     for conversion in result.conversions:
         print(conversion.describe())
     for note in result.notes:
         print(f"note: {note}")
+    summary_of(args).figures(conversions=[dataclasses.asdict(c) for c in result.conversions], notes=list(result.notes))
 
 
 def _rig_export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     from camcal.io.interchange import export_rig
     from camcal.rig import Rig
 
-    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig)
-    _print_conversions(result)
+    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig,
+                        stmaps=args.stmaps)
+    _print_conversions(args, result)
     for path in result.paths:
-        print(f"wrote {path}")
+        summary_of(args).wrote(path, args.to if path == Path(args.out) or path.parent == Path(args.out) else "stmap")
     return 0
 
 
 def _rig_import(args: argparse.Namespace) -> int:
     import dataclasses
+    from pathlib import Path
 
     from camcal.io.interchange import import_rig
+    from camcal.io.ply import write_points_ply
     from camcal.rig import make_provenance
 
     result = import_rig(args.file, args.fmt)
     rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
-    _print_conversions(result)
+    _print_conversions(args, result)
+    out = summary_of(args)
     if result.points_xyz is not None:
-        from pathlib import Path
-
-        from camcal.io.ply import write_points_ply
-
-        out = Path(args.out)
-        points = out.with_name(out.name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
-        print(f"wrote {write_points_ply(points, result.points_xyz, result.points_rgb)} ({len(result.points_xyz)} points)")
+        points = Path(args.out).with_name(Path(args.out).name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
+        out.wrote(write_points_ply(points, result.points_xyz, result.points_rgb), "points")
         rig = dataclasses.replace(rig, points=points.name)
-    print(f"wrote {rig.save(args.out)} ({len(rig.cameras)} camera(s), {len(rig.frames)} frame(s))")
+    out.figures(n_cameras=len(rig.cameras), n_frames=len(rig.frames))
+    out.wrote(rig.save(args.out), "rig")
     return 0
 
 
@@ -610,7 +625,7 @@ def _register_calibrate(subparsers) -> None:
 def _solve(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from camcal.geometry.sfm import MODELS, collect_images, solve_sfm
+    from camcal.geometry.sfm import LENS_MODELS, MODELS, collect_images, solve_pycolmap_plain, solve_sfm
     from camcal.rig import Rig
 
     folders = [Path(folder) for folder in args.folders]
@@ -624,24 +639,65 @@ def _solve(args: argparse.Namespace) -> int:
     else:
         images = collect_images(folders)
     known_rig = Rig.load(args.rig) if args.rig else None
-    camera_model = MODELS[args.model] if args.model else args.camera_model
+    if args.features < 100:
+        raise CamcalError(f"--features must be at least 100, got {args.features}")
+    # --model auto (or nothing): choose among LENS_MODELS; a named model: only it; --camera-model alone: keep it
+    model = args.model or ("keep" if args.camera_model else "auto")
+    lens_models = LENS_MODELS if model == "auto" else (None if model == "keep" else (model,))
+    camera_model = args.camera_model or (MODELS[model] if model in MODELS else "SIMPLE_RADIAL")
     result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
-                       seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss)
+                       seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
+                       lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features)
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
     per_camera = ", ".join(f"{name} {rms:.3f} px" for name, rms in result.per_camera_rms_px.items())
     print(f"RMS reprojection error: {result.rms_px:.3f} px ({per_camera}); {result.n_points} points")
     if result.bundle is not None:
         print(result.bundle.summary())
+    if result.self_calibration is not None:
+        print("\n".join(result.self_calibration.lines()))
+    peer = solve_pycolmap_plain(images, Path(args.out) / "pycolmap", seed=args.seed) if args.compare_pycolmap else None
+    for camera in result.rig.cameras:
+        sigma = camera.quality.get("sigma", {})
+        print(f"{camera.name}: {_intrinsics_line(camera, sigma)}"
+              + (f"; heldout RMS {camera.quality['heldout_rms_px']:.3f} px" if "heldout_rms_px" in camera.quality else ""))
+        if "rotation_deg" in sigma:
+            print(f"{camera.name}: rig pose sigma rotation {sigma['rotation_deg']:.3g} deg, "
+                  f"baseline {100 * sigma['baseline_rel']:.3g} %")
+        if peer is not None and camera.name in peer.cameras:
+            print(f"{camera.name} (plain pycolmap): {_intrinsics_line(peer.cameras[camera.name], {})}; "
+                  f"RMS {peer.rms_px[camera.name]:.3f} px")
     print(f"wrote {Path(args.out) / 'solve.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
     out = summary_of(args)
     out.figures(n_images=result.n_images, n_registered=result.n_registered, unregistered=list(result.unregistered),
                 rms_px=result.rms_px, per_camera_rms_px=dict(result.per_camera_rms_px), n_points=result.n_points,
-                bundle=None if result.bundle is None else result.bundle.summary())
+                bundle=None if result.bundle is None else result.bundle.summary(),
+                cameras={camera.name: dict(camera.quality) for camera in result.rig.cameras})
+    if result.self_calibration is not None:
+        calibration = result.self_calibration
+        out.figures(lens_models=calibration.lens_models, heldout_rms_px_by_model=calibration.heldout_rms_px,
+                    principal_point={d.camera: {"refined": d.refined, "limit_px": d.limit_px,
+                                                "sigma_px": [v if math.isfinite(v) else None for v in d.sigma_px],
+                                                "reason": d.reason} for d in calibration.principal_point})
+    if peer is not None:
+        out.figures(pycolmap={name: {"K": camera.K, "distortion": camera.distortion.to_dict(),
+                                     "rms_px": peer.rms_px.get(name)} for name, camera in peer.cameras.items()})
     out.wrote(Path(args.out) / "solve.rig.json", "rig", say=False)
     out.wrote(Path(args.out) / "points.ply", "points", say=False)
     out.wrote(result.reconstruction_dir, "colmap model", say=False)
     return 0
+
+
+def _intrinsics_line(camera, sigma) -> str:
+    """``f 900.12 +- 0.04 px, principal point (646.0, 474.3) +- (0.01, 0.02) px, division lambda -1.2e-07``."""
+    def pm(key: str, fmt: str) -> str:
+        return f" +- {sigma[key]:{fmt}}" if key in sigma else ""
+    K = camera.K
+    focal = f"f {K[0, 0]:.2f}{pm('f', '.2g')}" if K[0, 0] == K[1, 1] else \
+        f"fx {K[0, 0]:.2f}{pm('fx', '.2g')}, fy {K[1, 1]:.2f}{pm('fy', '.2g')}"
+    lens = ", ".join(f"{name} {value:.4g}{pm(name, '.2g')}" for name, value in camera.distortion.params.items())
+    return (f"{focal} px, principal point ({K[0, 2]:.2f}{pm('cx', '.2g')}, {K[1, 2]:.2f}{pm('cy', '.2g')}) px, "
+            f"{camera.distortion.model} {lens}")
 
 
 def _register_solve(subparsers) -> None:
@@ -650,6 +706,8 @@ def _register_solve(subparsers) -> None:
         help="cameras from images: pycolmap structure from motion + camcal bundle adjustment",
         description="One folder per camera (or one folder of per-camera sub-folders, or --camera NAME=GLOB "
         "inside one folder); several cameras form a rig whose frames pair up by sorted order. "
+        "Each camera's lens model is chosen by held-out residual and the principal point is refined "
+        "where its sigma says the views determine it (both printed). "
         "Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.",
     )
     solve.add_argument("folders", nargs="+", metavar="IMAGES_DIR", help="image folder(s)")
@@ -658,14 +716,21 @@ def _register_solve(subparsers) -> None:
                        "IMAGES_DIR, or absolute; several entries or a repeated option)")
     solve.add_argument("--rig", metavar="KNOWN.rig.json",
                        help="hold the cameras' relative poses at this calibration (and take its units)")
-    solve.add_argument("--model", choices=("division", "polynomial", "opencv", "none"),
-                       help="camcal lens model (COLMAP SIMPLE_DIVISION / RADIAL / OPENCV / SIMPLE_PINHOLE)")
-    solve.add_argument("--camera-model", default="SIMPLE_RADIAL", help="COLMAP camera model (default: SIMPLE_RADIAL)")
+    solve.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none"),
+                       help="camcal lens model (COLMAP SIMPLE_DIVISION / RADIAL / OPENCV / SIMPLE_PINHOLE); "
+                       "auto (the default) chooses per camera by held-out residual")
+    solve.add_argument("--camera-model", help="COLMAP camera model to map with; alone, it is kept (no choice)")
+    solve.add_argument("--principal-point", default="auto", choices=("auto", "refine", "centre"),
+                       help="refine it where its sigma says the views determine it (auto), always, or never")
+    solve.add_argument("--features", type=int, default=8192, metavar="N", help="SIFT features per image (8192)")
     solve.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"))
     solve.add_argument("--mapper", default="incremental", choices=("incremental", "global"))
     solve.add_argument("--loss", default="trivial", choices=("trivial", "huber", "soft_l1", "cauchy"),
                        help="robust loss of camcal's bundle adjustment (scale 1 px)")
     solve.add_argument("--no-refine", action="store_true", help="keep pycolmap's result, skip camcal's refinement")
+    solve.add_argument("--compare-pycolmap", action="store_true",
+                       help="also run plain pycolmap (SIMPLE_DIVISION, principal point refined) on the same images "
+                       "into OUT/pycolmap and print its intrinsics beside camcal's")
     solve.add_argument("--seed", type=int, default=0)
     solve.add_argument("--out", required=True, metavar="DIR")
     solve.set_defaults(func=_solve)
@@ -1133,9 +1198,10 @@ def _parse_corners(text: str):
 def _colour_fit(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from camcal.colour.characterise import characterise, patches_from_chart, write_report
+    from camcal.colour.characterise import characterise, patches_from_chart
     from camcal.colour.patches import read_patch_csv
     from camcal.io.raw import is_raw, raw_metadata
+    from camcal.report.characterisation import write_report
 
     reference = None
     if args.chart:
@@ -1182,7 +1248,7 @@ def _colour_fit(args: argparse.Namespace) -> int:
                 n_train=len(train), delta_E2000=stats)
     out.wrote(fit.save(args.out), "colour fit")
     if args.report:
-        files = write_report(args.report, outcome, title=args.camera or "")
+        files = write_report(outcome, args.report, title=args.camera or "")
         for file in files:
             out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")
@@ -1319,7 +1385,9 @@ def _register_colour_match(colour_verbs) -> None:
 
 def _colour_match(args: argparse.Namespace) -> int:
     from camcal.colour.fitfile import load_fit
-    from camcal.colour.match import match_image_files, match_patch_files, parse_match_model, write_match_report
+    from camcal.colour.match import match_image_files, match_patch_files
+    from camcal.colour.match_models import parse_match_model
+    from camcal.report.colour_match import write_report
 
     parse_match_model(args.model)
     images, patches = args.images, args.patches
@@ -1349,7 +1417,7 @@ def _colour_match(args: argparse.Namespace) -> int:
                 correspondences=dict(result.correspondences.counts) if images else None)
     out.wrote(result.match.save(args.out), "colour match")
     if args.report:
-        files = write_match_report(args.report, result)
+        files = write_report(result, args.report)
         for file in files:
             out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")

@@ -150,7 +150,7 @@ CASES = [
 ]
 
 
-@pytest.mark.parametrize("case, argv", CASES, ids=[c.values[0] if hasattr(c, "values") else c[0] for c in CASES])
+@pytest.mark.parametrize("case, argv", CASES, ids=[case for case, _ in CASES])
 def test_bad_input_is_one_line_exit_2_nothing_written(case, argv, inputs, tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
@@ -232,3 +232,11 @@ def test_camcal_error_is_not_a_value_error():
     from camcal.errors import CamcalError
 
     assert not issubclass(CamcalError, ValueError)
+
+
+def test_json_object_for_a_malformed_command_line(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["rectify", "--json"])  # RIG and --out missing: argparse's usage error
+    assert info.value.code == 2
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["exit_code"] == 2 and summary["error"] == "malformed command line (see stderr)"

@@ -49,7 +49,7 @@ def test_quick_run_rows_match_outputs_and_truth(quick):
         assert row.error == pytest.approx(100 * (camera.K[0, 0] / row.true - 1))
     # stages that hold with margin even on the small run
     for row in report.rows:
-        if row.stage in ("rectify", "blender import", "colour fit", "colour match", "colour export"):
+        if row.stage in ("rectify", "rig export", "blender import", "colour fit", "colour match", "colour export"):
             assert row.ok, report.table()
         assert np.isfinite(row.recovered), row
     assert report.report == out / "report.html"

@@ -363,12 +363,20 @@ class SensitivityEstimate:
     method
         ``"kfold"`` or ``"gcv"``.
     covariance
-        ``(3, W, W)`` posterior covariance of each channel's curve at the
-        chosen ``lambda``: ``sigma^2 (A^T A + lambda' D^T D)^-1`` with
-        ``sigma^2 = |A s - c|^2 / (N - trace H)`` (the ridge read as a
-        Gaussian smoothness prior, positivity ignored). It covers the
-        RGB noise and what the smoothness prior leaves undetermined, not
-        a wrong illuminant or reflectance.
+        ``(3, W, W)`` uncertainty of each channel's curve, smoothing bias
+        included: ``Sigma_0 + b b^T``. ``Sigma_0 = sigma_0^2 (A^T A +
+        lambda_0 D^T D)^-1`` is the Gaussian posterior (the ridge read as
+        a smoothness prior, positivity ignored; ``sigma_0^2 = |A s_0 -
+        c|^2 / (N - trace H_0)``) at ``lambda_0``, the lambda of the
+        smallest cross-validated error, whose fit ``s_0`` is the least
+        biased; ``b = s - s_0`` estimates the extra smoothing bias of the
+        returned (one-standard-error) curve ``s``. The posterior at the
+        chosen lambda alone covered only 65-86 % of the true curves'
+        samples with +-1.96 sigma on simulated cameras (the bias of the
+        smoothing, largest at the Sigma's 660 nm cut-off, is not in it);
+        this one covers 92-93 % on average over seeded draws (slow test in
+        tests/colour/test_colour_ssf.py). It does not cover a wrong
+        illuminant or reflectance.
     """
 
     wavelengths: np.ndarray
@@ -489,11 +497,19 @@ def estimate_sensitivities(
         chosen[ch] = lams[best] / unit
         cv_rms[ch] = np.sqrt(scores[best])
         S[:, ch] = _nnls_ridge(A, c, D, lams[best])
-        inverse = np.linalg.inv(A.T @ A + lams[best] * D.T @ D)
-        dof = max(N - float(np.trace(A @ inverse @ A.T)), 1.0)
-        resid = A @ S[:, ch] - c
-        covariance[ch] = float(resid @ resid) / dof * inverse
+        rough, rough_covariance = _ridge_posterior(A, c, D, lams[low])
+        bias = S[:, ch] - rough
+        covariance[ch] = rough_covariance + np.outer(bias, bias)
     return SensitivityEstimate(wavelengths, S, chosen, cv_rms, method, covariance)
+
+
+def _ridge_posterior(A: np.ndarray, c: np.ndarray, D: np.ndarray, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """Non-negative ridge solution and its Gaussian posterior ``sigma^2 (A^T A + lam D^T D)^-1``."""
+    s = _nnls_ridge(A, c, D, lam)
+    inverse = np.linalg.inv(A.T @ A + lam * D.T @ D)
+    dof = max(A.shape[0] - float(np.trace(A @ inverse @ A.T)), 1.0)
+    resid = A @ s - c
+    return s, float(resid @ resid) / dof * inverse
 
 
 def _projector(X: np.ndarray) -> np.ndarray:

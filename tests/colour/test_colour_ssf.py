@@ -165,12 +165,13 @@ def test_cli_sensitivities_help(capsys):
 
 
 @pytest.mark.slow
-def test_posterior_band_coverage_is_measured():
-    """The +-1.96 sigma band against the true curves over 10 noise draws per case.
+def test_band_covers_the_true_curves_at_nominal_rate():
+    """The +-1.96 sigma band (95 % nominal) against the true curves over 10 noise draws per case.
 
-    Measured: 65-86 % of the samples covered (nominal 95 %): the posterior
-    misses part of the smoothing bias. This test pins that figure so a
-    change to the estimator that makes it worse is seen.
+    The posterior at the chosen lambda alone covered 65-86 %; with the
+    smoothing bias in the covariance the band must cover at least 90 % of
+    the true samples on average over the draws of every case, and no draw
+    below 80 %.
     """
     for camera, reflectances, lights in CASES:
         covered = []
@@ -179,5 +180,6 @@ def test_posterior_band_coverage_is_measured():
             est = estimate_from_captures(captures, true.wavelengths)
             k = np.sum(est.values * true.values) / np.sum(true.values**2)
             covered.append(np.mean(np.abs(est.values - k * true.values) <= 1.96 * est.sigma))
-        print(f"{camera}, {reflectances} x {len(lights)}: band covers {np.mean(covered):.3f} of the true samples")
-        assert np.mean(covered) > 0.6
+        print(f"{camera}, {reflectances} x {len(lights)}: band covers {np.mean(covered):.3f} of the true samples "
+              f"(draws {min(covered):.3f}-{max(covered):.3f})")
+        assert np.mean(covered) >= 0.90 and min(covered) >= 0.80
