@@ -184,11 +184,12 @@ def test_uncertainty_covers_the_error_over_seeded_scenes():
 
 # the must-show scene, and one the code was not tuned on (other principal points, lens, motion, noise, size)
 RENDERED_SCENES = {
-    "must-show": dict(rig=dict(image_size=(960, 720), f=675.0, lam=(-1.2e-7, -1.2e-7)),
-                      orbit=dict(n_frames=12, roll_deg=35.0, seed=0)),
-    "untuned": dict(rig=dict(image_size=(800, 600), f=620.0, pp_offsets=((-4.0, 9.0), (10.0, -3.0)), lam=(-3.5e-7, -2.5e-7),
+    # lambda -2.7e-7 at 640 x 480 bends the corners as -1.2e-7 does at 960 x 720 (lambda r^2 = -0.043)
+    "must-show": dict(rig=dict(image_size=(640, 480), f=450.0, lam=(-2.7e-7, -2.7e-7)),
+                      orbit=dict(n_frames=10, roll_deg=35.0, seed=0)),
+    "untuned": dict(rig=dict(image_size=(720, 540), f=560.0, pp_offsets=((-4.0, 9.0), (10.0, -3.0)), lam=(-4.5e-7, -3.0e-7),
                              rig_euler_deg=(-1.5, 3.0, -1.0), baseline=0.25, focal_ratio=0.985),
-                    orbit=dict(n_frames=14, roll_deg=15.0, radius=3.4, image_noise=3.0, seed=11)),
+                    orbit=dict(n_frames=10, roll_deg=15.0, radius=3.4, image_noise=3.0, seed=11)),
 }
 
 
