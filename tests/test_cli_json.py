@@ -2,6 +2,7 @@
 
 import json
 import shutil
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -96,3 +97,54 @@ def test_colour_fit_then_export(patch_csvs, tmp_path, capsys):
     assert space["camera"] == "nikon" and space["kind"] == "matrix" and space["bake_error_delta_E2000"] is None
     assert {"path": str(ocio / "config.ocio"), "kind": "ocio config"} in summary["files"]
     assert (ocio / "config.ocio").is_file()
+
+
+@pytest.fixture
+def spectral_inputs(tmp_path):
+    """A ColorChecker's spectral patch CSV and patch CSV under D65, and the true curves (Nikon 5100)."""
+    from camcal.colour.spectral import camera_sensitivities, reflectance_set
+    from camcal.colour.ssf import Sensitivities, write_sensitivities
+
+    wl = np.arange(400.0, 701.0, 10.0)
+    true = Sensitivities(wl, camera_sensitivities("Nikon 5100 (NPL)", wl)[1], camera="nikon")
+    names, R = reflectance_set("BabelColor Average", wl)
+    camera = true.camera_under("D65")
+    RGB = camera.RGB(R, noise=0.002, seed=3)
+    rows = [",".join([n, *(repr(float(v)) for v in (*rgb, *r))]) for n, rgb, r in zip(names, RGB, R)]
+    spectral = tmp_path / "chart_spectral.csv"
+    spectral.write_text("\n".join(["name,R,G,B," + ",".join(f"{w:g}" for w in wl), *rows]) + "\n")
+    chart = tmp_path / "chart.csv"
+    write_patch_csv(chart, PatchSet(tuple(names), RGB, camera.XYZ(R)))
+    return true, write_sensitivities(tmp_path / "true.ssf.json", true)[0], spectral, chart
+
+
+def test_colour_sensitivities(spectral_inputs, tmp_path, capsys):
+    from camcal.colour.ssf import load_sensitivities
+
+    true, true_path, spectral, _ = spectral_inputs
+    out = tmp_path / "est.ssf.json"
+    code, summary, human = run_json(["colour", "sensitivities", "--patches", f"D65={spectral}", "--compare",
+                                     str(true_path), "--out", str(out), "--report", str(tmp_path / "r")], capsys)
+    assert code == 0 and summary["verb"] == "colour sensitivities" and "mu-factor (Vora-Trussell)" in human
+    est = load_sensitivities(out)
+    figures = summary["figures"]
+    assert figures["mu_factor"] == pytest.approx(est.mu_factor()) and figures["source"] == "estimated"
+    assert figures["compare"]["mu_factor"] == pytest.approx(true.mu_factor())
+    assert figures["estimation"]["captures"][0]["n_patches"] == 24
+    assert [f["kind"] for f in summary["files"]] == ["sensitivities", "sensitivities csv", "report"]
+    assert all(Path(f["path"]).is_file() for f in summary["files"])
+
+
+def test_colour_fit_for_illuminant(spectral_inputs, tmp_path, capsys):
+    _, true_path, _, chart = spectral_inputs
+    out = tmp_path / "a.colour.json"
+    code, summary, human = run_json(["colour", "fit", "--patches", str(chart), "--illuminant", "D65",
+                                     "--for-illuminant", "A", "--sensitivities", str(true_path),
+                                     "--model", "matrix3x3", "--out", str(out)], capsys)
+    assert code == 0 and summary["verb"] == "colour fit" and "picked" in human
+    fit = load_fit(out)
+    figures = summary["figures"]
+    assert figures["route"] == fit.illuminant_change["route"] and figures["for_illuminant"] == "A"
+    assert set(figures["delta_E2000_validation"]) == {"spectral", "CAT02", "Bradford"}
+    assert figures["delta_E2000_validation"][figures["route"]]["mean"] == pytest.approx(fit.evaluation["test"]["mean"])
+    assert summary["files"] == [{"path": str(out), "kind": "colour fit"}]

@@ -49,7 +49,7 @@ def test_quick_run_rows_match_outputs_and_truth(quick):
         assert row.error == pytest.approx(100 * (camera.K[0, 0] / row.true - 1))
     # stages that hold with margin even on the small run
     for row in report.rows:
-        if row.stage in ("rectify", "blender import", "colour fit", "colour match", "colour export"):
+        if row.stage in ("rectify", "rig export", "blender import", "colour fit", "colour match", "colour export"):
             assert row.ok, report.table()
         assert np.isfinite(row.recovered), row
     assert report.report == out / "report.html"
@@ -182,7 +182,7 @@ def test_demo_help_and_bad_stage(tmp_path, capsys):
     assert run.returncode == 0 and "--stages" in text
     assert all(stage.name in text for stage in STAGES)
     assert main(["demo", "--out", str(tmp_path / "d"), "--stages", "render,nonsense"]) == 2
-    assert "unknown stage(s) 'nonsense'" in capsys.readouterr().err
+    assert "unknown demo stage(s) nonsense" in capsys.readouterr().err
     assert not (tmp_path / "d" / "report.html").exists()
 
 

@@ -151,13 +151,18 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an image as float RGB normalised code values ``(H, W, 3)`` in [0, 1].
 
     8- and 16-bit integer images are divided by 255 or 65535; float images
-    (EXR, TIFF) are returned as they are.
+    (EXR, TIFF) are returned as they are; raw camera files (DNG, CR2, NEF,
+    ARW ...) give camera-native linear RGB at half size with black 0 and
+    white 1, saturated pixels at 1 (:func:`camcal.io.raw.read_raw`).
     """
     from camcal.io.frames import imread
+    from camcal.io.raw import is_raw, read_raw
 
     path = Path(path)
     if not path.is_file():
         raise CamcalError(f"chart image not found: {path}")
+    if is_raw(path):
+        return read_raw(path).RGB
     image = imread(path)
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)

@@ -73,6 +73,7 @@ from camcal.demo.stages_colour import stage_colour_export, stage_colour_fit, sta
 from camcal.demo.stages_geometry import (
     stage_calibrate_board, stage_distortion_fit, stage_rectify, stage_solve,
 )
+from camcal.demo.stages_interchange import stage_rig_export
 from camcal.demo.truth import make_truth, reference_XYZ, true_match_matrix
 from camcal.errors import CamcalError
 
@@ -105,6 +106,7 @@ __all__ = [
 STAGES: list[Stage] = [
     Stage("render", stage_render),
     Stage("calibrate board", stage_calibrate_board),
+    Stage("rig export", stage_rig_export),
     Stage("distortion fit", stage_distortion_fit),
     Stage("rectify", stage_rectify),
     Stage("solve", stage_solve),

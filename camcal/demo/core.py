@@ -107,8 +107,8 @@ FULL = DemoConfig()
 #: noisier and its views fewer than the tolerances of the issues assume: the calibration rows
 #: of a QUICK run may miss them (the tests check those that hold; ``make demo`` runs FULL).
 QUICK = DemoConfig(n_board_views=6, samples=8,
-                   stages=("render", "calibrate board", "distortion fit", "rectify", "colour fit", "colour match",
-                           "colour export", "blender import"))
+                   stages=("render", "calibrate board", "rig export", "distortion fit", "rectify", "colour fit",
+                           "colour match", "colour export", "blender import"))
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.demo.core import COLOUR_EXPORTS_SECTION, DemoContext, DemoReport, format_number
+from camcal.report import RESIDUAL_LABEL
 from camcal.rig import Camera
 
 __all__ = [
@@ -68,7 +69,7 @@ def plot_images(path: Path, images: Sequence[str], titles: Sequence[str], column
 
 def plot_residuals(path: Path, cameras: Sequence[Camera], camera_of_point: NDArray, points_px: NDArray,
                     residuals_px: NDArray, what: str = "corner", max_arrows: int = 3000) -> Path:
-    """Reprojection residuals (observed - projected): vectors over each camera's image (at most
+    """Reprojection residuals (observed - projected, :mod:`camcal.report`): vectors over each camera's image (at most
     ``max_arrows``, a fixed random subset), and the spread of all of them."""
     plt = _pyplot()
     rng = np.random.default_rng(0)
@@ -91,8 +92,8 @@ def plot_residuals(path: Path, cameras: Sequence[Camera], camera_of_point: NDArr
         ax.axhline(0, color="k", lw=0.5)
         ax.axvline(0, color="k", lw=0.5)
         ax.set_aspect("equal")
-        ax.set_xlabel("dx (px)")
-        ax.set_ylabel("dy (px)")
+        ax.set_xlabel(f"x: {RESIDUAL_LABEL}")
+        ax.set_ylabel(f"y: {RESIDUAL_LABEL}")
         ax.set_title(f"{camera.name}: {len(residuals)} {what} residuals", fontsize=10)
     fig.tight_layout()
     return _save(fig, path)

@@ -120,7 +120,7 @@ def stage_colour_fit(ctx: DemoContext) -> StageResult:
 def stage_colour_match(ctx: DemoContext) -> StageResult:
     from camcal.colour.evaluate import delta_E  # noqa: PLC0415
     from camcal.colour.fitfile import load_fit  # noqa: PLC0415
-    from camcal.colour.match import load_match  # noqa: PLC0415
+    from camcal.colour.matchfile import load_match  # noqa: PLC0415
 
     stage = "colour match"
     fits = ctx.need("colour_fits", stage)
@@ -230,7 +230,7 @@ def stage_colour_export(ctx: DemoContext) -> StageResult:
     from camcal.colour.export_ocio import colour_space_name, look_name  # noqa: PLC0415
     from camcal.colour.fitfile import load_fit  # noqa: PLC0415
     from camcal.colour.lcms import lcms_to_XYZ, load_lcms  # noqa: PLC0415
-    from camcal.colour.match import load_match  # noqa: PLC0415
+    from camcal.colour.matchfile import load_match  # noqa: PLC0415
     from camcal.colour.patches import read_patch_csv  # noqa: PLC0415
     from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ  # noqa: PLC0415
 

@@ -62,7 +62,8 @@ def stage_calibrate_board(ctx: DemoContext) -> StageResult:
     rows.append(DemoRow(stage, "relative rotation error", 0.0, rotation_angle_deg(relative_r @ relative_t.T),
                         rotation_angle_deg(relative_r @ relative_t.T), 0.02, "deg", "issue 3"))
     residual_plot = plot_residuals(ctx.path("plots", "board_residuals.png"), result.rig.cameras,
-                                    result.camera_of_point, result.points_px, result.residuals_px)
+                                    result.camera_of_point, result.points_px,
+                                    -result.residuals_px)  # zhang's residuals_px are projected - detected
     command = (f"camcal calibrate board --board {truth.board_spec} --camera left='images/board/left/*.png' "
                f"--camera right='images/board/right/*.png' --model division --out calibrate/board.rig.json "
                f"--report calibrate")

@@ -38,6 +38,7 @@ from camcal.io.atomic import atomic_write_text
 from camcal.io.colmap import camera_from_colmap, camera_to_colmap
 from camcal.io.interchange import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
 from camcal.io.ply import read_points_ply
+from camcal.io.points_csv import finite_numbers
 from camcal.rig import Camera, Rig
 
 __all__ = ["FILES", "export", "load"]
@@ -129,16 +130,6 @@ def _rows(path: Path) -> list[tuple[int, list[str]]]:
     return rows
 
 
-def _floats(fields: list[str], where: str) -> list[float]:
-    try:
-        values = [float(v) for v in fields]
-    except ValueError:
-        raise CamcalError(f"{where}: expected numbers, got {' '.join(fields)!r}") from None
-    if not all(math.isfinite(v) for v in values):
-        raise CamcalError(f"{where}: NaN or infinite value")
-    return values
-
-
 def load(path: Path) -> ImportResult:
     """Read a COLMAP text model directory (see the module docstring)."""
     if not path.is_dir():
@@ -160,7 +151,7 @@ def load(path: Path) -> ImportResult:
             camera_id, width, height = int(fields[0]), int(fields[2]), int(fields[3])
         except ValueError:
             raise CamcalError(f"{where}: CAMERA_ID, WIDTH and HEIGHT must be integers") from None
-        intrinsics[camera_id] = (fields[1], (width, height), _floats(fields[4:], where))
+        intrinsics[camera_id] = (fields[1], (width, height), finite_numbers(fields[4:], where))
     cameras, conversions, names = [], [], set()
     image_rows = _rows(path / "images.txt")
     for row, (number, fields) in enumerate(image_rows):
@@ -169,7 +160,7 @@ def load(path: Path) -> ImportResult:
         where = f"images.txt line {number}"
         if len(fields) != 10:
             raise CamcalError(f"{where}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME")
-        qw, qx, qy, qz, tx, ty, tz = _floats(fields[1:8], where)
+        qw, qx, qy, qz, tx, ty, tz = finite_numbers(fields[1:8], where)
         camera_id = int(fields[8]) if fields[8].isdigit() else -1
         if camera_id not in intrinsics:
             raise CamcalError(f"{where}: camera {fields[8]} is not in cameras.txt")
@@ -204,8 +195,8 @@ def _points(path: Path) -> tuple[NDArray[np.float64] | None, NDArray[np.uint8] |
         where = f"points3D.txt line {number}"
         if len(fields) < 8:
             raise CamcalError(f"{where}: expected POINT3D_ID X Y Z R G B ERROR TRACK[]")
-        xyz.append(_floats(fields[1:4], where))
-        rgb.append(_floats(fields[4:7], where))
+        xyz.append(finite_numbers(fields[1:4], where))
+        rgb.append(finite_numbers(fields[4:7], where))
     if not xyz:
         return None, None
     return np.array(xyz), np.clip(np.array(rgb), 0, 255).astype(np.uint8)

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion, fit_distortion
+from camcal.geometry.distortion import Distortion, _frame_grid, fit_distortion
 from camcal.rig import Camera, Rig
 
 __all__ = [
@@ -125,27 +125,24 @@ class ImportResult:
     points_rgb: NDArray[np.uint8] | None = None
 
 
-def _frame_grid(image_size: tuple[int, int]) -> NDArray[np.float64]:
-    width, height = image_size
-    u = np.unique(np.append(np.arange(0.0, width - 1, _GRID_STEP_PX), width - 1.0))
-    v = np.unique(np.append(np.arange(0.0, height - 1, _GRID_STEP_PX), height - 1.0))
-    return np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
-
-
-def max_pixel_residual(source: Camera, target: Camera) -> float:
+def max_pixel_residual(source: Camera, target: Camera, *, lens: bool = True) -> float:
     """Largest pixel distance between two cameras' projections of the same rays.
 
     For every pixel ``x`` of a 16 px grid over ``source``'s frame (edges
     included), the ray ``r = K_s^-1 undistort_s(x)`` is projected by
     ``target``: ``x' = distort_t(K_t r)``; the result is ``max |x' - x|``.
-    Only the intrinsics matter (both cameras share the pose).
+    With ``lens=False`` both sides are pinholes (for formats without a lens
+    model): ``max |K_t r - K_s r|`` over the same rays. Only the intrinsics
+    matter (both cameras share the pose).
     """
-    distorted = _frame_grid(source.image_size)
+    distorted = _frame_grid(source.image_size, _GRID_STEP_PX)
     ideal = source.distortion.undistort(distorted, source.K)
     rays = np.column_stack([ideal, np.ones(len(ideal))]) @ np.linalg.inv(source.K).T
     mapped = rays @ target.K.T
-    projected = target.distortion.distort(mapped[:, :2] / mapped[:, 2:], target.K)
-    distance = np.linalg.norm(projected - distorted, axis=1)
+    projected = mapped[:, :2] / mapped[:, 2:]
+    if lens:
+        projected = target.distortion.distort(projected, target.K)
+    distance = np.linalg.norm(projected - (distorted if lens else ideal), axis=1)
     distance = distance[np.isfinite(distance)]
     if len(distance) == 0:
         raise CamcalError(f"camera {source.name!r}: no ray of the frame projects through the converted camera")
@@ -215,6 +212,7 @@ def export_rig(
     *,
     cameras: Sequence[str] | None = None,
     rig_path: str | os.PathLike | None = None,
+    stmaps: bool = False,
 ) -> ExportResult:
     """Write ``rig`` in another tool's format.
 
@@ -229,6 +227,9 @@ def export_rig(
         Export only these cameras (all by default).
     rig_path : path, optional
         Where ``rig`` was read from: its sparse-points PLY is found beside it.
+    stmaps : bool
+        ``usd`` only: also write each lens' ST-maps beside the stage and
+        reference them from the camera (``nuke`` always writes them).
 
     Raises
     ------
@@ -237,7 +238,11 @@ def export_rig(
         output; nothing is written then.
     """
     module = _module(fmt)
-    return module.export(rig, Path(out), cameras=cameras, rig_path=None if rig_path is None else Path(rig_path))
+    if stmaps and fmt != "usd":
+        raise CamcalError(f"stmaps applies to usd only (nuke always writes them), not {fmt}")
+    extra = {"stmaps": True} if stmaps else {}
+    return module.export(rig, Path(out), cameras=cameras, rig_path=None if rig_path is None else Path(rig_path),
+                         **extra)
 
 
 def import_rig(path: str | os.PathLike, fmt: str) -> ImportResult:

@@ -12,6 +12,14 @@ from camcal.rig import Rig
 from interchange_rigs import division_rig, relative_projection_error, stereo_rig, world_points
 
 
+def undistort_points(x, K, D, R, P):
+    """cv2.undistortPoints iterated to convergence (OpenCV 4: undistortPointsIter; 5: a criteria argument)."""
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+    if hasattr(cv2, "undistortPointsIter"):
+        return cv2.undistortPointsIter(x.reshape(-1, 1, 2), K, D, R, P, criteria).reshape(-1, 2)
+    return cv2.undistortPoints(x.reshape(-1, 1, 2), K, D, R=R, P=P, criteria=criteria).reshape(-1, 2)
+
+
 @pytest.mark.parametrize("suffix", [".yaml", ".yml", ".xml"])
 def test_stereo_round_trip_is_exact_and_opencv_reads_it(tmp_path, suffix):
     rig = stereo_rig()
@@ -60,8 +68,7 @@ def test_opencv_rectifies_the_imported_pair_like_camcal(tmp_path):
     # 1. the file's own R1 P1 R2 P2 through OpenCV's undistortPoints give camcal's rectified pixels
     ours = [c.rectification.H for c in rig.cameras]
     for x, Kc, D, Rr, P, H, camera in ((x1, K1, D1, R1, P1, ours[0], left), (x2, K2, D2, R2, P2, ours[1], right)):
-        cv_rect = cv2.undistortPoints(x.reshape(-1, 1, 2), Kc, D, R=Rr, P=P,
-                                      criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)).reshape(-1, 2)
+        cv_rect = undistort_points(x, Kc, D, Rr, P)
         ideal = camera.distortion.undistort(x, camera.K)
         mapped = np.column_stack([ideal, np.ones(len(ideal))]) @ H.T
         assert np.abs(cv_rect - mapped[:, :2] / mapped[:, 2:]).max() < 0.01
