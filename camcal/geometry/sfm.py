@@ -58,6 +58,7 @@ __all__ = [
     "HELDOUT_FRACTION",
     "IMAGE_SUFFIXES",
     "LENS_MODELS",
+    "MIN_TRIANGULATION_ANGLE_DEG",
     "MODELS",
     "PRINCIPAL_POINT_MODES",
     "PrincipalPointDecision",
@@ -82,6 +83,8 @@ LENS_MODELS = ("division", "polynomial", "opencv")
 PRINCIPAL_POINT_MODES = ("auto", "refine", "centre")
 #: fraction of the sparse points (whole tracks) held out of the fit to choose the lens model.
 HELDOUT_FRACTION = 0.2
+#: points triangulated under a smaller angle are dropped before the refinement (COLMAP's mapper default).
+MIN_TRIANGULATION_ANGLE_DEG = 1.5
 
 
 @dataclass(frozen=True)
@@ -741,7 +744,9 @@ def _reject_outliers(pycolmap, reconstruction, n_sigma: float = 4.0) -> str:
     Rayleigh law: its median is ``sigma sqrt(2 ln 2)`` (1.1774 sigma), so
     sigma is estimated robustly from the median; beyond ``4 sigma`` lie
     ``exp(-8)`` = 0.03 % of the inliers. Points left with fewer than two
-    observations go (COLMAP's ``ObservationManager``).
+    observations go (COLMAP's ``ObservationManager``), and so do points whose
+    rays meet under less than :data:`MIN_TRIANGULATION_ANGLE_DEG` (COLMAP's
+    mapper filter).
 
     Returns
     -------
@@ -761,8 +766,13 @@ def _reject_outliers(pycolmap, reconstruction, n_sigma: float = 4.0) -> str:
     threshold = n_sigma * sigma
     manager = pycolmap.ObservationManager(reconstruction)
     dropped = manager.filter_points3D_with_large_reprojection_error(threshold, set(reconstruction.points3D))
+    # a point seen along nearly parallel rays has a depth the data barely fix: one such point
+    # makes the covariance of the whole problem singular
+    narrow = manager.filter_points3D_with_small_triangulation_angle(MIN_TRIANGULATION_ANGLE_DEG,
+                                                                    set(reconstruction.points3D))
     return (f"dropped {dropped} of {len(errors)} observations beyond {threshold:.3f} px "
-            f"({n_sigma:g} sigma; sigma {sigma:.3f} px from the median residual)")
+            f"({n_sigma:g} sigma; sigma {sigma:.3f} px from the median residual) and {narrow} of the points "
+            f"triangulated under {MIN_TRIANGULATION_ANGLE_DEG:g} deg")
 
 
 def _relative_poses(rig: Rig, reference: str) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
@@ -885,8 +895,9 @@ def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str]
 
 
 def _quality_sigma(sigmas: dict[str, float], camera: str, model: str, focal: float) -> dict[str, float]:
-    """A camera's sigmas under DESIGN's quality names: COLMAP's division ``k`` becomes
-    camcal's ``lambda = k / f^2`` (focal's own spread neglected), SIMPLE_RADIAL's ``k`` is ``k1``."""
+    """A camera's sigmas under :mod:`camcal.quality`'s names: one focal ``f`` is ``fx`` and ``fy``,
+    COLMAP's division ``k`` becomes camcal's ``lambda = k / f^2`` (focal's own spread neglected),
+    SIMPLE_RADIAL's ``k`` is ``k1``."""
     prefix = f"{camera}."
     out = {}
     for key, value in sigmas.items():
@@ -897,7 +908,10 @@ def _quality_sigma(sigmas: dict[str, float], camera: str, model: str, focal: flo
             name, value = "lambda", value / (focal * focal)
         elif name == "k":
             name = "k1"
-        out[name] = value
+        if name == "f":
+            out["fx"] = out["fy"] = value
+        else:
+            out[name] = value
     return out
 
 

@@ -221,7 +221,7 @@ def test_solve_recovers_rendered_rig_at_least_as_well_as_plain_pycolmap(tmp_path
                     f"pycolmap {errors['pycolmap'][1]:.3f} px; lambda error camcal {100 * errors['camcal'][2]:.2f} %, "
                     f"pycolmap {100 * errors['pycolmap'][2]:.2f} %; RMS camcal {ours.quality['rms_px']:.3f} px "
                     f"(held-out {ours.quality['heldout_rms_px']:.3f}), pycolmap {peer.rms_px[truth.name]:.3f} px; "
-                    f"sigma(f) {ours.quality['sigma']['f']:.3f} px for an error of "
+                    f"sigma(f) {ours.quality['sigma']['fx']:.3f} px for an error of "
                     f"{abs(ours.K[0, 0] - truth.K[0, 0]):.3f} px")
         for who in ("camcal", "pycolmap"):
             focal, pp, lam = errors[who]
@@ -230,7 +230,7 @@ def test_solve_recovers_rendered_rig_at_least_as_well_as_plain_pycolmap(tmp_path
                 assert lam < 0.05, (who, errors[who])
         # at least as good as the peer, up to camcal's own two-sigma
         sigma = ours.quality["sigma"]
-        assert errors["camcal"][0] <= errors["pycolmap"][0] + 2 * sigma["f"] / truth.K[0, 0]
+        assert errors["camcal"][0] <= errors["pycolmap"][0] + 2 * sigma["fx"] / truth.K[0, 0]
         assert errors["camcal"][1] <= errors["pycolmap"][1] + 2 * max(sigma["cx"], sigma["cy"])
     true_rotation = cameras[1].R @ cameras[0].R.T
     ours_deg = rotation_error_deg(rig.camera("right").R @ rig.camera("left").R.T, true_rotation)
