@@ -693,7 +693,7 @@ def _intrinsics_line(camera, sigma) -> str:
     def pm(key: str, fmt: str) -> str:
         return f" +- {sigma[key]:{fmt}}" if key in sigma else ""
     K = camera.K
-    focal = f"f {K[0, 0]:.2f}{pm('f', '.2g')}" if K[0, 0] == K[1, 1] else \
+    focal = f"f {K[0, 0]:.2f}{pm('fx', '.2g')}" if K[0, 0] == K[1, 1] else \
         f"fx {K[0, 0]:.2f}{pm('fx', '.2g')}, fy {K[1, 1]:.2f}{pm('fy', '.2g')}"
     lens = ", ".join(f"{name} {value:.4g}{pm(name, '.2g')}" for name, value in camera.distortion.params.items())
     return (f"{focal} px, principal point ({K[0, 2]:.2f}{pm('cx', '.2g')}, {K[1, 2]:.2f}{pm('cy', '.2g')}) px, "
