@@ -800,9 +800,7 @@ def _colour_export(args: argparse.Namespace) -> int:
         print(f"wrote {result.config_path} (base {result.base}, {len(fits)} camera space(s), {len(matches)} match Look(s))")
     if profile is not None:
         write_icc(profile, args.icc)
-        how = ("matrix/TRC" if profile.kind == "matrix-trc" else
-               f"A2B0 {profile.clut_size}^3 CLUT, bake error CIEDE2000 max {profile.bake_error.max:.3f}")
-        print(f"wrote {args.icc} (ICC v{profile.version}, {how})")
+        print(f"wrote {args.icc} (ICC v{profile.version}, {profile.summary()})")
     return 0
 
 

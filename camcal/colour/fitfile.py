@@ -68,7 +68,9 @@ with ``XYZ = sum_j weights_j phi(|RGB - centres_j|) + linear @ [R, G, B, 1]``.
 
 ``STATS``: ``{"n", "mean", "median", "p90", "p95", "max"}`` of CIEDE2000.
 ``CANDIDATE``: ``{"model", "objective", "regularisation", "loo_mean",
-"loo_p95"}``.
+"loo_p95"}``, plus ``"exportable"`` and ``"bake_error_max"`` (CIEDE2000 of
+the baked model; absent for an exact matrix) on the candidates ``auto``
+handed to the exporters' check.
 
 Using a fit::
 
@@ -238,7 +240,12 @@ def _check_model(value: Any, where: str) -> None:
 
 
 def _check_candidate(value: Any, where: str) -> None:
-    _keys(value, where, ("model", "objective", "regularisation", "loo_mean", "loo_p95"))
+    _keys(value, where, ("model", "objective", "regularisation", "loo_mean", "loo_p95"),
+          ("exportable", "bake_error_max"))
+    if "exportable" in value:
+        _boolean(value["exportable"], f"{where}.exportable")
+    if "bake_error_max" in value:
+        _number(value["bake_error_max"], f"{where}.bake_error_max", 0.0)
     _string(value["model"], f"{where}.model")
     _string(value["objective"], f"{where}.objective", OBJECTIVES)
     _number(value["regularisation"], f"{where}.regularisation", 0.0)
