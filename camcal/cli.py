@@ -567,7 +567,8 @@ def _batch(args: argparse.Namespace) -> int:
     from camcal.batch import make_job, parse_frames, run_batch
 
     geometry = "undistort" if args.undistort else "rectify" if args.rectify else None
-    job = make_job(args.rig, args.camera, args.in_pattern, args.out, geometry, args.colour, args.mode, args.overscan)
+    job = make_job(args.rig, args.camera, args.in_pattern, args.out, geometry, args.colour, args.mode, args.overscan,
+                   colour_space=args.colour_space)
     frames = parse_frames(args.frames)
     report = run_batch(job, frames, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                        retries=args.retries, progress=not args.quiet)
@@ -597,7 +598,11 @@ def _register_batch(subparsers) -> None:
     parser.add_argument("--mode", choices=("crop", "keep", "overscan"), default="crop",
                         help="how --undistort chooses the new camera (default: crop)")
     parser.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
-    parser.add_argument("--colour", metavar="FIT.colour.json", help="apply a characterisation (camera RGB -> XYZ)")
+    parser.add_argument("--colour", metavar="FIT.colour.json", help="apply a characterisation (camera RGB -> "
+                        "--colour-space, through the OCIO processor of its exported transform)")
+    parser.add_argument("--colour-space", default="ACES2065-1",
+                        choices=("ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ"),
+                        help="output space of --colour (default: %(default)s; CIE XYZ is the fit's own XYZ)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="use a running Dask scheduler")
     where.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per core)")

@@ -105,6 +105,10 @@ __all__ = [
     "OCIOExport",
     "colour_space_from_fit",
     "export_ocio",
+    "OUTPUT_SPACES",
+    "output_matrix",
+    "FitProcessor",
+    "fit_processor",
 ]
 
 STUDIO_CONFIG = "ocio://studio-config-latest"
@@ -327,6 +331,11 @@ class LogChromaticity:
         low[0], high[0] = 0.0, 1.0
         return cls(shaper, np.diag(1.0 / (high - low)) @ D, -low / (high - low))
 
+    @classmethod
+    def per_channel(cls, shaper: LogShaper = LogShaper()) -> LogChromaticity:
+        """Plain per-channel shaped coordinates (``A`` the identity): for functions with kinks in RGB."""
+        return cls(shaper, np.eye(3), np.zeros(3))
+
     def encode(self, x: Any) -> np.ndarray:
         """Linear ``(N, 3)`` to coordinates ``u`` (in [0, 1] inside the domain)."""
         return self.shaper.encode(x) @ self.matrix.T + self.offset
@@ -472,7 +481,11 @@ def transform_from_callable(
     ``M`` the least-squares matrix of ``apply`` over ``samples``; it is
     followed by ``s^-1`` and ``M``. For a root-polynomial fit the stored
     function is linear along the exposure axis, so the grid only follows its
-    curvature across chromaticity. Interpolation is tetrahedral. Grid nodes
+    curvature across chromaticity. At each size, plain per-channel log2
+    coordinates (:meth:`LogChromaticity.per_channel`) are tried when the
+    log-chromaticity ones miss ``max_delta_E`` (a piecewise-linear function
+    in RGB, such as a Lut3D match, bakes better on its own axes).
+    Interpolation is tetrahedral. Grid nodes
     that decode outside ``[0, 2**high_stop]`` (outside any real colour) are
     evaluated at the clipped value.
 
@@ -500,16 +513,17 @@ def transform_from_callable(
     M = np.linalg.lstsq(X, Y, rcond=None)[0].T
     if not np.all(np.isfinite(M)) or np.linalg.cond(M) > 1e8:
         M = np.eye(3)
-    coordinates = LogChromaticity.from_samples(X, shaper)
     reference = to_XYZ(Y)
     error = None
     for n in sizes:
-        table = _lut3d_table(apply, n, coordinates, shaper, M)
-        group = _lut3d_group(table, coordinates, shaper, M)
-        baked = _apply_cpu(_cpu(group), X)
-        error = DeltaEStats.from_values(delta_E(to_XYZ(baked), reference, white_XYZ))
-        if error.max <= max_delta_E:
-            return BakedTransform("lut3d", group, M, n, shaper, error, coordinates, table)
+        for coordinates in (LogChromaticity.from_samples(X, shaper), LogChromaticity.per_channel()):
+            table = _lut3d_table(apply, n, coordinates, shaper, M)
+            group = _lut3d_group(table, coordinates, shaper, M)
+            baked = _apply_cpu(_cpu(group), X)
+            found = DeltaEStats.from_values(delta_E(to_XYZ(baked), reference, white_XYZ))
+            if found.max <= max_delta_E:
+                return BakedTransform("lut3d", group, M, n, shaper, found, coordinates, table)
+            error = found if error is None or found.max < error.max else error
     raise CamcalError(
         f"a {sizes[-1]}^3 Lut3D still leaves CIEDE2000 up to {error.max:.3f} over the samples "
         f"(allowed {max_delta_E:g}); allow a larger bake error or refit with a smoother model"
@@ -1218,3 +1232,111 @@ def export_ocio(
         reports.append(report)
     path = write_ocio_config(ConfigSpec(base=str(base), colour_spaces=tuple(specs), looks=tuple(looks)), directory)
     return OCIOExport(path, str(base), tuple(reports))
+
+
+# --------------------------------------------------------------------------
+# Applying a fit to images: one OCIO CPU processor.
+
+#: Output spaces of :func:`fit_processor`: name -> colour-science RGB colour space (``None``: the fit's XYZ).
+OUTPUT_SPACES = {"CIE XYZ": None, "ACES2065-1": "ACES2065-1", "ACEScg": "ACEScg", "lin Rec.709": "ITU-R BT.709"}
+
+
+def output_matrix(white_XYZ: Any, space: str, cat: str = "Bradford") -> np.ndarray:
+    """Matrix from XYZ under ``white_XYZ`` (Y = 1) to a linear output space of :data:`OUTPUT_SPACES`.
+
+    ``"CIE XYZ"`` is the identity (the fit's own XYZ, relative to its target
+    white); the RGB spaces are ``M_XYZ->RGB @ CAT(white -> space white)``
+    (von Kries with ``cat``; colour-science's matrices: ACES2065-1 AP0,
+    ACEScg AP1, both with the ACES white; linear Rec. 709 with D65).
+
+    Examples
+    --------
+    >>> output_matrix([0.95047, 1.0, 1.08883], "CIE XYZ").tolist()[0]
+    [1.0, 0.0, 0.0]
+    """
+    import colour
+
+    if space not in OUTPUT_SPACES:
+        raise CamcalError(f"unknown output space {space!r}, expected one of: {', '.join(OUTPUT_SPACES)}")
+    if cat not in CATS:
+        raise CamcalError(f"unknown adaptation {cat!r}, expected one of: {', '.join(CATS)}")
+    if OUTPUT_SPACES[space] is None:
+        return np.eye(3)
+    rgb = colour.RGB_COLOURSPACES[OUTPUT_SPACES[space]]
+    adapt = colour.adaptation.matrix_chromatic_adaptation_VonKries(
+        np.asarray(white_XYZ, dtype=np.float64), colour.xy_to_XYZ(rgb.whitepoint), transform=cat)
+    return rgb.matrix_XYZ_to_RGB @ adapt
+
+
+@dataclass(frozen=True, eq=False)
+class FitProcessor:
+    """A characterisation applied to images by one OCIO CPU processor.
+
+    The processor is the exported colour space's own transform: the
+    linearisation (exact, or sampled for ``named`` curves), the model (an
+    exact ``MatrixTransform`` for ``matrix3x3``; otherwise the baked
+    log-chromaticity Lut3D of :func:`bake_fit`, within ``bake_error`` of the
+    fit), then the matrix to ``space`` (:func:`output_matrix`).
+
+    Attributes
+    ----------
+    space
+        Output space (a key of :data:`OUTPUT_SPACES`).
+    kind
+        ``"matrix"`` (exact) or ``"lut3d"`` (baked).
+    bake_error
+        CIEDE2000 of the bake over the chart gamut and plausible surfaces
+        (``None`` when exact).
+    cpu
+        The ``PyOpenColorIO.CPUProcessor``.
+    """
+
+    space: str
+    kind: str
+    bake_error: DeltaEStats | None
+    cpu: Any
+
+    def apply(self, codes: Any, *, in_place: bool = False) -> np.ndarray:
+        """Code values ``(..., 3)`` in [0, 1] to ``space``, float32, same shape.
+
+        ``in_place``: a C-contiguous float32 array is processed in place (no copy).
+        """
+        if in_place and isinstance(codes, np.ndarray) and codes.dtype == np.float32 and codes.flags.c_contiguous:
+            pixels = codes
+        else:
+            pixels = np.array(codes, dtype=np.float32, order="C", copy=True)
+        if pixels.shape[-1] != 3:
+            raise CamcalError(f"expected pixels with 3 channels (..., 3), got shape {pixels.shape}")
+        self.cpu.applyRGB(pixels)
+        return pixels
+
+
+def fit_processor(fit: ColourFit, space: str = "CIE XYZ", *, cat: str = "Bradford", max_delta_E: float = 0.2,
+                  lut_sizes: Sequence[int] = LUT_SIZES) -> FitProcessor:
+    """The OCIO CPU processor of a characterisation, from code values to ``space``.
+
+    Parameters
+    ----------
+    fit
+        The characterisation.
+    space
+        ``"CIE XYZ"`` (the fit's XYZ, target white Y = 1), ``"ACES2065-1"``,
+        ``"ACEScg"`` or ``"lin Rec.709"``.
+    cat, max_delta_E, lut_sizes
+        See :func:`output_matrix` and :func:`bake_fit` (a fit the exporter
+        refuses is refused here too).
+
+    Returns
+    -------
+    FitProcessor
+    """
+    ocio = _ocio()
+    out = output_matrix(fit.target_white_XYZ, space, cat)
+    lin, _ = linearisation_transforms(fit.linearisation)
+    baked = bake_fit(fit, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+    if baked.kind == "matrix":
+        steps = [*lin, _matrix_transform(out @ baked.matrix)]
+    else:
+        steps = [*lin, *list(baked.transform), _matrix_transform(out)]
+    cpu = _cpu(ocio.GroupTransform(steps))
+    return FitProcessor(space, baked.kind, baked.bake_error, cpu)

@@ -78,6 +78,7 @@ Using a fit::
     XYZ = fit.apply(RGB_linear)        # (N, 3) LINEAR camera RGB -> XYZ
     RGB_linear = fit.linearise(codes)  # (N, 3) code values in [0, 1] -> linear
     XYZ = fit.apply_codes(codes)       # both: code values -> XYZ
+    image = fit.processor("ACEScg").apply(codes)  # fast: OCIO's CPU processor (float32)
 
 XYZ is relative to the target white, Y = 1 for the perfect white.
 Other ``kind`` values (``match``) are added by registering a reader in
@@ -381,6 +382,20 @@ class ColourFit(LinearisedModel):
     provenance: dict = field(default_factory=dict)
 
     kind = "characterisation"
+
+    def processor(self, space: str = "CIE XYZ"):
+        """The fast image path: one OCIO CPU processor from code values to ``space``.
+
+        Exact for a ``matrix3x3`` fit; other models go through the baked Lut3D
+        the OCIO export writes (within its bake error, see
+        :func:`camcal.colour.export_ocio.fit_processor`). ``space``:
+        ``"CIE XYZ"`` (this fit's XYZ), ``"ACES2065-1"``, ``"ACEScg"``,
+        ``"lin Rec.709"``. ``processor(space).apply(codes)`` takes ``(..., 3)``
+        code values and returns float32.
+        """
+        from camcal.colour.export_ocio import fit_processor  # noqa: PLC0415 - OCIO is imported there only
+
+        return fit_processor(self, space)
 
     def to_dict(self) -> dict:
         """The file's JSON object."""
