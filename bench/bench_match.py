@@ -47,6 +47,13 @@ def make_pair(seed: int = 1, width: int = 640, height: int = 480):
 
 
 def cv2_ccm(B: np.ndarray, A: np.ndarray) -> np.ndarray:
+    if hasattr(cv2.ccm.ColorCorrectionModel, "compute"):  # OpenCV 5 renamed the ccm API
+        model = cv2.ccm.ColorCorrectionModel(B.reshape(-1, 1, 3), A.reshape(-1, 1, 3), cv2.ccm.COLOR_SPACE_SRGBL)
+        model.setCcmType(cv2.ccm.CCM_LINEAR)
+        model.setLinearization(cv2.ccm.LINEARIZATION_IDENTITY)
+        model.setDistance(cv2.ccm.DISTANCE_RGBL)
+        model.setInitialMethod(cv2.ccm.INITIAL_METHOD_LEAST_SQUARE)
+        return model.compute().T
     model = cv2.ccm_ColorCorrectionModel(B.reshape(-1, 1, 3), A.reshape(-1, 1, 3), cv2.ccm.COLOR_SPACE_sRGBL)
     model.setCCM_TYPE(cv2.ccm.CCM_3x3)
     model.setLinear(cv2.ccm.LINEARIZATION_IDENTITY)

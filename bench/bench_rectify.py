@@ -61,7 +61,7 @@ def main() -> None:
     R = right.R  # right_from_left, the left camera at the origin
     T = -R @ right.c
     (K1, D1), (K2, D2) = opencv
-    R1, R2, P1, P2, *_ = cv2.stereoRectify(K1, D1, K2, D2, SIZE, R, T, alpha=0.0)
+    R1, R2, P1, P2, *_ = cv2.stereoRectify(K1, D1, K2, D2, SIZE, R, T.reshape(3, 1), alpha=0.0)  # OpenCV 5: 3x1, not 1-D
 
     def peer() -> None:
         for (K, D, Rr, P), image in zip(((K1, D1, R1, P1), (K2, D2, R2, P2)), images):

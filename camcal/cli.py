@@ -1,8 +1,35 @@
 """The ``camcal`` command: parses arguments and calls the library.
 
-Every verb prints a short human summary, writes its outputs atomically and,
-on a user's mistake, prints one line ``camcal: error: ...`` and exits with
-code 2 (argparse does the same for malformed command lines).
+Every verb prints a short human summary and writes its outputs atomically.
+
+Errors, for every verb and every input:
+
+- a user's mistake (:class:`~camcal.errors.CamcalError`, an ``OSError`` on a
+  path the user gave, a file that does not decode) prints one line
+  ``camcal: error: ...`` on stderr and exits with code 2 (argparse does the
+  same for malformed command lines);
+- an internal error (a bug in camcal) prints one line naming the verb and
+  "run with --debug for the traceback" and exits with code 1;
+- ``--debug`` (before or after the verb) shows the full traceback instead.
+
+Options that name cameras take ``NAME=VALUE`` entries (:class:`NamedValues`):
+``--images left=A right=B`` is the same as ``--images left=A --images
+right=B``; a name given twice, an entry without ``=`` or a glob that matches
+nothing is one error line naming the option and the entry. Globs may be
+absolute or relative (:func:`expand_glob`).
+
+``--json`` (every verb) prints one versioned JSON object on stdout instead
+of the human summary (which then goes to stderr)::
+
+    {"format": "camcal.summary", "version": 1, "camcal": "0.x",
+     "verb": "rectify", "exit_code": 0,
+     "figures": {...the summary's numbers, named with their units...},
+     "files": [{"path": "out/rect.rig.json", "kind": "rig"}, ...],
+     "warnings": [...]}
+
+and on an error ``{"...", "exit_code": 2, "error": "the one line"}``.
+Handlers record figures and files on :func:`summary_of(args)
+<summary_of>` (:class:`VerbSummary`).
 
 Each verb group registers itself with a ``_register_<group>(subparsers)``
 function that sets ``func`` on its parser; the handler receives the parsed
@@ -12,40 +39,236 @@ namespace and returns the exit code.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import glob
+import json
+import os
 import sys
+import traceback
 from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 from camcal import __version__
 from camcal.errors import CamcalError
 
-__all__ = ["main", "build_parser"]
+__all__ = [
+    "EXIT_BAD_INPUT",
+    "EXIT_INTERNAL",
+    "SUMMARY_FORMAT",
+    "SUMMARY_VERSION",
+    "NamedValues",
+    "VerbSummary",
+    "build_parser",
+    "expand_glob",
+    "main",
+    "summary_of",
+]
 
 EXIT_BAD_INPUT = 2
+EXIT_INTERNAL = 1
+SUMMARY_FORMAT = "camcal.summary"
+SUMMARY_VERSION = 1
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser with every verb registered."""
+    """The full argument parser with every verb registered.
+
+    Every leaf verb gets ``--json`` and ``--debug`` here, so a verb a module
+    registers has them without asking.
+    """
     parser = argparse.ArgumentParser(
         prog="camcal",
         description="Geometric and colour camera calibration for VFX pipelines.",
+        epilog="Exit status: 0 done, 1 internal error (or a verb's own partial failure), 2 bad input.",
     )
     parser.add_argument("--version", action="version", version=f"camcal {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an internal error")
     subparsers = parser.add_subparsers(dest="verb", metavar="VERB")
     subparsers.required = True
     for register in _REGISTERS:
         register(subparsers)
+    for path, leaf in _leaf_parsers(parser, ()):
+        leaf.add_argument("--json", action="store_true",
+                          help="print the summary's figures and written files as one JSON object on stdout")
+        leaf.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                          help="show the traceback of an internal error")
+        leaf.set_defaults(_verb=" ".join(path))
     return parser
+
+
+def _leaf_parsers(parser: argparse.ArgumentParser, path: tuple[str, ...]):
+    """``(verb path, parser)`` of every leaf verb below ``parser``."""
+    actions = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not actions:
+        yield path, parser
+        return
+    for name, sub in actions[0].choices.items():
+        yield from _leaf_parsers(sub, path + (name,))
+
+
+# -- errors, --debug and --json ------------------------------------------------------
+
+
+@dataclass
+class VerbSummary:
+    """What a verb reports: its figures and the files it wrote (``--json``).
+
+    Handlers fill it with :meth:`figures` and :meth:`wrote`; :func:`main`
+    prints it as one JSON object when ``--json`` is given.
+    """
+
+    verb: str
+    data: dict[str, Any] = field(default_factory=dict)
+    files: list[dict[str, str]] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def figures(self, **values: Any) -> None:
+        """Record figures (numbers with their units in their names: ``rms_px``)."""
+        self.data.update(values)
+
+    def wrote(self, path: str | os.PathLike, kind: str = "file", say: bool = True) -> None:
+        """Record a written file; ``say`` also prints ``wrote PATH``."""
+        self.files.append({"path": str(path), "kind": kind})
+        if say:
+            print(f"wrote {path}")
+
+    def warn(self, message: str) -> None:
+        """Record and print a warning."""
+        self.warnings.append(message)
+        print(f"warning: {message}")
+
+    def to_dict(self, exit_code: int, error: str | None = None) -> dict[str, Any]:
+        """The versioned JSON object (see the module docstring)."""
+        out: dict[str, Any] = {
+            "format": SUMMARY_FORMAT, "version": SUMMARY_VERSION, "camcal": __version__,
+            "verb": self.verb, "exit_code": exit_code,
+            "figures": self.data, "files": self.files, "warnings": self.warnings,
+        }
+        if error is not None:
+            out["error"] = error
+        return out
+
+
+def summary_of(args: argparse.Namespace) -> VerbSummary:
+    """The :class:`VerbSummary` of this run (made by :func:`main`)."""
+    summary = getattr(args, "_summary", None)
+    if summary is None:  # a handler called without main(), e.g. from a test
+        summary = VerbSummary(getattr(args, "_verb", "camcal"))
+        args._summary = summary
+    return summary
+
+
+def _json_default(value: Any) -> Any:
+    """numpy scalars and arrays, paths and tuples as JSON."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, (set, frozenset)):
+        return sorted(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def _user_error(error: BaseException) -> str | None:
+    """The one line for a user's mistake, or None for an internal error."""
+    if isinstance(error, CamcalError):
+        return str(error)
+    if isinstance(error, OSError) and error.filename is not None:
+        reason = error.strerror or error.__class__.__name__
+        return f"{error.filename}: {reason}"
+    if isinstance(error, UnicodeDecodeError):
+        return f"a file is not text in the expected encoding ({error.reason} at byte {error.start})"
+    return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script; returns the process exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    debug = "--debug" in argv
+    want_json = "--json" in argv
+    summary = VerbSummary(next((a for a in argv if not a.startswith("-")), "camcal"))
+    stdout = sys.stdout
+    code = EXIT_BAD_INPUT
+    error_line = None
     try:
-        return int(args.func(args) or 0)
-    except CamcalError as error:
-        print(f"camcal: error: {error}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        args = parser.parse_args(argv)
+        debug, want_json = bool(getattr(args, "debug", False)), bool(getattr(args, "json", False))
+        summary.verb = args._verb
+        args._summary = summary
+        with contextlib.redirect_stdout(sys.stderr) if want_json else contextlib.nullcontext():
+            code = int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        error_line, code = "interrupted", 130
+        print("camcal: interrupted", file=sys.stderr)
+    except Exception as error:  # noqa: BLE001 - the one place every error becomes one line
+        user = _user_error(error)
+        if debug:
+            traceback.print_exc()
+        if user is not None:
+            error_line, code = user, EXIT_BAD_INPUT
+            print(f"camcal: error: {user}", file=sys.stderr)
+        else:
+            error_line, code = f"internal error in `camcal {summary.verb}`: {error.__class__.__name__}: {error}", EXIT_INTERNAL
+            hint = "" if debug else " (run with --debug for the traceback)"
+            print(f"camcal: {error_line}{hint}", file=sys.stderr)
+    if want_json:
+        text = json.dumps(summary.to_dict(code, error_line), default=_json_default, allow_nan=False)
+        print(text, file=stdout)
+    return code
+
+
+# -- NAME=VALUE options ----------------------------------------------------------------
+
+
+def _name_value(entry: str, option: str, form: str) -> tuple[str, str]:
+    """Split a ``NAME=VALUE`` option value, or fail naming the option."""
+    name, sep, value = entry.partition("=")
+    if not sep or not name or not value:
+        raise CamcalError(f"{option}: expected {form}, got {entry!r}")
+    return name, value
+
+
+class NamedValues(argparse.Action):
+    """A ``NAME=VALUE`` option: repeatable and multi-valued mean the same.
+
+    ``--images left=A right=B`` and ``--images left=A --images right=B`` both
+    give ``{"left": "A", "right": "B"}`` (in order). A name given twice or an
+    entry without ``=`` raises :class:`CamcalError` naming the option and the
+    entry. The default is an empty dict.
+    """
+
+    def __init__(self, option_strings, dest, nargs=None, default=None, **kwargs) -> None:
+        super().__init__(option_strings, dest, nargs="+", default={}, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        current = dict(getattr(namespace, self.dest, None) or {})
+        form = self.metavar if isinstance(self.metavar, str) else "NAME=VALUE"
+        for entry in values:
+            name, value = _name_value(entry, option_string, form)
+            if name in current:
+                raise CamcalError(f"{option_string} {entry}: name {name!r} given twice")
+            current[name] = value
+        setattr(namespace, self.dest, current)
+
+
+def expand_glob(option: str, name: str, pattern: str, root: str | os.PathLike | None = None,
+                what: str = "image") -> list[str]:
+    """The files a glob matches, sorted; absolute or relative (to ``root``, else the cwd).
+
+    Raises
+    ------
+    CamcalError
+        ``"--images left=L/*.png: no image matches"`` when nothing matches.
+    """
+    full = os.path.join(os.fspath(root), os.path.expanduser(pattern)) if root else os.path.expanduser(pattern)
+    files = sorted(path for path in glob.glob(full) if os.path.isfile(path))
+    if not files:
+        where = f" (in {root})" if root and not os.path.isabs(pattern) else ""
+        raise CamcalError(f"{option} {name}={pattern}: no {what} matches{where}")
+    return files
 
 
 def _register_blender(subparsers) -> None:
@@ -129,14 +352,6 @@ def _register_rig(subparsers) -> None:
     show.set_defaults(func=_rig_show)
 
 
-def _name_value(entry: str, option: str, form: str) -> tuple[str, str]:
-    """Split a ``NAME=VALUE`` option value, or fail naming the option."""
-    name, sep, value = entry.partition("=")
-    if not sep or not name or not value:
-        raise CamcalError(f"{option} must be {form}, got {entry!r}")
-    return name, value
-
-
 # -- camcal calibrate ----------------------------------------------------------------
 
 
@@ -168,23 +383,15 @@ def _calibrate_dlt(args: argparse.Namespace) -> int:
 
 
 def _calibrate_board(args: argparse.Namespace) -> int:
-    import glob
-
     import numpy as np
 
     from camcal.geometry.board import detect_in_images, parse_board
     from camcal.geometry.zhang import calibrate_board, write_report
 
     board = parse_board(args.board)
-    cameras: dict[str, list[str]] = {}
-    for entry in args.camera:
-        name, pattern = _name_value(entry, "--camera", "NAME=GLOB (e.g. left='shots/left*.jpg')")
-        if name in cameras:
-            raise CamcalError(f"camera {name!r} given twice")
-        files = sorted(glob.glob(pattern))
-        if not files:
-            raise CamcalError(f"camera {name!r}: no image matches {pattern!r}")
-        cameras[name] = files
+    if not args.camera:
+        raise CamcalError("--camera: give at least one camera, e.g. --camera left='shots/left*.jpg'")
+    cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()}
     detections = {}
     for name, files in cameras.items():
         report = detect_in_images(board, files, progress=f"detecting {name}")
@@ -239,8 +446,9 @@ def _register_calibrate(subparsers) -> None:
         help="chessboard:WxH:SQUARE (inner corners) or charuco:DICT:WxH:SQUARE:MARKER (squares)",
     )
     board.add_argument(
-        "--camera", required=True, action="append", metavar="NAME=GLOB",
-        help="a camera and its images, e.g. left='shots/left*.jpg' (repeat for every camera)",
+        "--camera", required=True, action=NamedValues, metavar="NAME=GLOB",
+        help="a camera and its images, e.g. left='shots/left*.jpg' right='shots/right*.jpg' "
+        "(several entries or a repeated option; globs absolute or relative)",
     )
     board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv"),
                        help="distortion model (default: polynomial)")
@@ -259,8 +467,16 @@ def _solve(args: argparse.Namespace) -> int:
     from camcal.geometry.sfm import MODELS, collect_images, solve_sfm
     from camcal.rig import Rig
 
-    globs = dict(_name_value(item, "--camera", "NAME=GLOB") for item in args.camera)
-    images = collect_images([Path(folder) for folder in args.folders], globs)
+    folders = [Path(folder) for folder in args.folders]
+    if args.camera:
+        if len(folders) != 1:
+            raise CamcalError(f"--camera NAME=GLOB selects images inside one folder: give exactly one, got {len(folders)}")
+        if not folders[0].is_dir():
+            raise CamcalError(f"image folder not found: {folders[0]}")
+        images = {name: [Path(f) for f in expand_glob("--camera", name, pattern, root=folders[0])]
+                  for name, pattern in args.camera.items()}
+    else:
+        images = collect_images(folders)
     known_rig = Rig.load(args.rig) if args.rig else None
     camera_model = MODELS[args.model] if args.model else args.camera_model
     result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
@@ -284,8 +500,9 @@ def _register_solve(subparsers) -> None:
         "Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.",
     )
     solve.add_argument("folders", nargs="+", metavar="IMAGES_DIR", help="image folder(s)")
-    solve.add_argument("--camera", action="append", default=[], metavar="NAME=GLOB",
-                       help="a camera's images inside IMAGES_DIR, e.g. left='*_L.png' (repeat per camera)")
+    solve.add_argument("--camera", action=NamedValues, metavar="NAME=GLOB",
+                       help="a camera's images, e.g. left='*_L.png' right='*_R.png' (relative to "
+                       "IMAGES_DIR, or absolute; several entries or a repeated option)")
     solve.add_argument("--rig", metavar="KNOWN.rig.json",
                        help="hold the cameras' relative poses at this calibration (and take its units)")
     solve.add_argument("--model", choices=("division", "polynomial", "opencv", "none"),
@@ -307,11 +524,15 @@ def _register_solve(subparsers) -> None:
 def _demo(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from camcal.demo import FULL, run_demo
+    from camcal.demo import FULL, STAGES, run_demo
 
     config = dataclasses.replace(FULL, seed=args.seed)
     if args.stages:
         config = dataclasses.replace(config, stages=tuple(s.strip() for s in args.stages.split(",")))
+        unknown = [name for name in config.stages if name not in {stage.name for stage in STAGES}]
+        if unknown:
+            raise CamcalError(f"--stages: unknown stage(s) {', '.join(map(repr, unknown))}, expected some of: "
+                              + ", ".join(stage.name for stage in STAGES))
     report = run_demo(args.out, config)
     print(report.table())
     for label, path in report.outputs:
@@ -359,6 +580,7 @@ def _distortion_fit(args: argparse.Namespace) -> int:
     import cv2
 
     from camcal.geometry.plumbline import fit_plumbline, lines_from_images, read_lines
+    from camcal.io.frames import imread
     from camcal.io.jsonfile import write_json
 
     if bool(args.images) == bool(args.lines):
@@ -369,10 +591,7 @@ def _distortion_fit(args: argparse.Namespace) -> int:
     else:
         images = []
         for path in args.images:
-            image = cv2.imread(path, cv2.IMREAD_GRAYSCALE)
-            if image is None:
-                raise CamcalError(f"cannot read image {path}")
-            images.append(image)
+            images.append(imread(path, cv2.IMREAD_GRAYSCALE))
         pattern = _pattern(args.pattern) if args.pattern else None
         lines, skipped_index = lines_from_images(images, pattern)
         skipped = [args.images[i] for i in skipped_index]
@@ -404,16 +623,6 @@ def _distortion_fit(args: argparse.Namespace) -> int:
 # -- camcal rectify ------------------------------------------------------------------
 
 
-def _parse_images(entries: Sequence[str]) -> dict[str, list[str]]:
-    import glob
-
-    images: dict[str, list[str]] = {}
-    for entry in entries:
-        name, pattern = _name_value(entry, "--images", "NAME=GLOB")
-        images[name] = sorted(glob.glob(pattern))
-    return images
-
-
 def _rectify(args: argparse.Namespace) -> int:
     from camcal.geometry.rectify import RectifyWarper, match_images, read_matches_csv, rectify
     from camcal.io.jsonfile import write_json
@@ -424,11 +633,9 @@ def _rectify(args: argparse.Namespace) -> int:
     if args.write and not args.images:
         raise CamcalError("--write needs --images NAME=GLOB for the cameras to rectify")
     rig = Rig.load(args.rig)
-    images = _parse_images(args.images or [])
-    for name, files in images.items():
+    for name in args.images:
         rig.camera(name)
-        if not files:
-            raise CamcalError(f"--images {name}=...: no file matches")
+    images = {name: expand_glob("--images", name, pattern) for name, pattern in args.images.items()}
     names = list(images) if len(images) >= 2 else None
     if args.matches:
         matches = read_matches_csv(args.matches)
@@ -549,7 +756,9 @@ def _register_rectify(subparsers) -> None:
     parser.add_argument("rig", metavar="RIG", help="a calibrated *.rig.json")
     parser.add_argument("--method", choices=("camera", "hartley"), default="camera")
     parser.add_argument("--refine", action="store_true", help="camera method: refine on matches (Nozick 2011)")
-    parser.add_argument("--images", nargs="+", metavar="NAME=GLOB", help="images per camera, e.g. left='L/*.png'")
+    parser.add_argument("--images", action=NamedValues, metavar="NAME=GLOB",
+                        help="images per camera, e.g. left='L/*.png' right='R/*.png' "
+                        "(several entries or a repeated option; globs absolute or relative)")
     parser.add_argument("--matches", metavar="FILE.csv", help="point matches in original pixels")
     parser.add_argument("--alpha", type=float, default=0.0,
                         help="0: only pixels all views see (default); 1: every source pixel")
@@ -809,17 +1018,6 @@ def _colour_export(args: argparse.Namespace) -> int:
     return 0
 
 
-def _named_paths(entries: Sequence[str] | None, option: str) -> dict[str, str]:
-    """``NAME=PATH`` entries in order; each name once."""
-    out: dict[str, str] = {}
-    for entry in entries or []:
-        name, path = _name_value(entry, option, "NAME=PATH")
-        if name in out:
-            raise CamcalError(f"{option}: camera {name!r} given twice")
-        out[name] = path
-    return out
-
-
 def _register_colour_match(colour_verbs) -> None:
     parser = colour_verbs.add_parser(
         "match",
@@ -835,14 +1033,14 @@ def _register_colour_match(colour_verbs) -> None:
         ),
     )
     parser.add_argument("rig", nargs="?", metavar="RIG", help="a calibrated *.rig.json holding both cameras")
-    parser.add_argument("--images", nargs="+", action="extend", metavar="NAME=IMG",
+    parser.add_argument("--images", action=NamedValues, metavar="NAME=IMG",
                         help="one image per camera, target first")
     parser.add_argument("--rectified", action="store_true", help="the images are rectified already")
-    parser.add_argument("--fits", nargs="+", action="extend", metavar="NAME=FIT.colour.json",
+    parser.add_argument("--fits", action=NamedValues, metavar="NAME=FIT.colour.json",
                         help="characterisations (linearisation; the target's gives XYZ for Delta E)")
-    parser.add_argument("--patches", nargs="+", action="extend", metavar="NAME=FILE.csv",
+    parser.add_argument("--patches", action=NamedValues, metavar="NAME=FILE.csv",
                         help="chart route: each camera's patch CSV of the same chart, target first")
-    parser.add_argument("--test-patches", nargs="+", action="extend", metavar="NAME=FILE.csv",
+    parser.add_argument("--test-patches", action=NamedValues, metavar="NAME=FILE.csv",
                         help="chart route: independent patches per camera")
     parser.add_argument("--encoding", default="linear", metavar="NAME",
                         help="image encoding of cameras without a fit: linear or a transfer function "
@@ -861,9 +1059,8 @@ def _colour_match(args: argparse.Namespace) -> int:
     from camcal.colour.match import match_image_files, match_patch_files, parse_match_model, write_match_report
 
     parse_match_model(args.model)
-    images = _named_paths(args.images, "--images")
-    patches = _named_paths(args.patches, "--patches")
-    fits = {name: load_fit(path) for name, path in _named_paths(args.fits, "--fits").items()}
+    images, patches = args.images, args.patches
+    fits = {name: load_fit(path) for name, path in args.fits.items()}
     if images and patches:
         raise CamcalError("give --images (image route) or --patches (chart route), not both")
     if images:
@@ -879,7 +1076,7 @@ def _colour_match(args: argparse.Namespace) -> int:
               f"left-right consistent {counts['consistent']}, away from depth edges {counts['smooth']})")
     elif patches:
         fits = {name: fits[name] for name in patches if name in fits} | fits
-        result = match_patch_files(fits, patches, test_patches=_named_paths(args.test_patches, "--test-patches"),
+        result = match_patch_files(fits, patches, test_patches=args.test_patches,
                                    model=args.model, robust=args.robust or "none")
     else:
         raise CamcalError("nothing to match: give --images NAME=IMG twice, or --fits and --patches for two cameras")

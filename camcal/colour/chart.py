@@ -162,14 +162,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     8- and 16-bit integer images are divided by 255 or 65535; float images
     (EXR, TIFF) are returned as they are.
     """
-    import cv2
+    from camcal.io.frames import imread
 
     path = Path(path)
     if not path.is_file():
         raise CamcalError(f"chart image not found: {path}")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH)
-    if image is None:
-        raise CamcalError(f"cannot read image {path} (not an image OpenCV can decode)")
+    image = imread(path)
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)
     image = image[:, :, :3][:, :, ::-1]
@@ -274,7 +272,14 @@ def detect_chart(image: np.ndarray, rows: int = 4, columns: int = 6) -> ChartDet
         )
     bgr = np.ascontiguousarray((np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)[:, :, ::-1])
     detector = cv2.mcc.CCheckerDetector_create()
-    if not detector.process(bgr, cv2.mcc.MCC24, 1):
+    if hasattr(detector, "setColorChartType"):
+        # OpenCV 5: the chart type is a detector setting (unset, it is not MCC24)
+        # and process() takes only (image, nc).
+        detector.setColorChartType(cv2.mcc.MCC24)
+        found = detector.process(bgr, 1)
+    else:  # OpenCV 4.x: process(image, chartType, nc)
+        found = detector.process(bgr, cv2.mcc.MCC24, 1)
+    if not found:
         raise CamcalError(
             "no ColorChecker found in the image (cv2.mcc); give its corners with --corners"
         )

@@ -71,7 +71,7 @@ from scipy.spatial.transform import Rotation
 
 from camcal.errors import CamcalError
 from camcal.geometry.remap import RemapMaps, build_maps
-from camcal.io.atomic import atomic_path
+from camcal.io.frames import imread, imwrite
 from camcal.rig import Camera, Rectification, Rig, make_provenance
 
 __all__ = [
@@ -934,10 +934,7 @@ def _inside(points: NDArray[np.float64], size: tuple[int, int]) -> NDArray[np.bo
 
 
 def _read_grey(path: str | os.PathLike) -> NDArray[np.uint8]:
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise CamcalError(f"cannot read image {path}")
-    return image
+    return imread(path, cv2.IMREAD_GRAYSCALE)
 
 
 def match_images(
@@ -1085,12 +1082,6 @@ class RectifyWarper:
         """
         written = []
         for source in sources:
-            image = cv2.imread(str(source), cv2.IMREAD_UNCHANGED)
-            if image is None:
-                raise CamcalError(f"cannot read image {source}")
-            target = Path(out_dir) / name / Path(source).name
-            with atomic_path(target) as tmp:
-                if not cv2.imwrite(str(tmp), self.warp(name, image)):
-                    raise CamcalError(f"cannot write image {target}")
-            written.append(target)
+            image = imread(source)
+            written.append(imwrite(Path(out_dir) / name / Path(source).name, self.warp(name, image)))
         return written

@@ -16,32 +16,22 @@ Two maps per camera:
 - redistort: output is the plate-sized distorted image; it samples the
   undistorted (overscanned) image, e.g. a CG render made with ``K_new``.
 
-Written as 32-bit float OpenEXR through OpenCV. OpenCV reads the
-environment variable ``OPENCV_IO_ENABLE_OPENEXR`` once, at the first EXR
-encode or decode of the process (checked on 4.11: setting it after
-``import cv2`` but before any EXR use works; after a refused EXR use it
-does not). This module therefore sets it, unless the user set it, when
-it is imported, before it imports ``cv2``.
+Written as 32-bit float OpenEXR with the OpenEXR bindings
+(:func:`camcal.io.frames.imwrite`): the OpenCV 5 wheels have no EXR codec.
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
+from pathlib import Path
 
-os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+import numpy as np
+from numpy.typing import NDArray
 
-from dataclasses import dataclass  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-from numpy.typing import NDArray  # noqa: E402
-
-from camcal.errors import CamcalError  # noqa: E402
-from camcal.geometry.undistort import make_undistorter  # noqa: E402
-from camcal.io.atomic import atomic_path  # noqa: E402
-from camcal.io.frames import imread  # noqa: E402
-from camcal.rig import Camera, Rig, make_provenance  # noqa: E402
+from camcal.geometry.undistort import make_undistorter
+from camcal.io.frames import imread, imwrite
+from camcal.rig import Camera, Rig, make_provenance
 
 __all__ = ["STMaps", "st_from_pixels", "pixels_from_st", "make_stmaps", "write_exr", "read_exr", "write_stmaps"]
 
@@ -137,20 +127,8 @@ def make_stmaps(camera: Camera, overscan: float = 1.1) -> STMaps:
 
 
 def write_exr(path: str | os.PathLike, rgb: NDArray) -> Path:
-    """Write a float32 RGB image as OpenEXR (atomically)."""
-    path = Path(path)
-    bgr = np.ascontiguousarray(np.asarray(rgb, dtype=np.float32)[..., ::-1])
-    with atomic_path(path) as tmp:
-        try:
-            ok = cv2.imwrite(str(tmp), bgr, [cv2.IMWRITE_EXR_TYPE, cv2.IMWRITE_EXR_TYPE_FLOAT])
-        except cv2.error as error:
-            raise CamcalError(
-                f"OpenCV cannot write EXR ({str(error).strip().splitlines()[-1]}); "
-                "set OPENCV_IO_ENABLE_OPENEXR=1 before the first EXR use"
-            ) from None
-        if not ok:
-            raise CamcalError(f"OpenCV could not write {path}")
-    return path
+    """Write a float32 RGB image as OpenEXR (FLOAT channels, atomically)."""
+    return imwrite(path, np.asarray(rgb, dtype=np.float32)[..., ::-1])
 
 
 def read_exr(path: str | os.PathLike) -> NDArray[np.float32]:

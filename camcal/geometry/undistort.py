@@ -21,14 +21,9 @@ source pixel of each output pixel is ``distort(K K_new^-1 x_o)``
 
 from __future__ import annotations
 
-import os
-
-# OpenCV decides at its first EXR read whether EXR is enabled: allow float
-# EXR plates (see camcal.geometry.stmap) unless the user chose otherwise.
-os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
-
 import dataclasses
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,7 +35,7 @@ from numpy.typing import NDArray
 from camcal.errors import CamcalError
 from camcal.geometry.distortion import Distortion
 from camcal.geometry.remap import RemapMaps, build_maps, undistort_homography
-from camcal.io.atomic import atomic_path
+from camcal.io.frames import imread, imwrite
 from camcal.rig import Camera, Rectification, Rig, make_provenance
 
 __all__ = ["MODES", "UndistortedView", "Undistorter", "undistorted_view", "make_undistorter", "undistort_images"]
@@ -239,9 +234,7 @@ def undistort_images(
     out_dir = Path(out_dir)
     loaded = []
     for path in images:
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            raise CamcalError(f"cannot read image {path}")
+        image = imread(path)
         width, height = camera.image_size
         if image.shape[:2] != (height, width):
             raise CamcalError(f"{path} is {image.shape[1]}x{image.shape[0]} px, camera {camera_name!r} is {width}x{height}")
@@ -250,11 +243,7 @@ def undistort_images(
         raise CamcalError("input images must have distinct file names (outputs keep them)")
     written = []
     for path, image in loaded:
-        target = out_dir / path.name
-        with atomic_path(target) as tmp:
-            if not cv2.imwrite(str(tmp), undistorter.apply(image)):
-                raise CamcalError(f"cannot write {target}")
-        written.append(target)
+        written.append(imwrite(out_dir / path.name, undistorter.apply(image)))
     cameras = tuple(undistorter.undistorted_camera() if c.name == camera_name else c for c in rig.cameras)
     provenance = make_provenance("undistort", source_camera=camera_name, mode=mode)
     rig_path = Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(out_dir / "undistorted.rig.json")

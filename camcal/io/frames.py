@@ -48,7 +48,7 @@ from numpy.typing import NDArray  # noqa: E402
 from camcal.errors import CamcalError  # noqa: E402
 from camcal.io.atomic import atomic_path  # noqa: E402
 
-__all__ = ["FORMATS", "ImageFrame", "frame_format", "imread", "read_frame", "write_frame"]
+__all__ = ["FORMATS", "ImageFrame", "frame_format", "imread", "imwrite", "read_frame", "write_frame"]
 
 #: File name suffix -> format name, and the pixel types each format holds.
 FORMATS: Mapping[str, str] = MappingProxyType(
@@ -125,11 +125,20 @@ class ImageFrame:
 def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> NDArray:
     """``cv2.imread`` that raises one-line :class:`CamcalError` instead of returning None.
 
+    EXR files are read with the OpenEXR bindings (the OpenCV 5 wheels have
+    no EXR codec) and returned the way ``cv2.imread`` returned them: float32,
+    ``(H, W)`` for one channel, else ``B, G, R[, A]``. With
+    ``IMREAD_GRAYSCALE`` they become one grey channel (``cv2.cvtColor``
+    weights), and unless ``IMREAD_ANYDEPTH`` or ``IMREAD_UNCHANGED`` is given
+    8-bit (``round(255 v)``, clipped), as OpenCV's own EXR decoder did.
+
     Raises
     ------
     CamcalError
         ``"cannot read <path> (...)"`` for a missing, corrupt or unsupported file.
     """
+    if Path(path).suffix.lower() == ".exr":
+        return _imread_exr(Path(path), flags)
     try:
         pixels = cv2.imread(str(path), flags)
     except cv2.error as error:
@@ -137,6 +146,78 @@ def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> NDArra
     if pixels is None:
         raise CamcalError(f"cannot read {path} (missing, corrupt or not an image OpenCV reads)")
     return pixels
+
+
+def _imread_exr(path: Path, flags: int) -> NDArray:
+    if not path.is_file():
+        raise CamcalError(f"cannot read {path} (missing file)")
+    frame = _read_exr(path)
+    pixels = frame.pixels[:, :, _opencv_channel_order(frame.channels, path)]
+    if flags < 0:  # IMREAD_UNCHANGED
+        return pixels[:, :, 0] if pixels.shape[2] == 1 else pixels
+    colour = pixels[:, :, :3] if pixels.shape[2] >= 3 else pixels[:, :, 0]
+    if flags & cv2.IMREAD_ANYCOLOR:
+        pixels = colour
+    elif flags & cv2.IMREAD_COLOR:
+        pixels = colour if colour.ndim == 3 else cv2.cvtColor(colour, cv2.COLOR_GRAY2BGR)
+    else:  # IMREAD_GRAYSCALE (0)
+        pixels = cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY) if colour.ndim == 3 else colour
+    if not flags & cv2.IMREAD_ANYDEPTH:
+        pixels = np.round(np.clip(np.nan_to_num(pixels), 0.0, 1.0) * 255.0).astype(np.uint8)
+    return pixels
+
+
+def _opencv_channel_order(channels: tuple[str, ...], path: Path) -> list[int]:
+    """Indices that put an EXR's channels in OpenCV's order: ``B, G, R[, A]`` or ``Y[, A]``."""
+    for order in (("B", "G", "R", "A"), ("B", "G", "R"), ("Y", "A"), ("Y",)):
+        if set(order) <= set(channels):
+            return [channels.index(name) for name in order]
+    if len(channels) == 1:
+        return [0]
+    raise CamcalError(f"{path}: EXR channels {', '.join(channels)} are neither R, G, B[, A] nor Y[, A]")
+
+
+def imwrite(path: str | os.PathLike, pixels: NDArray, half: bool = False) -> Path:
+    """Write an OpenCV-layout image atomically; EXR through the OpenEXR bindings.
+
+    Parameters
+    ----------
+    path
+        Output file; its suffix picks the format (any ``cv2.imwrite`` writes,
+        or ``.exr``).
+    pixels : ndarray, shape (H, W) or (H, W, C)
+        OpenCV channel order (``B, G, R[, A]``; one channel is ``Y``). EXR
+        takes float data, stored as FLOAT (float32) or, with ``half``, HALF.
+    half
+        EXR only: store HALF (float16, round to nearest even) channels.
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    pixels = np.ascontiguousarray(pixels)
+    with atomic_path(path) as tmp:
+        if path.suffix.lower() == ".exr":
+            import OpenEXR
+
+            if pixels.dtype.kind != "f":
+                raise CamcalError(f"cannot write {path}: EXR takes float pixels, got {pixels.dtype}")
+            planes = pixels[:, :, None] if pixels.ndim == 2 else pixels
+            if planes.shape[2] not in _CV_CHANNELS:
+                raise CamcalError(f"cannot write {path}: {planes.shape[2]} channels (1 to 4 allowed)")
+            dtype = np.dtype(np.float16 if half else np.float32)
+            channels = _CV_CHANNELS[planes.shape[2]]
+            _write_exr(tmp, ImageFrame(planes.astype(np.float32), channels, (dtype,) * len(channels),
+                                       {"compression": OpenEXR.ZIP_COMPRESSION}))
+        else:
+            try:
+                ok = cv2.imwrite(str(tmp), pixels, _CV_PARAMS.get(FORMATS.get(path.suffix.lower(), ""), []))
+            except cv2.error as error:
+                raise CamcalError(f"cannot write {path}: {str(error).strip().splitlines()[-1]}") from None
+            if not ok:
+                raise CamcalError(f"cannot write {path}")
+    return path
 
 
 def read_frame(path: str | os.PathLike) -> ImageFrame:

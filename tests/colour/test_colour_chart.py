@@ -90,6 +90,47 @@ def test_bad_corners_and_missing_image(tmp_path):
         sample_patches(np.zeros((100, 100, 3)), chart_from_corners(CORNERS))
 
 
+# OpenCV 5 moved cv2.ccm into the photo module and renamed its API: CCM_3x3 /
+# CCM_4x3 -> CCM_LINEAR / CCM_AFFINE, setCCM_TYPE / setLinear* / run / infer ->
+# setCcmType / setLinearization* / compute / correctImage, COLOR_SPACE_Lab_D50_2
+# -> COLOR_SPACE_LAB_D50_2. correctImage (5.0.0) ignores its islinear flag and
+# always returns sRGB-encoded values, and flips the channels unless setRGB(False).
+# Its gray linearisations cannot run at all (5.0.0.93: cvtColor refuses the
+# float64 source that saturate() requires), so on OpenCV 5 the second peer is
+# the 4x3 matrix with a per-channel (colour) polyfit of degree 3 instead.
+OPENCV5_CCM = hasattr(cv2.ccm.ColorCorrectionModel, "compute")
+LAB_D50_2 = cv2.ccm.COLOR_SPACE_LAB_D50_2 if OPENCV5_CCM else cv2.ccm.COLOR_SPACE_Lab_D50_2
+
+
+def _ccm_configure(m, shape, linearization, gamma=None, degree=None):
+    """Matrix shape ("3x3" or "4x3") and linearisation on either OpenCV API."""
+    if OPENCV5_CCM:
+        m.setCcmType(cv2.ccm.CCM_LINEAR if shape == "3x3" else cv2.ccm.CCM_AFFINE)
+        m.setLinearization(linearization)
+        if gamma is not None:
+            m.setLinearizationGamma(gamma)
+        if degree is not None:
+            m.setLinearizationDegree(degree)
+    else:
+        m.setCCM_TYPE(cv2.ccm.CCM_3x3 if shape == "3x3" else cv2.ccm.CCM_4x3)
+        m.setLinear(linearization)
+        if gamma is not None:
+            m.setLinearGamma(gamma)
+        if degree is not None:
+            m.setLinearDegree(degree)
+
+
+def _ccm_linear_output(m, src):
+    """The model's linear sRGB output for ``(N, 3)`` code values ``src``."""
+    if not OPENCV5_CCM:
+        return m.infer(src.reshape(-1, 1, 3).astype(np.float64), True).reshape(-1, 3)
+    import colour
+
+    m.setRGB(False)
+    encoded = m.correctImage(src.reshape(-1, 1, 3).astype(np.float32)).reshape(-1, 3).astype(np.float64)
+    return np.sign(encoded) * colour.cctf_decoding(np.abs(encoded), function="sRGB")
+
+
 def cv2_ccm_figures(patches, white_XYZ):
     """OpenCV cv2.ccm on the same patches: training and leave-one-out mean CIEDE2000.
 
@@ -106,27 +147,25 @@ def cv2_ccm_figures(patches, white_XYZ):
     def fit(src, lab, kind):
         m = cv2.ccm.ColorCorrectionModel(src.reshape(-1, 1, 3).astype(np.float64),
                                          lab.reshape(-1, 1, 3).astype(np.float64),
-                                         cv2.ccm.COLOR_SPACE_Lab_D50_2)
+                                         LAB_D50_2)
         if kind == "3x3 gamma 2.2":
-            m.setCCM_TYPE(cv2.ccm.CCM_3x3)
-            m.setLinear(cv2.ccm.LINEARIZATION_GAMMA)
-            m.setLinearGamma(2.2)
+            _ccm_configure(m, "3x3", cv2.ccm.LINEARIZATION_GAMMA, gamma=2.2)
+        elif kind == "4x3 gray polyfit 3":
+            _ccm_configure(m, "4x3", cv2.ccm.LINEARIZATION_GRAYPOLYFIT, degree=3)
         else:
-            m.setCCM_TYPE(cv2.ccm.CCM_4x3)
-            m.setLinear(cv2.ccm.LINEARIZATION_GRAYPOLYFIT)
-            m.setLinearDegree(3)
+            _ccm_configure(m, "4x3", cv2.ccm.LINEARIZATION_COLORPOLYFIT, degree=3)
         m.setDistance(cv2.ccm.DISTANCE_CIE2000)
-        m.run()
+        m.compute() if OPENCV5_CCM else m.run()
         return m
 
     def to_XYZ(m, src):
-        lin = m.infer(src.reshape(-1, 1, 3).astype(np.float64), True).reshape(-1, 3)
+        lin = _ccm_linear_output(m, src)
         XYZ = colour.RGB_to_XYZ(lin, colour.RGB_COLOURSPACES["sRGB"], apply_cctf_decoding=False)
         return colour.chromatic_adaptation(XYZ, D65, white_XYZ, method="Von Kries", transform="Bradford")
 
     out = {}
     N = len(patches)
-    for kind in ("3x3 gamma 2.2", "4x3 gray polyfit 3"):
+    for kind in ("3x3 gamma 2.2", "4x3 colour polyfit 3" if OPENCV5_CCM else "4x3 gray polyfit 3"):
         m = fit(patches.RGB, Lab, kind)
         train = delta_E(to_XYZ(m, patches.RGB), patches.XYZ, white_XYZ).mean()
         loo = []

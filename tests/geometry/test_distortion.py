@@ -48,10 +48,15 @@ def test_opencv_model_matches_cv2_projection_and_undistortion():
     cv_pixels, _ = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K, coeffs)
     ideal = (X / X[:, 2:]) @ K.T
     assert np.abs(model.distort(ideal[:, :2], K) - cv_pixels.reshape(-1, 2)).max() < 1e-9
-    # OpenCV's undistortPoints iterates a fixed number of times; ask for tight criteria.
-    cv_undistorted = cv2.undistortPointsIter(
-        cv_pixels, K, coeffs, None, K, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
-    ).reshape(-1, 2)
+    # OpenCV's undistortPoints iterates a fixed number of times; ask for tight criteria
+    # (OpenCV 5 folded undistortPointsIter into undistortPoints' criteria argument).
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+    undistort_iter = getattr(cv2, "undistortPointsIter", None)
+    if undistort_iter is not None:
+        cv_undistorted = undistort_iter(cv_pixels, K, coeffs, None, K, criteria)
+    else:
+        cv_undistorted = cv2.undistortPoints(cv_pixels, K, coeffs, R=None, P=K, criteria=criteria)
+    cv_undistorted = cv_undistorted.reshape(-1, 2)
     assert np.abs(model.undistort(cv_pixels.reshape(-1, 2), K) - cv_undistorted).max() < 1e-6
 
 

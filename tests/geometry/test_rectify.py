@@ -303,7 +303,7 @@ def test_write_puts_corresponding_corners_on_one_row(tmp_path):
         assert found, name
         points = cv2.cornerSubPix(image, points, (5, 5), (-1, -1),
                                   (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3))
-        corners.append(points[:, 0, :])
+        corners.append(points.reshape(-1, 2))  # OpenCV 5 returns (N, 2), 4.x (N, 1, 2)
     # the detector's own error, on the original renders against the true corners
     X = np.array([[-0.5 + 0.12 * (1 + i), -0.3 + 0.12 * (1 + j), 3.0] for j in range(6) for i in range(9)])
     truth = [result.rig.camera(n).rectification.H for n in ("cam0", "cam1")]
@@ -390,7 +390,7 @@ def test_cli_hartley_from_matches_file(tmp_path, capsys):
     rng = np.random.default_rng(41)
     rig = line_rig(2, rng)
     (x0, x1), = scene_matches(rig, rng, 200, sigma=SIGMA_PX).values()
-    lines = ["camera_a,u_a,v_a,camera_b,u_b,v_b"] + [f"cam0,{a[0]!r},{a[1]!r},cam1,{b[0]!r},{b[1]!r}" for a, b in zip(x0, x1)]
+    lines = ["camera_a,u_a,v_a,camera_b,u_b,v_b"] + [f"cam0,{a[0]:.17g},{a[1]:.17g},cam1,{b[0]:.17g},{b[1]:.17g}" for a, b in zip(x0, x1)]
     (tmp_path / "m.csv").write_text("\n".join(lines) + "\n")
     rig.save(tmp_path / "in.rig.json")
     code = main(["rectify", str(tmp_path / "in.rig.json"), "--method", "hartley", "--matches",
@@ -421,7 +421,7 @@ def stereo_detections(shared_data):
             ok, corners = cv2.findChessboardCorners(image, BOARD, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
             if not ok:
                 break
-            found.append(cv2.cornerSubPix(image, corners, (11, 11), (-1, -1), criteria)[:, 0, :].astype(np.float64))
+            found.append(cv2.cornerSubPix(image, corners, (11, 11), (-1, -1), criteria).reshape(-1, 2).astype(np.float64))
         if len(found) == 2:
             pairs.append((index, found[0], found[1]))
     size = (image.shape[1], image.shape[0])
@@ -460,7 +460,8 @@ def test_real_pairs_rectify_at_least_as_well_as_opencv(stereo_calibration):
     held_out = {("left", "right"): (np.vstack([p[1] for p in test]), np.vstack([p[2] for p in test]))}
     ours = rectify_calibrated(rig, alpha=0.0)
     (disparity,) = vertical_disparity(ours.rig, held_out)
-    R1, R2, P1, P2, *_ = cv2.stereoRectify(K1, D1, K2, D2, size, R, T, alpha=0.0)
+    # OpenCV 5 reads a 1-D T as a 1x3 row (true 1-D Mats) and stereoRectify then fails: give 3x1
+    R1, R2, P1, P2, *_ = cv2.stereoRectify(K1, D1, K2, D2, size, R, T.reshape(3, 1), alpha=0.0)
     y1 = cv2.undistortPoints(held_out[("left", "right")][0][:, None], K1, D1, R=R1, P=P1)[:, 0, 1]
     y2 = cv2.undistortPoints(held_out[("left", "right")][1][:, None], K2, D2, R=R2, P=P2)[:, 0, 1]
     peer_rms = float(np.sqrt(np.mean((y1 - y2) ** 2)))
