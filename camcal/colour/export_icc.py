@@ -13,9 +13,10 @@ media white (relative colorimetric, PCS white Y = 1).
   by ``1 / s`` so they end at most at 1) and ``rXYZ gXYZ bXYZ`` the columns
   of ``s * chad @ M``. ``gamma-offset`` curves are a ``parametricCurveType``
   (function type 1, §10.16) in v4 and a 4096-entry ``curveType`` in v2.
-- Other fits, version 4: a ``D2B0`` tag (``multiProcessElementsType``,
-  §10.14, 32-bit float; LittleCMS and other v4.3 readers use it in
-  preference to ``A2B0``) holding the same baked transform as the OCIO
+- Other fits, version 4: ``D2B0`` and ``D2B1`` tags (one
+  ``multiProcessElementsType``, §10.14, 32-bit float, shared by both:
+  LittleCMS takes the float tag of the intent asked, ``D2B1`` for relative
+  colorimetric, in preference to ``A2Bx``) holding the same baked transform as the OCIO
   export (:func:`camcal.colour.export_ocio.bake_fit`): per-channel curves
   (linearisation and log2 shaper, sampled), the matrix to log-chromaticity
   coordinates, the float CLUT (the OCIO Lut3D's table), the inverse log2
@@ -287,7 +288,12 @@ def _assemble(version: int, tags: list[tuple[bytes, bytes]], created: _dt.dateti
     table_size = 4 + 12 * len(tags)
     position = 128 + table_size
     entries, blobs = [], []
+    shared: dict[int, int] = {}  # the same data object under two signatures is stored once (§7.3.1)
     for signature, data in tags:
+        if id(data) in shared:
+            entries.append(struct.pack(">4sII", signature, shared[id(data)], len(data)))
+            continue
+        shared[id(data)] = position
         entries.append(struct.pack(">4sII", signature, position, len(data)))
         padded = _pad4(data)
         blobs.append(padded)
@@ -430,7 +436,7 @@ class ICCProfile:
         text = (f"A2B0 {self.clut_size}^3 CLUT, bake error CIEDE2000 max {self.bake_error.max:.3f} over the "
                 "chart gamut")
         if self.float_clut_size is not None:
-            text = (f"D2B0 {self.float_clut_size}^3 float CLUT, bake error CIEDE2000 max "
+            text = (f"D2B0/D2B1 {self.float_clut_size}^3 float CLUT, bake error CIEDE2000 max "
                     f"{self.float_bake_error.max:.3f} over the chart gamut and plausible surfaces; " + text)
         return text
 
@@ -577,7 +583,8 @@ def icc_profile_from_fit(
             tag, error = builder.build(n)
             if error.max <= max_delta_E:
                 break
-        tags += [(b"A2B0", tag), (b"D2B0", _d2b0(fit, baked, chad))]
+        d2b = _d2b0(fit, baked, chad)
+        tags += [(b"A2B0", tag), (b"D2B0", d2b), (b"D2B1", d2b)]
         data = _assemble(version, tags, created)
         check_icc(data)
         return ICCProfile(data, version, "lut", n, error, baked.lut_size, baked.bake_error)
