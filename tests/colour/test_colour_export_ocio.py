@@ -246,3 +246,28 @@ def test_inverse_of_a_sigma_root_polynomial_is_the_cameras_own_rgb():
     assert np.abs(np.asarray(fit.model.to_dict()["coefficients"])).max() > 5  # the hard case
     found = invert_model(fit.apply, fit.apply(RGB))
     np.testing.assert_allclose(found, RGB, atol=1e-6)
+
+
+@pytest.mark.parametrize("space", ["ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ"])
+def test_library_apply_is_the_exported_transform_in_the_chosen_space(sim, space):
+    """fit.processor(space): a matrix fit through OCIO equals numpy + colour-science's conversion (Bradford)."""
+    fit = make_fit(sim, "matrix3x3")
+    processor = fit.processor(space)
+    assert processor.kind == "matrix" and processor.bake_error is None
+    codes = codes_of(sim.RGB_test).reshape(10, 19, 3)
+    got = processor.apply(codes)
+    assert got.dtype == np.float32 and got.shape == codes.shape
+    XYZ = fit.apply_codes(codes.reshape(-1, 3))
+    if space == "CIE XYZ":
+        expected = XYZ
+    else:
+        name = {"ACES2065-1": "ACES2065-1", "ACEScg": "ACEScg", "lin Rec.709": "ITU-R BT.709"}[space]
+        expected = colour.XYZ_to_RGB(XYZ, name, illuminant=colour.XYZ_to_xy(fit.target_white_XYZ),
+                                     chromatic_adaptation_transform="Bradford")
+    # OCIO's fast pow in the gamma-offset linearisation: about 2e-5 relative per camera channel, which the
+    # output matrix mixes into small outputs: 5e-5 of white absolute
+    np.testing.assert_allclose(got.reshape(-1, 3), expected, rtol=1e-4, atol=5e-5)
+    frame = codes.astype(np.float32)
+    assert processor.apply(frame, in_place=True) is frame
+    with pytest.raises(CamcalError, match="unknown output space 'sRGB'"):
+        fit.processor("sRGB")
