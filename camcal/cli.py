@@ -949,8 +949,9 @@ def _register_colour_export(colour_verbs) -> None:
         description=(
             "Export characterisations (*.colour.json) as input colour spaces 'camcal <camera>' "
             "(family Input/camcal) of an OpenColorIO config, and/or as an ICC camera profile. "
-            "Matrix fits are exact; other models are baked (log2 shaper + 3D LUT) with the "
-            "bake error checked over the chart gamut."
+            "Matrix fits are exact; other models are baked (log-chromaticity shaper + 3D LUT; ICC v4: "
+            "float D2B0/D2B1 plus a 16-bit A2B0) with the bake error checked over the chart gamut and "
+            "plausible surface colours."
         ),
         epilog=(
             "--base: 'camcal' (camcal's small ACES config, ocio_configs/camcal_base.ocio), an "
@@ -971,7 +972,8 @@ def _register_colour_export(colour_verbs) -> None:
     parser.add_argument("--icc-version", type=int, choices=(4, 2), default=4,
                         help="ICC profile version: 4 (ICC.1:2010, default) or 2 (ICC.1:2001-04)")
     parser.add_argument("--max-bake-error", type=float, default=0.2, metavar="DE",
-                        help="largest CIEDE2000 a baked LUT may add over the chart gamut (default: %(default)s)")
+                        help="largest CIEDE2000 a baked LUT may add over the chart gamut and plausible surface "
+                        "colours (default: %(default)s)")
     parser.set_defaults(func=_colour_export)
 
 

@@ -15,7 +15,7 @@ stage 1 with the ``de2000`` objective (same ``lambda``). Candidates are
 ranked by leave-one-out mean CIEDE2000 over both stages; ties within
 :data:`TIE` go to the simpler model (fewer terms, then ``xyz``). Going down
 that ranking, each is fitted to all patches and handed to the exporters'
-own check (``exportable``, by default
+own check (``exportable``; ``colour fit`` passes
 :func:`camcal.colour.export_ocio.bake_model` at its largest Lut3D: a
 ``matrix3x3`` is exact, any other model must bake within CIEDE2000 0.2 over
 the chart gamut and plausible surface colours); the first that passes is
