@@ -115,7 +115,7 @@ STUDIO_CONFIG = "ocio://studio-config-latest"
 CAMCAL_BASE = "camcal"
 FAMILY = "Input/camcal"
 CLF_FORMAT = "Academy/ASC Common LUT Format"
-LUT_SIZES = (17, 33, 49, 65)
+LUT_SIZES = (17, 33, 49, 65, 81)
 CATS = ("Bradford", "CAT02")
 CURVE_SAMPLES = 4096
 LUT_DIR = "luts"
@@ -400,10 +400,10 @@ class BakedTransform:
 
 def _lut3d_table(apply: Callable, n: int, coordinates: LogChromaticity, shaper: LogShaper,
                  M: np.ndarray) -> np.ndarray:
-    """``s(M^-1 apply(x))`` at the grid nodes, ``x`` the decoded node clipped to the shaper's range."""
+    """``s(M^-1 apply(x))`` at the grid nodes, ``x`` the decoded node clipped to the input shaper's domain."""
     g = np.linspace(0.0, 1.0, n)
     grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)  # first axis slowest
-    x = np.clip(coordinates.decode(grid), 0.0, 2.0**coordinates.shaper.high_stop)
+    x = np.clip(coordinates.decode(grid), *coordinates.shaper.domain)
     y = np.asarray(apply(x), dtype=np.float64).reshape(-1, 3) @ np.linalg.inv(M).T
     table = shaper.encode(y)
     if not np.all(np.isfinite(table)):
@@ -482,9 +482,10 @@ def transform_from_callable(
     followed by ``s^-1`` and ``M``. For a root-polynomial fit the stored
     function is linear along the exposure axis, so the grid only follows its
     curvature across chromaticity. At each size, plain per-channel log2
-    coordinates (:meth:`LogChromaticity.per_channel`) are tried when the
-    log-chromaticity ones miss ``max_delta_E`` (a piecewise-linear function
-    in RGB, such as a Lut3D match, bakes better on its own axes).
+    coordinates (:meth:`LogChromaticity.per_channel`, input and output
+    shaped by the default :class:`LogShaper`, -8 to +3 stops) are tried when
+    the log-chromaticity ones miss ``max_delta_E`` (a piecewise-linear
+    function in RGB, such as a Lut3D match, bakes better on its own axes).
     Interpolation is tetrahedral. Grid nodes
     that decode outside ``[0, 2**high_stop]`` (outside any real colour) are
     evaluated at the clipped value.
@@ -516,13 +517,14 @@ def transform_from_callable(
     reference = to_XYZ(Y)
     error = None
     for n in sizes:
-        for coordinates in (LogChromaticity.from_samples(X, shaper), LogChromaticity.per_channel()):
-            table = _lut3d_table(apply, n, coordinates, shaper, M)
-            group = _lut3d_group(table, coordinates, shaper, M)
+        for coordinates, out in ((LogChromaticity.from_samples(X, shaper), shaper),
+                                 (LogChromaticity.per_channel(), LogShaper())):
+            table = _lut3d_table(apply, n, coordinates, out, M)
+            group = _lut3d_group(table, coordinates, out, M)
             baked = _apply_cpu(_cpu(group), X)
             found = DeltaEStats.from_values(delta_E(to_XYZ(baked), reference, white_XYZ))
             if found.max <= max_delta_E:
-                return BakedTransform("lut3d", group, M, n, shaper, found, coordinates, table)
+                return BakedTransform("lut3d", group, M, n, out, found, coordinates, table)
             error = found if error is None or found.max < error.max else error
     raise CamcalError(
         f"a {sizes[-1]}^3 Lut3D still leaves CIEDE2000 up to {error.max:.3f} over the samples "

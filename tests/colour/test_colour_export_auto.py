@@ -11,7 +11,7 @@ from camcal.colour.fitfile import load_fit  # noqa: E402
 from camcal.colour.patches import PatchSet  # noqa: E402
 from camcal.colour.select import select_model  # noqa: E402
 from camcal.errors import CamcalError  # noqa: E402
-from colour_export_helpers import codes_of, make_fit  # noqa: E402
+from colour_export_helpers import make_fit  # noqa: E402
 
 
 def test_auto_walks_down_its_ranking_past_refused_models(sim):
@@ -39,24 +39,36 @@ def test_auto_walks_down_its_ranking_past_refused_models(sim):
     assert data["picked"]["exportable"] is True and "bake_error_max" not in data["picked"]  # exact
 
 
-def test_auto_pick_exports_and_what_it_refused_the_exporter_refuses(tmp_path, sim_factory):
-    """Sigma SDMerill: auto's best leave-one-out model does not bake within 0.2; auto says so, picks the
-    next, and both exporters take the pick while the OCIO exporter refuses the one auto passed over."""
-    sim = sim_factory("Sigma SDMerill (NPL)")
-    fit = make_fit(sim, "auto")
-    fit = load_fit(fit.save(tmp_path / "sigma.colour.json"))  # the new candidate keys round-trip
+def test_auto_refuses_what_the_exporter_refuses(tmp_path, sim):
+    """The real check (the exporters' bake_model, as ``colour fit`` passes it, here limited to a 17^3 grid
+    so that it refuses): root-polynomial:3 fits rank above the matrix by leave-one-out on the Nikon but do
+    not bake in 17^3; auto passes over them, and the OCIO exporter with the same grid refuses those fits."""
+    from camcal.colour.export_ocio import bake_model
+
+    def exportable(model):
+        baked = bake_model(model, sim.white, illuminant="D65", lut_sizes=(17,))
+        return None if baked.bake_error is None else baked.bake_error.max
+
+    selection = select_model(sim.RGB_train, sim.XYZ_train, sim.white, objectives=("xyz",),
+                             candidates=("root-polynomial:3", "matrix3x3"), exportable=exportable)
+    refused = [c for c in selection.candidates if c.exportable is False]
+    assert refused and selection.picked.exportable is True
+    assert all(c.loo_mean < selection.picked.loo_mean and c.bake_error_max > 0.2 for c in refused)
+    first = refused[0]
+    train = PatchSet(sim.names_train, sim.RGB_train, sim.XYZ_train)
+    fit = characterise(train, white="D65", model=first.spec.label, regularisation=first.regularisation,
+                       linearise="none", loo=False).fit
+    with pytest.raises(CamcalError, match="still leaves"):
+        export_ocio([("nikon", fit)], tmp_path / "refused", base="camcal", lut_sizes=(17,))
+
+
+@pytest.mark.parametrize("camera", ["Nikon 5100 (NPL)", "Sigma SDMerill (NPL)"])
+def test_auto_pick_exports_through_both_exporters(tmp_path, sim_factory, camera):
+    sim = sim_factory(camera)
+    fit = load_fit(make_fit(sim, "auto").save(tmp_path / "cam.colour.json"))  # the new keys round-trip
     picked = fit.selection["picked"]
     assert picked["exportable"] is True
-    refused = [c for c in fit.selection["candidates"] if c.get("exportable") is False]
-    assert refused and all(c["loo_mean"] < picked["loo_mean"] for c in refused)
-    assert all(c["bake_error_max"] > 0.2 for c in refused)
-    result = export_ocio([("sigma", fit)], tmp_path / "ocio", base="camcal")
+    result = export_ocio([("cam", fit)], tmp_path / "ocio", base="camcal")
     assert result.spaces[0].kind == "matrix" or result.spaces[0].bake_error.max <= 0.2
-    icc_profile_from_fit(fit, "sigma")
-    best = refused[0]
-    train = PatchSet(sim.names_train, codes_of(sim.RGB_train), sim.XYZ_train)
-    other = characterise(train, white="D65", model=best["model"], objective=best["objective"],
-                         regularisation=best["regularisation"], linearise="gamma-offset", loo=False).fit
-    with pytest.raises(CamcalError, match="still leaves"):
-        export_ocio([("sigma", other)], tmp_path / "refused", base="camcal")
-    assert not (tmp_path / "refused").exists()
+    profile = icc_profile_from_fit(fit, "cam")
+    assert profile.kind == "matrix-trc" or profile.float_bake_error.max <= 0.2
