@@ -18,6 +18,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from camcal import resources
 from camcal.errors import CamcalError
 
 __all__ = [
@@ -68,9 +69,9 @@ print("CAMCAL_RESULT " + json.dumps(summary))
 
 
 def addon_dir() -> Path:
-    """The folder of the Blender add-on (``addon/`` beside the package)."""
+    """The folder of the Blender add-on (:func:`camcal.resources.addon_dir`; ``CAMCAL_ADDON_DIR`` overrides it)."""
     override = os.environ.get("CAMCAL_ADDON_DIR")
-    folder = Path(override) if override else Path(__file__).resolve().parents[1] / "addon"
+    folder = Path(override) if override else resources.addon_dir()
     if not (folder / "blender_manifest.toml").is_file():
         raise CamcalError(
             f"the Blender add-on was not found at {folder} (set CAMCAL_ADDON_DIR to its folder)"

@@ -42,12 +42,12 @@ import argparse
 import contextlib
 import glob
 import json
+import math
 import os
 import sys
 import traceback
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from camcal import __version__
@@ -194,7 +194,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     code = EXIT_BAD_INPUT
     error_line = None
     try:
-        args = parser.parse_args(argv)
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as exit_:  # --help, --version, or argparse's own usage error (exit 2)
+            if want_json and exit_.code not in (0, None):
+                print(json.dumps(summary.to_dict(int(exit_.code), "malformed command line (see stderr)")), file=stdout)
+            raise
         debug, want_json = bool(getattr(args, "debug", False)), bool(getattr(args, "json", False))
         summary.verb = args._verb
         args._summary = summary
@@ -302,7 +307,9 @@ def _register_blender(subparsers) -> None:
 
 def _blender_import(args: argparse.Namespace) -> int:
     from camcal.blender_bridge import import_rig_to_blend
+    from camcal.rig import Rig
 
+    Rig.load(args.rig)  # a bad rig file fails here, in one line, before Blender starts
     summary = import_rig_to_blend(
         args.rig,
         args.blend,
@@ -321,8 +328,12 @@ def _blender_import(args: argparse.Namespace) -> int:
     print(f"imported rig {summary['rig']!r} into {args.blend}: {len(summary['cameras'])} camera(s) "
           f"({cams}), stereo: {summary['stereo_mode'].lower()}, "
           f"distorted lenses: {len(summary['clips'])}")
+    out = summary_of(args)
+    out.figures(rig=summary["rig"], cameras=list(summary["cameras"]), stereo_mode=summary["stereo_mode"],
+                n_distorted_lenses=len(summary["clips"]))
+    out.wrote(args.blend, "blend", say=False)
     for warning in summary["warnings"]:
-        print(f"warning: {warning}")
+        out.warn(warning)
     return 0
 
 
@@ -339,17 +350,91 @@ def _image_size(value: Sequence[int]) -> tuple[int, int]:
 def _rig_show(args: argparse.Namespace) -> int:
     from camcal.rig import Rig
 
-    print(Rig.load(args.rig).summary())
+    rig = Rig.load(args.rig)
+    print(rig.summary())
+    summary_of(args).figures(rig=rig.to_dict())
     return 0
 
 
 def _register_rig(subparsers) -> None:
-    rig = subparsers.add_parser("rig", help="inspect rig files")
+    rig = subparsers.add_parser("rig", help="inspect rig files; export them to and import them from other tools")
     verbs = rig.add_subparsers(dest="rig_verb", metavar="VERB")
     verbs.required = True
     show = verbs.add_parser("show", help="print a readable summary of a rig file")
     show.add_argument("rig", metavar="FILE", help="a *.rig.json file")
     show.set_defaults(func=_rig_show)
+    _register_rig_interchange(verbs)
+
+
+def _register_rig_interchange(verbs) -> None:
+    from camcal.io.interchange import FORMATS
+
+    export = verbs.add_parser(
+        "export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke)",
+        description="Write RIG as FORMAT. opencv: .yaml/.yml/.xml FileStorage (one camera or a stereo pair); "
+        "kalibr: camchain.yaml; colmap: a directory with cameras.txt, images.txt, points3D.txt; usd: "
+        ".usda/.usdc/.usd; nuke: .nk. A lens or skew the format cannot hold is fitted with the nearest "
+        "model it holds and the max pixel residual is printed; exact conversions say so.")
+    export.add_argument("rig", metavar="RIG", help="a *.rig.json file")
+    export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
+    export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
+    export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
+    export.add_argument("--stmaps", action="store_true",
+                        help="usd: also write each lens' ST-maps beside the stage and reference them from its camera")
+    export.set_defaults(func=_rig_export)
+    imp = verbs.add_parser(
+        "import", help="read another tool's camera file as a rig",
+        description="Read FILE (a directory for colmap) written by FORMAT's tool and write a camcal rig.")
+    imp.add_argument("file", metavar="FILE", help="the other tool's file")
+    imp.add_argument("--from", dest="fmt", required=True, choices=FORMATS, metavar="FORMAT",
+                     help=f"one of: {', '.join(FORMATS)}")
+    imp.add_argument("--out", required=True, metavar="RIG.rig.json", help="the rig file to write")
+    imp.set_defaults(func=_rig_import)
+
+
+def _print_conversions(args: argparse.Namespace, result) -> None:
+    import dataclasses
+
+    for conversion in result.conversions:
+        print(conversion.describe())
+    for note in result.notes:
+        print(f"note: {note}")
+    summary_of(args).figures(conversions=[dataclasses.asdict(c) for c in result.conversions], notes=list(result.notes))
+
+
+def _rig_export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from camcal.io.interchange import export_rig
+    from camcal.rig import Rig
+
+    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig,
+                        stmaps=args.stmaps)
+    _print_conversions(args, result)
+    for path in result.paths:
+        summary_of(args).wrote(path, args.to if path == Path(args.out) or path.parent == Path(args.out) else "stmap")
+    return 0
+
+
+def _rig_import(args: argparse.Namespace) -> int:
+    import dataclasses
+    from pathlib import Path
+
+    from camcal.io.interchange import import_rig
+    from camcal.io.ply import write_points_ply
+    from camcal.rig import make_provenance
+
+    result = import_rig(args.file, args.fmt)
+    rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
+    _print_conversions(args, result)
+    out = summary_of(args)
+    if result.points_xyz is not None:
+        points = Path(args.out).with_name(Path(args.out).name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
+        out.wrote(write_points_ply(points, result.points_xyz, result.points_rgb), "points")
+        rig = dataclasses.replace(rig, points=points.name)
+    out.figures(n_cameras=len(rig.cameras), n_frames=len(rig.frames))
+    out.wrote(rig.save(args.out), "rig")
+    return 0
 
 
 # -- camcal calibrate ----------------------------------------------------------------
@@ -378,15 +463,39 @@ def _calibrate_dlt(args: argparse.Namespace) -> int:
         f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) px  skew {K[0, 1]:.3g}"
     )
     print(f"camera centre ({result.c[0]:.4f}, {result.c[1]:.4f}, {result.c[2]:.4f})")
-    print(f"wrote {args.out}")
+    out = summary_of(args)
+    out.figures(rms_px=result.rms_px, worst_px=result.worst_px, n_points=len(X), K=K, sigma=sigma, c=result.c)
+    out.wrote(args.out, "rig")
     return 0
 
 
+def _parse_holdout(text: str, frames: list[int]) -> set[int]:
+    """``--holdout``: frame numbers and ranges (``21-25,3``) or a fraction of the frames (``0.2``, evenly spaced)."""
+    import re
+
+    text = text.strip()
+    if re.fullmatch(r"0?\.\d+", text):
+        fraction = float(text)
+        count = max(1, round(fraction * len(frames)))
+        step = len(frames) / count
+        return {frames[min(len(frames) - 1, int((k + 0.5) * step))] for k in range(count)}
+    held: set[int] = set()
+    for part in text.split(","):
+        match = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        if not match:
+            raise CamcalError(f"bad --holdout {text!r}: expected frame numbers and ranges (21-25,3) or a fraction (0.2)")
+        first, last = int(match.group(1)), int(match.group(2) or match.group(1))
+        held.update(range(first, last + 1))
+    return held
+
+
 def _calibrate_board(args: argparse.Namespace) -> int:
+    import os
+
     import numpy as np
 
-    from camcal.geometry.board import detect_in_images, parse_board
-    from camcal.geometry.zhang import calibrate_board, write_report
+    from camcal.geometry.board import default_cache_dir, detect_in_images, frame_number, parse_board
+    from camcal.geometry.zhang import calibrate_board, quality_problems, write_report
 
     board = parse_board(args.board)
     if not args.camera:
@@ -394,11 +503,31 @@ def _calibrate_board(args: argparse.Namespace) -> int:
     cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()}
     detections = {}
     for name, files in cameras.items():
-        report = detect_in_images(board, files, progress=f"detecting {name}")
+        report = detect_in_images(board, files, progress=f"detecting {name}", workers=args.workers or os.cpu_count() or 1,
+                                  cache=None if args.no_cache else (args.cache or default_cache_dir()))
         print(f"{name}: {report.summary()}")
         detections[name] = report.detections
-    result = calibrate_board(board, detections, model=args.model, units=args.units)
+    holdout: set[int] = set()
+    if args.holdout:
+        frames = sorted({frame_number(d.image) for views in detections.values() for d in views})
+        holdout = _parse_holdout(args.holdout, frames)
+    result = calibrate_board(board, detections, model=args.model, units=args.units, loss=args.loss,
+                             loss_scale=args.loss_scale, holdout=holdout)
+    problems = quality_problems(result)
+    if problems and not args.force:
+        raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)
+                          + " (--force writes it anyway)")
     result.rig.save(args.out)
+    for note in result.notes:
+        print(note)
+    if result.model_heldout_rms_px:
+        scores = ", ".join(f"{model} {rms:.4f} px" for model, rms in result.model_heldout_rms_px.items())
+        print(f"model auto: RMS on every 4th training frame, held out to choose: {scores}; chose {result.model}")
+    if result.relabelled:
+        print(f"relabelled by a half turn (symmetric board) to agree with the rig: "
+              + ", ".join(image for _, image in result.relabelled))
+    if result.dropped:
+        print("dropped (no corner labelling agrees with the rig): " + ", ".join(image for _, image in result.dropped))
     print(result.summary())
     if result.outliers:
         print("dropped as outliers: " + ", ".join(image for _, image in result.outliers))
@@ -409,14 +538,30 @@ def _calibrate_board(args: argparse.Namespace) -> int:
             f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) +/- ({sigma['cx']:.2f}, {sigma['cy']:.2f}) px  "
             f"RMS {camera.quality['rms_px']:.3f} px"
         )
-        if "baseline" in sigma:
-            line += f"  baseline {float(np.linalg.norm(camera.c)):.4f} +/- {sigma['baseline']:.4f} {result.rig.units}"
+        if camera.quality.get("heldout_rms_px") is not None:
+            line += f" (held-out {camera.quality['heldout_rms_px']:.3f} px)"
+        if "baseline_rel" in sigma:
+            baseline = float(np.linalg.norm(camera.c))
+            line += (f"  baseline {baseline:.4f} +/- {sigma['baseline_rel'] * baseline:.4f} {result.rig.units}"
+                     f"  rotation +/- {sigma['rotation_deg']:.3f} deg")
         print(line)
-    print(f"wrote {args.out}")
+    out = summary_of(args)
+    if problems:
+        out.warn("written with --force although " + "; ".join(problems))
+    out.figures(
+        summary=result.summary(), outliers=[image for _, image in result.outliers],
+        detections={name: len(found) for name, found in detections.items()},
+        cameras={camera.name: {"K": camera.K, "distortion": camera.distortion.to_dict(), "c": camera.c,
+                               "quality": camera.quality.to_dict()} for camera in result.rig.cameras},
+        model=result.model, heldout_rms_px=result.heldout_rms_px, model_heldout_rms_px=dict(result.model_heldout_rms_px),
+        relabelled=[image for _, image in result.relabelled], dropped=[image for _, image in result.dropped],
+        quality_problems=problems,
+    )
+    out.wrote(args.out, "rig")
     if args.report:
         for path in write_report(result, args.report):
-            print(f"wrote {path}")
-    return 0
+            out.wrote(path, "report")
+    return 3 if problems else 0
 
 
 def _register_calibrate(subparsers) -> None:
@@ -450,8 +595,24 @@ def _register_calibrate(subparsers) -> None:
         help="a camera and its images, e.g. left='shots/left*.jpg' right='shots/right*.jpg' "
         "(several entries or a repeated option; globs absolute or relative)",
     )
-    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv"),
-                       help="distortion model (default: polynomial)")
+    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "auto"),
+                       help="distortion model; auto: the lowest RMS on every 4th training frame held out "
+                       "(default: polynomial)")
+    board.add_argument("--holdout", metavar="FRAMES",
+                       help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
+                       "numbers and ranges (21-25) or a fraction (0.2)")
+    board.add_argument("--loss", default="trivial", choices=("trivial", "huber", "soft_l1", "cauchy"),
+                       help="robust loss on each corner (Ceres; default: trivial)")
+    board.add_argument("--loss-scale", type=float, default=1.0, metavar="PX", help="scale of the loss (default: 1 px)")
+    board.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="images detected at once (threads; default: the CPU count)")
+    board.add_argument("--cache", metavar="DIR",
+                       help="corner cache directory, keyed by image content and detector settings "
+                       "(default: $XDG_CACHE_HOME/camcal/corners)")
+    board.add_argument("--no-cache", action="store_true", help="detect again, do not read or write the cache")
+    board.add_argument("--force", action="store_true",
+                       help="write a rig that fails the quality gate (principal point outside the image, RMS over "
+                       "1.5 px, sigma fx over 5 %%) and exit 3 instead of refusing it")
     board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
     board.add_argument("--out", required=True, metavar="FILE.rig.json")
     board.add_argument("--report", metavar="DIR", help="write PNG plots: residuals, per-image RMS, coverage")
@@ -464,7 +625,7 @@ def _register_calibrate(subparsers) -> None:
 def _solve(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from camcal.geometry.sfm import MODELS, collect_images, solve_sfm
+    from camcal.geometry.sfm import LENS_MODELS, MODELS, collect_images, solve_pycolmap_plain, solve_sfm
     from camcal.rig import Rig
 
     folders = [Path(folder) for folder in args.folders]
@@ -478,17 +639,65 @@ def _solve(args: argparse.Namespace) -> int:
     else:
         images = collect_images(folders)
     known_rig = Rig.load(args.rig) if args.rig else None
-    camera_model = MODELS[args.model] if args.model else args.camera_model
+    if args.features < 100:
+        raise CamcalError(f"--features must be at least 100, got {args.features}")
+    # --model auto (or nothing): choose among LENS_MODELS; a named model: only it; --camera-model alone: keep it
+    model = args.model or ("keep" if args.camera_model else "auto")
+    lens_models = LENS_MODELS if model == "auto" else (None if model == "keep" else (model,))
+    camera_model = args.camera_model or (MODELS[model] if model in MODELS else "SIMPLE_RADIAL")
     result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
-                       seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss)
+                       seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
+                       lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features)
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
     per_camera = ", ".join(f"{name} {rms:.3f} px" for name, rms in result.per_camera_rms_px.items())
     print(f"RMS reprojection error: {result.rms_px:.3f} px ({per_camera}); {result.n_points} points")
     if result.bundle is not None:
         print(result.bundle.summary())
+    if result.self_calibration is not None:
+        print("\n".join(result.self_calibration.lines()))
+    peer = solve_pycolmap_plain(images, Path(args.out) / "pycolmap", seed=args.seed) if args.compare_pycolmap else None
+    for camera in result.rig.cameras:
+        sigma = camera.quality.get("sigma", {})
+        print(f"{camera.name}: {_intrinsics_line(camera, sigma)}"
+              + (f"; heldout RMS {camera.quality['heldout_rms_px']:.3f} px" if "heldout_rms_px" in camera.quality else ""))
+        if "rotation_deg" in sigma:
+            print(f"{camera.name}: rig pose sigma rotation {sigma['rotation_deg']:.3g} deg, "
+                  f"baseline {100 * sigma['baseline_rel']:.3g} %")
+        if peer is not None and camera.name in peer.cameras:
+            print(f"{camera.name} (plain pycolmap): {_intrinsics_line(peer.cameras[camera.name], {})}; "
+                  f"RMS {peer.rms_px[camera.name]:.3f} px")
     print(f"wrote {Path(args.out) / 'solve.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
+    out = summary_of(args)
+    out.figures(n_images=result.n_images, n_registered=result.n_registered, unregistered=list(result.unregistered),
+                rms_px=result.rms_px, per_camera_rms_px=dict(result.per_camera_rms_px), n_points=result.n_points,
+                bundle=None if result.bundle is None else result.bundle.summary(),
+                cameras={camera.name: dict(camera.quality) for camera in result.rig.cameras})
+    if result.self_calibration is not None:
+        calibration = result.self_calibration
+        out.figures(lens_models=calibration.lens_models, heldout_rms_px_by_model=calibration.heldout_rms_px,
+                    principal_point={d.camera: {"refined": d.refined, "limit_px": d.limit_px,
+                                                "sigma_px": [v if math.isfinite(v) else None for v in d.sigma_px],
+                                                "reason": d.reason} for d in calibration.principal_point})
+    if peer is not None:
+        out.figures(pycolmap={name: {"K": camera.K, "distortion": camera.distortion.to_dict(),
+                                     "rms_px": peer.rms_px.get(name)} for name, camera in peer.cameras.items()})
+    out.wrote(Path(args.out) / "solve.rig.json", "rig", say=False)
+    out.wrote(Path(args.out) / "points.ply", "points", say=False)
+    out.wrote(result.reconstruction_dir, "colmap model", say=False)
     return 0
+
+
+def _intrinsics_line(camera, sigma) -> str:
+    """``f 900.12 +- 0.04 px, principal point (646.0, 474.3) +- (0.01, 0.02) px, division lambda -1.2e-07``."""
+    def pm(key: str, fmt: str) -> str:
+        return f" +- {sigma[key]:{fmt}}" if key in sigma else ""
+    K = camera.K
+    focal = f"f {K[0, 0]:.2f}{pm('f', '.2g')}" if K[0, 0] == K[1, 1] else \
+        f"fx {K[0, 0]:.2f}{pm('fx', '.2g')}, fy {K[1, 1]:.2f}{pm('fy', '.2g')}"
+    lens = ", ".join(f"{name} {value:.4g}{pm(name, '.2g')}" for name, value in camera.distortion.params.items())
+    return (f"{focal} px, principal point ({K[0, 2]:.2f}{pm('cx', '.2g')}, {K[1, 2]:.2f}{pm('cy', '.2g')}) px, "
+            f"{camera.distortion.model} {lens}")
 
 
 def _register_solve(subparsers) -> None:
@@ -497,6 +706,8 @@ def _register_solve(subparsers) -> None:
         help="cameras from images: pycolmap structure from motion + camcal bundle adjustment",
         description="One folder per camera (or one folder of per-camera sub-folders, or --camera NAME=GLOB "
         "inside one folder); several cameras form a rig whose frames pair up by sorted order. "
+        "Each camera's lens model is chosen by held-out residual and the principal point is refined "
+        "where its sigma says the views determine it (both printed). "
         "Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.",
     )
     solve.add_argument("folders", nargs="+", metavar="IMAGES_DIR", help="image folder(s)")
@@ -505,14 +716,21 @@ def _register_solve(subparsers) -> None:
                        "IMAGES_DIR, or absolute; several entries or a repeated option)")
     solve.add_argument("--rig", metavar="KNOWN.rig.json",
                        help="hold the cameras' relative poses at this calibration (and take its units)")
-    solve.add_argument("--model", choices=("division", "polynomial", "opencv", "none"),
-                       help="camcal lens model (COLMAP SIMPLE_DIVISION / RADIAL / OPENCV / SIMPLE_PINHOLE)")
-    solve.add_argument("--camera-model", default="SIMPLE_RADIAL", help="COLMAP camera model (default: SIMPLE_RADIAL)")
+    solve.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none"),
+                       help="camcal lens model (COLMAP SIMPLE_DIVISION / RADIAL / OPENCV / SIMPLE_PINHOLE); "
+                       "auto (the default) chooses per camera by held-out residual")
+    solve.add_argument("--camera-model", help="COLMAP camera model to map with; alone, it is kept (no choice)")
+    solve.add_argument("--principal-point", default="auto", choices=("auto", "refine", "centre"),
+                       help="refine it where its sigma says the views determine it (auto), always, or never")
+    solve.add_argument("--features", type=int, default=8192, metavar="N", help="SIFT features per image (8192)")
     solve.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"))
     solve.add_argument("--mapper", default="incremental", choices=("incremental", "global"))
     solve.add_argument("--loss", default="trivial", choices=("trivial", "huber", "soft_l1", "cauchy"),
                        help="robust loss of camcal's bundle adjustment (scale 1 px)")
     solve.add_argument("--no-refine", action="store_true", help="keep pycolmap's result, skip camcal's refinement")
+    solve.add_argument("--compare-pycolmap", action="store_true",
+                       help="also run plain pycolmap (SIMPLE_DIVISION, principal point refined) on the same images "
+                       "into OUT/pycolmap and print its intrinsics beside camcal's")
     solve.add_argument("--seed", type=int, default=0)
     solve.add_argument("--out", required=True, metavar="DIR")
     solve.set_defaults(func=_solve)
@@ -524,20 +742,23 @@ def _register_solve(subparsers) -> None:
 def _demo(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from camcal.demo import FULL, STAGES, run_demo
+    from camcal.demo import FULL, run_demo
 
     config = dataclasses.replace(FULL, seed=args.seed)
     if args.stages:
         config = dataclasses.replace(config, stages=tuple(s.strip() for s in args.stages.split(",")))
-        unknown = [name for name in config.stages if name not in {stage.name for stage in STAGES}]
-        if unknown:
-            raise CamcalError(f"--stages: unknown stage(s) {', '.join(map(repr, unknown))}, expected some of: "
-                              + ", ".join(stage.name for stage in STAGES))
     report = run_demo(args.out, config)
     print(report.table())
+    out = summary_of(args)
     for label, path in report.outputs:
         print(f"wrote {path} ({label})")
+        out.wrote(path, label, say=False)
     print(f"report: {report.report}")
+    out.wrote(report.report, "report", say=False)
+    out.figures(rows=[{"stage": row.stage, "quantity": row.quantity, "true": row.true, "recovered": row.recovered,
+                       "error": row.error, "tolerance": row.tolerance, "unit": row.unit, "ok": row.ok,
+                       "source": row.source} for row in report.rows],
+                seconds=dict(report.seconds), n_failed=len(report.failed))
     print("time per stage: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in report.seconds))
     if report.failed:
         print(f"outside tolerance: {', '.join(row.quantity for row in report.failed)}", file=sys.stderr)
@@ -579,6 +800,8 @@ def _pattern(value: str) -> tuple[int, int]:
 def _distortion_fit(args: argparse.Namespace) -> int:
     import cv2
 
+    from pathlib import Path
+
     from camcal.geometry.plumbline import fit_plumbline, lines_from_images, read_lines
     from camcal.io.frames import imread
     from camcal.io.jsonfile import write_json
@@ -601,8 +824,6 @@ def _distortion_fit(args: argparse.Namespace) -> int:
     result = fit_plumbline(lines, args.model, fit_center=args.fit_centre)
     write_json(args.out, result.to_dict())
     if args.report:
-        from pathlib import Path
-
         write_json(Path(args.report) / "plumbline_report.json", {
             **result.to_dict(),
             "strand_hayman": {
@@ -616,6 +837,13 @@ def _distortion_fit(args: argparse.Namespace) -> int:
     params = ", ".join(f"{k} {v:.6g}" for k, v in result.distortion.params.items())
     centre = result.distortion.center or tuple(result.K[:2, 2])
     print(f"{result.distortion.model}: {params} about ({centre[0]:.2f}, {centre[1]:.2f}) px")
+    out = summary_of(args)
+    out.figures(distortion=result.distortion.to_dict(), straightness_rms_before_px=result.straightness_rms_before_px,
+                straightness_rms_px=result.straightness_rms_px, worst_line_rms_px=float(result.rms_after_px.max()),
+                n_lines=result.n_lines, n_points=result.n_points, skipped=skipped)
+    out.wrote(args.out, "lens", say=False)
+    if args.report:
+        out.wrote(Path(args.report) / "plumbline_report.json", "report", say=False)
     print(f"straightness RMS: {result.straightness_rms_before_px:.3f} px before, "
           f"{result.straightness_rms_px:.3f} px after (worst line {result.rms_after_px.max():.3f} px, "
           f"{result.n_lines} lines, {result.n_points} points)")
@@ -652,12 +880,15 @@ def _rectify(args: argparse.Namespace) -> int:
             written += warper.write(name, images.get(name, []), args.write)
     result.rig.save(args.out)
     print(result.summary())
+    out = summary_of(args)
+    out.figures(**result.to_report())
+    for path in written:
+        out.wrote(path, "image", say=False)
     if written:
         print(f"wrote {len(written)} rectified image(s) to {args.write}")
     if args.report:
-        report = write_json(f"{args.report}/rectification.json", result.to_report())
-        print(f"wrote {report}")
-    print(f"wrote {args.out}")
+        out.wrote(write_json(f"{args.report}/rectification.json", result.to_report()), "report")
+    out.wrote(args.out, "rig")
     return 0
 
 
@@ -696,6 +927,11 @@ def _undistort(args: argparse.Namespace) -> int:
     print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
           f"fx {camera.K[0, 0]:.3f} fy {camera.K[1, 1]:.3f} principal point ({camera.K[0, 2]:.2f}, {camera.K[1, 2]:.2f})")
     print(f"wrote {rig_path} and {len(written)} image(s) in {args.out}")
+    out = summary_of(args)
+    out.figures(camera=args.camera, mode=args.mode, image_size=[width, height], K=camera.K)
+    out.wrote(rig_path, "rig", say=False)
+    for path in written:
+        out.wrote(path, "image", say=False)
     return 0
 
 
@@ -723,8 +959,10 @@ def _stmap(args: argparse.Namespace) -> int:
 
     paths = write_stmaps(Rig.load(args.rig), args.camera, args.out, args.overscan)
     print(f"ST-maps of {args.camera!r} with overscan {args.overscan:g}")
+    out = summary_of(args)
+    out.figures(camera=args.camera, overscan=args.overscan)
     for path in paths:
-        print(f"wrote {path}")
+        out.wrote(path, "stmap" if str(path).endswith(".exr") else "rig")
     return 0
 
 
@@ -782,6 +1020,12 @@ def _batch(args: argparse.Namespace) -> int:
     report = run_batch(job, frames, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                        retries=args.retries, progress=not args.quiet)
     print(report.summary())
+    out = summary_of(args)
+    out.figures(n_frames=len(report.frames), n_written=len(report.written), skipped=list(report.skipped),
+                failed={failure.frame: failure.message for failure in report.failed},
+                seconds=report.seconds, n_workers=report.n_workers)
+    for frame in report.written:
+        out.wrote(frame.output, "frame", say=False)
     return 0 if report.ok else 1
 
 
@@ -855,7 +1099,8 @@ def _register_colour_fit(colour_verbs) -> None:
         ),
     )
     source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--chart", metavar="IMAGE", help="photo of a 24-patch ColorChecker")
+    source.add_argument("--chart", metavar="IMAGE", help="photo of a 24-patch ColorChecker (PNG/TIFF/JPEG/EXR, or "
+                                                          "raw: DNG, CR2, NEF, ARW... read as linear camera RGB)")
     source.add_argument("--patches", metavar="FILE.csv", help="training patches (see below)")
     parser.add_argument("--reference", default="ColorChecker24 - After November 2014", metavar="NAME",
                         help="reference chart for --chart (colour-science name or cc24, cc24-2005, "
@@ -887,7 +1132,62 @@ def _register_colour_fit(colour_verbs) -> None:
     parser.add_argument("--camera", default=None, help="camera name recorded in the file")
     parser.add_argument("--out", required=True, metavar="FIT.colour.json", help="fit file to write")
     parser.add_argument("--report", metavar="DIR", help="write per-patch tables and plots here")
+    _register_for_illuminant(parser)
     parser.set_defaults(func=_colour_fit)
+
+
+def _register_for_illuminant(parser) -> None:
+    """``colour fit --for-illuminant B --sensitivities SSF``: a fit for another light."""
+    group = parser.add_argument_group(
+        "another illuminant",
+        "fit for the light B the camera will be used under, from a chart shot under --illuminant A: the "
+        "spectral route (ACES P-2013-001: training reflectances through the sensitivities under B) vs the "
+        "chart fit white-balanced and adapted with CAT02 / Bradford; the better by CIEDE2000 on validation "
+        "reflectances is written (its camera name gets ' (B)', so one OCIO input space per illuminant). "
+        "The chart RGB must be linear (raw or --linearise none).")
+    group.add_argument("--for-illuminant", metavar="B", help="CIE illuminant name the fit is for (A, D50, FL2...)")
+    group.add_argument("--sensitivities", metavar="SSF", help="*.ssf.json or measured CSV (colour sensitivities)")
+    group.add_argument("--training-reflectances", default="rawtoaces 190", metavar="SET",
+                       help="spectral route training set (default: %(default)s)")
+    group.add_argument("--validation-reflectances", default="Munsell validation", metavar="SET",
+                       help="reflectances the routes are compared on (default: %(default)s)")
+    group.add_argument("--plausible-cameras", type=int, default=0, metavar="N",
+                       help="compare over N cameras drawn from the sensitivities' uncertainty (default: 0, "
+                            "the curves themselves)")
+
+
+def _colour_fit_for_illuminant(args: argparse.Namespace, train, reference, linearise: str) -> int:
+    from dataclasses import replace
+
+    from camcal.colour.illuminant import characterise_for_illuminant
+    from camcal.colour.ssf import load_sensitivities
+    from camcal.io.raw import is_raw, raw_metadata
+
+    if not args.sensitivities:
+        raise CamcalError("--for-illuminant needs --sensitivities SSF (from 'camcal colour sensitivities')")
+    if linearise != "none":
+        raise CamcalError(f"--for-illuminant needs linear camera RGB (--linearise none, raw input), got {linearise!r}")
+    if args.test_patches or args.target_white:
+        raise CamcalError("--for-illuminant judges on validation reflectances under B: drop --test-patches / --target-white")
+    if args.plausible_cameras < 0:
+        raise CamcalError(f"--plausible-cameras must be >= 0, got {args.plausible_cameras}")
+    sens = load_sensitivities(args.sensitivities)
+    camera = f"{args.camera} ({args.for_illuminant})" if args.camera else None
+    outcome = characterise_for_illuminant(
+        train, sens, illuminant=args.illuminant, for_illuminant=args.for_illuminant, model=args.model,
+        training_set=args.training_reflectances, validation_set=args.validation_reflectances,
+        n_cameras=args.plausible_cameras, camera=camera, reference=reference,
+        source=args.chart or args.patches)
+    print(outcome.summary())
+    fit = outcome.fit
+    if args.chart and is_raw(args.chart):
+        fit = replace(fit, capture=raw_metadata(args.chart).to_dict())
+    out = summary_of(args)
+    out.figures(for_illuminant=args.for_illuminant, route=outcome.picked, model=fit.model.label,
+                n_train=len(train), reason=outcome.reason, validation_reflectances=args.validation_reflectances,
+                delta_E2000_validation={score.route: score.to_dict() for score in outcome.scores})
+    out.wrote(fit.save(args.out), "colour fit")
+    return 0
 
 
 def _parse_corners(text: str):
@@ -901,8 +1201,12 @@ def _parse_corners(text: str):
 
 
 def _colour_fit(args: argparse.Namespace) -> int:
-    from camcal.colour.characterise import characterise, patches_from_chart, write_report
+    import dataclasses
+
+    from camcal.colour.characterise import characterise, patches_from_chart
     from camcal.colour.patches import read_patch_csv
+    from camcal.io.raw import is_raw, raw_metadata
+    from camcal.report.characterisation import write_report
 
     reference = None
     if args.chart:
@@ -917,7 +1221,7 @@ def _colour_fit(args: argparse.Namespace) -> int:
         noisy = [n for n, flag in zip(found.reference.patch_names, found.samples.noisy) if flag]
         if noisy:
             print(f"flagged noisy (kept): {', '.join(noisy)}")
-        linearise = args.linearise or "lut1d"
+        linearise = args.linearise or ("none" if args.for_illuminant or is_raw(args.chart) else "lut1d")
         white = args.illuminant
     else:
         if args.corners:
@@ -926,6 +1230,10 @@ def _colour_fit(args: argparse.Namespace) -> int:
         print(f"read {len(train)} patches from {args.patches}")
         linearise = args.linearise or "none"
         white = args.illuminant
+    if args.for_illuminant:
+        return _colour_fit_for_illuminant(args, train, reference, linearise)
+    if args.sensitivities:
+        raise CamcalError("--sensitivities is used with --for-illuminant B")
     test = read_patch_csv(args.test_patches) if args.test_patches else None
     outcome = characterise(
         train, white=white, model=args.model, objective=args.objective,
@@ -934,10 +1242,20 @@ def _colour_fit(args: argparse.Namespace) -> int:
         camera=args.camera, reference=reference, source=args.chart or args.patches,
     )
     print(outcome.summary())
-    path = outcome.fit.save(args.out)
-    print(f"wrote {path}")
+    fit = outcome.fit
+    if args.chart and is_raw(args.chart):
+        fit = dataclasses.replace(fit, capture=raw_metadata(args.chart).to_dict())
+    out = summary_of(args)
+    stats = {name: None if value is None else dataclasses.asdict(value) for name, value in (
+        ("train", outcome.result.stats_train), ("loo", outcome.result.stats_loo), ("test", outcome.result.stats_test))}
+    out.figures(model=outcome.result.model.label, linearisation=outcome.fit.linearisation.label,
+                selection=None if outcome.selection is None else outcome.selection.reason,
+                n_train=len(train), delta_E2000=stats)
+    out.wrote(fit.save(args.out), "colour fit")
     if args.report:
-        files = write_report(args.report, outcome, title=args.camera or "")
+        files = write_report(outcome, args.report, title=args.camera or "")
+        for file in files:
+            out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")
     return 0
 
@@ -978,6 +1296,7 @@ def _register_colour_export(colour_verbs) -> None:
 
 
 def _colour_export(args: argparse.Namespace) -> int:
+    import dataclasses
     from pathlib import Path
 
     from camcal.colour.fitfile import ColourFit, load_colour_file
@@ -990,6 +1309,7 @@ def _colour_export(args: argparse.Namespace) -> int:
         raise CamcalError(f"--icc writes one profile: give one fit, got {len(args.fits)}")
     if not (args.max_bake_error > 0):
         raise CamcalError(f"--max-bake-error must be > 0, got {args.max_bake_error}")
+    out = summary_of(args)
     fits, matches = [], []
     for path in args.fits:
         fit = load_colour_file(path)
@@ -1014,9 +1334,23 @@ def _colour_export(args: argparse.Namespace) -> int:
         for space in result.spaces:
             print(space.summary())
         print(f"wrote {result.config_path} (base {result.base}, {len(fits)} camera space(s), {len(matches)} match Look(s))")
+        out.figures(base=result.base, n_matches=len(matches), spaces=[{
+            "name": space.name, "camera": space.camera, "model": space.model, "kind": space.kind,
+            "lut_size": space.lut_size, "clf": space.clf, "linearisation_error": space.linearisation_error,
+            "bake_error_delta_E2000": None if space.bake_error is None else dataclasses.asdict(space.bake_error),
+        } for space in result.spaces])
+        out.wrote(result.config_path, "ocio config", say=False)
+        for space in result.spaces:
+            if space.clf:
+                out.wrote(Path(args.ocio) / space.clf, "clf", say=False)
     if profile is not None:
         write_icc(profile, args.icc)
         print(f"wrote {args.icc} (ICC v{profile.version}, {profile.summary()})")
+        out.figures(icc={"version": profile.version, "kind": profile.kind, "bake_error_delta_E2000":
+                         None if profile.kind == "matrix-trc" else dataclasses.asdict(profile.bake_error),
+                         "float_clut_size": profile.float_clut_size, "float_bake_error_delta_E2000":
+                         None if profile.float_bake_error is None else dataclasses.asdict(profile.float_bake_error)})
+        out.wrote(args.icc, "icc", say=False)
     return 0
 
 
@@ -1058,7 +1392,9 @@ def _register_colour_match(colour_verbs) -> None:
 
 def _colour_match(args: argparse.Namespace) -> int:
     from camcal.colour.fitfile import load_fit
-    from camcal.colour.match import match_image_files, match_patch_files, parse_match_model, write_match_report
+    from camcal.colour.match import match_image_files, match_patch_files
+    from camcal.colour.match_models import parse_match_model
+    from camcal.report.colour_match import write_report
 
     parse_match_model(args.model)
     images, patches = args.images, args.patches
@@ -1083,15 +1419,112 @@ def _colour_match(args: argparse.Namespace) -> int:
     else:
         raise CamcalError("nothing to match: give --images NAME=IMG twice, or --fits and --patches for two cameras")
     print(result.match.summary())
-    path = result.match.save(args.out)
-    print(f"wrote {path}")
+    out = summary_of(args)
+    out.figures(model=args.model, evaluation=result.match.evaluation,
+                correspondences=dict(result.correspondences.counts) if images else None)
+    out.wrote(result.match.save(args.out), "colour match")
     if args.report:
-        files = write_match_report(args.report, result)
+        files = write_report(result, args.report)
+        for file in files:
+            out.wrote(file, "report", say=False)
         print(f"report: {len(files)} files in {args.report}")
     return 0
 
 
-_COLOUR_VERBS: list = [_register_colour_fit, _register_colour_export, _register_colour_match]
+def _register_colour_sensitivities(colour_verbs) -> None:
+    parser = colour_verbs.add_parser(
+        "sensitivities",
+        help="estimate (or load measured) camera spectral sensitivities: *.ssf.json + CSV",
+        description=(
+            "Estimate a camera's spectral sensitivities from chart captures (linear images: raw or "
+            "linear TIFF/EXR) and/or spectral patch CSVs, each under a known illuminant, with "
+            "positivity, smoothness and the regularisation chosen by K-fold cross-validation; "
+            "or read measured curves (--measured). Writes *.ssf.json and *.ssf.csv and prints the "
+            "Vora-Trussell mu-factor and the Luther-Ives deviation."
+        ),
+        epilog=(
+            "ILLUMINANT: a colour-science SDS_ILLUMINANTS name (D65, A, FL2, LED-B3...) or a CSV "
+            "wavelength,value. Spectral patch CSV header: name,R,G,B,<nm>,<nm>,... (linear camera "
+            "RGB then reflectance samples). Measured CSV: wavelength,R,G,B[,sigma_R,sigma_G,sigma_B]."
+        ),
+    )
+    parser.add_argument("--chart", nargs="+", action="extend", metavar="ILLUMINANT=IMAGE", default=[],
+                        help="a linear photo of a ColorChecker 24 under ILLUMINANT (repeatable)")
+    parser.add_argument("--patches", nargs="+", action="extend", metavar="ILLUMINANT=FILE.csv", default=[],
+                        help="patches with reflectance spectra under ILLUMINANT (repeatable)")
+    parser.add_argument("--measured", metavar="FILE.csv", help="measured sensitivities instead of an estimate")
+    parser.add_argument("--chart-spectra", default="BabelColor Average", metavar="NAME",
+                        help="reflectances of the chart's patches: BabelColor Average, ColorChecker N Ohta "
+                             "or ISO 17321-1 (default: %(default)s)")
+    parser.add_argument("--wavelengths", default="400,700,10", metavar="START,END,STEP",
+                        help="estimation grid in nm (default: %(default)s)")
+    parser.add_argument("--camera", default=None, help="camera name recorded in the file")
+    parser.add_argument("--compare", metavar="SSF", help="reference curves (*.ssf.json or CSV): print the "
+                                                         "relative RMS error and both mu-factors")
+    parser.add_argument("--out", required=True, metavar="CAMERA.ssf.json", help="file to write (+ .ssf.csv)")
+    parser.add_argument("--report", metavar="DIR", help="plot with 95 %% bands (sensitivities.png)")
+    parser.set_defaults(func=_colour_sensitivities)
+
+
+def _colour_sensitivities(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from camcal.colour.ssf import (capture_from_chart, estimate_from_captures, load_sensitivities,
+                                   plot_sensitivities, read_sensitivities_csv, read_spectral_patch_csv,
+                                   relative_rms_error, write_sensitivities)
+
+    try:
+        start, end, step = (float(v) for v in args.wavelengths.split(","))
+    except ValueError:
+        raise CamcalError(f"--wavelengths: expected START,END,STEP in nm, got {args.wavelengths!r}") from None
+    if not (0 < step and start + 2 * step <= end):
+        raise CamcalError(f"--wavelengths: need START < END with at least 3 steps, got {args.wavelengths!r}")
+    wavelengths = np.arange(start, end + step / 2, step)
+    reference = load_sensitivities(args.compare) if args.compare else None
+    if args.measured:
+        if args.chart or args.patches:
+            raise CamcalError("give --measured, or captures (--chart / --patches), not both")
+        sens = read_sensitivities_csv(args.measured, args.camera)
+    else:
+        captures = []
+        for entry in args.chart:
+            illuminant, path = _name_value(entry, "--chart", "ILLUMINANT=IMAGE")
+            captures.append(capture_from_chart(path, illuminant, wavelengths, reflectances=args.chart_spectra))
+        for entry in args.patches:
+            illuminant, path = _name_value(entry, "--patches", "ILLUMINANT=FILE.csv")
+            captures.append(read_spectral_patch_csv(path, illuminant, wavelengths))
+        if not captures:
+            raise CamcalError("nothing to estimate from: give --chart ILLUMINANT=IMAGE, --patches "
+                              "ILLUMINANT=FILE.csv or --measured FILE.csv")
+        for cap in captures:
+            print(f"{cap.source}: {len(cap.names)} patches under {cap.illuminant_name}")
+        sens = estimate_from_captures(captures, wavelengths, camera=args.camera)
+    print(sens.summary())
+    out = summary_of(args)
+    out.figures(source=sens.source, wavelengths_nm=[float(sens.wavelengths[0]), float(sens.wavelengths[-1]),
+                                                    float(sens.wavelengths[1] - sens.wavelengths[0])],
+                **sens.quality(), estimation=sens.estimation)
+    if reference is not None:
+        per_channel, overall = relative_rms_error(sens.values, reference.resampled(sens.wavelengths).values)
+        print(f"vs {args.compare}: relative RMS error R {100 * per_channel[0]:.1f} %, G {100 * per_channel[1]:.1f} %, "
+              f"B {100 * per_channel[2]:.1f} % (overall {100 * overall:.1f} %); mu-factor {sens.mu_factor():.4f} "
+              f"vs {reference.mu_factor():.4f}")
+        out.figures(compare={"reference": args.compare, "relative_rms_error": [float(v) for v in per_channel],
+                             "relative_rms_error_overall": overall, "mu_factor": reference.mu_factor()})
+    json_path, csv_path = write_sensitivities(args.out, sens)
+    out.wrote(json_path, "sensitivities")
+    out.wrote(csv_path, "sensitivities csv")
+    if args.report:
+        from pathlib import Path
+
+        path = plot_sensitivities(Path(args.report) / "sensitivities.png", sens, reference, title=args.camera or "")
+        out.wrote(path, "report", say=False)
+        print(f"report: {path}")
+    return 0
+
+
+_COLOUR_VERBS: list = [_register_colour_fit, _register_colour_export, _register_colour_match,
+                       _register_colour_sensitivities]
 
 
 # One entry per verb group; keep this list the only place verbs are wired in.

@@ -7,7 +7,7 @@ The rig file is the one hand-off between camcal's parts (DESIGN.md)::
                   "sensor_width_mm"?, "rectification"?, "quality"?}, ...],
      "frames": [{"index", "R", "c", "images"?}, ...],
      "points": null | "points.ply",
-     "provenance": {"tool", "method", "created", ...}}
+     "provenance": {"tool", "method", "created", ...}}   (optional: "unknown")
 
 Conventions
 -----------
@@ -50,14 +50,16 @@ from numpy.typing import ArrayLike, NDArray
 
 from camcal import __version__
 from camcal.errors import CamcalError
-from camcal.geometry.camera import compose_P, project_pinhole
+from camcal.geometry.camera import compose_P, project_pinhole, rotation_angle_deg
 from camcal.geometry.distortion import Distortion
 from camcal.io.atomic import atomic_write_text
 from camcal.io.jsonfile import dumps, read_json
+from camcal.quality import Quality
 
 __all__ = [
     "RIG_FORMAT",
     "RIG_VERSION",
+    "UNKNOWN_PROVENANCE",
     "Camera",
     "Rectification",
     "Frame",
@@ -67,6 +69,8 @@ __all__ = [
 
 RIG_FORMAT = "camcal.rig"
 RIG_VERSION = 1
+#: What a rig file without ``provenance`` (or without one of its keys) gets on load.
+UNKNOWN_PROVENANCE = "unknown"
 
 _ORTHONORMAL_TOL = 1e-6
 
@@ -92,9 +96,9 @@ def _check_K(K: NDArray[np.float64], name: str) -> None:
     if K[1, 0] != 0.0 or K[2, 0] != 0.0 or K[2, 1] != 0.0:
         raise CamcalError(f"{name} must be upper triangular ([[fx, s, cx], [0, fy, cy], [0, 0, 1]])")
     if K[2, 2] != 1.0:
-        raise CamcalError(f"{name}[2][2] must be 1, got {K[2, 2]!r}")
+        raise CamcalError(f"{name}[2][2] must be 1, got {float(K[2, 2])!r}")  # numpy 2 reprs np.float64(x)
     if K[0, 0] <= 0.0 or K[1, 1] <= 0.0:
-        raise CamcalError(f"{name} must have positive fx and fy, got fx={K[0, 0]!r}, fy={K[1, 1]!r}")
+        raise CamcalError(f"{name} must have positive fx and fy, got fx={float(K[0, 0])!r}, fy={float(K[1, 1])!r}")
 
 
 def _check_rotation(R: NDArray[np.float64], name: str) -> None:
@@ -113,17 +117,6 @@ def _image_size(value: Any, name: str) -> tuple[int, int]:
     ):
         raise CamcalError(f"{name} must be [width, height] as two positive integers, got {value!r}")
     return int(value[0]), int(value[1])
-
-
-def _numbers_tree(value: Any, name: str) -> Any:
-    """Validate a nested object of finite numbers (quality entries)."""
-    if isinstance(value, Mapping):
-        return {str(k): _numbers_tree(v, f"{name}.{k}") for k, v in value.items()}
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise CamcalError(f"{name} must be a number or an object of numbers, got {value!r}")
-    if not math.isfinite(value):
-        raise CamcalError(f"{name} is not finite ({value})")
-    return value.item() if isinstance(value, (np.integer, np.floating)) else value
 
 
 def _check_keys(data: Any, name: str, required: Iterable[str], optional: Iterable[str] = ()) -> None:
@@ -214,9 +207,10 @@ class Camera(_DictEquality):
     sensor_width_mm : float, optional
         Physical sensor width, for Blender's lens in mm.
     rectification : Rectification, optional
-    quality : mapping, optional
-        Fit quality, numbers or nested objects of numbers, e.g.
-        ``{"rms_px": 0.21, "n_views": 18, "sigma": {"fx": 0.3}}``.
+    quality : Quality or mapping, optional
+        Fit quality with documented keys and units (:class:`camcal.quality.Quality`),
+        e.g. ``Quality(rms_px=0.21, n_views=18, sigma={"fx": 0.3})``; a mapping
+        of the file form (older key names too) is converted.
     """
 
     name: str
@@ -227,7 +221,7 @@ class Camera(_DictEquality):
     c: NDArray[np.float64]
     sensor_width_mm: float | None = None
     rectification: Rectification | None = None
-    quality: Mapping[str, Any] = field(default_factory=dict)
+    quality: Quality = field(default_factory=Quality)
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
@@ -249,9 +243,8 @@ class Camera(_DictEquality):
             object.__setattr__(self, "sensor_width_mm", float(width))
         if self.rectification is not None and not isinstance(self.rectification, Rectification):
             raise CamcalError("rectification must be a Rectification")
-        if not isinstance(self.quality, Mapping):
-            raise CamcalError("quality must be an object")
-        object.__setattr__(self, "quality", MappingProxyType(_numbers_tree(self.quality, "quality")))
+        quality = Quality.from_dict(self.quality, baseline_length=float(np.linalg.norm(self.c)))
+        object.__setattr__(self, "quality", quality)
 
     # -- geometry -------------------------------------------------------------------
 
@@ -292,7 +285,7 @@ class Camera(_DictEquality):
             out["sensor_width_mm"] = self.sensor_width_mm
         if self.rectification is not None:
             out["rectification"] = self.rectification.to_dict()
-        out["quality"] = copy.deepcopy(_plain(self.quality))
+        out["quality"] = self.quality.to_dict()
         return out
 
     @classmethod
@@ -390,7 +383,8 @@ class Rig(_DictEquality):
     points : str, optional
         Sibling PLY of sparse points, relative to the rig file.
     provenance : mapping
-        ``tool``, ``method``, ``created`` and any further details.
+        ``tool``, ``method``, ``created`` and any further details; absent
+        keys are filled with :data:`UNKNOWN_PROVENANCE` ("unknown").
     """
 
     cameras: tuple[Camera, ...]
@@ -426,8 +420,10 @@ class Rig(_DictEquality):
             raise CamcalError(f"points must be null or a file name, got {self.points!r}")
         if not isinstance(self.provenance, Mapping):
             raise CamcalError("provenance must be an object")
-        _check_keys(self.provenance, "provenance", ("tool", "method", "created"), set(self.provenance))
-        object.__setattr__(self, "provenance", MappingProxyType(copy.deepcopy(dict(self.provenance))))
+        # optional metadata: a rig typed by hand or imported from another tool loads
+        provenance = {key: UNKNOWN_PROVENANCE for key in ("tool", "method", "created")}
+        provenance.update(copy.deepcopy(dict(self.provenance)))
+        object.__setattr__(self, "provenance", MappingProxyType(provenance))
 
     def camera(self, name: str) -> Camera:
         """The camera called ``name``."""
@@ -476,8 +472,7 @@ class Rig(_DictEquality):
                 f"looking along ({view[0]:.3f}, {view[1]:.3f}, {view[2]:.3f})"
             )
             if camera is not reference:
-                relative = camera.R @ reference.R.T
-                angle = np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1, 1)))
+                angle = rotation_angle_deg(camera.R @ reference.R.T)
                 baseline = np.linalg.norm(camera.c - reference.c)
                 lines.append(f"  from {reference.name!r}: baseline {baseline:.4f} {self.units}, rotation {angle:.3f} deg")
             if camera.sensor_width_mm is not None:
@@ -510,7 +505,7 @@ class Rig(_DictEquality):
     def from_dict(cls, data: Any) -> Rig:
         """Validate a rig file's JSON object; errors name the bad field."""
         _check_keys(
-            data, "rig", ("format", "version", "cameras", "provenance"), ("units", "frames", "points")
+            data, "rig", ("format", "version", "cameras"), ("units", "frames", "points", "provenance")
         )
         if data["format"] != RIG_FORMAT:
             raise CamcalError(f"format must be {RIG_FORMAT!r}, got {data['format']!r}")
@@ -541,7 +536,7 @@ class Rig(_DictEquality):
             units=data.get("units", "m"),
             frames=tuple(frames),
             points=data.get("points"),
-            provenance=data["provenance"],
+            provenance=data.get("provenance") or {},
         )
 
     def to_json(self) -> str:

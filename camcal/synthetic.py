@@ -12,13 +12,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
 from camcal.geometry.camera import look_at
 from camcal.geometry.distortion import Distortion
 from camcal.rig import Camera
 
-__all__ = ["example_camera", "points_in_view", "procedural_texture", "colour_texture", "layered_stereo_pair",
-           "room_corner_planes", "render_planes", "render_stereo_sequence"]
+__all__ = ["example_camera", "example_stereo_rig", "points_in_view", "procedural_texture", "colour_texture", "layered_stereo_pair",
+           "room_corner_planes", "orbit_set_planes", "render_planes", "render_stereo_sequence", "orbit_rig_poses",
+           "render_rig_orbit"]
 
 
 def example_camera(
@@ -148,6 +150,31 @@ def room_corner_planes(extent: float = 8.0) -> tuple[tuple[NDArray[np.float64], 
     )
 
 
+def orbit_set_planes(
+    rng: np.random.Generator, extent: float = 8.0, wall_height: float = 3.5, n_boxes: int = 3,
+) -> tuple[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]], ...]:
+    """A closed set to orbit: floor ``z = 0`` and four walls of a square room
+    (side ``extent``), with ``n_boxes`` boxes (0.5 to 1.3 m, top and four
+    sides) near its centre, each face as (origin, axis_s, axis_t).
+
+    The boxes give depth in the foreground, the walls far background: what a
+    self-calibration needs to separate focal length from distance.
+    """
+    e = np.eye(3)
+    planes = [(np.zeros(3), e[0] * extent, e[1] * extent)]
+    corners = (np.zeros(3), extent * e[0], extent * (e[0] + e[1]), extent * e[1])
+    for start, end in zip(corners, corners[1:] + corners[:1]):
+        planes.append((start, end - start, e[2] * wall_height))
+    centre = np.array([extent / 2, extent / 2, 0.0])
+    for k in range(n_boxes):
+        angle = 2 * np.pi * k / max(n_boxes, 1) + rng.uniform(-0.3, 0.3)
+        size = rng.uniform(0.5, 1.3, 3)
+        base = centre + 0.9 * np.array([np.cos(angle), np.sin(angle), 0.0]) - 0.5 * size * [1, 1, 0]
+        sx, sy, sz = (e[i] * size[i] for i in range(3))
+        planes += [(base + sz, sx, sy), (base, sx, sz), (base + sy, sx, sz), (base, sy, sz), (base + sx, sy, sz)]
+    return tuple(planes)
+
+
 def render_planes(
     camera: Camera,
     planes: tuple[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]], ...],
@@ -226,4 +253,129 @@ def render_stereo_sequence(
             (root / name).mkdir(parents=True, exist_ok=True)
             cv2.imwrite(str(root / name / f"{i:04d}.png"), render_planes(camera, room_corner_planes(), textures))
             truth[name, i] = camera
+    return truth
+
+
+def example_stereo_rig(
+    image_size: tuple[int, int] = (960, 720),
+    f: float = 675.0,
+    pp_offsets: ArrayLike = ((6.5, -5.2), (-7.8, 5.6)),
+    lam: tuple[float, float] = (-1.2e-7, -1.2e-7),
+    rig_euler_deg: ArrayLike = (0.8, -2.0, 0.5),
+    baseline: float = 0.3,
+    focal_ratio: float = 1.01,
+) -> tuple[Camera, Camera]:
+    """A stereo rig for self-calibration tests: principal points off the image centre, the right
+    focal ``focal_ratio`` times the left, division lenses.
+
+    Parameters
+    ----------
+    image_size : (int, int)
+    f : float
+        Left focal length (px).
+    pp_offsets : array_like, shape (2, 2)
+        Each camera's principal point minus the image centre ``((w - 1) / 2, (h - 1) / 2)``, px.
+    lam : (float, float)
+        Division lambda of each camera (camcal's pixel units, centred on the principal point).
+    rig_euler_deg : array_like, shape (3,)
+        The right camera's rotation from the left ("xyz" Euler angles, degrees).
+    baseline : float
+        Right camera centre ``(baseline, 0.01, -0.005)`` in the left camera's frame (m).
+    focal_ratio : float
+
+    Returns
+    -------
+    (Camera, Camera)
+        ``left`` (the rig frame: identity pose) and ``right`` (``cam_from_rig``).
+    """
+    width, height = image_size
+    offsets = np.asarray(pp_offsets, dtype=np.float64)
+    cameras = []
+    for k, name in enumerate(("left", "right")):
+        focal = f * (focal_ratio if k else 1.0)
+        K = np.array([[focal, 0.0, (width - 1) / 2 + offsets[k, 0]], [0.0, focal, (height - 1) / 2 + offsets[k, 1]],
+                      [0.0, 0.0, 1.0]])
+        R = np.eye(3) if k == 0 else Rotation.from_euler("xyz", rig_euler_deg, degrees=True).as_matrix()
+        c = np.zeros(3) if k == 0 else np.array([baseline, 0.01, -0.005])
+        cameras.append(Camera(name, image_size, K, Distortion("division", {"lambda": lam[k]}), R, c))
+    return cameras[0], cameras[1]
+
+
+def orbit_rig_poses(
+    rng: np.random.Generator, n_frames: int = 10, radius: float = 2.8, roll_deg: float = 35.0, extent: float = 8.0,
+) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Rig poses orbiting the centre of a set of side ``extent`` (see :func:`render_rig_orbit`).
+
+    Returns
+    -------
+    list of (R, c)
+        Per position the rotation world -> rig and the rig's centre in the world.
+    """
+    centre = np.array([extent / 2, extent / 2, 0.8])
+    poses = []
+    for i in range(n_frames):
+        angle = np.radians(-120 + 240 * i / max(n_frames - 1, 1))
+        position = centre + [radius * np.cos(angle), radius * np.sin(angle), rng.uniform(0.2, 1.4)]
+        target = centre + rng.uniform(-0.6, 0.6, 3) * [1, 1, 0.5]
+        roll = rng.uniform(-roll_deg, roll_deg) + (90.0 if i % 4 == 3 else 0.0)
+        c_roll, s_roll = np.cos(np.radians(roll)), np.sin(np.radians(roll))
+        roll_R = np.array([[c_roll, -s_roll, 0.0], [s_roll, c_roll, 0.0], [0.0, 0.0, 1.0]])
+        poses.append((roll_R @ look_at(position, target), position))
+    return poses
+
+
+def render_rig_orbit(
+    root: str | os.PathLike,
+    cameras: tuple[Camera, ...],
+    n_frames: int = 10,
+    radius: float = 2.8,
+    roll_deg: float = 35.0,
+    image_noise: float = 0.0,
+    extent: float = 8.0,
+    seed: int = 0,
+) -> dict[tuple[str, int], Camera]:
+    """Render a camera rig orbiting a closed set (:func:`orbit_set_planes`), for self-calibration.
+
+    Parameters
+    ----------
+    root : path
+        Receives ``root/<camera>/0000.png``...
+    cameras : tuple of Camera
+        The rig: intrinsics, lens and ``cam_from_rig`` (``R``, ``c`` in the
+        rig's frame, metres); the rig frame is the first camera's when its
+        pose is the identity.
+    n_frames : int
+        Rig positions, spread over 240 degrees of a circle of ``radius``
+        around the set's centre, at heights 1.0 to 2.2 m.
+    roll_deg : float
+        Each position rolls the rig by a uniform draw in +-``roll_deg``
+        about its viewing axis (one position in four by 90 degrees more:
+        portrait views), and aims it at a point drawn within 0.6 m of the
+        set's centre (yaw and pitch variety).
+    image_noise : float
+        Standard deviation of Gaussian noise added to every image (grey levels).
+    extent : float
+        Side of the set (m).
+    seed : int
+
+    Returns
+    -------
+    dict
+        ``(camera name, frame) -> Camera`` posed in the world (the truth).
+    """
+    root = Path(root)
+    rng = np.random.default_rng(seed)
+    planes = orbit_set_planes(rng, extent)
+    textures = tuple(procedural_texture(rng) for _ in planes)
+    truth = {}
+    for i, (rig_R, position) in enumerate(orbit_rig_poses(rng, n_frames, radius, roll_deg, extent)):
+        for camera in cameras:
+            posed = Camera(camera.name, camera.image_size, camera.K, camera.distortion, camera.R @ rig_R,
+                           position + rig_R.T @ camera.c)
+            image = render_planes(posed, planes, textures)
+            if image_noise > 0:
+                image = np.clip(image + rng.normal(0.0, image_noise, image.shape), 0, 255).round().astype(np.uint8)
+            (root / camera.name).mkdir(parents=True, exist_ok=True)
+            cv2.imwrite(str(root / camera.name / f"{i:04d}.png"), image)
+            truth[camera.name, i] = posed
     return truth

@@ -1,5 +1,6 @@
 """Shared test fixtures: the real-image folder beside the project, simulated colour data."""
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +17,18 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real test images not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _corner_cache_in_a_temporary_folder(tmp_path_factory):
+    """`calibrate board` caches corners under $XDG_CACHE_HOME: keep the tests' cache out of the user's."""
+    previous = os.environ.get("XDG_CACHE_HOME")
+    os.environ["XDG_CACHE_HOME"] = str(tmp_path_factory.mktemp("xdg_cache"))
+    yield
+    if previous is None:
+        os.environ.pop("XDG_CACHE_HOME", None)
+    else:
+        os.environ["XDG_CACHE_HOME"] = previous
 
 
 # -- simulated camera colour data (tests/colour) ------------------------------------

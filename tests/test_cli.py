@@ -61,7 +61,7 @@ def test_calibrate_dlt_writes_a_rig(points_csv, tmp_path):
     assert "RMS reprojection error" in result.stdout
     camera = Rig.load(out).camera("A")
     assert abs(camera.K[0, 0] / truth.K[0, 0] - 1) < 0.01
-    assert camera.quality["n_points"] == 30
+    assert camera.quality["n_observations"] == 30
     shown = run("rig", "show", str(out))
     assert shown.returncode == 0 and "camera 'A': 1920x1080 px" in shown.stdout
 

@@ -50,7 +50,31 @@ def inputs(tmp_path_factory):
     cv2.imwrite(str(root / "small.png"), grey[:40, :50])  # wrong size for the rig's cameras
     (root / "patches.csv").write_text("R,G,B,X,Y,Z\n0.1,0.2,nan,0.1,0.1,0.1\n")
     (root / "lines.json").write_text('{"image_size": [100, 100], "lines": "not a list"}')
+    _spectral_inputs(root)
     return root
+
+
+def _spectral_inputs(root):
+    """Spectral patch CSVs (good, with a NaN) and a good ``*.ssf.json`` for the spectral verbs."""
+    from camcal.colour.patches import PatchSet, write_patch_csv
+    from camcal.colour.spectral import camera_sensitivities, reflectance_set
+    from camcal.colour.ssf import Sensitivities, write_sensitivities
+
+    wl = np.arange(400.0, 701.0, 10.0)
+    sens = Sensitivities(wl, camera_sensitivities("Nikon 5100 (NPL)", wl)[1], camera="nikon")
+    write_sensitivities(root / "nikon.ssf.json", sens)
+    names, R = reflectance_set("BabelColor Average", wl)
+    RGB = sens.camera_under("D65").RGB(R)
+
+    def rows(RGB):
+        return [",".join([n, *(repr(float(v)) for v in (*rgb, *r))]) for n, rgb, r in zip(names, RGB, R)]
+
+    header = "name,R,G,B," + ",".join(f"{w:g}" for w in wl)
+    (root / "spectral.csv").write_text("\n".join([header, *rows(RGB)]) + "\n")
+    with_nan = RGB.copy()
+    with_nan[3, 2] = np.nan
+    (root / "spectral_nan.csv").write_text("\n".join([header, *rows(with_nan)]) + "\n")
+    write_patch_csv(root / "chart.csv", PatchSet(tuple(names), RGB, sens.camera_under("D65").XYZ(R)))
 
 
 # (case id, argv with {in} for the inputs folder and {out} for a fresh output folder)
@@ -100,6 +124,21 @@ CASES = [
     ("colour export missing", "colour export {in}/missing.colour.json --ocio {out}/o"),
     ("colour export corrupt", "colour export {in}/corrupt.json --ocio {out}/o"),
     ("colour export wrong kind", "colour export {in}/good.rig.json --ocio {out}/o"),
+    ("colour fit for-illuminant absent chart", "colour fit --chart {in}/plain.png --for-illuminant A --sensitivities {in}/nikon.ssf.json --out {out}/a.colour.json"),
+    ("colour fit for-illuminant corrupt chart", "colour fit --chart {in}/garbage.png --for-illuminant A --sensitivities {in}/nikon.ssf.json --out {out}/a.colour.json"),
+    ("colour fit for-illuminant non-finite patches", "colour fit --patches {in}/patches.csv --for-illuminant A --sensitivities {in}/nikon.ssf.json --out {out}/a.colour.json"),
+    ("colour fit for-illuminant unknown illuminant", "colour fit --patches {in}/chart.csv --for-illuminant Z9 --sensitivities {in}/nikon.ssf.json --out {out}/a.colour.json"),
+    ("colour fit for-illuminant corrupt sensitivities", "colour fit --patches {in}/chart.csv --for-illuminant A --sensitivities {in}/corrupt.json --out {out}/a.colour.json"),
+    ("colour fit for-illuminant malformed sensitivities", "colour fit --patches {in}/chart.csv --for-illuminant A --sensitivities {in}/binary.csv --out {out}/a.colour.json"),
+    ("colour sensitivities missing chart", "colour sensitivities --chart D65={in}/missing.png --out {out}/c.ssf.json"),
+    ("colour sensitivities absent chart", "colour sensitivities --chart D65={in}/plain.png --out {out}/c.ssf.json"),
+    ("colour sensitivities corrupt chart", "colour sensitivities --chart D65={in}/garbage.png --out {out}/c.ssf.json"),
+    ("colour sensitivities malformed csv", "colour sensitivities --patches D65={in}/binary.csv --out {out}/c.ssf.json"),
+    ("colour sensitivities empty csv", "colour sensitivities --patches D65={in}/empty.csv --out {out}/c.ssf.json"),
+    ("colour sensitivities non-finite", "colour sensitivities --patches D65={in}/spectral_nan.csv --out {out}/c.ssf.json"),
+    ("colour sensitivities unknown illuminant", "colour sensitivities --patches Z9={in}/spectral.csv --out {out}/c.ssf.json"),
+    ("colour sensitivities missing =", "colour sensitivities --patches {in}/spectral.csv --out {out}/c.ssf.json"),
+    ("colour sensitivities malformed measured", "colour sensitivities --measured {in}/binary.csv --out {out}/c.ssf.json"),
     ("colour match missing images", "colour match {in}/good.rig.json --images left={in}/missing.png right={in}/missing.png --out {out}/m.colour.json"),
     ("colour match corrupt image", "colour match {in}/good.rig.json --images left={in}/garbage.png right={in}/garbage.png --out {out}/m.colour.json"),
     ("colour match unknown model", "colour match {in}/good.rig.json --images left={in}/plain.png right={in}/plain.png --model cubic --out {out}/m.colour.json"),
@@ -111,7 +150,7 @@ CASES = [
 ]
 
 
-@pytest.mark.parametrize("case, argv", CASES, ids=[c.values[0] if hasattr(c, "values") else c[0] for c in CASES])
+@pytest.mark.parametrize("case, argv", CASES, ids=[case for case, _ in CASES])
 def test_bad_input_is_one_line_exit_2_nothing_written(case, argv, inputs, tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
@@ -193,3 +232,11 @@ def test_camcal_error_is_not_a_value_error():
     from camcal.errors import CamcalError
 
     assert not issubclass(CamcalError, ValueError)
+
+
+def test_json_object_for_a_malformed_command_line(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["rectify", "--json"])  # RIG and --out missing: argparse's usage error
+    assert info.value.code == 2
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["exit_code"] == 2 and summary["error"] == "malformed command line (see stderr)"

@@ -49,7 +49,7 @@ def test_quick_run_rows_match_outputs_and_truth(quick):
         assert row.error == pytest.approx(100 * (camera.K[0, 0] / row.true - 1))
     # stages that hold with margin even on the small run
     for row in report.rows:
-        if row.stage in ("rectify", "blender import", "colour fit", "colour match", "colour export"):
+        if row.stage in ("rectify", "rig export", "blender import", "colour fit", "colour match", "colour export"):
             assert row.ok, report.table()
         assert np.isfinite(row.recovered), row
     assert report.report == out / "report.html"
@@ -88,7 +88,7 @@ def test_quick_run_colour_exports(quick):
 
 def test_quick_run_plates_carry_the_true_lens(quick):
     """The rendered plates are the truth: true corners found where the true camera puts them."""
-    from camcal.demo import _board_corners
+    from camcal.demo.truth import board_corners
     from camcal.geometry.board import detect_board, parse_board
 
     out, _ = quick
@@ -98,7 +98,7 @@ def test_quick_run_plates_carry_the_true_lens(quick):
     for k, (R, t) in enumerate(truth.board_poses):
         image = cv2.imread(str(out / "images" / "board" / "left" / f"left_{k + 1:02d}.png"), cv2.IMREAD_GRAYSCALE)
         found = detect_board(board, image)
-        errors.append(found.corners_px - truth.rig.camera("left").project(_board_corners(board, R, t))[found.ids])
+        errors.append(found.corners_px - truth.rig.camera("left").project(board_corners(board, R, t))[found.ids])
     errors = np.vstack(errors)
     # lens shifts the corners by up to 25 px; rendering + detection noise is ~0.1 px
     assert np.sqrt(np.mean(np.sum(errors**2, axis=1))) < 0.2
@@ -182,7 +182,7 @@ def test_demo_help_and_bad_stage(tmp_path, capsys):
     assert run.returncode == 0 and "--stages" in text
     assert all(stage.name in text for stage in STAGES)
     assert main(["demo", "--out", str(tmp_path / "d"), "--stages", "render,nonsense"]) == 2
-    assert "unknown stage(s) 'nonsense'" in capsys.readouterr().err
+    assert "unknown demo stage(s) nonsense" in capsys.readouterr().err
     assert not (tmp_path / "d" / "report.html").exists()
 
 
@@ -202,3 +202,9 @@ def test_full_demo_every_row_within_tolerance(tmp_path, capsys):
     assert (tmp_path / "demo_out" / "blender" / "sfm.blend").is_file()
     assert (tmp_path / "demo_out" / "ocio" / "config.ocio").is_file()
     assert all((tmp_path / "demo_out" / "icc" / f"{name}.icc").is_file() for name in ("left", "right"))
+
+
+def test_demo_package_does_not_import_the_cli():
+    """The demo runs verbs in a child ``python -m camcal``; importing it never loads camcal.cli."""
+    code = "import sys, camcal.demo, camcal.demo.stages_colour; sys.exit('camcal.cli' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0

@@ -106,7 +106,6 @@ BAD = [
     (("cameras", 1, "rectification", "H"), [[0, 0, 0], [0, 0, 0], [0, 0, 0]], "rectification.H is singular"),
     (("frames", 0, "images", "middle"), "m.jpg", "unknown camera"),
     (("frames", 1, "index"), 1001, "frame indices must be unique"),
-    (("provenance", "tool"), KeyError, "provenance is missing key 'tool'"),
     (("cameras",), [], "at least one camera"),
 ]
 
@@ -119,6 +118,17 @@ def test_validation_names_the_bad_field(tmp_path, path, value, message):
     with pytest.raises(CamcalError, match=message) as info:
         Rig.load(file)
     assert str(file) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_provenance_is_optional_and_filled_with_unknown(tmp_path):
+    data = stereo_rig().to_dict()
+    del data["provenance"]
+    (tmp_path / "typed.rig.json").write_text(json.dumps(data))
+    rig = Rig.load(tmp_path / "typed.rig.json")
+    assert dict(rig.provenance) == {"tool": "unknown", "method": "unknown", "created": "unknown"}
+    partial = edit(stereo_rig().to_dict(), ("provenance",), {"tool": "Kalibr"})
+    assert dict(Rig.from_dict(partial).provenance) == {"tool": "Kalibr", "method": "unknown", "created": "unknown"}
+    assert Rig.from_dict(rig.to_dict()) == rig
 
 
 def test_non_finite_values_in_memory_are_named():

@@ -15,11 +15,11 @@ root-polynomial, rbf), ``select`` (``--model auto``), ``evaluate`` (Delta E
 statistics, leave-one-out, plots), ``spectral`` (simulated cameras,
 sensitivity estimation, mu-factor, chromatic adaptation), ``patches`` (patch
 CSV), ``characterise`` (the ``colour fit`` pipeline), ``fitfile`` (the file),
-``match`` (camera-to-camera matching: chart and stereo routes; importing the
-package registers its ``match`` kind in ``fitfile.KIND_READERS``).
+``match`` (camera-to-camera matching: chart and stereo routes), ``match_models``,
+``robust``, ``matchfile`` (its file kind, listed in ``fitfile.FILE_KINDS``).
 """
 
 from camcal.colour.fitfile import ColourFit, load_colour_file, load_fit
-from camcal.colour.match import ColourMatch, load_match
+from camcal.colour.matchfile import ColourMatch, load_match
 
 __all__ = ["ColourFit", "ColourMatch", "load_fit", "load_colour_file", "load_match"]

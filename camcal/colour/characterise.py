@@ -10,8 +10,8 @@ Steps, each a function the CLI calls:
    asked, fit the model (``auto`` picks by leave-one-out, see
    :mod:`camcal.colour.select`), evaluate CIEDE2000 on training,
    leave-one-out and an independent set, and build the :class:`ColourFit`.
-3. :func:`write_report`: per-patch tables, the ``auto`` candidate table and
-   the plots.
+3. :func:`camcal.report.characterisation.write_report`: per-patch tables,
+   the ``auto`` candidate table and the plots.
 
 Encodings: the RGB of a patch set handed to :func:`characterise` are code
 values when a linearisation is fitted or given, linear RGB otherwise; an
@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import datetime as _dt
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -38,16 +38,7 @@ from camcal.colour.chart import (
     reference_chart,
     sample_patches,
 )
-from camcal.colour.evaluate import (
-    DELTA_E_METHODS,
-    ColourFitResult,
-    delta_E,
-    XYZ_to_Lab,
-    evaluate_model,
-    patch_table,
-    plot_report,
-    write_patch_table,
-)
+from camcal.colour.evaluate import ColourFitResult, XYZ_to_Lab, evaluate_model
 from camcal.colour.fitfile import ColourFit
 from camcal.colour.linearise import Linearisation, fit_linearisation
 from camcal.colour.models import fit_model, parse_model_spec
@@ -55,10 +46,9 @@ from camcal.colour.patches import PatchSet
 from camcal.colour.select import Selection, select_model
 from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ
 from camcal.errors import CamcalError
-from camcal.io.atomic import atomic_path
 
 __all__ = ["ChartPatches", "Characterisation", "white_from_name", "patches_from_chart",
-           "neutral_indices", "characterise", "write_report"]
+           "neutral_indices", "characterise"]
 
 
 def white_from_name(text: str) -> tuple[str, np.ndarray]:
@@ -200,6 +190,7 @@ def characterise(
     reference: str | None = None,
     source: str | None = None,
     loo: bool = True,
+    candidates: Sequence[str] | None = None,
 ) -> Characterisation:
     """Fit and evaluate a characterisation.
 
@@ -230,6 +221,8 @@ def characterise(
         Recorded in the file.
     loo
         Compute leave-one-out figures (always on for ``auto``).
+    candidates
+        Models ``auto`` may pick (default: :func:`camcal.colour.select.select_model`'s list).
 
     Returns
     -------
@@ -268,7 +261,7 @@ def characterise(
     selection = None
     if model == "auto":
         objectives = ("xyz", "de2000") if objective is None else (objective,)
-        selection = select_model(RGB, XYZ, target_XYZ, objectives=objectives,
+        selection = select_model(RGB, XYZ, target_XYZ, objectives=objectives, candidates=candidates,
                                  exportable=_export_check(target_XYZ, reference, white_name))
         spec = selection.picked.spec
         chosen_objective = selection.picked.objective
@@ -318,58 +311,3 @@ def characterise(
         provenance=provenance,
     )
     return Characterisation(colour_fit, result, train_lin, test_lin, selection)
-
-
-def write_report(directory: str | os.PathLike, outcome: Characterisation, title: str = "") -> list[Path]:
-    """Write tables and plots for a characterisation into ``directory``.
-
-    Files: ``train_patches.csv`` (reference and fitted CIELAB, four Delta E),
-    ``loo_patches.csv`` (the same with leave-one-out predictions),
-    ``test_patches.csv`` (independent set), ``candidates.csv`` (``auto``),
-    ``summary.txt``, and the plots of
-    :func:`camcal.colour.evaluate.plot_report` under ``train/`` and
-    ``test/``.
-    """
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    white = outcome.fit.target_white_XYZ
-    model = outcome.result.model
-    written: list[Path] = []
-    train = outcome.train
-    pred = model.apply(train.RGB)
-    path = directory / "train_patches.csv"
-    write_patch_table(path, patch_table(train.names, train.XYZ, pred, white))
-    written.append(path)
-    if outcome.result.XYZ_loo is not None:
-        path = directory / "loo_patches.csv"
-        write_patch_table(path, patch_table(train.names, train.XYZ, outcome.result.XYZ_loo, white))
-        written.append(path)
-    written += plot_report(directory / "train", train.names, train.XYZ, pred, white,
-                           title=f"{title} training: {model.label}".strip())
-    if outcome.test is not None:
-        test = outcome.test
-        test_pred = model.apply(test.RGB)
-        path = directory / "test_patches.csv"
-        write_patch_table(path, patch_table(test.names, test.XYZ, test_pred, white))
-        written.append(path)
-        written += plot_report(directory / "test", test.names, test.XYZ, test_pred, white,
-                               title=f"{title} independent: {model.label}".strip(), columns=10)
-    if outcome.selection is not None:
-        path = directory / "candidates.csv"
-        with atomic_path(path) as tmp, open(tmp, "w") as handle:
-            handle.write("model,objective,regularisation,loo_mean,loo_p95,picked\n")
-            for c in sorted(outcome.selection.candidates, key=lambda c: c.loo_mean):
-                handle.write(f"{c.spec.label},{c.objective},{c.regularisation:g},{c.loo_mean:.4f},"
-                             f"{c.loo_p95:.4f},{'yes' if c is outcome.selection.picked else ''}\n")
-        written.append(path)
-    lines = [outcome.summary(), "", "mean Delta E by formula (colour-science):"]
-    sets = [("training", train.RGB, train.XYZ)]
-    if outcome.test is not None:
-        sets.append(("independent", outcome.test.RGB, outcome.test.XYZ))
-    for name, RGB, XYZ in sets:
-        means = [f"{m} {np.mean(delta_E(model.apply(RGB), XYZ, white, m)):.3f}" for m in DELTA_E_METHODS]
-        lines.append(f"  {name}: " + ", ".join(means))
-    path = directory / "summary.txt"
-    path.write_text("\n".join(lines) + "\n")
-    written.append(path)
-    return written

@@ -62,7 +62,6 @@ CHART_ALIASES = {
     "sg-2005": "ColorCheckerSG - Before November 2014",
 }
 _SPECTRAL = ("ISO 17321-1", "ColorChecker N Ohta")
-_CMFS = "CIE 1931 2 Degree Standard Observer"
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,7 +120,7 @@ def reference_chart(name: str = DEFAULT_CHART, illuminant: str = "D50") -> Refer
     """
     import colour
 
-    from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ
+    from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ, reflectance_XYZ
 
     key = CHART_ALIASES.get(str(name).lower(), name)
     white = illuminant_white_XYZ(illuminant)
@@ -129,15 +128,7 @@ def reference_chart(name: str = DEFAULT_CHART, illuminant: str = "D50") -> Refer
         sds = colour.SDS_COLOURCHECKERS[key]
         if illuminant not in colour.SDS_ILLUMINANTS:
             raise CamcalError(f"unknown illuminant {illuminant!r} for spectral chart {key!r}")
-        from camcal.colour.spectral import _resample
-
-        wavelengths = np.arange(380.0, 781.0, 5.0)
-        cmfs = _resample(colour.MSDS_CMFS[_CMFS], wavelengths)
-        S = _resample(colour.SDS_ILLUMINANTS[illuminant], wavelengths)
-        R = np.array([_resample(sd, wavelengths) for sd in sds.values()])
-        k = 1.0 / float(S @ cmfs[:, 1])
-        XYZ = (R * S) @ cmfs * k
-        white = S @ cmfs * k
+        XYZ, white = reflectance_XYZ(sds, illuminant)
         return ReferenceChart(key, tuple(sds.keys()), XYZ, illuminant, white, 4, 6)
     if key not in colour.CCS_COLOURCHECKERS:
         names = [k for k in colour.CCS_COLOURCHECKERS if " " in k] + list(_SPECTRAL)
@@ -160,13 +151,18 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an image as float RGB normalised code values ``(H, W, 3)`` in [0, 1].
 
     8- and 16-bit integer images are divided by 255 or 65535; float images
-    (EXR, TIFF) are returned as they are.
+    (EXR, TIFF) are returned as they are; raw camera files (DNG, CR2, NEF,
+    ARW ...) give camera-native linear RGB at half size with black 0 and
+    white 1, saturated pixels at 1 (:func:`camcal.io.raw.read_raw`).
     """
     from camcal.io.frames import imread
+    from camcal.io.raw import is_raw, read_raw
 
     path = Path(path)
     if not path.is_file():
         raise CamcalError(f"chart image not found: {path}")
+    if is_raw(path):
+        return read_raw(path).RGB
     image = imread(path)
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)

@@ -62,6 +62,7 @@ from typing import Any
 
 import numpy as np
 
+from camcal import resources
 from camcal.colour.evaluate import DeltaEStats, delta_E
 from camcal.colour.fitfile import ColourFit
 from camcal.colour.linearise import Linearisation
@@ -81,6 +82,7 @@ __all__ = [
     "LogShaper",
     "BakedTransform",
     "transform_from_callable",
+    "apply_cpu",
     "look_name",
     "look_from_match",
     "linearisation_transforms",
@@ -145,12 +147,12 @@ def _slug(text: str) -> str:
 
 
 def base_config_path() -> Path:
-    """camcal's base config template, ``ocio_configs/camcal_base.ocio`` beside the package.
+    """camcal's base config template, ``camcal_base.ocio`` of :func:`camcal.resources.ocio_configs_dir`.
 
     ``CAMCAL_OCIO_CONFIGS`` overrides the folder.
     """
     override = os.environ.get("CAMCAL_OCIO_CONFIGS")
-    folder = Path(override) if override else Path(__file__).resolve().parents[2] / "ocio_configs"
+    folder = Path(override) if override else resources.ocio_configs_dir()
     path = folder / "camcal_base.ocio"
     if not path.is_file():
         raise CamcalError(f"camcal's base OCIO config was not found at {path} (set CAMCAL_OCIO_CONFIGS)")
@@ -273,7 +275,8 @@ def _cpu(transform, config=None):
     return config.getProcessor(transform).getDefaultCPUProcessor()
 
 
-def _apply_cpu(cpu, RGB: np.ndarray) -> np.ndarray:
+def apply_cpu(cpu, RGB: np.ndarray) -> np.ndarray:
+    """Apply an OCIO CPU processor to ``(..., 3)`` values: ``(N, 3)`` float64 (OCIO computes in float32)."""
     pixels = np.ascontiguousarray(np.asarray(RGB, dtype=np.float32).reshape(-1, 3))
     cpu.applyRGB(pixels)
     return pixels.astype(np.float64)
@@ -521,7 +524,7 @@ def transform_from_callable(
                                  (LogChromaticity.per_channel(), LogShaper())):
             table = _lut3d_table(apply, n, coordinates, out, M)
             group = _lut3d_group(table, coordinates, out, M)
-            baked = _apply_cpu(_cpu(group), X)
+            baked = apply_cpu(_cpu(group), X)
             found = DeltaEStats.from_values(delta_E(to_XYZ(baked), reference, white_XYZ))
             if found.max <= max_delta_E:
                 return BakedTransform("lut3d", group, M, n, out, found, coordinates, table)
@@ -584,7 +587,7 @@ def linearisation_transforms(linearisation: Linearisation) -> tuple[list, float]
         return [lut], 0.0
     probe = np.linspace(0.0, 1.0, 4 * n + 1)
     truth = linearisation.apply(np.repeat(probe[:, None], 3, axis=1))
-    got = _apply_cpu(_cpu(lut), np.repeat(probe[:, None], 3, axis=1))
+    got = apply_cpu(_cpu(lut), np.repeat(probe[:, None], 3, axis=1))
     scale = np.maximum(np.abs(truth[-1]), 1e-6)
     return [lut], float(np.max(np.abs(got - truth) / scale))
 
@@ -605,10 +608,10 @@ def _aces_to_reference(config) -> np.ndarray:
             return np.eye(3)
         processor = config.getProcessor(from_ref, ocio.TRANSFORM_DIR_INVERSE)
     cpu = processor.getDefaultCPUProcessor()
-    A = _apply_cpu(cpu, np.vstack([np.eye(3), np.zeros((1, 3))]))
+    A = apply_cpu(cpu, np.vstack([np.eye(3), np.zeros((1, 3))]))
     M = (A[:3] - A[3]).T
     probe = np.random.default_rng(0).uniform(0.0, 2.0, (16, 3))
-    if np.abs(A[3]).max() > 1e-6 or np.abs(_apply_cpu(cpu, probe) - probe @ M.T).max() > 1e-4:
+    if np.abs(A[3]).max() > 1e-6 or np.abs(apply_cpu(cpu, probe) - probe @ M.T).max() > 1e-4:
         raise CamcalError(f"the base config's {name!r} -> reference transform is not a matrix")
     return M
 
@@ -715,7 +718,8 @@ def chart_gamut_samples(fit: ColourFit, n: int = 21) -> np.ndarray:
     """Linear camera RGB spanning the chart gamut of a characterisation.
 
     The chart is the fit's reference chart (the ColorChecker 24 when none is
-    recorded), its XYZ adapted (CAT02) to the fit's target white and
+    recorded or the reference is not a chart, e.g. a spectral training
+    set), its XYZ adapted (CAT02) to the fit's target white and
     inverted through the fit (:func:`invert_model`; only converged
     preimages a camera records, see :func:`plausible_surface_samples`); an
     RBF fit adds its centres (its training patches). The samples are those
@@ -736,7 +740,10 @@ def _chart_samples(model, white_XYZ: Any, reference: str | None, n: int = 21) ->
     from camcal.colour.chart import DEFAULT_CHART, reference_chart
     from camcal.colour.spectral import adapt_XYZ
 
-    chart = reference_chart(reference or DEFAULT_CHART, "D50")
+    try:
+        chart = reference_chart(reference or DEFAULT_CHART, "D50")
+    except CamcalError:  # not a chart (e.g. a spectral training set): the default chart's gamut
+        chart = reference_chart(DEFAULT_CHART, "D50")
     white = np.asarray(white_XYZ, dtype=np.float64)
     XYZ = chart.XYZ if np.allclose(chart.white_XYZ, white, atol=1e-6) else adapt_XYZ(
         chart.XYZ, chart.white_XYZ, white, "CAT02")

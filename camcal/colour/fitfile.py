@@ -24,8 +24,13 @@ Format, version 1, kind ``characterisation``::
         "reference": "ColorChecker24 - After November 2014" | null,
         "n_patches": 24,
         "selection": null | {"method": str, "picked": CANDIDATE,
-                             "reason": str, "candidates": [CANDIDATE...]}
-      },
+                             "reason": str, "candidates": [CANDIDATE...]},
+        "illuminant_change": {...}   # optional: a fit made for another light
+      },                             # (camcal.colour.illuminant): for_illuminant,
+                                     # route, reason, candidates [{route, mean,
+                                     # p95, max}], the reflectance sets used
+      "capture": {...},              # optional: raw metadata (camcal.io.raw):
+                                     # make, model, black_level, white_level ...
       "target": {
         "space": "XYZ",
         "white": "D50",                     # the white of the output XYZ
@@ -81,17 +86,19 @@ Using a fit::
     image = fit.processor("ACEScg").apply(codes)  # fast: OCIO's CPU processor (float32)
 
 XYZ is relative to the target white, Y = 1 for the perfect white.
-Other ``kind`` values (``match``) are added by registering a reader in
-:data:`KIND_READERS`.
+Every ``kind`` is listed explicitly in :data:`FILE_KINDS` (the class whose
+``from_dict`` reads it, imported when a file of that kind is read): nothing
+registers itself as a side effect of an import.
 """
 
 from __future__ import annotations
 
-import math
+import importlib
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -99,17 +106,30 @@ import numpy as np
 from camcal.colour.linearise import CURVE_KINDS, Linearisation
 from camcal.colour.models import MODEL_KINDS, OBJECTIVES, RBF_KERNELS, LinearTermsModel, RBFModel, model_from_dict
 from camcal.errors import CamcalError
+from camcal.io.fields import boolean_field as _boolean
+from camcal.io.fields import integer_field as _integer
+from camcal.io.fields import keys_field as _keys
+from camcal.io.fields import matrix_field as _matrix
+from camcal.io.fields import number_field as _number
+from camcal.io.fields import string_field as _string
+from camcal.io.fields import vector_field as _vector
 from camcal.io.jsonfile import read_json, write_json
 
 __all__ = [
     "FORMAT",
     "VERSION",
-    "KIND_READERS",
+    "FILE_KINDS",
+    "reader_of",
     "LinearisedModel",
     "ColourFit",
     "load_fit",
     "load_colour_file",
     "read_colour_dict",
+    "check_header",
+    "check_linearisation",
+    "check_provenance",
+    "check_stats",
+    "model_and_linearisation",
 ]
 
 FORMAT = "camcal.colour"
@@ -117,71 +137,12 @@ VERSION = 1
 
 
 # --------------------------------------------------------------------------
-# Schema checking: each helper names the field path in its error.
+# Schema checking: each helper names the field path in its error (the generic
+# ones are camcal.io.fields'; these are the colour file's own, public for the
+# other kinds: camcal.colour.matchfile).
 
 
-def _keys(value: Any, where: str, required: tuple[str, ...], optional: tuple[str, ...] = ()) -> dict:
-    if not isinstance(value, dict):
-        raise CamcalError(f"{where}: expected an object, got {type(value).__name__}")
-    for key in required:
-        if key not in value:
-            raise CamcalError(f"{where}: missing key {key!r}")
-    allowed = set(required) | set(optional)
-    for key in value:
-        if key not in allowed:
-            raise CamcalError(f"{where}: unknown key {key!r} (allowed: {', '.join(sorted(allowed))})")
-    return value
-
-
-def _number(value: Any, where: str, minimum: float | None = None) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise CamcalError(f"{where}: expected a finite number, got {value!r}")
-    if minimum is not None and value < minimum:
-        raise CamcalError(f"{where}: must be >= {minimum}, got {value!r}")
-    return float(value)
-
-
-def _integer(value: Any, where: str, minimum: int = 0) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise CamcalError(f"{where}: expected an integer >= {minimum}, got {value!r}")
-    return value
-
-
-def _string(value: Any, where: str, choices: tuple[str, ...] | None = None, nullable: bool = False) -> Any:
-    if value is None and nullable:
-        return None
-    if not isinstance(value, str) or (choices is not None and value not in choices):
-        allowed = f" (one of: {', '.join(choices)})" if choices else ""
-        raise CamcalError(f"{where}: expected a string{allowed}, got {value!r}")
-    return value
-
-
-def _boolean(value: Any, where: str) -> bool:
-    if not isinstance(value, bool):
-        raise CamcalError(f"{where}: expected true or false, got {value!r}")
-    return value
-
-
-def _vector(value: Any, where: str, n: int | None = None) -> list[float]:
-    if not isinstance(value, list) or (n is not None and len(value) != n) or not value:
-        size = f"{n} numbers" if n is not None else "a non-empty list of numbers"
-        raise CamcalError(f"{where}: expected {size}, got {value!r:.80}")
-    return [_number(v, f"{where}[{i}]") for i, v in enumerate(value)]
-
-
-def _matrix(value: Any, where: str, rows: int | None = None, columns: int | None = None) -> list[list[float]]:
-    if not isinstance(value, list) or not value or (rows is not None and len(value) != rows):
-        size = f"{rows} rows" if rows is not None else "a non-empty list of rows"
-        raise CamcalError(f"{where}: expected {size}, got {str(value)[:80]}")
-    out = [_vector(row, f"{where}[{i}]", columns) for i, row in enumerate(value)]
-    width = len(out[0])
-    for i, row in enumerate(out):
-        if len(row) != width:
-            raise CamcalError(f"{where}[{i}]: expected {width} numbers, got {len(row)}")
-    return out
-
-
-def _check_stats(value: Any, where: str, nullable: bool = True) -> None:
+def check_stats(value: Any, where: str, nullable: bool = True) -> None:
     if value is None and nullable:
         return
     _keys(value, where, ("n", "mean", "median", "p90", "p95", "max"))
@@ -254,7 +215,7 @@ def _check_candidate(value: Any, where: str) -> None:
     _number(value["loo_p95"], f"{where}.loo_p95", 0.0)
 
 
-def _check_linearisation(value: Any) -> None:
+def check_linearisation(value: Any) -> None:
     lin = _keys(value, "linearisation", ("channels",), ("residual",))
     if not isinstance(lin["channels"], list) or len(lin["channels"]) != 3:
         raise CamcalError("linearisation.channels: expected 3 curves (R, G, B)")
@@ -264,13 +225,13 @@ def _check_linearisation(value: Any) -> None:
         _number(lin["residual"], "linearisation.residual", 0.0)
 
 
-def _check_provenance(value: Any) -> None:
+def check_provenance(value: Any) -> None:
     provenance = _keys(value, "provenance", ("tool", "created"), ("source",))
     for key in provenance:
         _string(provenance[key], f"provenance.{key}")
 
 
-def _model_and_linearisation(data: dict, read_model: Callable[[dict], Any]) -> tuple[Any, Linearisation]:
+def model_and_linearisation(data: dict, read_model: Callable[[dict], Any]) -> tuple[Any, Linearisation]:
     """Build a checked file's model and linearisation; errors start with the field."""
     try:
         return read_model(data["model"]), Linearisation.from_dict(data["linearisation"])
@@ -281,13 +242,32 @@ def _model_and_linearisation(data: dict, read_model: Callable[[dict], Any]) -> t
         raise CamcalError(message) from None
 
 
+ILLUMINANT_CHANGE_KEYS = ("for_illuminant", "route", "training_reflectances", "validation_reflectances",
+                          "plausible_cameras", "sensitivities", "reason", "candidates")
+CAPTURE_KEYS = ("format", "make", "model", "black_level", "white_level", "cfa_pattern", "demosaic",
+                "saturated_fraction")
+
+
 def _check_characterisation(data: dict) -> None:
     _keys(data, "colour fit", ("format", "version", "kind", "camera", "linearisation", "model", "training",
-                               "target", "evaluation", "provenance"))
+                               "target", "evaluation", "provenance"), ("capture",))
+    if "capture" in data:
+        _keys(data["capture"], "capture", ("format", "make", "model"), CAPTURE_KEYS)
     _string(data["camera"], "camera", nullable=True)
-    _check_linearisation(data["linearisation"])
+    check_linearisation(data["linearisation"])
     _check_model(data["model"], "model")
-    training = _keys(data["training"], "training", ("illuminant", "white_XYZ", "reference", "n_patches", "selection"))
+    training = _keys(data["training"], "training", ("illuminant", "white_XYZ", "reference", "n_patches", "selection"),
+                     ("illuminant_change",))
+    if "illuminant_change" in training:
+        change = _keys(training["illuminant_change"], "training.illuminant_change", ILLUMINANT_CHANGE_KEYS)
+        _string(change["for_illuminant"], "training.illuminant_change.for_illuminant")
+        _string(change["route"], "training.illuminant_change.route")
+        if not isinstance(change["candidates"], list):
+            raise CamcalError("training.illuminant_change.candidates: expected a list")
+        for i, c in enumerate(change["candidates"]):
+            _keys(c, f"training.illuminant_change.candidates[{i}]", ("route", "mean", "p95", "max"))
+            for key in ("mean", "p95", "max"):
+                _number(c[key], f"training.illuminant_change.candidates[{i}].{key}", 0.0)
     _string(training["illuminant"], "training.illuminant")
     _vector(training["white_XYZ"], "training.white_XYZ", 3)
     _string(training["reference"], "training.reference", nullable=True)
@@ -311,10 +291,10 @@ def _check_characterisation(data: dict) -> None:
     _string(target["adaptation"], "target.adaptation", ("CAT02", "Bradford"), nullable=True)
     evaluation = _keys(data["evaluation"], "evaluation", ("metric", "train", "loo", "test"))
     _string(evaluation["metric"], "evaluation.metric", ("CIE 2000",))
-    _check_stats(evaluation["train"], "evaluation.train", nullable=False)
-    _check_stats(evaluation["loo"], "evaluation.loo")
-    _check_stats(evaluation["test"], "evaluation.test")
-    _check_provenance(data["provenance"])
+    check_stats(evaluation["train"], "evaluation.train", nullable=False)
+    check_stats(evaluation["loo"], "evaluation.loo")
+    check_stats(evaluation["test"], "evaluation.test")
+    check_provenance(data["provenance"])
 
 
 # --------------------------------------------------------------------------
@@ -380,6 +360,8 @@ class ColourFit(LinearisedModel):
     adaptation: str | None = None
     selection: dict | None = None
     provenance: dict = field(default_factory=dict)
+    illuminant_change: dict | None = None
+    capture: dict | None = None
 
     kind = "characterisation"
 
@@ -402,7 +384,7 @@ class ColourFit(LinearisedModel):
         from camcal import __version__
 
         provenance = dict(self.provenance) or {"tool": f"camcal {__version__}", "created": ""}
-        return {
+        data = {
             "format": FORMAT,
             "version": VERSION,
             "kind": "characterisation",
@@ -425,14 +407,19 @@ class ColourFit(LinearisedModel):
             "evaluation": self.evaluation,
             "provenance": provenance,
         }
+        if self.illuminant_change is not None:
+            data["training"]["illuminant_change"] = self.illuminant_change
+        if self.capture is not None:
+            data["capture"] = self.capture
+        return data
 
     @classmethod
     def from_dict(cls, data: dict) -> ColourFit:
         """Validate a file's JSON object and build the fit (errors name the field)."""
-        _check_header(data, "characterisation")
+        check_header(data, "characterisation")
         _check_characterisation(data)
         training, target = data["training"], data["target"]
-        model, linearisation = _model_and_linearisation(data, model_from_dict)
+        model, linearisation = model_and_linearisation(data, model_from_dict)
         return cls(
             linearisation=linearisation,
             model=model,
@@ -447,11 +434,13 @@ class ColourFit(LinearisedModel):
             adaptation=target["adaptation"],
             selection=training["selection"],
             provenance=dict(data["provenance"]),
+            illuminant_change=training.get("illuminant_change"),
+            capture=data.get("capture"),
         )
 
 
 
-def _check_header(data: Any, kind: str | None = None) -> str:
+def check_header(data: Any, kind: str | None = None) -> str:
     if not isinstance(data, dict):
         raise CamcalError(f"colour fit: expected a JSON object, got {type(data).__name__}")
     if data.get("format") != FORMAT:
@@ -459,14 +448,24 @@ def _check_header(data: Any, kind: str | None = None) -> str:
     if data.get("version") != VERSION or isinstance(data.get("version"), bool):
         raise CamcalError(f"version: this camcal reads version {VERSION}, got {data.get('version')!r}")
     found = data.get("kind")
-    if found not in KIND_READERS:
-        raise CamcalError(f"kind: expected one of: {', '.join(KIND_READERS)}, got {found!r}")
+    if found not in FILE_KINDS:
+        raise CamcalError(f"kind: expected one of: {', '.join(FILE_KINDS)}, got {found!r}")
     if kind is not None and found != kind:
         raise CamcalError(f"kind: expected {kind!r}, got {found!r}")
     return found
 
 
-KIND_READERS: dict[str, Callable[[dict], Any]] = {"characterisation": ColourFit.from_dict}
+#: Every kind of ``*.colour.json``: kind -> (module, class) whose ``from_dict`` reads it.
+FILE_KINDS: Mapping[str, tuple[str, str]] = MappingProxyType({
+    "characterisation": ("camcal.colour.fitfile", "ColourFit"),
+    "match": ("camcal.colour.matchfile", "ColourMatch"),
+})
+
+
+def reader_of(kind: str) -> Callable[[dict], Any]:
+    """The ``from_dict`` of the class that reads files of ``kind`` (see :data:`FILE_KINDS`)."""
+    module, name = FILE_KINDS[kind]
+    return getattr(importlib.import_module(module), name).from_dict
 
 
 def read_colour_dict(path: str | os.PathLike) -> dict:
@@ -491,8 +490,8 @@ def load_colour_file(path: str | os.PathLike, kind: str | None = None) -> Any:
     """
     data = read_colour_dict(path)
     try:
-        found = _check_header(data, kind)
-        return KIND_READERS[found](data)
+        found = check_header(data, kind)
+        return reader_of(found)(data)
     except CamcalError as error:
         raise CamcalError(f"{path}: {error}") from None
 

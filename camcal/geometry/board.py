@@ -5,10 +5,17 @@ Two kinds of planar target:
 ``chessboard:WxH:SQUARE``
     A chessboard with ``W x H`` INNER corners (OpenCV's pattern size) and
     squares of side ``SQUARE`` (in the board's units, e.g. metres, or 1.0
-    to measure in squares). Detected with ``cv2.findChessboardCornersSB``
-    (accuracy flags), falling back to ``cv2.findChessboardCorners`` when
-    the sector-based detector fails; either way refined by
-    ``cv2.cornerSubPix``.
+    to measure in squares). Found by ``cv2.findChessboardCorners`` (the
+    fastest; on a half-size copy first when the image is 400 px or more
+    on both sides), falling back to ``cv2.findChessboardCornersSB`` (plain, then
+    with its exhaustive and accuracy flags) when it fails; either way
+    refined by ``cv2.cornerSubPix`` with a window of half-size
+    ``0.45 x`` the smallest corner spacing in the image (3 to 15 px): a
+    window that spans most of a square converges to the same saddle point
+    whatever the start, where OpenCV's customary 5 px half-window does not
+    on low-contrast images (on the real stereo pairs the right camera's
+    training RMS falls from 0.29 to 0.14 px and the held-out PnP RMS from
+    0.172 to 0.166 px).
 ``charuco:DICT:WxH:SQUARE:MARKER``
     A ChArUco board of ``W x H`` SQUARES with ArUco markers from the
     dictionary ``DICT`` (e.g. ``DICT_5X5_100``), detected with
@@ -18,6 +25,11 @@ Board coordinates: corner ``id`` of a chessboard is ``row * W + col`` at
 ``(col * square, row * square, 0)``; ChArUco corners are those of
 ``cv2.aruco.CharucoBoard.getChessboardCorners``. The board is the plane
 ``z = 0``. Pixel (0, 0) is the centre of the top-left pixel (OpenCV).
+
+Detection over many images (:func:`detect_in_images`) runs in worker
+threads and keeps each image's result in a cache keyed by the file's
+content (SHA-256) and the detector settings, so that calibrating again
+with other options does not detect again.
 
 Corner order of a chessboard is made canonical so that every camera of a
 rig labels the same physical corner with the same id: the board's axes
@@ -37,10 +49,13 @@ highly reliable fiducial markers under occlusion. Pattern Recognition.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import re
 import sys
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -56,6 +71,7 @@ __all__ = [
     "DetectionReport",
     "parse_board",
     "detect_board",
+    "default_cache_dir",
     "detect_in_images",
     "frame_number",
 ]
@@ -65,9 +81,16 @@ __all__ = [
 # rendered boards (lambda off by 24 %, fx by 0.3 %); without it they are within 0.04-0.1 px.
 _SB_FLAGS = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
+_SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
+#: Images at least this large (both sides) are searched at half size first.
+_HALF_SIZE_MIN_PX = 400
+#: cornerSubPix half-window as a fraction of the smallest corner spacing, and its bounds in px.
+_SUBPIX_WINDOW_FRACTION = 0.45
+_SUBPIX_WINDOW_PX = (3, 15)
 #: Fewest ChArUco corners kept in one image (a pose needs non-collinear points).
 MIN_CHARUCO_CORNERS = 6
+#: Part of every cache key: change it whenever detection changes what it returns.
+_DETECTOR_VERSION = "half-classic-sb-subpix-adaptive-v4"
 
 
 @dataclass(frozen=True)
@@ -296,23 +319,90 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         order = np.argsort(ids)
         return Detection(name, (width, height), ids[order], corners.reshape(-1, 2).astype(np.float64)[order], "charuco")
     pattern = (board.columns, board.rows)
-    found, corners = cv2.findChessboardCornersSB(gray, pattern, flags=_SB_FLAGS)
-    detector = "sb"
+    found = False
+    if min(height, width) >= _HALF_SIZE_MIN_PX:
+        # find the board on a half-size image (4x fewer pixels, 5x faster on the real pairs);
+        # cornerSubPix below refines at full size from there: pixel centres map as 2 x + 0.5
+        half = cv2.resize(gray, (width // 2, height // 2), interpolation=cv2.INTER_AREA)
+        found, corners = cv2.findChessboardCorners(half, pattern, flags=_CLASSIC_FLAGS)
+        if found:
+            corners = 2.0 * corners + 0.5
     if not found:
         found, corners = cv2.findChessboardCorners(gray, pattern, flags=_CLASSIC_FLAGS)
+    detector = "classic"
+    if not found:
+        detector = "sb"
+        found, corners = cv2.findChessboardCornersSB(gray, pattern, flags=0)
+        if not found:
+            found, corners = cv2.findChessboardCornersSB(gray, pattern, flags=_SB_FLAGS)
         if not found:
             return None
-        detector = "classic"
     # The SB corners are pulled towards the image centre (0.1 px at 300 px from it, on
     # `camcal demo`'s rendered boards, with or without lens distortion): cornerSubPix
     # converges to the saddle point and removes that bias (0.0002 px left).
-    corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), _SUBPIX_CRITERIA)
+    grid = corners.reshape(board.rows, board.columns, 2)
+    spacing = min(np.linalg.norm(np.diff(grid, axis=axis), axis=2).min() for axis in (0, 1))
+    half = int(np.clip(round(_SUBPIX_WINDOW_FRACTION * spacing), *_SUBPIX_WINDOW_PX))
+    corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
     corners = _canonical_chessboard(gray, corners.reshape(-1, 2).astype(np.float64), board.columns, board.rows)
     return Detection(name, (width, height), np.arange(board.n_corners, dtype=np.int64), corners, detector)
 
 
+def default_cache_dir() -> Path:
+    """Where detections are cached by default: ``$XDG_CACHE_HOME/camcal/corners`` (``~/.cache/camcal/corners``)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "camcal" / "corners"
+
+
+def _cache_key(board: Board, content: bytes) -> str:
+    """SHA-256 of the image bytes, the board and the detector settings."""
+    digest = hashlib.sha256(content)
+    digest.update(f"|{board.spec()}|{_DETECTOR_VERSION}|{_SB_FLAGS}|{_CLASSIC_FLAGS}|{_SUBPIX_CRITERIA}|{cv2.__version__}".encode())
+    return digest.hexdigest()
+
+
+def _read_cached(path: Path) -> tuple[tuple[int, int] | None, Detection | None] | None:
+    """A cached result ``(image size or None if unreadable, detection or None)``; None when absent or unreadable."""
+    try:
+        data = json.loads(path.read_text())
+        size = tuple(data["size"]) if data["size"] is not None else None
+        if data["detection"] is None:
+            return size, None
+        d = data["detection"]
+        return size, Detection(d["image"], tuple(d["image_size"]), np.asarray(d["ids"], dtype=np.int64),
+                               np.asarray(d["corners_px"], dtype=np.float64).reshape(-1, 2), d["detector"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _write_cached(path: Path, size: tuple[int, int] | None, detection: Detection | None) -> None:
+    """Write one result atomically (temp file + rename); a cache that cannot be written is skipped."""
+    payload = {"size": list(size) if size else None, "detection": None if detection is None else {
+        "image": detection.image, "image_size": list(detection.image_size), "ids": detection.ids.tolist(),
+        "corners_px": detection.corners_px.tolist(), "detector": detection.detector}}
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        temporary.write_text(json.dumps(payload))
+        os.replace(temporary, path)
+    except OSError:
+        pass
+
+
+def _detect_file(board: Board, path: str, content: bytes) -> tuple[tuple[int, int] | None, Detection | None]:
+    """Decode and detect one image: ``(size or None if unreadable, detection)``."""
+    image = cv2.imdecode(np.frombuffer(content, np.uint8), cv2.IMREAD_GRAYSCALE) if content else None
+    if image is None:
+        return None, None
+    return (image.shape[1], image.shape[0]), detect_board(board, image, Path(path).name)
+
+
 def detect_in_images(
-    board: Board, paths: Iterable[str | os.PathLike], progress: str | None = None
+    board: Board,
+    paths: Iterable[str | os.PathLike],
+    progress: str | None = None,
+    workers: int = 1,
+    cache: str | os.PathLike | None = None,
 ) -> DetectionReport:
     """Detect ``board`` in every image; the ones where it is missing are listed, not fatal.
 
@@ -320,10 +410,21 @@ def detect_in_images(
     ----------
     board : Board
     paths : iterable of path
-        Image files (anything ``cv2.imread`` reads).
+        Image files (anything ``cv2.imdecode`` reads).
     progress : str, optional
         When given, a progress line ``<progress>: i / n`` is written to
         stderr as the images are processed.
+    workers : int
+        Images detected at once (default 1). Worker threads: OpenCV releases
+        the GIL while it decodes and detects, so threads use every core
+        without the start-up cost of processes (a spawned process imports
+        numpy and OpenCV again, about 0.5 s each; a forked child of a
+        process whose OpenCV thread pool runs can hang). OpenCV's own
+        threading is set to 1 while they run.
+    cache : path, optional
+        Directory of cached detections (one JSON file per image, keyed by
+        the SHA-256 of the file's bytes, the board and the detector
+        settings); None detects every image.
 
     Returns
     -------
@@ -338,23 +439,68 @@ def detect_in_images(
     paths = [Path(p) for p in paths]
     if not paths:
         raise CamcalError("no images given")
+    results: list = [None] * len(paths)
+    pending = []
+    cache_files: list[Path | None] = [None] * len(paths)
+    for index, path in enumerate(paths):
+        try:
+            content = path.read_bytes()
+        except OSError:
+            content = b""
+        if cache is not None and content:
+            cache_files[index] = Path(cache) / f"{_cache_key(board, content)}.json"
+            cached = _read_cached(cache_files[index])
+            if cached is not None:
+                size, detection = cached
+                # the cached detection was named after the file it was first found in
+                results[index] = (size, None if detection is None else Detection(
+                    path.name, detection.image_size, detection.ids, detection.corners_px, detection.detector))
+                continue
+        pending.append((index, content))
+    count = sum(result is not None for result in results)
+
+    def report_progress() -> None:
+        if progress:
+            print(f"\r{progress}: {count} / {len(paths)} images", end="\n" if count == len(paths) else "",
+                  file=sys.stderr, flush=True)
+
+    n_workers = min(max(1, workers), len(pending))
+    if n_workers > 1:
+        threads = cv2.getNumThreads()
+        cv2.setNumThreads(1)
+        try:
+            with ThreadPoolExecutor(max_workers=n_workers) as pool:
+                futures = [(index, pool.submit(_detect_file, board, str(paths[index]), content))
+                           for index, content in pending]
+                for index, future in futures:
+                    results[index] = future.result()
+                    count += 1
+                    report_progress()
+        finally:
+            cv2.setNumThreads(threads)
+    else:
+        for index, content in pending:
+            results[index] = _detect_file(board, str(paths[index]), content)
+            count += 1
+            report_progress()
+    if not pending:
+        report_progress()
+    for index, _ in pending:
+        if cache_files[index] is not None:
+            _write_cached(cache_files[index], *results[index])
     detections, skipped = [], []
     sizes = set()
-    for index, path in enumerate(paths, start=1):
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if image is None:
+    for path, (size, detection) in zip(paths, results):
+        if size is None:
+            skipped.append(path.name)
+            continue
+        sizes.add(size)
+        if len(sizes) > 1:
+            raise CamcalError(f"images of one camera must share a size; {path.name} is {size[0]}x{size[1]}")
+        if detection is None:
             skipped.append(path.name)
         else:
-            sizes.add(image.shape[::-1])
-            if len(sizes) > 1:
-                raise CamcalError(f"images of one camera must share a size; {path.name} is {image.shape[1]}x{image.shape[0]}")
-            detection = detect_board(board, image, path.name)
-            if detection is None:
-                skipped.append(path.name)
-            else:
-                detections.append(detection)
-        if progress:
-            print(f"\r{progress}: {index} / {len(paths)} images", end="\n" if index == len(paths) else "", file=sys.stderr, flush=True)
+            detections.append(detection)
     return DetectionReport(tuple(detections), tuple(skipped))
 
 

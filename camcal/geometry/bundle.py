@@ -1,19 +1,26 @@
-"""Rig-aware bundle adjustment: camcal's refinement after a pycolmap seed.
+"""Rig-aware bundle adjustment on Ceres: camcal's one nonlinear calibration engine.
 
-The state (:class:`BundleState`) is what structure from motion gives:
-physical cameras with intrinsics shared over all frames, one
-``sensor_from_rig`` pose per camera shared over all frames (a stereo rig
-moved around; the first camera is the rig's reference), one
-``rig_from_world`` pose per frame, sparse 3D points and their observations;
-optionally chessboard corners as *known* 3D points on a board whose pose in
-the world is unknown (:class:`BoardObservations`), which also fixes the
-scale. Every pose maps ``X_to = R X_from + t`` (COLMAP's ``Rigid3d``).
+The state (:class:`BundleState`) is what structure from motion or a board
+calibration gives: physical cameras with intrinsics shared over all frames,
+one ``sensor_from_rig`` pose per camera shared over all frames (a rig moved
+around; the first camera is the rig's reference), one ``rig_from_world``
+pose per frame, sparse 3D points and their observations; optionally
+chessboard corners as *known* 3D points (:class:`BoardObservations`). With a
+board the board's frame is the world (``world_from_board`` is the identity):
+its corners are constant points, which fix the gauge and the scale. Every
+pose maps ``X_to = R X_from + t`` (COLMAP's ``Rigid3d``).
 
-Intrinsics live in COLMAP's parameter vectors (focal, principal point,
-extra), so that a refinement of the same reconstruction with the same model
-and loss minimises exactly the cost that ``pycolmap.bundle_adjustment``
-minimises; projection goes through camcal's own models
-(:func:`camcal.io.colmap.camera_from_colmap`, exact to 1e-8 px).
+The refinement is pycolmap's Ceres bundle adjuster
+(``create_default_ceres_bundle_adjuster``, COLMAP's reprojection costs on
+rigs and frames, Ceres' sparse Schur solvers): the state becomes a pycolmap
+``Reconstruction`` (cameras, one rig, frames, images, points with tracks),
+board corners are added as constant points, and camcal only chooses what is
+held. Intrinsics are COLMAP parameter vectors (any model that
+:func:`camcal.io.colmap.camera_from_colmap` maps exactly, named by COLMAP's
+``params_info``), so the cost is exactly the one ``pycolmap.bundle_adjustment``
+minimises; single parameters can be held (``BundleOptions.fixed_params``,
+e.g. the tangential terms of ``OPENCV`` for camcal's radial-only
+``polynomial`` model) by a Ceres ``SubsetManifold`` on the camera's block.
 
 The cost is Ceres' ``1/2 sum_i rho(|r_i|^2)`` over the 2-vector residual of
 each observation, with Ceres' losses (scale ``a``)::
@@ -23,40 +30,39 @@ each observation, with Ceres' losses (scale ``a``)::
     soft_l1  rho(s) = 2 a^2 (sqrt(1 + s / a^2) - 1)
     cauchy   rho(s) = a^2 log(1 + s / a^2)
 
-It is minimised by Levenberg-Marquardt (Marquardt's diagonal damping, Nielsen's
-update of the damping) on the reweighted residuals ``sqrt(rho'(s_i)) r_i`` and
-Jacobian rows ``sqrt(rho'(s_i)) J_i`` (Triggs et al. 2000, section 4.3, without
-the second-order correction, as Ceres does for losses with ``rho'' <= 0``), with a finite-difference Jacobian evaluated by
-column groups that share no residual (Curtis, Powell & Reid 1974) and each
-step solved exactly on the reduced camera system: the points are eliminated
-by their 3x3 blocks (Schur complement), the rest solved by Cholesky. The gauge is fixed by holding the first frame's
-pose and, when nothing else sets the scale (a rig held at a known
-calibration, or a board), the largest coordinate of the second frame's
-translation (as COLMAP's ``TWO_CAMS_FROM_WORLD``).
+Gauge: with a board, its constant corners; without one, the first frame's
+pose is held when the points move and, when nothing else sets the scale (a
+rig held at a known calibration), the largest coordinate of the second
+frame's translation (as COLMAP's ``TWO_CAMS_FROM_WORLD``).
 
-Uncertainty: ``Sigma = sigma^2 S^-1`` with ``S`` the Schur complement of the
-points in ``J^T J`` (points marginalised) and ``sigma^2 = 2 cost / (m - n)``
-(Triggs et al. 2000, section 6; Hartley & Zisserman 2004, section 5.2).
+Uncertainty: ``Sigma = sigma^2 (J^T J)^-1`` restricted to the intrinsics
+and the rig poses, by Ceres' ``Covariance`` (sparse QR of the whole
+Jacobian, so frames and points are marginalised) on the adjuster's own
+problem, with ``sigma^2 = 2 cost / (m - n)`` (Triggs et al. 2000, section 6;
+Hartley & Zisserman 2004, section 5.2). Rotations are in Ceres' quaternion
+tangent space ``q' = [cos|d|, sin|d| d / |d|] q``, i.e. a rotation vector
+``2 d`` applied on the left; these sigmas measure the sampling noise of the
+observations, not model error.
 
 References
 ----------
-Curtis, A. R., Powell, M. J. D. & Reid, J. K. (1974). On the estimation of
-sparse Jacobian matrices. IMA J. Appl. Math. 13, 117-119.
-Nielsen, H. B. (1999). Damping parameter in Marquardt's method. IMM-REP-1999-05.
 Triggs, B., McLauchlan, P., Hartley, R. & Fitzgibbon, A. (2000). Bundle
 Adjustment - A Modern Synthesis. Vision Algorithms: Theory and Practice.
-Agarwal, S., Mierle, K. et al. Ceres Solver: loss functions
-(``ceres/loss_function.h``).
+Schoenberger, J. L. & Frahm, J.-M. (2016). Structure-from-Motion Revisited.
+CVPR (COLMAP).
+Agarwal, S., Mierle, K. et al. Ceres Solver: loss functions, manifolds,
+covariance estimation.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
@@ -70,6 +76,7 @@ __all__ = [
     "BundleResult",
     "BundleState",
     "bundle_adjust",
+    "residuals",
     "robust_cost",
     "state_from_reconstruction",
     "state_to_reconstruction",
@@ -79,30 +86,24 @@ __all__ = [
 
 LOSSES = ("trivial", "huber", "soft_l1", "cauchy")
 
-# Indices of (focal, principal point) in COLMAP's parameter vectors; the rest is "extra".
-_FOCAL_PP: dict[str, tuple[tuple[int, ...], tuple[int, ...]]] = {
-    "SIMPLE_PINHOLE": ((0,), (1, 2)),
-    "PINHOLE": ((0, 1), (2, 3)),
-    "SIMPLE_RADIAL": ((0,), (1, 2)),
-    "RADIAL": ((0,), (1, 2)),
-    "OPENCV": ((0, 1), (2, 3)),
-    "FULL_OPENCV": ((0, 1), (2, 3)),
-    "SIMPLE_DIVISION": ((0,), (1, 2)),
-}
-_PARAM_NAMES: dict[str, tuple[str, ...]] = {
-    "SIMPLE_PINHOLE": ("f", "cx", "cy"),
-    "PINHOLE": ("fx", "fy", "cx", "cy"),
-    "SIMPLE_RADIAL": ("f", "cx", "cy", "k"),
-    "RADIAL": ("f", "cx", "cy", "k1", "k2"),
-    "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
-    "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
-    "SIMPLE_DIVISION": ("f", "cx", "cy", "k"),
-}
+
+@functools.lru_cache(maxsize=None)
+def _model_layout(model: str) -> tuple[tuple[str, ...], tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
+    """COLMAP's parameter names and the indices of focal, principal point and extra parameters."""
+    import pycolmap  # noqa: PLC0415 - heavy dependency, only here and in sfm.py
+
+    model_id = getattr(pycolmap.CameraModelId, model, None)
+    if model_id is None or model in ("INVALID",):
+        raise CamcalError(f"unknown COLMAP camera model {model!r}")
+    camera = pycolmap.Camera.create_from_model_id(0, model_id, 1.0, 2, 2)
+    names = tuple(name.strip() for name in camera.params_info.split(","))
+    return (names, tuple(camera.focal_length_idxs()), tuple(camera.principal_point_idxs()),
+            tuple(camera.extra_params_idxs()))
 
 
 @dataclass(frozen=True)
 class BoardObservations:
-    """Chessboard corners seen in the SfM images: known 3D points on a board.
+    """Chessboard corners seen in the images: known 3D points on a board.
 
     Attributes
     ----------
@@ -142,7 +143,7 @@ class BundleState:
     frame_R, frame_t : ndarray, shapes (F, 3, 3), (F, 3)
         ``rig_from_world`` per frame.
     frame_ids : tuple of int
-        The frames' ids in their source (COLMAP frame ids).
+        The frames' ids in their source (COLMAP frame ids, or frame numbers).
     points : ndarray, shape (P, 3)
     point_ids : tuple of int
     obs_camera, obs_frame, obs_point : ndarray of int, shape (N,)
@@ -150,7 +151,8 @@ class BundleState:
         Observed pixels, camcal convention.
     board : BoardObservations or None
     board_R, board_t : ndarray or None
-        ``world_from_board`` when a board is present.
+        ``world_from_board`` when a board is present (the identity once
+        :func:`attach_board` has moved the world onto the board).
     """
 
     camera_names: tuple[str, ...]
@@ -173,14 +175,16 @@ class BundleState:
     board_t: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
-        for model in self.models:
-            if model not in _FOCAL_PP:
-                raise CamcalError(
-                    f"bundle adjustment supports the COLMAP models {', '.join(_FOCAL_PP)}, not {model!r}"
-                )
-        if len(self.obs_xy) == 0:
+        for model, params in zip(self.models, self.params):
+            names = _model_layout(model)[0]
+            if len(params) != len(names):
+                raise CamcalError(f"COLMAP model {model} takes {len(names)} parameters, got {len(params)}")
+        if len(self.obs_xy) == 0 and (self.board is None or len(self.board.xy) == 0):
             raise CamcalError("bundle adjustment needs observations; the reconstruction has none")
-        if not np.all(np.isfinite(self.obs_xy)) or not np.all(np.isfinite(self.points)):
+        finite = np.all(np.isfinite(self.obs_xy)) and np.all(np.isfinite(self.points))
+        if self.board is not None:
+            finite = finite and np.all(np.isfinite(self.board.xy)) and np.all(np.isfinite(self.board.object_points))
+        if not finite:
             raise CamcalError("bundle adjustment input has NaN or infinite observations or points")
 
     def scaled(self, factor: float) -> BundleState:
@@ -192,12 +196,36 @@ class BundleState:
 
     def param_names(self, camera: int) -> tuple[str, ...]:
         """COLMAP's names of camera ``camera``'s parameters."""
-        return _PARAM_NAMES[self.models[camera]]
+        return _model_layout(self.models[camera])[0]
 
 
 @dataclass(frozen=True)
 class BundleOptions:
-    """What to refine and how (COLMAP's ``BundleAdjustmentOptions`` names)."""
+    """What to refine and how (COLMAP's ``BundleAdjustmentOptions`` names).
+
+    Attributes
+    ----------
+    refine_focal_length, refine_principal_point, refine_extra_params : bool
+        Which intrinsics move (every camera).
+    refine_sensor_from_rig : bool
+        Whether the cameras' poses in the rig move.
+    refine_points3D : bool
+        Whether the scene points move (board corners never do).
+    loss, loss_scale : str, float
+        Ceres loss on each 2-vector residual (module docstring), scale in px.
+    max_iterations : int
+        Ceres iterations (0 evaluates the start only).
+    tolerance : float
+        Ceres' function tolerance: stop when the cost falls by less than
+        ``tolerance x cost`` in an iteration.
+    fixed_params : mapping of str to tuple of str
+        Camera name -> COLMAP parameter names held at their start values
+        (e.g. ``{"left": ("p1", "p2")}``).
+    constant_intrinsics : tuple of str
+        Cameras whose intrinsics are all held.
+    compute_sigmas : bool
+        Estimate the covariance of the intrinsics and the rig poses.
+    """
 
     refine_focal_length: bool = True
     refine_principal_point: bool = False
@@ -208,12 +236,17 @@ class BundleOptions:
     loss_scale: float = 1.0
     max_iterations: int = 200
     tolerance: float = 1e-10
+    fixed_params: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    constant_intrinsics: tuple[str, ...] = ()
+    compute_sigmas: bool = True
 
     def __post_init__(self) -> None:
         if self.loss not in LOSSES:
             raise CamcalError(f"unknown loss {self.loss!r}, expected one of: {', '.join(LOSSES)}")
         if not self.loss_scale > 0:
             raise CamcalError(f"loss scale must be positive, got {self.loss_scale!r}")
+        if self.max_iterations < 0:
+            raise CamcalError(f"max_iterations must be 0 or more, got {self.max_iterations!r}")
 
 
 @dataclass(frozen=True)
@@ -230,9 +263,21 @@ class BundleResult:
     sigmas : dict of str to float
         One-sigma of each free intrinsic (``camera.f``...) and of each
         refined rig pose (``camera.rotation_deg``, ``camera.baseline_direction_deg``,
-        ``camera.baseline_rel``), points marginalised.
+        ``camera.baseline_rel``), frames and points marginalised.
     n_iterations : int
+        Ceres iterations taken.
     n_residuals, n_parameters : int
+        Scalar residuals and free (tangent-space) unknowns.
+    covariance : ndarray, shape (P, P)
+        ``sigma^2 (J^T J)^-1`` of the quantities in :attr:`covariance_names`
+        (empty when not estimated).
+    covariance_names : tuple of str
+        ``camera.<COLMAP parameter>`` for the free intrinsics, then
+        ``camera.rx, .ry, .rz`` (rotation vector applied on the left of
+        ``sensor_from_rig``, radians) and ``camera.tx, .ty, .tz`` for each
+        refined rig pose.
+    termination : str
+        Ceres' termination message.
     """
 
     state: BundleState
@@ -244,13 +289,16 @@ class BundleResult:
     n_iterations: int = 0
     n_residuals: int = 0
     n_parameters: int = 0
+    covariance: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0)))
+    covariance_names: tuple[str, ...] = ()
+    termination: str = ""
 
     def summary(self) -> str:
         """Per-camera RMS before -> after and the cost."""
         rows = [f"  {name}: {self.rms_before_px[name]:.4f} -> {self.rms_after_px[name]:.4f} px" for name in self.rms_after_px]
         return "\n".join(
-            [f"bundle adjustment: cost {self.initial_cost:.6g} -> {self.final_cost:.6g} "
-             f"({self.n_iterations} evaluations, {self.n_residuals} residuals, {self.n_parameters} unknowns)"] + rows
+            [f"bundle adjustment (Ceres): cost {self.initial_cost:.6g} -> {self.final_cost:.6g} "
+             f"({self.n_iterations} iterations, {self.n_residuals} residuals, {self.n_parameters} unknowns)"] + rows
         )
 
 
@@ -264,18 +312,6 @@ def _rho(s: NDArray[np.float64], loss: str, a: float) -> NDArray[np.float64]:
     if loss == "soft_l1":
         return 2.0 * b * (np.sqrt(1.0 + s / b) - 1.0)
     return b * np.log1p(s / b)
-
-
-def _rho_derivative(s: NDArray[np.float64], loss: str, a: float) -> NDArray[np.float64]:
-    """``rho'(s)`` of :func:`_rho`."""
-    if loss == "trivial":
-        return np.ones_like(s)
-    b = a * a
-    if loss == "huber":
-        return np.where(s <= b, 1.0, a / np.sqrt(np.maximum(s, b)))
-    if loss == "soft_l1":
-        return 1.0 / np.sqrt(1.0 + s / b)
-    return 1.0 / (1.0 + s / b)
 
 
 def robust_cost(residuals: ArrayLike, loss: str = "trivial", scale: float = 1.0) -> float:
@@ -295,13 +331,12 @@ def _project(state: BundleState, camera: NDArray, frame: NDArray, X: NDArray) ->
             continue
         lens = camera_from_colmap(name, state.models[index], state.image_sizes[index], state.params[index],
                                   np.eye(3), np.zeros(3))
-        ideal = Xc[mask, :2] / Xc[mask, 2:3] @ lens.K[:2, :2].T + lens.K[:2, 2]
-        out[mask] = lens.distortion.distort(ideal, lens.K)
+        out[mask] = lens.project(Xc[mask])
     return out
 
 
-def _residuals(state: BundleState) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
-    """Reprojection residuals (N, 2) of the points and (B, 2) of the board corners."""
+def residuals(state: BundleState) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """Reprojection residuals ``projected - observed`` (N, 2) of the points and (B, 2) of the board corners."""
     scene = _project(state, state.obs_camera, state.obs_frame, state.points[state.obs_point]) - state.obs_xy
     if state.board is None:
         return scene, None
@@ -309,183 +344,158 @@ def _residuals(state: BundleState) -> tuple[NDArray[np.float64], NDArray[np.floa
     return scene, _project(state, state.board.camera, state.board.frame, corners) - state.board.xy
 
 
-def _measure(state: BundleState, options: BundleOptions) -> tuple[float, dict[str, float]]:
-    """Ceres' cost of a state and its plain reprojection RMS per camera (and ``"board"``)."""
-    scene, board = _residuals(state)
+def _rms(state: BundleState) -> dict[str, float]:
+    """Plain reprojection RMS per camera (scene points) and ``"board"``."""
+    scene, board = residuals(state)
     rms = {}
     for index, name in enumerate(state.camera_names):
         r = scene[state.obs_camera == index]
         if len(r):
             rms[name] = float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
-    if board is not None:
+    if board is not None and len(board):
         rms["board"] = float(np.sqrt(np.mean(np.sum(board * board, axis=1))))
-    both = scene if board is None else np.vstack([scene, board])
-    return robust_cost(both, options.loss, options.loss_scale), rms
+    return rms
 
 
-class _Layout:
-    """Where each unknown lives in the parameter vector, and the gauge.
+@dataclass
+class _Colmap:
+    """The pycolmap reconstruction of a state and where each part of the state went."""
 
-    Blocks, in order: free intrinsics per camera; ``sensor_from_rig``
-    (rotation-vector increment, translation) of cameras 1..C-1 when refined;
-    ``rig_from_world`` of every frame (frame 0 held when the points move, and
-    one translation coordinate of frame 1 when nothing else sets the scale);
-    the board pose; the points when refined.
-    """
+    reconstruction: object
+    camera_ids: list[int]
+    frame_ids: dict[int, int]  # frame position -> COLMAP frame id (frames with images only)
+    point_ids: list[int]  # scene points, in state order
+    board_point_ids: list[int]
 
-    def __init__(self, state: BundleState, options: BundleOptions):
-        self.state = state
-        self.options = options
-        self.intrinsic_index: list[NDArray[np.int64]] = []
-        for model in state.models:
-            focal, pp = _FOCAL_PP[model]
-            extra = tuple(range(len(_PARAM_NAMES[model])))[len(focal) + len(pp):]
-            chosen = (focal if options.refine_focal_length else ()) + (pp if options.refine_principal_point else ()) \
-                + (extra if options.refine_extra_params else ())
-            self.intrinsic_index.append(np.array(sorted(chosen), dtype=np.int64))
-        n_cameras, n_frames = len(state.camera_names), len(state.frame_R)
-        offset = 0
-        self.intrinsic_offset = []
-        for index in self.intrinsic_index:
-            self.intrinsic_offset.append(offset)
-            offset += len(index)
-        self.sensor_offset = {}
-        if options.refine_sensor_from_rig:
-            for camera in range(1, n_cameras):
-                self.sensor_offset[camera] = offset
-                offset += 6
-        # gauge: frame 0 held when the points move; the scale by one translation coordinate
-        scale_free = options.refine_points3D and state.board is None and (
-            options.refine_sensor_from_rig or n_cameras == 1)
-        self.frame_offset: dict[int, tuple[int, NDArray[np.int64]]] = {}
-        for frame in range(n_frames):
-            if frame == 0 and options.refine_points3D:
-                continue
-            free = np.arange(6)
-            if frame == 1 and scale_free:
-                held = 3 + int(np.argmax(np.abs(state.frame_t[1] - state.frame_t[0])))
-                free = free[free != held]
-            self.frame_offset[frame] = (offset, free)
-            offset += len(free)
-        if scale_free and n_frames < 2:
-            raise CamcalError("bundle adjustment needs at least 2 frames (or a known rig or a board) to fix the scale")
-        self.board_offset = None
-        if state.board is not None:
-            self.board_offset = offset
-            offset += 6
-        self.point_offset = offset
-        if options.refine_points3D:
-            offset += 3 * len(state.points)
-        self.size = offset
-        self.pattern = self._sparsity().tocsc()
-        self.groups = self._column_groups()
 
-    def _column_groups(self) -> list[NDArray[np.int64]]:
-        """Columns that share no residual row, by block structure (one camera, frame or point per row)."""
-        groups: list[list[int]] = []
-        for k in range(max((len(index) for index in self.intrinsic_index), default=0)):
-            groups.append([self.intrinsic_offset[c] + k for c, index in enumerate(self.intrinsic_index) if k < len(index)])
-        for k in range(6):
-            groups.append([o + k for o in self.sensor_offset.values()])
-            groups.append([o + k for o, free in self.frame_offset.values() if k < len(free)])
-            if self.board_offset is not None:
-                groups.append([self.board_offset + k])
-        if self.options.refine_points3D:
-            for k in range(3):
-                groups.append(list(self.point_offset + 3 * np.arange(len(self.state.points)) + k))
-        return [np.array(group, dtype=np.int64) for group in groups if group]
+def _rigid(pycolmap, R: NDArray, t: NDArray):
+    return pycolmap.Rigid3d(pycolmap.Rotation3d(np.asarray(R, dtype=np.float64)), np.asarray(t, dtype=np.float64))
 
-    def unpack(self, x: NDArray[np.float64]) -> BundleState:
-        s = self.state
-        params = []
-        for camera, index in enumerate(self.intrinsic_index):
-            p = s.params[camera].copy()
-            p[index] = x[self.intrinsic_offset[camera]:self.intrinsic_offset[camera] + len(index)]
-            params.append(p)
-        sensor_R, sensor_t = s.sensor_R.copy(), s.sensor_t.copy()
-        for camera, o in self.sensor_offset.items():
-            sensor_R[camera] = Rotation.from_rotvec(x[o:o + 3]).as_matrix() @ s.sensor_R[camera]
-            sensor_t[camera] = x[o + 3:o + 6]
-        frame_R, frame_t = s.frame_R.copy(), s.frame_t.copy()
-        for frame, (o, free) in self.frame_offset.items():
-            six = np.concatenate([np.zeros(3), s.frame_t[frame]])
-            six[free] = x[o:o + len(free)]
-            frame_R[frame] = Rotation.from_rotvec(six[:3]).as_matrix() @ s.frame_R[frame]
-            frame_t[frame] = six[3:]
-        board_R, board_t = s.board_R, s.board_t
-        if self.board_offset is not None:
-            o = self.board_offset
-            board_R = Rotation.from_rotvec(x[o:o + 3]).as_matrix() @ s.board_R
-            board_t = x[o + 3:o + 6].copy()
-        points = x[self.point_offset:].reshape(-1, 3).copy() if self.options.refine_points3D else s.points
-        return dataclasses.replace(s, params=tuple(params), sensor_R=sensor_R, sensor_t=sensor_t, frame_R=frame_R,
-                                   frame_t=frame_t, points=points, board_R=board_R, board_t=board_t)
 
-    def initial(self) -> NDArray[np.float64]:
-        s = self.state
-        x = np.zeros(self.size)
-        for camera, index in enumerate(self.intrinsic_index):
-            x[self.intrinsic_offset[camera]:self.intrinsic_offset[camera] + len(index)] = s.params[camera][index]
-        for camera, o in self.sensor_offset.items():
-            x[o + 3:o + 6] = s.sensor_t[camera]
-        for frame, (o, free) in self.frame_offset.items():
-            x[o:o + len(free)] = np.concatenate([np.zeros(3), s.frame_t[frame]])[free]
-        if self.board_offset is not None:
-            x[self.board_offset + 3:self.board_offset + 6] = s.board_t
-        if self.options.refine_points3D:
-            x[self.point_offset:] = s.points.ravel()
-        return x
+def _to_colmap(state: BundleState) -> _Colmap:
+    """A pycolmap ``Reconstruction`` holding the state: one rig, a frame per state frame, constant board corners."""
+    import pycolmap  # noqa: PLC0415
 
-    def _sparsity(self) -> scipy.sparse.csr_matrix:
-        """Which unknowns each residual row depends on."""
-        s = self.state
-        rows: list[NDArray] = []
-        cols: list[NDArray] = []
+    reconstruction = pycolmap.Reconstruction()
+    camera_ids = list(range(1, len(state.camera_names) + 1))
+    for index, cid in enumerate(camera_ids):
+        width, height = state.image_sizes[index]
+        reconstruction.add_camera(pycolmap.Camera(
+            camera_id=cid, model=getattr(pycolmap.CameraModelId, state.models[index]), width=int(width),
+            height=int(height), params=np.asarray(state.params[index], dtype=np.float64)))
+    rig = pycolmap.Rig(rig_id=1)
+    rig.add_ref_sensor(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, camera_ids[0]))
+    for index, cid in enumerate(camera_ids[1:], start=1):
+        rig.add_sensor(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cid),
+                       _rigid(pycolmap, state.sensor_R[index], state.sensor_t[index]))
+    reconstruction.add_rig(rig)
 
-        def observation_columns(camera: NDArray, frame: NDArray, first_row: int, extra: list[NDArray]) -> None:
-            n = len(camera)
-            row_of = first_row + np.arange(n)
-            blocks: list[tuple[NDArray, NDArray]] = []
-            for c, index in enumerate(self.intrinsic_index):
-                sel = np.flatnonzero(camera == c)
-                for k in range(len(index)):
-                    blocks.append((sel, np.full(len(sel), self.intrinsic_offset[c] + k)))
-            for c, o in self.sensor_offset.items():
-                sel = np.flatnonzero(camera == c)
-                for k in range(6):
-                    blocks.append((sel, np.full(len(sel), o + k)))
-            for f, (o, free) in self.frame_offset.items():
-                sel = np.flatnonzero(frame == f)
-                for k in range(len(free)):
-                    blocks.append((sel, np.full(len(sel), o + k)))
-            for sel_cols in extra:
-                for k in range(sel_cols.shape[1]):
-                    blocks.append((np.arange(n), sel_cols[:, k]))
-            for sel, col in blocks:
-                for axis in (0, 1):
-                    rows.append(2 * row_of[sel] + axis)
-                    cols.append(col)
+    # every observation, scene points first, then board corners: one image per (camera, frame)
+    board = state.board
+    n_scene = len(state.obs_xy)
+    cameras = state.obs_camera if board is None else np.concatenate([state.obs_camera, board.camera])
+    frames = state.obs_frame if board is None else np.concatenate([state.obs_frame, board.frame])
+    xy = state.obs_xy if board is None else np.vstack([state.obs_xy, board.xy])
+    key = cameras.astype(np.int64) * len(state.frame_R) + frames
+    order = np.argsort(key, kind="stable")
+    keys, first = np.unique(key[order], return_index=True)
+    point2D_index = np.empty(len(key), dtype=np.int64)
+    point2D_index[order] = np.arange(len(key)) - np.repeat(first, np.diff(np.r_[first, len(key)]))
+    image_of_key = {int(k): n + 1 for n, k in enumerate(keys)}
+    image_id = np.array([image_of_key[int(k)] for k in key], dtype=np.int64) if len(key) else np.zeros(0, np.int64)
 
-        point_cols = []
-        if self.options.refine_points3D:
-            point_cols.append(self.point_offset + 3 * s.obs_point[:, None] + np.arange(3))
-        observation_columns(s.obs_camera, s.obs_frame, 0, point_cols)
-        n_rows = 2 * len(s.obs_xy)
-        if s.board is not None:
-            board_cols = [np.tile(self.board_offset + np.arange(6), (len(s.board.xy), 1))]
-            observation_columns(s.board.camera, s.board.frame, len(s.obs_xy), board_cols)
-            n_rows += 2 * len(s.board.xy)
-        r, c = np.concatenate(rows), np.concatenate(cols)
-        return scipy.sparse.csr_matrix((np.ones(len(r)), (r, c)), shape=(n_rows, self.size))
+    frame_ids: dict[int, int] = {}
+    frame_images: dict[int, list] = {}
+    images = []
+    bounds = np.r_[first, len(key)]
+    for n, k in enumerate(keys):
+        camera, frame = divmod(int(k), len(state.frame_R))
+        rows = order[bounds[n]:bounds[n + 1]]
+        image = pycolmap.Image(name=f"{state.camera_names[camera]}/{frame}", keypoints=xy[rows] + 0.5,
+                               camera_id=camera_ids[camera], image_id=n + 1)
+        frame_ids.setdefault(frame, len(frame_ids) + 1)
+        image.frame_id = frame_ids[frame]
+        images.append(image)
+        frame_images.setdefault(frame, []).append(image)
+    for frame, fid in frame_ids.items():
+        colmap_frame = pycolmap.Frame(frame_id=fid, rig_id=1,
+                                      rig_from_world=_rigid(pycolmap, state.frame_R[frame], state.frame_t[frame]))
+        for image in frame_images[frame]:
+            colmap_frame.add_data_id(image.data_id)
+        reconstruction.add_frame(colmap_frame)
+    for image in images:
+        reconstruction.add_image(image)
+    for fid in frame_ids.values():
+        reconstruction.register_frame(fid)
+
+    def add_points(xyz: NDArray, which: NDArray, rows: NDArray) -> list[int]:
+        by_point = np.argsort(which, kind="stable")
+        starts = np.searchsorted(which[by_point], np.arange(len(xyz) + 1))
+        ids = []
+        for p in range(len(xyz)):
+            members = rows[by_point[starts[p]:starts[p + 1]]]
+            track = pycolmap.Track([pycolmap.TrackElement(int(image_id[m]), int(point2D_index[m])) for m in members])
+            ids.append(reconstruction.add_point3D(xyz[p], track) if len(members) else -1)
+        return ids
+
+    point_ids = add_points(state.points, state.obs_point, np.arange(n_scene))
+    board_point_ids = []
+    if board is not None:
+        corners = board.object_points @ state.board_R.T + state.board_t
+        board_point_ids = add_points(corners, board.corner, n_scene + np.arange(len(board.xy)))
+    return _Colmap(reconstruction, camera_ids, frame_ids, point_ids, board_point_ids)
+
+
+def _from_colmap(state: BundleState, colmap: _Colmap) -> BundleState:
+    """The state with the refined values of its reconstruction."""
+    import pycolmap  # noqa: PLC0415
+
+    reconstruction = colmap.reconstruction
+    rig = reconstruction.rig(1)
+    params = tuple(np.array(reconstruction.cameras[cid].params, dtype=np.float64) for cid in colmap.camera_ids)
+    sensor_R, sensor_t = state.sensor_R.copy(), state.sensor_t.copy()
+    for index, cid in enumerate(colmap.camera_ids[1:], start=1):
+        pose = rig.sensor_from_rig(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cid))
+        sensor_R[index], sensor_t[index] = pose.rotation.matrix(), pose.translation
+    frame_R, frame_t = state.frame_R.copy(), state.frame_t.copy()
+    for frame, fid in colmap.frame_ids.items():
+        pose = reconstruction.frame(fid).rig_from_world
+        frame_R[frame], frame_t[frame] = pose.rotation.matrix(), pose.translation
+    points = state.points.copy()
+    for p, pid in enumerate(colmap.point_ids):
+        if pid >= 0:
+            points[p] = reconstruction.points3D[pid].xyz
+    return dataclasses.replace(state, params=params, sensor_R=sensor_R, sensor_t=sensor_t, frame_R=frame_R,
+                               frame_t=frame_t, points=points)
+
+
+def _held_indices(state: BundleState, camera: int, options: BundleOptions) -> list[int]:
+    """Indices of camera ``camera``'s COLMAP parameters that do not move."""
+    names, focal, pp, extra = _model_layout(state.models[camera])
+    name = state.camera_names[camera]
+    if name in options.constant_intrinsics:
+        return list(range(len(names)))
+    held = set()
+    for refined, index in ((options.refine_focal_length, focal), (options.refine_principal_point, pp),
+                           (options.refine_extra_params, extra)):
+        if not refined:
+            held.update(index)
+    for param in options.fixed_params.get(name, ()):
+        if param not in names:
+            raise CamcalError(f"camera {name!r} ({state.models[camera]}) has no parameter {param!r}; "
+                              f"it has: {', '.join(names)}")
+        held.add(names.index(param))
+    return sorted(held)
 
 
 def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(), verbose: bool = True) -> BundleResult:
-    """Refine a reconstruction: shared intrinsics, shared rig, frames, points, board.
+    """Refine a reconstruction on Ceres: shared intrinsics, shared rig, frames, points, board.
 
     Parameters
     ----------
     state : BundleState
-        The seed (e.g. :func:`state_from_reconstruction` of a pycolmap model).
+        The seed (e.g. :func:`state_from_reconstruction` of a pycolmap model,
+        or board views from :mod:`camcal.geometry.zhang`).
     options : BundleOptions
         What is refined, the loss, the tolerances.
     verbose : bool
@@ -494,162 +504,155 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(), 
     Returns
     -------
     BundleResult
-        Never ends above the seed's cost (only steps that lower it are taken).
+
+    Raises
+    ------
+    CamcalError
+        Unknown parameter names, or a gauge that cannot be fixed (fewer than
+        two frames and nothing else that sets the scale).
     """
-    layout = _Layout(state, options)
+    import pycolmap  # noqa: PLC0415
+    import pyceres  # noqa: PLC0415 - the Ceres problem behind pycolmap's adjuster
 
-    def fun(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        scene, board = _residuals(layout.unpack(x))
-        blocks = scene if board is None else np.vstack([scene, board])
-        return np.nan_to_num(blocks, nan=1e6).ravel()
+    colmap = _to_colmap(state)
+    reconstruction = colmap.reconstruction
+    ba = pycolmap.BundleAdjustmentOptions(
+        print_summary=False, refine_focal_length=options.refine_focal_length,
+        refine_principal_point=options.refine_principal_point, refine_extra_params=options.refine_extra_params,
+        refine_sensor_from_rig=options.refine_sensor_from_rig, refine_points3D=options.refine_points3D,
+    )
+    ba.ceres.loss_function_type = getattr(pycolmap.LossFunctionType, options.loss.upper())
+    ba.ceres.loss_function_scale = options.loss_scale
+    solver = ba.ceres.solver_options
+    solver.function_tolerance = options.tolerance
+    solver.gradient_tolerance = 1e-12
+    solver.parameter_tolerance = 1e-12
+    solver.max_num_iterations = options.max_iterations
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in reconstruction.images:
+        config.add_image(image_id)
+    for pid in colmap.board_point_ids:
+        if pid >= 0:
+            config.add_constant_point(pid)
+    if not options.refine_points3D:
+        for pid in colmap.point_ids:
+            if pid >= 0:
+                config.add_constant_point(pid)
+    # the gauge (module docstring)
+    if options.refine_points3D and len(state.obs_xy) > 0 and state.board is None:
+        scale_free = options.refine_sensor_from_rig or len(state.camera_names) == 1
+        if scale_free:
+            if len(colmap.frame_ids) < 2:
+                raise CamcalError("bundle adjustment needs at least 2 frames (or a known rig or a board) to fix the scale")
+            config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+        else:
+            config.set_constant_rig_from_world_pose(colmap.frame_ids[min(colmap.frame_ids)])
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(ba, config, reconstruction)
+    problem = adjuster.problem
+    for index, cid in enumerate(colmap.camera_ids):
+        block = reconstruction.cameras[cid].params
+        if not problem.has_parameter_block(block):
+            continue
+        held = _held_indices(state, index, options)
+        if len(held) == len(block):
+            problem.set_parameter_block_constant(block)
+        elif held:
+            problem.set_manifold(block, pyceres.SubsetManifold(len(block), held))
 
-    x0 = layout.initial()
-    initial_cost, rms_before = _measure(state, options)
+    rms_before = _rms(state)
     if verbose:
-        print(f"camcal bundle: {len(x0)} unknowns, {len(state.obs_xy)} observations, cost {initial_cost:.6g}",
-              file=sys.stderr, flush=True)
-    x, r, J, n_iterations = _levenberg_marquardt(fun, x0, layout, options)
-    refined = layout.unpack(x)
-    final_cost, rms_after = _measure(refined, options)
+        print(f"camcal bundle (Ceres): {problem.num_parameters()} parameters, "
+              f"{problem.num_residuals()} residuals", file=sys.stderr, flush=True)
+    summary = adjuster.solve().ceres_summary
+    refined = _from_colmap(state, colmap)
+    covariance, covariance_names, sigmas = np.zeros((0, 0)), (), {}
+    if options.compute_sigmas:
+        covariance, covariance_names = _covariance(state, options, colmap, problem, summary)
+        sigmas = _sigmas(refined, covariance, covariance_names)
     result = BundleResult(
-        state=refined, initial_cost=initial_cost, final_cost=final_cost,
-        rms_before_px=rms_before, rms_after_px=rms_after,
-        sigmas=_sigmas(layout, x, r, J), n_iterations=n_iterations, n_residuals=len(r), n_parameters=len(x0),
+        state=refined, initial_cost=float(summary.initial_cost), final_cost=float(summary.final_cost),
+        rms_before_px=rms_before, rms_after_px=_rms(refined), sigmas=sigmas,
+        n_iterations=int(summary.num_successful_steps + summary.num_unsuccessful_steps),
+        n_residuals=int(summary.num_residuals), n_parameters=int(summary.num_effective_parameters),
+        covariance=covariance, covariance_names=covariance_names, termination=str(summary.message),
     )
     if verbose:
         print(result.summary(), file=sys.stderr, flush=True)
     return result
 
 
-def _jacobian(fun, x: NDArray[np.float64], r: NDArray[np.float64], layout: _Layout) -> scipy.sparse.csc_matrix:
-    """Forward differences, one evaluation per group of columns that share no residual."""
-    pattern = layout.pattern
-    step = 1.5e-8 * np.maximum(1.0, np.abs(x))
-    rows, cols, values = [], [], []
-    for group in layout.groups:
-        shifted = x.copy()
-        shifted[group] += step[group]
-        difference = fun(shifted) - r
-        sub = pattern[:, group]
-        column = np.repeat(group, np.diff(sub.indptr))
-        rows.append(sub.indices)
-        cols.append(column)
-        values.append(difference[sub.indices] / step[column])
-    return scipy.sparse.csc_matrix(
-        (np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))), shape=pattern.shape)
+def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, problem, summary) -> tuple[NDArray[np.float64], tuple[str, ...]]:
+    """``sigma^2 (J^T J)^-1`` of the free intrinsics and rig poses by Ceres' Covariance; empty if singular."""
+    import pycolmap  # noqa: PLC0415
+    import pyceres  # noqa: PLC0415
 
-
-def _normal_equations(J: scipy.sparse.csc_matrix, layout: _Layout):
-    """``J^T J`` split into the camera block (dense), the cross block and the points' 3x3 blocks."""
-    p = layout.point_offset
-    A, B = J[:, :p], J[:, p:]
-    H_aa = (A.T @ A).toarray()
-    if B.shape[1] == 0:
-        return H_aa, None, None
-    BtB = (B.T @ B).tocsr()
-    first = 3 * np.arange(B.shape[1] // 3)
-    H_bb = np.empty((len(first), 3, 3))
-    for k in range(3):
-        for j in range(3):
-            H_bb[:, k, j] = np.asarray(BtB[first + k, first + j]).ravel()
-    return H_aa, (A.T @ B).tocsr(), H_bb
-
-
-def _reduced(H_aa, H_ab, H_bb_inverse):
-    """Schur complement ``H_aa - H_ab H_bb^-1 H_ba`` with ``H_bb^-1`` block-diagonal (points)."""
-    n = len(H_bb_inverse)
-    inverse = scipy.sparse.bsr_matrix((H_bb_inverse, np.arange(n), np.arange(n + 1)), shape=(3 * n, 3 * n))
-    W = (H_ab @ inverse).tocsr()
-    return H_aa - (W @ H_ab.T).toarray(), W
-
-
-def _solve_step(H_aa, H_ab, H_bb, g, mu: float, p: int) -> NDArray[np.float64]:
-    """Solve ``(H + mu diag(H)) dx = -g`` with the points eliminated."""
-    damped_aa = H_aa + mu * np.diag(np.maximum(np.diag(H_aa), 1e-6))
-    if H_bb is None:
-        return np.linalg.solve(damped_aa, -g)
-    D_b = np.maximum(np.diagonal(H_bb, axis1=1, axis2=2), 1e-6)
-    inverse = np.linalg.inv(H_bb + mu * D_b[:, :, None] * np.eye(3))
-    S, W = _reduced(damped_aa, H_ab, inverse)
-    g_a, g_b = g[:p], g[p:]
-    dx_a = np.linalg.solve(S, -(g_a - W @ g_b))
-    dx_b = np.einsum("nij,nj->ni", inverse, (-g_b - H_ab.T @ dx_a).reshape(-1, 3)).ravel()
-    return np.concatenate([dx_a, dx_b])
-
-
-def _reweighted(r: NDArray[np.float64], J, options: BundleOptions):
-    """Cost ``1/2 sum rho``, and residuals and Jacobian scaled by ``sqrt(rho'(s))`` per 2-vector."""
-    s = np.sum(r.reshape(-1, 2) ** 2, axis=1)
-    cost = 0.5 * float(np.sum(_rho(s, options.loss, options.loss_scale)))
-    if options.loss == "trivial":
-        return cost, r, J
-    weight = np.repeat(np.sqrt(_rho_derivative(s, options.loss, options.loss_scale)), 2)
-    return cost, r * weight, None if J is None else scipy.sparse.diags(weight) @ J
-
-
-def _levenberg_marquardt(fun, x0: NDArray[np.float64], layout: _Layout, options: BundleOptions):
-    """Levenberg-Marquardt, Nielsen's damping update; stops when the relative decrease falls below tolerance."""
-    x, r = x0.copy(), fun(x0)
-    cost, r_w, J_w = _reweighted(r, _jacobian(fun, x, r, layout), options)
-    mu, nu = 1e-4, 2.0
-    iterations = 0
-    while iterations < options.max_iterations and mu < 1e16:
-        iterations += 1
-        H_aa, H_ab, H_bb = _normal_equations(J_w, layout)
-        g = J_w.T @ r_w
-        try:
-            dx = _solve_step(H_aa, H_ab, H_bb, g, mu, layout.point_offset)
-        except np.linalg.LinAlgError:
-            mu, nu = mu * nu, nu * 2
+    reconstruction = colmap.reconstruction
+    blocks, names, scales = [], [], []
+    for index, cid in enumerate(colmap.camera_ids):
+        block = reconstruction.cameras[cid].params
+        if not problem.has_parameter_block(block) or problem.is_parameter_block_constant(block):
             continue
-        r_new = fun(x + dx)
-        cost_new = _reweighted(r_new, None, options)[0]
-        predicted = -float(g @ dx) - 0.5 * float(np.sum((J_w @ dx) ** 2))
-        if not (cost_new < cost and predicted > 0):
-            mu, nu = mu * nu, nu * 2
+        all_names = state.param_names(index)
+        held = set(_held_indices(state, index, options))
+        free = [k for k in range(len(all_names)) if k not in held]
+        blocks.append(block)
+        names.extend(f"{state.camera_names[index]}.{all_names[k]}" for k in free)
+        scales.extend([1.0] * len(free))
+    rig = reconstruction.rig(1)
+    sensors = {sensor.id: pose for sensor, pose in rig.non_ref_sensors.items()}
+    for index, cid in enumerate(colmap.camera_ids[1:], start=1):
+        block = sensors[cid].params  # (qx, qy, qz, qw, tx, ty, tz), tangent (rotation, translation)
+        if not problem.has_parameter_block(block) or problem.is_parameter_block_constant(block):
             continue
-        decrease = cost - cost_new
-        mu *= max(1.0 / 3.0, 1.0 - (2.0 * decrease / predicted - 1.0) ** 3)
-        nu = 2.0
-        x, r = x + dx, r_new
-        cost, r_w, J_w = _reweighted(r, _jacobian(fun, x, r, layout), options)
-        if decrease < options.tolerance * cost:
-            break
-    return x, r_w, J_w, iterations
+        camera = state.camera_names[index]
+        blocks.append(block)
+        names += [f"{camera}.{axis}" for axis in ("rx", "ry", "rz", "tx", "ty", "tz")]
+        scales += [2.0, 2.0, 2.0, 1.0, 1.0, 1.0]  # Ceres' quaternion tangent d is half the rotation vector
+    if not blocks:
+        return np.zeros((0, 0)), ()
+    dof = summary.num_residuals - summary.num_effective_parameters
+    if dof <= 0:
+        return np.zeros((0, 0)), ()
+    covariance_options = pyceres.CovarianceOptions()
+    covariance_options.num_threads = 2
+    covariance = pyceres.Covariance(covariance_options)
+    pairs = [(a, b) for i, a in enumerate(blocks) for b in blocks[i:]]
+    if not covariance.compute(pairs, problem):
+        return np.zeros((0, 0)), ()
+    sizes = [problem.parameter_block_tangent_size(b) for b in blocks]
+    offsets = np.r_[0, np.cumsum(sizes)]
+    full = np.zeros((offsets[-1], offsets[-1]))
+    for i, a in enumerate(blocks):
+        for j in range(i, len(blocks)):
+            part = np.asarray(covariance.get_covariance_block_tangent_space(a, blocks[j], problem)).reshape(sizes[i], sizes[j])
+            full[offsets[i]:offsets[i + 1], offsets[j]:offsets[j + 1]] = part
+            full[offsets[j]:offsets[j + 1], offsets[i]:offsets[i + 1]] = part.T
+    sigma2 = 2.0 * float(summary.final_cost) / dof
+    scale = np.asarray(scales)
+    return sigma2 * full * np.outer(scale, scale), tuple(names)
 
 
-def _sigmas(layout: _Layout, x: NDArray[np.float64], r: NDArray[np.float64], J) -> dict[str, float]:
-    """One-sigma of the intrinsics and rig poses, points marginalised (Schur complement)."""
-    m, n = J.shape
-    if m <= n:
+def _sigmas(state: BundleState, covariance: NDArray[np.float64], names: tuple[str, ...]) -> dict[str, float]:
+    """One-sigma of each intrinsic and of each rig pose's rotation, baseline direction and length."""
+    if not len(names):
         return {}
-    sigma2 = float(r @ r) / (m - n)
-    H_aa, H_ab, H_bb = _normal_equations(J, layout)
-    try:
-        if H_bb is not None:
-            H_aa, _ = _reduced(H_aa, H_ab, np.linalg.pinv(H_bb))
-        covariance = sigma2 * np.linalg.inv(H_aa)
-    except np.linalg.LinAlgError:
-        return {}
-    state = layout.state
-    sigmas: dict[str, float] = {}
-    for camera, index in enumerate(layout.intrinsic_index):
-        names = state.param_names(camera)
-        for k, param in enumerate(index):
-            o = layout.intrinsic_offset[camera] + k
-            sigmas[f"{state.camera_names[camera]}.{names[param]}"] = float(np.sqrt(max(covariance[o, o], 0.0)))
-    for camera, o in layout.sensor_offset.items():
-        block = covariance[o:o + 6, o:o + 6]
-        t = x[o + 3:o + 6]
-        length = float(np.linalg.norm(t))
-        across = np.eye(3) - np.outer(t, t) / max(length * length, 1e-300)
-        along = t / max(length, 1e-300)
-        name = state.camera_names[camera]
-        sigmas[f"{name}.rotation_deg"] = float(np.degrees(np.sqrt(max(np.trace(block[:3, :3]), 0.0))))
-        sigmas[f"{name}.baseline_direction_deg"] = float(
-            np.degrees(np.sqrt(max(np.trace(across @ block[3:, 3:] @ across), 0.0)) / max(length, 1e-300)))
-        sigmas[f"{name}.baseline_rel"] = float(np.sqrt(max(along @ block[3:, 3:] @ along, 0.0)) / max(length, 1e-300))
-    return sigmas
+    sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    out = {name: float(value) for name, value in zip(names, sigma) if name.rsplit(".", 1)[1] not in
+           ("rx", "ry", "rz", "tx", "ty", "tz")}
+    for index, camera in enumerate(state.camera_names):
+        if f"{camera}.rx" not in names:
+            continue
+        o = names.index(f"{camera}.rx")
+        rotation, translation = covariance[o:o + 3, o:o + 3], covariance[o + 3:o + 6, o + 3:o + 6]
+        t = state.sensor_t[index]
+        length = max(float(np.linalg.norm(t)), 1e-300)
+        along = t / length
+        across = np.eye(3) - np.outer(along, along)
+        out[f"{camera}.rotation_deg"] = float(np.degrees(np.sqrt(max(np.trace(rotation), 0.0))))
+        out[f"{camera}.baseline_direction_deg"] = float(
+            np.degrees(np.sqrt(max(np.trace(across @ translation @ across), 0.0)) / length))
+        out[f"{camera}.baseline_rel"] = float(np.sqrt(max(along @ translation @ along, 0.0)) / length)
+    return out
 
 
 def hold_rig(state: BundleState, cam_from_reference: dict[str, tuple[ArrayLike, ArrayLike]]) -> BundleState:
@@ -694,14 +697,22 @@ def _camera_from_world(state: BundleState, camera: int, frame: int) -> tuple[NDA
     return R, state.sensor_R[camera] @ state.frame_t[frame] + state.sensor_t[camera]
 
 
+def _camera_from_world(state: BundleState, camera: int, frame: int) -> tuple[NDArray, NDArray]:
+    R = state.sensor_R[camera] @ state.frame_R[frame]
+    return R, state.sensor_R[camera] @ state.frame_t[frame] + state.sensor_t[camera]
+
+
 def attach_board(state: BundleState, board: BoardObservations) -> BundleState:
-    """Add chessboard observations, scaling the reconstruction to the board's units.
+    """Add chessboard observations and move the world onto the board (its frame, its units).
 
     Each view with 4+ corners gives ``cam_from_board`` by PnP (OpenCV, on
     undistorted pixels). The camera centres in board units against the same
     centres in the reconstruction give the scale (median ratio of pairwise
     distances); ``world_from_board`` is the chordal mean of the per-view
-    estimates (rotation projected onto SO(3) by SVD), its translation the mean.
+    estimates (rotation projected onto SO(3) by SVD), its translation the
+    mean. The state is then re-expressed in the board's frame
+    (``X_board = R^T (X_world - t)``, ``rig_from_board = rig_from_world
+    world_from_board``), so that the board's constant corners fix the gauge.
 
     Raises
     ------
@@ -743,7 +754,13 @@ def attach_board(state: BundleState, board: BoardObservations) -> BundleState:
         translations.append(R_cw.T @ (t_cb - scale * t_cw))
     u, _, vt = np.linalg.svd(np.sum(rotations, axis=0))
     board_R = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
-    return dataclasses.replace(scaled, board=board, board_R=board_R, board_t=np.mean(translations, axis=0))
+    board_t = np.mean(translations, axis=0)
+    # the board's frame becomes the world
+    return dataclasses.replace(
+        scaled, board=board, board_R=np.eye(3), board_t=np.zeros(3),
+        frame_R=scaled.frame_R @ board_R, frame_t=scaled.frame_R @ board_t + scaled.frame_t,
+        points=(scaled.points - board_t) @ board_R,
+    )
 
 
 def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | None = None) -> BundleState:

@@ -40,6 +40,8 @@ __all__ = [
     "K_from_colmap",
     "look_at",
     "random_rotation",
+    "rotation_angle_deg",
+    "similarity_Umeyama1991",
 ]
 
 
@@ -236,6 +238,53 @@ def look_at(centre: ArrayLike, target: ArrayLike, up: ArrayLike = (0.0, 0.0, 1.0
 def random_rotation(rng: np.random.Generator) -> NDArray[np.float64]:
     """A rotation drawn uniformly from SO(3)."""
     return Rotation.random(random_state=rng).as_matrix()
+
+
+def rotation_angle_deg(R: ArrayLike) -> float:
+    """The angle of a rotation matrix in degrees, in [0, 180].
+
+    Notes
+    -----
+    ``theta = arccos((trace(R) - 1) / 2)`` (the trace is clipped to the valid
+    range against rounding).
+
+    Examples
+    --------
+    >>> round(rotation_angle_deg(Rotation.from_euler("z", 30, degrees=True).as_matrix()), 9)
+    30.0
+    """
+    R = np.asarray(R, dtype=np.float64)
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def similarity_Umeyama1991(source: ArrayLike, target: ArrayLike) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """The similarity ``s, R, t`` minimising ``sum |target - (s R source + t)|^2``.
+
+    Parameters
+    ----------
+    source, target : array_like, shape (N, 3)
+        Corresponding points, N >= 3 not collinear.
+
+    Returns
+    -------
+    s : float
+    R : ndarray, shape (3, 3)
+        A proper rotation (det +1).
+    t : ndarray, shape (3,)
+
+    References
+    ----------
+    S. Umeyama, "Least-squares estimation of transformation parameters
+    between two point patterns", IEEE TPAMI 13(4), 1991.
+    """
+    source, target = np.asarray(source, dtype=np.float64), np.asarray(target, dtype=np.float64)
+    mu_s, mu_t = source.mean(0), target.mean(0)
+    cov = (target - mu_t).T @ (source - mu_s) / len(source)
+    u, d, vt = np.linalg.svd(cov)
+    sign = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
+    R = u @ sign @ vt
+    scale = float(np.trace(np.diag(d) @ sign) / np.mean(np.sum((source - mu_s) ** 2, axis=1)))
+    return scale, R, mu_t - scale * R @ mu_s
 
 
 def _as_P(P: ArrayLike) -> NDArray[np.float64]:

@@ -49,7 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from camcal.errors import CamcalError
 
-__all__ = ["MODEL_PARAMS", "Distortion", "DistortionFit", "fit_distortion"]
+__all__ = ["MODEL_PARAMS", "Distortion", "DistortionFit", "fit_distortion", "frame_grid"]
 
 #: Parameter names of each model: (required, optional).
 MODEL_PARAMS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = MappingProxyType(
@@ -343,7 +343,7 @@ class DistortionFit:
     n_points: int
 
 
-def _frame_grid(image_size: tuple[int, int], step_px: float) -> NDArray[np.float64]:
+def frame_grid(image_size: tuple[int, int], step_px: float) -> NDArray[np.float64]:
     """Distorted pixels on a regular grid over the frame, edges included."""
     width, height = image_size
     u = np.unique(np.append(np.arange(0.0, width - 1, step_px), width - 1.0))
@@ -354,7 +354,10 @@ def _frame_grid(image_size: tuple[int, int], step_px: float) -> NDArray[np.float
 def _model_from_vector(model: str, names: tuple[str, ...], vector: NDArray, fit_center: bool) -> Distortion:
     n = len(names)
     center = (float(vector[n]), float(vector[n + 1])) if fit_center else None
-    return Distortion(model, dict(zip(names, (float(v) for v in vector[:n]))), center=center)
+    params = dict(zip(names, (float(v) for v in vector[:n])))
+    if model == "opencv":
+        params.setdefault("k3", 0.0)  # fitted without k3
+    return Distortion(model, params, center=center)
 
 
 def fit_distortion(
@@ -364,7 +367,7 @@ def fit_distortion(
     model: str,
     *,
     fit_center: bool = False,
-    with_k3: bool = False,
+    with_k3: bool | None = None,
     step_px: float = 16.0,
 ) -> DistortionFit:
     """Fit a distortion model of another kind to ``source`` over the image.
@@ -383,8 +386,10 @@ def fit_distortion(
     fit_center : bool
         Division target only: fit the distortion centre too (else it is the
         principal point).
-    with_k3 : bool
-        Polynomial target only: fit ``k3`` as well as ``k1, k2``.
+    with_k3 : bool, optional
+        Polynomial and opencv targets: fit ``k3`` as well (default: no for
+        ``polynomial``, yes for ``opencv``; ``False`` with ``opencv`` fits
+        ``k1, k2, p1, p2`` with ``k3 = 0``, Kalibr's radtan).
     step_px : float
         Spacing of the sample grid in pixels.
 
@@ -418,11 +423,11 @@ def fit_distortion(
         raise CamcalError(f"cannot fit model {model!r}, expected one of: division, polynomial, opencv")
     if fit_center and model != "division":
         raise CamcalError("fit_center applies only to the division model")
-    if with_k3 and model != "polynomial":
-        raise CamcalError("with_k3 applies only to the polynomial model")
+    if with_k3 is not None and model == "division":
+        raise CamcalError("with_k3 applies only to the polynomial and opencv models")
     if step_px <= 0:
         raise CamcalError(f"step_px must be positive, got {step_px}")
-    distorted = _frame_grid(image_size, step_px)
+    distorted = frame_grid(image_size, step_px)
     ideal = source.undistort(distorted, K)
     keep = np.all(np.isfinite(ideal), axis=1)
     distorted, ideal = distorted[keep], ideal[keep]
@@ -440,8 +445,10 @@ def fit_distortion(
         if fit_center:
             start = np.append(start, centre)
     else:
-        names = ("k1", "k2", "k3") if (model == "polynomial" and with_k3) else (
-            ("k1", "k2") if model == "polynomial" else ("k1", "k2", "p1", "p2", "k3"))
+        if model == "polynomial":
+            names = ("k1", "k2", "k3") if with_k3 else ("k1", "k2")
+        else:
+            names = ("k1", "k2", "p1", "p2", "k3") if with_k3 in (None, True) else ("k1", "k2", "p1", "p2")
         xy = _pixels_to_normalised(ideal, K)
         xy_d = _pixels_to_normalised(distorted, K)
         x, y = xy[:, 0], xy[:, 1]

@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from camcal.errors import CamcalError
 from camcal.geometry.camera import compose_P, decompose_P, project_pinhole
 from camcal.geometry.distortion import Distortion
+from camcal.quality import Quality
 from camcal.rig import Camera
 
 __all__ = ["MIN_CORRESPONDENCES", "PARAMETER_NAMES", "DLTResult", "dlt_P", "calibrate_dlt"]
@@ -78,12 +79,12 @@ class DLTResult:
             distortion=Distortion.none(),
             R=self.R,
             c=self.c,
-            quality={
-                "rms_px": self.rms_px,
-                "worst_px": self.worst_px,
-                "n_points": len(self.residuals_px),
-                "sigma": {k: v for k, v in self.sigmas.items() if k in ("fx", "fy", "s", "cx", "cy")},
-            },
+            quality=Quality(
+                rms_px=self.rms_px,
+                worst_px=self.worst_px,
+                n_observations=len(self.residuals_px),
+                sigma={"skew" if k == "s" else k: v for k, v in self.sigmas.items() if k in ("fx", "fy", "s", "cx", "cy")},
+            ),
         )
 
     @property

@@ -39,19 +39,49 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.errors import CamcalError
-from camcal.geometry.bundle import BundleOptions, BundleResult, bundle_adjust, hold_rig, state_from_reconstruction, state_to_reconstruction
+from camcal.geometry.bundle import (
+    BundleOptions,
+    BundleResult,
+    BundleState,
+    bundle_adjust,
+    hold_rig,
+    state_from_reconstruction,
+    state_to_reconstruction,
+)
 from camcal.geometry.camera import from_colmap
-from camcal.io.colmap import camera_from_colmap
+from camcal.geometry.distortion import Distortion, fit_distortion
+from camcal.io.colmap import camera_from_colmap, camera_to_colmap
 from camcal.io.ply import write_points_ply
-from camcal.rig import Frame, Rig, make_provenance
+from camcal.rig import Camera, Frame, Rig, make_provenance
 
-__all__ = ["IMAGE_SUFFIXES", "MODELS", "SfmResult", "collect_images", "solve_sfm"]
+__all__ = [
+    "HELDOUT_FRACTION",
+    "IMAGE_SUFFIXES",
+    "LENS_MODELS",
+    "MODELS",
+    "PRINCIPAL_POINT_MODES",
+    "PrincipalPointDecision",
+    "PycolmapPeer",
+    "SelfCalibration",
+    "SfmResult",
+    "collect_images",
+    "heldout_rms",
+    "principal_point_limit_px",
+    "self_calibrate",
+    "solve_pycolmap_plain",
+    "solve_sfm",
+]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 MATCHERS = ("exhaustive", "sequential")
 MAPPERS = ("incremental", "global")
 #: camcal's distortion models and the COLMAP camera model that is exactly each of them.
 MODELS = {"division": "SIMPLE_DIVISION", "polynomial": "RADIAL", "opencv": "OPENCV", "none": "SIMPLE_PINHOLE"}
+#: the lens models ``solve`` chooses among by held-out residual (``--model auto``), simplest first.
+LENS_MODELS = ("division", "polynomial", "opencv")
+PRINCIPAL_POINT_MODES = ("auto", "refine", "centre")
+#: fraction of the sparse points (whole tracks) held out of the fit to choose the lens model.
+HELDOUT_FRACTION = 0.2
 
 
 @dataclass(frozen=True)
@@ -78,6 +108,9 @@ class SfmResult:
     bundle : BundleResult or None
         camcal's refinement of the pycolmap seed (costs, RMS before/after,
         sigmas), None when not refined.
+    self_calibration : SelfCalibration or None
+        The lens models chosen (held-out RMS of each) and the principal point
+        decisions, None when not refined or with one fixed COLMAP model.
     """
 
     rig: Rig
@@ -89,6 +122,307 @@ class SfmResult:
     per_camera_rms_px: dict[str, float]
     reconstruction_dir: Path
     bundle: BundleResult | None = None
+    self_calibration: SelfCalibration | None = None
+
+
+@dataclass(frozen=True)
+class PrincipalPointDecision:
+    """Whether a camera's principal point was refined, and why.
+
+    Attributes
+    ----------
+    camera : str
+    refined : bool
+        True: refined with the rest; False: held at the image centre.
+    sigma_px : (float, float)
+        One-sigma of (cx, cy) from the fit with the principal point free
+        (points marginalised); NaN when that fit was not run (``centre``).
+    limit_px : float
+        The largest sigma at which the data count as determining it.
+    reason : str
+        The decision in words, with its numbers.
+    """
+
+    camera: str
+    refined: bool
+    sigma_px: tuple[float, float]
+    limit_px: float
+    reason: str
+
+
+@dataclass(frozen=True)
+class SelfCalibration:
+    """What :func:`self_calibrate` decided and measured.
+
+    Attributes
+    ----------
+    lens_models : dict of str to str
+        Camera -> the camcal lens model chosen (``division``, ``polynomial``...).
+    heldout_rms_px : dict of str to dict of str to float
+        Camera -> lens model -> RMS reprojection error of the held-out points
+        (tracks left out of that model's fit, triangulated afterwards with
+        its cameras held), in pixels.
+    n_heldout_points : int
+        Sparse points held out.
+    principal_point : tuple of PrincipalPointDecision
+    """
+
+    lens_models: dict[str, str]
+    heldout_rms_px: dict[str, dict[str, float]]
+    n_heldout_points: int
+    principal_point: tuple[PrincipalPointDecision, ...]
+
+    def lines(self) -> list[str]:
+        """The decisions, one line per camera and question, for the user."""
+        rows = []
+        for camera, model in self.lens_models.items():
+            table = ", ".join(f"{name} {value:.4f}" for name, value in self.heldout_rms_px[camera].items())
+            rows.append(f"{camera}: lens model {model} (held-out RMS px over {self.n_heldout_points} points: {table})")
+        rows += [f"{decision.camera}: {decision.reason}" for decision in self.principal_point]
+        return rows
+
+
+def principal_point_limit_px(image_size: tuple[int, int]) -> float:
+    """Sigma below which the views determine a principal point: 0.2 % of the diagonal, at least 1 px.
+
+    Holding the principal point at the image centre costs its true offset
+    (commonly 0.2-1 % of the diagonal); refining it costs its sigma. Refining
+    wins when the sigma is smaller than the offsets lenses commonly have.
+    """
+    return max(1.0, 0.002 * float(np.hypot(*image_size)))
+
+
+def _subset(state: BundleState, keep_point: NDArray[np.bool_]) -> BundleState:
+    """The state restricted to the points ``keep_point`` (whole tracks) and their observations."""
+    index = np.cumsum(keep_point) - 1
+    kept = keep_point[state.obs_point]
+    return dataclasses.replace(
+        state, points=state.points[keep_point],
+        point_ids=tuple(int(i) for i, k in zip(state.point_ids, keep_point) if k),
+        obs_camera=state.obs_camera[kept], obs_frame=state.obs_frame[kept],
+        obs_point=index[state.obs_point[kept]], obs_xy=state.obs_xy[kept],
+    )
+
+
+def _lens_params(state: BundleState, camera: int, model: str) -> NDArray[np.float64]:
+    """Camera ``camera``'s COLMAP parameters in the COLMAP twin of camcal ``model``.
+
+    The focal length and principal point carry over; the distortion is
+    :func:`camcal.geometry.distortion.fit_distortion` of the current one
+    over the frame (a non-square focal becomes the mean focal first).
+    """
+    if state.models[camera] == MODELS[model]:
+        return state.params[camera].copy()
+    name, size = state.camera_names[camera], state.image_sizes[camera]
+    lens = camera_from_colmap(name, state.models[camera], size, state.params[camera], np.eye(3), np.zeros(3))
+    K = lens.K.copy()
+    K[0, 0] = K[1, 1] = 0.5 * (K[0, 0] + K[1, 1])
+    K[0, 1] = 0.0
+    if model == "none":
+        distortion = Distortion.none()
+    else:
+        distortion = fit_distortion(lens.distortion, K, size, model).distortion
+        if model == "opencv":
+            distortion = Distortion("opencv", {**distortion.params, "k3": 0.0})
+    colmap = camera_to_colmap(dataclasses.replace(lens, K=K, distortion=distortion))
+    if colmap.model != MODELS[model]:
+        raise CamcalError(f"camera {name!r}: {model} converted to COLMAP {colmap.model}, expected {MODELS[model]}")
+    return np.array(colmap.params, dtype=np.float64)
+
+
+def _with_lenses(state: BundleState, lenses: dict[str, str]) -> BundleState:
+    """The state with each camera's lens model replaced (``camera name -> camcal model``)."""
+    params = tuple(_lens_params(state, k, lenses[name]) for k, name in enumerate(state.camera_names))
+    return dataclasses.replace(state, models=tuple(MODELS[lenses[name]] for name in state.camera_names), params=params)
+
+
+def _centred(state: BundleState, camera: int) -> NDArray[np.float64]:
+    """Camera ``camera``'s parameters with the principal point at the image centre (COLMAP: w/2, h/2)."""
+    params = state.params[camera].copy()
+    names = state.param_names(camera)
+    width, height = state.image_sizes[camera]
+    params[names.index("cx")], params[names.index("cy")] = width / 2.0, height / 2.0
+    return params
+
+
+def _project_observations(state: BundleState, X: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Pixels (camcal convention) of the points ``X`` (one per observation) through camcal's cameras."""
+    out = np.full((len(X), 2), np.nan)
+    lenses = [camera_from_colmap(name, model, size, params, np.eye(3), np.zeros(3))
+              for name, model, size, params in zip(state.camera_names, state.models, state.image_sizes, state.params)]
+    pairs = np.unique(np.stack([state.obs_camera, state.obs_frame], axis=1), axis=0)
+    for camera, frame in pairs:
+        mask = (state.obs_camera == camera) & (state.obs_frame == frame)
+        R = state.sensor_R[camera] @ state.frame_R[frame]
+        t = state.sensor_R[camera] @ state.frame_t[frame] + state.sensor_t[camera]
+        posed = dataclasses.replace(lenses[camera], R=R, c=-R.T @ t)
+        with np.errstate(invalid="ignore"):
+            out[mask] = posed.project(X[mask])
+    return out
+
+
+def heldout_rms(fitted: BundleState, heldout: BundleState, iterations: int = 6) -> dict[str, float]:
+    """RMS reprojection error per camera of points left out of a fit.
+
+    Parameters
+    ----------
+    fitted : BundleState
+        The fit: its cameras, rig and frame poses are held.
+    heldout : BundleState
+        The same cameras and frames with the held-out points and their
+        observations (the points' coordinates are only the start).
+
+    Returns
+    -------
+    dict of str to float
+        Camera name -> RMS in pixels, each held-out point re-triangulated
+        by Gauss-Newton on its reprojection error through the fitted
+        cameras (forward-difference Jacobian, 3 columns per point).
+
+    Notes
+    -----
+    A point seen ``n`` times leaves ``2 n - 3`` degrees of freedom, so the
+    RMS sits slightly below the noise; it is the same for every lens model
+    compared on the same points, which is what the comparison needs.
+    """
+    state = dataclasses.replace(heldout, models=fitted.models, params=fitted.params, sensor_R=fitted.sensor_R,
+                                sensor_t=fitted.sensor_t, frame_R=fitted.frame_R, frame_t=fitted.frame_t)
+    points = state.points.copy()
+    n = len(points)
+    for _ in range(iterations):
+        X = points[state.obs_point]
+        r = _project_observations(state, X) - state.obs_xy
+        step = 1e-6 * max(1.0, float(np.abs(points).max()))
+        J = np.empty((len(X), 2, 3))
+        for axis in range(3):
+            shifted = X.copy()
+            shifted[:, axis] += step
+            J[:, :, axis] = (_project_observations(state, shifted) - state.obs_xy - r) / step
+        usable = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(J), axis=(1, 2))
+        H = np.zeros((n, 3, 3))
+        g = np.zeros((n, 3))
+        np.add.at(H, state.obs_point[usable], np.einsum("nki,nkj->nij", J[usable], J[usable]))
+        np.add.at(g, state.obs_point[usable], np.einsum("nki,nk->ni", J[usable], r[usable]))
+        H += 1e-9 * np.trace(H, axis1=1, axis2=2)[:, None, None] * np.eye(3) + 1e-300 * np.eye(3)
+        points = points - np.linalg.solve(H, g[:, :, None])[:, :, 0]
+    r = _project_observations(state, points[state.obs_point]) - state.obs_xy
+    rms = {}
+    for index, name in enumerate(state.camera_names):
+        mine = r[(state.obs_camera == index) & np.all(np.isfinite(r), axis=1)]
+        if len(mine):
+            rms[name] = float(np.sqrt(np.mean(np.sum(mine * mine, axis=1))))
+    return rms
+
+
+def self_calibrate(
+    state: BundleState,
+    options: BundleOptions,
+    lens_models: tuple[str, ...] = LENS_MODELS,
+    principal_point: str = "auto",
+    seed: int = 0,
+) -> tuple[BundleResult, SelfCalibration]:
+    """Bundle adjustment that chooses each camera's lens model and whether to refine its principal point.
+
+    Parameters
+    ----------
+    state : BundleState
+        The seed (structure from motion), e.g. from
+        :func:`camcal.geometry.bundle.state_from_reconstruction`.
+    options : BundleOptions
+        Loss, rig handling...; ``refine_principal_point`` is decided here.
+    lens_models : tuple of str
+        camcal lens models to choose among (:data:`LENS_MODELS`); one model
+        is used as given (its held-out RMS is still measured).
+    principal_point : {"auto", "refine", "centre"}
+        ``auto`` refines it when every camera's sigma(cx), sigma(cy) is below
+        :func:`principal_point_limit_px`, else holds it at the image centre.
+    seed : int
+        Chooses the held-out points.
+
+    Returns
+    -------
+    BundleResult
+        The final refinement on every point (sigmas of the free intrinsics
+        and of the rig pose, points marginalised).
+    SelfCalibration
+        The lens models chosen with the held-out RMS of each candidate,
+        and the principal point decisions with their sigmas.
+
+    Notes
+    -----
+    Lens model: :data:`HELDOUT_FRACTION` of the points (whole tracks) are
+    left out; each candidate model is fitted, with the principal point free,
+    on the rest; the held-out points are re-triangulated through each fit
+    (:func:`heldout_rms`) and each camera takes the model with the lowest
+    held-out RMS (a model with more parameters must beat a simpler one by
+    more than 0.1 %). Principal point: the final fit runs with it free; its
+    covariance (Triggs et al. 2000, section 6: ``sigma^2 S^-1``, ``S`` the
+    points' Schur complement of ``J^T J``) gives sigma(cx), sigma(cy); when
+    they exceed the limit the fit is run again with it held at the centre.
+    """
+    if principal_point not in PRINCIPAL_POINT_MODES:
+        raise CamcalError(f"unknown principal point mode {principal_point!r}, "
+                          f"expected one of: {', '.join(PRINCIPAL_POINT_MODES)}")
+    if not lens_models:
+        raise CamcalError("need at least one lens model to choose from")
+    unknown = [model for model in lens_models if model not in MODELS]
+    if unknown:
+        raise CamcalError(f"unknown lens model {unknown[0]!r}, expected one of: {', '.join(MODELS)}")
+    names = state.camera_names
+    held_mask = np.random.default_rng(seed).random(len(state.points)) < HELDOUT_FRACTION
+    train, heldout = _subset(state, ~held_mask), _subset(state, held_mask)
+    free_pp = dataclasses.replace(options, refine_principal_point=principal_point != "centre")
+    table: dict[str, dict[str, float]] = {name: {} for name in names}
+    for model in lens_models:
+        _progress(f"lens model {model}: fitting {len(train.points)} points, {len(heldout.points)} held out")
+        fit = bundle_adjust(_with_lenses(train, dict.fromkeys(names, model)), free_pp)
+        for name, value in heldout_rms(fit.state, heldout).items():
+            table[name][model] = value
+    chosen = {}
+    for name in names:
+        best = lens_models[0]
+        for model in lens_models[1:]:
+            if table[name].get(model, np.inf) < table[name].get(best, np.inf) * (1.0 - 1e-3):
+                best = model
+        chosen[name] = best
+    _progress("bundle adjustment with the chosen lens models")
+    final = bundle_adjust(_with_lenses(state, chosen), free_pp)
+    decisions = []
+    if principal_point == "centre":
+        decisions = [PrincipalPointDecision(name, False, (np.nan, np.nan), principal_point_limit_px(size),
+                                            "principal point held at the image centre (asked)")
+                     for name, size in zip(names, state.image_sizes)]
+    else:
+        for name, size in zip(names, state.image_sizes):
+            sigma = (final.sigmas.get(f"{name}.cx", np.inf), final.sigmas.get(f"{name}.cy", np.inf))
+            limit = principal_point_limit_px(size)
+            decisions.append(PrincipalPointDecision(name, True, sigma, limit, ""))
+        determined = all(max(d.sigma_px) < d.limit_px for d in decisions)
+        refined = determined or principal_point == "refine"
+        for k, d in enumerate(decisions):
+            numbers = (f"sigma(cx, cy) = ({d.sigma_px[0]:.3g}, {d.sigma_px[1]:.3g}) px" if np.all(np.isfinite(d.sigma_px))
+                       else "sigma(cx, cy) undefined (singular covariance)")
+            if principal_point == "refine":
+                reason = f"principal point refined (asked; {numbers})"
+            elif refined:
+                reason = f"principal point refined: {numbers} < {d.limit_px:.3g} px"
+            elif max(d.sigma_px) >= d.limit_px:
+                bound = f" >= {d.limit_px:.3g} px" if np.all(np.isfinite(d.sigma_px)) else ""
+                reason = (f"principal point held at the image centre: {numbers}{bound}, "
+                          "the views do not determine it (add rotation and roll about the viewing axis)")
+            else:
+                reason = (f"principal point held at the image centre: {numbers}, but another camera's is "
+                          "not determined (one decision for the rig)")
+            decisions[k] = dataclasses.replace(d, refined=refined, reason=reason)
+        if not refined:
+            _progress("bundle adjustment with the principal point at the image centre")
+            held = dataclasses.replace(final.state, params=tuple(_centred(final.state, k) for k in range(len(names))))
+            final = bundle_adjust(held, dataclasses.replace(options, refine_principal_point=False))
+    report = SelfCalibration(
+        lens_models=chosen, heldout_rms_px=table, n_heldout_points=int(held_mask.sum()),
+        principal_point=tuple(decisions),
+    )
+    return final, report
 
 
 def _list_images(folder: Path, pattern: str = "*") -> list[Path]:
@@ -162,6 +496,9 @@ def solve_sfm(
     refine: bool = True,
     known_rig: Rig | None = None,
     loss: str = "trivial",
+    lens_models: tuple[str, ...] | None = LENS_MODELS,
+    principal_point: str = "auto",
+    max_num_features: int = 8192,
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -193,6 +530,15 @@ def solve_sfm(
         takes its units.
     loss : {"trivial", "huber", "soft_l1", "cauchy"}
         Robust loss of the refinement (scale 1 px).
+    lens_models : tuple of str or None
+        camcal lens models each camera chooses among by held-out residual
+        (:func:`self_calibrate`); one model is used as given; None keeps
+        ``camera_model``.
+    principal_point : {"auto", "refine", "centre"}
+        Refine the principal point where its sigma says the views determine
+        it (``auto``), always, or never (COLMAP's default).
+    max_num_features : int
+        SIFT features per image (pycolmap's ``max_num_features``).
 
     Returns
     -------
@@ -229,14 +575,19 @@ def solve_sfm(
     reader.camera_model = camera_model
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = num_threads
+    extraction.sift.max_num_features = max_num_features
     _progress(f"extracting features from {len(image_names)} images")
     pycolmap.extract_features(
         database, image_dir, image_names=image_names, camera_mode=pycolmap.CameraMode.PER_FOLDER,
         reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
     )
     _progress(f"matching ({matcher})")
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = num_threads
+    # matches re-searched along the verified epipolar geometry: more, longer tracks
+    matching.guided_matching = True
     match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
-    match(database, device=pycolmap.Device.cpu)
+    match(database, matching_options=matching, device=pycolmap.Device.cpu)
     sparse = out_dir / "sparse"
     if sparse.exists():
         shutil.rmtree(sparse)
@@ -265,14 +616,30 @@ def solve_sfm(
     if not models:
         raise CamcalError("structure from motion registered no images: too little texture or overlap?")
     reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
-    bundle = None
+    bundle = calibration = None
     if refine:
         _progress("bundle adjustment (camcal)")
         names = {camera_id: _camera_name(reconstruction, camera_id) for camera_id in reconstruction.cameras}
         state = state_from_reconstruction(reconstruction, names)
         if known_rig is not None:
             state = hold_rig(state, _relative_poses(known_rig, state.camera_names[0]))
-        bundle = bundle_adjust(state, options)
+        if lens_models is None:
+            pp_options = dataclasses.replace(options, refine_principal_point=principal_point == "refine")
+            bundle = bundle_adjust(state, pp_options)
+        else:
+            # the mapper's principal point is the image centre: free it once, then drop the matches
+            # that no camera model explains (mismatches, features astride an occluding edge)
+            _progress("bundle adjustment (camcal) with the principal point free, then outlier rejection")
+            pre = bundle_adjust(state, dataclasses.replace(options, refine_principal_point=principal_point != "centre"))
+            state_to_reconstruction(pre.state, reconstruction)
+            _progress(_reject_outliers(pycolmap, reconstruction))
+            state = state_from_reconstruction(reconstruction, names)
+            bundle, calibration = self_calibrate(state, options, tuple(lens_models), principal_point, seed)
+            for line in calibration.lines():
+                _progress(line)
+        camera_ids = {name: camera_id for camera_id, name in names.items()}
+        for name, model in zip(bundle.state.camera_names, bundle.state.models):
+            reconstruction.cameras[camera_ids[name]].model = getattr(pycolmap.CameraModelId, model)
         state_to_reconstruction(bundle.state, reconstruction)
     model_dir = sparse / "best"
     model_dir.mkdir(exist_ok=True)
@@ -280,7 +647,122 @@ def solve_sfm(
     originals = {name: Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
                  for name, path in staged.items()}
     units = known_rig.units if known_rig is not None else "arbitrary"
-    return _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle)
+    return _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle, calibration)
+
+
+@dataclass(frozen=True)
+class PycolmapPeer:
+    """Plain pycolmap's self-calibration of the same images, for comparison.
+
+    Attributes
+    ----------
+    cameras : dict of str to Camera
+        Camera name -> its intrinsics and lens (pose: identity).
+    rms_px : dict of str to float
+        Camera name -> RMS reprojection error (pycolmap's own residuals).
+    right_from_left : dict of str to list of ndarray
+        Camera name -> ``cam_from_reference`` rotation of every frame in which
+        both it and the reference camera (the first) are registered: plain
+        pycolmap has no rig constraint, so each frame has its own.
+    n_registered : int
+    """
+
+    cameras: dict[str, Camera]
+    rms_px: dict[str, float]
+    right_from_left: dict[str, list[NDArray[np.float64]]]
+    n_registered: int
+
+
+def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, camera_model: str = "SIMPLE_DIVISION",
+                         seed: int = 0) -> PycolmapPeer:
+    """The plain pycolmap pipeline a user would script, on the same images as :func:`solve_sfm`.
+
+    Default SIFT extraction with one camera per folder (``camera_model``),
+    exhaustive matching, incremental mapping, then
+    ``pycolmap.bundle_adjustment`` with ``refine_principal_point``. No rig
+    constraint. Writes only under ``out_dir``.
+    """
+    import pycolmap  # noqa: PLC0415
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
+              for name, value in folders.items()}
+    staged = _stage_images(images, out_dir / "images")
+    database = out_dir / "database.db"
+    database.unlink(missing_ok=True)
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = camera_model
+    pycolmap.extract_features(database, out_dir / "images", image_names=list(staged),
+                              camera_mode=pycolmap.CameraMode.PER_FOLDER, reader_options=reader,
+                              device=pycolmap.Device.cpu)
+    pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
+    sparse = out_dir / "sparse"
+    shutil.rmtree(sparse, ignore_errors=True)
+    sparse.mkdir()
+    models = _map(pycolmap, database, out_dir / "images", sparse, "incremental", seed, -1)
+    if not models:
+        raise CamcalError("plain pycolmap registered no images")
+    reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_principal_point = True
+    pycolmap.bundle_adjustment(reconstruction, options)
+    cameras, squared, rotations = {}, {}, {}
+    for camera_id, camera in reconstruction.cameras.items():
+        name = _camera_name(reconstruction, camera_id)
+        cameras[name] = camera_from_colmap(name, camera.model.name, (camera.width, camera.height), camera.params,
+                                           np.eye(3), np.zeros(3))
+    reference = next(iter(folders))
+    by_frame: dict[str, dict[str, NDArray[np.float64]]] = {}
+    for image in reconstruction.images.values():
+        if not image.has_pose:
+            continue
+        name, file = image.name.split("/", 1)
+        by_frame.setdefault(file, {})[name] = image.cam_from_world().rotation.matrix()
+        for point in image.points2D:
+            if point.has_point3D():
+                projected = image.project_point(reconstruction.points3D[point.point3D_id].xyz)
+                if projected is not None:
+                    squared.setdefault(name, []).append(float(np.sum((point.xy - projected) ** 2)))
+    for poses in by_frame.values():
+        for name, R in poses.items():
+            if name != reference and reference in poses:
+                rotations.setdefault(name, []).append(R @ poses[reference].T)
+    return PycolmapPeer(cameras, {name: float(np.sqrt(np.mean(v))) for name, v in squared.items()}, rotations,
+                        reconstruction.num_reg_images())
+
+
+def _reject_outliers(pycolmap, reconstruction, n_sigma: float = 4.0) -> str:
+    """Delete the observations beyond ``n_sigma`` sigma of the reprojection noise (in place).
+
+    Notes
+    -----
+    With Gaussian noise of sigma per axis the residual norm follows a
+    Rayleigh law: its median is ``sigma sqrt(2 ln 2)`` (1.1774 sigma), so
+    sigma is estimated robustly from the median; beyond ``4 sigma`` lie
+    ``exp(-8)`` = 0.03 % of the inliers. Points left with fewer than two
+    observations go (COLMAP's ``ObservationManager``).
+
+    Returns
+    -------
+    str
+        What was dropped, with the threshold, for the user.
+    """
+    errors = []
+    for image in reconstruction.images.values():
+        if not image.has_pose:
+            continue
+        for point in image.get_observation_points2D():
+            projected = image.project_point(reconstruction.points3D[point.point3D_id].xyz)
+            errors.append(np.inf if projected is None else float(np.linalg.norm(point.xy - projected)))
+    if not errors:
+        raise CamcalError("the reconstruction has no observations to refine")
+    sigma = float(np.median(errors)) / np.sqrt(2.0 * np.log(2.0))
+    threshold = n_sigma * sigma
+    manager = pycolmap.ObservationManager(reconstruction)
+    dropped = manager.filter_points3D_with_large_reprojection_error(threshold, set(reconstruction.points3D))
+    return (f"dropped {dropped} of {len(errors)} observations beyond {threshold:.3f} px "
+            f"({n_sigma:g} sigma; sigma {sigma:.3f} px from the median residual)")
 
 
 def _relative_poses(rig: Rig, reference: str) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
@@ -302,7 +784,8 @@ def _map(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, s
 
 
 def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir: Path,
-               originals: dict[str, str], units: str, bundle: BundleResult | None) -> SfmResult:
+               originals: dict[str, str], units: str, bundle: BundleResult | None,
+               calibration: SelfCalibration | None) -> SfmResult:
     """Convert a pycolmap reconstruction with one rig into camcal's Rig.
 
     ``originals`` maps every staged image name (COLMAP's) to the user's
@@ -347,10 +830,11 @@ def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir
     result_rig = Rig(
         tuple(cameras), units=units, frames=tuple(frames), points=points_path.name,
         provenance=make_provenance("sfm (pycolmap)" + (" + camcal bundle adjustment" if bundle else ""),
-                                   images=len(originals)),
+                                   images=len(originals),
+                                   **({"self_calibration": calibration.lines()} if calibration else {})),
     )
     per_camera, rms = _reprojection_rms(reconstruction, result_rig, camera_of_sensor, frame_of_image)
-    result_rig = _with_quality(result_rig, per_camera, bundle)
+    result_rig = _with_quality(result_rig, per_camera, bundle, calibration)
     result_rig.save(out_dir / "solve.rig.json")
     return SfmResult(
         rig=result_rig,
@@ -362,6 +846,7 @@ def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir
         per_camera_rms_px={name: value for name, (value, _) in per_camera.items()},
         reconstruction_dir=model_dir,
         bundle=bundle,
+        self_calibration=calibration,
     )
 
 
@@ -399,17 +884,38 @@ def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str]
     return per_camera, float(np.sqrt(np.mean(everything)))
 
 
-def _with_quality(rig: Rig, per_camera: dict[str, tuple[float, int]], bundle: BundleResult | None) -> Rig:
+def _quality_sigma(sigmas: dict[str, float], camera: str, model: str, focal: float) -> dict[str, float]:
+    """A camera's sigmas under DESIGN's quality names: COLMAP's division ``k`` becomes
+    camcal's ``lambda = k / f^2`` (focal's own spread neglected), SIMPLE_RADIAL's ``k`` is ``k1``."""
+    prefix = f"{camera}."
+    out = {}
+    for key, value in sigmas.items():
+        if not key.startswith(prefix):
+            continue
+        name = key[len(prefix):]
+        if name == "k" and model in ("SIMPLE_DIVISION", "DIVISION"):
+            name, value = "lambda", value / (focal * focal)
+        elif name == "k":
+            name = "k1"
+        out[name] = value
+    return out
+
+
+def _with_quality(rig: Rig, per_camera: dict[str, tuple[float, int]], bundle: BundleResult | None,
+                  calibration: SelfCalibration | None) -> Rig:
     cameras = []
     for camera in rig.cameras:
         if camera.name not in per_camera:
             cameras.append(camera)
             continue
         quality: dict = {"rms_px": per_camera[camera.name][0], "n_observations": per_camera[camera.name][1]}
+        if calibration is not None:
+            quality["heldout_rms_px"] = calibration.heldout_rms_px[camera.name][calibration.lens_models[camera.name]]
         if bundle is not None:
             quality["rms_seed_px"] = bundle.rms_before_px[camera.name]
-            prefix = f"{camera.name}."
-            quality["sigma"] = {key[len(prefix):]: value for key, value in bundle.sigmas.items() if key.startswith(prefix)}
+            index = bundle.state.camera_names.index(camera.name)
+            quality["sigma"] = _quality_sigma(bundle.sigmas, camera.name, bundle.state.models[index],
+                                              float(bundle.state.params[index][0]))
         cameras.append(dataclasses.replace(camera, quality=quality))
     return dataclasses.replace(rig, cameras=tuple(cameras))
 

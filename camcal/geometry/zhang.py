@@ -9,27 +9,42 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    relative to the reference (the first camera) is the robust average of
    the per-view relative poses ``cam_j_from_board (cam_i_from_board)^-1``,
    chained over cameras sharing views.
-3. ONE nonlinear least-squares problem refines every camera's intrinsics
-   and distortion, every camera-to-reference pose and every board pose,
-   minimising the reprojection error over all cameras
-   (``scipy.optimize.least_squares``, trust-region reflective, with the
-   sparse Jacobian pattern: a residual depends only on its camera's
-   intrinsics and pose and on its view's board pose).
+   On a chessboard that is symmetric under a half turn (``W + H`` even)
+   the corner labelling of a view may differ between cameras: each
+   non-reference view takes the labelling (as detected, or turned by a
+   half turn) whose relative pose agrees with the consensus of the
+   others; a view that agrees with neither is dropped and reported.
+3. ONE bundle adjustment (:mod:`camcal.geometry.bundle`, pycolmap's Ceres
+   adjuster) refines every camera's intrinsics and distortion, every
+   camera-to-reference pose (``sensor_from_rig``) and every board pose (one
+   frame per view, ``rig_from_board``), the board's corners being constant
+   points: the board's frame is the world. camcal's models are COLMAP's
+   exactly: ``polynomial`` is ``OPENCV`` with p1 = p2 = 0 held, ``opencv``
+   is ``FULL_OPENCV`` with k4 = k5 = k6 = 0 held, ``division`` is
+   ``SIMPLE_DIVISION``, which has ONE focal length: with this model
+   fx = fy is imposed (and said so in :attr:`CalibrationResult.notes`).
 4. Images whose RMS is far above the median (``> max(outlier_factor x
    median, min_outlier_px)``) are dropped, reported, and the problem is
    solved again.
-5. Uncertainty: ``Sigma = sigma^2 (J^T J)^-1`` at the solution, with
-   ``sigma^2 = |r|^2 / (m - n)``; the board poses are marginalised out.
-   These sigmas measure sampling noise of the corners, not model error.
+5. Uncertainty: ``Sigma = sigma^2 (J^T J)^-1`` at the solution (Ceres'
+   covariance), with ``sigma^2 = 2 cost / (m - n)``; the board poses are
+   marginalised out. These sigmas measure sampling noise of the corners,
+   not model error.
+6. Held-out views (``holdout``) are not used in the fit; each is then
+   posed by PnP with the fitted intrinsics held (the same engine, one frame
+   per view) and their RMS is reported beside the training RMS. With
+   ``model="auto"`` every model is fitted with every 4th training frame
+   held out, the one with the lowest RMS on those is kept and fitted on
+   all training frames: the choice never sees ``holdout``.
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
 board's units (its square size); pixel (0, 0) is the centre of the
-top-left pixel; skew is fixed at 0. Distortion models (see
-:mod:`camcal.geometry.distortion`): ``polynomial`` (k1, k2), ``opencv``
-(k1, k2, p1, p2, k3) or ``division`` (Strand & Hayman lambda in 1/px^2,
-centred on the principal point, refined here since OpenCV has no such model;
-it is initialised from OpenCV's k1 as ``lambda = -k1 / f^2``).
+top-left pixel; skew is fixed at 0 (COLMAP's models have none).
+Distortion models (see :mod:`camcal.geometry.distortion`): ``polynomial``
+(k1, k2), ``opencv`` (k1, k2, p1, p2, k3) or ``division`` (Strand & Hayman
+lambda in 1/px^2, centred on the principal point, fx = fy; OpenCV has no
+such model: it is initialised from OpenCV's k1 as ``lambda = -k1 / f^2``).
 
 References
 ----------
@@ -46,27 +61,27 @@ structure, covariance from the Jacobian).
 from __future__ import annotations
 
 import colorsys
+import dataclasses
 import os
 from collections import deque
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 
 import cv2
 import numpy as np
-import scipy.sparse
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
 from camcal.errors import CamcalError
 from camcal.geometry.board import Board, Detection, frame_number
+from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState, bundle_adjust
+from camcal.geometry.bundle import residuals as board_residuals
 from camcal.geometry.distortion import Distortion
 from camcal.io.atomic import atomic_path
 from camcal.rig import Camera, Rig, make_provenance
 
-__all__ = ["MODELS", "MIN_IMAGES", "CalibrationResult", "calibrate_board", "write_report"]
+__all__ = ["MODELS", "MIN_IMAGES", "CalibrationResult", "calibrate_board", "quality_problems", "write_report"]
 
 #: Distortion models and the parameters refined for each.
 MODELS: Mapping[str, tuple[str, ...]] = MappingProxyType(
@@ -81,6 +96,17 @@ _OPENCV_FLAGS = {
     "division": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3,
 }
 _MAX_OUTLIER_ROUNDS = 3
+#: camcal model -> the COLMAP model that is exactly it, and the COLMAP parameters held at 0.
+_COLMAP_MODELS: Mapping[str, tuple[str, tuple[str, ...]]] = MappingProxyType({
+    "polynomial": ("OPENCV", ("p1", "p2")),
+    "opencv": ("FULL_OPENCV", ("k4", "k5", "k6")),
+    "division": ("SIMPLE_DIVISION", ()),
+})
+#: What a calibration with fewer constraints than the model would have must say.
+_MODEL_NOTES = {"division": "division model: fx = fy imposed (COLMAP's SIMPLE_DIVISION has one focal length)"}
+#: Quality gate (:func:`quality_problems`): a calibration beyond these is not written without --force.
+MAX_RMS_PX = 1.5
+MAX_FOCAL_SIGMA_REL = 0.05
 
 
 @dataclass(frozen=True)
@@ -92,10 +118,12 @@ class CalibrationResult:
     rig : Rig
         The cameras; the first is the reference (``R = I``, ``c = 0``),
         lengths in the board's units. Each camera's ``quality`` holds
-        ``rms_px``, ``worst_px``, ``n_views``, ``n_points`` and ``sigma``
-        (one-sigma of fx, fy, cx, cy, the distortion parameters and, for
-        the other cameras, ``baseline`` and ``rotation_deg`` from the
-        reference).
+        ``rms_px``, ``worst_px``, ``n_views``, ``n_observations``,
+        ``heldout_rms_px`` (with held-out views) and ``sigma`` (one-sigma of
+        fx, fy, cx, cy, the distortion parameters and, for the other
+        cameras, ``rotation_deg``, ``baseline_rel`` and
+        ``baseline_direction_deg`` from the reference; see
+        :mod:`camcal.quality`).
     residuals_px : ndarray, shape (M, 2)
         ``projected - detected`` for every corner kept, in pixels.
     points_px : ndarray, shape (M, 2)
@@ -114,7 +142,23 @@ class CalibrationResult:
         are rotation vectors in radians, translations in board units.
     parameter_names : tuple of str
         ``"<camera>.<name>"``, e.g. ``left.fx``, ``right.k1``, ``right.rx``, ``right.tx``
-        (``cam_from_reference`` rotation vector and translation).
+        (``cam_from_reference``: rotation vector applied on the left, and translation).
+    model : str
+        The distortion model fitted (the one chosen when ``model="auto"``).
+    heldout_rms_px : float or None
+        RMS over the held-out views (PnP with the intrinsics held), in pixels.
+    heldout_images : tuple of (str, str)
+        ``(camera name, image name)`` of the held-out views.
+    model_heldout_rms_px : dict of str to float
+        ``model="auto"``: the RMS of every model tried on the training
+        frames it held out to choose (every 4th).
+    relabelled : tuple of (str, str)
+        Views whose corner labelling was turned by a half turn to agree with
+        the rig (symmetric chessboards only).
+    dropped : tuple of (str, str)
+        Views dropped because no labelling agreed with the rig.
+    notes : tuple of str
+        Constraints the fit imposed beyond the model's definition.
     """
 
     rig: Rig
@@ -128,6 +172,13 @@ class CalibrationResult:
     outliers: tuple[tuple[str, str], ...]
     covariance: NDArray[np.float64]
     parameter_names: tuple[str, ...]
+    model: str = "polynomial"
+    heldout_rms_px: float | None = None
+    heldout_images: tuple[tuple[str, str], ...] = ()
+    model_heldout_rms_px: Mapping[str, float] = field(default_factory=dict)
+    relabelled: tuple[tuple[str, str], ...] = ()
+    dropped: tuple[tuple[str, str], ...] = ()
+    notes: tuple[str, ...] = ()
 
     @property
     def n_outliers(self) -> int:
@@ -143,12 +194,15 @@ class CalibrationResult:
         return {key: float(np.sqrt(s / n)) for key, s, n in zip(self.images, sums, counts)}
 
     def summary(self) -> str:
-        """``RMS reprojection error: 0.19 px (worst 0.84 px, 3 outliers of 50 images)``."""
-        return (
+        """``RMS reprojection error: 0.19 px (worst 0.84 px, 3 outliers of 50 images)``, held-out RMS beside."""
+        text = (
             f"RMS reprojection error: {self.rms_px:.3f} px (worst {self.worst_px:.3f} px, "
             f"{self.n_outliers} outlier images of {len(self.images) + self.n_outliers}, "
             f"{len(self.residuals_px)} corners)"
         )
+        if self.heldout_rms_px is not None:
+            text += f"; held-out RMS {self.heldout_rms_px:.4f} px over {len(self.heldout_images)} views (training {self.rms_px:.4f} px)"
+        return text
 
 
 # -- poses -------------------------------------------------------------------------
@@ -191,111 +245,6 @@ def _relative_pose(
     return R, np.median(t_rel[inliers], axis=0)
 
 
-# -- the joint problem ---------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Problem:
-    """Observations and parameter layout of the joint refinement."""
-
-    model: str
-    n_cameras: int
-    n_views: int
-    object_points: NDArray[np.float64]  # (M, 3)
-    detected: NDArray[np.float64]  # (M, 2)
-    camera: NDArray[np.int64]  # (M,)
-    view: NDArray[np.int64]  # (M,)
-    division_scale: NDArray[np.float64]  # (n_cameras,) lambda = scaled / s^2
-
-    @property
-    def n_intrinsics(self) -> int:
-        return len(_INTRINSICS) + len(MODELS[self.model])
-
-    @property
-    def pose_offset(self) -> int:
-        return self.n_cameras * self.n_intrinsics
-
-    @property
-    def view_offset(self) -> int:
-        return self.pose_offset + 6 * (self.n_cameras - 1)
-
-    @property
-    def n_parameters(self) -> int:
-        return self.view_offset + 6 * self.n_views
-
-    def unpack(self, x: NDArray[np.float64]):
-        intrinsics = x[: self.pose_offset].reshape(self.n_cameras, self.n_intrinsics)
-        cam_poses = np.vstack([np.zeros(6), x[self.pose_offset : self.view_offset].reshape(-1, 6)])
-        view_poses = x[self.view_offset :].reshape(self.n_views, 6)
-        return intrinsics, cam_poses, view_poses
-
-    def project(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Distorted pixels of every observation for parameters ``x``, shape (M, 2)."""
-        intrinsics, cam_poses, view_poses = self.unpack(x)
-        R_cam = Rotation.from_rotvec(cam_poses[:, :3]).as_matrix()
-        R_view = Rotation.from_rotvec(view_poses[:, :3]).as_matrix()
-        X_ref = np.einsum("mij,mj->mi", R_view[self.view], self.object_points) + view_poses[self.view, 3:]
-        X_cam = np.einsum("mij,mj->mi", R_cam[self.camera], X_ref) + cam_poses[self.camera, 3:]
-        xy = X_cam[:, :2] / X_cam[:, 2:3]
-        k = intrinsics[self.camera]
-        f, centre, d = k[:, 0:2], k[:, 2:4], k[:, 4:]
-        if self.model == "division":
-            lam = d[:, 0] / self.division_scale[self.camera] ** 2
-            offset = f * xy
-            r2 = np.sum(offset**2, axis=1)
-            scale = 2.0 / (1.0 + np.sqrt(np.maximum(1.0 - 4.0 * lam * r2, 0.0)))
-            return centre + offset * scale[:, None]
-        x_, y_ = xy[:, 0], xy[:, 1]
-        r2 = x_ * x_ + y_ * y_
-        k3 = d[:, 4] if self.model == "opencv" else 0.0
-        radial = 1.0 + r2 * (d[:, 0] + r2 * (d[:, 1] + r2 * k3))
-        xd, yd = x_ * radial, y_ * radial
-        if self.model == "opencv":
-            p1, p2 = d[:, 2], d[:, 3]
-            xd = xd + 2.0 * p1 * x_ * y_ + p2 * (r2 + 2.0 * x_ * x_)
-            yd = yd + p1 * (r2 + 2.0 * y_ * y_) + 2.0 * p2 * x_ * y_
-        return centre + f * np.stack([xd, yd], axis=1)
-
-    def residuals(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        return (self.project(x) - self.detected).ravel()
-
-    def sparsity(self) -> scipy.sparse.csr_matrix:
-        """Which parameters each residual (2 per corner) depends on."""
-        rows, cols = [], []
-        index = np.arange(len(self.camera))
-
-        def touch(col_start: NDArray[np.int64], width: int, mask: NDArray[np.bool_]) -> None:
-            obs = index[mask]
-            c = col_start[mask][:, None] + np.arange(width)
-            for coordinate in (0, 1):
-                rows.append(np.repeat(2 * obs + coordinate, width))
-                cols.append(c.ravel())
-
-        every = np.ones(len(index), dtype=bool)
-        touch(self.camera * self.n_intrinsics, self.n_intrinsics, every)
-        touch(self.pose_offset + 6 * (self.camera - 1), 6, self.camera > 0)
-        touch(self.view_offset + 6 * self.view, 6, every)
-        rows, cols = np.concatenate(rows), np.concatenate(cols)
-        return scipy.sparse.csr_matrix(
-            (np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(2 * len(index), self.n_parameters)
-        )
-
-    def solve(self, x0: NDArray[np.float64]):
-        return least_squares(
-            self.residuals,
-            x0,
-            jac_sparsity=self.sparsity(),
-            method="trf",
-            x_scale="jac",
-            ftol=1e-10,
-            xtol=1e-10,
-            gtol=1e-10,
-            # tight inner (LSMR) tolerances: loose ones stall the outer iterations near the minimum
-            tr_options={"atol": 1e-12, "btol": 1e-12},
-            max_nfev=200,
-        )
-
-
 # -- inputs and initialisation -------------------------------------------------------
 
 
@@ -317,7 +266,8 @@ def _check_detections(
         for d in views:
             if len(d.ids) < 4 or np.any(d.ids < 0) or np.any(d.ids >= board.n_corners):
                 raise CamcalError(f"camera {name!r}, {d.image}: corner ids do not fit the board {board.spec()}")
-        if len(names) == 1:
+        numbers = [_frame_number_or_none(d.image) for d in views]
+        if len(names) == 1 and (None in numbers or len(set(numbers)) < len(numbers)):
             keyed = dict(enumerate(views))
         else:
             keyed = {}
@@ -328,6 +278,13 @@ def _check_detections(
                 keyed[number] = d
         by_frame.append(keyed)
     return names, by_frame
+
+
+def _frame_number_or_none(name: str) -> int | None:
+    try:
+        return frame_number(name)
+    except CamcalError:
+        return None
 
 
 def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name: str):
@@ -343,15 +300,6 @@ def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name
         raise CamcalError(f"camera {name!r}: OpenCV calibrateCamera failed ({str(error).strip().splitlines()[-1]})") from None
     poses = {k: (cv2.Rodrigues(r)[0], t.ravel()) for k, r, t in zip(keys, rvecs, tvecs)}
     return K, dist.ravel(), poses
-
-
-def _initial_distortion(model: str, K: NDArray, dist: NDArray, scale: float) -> list[float]:
-    if model == "polynomial":
-        return [dist[0], dist[1]]
-    if model == "opencv":
-        return [dist[0], dist[1], dist[2], dist[3], dist[4]]
-    # division: x_d ~ x_u (1 - lambda r^2) to first order, so lambda = -k1 / f^2 (scaled by s^2)
-    return [-dist[0] / (0.5 * (K[0, 0] + K[1, 1])) ** 2 * scale**2]
 
 
 def _camera_poses(names: list[str], starts: list[dict]) -> list[tuple[NDArray, NDArray]]:
@@ -373,6 +321,138 @@ def _camera_poses(names: list[str], starts: list[dict]) -> list[tuple[NDArray, N
     return poses
 
 
+# -- symmetric chessboards: one labelling per frame ------------------------------------------
+
+
+def _half_turn_pose(board: Board, R: NDArray, t: NDArray) -> tuple[NDArray, NDArray]:
+    """``cam_from_board`` of a view whose corner ids are turned by a half turn (id -> N - 1 - id).
+
+    The turned labels' board coordinates map to the detected ones by
+    ``X = Rz(pi) X' + ((W - 1) s, (H - 1) s, 0)``, so ``R' = R Rz(pi)`` and
+    ``t' = R ((W - 1) s, (H - 1) s, 0) + t``.
+    """
+    half_turn = np.diag([-1.0, -1.0, 1.0])
+    shift = np.array([(board.columns - 1) * board.square, (board.rows - 1) * board.square, 0.0])
+    return R @ half_turn, R @ shift + t
+
+
+def _half_turned(board: Board, detection: Detection) -> Detection:
+    """The same corners labelled after a half turn of the board (id -> N - 1 - id)."""
+    ids = board.n_corners - 1 - detection.ids
+    order = np.argsort(ids)
+    return Detection(detection.image, detection.image_size, ids[order], detection.corners_px[order], detection.detector)
+
+
+def _rotation_angle_deg(R: NDArray[np.float64]) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+#: A view's relative pose must agree with the rig's consensus within this angle (a half turn is 180 deg).
+_LABEL_AGREEMENT_DEG = 20.0
+
+
+def _resolve_half_turns(board: Board, names: list[str], by_frame: list[dict], starts: list[dict]):
+    """Relabel the views of a symmetric chessboard so that every camera labels a frame alike.
+
+    Notes
+    -----
+    A chessboard with ``W + H`` even looks the same after a half turn, so
+    its detected labelling may differ between the cameras of one frame. For
+    every non-reference camera ``j`` and frame ``f`` it shares with the
+    reference, the relative rotation ``R_j R_0^T`` is computed with ``j``'s
+    labelling as detected and turned (:func:`_half_turn_pose`); the
+    candidate agreeing (within 20 deg) with the most frames is the rig's
+    rotation, each view takes the labelling closest to it, and a view with
+    neither within 20 deg is dropped.
+
+    Returns
+    -------
+    by_frame, starts, relabelled, dropped
+    """
+    if board.kind != "chessboard" or (board.columns + board.rows) % 2 == 1:
+        return by_frame, starts, [], []
+    by_frame = [dict(views) for views in by_frame]
+    starts = [dict(poses) for poses in starts]
+    relabelled, dropped = [], []
+    for j in range(1, len(names)):
+        shared = sorted(set(starts[0]) & set(starts[j]))
+        if not shared:
+            continue
+        candidates = []
+        for f in shared:
+            R_0 = starts[0][f][0]
+            R_j, t_j = starts[j][f]
+            candidates.append((R_j @ R_0.T, _half_turn_pose(board, R_j, t_j)[0] @ R_0.T))
+        flat = [R for pair in candidates for R in pair]
+        support = [sum(min(_rotation_angle_deg(R @ other.T) for other in pair) < _LABEL_AGREEMENT_DEG
+                       for pair in candidates) for R in flat]
+        consensus = flat[int(np.argmax(support))]
+        for f, (as_detected, turned) in zip(shared, candidates):
+            angles = (_rotation_angle_deg(as_detected @ consensus.T), _rotation_angle_deg(turned @ consensus.T))
+            if min(angles) > _LABEL_AGREEMENT_DEG:
+                dropped.append((names[j], by_frame[j].pop(f).image))
+                del starts[j][f]
+            elif angles[1] < angles[0]:
+                by_frame[j][f] = _half_turned(board, by_frame[j][f])
+                starts[j][f] = _half_turn_pose(board, *starts[j][f])
+                relabelled.append((names[j], by_frame[j][f].image))
+    return by_frame, starts, relabelled, dropped
+
+
+# -- COLMAP parameters <-> camcal cameras -----------------------------------------------------
+
+
+def _colmap_params(model: str, K: NDArray, dist: NDArray) -> NDArray[np.float64]:
+    """COLMAP's parameter vector (pixel centre at 0.5) from OpenCV's K and distortion vector."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5
+    if model == "polynomial":
+        return np.array([fx, fy, cx, cy, dist[0], dist[1], 0.0, 0.0])
+    if model == "opencv":
+        return np.array([fx, fy, cx, cy, dist[0], dist[1], dist[2], dist[3], dist[4], 0.0, 0.0, 0.0])
+    # division: x_d ~ x_u (1 - lambda r^2) to first order, so lambda = -k1 / f^2 and COLMAP's k = lambda f^2 = -k1
+    return np.array([0.5 * (fx + fy), cx, cy, -dist[0]])
+
+
+def _camcal_lens(model: str, params: NDArray) -> tuple[NDArray[np.float64], Distortion]:
+    """camcal's K (pixel centre at 0) and distortion of COLMAP parameters (:data:`_COLMAP_MODELS`)."""
+    if model == "division":
+        f, cx, cy, k = params
+        return np.array([[f, 0.0, cx - 0.5], [0.0, f, cy - 0.5], [0.0, 0.0, 1.0]]), Distortion("division", {"lambda": k / f**2})
+    fx, fy, cx, cy = params[:4]
+    K = np.array([[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
+    return K, Distortion(model, dict(zip(MODELS[model], (params[4:6] if model == "polynomial" else params[4:9]))))
+
+
+def _camcal_covariance(covariance: NDArray, colmap_names: tuple[str, ...], names: list[str], model: str,
+                       params: list[NDArray]) -> tuple[NDArray[np.float64], tuple[str, ...]]:
+    """The engine's covariance (COLMAP parameters) in camcal's parameters: ``A Sigma A^T``."""
+    labels, rows = [], []
+    column = {name: k for k, name in enumerate(colmap_names)}
+
+    def row(entries: dict[str, float]) -> NDArray[np.float64]:
+        r = np.zeros(len(colmap_names))
+        for name, value in entries.items():
+            r[column[name]] = value
+        return r
+
+    for j, camera in enumerate(names):
+        for label in _INTRINSICS + MODELS[model]:
+            labels.append(f"{camera}.{label}")
+            if model == "division" and label in ("fx", "fy"):
+                rows.append(row({f"{camera}.f": 1.0}))
+            elif label == "lambda":
+                f, k = params[j][0], params[j][3]
+                rows.append(row({f"{camera}.f": -2.0 * k / f**3, f"{camera}.k": 1.0 / f**2}))
+            else:
+                rows.append(row({f"{camera}.{label}": 1.0}))
+        if j:
+            for label in ("rx", "ry", "rz", "tx", "ty", "tz"):
+                labels.append(f"{camera}.{label}")
+                rows.append(row({f"{camera}.{label}": 1.0}))
+    A = np.array(rows)
+    return A @ covariance @ A.T, tuple(labels)
+
+
 # -- the public entry point ------------------------------------------------------------
 
 
@@ -383,6 +463,9 @@ def calibrate_board(
     units: str = "m",
     outlier_factor: float = 3.0,
     min_outlier_px: float = 1.0,
+    loss: str = "trivial",
+    loss_scale: float = 1.0,
+    holdout: Collection[int] = (),
 ) -> CalibrationResult:
     """Calibrate one camera or an N-camera rig from images of a planar board.
 
@@ -393,16 +476,25 @@ def calibrate_board(
     detections : mapping of str to sequence of Detection
         Camera name -> the board detections of its images (from
         :func:`camcal.geometry.board.detect_in_images`). The first camera
-        is the reference. With several cameras, views are matched by the
-        frame number in the image file names.
+        is the reference. Views are matched (and held out) by the frame
+        number in the image file names (one camera with repeated numbers:
+        by position).
     model : str
-        ``polynomial`` (k1, k2), ``opencv`` (k1, k2, p1, p2, k3) or
-        ``division`` (Strand & Hayman lambda, centred on the principal point).
+        ``polynomial`` (k1, k2), ``opencv`` (k1, k2, p1, p2, k3),
+        ``division`` (Strand & Hayman lambda, centred on the principal
+        point, fx = fy) or ``auto`` (the one with the lowest RMS on every 4th
+        training frame, held out for the choice; ``holdout`` is never used
+        to choose).
     units : str
         Name of the board's length unit, stored in the rig.
     outlier_factor, min_outlier_px : float
         An image is an outlier when its RMS exceeds
         ``max(outlier_factor x median image RMS, min_outlier_px)``.
+    loss, loss_scale : str, float
+        Robust loss on each corner's residual (Ceres': ``trivial``,
+        ``huber``, ``soft_l1``, ``cauchy``), scale in pixels.
+    holdout : collection of int
+        Frame numbers left out of the fit and reported as held-out RMS.
 
     Returns
     -------
@@ -417,35 +509,67 @@ def calibrate_board(
 
     Notes
     -----
-    Minimises ``sum_ij |pi_j(K_j, d_j, T_j T_i X) - x_ij|^2`` over the
-    intrinsics ``K_j`` and distortion ``d_j`` of every camera ``j``, its
+    Minimises ``1/2 sum_ij rho(|pi_j(K_j, d_j, T_j T_i X) - x_ij|^2)`` over
+    the intrinsics ``K_j`` and distortion ``d_j`` of every camera ``j``, its
     pose ``T_j`` (``cam_from_reference``, identity for the reference) and
     the board pose ``T_i`` of every view ``i``; then
-    ``Sigma = sigma^2 (J^T J)^-1``, ``sigma^2 = |r|^2 / (2M - n)``.
+    ``Sigma = sigma^2 (J^T J)^-1``, ``sigma^2 = 2 cost / (2M - n)``.
     """
-    if model not in MODELS:
-        raise CamcalError(f"unknown distortion model {model!r}, expected one of: {', '.join(MODELS)}")
+    if model != "auto" and model not in MODELS:
+        raise CamcalError(f"unknown distortion model {model!r}, expected one of: {', '.join(MODELS)}, auto")
     names, by_frame = _check_detections(detections, board)
-    starts, intrinsics, scales = [], [], []
+    holdout = {int(f) for f in holdout}
+    unknown = holdout - set().union(*[set(views) for views in by_frame])
+    if unknown:
+        raise CamcalError(f"held-out frame(s) {', '.join(map(str, sorted(unknown)))} are not among the views")
+    options = dict(units=units, outlier_factor=outlier_factor, min_outlier_px=min_outlier_px, loss=loss,
+                   loss_scale=loss_scale)
+    if model != "auto":
+        return _calibrate(board, names, by_frame, model, holdout, **options)
+    # the choice never sees the held-out frames: it holds out every 4th of the training frames
+    training = [{f: d for f, d in views.items() if f not in holdout} for views in by_frame]
+    frames = sorted(set().union(*[set(views) for views in training]))
+    trial = set(frames[3::4])
+    if not trial:
+        raise CamcalError(f"model auto chooses by held-out views: it needs at least 4 training views, got {len(frames)}")
+    scores = {candidate: _calibrate(board, names, training, candidate, trial, **options).heldout_rms_px
+              for candidate in MODELS}
+    best = min(scores, key=scores.get)
+    result = _calibrate(board, names, by_frame, best, holdout, **options)
+    return dataclasses.replace(result, model_heldout_rms_px=scores)
+
+
+def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: str, holdout: set[int], units: str,
+               outlier_factor: float, min_outlier_px: float, loss: str, loss_scale: float) -> CalibrationResult:
+    """One model, the views of ``holdout`` left out of the fit and then measured."""
+    by_frame = [{f: d for f, d in views.items() if f not in holdout} for views in by_frame_all]
+    held = [{f: d for f, d in views.items() if f in holdout} for views in by_frame_all]
+    for name, views in zip(names, by_frame):
+        if len(views) < MIN_IMAGES:
+            raise CamcalError(f"camera {name!r}: {len(views)} images left for the fit after holding out "
+                              f"{len(holdout)} frames, need at least {MIN_IMAGES}")
+    colmap_model, fixed = _COLMAP_MODELS[model]
+    starts, params = [], []
     for name, views in zip(names, by_frame):
         K, dist, poses = _opencv_start(board, views, model, name)
-        scale = max(next(iter(views.values())).image_size) / 2.0
         starts.append(poses)
-        scales.append(scale)
-        intrinsics.append([K[0, 0], K[1, 1], K[0, 2], K[1, 2], *_initial_distortion(model, K, dist, scale)])
+        params.append(_colmap_params(model, K, dist))
+    by_frame, starts, relabelled, dropped = _resolve_half_turns(board, names, by_frame, starts)
     cam_poses = _camera_poses(names, starts)
 
     # every frame seen by any camera is one board pose, first placed by the lowest camera seeing it
     frames = sorted(set().union(*[set(v) for v in by_frame]))
     observed = {(j, f) for j, views in enumerate(by_frame) for f in views}
     outliers: list[tuple[int, int]] = []
-    x_cams = np.concatenate([np.ravel(intrinsics)] + [np.r_[Rotation.from_matrix(R).as_rotvec(), t] for R, t in cam_poses[1:]])
     view_start = {}
     for f in frames:
         j = min(j for j in range(len(names)) if f in by_frame[j])
         R_j, t_j = cam_poses[j]
         R_b, t_b = starts[j][f]
-        view_start[f] = np.r_[Rotation.from_matrix(R_j.T @ R_b).as_rotvec(), R_j.T @ (t_b - t_j)]
+        view_start[f] = (R_j.T @ R_b, R_j.T @ (t_b - t_j))
+    options = BundleOptions(refine_principal_point=True, refine_points3D=False, loss=loss, loss_scale=loss_scale,
+                            fixed_params={name: fixed for name in names})
+    image_sizes = tuple(next(iter(views.values())).image_size for views in by_frame)
 
     for round_ in range(_MAX_OUTLIER_ROUNDS + 1):
         kept = sorted(observed - set(outliers))
@@ -456,24 +580,31 @@ def calibrate_board(
             if n_left < MIN_IMAGES:
                 raise CamcalError(f"camera {name!r}: only {n_left} images left after dropping outliers, need {MIN_IMAGES}")
         det = [by_frame[j][f] for j, f in kept]
-        problem = _Problem(
-            model=model,
-            n_cameras=len(names),
-            n_views=len(kept_frames),
-            object_points=np.concatenate([board.object_points[d.ids] for d in det]),
-            detected=np.concatenate([d.corners_px for d in det]),
+        observations = BoardObservations(
+            object_points=np.asarray(board.object_points, dtype=np.float64),
             camera=np.concatenate([np.full(len(d.ids), j) for (j, _), d in zip(kept, det)]),
-            view=np.concatenate([np.full(len(d.ids), frame_index[f]) for (_, f), d in zip(kept, det)]),
-            division_scale=np.asarray(scales),
+            frame=np.concatenate([np.full(len(d.ids), frame_index[f]) for (_, f), d in zip(kept, det)]),
+            corner=np.concatenate([d.ids for d in det]),
+            xy=np.concatenate([d.corners_px for d in det]),
         )
-        x0 = np.concatenate([x_cams, *[view_start[f] for f in kept_frames]])
-        solution = problem.solve(x0)
-        if not np.all(np.isfinite(solution.fun)):
+        state = BundleState(
+            camera_names=tuple(names), models=(colmap_model,) * len(names), image_sizes=image_sizes,
+            params=tuple(params), sensor_R=np.array([R for R, _ in cam_poses]),
+            sensor_t=np.array([t for _, t in cam_poses]), frame_R=np.array([view_start[f][0] for f in kept_frames]),
+            frame_t=np.array([view_start[f][1] for f in kept_frames]), frame_ids=tuple(kept_frames),
+            points=np.zeros((0, 3)), point_ids=(), obs_camera=np.zeros(0, np.int64), obs_frame=np.zeros(0, np.int64),
+            obs_point=np.zeros(0, np.int64), obs_xy=np.zeros((0, 2)),
+            board=observations, board_R=np.eye(3), board_t=np.zeros(3),
+        )
+        solution = bundle_adjust(state, options, verbose=False)
+        refined = solution.state
+        residuals = board_residuals(refined)[1]
+        if not np.all(np.isfinite(residuals)):
             raise CamcalError("the joint refinement diverged (non-finite residuals): check the detections")
-        x_cams = solution.x[: problem.view_offset]
+        params = list(refined.params)
+        cam_poses = list(zip(refined.sensor_R, refined.sensor_t))
         for f in kept_frames:
-            view_start[f] = solution.x[problem.view_offset + 6 * frame_index[f] :][:6]
-        residuals = solution.fun.reshape(-1, 2)
+            view_start[f] = (refined.frame_R[frame_index[f]], refined.frame_t[frame_index[f]])
         image_of_point = np.concatenate([np.full(len(d.ids), n) for n, d in enumerate(det)])
         squared = np.bincount(image_of_point, np.sum(residuals**2, axis=1)) / np.bincount(image_of_point)
         image_rms = np.sqrt(squared)
@@ -483,99 +614,155 @@ def calibrate_board(
             break
         outliers.extend(new)
 
-    covariance, names_out = _camera_covariance(problem, solution, names)
-    rig = _build_rig(problem, solution.x, names, by_frame, kept, residuals, image_of_point, covariance, names_out, board, model, units)
+    if solution.covariance.size == 0:
+        raise CamcalError("the calibration is degenerate (singular normal equations): vary the board poses more")
+    covariance, labels = _camcal_covariance(solution.covariance, solution.covariance_names, names, model, params)
+    rig = _build_rig(names, image_sizes, params, cam_poses, observations.camera, image_of_point, residuals,
+                     covariance, labels, board, model, units)
+    heldout_rms, heldout_images = None, ()
+    if holdout:
+        heldout_rms, per_camera, heldout_images = _heldout_rms(board, rig, held, model)
+        rig = Rig(tuple(dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]})
+                        if camera.name in per_camera else camera for camera in rig.cameras),
+                  units=rig.units, provenance=rig.provenance)
     norms = np.linalg.norm(residuals, axis=1)
     return CalibrationResult(
         rig=rig,
         residuals_px=residuals,
-        points_px=problem.detected,
-        camera_of_point=problem.camera,
+        points_px=observations.xy,
+        camera_of_point=observations.camera,
         image_of_point=image_of_point,
         images=tuple((names[j], by_frame[j][f].image) for j, f in kept),
         rms_px=float(np.sqrt(np.mean(norms**2))),
         worst_px=float(norms.max()),
         outliers=tuple((names[j], by_frame[j][f].image) for j, f in sorted(outliers)),
         covariance=covariance,
-        parameter_names=names_out,
+        parameter_names=labels,
+        model=model,
+        heldout_rms_px=heldout_rms,
+        heldout_images=heldout_images,
+        relabelled=tuple(relabelled),
+        dropped=tuple(dropped),
+        notes=(_MODEL_NOTES[model],) if model in _MODEL_NOTES else (),
     )
 
 
-def _camera_covariance(problem: _Problem, solution, names: list[str]) -> tuple[NDArray[np.float64], tuple[str, ...]]:
-    """``sigma^2 (J^T J)^-1`` restricted to the camera parameters (board poses marginalised)."""
-    J = scipy.sparse.csr_matrix(solution.jac)
-    m, n = J.shape
-    if m <= n:
-        raise CamcalError(f"too few corners for the parameters: {m // 2} corners for {n} unknowns")
-    sigma2 = float(solution.fun @ solution.fun) / (m - n)
-    JtJ = (J.T @ J).toarray()
-    wanted = np.arange(problem.view_offset)
-    try:
-        block = np.linalg.solve(JtJ, np.eye(n)[:, wanted])[wanted]
-    except np.linalg.LinAlgError:
-        raise CamcalError("the calibration is degenerate (singular normal equations): vary the board poses more") from None
-    # undo the scaling of the division parameter: lambda = lambda' / s^2
-    factors = np.ones(len(wanted))
-    labels = []
-    for j, name in enumerate(names):
-        for p, label in enumerate(_INTRINSICS + MODELS[problem.model]):
-            labels.append(f"{name}.{label}")
-            if label == "lambda":
-                factors[j * problem.n_intrinsics + p] = 1.0 / problem.division_scale[j] ** 2
-    for name in names[1:]:
-        labels.extend(f"{name}.{label}" for label in ("rx", "ry", "rz", "tx", "ty", "tz"))
-    return sigma2 * block * np.outer(factors, factors), tuple(labels)
+def _heldout_rms(board: Board, rig: Rig, held: list[dict], model: str):
+    """RMS of the held-out views, each posed by PnP with the fitted intrinsics held.
 
+    Every held-out view of a camera is one frame of a one-camera bundle
+    adjustment whose intrinsics are constant (so only the view poses move),
+    started from OpenCV's ``solvePnP`` on the undistorted corners.
 
-def _pose_sigmas(rt: NDArray[np.float64], covariance: NDArray[np.float64]) -> tuple[float, float]:
-    """One-sigma of the baseline |c| and rotation angle of a ``cam_from_reference`` pose.
-
-    First-order propagation ``sigma_g^2 = g^T Sigma g`` with the gradient of
-    ``|c| = |R(r)^T t|`` and of ``|r|`` by central differences.
+    Returns
+    -------
+    rms_px, per_camera_rms_px, images
     """
-    def baseline(p: NDArray[np.float64]) -> float:
-        return float(np.linalg.norm(Rotation.from_rotvec(p[:3]).as_matrix().T @ p[3:]))
+    colmap_model, _ = _COLMAP_MODELS[model]
+    squared, counts, per_camera, images = 0.0, 0, {}, []
+    for camera, views in zip(rig.cameras, held):
+        if not views:
+            continue
+        keys = sorted(views)
+        frame_R, frame_t = [], []
+        for key in keys:
+            d = views[key]
+            ideal = camera.distortion.undistort(d.corners_px, camera.K)
+            ok, rvec, tvec = cv2.solvePnP(board.object_points[d.ids], ideal, camera.K, None)
+            if not ok:
+                raise CamcalError(f"camera {camera.name!r}, {d.image}: PnP failed on the held-out view")
+            frame_R.append(cv2.Rodrigues(rvec)[0])
+            frame_t.append(tvec.ravel())
+        observations = BoardObservations(
+            object_points=np.asarray(board.object_points, dtype=np.float64),
+            camera=np.zeros(sum(len(views[k].ids) for k in keys), np.int64),
+            frame=np.concatenate([np.full(len(views[k].ids), n) for n, k in enumerate(keys)]),
+            corner=np.concatenate([views[k].ids for k in keys]),
+            xy=np.concatenate([views[k].corners_px for k in keys]),
+        )
+        params = _colmap_params(model, camera.K, _opencv_vector(camera.distortion))
+        if model == "division":
+            params = np.array([camera.K[0, 0], camera.K[0, 2] + 0.5, camera.K[1, 2] + 0.5,
+                               camera.distortion.params["lambda"] * camera.K[0, 0] ** 2])
+        state = BundleState(
+            camera_names=(camera.name,), models=(colmap_model,), image_sizes=(camera.image_size,), params=(params,),
+            sensor_R=np.eye(3)[None], sensor_t=np.zeros((1, 3)), frame_R=np.array(frame_R), frame_t=np.array(frame_t),
+            frame_ids=tuple(keys), points=np.zeros((0, 3)), point_ids=(), obs_camera=np.zeros(0, np.int64),
+            obs_frame=np.zeros(0, np.int64), obs_point=np.zeros(0, np.int64), obs_xy=np.zeros((0, 2)),
+            board=observations, board_R=np.eye(3), board_t=np.zeros(3),
+        )
+        posed = bundle_adjust(state, BundleOptions(constant_intrinsics=(camera.name,), refine_points3D=False,
+                                                   compute_sigmas=False), verbose=False)
+        r = board_residuals(posed.state)[1]
+        s = float(np.sum(r * r))
+        per_camera[camera.name] = float(np.sqrt(s / len(r)))
+        squared, counts = squared + s, counts + len(r)
+        images.extend((camera.name, views[k].image) for k in keys)
+    return float(np.sqrt(squared / counts)), per_camera, tuple(images)
 
-    step = 1e-7 * max(1.0, float(np.abs(rt).max()))
-    gradient = np.array([(baseline(rt + step * e) - baseline(rt - step * e)) / (2 * step) for e in np.eye(6)])
-    angle_gradient = np.r_[rt[:3] / max(np.linalg.norm(rt[:3]), 1e-12), np.zeros(3)]
-    return (
-        float(np.sqrt(max(gradient @ covariance @ gradient, 0.0))),
-        float(np.degrees(np.sqrt(max(angle_gradient @ covariance @ angle_gradient, 0.0)))),
-    )
+
+def _opencv_vector(distortion: Distortion) -> NDArray[np.float64]:
+    """OpenCV's (k1, k2, p1, p2, k3) of a polynomial or opencv distortion (zeros where absent)."""
+    p = distortion.params
+    return np.array([p.get("k1", 0.0), p.get("k2", 0.0), p.get("p1", 0.0), p.get("p2", 0.0), p.get("k3", 0.0)])
 
 
-def _build_rig(problem, x, names, by_frame, kept, residuals, image_of_point, covariance, labels, board, model, units) -> Rig:
-    intrinsics, cam_poses, _ = problem.unpack(x)
-    sigma = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
-    sigma_by_label = dict(zip(labels, sigma))
+def quality_problems(result: CalibrationResult) -> list[str]:
+    """What makes a calibration unusable by its own figures (empty when it looks sound).
+
+    A camera is refused when its principal point lies outside the image,
+    its RMS exceeds :data:`MAX_RMS_PX`, or its focal length's one-sigma
+    exceeds :data:`MAX_FOCAL_SIGMA_REL` of the focal length.
+    """
+    problems = []
+    for camera in result.rig.cameras:
+        width, height = camera.image_size
+        cx, cy = camera.K[0, 2], camera.K[1, 2]
+        if not (0 <= cx <= width - 1 and 0 <= cy <= height - 1):
+            problems.append(f"{camera.name}: principal point ({cx:.0f}, {cy:.0f}) outside the {width}x{height} image")
+        rms = camera.quality.get("rms_px", 0.0)
+        if rms > MAX_RMS_PX:
+            problems.append(f"{camera.name}: RMS {rms:.2f} px > {MAX_RMS_PX} px")
+        sigma_fx = camera.quality.get("sigma", {}).get("fx", 0.0)
+        if sigma_fx > MAX_FOCAL_SIGMA_REL * abs(camera.K[0, 0]):
+            problems.append(f"{camera.name}: fx {camera.K[0, 0]:.0f} +/- {sigma_fx:.0f} px "
+                            f"(> {100 * MAX_FOCAL_SIGMA_REL:.0f} %)")
+    return problems
+
+
+def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_point, residuals, covariance, labels,
+               board, model, units) -> Rig:
+    sigma_by_label = dict(zip(labels, np.sqrt(np.clip(np.diag(covariance), 0.0, None))))
     cameras = []
     for j, name in enumerate(names):
-        fx, fy, cx, cy, *d = intrinsics[j]
-        if model == "division":
-            d = [d[0] / problem.division_scale[j] ** 2]
-        R = Rotation.from_rotvec(cam_poses[j, :3]).as_matrix()
-        c = -R.T @ cam_poses[j, 3:]
-        mine = problem.camera == j
+        K, distortion = _camcal_lens(model, params[j])
+        R, t = cam_poses[j]
+        mine = camera_of_point == j
         norms = np.linalg.norm(residuals[mine], axis=1)
         sigmas = {label: float(sigma_by_label[f"{name}.{label}"]) for label in _INTRINSICS + MODELS[model]}
         if j > 0:
-            start = problem.pose_offset + 6 * (j - 1)
-            block = covariance[start : start + 6, start : start + 6]
-            sigmas["baseline"], sigmas["rotation_deg"] = _pose_sigmas(cam_poses[j], block)
+            o = labels.index(f"{name}.rx")
+            rotation, translation = covariance[o:o + 3, o:o + 3], covariance[o + 3:o + 6, o + 3:o + 6]
+            length = float(np.linalg.norm(t))
+            along = t / max(length, 1e-300)
+            across = np.eye(3) - np.outer(along, along)
+            sigmas["baseline_rel"] = float(np.sqrt(max(along @ translation @ along, 0.0))) / max(length, 1e-300)
+            sigmas["baseline_direction_deg"] = float(
+                np.degrees(np.sqrt(max(np.trace(across @ translation @ across), 0.0)) / max(length, 1e-300)))
+            sigmas["rotation_deg"] = float(np.degrees(np.sqrt(max(np.trace(rotation), 0.0))))
         cameras.append(
             Camera(
                 name=name,
-                image_size=by_frame[j][next(iter(by_frame[j]))].image_size,
-                K=np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]),
-                distortion=Distortion(model, dict(zip(MODELS[model], d))),
+                image_size=image_sizes[j],
+                K=K,
+                distortion=distortion,
                 R=R if j else np.eye(3),
-                c=c if j else np.zeros(3),
+                c=-R.T @ t if j else np.zeros(3),
                 quality={
                     "rms_px": float(np.sqrt(np.mean(norms**2))),
                     "worst_px": float(norms.max()),
                     "n_views": int(len(np.unique(image_of_point[mine]))),
-                    "n_points": int(mine.sum()),
+                    "n_observations": int(mine.sum()),
                     "sigma": sigmas,
                 },
             )

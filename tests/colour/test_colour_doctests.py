@@ -5,7 +5,8 @@ import importlib
 
 import pytest
 
-MODULES = ["evaluate", "models", "spectral", "linearise", "chart", "fitfile", "select", "patches", "characterise"]
+MODULES = ["evaluate", "models", "spectral", "linearise", "chart", "fitfile", "select", "patches", "characterise",
+           "ssf", "illuminant"]
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -10,7 +10,8 @@ import colour  # noqa: E402
 from camcal.cli import main  # noqa: E402
 from camcal.colour.evaluate import delta_E  # noqa: E402
 from camcal.colour.export_ocio import CAMCAL_BASE, export_ocio, look_name  # noqa: E402
-from camcal.colour.match import ColourMatch, fit_match_model  # noqa: E402
+from camcal.colour.matchfile import ColourMatch  # noqa: E402
+from camcal.colour.robust import fit_match_model  # noqa: E402
 
 M_TRUE = np.array([[1.10, -0.08, 0.03], [0.05, 0.93, 0.04], [-0.02, 0.09, 0.88]])
 

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from camcal.colour import ColourMatch, load_colour_file, load_match
-from camcal.colour.fitfile import KIND_READERS
-from camcal.colour.match import Lut3DModel, fit_match_model, parse_match_model
+from camcal.colour.fitfile import FILE_KINDS, reader_of
+from camcal.colour.match_models import Lut3DModel, parse_match_model
+from camcal.colour.robust import fit_match_model
 from camcal.errors import CamcalError
 
 M_TRUE = np.array([[1.10, -0.08, 0.03], [0.05, 0.93, 0.04], [-0.02, 0.09, 0.88]])
@@ -134,7 +135,8 @@ def test_match_file_round_trip(tmp_path, model):
     back = load_match(path)
     assert back == match
     assert isinstance(load_colour_file(path), ColourMatch)
-    assert KIND_READERS["match"] == ColourMatch.from_dict
+    assert FILE_KINDS["match"] == ("camcal.colour.matchfile", "ColourMatch")
+    assert reader_of("match") == ColourMatch.from_dict
     x = _samples(50, seed=2)
     np.testing.assert_array_equal(back.apply(x), match.apply(x))
     if model == "matrix3x3":

@@ -7,7 +7,8 @@ import pytest
 
 from camcal.colour.characterise import characterise
 from camcal.colour.evaluate import delta_E
-from camcal.colour.match import match_charts, write_match_report
+from camcal.colour.match import match_charts
+from camcal.report.colour_match import write_report
 from camcal.colour.patches import PatchSet
 from camcal.colour.spectral import SimulatedCamera, camera_sensitivities, reflectance_set
 from camcal.errors import CamcalError
@@ -84,7 +85,7 @@ def test_chart_report_and_bad_input(tmp_path, cameras):
     nikon, sigma = cameras
     fit_A, fit_B = _fit(nikon, "matrix3x3", "nikon"), _fit(sigma, "matrix3x3", "sigma")
     result = match_charts(fit_B, fit_A, sigma.RGB_train, nikon.RGB_train)
-    names = {p.name for p in write_match_report(tmp_path, result)}
+    names = {p.name for p in write_report(result, tmp_path)}
     assert {"swatches.png", "delta_E_histogram.png", "ab_errors.png", "summary.txt"} <= names
     with pytest.raises(CamcalError, match=r"\(N, 3\)"):
         match_charts(fit_B, fit_A, sigma.RGB_train, nikon.RGB_train[:-1])

@@ -7,7 +7,8 @@ import pytest
 from camcal.cli import main
 from camcal.colour import load_colour_file
 from camcal.colour.characterise import characterise
-from camcal.colour.match import ColourMatch, match_image_files
+from camcal.colour.match import match_image_files
+from camcal.colour.matchfile import ColourMatch
 from camcal.colour.patches import PatchSet, write_patch_csv
 from camcal.errors import CamcalError
 from camcal.rig import Rig

@@ -14,13 +14,9 @@ import numpy as np
 import pytest
 
 from camcal.colour.evaluate import delta_E
-from camcal.colour.match import (
-    REC709_SPACE,
-    rec709_XYZ,
-    match_images,
-    stereo_correspondences,
-    write_match_report,
-)
+from camcal.colour.match import REC709_SPACE, match_images, rec709_XYZ
+from camcal.geometry.correspondence import stereo_correspondences
+from camcal.report.colour_match import write_report
 from camcal.errors import CamcalError
 from camcal.synthetic import layered_stereo_pair
 
@@ -136,7 +132,7 @@ def test_lut_and_polynomial_follow_a_curved_transform_better_than_a_matrix():
 
 def test_report_images(tmp_path, pair):
     result = match_images(pair.A, pair.B, model="matrix3x3")
-    files = write_match_report(tmp_path, result)
+    files = write_report(result, tmp_path)
     names = {p.name for p in files}
     assert {"difference_before.png", "difference_after.png", "delta_E_before.png", "delta_E_after.png",
             "valid.png", "summary.txt"} <= names

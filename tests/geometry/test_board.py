@@ -112,3 +112,34 @@ def test_real_pairs_labelled_alike(shared_data):
         shift = right.corners_px - left.corners_px
         assert np.std(shift[:, 1]) < 15.0
         assert np.abs(np.median(shift[:, 1])) < 40.0
+
+
+def test_detections_cached_by_content_and_threads_agree(tmp_path, monkeypatch):
+    """A second pass reads the cache (no detection runs); a changed image is detected again; threads give the same corners."""
+    import camcal.geometry.board as board_module
+
+    board = Board("chessboard", 9, 6, 1.0)
+    image, truth = render_chessboard(9, 6, 40)
+    for n in range(3):
+        cv2.imwrite(str(tmp_path / f"cam{n:02d}.png"), image if n < 2 else np.full_like(image, 128))
+    paths = sorted(tmp_path.glob("cam*.png"))
+    cache = tmp_path / "cache"
+    first = detect_in_images(board, paths, workers=2, cache=cache)
+    serial = detect_in_images(board, paths, workers=1)
+    assert [d.image for d in first.detections] == ["cam00.png", "cam01.png"] and first.skipped == ("cam02.png",)
+    assert all(np.array_equal(a.corners_px, b.corners_px) for a, b in zip(first.detections, serial.detections))
+    assert len(list(cache.glob("*.json"))) == 2  # two distinct contents
+
+    def no_detection(*args, **kwargs):
+        raise AssertionError("detected although cached")
+
+    monkeypatch.setattr(board_module, "detect_board", no_detection)
+    again = detect_in_images(board, paths, cache=cache)
+    assert again.skipped == first.skipped and [d.image for d in again.detections] == [d.image for d in first.detections]
+    assert all(np.array_equal(a.corners_px, b.corners_px) and np.array_equal(a.ids, b.ids)
+               for a, b in zip(again.detections, first.detections))
+    changed = image.copy()
+    changed[0, 0] ^= 1
+    cv2.imwrite(str(paths[2]), changed)  # new content: not in the cache
+    with pytest.raises(AssertionError, match="detected although cached"):
+        detect_in_images(board, paths, cache=cache)

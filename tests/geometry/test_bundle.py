@@ -187,3 +187,19 @@ def test_bad_inputs():
     with pytest.raises(CamcalError, match="need 2 or more"):
         attach_board(state, BoardObservations(np.zeros((4, 3)), np.zeros(2, int), np.zeros(2, int),
                                               np.arange(2), np.zeros((2, 2))))
+
+
+def test_fixed_params_and_constant_intrinsics_are_held():
+    """Single COLMAP parameters held by a Ceres SubsetManifold stay exactly put; the others move."""
+    _, seed_model = synthetic("OPENCV", (500.0, 505.0, 321.0, 239.0, -0.05, 0.01, 1e-3, -1e-3), points=150)
+    state = state_from_reconstruction(seed_model)
+    names = state.camera_names
+    result = bundle_adjust(state, BundleOptions(fixed_params={names[0]: ("p1", "p2")}, constant_intrinsics=(names[1],)),
+                           verbose=False)
+    before, after = state.params, result.state.params
+    assert np.array_equal(after[0][6:8], before[0][6:8]) and not np.allclose(after[0][:2], before[0][:2])
+    assert np.array_equal(after[1], before[1])
+    assert f"{names[0]}.p1" not in result.sigmas and f"{names[0]}.fx" in result.sigmas
+    assert not any(key.startswith(f"{names[1]}.f") for key in result.sigmas)
+    with pytest.raises(CamcalError, match="has no parameter 'k9'"):
+        bundle_adjust(state, BundleOptions(fixed_params={names[0]: ("k9",)}), verbose=False)

@@ -151,3 +151,18 @@ def test_look_at_axes():
     assert np.linalg.det(R) == pytest.approx(1.0)
     with pytest.raises(CamcalError, match="parallel"):
         look_at([0.0, 0.0, 0.0], [0.0, 0.0, 1.0], up=[0.0, 0.0, 1.0])
+
+
+def test_similarity_Umeyama1991_recovers_a_known_similarity():
+    from camcal.geometry.camera import random_rotation, rotation_angle_deg, similarity_Umeyama1991
+
+    rng = np.random.default_rng(7)
+    R_true, s_true, t_true = random_rotation(rng), 2.5, np.array([0.3, -1.0, 4.0])
+    source = rng.normal(size=(40, 3))
+    noise = 1e-3
+    target = s_true * source @ R_true.T + t_true + rng.normal(0, noise, (40, 3))
+    s, R, t = similarity_Umeyama1991(source, target)
+    # the noise is 1e-3 on points of spread ~2.5: errors of order noise / sqrt(N) relative
+    assert abs(s / s_true - 1) < 5 * noise and rotation_angle_deg(R @ R_true.T) < 0.05
+    np.testing.assert_allclose(t, t_true, atol=5 * noise)
+    assert np.linalg.det(R) > 0

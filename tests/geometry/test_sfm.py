@@ -1,5 +1,6 @@
 """pycolmap SfM -> camcal Rig, against a rendered scene with known cameras."""
 
+import json
 import subprocess
 import sys
 
@@ -8,6 +9,7 @@ import pytest
 
 from camcal.cli import main
 from camcal.errors import CamcalError
+from camcal.geometry.camera import rotation_angle_deg, similarity_Umeyama1991
 from camcal.geometry.sfm import collect_images, solve_sfm
 from camcal.io.ply import read_points_ply, write_points_ply
 from camcal.rig import Rig
@@ -16,19 +18,8 @@ from camcal.synthetic import render_stereo_sequence
 BASELINE = 0.3
 
 
-def similarity(source, target):
-    """Umeyama (1991): s, R, t minimising |target - (s R source + t)|."""
-    mu_s, mu_t = source.mean(0), target.mean(0)
-    cov = (target - mu_t).T @ (source - mu_s) / len(source)
-    u, d, vt = np.linalg.svd(cov)
-    sign = np.diag([1, 1, np.sign(np.linalg.det(u @ vt))])
-    R = u @ sign @ vt
-    scale = np.trace(np.diag(d) @ sign) / np.mean(np.sum((source - mu_s) ** 2, axis=1))
-    return scale, R, mu_t - scale * R @ mu_s
-
-
 @pytest.mark.slow
-def test_stereo_sequence_recovers_known_rig(tmp_path):
+def test_stereo_sequence_recovers_known_rig(tmp_path, capsys):
     truth = render_stereo_sequence(tmp_path / "in")
     result = solve_sfm({"left": tmp_path / "in/left", "right": tmp_path / "in/right"}, tmp_path / "out")
     assert result.n_registered == result.n_images == 14 and not result.unregistered
@@ -38,14 +29,12 @@ def test_stereo_sequence_recovers_known_rig(tmp_path):
         assert abs(camera.K[0, 0] / 500.0 - 1) < 0.005
     solved = {(name, frame.index): rig.camera_at_frame(name, frame.index) for frame in rig.frames for name in frame.images}
     keys = sorted(solved)
-    s, R_align, t = similarity(np.array([solved[k].c for k in keys]), np.array([truth[k].c for k in keys]))
+    s, R_align, t = similarity_Umeyama1991(np.array([solved[k].c for k in keys]), np.array([truth[k].c for k in keys]))
     scene_size = 8.0
     for key in keys:
         centre = s * R_align @ solved[key].c + t
         assert np.linalg.norm(centre - truth[key].c) < 0.005 * scene_size
-        relative = truth[key].R @ (solved[key].R @ R_align.T).T
-        angle = np.degrees(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1, 1)))
-        assert angle < 0.1
+        assert rotation_angle_deg(truth[key].R @ (solved[key].R @ R_align.T).T) < 0.1
     # the rig constraint: one baseline, along the left camera's x axis
     right = rig.camera("right")
     direction = right.c / np.linalg.norm(right.c)
@@ -56,16 +45,22 @@ def test_stereo_sequence_recovers_known_rig(tmp_path):
     # camcal's refinement never ends above its pycolmap seed, and reports per-camera figures
     assert result.bundle is not None and result.bundle.final_cost <= result.bundle.initial_cost
     assert set(result.bundle.rms_after_px) == {"left", "right"}
-    assert 0 < rig.camera("left").quality["sigma"]["f"] < 5.0
+    assert 0 < rig.camera("left").quality["sigma"]["fx"] < 5.0
     # frames point at the user's images
     assert (tmp_path / "out" / rig.frames[0].images["left"]).resolve() == (tmp_path / "in/left/0000.png").resolve()
 
     # the same images with the rig held at a known (board) calibration: metric units, exact baseline
     known = Rig((truth["left", 0], truth["right", 0]), units="m")
     known.save(tmp_path / "known.rig.json")
-    code = main(["solve", str(tmp_path / "in"), "--rig", str(tmp_path / "known.rig.json"), "--out", str(tmp_path / "metric")])
+    capsys.readouterr()
+    code = main(["solve", str(tmp_path / "in"), "--rig", str(tmp_path / "known.rig.json"), "--out", str(tmp_path / "metric"),
+                 "--json"])
     assert code == 0
     metric = Rig.load(tmp_path / "metric/solve.rig.json")
+    summary = json.loads(capsys.readouterr().out)  # --json: one object on stdout
+    assert summary["verb"] == "solve" and summary["figures"]["n_registered"] == len(metric.frames) * 2
+    assert {"path": str(tmp_path / "metric" / "solve.rig.json"), "kind": "rig"} in summary["files"]
+    assert summary["figures"]["per_camera_rms_px"]["left"] == pytest.approx(metric.camera("left").quality["rms_px"])
     assert metric.units == "m"
     assert np.linalg.norm(metric.camera("right").c) == pytest.approx(BASELINE, rel=1e-9)
     centres = np.array([metric.camera_at_frame("left", frame.index).c for frame in metric.frames])

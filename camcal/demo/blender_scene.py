@@ -1,7 +1,7 @@
 """Render the demo's scenes with Cycles, in a subprocess that has the bpy module.
 
 camcal never imports bpy: :func:`render_shots` writes a JSON job and runs
-``python -m camcal.demo_blender JOB.json`` in a child process of the same
+``python -m camcal.demo.blender_scene JOB.json`` in a child process of the same
 interpreter; only that child imports bpy (inside :func:`_main`), so importing
 this module is cheap and free of Blender.
 
@@ -67,7 +67,7 @@ def render_shots(job: dict, work_dir: str | os.PathLike, threads: int = 0) -> li
     job_path.write_text(json.dumps(dict(job, threads=threads)))
     log_path = work_dir / "render.log"
     with open(log_path, "w") as log:
-        proc = subprocess.run([sys.executable, "-m", "camcal.demo_blender", str(job_path)],
+        proc = subprocess.run([sys.executable, "-m", "camcal.demo.blender_scene", str(job_path)],
                               stdout=log, stderr=subprocess.STDOUT, text=True)
     if proc.returncode != 0:
         lines = [line for line in log_path.read_text().splitlines() if line.strip()]
@@ -109,7 +109,7 @@ def project_in_blend(blend: str | os.PathLike, X, work_dir: str | os.PathLike) -
     request.write_text(json.dumps({"blend": str(Path(blend).resolve()), "X": [list(map(float, p)) for p in X],
                                    "out": str(answer)}))
     answer.unlink(missing_ok=True)
-    proc = subprocess.run([sys.executable, "-m", "camcal.demo_blender", "--project", str(request)],
+    proc = subprocess.run([sys.executable, "-m", "camcal.demo.blender_scene", "--project", str(request)],
                           capture_output=True, text=True)
     if proc.returncode != 0 or not answer.is_file():
         lines = [line for line in (proc.stdout + proc.stderr).splitlines() if line.strip()]
@@ -260,7 +260,7 @@ def _quad(bpy, scene, quad: dict):  # pragma: no cover - bpy subprocess
     return obj
 
 
-if __name__ == "__main__":  # pragma: no cover - ``python -m camcal.demo_blender [--project] JOB.json``
+if __name__ == "__main__":  # pragma: no cover - ``python -m camcal.demo.blender_scene [--project] JOB.json``
     if sys.argv[1] == "--project":
         _project_main(sys.argv[2])
     else:

@@ -1,0 +1,255 @@
+"""Self-calibration in ``camcal solve``: principal point by sigma, lens model by held-out residual,
+uncertainty that covers the error, against a rendered rig and against plain pycolmap."""
+
+import contextlib
+import io
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from camcal.errors import CamcalError
+from camcal.geometry.bundle import BundleOptions, BundleState
+from camcal.geometry.camera import rotation_angle_deg
+from camcal.geometry.sfm import principal_point_limit_px, self_calibrate
+from camcal.io.colmap import camera_from_colmap
+from camcal.rig import Camera
+from camcal.synthetic import example_stereo_rig, orbit_rig_poses
+
+NOISE_PX = 0.5
+
+
+def stereo_rig(lam=(-2.1e-7, -2.1e-7), **kwargs):
+    """camcal.synthetic's example rig with a stronger lens by default (pp off-centre, focal 1 % apart)."""
+    return example_stereo_rig(lam=lam, **kwargs)
+
+
+def tracks_state(cameras, rng, n_frames=10, roll_deg=35.0, n_points=2500, noise_px=NOISE_PX, poses=None):
+    """A seed reconstruction from synthetic tracks: the cameras' true projections of points in the set
+    plus Gaussian noise of ``noise_px``; the seed has the principal point at the image centre, no lens
+    and the focal 1 % off, poses and points perturbed (what a pycolmap mapping hands over)."""
+    poses = poses if poses is not None else orbit_rig_poses(rng, n_frames, roll_deg=roll_deg)
+    X = rng.uniform([1.0, 1.0, 0.0], [7.0, 7.0, 3.0], (n_points, 3))
+    cams, frames, points, xys = [], [], [], []
+    for f, (R_rig, c_rig) in enumerate(poses):
+        for k, camera in enumerate(cameras):
+            posed = Camera(camera.name, camera.image_size, camera.K, camera.distortion, camera.R @ R_rig,
+                           c_rig + R_rig.T @ camera.c)
+            depth = (X - posed.c) @ posed.R[2]
+            with np.errstate(invalid="ignore"):
+                xy = posed.project(X)
+            width, height = camera.image_size
+            seen = (depth > 0.3) & np.all(np.isfinite(xy), axis=1) & (xy[:, 0] > 0) & (xy[:, 0] < width - 1) \
+                & (xy[:, 1] > 0) & (xy[:, 1] < height - 1)
+            index = np.flatnonzero(seen)
+            cams += [k] * len(index)
+            frames += [f] * len(index)
+            points += list(index)
+            xys.append(xy[index] + rng.normal(0.0, noise_px, (len(index), 2)))
+    points = np.array(points)
+    counts = np.bincount(points, minlength=n_points)
+    keep_point = counts >= 3
+    keep = keep_point[points]
+    renumber = np.cumsum(keep_point) - 1
+    seed_params = []
+    for camera in cameras:
+        width, height = camera.image_size
+        seed_params.append(np.array([camera.K[0, 0] * (1 + 0.01 * rng.standard_normal()), width / 2, height / 2, 0.0]))
+    frame_R, frame_t = [], []
+    for R_rig, c_rig in poses:
+        R = Rotation.from_rotvec(rng.normal(0, np.radians(0.3), 3)).as_matrix() @ R_rig
+        frame_R.append(R)
+        frame_t.append(-R @ (c_rig + rng.normal(0, 0.01, 3)))
+    right = cameras[1]
+    state = BundleState(
+        camera_names=tuple(c.name for c in cameras), models=("SIMPLE_DIVISION",) * len(cameras),
+        image_sizes=tuple(c.image_size for c in cameras), params=tuple(seed_params),
+        sensor_R=np.array([np.eye(3), right.R]), sensor_t=np.array([np.zeros(3), -right.R @ right.c]) * 1.02,
+        frame_R=np.array(frame_R), frame_t=np.array(frame_t), frame_ids=tuple(range(len(poses))),
+        points=X[keep_point] + rng.normal(0, 0.01, (int(keep_point.sum()), 3)),
+        point_ids=tuple(range(int(keep_point.sum()))),
+        obs_camera=np.array(cams)[keep], obs_frame=np.array(frames)[keep], obs_point=renumber[points[keep]],
+        obs_xy=np.vstack(xys)[keep],
+    )
+    return state
+
+
+def intrinsics(state, k):
+    """camcal K and lens of camera k of a state."""
+    return camera_from_colmap(state.camera_names[k], state.models[k], state.image_sizes[k], state.params[k],
+                              np.eye(3), np.zeros(3))
+
+
+def rotation_error_deg(R_a, R_b):
+    return rotation_angle_deg(R_a @ R_b.T)
+
+
+def test_self_calibration_recovers_offcentre_principal_points_and_division_lens():
+    rng = np.random.default_rng(3)
+    cameras = stereo_rig()
+    result, decisions = self_calibrate(tracks_state(cameras, rng), BundleOptions())
+    lines = decisions.lines()
+    print("\n".join(lines))
+    assert all(d.refined for d in decisions.principal_point)
+    assert any("principal point refined: sigma(cx, cy) = (" in line for line in lines)
+    for k, truth in enumerate(cameras):
+        solved = intrinsics(result.state, k)
+        name = truth.name
+        sigma = {key.split(".", 1)[1]: value for key, value in result.sigmas.items() if key.startswith(name + ".")}
+        f_error = solved.K[0, 0] - truth.K[0, 0]
+        pp_error = solved.K[:2, 2] - truth.K[:2, 2]
+        print(f"{name}: f error {f_error:+.3f} px (sigma {sigma['f']:.3f}), pp error {pp_error.round(3)} px "
+              f"(sigma {sigma['cx']:.3f}, {sigma['cy']:.3f}), lambda {solved.distortion.params.get('lambda')}")
+        # the must-show tolerances, and the printed sigma describing the error (4 sigma: one draw)
+        assert abs(f_error / truth.K[0, 0]) < 0.002 and abs(f_error) < 4 * sigma["f"]
+        assert np.all(np.abs(pp_error) < 3.0)
+        assert abs(pp_error[0]) < 4 * sigma["cx"] and abs(pp_error[1]) < 4 * sigma["cy"]
+        assert decisions.lens_models[name] in ("division", "polynomial", "opencv")
+        if decisions.lens_models[name] == "division":
+            assert abs(solved.distortion.params["lambda"] / truth.distortion.params["lambda"] - 1) < 0.05
+        # the held-out points sit at the noise floor: sqrt(2) sigma per 2-vector, a little below it as
+        # each re-triangulated point leaves 2n - 3 of its 2n degrees of freedom
+        floor = np.sqrt(2) * NOISE_PX
+        assert 0.8 * floor < decisions.heldout_rms_px[name][decisions.lens_models[name]] < 1.02 * floor
+    true_rotation = cameras[1].R @ cameras[0].R.T
+    assert rotation_error_deg(result.state.sensor_R[1], true_rotation) < 0.05
+
+
+def test_lens_model_chosen_by_heldout_residual_is_the_true_one_when_it_matters():
+    # a strong division lens: a 2-term polynomial cannot follow it to the corners; the held-out points say so
+    rng = np.random.default_rng(5)
+    cameras = stereo_rig(lam=(-6e-7, -6e-7))
+    _, decisions = self_calibrate(tracks_state(cameras, rng), BundleOptions(), ("polynomial", "division"))
+    print("\n".join(decisions.lines()))
+    for name in ("left", "right"):
+        table = decisions.heldout_rms_px[name]
+        assert decisions.lens_models[name] == "division" and table["division"] < table["polynomial"]
+
+
+def test_principal_point_held_with_a_reason_when_the_views_do_not_determine_it():
+    # a long lens translated sideways without turning: a principal point shift is a rotation of every view
+    rng = np.random.default_rng(7)
+    cameras = stereo_rig(f=4000.0, lam=(0.0, 0.0))
+    R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # looking along +x at the set
+    poses = [(R, np.array([-26.7, 3.0 + 0.3 * i, 1.5])) for i in range(4)]
+    state = tracks_state(cameras, rng, poses=poses, n_points=800)
+    result, decisions = self_calibrate(state, BundleOptions(), ("division",))
+    print("\n".join(decisions.lines()))
+    for decision in decisions.principal_point:
+        assert not decision.refined
+        assert max(decision.sigma_px) >= decision.limit_px == principal_point_limit_px((960, 720))
+        assert "held at the image centre" in decision.reason
+    for k in range(2):
+        solved = intrinsics(result.state, k)
+        assert np.allclose(solved.K[:2, 2], [(960 - 1) / 2, (720 - 1) / 2])
+        assert f"{result.state.camera_names[k]}.cx" not in result.sigmas
+
+
+def test_self_calibrate_bad_input():
+    state = tracks_state(stereo_rig(), np.random.default_rng(0), n_frames=3, n_points=300)
+    with pytest.raises(CamcalError, match="unknown principal point mode 'middle'"):
+        self_calibrate(state, BundleOptions(), principal_point="middle")
+    with pytest.raises(CamcalError, match="unknown lens model 'fisheye'"):
+        self_calibrate(state, BundleOptions(), ("fisheye",))
+
+
+@pytest.mark.slow
+def test_uncertainty_covers_the_error_over_seeded_scenes():
+    """Over 20 seeded scenes (synthetic tracks, 0.5 px noise, random rig, pp offsets, focal and lens),
+    |error| < 2 sigma for f, cx, cy of both cameras in >= 90 % of cases (95.4 % if Gaussian)."""
+    inside, total = 0, 0
+    ratios = []
+    for seed in range(20):
+        rng = np.random.default_rng(100 + seed)
+        cameras = stereo_rig(
+            f=rng.uniform(550, 900), pp_offsets=rng.uniform(-10, 10, (2, 2)),
+            lam=tuple(rng.uniform(-4e-7, -0.5e-7, 2)), rig_euler_deg=rng.uniform(-3, 3, 3),
+            focal_ratio=rng.uniform(0.98, 1.02),
+        )
+        with contextlib.redirect_stderr(io.StringIO()):
+            result, _ = self_calibrate(tracks_state(cameras, rng, n_frames=10), BundleOptions(), seed=seed)
+        for k, truth in enumerate(cameras):
+            solved = intrinsics(result.state, k)
+            for key, error in (("f", solved.K[0, 0] - truth.K[0, 0]), ("cx", solved.K[0, 2] - truth.K[0, 2]),
+                               ("cy", solved.K[1, 2] - truth.K[1, 2])):
+                ratio = abs(error) / result.sigmas[f"{truth.name}.{key}"]
+                ratios.append(ratio)
+                inside += ratio < 2.0
+                total += 1
+    rate = inside / total
+    print(f"coverage: {inside} / {total} = {100 * rate:.1f} % within 2 sigma; "
+          f"RMS error/sigma {np.sqrt(np.mean(np.square(ratios))):.2f}")
+    assert total == 120 and rate >= 0.9
+
+
+# the must-show scene, and one the code was not tuned on (other principal points, lens, motion, noise, size)
+RENDERED_SCENES = {
+    "must-show": dict(rig=dict(image_size=(960, 720), f=675.0, lam=(-1.2e-7, -1.2e-7)),
+                      orbit=dict(n_frames=12, roll_deg=35.0, seed=0)),
+    "untuned": dict(rig=dict(image_size=(800, 600), f=620.0, pp_offsets=((-4.0, 9.0), (10.0, -3.0)), lam=(-3.5e-7, -2.5e-7),
+                             rig_euler_deg=(-1.5, 3.0, -1.0), baseline=0.25, focal_ratio=0.985),
+                    orbit=dict(n_frames=14, roll_deg=15.0, radius=3.4, image_noise=3.0, seed=11)),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", list(RENDERED_SCENES))
+def test_solve_recovers_rendered_rig_at_least_as_well_as_plain_pycolmap(tmp_path, capsys, scene):
+    from camcal.cli import main
+    from camcal.geometry.sfm import solve_pycolmap_plain
+    from camcal.rig import Rig
+    from camcal.synthetic import render_rig_orbit
+
+    spec = RENDERED_SCENES[scene]
+    cameras = stereo_rig(**spec["rig"])
+    render_rig_orbit(tmp_path / "in", cameras, **spec["orbit"])
+    assert main(["solve", str(tmp_path / "in"), "--out", str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out
+    assert "lens model" in printed and "principal point refined: sigma(cx, cy)" in printed
+    rig = Rig.load(tmp_path / "out/solve.rig.json")
+    peer = solve_pycolmap_plain({c.name: tmp_path / "in" / c.name for c in cameras}, tmp_path / "pycolmap")
+    rows = []
+    for truth in cameras:
+        ours, theirs = rig.camera(truth.name), peer.cameras[truth.name]
+        errors = {}
+        for who, camera in (("camcal", ours), ("pycolmap", theirs)):
+            errors[who] = (abs(camera.K[0, 0] / truth.K[0, 0] - 1), float(np.max(np.abs(camera.K[:2, 2] - truth.K[:2, 2]))),
+                           abs(camera.distortion.params.get("lambda", 0.0) / truth.distortion.params["lambda"] - 1))
+        rows.append(f"{scene} {truth.name}: focal error camcal {100 * errors['camcal'][0]:.4f} %, pycolmap "
+                    f"{100 * errors['pycolmap'][0]:.4f} %; principal point error camcal {errors['camcal'][1]:.3f} px, "
+                    f"pycolmap {errors['pycolmap'][1]:.3f} px; lambda error camcal {100 * errors['camcal'][2]:.2f} %, "
+                    f"pycolmap {100 * errors['pycolmap'][2]:.2f} %; RMS camcal {ours.quality['rms_px']:.3f} px "
+                    f"(held-out {ours.quality['heldout_rms_px']:.3f}), pycolmap {peer.rms_px[truth.name]:.3f} px; "
+                    f"sigma(f) {ours.quality['sigma']['f']:.3f} px for an error of "
+                    f"{abs(ours.K[0, 0] - truth.K[0, 0]):.3f} px")
+        for who in ("camcal", "pycolmap"):
+            focal, pp, lam = errors[who]
+            assert focal < 0.002 and pp < 3.0, (who, errors[who])
+            if who == "camcal" and ours.distortion.model == "division" or who == "pycolmap":
+                assert lam < 0.05, (who, errors[who])
+        # at least as good as the peer, up to camcal's own two-sigma
+        sigma = ours.quality["sigma"]
+        assert errors["camcal"][0] <= errors["pycolmap"][0] + 2 * sigma["f"] / truth.K[0, 0]
+        assert errors["camcal"][1] <= errors["pycolmap"][1] + 2 * max(sigma["cx"], sigma["cy"])
+    true_rotation = cameras[1].R @ cameras[0].R.T
+    ours_deg = rotation_error_deg(rig.camera("right").R @ rig.camera("left").R.T, true_rotation)
+    peer_deg = [rotation_error_deg(R, true_rotation) for R in peer.right_from_left["right"]]
+    rows.append(f"{scene} rig rotation error: camcal {ours_deg:.4f} deg (sigma "
+                f"{rig.camera('right').quality['sigma']['rotation_deg']:.4f}), plain pycolmap per frame median "
+                f"{np.median(peer_deg):.4f} deg (no rig constraint)")
+    with capsys.disabled():
+        print("\n" + printed + "\n".join(rows))
+    assert ours_deg < 0.05
+
+
+def test_solve_cli_bad_feature_count_is_one_line(tmp_path, capsys):
+    import cv2
+
+    from camcal.cli import main
+
+    (tmp_path / "left").mkdir()
+    cv2.imwrite(str(tmp_path / "left" / "0000.png"), np.zeros((8, 8), np.uint8))
+    assert main(["solve", str(tmp_path / "left"), "--out", str(tmp_path / "out"), "--features", "10"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["camcal: error: --features must be at least 100, got 10"]
+    assert not (tmp_path / "out").exists()

@@ -1,0 +1,144 @@
+"""OpenCV FileStorage export / import, checked with OpenCV's own reader and stereoRectify."""
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from camcal.errors import CamcalError
+from camcal.io.interchange import export_rig, import_rig, max_pixel_residual
+from camcal.rig import Rig
+
+from interchange_rigs import division_rig, relative_projection_error, stereo_rig, world_points
+
+
+def undistort_points(x, K, D, R, P):
+    """cv2.undistortPoints iterated to convergence (OpenCV 4: undistortPointsIter; 5: a criteria argument)."""
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+    if hasattr(cv2, "undistortPointsIter"):
+        return cv2.undistortPointsIter(x.reshape(-1, 1, 2), K, D, R, P, criteria).reshape(-1, 2)
+    return cv2.undistortPoints(x.reshape(-1, 1, 2), K, D, R=R, P=P, criteria=criteria).reshape(-1, 2)
+
+
+@pytest.mark.parametrize("suffix", [".yaml", ".yml", ".xml"])
+def test_stereo_round_trip_is_exact_and_opencv_reads_it(tmp_path, suffix):
+    rig = stereo_rig()
+    out = tmp_path / f"stereo{suffix}"
+    result = export_rig(rig, "opencv", out)
+    assert all(c.exact for c in result.conversions) and result.paths == (out,)
+    back = import_rig(out, "opencv").rig
+    assert relative_projection_error(rig, back) < 1e-9
+    for a, b in zip(rig.cameras, back.cameras):
+        H_a, H_b = a.rectification.H, b.rectification.H
+        corners = np.array([[0, 0, 1], [1279, 0, 1], [0, 719, 1], [1279, 719, 1]], float)
+        pa, pb = corners @ H_a.T, corners @ H_b.T
+        assert np.abs(pa[:, :2] / pa[:, 2:] - pb[:, :2] / pb[:, 2:]).max() < 1e-9
+        assert np.array_equal(a.rectification.K_rect, b.rectification.K_rect)
+        assert a.rectification.image_size == b.rectification.image_size
+    # OpenCV's own reader: the names and shapes stereo_calib.cpp writes
+    storage = cv2.FileStorage(str(out), cv2.FILE_STORAGE_READ)
+    shapes = {key: storage.getNode(key).mat().shape for key in ("K1", "D1", "K2", "D2", "R", "T", "E", "F",
+                                                                  "R1", "R2", "P1", "P2", "Q")}
+    assert shapes == {"K1": (3, 3), "D1": (1, 5), "K2": (3, 3), "D2": (1, 5), "R": (3, 3), "T": (3, 1), "E": (3, 3),
+                      "F": (3, 3), "R1": (3, 3), "R2": (3, 3), "P1": (3, 4), "P2": (3, 4), "Q": (4, 4)}
+    # E and F hold the epipolar constraint of points both cameras see
+    left, right = rig.cameras
+    X, _ = world_points(rig, left)
+    x1 = left.distortion.undistort(left.project(X), left.K)
+    x2 = right.distortion.undistort(right.project(X), right.K)
+    F = storage.getNode("F").mat()
+    lines = np.column_stack([x1, np.ones(len(x1))]) @ F.T
+    distance = np.abs(np.sum(lines * np.column_stack([x2, np.ones(len(x2))]), axis=1)) / np.hypot(lines[:, 0], lines[:, 1])
+    assert distance.max() < 1e-6
+
+
+def test_opencv_rectifies_the_imported_pair_like_camcal(tmp_path):
+    rig = stereo_rig()
+    out = tmp_path / "stereo.yaml"
+    export_rig(rig, "opencv", out)
+    storage = cv2.FileStorage(str(out), cv2.FILE_STORAGE_READ)
+    K1, D1, K2, D2, R, T, R1, R2, P1, P2 = (storage.getNode(k).mat() for k in
+                                             ("K1", "D1", "K2", "D2", "R", "T", "R1", "R2", "P1", "P2"))
+    size = (int(storage.getNode("image_width").real()), int(storage.getNode("image_height").real()))
+    left, right = rig.cameras
+    X, _ = world_points(rig, left, n=300)
+    inside = [np.all((p > 0) & (p < np.array(size) - 1), axis=1) for p in (left.project(X), right.project(X))]
+    X = X[inside[0] & inside[1]]
+    x1, x2 = left.project(X), right.project(X)
+    # 1. the file's own R1 P1 R2 P2 through OpenCV's undistortPoints give camcal's rectified pixels
+    ours = [c.rectification.H for c in rig.cameras]
+    for x, Kc, D, Rr, P, H, camera in ((x1, K1, D1, R1, P1, ours[0], left), (x2, K2, D2, R2, P2, ours[1], right)):
+        cv_rect = undistort_points(x, Kc, D, Rr, P)
+        ideal = camera.distortion.undistort(x, camera.K)
+        mapped = np.column_stack([ideal, np.ones(len(ideal))]) @ H.T
+        assert np.abs(cv_rect - mapped[:, :2] / mapped[:, 2:]).max() < 0.01
+    # 2. cv2.stereoRectify on the imported K, D, R, T: the same rectified frame up to the one free
+    #    choice, a rotation about the baseline (which keeps every row a row), and the same rows
+    R1_cv, R2_cv, P1_cv, P2_cv, *_ = cv2.stereoRectify(K1, D1, K2, D2, size, R, T, alpha=0.0)
+    about_x = Rotation.from_matrix(R1_cv @ R1.T).as_rotvec()
+    assert np.abs(about_x[1:]).max() < 1e-9
+    assert np.abs(Rotation.from_matrix(R2_cv @ R2.T).as_rotvec() - about_x).max() < 1e-9
+    y1 = cv2.undistortPoints(x1.reshape(-1, 1, 2), K1, D1, R=R1_cv, P=P1_cv).reshape(-1, 2)[:, 1]
+    y2 = cv2.undistortPoints(x2.reshape(-1, 1, 2), K2, D2, R=R2_cv, P=P2_cv).reshape(-1, 2)[:, 1]
+    camcal_rows = [np.column_stack([c.distortion.undistort(x, c.K), np.ones(len(x))]) @ c.rectification.H.T
+                   for c, x in ((left, x1), (right, x2))]
+    camcal_y = [m[:, 1] / m[:, 2] for m in camcal_rows]
+    print(f"cv2.stereoRectify vs camcal: rotation about the baseline {np.degrees(about_x[0]):.2e} deg; "
+          f"vertical disparity OpenCV {np.abs(y1 - y2).max():.2e} px, camcal {np.abs(camcal_y[0] - camcal_y[1]).max():.2e} px")
+    assert np.abs(y1 - y2).max() < 0.01 and np.abs(camcal_y[0] - camcal_y[1]).max() < 0.01
+
+
+def test_single_camera_and_lossy_division_lens_with_skew(tmp_path, capsys):
+    rig = division_rig()
+    out = tmp_path / "wide.yml"
+    result = export_rig(rig, "opencv", out)
+    (conversion,) = result.conversions
+    assert not conversion.exact and 0 < conversion.max_px < 2.0
+    storage = cv2.FileStorage(str(out), cv2.FILE_STORAGE_READ)
+    K = storage.getNode("camera_matrix").mat()
+    D = storage.getNode("distortion_coefficients").mat()
+    assert K[0, 1] == 0.0 and D.shape == (1, 5)
+    assert (storage.getNode("image_width").real(), storage.getNode("image_height").real()) == (1280, 720)
+    # the printed residual is OpenCV's projection against camcal's, over the frame
+    camera = rig.cameras[0]
+    X, pixels = world_points(rig, camera, n=2000)
+    cv_pixels, _ = cv2.projectPoints(X, np.zeros(3), np.zeros(3), K, D)
+    observed = np.abs(cv_pixels.reshape(-1, 2) - pixels).max()
+    assert observed <= conversion.max_px * 1.05 + 1e-6
+    back = import_rig(out, "opencv").rig
+    assert max_pixel_residual(camera, back.cameras[0]) == pytest.approx(conversion.max_px, rel=1e-6)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\n", "no camera_matrix"),
+    ("%YAML:1.0\n---\nK1: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1., 0., 1., 0., 1., 1., 0., 0., 1. ]\n"
+     "D1: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\nimage_width: 640\nimage_height: 480\n",
+     "missing K2, D2, R, T"),
+    ("%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+     "   data: [ .Nan, 0., 320., 0., 500., 240., 0., 0., 1. ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n"
+     "   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n", "camera_matrix contains NaN"),
+    ("%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+     "   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n"
+     "   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n", "no image size"),
+    ("this is not yaml: [", "not an OpenCV FileStorage file"),
+])
+def test_bad_input_is_one_line(tmp_path, text, message):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(CamcalError, match=message) as info:
+        import_rig(path, "opencv")
+    assert "\n" not in str(info.value) and str(path) in str(info.value)
+
+
+def test_export_refuses_what_it_cannot_hold_and_writes_nothing(tmp_path):
+    rig = stereo_rig()
+    with pytest.raises(CamcalError, match="must end in"):
+        export_rig(rig, "opencv", tmp_path / "stereo.json")
+    three = Rig(rig.cameras + (rig.cameras[0].__class__("third", *[getattr(rig.cameras[0], f) for f in
+                                                                   ("image_size", "K", "distortion", "R")],
+                                                                   c=[0.5, 0.0, 0.0]),))
+    with pytest.raises(CamcalError, match="one camera or a stereo pair; the rig has 3"):
+        export_rig(three, "opencv", tmp_path / "three.yaml")
+    assert list(tmp_path.iterdir()) == []
+    single = export_rig(three, "opencv", tmp_path / "third.yaml", cameras=["third"])
+    assert single.paths == (tmp_path / "third.yaml",)

@@ -1,0 +1,64 @@
+"""The wheel works on its own: built, installed in a fresh venv, add-on and OCIO base found.
+
+Slow (a wheel build and a venv with every dependency from pip's configured
+index); the fast check below covers the resource lookup in this install.
+"""
+
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from camcal.resources import addon_dir, ocio_configs_dir
+from camcal.rig import Rig
+from camcal.synthetic import example_camera
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_resources_found_with_importlib():
+    assert (addon_dir() / "blender_manifest.toml").is_file()
+    assert (ocio_configs_dir() / "camcal_base.ocio").is_file()
+
+
+def _run(argv, cwd, env=None):
+    result = subprocess.run([str(a) for a in argv], cwd=cwd, capture_output=True, text=True, env=env)
+    assert result.returncode == 0, f"{' '.join(map(str, argv))}\n{result.stdout}\n{result.stderr}"
+    return result
+
+
+@pytest.mark.slow
+def test_wheel_in_a_fresh_venv_imports_into_blender_and_exports_ocio(tmp_path, sim):
+    dist = tmp_path / "dist"
+    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, ROOT], cwd=tmp_path)
+    [wheel] = dist.glob("camcal-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert "camcal/resources/addon/blender_manifest.toml" in names
+    assert "camcal/resources/ocio_configs/camcal_base.ocio" in names
+    venv = tmp_path / "venv"
+    _run([sys.executable, "-m", "venv", venv], cwd=tmp_path)
+    python = venv / "bin" / "python"
+    _run([python, "-m", "pip", "install", "-q", f"{wheel}[blender]"], cwd=tmp_path)
+    camcal = venv / "bin" / "camcal"
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CAMCAL_ADDON_DIR", "CAMCAL_OCIO_CONFIGS")}
+    # the installed package, not this checkout
+    where = _run([python, "-c", "import camcal, camcal.resources as r; print(camcal.__file__); print(r.addon_dir())"],
+                 cwd=tmp_path, env=env).stdout.split()
+    assert all(str(venv) in line for line in where), where
+
+    rig = Rig((example_camera("left", image_size=(320, 240), fx=300, fy=300, principal_point=(159.5, 119.5)),))
+    rig_path = rig.save(tmp_path / "one.rig.json")
+    _run([camcal, "blender", "import", rig_path, "--blend", tmp_path / "one.blend"], cwd=tmp_path, env=env)
+    assert (tmp_path / "one.blend").stat().st_size > 0
+
+    from camcal.colour.characterise import characterise
+    from camcal.colour.patches import PatchSet
+
+    fit = characterise(PatchSet(sim.names_train, sim.RGB_train, sim.XYZ_train), white="D65", model="matrix3x3",
+                       loo=False).fit
+    fit_path = fit.save(tmp_path / "cam.colour.json")
+    _run([camcal, "colour", "export", fit_path, "--ocio", tmp_path / "ocio", "--base", "camcal"], cwd=tmp_path, env=env)
+    assert "camcal" in (tmp_path / "ocio" / "config.ocio").read_text()
