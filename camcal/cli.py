@@ -595,9 +595,9 @@ def _register_calibrate(subparsers) -> None:
         help="a camera and its images, e.g. left='shots/left*.jpg' right='shots/right*.jpg' "
         "(several entries or a repeated option; globs absolute or relative)",
     )
-    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "auto"),
-                       help="distortion model; auto: the lowest RMS on every 4th training frame held out "
-                       "(default: polynomial)")
+    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "kannala-brandt", "auto"),
+                       help="distortion model; kannala-brandt is OpenCV's fisheye model; auto: the lowest RMS on "
+                       "every 4th training frame held out (default: polynomial)")
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
                        "numbers and ranges (21-25) or a fraction (0.2)")
@@ -921,7 +921,8 @@ def _undistort(args: argparse.Namespace) -> int:
     from camcal.rig import Rig
 
     rig = Rig.load(args.rig)
-    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan)
+    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan,
+                                         args.max_fov)
     camera = Rig.load(rig_path).camera(args.camera)
     width, height = camera.image_size
     print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
@@ -949,6 +950,9 @@ def _register_undistort(subparsers) -> None:
                            help="crop: no black borders; keep: every source pixel kept (bigger canvas); "
                            "overscan: canvas --overscan times the plate (default: crop)")
     undistort.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+    undistort.add_argument("--max-fov", type=float, metavar="DEG",
+                           help="crop / keep: widest full angle about the axis the pinhole output holds "
+                           "(default: 120 for a kannala-brandt fisheye, no cap for the other lenses)")
     undistort.add_argument("--out", required=True, metavar="DIR")
     undistort.set_defaults(func=_undistort)
 
