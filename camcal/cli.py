@@ -595,9 +595,9 @@ def _register_calibrate(subparsers) -> None:
         help="a camera and its images, e.g. left='shots/left*.jpg' right='shots/right*.jpg' "
         "(several entries or a repeated option; globs absolute or relative)",
     )
-    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "auto"),
-                       help="distortion model; auto: the lowest RMS on every 4th training frame held out "
-                       "(default: polynomial)")
+    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "kannala-brandt", "auto"),
+                       help="distortion model; kannala-brandt is OpenCV's fisheye model; auto: the lowest RMS on "
+                       "every 4th training frame held out (default: polynomial)")
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
                        "numbers and ranges (21-25) or a fraction (0.2)")
@@ -921,7 +921,8 @@ def _undistort(args: argparse.Namespace) -> int:
     from camcal.rig import Rig
 
     rig = Rig.load(args.rig)
-    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan)
+    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan,
+                                         args.max_fov)
     camera = Rig.load(rig_path).camera(args.camera)
     width, height = camera.image_size
     print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
@@ -949,6 +950,9 @@ def _register_undistort(subparsers) -> None:
                            help="crop: no black borders; keep: every source pixel kept (bigger canvas); "
                            "overscan: canvas --overscan times the plate (default: crop)")
     undistort.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+    undistort.add_argument("--max-fov", type=float, metavar="DEG",
+                           help="crop / keep: widest full angle about the axis the pinhole output holds "
+                           "(default: 120 for a kannala-brandt fisheye, no cap for the other lenses)")
     undistort.add_argument("--out", required=True, metavar="DIR")
     undistort.set_defaults(func=_undistort)
 
@@ -1014,7 +1018,8 @@ def _batch(args: argparse.Namespace) -> int:
     from camcal.batch import make_job, parse_frames, run_batch
 
     geometry = "undistort" if args.undistort else "rectify" if args.rectify else None
-    job = make_job(args.rig, args.camera, args.in_pattern, args.out, geometry, args.colour, args.mode, args.overscan)
+    job = make_job(args.rig, args.camera, args.in_pattern, args.out, geometry, args.colour, args.mode, args.overscan,
+                   colour_space=args.colour_space)
     frames = parse_frames(args.frames)
     report = run_batch(job, frames, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                        retries=args.retries, progress=not args.quiet)
@@ -1050,7 +1055,11 @@ def _register_batch(subparsers) -> None:
     parser.add_argument("--mode", choices=("crop", "keep", "overscan"), default="crop",
                         help="how --undistort chooses the new camera (default: crop)")
     parser.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
-    parser.add_argument("--colour", metavar="FIT.colour.json", help="apply a characterisation (camera RGB -> XYZ)")
+    parser.add_argument("--colour", metavar="FIT.colour.json", help="apply a characterisation (camera RGB -> "
+                        "--colour-space, through the OCIO processor of its exported transform)")
+    parser.add_argument("--colour-space", default="ACES2065-1",
+                        choices=("ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ"),
+                        help="output space of --colour (default: %(default)s; CIE XYZ is the fit's own XYZ)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="use a running Dask scheduler")
     where.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per core)")
@@ -1137,7 +1146,8 @@ def _register_for_illuminant(parser) -> None:
         "another illuminant",
         "fit for the light B the camera will be used under, from a chart shot under --illuminant A: the "
         "spectral route (ACES P-2013-001: training reflectances through the sensitivities under B) vs the "
-        "chart fit white-balanced and adapted with CAT02 / Bradford; the better by CIEDE2000 on validation "
+        "chart fit white-balanced and adapted with CAT02 / Bradford, each with each model under --model auto; the "
+        "pair with the lowest RMS CIEDE2000 on validation "
         "reflectances is written (its camera name gets ' (B)', so one OCIO input space per illuminant). "
         "The chart RGB must be linear (raw or --linearise none).")
     group.add_argument("--for-illuminant", metavar="B", help="CIE illuminant name the fit is for (A, D50, FL2...)")
@@ -1262,8 +1272,9 @@ def _register_colour_export(colour_verbs) -> None:
         description=(
             "Export characterisations (*.colour.json) as input colour spaces 'camcal <camera>' "
             "(family Input/camcal) of an OpenColorIO config, and/or as an ICC camera profile. "
-            "Matrix fits are exact; other models are baked (log2 shaper + 3D LUT) with the "
-            "bake error checked over the chart gamut."
+            "Matrix fits are exact; other models are baked (log-chromaticity shaper + 3D LUT; ICC v4: "
+            "float D2B0/D2B1 plus a 16-bit A2B0) with the bake error checked over the chart gamut and "
+            "plausible surface colours."
         ),
         epilog=(
             "--base: 'camcal' (camcal's small ACES config, ocio_configs/camcal_base.ocio), an "
@@ -1284,7 +1295,8 @@ def _register_colour_export(colour_verbs) -> None:
     parser.add_argument("--icc-version", type=int, choices=(4, 2), default=4,
                         help="ICC profile version: 4 (ICC.1:2010, default) or 2 (ICC.1:2001-04)")
     parser.add_argument("--max-bake-error", type=float, default=0.2, metavar="DE",
-                        help="largest CIEDE2000 a baked LUT may add over the chart gamut (default: %(default)s)")
+                        help="largest CIEDE2000 a baked LUT may add over the chart gamut and plausible surface "
+                        "colours (default: %(default)s)")
     parser.set_defaults(func=_colour_export)
 
 
@@ -1338,11 +1350,11 @@ def _colour_export(args: argparse.Namespace) -> int:
                 out.wrote(Path(args.ocio) / space.clf, "clf", say=False)
     if profile is not None:
         write_icc(profile, args.icc)
-        how = ("matrix/TRC" if profile.kind == "matrix-trc" else
-               f"A2B0 {profile.clut_size}^3 CLUT, bake error CIEDE2000 max {profile.bake_error.max:.3f}")
-        print(f"wrote {args.icc} (ICC v{profile.version}, {how})")
+        print(f"wrote {args.icc} (ICC v{profile.version}, {profile.summary()})")
         out.figures(icc={"version": profile.version, "kind": profile.kind, "bake_error_delta_E2000":
-                         None if profile.kind == "matrix-trc" else dataclasses.asdict(profile.bake_error)})
+                         None if profile.kind == "matrix-trc" else dataclasses.asdict(profile.bake_error),
+                         "float_clut_size": profile.float_clut_size, "float_bake_error_delta_E2000":
+                         None if profile.float_bake_error is None else dataclasses.asdict(profile.float_bake_error)})
         out.wrote(args.icc, "icc", say=False)
     return 0
 

@@ -27,8 +27,9 @@ Format, version 1, kind ``characterisation``::
                              "reason": str, "candidates": [CANDIDATE...]},
         "illuminant_change": {...}   # optional: a fit made for another light
       },                             # (camcal.colour.illuminant): for_illuminant,
-                                     # route, reason, candidates [{route, mean,
-                                     # p95, max}], the reflectance sets used
+                                     # route, reason, candidates [{route, model,
+                                     # rms, mean, p95, max}] (model and rms
+                                     # optional), the reflectance sets used
       "capture": {...},              # optional: raw metadata (camcal.io.raw):
                                      # make, model, black_level, white_level ...
       "target": {
@@ -73,7 +74,9 @@ with ``XYZ = sum_j weights_j phi(|RGB - centres_j|) + linear @ [R, G, B, 1]``.
 
 ``STATS``: ``{"n", "mean", "median", "p90", "p95", "max"}`` of CIEDE2000.
 ``CANDIDATE``: ``{"model", "objective", "regularisation", "loo_mean",
-"loo_p95"}``.
+"loo_p95"}``, plus ``"exportable"`` and ``"bake_error_max"`` (CIEDE2000 of
+the baked model; absent for an exact matrix) on the candidates ``auto``
+handed to the exporters' check.
 
 Using a fit::
 
@@ -81,6 +84,7 @@ Using a fit::
     XYZ = fit.apply(RGB_linear)        # (N, 3) LINEAR camera RGB -> XYZ
     RGB_linear = fit.linearise(codes)  # (N, 3) code values in [0, 1] -> linear
     XYZ = fit.apply_codes(codes)       # both: code values -> XYZ
+    image = fit.processor("ACEScg").apply(codes)  # fast: OCIO's CPU processor (float32)
 
 XYZ is relative to the target white, Y = 1 for the perfect white.
 Every ``kind`` is listed explicitly in :data:`FILE_KINDS` (the class whose
@@ -199,7 +203,12 @@ def _check_model(value: Any, where: str) -> None:
 
 
 def _check_candidate(value: Any, where: str) -> None:
-    _keys(value, where, ("model", "objective", "regularisation", "loo_mean", "loo_p95"))
+    _keys(value, where, ("model", "objective", "regularisation", "loo_mean", "loo_p95"),
+          ("exportable", "bake_error_max"))
+    if "exportable" in value:
+        _boolean(value["exportable"], f"{where}.exportable")
+    if "bake_error_max" in value:
+        _number(value["bake_error_max"], f"{where}.bake_error_max", 0.0)
     _string(value["model"], f"{where}.model")
     _string(value["objective"], f"{where}.objective", OBJECTIVES)
     _number(value["regularisation"], f"{where}.regularisation", 0.0)
@@ -257,9 +266,12 @@ def _check_characterisation(data: dict) -> None:
         if not isinstance(change["candidates"], list):
             raise CamcalError("training.illuminant_change.candidates: expected a list")
         for i, c in enumerate(change["candidates"]):
-            _keys(c, f"training.illuminant_change.candidates[{i}]", ("route", "mean", "p95", "max"))
-            for key in ("mean", "p95", "max"):
-                _number(c[key], f"training.illuminant_change.candidates[{i}].{key}", 0.0)
+            _keys(c, f"training.illuminant_change.candidates[{i}]", ("route", "mean", "p95", "max"), ("model", "rms"))
+            for key in ("mean", "p95", "max", "rms"):
+                if key in c:
+                    _number(c[key], f"training.illuminant_change.candidates[{i}].{key}", 0.0)
+            if "model" in c:
+                _string(c["model"], f"training.illuminant_change.candidates[{i}].model")
     _string(training["illuminant"], "training.illuminant")
     _vector(training["white_XYZ"], "training.white_XYZ", 3)
     _string(training["reference"], "training.reference", nullable=True)
@@ -356,6 +368,20 @@ class ColourFit(LinearisedModel):
     capture: dict | None = None
 
     kind = "characterisation"
+
+    def processor(self, space: str = "CIE XYZ"):
+        """The fast image path: one OCIO CPU processor from code values to ``space``.
+
+        Exact for a ``matrix3x3`` fit; other models go through the baked Lut3D
+        the OCIO export writes (within its bake error, see
+        :func:`camcal.colour.export_ocio.fit_processor`). ``space``:
+        ``"CIE XYZ"`` (this fit's XYZ), ``"ACES2065-1"``, ``"ACEScg"``,
+        ``"lin Rec.709"``. ``processor(space).apply(codes)`` takes ``(..., 3)``
+        code values and returns float32.
+        """
+        from camcal.colour.export_ocio import fit_processor  # noqa: PLC0415 - OCIO is imported there only
+
+        return fit_processor(self, space)
 
     def to_dict(self) -> dict:
         """The file's JSON object."""

@@ -78,6 +78,7 @@ __all__ = [
     "fit_rbf",
     "delta_E2000_components",
     "model_from_dict",
+    "parse_term",
 ]
 
 MODEL_KINDS = ("matrix3x3", "polynomial", "root-polynomial", "rbf")
@@ -201,7 +202,7 @@ def terms_Finlayson2015(degree: int) -> tuple[str, ...]:
     return tuple(_term_name(e, True) for e in _FINLAYSON[degree])
 
 
-def _parse_term(term: str) -> tuple[tuple[int, int, int], bool]:
+def parse_term(term: str) -> tuple[tuple[int, int, int], bool]:
     """Exponents and root flag of a canonical term string."""
     match = _TERM_RE.match(term) if isinstance(term, str) else None
     if match is None:
@@ -247,7 +248,7 @@ def expand(RGB: np.ndarray, terms: tuple[str, ...] | list[str]) -> np.ndarray:
     R, G, B = RGB[..., 0], RGB[..., 1], RGB[..., 2]
     columns = []
     for term in terms:
-        (a, b, c), root = _parse_term(term)
+        (a, b, c), root = parse_term(term)
         value = np.ones_like(R)
         for channel, e in ((R, a), (G, b), (B, c)):
             if e:
@@ -262,7 +263,7 @@ def _nonlinear_mask(terms: tuple[str, ...]) -> np.ndarray:
     """True for terms the ridge penalty applies to: total degree > 1 (root or not)."""
     mask = []
     for term in terms:
-        (a, b, c), root = _parse_term(term)
+        (a, b, c), root = parse_term(term)
         mask.append(a + b + c > 1)
     return np.array(mask, dtype=bool)
 
@@ -408,7 +409,7 @@ class LinearTermsModel:
         elif self.kind == "polynomial":
             name = f"polynomial:{len(self.terms)}"
         else:
-            degree = max(sum(_parse_term(t)[0]) for t in self.terms)
+            degree = max(sum(parse_term(t)[0]) for t in self.terms)
             name = f"root-polynomial:{degree}"
         if self.white_preserving:
             name += ":white-preserving"
@@ -545,7 +546,7 @@ def model_from_dict(data: dict) -> Model:
     terms = tuple(data["terms"])
     for i, term in enumerate(terms):
         try:
-            _, root = _parse_term(term)
+            _, root = parse_term(term)
         except CamcalError as error:
             raise CamcalError(f"model.terms[{i}]: {error}") from None
         if root and kind != "root-polynomial":

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion, _frame_grid, fit_distortion
+from camcal.geometry.distortion import Distortion, fit_distortion, frame_grid
 from camcal.rig import Camera, Rig
 
 __all__ = [
@@ -68,6 +68,9 @@ class LensConversion:
     max_px : float
         Largest distance in pixels between the two projections of the same
         rays over the frame (0.0 when exact).
+    loss : str
+        What makes it inexact (``"nearest fit"``, or e.g. the format's
+        32-bit float attributes).
     """
 
     camera: str
@@ -75,12 +78,13 @@ class LensConversion:
     target: str
     exact: bool
     max_px: float = 0.0
+    loss: str = "nearest fit"
 
     def describe(self) -> str:
         """One line for the command's summary."""
         if self.exact:
             return f"camera {self.camera!r}: {self.source} -> {self.target}: exact"
-        return (f"camera {self.camera!r}: {self.source} -> {self.target}: nearest fit, "
+        return (f"camera {self.camera!r}: {self.source} -> {self.target}: {self.loss}, "
                 f"max residual {self.max_px:.3g} px")
 
 
@@ -135,7 +139,7 @@ def max_pixel_residual(source: Camera, target: Camera, *, lens: bool = True) -> 
     model): ``max |K_t r - K_s r|`` over the same rays. Only the intrinsics
     matter (both cameras share the pose).
     """
-    distorted = _frame_grid(source.image_size, _GRID_STEP_PX)
+    distorted = frame_grid(source.image_size, _GRID_STEP_PX)
     ideal = source.distortion.undistort(distorted, source.K)
     rays = np.column_stack([ideal, np.ones(len(ideal))]) @ np.linalg.inv(source.K).T
     mapped = rays @ target.K.T

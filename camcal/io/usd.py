@@ -204,9 +204,12 @@ def _float_attributes(camera: Camera, converted: Camera, conversion: LensConvers
     K = _K_from_usd(_float32(usd_intrinsics(converted)), converted.image_size)
     stored = Camera(camera.name, camera.image_size, K, converted.distortion, camera.R, camera.c)
     residual = max_pixel_residual(camera, stored, lens=False)
-    exact = conversion.exact and residual <= _EXACT_PX
-    return LensConversion(camera.name, conversion.source, f"{conversion.target}, float attributes", exact,
-                          0.0 if exact else residual)
+    if conversion.exact:
+        exact = residual <= _EXACT_PX
+        return LensConversion(camera.name, conversion.source, conversion.target, exact, 0.0 if exact else residual,
+                              "32-bit float attributes")
+    return LensConversion(camera.name, conversion.source, conversion.target, False, residual,
+                          "no skew, 32-bit float attributes")
 
 
 def _custom(prim, key: str, where: str):

@@ -15,7 +15,7 @@ from camcal.io.interchange import export_rig, import_rig
 from camcal.io.ply import read_points_ply
 from camcal.rig import Camera, Rig
 
-from interchange_rigs import K, SIZE, division_rig, moving_rig, stereo_rig, world_points
+from interchange_rigs import K, SIZE, division_rig, fisheye_rig, moving_rig, stereo_rig, world_points
 
 D = np.diag([1.0, -1.0, -1.0])
 
@@ -84,6 +84,30 @@ def test_moving_rig_time_samples_points_and_frames(tmp_path):
             a, b = rig.camera_at_frame(camera.name, frame.index), back.camera_at_frame(camera.name, frame.index)
             X, _ = world_points(rig, a)
             assert np.abs(a.project(X) - b.project(X)).max() < 1e-9
+
+
+def test_fisheye_lens_rides_in_custom_data_exactly(tmp_path):
+    rig = fisheye_rig(rectified=False)
+    out = tmp_path / "fisheye.usda"
+    result = export_rig(rig, "usd", out)
+    assert all(0 <= c.max_px < 1e-3 for c in result.conversions)  # 32-bit float attributes, the lens exact
+    stage = Usd.Stage.Open(str(out))
+    worst = 0.0
+    for camera in rig.cameras:
+        custom = stage.GetPrimAtPath(f"/rig/{camera.name}").GetCustomData()["camcal"]
+        lens = Distortion.from_dict(json.loads(custom["distortion"]))
+        assert lens == camera.distortion and lens.model == "kannala-brandt"
+        # pxr's pinhole projection with the lens from customData applied gives camcal's fisheye pixels
+        X, pixels = world_points(rig, camera, n=500)
+        ideal = gf_pixels(stage, camera.name, Usd.TimeCode.Default(), X, camera.image_size)
+        K_custom = np.array(json.loads(custom["K"]))
+        worst = max(worst, np.abs(lens.distort(ideal, K_custom) - pixels).max())
+    print(f"Gf.Camera + customData kannala-brandt vs camcal: {worst:.2e} px")
+    assert worst < 1e-3
+    back = import_rig(out, "usd").rig
+    for a, b in zip(rig.cameras, back.cameras):
+        X, _ = world_points(rig, a)
+        assert a.distortion == b.distortion and np.abs(a.project(X) - b.project(X)).max() < 1e-9
 
 
 def test_skew_is_dropped_with_its_residual_and_an_edited_camera_is_read_from_its_attributes(tmp_path):
