@@ -58,6 +58,7 @@ __all__ = [
     "HELDOUT_FRACTION",
     "IMAGE_SUFFIXES",
     "LENS_MODELS",
+    "LENS_MODEL_MARGIN",
     "MIN_TRIANGULATION_ANGLE_DEG",
     "MODELS",
     "PRINCIPAL_POINT_MODES",
@@ -81,6 +82,9 @@ MODELS = {"division": "SIMPLE_DIVISION", "polynomial": "RADIAL", "opencv": "OPEN
 #: the lens models ``solve`` chooses among by held-out residual (``--model auto``), simplest first.
 LENS_MODELS = ("division", "polynomial", "opencv")
 PRINCIPAL_POINT_MODES = ("auto", "refine", "centre")
+#: a lens model later in the list must lower the held-out RMS by more than this fraction to be chosen
+#: (held-out RMS of division and 2-term polynomial lenses differ by ~0.1 % where both fit).
+LENS_MODEL_MARGIN = 0.01
 #: fraction of the sparse points (whole tracks) held out of the fit to choose the lens model.
 HELDOUT_FRACTION = 0.2
 #: points triangulated under a smaller angle are dropped before the refinement (COLMAP's mapper default).
@@ -357,10 +361,10 @@ def self_calibrate(
     left out; each candidate model is fitted, with the principal point free,
     on the rest; the held-out points are re-triangulated through each fit
     (:func:`heldout_rms`) and each camera takes the model with the lowest
-    held-out RMS (a model with more parameters must beat a simpler one by
-    more than 0.1 %). Principal point: the final fit runs with it free; its
-    covariance (Triggs et al. 2000, section 6: ``sigma^2 S^-1``, ``S`` the
-    points' Schur complement of ``J^T J``) gives sigma(cx), sigma(cy); when
+    held-out RMS (a model later in ``lens_models``, simplest first, must beat
+    an earlier one by more than :data:`LENS_MODEL_MARGIN`). Principal point:
+    the final fit runs with it free; its covariance (Ceres, ``sigma^2
+    (J^T J)^-1``, Triggs et al. 2000, section 6) gives sigma(cx), sigma(cy); when
     they exceed the limit the fit is run again with that camera's held at the
     centre (``BundleOptions.fixed_params``).
     """
@@ -387,7 +391,7 @@ def self_calibrate(
     for name in names:
         best = lens_models[0]
         for model in lens_models[1:]:
-            if table[name].get(model, np.inf) < table[name].get(best, np.inf) * (1.0 - 1e-3):
+            if table[name].get(model, np.inf) < table[name].get(best, np.inf) * (1.0 - LENS_MODEL_MARGIN):
                 best = model
         chosen[name] = best
     _progress("bundle adjustment with the chosen lens models")
