@@ -157,9 +157,9 @@ def test_baked_fits_within_delta_E(tmp_path, sim, model):
 
 
 def test_a_model_that_cannot_bake_is_refused_with_the_error_reached(tmp_path, sim):
-    """polynomial:10 bends too sharply on saturated surfaces for an 81^3 grid: refused, nothing written."""
+    """polynomial:10 bends too sharply on saturated surfaces for a 97^3 grid: refused, nothing written."""
     fit = make_fit(sim, "polynomial:10")
-    with pytest.raises(CamcalError, match=r"81\^3 Lut3D still leaves CIEDE2000 up to [0-9.]+"):
+    with pytest.raises(CamcalError, match=r"97\^3 Lut3D still leaves CIEDE2000 up to [0-9.]+"):
         export_ocio([("nikon", fit)], tmp_path / "out", base="camcal")
     assert not (tmp_path / "out").exists()
 
