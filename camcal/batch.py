@@ -23,10 +23,13 @@ Frames keep their depth, channels and (EXR) metadata
 (:mod:`camcal.io.frames`). Without colour, the geometric step remaps the
 frame in its own type (exactly what ``camcal undistort`` writes). With
 colour, code values ``V / V_max`` (``V_max`` 255, 65535, or 1 for float)
-are turned into the fit's XYZ (:class:`ColourStep`: linearisation, then
-model; XYZ in the R, G, B channels, other channels untouched), the frame
-is remapped in float32 (interpolating linear values) and, for an integer
-format, quantised back as ``round(clip(XYZ, 0, 1) V_max)``.
+are turned into the job's output space (:class:`ColourStep`: the OCIO CPU
+processor of the fit's exported transform, :meth:`ColourFit.processor`:
+linearisation, model, then ACES2065-1, ACEScg, linear Rec. 709 or the
+fit's CIE XYZ; that space's R, G, B (or X, Y, Z) in the R, G, B channels,
+other channels untouched), the frame is remapped in float32 (interpolating
+linear values) and, for an integer format, quantised back as
+``round(clip(value, 0, 1) V_max)``.
 
 Output and resume
 -----------------
@@ -72,6 +75,7 @@ from camcal.rig import Camera, Rig
 
 __all__ = [
     "GEOMETRY",
+    "COLOUR_SPACES",
     "RECORD_DIR",
     "BatchJob",
     "ColourStep",
@@ -90,6 +94,8 @@ __all__ = [
 
 #: Geometric steps a job can do (or None: colour only).
 GEOMETRY = ("undistort", "rectify")
+#: Output spaces of the colour step (camcal.colour.export_ocio.OUTPUT_SPACES).
+COLOUR_SPACES = ("ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ")
 #: Folder, beside the outputs, of the per-frame completion records.
 RECORD_DIR = ".camcal-batch"
 _RECORD_FORMAT = "camcal.batch-frame"
@@ -177,10 +183,12 @@ class BatchJob:
         A characterisation fit in its file form (``ColourFit.to_dict()``).
     in_pattern, out_pattern : str
         Frame file patterns with one ``%d`` / ``%04d`` placeholder.
+    colour_space : str
+        Output space of the colour step (:data:`COLOUR_SPACES`).
     key : str
         SHA-256 (hex) of everything that changes the output pixels (camera,
-        geometry, mode, overscan, colour); keys the per-worker cache and the
-        resume records.
+        geometry, mode, overscan, colour and its space); keys the per-worker
+        cache and the resume records.
     """
 
     camera: Mapping[str, Any]
@@ -190,12 +198,18 @@ class BatchJob:
     colour: Mapping[str, Any] | None
     in_pattern: str
     out_pattern: str
+    colour_space: str = "ACES2065-1"
     key: str = field(init=False)
 
     def __post_init__(self) -> None:
         if self.geometry is not None and self.geometry not in GEOMETRY:
             raise CamcalError(f"unknown geometric step {self.geometry!r}, expected one of: {', '.join(GEOMETRY)}")
+        if self.colour_space not in COLOUR_SPACES:
+            raise CamcalError(f"unknown colour space {self.colour_space!r}, expected one of: "
+                              f"{', '.join(COLOUR_SPACES)}")
         content = {"camera": self.camera, "geometry": self.geometry, "colour": self.colour}
+        if self.colour is not None:
+            content["colour_space"] = self.colour_space
         if self.geometry == "undistort":
             content.update(mode=self.mode, overscan=self.overscan)
         text = json.dumps(content, sort_keys=True, separators=(",", ":"))
@@ -219,6 +233,7 @@ def make_job(
     colour: str | os.PathLike | ColourFit | None = None,
     mode: str = "crop",
     overscan: float = 1.1,
+    colour_space: str = "ACES2065-1",
 ) -> BatchJob:
     """Check a batch's inputs and describe it as a :class:`BatchJob`.
 
@@ -235,6 +250,9 @@ def make_job(
         ``rectify`` needs the camera's ``rectification`` (``camcal rectify``).
     colour : path or ColourFit, optional
         A characterisation ``*.colour.json``.
+    colour_space : str
+        Output space of the colour step: ``ACES2065-1`` (default),
+        ``ACEScg``, ``lin Rec.709`` or ``CIE XYZ`` (the fit's XYZ).
     mode, overscan
         See :func:`camcal.geometry.undistort.undistorted_view`.
 
@@ -270,9 +288,12 @@ def make_job(
                           f"{Path(in_pattern).suffix!r}; outputs keep the inputs' format and bit depth")
     if os.path.abspath(in_pattern) == os.path.abspath(out_pattern):
         raise CamcalError(f"the output pattern {out_pattern!r} would overwrite the input frames")
+    if fit is not None:
+        fit.processor(colour_space)  # a fit the exporter refuses, or an unknown space, fails here, not per frame
     return BatchJob(
         camera=source.to_dict(), geometry=geometry, mode=mode, overscan=float(overscan),
         colour=None if fit is None else fit.to_dict(), in_pattern=in_pattern, out_pattern=out_pattern,
+        colour_space=colour_space,
     )
 
 
@@ -280,29 +301,37 @@ def make_job(
 
 
 class ColourStep:
-    """Camera code values to the fit's XYZ, for whole images.
+    """Camera code values to an output space, for whole images: the fit's OCIO CPU processor.
 
     Parameters
     ----------
     fit : ColourFit
         A characterisation (``*.colour.json``).
+    space : str
+        Output space (:data:`COLOUR_SPACES`).
 
     Notes
     -----
-    ``XYZ = model(linearise(V))`` per pixel
-    (:meth:`camcal.colour.fitfile.ColourFit.apply_codes`), XYZ relative to
-    the fit's target white (perfect white Y = 1). This class is the one
-    place the colour transform is applied, so another engine (an OCIO CPU
-    processor of the exported colour space) can replace it.
+    One path, :meth:`camcal.colour.fitfile.ColourFit.processor`: the OCIO
+    CPU processor of the fit's exported transform (linearisation, model,
+    matrix to ``space``), exact for a ``matrix3x3`` fit, the baked
+    log-chromaticity Lut3D otherwise (``kind`` and ``bake_error`` say
+    which). ``numpy`` evaluation of the fit (``fit.apply_codes``) stays the
+    reference the bake is checked against.
     """
 
-    def __init__(self, fit: ColourFit) -> None:
+    def __init__(self, fit: ColourFit, space: str = "ACES2065-1") -> None:
         self.fit = fit
+        self.processor = fit.processor(space)
+
+    @property
+    def kind(self) -> str:
+        """``"matrix"`` (exact) or ``"lut3d"`` (baked)."""
+        return self.processor.kind
 
     def apply(self, rgb: NDArray) -> NDArray[np.float32]:
-        """``(H, W, 3)`` code values in [0, 1] (R, G, B order) -> ``(H, W, 3)`` float32 XYZ."""
-        flat = np.asarray(rgb, dtype=np.float64).reshape(-1, 3)
-        return np.asarray(self.fit.apply_codes(flat), dtype=np.float32).reshape(rgb.shape)
+        """``(H, W, 3)`` code values in [0, 1] (R, G, B order) -> ``(H, W, 3)`` float32 in the output space."""
+        return self.processor.apply(rgb, in_place=True)
 
 
 class FrameProcessor:
@@ -331,7 +360,8 @@ class FrameProcessor:
         elif job.geometry == "rectify":
             rect = self.camera.rectification
             self.maps = build_maps(self.camera, rect.H, rect.image_size)
-        self.colour = None if job.colour is None else ColourStep(ColourFit.from_dict(dict(job.colour)))
+        self.colour = None if job.colour is None else ColourStep(ColourFit.from_dict(dict(job.colour)),
+                                                                  job.colour_space)
         self.build_id = uuid.uuid4().hex
 
     def apply(self, frame: ImageFrame) -> ImageFrame:
@@ -345,8 +375,12 @@ class FrameProcessor:
         if self.colour is not None:
             scale = float(np.iinfo(pixels.dtype).max) if integer else 1.0
             rgb = [frame.channel_index(name) for name in ("R", "G", "B")]
-            pixels = pixels.astype(np.float32)
-            pixels[:, :, rgb] = self.colour.apply(pixels[:, :, rgb] / scale)
+            pixels = pixels.astype(np.float32)  # a new array: the colour step works in place on it
+            if rgb == [0, 1, 2] and pixels.shape[2] == 3:
+                np.divide(pixels, np.float32(scale), out=pixels)
+                self.colour.apply(pixels)
+            else:
+                pixels[:, :, rgb] = self.colour.apply(pixels[:, :, rgb] / np.float32(scale))
         if self.maps is not None:
             warped = self.maps.apply(pixels)
             pixels = warped[:, :, None] if warped.ndim == 2 else warped

@@ -696,7 +696,7 @@ def _intrinsics_line(camera, sigma) -> str:
     def pm(key: str, fmt: str) -> str:
         return f" +- {sigma[key]:{fmt}}" if key in sigma else ""
     K = camera.K
-    focal = f"f {K[0, 0]:.2f}{pm('f', '.2g')}" if K[0, 0] == K[1, 1] else \
+    focal = f"f {K[0, 0]:.2f}{pm('fx', '.2g')}" if K[0, 0] == K[1, 1] else \
         f"fx {K[0, 0]:.2f}{pm('fx', '.2g')}, fy {K[1, 1]:.2f}{pm('fy', '.2g')}"
     lens = ", ".join(f"{name} {value:.4g}{pm(name, '.2g')}" for name, value in camera.distortion.params.items())
     return (f"{focal} px, principal point ({K[0, 2]:.2f}{pm('cx', '.2g')}, {K[1, 2]:.2f}{pm('cy', '.2g')}) px, "
@@ -1021,7 +1021,8 @@ def _batch(args: argparse.Namespace) -> int:
     from camcal.batch import make_job, parse_frames, run_batch
 
     geometry = "undistort" if args.undistort else "rectify" if args.rectify else None
-    job = make_job(args.rig, args.camera, args.in_pattern, args.out, geometry, args.colour, args.mode, args.overscan)
+    job = make_job(args.rig, args.camera, args.in_pattern, args.out, geometry, args.colour, args.mode, args.overscan,
+                   colour_space=args.colour_space)
     frames = parse_frames(args.frames)
     report = run_batch(job, frames, workers=args.workers, scheduler=args.scheduler, resume=args.resume,
                        retries=args.retries, progress=not args.quiet)
@@ -1057,7 +1058,11 @@ def _register_batch(subparsers) -> None:
     parser.add_argument("--mode", choices=("crop", "keep", "overscan"), default="crop",
                         help="how --undistort chooses the new camera (default: crop)")
     parser.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
-    parser.add_argument("--colour", metavar="FIT.colour.json", help="apply a characterisation (camera RGB -> XYZ)")
+    parser.add_argument("--colour", metavar="FIT.colour.json", help="apply a characterisation (camera RGB -> "
+                        "--colour-space, through the OCIO processor of its exported transform)")
+    parser.add_argument("--colour-space", default="ACES2065-1",
+                        choices=("ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ"),
+                        help="output space of --colour (default: %(default)s; CIE XYZ is the fit's own XYZ)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="use a running Dask scheduler")
     where.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per core)")
@@ -1270,8 +1275,9 @@ def _register_colour_export(colour_verbs) -> None:
         description=(
             "Export characterisations (*.colour.json) as input colour spaces 'camcal <camera>' "
             "(family Input/camcal) of an OpenColorIO config, and/or as an ICC camera profile. "
-            "Matrix fits are exact; other models are baked (log2 shaper + 3D LUT) with the "
-            "bake error checked over the chart gamut."
+            "Matrix fits are exact; other models are baked (log-chromaticity shaper + 3D LUT; ICC v4: "
+            "float D2B0/D2B1 plus a 16-bit A2B0) with the bake error checked over the chart gamut and "
+            "plausible surface colours."
         ),
         epilog=(
             "--base: 'camcal' (camcal's small ACES config, ocio_configs/camcal_base.ocio), an "
@@ -1292,7 +1298,8 @@ def _register_colour_export(colour_verbs) -> None:
     parser.add_argument("--icc-version", type=int, choices=(4, 2), default=4,
                         help="ICC profile version: 4 (ICC.1:2010, default) or 2 (ICC.1:2001-04)")
     parser.add_argument("--max-bake-error", type=float, default=0.2, metavar="DE",
-                        help="largest CIEDE2000 a baked LUT may add over the chart gamut (default: %(default)s)")
+                        help="largest CIEDE2000 a baked LUT may add over the chart gamut and plausible surface "
+                        "colours (default: %(default)s)")
     parser.set_defaults(func=_colour_export)
 
 
@@ -1346,11 +1353,11 @@ def _colour_export(args: argparse.Namespace) -> int:
                 out.wrote(Path(args.ocio) / space.clf, "clf", say=False)
     if profile is not None:
         write_icc(profile, args.icc)
-        how = ("matrix/TRC" if profile.kind == "matrix-trc" else
-               f"A2B0 {profile.clut_size}^3 CLUT, bake error CIEDE2000 max {profile.bake_error.max:.3f}")
-        print(f"wrote {args.icc} (ICC v{profile.version}, {how})")
+        print(f"wrote {args.icc} (ICC v{profile.version}, {profile.summary()})")
         out.figures(icc={"version": profile.version, "kind": profile.kind, "bake_error_delta_E2000":
-                         None if profile.kind == "matrix-trc" else dataclasses.asdict(profile.bake_error)})
+                         None if profile.kind == "matrix-trc" else dataclasses.asdict(profile.bake_error),
+                         "float_clut_size": profile.float_clut_size, "float_bake_error_delta_E2000":
+                         None if profile.float_bake_error is None else dataclasses.asdict(profile.float_bake_error)})
         out.wrote(args.icc, "icc", say=False)
     return 0
 

@@ -90,10 +90,10 @@ def _sequence(tmp: Path, kind: str, frames=FRAMES) -> str:
 
 @pytest.fixture(scope="module")
 def fit(sim):
-    """A characterisation of the simulated Nikon (codes = linear RGB scaled into [0, 1])."""
+    """A characterisation of the simulated Nikon (codes = linear RGB scaled into [0, 1]); it bakes."""
     scale = 1.0 / np.max(sim.RGB_train)
     train = PatchSet(sim.names_train, sim.RGB_train * scale, sim.XYZ_train)
-    return characterise(train, white="D65", model="root-polynomial:2", loo=False).fit
+    return characterise(train, white="D65", model="polynomial:7", loo=False).fit
 
 
 @pytest.fixture(scope="module")
@@ -162,31 +162,65 @@ def test_exr_half_keeps_types_header_and_equals_the_undistorter(tmp_path):
         np.testing.assert_array_equal(planes[name], expected[:, :, i].astype(planes[name].dtype))
 
 
-def test_colour_step_is_the_fit_per_pixel(tmp_path, fit):
+@pytest.fixture(scope="module")
+def matrix_fit(sim):
+    """A 3x3 matrix characterisation of the simulated Nikon: its OCIO processor is exact."""
+    scale = 1.0 / np.max(sim.RGB_train)
+    train = PatchSet(sim.names_train, sim.RGB_train * scale, sim.XYZ_train)
+    return characterise(train, white="D65", model="matrix3x3", loo=False).fit
+
+
+def _space_of(XYZ, white, space):
+    """colour-science's own conversion of the fit's XYZ to an output space (Bradford), the peer."""
+    import colour
+
+    if space == "CIE XYZ":
+        return XYZ
+    name = {"ACES2065-1": "ACES2065-1", "ACEScg": "ACEScg", "lin Rec.709": "ITU-R BT.709"}[space]
+    return colour.XYZ_to_RGB(XYZ, name, illuminant=colour.XYZ_to_xy(white), chromatic_adaptation_transform="Bradford")
+
+
+def test_colour_step_writes_the_chosen_space(tmp_path, matrix_fit):
     rig = _rig(tmp_path)
-    fit_path = fit.save(tmp_path / "left.colour.json")
-    for kind in ("exr-float", "png16"):
+    fit_path = matrix_fit.save(tmp_path / "left.colour.json")
+    for kind, space in (("exr-float", "ACEScg"), ("png16", "lin Rec.709"), ("exr-float", "CIE XYZ")):
         pattern = _sequence(tmp_path, kind, FRAMES[:1])
         suffix = Path(pattern).suffix
-        job = make_job(rig, "left", pattern, str(tmp_path / kind / f"c.%04d{suffix}"), None, fit_path)
+        out_pattern = str(tmp_path / kind / space.replace(" ", "_") / f"c.%04d{suffix}")
+        job = make_job(rig, "left", pattern, out_pattern, None, fit_path, colour_space=space)
         process_frame(FRAMES[0], job)
-        source, out = read_frame(pattern % FRAMES[0]), read_frame(tmp_path / kind / f"c.1001{suffix}")
+        source, out = read_frame(pattern % FRAMES[0]), read_frame(out_pattern % FRAMES[0])
         rgb = [source.channel_index(c) for c in "RGB"]
         top = 65535.0 if kind == "png16" else 1.0
-        XYZ = fit.apply_codes(source.pixels[:, :, rgb].reshape(-1, 3) / top).reshape(SIZE[1], SIZE[0], 3)
-        if kind == "exr-float":
-            np.testing.assert_allclose(out.pixels[:, :, rgb], XYZ, rtol=1e-6, atol=1e-7)
+        XYZ = matrix_fit.apply_codes(source.pixels[:, :, rgb].reshape(-1, 3) / top)
+        expected = _space_of(XYZ, matrix_fit.target_white_XYZ, space).reshape(SIZE[1], SIZE[0], 3)
+        if kind == "exr-float":  # a matrix fit: exact up to float32 arithmetic
+            np.testing.assert_allclose(out.pixels[:, :, rgb], expected, rtol=1e-5, atol=2e-6)
             np.testing.assert_array_equal(out.pixels[:, :, source.channel_index("A")], 1.0)
         else:  # quantised back to 16 bit: within one code value of the float64 result
-            assert np.abs(out.pixels[:, :, rgb] - np.clip(XYZ, 0, 1) * top).max() <= 1.0
-        assert np.abs(XYZ - source.pixels[:, :, rgb] / top).max() > 0.05  # the fit changed the pixels
+            assert np.abs(out.pixels[:, :, rgb] - np.clip(expected, 0, 1) * top).max() <= 1.0
+        if space != "CIE XYZ":  # RGB, not XYZ, in the RGB channels
+            assert np.abs(expected - XYZ.reshape(expected.shape)).max() > 0.05
+    with pytest.raises(CamcalError, match="unknown .* space .sRGB."):
+        make_job(rig, "left", pattern, str(tmp_path / "x.%04d.exr"), None, fit_path, colour_space="sRGB")
 
 
-def test_colour_step_class_applies_the_fit(fit):
-    rgb = np.random.default_rng(5).random((4, 6, 3)).astype(np.float32)
-    out = ColourStep(fit).apply(rgb)
-    assert out.dtype == np.float32 and out.shape == rgb.shape
-    np.testing.assert_allclose(out.reshape(-1, 3), fit.apply_codes(rgb.reshape(-1, 3).astype(np.float64)), rtol=1e-6)
+@pytest.mark.parametrize("space", ["ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ"])
+def test_colour_step_class_applies_the_baked_fit_within_its_bake_error(sim, fit, space):
+    """A polynomial fit goes through the baked Lut3D: within CIEDE2000 0.2 of the numpy fit on
+    independent colours (190 reflectances the fit never saw), converted back to XYZ."""
+    from camcal.colour.evaluate import delta_E
+    from camcal.colour.export_ocio import output_matrix
+
+    codes = (sim.RGB_test / np.max(sim.RGB_train)).astype(np.float32).reshape(10, 19, 3)
+    step = ColourStep(fit, space)
+    assert step.kind == "lut3d" and step.processor.bake_error.max <= 0.2
+    out = step.apply(codes.copy())
+    assert out.dtype == np.float32 and out.shape == codes.shape
+    XYZ = out.reshape(-1, 3).astype(np.float64) @ np.linalg.inv(output_matrix(fit.target_white_XYZ, space)).T
+    truth = fit.apply_codes(codes.reshape(-1, 3).astype(np.float64))
+    assert delta_E(XYZ, truth, fit.target_white_XYZ).max() < 0.2
+    np.testing.assert_allclose(out.reshape(-1, 3), _space_of(truth, fit.target_white_XYZ, space), atol=0.01)
 
 
 # -- a real Dask LocalCluster ----------------------------------------------------------

@@ -164,6 +164,17 @@ class Characterisation:
         return "\n".join(lines)
 
 
+def _export_check(white_XYZ: np.ndarray, reference: str | None, illuminant: str):
+    """``auto``'s exportability check: the exporters' own bake (largest Lut3D) of a candidate model."""
+    def exportable(model) -> float | None:
+        from camcal.colour.export_ocio import LUT_SIZES, bake_model  # noqa: PLC0415
+
+        baked = bake_model(model, white_XYZ, reference=reference, illuminant=illuminant, lut_sizes=LUT_SIZES[-1:])
+        return None if baked.bake_error is None else baked.bake_error.max
+
+    return exportable
+
+
 def characterise(
     train: PatchSet,
     *,
@@ -250,7 +261,8 @@ def characterise(
     selection = None
     if model == "auto":
         objectives = ("xyz", "de2000") if objective is None else (objective,)
-        selection = select_model(RGB, XYZ, target_XYZ, objectives=objectives, candidates=candidates)
+        selection = select_model(RGB, XYZ, target_XYZ, objectives=objectives, candidates=candidates,
+                                 exportable=_export_check(target_XYZ, reference, white_name))
         spec = selection.picked.spec
         chosen_objective = selection.picked.objective
         regularisation = selection.picked.regularisation

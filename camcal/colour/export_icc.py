@@ -13,7 +13,18 @@ media white (relative colorimetric, PCS white Y = 1).
   by ``1 / s`` so they end at most at 1) and ``rXYZ gXYZ bXYZ`` the columns
   of ``s * chad @ M``. ``gamma-offset`` curves are a ``parametricCurveType``
   (function type 1, §10.16) in v4 and a 4096-entry ``curveType`` in v2.
-- Other fits give a LUT-based ``A2B0``. Version 4: ``lutAtoBType`` (``mAB``,
+- Other fits, version 4: ``D2B0`` and ``D2B1`` tags (one
+  ``multiProcessElementsType``, §10.14, 32-bit float, shared by both:
+  LittleCMS takes the float tag of the intent asked, ``D2B1`` for relative
+  colorimetric, in preference to ``A2Bx``) holding the same baked transform as the OCIO
+  export (:func:`camcal.colour.export_ocio.bake_fit`): per-channel curves
+  (linearisation and log2 shaper, sampled), the matrix to log-chromaticity
+  coordinates, the float CLUT (the OCIO Lut3D's table), the inverse log2
+  shaper as formula segments and the matrix (with ``chad``) to PCS XYZ. It
+  is held within CIEDE2000 0.2 over the chart gamut and plausible surface
+  colours, as the OCIO transform is. An ``A2B0`` is written as well, for
+  readers without ``D2B0`` (its own, larger, error is reported).
+- The ``A2B0`` of other fits. Version 4: ``lutAtoBType`` (``mAB``,
   §10.10) with A curves (linearisation and a log2 input shaper), a CLUT
   storing the shaped residual of the least-squares matrix, M curves (the
   inverse output shaper), the matrix and identity B curves. Version 2:
@@ -62,7 +73,7 @@ from typing import Any
 import numpy as np
 
 from camcal.colour.evaluate import DeltaEStats, delta_E
-from camcal.colour.export_ocio import LUT_SIZES, LogShaper, chart_gamut_samples
+from camcal.colour.export_ocio import LUT_SIZES, BakedTransform, LogShaper, bake_fit, chart_gamut_samples
 from camcal.colour.fitfile import ColourFit
 from camcal.colour.linearise import ChannelCurve
 from camcal.errors import CamcalError
@@ -84,7 +95,11 @@ D50_XYZ = (0.9642, 1.0, 0.8249)
 ICC_VERSIONS = {4: 0x04300000, 2: 0x02400000}
 CURVE_ENTRIES = 4096
 _XYZ_SCALE = 32768.0 / 65535.0  # PCS XYZ value -> [0, 1] table value
-_KNOWN_TYPES = {b"XYZ ", b"sf32", b"mluc", b"desc", b"text", b"curv", b"para", b"mAB ", b"mft2"}
+_KNOWN_TYPES = {b"XYZ ", b"sf32", b"mluc", b"desc", b"text", b"curv", b"para", b"mAB ", b"mft2", b"mpet"}
+#: Samples of the D2B0 input curves (code value -> shaped linear value) over [0, 1].
+FLOAT_CURVE_ENTRIES = 4096
+#: The D2B0 output curves' linear segment holds for shaped values down to -_TOE_REACH.
+_TOE_REACH = 16.0
 
 
 # --------------------------------------------------------------------------
@@ -185,12 +200,100 @@ def _mft2_type(in_tables: Sequence[np.ndarray], clut: np.ndarray, out_tables: Se
             + _clut_values(clut) + b"".join(_u16(t) for t in out_tables))
 
 
+def _f32(values: Any) -> bytes:
+    return np.ascontiguousarray(np.asarray(values, dtype=np.float64).ravel(), dtype=">f4").tobytes()
+
+
+def _parf(function: int, params: Sequence[float]) -> bytes:
+    """formulaCurveSegment (§11.2.10): type 0 ``(aX + b)^g + c`` or type 2 ``a b^(cX + d) + e``."""
+    return b"parf" + b"\0" * 4 + struct.pack(">HH", function, 0) + _f32(params)
+
+
+def _samf(values: Any) -> bytes:
+    """sampledCurveSegment (§11.2.11): values after the segment's first breakpoint, evenly spaced."""
+    values = np.asarray(values, dtype=np.float64)
+    return b"samf" + b"\0" * 4 + struct.pack(">I", values.size) + _f32(values)
+
+
+def _curf(breakpoints: Sequence[float], segments: Sequence[bytes]) -> bytes:
+    """segmentedCurve (§11.2.9)."""
+    return (b"curf" + b"\0" * 4 + struct.pack(">HH", len(segments), 0) + _f32(breakpoints)
+            + b"".join(_pad4(seg) for seg in segments))
+
+
+def _element_with_table(header: bytes, parts: Sequence[bytes]) -> bytes:
+    """An element whose parts follow a position table (offset, size) relative to the element's start."""
+    position = len(header) + 8 * len(parts)
+    table, body = b"", b""
+    for part in parts:
+        part = _pad4(part)
+        table += struct.pack(">II", position, len(part))
+        body += part
+        position += len(part)
+    return header + table + body
+
+
+def _cvst(curves: Sequence[bytes]) -> bytes:
+    """curveSetElement (§11.2.3)."""
+    return _element_with_table(b"cvst" + b"\0" * 4 + struct.pack(">HH", len(curves), len(curves)), curves)
+
+
+def _matf(matrix: Any, offset: Any) -> bytes:
+    """matrixElement (§11.2.5): 3 in, 3 out; the matrix row by row (output row), then the offsets."""
+    return b"matf" + b"\0" * 4 + struct.pack(">HH", 3, 3) + _f32(matrix) + _f32(offset)
+
+
+def _clut_element(table: np.ndarray) -> bytes:
+    """CLutElement (§11.2.4): float32 values, the first input channel slowest."""
+    n = table.shape[0]
+    return b"clut" + b"\0" * 4 + struct.pack(">HH", 3, 3) + bytes([n, n, n] + [0] * 13) + _f32(table)
+
+
+def _mpet(elements: Sequence[bytes]) -> bytes:
+    """multiProcessElementsType (§10.14), 3 in and 3 out."""
+    return _element_with_table(b"mpet" + b"\0" * 4 + struct.pack(">HHI", 3, 3, len(elements)), elements)
+
+
+def _input_curve(values: np.ndarray) -> bytes:
+    """Code value in [0, 1] -> shaped value: constant below 0, ``values`` sampled on (0, 1], constant above."""
+    return _curf([0.0, 1.0], [_parf(0, [1.0, 0.0, 0.0, values[0]]), _samf(values[1:]),
+                              _parf(0, [1.0, 0.0, 0.0, values[-1]])])
+
+
+def _inverse_shaper_curve(shaper: LogShaper) -> bytes:
+    """``LogShaper.decode`` exactly: the linear toe (type 0) below the break, ``2**(span t + low)`` (type 2) above."""
+    span = shaper.high_stop - shaper.low_stop
+    b = 2.0**shaper.break_stop
+    s_b = (shaper.break_stop - shaper.low_stop) / span
+    slope = 1.0 / (span * b * np.log(2.0))
+    # toe x = b + (t - s_b) / slope, written (t / slope + q)^1 + (c) with q >= 0 for t >= -_TOE_REACH
+    q = _TOE_REACH / slope
+    toe = _parf(0, [1.0, 1.0 / slope, q, b - s_b / slope - q])
+    return _curf([s_b], [toe, _parf(2, [1.0, 2.0, span, shaper.low_stop, 0.0])])
+
+
+def _d2b0(fit: ColourFit, baked: BakedTransform, chad: np.ndarray) -> bytes:
+    """The D2B0 of a baked fit: curves, log-chromaticity matrix, float CLUT, inverse shaper, matrix to PCS."""
+    coordinates, shaper = baked.coordinates, baked.shaper
+    codes = np.linspace(0.0, 1.0, FLOAT_CURVE_ENTRIES)
+    shaped = coordinates.shaper.encode(fit.linearise(np.repeat(codes[:, None], 3, axis=1)))
+    curves_in = _cvst([_input_curve(shaped[:, i]) for i in range(3)])
+    curves_out = _cvst([_inverse_shaper_curve(shaper)] * 3)
+    return _mpet([curves_in, _matf(coordinates.matrix, coordinates.offset), _clut_element(baked.table),
+                  curves_out, _matf(chad @ baked.matrix, np.zeros(3))])
+
+
 def _assemble(version: int, tags: list[tuple[bytes, bytes]], created: _dt.datetime) -> bytes:
     """Header (§7.2), tag table (§7.3) and 4-byte aligned tag data; profile ID in v4."""
     table_size = 4 + 12 * len(tags)
     position = 128 + table_size
     entries, blobs = [], []
+    shared: dict[int, int] = {}  # the same data object under two signatures is stored once (§7.3.1)
     for signature, data in tags:
+        if id(data) in shared:
+            entries.append(struct.pack(">4sII", signature, shared[id(data)], len(data)))
+            continue
+        shared[id(data)] = position
         entries.append(struct.pack(">4sII", signature, position, len(data)))
         padded = _pad4(data)
         blobs.append(padded)
@@ -309,10 +412,13 @@ def _trc(curve: ChannelCurve, scale: float, version: int) -> bytes:
 class ICCProfile:
     """A camera profile's bytes and how it was built.
 
-    ``kind``: ``"matrix-trc"`` or ``"lut"``; ``clut_size`` the CLUT edge;
-    ``bake_error``: CIEDE2000 between the profile's own pipeline (evaluated
-    in numpy from the quantised tables, trilinear) and the fit over the
-    chart gamut, in PCS XYZ D50 (``None`` for matrix/TRC).
+    ``kind``: ``"matrix-trc"`` or ``"lut"``; ``clut_size`` the A2B0 CLUT
+    edge; ``bake_error``: CIEDE2000 between the A2B0 pipeline (evaluated in
+    numpy from the quantised tables, trilinear) and the fit over the chart
+    gamut, in PCS XYZ D50 (``None`` for matrix/TRC); ``float_clut_size`` and
+    ``float_bake_error``: the D2B0's CLUT edge and its CIEDE2000 over the
+    chart gamut and plausible surface colours (the OCIO bake's, same table;
+    ``None`` without a D2B0: matrix/TRC and v2).
     """
 
     data: bytes
@@ -320,6 +426,19 @@ class ICCProfile:
     kind: str
     clut_size: int | None = None
     bake_error: DeltaEStats | None = None
+    float_clut_size: int | None = None
+    float_bake_error: DeltaEStats | None = None
+
+    def summary(self) -> str:
+        """How the model is stored, with its bake errors."""
+        if self.kind == "matrix-trc":
+            return "matrix/TRC"
+        text = (f"A2B0 {self.clut_size}^3 CLUT, bake error CIEDE2000 max {self.bake_error.max:.3f} over the "
+                "chart gamut")
+        if self.float_clut_size is not None:
+            text = (f"D2B0/D2B1 {self.float_clut_size}^3 float CLUT, bake error CIEDE2000 max "
+                    f"{self.float_bake_error.max:.3f} over the chart gamut and plausible surfaces; " + text)
+        return text
 
 
 def _interp_curves(tables: Sequence[np.ndarray], x: np.ndarray) -> np.ndarray:
@@ -413,8 +532,13 @@ def icc_profile_from_fit(
     version
         4 (ICC.1:2010, default) or 2 (ICC.1:2001-04).
     max_delta_E, lut_sizes
-        For a LUT profile: the smallest CLUT size whose bake error over the
-        chart gamut stays at or below ``max_delta_E`` (CIEDE2000).
+        For a LUT profile: v4 bakes the D2B0 as the OCIO export does
+        (:func:`camcal.colour.export_ocio.bake_fit`: the smallest size within
+        ``max_delta_E`` CIEDE2000 over the chart gamut and plausible surface
+        colours, else refused) and writes the A2B0 at the smallest size within
+        ``max_delta_E`` over the chart gamut (the largest when none is); v2
+        (A2B0 only) needs its A2B0 within ``max_delta_E`` over the chart
+        gamut.
     copyright
         ``cprt`` text.
     created
@@ -448,11 +572,24 @@ def icc_profile_from_fit(
         data = _assemble(version, tags, created)
         check_icc(data)
         return ICCProfile(data, version, "matrix-trc")
+    sizes = sorted(int(v) for v in lut_sizes)
+    for n in sizes:
+        if not 2 <= n <= 129:
+            raise CamcalError(f"CLUT sizes must lie in 2..129, got {n}")
     builder = _LutBuilder(fit, version, LogShaper())
+    if version == 4:
+        baked = bake_fit(fit, max_delta_E=max_delta_E, lut_sizes=sizes)  # refuses as the OCIO export does
+        for n in sizes:
+            tag, error = builder.build(n)
+            if error.max <= max_delta_E:
+                break
+        d2b = _d2b0(fit, baked, chad)
+        tags += [(b"A2B0", tag), (b"D2B0", d2b), (b"D2B1", d2b)]
+        data = _assemble(version, tags, created)
+        check_icc(data)
+        return ICCProfile(data, version, "lut", n, error, baked.lut_size, baked.bake_error)
     error = None
-    for n in sorted(int(v) for v in lut_sizes):
-        if not 2 <= n <= 255:
-            raise CamcalError(f"CLUT sizes must lie in 2..255, got {n}")
+    for n in sizes:
         tag, error = builder.build(n)
         if error.max <= max_delta_E:
             data = _assemble(version, tags + [(b"A2B0", tag)], created)

@@ -16,8 +16,11 @@ config's scene reference is, in order:
 2. the model (linear camera RGB to XYZ under the fit's target white): a
    ``matrix3x3`` fit exactly as a ``MatrixTransform``; any other model as a
    ``FileTransform`` to a CLF file written by OCIO's own writer, holding a
-   log2 shaper, a tetrahedral ``Lut3D`` and the inverse shaper followed by
-   a 3x3 matrix (see :func:`transform_from_callable`).
+   log2 shaper and a matrix to log-chromaticity coordinates
+   (:class:`LogChromaticity`), a tetrahedral ``Lut3D`` and an inverse log2
+   shaper followed by a 3x3 matrix (see :func:`transform_from_callable`),
+   checked within CIEDE2000 0.2 over the chart gamut and plausible surface
+   colours (:func:`bake_model`, the check ``--model auto`` uses too).
 3. XYZ (target white) to the reference: chromatic adaptation from the
    target white to the ACES white (von Kries with Bradford, as OCIO's ACES
    configs do, or CAT02), the ACES2065-1 ``XYZ -> AP0`` matrix, then the
@@ -86,6 +89,14 @@ __all__ = [
     "XYZ_to_reference_matrix",
     "invert_model",
     "chart_gamut_samples",
+    "SURFACE_REFLECTANCES",
+    "plausible_surface_XYZ",
+    "plausible_surface_samples",
+    "bake_samples",
+    "bake_model",
+    "bake_fit",
+    "BAKE_SHAPER",
+    "LogChromaticity",
     "ColourSpaceSpec",
     "LookSpec",
     "ConfigSpec",
@@ -96,13 +107,17 @@ __all__ = [
     "OCIOExport",
     "colour_space_from_fit",
     "export_ocio",
+    "OUTPUT_SPACES",
+    "output_matrix",
+    "FitProcessor",
+    "fit_processor",
 ]
 
 STUDIO_CONFIG = "ocio://studio-config-latest"
 CAMCAL_BASE = "camcal"
 FAMILY = "Input/camcal"
 CLF_FORMAT = "Academy/ASC Common LUT Format"
-LUT_SIZES = (17, 33, 49, 65)
+LUT_SIZES = (17, 33, 49, 65, 81)
 CATS = ("Bradford", "CAT02")
 CURVE_SAMPLES = 4096
 LUT_DIR = "luts"
@@ -267,6 +282,76 @@ def apply_cpu(cpu, RGB: np.ndarray) -> np.ndarray:
     return pixels.astype(np.float64)
 
 
+#: The per-channel log2 shaper of baked Lut3Ds: 17 stops (2**-14 to 8), a linear toe below 2**-10.
+BAKE_SHAPER = LogShaper(low_stop=-14.0, high_stop=3.0, break_stop=-10.0)
+
+
+@dataclass(frozen=True, eq=False)
+class LogChromaticity:
+    """Input coordinates of a baked Lut3D: log2 luminance and two log2 chromaticity ratios.
+
+    ``u = A s(x) + a`` with ``s`` the per-channel :class:`LogShaper` of the
+    linear input ``x``; the rows of ``A`` are ``(1, 1, 1) / 3`` (mean
+    shaped value: log exposure), ``(1, -1, 0) / w_1`` and ``(0, -1, 1) / w_2``
+    (``log2(R / G)`` and ``log2(B / G)`` above the toe, scaled so that the
+    chromaticities of the samples, widened by a margin, fill [0, 1]).
+
+    Attributes
+    ----------
+    shaper
+        The per-channel shaper.
+    matrix, offset
+        ``A`` ``(3, 3)`` and ``a`` ``(3,)``.
+
+    Notes
+    -----
+    Exposure moves a colour along the first axis only. An
+    exposure-invariant model (root-polynomial, ``f(k x) = k f(x)``) whose
+    output is log-shaped the same way is then linear along that axis, so the
+    Lut3D's grid only has to follow the model across chromaticity, and the
+    chromaticity axes are spent on the range real colours occupy instead of
+    the whole cube of per-channel values.
+    """
+
+    shaper: LogShaper
+    matrix: np.ndarray
+    offset: np.ndarray
+
+    @classmethod
+    def from_samples(cls, samples: Any, shaper: LogShaper = BAKE_SHAPER, margin: float = 0.05,
+                     min_half_width: float = 1.0) -> LogChromaticity:
+        """Coordinates whose chromaticity axes span ``samples`` (``(N, 3)`` linear RGB).
+
+        Each log2 chromaticity range is widened by ``margin`` of its width on
+        both sides and to at least ``min_half_width`` stops around its middle.
+        """
+        D = np.array([[1 / 3, 1 / 3, 1 / 3], [1.0, -1.0, 0.0], [0.0, -1.0, 1.0]])
+        c = shaper.encode(np.maximum(np.asarray(samples, dtype=np.float64).reshape(-1, 3), 0.0)) @ D.T
+        low, high = c.min(axis=0), c.max(axis=0)
+        half = np.maximum((high - low) * (0.5 + margin), min_half_width / (shaper.high_stop - shaper.low_stop))
+        middle = (low + high) / 2
+        low, high = middle - half, middle + half
+        low[0], high[0] = 0.0, 1.0
+        return cls(shaper, np.diag(1.0 / (high - low)) @ D, -low / (high - low))
+
+    @classmethod
+    def per_channel(cls, shaper: LogShaper = LogShaper()) -> LogChromaticity:
+        """Plain per-channel shaped coordinates (``A`` the identity): for functions with kinks in RGB."""
+        return cls(shaper, np.eye(3), np.zeros(3))
+
+    def encode(self, x: Any) -> np.ndarray:
+        """Linear ``(N, 3)`` to coordinates ``u`` (in [0, 1] inside the domain)."""
+        return self.shaper.encode(x) @ self.matrix.T + self.offset
+
+    def decode(self, u: Any) -> np.ndarray:
+        """Coordinates ``u`` to linear values (``encode``'s inverse)."""
+        return self.shaper.decode((np.asarray(u, dtype=np.float64) - self.offset) @ np.linalg.inv(self.matrix).T)
+
+    def transforms(self) -> list:
+        """OCIO transforms: ``LogCameraTransform`` then ``MatrixTransform``."""
+        return [self.shaper.transform(), _matrix_transform(self.matrix, self.offset)]
+
+
 @dataclass(frozen=True, eq=False)
 class BakedTransform:
     """An RGB -> RGB (or XYZ) function as OCIO transforms.
@@ -277,17 +362,23 @@ class BakedTransform:
         ``"matrix"`` (exact) or ``"lut3d"`` (baked).
     transform
         A ``PyOpenColorIO.GroupTransform``: one ``MatrixTransform``, or
-        ``[shaper, Lut3D, inverse shaper, MatrixTransform(matrix)]``.
+        ``[log shaper, MatrixTransform(A, a), Lut3D, inverse log shaper,
+        MatrixTransform(M)]`` (see :func:`transform_from_callable`).
     matrix
         ``(3, 3)``: the exact matrix, or the least-squares linear part that
-        the Lut3D's residual is taken relative to.
+        the Lut3D's output is expressed in.
     lut_size
         Lut3D edge length, ``None`` for a matrix.
     shaper
-        The :class:`LogShaper` (``None`` for a matrix).
+        The output :class:`LogShaper` (``None`` for a matrix).
     bake_error
         CIEDE2000 between the OCIO processor and the function over the
         sample points (``None`` for a matrix, which is exact).
+    coordinates
+        The Lut3D's input :class:`LogChromaticity` (``None`` for a matrix).
+    table
+        ``(n, n, n, 3)`` float32 Lut3D values, first input axis slowest
+        (``None`` for a matrix); the ICC exporter writes the same table.
     """
 
     kind: str
@@ -296,6 +387,8 @@ class BakedTransform:
     lut_size: int | None = None
     shaper: LogShaper | None = None
     bake_error: DeltaEStats | None = None
+    coordinates: LogChromaticity | None = None
+    table: np.ndarray | None = None
 
     def clf_text(self, identifier: str, description: str = "") -> str:
         """The transform as CLF (SMPTE ST 2136-1) text, written by OCIO's own writer."""
@@ -308,20 +401,27 @@ class BakedTransform:
         return group.write(CLF_FORMAT, ocio.Config.CreateRaw())
 
 
-def _lut3d_group(apply: Callable, n: int, shaper: LogShaper, M: np.ndarray):
-    """``shaper -> Lut3D(s(M^-1 apply(s^-1(u)))) -> shaper^-1 -> M``: the residual of a linear part."""
-    ocio = _ocio()
+def _lut3d_table(apply: Callable, n: int, coordinates: LogChromaticity, shaper: LogShaper,
+                 M: np.ndarray) -> np.ndarray:
+    """``s(M^-1 apply(x))`` at the grid nodes, ``x`` the decoded node clipped to the input shaper's domain."""
     g = np.linspace(0.0, 1.0, n)
-    grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)  # red slowest, blue fastest
-    x = shaper.decode(grid)
+    grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)  # first axis slowest
+    x = np.clip(coordinates.decode(grid), *coordinates.shaper.domain)
     y = np.asarray(apply(x), dtype=np.float64).reshape(-1, 3) @ np.linalg.inv(M).T
     table = shaper.encode(y)
     if not np.all(np.isfinite(table)):
-        raise CamcalError("the function gave non-finite values inside the shaper's domain; cannot bake it")
+        raise CamcalError("the function gave non-finite values inside the Lut3D's domain; cannot bake it")
+    return table.astype(np.float32).reshape(n, n, n, 3)
+
+
+def _lut3d_group(table: np.ndarray, coordinates: LogChromaticity, shaper: LogShaper, M: np.ndarray):
+    ocio = _ocio()
+    n = table.shape[0]
     lut = ocio.Lut3DTransform(n)
     lut.setInterpolation(ocio.INTERP_TETRAHEDRAL)
     lut.setData(np.ascontiguousarray(table, dtype=np.float32).ravel())
-    return ocio.GroupTransform([shaper.transform(), lut, shaper.transform(inverse=True), _matrix_transform(M)])
+    return ocio.GroupTransform([*coordinates.transforms(), lut, shaper.transform(inverse=True),
+                                _matrix_transform(M)])
 
 
 def transform_from_callable(
@@ -333,9 +433,9 @@ def transform_from_callable(
     to_XYZ: Callable[[np.ndarray], np.ndarray] | None = None,
     max_delta_E: float = 0.2,
     lut_sizes: Sequence[int] = LUT_SIZES,
-    shaper: LogShaper = LogShaper(),
+    shaper: LogShaper = BAKE_SHAPER,
 ) -> BakedTransform:
-    """Turn a linear-RGB function into OCIO transforms: exact matrix or shaper + Lut3D.
+    """Turn a linear-RGB function into OCIO transforms: exact matrix or log-chromaticity Lut3D.
 
     Parameters
     ----------
@@ -346,8 +446,9 @@ def transform_from_callable(
         ``(3, 3)``: when given, ``apply`` IS this matrix and the result is an
         exact ``MatrixTransform`` (``samples`` etc. are not needed).
     samples
-        ``(N, 3)`` inputs where accuracy matters (e.g. the chart gamut of
-        :func:`chart_gamut_samples`); the bake error is measured there.
+        ``(N, 3)`` inputs where accuracy matters (e.g. :func:`bake_samples`:
+        the chart gamut and plausible surface colours); they set the Lut3D's
+        chromaticity range and the bake error is measured there.
     white_XYZ
         White for CIELAB/CIEDE2000 of the outputs (after ``to_XYZ``).
     to_XYZ
@@ -361,8 +462,9 @@ def transform_from_callable(
     lut_sizes
         Lut3D edge lengths to try, ascending (OCIO allows up to 129).
     shaper
-        Input and output shaper (default: -8 to +3 stops, so linear values
-        up to 8 are inside the Lut3D's domain; above it they clamp).
+        Per-channel log2 shaper of the input coordinates and of the output
+        (default :data:`BAKE_SHAPER`: linear values up to 8; above, the
+        input clamps).
 
     Returns
     -------
@@ -376,13 +478,20 @@ def transform_from_callable(
 
     Notes
     -----
-    With ``M`` the least-squares matrix of ``apply`` over ``samples``, the
-    Lut3D stores ``s(M^-1 apply(s^-1(u)))`` on a uniform grid ``u`` of
-    shaped values and is followed by ``s^-1`` and ``M``. A linear function
-    bakes exactly this way (the stored function is the identity in shaped
-    coordinates) and an exposure-invariant one (root-polynomial) nearly so,
-    so the grid only has to follow the non-linear part. Interpolation is
-    tetrahedral.
+    The Lut3D is indexed by :class:`LogChromaticity` coordinates
+    ``u = A s(x) + a`` (log exposure and two log2 chromaticity ratios, the
+    ratios' range set by ``samples``) and stores ``s(M^-1 apply(x))``, with
+    ``M`` the least-squares matrix of ``apply`` over ``samples``; it is
+    followed by ``s^-1`` and ``M``. For a root-polynomial fit the stored
+    function is linear along the exposure axis, so the grid only follows its
+    curvature across chromaticity. At each size, plain per-channel log2
+    coordinates (:meth:`LogChromaticity.per_channel`, input and output
+    shaped by the default :class:`LogShaper`, -8 to +3 stops) are tried when
+    the log-chromaticity ones miss ``max_delta_E`` (a piecewise-linear
+    function in RGB, such as a Lut3D match, bakes better on its own axes).
+    Interpolation is tetrahedral. Grid nodes
+    that decode outside ``[0, 2**high_stop]`` (outside any real colour) are
+    evaluated at the clipped value.
 
     Examples
     --------
@@ -411,11 +520,15 @@ def transform_from_callable(
     reference = to_XYZ(Y)
     error = None
     for n in sizes:
-        group = _lut3d_group(apply, n, shaper, M)
-        baked = apply_cpu(_cpu(group), X)
-        error = DeltaEStats.from_values(delta_E(to_XYZ(baked), reference, white_XYZ))
-        if error.max <= max_delta_E:
-            return BakedTransform("lut3d", group, M, n, shaper, error)
+        for coordinates, out in ((LogChromaticity.from_samples(X, shaper), shaper),
+                                 (LogChromaticity.per_channel(), LogShaper())):
+            table = _lut3d_table(apply, n, coordinates, out, M)
+            group = _lut3d_group(table, coordinates, out, M)
+            baked = apply_cpu(_cpu(group), X)
+            found = DeltaEStats.from_values(delta_E(to_XYZ(baked), reference, white_XYZ))
+            if found.max <= max_delta_E:
+                return BakedTransform("lut3d", group, M, n, out, found, coordinates, table)
+            error = found if error is None or found.max < error.max else error
     raise CamcalError(
         f"a {sizes[-1]}^3 Lut3D still leaves CIEDE2000 up to {error.max:.3f} over the samples "
         f"(allowed {max_delta_E:g}); allow a larger bake error or refit with a smoother model"
@@ -589,42 +702,193 @@ def invert_model(apply: Callable[[np.ndarray], np.ndarray], XYZ: Any, iterations
     return np.stack(candidates)[best, np.arange(len(XYZ))]
 
 
-def chart_gamut_samples(fit: ColourFit, n: int = 21) -> np.ndarray:
-    """Linear camera RGB spanning the chart gamut of a characterisation.
-
-    The chart is the fit's reference chart (the ColorChecker 24 when none is
-    recorded), its XYZ adapted (CAT02) to the fit's target white and
-    inverted through the fit (:func:`invert_model`); an RBF fit adds its
-    centres (its training patches). The samples are those patches plus the
-    points of a regular ``n^3`` grid over their bounding box that lie in the
-    convex hull of the patches and of the same patches two stops darker
-    (divided by 4). Black itself is left out: near it CIEDE2000 magnifies
-    absolute errors that no image shows.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(M, 3)`` linear camera RGB.
-    """
+def _hull_samples(patches: np.ndarray, n: int) -> np.ndarray:
+    """``patches`` plus the points of an ``n^3`` grid over their box inside the hull of them and them / 4."""
     from scipy.spatial import Delaunay
 
-    from camcal.colour.chart import DEFAULT_CHART, reference_chart
-    from camcal.colour.spectral import adapt_XYZ
-
-    chart = reference_chart(fit.reference or DEFAULT_CHART, "D50")
-    white = np.asarray(fit.target_white_XYZ, dtype=np.float64)
-    XYZ = chart.XYZ if np.allclose(chart.white_XYZ, white, atol=1e-6) else adapt_XYZ(
-        chart.XYZ, chart.white_XYZ, white, "CAT02")
-    patches = invert_model(fit.apply, XYZ)
-    if getattr(fit.model, "kind", "") == "rbf":
-        patches = np.vstack([patches, fit.model.centres])
-    patches = patches[np.all(np.isfinite(patches), axis=1)]
     vertices = np.vstack([patches, patches / 4.0])
     low, high = vertices.min(axis=0), vertices.max(axis=0)
     axes = [np.linspace(lo, hi, n) for lo, hi in zip(low, high)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     inside = Delaunay(vertices).find_simplex(grid) >= 0
     return np.vstack([patches, grid[inside]])
+
+
+def chart_gamut_samples(fit: ColourFit, n: int = 21) -> np.ndarray:
+    """Linear camera RGB spanning the chart gamut of a characterisation.
+
+    The chart is the fit's reference chart (the ColorChecker 24 when none is
+    recorded or the reference is not a chart, e.g. a spectral training
+    set), its XYZ adapted (CAT02) to the fit's target white and
+    inverted through the fit (:func:`invert_model`; only converged
+    preimages a camera records, see :func:`plausible_surface_samples`); an
+    RBF fit adds its centres (its training patches). The samples are those
+    patches plus the points of a regular ``n^3`` grid over their bounding
+    box that lie in the convex hull of the patches and of the same patches
+    two stops darker (divided by 4). Black itself is left out: near it
+    CIEDE2000 magnifies absolute errors that no image shows.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(M, 3)`` linear camera RGB.
+    """
+    return _chart_samples(fit.model, fit.target_white_XYZ, fit.reference, n)
+
+
+def _chart_samples(model, white_XYZ: Any, reference: str | None, n: int = 21) -> np.ndarray:
+    from camcal.colour.chart import DEFAULT_CHART, reference_chart
+    from camcal.colour.spectral import adapt_XYZ
+
+    try:
+        chart = reference_chart(reference or DEFAULT_CHART, "D50")
+    except CamcalError:  # not a chart (e.g. a spectral training set): the default chart's gamut
+        chart = reference_chart(DEFAULT_CHART, "D50")
+    white = np.asarray(white_XYZ, dtype=np.float64)
+    XYZ = chart.XYZ if np.allclose(chart.white_XYZ, white, atol=1e-6) else adapt_XYZ(
+        chart.XYZ, chart.white_XYZ, white, "CAT02")
+    patches = _recordable_preimages(model.apply, XYZ)
+    if getattr(model, "kind", "") == "rbf":
+        patches = np.vstack([patches, model.centres])
+    return _hull_samples(patches, n)
+
+
+#: Reflectances of the plausible surface colours: the CIE 13.3 test colour samples.
+SURFACE_REFLECTANCES = "CIE 1995"
+#: CIELAB lightness levels and a*, b* step of the Pointer's-gamut grid of plausible surface colours.
+POINTER_LIGHTNESS = (15.0, 30.0, 45.0, 60.0, 75.0, 90.0)
+POINTER_STEP = 10.0
+#: Smallest channel of a plausible surface's camera RGB, relative to its largest.
+MIN_CHANNEL_RATIO = 0.02
+
+
+def plausible_surface_XYZ(white_XYZ: Any, illuminant: str | None = None) -> np.ndarray:
+    """XYZ of plausible surface colours under a white: test colour samples and a Pointer's-gamut grid.
+
+    Parameters
+    ----------
+    white_XYZ
+        White of the output XYZ (Y = 1).
+    illuminant
+        CIE illuminant the reflectances are lit by (``SDS_ILLUMINANTS``
+        name); ``None`` or an unknown name uses D65. Their XYZ are adapted
+        (CAT02) from the illuminant's white to ``white_XYZ``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N, 3)``: the 14 CIE 13.3 test colour samples, then the CIELAB
+        grid (lightness :data:`POINTER_LIGHTNESS`, a*, b* every
+        :data:`POINTER_STEP`) inside Pointer's gamut of real surface colours
+        (tested under its illuminant C after CAT02).
+
+    References
+    ----------
+    - Pointer, M. R. (1980). The gamut of real surface colours. Color
+      Research & Application, 5(3), 145-155.
+    - CIE 13.3-1995: Method of measuring and specifying colour rendering
+      properties of light sources (test colour samples).
+    """
+    import colour
+    from colour.quality.datasets import SDS_TCS
+
+    from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ
+
+    white = np.asarray(white_XYZ, dtype=np.float64)
+    name = illuminant if illuminant in colour.SDS_ILLUMINANTS else "D65"
+    shape = colour.SpectralShape(380, 780, 5)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape).values
+    light = colour.SDS_ILLUMINANTS[name].copy().align(shape).values
+    R = np.array([sd.copy().align(shape).values for sd in SDS_TCS[SURFACE_REFLECTANCES].values()])
+    XYZ = (R * light) @ cmfs / (light @ cmfs[:, 1])
+    source_white = light @ cmfs / (light @ cmfs[:, 1])
+    if not np.allclose(source_white, white, atol=1e-4):
+        XYZ = adapt_XYZ(XYZ, source_white, white, "CAT02")
+    ab = np.arange(-120.0, 120.0 + 1e-9, POINTER_STEP)
+    Lab = np.stack(np.meshgrid(POINTER_LIGHTNESS, ab, ab, indexing="ij"), axis=-1).reshape(-1, 3)
+    grid = colour.Lab_to_XYZ(Lab, colour.XYZ_to_xy(white))
+    C = illuminant_white_XYZ("C")
+    inside = colour.volume.is_within_pointer_gamut(adapt_XYZ(grid, white, C, "CAT02"))
+    return np.vstack([XYZ, grid[inside]])
+
+
+def plausible_surface_samples(apply: Callable[[np.ndarray], np.ndarray], white_XYZ: Any,
+                              illuminant: str | None = None) -> np.ndarray:
+    """Linear camera RGB of :func:`plausible_surface_XYZ`, inverted through ``apply``.
+
+    Only preimages a camera records from a surface are kept: Newton
+    converged (:func:`invert_model`) and no channel below
+    :data:`MIN_CHANNEL_RATIO` of the largest one. Broadband reflectances
+    under a broadband light never zero a channel of a camera whose
+    sensitivities overlap; colours that would need it lie on the edge of the
+    camera's own gamut.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(M, 3)`` linear camera RGB.
+    """
+    return _recordable_preimages(apply, plausible_surface_XYZ(white_XYZ, illuminant))
+
+
+def _recordable_preimages(apply: Callable[[np.ndarray], np.ndarray], XYZ: np.ndarray) -> np.ndarray:
+    """:func:`invert_model`, keeping converged preimages with no channel below :data:`MIN_CHANNEL_RATIO`."""
+    RGB = invert_model(apply, XYZ)
+    with np.errstate(invalid="ignore"):
+        residual = np.abs(apply(RGB) - XYZ).max(axis=1) / (np.linalg.norm(XYZ, axis=1) + 1e-3)
+        keep = (residual < 1e-6) & (RGB.min(axis=1) >= MIN_CHANNEL_RATIO * RGB.max(axis=1))
+    return RGB[keep & np.all(np.isfinite(RGB), axis=1)]
+
+
+def bake_samples(fit: ColourFit) -> np.ndarray:
+    """Where a baked fit must hold: :func:`chart_gamut_samples` and :func:`plausible_surface_samples`.
+
+    The surfaces are lit by the fit's training illuminant and adapted to its
+    target white, as the fit's own reference XYZ were.
+    """
+    return _model_samples(fit.model, fit.target_white_XYZ, fit.reference, fit.training_illuminant)
+
+
+def _model_samples(model, white_XYZ: Any, reference: str | None, illuminant: str | None) -> np.ndarray:
+    surfaces = plausible_surface_samples(model.apply, white_XYZ, illuminant)
+    return np.vstack([_chart_samples(model, white_XYZ, reference), surfaces])
+
+
+def bake_model(model, white_XYZ: Any, *, reference: str | None = None, illuminant: str | None = None,
+               max_delta_E: float = 0.2, lut_sizes: Sequence[int] = LUT_SIZES) -> BakedTransform:
+    """A characterisation model as OCIO transforms: the one check every exporter and ``auto`` share.
+
+    A ``matrix3x3`` model is an exact ``MatrixTransform``; any other is baked
+    (:func:`transform_from_callable`) over the chart gamut of ``reference``
+    and the plausible surface colours lit by ``illuminant``
+    (:func:`bake_samples`), within ``max_delta_E`` CIEDE2000 or refused.
+
+    Parameters
+    ----------
+    model
+        ``LinearTermsModel`` or ``RBFModel`` (linear camera RGB -> XYZ).
+    white_XYZ
+        The model's target white (Y = 1).
+    reference, illuminant
+        The fit's reference chart and training illuminant.
+    max_delta_E, lut_sizes
+        See :func:`transform_from_callable`.
+
+    Raises
+    ------
+    CamcalError
+        The largest Lut3D still exceeds ``max_delta_E`` somewhere.
+    """
+    if model.kind == "matrix3x3":
+        return transform_from_callable(model.apply, matrix=model.M)
+    return transform_from_callable(model.apply, samples=_model_samples(model, white_XYZ, reference, illuminant),
+                                   white_XYZ=white_XYZ, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+
+
+def bake_fit(fit: ColourFit, *, max_delta_E: float = 0.2, lut_sizes: Sequence[int] = LUT_SIZES) -> BakedTransform:
+    """:func:`bake_model` of a characterisation's model (exact matrix, or the baked Lut3D)."""
+    return bake_model(fit.model, fit.target_white_XYZ, reference=fit.reference,
+                      illuminant=fit.training_illuminant, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
 
 
 # --------------------------------------------------------------------------
@@ -784,7 +1048,7 @@ def write_ocio_config(spec: ConfigSpec, directory: str | os.PathLike, filename: 
 class SpaceExport:
     """What one exported camera colour space is, with its figures.
 
-    ``bake_error``: CIEDE2000 of the baked model over the chart gamut
+    ``bake_error``: CIEDE2000 of the baked model over the chart gamut and plausible surface colours
     (``None`` for an exact matrix); ``linearisation_error``: relative error
     of a sampled linearisation (0 when exact); ``clf``: the CLF's path
     relative to the config (``None`` for a matrix fit).
@@ -805,7 +1069,7 @@ class SpaceExport:
             line += "exact MatrixTransform"
         else:
             line += (f"{self.lut_size}^3 Lut3D in {self.clf}, bake error CIEDE2000 mean "
-                     f"{self.bake_error.mean:.3f}, max {self.bake_error.max:.3f} over the chart gamut")
+                     f"{self.bake_error.mean:.3f}, max {self.bake_error.max:.3f} over the chart gamut and plausible surfaces")
         if self.linearisation_error:
             line += f"; sampled linearisation, relative error {self.linearisation_error:.1e}"
         return line
@@ -862,17 +1126,14 @@ def colour_space_from_fit(
     model = fit.model
     files: dict = {}
     clf = None
-    if model.kind == "matrix3x3":
-        baked = transform_from_callable(model.apply, matrix=model.M)
+    baked = bake_fit(fit, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+    if baked.kind == "matrix":
         steps = [*lin, _matrix_transform(to_ref @ baked.matrix)]
         how = "exact matrix"
     else:
-        baked = transform_from_callable(model.apply, samples=chart_gamut_samples(fit),
-                                        white_XYZ=fit.target_white_XYZ, max_delta_E=max_delta_E,
-                                        lut_sizes=lut_sizes)
         clf = f"{LUT_DIR}/camcal_{_slug(camera)}.clf"
-        how = (f"baked as a log2 shaper and {baked.lut_size}^3 Lut3D ({clf}), bake error CIEDE2000 mean "
-               f"{baked.bake_error.mean:.3f}, max {baked.bake_error.max:.3f} over the chart gamut")
+        how = (f"baked as a log-chromaticity shaper and {baked.lut_size}^3 Lut3D ({clf}), bake error CIEDE2000 mean "
+               f"{baked.bake_error.mean:.3f}, max {baked.bake_error.max:.3f} over the chart gamut and plausible surfaces")
         files[clf] = baked.clf_text(f"camcal:{_slug(camera)}",
                                     f"camcal {model.label}: linear camera RGB of {camera} to CIE XYZ "
                                     f"({fit.target_white}, white Y = 1)")
@@ -980,3 +1241,111 @@ def export_ocio(
         reports.append(report)
     path = write_ocio_config(ConfigSpec(base=str(base), colour_spaces=tuple(specs), looks=tuple(looks)), directory)
     return OCIOExport(path, str(base), tuple(reports))
+
+
+# --------------------------------------------------------------------------
+# Applying a fit to images: one OCIO CPU processor.
+
+#: Output spaces of :func:`fit_processor`: name -> colour-science RGB colour space (``None``: the fit's XYZ).
+OUTPUT_SPACES = {"CIE XYZ": None, "ACES2065-1": "ACES2065-1", "ACEScg": "ACEScg", "lin Rec.709": "ITU-R BT.709"}
+
+
+def output_matrix(white_XYZ: Any, space: str, cat: str = "Bradford") -> np.ndarray:
+    """Matrix from XYZ under ``white_XYZ`` (Y = 1) to a linear output space of :data:`OUTPUT_SPACES`.
+
+    ``"CIE XYZ"`` is the identity (the fit's own XYZ, relative to its target
+    white); the RGB spaces are ``M_XYZ->RGB @ CAT(white -> space white)``
+    (von Kries with ``cat``; colour-science's matrices: ACES2065-1 AP0,
+    ACEScg AP1, both with the ACES white; linear Rec. 709 with D65).
+
+    Examples
+    --------
+    >>> output_matrix([0.95047, 1.0, 1.08883], "CIE XYZ").tolist()[0]
+    [1.0, 0.0, 0.0]
+    """
+    import colour
+
+    if space not in OUTPUT_SPACES:
+        raise CamcalError(f"unknown output space {space!r}, expected one of: {', '.join(OUTPUT_SPACES)}")
+    if cat not in CATS:
+        raise CamcalError(f"unknown adaptation {cat!r}, expected one of: {', '.join(CATS)}")
+    if OUTPUT_SPACES[space] is None:
+        return np.eye(3)
+    rgb = colour.RGB_COLOURSPACES[OUTPUT_SPACES[space]]
+    adapt = colour.adaptation.matrix_chromatic_adaptation_VonKries(
+        np.asarray(white_XYZ, dtype=np.float64), colour.xy_to_XYZ(rgb.whitepoint), transform=cat)
+    return rgb.matrix_XYZ_to_RGB @ adapt
+
+
+@dataclass(frozen=True, eq=False)
+class FitProcessor:
+    """A characterisation applied to images by one OCIO CPU processor.
+
+    The processor is the exported colour space's own transform: the
+    linearisation (exact, or sampled for ``named`` curves), the model (an
+    exact ``MatrixTransform`` for ``matrix3x3``; otherwise the baked
+    log-chromaticity Lut3D of :func:`bake_fit`, within ``bake_error`` of the
+    fit), then the matrix to ``space`` (:func:`output_matrix`).
+
+    Attributes
+    ----------
+    space
+        Output space (a key of :data:`OUTPUT_SPACES`).
+    kind
+        ``"matrix"`` (exact) or ``"lut3d"`` (baked).
+    bake_error
+        CIEDE2000 of the bake over the chart gamut and plausible surfaces
+        (``None`` when exact).
+    cpu
+        The ``PyOpenColorIO.CPUProcessor``.
+    """
+
+    space: str
+    kind: str
+    bake_error: DeltaEStats | None
+    cpu: Any
+
+    def apply(self, codes: Any, *, in_place: bool = False) -> np.ndarray:
+        """Code values ``(..., 3)`` in [0, 1] to ``space``, float32, same shape.
+
+        ``in_place``: a C-contiguous float32 array is processed in place (no copy).
+        """
+        if in_place and isinstance(codes, np.ndarray) and codes.dtype == np.float32 and codes.flags.c_contiguous:
+            pixels = codes
+        else:
+            pixels = np.array(codes, dtype=np.float32, order="C", copy=True)
+        if pixels.shape[-1] != 3:
+            raise CamcalError(f"expected pixels with 3 channels (..., 3), got shape {pixels.shape}")
+        self.cpu.applyRGB(pixels)
+        return pixels
+
+
+def fit_processor(fit: ColourFit, space: str = "CIE XYZ", *, cat: str = "Bradford", max_delta_E: float = 0.2,
+                  lut_sizes: Sequence[int] = LUT_SIZES) -> FitProcessor:
+    """The OCIO CPU processor of a characterisation, from code values to ``space``.
+
+    Parameters
+    ----------
+    fit
+        The characterisation.
+    space
+        ``"CIE XYZ"`` (the fit's XYZ, target white Y = 1), ``"ACES2065-1"``,
+        ``"ACEScg"`` or ``"lin Rec.709"``.
+    cat, max_delta_E, lut_sizes
+        See :func:`output_matrix` and :func:`bake_fit` (a fit the exporter
+        refuses is refused here too).
+
+    Returns
+    -------
+    FitProcessor
+    """
+    ocio = _ocio()
+    out = output_matrix(fit.target_white_XYZ, space, cat)
+    lin, _ = linearisation_transforms(fit.linearisation)
+    baked = bake_fit(fit, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+    if baked.kind == "matrix":
+        steps = [*lin, _matrix_transform(out @ baked.matrix)]
+    else:
+        steps = [*lin, *list(baked.transform), _matrix_transform(out)]
+    cpu = _cpu(ocio.GroupTransform(steps))
+    return FitProcessor(space, baked.kind, baked.bake_error, cpu)

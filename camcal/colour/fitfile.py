@@ -74,7 +74,9 @@ with ``XYZ = sum_j weights_j phi(|RGB - centres_j|) + linear @ [R, G, B, 1]``.
 
 ``STATS``: ``{"n", "mean", "median", "p90", "p95", "max"}`` of CIEDE2000.
 ``CANDIDATE``: ``{"model", "objective", "regularisation", "loo_mean",
-"loo_p95"}``.
+"loo_p95"}``, plus ``"exportable"`` and ``"bake_error_max"`` (CIEDE2000 of
+the baked model; absent for an exact matrix) on the candidates ``auto``
+handed to the exporters' check.
 
 Using a fit::
 
@@ -82,6 +84,7 @@ Using a fit::
     XYZ = fit.apply(RGB_linear)        # (N, 3) LINEAR camera RGB -> XYZ
     RGB_linear = fit.linearise(codes)  # (N, 3) code values in [0, 1] -> linear
     XYZ = fit.apply_codes(codes)       # both: code values -> XYZ
+    image = fit.processor("ACEScg").apply(codes)  # fast: OCIO's CPU processor (float32)
 
 XYZ is relative to the target white, Y = 1 for the perfect white.
 Every ``kind`` is listed explicitly in :data:`FILE_KINDS` (the class whose
@@ -200,7 +203,12 @@ def _check_model(value: Any, where: str) -> None:
 
 
 def _check_candidate(value: Any, where: str) -> None:
-    _keys(value, where, ("model", "objective", "regularisation", "loo_mean", "loo_p95"))
+    _keys(value, where, ("model", "objective", "regularisation", "loo_mean", "loo_p95"),
+          ("exportable", "bake_error_max"))
+    if "exportable" in value:
+        _boolean(value["exportable"], f"{where}.exportable")
+    if "bake_error_max" in value:
+        _number(value["bake_error_max"], f"{where}.bake_error_max", 0.0)
     _string(value["model"], f"{where}.model")
     _string(value["objective"], f"{where}.objective", OBJECTIVES)
     _number(value["regularisation"], f"{where}.regularisation", 0.0)
@@ -360,6 +368,20 @@ class ColourFit(LinearisedModel):
     capture: dict | None = None
 
     kind = "characterisation"
+
+    def processor(self, space: str = "CIE XYZ"):
+        """The fast image path: one OCIO CPU processor from code values to ``space``.
+
+        Exact for a ``matrix3x3`` fit; other models go through the baked Lut3D
+        the OCIO export writes (within its bake error, see
+        :func:`camcal.colour.export_ocio.fit_processor`). ``space``:
+        ``"CIE XYZ"`` (this fit's XYZ), ``"ACES2065-1"``, ``"ACEScg"``,
+        ``"lin Rec.709"``. ``processor(space).apply(codes)`` takes ``(..., 3)``
+        code values and returns float32.
+        """
+        from camcal.colour.export_ocio import fit_processor  # noqa: PLC0415 - OCIO is imported there only
+
+        return fit_processor(self, space)
 
     def to_dict(self) -> dict:
         """The file's JSON object."""

@@ -65,7 +65,8 @@ from camcal.colour.evaluate import DeltaEStats, delta_E
 from camcal.colour.fitfile import ColourFit
 from camcal.colour.models import LinearTermsModel, parse_term
 from camcal.colour.patches import PatchSet
-from camcal.colour.spectral import CAT_TRANSFORMS, CMFS_NAME, resample_spectral, reflectance_set
+from camcal.colour import spectral
+from camcal.colour.spectral import CAT_TRANSFORMS, reflectance_set
 from camcal.colour.ssf import Sensitivities, illuminant_spd
 from camcal.errors import CamcalError
 
@@ -98,13 +99,10 @@ def reflectance_XYZ(reflectances: str, illuminant: str) -> tuple[list[str], np.n
     names, XYZ, white_XYZ
         ``(N, 3)`` and ``(3,)``, integrated on 360-780 nm (5 nm).
     """
-    import colour
-
     names, R = reflectance_set(reflectances, _COLORIMETRY_GRID)
     L = illuminant_spd(illuminant, _COLORIMETRY_GRID)
-    cmfs = resample_spectral(colour.MSDS_CMFS[CMFS_NAME], _COLORIMETRY_GRID)
-    k = 1.0 / float(L @ cmfs[:, 1])
-    return names, (R * L) @ cmfs * k, L @ cmfs * k
+    XYZ, white = spectral.reflectance_XYZ(R, L, (_COLORIMETRY_GRID[0], _COLORIMETRY_GRID[-1], 5.0))
+    return names, XYZ, white
 
 
 def spectral_patches(sens: Sensitivities, illuminant: str, reflectances: str, curves: Any = None) -> PatchSet:

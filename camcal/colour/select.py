@@ -11,11 +11,19 @@ Candidates (stage 1, objective ``xyz``, all closed form):
 
 Candidates with as many parameters per output as patches minus two are
 skipped. Stage 2 refits the :data:`N_REFINE` best linear-terms candidates of
-stage 1 with the ``de2000`` objective (same ``lambda``). The pick is the
-lowest leave-one-out mean CIEDE2000 over both stages; ties within
-:data:`TIE` go to the simpler model (fewer terms, then ``xyz``). White
-preserving variants are never picked by ``auto``: preserving the white is a
-constraint the user asks for, not an accuracy choice.
+stage 1 with the ``de2000`` objective (same ``lambda``). Candidates are
+ranked by leave-one-out mean CIEDE2000 over both stages; ties within
+:data:`TIE` go to the simpler model (fewer terms, then ``xyz``). Going down
+that ranking, each is fitted to all patches and handed to the exporters'
+own check (``exportable``; ``colour fit`` passes
+:func:`camcal.colour.export_ocio.bake_model` at its largest Lut3D: a
+``matrix3x3`` is exact, any other model must bake within CIEDE2000 0.2 over
+the chart gamut and plausible surface colours); the first that passes is
+picked, the ones refused before it are recorded with their bake error. The
+``matrix3x3`` always exports, so ``auto`` never picks a fit the OCIO and ICC
+(v4) exporters refuse. White preserving variants are never picked by
+``auto``: preserving the white is a constraint the user asks for, not an
+accuracy choice.
 
 The LOO figure of the pick is slightly optimistic (it won a selection on
 the same patches): judge the pick on an independent patch set.
@@ -23,9 +31,11 @@ the same patches): judge the pick on an independent patch set.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
+
+import re
 
 import numpy as np
 
@@ -51,6 +61,8 @@ class Candidate:
     regularisation: float
     loo_mean: float
     loo_p95: float
+    bake_error_max: float | None = None
+    exportable: bool | None = None
 
     @property
     def n_params(self) -> int:
@@ -62,9 +74,14 @@ class Candidate:
         return f"{self.spec.label} ({self.objective}{reg})"
 
     def to_dict(self) -> dict:
-        return {"model": self.spec.label, "objective": self.objective,
-                "regularisation": float(self.regularisation),
-                "loo_mean": float(self.loo_mean), "loo_p95": float(self.loo_p95)}
+        out = {"model": self.spec.label, "objective": self.objective,
+               "regularisation": float(self.regularisation),
+               "loo_mean": float(self.loo_mean), "loo_p95": float(self.loo_p95)}
+        if self.exportable is not None:
+            out["exportable"] = bool(self.exportable)
+            if self.bake_error_max is not None:
+                out["bake_error_max"] = float(self.bake_error_max)
+        return out
 
 
 @dataclass(frozen=True)
@@ -78,14 +95,21 @@ class Selection:
     def reason(self) -> str:
         ranked = sorted(self.candidates, key=lambda c: c.loo_mean)
         runner = next((c for c in ranked if c is not self.picked), None)
+        refused = [c for c in self.candidates if c.exportable is False]
         text = (f"lowest leave-one-out mean CIEDE2000 {self.picked.loo_mean:.3f} "
                 f"of {len(self.candidates)} candidates")
-        if runner is not None:
+        if refused:
+            text = (f"lowest leave-one-out mean CIEDE2000 {self.picked.loo_mean:.3f} of {len(self.candidates)} "
+                    f"candidates once {len(refused)} better one(s) failed the export bake check (CIEDE2000 "
+                    f"over the chart gamut and plausible surfaces: "
+                    + ", ".join(f"{c.label} {c.bake_error_max if c.bake_error_max is not None else float('nan'):.2f}"
+                               for c in refused) + ")")
+        elif runner is not None:
             text += f" (next: {runner.label} at {runner.loo_mean:.3f})"
         return text
 
     def to_dict(self) -> dict:
-        return {"method": "auto: leave-one-out mean CIEDE2000",
+        return {"method": "auto: leave-one-out mean CIEDE2000 among fits that export",
                 "picked": self.picked.to_dict(), "reason": self.reason,
                 "candidates": [c.to_dict() for c in self.candidates]}
 
@@ -107,6 +131,7 @@ def select_model(
     *,
     objectives: Sequence[str] = ("xyz", "de2000"),
     candidates: Sequence[str] | None = None,
+    exportable: Callable[[Any], float | None] | None = None,
 ) -> Selection:
     """Pick model, objective and ridge ``lambda`` by leave-one-out CIEDE2000.
 
@@ -121,6 +146,11 @@ def select_model(
         runs stage 1 with ``xyz`` only to rank, then keeps de2000 fits.
     candidates
         Model names to try instead of the default list.
+    exportable
+        ``exportable(model) -> bake error max (None when exact)``, raising
+        :class:`CamcalError` when the exporters refuse the model; ``None``
+        skips the check (only for studies of the fits themselves: the pick
+        may then not export).
 
     Returns
     -------
@@ -158,7 +188,29 @@ def select_model(
             final.append(Candidate(c.spec, "de2000", c.regularisation, mean, p95))
     if not final:
         raise CamcalError("no candidate model for the objectives asked")
-    best = min(c.loo_mean for c in final)
-    close = [c for c in final if c.loo_mean <= best + TIE]
-    picked = min(close, key=lambda c: (c.n_params, c.objective != "xyz", c.loo_mean))
-    return Selection(picked=picked, candidates=tuple(final))
+    remaining = list(final)
+    checked: dict[int, Candidate] = {}
+    while True:
+        best = min(c.loo_mean for c in remaining)
+        close = [c for c in remaining if c.loo_mean <= best + TIE]
+        picked = min(close, key=lambda c: (c.n_params, c.objective != "xyz", c.loo_mean))
+        if exportable is None:
+            break
+        model = fit_model(picked.spec, RGB, XYZ, objective=picked.objective, regularisation=picked.regularisation,
+                          white_XYZ=white_XYZ)
+        try:
+            error = exportable(model)
+        except CamcalError as refusal:
+            reached = re.search(r"up to ([0-9.]+)", str(refusal))
+            checked[id(picked)] = replace(picked, exportable=False,
+                                          bake_error_max=float(reached.group(1)) if reached else None)
+            remaining.remove(picked)
+            if not remaining:
+                raise CamcalError("no candidate model exports within the bake error") from None
+            continue
+        checked[id(picked)] = replace(picked, exportable=True, bake_error_max=error)
+        break
+    everything = tuple(checked.get(id(c), c) for c in final)
+    if exportable is not None:
+        picked = next(c for c in everything if c.exportable)
+    return Selection(picked=picked, candidates=everything)

@@ -99,17 +99,21 @@ def resample_spectral(sd_or_msds: Any, wavelengths: Any) -> np.ndarray:
     return np.asarray(copy.align(shape).values, dtype=np.float64)
 
 
-def reflectance_XYZ(reflectances: Any, illuminant: str,
+def reflectance_XYZ(reflectances: Any, illuminant: Any,
                     shape: tuple[float, float, float] = (380.0, 780.0, 5.0)) -> tuple[np.ndarray, np.ndarray]:
-    """XYZ of reflectance spectra under a CIE illuminant, and of the perfect white (Y = 1).
+    """XYZ of reflectance spectra under an illuminant, and of the perfect white (Y = 1).
+
+    The one spectral integration of camcal (chart references, the demo's
+    truth, :meth:`SimulatedCamera.XYZ`, :func:`camcal.colour.illuminant.reflectance_XYZ`).
 
     Parameters
     ----------
     reflectances : colour-science spectral distributions or array_like
         A dict or list of ``SpectralDistribution``, a ``MultiSpectralDistributions``,
         or ``(N, W)`` reflectances sampled on ``shape``.
-    illuminant : str
-        CIE illuminant name (``colour.SDS_ILLUMINANTS``).
+    illuminant : str or array_like
+        CIE illuminant name (``colour.SDS_ILLUMINANTS``), or ``(W,)`` spectral
+        power sampled on ``shape``.
     shape : (start, end, interval)
         Wavelength grid in nm of the integration (default 380 to 780 nm every 5 nm).
 
@@ -127,10 +131,18 @@ def reflectance_XYZ(reflectances: Any, illuminant: str,
     import colour
     from colour.colorimetry import sds_and_msds_to_msds
 
-    if illuminant not in colour.SDS_ILLUMINANTS:
-        raise CamcalError(f"unknown illuminant {illuminant!r}, expected a name of colour.SDS_ILLUMINANTS")
     grid = colour.SpectralShape(*shape)
-    cmfs, S = colour.MSDS_CMFS[CMFS_NAME], colour.SDS_ILLUMINANTS[illuminant]
+    if isinstance(illuminant, str):
+        if illuminant not in colour.SDS_ILLUMINANTS:
+            raise CamcalError(f"unknown illuminant {illuminant!r}, expected a name of colour.SDS_ILLUMINANTS")
+        S = colour.SDS_ILLUMINANTS[illuminant].copy().align(grid)
+    else:
+        values = np.asarray(illuminant, dtype=np.float64)
+        if values.shape != grid.wavelengths.shape:
+            raise CamcalError(f"illuminant has {values.size} samples, the grid {shape} has {grid.wavelengths.size}")
+        S = colour.SpectralDistribution(values, grid.wavelengths)
+    # aligned here as colour-science would (reshape = align), so it does not warn that it aligns it
+    cmfs = colour.MSDS_CMFS[CMFS_NAME].copy().align(grid)
     if isinstance(reflectances, Mapping):
         reflectances = list(reflectances.values())
     if isinstance(reflectances, (list, tuple)):
@@ -316,8 +328,9 @@ class SimulatedCamera:
 
     def XYZ(self, reflectances: Any) -> np.ndarray:
         """Relative XYZ under the scene illuminant, perfect white Y = 1."""
-        k = 1.0 / float(self.illuminant @ self.cmfs[:, 1])
-        return self.stimulus(reflectances) @ self.cmfs * k
+        R = self.stimulus(reflectances) / self.illuminant[None, :]  # checked against the camera grid
+        shape = spectral_shape(self.wavelengths)
+        return reflectance_XYZ(R, self.illuminant, (shape.start, shape.end, shape.interval))[0]
 
     @property
     def white_XYZ(self) -> np.ndarray:

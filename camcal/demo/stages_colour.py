@@ -13,7 +13,6 @@ from camcal.demo.core import (
     COLOUR_EXPORTS_SECTION, DemoContext, DemoRow, ReportSection, StageResult, command_line, run_cli,
 )
 from camcal.demo.report import img_tag
-from camcal.errors import CamcalError
 
 __all__ = [
     "stage_colour_export",
@@ -192,36 +191,6 @@ def _ocio_apply(processor, RGB: NDArray) -> NDArray[np.float64]:
     return apply_cpu(processor.getOptimizedCPUProcessor(ocio.OPTIMIZATION_LOSSLESS), RGB)
 
 
-def _exportable_fits(ctx: DemoContext, stage: str) -> tuple[dict[str, Path], dict[str, tuple[str, str]], list]:
-    """Each camera's fit, or its 3x3 matrix fit where the exporter refuses to bake the chosen one.
-
-    A strongly non-linear fit (e.g. a root-polynomial with large cancelling
-    coefficients, which ``auto`` can pick for a sensor far from the CIE
-    observer) may not fit in a 65^3 Lut3D / CLUT within CIEDE2000 0.2; the
-    exporter then refuses, as it would for a user, and the demo refits the
-    camera with ``--model matrix3x3``. Returns the fits, the refusals
-    (camera -> (model, reason)) and the refit commands.
-    """
-    from camcal.colour.export_icc import icc_profile_from_fit  # noqa: PLC0415
-    from camcal.colour.export_ocio import CAMCAL_BASE, colour_space_from_fit, load_base_config  # noqa: PLC0415
-    from camcal.colour.fitfile import load_fit  # noqa: PLC0415
-
-    base = load_base_config(CAMCAL_BASE)
-    fits, refused, commands = {}, {}, []
-    for name, path in ctx.need("colour_fits", stage).items():
-        fit = load_fit(path)
-        try:
-            colour_space_from_fit(fit, name, base)
-            icc_profile_from_fit(fit, name)
-            fits[name] = path
-        except CamcalError as error:
-            refused[name] = (fit.model.label, str(error))
-            fits[name] = ctx.path("colour", f"{name}_matrix.colour.json")
-            commands.append(_colour_fit_argv(ctx, name, "matrix3x3", fits[name]))
-            run_cli(commands[-1], stage)
-    return fits, refused, commands
-
-
 def stage_colour_export(ctx: DemoContext) -> StageResult:
     import PyOpenColorIO as ocio  # noqa: PLC0415
 
@@ -235,7 +204,8 @@ def stage_colour_export(ctx: DemoContext) -> StageResult:
     from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ  # noqa: PLC0415
 
     stage = "colour export"
-    fits, refused, commands = _exportable_fits(ctx, stage)
+    # auto only picks fits the exporters take (camcal.colour.select): no refit is ever needed here
+    fits, commands = dict(ctx.need("colour_fits", stage)), []
     samples = {name: np.vstack([read_patch_csv(ctx.need("chart_patches", stage)[name]).RGB,
                                 read_patch_csv(ctx.need("independent_patches", stage)[name]).RGB])
                for name in fits}
@@ -248,7 +218,6 @@ def stage_colour_export(ctx: DemoContext) -> StageResult:
     D65 = illuminant_white_XYZ("D65")
     lcms = load_lcms()
     rows, outputs = [], [("OCIO config (config.ocio)", ocio_dir / "config.ocio")]
-    outputs += [(f"{name} matrix fit, exported instead ({fits[name].name})", fits[name]) for name in refused]
     commands.append(argv)
     for name, path in fits.items():
         fit = load_fit(path)
@@ -273,7 +242,7 @@ def stage_colour_export(ctx: DemoContext) -> StageResult:
             D50 = adapt_XYZ(expected, fit.target_white_XYZ, D50_XYZ, "Bradford")
             keep = D50[:, 1] > 0.01  # CIEDE2000 of near-black says nothing
             err = float(delta_E(lcms_to_XYZ(lcms, icc.read_bytes(), codes)[keep], D50[keep], D50_XYZ).max())
-        rows.append(DemoRow(stage, f"{name} ICC (LittleCMS) vs fit, worst dE00", 0.0, err, err, 0.5,
+        rows.append(DemoRow(stage, f"{name} ICC (LittleCMS) vs fit, worst dE00", 0.0, err, err, 0.2,
                             "dE00", "issue 7"))
     if match_path:
         match = load_match(match_path)
@@ -287,12 +256,7 @@ def stage_colour_export(ctx: DemoContext) -> StageResult:
     clfs = sorted(ocio_dir.rglob("*.clf"))
     outputs += [(f"baked transform ({p.name})", p) for p in clfs]
     spaces = [colour_space_name(name) for name in fits]
-    refusals = "".join(
-        f"<p>The {html.escape(name)} camera's <code>auto</code> fit ({html.escape(text)}) cannot be baked: "
-        f"<code>camcal colour export</code> refuses it ({html.escape(reason)}), so the {html.escape(name)} camera "
-        f"is exported with its 3x3 matrix fit (exact in OCIO and ICC).</p>"
-        for name, (text, reason) in refused.items())
-    body = (refusals + "".join(f"<pre>{html.escape(command_line(a, ctx))}</pre>" for a in commands)
+    body = ("".join(f"<pre>{html.escape(command_line(a, ctx))}</pre>" for a in commands)
             + "<p>The config <a href=\"ocio/config.ocio\">ocio/config.ocio</a> (camcal's base: ACES2065-1 "
               "reference, the roles Blender needs) gains the input spaces "
             + ", ".join(f"<code>{html.escape(n)}</code>" for n in spaces)

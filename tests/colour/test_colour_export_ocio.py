@@ -15,6 +15,7 @@ from camcal.colour.export_ocio import (  # noqa: E402
     ConfigSpec,
     LogShaper,
     LookSpec,
+    bake_samples,
     base_config_path,
     build_ocio_config,
     chart_gamut_samples,
@@ -117,7 +118,7 @@ def test_matrix_fit_into_blenders_config(tmp_path, sim):
     np.testing.assert_allclose(got, _expected_D65(fit, codes), atol=1e-5)
 
 
-@pytest.mark.parametrize("model", ["root-polynomial:2", "polynomial:10", "rbf:thin-plate"])
+@pytest.mark.parametrize("model", ["root-polynomial:2", "polynomial:7"])
 def test_baked_fits_within_delta_E(tmp_path, sim, model):
     fit = make_fit(sim, model)
     result = export_ocio([("nikon", fit)], tmp_path, base="camcal")
@@ -132,27 +133,35 @@ def test_baked_fits_within_delta_E(tmp_path, sim, model):
         return delta_E(_apply(config, "camcal nikon", XYZ_D65, codes), _expected_D65(fit, codes), D65)
 
     assert dE(codes_of(sim.RGB_train)).max() < 0.2
-    # independent patches: inside the chart gamut the bake is held below 0.2; outside it, reported
+    # independent patches (190 reflectances no step saw), inside and outside the chart gamut: below 0.2
     test = dE(codes_of(sim.RGB_test))
     gamut = chart_gamut_samples(fit)
     from scipy.spatial import Delaunay
 
     hull = Delaunay(np.vstack([gamut, np.zeros((1, 3))]))
     inside = hull.find_simplex(fit.linearise(codes_of(sim.RGB_test))) >= 0
-    assert inside.sum() > 50
-    assert test[inside].max() < 0.2
-    assert test.max() < 0.5
+    assert inside.sum() > 50 and (~inside).sum() > 20
+    assert test.max() < 0.2
     # dense grid of code values whose linear RGB lies in the chart gamut (two stops darker to the chart)
     grid = code_grid(25)
     lin = fit.linearise(grid)
     keep = Delaunay(np.vstack([gamut])).find_simplex(lin) >= 0
     assert keep.sum() > 200
     assert dE(grid[keep]).max() < 0.2
-    # the CLF on its own reproduces the model (linear RGB -> XYZ) as the report says
+    # the CLF on its own reproduces the model (linear RGB -> XYZ) as the report says, over the bake samples
+    samples = bake_samples(fit)
     cpu = ocio.Config.CreateRaw().getProcessor(ocio.FileTransform(str(clf))).getDefaultCPUProcessor()
-    pixels = np.ascontiguousarray(gamut, dtype=np.float32)
+    pixels = np.ascontiguousarray(samples, dtype=np.float32)
     cpu.applyRGB(pixels)
-    np.testing.assert_allclose(delta_E(pixels, fit.apply(gamut), white).max(), report.bake_error.max, rtol=1e-3)
+    np.testing.assert_allclose(delta_E(pixels, fit.apply(samples), white).max(), report.bake_error.max, rtol=1e-3)
+
+
+def test_a_model_that_cannot_bake_is_refused_with_the_error_reached(tmp_path, sim):
+    """polynomial:10 bends too sharply on saturated surfaces for an 81^3 grid: refused, nothing written."""
+    fit = make_fit(sim, "polynomial:10")
+    with pytest.raises(CamcalError, match=r"81\^3 Lut3D still leaves CIEDE2000 up to [0-9.]+"):
+        export_ocio([("nikon", fit)], tmp_path / "out", base="camcal")
+    assert not (tmp_path / "out").exists()
 
 
 def test_linearisations_lut1d_exact_named_sampled(sim):
@@ -237,3 +246,28 @@ def test_inverse_of_a_sigma_root_polynomial_is_the_cameras_own_rgb():
     assert np.abs(np.asarray(fit.model.to_dict()["coefficients"])).max() > 5  # the hard case
     found = invert_model(fit.apply, fit.apply(RGB))
     np.testing.assert_allclose(found, RGB, atol=1e-6)
+
+
+@pytest.mark.parametrize("space", ["ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ"])
+def test_library_apply_is_the_exported_transform_in_the_chosen_space(sim, space):
+    """fit.processor(space): a matrix fit through OCIO equals numpy + colour-science's conversion (Bradford)."""
+    fit = make_fit(sim, "matrix3x3")
+    processor = fit.processor(space)
+    assert processor.kind == "matrix" and processor.bake_error is None
+    codes = codes_of(sim.RGB_test).reshape(10, 19, 3)
+    got = processor.apply(codes)
+    assert got.dtype == np.float32 and got.shape == codes.shape
+    XYZ = fit.apply_codes(codes.reshape(-1, 3))
+    if space == "CIE XYZ":
+        expected = XYZ
+    else:
+        name = {"ACES2065-1": "ACES2065-1", "ACEScg": "ACEScg", "lin Rec.709": "ITU-R BT.709"}[space]
+        expected = colour.XYZ_to_RGB(XYZ, name, illuminant=colour.XYZ_to_xy(fit.target_white_XYZ),
+                                     chromatic_adaptation_transform="Bradford")
+    # OCIO's fast pow in the gamma-offset linearisation: about 2e-5 relative per camera channel, which the
+    # output matrix mixes into small outputs: 5e-5 of white absolute
+    np.testing.assert_allclose(got.reshape(-1, 3), expected, rtol=1e-4, atol=5e-5)
+    frame = codes.astype(np.float32)
+    assert processor.apply(frame, in_place=True) is frame
+    with pytest.raises(CamcalError, match="unknown output space 'sRGB'"):
+        fit.processor("sRGB")
