@@ -389,6 +389,8 @@ def _register_rig_interchange(verbs) -> None:
     imp.add_argument("--from", dest="fmt", required=True, choices=FORMATS, metavar="FORMAT",
                      help=f"one of: {', '.join(FORMATS)}")
     imp.add_argument("--out", required=True, metavar="RIG.rig.json", help="the rig file to write")
+    imp.add_argument("--image-size", nargs=2, type=int, metavar=("W", "H"),
+                     help="usd: the image size of cameras that carry none (USD cameras not written by camcal)")
     imp.set_defaults(func=_rig_import)
 
 
@@ -424,7 +426,8 @@ def _rig_import(args: argparse.Namespace) -> int:
     from camcal.io.ply import write_points_ply
     from camcal.rig import make_provenance
 
-    result = import_rig(args.file, args.fmt)
+    result = import_rig(args.file, args.fmt,
+                        image_size=None if args.image_size is None else _image_size(args.image_size))
     rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
     _print_conversions(args, result)
     out = summary_of(args)

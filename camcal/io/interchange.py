@@ -249,8 +249,17 @@ def export_rig(
                          **extra)
 
 
-def import_rig(path: str | os.PathLike, fmt: str) -> ImportResult:
+def import_rig(path: str | os.PathLike, fmt: str, *, image_size: tuple[int, int] | None = None) -> ImportResult:
     """Read another tool's camera file as a camcal rig (see :func:`export_rig`).
+
+    Parameters
+    ----------
+    path : path
+    fmt : str
+        One of :data:`FORMATS`.
+    image_size : (int, int), optional
+        ``usd`` only: width and height in pixels of the cameras that carry
+        none (plain USD cameras; the other formats hold the image size).
 
     Raises
     ------
@@ -260,10 +269,18 @@ def import_rig(path: str | os.PathLike, fmt: str) -> ImportResult:
     """
     module = _module(fmt)
     path = Path(path)
+    extra = {}
+    if image_size is not None:
+        if fmt != "usd":
+            raise CamcalError(f"an image size applies to usd only ({fmt} files hold their own)")
+        width, height = image_size
+        if not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in (width, height)):
+            raise CamcalError(f"the image size must be two positive integers, got {width} {height}")
+        extra["image_size"] = (width, height)
     if not path.exists():
         raise CamcalError(f"{fmt} input not found: {path}")
     try:
-        return module.load(path)
+        return module.load(path, **extra)
     except CamcalError as error:
         message = str(error)
         raise CamcalError(message if message.startswith(str(path)) else f"{path}: {message}") from None
