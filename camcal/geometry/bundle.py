@@ -66,6 +66,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from camcal.errors import CamcalError
+from camcal.geometry.camera import chordal_mean_rotation, pixels_from_colmap, pixels_to_colmap
 from camcal.io.colmap import camera_from_colmap
 
 __all__ = [
@@ -410,7 +411,7 @@ def _to_colmap(state: BundleState) -> _Colmap:
     for n, k in enumerate(keys):
         camera, frame = divmod(int(k), len(state.frame_R))
         rows = order[bounds[n]:bounds[n + 1]]
-        image = pycolmap.Image(name=f"{state.camera_names[camera]}/{frame}", keypoints=xy[rows] + 0.5,
+        image = pycolmap.Image(name=f"{state.camera_names[camera]}/{frame}", keypoints=pixels_to_colmap(xy[rows]),
                                camera_id=camera_ids[camera], image_id=n + 1)
         frame_ids.setdefault(frame, len(frame_ids) + 1)
         image.frame_id = frame_ids[frame]
@@ -708,8 +709,8 @@ def attach_board(state: BundleState, board: BoardObservations) -> BundleState:
     undistorted pixels). The camera centres in board units against the same
     centres in the reconstruction give the scale (median ratio of pairwise
     distances); ``world_from_board`` is the chordal mean of the per-view
-    estimates (rotation projected onto SO(3) by SVD), its translation the
-    mean. The state is then re-expressed in the board's frame
+    estimates (:func:`camcal.geometry.camera.chordal_mean_rotation`), its
+    translation the mean. The state is then re-expressed in the board's frame
     (``X_board = R^T (X_world - t)``, ``rig_from_board = rig_from_world
     world_from_board``), so that the board's constant corners fix the gauge.
 
@@ -751,8 +752,7 @@ def attach_board(state: BundleState, board: BoardObservations) -> BundleState:
     for R_cw, t_cw, R_cb, t_cb in poses:
         rotations.append(R_cw.T @ R_cb)
         translations.append(R_cw.T @ (t_cb - scale * t_cw))
-    u, _, vt = np.linalg.svd(np.sum(rotations, axis=0))
-    board_R = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    board_R = chordal_mean_rotation(rotations)
     board_t = np.mean(translations, axis=0)
     # the board's frame becomes the world
     return dataclasses.replace(
@@ -809,7 +809,7 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
         points=np.array([reconstruction.points3D[pid].xyz for pid in point_ids]).reshape(-1, 3),
         point_ids=tuple(point_ids),
         obs_camera=np.array(cams, dtype=np.int64), obs_frame=np.array(frames, dtype=np.int64),
-        obs_point=np.array(pts, dtype=np.int64), obs_xy=np.array(xys, dtype=np.float64).reshape(-1, 2) - 0.5,
+        obs_point=np.array(pts, dtype=np.int64), obs_xy=pixels_from_colmap(np.array(xys, dtype=np.float64).reshape(-1, 2)),
     )
 
 

@@ -41,6 +41,7 @@ __all__ = [
     "look_at",
     "random_rotation",
     "rotation_angle_deg",
+    "chordal_mean_rotation",
     "similarity_Umeyama1991",
 ]
 
@@ -255,6 +256,29 @@ def rotation_angle_deg(R: ArrayLike) -> float:
     """
     R = np.asarray(R, dtype=np.float64)
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def chordal_mean_rotation(rotations: ArrayLike) -> NDArray[np.float64]:
+    """The chordal L2 mean of rotation matrices (K, 3, 3).
+
+    Notes
+    -----
+    The rotation nearest (Frobenius) to the arithmetic mean of the
+    matrices, ``argmin_R sum_k |R - R_k|_F^2`` (Hartley, Trumpf, Dai & Li
+    2013, "Rotation averaging", IJCV 103(3)): the projection of
+    ``sum_k R_k = U S V^T`` onto SO(3), ``U diag(1, 1, det(U V^T)) V^T``.
+    SciPy's ``Rotation.mean`` computes it (from quaternions).
+
+    Examples
+    --------
+    >>> a, b = (Rotation.from_euler("z", d, degrees=True).as_matrix() for d in (10, 30))
+    >>> round(rotation_angle_deg(chordal_mean_rotation([a, b])), 9)
+    20.0
+    """
+    rotations = np.asarray(rotations, dtype=np.float64)
+    if rotations.ndim != 3 or rotations.shape[1:] != (3, 3) or len(rotations) == 0:
+        raise CamcalError(f"rotations must have shape (K, 3, 3) with K >= 1, got {rotations.shape}")
+    return Rotation.from_matrix(rotations).mean().as_matrix()
 
 
 def similarity_Umeyama1991(source: ArrayLike, target: ArrayLike) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:

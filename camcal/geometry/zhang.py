@@ -81,6 +81,7 @@ from camcal.errors import CamcalError
 from camcal.geometry.board import Board, Detection, frame_number
 from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState, bundle_adjust
 from camcal.geometry.bundle import residuals as board_residuals
+from camcal.geometry.camera import chordal_mean_rotation
 from camcal.geometry.distortion import Distortion
 from camcal.io.atomic import atomic_path
 from camcal.rig import Camera, Rig, make_provenance
@@ -223,8 +224,7 @@ def _average_rotation(rotations: NDArray[np.float64]) -> tuple[NDArray[np.float6
     -----
     Start from the medoid (least summed angle to the others), keep the
     rotations within ``max(1 deg, 3 x median angle)`` of it, and return
-    the projection of their arithmetic mean onto SO(3) (chordal L2 mean,
-    Hartley et al. 2013): ``R = U diag(1, 1, det(U V^T)) V^T``.
+    their chordal L2 mean (:func:`camcal.geometry.camera.chordal_mean_rotation`).
     """
     def angles(reference: NDArray[np.float64], many: NDArray[np.float64]) -> NDArray[np.float64]:
         cosine = (np.einsum("ij,kij->k", reference, many) - 1.0) / 2.0
@@ -234,8 +234,7 @@ def _average_rotation(rotations: NDArray[np.float64]) -> tuple[NDArray[np.float6
     medoid = rotations[np.argmin(pairwise.sum(axis=1))]
     distance = angles(medoid, rotations)
     inliers = distance <= max(np.radians(1.0), 3.0 * np.median(distance))
-    U, _, Vt = np.linalg.svd(rotations[inliers].sum(axis=0))
-    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, inliers
+    return chordal_mean_rotation(rotations[inliers]), inliers
 
 
 def _relative_pose(

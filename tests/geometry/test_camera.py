@@ -166,3 +166,21 @@ def test_similarity_Umeyama1991_recovers_a_known_similarity():
     assert abs(s / s_true - 1) < 5 * noise and rotation_angle_deg(R @ R_true.T) < 0.05
     np.testing.assert_allclose(t, t_true, atol=5 * noise)
     assert np.linalg.det(R) > 0
+
+
+def test_chordal_mean_rotation_is_the_svd_projection_and_recovers_the_centre():
+    from scipy.spatial.transform import Rotation
+
+    from camcal.geometry.camera import chordal_mean_rotation, random_rotation, rotation_angle_deg
+
+    rng = np.random.default_rng(7)
+    R_true = random_rotation(rng)
+    noise_rad, count = 0.05, 400
+    rotations = (Rotation.from_rotvec(rng.normal(0.0, noise_rad, (count, 3))) * Rotation.from_matrix(R_true)).as_matrix()
+    mean = chordal_mean_rotation(rotations)
+    U, _, Vt = np.linalg.svd(rotations.sum(axis=0))
+    assert np.allclose(mean, U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt, atol=1e-12)
+    # the error of a mean of `count` draws is about noise * sqrt(3 / count) rad; allow 4 sigma
+    assert rotation_angle_deg(mean @ R_true.T) < np.degrees(4 * noise_rad * np.sqrt(3 / count))
+    with pytest.raises(CamcalError, match="shape"):
+        chordal_mean_rotation(np.eye(3))
