@@ -498,7 +498,8 @@ def _calibrate_board(args: argparse.Namespace) -> int:
     import numpy as np
 
     from camcal.geometry.board import default_cache_dir, detect_in_images, frame_number, parse_board
-    from camcal.geometry.zhang import calibrate_board, quality_problems, write_report
+    from camcal.geometry.zhang import calibrate_board, quality_problems
+    from camcal.report.calibration import write_report
 
     board = parse_board(args.board)
     if not args.camera:

@@ -6,8 +6,7 @@ returning the files written:
 
 - :mod:`camcal.report.characterisation` (``colour fit``),
 - :mod:`camcal.report.colour_match` (``colour match``),
-- ``camcal.geometry.zhang.write_report`` (``calibrate board``; it moves
-  here with the calibration engine's rewrite),
+- :mod:`camcal.report.calibration` (``calibrate board``),
 - ``camcal.demo.report.write_html`` (``camcal demo``).
 
 Conventions every plot follows:

@@ -13,7 +13,8 @@ from camcal.cli import main
 from camcal.errors import CamcalError
 from camcal.geometry.board import Board, Detection, detect_in_images, frame_number
 from camcal.geometry.distortion import Distortion
-from camcal.geometry.zhang import calibrate_board, write_report
+from camcal.geometry.zhang import calibrate_board
+from camcal.report.calibration import write_report
 from camcal.rig import Camera, Rig
 
 SIGMA_PX = 0.1
@@ -242,6 +243,14 @@ def test_real_pairs_report_plots(real_detections, tmp_path):
     for path in written:
         image = cv2.imread(str(path))
         assert image is not None and image.min() < 128  # something was drawn
+    # residual arrows run from the (magnified) projection to the detected corner: with every
+    # corner's projection 3 px to the right of it (observed - projected = -3 px in x) the red
+    # strokes lie to the right of the corners
+    shifted = dataclass_replace(result, residuals_px=np.tile([3.0, 0.0], (len(result.residuals_px), 1)))
+    plot = cv2.imread(str(write_report(shifted, tmp_path / "shifted")[0]))
+    left = result.camera_of_point == 0
+    red_x = np.nonzero((plot[..., 2] > 150) & (plot[..., 0] < 100))[1]
+    assert np.median(red_x) > np.median(result.points_px[left, 0]) + 10
 
 
 # -- the command ----------------------------------------------------------------------------
