@@ -499,6 +499,7 @@ def _calibrate_board(args: argparse.Namespace) -> int:
 
     from camcal.geometry.board import default_cache_dir, detect_in_images, frame_number, parse_board
     from camcal.geometry.zhang import calibrate_board, quality_problems
+    from camcal.progress import Progress
     from camcal.report.calibration import write_report
 
     board = parse_board(args.board)
@@ -507,7 +508,8 @@ def _calibrate_board(args: argparse.Namespace) -> int:
     cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()}
     detections = {}
     for name, files in cameras.items():
-        report = detect_in_images(board, files, progress=f"detecting {name}", workers=args.workers or os.cpu_count() or 1,
+        report = detect_in_images(board, files, progress=Progress(len(files), f"detecting {name}", "images").report,
+                                  workers=args.workers or os.cpu_count() or 1,
                                   cache=None if args.no_cache else (args.cache or default_cache_dir()))
         print(f"{name}: {report.summary()}")
         detections[name] = report.detections

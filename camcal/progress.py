@@ -77,6 +77,17 @@ class Progress:
             self._draw()
             self._last_draw = now
 
+    def report(self, done: int, total: int) -> None:
+        """Callback form ``report(done, total)`` for numerical code: set the count, redraw when due, close at the end."""
+        self.total = int(total)
+        self.done = int(done) - self.failed
+        now = time.perf_counter()
+        if self.enabled and now - self._last_draw >= self._interval and done < total:
+            self._draw()
+            self._last_draw = now
+        if done >= total:
+            self.close()
+
     def close(self) -> None:
         """Draw the final state and end the line."""
         if self.enabled:

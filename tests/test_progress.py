@@ -37,3 +37,13 @@ def test_terminal_redraws_one_line_and_disabled_draws_nothing():
     silent.advance()
     silent.close()
     assert quiet.getvalue() == ""
+
+
+def test_report_callback_sets_the_count_and_closes_at_the_total():
+    stream = io.StringIO()
+    bar = Progress(3, label="detecting left", unit="images", stream=stream, log_interval_s=0.0)
+    for done in (1, 2, 3):
+        bar.report(done, 3)
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 3 and lines[-1].startswith("detecting left [########################] 3/3")
+    assert bar.done == 3

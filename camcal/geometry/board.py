@@ -53,8 +53,7 @@ import hashlib
 import json
 import os
 import re
-import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -407,7 +406,7 @@ def _detect_file(board: Board, path: str, content: bytes) -> tuple[tuple[int, in
 def detect_in_images(
     board: Board,
     paths: Iterable[str | os.PathLike],
-    progress: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
     workers: int = 1,
     cache: str | os.PathLike | None = None,
 ) -> DetectionReport:
@@ -418,9 +417,10 @@ def detect_in_images(
     board : Board
     paths : iterable of path
         Image files (anything ``cv2.imdecode`` reads, and EXR).
-    progress : str, optional
-        When given, a progress line ``<progress>: i / n`` is written to
-        stderr as the images are processed.
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each image (and once at
+        the start for the images found in the cache), e.g. the
+        :meth:`camcal.progress.Progress.report` of a progress bar.
     workers : int
         Images detected at once (default 1). Worker threads: OpenCV releases
         the GIL while it decodes and detects, so threads use every core
@@ -467,9 +467,8 @@ def detect_in_images(
     count = sum(result is not None for result in results)
 
     def report_progress() -> None:
-        if progress:
-            print(f"\r{progress}: {count} / {len(paths)} images", end="\n" if count == len(paths) else "",
-                  file=sys.stderr, flush=True)
+        if progress is not None:
+            progress(count, len(paths))
 
     n_workers = min(max(1, workers), len(pending))
     if n_workers > 1:

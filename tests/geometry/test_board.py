@@ -124,7 +124,9 @@ def test_detections_cached_by_content_and_threads_agree(tmp_path, monkeypatch):
         cv2.imwrite(str(tmp_path / f"cam{n:02d}.png"), image if n < 2 else np.full_like(image, 128))
     paths = sorted(tmp_path.glob("cam*.png"))
     cache = tmp_path / "cache"
-    first = detect_in_images(board, paths, workers=2, cache=cache)
+    calls = []
+    first = detect_in_images(board, paths, workers=2, cache=cache, progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(1, 3), (2, 3), (3, 3)]  # one call per image, in order, ending at the total
     serial = detect_in_images(board, paths, workers=1)
     assert [d.image for d in first.detections] == ["cam00.png", "cam01.png"] and first.skipped == ("cam02.png",)
     assert all(np.array_equal(a.corners_px, b.corners_px) for a, b in zip(first.detections, serial.detections))
@@ -134,7 +136,9 @@ def test_detections_cached_by_content_and_threads_agree(tmp_path, monkeypatch):
         raise AssertionError("detected although cached")
 
     monkeypatch.setattr(board_module, "detect_board", no_detection)
-    again = detect_in_images(board, paths, cache=cache)
+    calls.clear()
+    again = detect_in_images(board, paths, cache=cache, progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(3, 3)]  # all from the cache: one call
     assert again.skipped == first.skipped and [d.image for d in again.detections] == [d.image for d in first.detections]
     assert all(np.array_equal(a.corners_px, b.corners_px) and np.array_equal(a.ids, b.ids)
                for a, b in zip(again.detections, first.detections))

@@ -412,7 +412,7 @@ def test_cli_quality_gate_refuses_with_one_line(shared_data, tmp_path, capsys, m
             "--camera", f"right={folder}/right0[1-6].jpg", "--no-cache"]
     out = tmp_path / "rig.rig.json"
     assert main([*args, "--out", str(out)]) == 2
-    error = capsys.readouterr().err.split("images\n")[-1]  # after the detection progress lines
+    error = capsys.readouterr().err.split("images/s\n")[-1]  # after the detection progress lines
     assert error.startswith("camcal: error: calibration refused") and error.count("\n") == 1
     assert "principal point (-1614, 1098)" in error and "RMS 4.90 px" in error and "--force" in error
     assert not out.exists()
