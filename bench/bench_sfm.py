@@ -78,10 +78,10 @@ def bench_bundle() -> None:
         point.xyz = point.xyz + rng.normal(0.0, 0.02, 3)
     state = state_from_reconstruction(reconstruction)
     start = time.perf_counter()
-    result = bundle_adjust(state, BundleOptions(compute_sigmas=False), verbose=False)
+    result = bundle_adjust(state, BundleOptions(compute_sigmas=False))
     ours = time.perf_counter() - start
     start = time.perf_counter()
-    with_sigmas = bundle_adjust(state, BundleOptions(), verbose=False)
+    with_sigmas = bundle_adjust(state, BundleOptions())
     ours_sigmas = time.perf_counter() - start
     ba = pycolmap.BundleAdjustmentOptions(print_summary=False)
     solver = ba.ceres.solver_options
@@ -92,8 +92,7 @@ def bench_bundle() -> None:
     pycolmap.bundle_adjustment(peer_model, ba)
     peer = time.perf_counter() - start
     # the peer's final cost, evaluated by the same Ceres cost (no iterations)
-    peer_cost = bundle_adjust(state_from_reconstruction(peer_model), BundleOptions(max_iterations=0, compute_sigmas=False),
-                              verbose=False).initial_cost
+    peer_cost = bundle_adjust(state_from_reconstruction(peer_model), BundleOptions(max_iterations=0, compute_sigmas=False)).initial_cost
     print(f"bundle adjustment time (s, {len(state.obs_xy)} observations): ours {ours:.2f}, "
           f"peer (pycolmap.bundle_adjustment) {peer:.2f}, ratio {peer / ours:.3f}")
     print(f"bundle adjustment + covariance time (s): ours {ours_sigmas:.2f}, peer (BA only) {peer:.2f}, "

@@ -57,8 +57,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -488,7 +487,8 @@ def _held_indices(state: BundleState, camera: int, options: BundleOptions) -> li
     return sorted(held)
 
 
-def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(), verbose: bool = True) -> BundleResult:
+def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
+                  progress: Callable[[int, int], None] | None = None) -> BundleResult:
     """Refine a reconstruction on Ceres: shared intrinsics, shared rig, frames, points, board.
 
     Parameters
@@ -498,8 +498,11 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(), 
         or board views from :mod:`camcal.geometry.zhang`).
     options : BundleOptions
         What is refined, the loss, the tolerances.
-    verbose : bool
-        Print the cost before and after on stderr.
+    progress : callable, optional
+        Called as ``progress(done, total)`` as the stages finish: the
+        problem built (0), Ceres solved (1) and, with
+        ``options.compute_sigmas``, the covariance (2); ``total`` is 1 or 2.
+        Nothing is printed; :meth:`BundleResult.summary` describes the run.
 
     Returns
     -------
@@ -560,25 +563,26 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(), 
             problem.set_manifold(block, pyceres.SubsetManifold(len(block), held))
 
     rms_before = _rms(state)
-    if verbose:
-        print(f"camcal bundle (Ceres): {problem.num_parameters()} parameters, "
-              f"{problem.num_residuals()} residuals", file=sys.stderr, flush=True)
+    stages = 2 if options.compute_sigmas else 1
+    if progress is not None:
+        progress(0, stages)
     summary = adjuster.solve().ceres_summary
+    if progress is not None:
+        progress(1, stages)
     refined = _from_colmap(state, colmap)
     covariance, covariance_names, sigmas = np.zeros((0, 0)), (), {}
     if options.compute_sigmas:
         covariance, covariance_names = _covariance(state, options, colmap, problem, summary)
         sigmas = _sigmas(refined, covariance, covariance_names)
-    result = BundleResult(
+        if progress is not None:
+            progress(2, stages)
+    return BundleResult(
         state=refined, initial_cost=float(summary.initial_cost), final_cost=float(summary.final_cost),
         rms_before_px=rms_before, rms_after_px=_rms(refined), sigmas=sigmas,
         n_iterations=int(summary.num_successful_steps + summary.num_unsuccessful_steps),
         n_residuals=int(summary.num_residuals), n_parameters=int(summary.num_effective_parameters),
         covariance=covariance, covariance_names=covariance_names, termination=str(summary.message),
     )
-    if verbose:
-        print(result.summary(), file=sys.stderr, flush=True)
-    return result
 
 
 def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, problem, summary) -> tuple[NDArray[np.float64], tuple[str, ...]]:

@@ -669,7 +669,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
             obs_point=np.zeros(0, np.int64), obs_xy=np.zeros((0, 2)),
             board=observations, board_R=np.eye(3), board_t=np.zeros(3),
         )
-        solution = bundle_adjust(state, options, verbose=False)
+        solution = bundle_adjust(state, options)
         refined = solution.state
         residuals = board_residuals(refined)[1]
         if not np.all(np.isfinite(residuals)):
@@ -770,7 +770,7 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict], model: str):
             board=observations, board_R=np.eye(3), board_t=np.zeros(3),
         )
         posed = bundle_adjust(state, BundleOptions(constant_intrinsics=(camera.name,), refine_points3D=False,
-                                                   compute_sigmas=False), verbose=False)
+                                                   compute_sigmas=False))
         r = board_residuals(posed.state)[1]
         s = float(np.sum(r * r))
         per_camera[camera.name] = float(np.sqrt(s / len(r)))

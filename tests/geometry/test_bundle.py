@@ -73,15 +73,16 @@ def pycolmap_refine(reconstruction, options: BundleOptions):
 def test_reaches_pycolmap_cost(model, params, options):
     _, seed_model = synthetic(model, params)
     state = state_from_reconstruction(seed_model)
-    result = bundle_adjust(state, options, verbose=False)
+    stages = []
+    result = bundle_adjust(state, options, progress=lambda done, total: stages.append((done, total)))
+    assert stages == [(0, 2), (1, 2), (2, 2)]  # built, solved, covariance
     peer = pycolmap_refine(seed_model, options)
     # the same starting cost: camcal's projection and loss are COLMAP's
     assert result.initial_cost == pytest.approx(peer.initial_cost, rel=1e-9)
     assert result.final_cost <= result.initial_cost
     assert abs(result.final_cost - peer.final_cost) / peer.final_cost < 1e-6
     # camcal's cost of pycolmap's solution is pycolmap's final cost
-    peer_result = bundle_adjust(state_from_reconstruction(seed_model), dataclasses.replace(options, max_iterations=0),
-                                verbose=False)
+    peer_result = bundle_adjust(state_from_reconstruction(seed_model), dataclasses.replace(options, max_iterations=0))
     assert peer_result.initial_cost == pytest.approx(peer.final_cost, rel=1e-9)
 
 
@@ -108,7 +109,7 @@ def test_robust_cost_is_ceres_loss():
 
 def test_focal_error_within_its_sigma():
     truth, seed_model = synthetic(frames=10, points=400, seed=3)
-    result = bundle_adjust(state_from_reconstruction(seed_model), BundleOptions(), verbose=False)
+    result = bundle_adjust(state_from_reconstruction(seed_model), BundleOptions())
     true_state = state_from_reconstruction(truth)
     for index, name in enumerate(result.state.camera_names):
         error = result.state.params[index][0] - true_state.params[index][0]
@@ -132,7 +133,7 @@ def test_rig_held_at_known_calibration_sets_scale():
     seed_state = state_from_reconstruction(seed_model).scaled(0.37)
     seed_state = dataclasses.replace(seed_state, sensor_t=seed_state.sensor_t * [[1.0], [1.03]])
     held = hold_rig(seed_state, _true_sensor(true_state))
-    result = bundle_adjust(held, BundleOptions(refine_sensor_from_rig=False), verbose=False)
+    result = bundle_adjust(held, BundleOptions(refine_sensor_from_rig=False))
     assert np.array_equal(result.state.sensor_t, held.sensor_t)
     # metric again: the frames' centres match the truth after a rigid alignment (no scale)
     centres = np.array([-R.T @ t for R, t in zip(result.state.frame_R, result.state.frame_t)])
@@ -168,7 +169,7 @@ def test_board_observations_set_metric_scale():
     assert len(board.xy) > 200
     seed_state = state_from_reconstruction(seed_model).scaled(2.5)
     with_board = attach_board(seed_state, board)
-    result = bundle_adjust(with_board, BundleOptions(), verbose=False)
+    result = bundle_adjust(with_board, BundleOptions())
     baseline = np.linalg.norm(result.state.sensor_t[1])
     true_baseline = np.linalg.norm(true_state.sensor_t[1])
     assert baseline == pytest.approx(true_baseline, rel=0.01)
@@ -194,12 +195,11 @@ def test_fixed_params_and_constant_intrinsics_are_held():
     _, seed_model = synthetic("OPENCV", (500.0, 505.0, 321.0, 239.0, -0.05, 0.01, 1e-3, -1e-3), points=150)
     state = state_from_reconstruction(seed_model)
     names = state.camera_names
-    result = bundle_adjust(state, BundleOptions(fixed_params={names[0]: ("p1", "p2")}, constant_intrinsics=(names[1],)),
-                           verbose=False)
+    result = bundle_adjust(state, BundleOptions(fixed_params={names[0]: ("p1", "p2")}, constant_intrinsics=(names[1],)))
     before, after = state.params, result.state.params
     assert np.array_equal(after[0][6:8], before[0][6:8]) and not np.allclose(after[0][:2], before[0][:2])
     assert np.array_equal(after[1], before[1])
     assert f"{names[0]}.p1" not in result.sigmas and f"{names[0]}.fx" in result.sigmas
     assert not any(key.startswith(f"{names[1]}.f") for key in result.sigmas)
     with pytest.raises(CamcalError, match="has no parameter 'k9'"):
-        bundle_adjust(state, BundleOptions(fixed_params={names[0]: ("k9",)}), verbose=False)
+        bundle_adjust(state, BundleOptions(fixed_params={names[0]: ("k9",)}))
