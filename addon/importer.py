@@ -185,7 +185,8 @@ def import_rig(
             result.warnings.append(f"plate of {cam.name!r} not found: {plate}")
             plate = None
         clip = None
-        if distortion and cam.distortion.model != "none":
+        # a fisheye's lens is in its panoramic camera itself (see _set_fisheye), not in a MovieClip
+        if distortion and cam.distortion.model not in ("none", "kannala-brandt"):
             clip = _lens_clip(cam, obj, plate, result, path, aux_directory, scene)
             result.clips[cam.name] = clip
             if compositor:
@@ -236,6 +237,30 @@ def _set_intrinsics(data, b):
     data.shift_y = b.shift_y
 
 
+def _set_fisheye(data, cam, sensor_fit, result):
+    """A ``kannala-brandt`` lens: Cycles' panoramic fisheye-polynomial camera (mapping.blender_fisheye)."""
+    try:
+        f = mapping.blender_fisheye(cam.K, cam.size, cam.distortion.params, cam.sensor_width_mm, sensor_fit)
+    except ValueError as error:
+        raise RigFileError(f"camera {cam.name!r}: {error}") from None
+    data.type = "PANO"
+    # Blender 4.x and 5.x keep the panorama settings on the camera data
+    data.panorama_type = "FISHEYE_LENS_POLYNOMIAL"
+    data.sensor_width = f.sensor_width
+    data.sensor_height = f.sensor_height
+    data.shift_x = f.shift_x
+    data.shift_y = f.shift_y
+    data.fisheye_fov = min(max(f.fov * 1.0001, 0.1745), 31.4)
+    for n, value in enumerate(f.polynomial):
+        setattr(data, f"fisheye_polynomial_k{n}", value)
+    data["camcal_fisheye_fit_max_px"] = f.fit_max_px
+    data["camcal_fisheye_fit_rms_px"] = f.fit_rms_px
+    result.warnings.append(
+        f"camera {cam.name!r}: fisheye as Cycles' fisheye-polynomial camera (renders with Cycles only); "
+        f"the quartic matches the lens to {f.fit_max_px:.3g} px at worst, {f.fit_rms_px:.3g} px RMS over the frame"
+    )
+
+
 def _build_camera(cam, base, sensor_fit, collection, root, result):
     b = mapping.blender_intrinsics(cam.K, cam.size, cam.sensor_width_mm, sensor_fit)
     if abs(b.skew) > 1e-9 * cam.K[0][0]:
@@ -245,6 +270,8 @@ def _build_camera(cam, base, sensor_fit, collection, root, result):
     name = f"{base}_{cam.name}"
     data = bpy.data.cameras.new(name)
     _set_intrinsics(data, b)
+    if cam.distortion.model == "kannala-brandt":
+        _set_fisheye(data, cam, sensor_fit, result)
     data["camcal_name"] = cam.name
     data["camcal_K"] = [v for row in cam.K for v in row]
     data["camcal_R"] = [v for row in cam.R for v in row]

@@ -47,6 +47,7 @@ DISTORTION_PARAMS = {
     "division": (("lambda",), ()),
     "polynomial": (("k1", "k2"), ("k3",)),
     "opencv": (("k1", "k2", "p1", "p2", "k3"), ()),
+    "kannala-brandt": (("k1", "k2", "k3", "k4"), ()),
 }
 
 ORTHONORMAL_TOL = 1e-6

@@ -83,7 +83,7 @@ def ours(out: Path, cache: Path | None) -> float:
     if code:
         raise SystemExit(f"camcal calibrate board failed with exit code {code}")
     cameras = Rig.load(out).cameras
-    counts = [c.quality["n_points"] for c in cameras]
+    counts = [c.quality["n_observations"] for c in cameras]
     return float(np.sqrt(sum(c.quality["rms_px"] ** 2 * n for c, n in zip(cameras, counts)) / sum(counts)))
 
 

@@ -13,9 +13,10 @@ The camera's sensitivities are known three ways:
 Routes (camcal.colour.illuminant): ``spectral`` (fit on the 190 RAW to ACES
 reflectances rendered through the sensitivities under A), ``CAT02`` and
 ``Bradford`` (fit on the chart under D65, white balance from the
-sensitivities, von Kries adaptation of the output). camcal picks by its own
-validation set (``Munsell validation``: 300 Munsell colours, Otsu 2018
-recovery) over plausible cameras drawn from the sensitivities' posterior.
+sensitivities, von Kries adaptation of the output). camcal picks the route and its
+model (``auto``: every linear-terms model for every route) by the RMS
+CIEDE2000 on its own validation set (``Munsell validation``: 300 Munsell
+colours, Otsu 2018 recovery) through the sensitivities.
 
 Judged on reflectances used by no step: 300 other Munsell colours
 (``Munsell held-out``), the 30 PMC patches, the 14 CIE 1995 TCS and the 15
@@ -93,7 +94,7 @@ def main(model: str = "auto") -> int:
     rows = []
     print(f"chart under {CHART_LIGHT} ({NOISE:.1%} noise), fit used under {USE_LIGHT}; judged on "
           f"{' + '.join(JUDGING)} through the true camera under {USE_LIGHT}\n")
-    header = f"{'camera':22s} {'sensitivities':22s} {'route':24s} {'mean':>6s} {'p95':>6s} {'max':>6s}  validation mean"
+    header = f"{'camera':22s} {'sensitivities':22s} {'route':30s} {'mean':>6s} {'p95':>6s} {'max':>6s}  validation RMS"
     print(header)
     print("-" * len(header))
     for camera, wl in CAMERAS.items():
@@ -119,12 +120,12 @@ def main(model: str = "auto") -> int:
                 judged[route] = DeltaEStats.from_values(delta_E(fit.apply(RGB_J), XYZ_J, white_J))
             judged["colour-science IDT"] = DeltaEStats.from_values(
                 delta_E(colour_science_idt(sens, RGB_J, white_J), XYZ_J, white_J))
-            validation = {s.route: s.stats.mean for s in out.scores}
+            validation = {s.route: s.rms for s in out.scores}
             for route, stats in judged.items():
                 name = route if route not in out.fits else f"{route} ({out.fits[route].model.label})"
                 mark = " <- camcal" if route == out.picked else ""
                 v = f"{validation[route]:.3f}" if route in validation else "-"
-                print(f"{camera:22s} {label:22s} {name:24s} {stats.mean:6.3f} {stats.p95:6.3f} {stats.max:6.3f}  "
+                print(f"{camera:22s} {label:22s} {name:30s} {stats.mean:6.3f} {stats.p95:6.3f} {stats.max:6.3f}  "
                       f"{v:>6s}{mark}")
             best_route = min(out.fits, key=lambda r: judged[r].mean)
             rows.append((camera, label, out.picked, best_route, judged, seconds))

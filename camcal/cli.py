@@ -389,6 +389,8 @@ def _register_rig_interchange(verbs) -> None:
     imp.add_argument("--from", dest="fmt", required=True, choices=FORMATS, metavar="FORMAT",
                      help=f"one of: {', '.join(FORMATS)}")
     imp.add_argument("--out", required=True, metavar="RIG.rig.json", help="the rig file to write")
+    imp.add_argument("--image-size", nargs=2, type=int, metavar=("W", "H"),
+                     help="usd: the image size of cameras that carry none (USD cameras not written by camcal)")
     imp.set_defaults(func=_rig_import)
 
 
@@ -424,7 +426,8 @@ def _rig_import(args: argparse.Namespace) -> int:
     from camcal.io.ply import write_points_ply
     from camcal.rig import make_provenance
 
-    result = import_rig(args.file, args.fmt)
+    result = import_rig(args.file, args.fmt,
+                        image_size=None if args.image_size is None else _image_size(args.image_size))
     rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
     _print_conversions(args, result)
     out = summary_of(args)
@@ -595,9 +598,9 @@ def _register_calibrate(subparsers) -> None:
         help="a camera and its images, e.g. left='shots/left*.jpg' right='shots/right*.jpg' "
         "(several entries or a repeated option; globs absolute or relative)",
     )
-    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "auto"),
-                       help="distortion model; auto: the lowest RMS on every 4th training frame held out "
-                       "(default: polynomial)")
+    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "kannala-brandt", "auto"),
+                       help="distortion model; kannala-brandt is OpenCV's fisheye model; auto: the lowest RMS on "
+                       "every 4th training frame held out (default: polynomial)")
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
                        "numbers and ranges (21-25) or a fraction (0.2)")
@@ -693,7 +696,7 @@ def _intrinsics_line(camera, sigma) -> str:
     def pm(key: str, fmt: str) -> str:
         return f" +- {sigma[key]:{fmt}}" if key in sigma else ""
     K = camera.K
-    focal = f"f {K[0, 0]:.2f}{pm('f', '.2g')}" if K[0, 0] == K[1, 1] else \
+    focal = f"f {K[0, 0]:.2f}{pm('fx', '.2g')}" if K[0, 0] == K[1, 1] else \
         f"fx {K[0, 0]:.2f}{pm('fx', '.2g')}, fy {K[1, 1]:.2f}{pm('fy', '.2g')}"
     lens = ", ".join(f"{name} {value:.4g}{pm(name, '.2g')}" for name, value in camera.distortion.params.items())
     return (f"{focal} px, principal point ({K[0, 2]:.2f}{pm('cx', '.2g')}, {K[1, 2]:.2f}{pm('cy', '.2g')}) px, "
@@ -921,7 +924,8 @@ def _undistort(args: argparse.Namespace) -> int:
     from camcal.rig import Rig
 
     rig = Rig.load(args.rig)
-    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan)
+    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan,
+                                         args.max_fov)
     camera = Rig.load(rig_path).camera(args.camera)
     width, height = camera.image_size
     print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
@@ -949,6 +953,9 @@ def _register_undistort(subparsers) -> None:
                            help="crop: no black borders; keep: every source pixel kept (bigger canvas); "
                            "overscan: canvas --overscan times the plate (default: crop)")
     undistort.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+    undistort.add_argument("--max-fov", type=float, metavar="DEG",
+                           help="crop / keep: widest full angle about the axis the pinhole output holds "
+                           "(default: 120 for a kannala-brandt fisheye, no cap for the other lenses)")
     undistort.add_argument("--out", required=True, metavar="DIR")
     undistort.set_defaults(func=_undistort)
 
@@ -1142,7 +1149,8 @@ def _register_for_illuminant(parser) -> None:
         "another illuminant",
         "fit for the light B the camera will be used under, from a chart shot under --illuminant A: the "
         "spectral route (ACES P-2013-001: training reflectances through the sensitivities under B) vs the "
-        "chart fit white-balanced and adapted with CAT02 / Bradford; the better by CIEDE2000 on validation "
+        "chart fit white-balanced and adapted with CAT02 / Bradford, each with each model under --model auto; the "
+        "pair with the lowest RMS CIEDE2000 on validation "
         "reflectances is written (its camera name gets ' (B)', so one OCIO input space per illuminant). "
         "The chart RGB must be linear (raw or --linearise none).")
     group.add_argument("--for-illuminant", metavar="B", help="CIE illuminant name the fit is for (A, D50, FL2...)")

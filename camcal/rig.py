@@ -265,9 +265,17 @@ class Camera(_DictEquality):
         -------
         ndarray, shape (N, 2)
             ``distort(K R (X - c))`` in pixels, pixel (0, 0) at the centre of
-            the top-left pixel; NaN for points at or behind the camera plane.
+            the top-left pixel; NaN for points at or behind the camera plane,
+            except for a ``kannala-brandt`` lens, which images rays up to its
+            :attr:`~camcal.geometry.distortion.Distortion.max_angle_rad`
+            (:meth:`~camcal.geometry.distortion.Distortion.project_rays`).
         """
-        return self.distortion.distort(project_pinhole(self.K, self.R, self.c, X), self.K)
+        X = np.asarray(X, dtype=np.float64)
+        if self.distortion.model != "kannala-brandt":
+            return self.distortion.distort(project_pinhole(self.K, self.R, self.c, X), self.K)
+        if X.ndim != 2 or X.shape[1] != 3:
+            raise CamcalError(f"world points must have shape (N, 3), got {X.shape}")
+        return self.distortion.project_rays((X - self.c) @ self.R.T, self.K)
 
     # -- file boundary --------------------------------------------------------------
 

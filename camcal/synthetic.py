@@ -194,8 +194,8 @@ def render_planes(
 
     width, height = camera.image_size
     u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-    pixels = camera.distortion.undistort(np.stack([u.ravel(), v.ravel()], axis=1), camera.K)
-    rays = np.hstack([pixels, np.ones((len(pixels), 1))]) @ np.linalg.inv(camera.K).T @ camera.R
+    # world directions of every pixel (wide fisheye rays beyond 90 degrees included)
+    rays = camera.distortion.rays_from_pixels(np.stack([u.ravel(), v.ravel()], axis=1), camera.K) @ camera.R
     best = np.full(len(rays), np.inf)
     map_s = np.full(len(rays), -1.0, np.float32)
     map_t = np.full(len(rays), -1.0, np.float32)

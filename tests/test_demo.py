@@ -176,7 +176,7 @@ def test_demo_help_and_bad_stage(tmp_path, capsys):
     assert run.returncode == 0 and "--stages" in text
     assert all(stage.name in text for stage in STAGES)
     assert main(["demo", "--out", str(tmp_path / "d"), "--stages", "render,nonsense"]) == 2
-    assert "unknown demo stage(s) nonsense" in capsys.readouterr().err
+    assert "unknown stage(s) 'nonsense'" in capsys.readouterr().err
     assert not (tmp_path / "d" / "report.html").exists()
 
 

@@ -27,8 +27,9 @@ Format, version 1, kind ``characterisation``::
                              "reason": str, "candidates": [CANDIDATE...]},
         "illuminant_change": {...}   # optional: a fit made for another light
       },                             # (camcal.colour.illuminant): for_illuminant,
-                                     # route, reason, candidates [{route, mean,
-                                     # p95, max}], the reflectance sets used
+                                     # route, reason, candidates [{route, model,
+                                     # rms, mean, p95, max}] (model and rms
+                                     # optional), the reflectance sets used
       "capture": {...},              # optional: raw metadata (camcal.io.raw):
                                      # make, model, black_level, white_level ...
       "target": {
@@ -265,9 +266,12 @@ def _check_characterisation(data: dict) -> None:
         if not isinstance(change["candidates"], list):
             raise CamcalError("training.illuminant_change.candidates: expected a list")
         for i, c in enumerate(change["candidates"]):
-            _keys(c, f"training.illuminant_change.candidates[{i}]", ("route", "mean", "p95", "max"))
-            for key in ("mean", "p95", "max"):
-                _number(c[key], f"training.illuminant_change.candidates[{i}].{key}", 0.0)
+            _keys(c, f"training.illuminant_change.candidates[{i}]", ("route", "mean", "p95", "max"), ("model", "rms"))
+            for key in ("mean", "p95", "max", "rms"):
+                if key in c:
+                    _number(c[key], f"training.illuminant_change.candidates[{i}].{key}", 0.0)
+            if "model" in c:
+                _string(c["model"], f"training.illuminant_change.candidates[{i}].model")
     _string(training["illuminant"], "training.illuminant")
     _vector(training["white_XYZ"], "training.white_XYZ", 3)
     _string(training["reference"], "training.reference", nullable=True)

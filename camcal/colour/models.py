@@ -62,7 +62,6 @@ import numpy as np
 from camcal.errors import CamcalError
 
 __all__ = [
-    "parse_term",
     "MODEL_KINDS",
     "OBJECTIVES",
     "RBF_KERNELS",
@@ -79,6 +78,7 @@ __all__ = [
     "fit_rbf",
     "delta_E2000_components",
     "model_from_dict",
+    "parse_term",
 ]
 
 MODEL_KINDS = ("matrix3x3", "polynomial", "root-polynomial", "rbf")

@@ -138,7 +138,8 @@ def run_demo(out_dir: str | os.PathLike, config: DemoConfig = FULL, stages: Sequ
     stages = list(stages if stages is not None else STAGES)
     unknown = sorted(set(config.stages or ()) - {stage.name for stage in stages})
     if unknown:
-        raise CamcalError(f"unknown demo stage(s) {', '.join(unknown)}; expected: {', '.join(s.name for s in stages)}")
+        raise CamcalError(f"demo: unknown stage(s) {', '.join(map(repr, unknown))}; expected some of: "
+                          + ", ".join(s.name for s in stages))
     out_dir.mkdir(parents=True, exist_ok=True)
     ctx = DemoContext(out_dir, config, make_truth(config))
     rows, outputs, sections, seconds = [], [], [], []

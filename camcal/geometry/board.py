@@ -64,6 +64,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.errors import CamcalError
+from camcal.io.frames import imread
 
 __all__ = [
     "Board",
@@ -391,7 +392,13 @@ def _write_cached(path: Path, size: tuple[int, int] | None, detection: Detection
 
 def _detect_file(board: Board, path: str, content: bytes) -> tuple[tuple[int, int] | None, Detection | None]:
     """Decode and detect one image: ``(size or None if unreadable, detection)``."""
-    image = cv2.imdecode(np.frombuffer(content, np.uint8), cv2.IMREAD_GRAYSCALE) if content else None
+    if content and Path(path).suffix.lower() == ".exr":  # the OpenCV 5 wheels decode no EXR
+        try:
+            image = imread(path, cv2.IMREAD_GRAYSCALE)
+        except CamcalError:
+            image = None
+    else:
+        image = cv2.imdecode(np.frombuffer(content, np.uint8), cv2.IMREAD_GRAYSCALE) if content else None
     if image is None:
         return None, None
     return (image.shape[1], image.shape[0]), detect_board(board, image, Path(path).name)
@@ -410,7 +417,7 @@ def detect_in_images(
     ----------
     board : Board
     paths : iterable of path
-        Image files (anything ``cv2.imdecode`` reads).
+        Image files (anything ``cv2.imdecode`` reads, and EXR).
     progress : str, optional
         When given, a progress line ``<progress>: i / n`` is written to
         stderr as the images are processed.

@@ -30,10 +30,9 @@ each observation, with Ceres' losses (scale ``a``)::
     soft_l1  rho(s) = 2 a^2 (sqrt(1 + s / a^2) - 1)
     cauchy   rho(s) = a^2 log(1 + s / a^2)
 
-Gauge: with a board, its constant corners; without one, the first frame's
-pose is held when the points move and, when nothing else sets the scale (a
-rig held at a known calibration), the largest coordinate of the second
-frame's translation (as COLMAP's ``TWO_CAMS_FROM_WORLD``).
+Gauge: with a board, its constant corners; without one, when the points
+move, COLMAP's ``TWO_CAMS_FROM_WORLD`` gauge if nothing sets the scale, or
+the first frame's pose held when a rig held at a known calibration sets it.
 
 Uncertainty: ``Sigma = sigma^2 (J^T J)^-1`` restricted to the intrinsics
 and the rig poses, by Ceres' ``Covariance`` (sparse QR of the whole

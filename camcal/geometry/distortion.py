@@ -20,9 +20,25 @@ Models
     distortion centre ``center`` (default: the principal point):
     ``x_u = c + (x_d - c) / (1 + lambda r_d^2)``, ``r_d = |x_d - c|`` in px,
     ``lambda`` in 1/px^2 (negative for barrel distortion).
+``kannala-brandt`` (k1, k2, k3, k4)
+    Kannala & Brandt's fisheye model as OpenCV's ``cv2.fisheye`` and
+    COLMAP's ``OPENCV_FISHEYE`` use it, in normalised coordinates centred on
+    the principal point: a ray at angle ``theta`` from the optical axis
+    lands at radius ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 +
+    k3 theta^6 + k4 theta^8)``, so ``x_d = (theta_d / r_u) x_u`` with
+    ``r_u = |x_u| = tan(theta)``.
 
 The division model inverts in closed form; the polynomial models invert by
-Newton iterations to 1e-10 px.
+Newton iterations to 1e-10 px; Kannala-Brandt inverts ``theta_d(theta)``
+by safeguarded Newton iterations on the angle, to 1e-15 rad.
+
+Rays and the field of view: pinhole ("undistorted") pixels exist only for
+rays in front of the camera (``theta < 90 deg``), so :meth:`Distortion.distort`
+and :meth:`Distortion.undistort` cover that half-space. Wider lenses go
+through :meth:`Distortion.project_rays` and :meth:`Distortion.rays_from_pixels`,
+which for ``kannala-brandt`` hold up to :attr:`Distortion.max_angle_rad`
+(where ``theta_d(theta)`` stops increasing, at most 180 deg); pixels beyond
+that map to NaN.
 
 Conversions between models are fits (:func:`fit_distortion`): the target
 model that best reproduces the source model's distorted pixels over the
@@ -34,6 +50,8 @@ Strand, R. & Hayman, E. (2005). Correcting radial distortion by circle
 fitting. BMVC.
 Brown, D. C. (1966). Decentering distortion of lenses. Photogrammetric
 Engineering.
+Kannala, J. & Brandt, S. S. (2006). A generic camera model and calibration
+method for conventional, wide-angle, and fish-eye lenses. IEEE TPAMI 28(8).
 """
 
 from __future__ import annotations
@@ -58,8 +76,12 @@ MODEL_PARAMS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = MappingPro
         "polynomial": (("k1", "k2"), ("k3",)),
         "opencv": (("k1", "k2", "p1", "p2", "k3"), ()),
         "division": (("lambda",), ()),
+        "kannala-brandt": (("k1", "k2", "k3", "k4"), ()),
     }
 )
+
+#: Models defined in normalised coordinates ``K^-1 u`` around the principal point.
+_NORMALISED_MODELS = ("polynomial", "opencv", "kannala-brandt")
 
 _NEWTON_TOL_PX = 1e-10
 _NEWTON_MAX_ITER = 50
@@ -79,7 +101,8 @@ class Distortion:
     Parameters
     ----------
     model : str
-        One of ``none``, ``polynomial``, ``opencv``, ``division``.
+        One of ``none``, ``polynomial``, ``opencv``, ``division``,
+        ``kannala-brandt``.
     params : Mapping[str, float]
         The model's parameters (see the module docstring), exactly the
         required names plus any optional ones.
@@ -146,8 +169,9 @@ class Distortion:
 
     @property
     def is_identity(self) -> bool:
-        """True when the model leaves every point where it is."""
-        return all(value == 0.0 for value in self.params.values())
+        """True when the model leaves every point where it is (never for ``kannala-brandt``:
+        with every k at 0 it is the equidistant fisheye, not the pinhole)."""
+        return self.model != "kannala-brandt" and all(value == 0.0 for value in self.params.values())
 
     # -- file boundary -------------------------------------------------------
 
@@ -191,14 +215,16 @@ class Distortion:
         points_px : array_like, shape (N, 2)
             Undistorted (ideal pinhole) pixel coordinates.
         K : array_like, shape (3, 3)
-            Camera matrix: normalises the ``polynomial`` / ``opencv`` models
-            and gives the default ``division`` centre.
+            Camera matrix: normalises the ``polynomial`` / ``opencv`` /
+            ``kannala-brandt`` models and gives the default ``division``
+            centre.
 
         Returns
         -------
         ndarray, shape (N, 2)
             Distorted pixel coordinates. For the division model a point
-            beyond the model's range (``1 - 4 lambda r_u^2 < 0``) maps to NaN.
+            beyond the model's range (``1 - 4 lambda r_u^2 < 0``) maps to NaN,
+            for ``kannala-brandt`` a ray beyond :attr:`max_angle_rad`.
         """
         points = _as_points(points_px)
         K = np.asarray(K, dtype=np.float64)
@@ -223,12 +249,22 @@ class Distortion:
         -------
         ndarray, shape (N, 2)
             Undistorted pixel coordinates; closed form for ``division``,
-            Newton iterations to 1e-10 px otherwise.
+            Newton iterations to 1e-10 px otherwise. ``kannala-brandt``
+            pixels whose ray is at or beyond 90 degrees from the axis (no
+            pinhole image) or beyond :attr:`max_angle_rad` give NaN.
         """
         points = _as_points(points_px)
         K = np.asarray(K, dtype=np.float64)
         if self.model == "none":
             return points.copy()
+        if self.model == "kannala-brandt":
+            xy_d = _pixels_to_normalised(points, K)
+            theta_d = np.hypot(xy_d[:, 0], xy_d[:, 1])
+            theta = self._theta_from_theta_d(theta_d)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                scale = np.where(theta_d == 0.0, 1.0, np.tan(theta) / theta_d)
+            scale[~(theta < 0.5 * np.pi)] = np.nan
+            return _normalised_to_pixels(xy_d * scale[:, None], K)
         if self.model == "division":
             centre = self._centre(K)
             offset = points - centre
@@ -247,12 +283,19 @@ class Distortion:
         return _normalised_to_pixels(estimate, K)
 
     def distort_normalised(self, xy: ArrayLike) -> NDArray[np.float64]:
-        """Apply a ``polynomial`` / ``opencv`` model to normalised coordinates (N, 2)."""
+        """Apply a ``polynomial`` / ``opencv`` / ``kannala-brandt`` model to normalised coordinates (N, 2)."""
         xy = _as_points(xy, "normalised points")
-        if self.model not in ("polynomial", "opencv"):
+        if self.model not in _NORMALISED_MODELS:
             raise CamcalError(f"model {self.model!r} is not defined in normalised coordinates")
         p = self.params
         x, y = xy[:, 0], xy[:, 1]
+        if self.model == "kannala-brandt":
+            r = np.hypot(x, y)
+            theta = np.arctan(r)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                scale = np.where(r == 0.0, 1.0, self.theta_d(theta) / r)
+            scale[theta > self.max_angle_rad] = np.nan
+            return xy * scale[:, None]
         r2 = x * x + y * y
         radial = 1.0 + r2 * (p["k1"] + r2 * (p["k2"] + r2 * p.get("k3", 0.0)))
         xd = x * radial
@@ -262,6 +305,172 @@ class Distortion:
             xd = xd + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
             yd = yd + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
         return np.stack([xd, yd], axis=1)
+
+    # -- rays (wide lenses) ----------------------------------------------------------
+
+    def theta_d(self, theta: ArrayLike) -> NDArray[np.float64]:
+        """Kannala-Brandt: ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``.
+
+        Parameters
+        ----------
+        theta : array_like
+            Angles from the optical axis, radians.
+
+        Returns
+        -------
+        ndarray
+            The normalised image radius of each angle (``theta_d`` in the
+            notation of OpenCV's fisheye module).
+        """
+        if self.model != "kannala-brandt":
+            raise CamcalError(f"theta_d is the Kannala-Brandt radius; this model is {self.model!r}")
+        p = self.params
+        theta = np.asarray(theta, dtype=np.float64)
+        t2 = theta * theta
+        return theta * (1.0 + t2 * (p["k1"] + t2 * (p["k2"] + t2 * (p["k3"] + t2 * p["k4"]))))
+
+    @property
+    def max_angle_rad(self) -> float:
+        """Largest angle from the optical axis the model maps one-to-one, radians.
+
+        ``kannala-brandt``: the first angle where ``d theta_d / d theta =
+        1 + 3 k1 theta^2 + 5 k2 theta^4 + 7 k3 theta^6 + 9 k4 theta^8``
+        reaches 0, at most pi (180 deg); every other model: pi / 2 (a
+        pinhole image exists only in front of the camera).
+        """
+        if self.model != "kannala-brandt":
+            return 0.5 * np.pi
+        p = self.params
+        # roots in t = theta^2 of 9 k4 t^4 + 7 k3 t^3 + 5 k2 t^2 + 3 k1 t + 1
+        coefficients = np.trim_zeros([9.0 * p["k4"], 7.0 * p["k3"], 5.0 * p["k2"], 3.0 * p["k1"], 1.0], "f")
+        roots = np.roots(coefficients) if len(coefficients) > 1 else np.array([])
+        real = roots[(np.abs(roots.imag) <= 1e-12 * np.abs(roots)) & (roots.real > 0.0)].real
+        return float(min(np.pi, np.sqrt(real.min()))) if len(real) else float(np.pi)
+
+    def _theta_from_theta_d(self, theta_d: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Invert ``theta_d(theta)`` on ``[0, max_angle_rad]``; NaN beyond its range.
+
+        Start from a table of the monotone function (linear interpolation on
+        4097 angles), take two Newton steps (clipped to the range), then
+        finish any point not yet at 1e-15 rad with safeguarded Newton: a
+        step that would leave the bracket ``[low, high]`` known to hold the
+        root is replaced by bisection.
+        """
+        theta_max = self.max_angle_rad
+        theta_d = np.asarray(theta_d, dtype=np.float64)
+        flat = theta_d.ravel()
+        valid = np.isfinite(flat) & (flat >= 0.0) & (flat <= self.theta_d(theta_max))
+        result = np.full(flat.size, np.nan)
+        active = np.flatnonzero(valid)
+        target = flat[active]
+        table = np.linspace(0.0, theta_max, 4097)
+        theta = np.interp(target, self.theta_d(table), table)
+        p = self.params
+
+        def newton_step(theta, target):
+            t2 = theta * theta
+            residual = self.theta_d(theta) - target
+            slope = 1.0 + t2 * (3.0 * p["k1"] + t2 * (5.0 * p["k2"] + t2 * (7.0 * p["k3"] + t2 * 9.0 * p["k4"])))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return theta - residual / slope, residual
+
+        for _ in range(2):
+            theta = np.clip(newton_step(theta, target)[0], 0.0, theta_max)
+        step = newton_step(theta, target)[0]
+        done = np.abs(step - theta) <= 1e-15 * np.maximum(1.0, theta)
+        result[active[done]] = np.clip(step[done], 0.0, theta_max)
+        # the rest (near max_angle_rad, where the slope vanishes): safeguarded Newton
+        keep = ~done
+        active, target, theta = active[keep], target[keep], theta[keep]
+        low, high = np.zeros_like(target), np.full_like(target, theta_max)
+        for _ in range(100):
+            if not len(active):
+                break
+            step, residual = newton_step(theta, target)
+            low = np.where(residual < 0.0, theta, low)
+            high = np.where(residual > 0.0, theta, high)
+            new = np.where((step > low) & (step < high), step, 0.5 * (low + high))
+            done = np.abs(new - theta) <= 1e-15 * np.maximum(1.0, theta)
+            result[active[done]] = new[done]
+            keep = ~done
+            active, target, low, high, theta = active[keep], target[keep], low[keep], high[keep], new[keep]
+        result[active] = theta
+        return result.reshape(theta_d.shape)
+
+    def project_rays(self, rays: ArrayLike, K: ArrayLike) -> NDArray[np.float64]:
+        """Distorted pixels of directions in the camera frame, wide angles included.
+
+        Parameters
+        ----------
+        rays : array_like, shape (N, 3)
+            Directions (any length) in camera axes: +x right, +y down,
+            +z forward.
+        K : array_like, shape (3, 3)
+            Camera matrix.
+
+        Returns
+        -------
+        ndarray, shape (N, 2)
+            Distorted pixels. ``kannala-brandt``: ``theta = atan2(|(x, y)|, z)``
+            and ``x_d = theta_d (x, y) / |(x, y)|``, defined up to
+            :attr:`max_angle_rad` (beyond the 90 degrees of a pinhole);
+            other models: ``distort(K (x/z, y/z, 1))``. NaN where the model
+            has no image of the ray (``z <= 0`` for the pinhole models).
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> fisheye = Distortion("kannala-brandt", {"k1": 0.02, "k2": 0.0, "k3": 0.0, "k4": 0.0})
+        >>> K = np.array([[300.0, 0, 640.0], [0, 300.0, 480.0], [0, 0, 1]])
+        >>> behind = np.array([[1.0, 0.0, -0.2]])  # 101 degrees off the axis
+        >>> pixel = fisheye.project_rays(behind, K)
+        >>> bool(np.allclose(fisheye.rays_from_pixels(pixel, K), behind / np.linalg.norm(behind)))
+        True
+        """
+        rays = np.asarray(rays, dtype=np.float64)
+        if rays.ndim != 2 or rays.shape[1] != 3:
+            raise CamcalError(f"rays must have shape (N, 3), got {rays.shape}")
+        K = np.asarray(K, dtype=np.float64)
+        if self.model == "kannala-brandt":
+            rho = np.hypot(rays[:, 0], rays[:, 1])
+            theta = np.arctan2(rho, rays[:, 2])
+            with np.errstate(invalid="ignore", divide="ignore"):
+                scale = np.where(rho > 0.0, self.theta_d(theta) / rho, 0.0)
+            scale[~(theta <= self.max_angle_rad)] = np.nan
+            return _normalised_to_pixels(rays[:, :2] * scale[:, None], K)
+        depth = rays[:, 2:3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            normalised = np.where(depth > 0.0, rays[:, :2] / depth, np.nan)
+        return self.distort(_normalised_to_pixels(normalised, K), K)
+
+    def rays_from_pixels(self, points_px: ArrayLike, K: ArrayLike) -> NDArray[np.float64]:
+        """Unit directions in the camera frame of distorted pixels (inverse of :meth:`project_rays`).
+
+        Parameters
+        ----------
+        points_px : array_like, shape (N, 2)
+            Distorted pixels.
+        K : array_like, shape (3, 3)
+            Camera matrix.
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            Unit rays (+z forward); NaN for pixels beyond the model's range
+            (``kannala-brandt``: beyond :attr:`max_angle_rad`).
+        """
+        points = _as_points(points_px)
+        K = np.asarray(K, dtype=np.float64)
+        if self.model == "kannala-brandt":
+            xy_d = _pixels_to_normalised(points, K)
+            theta_d = np.hypot(xy_d[:, 0], xy_d[:, 1])
+            theta = self._theta_from_theta_d(theta_d)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                scale = np.where(theta_d == 0.0, 1.0, np.sin(theta) / theta_d)
+            return np.column_stack([xy_d * scale[:, None], np.cos(theta)])
+        xy = _pixels_to_normalised(self.undistort(points, K), K)
+        rays = np.column_stack([xy, np.ones(len(xy))])
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
     def _jacobian_normalised(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """d(distort_normalised)/d(x, y), shape (N, 2, 2)."""
@@ -382,7 +591,8 @@ def fit_distortion(
     image_size : (int, int)
         (width, height) in pixels; the fit covers the whole frame.
     model : str
-        Target model: ``division``, ``polynomial`` or ``opencv``.
+        Target model: ``division``, ``polynomial``, ``opencv`` or
+        ``kannala-brandt``.
     fit_center : bool
         Division target only: fit the distortion centre too (else it is the
         principal point).
@@ -407,7 +617,10 @@ def fit_distortion(
     started from the linear least-squares solution of the target written
     in the undistorting direction (the division model is linear in
     ``lambda``: ``(x_u - c)(1 + lambda r_d^2) = x_d - c``; the polynomial
-    models are linear in their coefficients in normalised coordinates).
+    models are linear in their coefficients in normalised coordinates, and
+    so is Kannala-Brandt in ``theta_d - theta = k1 theta^3 + ... + k4
+    theta^9``). Only the pixels whose ray the source model maps to a
+    pinhole pixel (in front of the camera) take part.
 
     Examples
     --------
@@ -419,8 +632,8 @@ def fit_distortion(
     (True, True)
     """
     K = np.asarray(K, dtype=np.float64)
-    if model not in ("division", "polynomial", "opencv"):
-        raise CamcalError(f"cannot fit model {model!r}, expected one of: division, polynomial, opencv")
+    if model not in ("division", "polynomial", "opencv", "kannala-brandt"):
+        raise CamcalError(f"cannot fit model {model!r}, expected one of: division, polynomial, opencv, kannala-brandt")
     if fit_center and model != "division":
         raise CamcalError("fit_center applies only to the division model")
     if with_k3 is not None and model == "division":
@@ -444,6 +657,12 @@ def fit_distortion(
         start = np.array([a @ b / (a @ a)]) if a @ a > 0 else np.zeros(1)
         if fit_center:
             start = np.append(start, centre)
+    elif model == "kannala-brandt":
+        names = MODEL_PARAMS[model][0]
+        theta = np.arctan(np.linalg.norm(_pixels_to_normalised(ideal, K), axis=1))
+        theta_d = np.linalg.norm(_pixels_to_normalised(distorted, K), axis=1)
+        design = np.stack([theta ** (2 * n + 3) for n in range(4)], axis=1)
+        start = np.linalg.lstsq(design, theta_d - theta, rcond=None)[0]
     else:
         if model == "polynomial":
             names = ("k1", "k2", "k3") if with_k3 else ("k1", "k2")
@@ -467,7 +686,7 @@ def fit_distortion(
     def residuals(vector: NDArray[np.float64]) -> NDArray[np.float64]:
         candidate = _model_from_vector(model, names, vector, fit_center)
         predicted = candidate.distort(ideal, K)
-        # beyond the division model's range: a large finite penalty
+        # beyond the division / Kannala-Brandt model's range: a large finite penalty
         return np.nan_to_num(predicted - distorted, nan=1e6).ravel()
 
     solution = scipy.optimize.least_squares(residuals, start, x_scale="jac", method="lm", xtol=1e-15, ftol=1e-15)

@@ -19,8 +19,9 @@ Conventions (DESIGN.md)
 Methods
 -------
 - :func:`rectify_calibrated` (``"camera"``): the centres' line is fitted,
-  one common rotation ``R_rect`` (x along the line, z the mean optical axis
-  made orthogonal to it) and one shared ``K_rect`` (square pixels, the
+  one common rotation ``R_rect`` (x along the line, the rotation nearest the
+  cameras' mean rotation: ``cv2.stereoRectify``'s choice for two cameras)
+  and one shared ``K_rect`` (square pixels, the
   cameras' mean focal length, principal point and size chosen by
   ``alpha``), ``H_i = K_rect R_rect R_i^T K_i^-1`` (Fusiello et al. 2000,
   generalised to N cameras as in Nozick 2011).
@@ -47,6 +48,8 @@ Mallon, J. & Whelan, P. F. (2005). Projective rectification from the
 fundamental matrix. Image and Vision Computing 23(7), 643-650.
 Nozick, V. (2011). Multiple view image rectification. Proc. IEEE-ISAS
 2011, International Symposium on Access Spaces, 277-282.
+Markley, F. L., Cheng, Y., Crassidis, J. L. & Oshman, Y. (2007). Averaging
+quaternions. Journal of Guidance, Control, and Dynamics 30(4), 1193-1197.
 Lowe, D. G. (2004). Distinctive image features from scale-invariant
 keypoints. IJCV 60(2) (SIFT and the ratio test).
 """
@@ -379,17 +382,32 @@ def _check_epipole_outside(camera: Camera, direction: NDArray[np.float64]) -> No
 
 
 def _common_rotation(cameras: Sequence[Camera], direction: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Rows x (along the line, oriented like the cameras' x axes), y = z x x, z."""
-    x = direction / np.linalg.norm(direction)
-    if x @ np.mean([camera.R[0] for camera in cameras], axis=0) < 0:
-        x = -x
-    z = np.mean([camera.R[2] for camera in cameras], axis=0)
-    z = z - (z @ x) * x
-    norm = np.linalg.norm(z)
-    if norm < 1e-6:
+    """The rotation with x along the line of centres closest to the cameras' mean rotation.
+
+    ``M`` is the chordal L2 mean of the cameras' rotations (Markley et al.
+    2007; for two cameras the geodesic midpoint, ``cv2.stereoRectify``'s
+    half rotation ``R^(1/2)``). The line direction ``d``, oriented so that
+    seen from ``M`` it points right (``t = M d``, ``t_x > 0``), is turned
+    onto the x axis by the smallest rotation ``W`` (about ``t x e_x`` by
+    ``angle(t, e_x)``): ``R_rect = W M``. Any rotation taking ``t`` to ``e_x`` turns by at least
+    that angle, so ``R_rect`` is the rectifying rotation nearest ``M``; for
+    two cameras it is the one ``cv2.stereoRectify`` chooses for a horizontal
+    pair.
+    """
+    mean = Rotation.from_matrix(np.array([camera.R for camera in cameras])).mean().as_matrix()
+    d = direction / np.linalg.norm(direction)
+    if (mean @ d)[0] < 0:
+        d = -d
+    t = mean @ d
+    z = mean[2] - (mean[2] @ d) * d
+    if np.linalg.norm(z) < 1e-6:
         raise CamcalError("the cameras look along their line of centres: planar rectification is impossible")
-    z /= norm
-    return np.vstack([x, np.cross(z, x), z])
+    axis = np.cross(t, [1.0, 0.0, 0.0])
+    sine = float(np.linalg.norm(axis))
+    if sine == 0.0:
+        return mean
+    turn = Rotation.from_rotvec(axis / sine * math.atan2(sine, t[0])).as_matrix()
+    return turn @ mean
 
 
 def _mean_focal(cameras: Sequence[Camera]) -> float:
@@ -504,8 +522,13 @@ def rectify_calibrated(
     Notes
     -----
     With ``d`` the direction of the least-squares line through the centres
-    (oriented like the mean camera x axis) and ``z`` the mean optical axis,
-    ``R_rect = [d; z x d; z]`` (``z`` made orthogonal to ``d``). Every
+    and ``M`` the cameras' mean rotation (chordal L2 mean, Markley et al.
+    2007), ``d`` oriented so that ``(M d)_x > 0``, ``R_rect = W M`` where
+    ``W`` is the smallest rotation taking ``M d`` onto the x axis: the first row
+    of ``R_rect`` is ``d``, and of all rotations with that row ``R_rect`` is
+    the nearest to ``M``. For two cameras ``M`` is the midpoint
+    ``R^(1/2) R_1`` and ``R_rect R_i^T`` are the ``R1``, ``R2`` that
+    ``cv2.stereoRectify`` returns for a horizontal pair. Every
     rectified camera is ``K_rect R_rect [I | -c_i]``; as the centres differ
     only along ``d`` (the rectified x axis), a point projects to the same
     row in all of them. On undistorted pixels
@@ -516,7 +539,7 @@ def rectify_calibrated(
 
     References
     ----------
-    Fusiello, Trucco & Verri (2000); Nozick (2011).
+    Fusiello, Trucco & Verri (2000); Nozick (2011); Markley et al. (2007).
 
     Examples
     --------

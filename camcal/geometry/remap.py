@@ -135,6 +135,10 @@ def build_maps(camera: Camera, H: ArrayLike, output_size: tuple[int, int]) -> Re
       ``(H K)^-1 x_o = K^-1 H^-1 x_o`` is the normalised undistorted point
       of ``H^-1 x_o``, exactly the reference. OpenCV ignores the skew of
       ``K``, so a skewed camera takes the reference path.
+    - ``kannala-brandt`` without skew, when the model is one-to-one up to
+      90 degrees: ``cv2.fisheye.initUndistortRectifyMap(K, D, I, H K,
+      size, CV_32FC1)``, the same construction with OpenCV's fisheye
+      projection (``theta = atan(r)``, ``theta_d`` scaled onto ``x / r``).
     - ``division``: the closed-form inverse of Strand & Hayman's model
       (:meth:`Distortion.distort`), evaluated on (H_out, W_out) arrays
       built by broadcasting a row and a column, without (N, 2) copies.
@@ -145,6 +149,12 @@ def build_maps(camera: Camera, H: ArrayLike, output_size: tuple[int, int]) -> Re
     if distortion.model in ("none", "polynomial", "opencv") and camera.K[0, 1] == 0.0:
         map_x, map_y = cv2.initUndistortRectifyMap(
             camera.K, _opencv_coefficients(distortion), np.eye(3), H @ camera.K, (width, height), cv2.CV_32FC1
+        )
+        return _finish(map_x, map_y)
+    if distortion.model == "kannala-brandt" and camera.K[0, 1] == 0.0 and distortion.max_angle_rad >= 0.5 * np.pi:
+        coefficients = np.array([distortion.params[k] for k in ("k1", "k2", "k3", "k4")])
+        map_x, map_y = cv2.fisheye.initUndistortRectifyMap(
+            camera.K, coefficients, np.eye(3), H @ camera.K, (width, height), cv2.CV_32FC1
         )
         return _finish(map_x, map_y)
     if distortion.model == "division":

@@ -58,6 +58,8 @@ __all__ = [
     "HELDOUT_FRACTION",
     "IMAGE_SUFFIXES",
     "LENS_MODELS",
+    "LENS_MODEL_MARGIN",
+    "MIN_TRIANGULATION_ANGLE_DEG",
     "MODELS",
     "PRINCIPAL_POINT_MODES",
     "PrincipalPointDecision",
@@ -80,8 +82,13 @@ MODELS = {"division": "SIMPLE_DIVISION", "polynomial": "RADIAL", "opencv": "OPEN
 #: the lens models ``solve`` chooses among by held-out residual (``--model auto``), simplest first.
 LENS_MODELS = ("division", "polynomial", "opencv")
 PRINCIPAL_POINT_MODES = ("auto", "refine", "centre")
+#: a lens model later in the list must lower the held-out RMS by more than this fraction to be chosen
+#: (held-out RMS of division and 2-term polynomial lenses differ by ~0.1 % where both fit).
+LENS_MODEL_MARGIN = 0.01
 #: fraction of the sparse points (whole tracks) held out of the fit to choose the lens model.
 HELDOUT_FRACTION = 0.2
+#: points triangulated under a smaller angle are dropped before the refinement (COLMAP's mapper default).
+MIN_TRIANGULATION_ANGLE_DEG = 1.5
 
 
 @dataclass(frozen=True)
@@ -334,8 +341,8 @@ def self_calibrate(
         camcal lens models to choose among (:data:`LENS_MODELS`); one model
         is used as given (its held-out RMS is still measured).
     principal_point : {"auto", "refine", "centre"}
-        ``auto`` refines it when every camera's sigma(cx), sigma(cy) is below
-        :func:`principal_point_limit_px`, else holds it at the image centre.
+        ``auto`` refines each camera's where its sigma(cx), sigma(cy) are below
+        :func:`principal_point_limit_px`, and holds the others at the image centre.
     seed : int
         Chooses the held-out points.
 
@@ -354,11 +361,12 @@ def self_calibrate(
     left out; each candidate model is fitted, with the principal point free,
     on the rest; the held-out points are re-triangulated through each fit
     (:func:`heldout_rms`) and each camera takes the model with the lowest
-    held-out RMS (a model with more parameters must beat a simpler one by
-    more than 0.1 %). Principal point: the final fit runs with it free; its
-    covariance (Triggs et al. 2000, section 6: ``sigma^2 S^-1``, ``S`` the
-    points' Schur complement of ``J^T J``) gives sigma(cx), sigma(cy); when
-    they exceed the limit the fit is run again with it held at the centre.
+    held-out RMS (a model later in ``lens_models``, simplest first, must beat
+    an earlier one by more than :data:`LENS_MODEL_MARGIN`). Principal point:
+    the final fit runs with it free; its covariance (Ceres, ``sigma^2
+    (J^T J)^-1``, Triggs et al. 2000, section 6) gives sigma(cx), sigma(cy); when
+    they exceed the limit the fit is run again with that camera's held at the
+    centre (``BundleOptions.fixed_params``).
     """
     if principal_point not in PRINCIPAL_POINT_MODES:
         raise CamcalError(f"unknown principal point mode {principal_point!r}, "
@@ -375,14 +383,15 @@ def self_calibrate(
     table: dict[str, dict[str, float]] = {name: {} for name in names}
     for model in lens_models:
         _progress(f"lens model {model}: fitting {len(train.points)} points, {len(heldout.points)} held out")
-        fit = bundle_adjust(_with_lenses(train, dict.fromkeys(names, model)), free_pp)
+        fit = bundle_adjust(_with_lenses(train, dict.fromkeys(names, model)),
+                            dataclasses.replace(free_pp, compute_sigmas=False))
         for name, value in heldout_rms(fit.state, heldout).items():
             table[name][model] = value
     chosen = {}
     for name in names:
         best = lens_models[0]
         for model in lens_models[1:]:
-            if table[name].get(model, np.inf) < table[name].get(best, np.inf) * (1.0 - 1e-3):
+            if table[name].get(model, np.inf) < table[name].get(best, np.inf) * (1.0 - LENS_MODEL_MARGIN):
                 best = model
         chosen[name] = best
     _progress("bundle adjustment with the chosen lens models")
@@ -396,28 +405,26 @@ def self_calibrate(
         for name, size in zip(names, state.image_sizes):
             sigma = (final.sigmas.get(f"{name}.cx", np.inf), final.sigmas.get(f"{name}.cy", np.inf))
             limit = principal_point_limit_px(size)
-            decisions.append(PrincipalPointDecision(name, True, sigma, limit, ""))
-        determined = all(max(d.sigma_px) < d.limit_px for d in decisions)
-        refined = determined or principal_point == "refine"
-        for k, d in enumerate(decisions):
-            numbers = (f"sigma(cx, cy) = ({d.sigma_px[0]:.3g}, {d.sigma_px[1]:.3g}) px" if np.all(np.isfinite(d.sigma_px))
+            numbers = (f"sigma(cx, cy) = ({sigma[0]:.3g}, {sigma[1]:.3g}) px" if np.all(np.isfinite(sigma))
                        else "sigma(cx, cy) undefined (singular covariance)")
             if principal_point == "refine":
-                reason = f"principal point refined (asked; {numbers})"
-            elif refined:
-                reason = f"principal point refined: {numbers} < {d.limit_px:.3g} px"
-            elif max(d.sigma_px) >= d.limit_px:
-                bound = f" >= {d.limit_px:.3g} px" if np.all(np.isfinite(d.sigma_px)) else ""
-                reason = (f"principal point held at the image centre: {numbers}{bound}, "
-                          "the views do not determine it (add rotation and roll about the viewing axis)")
+                decision = PrincipalPointDecision(name, True, sigma, limit, f"principal point refined (asked; {numbers})")
+            elif max(sigma) < limit:
+                decision = PrincipalPointDecision(name, True, sigma, limit,
+                                                  f"principal point refined: {numbers} < {limit:.3g} px")
             else:
-                reason = (f"principal point held at the image centre: {numbers}, but another camera's is "
-                          "not determined (one decision for the rig)")
-            decisions[k] = dataclasses.replace(d, refined=refined, reason=reason)
-        if not refined:
-            _progress("bundle adjustment with the principal point at the image centre")
-            held = dataclasses.replace(final.state, params=tuple(_centred(final.state, k) for k in range(len(names))))
-            final = bundle_adjust(held, dataclasses.replace(options, refine_principal_point=False))
+                bound = f" >= {limit:.3g} px" if np.all(np.isfinite(sigma)) else ""
+                decision = PrincipalPointDecision(
+                    name, False, sigma, limit, f"principal point held at the image centre: {numbers}{bound}, "
+                    "the views do not determine it (add rotation and roll about the viewing axis)")
+            decisions.append(decision)
+        held = [k for k, decision in enumerate(decisions) if not decision.refined]
+        if held:
+            _progress("bundle adjustment with the undetermined principal points at the image centre")
+            params = tuple(_centred(final.state, k) if k in held else final.state.params[k] for k in range(len(names)))
+            fixed = {names[k]: ("cx", "cy") for k in held}
+            final = bundle_adjust(dataclasses.replace(final.state, params=params),
+                                  dataclasses.replace(free_pp, fixed_params=fixed))
     report = SelfCalibration(
         lens_models=chosen, heldout_rms_px=table, n_heldout_points=int(held_mask.sum()),
         principal_point=tuple(decisions),
@@ -741,7 +748,9 @@ def _reject_outliers(pycolmap, reconstruction, n_sigma: float = 4.0) -> str:
     Rayleigh law: its median is ``sigma sqrt(2 ln 2)`` (1.1774 sigma), so
     sigma is estimated robustly from the median; beyond ``4 sigma`` lie
     ``exp(-8)`` = 0.03 % of the inliers. Points left with fewer than two
-    observations go (COLMAP's ``ObservationManager``).
+    observations go (COLMAP's ``ObservationManager``), and so do points whose
+    rays meet under less than :data:`MIN_TRIANGULATION_ANGLE_DEG` (COLMAP's
+    mapper filter).
 
     Returns
     -------
@@ -761,8 +770,13 @@ def _reject_outliers(pycolmap, reconstruction, n_sigma: float = 4.0) -> str:
     threshold = n_sigma * sigma
     manager = pycolmap.ObservationManager(reconstruction)
     dropped = manager.filter_points3D_with_large_reprojection_error(threshold, set(reconstruction.points3D))
+    # a point seen along nearly parallel rays has a depth the data barely fix: one such point
+    # makes the covariance of the whole problem singular
+    narrow = manager.filter_points3D_with_small_triangulation_angle(MIN_TRIANGULATION_ANGLE_DEG,
+                                                                    set(reconstruction.points3D))
     return (f"dropped {dropped} of {len(errors)} observations beyond {threshold:.3f} px "
-            f"({n_sigma:g} sigma; sigma {sigma:.3f} px from the median residual)")
+            f"({n_sigma:g} sigma; sigma {sigma:.3f} px from the median residual) and {narrow} of the points "
+            f"triangulated under {MIN_TRIANGULATION_ANGLE_DEG:g} deg")
 
 
 def _relative_poses(rig: Rig, reference: str) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
@@ -885,8 +899,9 @@ def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str]
 
 
 def _quality_sigma(sigmas: dict[str, float], camera: str, model: str, focal: float) -> dict[str, float]:
-    """A camera's sigmas under DESIGN's quality names: COLMAP's division ``k`` becomes
-    camcal's ``lambda = k / f^2`` (focal's own spread neglected), SIMPLE_RADIAL's ``k`` is ``k1``."""
+    """A camera's sigmas under :mod:`camcal.quality`'s names: one focal ``f`` is ``fx`` and ``fy``,
+    COLMAP's division ``k`` becomes camcal's ``lambda = k / f^2`` (focal's own spread neglected),
+    SIMPLE_RADIAL's ``k`` is ``k1``."""
     prefix = f"{camera}."
     out = {}
     for key, value in sigmas.items():
@@ -897,7 +912,10 @@ def _quality_sigma(sigmas: dict[str, float], camera: str, model: str, focal: flo
             name, value = "lambda", value / (focal * focal)
         elif name == "k":
             name = "k1"
-        out[name] = value
+        if name == "f":
+            out["fx"] = out["fy"] = value
+        else:
+            out[name] = value
     return out
 
 

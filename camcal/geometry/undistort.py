@@ -6,10 +6,17 @@ with the source camera's pose. Three ways to choose ``K_new``:
 ``crop``
     Same image size; focal lengths scaled up about the principal point
     until every output pixel samples inside the source frame (no black
-    borders, some source pixels lost at the edges).
+    borders, some source pixels lost at the edges), and, with a
+    field-of-view cap (``max_fov_deg``, as for ``keep``), until the output
+    frame sees no ray beyond half that angle from the axis.
 ``keep``
     Same focal lengths; the canvas grows (overscan) until every source
-    pixel lands inside it (nothing lost, black corners).
+    pixel lands inside it (nothing lost, black corners). A pinhole image
+    cannot hold rays at 90 degrees from the axis, so the field of view kept
+    is capped at ``max_fov_deg`` (full angle; by default 120 degrees for a
+    ``kannala-brandt`` fisheye, no cap for the other models): source pixels
+    beyond it are left out. (A pinhole view of a fisheye stretches its
+    edges by ``1 / cos^2`` of the angle: 4x at 60 degrees.)
 ``overscan``
     Same focal lengths; the canvas is ``overscan`` times the source size,
     centred (the convention of ST-maps for comp packages).
@@ -38,10 +45,12 @@ from camcal.geometry.remap import RemapMaps, build_maps, undistort_homography
 from camcal.io.frames import imread, imwrite
 from camcal.rig import Camera, Rectification, Rig, make_provenance
 
-__all__ = ["MODES", "UndistortedView", "Undistorter", "undistorted_view", "make_undistorter", "undistort_images"]
+__all__ = ["MODES", "FISHEYE_FOV_DEG", "UndistortedView", "Undistorter", "undistorted_view", "make_undistorter", "undistort_images"]
 
 #: How K_new is chosen (see the module docstring).
 MODES = ("crop", "keep", "overscan")
+#: Full field of view ``crop`` and ``keep`` hold of a ``kannala-brandt`` lens unless told otherwise, degrees.
+FISHEYE_FOV_DEG = 120.0
 
 _BORDER_SAMPLES = 512
 
@@ -73,7 +82,9 @@ def _border(image_size: tuple[int, int], n: int = _BORDER_SAMPLES) -> NDArray[np
     ])
 
 
-def undistorted_view(camera: Camera, mode: str = "crop", overscan: float = 1.1) -> UndistortedView:
+def undistorted_view(
+    camera: Camera, mode: str = "crop", overscan: float = 1.1, max_fov_deg: float | None = None
+) -> UndistortedView:
     """Choose ``K_new`` and the output size for undistorting ``camera``'s images.
 
     Parameters
@@ -84,6 +95,10 @@ def undistorted_view(camera: Camera, mode: str = "crop", overscan: float = 1.1) 
         See the module docstring.
     overscan : float
         Canvas factor for ``mode="overscan"`` (>= 1).
+    max_fov_deg : float, optional
+        ``crop`` and ``keep``: the widest full angle about the optical axis
+        the output holds, in (0, 180) degrees; ``None``:
+        :data:`FISHEYE_FOV_DEG` for ``kannala-brandt``, no cap otherwise.
 
     Returns
     -------
@@ -95,10 +110,16 @@ def undistorted_view(camera: Camera, mode: str = "crop", overscan: float = 1.1) 
     point; ``s`` is the smallest scale (bisection, to 1e-6) for which the
     output frame's border, mapped by ``distort(K K_new^-1 x)``, stays inside
     the source frame. ``keep``: the source border undistorted by the model
-    bounds the canvas; ``K_new = K`` shifted by the canvas origin.
+    bounds the canvas; ``K_new = K`` shifted by the canvas origin. With a
+    field-of-view cap, each border pixel's ray
+    (:meth:`~camcal.geometry.distortion.Distortion.rays_from_pixels`) is
+    turned towards the axis to at most ``max_fov_deg / 2`` before its
+    pinhole pixel is taken.
     """
     if mode not in MODES:
         raise CamcalError(f"unknown undistortion mode {mode!r}, expected one of: {', '.join(MODES)}")
+    if max_fov_deg is not None and not (0.0 < max_fov_deg < 180.0):
+        raise CamcalError(f"the field-of-view cap (max_fov_deg, --max-fov) must be between 0 and 180 degrees, got {max_fov_deg}")
     width, height = camera.image_size
     K = camera.K
     if mode == "overscan":
@@ -109,8 +130,18 @@ def undistorted_view(camera: Camera, mode: str = "crop", overscan: float = 1.1) 
         K_new[0, 2] += (new_width - width) / 2.0
         K_new[1, 2] += (new_height - height) / 2.0
         return UndistortedView(K_new, (new_width, new_height))
+    if max_fov_deg is None and camera.distortion.model == "kannala-brandt":
+        max_fov_deg = FISHEYE_FOV_DEG
     if mode == "keep":
-        ideal = camera.distortion.undistort(_border(camera.image_size), K)
+        if max_fov_deg is None:
+            ideal = camera.distortion.undistort(_border(camera.image_size), K)
+        else:
+            rays = camera.distortion.rays_from_pixels(_border(camera.image_size), K)
+            theta = np.arccos(np.clip(rays[:, 2], -1.0, 1.0))
+            rho = np.hypot(rays[:, 0], rays[:, 1])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                direction = np.where(rho[:, None] > 0.0, rays[:, :2] / rho[:, None], 0.0)
+            ideal = direction * np.tan(np.minimum(theta, np.radians(0.5 * max_fov_deg)))[:, None] @ K[:2, :2].T + K[:2, 2]
         if not np.all(np.isfinite(ideal)):
             raise CamcalError("the distortion model does not map the whole frame to finite points")
         low = np.floor(ideal.min(axis=0) + 0.5)
@@ -141,6 +172,10 @@ def undistorted_view(camera: Camera, mode: str = "crop", overscan: float = 1.1) 
             high = middle
         else:
             low = middle
+    if max_fov_deg is not None:
+        # the output border's farthest normalised radius at scale 1, over tan(half angle)
+        offsets = np.linalg.solve(K[:2, :2], (output_border - centre).T)
+        high = max(high, float(np.hypot(*offsets).max()) / math.tan(math.radians(0.5 * max_fov_deg)))
     K_new = K.copy()
     K_new[0, :2] *= high
     K_new[1, 1] *= high
@@ -189,9 +224,11 @@ class Undistorter:
         )
 
 
-def make_undistorter(camera: Camera, mode: str = "crop", overscan: float = 1.1) -> Undistorter:
+def make_undistorter(
+    camera: Camera, mode: str = "crop", overscan: float = 1.1, max_fov_deg: float | None = None
+) -> Undistorter:
     """Choose ``K_new`` (:func:`undistorted_view`) and build the remap maps once."""
-    view = undistorted_view(camera, mode, overscan)
+    view = undistorted_view(camera, mode, overscan, max_fov_deg)
     maps = build_maps(camera, undistort_homography(camera, view.K_new), view.image_size)
     return Undistorter(camera, view, maps)
 
@@ -203,6 +240,7 @@ def undistort_images(
     out_dir: str | os.PathLike,
     mode: str = "crop",
     overscan: float = 1.1,
+    max_fov_deg: float | None = None,
 ) -> tuple[Path, list[Path]]:
     """Undistort image files of one rig camera and write the undistorted rig.
 
@@ -216,7 +254,7 @@ def undistort_images(
     out_dir : path
         Receives each image under its own name and ``undistorted.rig.json``
         (the rig with that camera replaced by its undistorted camera).
-    mode, overscan
+    mode, overscan, max_fov_deg
         See :func:`undistorted_view`.
 
     Returns
@@ -230,7 +268,7 @@ def undistort_images(
     output is written atomically.
     """
     camera = rig.camera(camera_name)
-    undistorter = make_undistorter(camera, mode, overscan)
+    undistorter = make_undistorter(camera, mode, overscan, max_fov_deg)
     out_dir = Path(out_dir)
     loaded = []
     for path in images:

@@ -3,7 +3,8 @@
 Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
 
 1. Per camera, OpenCV's ``calibrateCamera`` (Zhang's closed form + LM)
-   gives the starting K, distortion and one board pose per image.
+   gives the starting K, distortion and one board pose per image
+   (``cv2.fisheye.calibrate`` for the ``kannala-brandt`` model).
 2. Views of several cameras are matched by the frame number in their file
    names (:func:`camcal.geometry.board.frame_number`); each camera's pose
    relative to the reference (the first camera) is the robust average of
@@ -22,7 +23,8 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    exactly: ``polynomial`` is ``OPENCV`` with p1 = p2 = 0 held, ``opencv``
    is ``FULL_OPENCV`` with k4 = k5 = k6 = 0 held, ``division`` is
    ``SIMPLE_DIVISION``, which has ONE focal length: with this model
-   fx = fy is imposed (and said so in :attr:`CalibrationResult.notes`).
+   fx = fy is imposed (and said so in :attr:`CalibrationResult.notes`),
+   ``kannala-brandt`` is ``OPENCV_FISHEYE``.
 4. Images whose RMS is far above the median (``> max(outlier_factor x
    median, min_outlier_px)``) are dropped, reported, and the problem is
    solved again.
@@ -33,9 +35,10 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
 6. Held-out views (``holdout``) are not used in the fit; each is then
    posed by PnP with the fitted intrinsics held (the same engine, one frame
    per view) and their RMS is reported beside the training RMS. With
-   ``model="auto"`` every model is fitted with every 4th training frame
-   held out, the one with the lowest RMS on those is kept and fitted on
-   all training frames: the choice never sees ``holdout``.
+   ``model="auto"`` every pinhole model (:data:`AUTO_MODELS`; a fisheye
+   is asked for by name) is fitted with every 4th training frame held
+   out, the one with the lowest RMS on those is kept and fitted on all
+   training frames: the choice never sees ``holdout``.
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
@@ -44,7 +47,8 @@ top-left pixel; skew is fixed at 0 (COLMAP's models have none).
 Distortion models (see :mod:`camcal.geometry.distortion`): ``polynomial``
 (k1, k2), ``opencv`` (k1, k2, p1, p2, k3) or ``division`` (Strand & Hayman
 lambda in 1/px^2, centred on the principal point, fx = fy; OpenCV has no
-such model: it is initialised from OpenCV's k1 as ``lambda = -k1 / f^2``).
+such model: it is initialised from OpenCV's k1 as ``lambda = -k1 / f^2``)
+or ``kannala-brandt`` (k1..k4 of OpenCV's fisheye model).
 
 References
 ----------
@@ -81,12 +85,15 @@ from camcal.geometry.distortion import Distortion
 from camcal.io.atomic import atomic_path
 from camcal.rig import Camera, Rig, make_provenance
 
-__all__ = ["MODELS", "MIN_IMAGES", "CalibrationResult", "calibrate_board", "quality_problems", "write_report"]
+__all__ = ["MODELS", "AUTO_MODELS", "MIN_IMAGES", "CalibrationResult", "calibrate_board", "quality_problems", "write_report"]
 
 #: Distortion models and the parameters refined for each.
 MODELS: Mapping[str, tuple[str, ...]] = MappingProxyType(
-    {"polynomial": ("k1", "k2"), "opencv": ("k1", "k2", "p1", "p2", "k3"), "division": ("lambda",)}
+    {"polynomial": ("k1", "k2"), "opencv": ("k1", "k2", "p1", "p2", "k3"), "division": ("lambda",),
+     "kannala-brandt": ("k1", "k2", "k3", "k4")}
 )
+#: The models ``model="auto"`` chooses among (the pinhole ones; OpenCV's pinhole start fails on fisheyes).
+AUTO_MODELS = ("polynomial", "opencv", "division")
 #: Fewest images with the board per camera.
 MIN_IMAGES = 3
 _INTRINSICS = ("fx", "fy", "cx", "cy")
@@ -101,6 +108,7 @@ _COLMAP_MODELS: Mapping[str, tuple[str, tuple[str, ...]]] = MappingProxyType({
     "polynomial": ("OPENCV", ("p1", "p2")),
     "opencv": ("FULL_OPENCV", ("k4", "k5", "k6")),
     "division": ("SIMPLE_DIVISION", ()),
+    "kannala-brandt": ("OPENCV_FISHEYE", ()),
 })
 #: What a calibration with fewer constraints than the model would have must say.
 _MODEL_NOTES = {"division": "division model: fx = fy imposed (COLMAP's SIMPLE_DIVISION has one focal length)"}
@@ -290,6 +298,8 @@ def _frame_number_or_none(name: str) -> int | None:
 def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name: str):
     """OpenCV's calibrateCamera: K, distortion vector and cam_from_board per view."""
     keys = sorted(views)
+    if model == "kannala-brandt":
+        return _opencv_fisheye_start(board, views, keys, name)
     object_points = [board.object_points[views[k].ids].astype(np.float32) for k in keys]
     image_points = [views[k].corners_px.astype(np.float32).reshape(-1, 1, 2) for k in keys]
     try:
@@ -300,6 +310,66 @@ def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name
         raise CamcalError(f"camera {name!r}: OpenCV calibrateCamera failed ({str(error).strip().splitlines()[-1]})") from None
     poses = {k: (cv2.Rodrigues(r)[0], t.ravel()) for k, r, t in zip(keys, rvecs, tvecs)}
     return K, dist.ravel(), poses
+
+
+def _fisheye_flags(*names: str) -> int:
+    """OpenCV's fisheye calibration flags (OpenCV 4 keeps them in ``cv2.fisheye``, OpenCV 5 in ``cv2``)."""
+    return sum(getattr(cv2.fisheye, n, None) or getattr(cv2, n) for n in names)
+
+
+def _opencv_fisheye_start(board: Board, views: Mapping[int, Detection], keys: list[int], name: str):
+    """``cv2.fisheye.calibrate`` (skew fixed at 0): K, (k1..k4) and cam_from_board per view.
+
+    Two stages: k1, k2 only (k3 = k4 = 0), then all four from there
+    (``CALIB_USE_INTRINSIC_GUESS``); OpenCV's own start for the four at
+    once can wander off on wide lenses.
+    """
+    object_points = [board.object_points[views[k].ids].reshape(1, -1, 3).astype(np.float64) for k in keys]
+    image_points = [views[k].corners_px.reshape(1, -1, 2).astype(np.float64) for k in keys]
+    flags = _fisheye_flags("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW")
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    size = views[keys[0]].image_size
+    try:
+        _, K, dist, _, _ = cv2.fisheye.calibrate(
+            object_points, image_points, size, None, None,
+            flags=flags | _fisheye_flags("CALIB_FIX_K3", "CALIB_FIX_K4"), criteria=criteria,
+        )
+        _, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
+            object_points, image_points, size, K, dist,
+            flags=flags | _fisheye_flags("CALIB_USE_INTRINSIC_GUESS"), criteria=criteria,
+        )
+    except cv2.error as error:
+        raise CamcalError(
+            f"camera {name!r}: OpenCV fisheye.calibrate failed ({str(error).strip().splitlines()[-1]})"
+        ) from None
+    poses = {k: (cv2.Rodrigues(r)[0], np.asarray(t, dtype=np.float64).ravel()) for k, r, t in zip(keys, rvecs, tvecs)}
+    return K, np.asarray(dist, dtype=np.float64).ravel(), poses
+
+
+def _corners_in_front(board: Board, by_frame: list[dict], starts: list[dict],
+                      max_angle_deg: float = 89.0) -> tuple[list[dict], int]:
+    """The detections without the corners whose ray, at the start pose, is beyond ``max_angle_deg`` off axis.
+
+    A fisheye sees corners behind its image plane; the engine's
+    ``OPENCV_FISHEYE`` (like COLMAP) cannot image them. Returns the
+    filtered detections (a view left with fewer than 4 corners is dropped)
+    and the number of corners left out.
+    """
+    cos_limit = np.cos(np.radians(max_angle_deg))
+    kept_views, n_left_out = [], 0
+    for views, poses in zip(by_frame, starts):
+        kept = {}
+        for f, d in views.items():
+            R, t = poses[f]
+            X = board.object_points[d.ids] @ R.T + t
+            front = X[:, 2] > cos_limit * np.linalg.norm(X, axis=1)
+            n_left_out += int(np.sum(~front))
+            if front.all():
+                kept[f] = d
+            elif front.sum() >= 4:
+                kept[f] = dataclasses.replace(d, ids=d.ids[front], corners_px=d.corners_px[front])
+        kept_views.append(kept)
+    return kept_views, n_left_out
 
 
 def _camera_poses(names: list[str], starts: list[dict]) -> list[tuple[NDArray, NDArray]]:
@@ -409,6 +479,8 @@ def _colmap_params(model: str, K: NDArray, dist: NDArray) -> NDArray[np.float64]
         return np.array([fx, fy, cx, cy, dist[0], dist[1], 0.0, 0.0])
     if model == "opencv":
         return np.array([fx, fy, cx, cy, dist[0], dist[1], dist[2], dist[3], dist[4], 0.0, 0.0, 0.0])
+    if model == "kannala-brandt":  # OpenCV's fisheye vector is COLMAP's OPENCV_FISHEYE k1..k4
+        return np.array([fx, fy, cx, cy, dist[0], dist[1], dist[2], dist[3]])
     # division: x_d ~ x_u (1 - lambda r^2) to first order, so lambda = -k1 / f^2 and COLMAP's k = lambda f^2 = -k1
     return np.array([0.5 * (fx + fy), cx, cy, -dist[0]])
 
@@ -533,7 +605,7 @@ def calibrate_board(
     if not trial:
         raise CamcalError(f"model auto chooses by held-out views: it needs at least 4 training views, got {len(frames)}")
     scores = {candidate: _calibrate(board, names, training, candidate, trial, **options).heldout_rms_px
-              for candidate in MODELS}
+              for candidate in AUTO_MODELS}
     best = min(scores, key=scores.get)
     result = _calibrate(board, names, by_frame, best, holdout, **options)
     return dataclasses.replace(result, model_heldout_rms_px=scores)
@@ -555,6 +627,12 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         starts.append(poses)
         params.append(_colmap_params(model, K, dist))
     by_frame, starts, relabelled, dropped = _resolve_half_turns(board, names, by_frame, starts)
+    notes = [_MODEL_NOTES[model]] if model in _MODEL_NOTES else []
+    if model == "kannala-brandt":
+        by_frame, n_behind = _corners_in_front(board, by_frame, starts)
+        if n_behind:
+            notes.append(f"{n_behind} corner(s) beyond 90 degrees from the optical axis left out "
+                         "(COLMAP's OPENCV_FISHEYE, the engine's model, images only rays in front of the camera)")
     cam_poses = _camera_poses(names, starts)
 
     # every frame seen by any camera is one board pose, first placed by the lowest camera seeing it
@@ -643,7 +721,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         heldout_images=heldout_images,
         relabelled=tuple(relabelled),
         dropped=tuple(dropped),
-        notes=(_MODEL_NOTES[model],) if model in _MODEL_NOTES else (),
+        notes=tuple(notes),
     )
 
 
@@ -665,9 +743,14 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict], model: str):
             continue
         keys = sorted(views)
         frame_R, frame_t = [], []
+        views = dict(views)
         for key in keys:
             d = views[key]
             ideal = camera.distortion.undistort(d.corners_px, camera.K)
+            front = np.all(np.isfinite(ideal), axis=1)  # a fisheye's corners beyond 90 degrees have no pinhole image
+            if not front.all():
+                d = views[key] = dataclasses.replace(d, ids=d.ids[front], corners_px=d.corners_px[front])
+                ideal = ideal[front]
             ok, rvec, tvec = cv2.solvePnP(board.object_points[d.ids], ideal, camera.K, None)
             if not ok:
                 raise CamcalError(f"camera {camera.name!r}, {d.image}: PnP failed on the held-out view")
@@ -702,8 +785,11 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict], model: str):
 
 
 def _opencv_vector(distortion: Distortion) -> NDArray[np.float64]:
-    """OpenCV's (k1, k2, p1, p2, k3) of a polynomial or opencv distortion (zeros where absent)."""
+    """OpenCV's (k1, k2, p1, p2, k3) of a polynomial or opencv distortion (zeros where absent),
+    or its fisheye (k1, k2, k3, k4) of a kannala-brandt one."""
     p = distortion.params
+    if distortion.model == "kannala-brandt":
+        return np.array([p["k1"], p["k2"], p["k3"], p["k4"]])
     return np.array([p.get("k1", 0.0), p.get("k2", 0.0), p.get("p1", 0.0), p.get("p2", 0.0), p.get("k3", 0.0)])
 
 

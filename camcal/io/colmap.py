@@ -22,12 +22,21 @@ polynomial k1, k2, k3       FULL_OPENCV (p = 0, k4 = k5 = k6 = 0)
 opencv (k3 = 0)             OPENCV
 opencv                      FULL_OPENCV (k4 = k5 = k6 = 0)
 division, centre = pp       SIMPLE_DIVISION (needs fx = fy)
+kannala-brandt k1..k4       OPENCV_FISHEYE (same k1..k4, same normalisation)
 ==========================  ==============================================
 
 COLMAP -> camcal accepts SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL,
 OPENCV, FULL_OPENCV (with k4 = k5 = k6 = 0), SIMPLE_DIVISION and DIVISION
-(with fx = fy). Anything that has no exact counterpart is refused with the
-reason; camcal cameras with skew cannot be expressed in COLMAP.
+(with fx = fy), and the Kannala-Brandt family: SIMPLE_FISHEYE and FISHEYE
+(equidistant, all k = 0), SIMPLE_RADIAL_FISHEYE (k1), RADIAL_FISHEYE
+(k1, k2) and OPENCV_FISHEYE (k1..k4). Anything that has no exact
+counterpart is refused with the reason; camcal cameras with skew cannot be
+expressed in COLMAP.
+
+COLMAP's fisheye models image only rays in front of the camera (it takes
+``x / z``, ``y / z`` and refuses ``z <= 0``); camcal's ``kannala-brandt``
+also images rays up to its ``max_angle_rad`` (beyond 90 degrees), which
+COLMAP cannot carry.
 """
 
 from __future__ import annotations
@@ -62,6 +71,11 @@ def camera_to_colmap(camera: Camera) -> ColmapCamera:
     ------
     CamcalError
         Skew, or a division model off the principal point or with fx != fy.
+
+    Notes
+    -----
+    A ``kannala-brandt`` camera always becomes ``OPENCV_FISHEYE`` (all four
+    coefficients, so a refinement in COLMAP keeps the model's shape).
     """
     K = K_to_colmap(camera.K)
     if K[0, 1] != 0.0:
@@ -85,6 +99,8 @@ def camera_to_colmap(camera: Camera) -> ColmapCamera:
         if k3 == 0.0:
             return ColmapCamera("OPENCV", width, height, (fx, fy, cx, cy, k1, k2, p1, p2))
         return ColmapCamera("FULL_OPENCV", width, height, (fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0))
+    if model == "kannala-brandt":
+        return ColmapCamera("OPENCV_FISHEYE", width, height, (fx, fy, cx, cy, p["k1"], p["k2"], p["k3"], p["k4"]))
     # division
     centre = camera.distortion.center
     if centre is not None and tuple(centre) != (camera.K[0, 2], camera.K[1, 2]):
@@ -125,6 +141,7 @@ def camera_from_colmap(
     expected = {
         "SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5,
         "OPENCV": 8, "FULL_OPENCV": 12, "SIMPLE_DIVISION": 4, "DIVISION": 5,
+        "SIMPLE_FISHEYE": 3, "FISHEYE": 4, "SIMPLE_RADIAL_FISHEYE": 4, "RADIAL_FISHEYE": 5, "OPENCV_FISHEYE": 8,
     }
     if model not in expected:
         raise CamcalError(
@@ -132,7 +149,8 @@ def camera_from_colmap(
         )
     if len(params) != expected[model]:
         raise CamcalError(f"COLMAP model {model} takes {expected[model]} parameters, got {len(params)}")
-    if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "SIMPLE_DIVISION"):
+    if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "SIMPLE_DIVISION",
+                 "SIMPLE_FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE"):
         fx = fy = params[0]
         cx, cy = params[1], params[2]
         extra = params[3:]
@@ -154,6 +172,9 @@ def camera_from_colmap(
         if (k4, k5, k6) != (0.0, 0.0, 0.0):
             raise CamcalError("FULL_OPENCV with rational terms k4, k5, k6 has no camcal counterpart")
         distortion = Distortion("opencv", {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3})
+    elif model.endswith("FISHEYE"):
+        k = (list(extra) + [0.0, 0.0, 0.0, 0.0])[:4]
+        distortion = Distortion("kannala-brandt", {"k1": k[0], "k2": k[1], "k3": k[2], "k4": k[3]})
     else:  # SIMPLE_DIVISION, DIVISION
         if fx != fy:
             raise CamcalError(f"COLMAP DIVISION with fx != fy ({fx!r}, {fy!r}) is not camcal's pixel division model")

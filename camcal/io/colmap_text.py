@@ -17,9 +17,10 @@ rig's sparse points (its PLY) become ``points3D.txt`` with empty tracks.
 
 Reading gives one camcal camera per image (world poses, a static rig),
 named after the image without its suffix; COLMAP's rigs / frames files are
-not read. Lenses COLMAP cannot hold exactly (skew, a division lens off the
+not read. camcal's ``kannala-brandt`` lens is COLMAP's OPENCV_FISHEYE
+(exact). Lenses COLMAP cannot hold exactly (a division lens off the
 principal point or with fx != fy) are fitted with the nearest OPENCV /
-FULL_OPENCV lens, with the max pixel residual reported.
+FULL_OPENCV lens and skew is dropped, with the max pixel residual reported.
 """
 
 from __future__ import annotations
@@ -58,8 +59,10 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     camera_lines, conversions, colmap_ids = [], [], {}
     for camera_id, camera in enumerate(chosen, start=1):
         def holds(distortion: Distortion, camera=camera) -> bool:
+            K = camera.K.copy()
+            K[0, 1] = 0.0  # skew is dropped whatever the lens: a lens COLMAP holds is kept (a fisheye stays one)
             try:
-                camera_to_colmap(Camera(camera.name, camera.image_size, camera.K, distortion, camera.R, camera.c))
+                camera_to_colmap(Camera(camera.name, camera.image_size, K, distortion, camera.R, camera.c))
             except CamcalError:
                 return False
             return True

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion, frame_grid, fit_distortion
+from camcal.geometry.distortion import Distortion, fit_distortion, frame_grid
 from camcal.rig import Camera, Rig
 
 __all__ = [
@@ -68,6 +68,9 @@ class LensConversion:
     max_px : float
         Largest distance in pixels between the two projections of the same
         rays over the frame (0.0 when exact).
+    loss : str
+        What makes it inexact (``"nearest fit"``, or e.g. the format's
+        32-bit float attributes).
     """
 
     camera: str
@@ -75,12 +78,13 @@ class LensConversion:
     target: str
     exact: bool
     max_px: float = 0.0
+    loss: str = "nearest fit"
 
     def describe(self) -> str:
         """One line for the command's summary."""
         if self.exact:
             return f"camera {self.camera!r}: {self.source} -> {self.target}: exact"
-        return (f"camera {self.camera!r}: {self.source} -> {self.target}: nearest fit, "
+        return (f"camera {self.camera!r}: {self.source} -> {self.target}: {self.loss}, "
                 f"max residual {self.max_px:.3g} px")
 
 
@@ -245,8 +249,17 @@ def export_rig(
                          **extra)
 
 
-def import_rig(path: str | os.PathLike, fmt: str) -> ImportResult:
+def import_rig(path: str | os.PathLike, fmt: str, *, image_size: tuple[int, int] | None = None) -> ImportResult:
     """Read another tool's camera file as a camcal rig (see :func:`export_rig`).
+
+    Parameters
+    ----------
+    path : path
+    fmt : str
+        One of :data:`FORMATS`.
+    image_size : (int, int), optional
+        ``usd`` only: width and height in pixels of the cameras that carry
+        none (plain USD cameras; the other formats hold the image size).
 
     Raises
     ------
@@ -256,10 +269,18 @@ def import_rig(path: str | os.PathLike, fmt: str) -> ImportResult:
     """
     module = _module(fmt)
     path = Path(path)
+    extra = {}
+    if image_size is not None:
+        if fmt != "usd":
+            raise CamcalError(f"an image size applies to usd only ({fmt} files hold their own)")
+        width, height = image_size
+        if not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in (width, height)):
+            raise CamcalError(f"the image size must be two positive integers, got {width} {height}")
+        extra["image_size"] = (width, height)
     if not path.exists():
         raise CamcalError(f"{fmt} input not found: {path}")
     try:
-        return module.load(path)
+        return module.load(path, **extra)
     except CamcalError as error:
         message = str(error)
         raise CamcalError(message if message.startswith(str(path)) else f"{path}: {message}") from None

@@ -21,8 +21,10 @@ pixel). camcal cameras with ``none``, ``polynomial`` (k3 = 0) or ``opencv``
 (k3 = 0) lenses go exactly; others (k3, division) are fitted with the
 nearest radtan lens and skew is dropped, with the max pixel residual
 reported. ``T_cn_cnm1`` is ``[[R_n R_{n-1}^T, R_n (c_{n-1} - c_n)], [0, 0,
-0, 1]]``. ``pinhole-equi`` (``distortion_model: equidistant``) is read and
-written when camcal has a Kannala-Brandt lens model.
+0, 1]]``. ``pinhole-equi`` (``distortion_model: equidistant``, Kalibr's
+Kannala-Brandt model ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3
+theta^6 + k4 theta^8)``, the same as ``cv2.fisheye``) holds camcal's
+``kannala-brandt`` lens exactly, coefficients ``[k1, k2, k3, k4]``.
 
 Kalibr has no world frame: imported rigs put cam0 at the origin; a rig's
 frames and points are not written.
@@ -36,14 +38,14 @@ from pathlib import Path
 import numpy as np
 
 from camcal.errors import CamcalError
-from camcal.geometry.distortion import MODEL_PARAMS, Distortion
+from camcal.geometry.distortion import Distortion
 from camcal.io.atomic import atomic_write_text
 from camcal.io.interchange import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
 from camcal.rig import Camera, Rig
 
 __all__ = ["export", "load"]
 
-_KANNALA_BRANDT = "kannala-brandt"  # camcal's model name, when it exists
+_KANNALA_BRANDT = "kannala-brandt"
 
 
 def _holds(distortion: Distortion) -> bool:
@@ -76,7 +78,8 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     chain, conversions = {}, []
     previous = None
     for index, camera in enumerate(select_cameras(rig, cameras)):
-        converted, conversion = nearest_camera(camera, _holds, "opencv", "pinhole-radtan", with_k3=False)
+        target = "pinhole-equi" if camera.distortion.model == _KANNALA_BRANDT else "pinhole-radtan"
+        converted, conversion = nearest_camera(camera, _holds, "opencv", target, with_k3=False)
         conversions.append(conversion)
         entry = _camera_entry(converted)
         if previous is not None:
@@ -133,7 +136,7 @@ def load(path: Path) -> ImportResult:
         if model == "radtan":
             k1, k2, p1, p2 = _numbers(entry, "distortion_coeffs", 4, key)
             distortion = Distortion("opencv", {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": 0.0})
-        elif model == "equidistant" and _KANNALA_BRANDT in MODEL_PARAMS:
+        elif model == "equidistant":
             k1, k2, k3, k4 = _numbers(entry, "distortion_coeffs", 4, key)
             distortion = Distortion(_KANNALA_BRANDT, {"k1": k1, "k2": k2, "k3": k3, "k4": k4})
         elif model == "none":

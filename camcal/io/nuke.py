@@ -133,7 +133,8 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
         source = f"{camera.distortion.model}{' with skew' if camera.K[0, 1] else ''}" + (
             "" if camera.K[1, 1] == camera.K[0, 0] else ", fx != fy")
         conversion = LensConversion(camera.name, source, "Nuke Camera3 (+ ST-maps for the lens)", exact,
-                                    0.0 if exact else max_pixel_residual(camera, converted, lens=False))
+                                    0.0 if exact else max_pixel_residual(camera, converted, lens=False),
+                                    "one focal scale, no skew")
         conversions.append(conversion)
         if frames:
             posed = [rig.camera_at_frame(camera.name, f) for f in frames]

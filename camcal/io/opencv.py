@@ -24,13 +24,22 @@ common rectified frame, ``P_1 = K_r1 [I | 0]``, ``P_2 = K_r2 [I | t]`` with
 ``H_i = K_ri R_i K_i^-1``; OpenCV has no rectified image size, so camcal
 adds ``rectified_width`` / ``rectified_height`` (readers ignore them).
 
+A fisheye file (camcal's ``kannala-brandt`` lens, OpenCV's ``cv2.fisheye``
+model) adds ``fisheye_model: 1`` (the key of OpenCV's calibration sample,
+``camera_calibration.cpp``) and holds the ``cv2.fisheye`` D vector
+``k1 k2 k3 k4`` (1x4) in ``distortion_coefficients`` or ``D1`` / ``D2``;
+the rectification entries are then the ones ``cv2.fisheye.stereoRectify``
+writes, with the same meaning. Both cameras of a stereo file are of one
+kind.
+
 OpenCV's pixel convention is camcal's (pixel (0, 0) at the centre of the
 top-left pixel). Its distortion is camcal's ``opencv`` model; ``polynomial``
 and ``none`` map exactly, the ``division`` lens is fitted (nearest
 ``opencv`` model, residual reported). OpenCV's projection ignores skew
-(``cv2.projectPoints`` uses fx, fy, cx, cy): a camera with skew is written
-without it, with the residual reported. On reading, 4, 5, 8, 12 or 14
-coefficients are accepted when those beyond ``k3`` are zero.
+(``cv2.projectPoints`` uses fx, fy, cx, cy; ``cv2.fisheye`` takes skew as a
+separate ``alpha``): a camera with skew is written without it, with the
+residual reported. On reading, 4, 5, 8, 12 or 14 coefficients are accepted
+when those beyond ``k3`` are zero (exactly 4 in a fisheye file).
 
 The first camera's pose is the file's origin; a rig's world pose, frames
 and sparse points are not held (the summary says so).
@@ -64,6 +73,10 @@ SUFFIXES = {".yaml": "YAML", ".yml": "YAML", ".xml": "XML"}
 #: A rectification is written as OpenCV's rotation when H is K_r R K^-1 to this many pixels.
 _ROTATION_TOL_PX = 1e-6
 
+_FISHEYE = "kannala-brandt"
+_FISHEYE_FORMAT = "opencv fisheye (k1 k2 k3 k4)"
+_PINHOLE_FORMAT = "opencv (k1 k2 p1 p2 k3)"
+
 
 def _check_suffix(path: Path) -> None:
     if path.suffix.lower() not in SUFFIXES:
@@ -74,8 +87,14 @@ def _holds(distortion: Distortion) -> bool:
     return distortion.model in ("none", "polynomial", "opencv")
 
 
+def _holds_fisheye(distortion: Distortion) -> bool:
+    return distortion.model == _FISHEYE
+
+
 def _coefficients(distortion: Distortion) -> NDArray[np.float64]:
     p = distortion.params
+    if distortion.model == _FISHEYE:
+        return np.array([[p["k1"], p["k2"], p["k3"], p["k4"]]])
     return np.array([[p.get("k1", 0.0), p.get("k2", 0.0), p.get("p1", 0.0), p.get("p2", 0.0), p.get("k3", 0.0)]])
 
 
@@ -113,9 +132,16 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     if len(chosen) > 2:
         raise CamcalError(f"an OpenCV file holds one camera or a stereo pair; the rig has {len(chosen)} cameras "
                           f"({', '.join(c.name for c in chosen)}): choose one or two with --camera")
+    fisheye = [camera.distortion.model == _FISHEYE for camera in chosen]
+    if any(fisheye) and not all(fisheye):
+        raise CamcalError(f"an OpenCV stereo file holds two cv2.fisheye lenses or two pinhole lenses; "
+                          f"{chosen[fisheye.index(True)].name!r} is {_FISHEYE}, "
+                          f"{chosen[fisheye.index(False)].name!r} {chosen[fisheye.index(False)].distortion.model}")
+    fisheye = all(fisheye)
     converted, conversions = [], []
     for camera in chosen:
-        camera_out, conversion = nearest_camera(camera, _holds, "opencv", "opencv (k1 k2 p1 p2 k3)")
+        camera_out, conversion = nearest_camera(camera, _holds_fisheye if fisheye else _holds, "opencv",
+                                                _FISHEYE_FORMAT if fisheye else _PINHOLE_FORMAT)
         converted.append(camera_out)
         conversions.append(conversion)
     notes = []
@@ -124,6 +150,8 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     with atomic_path(out) as tmp:
         storage = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
         try:
+            if fisheye:
+                storage.write("fisheye_model", 1)
             if len(converted) == 1:
                 _write_single(storage, converted[0])
             else:
@@ -203,20 +231,21 @@ def load(path: Path) -> ImportResult:
         if not storage.isOpened():
             raise CamcalError(f"{path}: not an OpenCV FileStorage file")
         keys = set(storage.root().keys())
+        fisheye = _fisheye_flag(storage, keys)
         if {"K1", "K2"} & keys:
-            rig = _read_stereo(storage, keys)
+            rig = _read_stereo(storage, keys, fisheye)
         elif "camera_matrix" in keys:
             rig = Rig((_read_camera(storage, "camera_matrix", "distortion_coefficients",
                                     _text(storage, "camera_name") or "camera", _size(storage, keys),
-                                    np.eye(3), np.zeros(3)),), units="unknown")
+                                    np.eye(3), np.zeros(3), fisheye),), units="unknown")
         elif {"D1", "D2", "R", "T"} & keys:
             raise CamcalError("a stereo file needs K1, D1, K2, D2, R and T; K1/K2 are missing")
         else:
             raise CamcalError("no camera_matrix (one camera) and no K1, K2 (stereo pair) in the file")
     finally:
         storage.release()
-    conversions = tuple(LensConversion(c.name, "opencv (k1 k2 p1 p2 k3)", c.distortion.model, True)
-                        for c in rig.cameras)
+    conversions = tuple(LensConversion(c.name, _FISHEYE_FORMAT if fisheye else _PINHOLE_FORMAT, c.distortion.model,
+                                       True) for c in rig.cameras)
     return ImportResult(rig, conversions, ("the first camera is the origin; units are those of T",))
 
 
@@ -258,8 +287,23 @@ def _size(storage, keys: set[str]) -> tuple[int, int]:
     return int(width), int(height)
 
 
-def _distortion(storage, key: str) -> Distortion:
+def _fisheye_flag(storage, keys: set[str]) -> bool:
+    """``fisheye_model``: absent or 0 for OpenCV's pinhole lens, 1 for ``cv2.fisheye``."""
+    if "fisheye_model" not in keys:
+        return False
+    node = storage.getNode("fisheye_model")
+    value = node.real() if node.isInt() or node.isReal() else None
+    if value not in (0.0, 1.0):
+        raise CamcalError(f"fisheye_model must be 0 or 1, got {node.string() if node.isString() else value!r}")
+    return value == 1.0
+
+
+def _distortion(storage, key: str, fisheye: bool) -> Distortion:
     values = _matrix(storage, key).ravel()
+    if fisheye:
+        if len(values) != 4:
+            raise CamcalError(f"{key} has {len(values)} coefficients; a cv2.fisheye lens (fisheye_model: 1) has 4")
+        return Distortion(_FISHEYE, dict(zip(("k1", "k2", "k3", "k4"), values)))
     if len(values) not in (4, 5, 8, 12, 14):
         raise CamcalError(f"{key} has {len(values)} coefficients; OpenCV uses 4, 5, 8, 12 or 14")
     if np.any(values[5:] != 0.0):
@@ -270,14 +314,14 @@ def _distortion(storage, key: str) -> Distortion:
     return Distortion("opencv", {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3})
 
 
-def _read_camera(storage, K_key: str, D_key: str, name: str, size: tuple[int, int], R, c) -> Camera:
+def _read_camera(storage, K_key: str, D_key: str, name: str, size: tuple[int, int], R, c, fisheye: bool) -> Camera:
     try:
-        return Camera(name, size, _matrix(storage, K_key, (3, 3)), _distortion(storage, D_key), R, c)
+        return Camera(name, size, _matrix(storage, K_key, (3, 3)), _distortion(storage, D_key, fisheye), R, c)
     except CamcalError as error:
         raise CamcalError(f"camera {name!r}: {error}") from None
 
 
-def _read_stereo(storage, keys: set[str]) -> Rig:
+def _read_stereo(storage, keys: set[str], fisheye: bool) -> Rig:
     missing = [key for key in ("K1", "D1", "K2", "D2", "R", "T") if key not in keys]
     if missing:
         raise CamcalError(f"a stereo file needs K1, D1, K2, D2, R and T; missing {', '.join(missing)}")
@@ -286,8 +330,8 @@ def _read_stereo(storage, keys: set[str]) -> Rig:
     if names[0] == names[1]:
         names = (names[0] + "_1", names[1] + "_2")
     R, T = _matrix(storage, "R", (3, 3)), _matrix(storage, "T", (3,))
-    first = _read_camera(storage, "K1", "D1", names[0], size, np.eye(3), np.zeros(3))
-    second = _read_camera(storage, "K2", "D2", names[1], size, R, -R.T @ T)
+    first = _read_camera(storage, "K1", "D1", names[0], size, np.eye(3), np.zeros(3), fisheye)
+    second = _read_camera(storage, "K2", "D2", names[1], size, R, -R.T @ T, fisheye)
     rectified = {"R1", "R2", "P1", "P2"} <= keys
     if rectified:
         rect_size = size

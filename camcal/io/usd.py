@@ -31,6 +31,16 @@ kept in the camera's ``customData`` under ``camcal:*`` keys; renderers
 ignore it, comp needs camcal's ST-maps (written and referenced there with
 ``stmaps=True``, ``camcal rig export --stmaps``). A moving rig writes one time
 sample of the transform per frame (time code = frame number).
+
+Reading: a camera camcal wrote gets its image size, exact ``K``, lens and
+rig pose back from ``customData``. A plain USD camera (written by another
+tool) holds no image size: :func:`load` takes it as ``image_size`` (``camcal
+rig import --image-size W H``) and reads ``K`` from the attributes above
+(the schema's fallback values where unauthored), with no lens. When the
+aperture's aspect (``horizontalAperture / verticalAperture``) is not the
+image's, the mapping above gives non-square pixels (``fx != fy``), as the
+``Gf.Camera`` frustum does; a note says so, since renderers that conform
+the aperture to the image (e.g. Hydra's fit policy) widen one side instead.
 """
 
 from __future__ import annotations
@@ -204,9 +214,12 @@ def _float_attributes(camera: Camera, converted: Camera, conversion: LensConvers
     K = _K_from_usd(_float32(usd_intrinsics(converted)), converted.image_size)
     stored = Camera(camera.name, camera.image_size, K, converted.distortion, camera.R, camera.c)
     residual = max_pixel_residual(camera, stored, lens=False)
-    exact = conversion.exact and residual <= _EXACT_PX
-    return LensConversion(camera.name, conversion.source, f"{conversion.target}, float attributes", exact,
-                          0.0 if exact else residual)
+    if conversion.exact:
+        exact = residual <= _EXACT_PX
+        return LensConversion(camera.name, conversion.source, conversion.target, exact, 0.0 if exact else residual,
+                              "32-bit float attributes")
+    return LensConversion(camera.name, conversion.source, conversion.target, False, residual,
+                          "no skew, 32-bit float attributes")
 
 
 def _custom(prim, key: str, where: str):
@@ -223,8 +236,23 @@ def _custom(prim, key: str, where: str):
         raise CamcalError(f"{where}: customData {key} is not camcal's JSON") from None
 
 
-def load(path: Path) -> ImportResult:
-    """Read the UsdGeom.Camera prims of a stage as a rig (see the module docstring)."""
+def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
+    """Read the UsdGeom.Camera prims of a stage as a rig (see the module docstring).
+
+    Parameters
+    ----------
+    path : Path
+    image_size : (int, int), optional
+        Width and height in pixels of the cameras that carry no
+        ``camcal:image_size`` (plain USD cameras); cameras camcal wrote keep
+        their own.
+
+    Raises
+    ------
+    CamcalError
+        A camera without an image size when ``image_size`` is None, and the
+        file errors of :func:`camcal.io.interchange.import_rig`.
+    """
     from pxr import Sdf, Tf, Usd, UsdGeom
 
     try:
@@ -236,15 +264,16 @@ def load(path: Path) -> ImportResult:
     except Tf.ErrorException as error:
         reason = " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("' ")
         raise CamcalError(f"not a USD file ({reason})") from None
-    cameras, conversions, world_poses, prims = [], [], [], []
+    cameras, conversions, world_poses, prims, notes = [], [], [], [], []
     times = None
     for prim in stage.Traverse():
         if not prim.IsA(UsdGeom.Camera):
             continue
         where = f"camera {prim.GetPath()}"
         size = _custom(prim, "camcal:image_size", where)
-        if size is None:
-            raise CamcalError(f"{where} has no image size (customData camcal:image_size); USD cameras hold none")
+        if size is None and image_size is None:
+            raise CamcalError(f"{where} has no image size (no camcal customData; USD cameras hold none): "
+                              "give it with --image-size W H")
         values = {name: prim.GetAttribute(name).Get() for name in
                   ("focalLength", "horizontalAperture", "verticalAperture",
                    "horizontalApertureOffset", "verticalApertureOffset")}
@@ -252,6 +281,14 @@ def load(path: Path) -> ImportResult:
             raise CamcalError(f"{where}: focal length or apertures missing or not finite")
         if values["focalLength"] <= 0 or values["horizontalAperture"] <= 0 or values["verticalAperture"] <= 0:
             raise CamcalError(f"{where}: focal length and apertures must be positive")
+        if size is None:
+            size = image_size
+            aperture_aspect = values["horizontalAperture"] / values["verticalAperture"]
+            if abs(aperture_aspect / (size[0] / size[1]) - 1.0) > 1e-3:
+                notes.append(f"{where}: aperture aspect {aperture_aspect:.4g} is not the image's "
+                             f"{size[0] / size[1]:.4g}: read as non-square pixels (fx / fy "
+                             f"{size[0] / size[1] / aperture_aspect:.4g}, the Gf.Camera frustum's mapping); a "
+                             "renderer that fits the aperture to the image sees square pixels and a wider view")
         K = _K_from_usd(values, size)
         exact_K = _custom(prim, "camcal:K", where)
         if exact_K is not None:
@@ -287,9 +324,9 @@ def load(path: Path) -> ImportResult:
         meters = UsdGeom.GetStageMetersPerUnit(stage)
         units = next((u for u, m in METERS_PER_UNIT.items() if m == meters), "m")
     if not times:
-        return ImportResult(Rig(tuple(cameras), units=units), tuple(conversions))
+        return ImportResult(Rig(tuple(cameras), units=units), tuple(conversions), tuple(notes))
     return ImportResult(_moving_rig(prims, cameras, world_poses, times, units), tuple(conversions),
-                        (f"{len(times)} frames from the cameras' time samples",))
+                        (*notes, f"{len(times)} frames from the cameras' time samples"))
 
 
 def _moving_rig(prims, cameras, world_poses, times, units) -> Rig:

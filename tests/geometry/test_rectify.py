@@ -106,6 +106,37 @@ def test_calibrated_rectification_aligns_rows_exactly(n):
         assert abs(item.orthogonality_deg - 90.0) < 3.0 and abs(item.aspect_ratio - 1.0) < 0.05
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_two_view_rotation_is_opencv_stereoRectify_s(seed):
+    # the one free choice of a calibrated rectification (a rotation about the baseline): camcal takes
+    # the rotation nearest the cameras' mean one, which for two cameras is cv2.stereoRectify's
+    rng = np.random.default_rng(100 + seed)
+    rig = line_rig(2, rng, max_angle_deg=8.0)
+    for first, second in (rig.cameras, rig.cameras[::-1]):  # the second camera right, then left
+        result = rectify_calibrated(Rig((first, second)))
+        R = second.R @ first.R.T
+        T = second.R @ (first.c - second.c)
+        R1, R2, *_ = cv2.stereoRectify(first.K, np.zeros(5), second.K, np.zeros(5), SIZE, R, T.reshape(3, 1))
+        for R_cv, camera in ((R1, first), (R2, second)):
+            assert Rotation.from_matrix(R_cv @ camera.R @ result.R_rect.T).magnitude() < 1e-12
+
+
+def test_N_view_rotation_is_the_rectifying_rotation_nearest_the_mean():
+    rng = np.random.default_rng(21)
+    rig = line_rig(4, rng, max_angle_deg=8.0, offsets=[np.zeros(3), [0.0, 0.002, 0.0], [0.0, -0.001, 0.003], np.zeros(3)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CentresOffLineWarning)
+        result = rectify_calibrated(rig)
+    mean = Rotation.from_matrix(np.array([c.R for c in rig.cameras])).mean()
+    centres = np.array([c.c for c in rig.cameras])
+    direction = np.linalg.svd(centres - centres.mean(axis=0))[2][0]
+    assert abs(abs(result.R_rect[0] @ direction) - 1.0) < 1e-12
+    distance = (Rotation.from_matrix(result.R_rect) * mean.inv()).magnitude()
+    for angle in (-1e-3, 1e-3, -0.1, 0.1):  # every other rectifying rotation: turned about the baseline
+        other = Rotation.from_rotvec([angle, 0.0, 0.0]) * Rotation.from_matrix(result.R_rect)
+        assert (other * mean.inv()).magnitude() > distance
+
+
 def test_H_is_K_rect_R_rect_R_i_transpose_K_i_inverse():
     rng = np.random.default_rng(11)
     rig = line_rig(2, rng)

@@ -12,6 +12,8 @@ from camcal.rig import Camera, Frame, Rig, make_provenance
 SIZE = (1280, 720)
 BROWN = Distortion("opencv", {"k1": -0.12, "k2": 0.03, "p1": 1e-4, "p2": -2e-4, "k3": -0.004})
 RADTAN = Distortion("opencv", {"k1": -0.11, "k2": 0.025, "p1": 2e-4, "p2": -1e-4, "k3": 0.0})
+FISHEYES = (Distortion("kannala-brandt", {"k1": 0.021, "k2": -0.006, "k3": 0.0012, "k4": -0.0002}),
+            Distortion("kannala-brandt", {"k1": 0.018, "k2": -0.004, "k3": 0.0007, "k4": -0.0001}))
 
 
 def K(fx, fy, cx, cy, skew=0.0):
@@ -24,6 +26,16 @@ def stereo_rig(distortion=BROWN, rectified=True) -> Rig:
     R_right = Rotation.from_euler("xyz", [-0.3, 0.9, -0.5], degrees=True).as_matrix()
     left = Camera("left", SIZE, K(1010.0, 1008.0, 652.3, 351.7), distortion, R_left, [0.0, 0.0, 0.0])
     right = Camera("right", SIZE, K(1022.0, 1019.5, 631.9, 366.2), distortion, R_right, [0.25, 0.004, -0.002])
+    rig = Rig((left, right), units="m", provenance=make_provenance("test"))
+    return rectify_calibrated(rig).rig if rectified else rig
+
+
+def fisheye_rig(rectified=True) -> Rig:
+    """A 0.12 m pair of Kannala-Brandt fisheyes (about 150 deg across the diagonal), toed in and rolled."""
+    R_left = Rotation.from_euler("xyz", [0.4, -1.1, 0.3], degrees=True).as_matrix()
+    R_right = Rotation.from_euler("xyz", [-0.3, 0.9, -0.5], degrees=True).as_matrix()
+    left = Camera("left", SIZE, K(560.0, 558.0, 645.2, 357.9), FISHEYES[0], R_left, [0.0, 0.0, 0.0])
+    right = Camera("right", SIZE, K(566.0, 565.0, 633.1, 365.4), FISHEYES[1], R_right, [0.12, 0.002, -0.001])
     rig = Rig((left, right), units="m", provenance=make_provenance("test"))
     return rectify_calibrated(rig).rig if rectified else rig
 

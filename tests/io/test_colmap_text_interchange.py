@@ -1,5 +1,7 @@
 """COLMAP text model export / import, read back by pycolmap."""
 
+import dataclasses
+
 import numpy as np
 import pycolmap
 import pytest
@@ -8,8 +10,9 @@ from camcal.errors import CamcalError
 from camcal.geometry.camera import pixels_from_colmap
 from camcal.io.interchange import export_rig, import_rig, max_pixel_residual
 from camcal.io.ply import read_points_ply
+from camcal.rig import Rig
 
-from interchange_rigs import division_rig, moving_rig, stereo_rig, world_points
+from interchange_rigs import division_rig, fisheye_rig, moving_rig, stereo_rig, world_points
 
 
 def pycolmap_pixels(image, X):
@@ -61,6 +64,32 @@ def test_skew_and_off_centre_division_are_fitted_within_the_printed_residual(tmp
     assert observed <= conversion.max_px * 1.05
     back = import_rig(tmp_path / "model", "colmap").rig
     assert max_pixel_residual(rig.cameras[0], back.cameras[0]) == pytest.approx(conversion.max_px, rel=1e-6)
+
+
+def test_fisheye_is_opencv_fisheye_exactly_and_pycolmap_projects_it_like_camcal(tmp_path):
+    rig = fisheye_rig(rectified=False)
+    result = export_rig(rig, "colmap", tmp_path / "model")
+    assert all(c.exact and c.target == "COLMAP OPENCV_FISHEYE" for c in result.conversions)
+    reconstruction = pycolmap.Reconstruction(str(tmp_path / "model"))
+    worst = 0.0
+    for image in reconstruction.images.values():
+        camera = rig.camera(image.name)
+        assert image.camera.model.name == "OPENCV_FISHEYE"
+        X, pixels = world_points(rig, camera, n=500)
+        worst = max(worst, np.abs(pycolmap_pixels(image, X) - pixels).max())
+    print(f"pycolmap OPENCV_FISHEYE vs camcal kannala-brandt: {worst:.1e} px")
+    assert worst < 1e-9
+    back = import_rig(tmp_path / "model", "colmap").rig
+    assert [c.distortion for c in back.cameras] == [c.distortion for c in rig.cameras]
+    for a, b in zip(rig.cameras, back.cameras):
+        X, _ = world_points(rig, a)
+        assert np.abs(a.project(X) - b.project(X)).max() < 1e-9
+    # skew: dropped, the fisheye stays a fisheye (not fitted with a pinhole lens), the residual printed
+    K = rig.cameras[0].K.copy()
+    K[0, 1] = 0.6
+    skewed = Rig((dataclasses.replace(rig.cameras[0], K=K),))
+    (conversion,) = export_rig(skewed, "colmap", tmp_path / "skewed").conversions
+    assert conversion.target == "COLMAP OPENCV_FISHEYE" and not conversion.exact and 0 < conversion.max_px < 1.0
 
 
 @pytest.mark.parametrize("cameras, images, message", [

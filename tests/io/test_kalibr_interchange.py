@@ -7,7 +7,7 @@ import yaml
 from camcal.errors import CamcalError
 from camcal.io.interchange import export_rig, import_rig, max_pixel_residual
 
-from interchange_rigs import BROWN, RADTAN, division_rig, relative_projection_error, stereo_rig
+from interchange_rigs import BROWN, RADTAN, division_rig, fisheye_rig, relative_projection_error, stereo_rig, world_points
 
 
 def check_camchain_schema(chain):
@@ -60,6 +60,39 @@ def test_lossy_lens_within_the_printed_residual(tmp_path):
             assert max_pixel_residual(camera, converted) == pytest.approx(conversion.max_px, rel=1e-9)
             print(f"{camera.name} {conversion.source} -> radtan: max residual {conversion.max_px:.3g} px")
         assert max(c.max_px for c in result.conversions) < 2.0
+
+
+def equidistant_pixels(cam, X_camera):
+    """Kalibr's pinhole-equi projection (its EquidistantDistortion, Kannala-Brandt), from the YAML entry alone."""
+    fu, fv, pu, pv = cam["intrinsics"]
+    k1, k2, k3, k4 = cam["distortion_coeffs"]
+    x, y = X_camera[:, 0] / X_camera[:, 2], X_camera[:, 1] / X_camera[:, 2]
+    r = np.hypot(x, y)
+    theta = np.arctan(r)
+    theta_d = theta * (1 + k1 * theta**2 + k2 * theta**4 + k3 * theta**6 + k4 * theta**8)
+    scale = theta_d / r
+    return np.column_stack([fu * x * scale + pu, fv * y * scale + pv])
+
+
+def test_fisheye_is_pinhole_equi_exactly(tmp_path):
+    rig = fisheye_rig(rectified=False)
+    out = tmp_path / "camchain.yaml"
+    result = export_rig(rig, "kalibr", out)
+    assert all(c.exact and c.target == "pinhole-equi" for c in result.conversions)
+    chain = yaml.safe_load(out.read_text())
+    check_camchain_schema(chain)
+    worst = 0.0
+    for camera, cam in zip(rig.cameras, chain.values()):
+        assert (cam["camera_model"], cam["distortion_model"]) == ("pinhole", "equidistant")
+        p = camera.distortion.params
+        assert cam["distortion_coeffs"] == [p["k1"], p["k2"], p["k3"], p["k4"]]
+        X, pixels = world_points(rig, camera, n=500)
+        worst = max(worst, np.abs(equidistant_pixels(cam, (X - camera.c) @ camera.R.T) - pixels).max())
+    print(f"Kalibr's equidistant model on the file vs camcal: {worst:.1e} px")
+    assert worst < 1e-9
+    back = import_rig(out, "kalibr")
+    assert [c.distortion for c in back.rig.cameras] == [c.distortion for c in rig.cameras]
+    assert relative_projection_error(rig, back.rig) < 1e-9
 
 
 @pytest.mark.parametrize("text, message", [

@@ -1,5 +1,7 @@
 """OpenCV FileStorage export / import, checked with OpenCV's own reader and stereoRectify."""
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -9,7 +11,7 @@ from camcal.errors import CamcalError
 from camcal.io.interchange import export_rig, import_rig, max_pixel_residual
 from camcal.rig import Rig
 
-from interchange_rigs import division_rig, relative_projection_error, stereo_rig, world_points
+from interchange_rigs import division_rig, fisheye_rig, relative_projection_error, stereo_rig, world_points
 
 
 def undistort_points(x, K, D, R, P):
@@ -72,20 +74,82 @@ def test_opencv_rectifies_the_imported_pair_like_camcal(tmp_path):
         ideal = camera.distortion.undistort(x, camera.K)
         mapped = np.column_stack([ideal, np.ones(len(ideal))]) @ H.T
         assert np.abs(cv_rect - mapped[:, :2] / mapped[:, 2:]).max() < 0.01
-    # 2. cv2.stereoRectify on the imported K, D, R, T: the same rectified frame up to the one free
-    #    choice, a rotation about the baseline (which keeps every row a row), and the same rows
+    # 2. cv2.stereoRectify on the imported K, D, R, T chooses camcal's rectifying rotations (the
+    #    rotation nearest the cameras' mean one), so with the file's P1 P2 it gives camcal's rectified
+    #    pixels; with its own P1 P2 (its zoom and frame) the same up to that affine change of frame
     R1_cv, R2_cv, P1_cv, P2_cv, *_ = cv2.stereoRectify(K1, D1, K2, D2, size, R, T, alpha=0.0)
-    about_x = Rotation.from_matrix(R1_cv @ R1.T).as_rotvec()
-    assert np.abs(about_x[1:]).max() < 1e-9
-    assert np.abs(Rotation.from_matrix(R2_cv @ R2.T).as_rotvec() - about_x).max() < 1e-9
-    y1 = cv2.undistortPoints(x1.reshape(-1, 1, 2), K1, D1, R=R1_cv, P=P1_cv).reshape(-1, 2)[:, 1]
-    y2 = cv2.undistortPoints(x2.reshape(-1, 1, 2), K2, D2, R=R2_cv, P=P2_cv).reshape(-1, 2)[:, 1]
-    camcal_rows = [np.column_stack([c.distortion.undistort(x, c.K), np.ones(len(x))]) @ c.rectification.H.T
-                   for c, x in ((left, x1), (right, x2))]
-    camcal_y = [m[:, 1] / m[:, 2] for m in camcal_rows]
-    print(f"cv2.stereoRectify vs camcal: rotation about the baseline {np.degrees(about_x[0]):.2e} deg; "
-          f"vertical disparity OpenCV {np.abs(y1 - y2).max():.2e} px, camcal {np.abs(camcal_y[0] - camcal_y[1]).max():.2e} px")
-    assert np.abs(y1 - y2).max() < 0.01 and np.abs(camcal_y[0] - camcal_y[1]).max() < 0.01
+    angles = [np.degrees(Rotation.from_matrix(a @ b.T).magnitude()) for a, b in ((R1_cv, R1), (R2_cv, R2))]
+    worst = {"file P": 0.0, "OpenCV P": 0.0}
+    for x, Kc, D, Rr, P, P_cv, H, camera in ((x1, K1, D1, R1_cv, P1, P1_cv, ours[0], left),
+                                              (x2, K2, D2, R2_cv, P2, P2_cv, ours[1], right)):
+        mapped = np.column_stack([camera.distortion.undistort(x, camera.K), np.ones(len(x))]) @ H.T
+        camcal_rect = mapped[:, :2] / mapped[:, 2:]
+        worst["file P"] = max(worst["file P"], np.abs(undistort_points(x, Kc, D, Rr, P) - camcal_rect).max())
+        cv_rect = undistort_points(x, Kc, D, Rr, P_cv)
+        to_ours = P[:, :3] @ np.linalg.inv(P_cv[:, :3])  # OpenCV's rectified frame -> camcal's (affine)
+        moved = np.column_stack([cv_rect, np.ones(len(cv_rect))]) @ to_ours.T
+        worst["OpenCV P"] = max(worst["OpenCV P"], np.abs(moved[:, :2] / moved[:, 2:] - camcal_rect).max())
+    print(f"cv2.stereoRectify vs camcal: rotations {angles[0]:.1e}, {angles[1]:.1e} deg apart; rectified pixels "
+          f"{worst['file P']:.1e} px (file's P), {worst['OpenCV P']:.1e} px (OpenCV's P, moved to camcal's frame)")
+    assert max(angles) < 1e-9
+    assert worst["file P"] < 0.01 and worst["OpenCV P"] < 0.01
+
+
+@pytest.mark.parametrize("suffix", [".yaml", ".xml"])
+def test_fisheye_pair_is_exact_and_cv2_fisheye_reads_it(tmp_path, suffix):
+    rig = fisheye_rig()
+    out = tmp_path / f"fisheye{suffix}"
+    result = export_rig(rig, "opencv", out)
+    assert all(c.exact and c.target == "opencv fisheye (k1 k2 k3 k4)" for c in result.conversions)
+    back = import_rig(out, "opencv").rig
+    assert [c.distortion for c in back.cameras] == [c.distortion for c in rig.cameras]
+    assert relative_projection_error(rig, back) < 1e-9
+    storage = cv2.FileStorage(str(out), cv2.FILE_STORAGE_READ)
+    assert storage.getNode("fisheye_model").real() == 1
+    K1, D1, K2, D2, R, T, R1, R2, P1, P2 = (storage.getNode(k).mat() for k in
+                                             ("K1", "D1", "K2", "D2", "R", "T", "R1", "R2", "P1", "P2"))
+    assert D1.shape == D2.shape == (1, 4)
+    size = (int(storage.getNode("image_width").real()), int(storage.getNode("image_height").real()))
+    # cv2.fisheye projects with the file's K and D like camcal, over a ~150 deg field
+    worst_projection = worst_rectified = 0.0
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+    for camera, Kc, D, Rr, P in zip(rig.cameras, (K1, K2), (D1, D2), (R1, R2), (P1, P2)):
+        X, pixels = world_points(rig, camera, n=500)
+        in_camera = (X - camera.c) @ camera.R.T
+        projected, _ = cv2.fisheye.projectPoints(in_camera.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), Kc, D)
+        worst_projection = max(worst_projection, np.abs(projected.reshape(-1, 2) - pixels).max())
+        # and its undistortPoints with the file's R_i, P_i gives camcal's rectified pixels
+        rectified = cv2.fisheye.undistortPoints(pixels.reshape(-1, 1, 2), Kc, D, R=Rr, P=P, criteria=criteria)
+        mapped = np.column_stack([camera.distortion.undistort(pixels, camera.K), np.ones(len(pixels))]) @ \
+            camera.rectification.H.T
+        worst_rectified = max(worst_rectified, np.abs(rectified.reshape(-1, 2) - mapped[:, :2] / mapped[:, 2:]).max())
+    # cv2.fisheye.stereoRectify on the imported pair chooses the same rectifying rotations
+    R1_cv, R2_cv, *_ = cv2.fisheye.stereoRectify(K1, D1, K2, D2, size, R, T, flags=cv2.CALIB_ZERO_DISPARITY)
+    angles = [np.degrees(Rotation.from_matrix(a @ b.T).magnitude()) for a, b in ((R1_cv, R1), (R2_cv, R2))]
+    print(f"cv2.fisheye vs camcal: projection {worst_projection:.1e} px, rectified pixels {worst_rectified:.1e} px, "
+          f"stereoRectify rotations {max(angles):.1e} deg apart")
+    assert worst_projection < 1e-9 and worst_rectified < 1e-6 and max(angles) < 1e-9
+
+
+def test_fisheye_with_skew_and_mixed_pairs(tmp_path):
+    left, right = fisheye_rig(rectified=False).cameras
+    K = left.K.copy()
+    K[0, 1] = 0.6
+    skewed = Rig((dataclasses.replace(left, K=K),))
+    (conversion,) = export_rig(skewed, "opencv", tmp_path / "skew.yaml").conversions
+    assert not conversion.exact and conversion.loss == "nearest fit"
+    storage = cv2.FileStorage(str(tmp_path / "skew.yaml"), cv2.FILE_STORAGE_READ)
+    K_file, D_file = storage.getNode("camera_matrix").mat(), storage.getNode("distortion_coefficients").mat()
+    X, pixels = world_points(skewed, skewed.cameras[0], n=2000)
+    in_camera = (X - left.c) @ left.R.T
+    projected, _ = cv2.fisheye.projectPoints(in_camera.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K_file, D_file)
+    observed = np.abs(projected.reshape(-1, 2) - pixels).max()
+    print(f"fisheye with skew 0.6 -> cv2.fisheye without: printed {conversion.max_px:.3g} px, observed {observed:.3g} px")
+    assert K_file[0, 1] == 0.0 and 0.0 < observed <= conversion.max_px * 1.05
+    mixed = Rig((left, dataclasses.replace(right, distortion=stereo_rig().cameras[1].distortion)))
+    with pytest.raises(CamcalError, match="two cv2.fisheye lenses or two pinhole lenses"):
+        export_rig(mixed, "opencv", tmp_path / "mixed.yaml")
+    assert not (tmp_path / "mixed.yaml").exists()
 
 
 def test_single_camera_and_lossy_division_lens_with_skew(tmp_path, capsys):
@@ -121,6 +185,12 @@ def test_single_camera_and_lossy_division_lens_with_skew(tmp_path, capsys):
      "   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n"
      "   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n", "no image size"),
     ("this is not yaml: [", "not an OpenCV FileStorage file"),
+    ("%YAML:1.0\n---\nfisheye_model: 1\nimage_width: 640\nimage_height: 480\ncamera_matrix: !!opencv-matrix\n   rows: 3\n"
+     "   cols: 3\n   dt: d\n   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\ndistortion_coefficients: !!opencv-matrix\n"
+     "   rows: 1\n   cols: 5\n   dt: d\n   data: [ 0., 0., 0., 0., 0. ]\n", "a cv2.fisheye lens .fisheye_model: 1. has 4"),
+    ("%YAML:1.0\n---\nfisheye_model: 2\nimage_width: 640\nimage_height: 480\ncamera_matrix: !!opencv-matrix\n   rows: 3\n"
+     "   cols: 3\n   dt: d\n   data: [ 500., 0., 320., 0., 500., 240., 0., 0., 1. ]\ndistortion_coefficients: !!opencv-matrix\n"
+     "   rows: 1\n   cols: 4\n   dt: d\n   data: [ 0., 0., 0., 0. ]\n", "fisheye_model must be 0 or 1"),
 ])
 def test_bad_input_is_one_line(tmp_path, text, message):
     path = tmp_path / "bad.yaml"

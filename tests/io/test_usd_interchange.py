@@ -15,7 +15,7 @@ from camcal.io.interchange import export_rig, import_rig
 from camcal.io.ply import read_points_ply
 from camcal.rig import Camera, Rig
 
-from interchange_rigs import K, SIZE, division_rig, moving_rig, stereo_rig, world_points
+from interchange_rigs import K, SIZE, division_rig, fisheye_rig, moving_rig, stereo_rig, world_points
 
 D = np.diag([1.0, -1.0, -1.0])
 
@@ -26,9 +26,9 @@ def ideal_pixels(camera, X):
     return x[:, :2] / x[:, 2:]
 
 
-def gf_pixels(stage, camera_name, time, X_camcal, size):
+def gf_pixels(stage, camera_name, time, X_camcal, size, prim_path=None):
     """pxr's own projection: Gf.Camera's frustum, view then projection matrix, NDC to pixels."""
-    gf_camera = UsdGeom.Camera(stage.GetPrimAtPath(f"/rig/{camera_name}")).GetCamera(time)
+    gf_camera = UsdGeom.Camera(stage.GetPrimAtPath(prim_path or f"/rig/{camera_name}")).GetCamera(time)
     frustum = gf_camera.frustum
     M = np.array(frustum.ComputeViewMatrix()) @ np.array(frustum.ComputeProjectionMatrix())
     clip = np.column_stack([X_camcal @ D, np.ones(len(X_camcal))]) @ M
@@ -84,6 +84,30 @@ def test_moving_rig_time_samples_points_and_frames(tmp_path):
             a, b = rig.camera_at_frame(camera.name, frame.index), back.camera_at_frame(camera.name, frame.index)
             X, _ = world_points(rig, a)
             assert np.abs(a.project(X) - b.project(X)).max() < 1e-9
+
+
+def test_fisheye_lens_rides_in_custom_data_exactly(tmp_path):
+    rig = fisheye_rig(rectified=False)
+    out = tmp_path / "fisheye.usda"
+    result = export_rig(rig, "usd", out)
+    assert all(0 <= c.max_px < 1e-3 for c in result.conversions)  # 32-bit float attributes, the lens exact
+    stage = Usd.Stage.Open(str(out))
+    worst = 0.0
+    for camera in rig.cameras:
+        custom = stage.GetPrimAtPath(f"/rig/{camera.name}").GetCustomData()["camcal"]
+        lens = Distortion.from_dict(json.loads(custom["distortion"]))
+        assert lens == camera.distortion and lens.model == "kannala-brandt"
+        # pxr's pinhole projection with the lens from customData applied gives camcal's fisheye pixels
+        X, pixels = world_points(rig, camera, n=500)
+        ideal = gf_pixels(stage, camera.name, Usd.TimeCode.Default(), X, camera.image_size)
+        K_custom = np.array(json.loads(custom["K"]))
+        worst = max(worst, np.abs(lens.distort(ideal, K_custom) - pixels).max())
+    print(f"Gf.Camera + customData kannala-brandt vs camcal: {worst:.2e} px")
+    assert worst < 1e-3
+    back = import_rig(out, "usd").rig
+    for a, b in zip(rig.cameras, back.cameras):
+        X, _ = world_points(rig, a)
+        assert a.distortion == b.distortion and np.abs(a.project(X) - b.project(X)).max() < 1e-9
 
 
 def test_skew_is_dropped_with_its_residual_and_an_edited_camera_is_read_from_its_attributes(tmp_path):
@@ -214,3 +238,58 @@ def test_units_and_bad_suffix(tmp_path):
     with pytest.raises(CamcalError, match="must end in"):
         export_rig(rig, "usd", tmp_path / "rig.abc")
     assert not (tmp_path / "rig.abc").exists()
+
+
+def plain_usd_camera(path, vertical_aperture):
+    """A camera as another tool writes it with pxr: no camcal customData, xform ops, centimetres, Y up."""
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)
+    camera = UsdGeom.Camera.Define(stage, "/World/shotcam")
+    camera.CreateFocalLengthAttr(35.0)
+    camera.CreateHorizontalApertureAttr(36.0)
+    camera.CreateVerticalApertureAttr(vertical_aperture)
+    camera.CreateHorizontalApertureOffsetAttr(1.2)
+    camera.CreateVerticalApertureOffsetAttr(-0.6)
+    camera.AddTranslateOp().Set((120.0, 160.0, 450.0))
+    camera.AddRotateXYZOp().Set((-12.0, 15.0, 2.0))
+    stage.GetRootLayer().Save()
+
+
+@pytest.mark.parametrize("vertical_aperture", [20.25, 24.0])  # 16:9 like the image, then a 3:2 back
+def test_plain_usd_camera_needs_and_takes_an_image_size(tmp_path, vertical_aperture):
+    path = tmp_path / "shotcam.usda"
+    plain_usd_camera(path, vertical_aperture)
+    with pytest.raises(CamcalError, match=r"no image size .*give it with --image-size W H") as info:
+        import_rig(path, "usd")
+    assert "\n" not in str(info.value)
+    result = import_rig(path, "usd", image_size=(1920, 1080))
+    (camera,) = result.rig.cameras
+    assert camera.name == "shotcam" and camera.image_size == (1920, 1080) and result.rig.units == "cm"
+    assert camera.distortion.model == "none"
+    square = vertical_aperture == 20.25
+    assert (camera.K[0, 0] == pytest.approx(camera.K[1, 1], rel=1e-6)) == square
+    assert any("aperture aspect" in note for note in result.notes) != square
+    # pxr's own Gf.Camera frustum of the same prim projects like the imported camera
+    X, pixels = world_points(result.rig, camera, n=500)
+    stage = Usd.Stage.Open(str(path))
+    observed = np.abs(gf_pixels(stage, None, Usd.TimeCode.Default(), X, (1920, 1080), "/World/shotcam") - pixels).max()
+    print(f"plain USD camera (aperture 36 x {vertical_aperture}): Gf.Camera vs imported camcal camera {observed:.1e} px")
+    assert observed < 1e-6
+    with pytest.raises(CamcalError, match="applies to usd only"):
+        import_rig(path, "opencv", image_size=(1920, 1080))
+
+
+def test_plain_usd_camera_through_the_cli(tmp_path, capsys):
+    from camcal.cli import main
+
+    path = tmp_path / "shotcam.usda"
+    plain_usd_camera(path, 20.25)
+    out = tmp_path / "shot.rig.json"
+    assert main(["rig", "import", str(path), "--from", "usd", "--out", str(out)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "--image-size W H" in error and "\n" not in error and not out.exists()
+    assert main(["rig", "import", str(path), "--from", "usd", "--image-size", "1920", "0", "--out", str(out)]) == 2
+    assert "--image-size must be two positive integers" in capsys.readouterr().err and not out.exists()
+    assert main(["rig", "import", str(path), "--from", "usd", "--image-size", "1920", "1080", "--out", str(out)]) == 0
+    assert Rig.load(out).cameras[0].image_size == (1920, 1080)
