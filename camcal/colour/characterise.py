@@ -165,11 +165,11 @@ class Characterisation:
 
 
 def _export_check(white_XYZ: np.ndarray, reference: str | None, illuminant: str):
-    """``auto``'s exportability check: the exporters' own bake (largest Lut3D) of a candidate model."""
+    """``auto``'s exportability check: the exporters' own bake of a candidate model (every Lut3D size, as they do)."""
     def exportable(model) -> float | None:
-        from camcal.colour.export_ocio import LUT_SIZES, bake_model  # noqa: PLC0415
+        from camcal.colour.export_ocio import bake_model  # noqa: PLC0415
 
-        baked = bake_model(model, white_XYZ, reference=reference, illuminant=illuminant, lut_sizes=LUT_SIZES[-1:])
+        baked = bake_model(model, white_XYZ, reference=reference, illuminant=illuminant)
         return None if baked.bake_error is None else baked.bake_error.max
 
     return exportable

@@ -16,7 +16,7 @@ ranked by leave-one-out mean CIEDE2000 over both stages; ties within
 :data:`TIE` go to the simpler model (fewer terms, then ``xyz``). Going down
 that ranking, each is fitted to all patches and handed to the exporters'
 own check (``exportable``; ``colour fit`` passes
-:func:`camcal.colour.export_ocio.bake_model` at its largest Lut3D: a
+:func:`camcal.colour.export_ocio.bake_model` with the exporters' sizes: a
 ``matrix3x3`` is exact, any other model must bake within CIEDE2000 0.2 over
 the chart gamut and plausible surface colours); the first that passes is
 picked, the ones refused before it are recorded with their bake error. The
