@@ -19,6 +19,19 @@ def shared_data() -> Path:
     return SHARED_DATA
 
 
+@pytest.fixture
+def real_pair_shots(shared_data, tmp_path) -> Path:
+    """Real stereo pairs 02-07 (left/right JPEGs) copied into one folder ``tmp_path / "shots"``."""
+    import shutil
+
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    for number in range(2, 8):
+        for side in ("left", "right"):
+            shutil.copy(shared_data / "stereo_chessboard" / f"{side}{number:02d}.jpg", folder)
+    return folder
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _corner_cache_in_a_temporary_folder(tmp_path_factory):
     """`calibrate board` caches corners under $XDG_CACHE_HOME: keep the tests' cache out of the user's."""

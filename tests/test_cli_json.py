@@ -1,7 +1,6 @@
 """``--json``: one versioned object on stdout, the human summary on stderr, figures checked."""
 
 import json
-import shutil
 from pathlib import Path
 
 import cv2
@@ -24,12 +23,8 @@ def run_json(argv, capsys):
     return code, summary, captured.err
 
 
-def test_calibrate_board(shared_data, tmp_path, capsys):
-    folder = tmp_path / "shots"
-    folder.mkdir()
-    for number in range(2, 8):
-        for side in ("left", "right"):
-            shutil.copy(shared_data / "stereo_chessboard" / f"{side}{number:02d}.jpg", folder)
+def test_calibrate_board(real_pair_shots, tmp_path, capsys):
+    folder = real_pair_shots
     out = tmp_path / "stereo.rig.json"
     code, summary, human = run_json(["calibrate", "board", "--board", "chessboard:9x6:1", "--units", "squares",
                                      "--camera", f"left={folder}/left*.jpg", f"right={folder}/right*.jpg",

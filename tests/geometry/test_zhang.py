@@ -1,7 +1,6 @@
 """Board calibration of one camera and of rigs: synthetic truth, OpenCV as the peer, the CLI."""
 
 import math
-import shutil
 from dataclasses import replace as dataclass_replace
 
 import cv2
@@ -39,10 +38,10 @@ def true_rig(n_cameras: int, model: str) -> list[Camera]:
     return cameras
 
 
-def board_views(cameras, n_views, rng, sigma=SIGMA_PX):
+def board_views(cameras, n_views, rng, sigma=SIGMA_PX, board=BOARD):
     """Board poses seen whole by every camera; corners projected with Camera.project plus noise."""
     detections = {camera.name: [] for camera in cameras}
-    centred = BOARD.object_points - BOARD.object_points.mean(axis=0)
+    centred = board.object_points - board.object_points.mean(axis=0)
     view = 0
     while view < n_views:
         R = Rotation.from_euler("xyz", rng.uniform(-35, 35, 3) * [1, 1, 0.3], degrees=True).as_matrix()
@@ -53,7 +52,7 @@ def board_views(cameras, n_views, rng, sigma=SIGMA_PX):
         for camera, p in zip(cameras, pixels):
             noisy = p + rng.normal(0.0, sigma, p.shape)
             detections[camera.name].append(
-                Detection(f"{camera.name}_{view:03d}.png", camera.image_size, np.arange(BOARD.n_corners), noisy, "synthetic")
+                Detection(f"{camera.name}_{view:03d}.png", camera.image_size, np.arange(board.n_corners), noisy, "synthetic")
             )
         view += 1
     return detections
@@ -256,12 +255,8 @@ def test_real_pairs_report_plots(real_detections, tmp_path):
 # -- the command ----------------------------------------------------------------------------
 
 
-def test_cli_calibrates_a_real_subset(shared_data, tmp_path, capsys):
-    folder = tmp_path / "shots"
-    folder.mkdir()
-    for number in range(2, 8):
-        for side in ("left", "right"):
-            shutil.copy(shared_data / "stereo_chessboard" / f"{side}{number:02d}.jpg", folder)
+def test_cli_calibrates_a_real_subset(real_pair_shots, tmp_path, capsys):
+    folder = real_pair_shots
     out = tmp_path / "stereo.rig.json"
     code = main([
         "calibrate", "board", "--board", "chessboard:9x6:1", "--units", "squares",
@@ -303,25 +298,6 @@ def test_cli_help(capsys):
 EVEN_BOARD = Board("chessboard", 8, 6, 0.04)  # 8 + 6 even: the same board after a half turn
 
 
-def even_board_views(cameras, n_views, rng, board=EVEN_BOARD):
-    """Like board_views, for any board."""
-    detections = {camera.name: [] for camera in cameras}
-    centred = board.object_points - board.object_points.mean(axis=0)
-    view = 0
-    while view < n_views:
-        R = Rotation.from_euler("xyz", rng.uniform(-35, 35, 3) * [1, 1, 0.3], degrees=True).as_matrix()
-        X = centred @ R.T + [0.1, 0, 0] + rng.uniform([-0.25, -0.15, 0.5], [0.25, 0.15, 0.9])
-        pixels = [camera.project(X) for camera in cameras]
-        if not all(np.all((p > 5) & (p < np.array(c.image_size) - 5)) for p, c in zip(pixels, cameras)):
-            continue
-        for camera, p in zip(cameras, pixels):
-            detections[camera.name].append(Detection(f"{camera.name}_{view:03d}.png", camera.image_size,
-                                                     np.arange(board.n_corners), p + rng.normal(0, SIGMA_PX, p.shape),
-                                                     "synthetic"))
-        view += 1
-    return detections
-
-
 def half_turned(detection):
     """The labelling a detector gives after a half turn of a symmetric board: id k is corner N - 1 - k."""
     return Detection(detection.image, detection.image_size, detection.ids, detection.corners_px[::-1].copy(), "synthetic")
@@ -334,7 +310,7 @@ def test_half_turned_labelling_in_one_camera_is_resolved():
     tolerances apply; and the calibration is the one the correctly labelled views give.
     """
     truth = true_rig(2, "polynomial")
-    clean = even_board_views(truth, 60, np.random.default_rng(11))
+    clean = board_views(truth, 60, np.random.default_rng(11), board=EVEN_BOARD)
     turned = set(range(2, 60, 5))
     detections = dict(clean, cam1=[half_turned(d) if n in turned else d for n, d in enumerate(clean["cam1"])])
     result = calibrate_board(EVEN_BOARD, detections)
@@ -351,13 +327,14 @@ def test_quality_gate_catches_an_unresolved_half_turn(monkeypatch):
     from camcal.geometry import zhang
 
     truth = true_rig(2, "polynomial")
-    detections = even_board_views(truth, 20, np.random.default_rng(11))
+    detections = board_views(truth, 20, np.random.default_rng(11), board=EVEN_BOARD)
     detections["cam1"] = [half_turned(d) if n in {2, 5, 9, 14, 17} else d for n, d in enumerate(detections["cam1"])]
     monkeypatch.setattr(zhang, "_resolve_half_turns", lambda board, names, by_frame, starts: (by_frame, starts, [], []))
     result = zhang.calibrate_board(EVEN_BOARD, detections, min_outlier_px=math.inf)
     problems = zhang.quality_problems(result)
     assert problems and all("\n" not in p for p in problems)
-    assert zhang.quality_problems(calibrate_board(EVEN_BOARD, even_board_views(truth, 20, np.random.default_rng(12)))) == []
+    clean = board_views(truth, 20, np.random.default_rng(12), board=EVEN_BOARD)
+    assert zhang.quality_problems(calibrate_board(EVEN_BOARD, clean)) == []
 
 
 def test_heldout_views_measured_by_pnp():
