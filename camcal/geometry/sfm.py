@@ -48,7 +48,7 @@ from camcal.geometry.bundle import (
     state_from_reconstruction,
     state_to_reconstruction,
 )
-from camcal.geometry.camera import from_colmap
+from camcal.geometry.camera import from_colmap, pixels_from_colmap
 from camcal.geometry.distortion import Distortion, fit_distortion
 from camcal.io.colmap import camera_from_colmap, camera_to_colmap
 from camcal.io.ply import write_points_ply
@@ -888,7 +888,7 @@ def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str]
         observed = [(p.xy, reconstruction.points3D[p.point3D_id].xyz) for p in image.points2D if p.has_point3D()]
         if not observed:
             continue
-        xy = np.array([o[0] for o in observed]) - 0.5
+        xy = pixels_from_colmap([o[0] for o in observed])
         X = np.array([o[1] for o in observed])
         name = camera_of_sensor[image.camera_id]
         camera = rig.camera_at_frame(name, frame_of_image[image.name])
