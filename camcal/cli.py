@@ -530,7 +530,7 @@ def _calibrate_board(args: argparse.Namespace) -> int:
         scores = ", ".join(f"{model} {rms:.4f} px" for model, rms in result.model_heldout_rms_px.items())
         print(f"model auto: RMS on every 4th training frame, held out to choose: {scores}; chose {result.model}")
     if result.relabelled:
-        print(f"relabelled by a half turn (symmetric board) to agree with the rig: "
+        print("relabelled by a half turn (symmetric board) to agree with the rig: "
               + ", ".join(image for _, image in result.relabelled))
     if result.dropped:
         print("dropped (no corner labelling agrees with the rig): " + ", ".join(image for _, image in result.dropped))
@@ -653,7 +653,8 @@ def _solve(args: argparse.Namespace) -> int:
     camera_model = args.camera_model or (MODELS[model] if model in MODELS else "SIMPLE_RADIAL")
     result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
                        seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
-                       lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features)
+                       lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features,
+                       progress=lambda message: print(f"camcal solve: {message}", file=sys.stderr, flush=True))
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
     per_camera = ", ".join(f"{name} {rms:.3f} px" for name, rms in result.per_camera_rms_px.items())

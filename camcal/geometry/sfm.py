@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import shutil
-import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -327,6 +327,7 @@ def self_calibrate(
     lens_models: tuple[str, ...] = LENS_MODELS,
     principal_point: str = "auto",
     seed: int = 0,
+    progress: Callable[[str], None] | None = None,
 ) -> tuple[BundleResult, SelfCalibration]:
     """Bundle adjustment that chooses each camera's lens model and whether to refine its principal point.
 
@@ -345,6 +346,8 @@ def self_calibrate(
         :func:`principal_point_limit_px`, and holds the others at the image centre.
     seed : int
         Chooses the held-out points.
+    progress : callable, optional
+        Called with each stage's message (the CLI prints them to stderr).
 
     Returns
     -------
@@ -382,7 +385,7 @@ def self_calibrate(
     free_pp = dataclasses.replace(options, refine_principal_point=principal_point != "centre")
     table: dict[str, dict[str, float]] = {name: {} for name in names}
     for model in lens_models:
-        _progress(f"lens model {model}: fitting {len(train.points)} points, {len(heldout.points)} held out")
+        _say(progress, f"lens model {model}: fitting {len(train.points)} points, {len(heldout.points)} held out")
         fit = bundle_adjust(_with_lenses(train, dict.fromkeys(names, model)),
                             dataclasses.replace(free_pp, compute_sigmas=False))
         for name, value in heldout_rms(fit.state, heldout).items():
@@ -394,7 +397,7 @@ def self_calibrate(
             if table[name].get(model, np.inf) < table[name].get(best, np.inf) * (1.0 - LENS_MODEL_MARGIN):
                 best = model
         chosen[name] = best
-    _progress("bundle adjustment with the chosen lens models")
+    _say(progress, "bundle adjustment with the chosen lens models")
     final = bundle_adjust(_with_lenses(state, chosen), free_pp)
     decisions = []
     if principal_point == "centre":
@@ -420,7 +423,7 @@ def self_calibrate(
             decisions.append(decision)
         held = [k for k, decision in enumerate(decisions) if not decision.refined]
         if held:
-            _progress("bundle adjustment with the undetermined principal points at the image centre")
+            _say(progress, "bundle adjustment with the undetermined principal points at the image centre")
             params = tuple(_centred(final.state, k) if k in held else final.state.params[k] for k in range(len(names)))
             fixed = {names[k]: ("cx", "cy") for k in held}
             final = bundle_adjust(dataclasses.replace(final.state, params=params),
@@ -506,6 +509,7 @@ def solve_sfm(
     lens_models: tuple[str, ...] | None = LENS_MODELS,
     principal_point: str = "auto",
     max_num_features: int = 8192,
+    progress: Callable[[str], None] | None = None,
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -546,6 +550,8 @@ def solve_sfm(
         it (``auto``), always, or never (COLMAP's default).
     max_num_features : int
         SIFT features per image (pycolmap's ``max_num_features``).
+    progress : callable, optional
+        Called with each stage's message (the CLI prints them to stderr).
 
     Returns
     -------
@@ -583,12 +589,12 @@ def solve_sfm(
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = num_threads
     extraction.sift.max_num_features = max_num_features
-    _progress(f"extracting features from {len(image_names)} images")
+    _say(progress, f"extracting features from {len(image_names)} images")
     pycolmap.extract_features(
         database, image_dir, image_names=image_names, camera_mode=pycolmap.CameraMode.PER_FOLDER,
         reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
     )
-    _progress(f"matching ({matcher})")
+    _say(progress, f"matching ({matcher})")
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = num_threads
     # matches re-searched along the verified epipolar geometry: more, longer tracks
@@ -599,7 +605,7 @@ def solve_sfm(
     if sparse.exists():
         shutil.rmtree(sparse)
     sparse.mkdir()
-    _progress(f"mapping ({mapper})")
+    _say(progress, f"mapping ({mapper})")
     models = _map(pycolmap, database, image_dir, sparse, mapper, seed, num_threads)
     if len(folders) > 1 and models:
         # COLMAP needs sensor_from_rig to start a rig-constrained mapping: take it
@@ -618,14 +624,14 @@ def solve_sfm(
             db.close()
         shutil.rmtree(sparse)
         sparse.mkdir()
-        _progress(f"mapping ({mapper}) with the rig constraint")
+        _say(progress, f"mapping ({mapper}) with the rig constraint")
         models = _map(pycolmap, database, image_dir, sparse, mapper, seed, num_threads)
     if not models:
         raise CamcalError("structure from motion registered no images: too little texture or overlap?")
     reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
     bundle = calibration = None
     if refine:
-        _progress("bundle adjustment (camcal)")
+        _say(progress, "bundle adjustment (camcal)")
         names = {camera_id: _camera_name(reconstruction, camera_id) for camera_id in reconstruction.cameras}
         state = state_from_reconstruction(reconstruction, names)
         if known_rig is not None:
@@ -636,14 +642,14 @@ def solve_sfm(
         else:
             # the mapper's principal point is the image centre: free it once, then drop the matches
             # that no camera model explains (mismatches, features astride an occluding edge)
-            _progress("bundle adjustment (camcal) with the principal point free, then outlier rejection")
+            _say(progress, "bundle adjustment (camcal) with the principal point free, then outlier rejection")
             pre = bundle_adjust(state, dataclasses.replace(options, refine_principal_point=principal_point != "centre"))
             state_to_reconstruction(pre.state, reconstruction)
-            _progress(_reject_outliers(pycolmap, reconstruction))
+            _say(progress, _reject_outliers(pycolmap, reconstruction))
             state = state_from_reconstruction(reconstruction, names)
-            bundle, calibration = self_calibrate(state, options, tuple(lens_models), principal_point, seed)
+            bundle, calibration = self_calibrate(state, options, tuple(lens_models), principal_point, seed, progress)
             for line in calibration.lines():
-                _progress(line)
+                _say(progress, line)
         camera_ids = {name: camera_id for camera_id, name in names.items()}
         for name, model in zip(bundle.state.camera_names, bundle.state.models):
             reconstruction.cameras[camera_ids[name]].model = getattr(pycolmap.CameraModelId, model)
@@ -938,5 +944,7 @@ def _with_quality(rig: Rig, per_camera: dict[str, tuple[float, int]], bundle: Bu
     return dataclasses.replace(rig, cameras=tuple(cameras))
 
 
-def _progress(message: str) -> None:
-    print(f"camcal solve: {message}", file=sys.stderr, flush=True)
+def _say(progress: Callable[[str], None] | None, message: str) -> None:
+    """Hand a stage message to the caller's progress callback, if any."""
+    if progress is not None:
+        progress(message)

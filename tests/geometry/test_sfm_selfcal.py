@@ -133,8 +133,12 @@ def test_principal_point_held_with_a_reason_when_the_views_do_not_determine_it()
     R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # looking along +x at the set
     poses = [(R, np.array([-26.7, 3.0 + 0.3 * i, 1.5])) for i in range(4)]
     state = tracks_state(cameras, rng, poses=poses, n_points=800)
-    result, decisions = self_calibrate(state, BundleOptions(), ("division",))
+    stages = []
+    result, decisions = self_calibrate(state, BundleOptions(), ("division",), progress=stages.append)
     print("\n".join(decisions.lines()))
+    # the stages reach the caller's callback (nothing is printed by the library)
+    assert stages[-1] == "bundle adjustment with the undetermined principal points at the image centre"
+    assert any(stage.startswith("lens model division: fitting") for stage in stages)
     for decision in decisions.principal_point:
         assert not decision.refined
         assert max(decision.sigma_px) >= decision.limit_px == principal_point_limit_px((960, 720))
