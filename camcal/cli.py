@@ -473,8 +473,11 @@ def _calibrate_dlt(args: argparse.Namespace) -> int:
 
 
 def _parse_holdout(text: str, frames: list[int]) -> set[int]:
-    """``--holdout``: frame numbers and ranges (``21-25,3``) or a fraction of the frames (``0.2``, evenly spaced)."""
+    """``--holdout``: frame numbers and ranges (``21-25,3``, as :func:`camcal.batch.parse_frames`) or a
+    fraction of the frames (``0.2``, evenly spaced)."""
     import re
+
+    from camcal.batch import parse_frames
 
     text = text.strip()
     if re.fullmatch(r"0?\.\d+", text):
@@ -482,14 +485,11 @@ def _parse_holdout(text: str, frames: list[int]) -> set[int]:
         count = max(1, round(fraction * len(frames)))
         step = len(frames) / count
         return {frames[min(len(frames) - 1, int((k + 0.5) * step))] for k in range(count)}
-    held: set[int] = set()
-    for part in text.split(","):
-        match = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
-        if not match:
-            raise CamcalError(f"bad --holdout {text!r}: expected frame numbers and ranges (21-25,3) or a fraction (0.2)")
-        first, last = int(match.group(1)), int(match.group(2) or match.group(1))
-        held.update(range(first, last + 1))
-    return held
+    try:
+        return set(parse_frames(text))
+    except CamcalError as error:
+        raise CamcalError(f"bad --holdout {text!r} ({error}): expected frame numbers and ranges (21-25,3) "
+                          "or a fraction (0.2)") from None
 
 
 def _calibrate_board(args: argparse.Namespace) -> int:

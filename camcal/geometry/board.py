@@ -63,6 +63,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.errors import CamcalError
+from camcal.io.atomic import atomic_path
 from camcal.io.frames import imread
 
 __all__ = [
@@ -381,10 +382,8 @@ def _write_cached(path: Path, size: tuple[int, int] | None, detection: Detection
         "image": detection.image, "image_size": list(detection.image_size), "ids": detection.ids.tolist(),
         "corners_px": detection.corners_px.tolist(), "detector": detection.detector}}
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        temporary.write_text(json.dumps(payload))
-        os.replace(temporary, path)
+        with atomic_path(path) as temporary:
+            temporary.write_text(json.dumps(payload))
     except OSError:
         pass
 

@@ -78,7 +78,7 @@ from camcal.errors import CamcalError
 from camcal.geometry.board import Board, Detection, frame_number
 from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState, bundle_adjust
 from camcal.geometry.bundle import residuals as board_residuals
-from camcal.geometry.camera import chordal_mean_rotation
+from camcal.geometry.camera import chordal_mean_rotation, rotation_angle_deg
 from camcal.geometry.distortion import Distortion
 from camcal.rig import Camera, Rig, make_provenance
 
@@ -408,10 +408,6 @@ def _half_turned(board: Board, detection: Detection) -> Detection:
     return Detection(detection.image, detection.image_size, ids[order], detection.corners_px[order], detection.detector)
 
 
-def _rotation_angle_deg(R: NDArray[np.float64]) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 #: A view's relative pose must agree with the rig's consensus within this angle (a half turn is 180 deg).
 _LABEL_AGREEMENT_DEG = 20.0
 
@@ -449,11 +445,11 @@ def _resolve_half_turns(board: Board, names: list[str], by_frame: list[dict], st
             R_j, t_j = starts[j][f]
             candidates.append((R_j @ R_0.T, _half_turn_pose(board, R_j, t_j)[0] @ R_0.T))
         flat = [R for pair in candidates for R in pair]
-        support = [sum(min(_rotation_angle_deg(R @ other.T) for other in pair) < _LABEL_AGREEMENT_DEG
+        support = [sum(min(rotation_angle_deg(R @ other.T) for other in pair) < _LABEL_AGREEMENT_DEG
                        for pair in candidates) for R in flat]
         consensus = flat[int(np.argmax(support))]
         for f, (as_detected, turned) in zip(shared, candidates):
-            angles = (_rotation_angle_deg(as_detected @ consensus.T), _rotation_angle_deg(turned @ consensus.T))
+            angles = (rotation_angle_deg(as_detected @ consensus.T), rotation_angle_deg(turned @ consensus.T))
             if min(angles) > _LABEL_AGREEMENT_DEG:
                 dropped.append((names[j], by_frame[j].pop(f).image))
                 del starts[j][f]
