@@ -20,7 +20,6 @@ independent patch set is in the same encoding as the training set.
 
 from __future__ import annotations
 
-import datetime as _dt
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -46,6 +45,7 @@ from camcal.colour.patches import PatchSet
 from camcal.colour.select import Selection, select_model
 from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ
 from camcal.errors import CamcalError
+from camcal.io.jsonfile import utc_timestamp
 
 __all__ = ["ChartPatches", "Characterisation", "white_from_name", "patches_from_chart",
            "neutral_indices", "characterise"]
@@ -292,7 +292,7 @@ def characterise(
     from camcal import __version__
 
     provenance = {"tool": f"camcal {__version__}",
-                  "created": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}
+                  "created": utc_timestamp()}
     if source:
         provenance["source"] = str(source)
     colour_fit = ColourFit(

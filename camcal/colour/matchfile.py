@@ -6,7 +6,6 @@ in :mod:`camcal.colour.match`.
 
 from __future__ import annotations
 
-import datetime as _dt
 import os
 from dataclasses import dataclass, field
 from typing import Any
@@ -23,6 +22,7 @@ from camcal.colour.match_models import Lut3DModel, MATCH_MODELS, MatchModel
 from camcal.colour.models import model_from_dict
 from camcal.colour.robust import ROBUST_METHODS
 from camcal.errors import CamcalError
+from camcal.io.jsonfile import utc_timestamp
 from camcal.io.fields import integer_field, keys_field, matrix_field, number_field, string_field, vector_field
 
 __all__ = [
@@ -36,14 +36,10 @@ __all__ = [
 # The match file
 
 
-def _now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
 def match_provenance(source: str | None) -> dict:
     from camcal import __version__
 
-    out = {"tool": f"camcal {__version__}", "created": _now()}
+    out = {"tool": f"camcal {__version__}", "created": utc_timestamp()}
     if source:
         out["source"] = str(source)
     return out

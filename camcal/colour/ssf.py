@@ -53,7 +53,6 @@ References
 from __future__ import annotations
 
 import csv
-import datetime as _dt
 import io
 import os
 from collections.abc import Sequence
@@ -73,7 +72,7 @@ from camcal.colour.spectral import (
 )
 from camcal.errors import CamcalError
 from camcal.io.atomic import atomic_write_text
-from camcal.io.jsonfile import read_json, write_json
+from camcal.io.jsonfile import read_json, utc_timestamp, write_json
 from camcal.io.points_csv import finite_numbers
 
 __all__ = [
@@ -438,7 +437,7 @@ def read_sensitivities_csv(path: str | os.PathLike, camera: str | None = None) -
         cov = np.stack([np.diag(table[:, 4 + c] ** 2) for c in range(3)])
     try:
         return Sensitivities(table[:, 0], table[:, 1:4], cov, camera or path.stem.removesuffix(".ssf"),
-                             "measured", None, {"tool": _tool(), "created": _now(), "source": str(path)})
+                             "measured", None, {"tool": _tool(), "created": utc_timestamp(), "source": str(path)})
     except CamcalError as error:
         raise CamcalError(f"{path}: {error}") from None
 
@@ -485,10 +484,6 @@ def _tool() -> str:
     from camcal import __version__
 
     return f"camcal {__version__}"
-
-
-def _now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 # --------------------------------------------------------------------------
@@ -684,7 +679,7 @@ def estimate_from_captures(
         "captures": [{"illuminant": cap.illuminant_name, "source": cap.source, "n_patches": len(cap.names),
                       "exposure": float(kc)} for cap, kc in zip(captures, k)],
     }
-    provenance = {"tool": _tool(), "created": _now(), "source": "; ".join(c.source for c in captures)}
+    provenance = {"tool": _tool(), "created": utc_timestamp(), "source": "; ".join(c.source for c in captures)}
     return Sensitivities(wavelengths, est.sensitivities, est.covariance, camera, "estimated", estimation,
                          provenance).normalised()
 

@@ -8,6 +8,7 @@ name the file (missing, unreadable, malformed JSON, NaN/Infinity literals).
 
 from __future__ import annotations
 
+import datetime as _dt
 import json
 import os
 from pathlib import Path
@@ -16,7 +17,12 @@ from typing import Any
 from camcal.errors import CamcalError
 from camcal.io.atomic import atomic_write_text
 
-__all__ = ["dumps", "read_json", "write_json"]
+__all__ = ["dumps", "read_json", "utc_timestamp", "write_json"]
+
+
+def utc_timestamp() -> str:
+    """The current UTC time as written in camcal files' provenance: ``YYYY-MM-DDTHH:MM:SSZ``."""
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 def _is_number(value: Any) -> bool:
