@@ -723,9 +723,10 @@ def _register_solve(subparsers) -> None:
                        "IMAGES_DIR, or absolute; several entries or a repeated option)")
     solve.add_argument("--rig", metavar="KNOWN.rig.json",
                        help="hold the cameras' relative poses at this calibration (and take its units)")
-    solve.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none"),
-                       help="camcal lens model (COLMAP SIMPLE_DIVISION / RADIAL / OPENCV / SIMPLE_PINHOLE); "
-                       "auto (the default) chooses per camera by held-out residual")
+    solve.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none", "kannala-brandt"),
+                       help="camcal lens model (COLMAP SIMPLE_DIVISION / RADIAL / OPENCV / SIMPLE_PINHOLE / "
+                       "OPENCV_FISHEYE); auto (the default) chooses per camera by held-out residual among "
+                       "division, polynomial and opencv, never kannala-brandt: name it for a fisheye lens")
     solve.add_argument("--camera-model", help="COLMAP camera model to map with; alone, it is kept (no choice)")
     solve.add_argument("--principal-point", default="auto", choices=("auto", "refine", "centre"),
                        help="refine it where its sigma says the views determine it (auto), always, or never")

@@ -78,8 +78,10 @@ IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 MATCHERS = ("exhaustive", "sequential")
 MAPPERS = ("incremental", "global")
 #: camcal's distortion models and the COLMAP camera model that is exactly each of them.
-MODELS = {"division": "SIMPLE_DIVISION", "polynomial": "RADIAL", "opencv": "OPENCV", "none": "SIMPLE_PINHOLE"}
-#: the lens models ``solve`` chooses among by held-out residual (``--model auto``), simplest first.
+MODELS = {"division": "SIMPLE_DIVISION", "polynomial": "RADIAL", "opencv": "OPENCV", "none": "SIMPLE_PINHOLE",
+          "kannala-brandt": "OPENCV_FISHEYE"}
+#: the lens models ``solve`` chooses among by held-out residual (``--model auto``), simplest first;
+#: pinhole models only: ``kannala-brandt`` (a fisheye) is used when named, never chosen.
 LENS_MODELS = ("division", "polynomial", "opencv")
 PRINCIPAL_POINT_MODES = ("auto", "refine", "centre")
 #: a lens model later in the list must lower the held-out RMS by more than this fraction to be chosen
