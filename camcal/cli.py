@@ -880,7 +880,7 @@ def _rectify(args: argparse.Namespace) -> int:
     else:
         matches = None
     method = {"camera": "Nozick 2011" if args.refine else "camera", "hartley": "Hartley 1999"}[args.method]
-    result = rectify(rig, method, matches, names, args.alpha)
+    result = rectify(rig, method, matches, names, args.alpha, args.max_fov)
     written = []
     if args.write:
         warper = RectifyWarper(result.rig)
@@ -1012,6 +1012,9 @@ def _register_rectify(subparsers) -> None:
     parser.add_argument("--matches", metavar="FILE.csv", help="point matches in original pixels")
     parser.add_argument("--alpha", type=float, default=0.0,
                         help="0: only pixels all views see (default); 1: every source pixel")
+    parser.add_argument("--max-fov", type=float, metavar="DEG",
+                        help="widest full angle about the rectified viewing direction the pinhole rectified images "
+                        "hold (default: 120 when a camera has a kannala-brandt fisheye, no cap otherwise)")
     parser.add_argument("--out", required=True, metavar="FILE.rig.json", help="the rectified rig")
     parser.add_argument("--write", metavar="DIR", help="write rectified images to DIR/<camera>/")
     parser.add_argument("--report", metavar="DIR", help="write DIR/rectification.json with the figures")

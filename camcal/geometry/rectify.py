@@ -74,6 +74,7 @@ from scipy.spatial.transform import Rotation
 
 from camcal.errors import CamcalError
 from camcal.geometry.remap import RemapMaps, build_maps
+from camcal.geometry.undistort import FISHEYE_FOV_DEG
 from camcal.io.frames import imread, imwrite
 from camcal.rig import Camera, Rectification, Rig, make_provenance
 
@@ -272,13 +273,75 @@ def _border(size: tuple[int, int], n: int = _BORDER_SAMPLES) -> dict[str, NDArra
     }
 
 
-def _undistort(camera: Camera, points: ArrayLike) -> NDArray[np.float64]:
+def _rays(camera: Camera, points: ArrayLike) -> NDArray[np.float64]:
+    """Unit rays in the camera frame of distorted pixels (beyond 90 degrees for a fisheye); NaN out of range."""
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 2:
         raise CamcalError(f"points of camera {camera.name!r} must have shape (n, 2), got {points.shape}")
     if not np.all(np.isfinite(points)):
         raise CamcalError(f"points of camera {camera.name!r} contain NaN or infinite values")
-    return camera.distortion.undistort(points, camera.K)
+    return camera.distortion.rays_from_pixels(points, camera.K)
+
+
+def _lifted(camera: Camera, points: ArrayLike) -> NDArray[np.float64]:
+    """Homogeneous undistorted pixels ``K r`` (n, 3) of distorted pixels, ``r`` their rays.
+
+    For a ray in front of the camera this is its pinhole pixel ``(u, v, 1)``
+    up to a positive scale; a fisheye ray at or beyond 90 degrees keeps its
+    direction (third coordinate <= 0), which a homography carries on.
+    """
+    return _rays(camera, points) @ camera.K.T
+
+
+def _border_rays(camera: Camera, pixels: NDArray[np.float64], half_angle: float | None) -> NDArray[np.float64]:
+    """Rays of border pixels; a pixel beyond a fisheye model's range (the black corners of a circular
+    fisheye) takes the ray at :attr:`~camcal.geometry.distortion.Distortion.max_angle_rad` in its
+    azimuth, which a cap narrower than that range turns in anyway."""
+    rays = _rays(camera, pixels)
+    lost = ~np.all(np.isfinite(rays), axis=1)
+    if not lost.any():
+        return rays
+    reach = camera.distortion.max_angle_rad
+    if half_angle is None or camera.distortion.model != "kannala-brandt" or half_angle >= reach:
+        raise CamcalError(f"camera {camera.name!r}: its {camera.distortion.model} lens model maps part of the "
+                          "frame's border to no ray (beyond the model's range); cap the field of view below "
+                          f"{math.degrees(2 * reach):.0f} degrees")
+    offsets = np.linalg.solve(camera.K, np.column_stack([pixels[lost], np.ones(lost.sum())]).T).T[:, :2]
+    azimuth = offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
+    rays[lost] = np.column_stack([math.sin(reach) * azimuth, np.full(lost.sum(), math.cos(reach))])
+    return rays
+
+
+def _in_front(mapped: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Rows of homogeneous points that are finite and in front of the plane (third coordinate > 0)."""
+    with np.errstate(invalid="ignore"):
+        return np.all(np.isfinite(mapped), axis=1) & (mapped[:, 2] > 0)
+
+
+def _capped(rays: NDArray[np.float64], axis: NDArray[np.float64], half_angle: float | None) -> NDArray[np.float64]:
+    """Each ray turned towards the unit ``axis`` (in its plane) to at most ``half_angle`` from it."""
+    if half_angle is None:
+        return rays
+    rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    along = rays @ axis
+    across = rays - along[:, None] * axis[None, :]
+    norm = np.linalg.norm(across, axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        side = np.where(norm > 0.0, across / norm, 0.0)
+    theta = np.minimum(np.arccos(np.clip(along, -1.0, 1.0)), half_angle)[:, None]
+    return np.cos(theta) * axis[None, :] + np.sin(theta) * side
+
+
+def _half_angle(cameras: Sequence[Camera], max_fov_deg: float | None) -> float | None:
+    """Half the field-of-view cap in radians: ``max_fov_deg``, or FISHEYE_FOV_DEG with a fisheye, or none."""
+    if max_fov_deg is None:
+        if not any(camera.distortion.model == "kannala-brandt" for camera in cameras):
+            return None
+        max_fov_deg = FISHEYE_FOV_DEG
+    if isinstance(max_fov_deg, bool) or not isinstance(max_fov_deg, (int, float)) or not 0.0 < max_fov_deg < 180.0:
+        raise CamcalError(f"the field-of-view cap (max_fov_deg, --max-fov) must be between 0 and 180 degrees, "
+                          f"got {max_fov_deg!r}")
+    return math.radians(0.5 * max_fov_deg)
 
 
 def _cameras(rig: Rig, names: Sequence[str] | None) -> list[Camera]:
@@ -297,7 +360,8 @@ def _check_alpha(alpha: float) -> float:
 
 
 def _fit_frame(
-    cameras: Sequence[Camera], frames: Sequence[NDArray[np.float64]], alpha: float, scale: float
+    cameras: Sequence[Camera], frames: Sequence[NDArray[np.float64]], alpha: float, scale: float,
+    axes: Sequence[NDArray[np.float64]], half_angle: float | None,
 ) -> tuple[NDArray[np.float64], tuple[int, int]]:
     """The affine ``A = [[s, 0, -s x0], [0, s, -s y0], [0, 0, 1]]`` and image size.
 
@@ -305,17 +369,22 @@ def _fit_frame(
     rectangle kept on that plane runs from the largest rectangle seen by
     every camera (``alpha = 0``: no invalid pixel) to the bounding box of
     all the cameras' images (``alpha = 1``: no source pixel lost), linearly.
+    With a field-of-view cap, each border pixel's ray is first turned
+    towards ``axes[i]`` (the viewing direction, in camera i's frame) to at
+    most ``half_angle``: the frame then holds no ray beyond it.
     """
     inner = [-np.inf, np.inf, -np.inf, np.inf]  # x_lo, x_hi, y_lo, y_hi
     outer = [np.inf, -np.inf, np.inf, -np.inf]
-    for camera, frame in zip(cameras, frames):
+    for camera, frame, axis in zip(cameras, frames, axes):
         sides = {}
         for side, pixels in _border(camera.image_size).items():
-            mapped = _apply(frame, _undistort(camera, pixels))
-            if not np.all(mapped[:, 2] > 0) or not np.all(np.isfinite(mapped)):
+            rays = _border_rays(camera, pixels, half_angle)
+            mapped = _capped(rays, axis, half_angle) @ camera.K.T @ frame.T
+            if not np.all(_in_front(mapped)):
                 raise CamcalError(
                     f"camera {camera.name!r} sees beyond the rectified image plane "
-                    "(its field of view reaches 90 degrees from the common viewing direction)"
+                    "(its field of view reaches 90 degrees from the common viewing direction; "
+                    "cap it with max_fov_deg / --max-fov)"
                 )
             sides[side] = _dehom(mapped)
         inner = [
@@ -366,13 +435,17 @@ def _line_of_centres(
     return direction, baseline, distances
 
 
-def _check_epipole_outside(camera: Camera, direction: NDArray[np.float64]) -> None:
-    """Refuse when the line of centres points into the camera's image."""
+def _check_epipole_outside(camera: Camera, direction: NDArray[np.float64], half_angle: float | None) -> None:
+    """Refuse when the line of centres points into the camera's image (within the field-of-view cap)."""
     for sign in (1.0, -1.0):
-        ray = camera.K @ camera.R @ (sign * direction)
-        if ray[2] <= 0:
+        ray = camera.R @ (sign * direction)
+        reach = min(half_angle if half_angle is not None else np.pi, camera.distortion.max_angle_rad)
+        if not math.acos(np.clip(ray[2], -1.0, 1.0)) < reach:
             continue
-        u, v = ray[:2] / ray[2]
+        if camera.distortion.model == "kannala-brandt":
+            u, v = camera.distortion.project_rays(ray[None, :], camera.K)[0]
+        else:
+            u, v = (camera.K @ ray)[:2] / (camera.K @ ray)[2]
         width, height = camera.image_size
         if -0.5 <= u <= width - 0.5 and -0.5 <= v <= height - 0.5:
             raise CamcalError(
@@ -432,15 +505,16 @@ def _rectified_rig(
 def _finish(
     rig: Rig, cameras: Sequence[Camera], frames: Sequence[NDArray[np.float64]], alpha: float,
     method: str, R_rect: NDArray[np.float64] | None, line_offset_ratio: float,
-    matches: Matches | None, n_inliers: int | None = None,
+    matches: Matches | None, half_angle: float | None, n_inliers: int | None = None,
 ) -> RectificationResult:
     """Fit the image frame, store the rectification, measure it."""
     focal = _mean_focal(cameras)
-    if R_rect is None:  # Hartley: the common plane is already in pixels
-        A, size = _fit_frame(cameras, frames, alpha, 1.0)
+    if R_rect is None:  # Hartley: the common plane is already in pixels; cap about each camera's own axis
+        A, size = _fit_frame(cameras, frames, alpha, 1.0, [np.array([0.0, 0.0, 1.0])] * len(cameras), half_angle)
         K_rect = np.array([[focal, 0.0, A[0, 2]], [0.0, focal, A[1, 2]], [0.0, 0.0, 1.0]])
-    else:
-        A, size = _fit_frame(cameras, frames, alpha, focal)
+    else:  # cap about the rectified viewing direction, seen from each camera: K^-1 frame^-1 e_z
+        axes = [np.linalg.solve(camera.K, np.linalg.solve(frame, [0.0, 0.0, 1.0])) for camera, frame in zip(cameras, frames)]
+        A, size = _fit_frame(cameras, frames, alpha, focal, [axis / np.linalg.norm(axis) for axis in axes], half_angle)
         K_rect = A
     homographies = [A @ frame for frame in frames]
     homographies = [H / np.linalg.norm(H) for H in homographies]
@@ -465,12 +539,12 @@ def _finish(
 
 
 def _calibrated_start(
-    cameras: Sequence[Camera], max_offset_ratio: float, units: str
+    cameras: Sequence[Camera], max_offset_ratio: float, units: str, half_angle: float | None
 ) -> tuple[NDArray[np.float64], float]:
     """Common rotation and the centres' offset ratio, warning when it is large."""
     direction, baseline, distances = _line_of_centres(cameras)
     for camera in cameras:
-        _check_epipole_outside(camera, direction)
+        _check_epipole_outside(camera, direction, half_angle)
     ratio = float(distances.max() / baseline)
     if ratio > max_offset_ratio:
         worst = int(np.argmax(distances))
@@ -490,6 +564,7 @@ def rectify_calibrated(
     alpha: float = 0.0,
     matches: Matches | None = None,
     max_offset_ratio: float = MAX_OFFSET_RATIO,
+    max_fov_deg: float | None = None,
 ) -> RectificationResult:
     """Rectify calibrated cameras onto one common image plane.
 
@@ -508,6 +583,12 @@ def rectify_calibrated(
         Warn (:class:`CentresOffLineWarning`, with the figure) when a centre
         is further than this from the line of centres, relative to the
         baseline.
+    max_fov_deg : float, optional
+        The widest full angle about the rectified viewing direction (the
+        third row of ``R_rect``) that the rectified images hold, in (0, 180)
+        degrees; ``None``: :data:`~camcal.geometry.undistort.FISHEYE_FOV_DEG`
+        (120) when a camera has a ``kannala-brandt`` lens, no cap otherwise
+        (the cap of ``camcal undistort``).
 
     Returns
     -------
@@ -517,7 +598,9 @@ def rectify_calibrated(
     ------
     CamcalError
         Fewer than two cameras, coincident centres, a line of centres that
-        points into an image (forward motion), or views with no common area.
+        points into an image (forward motion; for a fisheye, within the
+        cap), views with no common area, or a view reaching 90 degrees from
+        the rectified viewing direction without a cap.
 
     Notes
     -----
@@ -536,6 +619,16 @@ def rectify_calibrated(
     pixels and the cameras' mean focal length ``mean(sqrt(fx fy))`` (one
     original pixel stays about one rectified pixel); its principal point and
     the image size frame the rectangle chosen by ``alpha``.
+
+    Fisheye lenses: a pinhole rectified image holds only rays in front of
+    its plane and stretches a ray at ``theta`` from its axis by
+    ``1 / cos^2 theta``, so the frame is fitted to each camera's border
+    rays (:meth:`~camcal.geometry.distortion.Distortion.rays_from_pixels`,
+    beyond 90 degrees from the camera's own axis included) turned towards
+    the rectified axis to at most ``max_fov_deg / 2``. ``H_i`` stays the
+    same homography, applied to ``K_i r`` for a ray ``r``; pixels whose
+    rays lie beyond the cap fall outside the rectified image or into its
+    corners.
 
     References
     ----------
@@ -557,13 +650,14 @@ def rectify_calibrated(
     """
     alpha = _check_alpha(alpha)
     cameras = _cameras(rig, names)
-    R_rect, ratio = _calibrated_start(cameras, max_offset_ratio, rig.units)
+    half_angle = _half_angle(cameras, max_fov_deg)
+    R_rect, ratio = _calibrated_start(cameras, max_offset_ratio, rig.units, half_angle)
     frames = [R_rect @ camera.R.T @ np.linalg.inv(camera.K) for camera in cameras]
-    return _finish(rig, cameras, frames, alpha, "camera", R_rect, ratio, matches)
+    return _finish(rig, cameras, frames, alpha, "camera", R_rect, ratio, matches, half_angle)
 
 
 def _pairs(cameras: Sequence[Camera], matches: Matches) -> list[tuple[int, int, NDArray, NDArray]]:
-    """Matches as (index a, index b, undistorted a, undistorted b), validated."""
+    """Matches as (index a, index b, rays a, rays b) in the cameras' frames, validated; NaN rays out of range."""
     index = {camera.name: i for i, camera in enumerate(cameras)}
     pairs = []
     for key, value in matches.items():
@@ -577,8 +671,8 @@ def _pairs(cameras: Sequence[Camera], matches: Matches) -> list[tuple[int, int, 
             raise CamcalError(f"matches pair a camera with itself ({a!r})")
         if not isinstance(value, (tuple, list)) or len(value) != 2:
             raise CamcalError(f"matches of ({a}, {b}) must be two (n, 2) arrays")
-        xa = _undistort(cameras[index[a]], value[0])
-        xb = _undistort(cameras[index[b]], value[1])
+        xa = _rays(cameras[index[a]], value[0])
+        xb = _rays(cameras[index[b]], value[1])
         if len(xa) != len(xb):
             raise CamcalError(f"matches of ({a}, {b}) have {len(xa)} and {len(xb)} points")
         if len(xa):
@@ -599,6 +693,7 @@ def rectify_Nozick2011(
     names: Sequence[str] | None = None,
     alpha: float = 0.0,
     max_offset_ratio: float = MAX_OFFSET_RATIO,
+    max_fov_deg: float | None = None,
 ) -> RectificationResult:
     """N-view rectification refined jointly on every correspondence.
 
@@ -609,8 +704,10 @@ def rectify_Nozick2011(
     matches : Matches
         Correspondences between any pairs of the cameras (distorted pixels);
         the vertical disparity of all of them is minimised together.
-    names, alpha, max_offset_ratio
-        As in :func:`rectify_calibrated`.
+    names, alpha, max_offset_ratio, max_fov_deg
+        As in :func:`rectify_calibrated`; only correspondences whose rays
+        lie within the field-of-view cap (in front of the rectified plane
+        without one) in both views take part.
 
     Returns
     -------
@@ -644,15 +741,19 @@ def rectify_Nozick2011(
     """
     alpha = _check_alpha(alpha)
     cameras = _cameras(rig, names)
-    pairs = _pairs(cameras, matches)
-    if not pairs:
-        raise CamcalError("the N-view refinement needs correspondences between at least one pair of cameras")
-    R_rect, ratio = _calibrated_start(cameras, max_offset_ratio, rig.units)
+    half_angle = _half_angle(cameras, max_fov_deg)
+    R_rect, ratio = _calibrated_start(cameras, max_offset_ratio, rig.units, half_angle)
+    least_cos = 0.0 if half_angle is None else math.cos(half_angle)
+    homogeneous = []
+    for i, j, ra, rb in _pairs(cameras, matches):
+        with np.errstate(invalid="ignore"):
+            inside = ((ra @ cameras[i].R @ R_rect[2]) > least_cos) & ((rb @ cameras[j].R @ R_rect[2]) > least_cos)
+        if inside.any():
+            homogeneous.append((i, j, ra[inside] @ cameras[i].K.T, rb[inside] @ cameras[j].K.T))
+    if not homogeneous:
+        raise CamcalError("the N-view refinement needs correspondences between at least one pair of cameras "
+                          "(within the rectified field of view)")
     focal = _mean_focal(cameras)
-    homogeneous = [
-        (i, j, np.column_stack([xa, np.ones(len(xa))]), np.column_stack([xb, np.ones(len(xb))]))
-        for i, j, xa, xb in pairs
-    ]
 
     def frames_of(params: NDArray[np.float64]) -> list[NDArray[np.float64]]:
         params = params.reshape(len(cameras), 4)
@@ -673,7 +774,7 @@ def rectify_Nozick2011(
 
     solution = least_squares(residuals, np.zeros(4 * len(cameras)), loss="soft_l1", f_scale=1.0, x_scale=1e-3)
     frames = frames_of(solution.x)
-    return _finish(rig, cameras, frames, alpha, "Nozick 2011", R_rect, ratio, matches)
+    return _finish(rig, cameras, frames, alpha, "Nozick 2011", R_rect, ratio, matches, half_angle)
 
 
 # -- uncalibrated rectification ---------------------------------------------------------------
@@ -708,6 +809,7 @@ def rectify_Hartley1999(
     names: Sequence[str] | None = None,
     alpha: float = 0.0,
     threshold_px: float = 1.0,
+    max_fov_deg: float | None = None,
 ) -> RectificationResult:
     """Two-view projective rectification from point matches, no calibration.
 
@@ -725,6 +827,10 @@ def rectify_Hartley1999(
         As in :func:`rectify_calibrated`.
     threshold_px : float
         RANSAC inlier threshold on the distance to the epipolar line.
+    max_fov_deg : float, optional
+        As in :func:`rectify_calibrated`, about each camera's own optical
+        axis (a projective rectification has no metric viewing direction);
+        only matches within it in both views are used.
 
     Returns
     -------
@@ -766,8 +872,14 @@ def rectify_Hartley1999(
     pairs = _pairs(cameras, matches)
     if not pairs:
         raise CamcalError(f"no matches between {first.name!r} and {second.name!r}")
-    x1 = np.vstack([xa if i == 0 else xb for i, _, xa, xb in pairs])
-    x2 = np.vstack([xb if i == 0 else xa for i, _, xa, xb in pairs])
+    rays1 = np.vstack([xa if i == 0 else xb for i, _, xa, xb in pairs])
+    rays2 = np.vstack([xb if i == 0 else xa for i, _, xa, xb in pairs])
+    half_angle = _half_angle(cameras, max_fov_deg)
+    least_cos = 0.0 if half_angle is None else math.cos(half_angle)
+    with np.errstate(invalid="ignore"):
+        inside = (rays1[:, 2] > least_cos) & (rays2[:, 2] > least_cos)
+    x1 = _dehom(rays1[inside] @ first.K.T)
+    x2 = _dehom(rays2[inside] @ second.K.T)
     if len(x1) < 8:
         raise CamcalError(f"Hartley 1999 needs at least 8 matches, got {len(x1)}")
     F, mask = cv2.findFundamentalMat(x1, x2, cv2.USAC_ACCURATE, threshold_px, 0.999, 10000)
@@ -811,7 +923,7 @@ def rectify_Hartley1999(
     inlier_matches = {(first.name, second.name): (first.distortion.distort(x1, first.K),
                                                   second.distortion.distort(x2, second.K))}
     return _finish(rig, cameras, [H1, H2], alpha, "Hartley 1999", None, float("nan"),
-                   inlier_matches, int(inliers.sum()))
+                   inlier_matches, half_angle, int(inliers.sum()))
 
 
 # -- dispatcher -----------------------------------------------------------------------------
@@ -823,6 +935,7 @@ def rectify(
     matches: Matches | None = None,
     names: Sequence[str] | None = None,
     alpha: float = 0.0,
+    max_fov_deg: float | None = None,
 ) -> RectificationResult:
     """Rectify a rig with one of :data:`METHODS`.
 
@@ -836,20 +949,23 @@ def rectify(
     matches : Matches, optional
     names : sequence of str, optional
     alpha : float
+    max_fov_deg : float, optional
+        Field-of-view cap (:func:`rectify_calibrated`; default 120 degrees
+        with a ``kannala-brandt`` lens, none otherwise).
 
     Returns
     -------
     RectificationResult
     """
     if method == "camera":
-        return rectify_calibrated(rig, names, alpha, matches)
+        return rectify_calibrated(rig, names, alpha, matches, max_fov_deg=max_fov_deg)
     if method not in METHODS:
         raise CamcalError(f"unknown rectification method {method!r}, expected one of: {', '.join(METHODS)}")
     if not matches:
         raise CamcalError(f"rectification method {method!r} needs point matches")
     if method == "Nozick 2011":
-        return rectify_Nozick2011(rig, matches, names, alpha)
-    return rectify_Hartley1999(rig, matches, names, alpha)
+        return rectify_Nozick2011(rig, matches, names, alpha, max_fov_deg=max_fov_deg)
+    return rectify_Hartley1999(rig, matches, names, alpha, max_fov_deg=max_fov_deg)
 
 
 # -- metrics ----------------------------------------------------------------------------------
@@ -868,11 +984,14 @@ def vertical_disparity(rig: Rig, matches: Matches) -> tuple[PairDisparity, ...]:
     Returns
     -------
     tuple of PairDisparity
-        One per pair with at least one correspondence.
+        One per pair with at least one correspondence in front of the
+        rectified plane in both views (``n`` counts those).
 
     Notes
     -----
-    ``d_k = y(H_a undistort_a(u_ak)) - y(H_b undistort_b(u_bk))``;
+    ``d_k = y(H_a K_a r_ak) - y(H_b K_b r_bk)`` with ``r`` the ray of each
+    pixel (``K r`` is the undistorted pixel ``undistort(u)`` up to scale,
+    and still defined for a fisheye ray beyond 90 degrees);
     ``rms_px = sqrt(mean d_k^2)``, ``max_px = max |d_k|``.
     """
     out = []
@@ -881,14 +1000,14 @@ def vertical_disparity(rig: Rig, matches: Matches) -> tuple[PairDisparity, ...]:
         for camera in (camera_a, camera_b):
             if camera.rectification is None:
                 raise CamcalError(f"camera {camera.name!r} has no rectification")
-        ua, ub = _undistort(camera_a, xa), _undistort(camera_b, xb)
+        ua = _lifted(camera_a, xa) @ camera_a.rectification.H.T
+        ub = _lifted(camera_b, xb) @ camera_b.rectification.H.T
         if len(ua) != len(ub):
             raise CamcalError(f"matches of ({a}, {b}) have {len(ua)} and {len(ub)} points")
-        if not len(ua):
+        seen = _in_front(ua) & _in_front(ub)
+        if not seen.any():
             continue
-        ya = _dehom(_apply(camera_a.rectification.H, ua))[:, 1]
-        yb = _dehom(_apply(camera_b.rectification.H, ub))[:, 1]
-        d = ya - yb
+        d = _dehom(ua[seen])[:, 1] - _dehom(ub[seen])[:, 1]
         out.append(PairDisparity(a, b, len(d), float(np.sqrt(np.mean(d**2))), float(np.abs(d).max())))
     return tuple(out)
 
@@ -933,14 +1052,14 @@ def image_deformation(camera: Camera) -> ImageDeformation:
 
     gx, gy = np.meshgrid(np.linspace(0, w, _GRID[0]), np.linspace(0, h, _GRID[1]))
     source = np.column_stack([gx.ravel(), gy.ravel()])
-    mapped = _apply(rect.H, camera.distortion.undistort(source, camera.K))
+    mapped = _lifted(camera, source) @ rect.H.T
     rw, rh = rect.image_size
     with np.errstate(invalid="ignore"):
-        inside = (mapped[:, 2] > 0) & _inside(_dehom(mapped), (rw, rh))
+        inside = _in_front(mapped) & _inside(_dehom(mapped), (rw, rh))
     gx, gy = np.meshgrid(np.linspace(0, rw - 1.0, _GRID[0]), np.linspace(0, rh - 1.0, _GRID[1]))
-    back = _dehom(_apply(np.linalg.inv(rect.H), np.column_stack([gx.ravel(), gy.ravel()])))
-    with np.errstate(invalid="ignore"):
-        valid = _inside(camera.distortion.distort(back, camera.K), (width, height))
+    back = _apply(np.linalg.inv(rect.H), np.column_stack([gx.ravel(), gy.ravel()]))
+    with np.errstate(invalid="ignore"):  # a rectified ray behind the camera has no source pixel (as in the maps)
+        valid = _in_front(back) & _inside(camera.distortion.distort(_dehom(back), camera.K), (width, height))
     return ImageDeformation(camera.name, orthogonality, aspect, float(inside.mean()), float(valid.mean()))
 
 
@@ -1007,8 +1126,13 @@ def match_images(
             continue
         xa = np.array([kp_a[m.queryIdx].pt for m in good], dtype=np.float64)
         xb = np.array([kp_b[m.trainIdx].pt for m in good], dtype=np.float64)
-        ua, ub = _undistort(rig.camera(a), xa), _undistort(rig.camera(b), xb)
-        _, mask = cv2.findFundamentalMat(ua, ub, cv2.USAC_ACCURATE, threshold_px, 0.999, 10000)
+        ua, ub = _lifted(rig.camera(a), xa), _lifted(rig.camera(b), xb)
+        pinhole = _in_front(ua) & _in_front(ub)  # a fisheye ray at 90 degrees or beyond has no pinhole pixel
+        if pinhole.sum() < 8:
+            continue
+        xa, xb = xa[pinhole], xb[pinhole]
+        _, mask = cv2.findFundamentalMat(_dehom(ua[pinhole]), _dehom(ub[pinhole]), cv2.USAC_ACCURATE, threshold_px,
+                                         0.999, 10000)
         if mask is None:
             continue
         keep = mask.ravel().astype(bool)
