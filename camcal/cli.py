@@ -650,7 +650,10 @@ def _solve(args: argparse.Namespace) -> int:
     # --model auto (or nothing): choose among LENS_MODELS; a named model: only it; --camera-model alone: keep it
     model = args.model or ("keep" if args.camera_model else "auto")
     lens_models = LENS_MODELS if model == "auto" else (None if model == "keep" else (model,))
-    camera_model = args.camera_model or (MODELS[model] if model in MODELS else "SIMPLE_RADIAL")
+    # COLMAP marks fisheye pairs without a focal prior as degenerate (no match survives): a fisheye maps with
+    # SIMPLE_RADIAL and becomes kannala-brandt in the self-calibration (a fit of the lens, then the bundle)
+    mapped = model in MODELS and model != "kannala-brandt"
+    camera_model = args.camera_model or (MODELS[model] if mapped else "SIMPLE_RADIAL")
     result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
                        seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
                        lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features,
@@ -726,7 +729,8 @@ def _register_solve(subparsers) -> None:
     solve.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none", "kannala-brandt"),
                        help="camcal lens model (COLMAP SIMPLE_DIVISION / RADIAL / OPENCV / SIMPLE_PINHOLE / "
                        "OPENCV_FISHEYE); auto (the default) chooses per camera by held-out residual among "
-                       "division, polynomial and opencv, never kannala-brandt: name it for a fisheye lens")
+                       "division, polynomial and opencv, never kannala-brandt: name it for a fisheye lens "
+                       "(mapped with SIMPLE_RADIAL, then refined as OPENCV_FISHEYE)")
     solve.add_argument("--camera-model", help="COLMAP camera model to map with; alone, it is kept (no choice)")
     solve.add_argument("--principal-point", default="auto", choices=("auto", "refine", "centre"),
                        help="refine it where its sigma says the views determine it (auto), always, or never")

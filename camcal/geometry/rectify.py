@@ -33,6 +33,18 @@ Methods
   epipole sent to infinity along x, and the matching transform of the first
   image that minimises the disparity.
 
+Fisheye lenses (``kannala-brandt``): pixels are taken through their rays
+(:meth:`~camcal.geometry.distortion.Distortion.rays_from_pixels`), so
+``H`` acts on ``K r``, defined beyond 90 degrees from the camera's axis.
+A pinhole rectified image cannot hold rays near 90 degrees from its axis
+(it stretches a ray at ``theta`` by ``1 / cos^2 theta``), so its field of
+view is capped, as ``camcal undistort`` caps it: ``max_fov_deg`` (full
+angle about the rectified viewing direction; by default 120 degrees when a
+camera has a fisheye lens, no cap otherwise). The rotations are those of
+``cv2.fisheye.stereoRectify``; its new camera matrix (focal chosen by
+``balance`` / ``fov_scale``) differs from ``K_rect`` (mean focal, frame by
+``alpha`` inside the cap).
+
 Metrics: vertical disparity RMS and max per pair on correspondences
 (:func:`vertical_disparity`), Mallon & Whelan's orthogonality and
 aspect-ratio distortion, and the shares of the original image kept and of
