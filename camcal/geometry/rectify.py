@@ -742,7 +742,10 @@ def rectify_Nozick2011(
     correspondences k, ``sum (y(H_i u_ik) - y(H_j u_jk))^2`` (a soft-L1
     loss of scale 1 px keeps stray matches from dominating) plus a light
     damping ``1e-3 f (|w_i|^2 + s_i^2)`` that fixes the motions that leave
-    every row alignment unchanged (a common rotation about x). The image
+    every row alignment unchanged (a common rotation about x). The focal
+    scales act relative to their mean (``s_i - mean(s)``): a common zoom
+    would shrink every disparity without aligning anything, and on wide
+    (fisheye) matches the fit ran off along it. The image
     frame (``K_rect``, size) is chosen afterwards as in
     :func:`rectify_calibrated`. The refinement corrects the homographies,
     not the stored calibration.
@@ -769,9 +772,10 @@ def rectify_Nozick2011(
 
     def frames_of(params: NDArray[np.float64]) -> list[NDArray[np.float64]]:
         params = params.reshape(len(cameras), 4)
+        scales = params[:, 3] - params[:, 3].mean()  # a common zoom only shrinks every disparity: held out
         return [
-            R_rect @ Rotation.from_rotvec(p[:3]).as_matrix() @ camera.R.T @ np.linalg.inv(_scaled_K(camera.K, p[3]))
-            for camera, p in zip(cameras, params)
+            R_rect @ Rotation.from_rotvec(p[:3]).as_matrix() @ camera.R.T @ np.linalg.inv(_scaled_K(camera.K, scale))
+            for camera, p, scale in zip(cameras, params, scales)
         ]
 
     def residuals(params: NDArray[np.float64]) -> NDArray[np.float64]:
