@@ -207,6 +207,10 @@ class RectificationResult:
         On the correspondences the method was given (empty without).
     n_inliers : int or None
         Hartley 1999: matches consistent with the robust F.
+    max_fov_deg : float or None
+        The field-of-view cap the frame was fitted under (full angle about
+        the rectified viewing direction; about each camera's axis for
+        Hartley 1999), None without one.
     """
 
     rig: Rig
@@ -219,6 +223,7 @@ class RectificationResult:
     deformation: tuple[ImageDeformation, ...]
     disparity: tuple[PairDisparity, ...]
     n_inliers: int | None = None
+    max_fov_deg: float | None = None
 
     def summary(self) -> str:
         """Readable lines: size, focal length, disparity, deformation."""
@@ -229,6 +234,9 @@ class RectificationResult:
         ]
         if math.isfinite(self.line_offset_ratio) and len(self.names) > 2:
             lines.append(f"centres off their line by up to {self.line_offset_ratio:.3%} of the baseline")
+        if self.max_fov_deg is not None:
+            lines.append(f"field of view capped at {self.max_fov_deg:.4g} deg (a pinhole image cannot hold rays "
+                         "near 90 deg; --max-fov)")
         if self.n_inliers is not None:
             lines.append(f"fundamental matrix: {self.n_inliers} inlier matches")
         for pair in self.disparity:
@@ -253,6 +261,7 @@ class RectificationResult:
             "K_rect": self.K_rect.tolist(),
             "line_offset_ratio": None if math.isnan(self.line_offset_ratio) else self.line_offset_ratio,
             "n_inliers": self.n_inliers,
+            "max_fov_deg": self.max_fov_deg,
             "disparity": [dataclasses.asdict(pair) for pair in self.disparity],
             "deformation": [dataclasses.asdict(item) for item in self.deformation],
         }
@@ -544,6 +553,7 @@ def _finish(
         deformation=tuple(image_deformation(camera) for camera in rectified),
         disparity=() if matches is None else vertical_disparity(out, matches),
         n_inliers=n_inliers,
+        max_fov_deg=None if half_angle is None else math.degrees(2.0 * half_angle),
     )
 
 

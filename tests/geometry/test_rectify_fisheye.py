@@ -129,6 +129,8 @@ def test_field_of_view_cap_bounds_the_rectified_image():
     rig = fisheye_pair()
     for fov, kwargs in ((120.0, {}), (90.0, {"max_fov_deg": 90.0})):
         result = rectify_calibrated(rig, alpha=1.0, **kwargs)
+        assert result.max_fov_deg == pytest.approx(fov) and f"field of view capped at {fov:g} deg" in result.summary()
+        assert result.to_report()["max_fov_deg"] == pytest.approx(fov)
         reach = result.K_rect[0, 0] * math.tan(math.radians(fov / 2))
         width, height = result.image_size
         assert width == pytest.approx(2 * reach, abs=2) and height == pytest.approx(2 * reach, abs=2)
