@@ -292,10 +292,15 @@ def test_solve_recovers_rendered_rig_at_least_as_well_as_plain_pycolmap(tmp_path
             assert lam < 0.05, (who, name, lam)
     assert ours_deg < 0.05
     if scene == "must-show":
-        # at least as good as the peer, up to camcal's own two-sigma (on the untuned scene: reported only)
+        # at least as good as the peer (on the untuned scene: reported only): the lens strictly (half
+        # pycolmap's error in every run so far); focal length, principal point and rig rotation, where
+        # both sit at a few hundredths of a pixel (thousandths of a degree) and runs differ by as much,
+        # up to camcal's own two sigma
+        assert ours_deg <= np.median(peer_deg) + 2 * rig.camera("right").quality["sigma"]["rotation_deg"]
         for truth in cameras:
             sigma = rig.camera(truth.name).quality["sigma"]
             mine, other = errors["camcal", truth.name], errors["pycolmap", truth.name]
+            assert mine[2] <= other[2]
             assert mine[0] <= other[0] + 2 * sigma["fx"] / truth.K[0, 0]
             assert mine[1] <= other[1] + 2 * max(sigma["cx"], sigma["cy"])
 
