@@ -15,7 +15,9 @@ The refinement is pycolmap's Ceres bundle adjuster
 rigs and frames, Ceres' sparse Schur solvers): the state becomes a pycolmap
 ``Reconstruction`` (cameras, one rig, frames, images, points with tracks),
 board corners are added as constant points, and camcal only chooses what is
-held. Intrinsics are COLMAP parameter vectors (any model that
+held. The adjuster's problem is solved with the adjuster's own solver options
+through pyceres (``pyceres.solve``), which adds a per-iteration progress
+callback (pycolmap's binding of the options has no ``callbacks``). Intrinsics are COLMAP parameter vectors (any model that
 :func:`camcal.io.colmap.camera_from_colmap` maps exactly, named by COLMAP's
 ``params_info``), so the cost is exactly the one ``pycolmap.bundle_adjustment``
 minimises; single parameters can be held (``BundleOptions.fixed_params``,
@@ -520,10 +522,14 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
     options : BundleOptions
         What is refined, the loss, the tolerances.
     progress : callable, optional
-        Called as ``progress(done, total)`` as the stages finish: the
-        problem built (0), Ceres solved (1) and, with
-        ``options.compute_sigmas``, the covariance (2); ``total`` is 1 or 2.
-        Nothing is printed; :meth:`BundleResult.summary` describes the run.
+        Called as ``progress(done, total)`` with ``total =
+        options.max_iterations`` (+ 1 with ``options.compute_sigmas``):
+        after each Ceres iteration (``done`` = the iteration, 0 for the
+        start; a pyceres ``IterationCallback``), with ``done =
+        max_iterations`` once Ceres has stopped (converged early or not),
+        and with ``done = total`` once the covariance is computed. An
+        exception it raises stops the solve and propagates. Nothing is
+        printed; :meth:`BundleResult.summary` describes the run.
 
     Returns
     -------
@@ -584,27 +590,56 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
             problem.set_manifold(block, pyceres.SubsetManifold(len(block), held))
 
     rms_before = _rms(state)
-    stages = 2 if options.compute_sigmas else 1
+    # the adjuster's own solve, with pyceres' solver options: pycolmap's binding of them has no callbacks
+    solver_options = _pyceres_solver_options(ba.ceres.create_solver_options(config, problem))
+    total = options.max_iterations + int(options.compute_sigmas)
     if progress is not None:
-        progress(0, stages)
-    summary = adjuster.solve().ceres_summary
+        solver_options.callbacks = [_iteration_callback(progress, total)]
+    summary = pyceres.SolverSummary()
+    pyceres.solve(solver_options, problem, summary)
     if progress is not None:
-        progress(1, stages)
+        progress(options.max_iterations, total)
     refined = _from_colmap(state, colmap)
     covariance, covariance_names, sigmas, n_left_out = np.zeros((0, 0)), (), {}, 0
     if options.compute_sigmas:
         covariance, covariance_names, n_left_out = _covariance(state, options, colmap, problem, summary)
         sigmas = _sigmas(refined, covariance, covariance_names)
         if progress is not None:
-            progress(2, stages)
+            progress(total, total)
     return BundleResult(
         state=refined, initial_cost=float(summary.initial_cost), final_cost=float(summary.final_cost),
         rms_before_px=rms_before, rms_after_px=_rms(refined), sigmas=sigmas,
-        n_iterations=int(summary.num_successful_steps + summary.num_unsuccessful_steps),
+        # Ceres counts its iteration 0 (the start) as a successful step
+        n_iterations=int(summary.num_successful_steps + summary.num_unsuccessful_steps) - 1,
         n_residuals=int(summary.num_residuals), n_parameters=int(summary.num_effective_parameters_reduced),
         covariance=covariance, covariance_names=covariance_names, n_points_out_of_covariance=n_left_out,
         termination=str(summary.message),
     )
+
+
+def _pyceres_solver_options(colmap_options):
+    """pycolmap's Ceres solver options (its own pyceres binding) as pyceres' ``SolverOptions``, field by field."""
+    import pyceres  # noqa: PLC0415
+
+    converted = pyceres.SolverOptions()
+    for key, value in colmap_options.todict().items():
+        kind = type(getattr(converted, key))
+        if hasattr(kind, "__members__"):  # the two bindings' enums differ as types, not in their names
+            value = kind.__members__[value.name]
+        setattr(converted, key, value)
+    return converted
+
+
+def _iteration_callback(progress: Callable[[int, int], None], total: int):
+    """A pyceres ``IterationCallback`` that reports ``progress(iteration, total)`` and lets Ceres go on."""
+    import pyceres  # noqa: PLC0415
+
+    class IterationProgress(pyceres.IterationCallback):
+        def __call__(self, summary) -> object:
+            progress(int(summary.iteration), total)
+            return pyceres.CallbackReturnType.SOLVER_CONTINUE
+
+    return IterationProgress()
 
 
 def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, problem,

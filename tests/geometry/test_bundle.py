@@ -76,9 +76,14 @@ def pycolmap_refine(reconstruction, options: BundleOptions):
 def test_reaches_pycolmap_cost(model, params, options):
     _, seed_model = synthetic(model, params)
     state = state_from_reconstruction(seed_model)
-    stages = []
-    result = bundle_adjust(state, options, progress=lambda done, total: stages.append((done, total)))
-    assert stages == [(0, 2), (1, 2), (2, 2)]  # built, solved, covariance
+    calls = []
+    result = bundle_adjust(state, options, progress=lambda done, total: calls.append((done, total)))
+    # one call per Ceres iteration (0: the start), then the solve's share done, then the covariance
+    total = options.max_iterations + 1
+    assert all(t == total for _, t in calls)
+    done = [d for d, _ in calls]
+    assert done[:-2] == list(range(len(done) - 2)) and done[-2:] == [options.max_iterations, total]
+    assert len(done) - 2 == result.n_iterations + 1 and result.n_iterations > 2
     peer = pycolmap_refine(seed_model, options)
     # the same starting cost: camcal's projection and loss are COLMAP's
     assert result.initial_cost == pytest.approx(peer.initial_cost, rel=1e-9)
@@ -353,3 +358,19 @@ def test_points_of_undetermined_depth_are_left_out_of_the_covariance_only(monkey
         assert result.sigmas[name] == pytest.approx(sigma, rel=0.01), name
     # they stay in the fit: refined like the others
     assert np.all(np.any(result.state.points[-3:] != far.points[-3:], axis=1))
+
+
+def test_progress_reports_iterations_and_its_exceptions_stop_the_solve():
+    _, seed_model = synthetic(points=100, frames=4)
+    state = state_from_reconstruction(seed_model)
+    calls = []
+    result = bundle_adjust(state, BundleOptions(max_iterations=3, tolerance=0.0, compute_sigmas=False),
+                           progress=lambda done, total: calls.append((done, total)))
+    assert result.n_iterations == 3 and calls == [(0, 3), (1, 3), (2, 3), (3, 3), (3, 3)]
+
+    def interrupt(done, total):
+        if done == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        bundle_adjust(state, BundleOptions(), progress=interrupt)
