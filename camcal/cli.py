@@ -654,6 +654,7 @@ def _solve(args: argparse.Namespace) -> int:
     result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
                        seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
                        lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features,
+                       jackknife=args.uncertainty == "jackknife",
                        progress=lambda message: print(f"camcal solve: {message}", file=sys.stderr, flush=True))
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
@@ -685,7 +686,10 @@ def _solve(args: argparse.Namespace) -> int:
         out.figures(lens_models=calibration.lens_models, heldout_rms_px_by_model=calibration.heldout_rms_px,
                     principal_point={d.camera: {"refined": d.refined, "limit_px": d.limit_px,
                                                 "sigma_px": [v if math.isfinite(v) else None for v in d.sigma_px],
-                                                "reason": d.reason} for d in calibration.principal_point})
+                                                "reason": d.reason} for d in calibration.principal_point},
+                    uncertainty={"covariance_sigmas": calibration.covariance_sigmas,
+                                 "jackknife_sigmas": calibration.jackknife_sigmas,
+                                 "jackknife_groups": calibration.jackknife_groups})
     if peer is not None:
         out.figures(pycolmap={name: {"K": camera.K, "distortion": camera.distortion.to_dict(),
                                      "rms_px": peer.rms_px.get(name)} for name, camera in peer.cameras.items()})
@@ -729,6 +733,10 @@ def _register_solve(subparsers) -> None:
     solve.add_argument("--camera-model", help="COLMAP camera model to map with; alone, it is kept (no choice)")
     solve.add_argument("--principal-point", default="auto", choices=("auto", "refine", "centre"),
                        help="refine it where its sigma says the views determine it (auto), always, or never")
+    solve.add_argument("--uncertainty", default="jackknife", choices=("jackknife", "covariance"),
+                       help="sigmas: the larger of the covariance and a delete-one-frame jackknife (one more "
+                       "refinement per frame, at most 20), which sees errors an image's features share; "
+                       "or the covariance alone (faster, too small on real features)")
     solve.add_argument("--features", type=int, default=8192, metavar="N", help="SIFT features per image (8192)")
     solve.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"))
     solve.add_argument("--mapper", default="incremental", choices=("incremental", "global"))

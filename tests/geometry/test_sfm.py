@@ -46,6 +46,11 @@ def test_stereo_sequence_recovers_known_rig(tmp_path, capsys):
     assert result.bundle is not None and result.bundle.final_cost <= result.bundle.initial_cost
     assert set(result.bundle.rms_after_px) == {"left", "right"}
     assert 0 < rig.camera("left").quality["sigma"]["fx"] < 5.0
+    # sigmas: the larger of the covariance and the frame jackknife (one group per frame here)
+    calibration = result.self_calibration
+    assert calibration.jackknife_groups == len(rig.frames)
+    for key, value in result.bundle.sigmas.items():
+        assert value == max(calibration.covariance_sigmas.get(key, 0.0), calibration.jackknife_sigmas.get(key, 0.0))
     # frames point at the user's images
     assert (tmp_path / "out" / rig.frames[0].images["left"]).resolve() == (tmp_path / "in/left/0000.png").resolve()
 
@@ -54,11 +59,14 @@ def test_stereo_sequence_recovers_known_rig(tmp_path, capsys):
     known.save(tmp_path / "known.rig.json")
     capsys.readouterr()
     code = main(["solve", str(tmp_path / "in"), "--rig", str(tmp_path / "known.rig.json"), "--out", str(tmp_path / "metric"),
-                 "--json"])
+                 "--json", "--uncertainty", "covariance"])
     assert code == 0
     metric = Rig.load(tmp_path / "metric/solve.rig.json")
     summary = json.loads(capsys.readouterr().out)  # --json: one object on stdout
     assert summary["verb"] == "solve" and summary["figures"]["n_registered"] == len(metric.frames) * 2
+    assert summary["figures"]["uncertainty"]["jackknife_groups"] == 0
+    assert summary["figures"]["uncertainty"]["covariance_sigmas"]["left.f"] == pytest.approx(
+        metric.camera("left").quality["sigma"]["fx"])
     assert {"path": str(tmp_path / "metric" / "solve.rig.json"), "kind": "rig"} in summary["files"]
     assert summary["figures"]["per_camera_rms_px"]["left"] == pytest.approx(metric.camera("left").quality["rms_px"])
     assert metric.units == "m"

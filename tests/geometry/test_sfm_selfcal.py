@@ -186,6 +186,53 @@ def test_uncertainty_covers_the_error_over_seeded_scenes():
     assert total == 120 and rate >= 0.9
 
 
+def rendered_coverage_scene(seed):
+    """A rendered stereo rig drawn per seed (size, focal, principal points, lens, rig, motion, image noise)."""
+    rng = np.random.default_rng(500 + seed)
+    width = int(rng.choice([512, 576, 640]))
+    rig = dict(image_size=(width, width * 3 // 4), f=float(rng.uniform(0.65, 0.95) * width),
+               pp_offsets=rng.uniform(-8, 8, (2, 2)), lam=tuple(rng.uniform(-5e-7, -0.5e-7, 2) * (640 / width) ** 2),
+               rig_euler_deg=rng.uniform(-3, 3, 3), baseline=float(rng.uniform(0.15, 0.4)),
+               focal_ratio=float(rng.uniform(0.985, 1.015)))
+    orbit = dict(n_frames=10, roll_deg=float(rng.uniform(15, 35)), radius=float(rng.uniform(2.6, 3.4)),
+                 image_noise=float(rng.uniform(0, 3)), seed=seed)
+    return rig, orbit
+
+
+@pytest.mark.slow
+def test_uncertainty_covers_the_error_on_rendered_rigs(tmp_path):
+    """Over 20 rendered stereo rigs (features found by SIFT in images, not drawn with Gaussian noise),
+    |error| < 2 sigma for f, cx, cy of both cameras in >= 90 % of cases: the covariance alone does not
+    cover it (errors 2-5 of its sigmas), the reported sigma (covariance or frame jackknife, the larger) must."""
+    from camcal.geometry.sfm import solve_sfm
+    from camcal.synthetic import render_rig_orbit
+
+    ratios: dict[str, list[float]] = {"reported": [], "covariance": []}
+    for seed in range(20):
+        rig_spec, orbit = rendered_coverage_scene(seed)
+        cameras = stereo_rig(**rig_spec)
+        render_rig_orbit(tmp_path / f"in{seed}", cameras, **orbit)
+        result = solve_sfm({c.name: tmp_path / f"in{seed}" / c.name for c in cameras}, tmp_path / f"out{seed}",
+                           max_num_features=4096, seed=seed)
+        covariance = result.self_calibration.covariance_sigmas
+        row = []
+        for truth in cameras:
+            solved = result.rig.camera(truth.name)
+            for key, error in (("f", solved.K[0, 0] - truth.K[0, 0]), ("cx", solved.K[0, 2] - truth.K[0, 2]),
+                               ("cy", solved.K[1, 2] - truth.K[1, 2])):
+                name = f"{truth.name}.{key}"
+                ratios["reported"].append(abs(error) / result.bundle.sigmas[name])
+                ratios["covariance"].append(abs(error) / covariance[name])
+                row.append(f"{name} {error:+.3f}/{result.bundle.sigmas[name]:.3f}")
+        print(f"seed {seed}: error/sigma px " + ", ".join(row))
+    for who, values in ratios.items():
+        values = np.asarray(values)
+        print(f"{who}: {np.sum(values < 2)} / {len(values)} = {100 * np.mean(values < 2):.1f} % within 2 sigma, "
+              f"RMS error/sigma {np.sqrt(np.mean(values ** 2)):.2f}")
+    reported = np.asarray(ratios["reported"])
+    assert len(reported) == 120 and np.mean(reported < 2) >= 0.9
+
+
 # the must-show scene, and one the code was not tuned on (other principal points, lens, motion, noise, size)
 RENDERED_SCENES = {
     # lambda -2.7e-7 at 640 x 480 bends the corners as -1.2e-7 does at 960 x 720 (lambda r^2 = -0.043)
@@ -245,10 +292,15 @@ def test_solve_recovers_rendered_rig_at_least_as_well_as_plain_pycolmap(tmp_path
             assert lam < 0.05, (who, name, lam)
     assert ours_deg < 0.05
     if scene == "must-show":
-        # at least as good as the peer, up to camcal's own two-sigma (on the untuned scene: reported only)
+        # at least as good as the peer (on the untuned scene: reported only): the lens strictly (half
+        # pycolmap's error in every run so far); focal length, principal point and rig rotation, where
+        # both sit at a few hundredths of a pixel (thousandths of a degree) and runs differ by as much,
+        # up to camcal's own two sigma
+        assert ours_deg <= np.median(peer_deg) + 2 * rig.camera("right").quality["sigma"]["rotation_deg"]
         for truth in cameras:
             sigma = rig.camera(truth.name).quality["sigma"]
             mine, other = errors["camcal", truth.name], errors["pycolmap", truth.name]
+            assert mine[2] <= other[2]
             assert mine[0] <= other[0] + 2 * sigma["fx"] / truth.K[0, 0]
             assert mine[1] <= other[1] + 2 * max(sigma["cx"], sigma["cy"])
 
