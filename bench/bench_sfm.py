@@ -8,7 +8,11 @@
    apart, a division lens): wall time, errors against the truth, RMS.
 2. camcal's bundle adjustment against ``pycolmap.bundle_adjustment`` (Ceres)
    on the same noisy reconstruction (pycolmap's synthetic rig): time and
-   final cost.
+   final cost; camcal with and without a per-iteration progress callback.
+3. The covariance of the intrinsics and the rig pose on that problem:
+   camcal's ``marginal_covariance`` against Ceres' ``Covariance`` (sparse QR,
+   the engine's former method) on the same solved Ceres problem: time and
+   agreement.
 
 Prints ``name: ours X, peer Y, ratio Y/X``. ``--frames N`` renders fewer
 rig positions (default 12).
@@ -22,7 +26,9 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
-from camcal.geometry.bundle import BundleOptions, bundle_adjust, state_from_reconstruction
+import pyceres
+
+from camcal.geometry.bundle import BundleOptions, bundle_adjust, marginal_covariance, state_from_reconstruction
 from camcal.geometry.camera import rotation_angle_deg
 from camcal.geometry.sfm import solve_pycolmap_plain, solve_sfm
 from camcal.synthetic import example_stereo_rig, render_rig_orbit
@@ -63,7 +69,8 @@ def bench_solve(frames: int) -> None:
           f"ratio {peer_deg / ours_deg:.2f}")
 
 
-def bench_bundle() -> None:
+def _noisy_rig_reconstruction():
+    """pycolmap's synthetic 2-camera rig at 20 positions, 2000 points, 0.5 px noise, points moved 0.02."""
     options = pycolmap.SyntheticDatasetOptions(
         num_rigs=1, num_cameras_per_rig=2, num_frames_per_rig=20, num_points3D=2000,
         camera_width=1280, camera_height=960, camera_params=[1000.0, 640.0, 480.0, -0.05],
@@ -76,6 +83,11 @@ def bench_bundle() -> None:
             point.xy = point.xy + rng.normal(0.0, 0.5, 2)
     for point in reconstruction.points3D.values():
         point.xyz = point.xyz + rng.normal(0.0, 0.02, 3)
+    return reconstruction
+
+
+def bench_bundle() -> None:
+    reconstruction = _noisy_rig_reconstruction()
     state = state_from_reconstruction(reconstruction)
     start = time.perf_counter()
     result = bundle_adjust(state, BundleOptions(compute_sigmas=False))
@@ -99,6 +111,59 @@ def bench_bundle() -> None:
           f"ratio {peer / ours_sigmas:.3f}")
     print(f"bundle adjustment final cost: ours {result.final_cost:.9g}, peer {peer_cost:.9g}, "
           f"ratio {peer_cost / result.final_cost:.9f} (with sigmas {with_sigmas.final_cost:.9g})")
+    # the progress callback's cost: best of 3 interleaved runs each (the machine is shared)
+    calls, times = [], {"with": [], "without": []}
+    for _ in range(3):
+        for kind in times:
+            start = time.perf_counter()
+            with_progress = bundle_adjust(state, BundleOptions(compute_sigmas=False),
+                                          progress=(lambda *args: calls.append(args)) if kind == "with" else None)
+            times[kind].append(time.perf_counter() - start)
+    best, best_without = min(times["with"]), min(times["without"])
+    print(f"bundle adjustment time with per-iteration progress (s, best of 3, {len(calls) // 3} calls a run): "
+          f"ours {best:.2f}, ours without progress {best_without:.2f}, ratio {best_without / best:.3f} "
+          f"(final cost {with_progress.final_cost:.9g})")
+
+
+def bench_covariance() -> None:
+    """Intrinsics and rig-pose covariance on the solved problem: camcal's marginalisation against Ceres' QR."""
+    reconstruction = _noisy_rig_reconstruction()
+    ba = pycolmap.BundleAdjustmentOptions(print_summary=False)
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in reconstruction.reg_image_ids():
+        config.add_image(image_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    adjuster = pycolmap.create_default_ceres_bundle_adjuster(ba, config, reconstruction)
+    adjuster.solve()
+    problem = adjuster.problem
+    blocks = [camera.params for camera in reconstruction.cameras.values()]
+    blocks += [pose.params for rig in reconstruction.rigs.values() for pose in rig.non_ref_sensors.values()]
+    blocks = [b for b in blocks if problem.has_parameter_block(b) and not problem.is_parameter_block_constant(b)]
+    sizes = [problem.parameter_block_tangent_size(b) for b in blocks]
+    offsets = np.r_[0, np.cumsum(sizes)]
+    ours_times, peer_times = [], []
+    for _ in range(3):  # best of 3 interleaved runs each (the machine is shared)
+        start = time.perf_counter()
+        ours, _ = marginal_covariance(problem, reconstruction, blocks)
+        ours_times.append(time.perf_counter() - start)
+        covariance_options = pyceres.CovarianceOptions()
+        covariance_options.num_threads = 2
+        ceres = pyceres.Covariance(covariance_options)
+        start = time.perf_counter()
+        ok = ceres.compute([(a, b) for i, a in enumerate(blocks) for b in blocks[i:]], problem)
+        peer = np.zeros((offsets[-1], offsets[-1]))
+        for i, a in enumerate(blocks):
+            for j in range(i, len(blocks)):
+                part = np.asarray(ceres.get_covariance_block_tangent_space(a, blocks[j], problem))
+                peer[offsets[i]:offsets[i + 1], offsets[j]:offsets[j + 1]] = part.reshape(sizes[i], sizes[j])
+                peer[offsets[j]:offsets[j + 1], offsets[i]:offsets[i + 1]] = part.reshape(sizes[i], sizes[j]).T
+        peer_times.append(time.perf_counter() - start)
+    ours_time, peer_time = min(ours_times), min(peer_times)
+    scale = np.sqrt(np.diag(peer))
+    agreement = float(np.max(np.abs(ours - peer) / np.outer(scale, scale))) if ok else float("nan")
+    print(f"covariance time (s, best of 3, intrinsics + rig pose, {problem.num_residuals()} residuals): ours {ours_time:.3f}, "
+          f"peer (Ceres Covariance, sparse QR) {peer_time:.3f}, ratio {peer_time / ours_time:.2f} "
+          f"(largest difference {agreement:.1e} of sqrt(C_ii C_jj))")
 
 
 def main() -> None:
@@ -107,6 +172,7 @@ def main() -> None:
     parser.add_argument("--bundle-only", action="store_true", help="skip the structure-from-motion comparison")
     args = parser.parse_args()
     bench_bundle()
+    bench_covariance()
     if not args.bundle_only:
         bench_solve(args.frames)
 

@@ -15,7 +15,9 @@ The refinement is pycolmap's Ceres bundle adjuster
 rigs and frames, Ceres' sparse Schur solvers): the state becomes a pycolmap
 ``Reconstruction`` (cameras, one rig, frames, images, points with tracks),
 board corners are added as constant points, and camcal only chooses what is
-held. Intrinsics are COLMAP parameter vectors (any model that
+held. The adjuster's problem is solved with the adjuster's own solver options
+through pyceres (``pyceres.solve``), which adds a per-iteration progress
+callback (pycolmap's binding of the options has no ``callbacks``). Intrinsics are COLMAP parameter vectors (any model that
 :func:`camcal.io.colmap.camera_from_colmap` maps exactly, named by COLMAP's
 ``params_info``), so the cost is exactly the one ``pycolmap.bundle_adjustment``
 minimises; single parameters can be held (``BundleOptions.fixed_params``,
@@ -35,10 +37,12 @@ move, COLMAP's ``TWO_CAMS_FROM_WORLD`` gauge if nothing sets the scale, or
 the first frame's pose held when a rig held at a known calibration sets it.
 
 Uncertainty: ``Sigma = sigma^2 (J^T J)^-1`` restricted to the intrinsics
-and the rig poses, by Ceres' ``Covariance`` (sparse QR of the whole
-Jacobian, so frames and points are marginalised) on the adjuster's own
-problem, with ``sigma^2 = 2 cost / (m - n)`` (Triggs et al. 2000, section 6;
-Hartley & Zisserman 2004, section 5.2). Rotations are in Ceres' quaternion
+and the rig poses, frames and points marginalised (:func:`marginal_covariance`:
+Ceres' Jacobian of the adjuster's own problem, the points eliminated by the
+Schur complement of their 3x3 blocks, a point seen along nearly parallel rays
+left out of the covariance instead of making it singular), with
+``sigma^2 = 2 cost / (m - n)``, ``n`` the free unknowns (Triggs et al. 2000,
+section 6; Hartley & Zisserman 2004, section 5.2). Rotations are in Ceres' quaternion
 tangent space ``q' = [cos|d|, sin|d| d / |d|] q``, i.e. a rotation vector
 ``2 d`` applied on the left; these sigmas measure the sampling noise of the
 observations, not model error.
@@ -81,9 +85,19 @@ __all__ = [
     "state_to_reconstruction",
     "hold_rig",
     "attach_board",
+    "marginal_covariance",
+    "MIN_POINT_SINGULAR_RATIO",
 ]
 
 LOSSES = ("trivial", "huber", "soft_l1", "cauchy")
+
+#: A free 3D point whose Jacobian has ``sigma_min < MIN_POINT_SINGULAR_RATIO x sigma_max`` (its depth
+#: is not determined to the rounding of the Jacobian) is left out of the covariance, not of the fit
+#: (:func:`marginal_covariance`).
+MIN_POINT_SINGULAR_RATIO = 1e-10
+#: Points whose 3x3 information block has ``lambda_min`` below this share of ``lambda_max`` are eliminated
+#: through the SVD of their own Jacobian rows instead of the normal equations (:func:`marginal_covariance`).
+_NORMAL_EQUATIONS_MIN_RATIO = 1e-10
 
 
 @functools.lru_cache(maxsize=None)
@@ -275,6 +289,11 @@ class BundleResult:
         ``camera.rx, .ry, .rz`` (rotation vector applied on the left of
         ``sensor_from_rig``, radians) and ``camera.tx, .ty, .tz`` for each
         refined rig pose.
+    n_points_out_of_covariance : int
+        Scene points left out of the covariance (not of the fit): seen
+        along parallel rays to the rounding of the Jacobian, their depth is
+        not determined (:data:`MIN_POINT_SINGULAR_RATIO`); the sigmas are
+        then conservative.
     termination : str
         Ceres' termination message.
     """
@@ -290,11 +309,15 @@ class BundleResult:
     n_parameters: int = 0
     covariance: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0)))
     covariance_names: tuple[str, ...] = ()
+    n_points_out_of_covariance: int = 0
     termination: str = ""
 
     def summary(self) -> str:
         """Per-camera RMS before -> after and the cost."""
         rows = [f"  {name}: {self.rms_before_px[name]:.4f} -> {self.rms_after_px[name]:.4f} px" for name in self.rms_after_px]
+        if self.n_points_out_of_covariance:
+            rows.append(f"  {self.n_points_out_of_covariance} point(s) seen along nearly parallel rays left out of "
+                        "the sigmas (not of the fit)")
         return "\n".join(
             [f"bundle adjustment (Ceres): cost {self.initial_cost:.6g} -> {self.final_cost:.6g} "
              f"({self.n_iterations} iterations, {self.n_residuals} residuals, {self.n_parameters} unknowns)"] + rows
@@ -499,10 +522,14 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
     options : BundleOptions
         What is refined, the loss, the tolerances.
     progress : callable, optional
-        Called as ``progress(done, total)`` as the stages finish: the
-        problem built (0), Ceres solved (1) and, with
-        ``options.compute_sigmas``, the covariance (2); ``total`` is 1 or 2.
-        Nothing is printed; :meth:`BundleResult.summary` describes the run.
+        Called as ``progress(done, total)`` with ``total =
+        options.max_iterations`` (+ 1 with ``options.compute_sigmas``):
+        after each Ceres iteration (``done`` = the iteration, 0 for the
+        start; a pyceres ``IterationCallback``), with ``done =
+        max_iterations`` once Ceres has stopped (converged early or not),
+        and with ``done = total`` once the covariance is computed. An
+        exception it raises stops the solve and propagates. Nothing is
+        printed; :meth:`BundleResult.summary` describes the run.
 
     Returns
     -------
@@ -563,33 +590,65 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
             problem.set_manifold(block, pyceres.SubsetManifold(len(block), held))
 
     rms_before = _rms(state)
-    stages = 2 if options.compute_sigmas else 1
+    # the adjuster's own solve, with pyceres' solver options: pycolmap's binding of them has no callbacks
+    solver_options = _pyceres_solver_options(ba.ceres.create_solver_options(config, problem))
+    total = options.max_iterations + int(options.compute_sigmas)
     if progress is not None:
-        progress(0, stages)
-    summary = adjuster.solve().ceres_summary
+        solver_options.callbacks = [_iteration_callback(progress, total)]
+    summary = pyceres.SolverSummary()
+    pyceres.solve(solver_options, problem, summary)
     if progress is not None:
-        progress(1, stages)
+        progress(options.max_iterations, total)
     refined = _from_colmap(state, colmap)
-    covariance, covariance_names, sigmas = np.zeros((0, 0)), (), {}
+    covariance, covariance_names, sigmas, n_left_out = np.zeros((0, 0)), (), {}, 0
     if options.compute_sigmas:
-        covariance, covariance_names = _covariance(state, options, colmap, problem, summary)
+        covariance, covariance_names, n_left_out = _covariance(state, options, colmap, problem, summary)
         sigmas = _sigmas(refined, covariance, covariance_names)
         if progress is not None:
-            progress(2, stages)
+            progress(total, total)
     return BundleResult(
         state=refined, initial_cost=float(summary.initial_cost), final_cost=float(summary.final_cost),
         rms_before_px=rms_before, rms_after_px=_rms(refined), sigmas=sigmas,
-        n_iterations=int(summary.num_successful_steps + summary.num_unsuccessful_steps),
-        n_residuals=int(summary.num_residuals), n_parameters=int(summary.num_effective_parameters),
-        covariance=covariance, covariance_names=covariance_names, termination=str(summary.message),
+        # Ceres counts its iteration 0 (the start) as a successful step
+        n_iterations=int(summary.num_successful_steps + summary.num_unsuccessful_steps) - 1,
+        n_residuals=int(summary.num_residuals), n_parameters=int(summary.num_effective_parameters_reduced),
+        covariance=covariance, covariance_names=covariance_names, n_points_out_of_covariance=n_left_out,
+        termination=str(summary.message),
     )
 
 
-def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, problem, summary) -> tuple[NDArray[np.float64], tuple[str, ...]]:
-    """``sigma^2 (J^T J)^-1`` of the free intrinsics and rig poses by Ceres' Covariance; empty if singular."""
-    import pycolmap  # noqa: PLC0415
+def _pyceres_solver_options(colmap_options):
+    """pycolmap's Ceres solver options (its own pyceres binding) as pyceres' ``SolverOptions``, field by field."""
     import pyceres  # noqa: PLC0415
 
+    converted = pyceres.SolverOptions()
+    for key, value in colmap_options.todict().items():
+        kind = type(getattr(converted, key))
+        if hasattr(kind, "__members__"):  # the two bindings' enums differ as types, not in their names
+            value = kind.__members__[value.name]
+        setattr(converted, key, value)
+    return converted
+
+
+def _iteration_callback(progress: Callable[[int, int], None], total: int):
+    """A pyceres ``IterationCallback`` that reports ``progress(iteration, total)`` and lets Ceres go on."""
+    import pyceres  # noqa: PLC0415
+
+    class IterationProgress(pyceres.IterationCallback):
+        def __call__(self, summary) -> object:
+            progress(int(summary.iteration), total)
+            return pyceres.CallbackReturnType.SOLVER_CONTINUE
+
+    return IterationProgress()
+
+
+def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, problem,
+                summary) -> tuple[NDArray[np.float64], tuple[str, ...], int]:
+    """``sigma^2 (J^T J)^-1`` of the free intrinsics and rig poses, its names and the points left out of it.
+
+    Empty (and 0) when there is nothing to estimate, no redundancy, or the
+    reduced normal equations are singular (:func:`marginal_covariance`).
+    """
     reconstruction = colmap.reconstruction
     blocks, names, scales = [], [], []
     for index, cid in enumerate(colmap.camera_ids):
@@ -612,28 +671,170 @@ def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, pro
         blocks.append(block)
         names += [f"{camera}.{axis}" for axis in ("rx", "ry", "rz", "tx", "ty", "tz")]
         scales += [2.0, 2.0, 2.0, 1.0, 1.0, 1.0]  # Ceres' quaternion tangent d is half the rotation vector
-    if not blocks:
-        return np.zeros((0, 0)), ()
-    dof = summary.num_residuals - summary.num_effective_parameters
-    if dof <= 0:
-        return np.zeros((0, 0)), ()
-    covariance_options = pyceres.CovarianceOptions()
-    covariance_options.num_threads = 2
-    covariance = pyceres.Covariance(covariance_options)
-    pairs = [(a, b) for i, a in enumerate(blocks) for b in blocks[i:]]
-    if not covariance.compute(pairs, problem):
-        return np.zeros((0, 0)), ()
-    sizes = [problem.parameter_block_tangent_size(b) for b in blocks]
-    offsets = np.r_[0, np.cumsum(sizes)]
-    full = np.zeros((offsets[-1], offsets[-1]))
-    for i, a in enumerate(blocks):
-        for j in range(i, len(blocks)):
-            part = np.asarray(covariance.get_covariance_block_tangent_space(a, blocks[j], problem)).reshape(sizes[i], sizes[j])
-            full[offsets[i]:offsets[i + 1], offsets[j]:offsets[j + 1]] = part
-            full[offsets[j]:offsets[j + 1], offsets[i]:offsets[i + 1]] = part.T
+    dof = summary.num_residuals - summary.num_effective_parameters_reduced
+    if not blocks or dof <= 0:
+        return np.zeros((0, 0)), (), 0
+    inverse, n_left_out = marginal_covariance(problem, reconstruction, blocks)
+    if inverse.size == 0:
+        return np.zeros((0, 0)), (), n_left_out
     sigma2 = 2.0 * float(summary.final_cost) / dof
     scale = np.asarray(scales)
-    return sigma2 * full * np.outer(scale, scale), tuple(names)
+    return sigma2 * inverse * np.outer(scale, scale), tuple(names), n_left_out
+
+
+def marginal_covariance(problem, reconstruction, blocks: list[NDArray[np.float64]],
+                        min_point_singular_ratio: float = MIN_POINT_SINGULAR_RATIO,
+                        ) -> tuple[NDArray[np.float64], int]:
+    """``(J^T J)^-1`` of some parameter blocks of a COLMAP bundle adjustment, all other unknowns marginalised.
+
+    Parameters
+    ----------
+    problem : pyceres.Problem
+        The problem of a pycolmap Ceres bundle adjuster (e.g.
+        ``create_default_ceres_bundle_adjuster(...).problem``), at its solution.
+    reconstruction : pycolmap.Reconstruction
+        The reconstruction that problem refines: its cameras, rig sensor
+        poses, frame poses and 3D points are the problem's parameter blocks.
+    blocks : list of ndarray
+        The free parameter blocks wanted (e.g. camera ``params``, a rig
+        sensor pose's ``params``), in the order of the result.
+    min_point_singular_ratio : float
+        A free 3D point whose own Jacobian rows ``J_p`` (2k x 3) have
+        ``sigma_min < ratio x sigma_max`` is left out of the covariance.
+
+    Returns
+    -------
+    covariance : ndarray, shape (n, n)
+        In the blocks' tangent spaces (Ceres' manifolds; held coordinates of
+        a ``SubsetManifold`` omitted), in the order of ``blocks``; shape
+        (0, 0) when the reduced normal equations are singular (a gauge or a
+        parameter the data do not fix).
+    n_points_left_out : int
+        Free 3D points left out as singular.
+
+    Raises
+    ------
+    RuntimeError
+        The problem has parameter blocks that are not part of the
+        reconstruction (their columns would be missed).
+
+    Notes
+    -----
+    With ``J = [J_c J_p]`` (``c``: the wanted blocks, then the frames and
+    any other free block; ``p``: the 3D points), each residual involves one
+    point, so ``H_pp = J_p^T J_p`` is block diagonal with 3x3 blocks and the
+    points are eliminated exactly by the Schur complement (Triggs et al.
+    2000, section 6.1)::
+
+        S = J_c^T J_c - sum_p H_cp H_pp^-1 H_pc,      Cov(c) = S^-1
+
+    the ``c`` block of ``(J^T J)^-1``, which Ceres' ``Covariance`` computes
+    from a rank-revealing QR of the whole ``J``. A point seen along nearly
+    parallel rays (a tiny triangulation angle) has a nearly null depth
+    direction: that QR then declares the whole Jacobian rank deficient and
+    gives no covariance at all, and ``H_pp^-1`` from the normal equations
+    loses the small eigenvalue to rounding (``eps lambda_max``). So a point
+    with ``lambda_min < 1e-10 lambda_max`` is eliminated from the SVD of
+    its own rows instead, ``J_p = U s V^T``: ``H_cp H_pp^-1 H_pc = (J_c^T
+    U)(U^T J_c)``, exact while ``s_min`` stands above the rounding of
+    ``J_p``. Below ``min_point_singular_ratio`` its depth is not determined
+    at all and the point is left out of the covariance with its
+    observations -- it stays in the fit -- which can only enlarge
+    ``Cov(c)``. ``S`` is factored by Cholesky after Jacobi scaling
+    (``D^-1/2 S D^-1/2``, ``D = diag S``); a pivot below 1e-14 (Ceres'
+    ``min_reciprocal_condition_number``) means singular.
+    """
+    import scipy.linalg  # noqa: PLC0415
+    import scipy.sparse  # noqa: PLC0415
+
+    J, n_wanted, n_camera = _jacobian(problem, reconstruction, blocks)
+    n_points = (J.shape[1] - n_camera) // 3
+
+    # the 3x3 information block of each point, from the rows (residuals) that see it
+    Jp = J[:, n_camera:].tocoo()
+    row_point = np.full(J.shape[0], -1, dtype=np.int64)
+    row_point[Jp.row] = Jp.col // 3
+    A = np.zeros((J.shape[0], 3))
+    A[Jp.row, Jp.col % 3] = Jp.data
+    seen = row_point >= 0
+    H_pp = np.empty((n_points, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            H_pp[:, i, j] = H_pp[:, j, i] = np.bincount(row_point[seen], A[seen, i] * A[seen, j], minlength=n_points)
+    eigenvalues, eigenvectors = np.linalg.eigh(H_pp)
+    by_normal_equations = eigenvalues[:, 0] > _NORMAL_EQUATIONS_MIN_RATIO * eigenvalues[:, 2]
+    # the others through the SVD of their own rows J_p = U s V^T: H_cp H_pp^-1 H_pc = (J_c^T U)(U^T J_c)
+    order = np.argsort(row_point, kind="stable")
+    starts = np.searchsorted(row_point[order], np.arange(n_points + 1))
+    left_out = np.zeros(n_points + 1, dtype=bool)  # the last entry: rows without a free point
+    projections = []
+    for p in np.flatnonzero(~by_normal_equations):
+        rows = order[starts[p]:starts[p + 1]]
+        U, singular, _ = np.linalg.svd(A[rows], full_matrices=False)
+        if len(singular) < 3 or not singular[2] > min_point_singular_ratio * singular[0]:
+            left_out[p] = True
+        else:
+            projections.append(J[rows, :n_camera].T @ U)
+    kept = J[~left_out[row_point]]
+    J_c = kept[:, :n_camera]
+    S = (J_c.T @ J_c).toarray()
+    for JcU in projections:
+        S -= JcU @ JcU.T
+    if n_points:
+        inverse_eigen = np.where(by_normal_equations[:, None], 1.0 / np.where(by_normal_equations[:, None], eigenvalues, 1.0), 0.0)
+        H_pp_inverse = scipy.sparse.bsr_matrix(
+            (np.einsum("pij,pj,pkj->pik", eigenvectors, inverse_eigen, eigenvectors), np.arange(n_points),
+             np.arange(n_points + 1)), shape=(3 * n_points, 3 * n_points))
+        H_pc = (kept[:, n_camera:].T @ J_c).tocsr()
+        S -= (H_pc.T @ (H_pp_inverse @ H_pc)).toarray()
+    n_left_out = int(left_out.sum())
+
+    d = np.sqrt(np.diag(S))
+    if not np.all(d > 0):
+        return np.zeros((0, 0)), n_left_out
+    try:
+        factor = scipy.linalg.cholesky(S / np.outer(d, d), lower=True)
+    except np.linalg.LinAlgError:
+        return np.zeros((0, 0)), n_left_out
+    if np.min(np.diag(factor)) ** 2 < 1e-14:
+        return np.zeros((0, 0)), n_left_out
+    unit = np.zeros((n_camera, n_wanted))
+    unit[np.arange(n_wanted), np.arange(n_wanted)] = 1.0
+    scaled = scipy.linalg.cho_solve((factor, True), unit)[:n_wanted]
+    covariance = scaled / np.outer(d[:n_wanted], d[:n_wanted])
+    return 0.5 * (covariance + covariance.T), n_left_out
+
+
+def _jacobian(problem, reconstruction, blocks: list[NDArray[np.float64]]):
+    """Ceres' Jacobian (SciPy CSR, loss applied) of a COLMAP problem, columns: ``blocks``, other free blocks, points.
+
+    Returns the matrix, the columns of ``blocks`` and the columns before the
+    points (:func:`marginal_covariance`).
+    """
+    import pyceres  # noqa: PLC0415 - the Ceres problem behind pycolmap's adjuster
+    import scipy.sparse  # noqa: PLC0415
+
+    def free(block) -> bool:
+        return problem.has_parameter_block(block) and not problem.is_parameter_block_constant(block)
+
+    candidates = [camera.params for camera in reconstruction.cameras.values()]
+    candidates += [pose.params for rig in reconstruction.rigs.values() for pose in rig.non_ref_sensors.values()]
+    candidates += [frame.rig_from_world.params for frame in reconstruction.frames.values() if frame.has_pose]
+    others = [block for block in candidates if problem.has_parameter_block(block)]
+    points = [point.xyz for point in reconstruction.points3D.values() if problem.has_parameter_block(point.xyz)]
+    if len(others) + len(points) != problem.num_parameter_blocks():
+        raise RuntimeError(f"the problem has {problem.num_parameter_blocks()} parameter blocks, the reconstruction "
+                           f"{len(others) + len(points)}: not a plain COLMAP bundle adjustment")
+    wanted = {block.ctypes.data for block in blocks}  # pycolmap hands a new view of the same memory each time
+    rest = [block for block in others if free(block) and block.ctypes.data not in wanted]
+    evaluate = pyceres.EvaluateOptions()
+    evaluate.set_parameter_blocks(list(blocks) + rest + [block for block in points if free(block)])
+    evaluate.num_threads = 2
+    crs = problem.evaluate_jacobian(evaluate)
+    J = scipy.sparse.csr_matrix((np.asarray(crs.values), np.asarray(crs.cols), np.asarray(crs.rows)),
+                                shape=(crs.num_rows, crs.num_cols))
+    n_wanted = sum(problem.parameter_block_tangent_size(block) for block in blocks)
+    return J, n_wanted, n_wanted + sum(problem.parameter_block_tangent_size(block) for block in rest)
 
 
 def _sigmas(state: BundleState, covariance: NDArray[np.float64], names: tuple[str, ...]) -> dict[str, float]:
@@ -694,11 +895,6 @@ def hold_rig(state: BundleState, cam_from_reference: dict[str, tuple[ArrayLike, 
         raise CamcalError("the known rig has no camera besides the reference: nothing to hold")
     scaled = state.scaled(float(np.median(ratios)))
     return dataclasses.replace(scaled, sensor_R=sensor_R, sensor_t=sensor_t)
-
-
-def _camera_from_world(state: BundleState, camera: int, frame: int) -> tuple[NDArray, NDArray]:
-    R = state.sensor_R[camera] @ state.frame_R[frame]
-    return R, state.sensor_R[camera] @ state.frame_t[frame] + state.sensor_t[camera]
 
 
 def _camera_from_world(state: BundleState, camera: int, frame: int) -> tuple[NDArray, NDArray]:
