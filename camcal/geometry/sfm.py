@@ -177,8 +177,9 @@ class SelfCalibration:
     principal_point : tuple of PrincipalPointDecision
     covariance_sigmas, jackknife_sigmas : dict of str to float
         The final fit's sigmas from the Ceres covariance and from the
-        delete-one-frame jackknife (:mod:`camcal.geometry.jackknife`; empty
-        when it was not run); the fit reports the larger of the two.
+        delete-one-frame jackknife, widened for its ``n - 1`` degrees of
+        freedom (:attr:`camcal.geometry.jackknife.FrameJackknife.widened_sigmas`;
+        empty when it was not run); the fit reports the larger of the two.
     jackknife_groups : int
         Frames (or groups of frames) left out in turn; 0 when not run.
     jackknife_skipped : str
@@ -205,7 +206,8 @@ class SelfCalibration:
             ratios = ", ".join(f"{key} {self.jackknife_sigmas[key] / value:.2g}" for key, value in
                                self.covariance_sigmas.items() if key in self.jackknife_sigmas and value > 0)
             rows.append(f"uncertainty: the larger of the covariance sigma and a delete-one-frame jackknife over "
-                        f"{self.jackknife_groups} groups of frames (jackknife / covariance: {ratios})")
+                        f"{self.jackknife_groups} groups of frames, widened for its {self.jackknife_groups - 1} "
+                        f"degrees of freedom (jackknife / covariance: {ratios})")
         else:
             rows.append(f"uncertainty: covariance sigmas only ({self.jackknife_skipped}); "
                         "they measure independent noise, not errors shared by an image's features")
@@ -402,7 +404,8 @@ def self_calibrate(
     in images share errors within an image (viewing angle, blur, sampling),
     which the covariance, built for independent noise, does not see; on
     rendered rigs its sigmas were 2-5 times below the error. The jackknife
-    over frames sees them; the larger of the two is reported.
+    over frames sees them (widened by Tukey's t factor for its ``n - 1``
+    degrees of freedom); the larger of the two is reported.
     """
     if principal_point not in PRINCIPAL_POINT_MODES:
         raise CamcalError(f"unknown principal point mode {principal_point!r}, "
@@ -469,7 +472,7 @@ def self_calibrate(
     if not skipped:
         _say(progress, f"uncertainty: delete-one-frame jackknife ({min(n_frames, MAX_GROUPS)} refinements)")
         spread = frame_jackknife(final, final_options)
-        jackknife_sigmas, groups = spread.sigmas, spread.n_groups
+        jackknife_sigmas, groups = spread.widened_sigmas, spread.n_groups
         # a singular covariance leaves keys only the jackknife has
         final = dataclasses.replace(final, sigmas={key: max(covariance_sigmas.get(key, 0.0), jackknife_sigmas.get(key, 0.0))
                                                    for key in {**covariance_sigmas, **jackknife_sigmas}})

@@ -194,8 +194,9 @@ def rendered_coverage_scene(seed):
                pp_offsets=rng.uniform(-8, 8, (2, 2)), lam=tuple(rng.uniform(-5e-7, -0.5e-7, 2) * (640 / width) ** 2),
                rig_euler_deg=rng.uniform(-3, 3, 3), baseline=float(rng.uniform(0.15, 0.4)),
                focal_ratio=float(rng.uniform(0.985, 1.015)))
-    orbit = dict(n_frames=10, roll_deg=float(rng.uniform(15, 35)), radius=float(rng.uniform(2.6, 3.4)),
+    orbit = dict(roll_deg=float(rng.uniform(15, 35)), radius=float(rng.uniform(2.6, 3.4)),
                  image_noise=float(rng.uniform(0, 3)), seed=seed)
+    orbit["n_frames"] = int(rng.integers(8, 13))
     return rig, orbit
 
 
@@ -203,18 +204,25 @@ def rendered_coverage_scene(seed):
 def test_uncertainty_covers_the_error_on_rendered_rigs(tmp_path):
     """Over 20 rendered stereo rigs (features found by SIFT in images, not drawn with Gaussian noise),
     |error| < 2 sigma for f, cx, cy of both cameras in >= 90 % of cases: the covariance alone does not
-    cover it (errors 2-5 of its sigmas), the reported sigma (covariance or frame jackknife, the larger) must."""
+    cover it (errors 2-5 of its sigmas), the reported sigma (covariance or frame jackknife, the larger) must.
+
+    Seeds 0-19 (10 frames each) measured the jackknife before its t widening: 87 % within two plain
+    jackknife sigmas. The widening comes from Tukey's interval, not from those scenes; these seeds
+    (20-39, 8-12 frames) were first run with it."""
+    from camcal.geometry.jackknife import FrameJackknife
     from camcal.geometry.sfm import solve_sfm
     from camcal.synthetic import render_rig_orbit
 
-    ratios: dict[str, list[float]] = {"reported": [], "covariance": []}
-    for seed in range(20):
+    ratios: dict[str, list[float]] = {"reported": [], "covariance": [], "jackknife before widening": []}
+    for seed in range(20, 40):
         rig_spec, orbit = rendered_coverage_scene(seed)
         cameras = stereo_rig(**rig_spec)
         render_rig_orbit(tmp_path / f"in{seed}", cameras, **orbit)
         result = solve_sfm({c.name: tmp_path / f"in{seed}" / c.name for c in cameras}, tmp_path / f"out{seed}",
                            max_num_features=4096, seed=seed)
-        covariance = result.self_calibration.covariance_sigmas
+        report = result.self_calibration
+        covariance = report.covariance_sigmas
+        widening = FrameJackknife({}, {}, report.jackknife_groups, report.jackknife_groups).interval_factor
         row = []
         for truth in cameras:
             solved = result.rig.camera(truth.name)
@@ -223,8 +231,9 @@ def test_uncertainty_covers_the_error_on_rendered_rigs(tmp_path):
                 name = f"{truth.name}.{key}"
                 ratios["reported"].append(abs(error) / result.bundle.sigmas[name])
                 ratios["covariance"].append(abs(error) / covariance[name])
+                ratios["jackknife before widening"].append(abs(error) * widening / report.jackknife_sigmas[name])
                 row.append(f"{name} {error:+.3f}/{result.bundle.sigmas[name]:.3f}")
-        print(f"seed {seed}: error/sigma px " + ", ".join(row))
+        print(f"seed {seed} ({orbit['n_frames']} frames): error/sigma px " + ", ".join(row))
     for who, values in ratios.items():
         values = np.asarray(values)
         print(f"{who}: {np.sum(values < 2)} / {len(values)} = {100 * np.mean(values < 2):.1f} % within 2 sigma, "
