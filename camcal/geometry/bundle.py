@@ -86,6 +86,7 @@ __all__ = [
     "hold_rig",
     "attach_board",
     "marginal_covariance",
+    "ceres_covariance",
     "MIN_POINT_SINGULAR_RATIO",
 ]
 
@@ -680,6 +681,41 @@ def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, pro
     sigma2 = 2.0 * float(summary.final_cost) / dof
     scale = np.asarray(scales)
     return sigma2 * inverse * np.outer(scale, scale), tuple(names), n_left_out
+
+
+def ceres_covariance(problem, blocks: list[NDArray[np.float64]], num_threads: int = 2) -> NDArray[np.float64] | None:
+    """``(J^T J)^-1`` of some parameter blocks by Ceres' own ``Covariance`` (sparse QR of the whole Jacobian).
+
+    The reference :func:`marginal_covariance` is checked against (tests,
+    ``bench/bench_sfm.py``); ``None`` where Ceres finds the Jacobian rank
+    deficient (one point seen along parallel rays is enough).
+
+    Parameters
+    ----------
+    problem : pyceres.Problem
+        A solved problem.
+    blocks : list of ndarray
+        Its free parameter blocks, in the order of the result (tangent space).
+    num_threads : int
+        Ceres' threads.
+    """
+    import pyceres  # noqa: PLC0415
+
+    options = pyceres.CovarianceOptions()
+    options.algorithm_type = pyceres.CovarianceAlgorithmType.SPARSE_QR
+    options.num_threads = num_threads
+    covariance = pyceres.Covariance(options)
+    if not covariance.compute([(a, b) for i, a in enumerate(blocks) for b in blocks[i:]], problem):
+        return None
+    sizes = [problem.parameter_block_tangent_size(b) for b in blocks]
+    offsets = np.r_[0, np.cumsum(sizes)]
+    out = np.zeros((offsets[-1], offsets[-1]))
+    for i, a in enumerate(blocks):
+        for j in range(i, len(blocks)):
+            part = np.asarray(covariance.get_covariance_block_tangent_space(a, blocks[j], problem)).reshape(sizes[i], sizes[j])
+            out[offsets[i]:offsets[i + 1], offsets[j]:offsets[j + 1]] = part
+            out[offsets[j]:offsets[j + 1], offsets[i]:offsets[i + 1]] = part.T
+    return out
 
 
 def marginal_covariance(problem, reconstruction, blocks: list[NDArray[np.float64]],

@@ -20,7 +20,6 @@ from camcal.geometry.bundle import (
 )
 
 pycolmap = pytest.importorskip("pycolmap")
-pyceres = pytest.importorskip("pyceres")
 
 SIGMA_PX = 0.5
 
@@ -228,19 +227,9 @@ def capture_covariance(monkeypatch, dense_reference=True):
 
     def with_references(problem, reconstruction, blocks, *args):
         mine = ours(problem, reconstruction, blocks, *args)
-        options = pyceres.CovarianceOptions()
-        options.algorithm_type = pyceres.CovarianceAlgorithmType.SPARSE_QR
-        ceres = pyceres.Covariance(options)
+        full = bundle_module.ceres_covariance(problem, blocks)
         sizes = [problem.parameter_block_tangent_size(b) for b in blocks]
         offsets = np.r_[0, np.cumsum(sizes)]
-        full = None
-        if ceres.compute([(a, b) for i, a in enumerate(blocks) for b in blocks[i:]], problem):
-            full = np.zeros((offsets[-1], offsets[-1]))
-            for i, a in enumerate(blocks):
-                for j in range(i, len(blocks)):
-                    part = np.asarray(ceres.get_covariance_block_tangent_space(a, blocks[j], problem))
-                    full[offsets[i]:offsets[i + 1], offsets[j]:offsets[j + 1]] = part.reshape(sizes[i], sizes[j])
-                    full[offsets[j]:offsets[j + 1], offsets[i]:offsets[i + 1]] = part.reshape(sizes[i], sizes[j]).T
         dense = None
         if dense_reference:
             J = bundle_module._jacobian(problem, reconstruction, blocks)[0].toarray()
