@@ -208,6 +208,17 @@ class BundleState:
             board_t=None if self.board_t is None else self.board_t * factor,
         )
 
+    def subset(self, keep_point: NDArray[np.bool_], keep_obs: NDArray[np.bool_] | None = None) -> BundleState:
+        """The state restricted to the points ``keep_point`` and their observations (those in ``keep_obs`` too)."""
+        kept = keep_point[self.obs_point] if keep_obs is None else keep_obs & keep_point[self.obs_point]
+        index = np.cumsum(keep_point) - 1
+        return dataclasses.replace(
+            self, points=self.points[keep_point],
+            point_ids=tuple(int(i) for i, k in zip(self.point_ids, keep_point) if k),
+            obs_camera=self.obs_camera[kept], obs_frame=self.obs_frame[kept],
+            obs_point=index[self.obs_point[kept]], obs_xy=self.obs_xy[kept],
+        )
+
     def param_names(self, camera: int) -> tuple[str, ...]:
         """COLMAP's names of camera ``camera``'s parameters."""
         return _model_layout(self.models[camera])[0]
@@ -643,6 +654,11 @@ def _iteration_callback(progress: Callable[[int, int], None], total: int):
     return IterationProgress()
 
 
+def _is_free(problem, block: NDArray[np.float64]) -> bool:
+    """Whether ``block`` is a parameter block of the Ceres ``problem`` that the solve moves."""
+    return problem.has_parameter_block(block) and not problem.is_parameter_block_constant(block)
+
+
 def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, problem,
                 summary) -> tuple[NDArray[np.float64], tuple[str, ...], int]:
     """``sigma^2 (J^T J)^-1`` of the free intrinsics and rig poses, its names and the points left out of it.
@@ -654,7 +670,7 @@ def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, pro
     blocks, names, scales = [], [], []
     for index, cid in enumerate(colmap.camera_ids):
         block = reconstruction.cameras[cid].params
-        if not problem.has_parameter_block(block) or problem.is_parameter_block_constant(block):
+        if not _is_free(problem, block):
             continue
         all_names = state.param_names(index)
         held = set(_held_indices(state, index, options))
@@ -666,7 +682,7 @@ def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, pro
     sensors = {sensor.id: pose for sensor, pose in rig.non_ref_sensors.items()}
     for index, cid in enumerate(colmap.camera_ids[1:], start=1):
         block = sensors[cid].params  # (qx, qy, qz, qw, tx, ty, tz), tangent (rotation, translation)
-        if not problem.has_parameter_block(block) or problem.is_parameter_block_constant(block):
+        if not _is_free(problem, block):
             continue
         camera = state.camera_names[index]
         blocks.append(block)
@@ -850,9 +866,6 @@ def _jacobian(problem, reconstruction, blocks: list[NDArray[np.float64]]):
     import pyceres  # noqa: PLC0415 - the Ceres problem behind pycolmap's adjuster
     import scipy.sparse  # noqa: PLC0415
 
-    def free(block) -> bool:
-        return problem.has_parameter_block(block) and not problem.is_parameter_block_constant(block)
-
     candidates = [camera.params for camera in reconstruction.cameras.values()]
     candidates += [pose.params for rig in reconstruction.rigs.values() for pose in rig.non_ref_sensors.values()]
     candidates += [frame.rig_from_world.params for frame in reconstruction.frames.values() if frame.has_pose]
@@ -862,9 +875,9 @@ def _jacobian(problem, reconstruction, blocks: list[NDArray[np.float64]]):
         raise RuntimeError(f"the problem has {problem.num_parameter_blocks()} parameter blocks, the reconstruction "
                            f"{len(others) + len(points)}: not a plain COLMAP bundle adjustment")
     wanted = {block.ctypes.data for block in blocks}  # pycolmap hands a new view of the same memory each time
-    rest = [block for block in others if free(block) and block.ctypes.data not in wanted]
+    rest = [block for block in others if _is_free(problem, block) and block.ctypes.data not in wanted]
     evaluate = pyceres.EvaluateOptions()
-    evaluate.set_parameter_blocks(list(blocks) + rest + [block for block in points if free(block)])
+    evaluate.set_parameter_blocks(list(blocks) + rest + [block for block in points if _is_free(problem, block)])
     evaluate.num_threads = 2
     crs = problem.evaluate_jacobian(evaluate)
     J = scipy.sparse.csr_matrix((np.asarray(crs.values), np.asarray(crs.cols), np.asarray(crs.rows)),

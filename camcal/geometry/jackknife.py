@@ -60,7 +60,7 @@ from scipy.stats import norm, t
 from camcal.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
 
-__all__ = ["MAX_GROUPS", "MIN_FRAMES", "FrameJackknife", "frame_jackknife", "without_frames"]
+__all__ = ["MAX_GROUPS", "MIN_FRAMES", "FrameJackknife", "frame_jackknife", "interval_factor", "without_frames"]
 
 #: fewer frames give a variance estimate with too few degrees of freedom to print.
 MIN_FRAMES = 5
@@ -93,29 +93,22 @@ class FrameJackknife:
     n_groups: int
 
     @property
-    def interval_factor(self) -> float:
-        """``t_(n-1, 0.975) / z_0.975``: Tukey's t interval over the normal one for ``n`` groups."""
-        return float(t.ppf(0.975, self.n_groups - 1) / norm.ppf(0.975))
-
-    @property
     def widened_sigmas(self) -> dict[str, float]:
-        """The sigmas times :attr:`interval_factor`: ``+- 1.96`` of them is the 95 % t interval."""
-        return {key: value * self.interval_factor for key, value in self.sigmas.items()}
+        """The sigmas times :func:`interval_factor`: ``+- 1.96`` of them is the 95 % t interval."""
+        factor = interval_factor(self.n_groups)
+        return {key: value * factor for key, value in self.sigmas.items()}
+
+
+def interval_factor(n_groups: int) -> float:
+    """``t_(n-1, 0.975) / z_0.975``: Tukey's t interval over the normal one for a jackknife over ``n`` groups."""
+    return float(t.ppf(0.975, n_groups - 1) / norm.ppf(0.975))
 
 
 def without_frames(state: BundleState, frames: NDArray[np.int64]) -> BundleState:
     """The state without the observations of ``frames``; points left with fewer than 2 are dropped."""
     keep_obs = ~np.isin(state.obs_frame, frames)
     counts = np.bincount(state.obs_point[keep_obs], minlength=len(state.points))
-    keep_point = counts >= 2
-    keep_obs &= keep_point[state.obs_point]
-    renumber = np.cumsum(keep_point) - 1
-    return dataclasses.replace(
-        state, points=state.points[keep_point],
-        point_ids=tuple(i for i, k in zip(state.point_ids, keep_point) if k),
-        obs_camera=state.obs_camera[keep_obs], obs_frame=state.obs_frame[keep_obs],
-        obs_point=renumber[state.obs_point[keep_obs]], obs_xy=state.obs_xy[keep_obs],
-    )
+    return state.subset(counts >= 2, keep_obs)
 
 
 def _path_scale(state: BundleState, frames: NDArray[np.int64]) -> float:

@@ -224,18 +224,6 @@ def principal_point_limit_px(image_size: tuple[int, int]) -> float:
     return max(1.0, 0.002 * float(np.hypot(*image_size)))
 
 
-def _subset(state: BundleState, keep_point: NDArray[np.bool_]) -> BundleState:
-    """The state restricted to the points ``keep_point`` (whole tracks) and their observations."""
-    index = np.cumsum(keep_point) - 1
-    kept = keep_point[state.obs_point]
-    return dataclasses.replace(
-        state, points=state.points[keep_point],
-        point_ids=tuple(int(i) for i, k in zip(state.point_ids, keep_point) if k),
-        obs_camera=state.obs_camera[kept], obs_frame=state.obs_frame[kept],
-        obs_point=index[state.obs_point[kept]], obs_xy=state.obs_xy[kept],
-    )
-
-
 def _lens_params(state: BundleState, camera: int, model: str) -> NDArray[np.float64]:
     """Camera ``camera``'s COLMAP parameters in the COLMAP twin of camcal ``model``.
 
@@ -417,7 +405,7 @@ def self_calibrate(
         raise CamcalError(f"unknown lens model {unknown[0]!r}, expected one of: {', '.join(MODELS)}")
     names = state.camera_names
     held_mask = np.random.default_rng(seed).random(len(state.points)) < HELDOUT_FRACTION
-    train, heldout = _subset(state, ~held_mask), _subset(state, held_mask)
+    train, heldout = state.subset(~held_mask), state.subset(held_mask)
     free_pp = dataclasses.replace(options, refine_principal_point=principal_point != "centre")
     table: dict[str, dict[str, float]] = {name: {} for name in names}
     for model in lens_models:

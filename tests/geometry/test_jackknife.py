@@ -8,7 +8,7 @@ from test_sfm_selfcal import stereo_rig, tracks_state
 
 from camcal.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, bundle_adjust
-from camcal.geometry.jackknife import FrameJackknife, frame_jackknife, without_frames
+from camcal.geometry.jackknife import FrameJackknife, frame_jackknife, interval_factor, without_frames
 
 OPTIONS = BundleOptions(refine_principal_point=True)
 
@@ -61,7 +61,8 @@ def test_widened_sigmas_cover_as_tukeys_t_interval(n):
     replicates = (samples.sum(axis=1, keepdims=True) - samples) / (n - 1)  # each group left out in turn
     plain = np.sqrt((n - 1) / n * np.sum((replicates - replicates.mean(axis=1, keepdims=True)) ** 2, axis=1))
     error = np.abs(samples.mean(axis=1))
-    widened = plain * FrameJackknife({"x": 1.0}, {}, n, n).widened_sigmas["x"]
+    widened = plain * interval_factor(n)
+    assert FrameJackknife({"x": 2.0}, {}, n, n).widened_sigmas == {"x": 2.0 * interval_factor(n)}
     assert np.mean(error < 1.96 * widened) == pytest.approx(0.95, abs=0.006)
     assert np.mean(error < 1.96 * plain) < 0.95 - 0.25 / n  # the plain sigmas fall short by about 0.35 / n
     assert np.mean(error < 2 * plain) < 0.95
