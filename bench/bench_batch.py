@@ -32,9 +32,9 @@ import numpy as np
 import OpenEXR
 
 from camcal.batch import make_job, process_frame, run_batch
-from camcal.geometry.distortion import Distortion
+from camcal.model.distortion import Distortion
 from camcal.geometry.undistort import undistort_images
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 from camcal.synthetic import example_camera
 
 SIZE = (2048, 1080)

@@ -40,7 +40,7 @@ import numpy as np
 from camcal.cli import main
 from camcal.geometry.board import detect_in_images, frame_number, parse_board
 from camcal.geometry.zhang import calibrate_board
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "stereo_chessboard"
 PATTERN = (9, 6)

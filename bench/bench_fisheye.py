@@ -25,9 +25,9 @@ import time
 import cv2
 import numpy as np
 
-from camcal.geometry.distortion import Distortion
+from camcal.model.distortion import Distortion
 from camcal.geometry.undistort import make_undistorter
-from camcal.rig import Camera
+from camcal.model.rig import Camera
 
 SIZE = (1920, 1080)
 K = np.array([[560.0, 0.0, 962.4], [0.0, 558.7, 537.9], [0.0, 0.0, 1.0]])

@@ -21,10 +21,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from camcal.geometry.board import Detection, parse_board
-from camcal.geometry.camera import rotation_angle_deg
-from camcal.geometry.distortion import Distortion
+from camcal.model.camera import rotation_angle_deg
+from camcal.model.distortion import Distortion
 from camcal.geometry.zhang import calibrate_board
-from camcal.rig import Camera
+from camcal.model.rig import Camera
 
 SIZE = (1280, 800)
 SIGMA_PX = 0.2

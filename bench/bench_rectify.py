@@ -17,9 +17,9 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from camcal.geometry.distortion import Distortion
+from camcal.model.distortion import Distortion
 from camcal.geometry.rectify import RectifyWarper, rectify_calibrated
-from camcal.rig import Camera, Rig
+from camcal.model.rig import Camera, Rig
 
 SIZE = (4096, 2160)
 REPEATS = 3

@@ -9,7 +9,7 @@ import time
 import cv2
 import numpy as np
 
-from camcal.geometry.distortion import Distortion
+from camcal.model.distortion import Distortion
 from camcal.geometry.undistort import make_undistorter
 from camcal.synthetic import example_camera
 

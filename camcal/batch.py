@@ -65,13 +65,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.colour.fitfile import ColourFit, load_fit
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.remap import RemapMaps, build_maps
 from camcal.geometry.undistort import MODES, make_undistorter
 from camcal.io.frames import ImageFrame, frame_format, read_frame, write_frame
-from camcal.io.jsonfile import read_json, write_json
-from camcal.progress import Progress
-from camcal.rig import Camera, Rig
+from camcal.base.jsonfile import read_json, write_json
+from camcal.base.progress import Progress
+from camcal.model.rig import Camera, Rig
 
 __all__ = [
     "GEOMETRY",
@@ -496,7 +496,7 @@ def completed_frames(job: BatchJob, frames: Sequence[int]) -> tuple[int, ...]:
 
 
 def _remove_stale_temporaries(output: Path) -> None:
-    """Temporary files :func:`camcal.io.atomic.atomic_path` left for ``output`` when a run was killed."""
+    """Temporary files :func:`camcal.base.atomic.atomic_path` left for ``output`` when a run was killed."""
     for stale in output.parent.glob(f".{glob.escape(output.name)}.*"):
         stale.unlink(missing_ok=True)
 
@@ -606,7 +606,7 @@ def run_batch(
     retries : int
         Dask's automatic retries of a failed frame before it is reported.
     progress : bool
-        Draw a progress line (:class:`camcal.progress.Progress`) on stderr.
+        Draw a progress line (:class:`camcal.base.progress.Progress`) on stderr.
 
     Returns
     -------

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 from camcal import resources
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = [
     "ADDON_PACKAGE",

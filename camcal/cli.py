@@ -4,7 +4,7 @@ Every verb prints a short human summary and writes its outputs atomically.
 
 Errors, for every verb and every input:
 
-- a user's mistake (:class:`~camcal.errors.CamcalError`, an ``OSError`` on a
+- a user's mistake (:class:`~camcal.base.errors.CamcalError`, an ``OSError`` on a
   path the user gave, a file that does not decode) prints one line
   ``camcal: error: ...`` on stderr and exits with code 2 (argparse does the
   same for malformed command lines);
@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from camcal import __version__
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = [
     "EXIT_BAD_INPUT",
@@ -307,7 +307,7 @@ def _register_blender(subparsers) -> None:
 
 def _blender_import(args: argparse.Namespace) -> int:
     from camcal.blender_bridge import import_rig_to_blend
-    from camcal.rig import Rig
+    from camcal.model.rig import Rig
 
     Rig.load(args.rig)  # a bad rig file fails here, in one line, before Blender starts
     summary = import_rig_to_blend(
@@ -348,7 +348,7 @@ def _image_size(value: Sequence[int]) -> tuple[int, int]:
 
 
 def _rig_show(args: argparse.Namespace) -> int:
-    from camcal.rig import Rig
+    from camcal.model.rig import Rig
 
     rig = Rig.load(args.rig)
     print(rig.summary())
@@ -408,7 +408,7 @@ def _rig_export(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from camcal.io.interchange import export_rig
-    from camcal.rig import Rig
+    from camcal.model.rig import Rig
 
     result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig,
                         stmaps=args.stmaps)
@@ -424,7 +424,7 @@ def _rig_import(args: argparse.Namespace) -> int:
 
     from camcal.io.interchange import import_rig
     from camcal.io.ply import write_points_ply
-    from camcal.rig import make_provenance
+    from camcal.model.rig import make_provenance
 
     result = import_rig(args.file, args.fmt,
                         image_size=None if args.image_size is None else _image_size(args.image_size))
@@ -446,7 +446,7 @@ def _rig_import(args: argparse.Namespace) -> int:
 def _calibrate_dlt(args: argparse.Namespace) -> int:
     from camcal.geometry.dlt import calibrate_dlt
     from camcal.io.points_csv import read_correspondences
-    from camcal.rig import Rig, make_provenance
+    from camcal.model.rig import Rig, make_provenance
 
     image_size = _image_size(args.image_size)
     X, x = read_correspondences(args.points)
@@ -499,7 +499,7 @@ def _calibrate_board(args: argparse.Namespace) -> int:
 
     from camcal.geometry.board import default_cache_dir, detect_in_images, frame_number, parse_board
     from camcal.geometry.zhang import calibrate_board, quality_problems
-    from camcal.progress import Progress
+    from camcal.base.progress import Progress
     from camcal.report.calibration import write_report
 
     board = parse_board(args.board)
@@ -632,7 +632,7 @@ def _solve(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from camcal.geometry.sfm import LENS_MODELS, MODELS, collect_images, solve_pycolmap_plain, solve_sfm
-    from camcal.rig import Rig
+    from camcal.model.rig import Rig
 
     folders = [Path(folder) for folder in args.folders]
     if args.camera:
@@ -824,7 +824,7 @@ def _distortion_fit(args: argparse.Namespace) -> int:
 
     from camcal.geometry.plumbline import fit_plumbline, lines_from_images, read_lines
     from camcal.io.frames import imread
-    from camcal.io.jsonfile import write_json
+    from camcal.base.jsonfile import write_json
 
     if bool(args.images) == bool(args.lines):
         raise CamcalError("give either IMAGES or --lines LINES.json (not both)")
@@ -873,8 +873,8 @@ def _distortion_fit(args: argparse.Namespace) -> int:
 
 def _rectify(args: argparse.Namespace) -> int:
     from camcal.geometry.rectify import RectifyWarper, match_images, read_matches_csv, rectify
-    from camcal.io.jsonfile import write_json
-    from camcal.rig import Rig
+    from camcal.base.jsonfile import write_json
+    from camcal.model.rig import Rig
 
     if not 0.0 <= args.alpha <= 1.0:
         raise CamcalError(f"--alpha must be in [0, 1], got {args.alpha}")
@@ -938,7 +938,7 @@ def _register_distortion(subparsers) -> None:
 
 def _undistort(args: argparse.Namespace) -> int:
     from camcal.geometry.undistort import undistort_images
-    from camcal.rig import Rig
+    from camcal.model.rig import Rig
 
     rig = Rig.load(args.rig)
     rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan,
@@ -979,7 +979,7 @@ def _register_undistort(subparsers) -> None:
 
 def _stmap(args: argparse.Namespace) -> int:
     from camcal.geometry.stmap import write_stmaps
-    from camcal.rig import Rig
+    from camcal.model.rig import Rig
 
     paths = write_stmaps(Rig.load(args.rig), args.camera, args.out, args.overscan)
     print(f"ST-maps of {args.camera!r} with overscan {args.overscan:g}")
@@ -1432,7 +1432,7 @@ def _colour_match(args: argparse.Namespace) -> int:
     if images:
         rig = None
         if args.rig:
-            from camcal.rig import Rig
+            from camcal.model.rig import Rig
 
             rig = Rig.load(args.rig)
         result = match_image_files(images, rig=rig, rectified=args.rectified, fits=fits, encoding=args.encoding,

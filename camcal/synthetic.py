@@ -14,9 +14,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from camcal.geometry.camera import look_at
-from camcal.geometry.distortion import Distortion
-from camcal.rig import Camera
+from camcal.model.camera import look_at
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera
 
 __all__ = ["example_camera", "example_stereo_rig", "points_in_view", "procedural_texture", "colour_texture", "layered_stereo_pair",
            "room_corner_planes", "orbit_set_planes", "render_planes", "render_stereo_sequence", "orbit_rig_poses",

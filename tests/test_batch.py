@@ -26,11 +26,11 @@ from camcal.batch import (
 from camcal.cli import main
 from camcal.colour.characterise import characterise
 from camcal.colour.patches import PatchSet
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
 from camcal.geometry.undistort import make_undistorter
 from camcal.io.frames import read_frame
-from camcal.rig import Rectification, Rig
+from camcal.model.rig import Rectification, Rig
 from camcal.synthetic import example_camera
 
 import cv2  # noqa: E402  (after camcal.io.frames: EXR enabled in OpenCV)

@@ -9,7 +9,7 @@ import pytest
 from camcal import __version__
 from camcal.cli import build_parser, main
 from camcal.io.points_csv import write_correspondences
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 from camcal.synthetic import example_camera, points_in_view
 
 

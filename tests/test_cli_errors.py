@@ -14,7 +14,7 @@ import pytest
 from camcal import cli
 from camcal.cli import main
 from camcal.io.points_csv import write_correspondences
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 from camcal.synthetic import example_camera, points_in_view
 
 
@@ -240,7 +240,7 @@ def test_os_error_on_a_user_path_is_bad_input(monkeypatch, inputs, capsys):
 
 
 def test_camcal_error_is_not_a_value_error():
-    from camcal.errors import CamcalError
+    from camcal.base.errors import CamcalError
 
     assert not issubclass(CamcalError, ValueError)
 

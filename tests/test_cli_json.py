@@ -10,7 +10,7 @@ import pytest
 from camcal.cli import SUMMARY_FORMAT, SUMMARY_VERSION, main
 from camcal.colour.fitfile import load_fit
 from camcal.colour.patches import PatchSet, write_patch_csv
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 from camcal.synthetic import example_camera
 
 

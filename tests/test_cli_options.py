@@ -8,8 +8,8 @@ import pytest
 
 import camcal.geometry.sfm as sfm
 from camcal.cli import build_parser, expand_glob, main
-from camcal.errors import CamcalError
-from camcal.rig import Rig
+from camcal.base.errors import CamcalError
+from camcal.model.rig import Rig
 from camcal.synthetic import example_camera
 
 # every NAME=VALUE option: (verb argv before the option, option, the rest of a valid command line)

@@ -22,7 +22,7 @@ import pytest
 
 from camcal.cli import main
 from camcal.demo import COLOUR_EXPORTS_SECTION, QUICK, STAGES, make_truth, reference_XYZ, run_demo
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 # .ci/run installs Chromium and sets this: there the browser tests must run, not skip

@@ -28,5 +28,5 @@ def test_no_private_name_is_imported_across_camcal_modules():
 
 def test_the_check_sees_a_private_import(tmp_path):
     sample = tmp_path / "sample.py"
-    sample.write_text("from camcal.colour.spectral import _resample\nfrom camcal.rig import Rig\n")
+    sample.write_text("from camcal.colour.spectral import _resample\nfrom camcal.model.rig import Rig\n")
     assert private_imports(sample) == ["camcal.colour.spectral._resample"]

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from camcal.resources import addon_dir, ocio_configs_dir
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 from camcal.synthetic import example_camera
 
 ROOT = Path(__file__).resolve().parents[1]

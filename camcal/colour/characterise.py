@@ -44,8 +44,8 @@ from camcal.colour.models import fit_model, parse_model_spec
 from camcal.colour.patches import PatchSet
 from camcal.colour.select import Selection, select_model
 from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ
-from camcal.errors import CamcalError
-from camcal.io.jsonfile import utc_timestamp
+from camcal.base.errors import CamcalError
+from camcal.base.jsonfile import utc_timestamp
 
 __all__ = ["ChartPatches", "Characterisation", "white_from_name", "patches_from_chart",
            "neutral_indices", "characterise"]

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = [
     "CHART_ALIASES",

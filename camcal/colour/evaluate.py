@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from camcal.errors import CamcalError
-from camcal.io.atomic import atomic_path
+from camcal.base.errors import CamcalError
+from camcal.base.atomic import atomic_path
 
 __all__ = [
     "DELTA_E_METHODS",

@@ -76,8 +76,8 @@ from camcal.colour.evaluate import DeltaEStats, delta_E
 from camcal.colour.export_ocio import LUT_SIZES, BakedTransform, LogShaper, bake_fit, chart_gamut_samples
 from camcal.colour.fitfile import ColourFit
 from camcal.colour.linearise import ChannelCurve
-from camcal.errors import CamcalError
-from camcal.io.atomic import atomic_path
+from camcal.base.errors import CamcalError
+from camcal.base.atomic import atomic_path
 
 __all__ = [
     "D50_XYZ",

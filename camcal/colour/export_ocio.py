@@ -66,8 +66,8 @@ from camcal import resources
 from camcal.colour.evaluate import DeltaEStats, delta_E
 from camcal.colour.fitfile import ColourFit
 from camcal.colour.linearise import Linearisation
-from camcal.errors import CamcalError
-from camcal.io.atomic import atomic_write_text
+from camcal.base.errors import CamcalError
+from camcal.base.atomic import atomic_write_text
 
 __all__ = [
     "STUDIO_CONFIG",

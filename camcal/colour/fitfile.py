@@ -106,15 +106,15 @@ import numpy as np
 
 from camcal.colour.linearise import CURVE_KINDS, Linearisation
 from camcal.colour.models import MODEL_KINDS, OBJECTIVES, RBF_KERNELS, LinearTermsModel, RBFModel, model_from_dict
-from camcal.errors import CamcalError
-from camcal.io.fields import boolean_field as _boolean
-from camcal.io.fields import integer_field as _integer
-from camcal.io.fields import keys_field as _keys
-from camcal.io.fields import matrix_field as _matrix
-from camcal.io.fields import number_field as _number
-from camcal.io.fields import string_field as _string
-from camcal.io.fields import vector_field as _vector
-from camcal.io.jsonfile import read_json, write_json
+from camcal.base.errors import CamcalError
+from camcal.base.fields import boolean_field as _boolean
+from camcal.base.fields import integer_field as _integer
+from camcal.base.fields import keys_field as _keys
+from camcal.base.fields import matrix_field as _matrix
+from camcal.base.fields import number_field as _number
+from camcal.base.fields import string_field as _string
+from camcal.base.fields import vector_field as _vector
+from camcal.base.jsonfile import read_json, write_json
 
 __all__ = [
     "FORMAT",
@@ -139,7 +139,7 @@ VERSION = 1
 
 # --------------------------------------------------------------------------
 # Schema checking: each helper names the field path in its error (the generic
-# ones are camcal.io.fields'; these are the colour file's own, public for the
+# ones are camcal.base.fields'; these are the colour file's own, public for the
 # other kinds: camcal.colour.matchfile).
 
 

@@ -68,7 +68,7 @@ from camcal.colour.patches import PatchSet
 from camcal.colour import spectral
 from camcal.colour.spectral import CAT_TRANSFORMS, reflectance_set
 from camcal.colour.ssf import Sensitivities, illuminant_spd
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = [
     "ROUTES",

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = [
     "CURVE_KINDS",

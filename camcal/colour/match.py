@@ -106,7 +106,7 @@ from camcal.colour.match_models import LUT_SMOOTHING
 from camcal.colour.matchfile import ColourMatch, match_provenance
 from camcal.colour.robust import RobustFit, fit_match_model
 from camcal.colour.spectral import adapt_XYZ
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.correspondence import Correspondences, stereo_correspondences
 
 __all__ = [
@@ -442,7 +442,7 @@ def match_image_files(
         Two entries ``{target_name: path, source_name: path}`` in that order:
         the first camera is the target (A), the second is matched to it (B).
     rig
-        A :class:`camcal.rig.Rig` holding both cameras, or ``None``. With a
+        A :class:`camcal.model.rig.Rig` holding both cameras, or ``None``. With a
         rig, the left view is the camera further along the rectified x axis'
         negative side; unless ``rectified``, both images are rectified with
         :func:`camcal.geometry.rectify.rectify_calibrated` (undistortion and

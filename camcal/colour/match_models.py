@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from camcal.colour.models import LinearTermsModel, parse_model_spec
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = [
     "MATCH_MODELS",

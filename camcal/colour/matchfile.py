@@ -21,9 +21,9 @@ from camcal.colour.linearise import Linearisation
 from camcal.colour.match_models import Lut3DModel, MATCH_MODELS, MatchModel
 from camcal.colour.models import model_from_dict
 from camcal.colour.robust import ROBUST_METHODS
-from camcal.errors import CamcalError
-from camcal.io.jsonfile import utc_timestamp
-from camcal.io.fields import integer_field, keys_field, matrix_field, number_field, string_field, vector_field
+from camcal.base.errors import CamcalError
+from camcal.base.jsonfile import utc_timestamp
+from camcal.base.fields import integer_field, keys_field, matrix_field, number_field, string_field, vector_field
 
 __all__ = [
     "match_provenance",

@@ -59,7 +59,7 @@ from typing import Any
 
 import numpy as np
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = [
     "MODEL_KINDS",

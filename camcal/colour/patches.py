@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.io.points_csv import finite_numbers
 
 __all__ = ["PatchSet", "read_patch_csv", "write_patch_csv"]

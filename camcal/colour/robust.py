@@ -15,7 +15,7 @@ from camcal.colour.match_models import (
     LUT_SIZE, LUT_SMOOTHING, Lut3DModel, MatchModel, parse_match_model, trilinear_weights,
 )
 from camcal.colour.models import LinearTermsModel, expand, parse_model_spec
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = [
     "ROBUST_METHODS",

@@ -41,7 +41,7 @@ import numpy as np
 
 from camcal.colour.evaluate import delta_E, leave_one_out_predictions
 from camcal.colour.models import ModelSpec, fit_model, parse_model_spec
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = ["RIDGE_GRID", "N_REFINE", "TIE", "Candidate", "Selection", "select_model"]
 

@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = [
     "CAMERAS",

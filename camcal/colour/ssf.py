@@ -70,9 +70,9 @@ from camcal.colour.spectral import (
     estimate_sensitivities,
     mu_factor,
 )
-from camcal.errors import CamcalError
-from camcal.io.atomic import atomic_write_text
-from camcal.io.jsonfile import read_json, utc_timestamp, write_json
+from camcal.base.errors import CamcalError
+from camcal.base.atomic import atomic_write_text
+from camcal.base.jsonfile import read_json, utc_timestamp, write_json
 from camcal.io.points_csv import finite_numbers
 
 __all__ = [
@@ -705,7 +705,7 @@ def plot_sensitivities(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from camcal.io.atomic import atomic_path
+    from camcal.base.atomic import atomic_path
 
     path = Path(path)
     wl = sens.wavelengths

@@ -75,7 +75,7 @@ from camcal.demo.stages_geometry import (
 )
 from camcal.demo.stages_interchange import stage_rig_export
 from camcal.demo.truth import make_truth, reference_XYZ, true_match_matrix
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = [
     "COLOUR_EXPORTS_SECTION",

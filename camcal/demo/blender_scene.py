@@ -28,7 +28,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = ["render_shots", "project_in_blend"]
 

@@ -13,8 +13,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.errors import CamcalError
-from camcal.rig import Rig
+from camcal.base.errors import CamcalError
+from camcal.model.rig import Rig
 
 __all__ = [
     "COLOUR_EXPORTS_SECTION",

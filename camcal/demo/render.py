@@ -14,8 +14,8 @@ from camcal.demo.report import img_tag, plot_images
 from camcal.demo.truth import (
     board_outline, chart_albedos, make_chart_quads, make_match_quads, room_quads, true_match_matrix,
 )
-from camcal.errors import CamcalError
-from camcal.rig import Camera
+from camcal.base.errors import CamcalError
+from camcal.model.rig import Camera
 
 __all__ = [
     "stage_render",
@@ -62,7 +62,7 @@ def _write_plate(render: Path, maps, out: Path, bits: int) -> Path:
     import cv2  # noqa: PLC0415
 
     from camcal.geometry.stmap import read_exr  # noqa: PLC0415
-    from camcal.io.atomic import atomic_path  # noqa: PLC0415
+    from camcal.base.atomic import atomic_path  # noqa: PLC0415
 
     rgb = read_exr(render)[..., :3]
     plate = np.clip(cv2.remap(rgb, maps[0], maps[1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT), 0.0, 1.0)

@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 
 from camcal.demo.core import COLOUR_EXPORTS_SECTION, DemoContext, DemoReport, format_number
 from camcal.report import RESIDUAL_LABEL
-from camcal.rig import Camera
+from camcal.model.rig import Camera
 
 __all__ = [
     "img_tag",
@@ -39,7 +39,7 @@ def _pyplot():
 
 
 def _save(fig, path: Path) -> Path:
-    from camcal.io.atomic import atomic_path  # noqa: PLC0415
+    from camcal.base.atomic import atomic_path  # noqa: PLC0415
 
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=90, format="png")
@@ -137,7 +137,7 @@ def write_html(report: DemoReport, out_dir: str | os.PathLike) -> Path:
     (:data:`COLOUR_EXPORTS_SECTION`) and the time per stage.
     """
     from camcal import __version__  # noqa: PLC0415
-    from camcal.io.atomic import atomic_write_text  # noqa: PLC0415
+    from camcal.base.atomic import atomic_write_text  # noqa: PLC0415
 
     out_dir = Path(out_dir)
     n_fail = len(report.failed)

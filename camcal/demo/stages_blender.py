@@ -8,8 +8,8 @@ import html
 import numpy as np
 
 from camcal.demo.core import DemoContext, DemoRow, ReportSection, StageResult, command_line, run_cli
-from camcal.geometry.distortion import Distortion
-from camcal.rig import Rig
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Rig
 
 __all__ = [
     "stage_blender_import",

@@ -13,9 +13,9 @@ from numpy.typing import NDArray
 from camcal.demo.core import DemoContext, DemoRow, ReportSection, StageResult, command_line, run_cli
 from camcal.demo.report import img_tag, plot_epipolar, plot_residuals
 from camcal.demo.truth import board_corners
-from camcal.geometry.camera import pixels_from_colmap, rotation_angle_deg, similarity_Umeyama1991
-from camcal.geometry.distortion import Distortion
-from camcal.rig import Rig
+from camcal.model.camera import pixels_from_colmap, rotation_angle_deg, similarity_Umeyama1991
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Rig
 
 __all__ = [
     "stage_calibrate_board",
@@ -79,7 +79,7 @@ def stage_calibrate_board(ctx: DemoContext) -> StageResult:
 
 
 def stage_distortion_fit(ctx: DemoContext) -> StageResult:
-    from camcal.io.jsonfile import read_json  # noqa: PLC0415
+    from camcal.base.jsonfile import read_json  # noqa: PLC0415
 
     stage = "distortion fit"
     images = ctx.need("board_images", stage)["left"]

@@ -7,7 +7,7 @@ import html
 import numpy as np
 
 from camcal.demo.core import DemoContext, DemoRow, ReportSection, StageResult, command_line, run_cli
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 
 __all__ = ["stage_rig_export"]
 

@@ -8,10 +8,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.demo.core import DemoConfig, DemoTruth, FULL
-from camcal.errors import CamcalError
-from camcal.geometry.camera import look_at
-from camcal.geometry.distortion import Distortion
-from camcal.rig import Camera, Frame, Rig, make_provenance
+from camcal.base.errors import CamcalError
+from camcal.model.camera import look_at
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera, Frame, Rig, make_provenance
 
 __all__ = [
     "board_corners",

@@ -62,8 +62,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.errors import CamcalError
-from camcal.io.atomic import atomic_path
+from camcal.base.errors import CamcalError
+from camcal.base.atomic import atomic_path
 from camcal.io.frames import imread
 
 __all__ = [
@@ -419,7 +419,7 @@ def detect_in_images(
     progress : callable, optional
         Called as ``progress(done, total)`` after each image (and once at
         the start for the images found in the cache), e.g. the
-        :meth:`camcal.progress.Progress.report` of a progress bar.
+        :meth:`camcal.base.progress.Progress.report` of a progress bar.
     workers : int
         Images detected at once (default 1). Worker threads: OpenCV releases
         the GIL while it decodes and detects, so threads use every core

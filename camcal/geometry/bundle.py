@@ -68,8 +68,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from camcal.errors import CamcalError
-from camcal.geometry.camera import chordal_mean_rotation, pixels_from_colmap, pixels_to_colmap
+from camcal.base.errors import CamcalError
+from camcal.model.camera import chordal_mean_rotation, pixels_from_colmap, pixels_to_colmap
 from camcal.io.colmap import camera_from_colmap
 
 __all__ = [
@@ -958,7 +958,7 @@ def attach_board(state: BundleState, board: BoardObservations) -> BundleState:
     undistorted pixels). The camera centres in board units against the same
     centres in the reconstruction give the scale (median ratio of pairwise
     distances); ``world_from_board`` is the chordal mean of the per-view
-    estimates (:func:`camcal.geometry.camera.chordal_mean_rotation`), its
+    estimates (:func:`camcal.model.camera.chordal_mean_rotation`), its
     translation the mean. The state is then re-expressed in the board's frame
     (``X_board = R^T (X_world - t)``, ``rig_from_board = rig_from_world
     world_from_board``), so that the board's constant corners fix the gauge.

@@ -22,11 +22,11 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from camcal.errors import CamcalError
-from camcal.geometry.camera import compose_P, decompose_P, project_pinhole
-from camcal.geometry.distortion import Distortion
-from camcal.quality import Quality
-from camcal.rig import Camera
+from camcal.base.errors import CamcalError
+from camcal.model.camera import compose_P, decompose_P, project_pinhole
+from camcal.model.distortion import Distortion
+from camcal.model.quality import Quality
+from camcal.model.rig import Camera
 
 __all__ = ["MIN_CORRESPONDENCES", "PARAMETER_NAMES", "DLTResult", "dlt_P", "calibrate_dlt"]
 

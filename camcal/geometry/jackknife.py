@@ -57,7 +57,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 from scipy.stats import norm, t
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
 
 __all__ = ["MAX_GROUPS", "MIN_FRAMES", "FrameJackknife", "frame_jackknife", "interval_factor", "without_frames"]

@@ -47,10 +47,10 @@ import scipy.ndimage
 import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, detect_board
-from camcal.geometry.distortion import Distortion, fit_distortion
-from camcal.io.jsonfile import read_json, write_json
+from camcal.model.distortion import Distortion, fit_distortion
+from camcal.base.jsonfile import read_json, write_json
 
 __all__ = [
     "LineSet",
@@ -695,7 +695,7 @@ def fit_plumbline(
     Notes
     -----
     The polynomial model starts from the division estimate converted by
-    :func:`camcal.geometry.distortion.fit_distortion`.
+    :func:`camcal.model.distortion.fit_distortion`.
 
     Examples
     --------

@@ -34,7 +34,7 @@ Methods
   image that minimises the disparity.
 
 Fisheye lenses (``kannala-brandt``): pixels are taken through their rays
-(:meth:`~camcal.geometry.distortion.Distortion.rays_from_pixels`), so
+(:meth:`~camcal.model.distortion.Distortion.rays_from_pixels`), so
 ``H`` acts on ``K r``, defined beyond 90 degrees from the camera's axis.
 A pinhole rectified image cannot hold rays near 90 degrees from its axis
 (it stretches a ray at ``theta`` by ``1 / cos^2 theta``), so its field of
@@ -84,11 +84,11 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.remap import RemapMaps, build_maps
 from camcal.geometry.undistort import FISHEYE_FOV_DEG
 from camcal.io.frames import imread, imwrite
-from camcal.rig import Camera, Rectification, Rig, make_provenance
+from camcal.model.rig import Camera, Rectification, Rig, make_provenance
 
 __all__ = [
     "METHODS",
@@ -316,7 +316,7 @@ def _lifted(camera: Camera, points: ArrayLike) -> NDArray[np.float64]:
 
 def _border_rays(camera: Camera, pixels: NDArray[np.float64], half_angle: float | None) -> NDArray[np.float64]:
     """Rays of border pixels; a pixel beyond a fisheye model's range (the black corners of a circular
-    fisheye) takes the ray at :attr:`~camcal.geometry.distortion.Distortion.max_angle_rad` in its
+    fisheye) takes the ray at :attr:`~camcal.model.distortion.Distortion.max_angle_rad` in its
     azimuth, which a cap narrower than that range turns in anyway."""
     rays = _rays(camera, pixels)
     lost = ~np.all(np.isfinite(rays), axis=1)
@@ -645,7 +645,7 @@ def rectify_calibrated(
     Fisheye lenses: a pinhole rectified image holds only rays in front of
     its plane and stretches a ray at ``theta`` from its axis by
     ``1 / cos^2 theta``, so the frame is fitted to each camera's border
-    rays (:meth:`~camcal.geometry.distortion.Distortion.rays_from_pixels`,
+    rays (:meth:`~camcal.model.distortion.Distortion.rays_from_pixels`,
     beyond 90 degrees from the camera's own axis included) turned towards
     the rectified axis to at most ``max_fov_deg / 2``. ``H_i`` stays the
     same homography, applied to ``K_i r`` for a ray ``r``; pixels whose
@@ -660,7 +660,7 @@ def rectify_calibrated(
     --------
     >>> import numpy as np
     >>> from camcal.synthetic import example_camera
-    >>> from camcal.rig import Rig
+    >>> from camcal.model.rig import Rig
     >>> a = example_camera("a", centre=(0.0, -6.0, 1.4), target=(0.0, 0.0, 1.4))
     >>> b = example_camera("b", centre=(0.5, -6.0, 1.4), target=(0.3, 0.0, 1.4))
     >>> result = rectify_calibrated(Rig((a, b)))

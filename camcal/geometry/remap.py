@@ -16,9 +16,9 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
-from camcal.rig import Camera
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera
 
 __all__ = ["RemapMaps", "build_maps", "build_maps_reference", "undistort_homography"]
 

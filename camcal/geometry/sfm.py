@@ -6,7 +6,7 @@ cameras share one relative pose over all frames (pycolmap's rig support:
 ``RigConfig`` + ``apply_rig_config`` before mapping, so that the mapper's
 bundle adjustment keeps ``sensor_from_rig`` common to every frame).
 
-The result is a :class:`camcal.rig.Rig` whose ``frames`` hold each frame's
+The result is a :class:`camcal.model.rig.Rig` whose ``frames`` hold each frame's
 ``rig_from_world`` and whose cameras hold ``cam_from_rig`` (the first folder
 is the reference sensor, at the rig origin), plus a sibling PLY of the
 sparse points. COLMAP's pixel centre (0.5) is converted at the boundary
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import (
     BundleOptions,
     BundleResult,
@@ -48,12 +48,12 @@ from camcal.geometry.bundle import (
     state_from_reconstruction,
     state_to_reconstruction,
 )
-from camcal.geometry.camera import from_colmap, pixels_from_colmap
-from camcal.geometry.distortion import Distortion, fit_distortion
+from camcal.model.camera import from_colmap, pixels_from_colmap
+from camcal.model.distortion import Distortion, fit_distortion
 from camcal.geometry.jackknife import MAX_GROUPS, MIN_FRAMES, frame_jackknife
 from camcal.io.colmap import camera_from_colmap, camera_to_colmap
 from camcal.io.ply import write_points_ply
-from camcal.rig import Camera, Frame, Rig, make_provenance
+from camcal.model.rig import Camera, Frame, Rig, make_provenance
 
 __all__ = [
     "HELDOUT_FRACTION",
@@ -228,7 +228,7 @@ def _lens_params(state: BundleState, camera: int, model: str) -> NDArray[np.floa
     """Camera ``camera``'s COLMAP parameters in the COLMAP twin of camcal ``model``.
 
     The focal length and principal point carry over; the distortion is
-    :func:`camcal.geometry.distortion.fit_distortion` of the current one
+    :func:`camcal.model.distortion.fit_distortion` of the current one
     over the frame (a non-square focal becomes the mean focal first).
     """
     if state.models[camera] == MODELS[model]:
@@ -946,7 +946,7 @@ def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str]
 
 
 def _quality_sigma(sigmas: dict[str, float], camera: str, model: str, focal: float) -> dict[str, float]:
-    """A camera's sigmas under :mod:`camcal.quality`'s names: one focal ``f`` is ``fx`` and ``fy``,
+    """A camera's sigmas under :mod:`camcal.model.quality`'s names: one focal ``f`` is ``fx`` and ``fy``,
     COLMAP's division ``k`` becomes camcal's ``lambda = k / f^2`` (focal's own spread neglected),
     SIMPLE_RADIAL's ``k`` is ``k1``."""
     prefix = f"{camera}."

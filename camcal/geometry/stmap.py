@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from camcal.geometry.undistort import make_undistorter
 from camcal.io.frames import imread, imwrite
-from camcal.rig import Camera, Rig, make_provenance
+from camcal.model.rig import Camera, Rig, make_provenance
 
 __all__ = ["STMaps", "st_from_pixels", "pixels_from_st", "make_stmaps", "write_exr", "read_exr", "write_stmaps"]
 

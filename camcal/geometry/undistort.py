@@ -39,11 +39,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
 from camcal.geometry.remap import RemapMaps, build_maps, undistort_homography
 from camcal.io.frames import imread, imwrite
-from camcal.rig import Camera, Rectification, Rig, make_provenance
+from camcal.model.rig import Camera, Rectification, Rig, make_provenance
 
 __all__ = ["MODES", "FISHEYE_FOV_DEG", "UndistortedView", "Undistorter", "undistorted_view", "make_undistorter", "undistort_images"]
 
@@ -112,7 +112,7 @@ def undistorted_view(
     the source frame. ``keep``: the source border undistorted by the model
     bounds the canvas; ``K_new = K`` shifted by the canvas origin. With a
     field-of-view cap, each border pixel's ray
-    (:meth:`~camcal.geometry.distortion.Distortion.rays_from_pixels`) is
+    (:meth:`~camcal.model.distortion.Distortion.rays_from_pixels`) is
     turned towards the axis to at most ``max_fov_deg / 2`` before its
     pinhole pixel is taken.
     """

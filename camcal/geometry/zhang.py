@@ -44,7 +44,7 @@ Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
 board's units (its square size); pixel (0, 0) is the centre of the
 top-left pixel; skew is fixed at 0 (COLMAP's models have none).
-Distortion models (see :mod:`camcal.geometry.distortion`): ``polynomial``
+Distortion models (see :mod:`camcal.model.distortion`): ``polynomial``
 (k1, k2), ``opencv`` (k1, k2, p1, p2, k3) or ``division`` (Strand & Hayman
 lambda in 1/px^2, centred on the principal point, fx = fy; OpenCV has no
 such model: it is initialised from OpenCV's k1 as ``lambda = -k1 / f^2``)
@@ -74,13 +74,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection, frame_number
 from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState, bundle_adjust
 from camcal.geometry.bundle import residuals as board_residuals
-from camcal.geometry.camera import chordal_mean_rotation, rotation_angle_deg
-from camcal.geometry.distortion import Distortion
-from camcal.rig import Camera, Rig, make_provenance
+from camcal.model.camera import chordal_mean_rotation, rotation_angle_deg
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera, Rig, make_provenance
 
 __all__ = ["MODELS", "AUTO_MODELS", "MIN_IMAGES", "CalibrationResult", "calibrate_board", "quality_problems"]
 
@@ -128,7 +128,7 @@ class CalibrationResult:
         fx, fy, cx, cy, the distortion parameters and, for the other
         cameras, ``rotation_deg``, ``baseline_rel`` and
         ``baseline_direction_deg`` from the reference; see
-        :mod:`camcal.quality`).
+        :mod:`camcal.model.quality`).
     residuals_px : ndarray, shape (M, 2)
         ``projected - detected`` for every corner kept, in pixels.
     points_px : ndarray, shape (M, 2)
@@ -220,7 +220,7 @@ def _average_rotation(rotations: NDArray[np.float64]) -> tuple[NDArray[np.float6
     -----
     Start from the medoid (least summed angle to the others), keep the
     rotations within ``max(1 deg, 3 x median angle)`` of it, and return
-    their chordal L2 mean (:func:`camcal.geometry.camera.chordal_mean_rotation`).
+    their chordal L2 mean (:func:`camcal.model.camera.chordal_mean_rotation`).
     """
     def angles(reference: NDArray[np.float64], many: NDArray[np.float64]) -> NDArray[np.float64]:
         cosine = (np.einsum("ij,kij->k", reference, many) - 1.0) / 2.0

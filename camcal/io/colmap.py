@@ -46,10 +46,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from camcal.errors import CamcalError
-from camcal.geometry.camera import K_from_colmap, K_to_colmap
-from camcal.geometry.distortion import Distortion
-from camcal.rig import Camera
+from camcal.base.errors import CamcalError
+from camcal.model.camera import K_from_colmap, K_to_colmap
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera
 
 __all__ = ["ColmapCamera", "camera_to_colmap", "camera_from_colmap"]
 
@@ -135,7 +135,7 @@ def camera_from_colmap(
     params : array_like
         COLMAP's parameter vector, in COLMAP's pixel convention.
     R, c : pose, world -> camera rotation and centre (see
-        :func:`camcal.geometry.camera.from_colmap`).
+        :func:`camcal.model.camera.from_colmap`).
     """
     params = [float(v) for v in np.asarray(params, dtype=np.float64).ravel()]
     expected = {

@@ -32,15 +32,15 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.errors import CamcalError
-from camcal.geometry.camera import from_colmap, to_colmap
-from camcal.geometry.distortion import Distortion
-from camcal.io.atomic import atomic_write_text
+from camcal.base.errors import CamcalError
+from camcal.model.camera import from_colmap, to_colmap
+from camcal.model.distortion import Distortion
+from camcal.base.atomic import atomic_write_text
 from camcal.io.colmap import camera_from_colmap, camera_to_colmap
 from camcal.io.interchange import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
 from camcal.io.ply import read_points_ply
 from camcal.io.points_csv import finite_numbers
-from camcal.rig import Camera, Rig
+from camcal.model.rig import Camera, Rig
 
 __all__ = ["FILES", "export", "load"]
 

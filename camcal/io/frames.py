@@ -45,8 +45,8 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from camcal.errors import CamcalError  # noqa: E402
-from camcal.io.atomic import atomic_path  # noqa: E402
+from camcal.base.errors import CamcalError  # noqa: E402
+from camcal.base.atomic import atomic_path  # noqa: E402
 
 __all__ = ["FORMATS", "ImageFrame", "frame_format", "imread", "imwrite", "read_frame", "write_frame"]
 

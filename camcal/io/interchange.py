@@ -15,7 +15,7 @@ nuke        :mod:`camcal.io.nuke`                .nk (Camera3 nodes, STMap chain
 
 Each format holds a subset of camcal's camera model. When a camera's lens
 (or skew) has no exact counterpart, the exporter fits the nearest model the
-format holds (:func:`camcal.geometry.distortion.fit_distortion`) and
+format holds (:func:`camcal.model.distortion.fit_distortion`) and
 reports the largest pixel distance between where the camcal camera and the
 exported one put the same rays (:func:`max_pixel_residual`, over a 16 px
 grid of the whole frame); conversions without loss say so.
@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion, fit_distortion, frame_grid
-from camcal.rig import Camera, Rig
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion, fit_distortion, frame_grid
+from camcal.model.rig import Camera, Rig
 
 __all__ = [
     "FORMATS",
@@ -176,13 +176,13 @@ def nearest_camera(
         True when the format holds a distortion exactly.
     fit_model : str
         The camcal model to fit when it does not (``opencv``,
-        ``polynomial``; see :func:`~camcal.geometry.distortion.fit_distortion`).
+        ``polynomial``; see :func:`~camcal.model.distortion.fit_distortion`).
     target_name : str
         The format's name for its model (reported).
     skew : bool
         Whether the format holds ``K[0, 1]``; when not, it is set to 0.
     with_k3 : bool, optional
-        Passed to :func:`~camcal.geometry.distortion.fit_distortion`.
+        Passed to :func:`~camcal.model.distortion.fit_distortion`.
 
     Returns
     -------

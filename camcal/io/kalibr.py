@@ -37,11 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
-from camcal.io.atomic import atomic_write_text
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
+from camcal.base.atomic import atomic_write_text
 from camcal.io.interchange import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
-from camcal.rig import Camera, Rig
+from camcal.model.rig import Camera, Rig
 
 __all__ = ["export", "load"]
 

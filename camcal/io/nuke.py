@@ -43,9 +43,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
-from camcal.io.atomic import atomic_write_text
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
+from camcal.base.atomic import atomic_write_text
 from camcal.io.interchange import (
     ExportResult,
     ImportResult,
@@ -53,7 +53,7 @@ from camcal.io.interchange import (
     max_pixel_residual,
     select_cameras,
 )
-from camcal.rig import Camera, Frame, Rig
+from camcal.model.rig import Camera, Frame, Rig
 
 __all__ = ["DEFAULT_HAPERTURE_MM", "nuke_intrinsics", "export", "load"]
 

@@ -53,9 +53,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
-from camcal.io.atomic import atomic_path
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
+from camcal.base.atomic import atomic_path
 from camcal.io.interchange import (
     ExportResult,
     ImportResult,
@@ -63,7 +63,7 @@ from camcal.io.interchange import (
     nearest_camera,
     select_cameras,
 )
-from camcal.rig import Camera, Rectification, Rig
+from camcal.model.rig import Camera, Rectification, Rig
 
 __all__ = ["SUFFIXES", "export", "load", "rectification_rotation"]
 

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from camcal.errors import CamcalError
-from camcal.io.atomic import atomic_path
+from camcal.base.errors import CamcalError
+from camcal.base.atomic import atomic_path
 
 __all__ = ["write_points_ply", "read_points_ply"]
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.errors import CamcalError
-from camcal.io.atomic import atomic_path
+from camcal.base.errors import CamcalError
+from camcal.base.atomic import atomic_path
 
 __all__ = ["CORRESPONDENCE_HEADER", "finite_numbers", "read_correspondences", "write_correspondences"]
 

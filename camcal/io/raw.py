@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = ["RAW_SUFFIXES", "DEMOSAIC_METHODS", "RawMetadata", "RawMosaic", "RawImage", "is_raw",
            "read_raw_mosaic", "read_raw", "raw_metadata"]

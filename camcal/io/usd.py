@@ -52,9 +52,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
-from camcal.io.atomic import atomic_path
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
+from camcal.base.atomic import atomic_path
 from camcal.io.interchange import (
     ExportResult,
     ImportResult,
@@ -64,7 +64,7 @@ from camcal.io.interchange import (
     select_cameras,
 )
 from camcal.io.ply import read_points_ply
-from camcal.rig import Camera, Frame, Rig
+from camcal.model.rig import Camera, Frame, Rig
 
 __all__ = ["SUFFIXES", "METERS_PER_UNIT", "DEFAULT_APERTURE_MM", "usd_intrinsics", "export", "load"]
 

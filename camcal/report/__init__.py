@@ -16,7 +16,7 @@ Conventions every plot follows:
   from the projection to the observation. :data:`RESIDUAL_LABEL` is the
   axis / legend text.
 - Pixel (0, 0) is the centre of the top-left pixel (COLMAP's 0.5 is
-  converted at the boundary, :func:`camcal.geometry.camera.pixels_from_colmap`).
+  converted at the boundary, :func:`camcal.model.camera.pixels_from_colmap`).
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ import numpy as np
 
 from camcal.colour.characterise import Characterisation
 from camcal.colour.evaluate import DELTA_E_METHODS, delta_E, patch_table, plot_report, write_patch_table
-from camcal.io.atomic import atomic_path
+from camcal.base.atomic import atomic_path
 
 __all__ = ["write_report"]
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from camcal.colour.evaluate import delta_E, plot_report
 from camcal.colour.match import MatchResult, target_space
-from camcal.io.atomic import atomic_path
+from camcal.base.atomic import atomic_path
 from camcal.io.frames import imwrite
 
 __all__ = [

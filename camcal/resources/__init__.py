@@ -13,7 +13,7 @@ from __future__ import annotations
 import importlib.resources
 from pathlib import Path
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = ["addon_dir", "ocio_configs_dir"]
 

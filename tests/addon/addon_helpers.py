@@ -5,8 +5,8 @@ Test modules import the fixtures ``addon`` and ``bpy`` from here (a second
 is loaded as package ``camcal_rig`` (as Blender loads it, with relative
 imports); ``bpy`` resets Blender to its empty factory state around each test.
 
-Rig files are written by camcal itself (``camcal.rig.Rig.save``), and the
-reference projection is ``camcal.rig.Camera.project``: the add-on must agree
+Rig files are written by camcal itself (``camcal.model.rig.Rig.save``), and the
+reference projection is ``camcal.model.rig.Camera.project``: the add-on must agree
 with camcal on both.
 """
 
@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from camcal.blender_bridge import load_addon
-from camcal.geometry.distortion import Distortion
-from camcal.rig import Camera, Rig
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera, Rig
 
 ADDON_DIR = Path(__file__).resolve().parents[2] / "addon"
 
@@ -78,7 +78,7 @@ def frame(index, R=None, c=(0.0, 0.0, 0.0), images=None):
 
 
 def write_rig(path, cameras, frames=None, points=None):
-    """Write a rig file with camcal (validated by ``camcal.rig``) and return its path."""
+    """Write a rig file with camcal (validated by ``camcal.model.rig``) and return its path."""
     rig = {
         "format": "camcal.rig",
         "version": 1,

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from addon_helpers import camera_dict, write_rig
 from addon_helpers import addon, bpy  # noqa: F401  (fixtures)
-from camcal.geometry.distortion import Distortion
+from camcal.model.distortion import Distortion
 
 #: the render test's lens: 240 x 180, about 170 degrees across the diagonal
 SIZE = (240, 180)

@@ -8,7 +8,7 @@ import pytest
 
 from addon_helpers import blender_project, camera_dict, frame, points_in_view, project_ref, rotation, write_rig
 from addon_helpers import addon, bpy  # noqa: F401  (fixtures)
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 
 # (image size, fx, fy, principal point offset from the centre in px)
 CASES = [

@@ -11,7 +11,7 @@ from camcal.colour.chart import (
 )
 from camcal.colour.characterise import characterise, patches_from_chart
 from camcal.colour.evaluate import XYZ_to_Lab, delta_E
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 CORNERS = np.array([[150, 120], [500, 110], [510, 350], [140, 360]], float)
 

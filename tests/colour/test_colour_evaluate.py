@@ -13,7 +13,7 @@ from camcal.colour.evaluate import (
     write_patch_table,
 )
 from camcal.colour.models import fit_model
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 
 def test_stats_of_known_values():

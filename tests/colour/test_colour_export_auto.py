@@ -10,7 +10,7 @@ from camcal.colour.export_ocio import export_ocio  # noqa: E402
 from camcal.colour.fitfile import load_fit  # noqa: E402
 from camcal.colour.patches import PatchSet  # noqa: E402
 from camcal.colour.select import select_model  # noqa: E402
-from camcal.errors import CamcalError  # noqa: E402
+from camcal.base.errors import CamcalError  # noqa: E402
 from colour_export_helpers import make_fit  # noqa: E402
 
 

@@ -11,7 +11,7 @@ import pytest
 from camcal.colour.evaluate import delta_E
 from camcal.colour.export_icc import D50_XYZ, check_icc, export_icc, icc_profile_from_fit, write_icc
 from camcal.colour.lcms import lcms_to_XYZ, load_lcms
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from colour_export_helpers import code_grid, codes_of, make_fit
 
 CASES = [("matrix3x3", "gamma-offset", 4), ("matrix3x3", "gamma-offset", 2), ("matrix3x3", "lut1d", 4),

@@ -25,7 +25,7 @@ from camcal.colour.export_ocio import (  # noqa: E402
     write_ocio_config,
 )
 from camcal.colour.linearise import fit_linearisation  # noqa: E402
-from camcal.errors import CamcalError  # noqa: E402
+from camcal.base.errors import CamcalError  # noqa: E402
 from colour_export_helpers import code_grid, codes_of, make_fit  # noqa: E402
 
 XYZ_D65 = "CIE XYZ-D65 - Scene-referred"  # in camcal's base and in the ACES studio config

@@ -7,7 +7,7 @@ from camcal.colour import load_colour_file, load_fit
 from camcal.colour.characterise import characterise
 from camcal.colour.fitfile import ColourFit
 from camcal.colour.patches import PatchSet
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from camcal.colour.models import LinearTermsModel, terms_Finlayson2015
 from camcal.colour.patches import PatchSet, write_patch_csv
 from camcal.colour.spectral import camera_sensitivities, reflectance_set
 from camcal.colour.ssf import Sensitivities, estimate_from_captures, Capture, illuminant_spd, write_sensitivities
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 GRIDS = {"Nikon 5100 (NPL)": np.arange(400.0, 701.0, 10.0), "Sigma SDMerill (NPL)": np.arange(400.0, 681.0, 10.0)}
 JUDGING = ("Munsell held-out", "PMC", "CIE 1995 TCS", "NIST CQS 9.0")

@@ -9,7 +9,7 @@ from camcal.colour import ColourMatch, load_colour_file, load_match
 from camcal.colour.fitfile import FILE_KINDS, reader_of
 from camcal.colour.match_models import Lut3DModel, parse_match_model
 from camcal.colour.robust import fit_match_model
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 M_TRUE = np.array([[1.10, -0.08, 0.03], [0.05, 0.93, 0.04], [-0.02, 0.09, 0.88]])
 

@@ -11,7 +11,7 @@ from camcal.colour.match import match_charts
 from camcal.report.colour_match import write_report
 from camcal.colour.patches import PatchSet
 from camcal.colour.spectral import SimulatedCamera, camera_sensitivities, reflectance_set
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 
 NOISE = 0.002

@@ -10,8 +10,8 @@ from camcal.colour.characterise import characterise
 from camcal.colour.match import match_image_files
 from camcal.colour.matchfile import ColourMatch
 from camcal.colour.patches import PatchSet, write_patch_csv
-from camcal.errors import CamcalError
-from camcal.rig import Rig
+from camcal.base.errors import CamcalError
+from camcal.model.rig import Rig
 from camcal.synthetic import example_camera, layered_stereo_pair, procedural_texture, render_planes
 
 M_TRUE = np.array([[1.10, -0.08, 0.03], [0.05, 0.93, 0.04], [-0.02, 0.09, 0.88]])

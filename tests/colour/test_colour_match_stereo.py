@@ -17,7 +17,7 @@ from camcal.colour.evaluate import delta_E
 from camcal.colour.match import REC709_SPACE, match_images, rec709_XYZ
 from camcal.geometry.correspondence import stereo_correspondences
 from camcal.report.colour_match import write_report
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.synthetic import layered_stereo_pair
 
 NOISE = 0.003

@@ -15,7 +15,7 @@ from camcal.colour.models import (
     terms_Cheung2004,
     terms_Finlayson2015,
 )
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 RNG = np.random.default_rng(3)
 RGB = RNG.uniform(0.02, 1.0, (40, 3))

@@ -73,7 +73,7 @@ def test_auto_beats_colour_science_best_on_independent_patches(patchsets, sim):
 
 
 def test_auto_needs_patches():
-    from camcal.errors import CamcalError
+    from camcal.base.errors import CamcalError
 
     with pytest.raises(CamcalError, match="at least 6 patches"):
         characterise(PatchSet(("a", "b"), np.ones((2, 3)), np.ones((2, 3))), model="auto")

@@ -10,7 +10,7 @@ from camcal.colour.spectral import (
     mu_factor,
     reflectance_set,
 )
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 
 def test_mu_factor_is_one_for_a_colorimetric_camera():

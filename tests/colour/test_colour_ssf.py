@@ -23,7 +23,7 @@ from camcal.colour.ssf import (
     relative_rms_error,
     write_sensitivities,
 )
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 NOISE = 0.002
 GRIDS = {"Nikon 5100 (NPL)": np.arange(400.0, 701.0, 10.0), "Sigma SDMerill (NPL)": np.arange(400.0, 681.0, 10.0)}

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, detect_board, detect_in_images, frame_number, parse_board
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from camcal.cli import main
 from camcal.geometry.board import Board, detect_in_images
-from camcal.geometry.distortion import Distortion
+from camcal.model.distortion import Distortion
 from camcal.io.frames import imwrite
 
 from test_board import render_chessboard

@@ -7,7 +7,7 @@ import pytest
 import scipy.linalg
 
 import camcal.geometry.bundle as bundle_module
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import (
     BoardObservations,
     BundleOptions,

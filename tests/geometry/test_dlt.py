@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.dlt import calibrate_dlt, dlt_P
-from camcal.geometry.camera import decompose_P
+from camcal.model.camera import decompose_P
 from camcal.synthetic import example_camera, points_in_view
 
 

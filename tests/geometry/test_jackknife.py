@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from test_sfm_selfcal import stereo_rig, tracks_state
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, bundle_adjust
 from camcal.geometry.jackknife import FrameJackknife, frame_jackknife, interval_factor, without_frames
 

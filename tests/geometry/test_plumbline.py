@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
 from camcal.geometry.plumbline import (
     LineSet,
     detect_chessboard_lines,

@@ -11,8 +11,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from camcal.cli import main
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
 from camcal.geometry.rectify import (
     CentresOffLineWarning,
     RectifyWarper,
@@ -25,7 +25,7 @@ from camcal.geometry.rectify import (
     rectify_Nozick2011,
     vertical_disparity,
 )
-from camcal.rig import Camera, Rig
+from camcal.model.rig import Camera, Rig
 
 SIZE = (1280, 720)
 SIGMA_PX = 0.2
@@ -265,7 +265,7 @@ def test_mallon_whelan_metrics_of_known_homographies():
     # a pure shear tilts the vertical midline by the shear angle
     H = np.array([[1.0, math.tan(shear), 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     K_rect = np.array([[1000.0, 0, 640], [0, 1000.0, 360], [0, 0, 1]])
-    from camcal.rig import Rectification
+    from camcal.model.rig import Rectification
     item = image_deformation(dataclasses.replace(camera, rectification=Rectification(H, K_rect, (w, h))))
     assert item.orthogonality_deg == pytest.approx(90.0 - 4.0, abs=1e-9)
     # an anisotropic scale (sx, sy) makes diagonals of lengths |(sx w, +-sy h)|: equal, ratio 1

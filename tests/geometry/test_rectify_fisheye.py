@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
 from camcal.geometry.rectify import RectifyWarper, rectify_calibrated, rectify_Nozick2011, vertical_disparity
 from camcal.geometry.remap import build_maps_reference
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 from camcal.synthetic import example_stereo_rig, procedural_texture, render_planes
 
 #: two fisheye lenses (OpenCV fisheye coefficients), one-to-one up to 121 and 118 degrees off the axis

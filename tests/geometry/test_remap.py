@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from camcal.geometry.distortion import Distortion
+from camcal.model.distortion import Distortion
 from camcal.geometry.remap import build_maps, undistort_homography
 from camcal.synthetic import example_camera
 

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.errors import CamcalError
-from camcal.geometry.camera import rotation_angle_deg, similarity_Umeyama1991
+from camcal.base.errors import CamcalError
+from camcal.model.camera import rotation_angle_deg, similarity_Umeyama1991
 from camcal.geometry.sfm import collect_images, solve_sfm
 from camcal.io.ply import read_points_ply, write_points_ply
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 from camcal.synthetic import render_stereo_sequence
 
 BASELINE = 0.3

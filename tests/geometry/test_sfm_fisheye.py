@@ -9,12 +9,12 @@ from scipy.spatial.transform import Rotation
 
 import camcal.geometry.sfm as sfm
 from camcal.cli import main
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleState
-from camcal.geometry.camera import rotation_angle_deg
-from camcal.geometry.distortion import Distortion
+from camcal.model.camera import rotation_angle_deg
+from camcal.model.distortion import Distortion
 from camcal.io.colmap import camera_from_colmap
-from camcal.rig import Camera
+from camcal.model.rig import Camera
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
 
 NOISE_PX = 0.5

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleState
-from camcal.geometry.camera import rotation_angle_deg
+from camcal.model.camera import rotation_angle_deg
 from camcal.geometry.sfm import principal_point_limit_px, self_calibrate
 from camcal.io.colmap import camera_from_colmap
-from camcal.rig import Camera
+from camcal.model.rig import Camera
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
 
 NOISE_PX = 0.5
@@ -258,7 +258,7 @@ RENDERED_SCENES = {
 def test_solve_recovers_rendered_rig_at_least_as_well_as_plain_pycolmap(tmp_path, capsys, scene):
     from camcal.cli import main
     from camcal.geometry.sfm import solve_pycolmap_plain
-    from camcal.rig import Rig
+    from camcal.model.rig import Rig
     from camcal.synthetic import render_rig_orbit
 
     spec = RENDERED_SCENES[scene]

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.geometry.distortion import Distortion
+from camcal.model.distortion import Distortion
 from camcal.geometry.stmap import make_stmaps, pixels_from_st, read_exr, st_from_pixels, write_exr
 from camcal.geometry.undistort import make_undistorter
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 from camcal.synthetic import example_camera
 
 SIZE = (320, 240)

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
 from camcal.geometry.undistort import make_undistorter, undistorted_view
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 from camcal.synthetic import example_camera
 
 SIZE = (640, 480)

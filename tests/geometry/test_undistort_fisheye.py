@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
 from camcal.geometry.stmap import make_stmaps, pixels_from_st
 from camcal.geometry.undistort import FISHEYE_FOV_DEG, _border, make_undistorter, undistorted_view
-from camcal.rig import Camera
+from camcal.model.rig import Camera
 from camcal.synthetic import procedural_texture, render_planes
 
 W, H = 480, 360
@@ -110,7 +110,7 @@ def test_cli_undistorts_a_fisheye_plate_with_a_chosen_field_of_view(tmp_path, ca
     import cv2
 
     from camcal.cli import main
-    from camcal.rig import Rig
+    from camcal.model.rig import Rig
 
     rig_path = Rig((CAMERA,)).save(tmp_path / "fish.rig.json")
     plate = tmp_path / "plate.png"

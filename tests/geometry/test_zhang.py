@@ -9,12 +9,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from camcal.cli import main
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection, detect_in_images, frame_number
-from camcal.geometry.distortion import Distortion
+from camcal.model.distortion import Distortion
 from camcal.geometry.zhang import calibrate_board
 from camcal.report.calibration import write_report
-from camcal.rig import Camera, Rig
+from camcal.model.rig import Camera, Rig
 
 SIGMA_PX = 0.1
 BOARD = Board("chessboard", 12, 9, 0.04)  # 0.44 m x 0.32 m

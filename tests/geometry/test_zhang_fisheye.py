@@ -9,9 +9,9 @@ from scipy.spatial.transform import Rotation
 
 from camcal.cli import main
 from camcal.geometry.board import Board, Detection
-from camcal.geometry.distortion import Distortion
+from camcal.model.distortion import Distortion
 from camcal.geometry.zhang import _fisheye_flags, calibrate_board
-from camcal.rig import Camera, Rig
+from camcal.model.rig import Camera, Rig
 
 BOARD = Board("chessboard", 12, 9, 0.04)
 KB = ("k1", "k2", "k3", "k4")

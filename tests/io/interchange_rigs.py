@@ -3,11 +3,11 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from camcal.geometry.camera import look_at
-from camcal.geometry.distortion import Distortion
+from camcal.model.camera import look_at
+from camcal.model.distortion import Distortion
 from camcal.geometry.rectify import rectify_calibrated
 from camcal.io.ply import write_points_ply
-from camcal.rig import Camera, Frame, Rig, make_provenance
+from camcal.model.rig import Camera, Frame, Rig, make_provenance
 
 SIZE = (1280, 720)
 BROWN = Distortion("opencv", {"k1": -0.12, "k2": 0.03, "p1": 1e-4, "p2": -2e-4, "k3": -0.004})

@@ -4,8 +4,8 @@ import numpy as np
 import pycolmap
 import pytest
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
 from camcal.io.colmap import camera_from_colmap, camera_to_colmap
 from camcal.synthetic import example_camera, points_in_view
 

@@ -6,11 +6,11 @@ import numpy as np
 import pycolmap
 import pytest
 
-from camcal.errors import CamcalError
-from camcal.geometry.camera import pixels_from_colmap
+from camcal.base.errors import CamcalError
+from camcal.model.camera import pixels_from_colmap
 from camcal.io.interchange import export_rig, import_rig, max_pixel_residual
 from camcal.io.ply import read_points_ply
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 
 from interchange_rigs import division_rig, fisheye_rig, moving_rig, stereo_rig, world_points
 

@@ -6,7 +6,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.io.frames import ImageFrame, read_frame, write_frame
 
 import cv2  # noqa: E402  (after camcal.io.frames, which enables OpenEXR in OpenCV)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import yaml
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.io.interchange import export_rig, import_rig, max_pixel_residual
 
 from interchange_rigs import BROWN, RADTAN, division_rig, fisheye_rig, relative_projection_error, stereo_rig, world_points

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 from camcal.geometry.stmap import make_stmaps, read_exr
 from camcal.io.interchange import export_rig, import_rig
 

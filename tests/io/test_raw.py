@@ -12,7 +12,7 @@ from dng_writer import write_cfa_dng  # noqa: E402
 
 from camcal.cli import main  # noqa: E402
 from camcal.colour.characterise import patches_from_chart  # noqa: E402
-from camcal.errors import CamcalError  # noqa: E402
+from camcal.base.errors import CamcalError  # noqa: E402
 from camcal.io.raw import read_raw, read_raw_mosaic  # noqa: E402
 
 BLACK = (510, 512, 514, 516)  # per CFA position, row by row

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.rig import Rig
+from camcal.model.rig import Rig
 
 from interchange_rigs import division_rig, moving_rig, stereo_rig
 

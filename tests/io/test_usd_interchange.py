@@ -9,11 +9,11 @@ import pytest
 from pxr import Sdf, Usd, UsdGeom
 from scipy.spatial.transform import Rotation
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
 from camcal.io.interchange import export_rig, import_rig
 from camcal.io.ply import read_points_ply
-from camcal.rig import Camera, Rig
+from camcal.model.rig import Camera, Rig
 
 from interchange_rigs import K, SIZE, division_rig, fisheye_rig, moving_rig, stereo_rig, world_points
 

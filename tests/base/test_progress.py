@@ -2,7 +2,7 @@
 
 import io
 
-from camcal.progress import Progress
+from camcal.base.progress import Progress
 
 
 class _Terminal(io.StringIO):

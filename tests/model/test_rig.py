@@ -6,10 +6,10 @@ import os
 import numpy as np
 import pytest
 
-from camcal.errors import CamcalError
-from camcal.geometry.camera import look_at
-from camcal.geometry.distortion import Distortion
-from camcal.rig import Camera, Frame, Rectification, Rig, make_provenance
+from camcal.base.errors import CamcalError
+from camcal.model.camera import look_at
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera, Frame, Rectification, Rig, make_provenance
 from camcal.synthetic import example_camera, points_in_view
 
 

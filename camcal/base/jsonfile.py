@@ -14,8 +14,8 @@ import os
 from pathlib import Path
 from typing import Any
 
-from camcal.errors import CamcalError
-from camcal.io.atomic import atomic_write_text
+from camcal.base.errors import CamcalError
+from camcal.base.atomic import atomic_write_text
 
 __all__ = ["dumps", "read_json", "utc_timestamp", "write_json"]
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from camcal.errors import CamcalError
-from camcal.quality import Quality
-from camcal.rig import Camera, Rig
+from camcal.base.errors import CamcalError
+from camcal.model.quality import Quality
+from camcal.model.rig import Camera, Rig
 from camcal.synthetic import example_camera
 
 

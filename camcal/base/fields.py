@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = ["boolean_field", "integer_field", "keys_field", "matrix_field", "number_field", "string_field",
            "vector_field"]

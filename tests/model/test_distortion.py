@@ -4,8 +4,8 @@ import cv2
 import numpy as np
 import pytest
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
 
 W, H = 1920, 1080
 K = np.array([[1400.0, 0.0, 965.2], [0.0, 1395.0, 538.9], [0.0, 0.0, 1.0]])
@@ -120,7 +120,7 @@ def test_dict_round_trip_and_unknown_keys():
 
 # -- fits between models ------------------------------------------------------------
 
-from camcal.geometry.distortion import fit_distortion  # noqa: E402
+from camcal.model.distortion import fit_distortion  # noqa: E402
 
 
 def test_fit_recovers_a_model_of_the_same_kind():

@@ -15,7 +15,7 @@ Conventions
   camera centre; camera axes +x right, +y down, +z forward.
 - Pixel (0, 0) is the centre of the top-left pixel.
 - ``distortion`` maps undistorted pixels to distorted ones (see
-  :mod:`camcal.geometry.distortion`).
+  :mod:`camcal.model.distortion`).
 - ``rectification.H`` maps UNDISTORTED pixels of the original camera to
   rectified pixels of a camera ``K_rect`` with image size ``image_size``.
 - ``frames`` (moving rigs, e.g. SfM of a sequence) hold the rig's pose per
@@ -49,12 +49,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from camcal import __version__
-from camcal.errors import CamcalError
-from camcal.geometry.camera import compose_P, project_pinhole, rotation_angle_deg
-from camcal.geometry.distortion import Distortion
-from camcal.io.atomic import atomic_write_text
-from camcal.io.jsonfile import dumps, read_json
-from camcal.quality import Quality
+from camcal.base.errors import CamcalError
+from camcal.model.camera import compose_P, project_pinhole, rotation_angle_deg
+from camcal.model.distortion import Distortion
+from camcal.base.atomic import atomic_write_text
+from camcal.base.jsonfile import dumps, read_json
+from camcal.model.quality import Quality
 
 __all__ = [
     "RIG_FORMAT",
@@ -208,7 +208,7 @@ class Camera(_DictEquality):
         Physical sensor width, for Blender's lens in mm.
     rectification : Rectification, optional
     quality : Quality or mapping, optional
-        Fit quality with documented keys and units (:class:`camcal.quality.Quality`),
+        Fit quality with documented keys and units (:class:`camcal.model.quality.Quality`),
         e.g. ``Quality(rms_px=0.21, n_views=18, sigma={"fx": 0.3})``; a mapping
         of the file form (older key names too) is converted.
     """
@@ -267,8 +267,8 @@ class Camera(_DictEquality):
             ``distort(K R (X - c))`` in pixels, pixel (0, 0) at the centre of
             the top-left pixel; NaN for points at or behind the camera plane,
             except for a ``kannala-brandt`` lens, which images rays up to its
-            :attr:`~camcal.geometry.distortion.Distortion.max_angle_rad`
-            (:meth:`~camcal.geometry.distortion.Distortion.project_rays`).
+            :attr:`~camcal.model.distortion.Distortion.max_angle_rad`
+            (:meth:`~camcal.model.distortion.Distortion.project_rays`).
         """
         X = np.asarray(X, dtype=np.float64)
         if self.distortion.model != "kannala-brandt":

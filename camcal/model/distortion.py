@@ -65,7 +65,7 @@ import numpy as np
 import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
-from camcal.errors import CamcalError
+from camcal.base.errors import CamcalError
 
 __all__ = ["MODEL_PARAMS", "Distortion", "DistortionFit", "fit_distortion", "frame_grid"]
 

@@ -4,9 +4,9 @@ import cv2
 import numpy as np
 import pytest
 
-from camcal.errors import CamcalError
-from camcal.geometry.distortion import Distortion, fit_distortion
-from camcal.rig import Camera, Rig
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion, fit_distortion
+from camcal.model.rig import Camera, Rig
 
 W, H = 1600, 1200
 #: An action-camera-like lens: about 190 degrees across the diagonal.

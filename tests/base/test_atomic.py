@@ -3,7 +3,7 @@
 import os
 import stat
 
-from camcal.io.atomic import atomic_write_text
+from camcal.base.atomic import atomic_write_text
 
 
 def test_atomic_output_has_umask_permissions(tmp_path):

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from camcal.errors import CamcalError
-from camcal.geometry.camera import (
+from camcal.base.errors import CamcalError
+from camcal.model.camera import (
     K_from_colmap,
     K_to_colmap,
     camera_centre,
@@ -154,7 +154,7 @@ def test_look_at_axes():
 
 
 def test_similarity_Umeyama1991_recovers_a_known_similarity():
-    from camcal.geometry.camera import random_rotation, rotation_angle_deg, similarity_Umeyama1991
+    from camcal.model.camera import random_rotation, rotation_angle_deg, similarity_Umeyama1991
 
     rng = np.random.default_rng(7)
     R_true, s_true, t_true = random_rotation(rng), 2.5, np.array([0.3, -1.0, 4.0])
@@ -171,7 +171,7 @@ def test_similarity_Umeyama1991_recovers_a_known_similarity():
 def test_chordal_mean_rotation_is_the_svd_projection_and_recovers_the_centre():
     from scipy.spatial.transform import Rotation
 
-    from camcal.geometry.camera import chordal_mean_rotation, random_rotation, rotation_angle_deg
+    from camcal.model.camera import chordal_mean_rotation, random_rotation, rotation_angle_deg
 
     rng = np.random.default_rng(7)
     R_true = random_rotation(rng)
