@@ -37,7 +37,7 @@ from camcal.model.camera import from_colmap, to_colmap
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_write_text
 from camcal.io.colmap import camera_from_colmap, camera_to_colmap
-from camcal.io.interchange import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
+from camcal.io.conversion import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
 from camcal.io.ply import read_points_ply
 from camcal.io.points_csv import finite_numbers
 from camcal.model.rig import Camera, Rig

@@ -40,7 +40,7 @@ import numpy as np
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_write_text
-from camcal.io.interchange import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
+from camcal.io.conversion import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
 from camcal.model.rig import Camera, Rig
 
 __all__ = ["export", "load"]

@@ -46,7 +46,7 @@ from scipy.spatial.transform import Rotation
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_write_text
-from camcal.io.interchange import (
+from camcal.io.conversion import (
     ExportResult,
     ImportResult,
     LensConversion,

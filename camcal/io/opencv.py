@@ -56,7 +56,7 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_path
-from camcal.io.interchange import (
+from camcal.io.conversion import (
     ExportResult,
     ImportResult,
     LensConversion,
