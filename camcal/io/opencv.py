@@ -56,7 +56,8 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_path
-from camcal.io.interchange import (
+from camcal.base.limits import FILE_BYTES, check_file_size
+from camcal.io.conversion import (
     ExportResult,
     ImportResult,
     LensConversion,
@@ -74,6 +75,8 @@ SUFFIXES = {".yaml": "YAML", ".yml": "YAML", ".xml": "XML"}
 _ROTATION_TOL_PX = 1e-6
 
 _FISHEYE = "kannala-brandt"
+#: The most coefficients an OpenCV distortion vector has (k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 tx ty).
+_MAX_COEFFICIENTS = 14
 _FISHEYE_FORMAT = "opencv fisheye (k1 k2 k3 k4)"
 _PINHOLE_FORMAT = "opencv (k1 k2 p1 p2 k3)"
 
@@ -222,6 +225,7 @@ def load(path: Path) -> ImportResult:
     import cv2
 
     _check_suffix(path)
+    check_file_size(path, FILE_BYTES, "OpenCV file")
     try:
         storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as error:  # a parse error surfaces as SystemError from the binding
@@ -249,10 +253,30 @@ def load(path: Path) -> ImportResult:
     return ImportResult(rig, conversions, ("the first camera is the origin; units are those of T",))
 
 
-def _matrix(storage, key: str, shape: tuple[int, ...] | None = None) -> NDArray[np.float64]:
+def _declared_elements(node, key: str) -> float:
+    """rows x cols an ``!!opencv-matrix`` declares, read before OpenCV allocates them."""
+    if not node.isMap():
+        return 0.0
+    sizes = [node.getNode(name) for name in ("rows", "cols")]
+    if any(not (size.isInt() or size.isReal()) for size in sizes):
+        raise CamcalError(f"{key} is not a matrix (rows and cols must be numbers)")
+    rows, cols = (size.real() for size in sizes)
+    if not all(np.isfinite(v) and v == int(v) and v >= 0 for v in (rows, cols)):
+        raise CamcalError(f"{key} declares {rows} x {cols}: rows and cols must be non-negative integers")
+    return rows * cols
+
+
+def _matrix(storage, key: str, shape: tuple[int, ...] | None = None, max_elements: int = _MAX_COEFFICIENTS
+            ) -> NDArray[np.float64]:
+    """A finite matrix of ``shape`` (any shape up to ``max_elements`` when None), its declared size checked first."""
     node = storage.getNode(key)
     if node.empty() or node.isNone():
         raise CamcalError(f"missing {key}")
+    limit = int(np.prod(shape)) if shape is not None else max_elements
+    declared = _declared_elements(node, key)
+    if declared > limit:
+        rows, cols = (int(node.getNode(name).real()) for name in ("rows", "cols"))
+        raise CamcalError(f"{key} declares {rows} x {cols} values, expected at most {limit}")
     value = node.mat()
     if value is None:
         raise CamcalError(f"{key} is not a matrix")
@@ -273,17 +297,19 @@ def _text(storage, key: str) -> str | None:
 
 def _size(storage, keys: set[str]) -> tuple[int, int]:
     if {"image_width", "image_height"} <= keys:
-        width, height = storage.getNode("image_width").real(), storage.getNode("image_height").real()
-    elif "image_size" in keys or "imageSize" in keys:
+        return _pixels(storage.getNode("image_width").real(), storage.getNode("image_height").real(), "image size")
+    if "image_size" in keys or "imageSize" in keys:
         node = storage.getNode("image_size" if "image_size" in keys else "imageSize")
         if not node.isSeq() or node.size() != 2:
             raise CamcalError("image_size must be a sequence [width, height]")
-        width, height = node.at(0).real(), node.at(1).real()
-    else:
-        raise CamcalError("no image size (image_width and image_height) in the file")
+        return _pixels(node.at(0).real(), node.at(1).real(), "image size")
+    raise CamcalError("no image size (image_width and image_height) in the file")
+
+
+def _pixels(width: float, height: float, what: str) -> tuple[int, int]:
     if not (np.isfinite(width) and np.isfinite(height) and width == int(width) and height == int(height)
             and width > 0 and height > 0):
-        raise CamcalError(f"image size must be two positive integers, got {width} x {height}")
+        raise CamcalError(f"{what} must be two positive integers, got {width} x {height}")
     return int(width), int(height)
 
 
@@ -336,7 +362,8 @@ def _read_stereo(storage, keys: set[str], fisheye: bool) -> Rig:
     if rectified:
         rect_size = size
         if {"rectified_width", "rectified_height"} <= keys:
-            rect_size = (int(storage.getNode("rectified_width").real()), int(storage.getNode("rectified_height").real()))
+            rect_size = _pixels(storage.getNode("rectified_width").real(), storage.getNode("rectified_height").real(),
+                                "rectified size")
         cameras = []
         for camera, R_key, P_key in ((first, "R1", "P1"), (second, "R2", "P2")):
             R_rect, P = _matrix(storage, R_key, (3, 3)), _matrix(storage, P_key, (3, 4))
