@@ -473,11 +473,11 @@ def _calibrate_dlt(args: argparse.Namespace) -> int:
 
 
 def _parse_holdout(text: str, frames: list[int]) -> set[int]:
-    """``--holdout``: frame numbers and ranges (``21-25,3``, as :func:`camcal.batch.parse_frames`) or a
+    """``--holdout``: frame numbers and ranges (``21-25,3``, as :func:`camcal.base.frames.parse_frames`) or a
     fraction of the frames (``0.2``, evenly spaced)."""
     import re
 
-    from camcal.batch import parse_frames
+    from camcal.base.frames import parse_frames
 
     text = text.strip()
     if re.fullmatch(r"0?\.\d+", text):
@@ -1038,7 +1038,8 @@ def _register_rectify(subparsers) -> None:
 
 
 def _batch(args: argparse.Namespace) -> int:
-    from camcal.batch import make_job, parse_frames, run_batch
+    from camcal.base.frames import parse_frames
+    from camcal.batch import make_job, run_batch
 
     geometry = "undistort" if args.undistort else "rectify" if args.rectify else None
     job = make_job(args.rig, args.camera, args.in_pattern, args.out, geometry, args.colour, args.mode, args.overscan,
