@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import camera_option, out_option, rig_argument, undistort_mode_options
+from camcal.cli.options import camera_option, handler, out_option, rig_argument, undistort_mode_options
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -12,12 +12,6 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal batch``."""
-    parser.description = (
-        "Process frames of a sequence, one Dask task per frame, on a local cluster "
-        "(--workers) or an existing scheduler (--scheduler). Maps and the colour step are built "
-        "once per worker. Outputs keep the inputs' format, bit depth and (EXR) metadata, are "
-        "written atomically, and a failed frame is retried, then reported by number.")
-    parser.epilog = "Exit status: 0 all frames written, 1 some frames failed (listed), 2 bad input."
     rig_argument(parser)
     camera_option(parser)
     parser.add_argument("--in", dest="in_pattern", required=True, metavar="PATTERN",
@@ -39,10 +33,17 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="skip frames already complete and unchanged")
     parser.add_argument("--retries", type=int, default=2, metavar="N", help="retries of a failed frame (default: 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
-    parser.set_defaults(func=_batch)
+    handler(parser, _batch)
 
 
 def _batch(args: argparse.Namespace) -> int:
+    """Process frames of a sequence, one Dask task per frame, on a local cluster (--workers) or an existing
+    scheduler (--scheduler). Maps and the colour step are built once per worker. Outputs keep the inputs'
+    format, bit depth and (EXR) metadata, are written atomically, and a failed frame is retried, then
+    reported by number.
+
+    Exit status: 0 all frames written, 1 some frames failed (listed), 2 bad input.
+    """
     from camcal.base.frames import parse_frames
     from camcal.batch import make_job, run_batch
 

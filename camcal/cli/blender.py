@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import rig_argument, verb_group
+from camcal.cli.options import handler, rig_argument, verb_group
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -13,12 +13,7 @@ __all__ = ["register"]
 def register(parser: argparse.ArgumentParser) -> None:
     """``camcal blender import RIG --blend OUT.blend``: a .blend with the rig in it."""
     verbs = verb_group(parser, "blender_verb")
-    imp = verbs.add_parser(
-        "import",
-        help="import a rig into a new .blend file (headless, with the add-on's importer)",
-        description="Import a camcal rig file into a new .blend file with the Blender "
-        "add-on's importer, in a subprocess that runs the bpy module.",
-    )
+    imp = verbs.add_parser("import", help="import a rig into a new .blend file (headless, with the add-on's importer)")
     rig_argument(imp, "the *.rig.json file")
     imp.add_argument("--blend", required=True, metavar="OUT.blend", help="the .blend file to write")
     imp.add_argument("--up-axis", choices=("Z", "Y", "-Y"), default="Z",
@@ -32,10 +27,13 @@ def register(parser: argparse.ArgumentParser) -> None:
     imp.add_argument("--no-distortion", action="store_true", help="no lens clips or distortion compositor")
     imp.add_argument("--overscan", type=float, default=1.1,
                      help="overscan of the render the distortion compositor uses (default: 1.1)")
-    imp.set_defaults(func=_import)
+    handler(imp, _import)
 
 
 def _import(args: argparse.Namespace) -> int:
+    """Import a camcal rig file into a new .blend file with the Blender add-on's importer, in a subprocess that
+    runs the bpy module.
+    """
     from camcal.blender_bridge import import_rig_to_blend
     from camcal.model.rig import Rig
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import (expand_glob, image_size, image_size_option, loss_option, named_option, out_option,
-                                parse_holdout, report_option, verb_group)
+from camcal.cli.options import (expand_glob, handler, image_size, image_size_option, loss_option, named_option,
+                                out_option, parse_holdout, report_option, verb_group)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -15,24 +15,14 @@ __all__ = ["register"]
 def register(parser: argparse.ArgumentParser) -> None:
     """``dlt`` and ``board`` under ``camcal calibrate``."""
     verbs = verb_group(parser, "calibrate_verb", "METHOD")
-    dlt = verbs.add_parser(
-        "dlt",
-        help="one camera from 3D-2D correspondences (normalised DLT + LM)",
-        description="Calibrate one camera from n >= 6 non-coplanar 3D points and their pixels. "
-        "The CSV has the header X,Y,Z,u,v; pixel (0, 0) is the centre of the top-left pixel.",
-    )
+    dlt = verbs.add_parser("dlt", help="one camera from 3D-2D correspondences (normalised DLT + LM)")
     dlt.add_argument("--points", required=True, metavar="FILE.csv", help="correspondences X,Y,Z,u,v")
     image_size_option(dlt, required=True)
     dlt.add_argument("--name", default="camera", help="camera name in the rig (default: camera)")
     out_option(dlt, "FILE.rig.json")
-    dlt.set_defaults(func=_dlt)
+    handler(dlt, _dlt)
     board = verbs.add_parser(
-        "board",
-        help="one camera or an N-camera rig from chessboard / ChArUco images (joint refinement)",
-        description="Detect the board in every image, calibrate each camera with OpenCV, then refine "
-        "all intrinsics, distortion and camera poses jointly. Views of several cameras are matched by "
-        "the frame number in their file names; the first camera is the reference (R = I, c = 0).",
-    )
+        "board", help="one camera or an N-camera rig from chessboard / ChArUco images (joint refinement)")
     board.add_argument(
         "--board", required=True, metavar="SPEC",
         help="chessboard:WxH:SQUARE (inner corners) or charuco:DICT:WxH:SQUARE:MARKER (squares)",
@@ -60,10 +50,13 @@ def register(parser: argparse.ArgumentParser) -> None:
     board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
     out_option(board, "FILE.rig.json")
     report_option(board, "write PNG plots: residuals, per-image RMS, coverage")
-    board.set_defaults(func=_board)
+    handler(board, _board)
 
 
 def _dlt(args: argparse.Namespace) -> int:
+    """Calibrate one camera from n >= 6 non-coplanar 3D points and their pixels. The CSV has the header X,Y,Z,u,v;
+    pixel (0, 0) is the centre of the top-left pixel.
+    """
     from camcal.geometry.dlt import calibrate_dlt
     from camcal.io.points_csv import read_correspondences
     from camcal.model.rig import Rig, make_provenance
@@ -93,6 +86,10 @@ def _dlt(args: argparse.Namespace) -> int:
 
 
 def _board(args: argparse.Namespace) -> int:
+    """Detect the board in every image, calibrate each camera with OpenCV, then refine all intrinsics, distortion
+    and camera poses jointly. Views of several cameras are matched by the frame number in their file names;
+    the first camera is the reference (R = I, c = 0).
+    """
     import os
 
     import numpy as np

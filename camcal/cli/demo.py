@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from camcal.cli.options import handler
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -14,18 +15,18 @@ def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal demo``."""
     from camcal.demo import STAGES
 
-    parser.description = (
-        "Render a known stereo rig with Blender (Cycles, CPU), run camcal's verbs on the images, "
-        "print recovered vs true values with their tolerances and write DIR/report.html. "
-        "Exits 1 when a value is outside its tolerance.")
     parser.add_argument("--out", default="demo_out", metavar="DIR", help="output folder (default: demo_out)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     parser.add_argument("--stages", metavar="A,B,...",
                         help="run only these stages (of: " + ", ".join(s.name for s in STAGES) + ")")
-    parser.set_defaults(func=_demo)
+    handler(parser, _demo)
 
 
 def _demo(args: argparse.Namespace) -> int:
+    """Render a known stereo rig with Blender (Cycles, CPU), run camcal's verbs on the images, print recovered vs
+    true values with their tolerances and write DIR/report.html. Exits 1 when a value is outside its
+    tolerance.
+    """
     import dataclasses
 
     from camcal.demo import FULL, run_demo

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import out_option, report_option, verb_group
+from camcal.cli.options import handler, out_option, report_option, verb_group
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -14,13 +14,7 @@ __all__ = ["register"]
 def register(parser: argparse.ArgumentParser) -> None:
     """``fit`` under ``camcal distortion``."""
     verbs = verb_group(parser, "distortion_verb")
-    fit = verbs.add_parser(
-        "fit",
-        help="plumb-line fit (Strand & Hayman, refined by Devernay & Faugeras)",
-        description="Fit a division or polynomial lens model so that straight lines become straight. "
-        "Lines come from chessboard rows/columns (--pattern), from long edges in IMAGES, or from "
-        'LINES.json: {"image_size": [W, H], "lines": [[[x, y], ...], ...]}.',
-    )
+    fit = verbs.add_parser("fit", help="plumb-line fit (Strand & Hayman, refined by Devernay & Faugeras)")
     fit.add_argument("images", nargs="*", metavar="IMAGES", help="images of one camera")
     fit.add_argument("--lines", metavar="LINES.json", help="line points instead of images")
     fit.add_argument("--pattern", metavar="COLSxROWS", help="chessboard inner corners, e.g. 9x6 (default: edges)")
@@ -28,7 +22,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     fit.add_argument("--fit-centre", action="store_true", help="fit the distortion centre too")
     out_option(fit, "lens.json")
     report_option(fit, "write per-line figures to DIR/plumbline_report.json")
-    fit.set_defaults(func=_fit)
+    handler(fit, _fit)
 
 
 def _pattern(value: str) -> tuple[int, int]:
@@ -42,6 +36,10 @@ def _pattern(value: str) -> tuple[int, int]:
 
 
 def _fit(args: argparse.Namespace) -> int:
+    """Fit a division or polynomial lens model so that straight lines become straight. Lines come from chessboard
+    rows/columns (--pattern), from long edges in IMAGES, or from LINES.json: {"image_size": [W, H], "lines":
+    [[[x, y], ...], ...]}.
+    """
     import cv2
 
     from pathlib import Path

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import inspect
 import os
 import re
 from collections.abc import Sequence
@@ -22,6 +23,7 @@ __all__ = [
     "camera_label_option",
     "camera_option",
     "expand_glob",
+    "handler",
     "image_size",
     "image_size_option",
     "loss_option",
@@ -38,6 +40,19 @@ __all__ = [
 
 #: Robust losses of the bundle adjustments (Ceres' names).
 LOSSES = ("trivial", "huber", "soft_l1", "cauchy")
+
+
+def handler(parser: argparse.ArgumentParser, run) -> None:
+    """``run`` handles the verb (parsed namespace in, exit code out); its docstring is the verb's ``--help``.
+
+    The docstring's first paragraph is printed before the options (the
+    description), the rest after them (the epilog), so the help says what
+    the function that runs the verb does, in its words.
+    """
+    description, _, epilog = inspect.cleandoc(run.__doc__ or "").partition("\n\n")
+    parser.set_defaults(func=run)
+    parser.description = description or None
+    parser.epilog = epilog or None
 
 
 def verb_group(parser: argparse.ArgumentParser, dest: str, metavar: str = "VERB"):

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import expand_glob, max_fov_option, named_option, out_option, report_option, rig_argument
+from camcal.cli.options import (expand_glob, handler, max_fov_option, named_option, out_option, report_option,
+                                rig_argument)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -13,13 +14,6 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal rectify``."""
-    parser.description = (
-        "Rectify a rig's cameras onto one image plane and store per camera "
-        "rectification {H, K_rect, image_size}, H mapping UNDISTORTED original pixels to "
-        "rectified pixels. --method camera uses the calibration (with --refine: the N-view "
-        "refinement of Nozick 2011 on matches); --method hartley uses only point matches "
-        "(Hartley 1999). Matches come from --matches (CSV camera_a,u_a,v_a,camera_b,u_b,v_b) "
-        "or from SIFT on the first image of each --images sequence.")
     rig_argument(parser, "a calibrated *.rig.json")
     parser.add_argument("--method", choices=("camera", "hartley"), default="camera")
     parser.add_argument("--refine", action="store_true", help="camera method: refine on matches (Nozick 2011)")
@@ -33,10 +27,16 @@ def register(parser: argparse.ArgumentParser) -> None:
     out_option(parser, "FILE.rig.json", "the rectified rig")
     parser.add_argument("--write", metavar="DIR", help="write rectified images to DIR/<camera>/")
     report_option(parser, "write DIR/rectification.json with the figures")
-    parser.set_defaults(func=_rectify)
+    handler(parser, _rectify)
 
 
 def _rectify(args: argparse.Namespace) -> int:
+    """Rectify a rig's cameras onto one image plane and store per camera rectification {H, K_rect, image_size}, H
+    mapping UNDISTORTED original pixels to rectified pixels. --method camera uses the calibration (with
+    --refine: the N-view refinement of Nozick 2011 on matches); --method hartley uses only point matches
+    (Hartley 1999). Matches come from --matches (CSV camera_a,u_a,v_a,camera_b,u_b,v_b) or from SIFT on the
+    first image of each --images sequence.
+    """
     from camcal.geometry.rectify import RectifyWarper, match_images, read_matches_csv, rectify
     from camcal.base.jsonfile import write_json
     from camcal.model.rig import Rig

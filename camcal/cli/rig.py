@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import image_size, image_size_option, out_option, rig_argument, verb_group
+from camcal.cli.options import handler, image_size, image_size_option, out_option, rig_argument, verb_group
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -17,29 +17,22 @@ def register(parser: argparse.ArgumentParser) -> None:
     verbs = verb_group(parser, "rig_verb")
     show = verbs.add_parser("show", help="print a readable summary of a rig file")
     rig_argument(show, metavar="FILE")
-    show.set_defaults(func=_show)
-    export = verbs.add_parser(
-        "export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke)",
-        description="Write RIG as FORMAT. opencv: .yaml/.yml/.xml FileStorage (one camera or a stereo pair); "
-        "kalibr: camchain.yaml; colmap: a directory with cameras.txt, images.txt, points3D.txt; usd: "
-        ".usda/.usdc/.usd; nuke: .nk. A lens or skew the format cannot hold is fitted with the nearest "
-        "model it holds and the max pixel residual is printed; exact conversions say so.")
+    handler(show, _show)
+    export = verbs.add_parser("export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke)")
     rig_argument(export)
     export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
     export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
     export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
     export.add_argument("--stmaps", action="store_true",
                         help="usd: also write each lens' ST-maps beside the stage and reference them from its camera")
-    export.set_defaults(func=_export)
-    imp = verbs.add_parser(
-        "import", help="read another tool's camera file as a rig",
-        description="Read FILE (a directory for colmap) written by FORMAT's tool and write a camcal rig.")
+    handler(export, _export)
+    imp = verbs.add_parser("import", help="read another tool's camera file as a rig")
     imp.add_argument("file", metavar="FILE", help="the other tool's file")
     imp.add_argument("--from", dest="fmt", required=True, choices=FORMATS, metavar="FORMAT",
                      help=f"one of: {', '.join(FORMATS)}")
     out_option(imp, "RIG.rig.json", "the rig file to write")
     image_size_option(imp, "usd: the image size of cameras that carry none (USD cameras not written by camcal)")
-    imp.set_defaults(func=_import)
+    handler(imp, _import)
 
 
 def _show(args: argparse.Namespace) -> int:
@@ -62,6 +55,11 @@ def _print_conversions(args: argparse.Namespace, result) -> None:
 
 
 def _export(args: argparse.Namespace) -> int:
+    """Write RIG as FORMAT. opencv: .yaml/.yml/.xml FileStorage (one camera or a stereo pair); kalibr:
+    camchain.yaml; colmap: a directory with cameras.txt, images.txt, points3D.txt; usd: .usda/.usdc/.usd;
+    nuke: .nk. A lens or skew the format cannot hold is fitted with the nearest model it holds and the max
+    pixel residual is printed; exact conversions say so.
+    """
     from pathlib import Path
 
     from camcal.io.interchange import export_rig
@@ -76,6 +74,7 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _import(args: argparse.Namespace) -> int:
+    """Read FILE (a directory for colmap) written by FORMAT's tool and write a camcal rig."""
     import dataclasses
     from pathlib import Path
 

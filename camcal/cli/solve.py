@@ -7,7 +7,7 @@ import math
 import sys
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import expand_glob, loss_option, named_option, out_option
+from camcal.cli.options import expand_glob, handler, loss_option, named_option, out_option
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -15,12 +15,6 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal solve``."""
-    parser.description = (
-        "One folder per camera (or one folder of per-camera sub-folders, or --camera NAME=GLOB "
-        "inside one folder); several cameras form a rig whose frames pair up by sorted order. "
-        "Each camera's lens model is chosen by held-out residual and the principal point is refined "
-        "where its sigma says the views determine it (both printed). "
-        "Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.")
     parser.add_argument("folders", nargs="+", metavar="IMAGES_DIR", help="image folder(s)")
     named_option(parser, "--camera", "NAME=GLOB", "a camera's images, e.g. left='*_L.png' right='*_R.png' "
                  "(relative to IMAGES_DIR, or absolute; several entries or a repeated option)")
@@ -48,10 +42,15 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "into OUT/pycolmap and print its intrinsics beside camcal's")
     parser.add_argument("--seed", type=int, default=0)
     out_option(parser, "DIR")
-    parser.set_defaults(func=_solve)
+    handler(parser, _solve)
 
 
 def _solve(args: argparse.Namespace) -> int:
+    """One folder per camera (or one folder of per-camera sub-folders, or --camera NAME=GLOB inside one folder);
+    several cameras form a rig whose frames pair up by sorted order. Each camera's lens model is chosen by
+    held-out residual and the principal point is refined where its sigma says the views determine it (both
+    printed). Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
+    """
     from pathlib import Path
 
     from camcal.geometry.sfm import LENS_MODELS, MODELS, collect_images, solve_pycolmap_plain, solve_sfm

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import camera_option, out_option, rig_argument
+from camcal.cli.options import camera_option, handler, out_option, rig_argument
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -12,17 +12,17 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal stmap``."""
-    parser.description = (
-        "Write NAME_undistort.exr and NAME_redistort.exr (R = (x + 0.5) / W, "
-        "G = 1 - (y + 0.5) / H of the pixel to sample) and the undistorted rig.")
     rig_argument(parser)
     camera_option(parser)
     parser.add_argument("--overscan", type=float, default=1.1, help="undistorted canvas factor (default 1.1)")
     out_option(parser, "DIR")
-    parser.set_defaults(func=_stmap)
+    handler(parser, _stmap)
 
 
 def _stmap(args: argparse.Namespace) -> int:
+    """Write NAME_undistort.exr and NAME_redistort.exr (R = (x + 0.5) / W, G = 1 - (y + 0.5) / H of the pixel to
+    sample) and the undistorted rig.
+    """
     from camcal.geometry.stmap import write_stmaps
     from camcal.model.rig import Rig
 

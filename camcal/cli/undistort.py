@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import camera_option, max_fov_option, out_option, rig_argument, undistort_mode_options
+from camcal.cli.options import (camera_option, handler, max_fov_option, out_option, rig_argument,
+                                undistort_mode_options)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -12,9 +13,6 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal undistort``."""
-    parser.description = (
-        "Undistort images with one remap per image; writes them under their own names "
-        "and DIR/undistorted.rig.json with the new K and distortion none.")
     rig_argument(parser)
     camera_option(parser)
     parser.add_argument("images", nargs="+", metavar="IMAGES")
@@ -23,10 +21,13 @@ def register(parser: argparse.ArgumentParser) -> None:
     max_fov_option(parser, "crop / keep: widest full angle about the axis the pinhole output holds "
                    "(default: 120 for a kannala-brandt fisheye, no cap for the other lenses)")
     out_option(parser, "DIR")
-    parser.set_defaults(func=_undistort)
+    handler(parser, _undistort)
 
 
 def _undistort(args: argparse.Namespace) -> int:
+    """Undistort images with one remap per image; writes them under their own names and DIR/undistorted.rig.json
+    with the new K and distortion none.
+    """
     from camcal.geometry.undistort import undistort_images
     from camcal.model.rig import Rig
 

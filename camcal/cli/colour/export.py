@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
+from camcal.cli.options import handler
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -12,19 +13,6 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal colour export``."""
-    parser.description = (
-        "Export characterisations (*.colour.json) as input colour spaces 'camcal <camera>' "
-        "(family Input/camcal) of an OpenColorIO config, and/or as an ICC camera profile. "
-        "Matrix fits are exact; other models are baked (log-chromaticity shaper + 3D LUT; ICC v4: "
-        "float D2B0/D2B1 plus a 16-bit A2B0) with the bake error checked over the chart gamut and "
-        "plausible surface colours."
-    )
-    parser.epilog = (
-        "--base: 'camcal' (camcal's small ACES config, ocio_configs/camcal_base.ocio), an "
-        "ocio:// built-in (default: ocio://studio-config-latest, which needs OCIO 2.6; "
-        "Blender 5.0 links OCIO 2.4: use 'camcal' or ocio://studio-config-v2.2.0_aces-v1.3_ocio-v2.4 "
-        "there) or a .ocio file with an aces_interchange role."
-    )
     parser.add_argument("fits", nargs="+", metavar="FIT.colour.json", help="characterisation files")
     parser.add_argument("--camera-name", metavar="NAME",
                         help="camera name (one fit only; default: the fit's camera, else the file name)")
@@ -39,10 +27,19 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-bake-error", type=float, default=0.2, metavar="DE",
                         help="largest CIEDE2000 a baked LUT may add over the chart gamut and plausible surface "
                         "colours (default: %(default)s)")
-    parser.set_defaults(func=_export)
+    handler(parser, _export)
 
 
 def _export(args: argparse.Namespace) -> int:
+    """Export characterisations (*.colour.json) as input colour spaces 'camcal <camera>' (family Input/camcal) of
+    an OpenColorIO config, and/or as an ICC camera profile. Matrix fits are exact; other models are baked
+    (log-chromaticity shaper + 3D LUT; ICC v4: float D2B0/D2B1 plus a 16-bit A2B0) with the bake error
+    checked over the chart gamut and plausible surface colours.
+
+    --base: 'camcal' (camcal's small ACES config, ocio_configs/camcal_base.ocio), an ocio:// built-in
+    (default: ocio://studio-config-latest, which needs OCIO 2.6; Blender 5.0 links OCIO 2.4: use 'camcal' or
+    ocio://studio-config-v2.2.0_aces-v1.3_ocio-v2.4 there) or a .ocio file with an aces_interchange role.
+    """
     import dataclasses
     from pathlib import Path
 

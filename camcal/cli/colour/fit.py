@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import camera_label_option, out_option, report_option
+from camcal.cli.options import camera_label_option, handler, out_option, report_option
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -13,17 +13,6 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal colour fit``."""
-    parser.description = (
-        "Fit camera RGB to CIE XYZ (perfect white Y = 1) and judge it by CIEDE2000 on "
-        "the training patches, by leave-one-out and on an independent patch set. "
-        "Writes a versioned *.colour.json."
-    )
-    parser.epilog = (
-        "Patch CSV header: R,G,B,X,Y,Z (camera RGB, reference XYZ under the scene "
-        "illuminant, perfect white Y = 1), optional first column name. "
-        "--model auto picks model, objective and regularisation by leave-one-out "
-        "CIEDE2000 and says why."
-    )
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--chart", metavar="IMAGE", help="photo of a 24-patch ColorChecker (PNG/TIFF/JPEG/EXR, or "
                                                           "raw: DNG, CR2, NEF, ARW... read as linear camera RGB)")
@@ -59,7 +48,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     out_option(parser, "FIT.colour.json", "fit file to write")
     report_option(parser, "write per-patch tables and plots here")
     _register_for_illuminant(parser)
-    parser.set_defaults(func=_fit)
+    handler(parser, _fit)
 
 
 def _register_for_illuminant(parser) -> None:
@@ -94,6 +83,13 @@ def _parse_corners(text: str):
 
 
 def _fit(args: argparse.Namespace) -> int:
+    """Fit camera RGB to CIE XYZ (perfect white Y = 1) and judge it by CIEDE2000 on the training patches, by
+    leave-one-out and on an independent patch set. Writes a versioned *.colour.json.
+
+    Patch CSV header: R,G,B,X,Y,Z (camera RGB, reference XYZ under the scene illuminant, perfect white Y =
+    1), optional first column name. --model auto picks model, objective and regularisation by leave-one-out
+    CIEDE2000 and says why.
+    """
     import dataclasses
 
     from camcal.colour.characterise import characterise, patches_from_chart

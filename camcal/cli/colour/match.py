@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import named_option, out_option, report_option, rig_argument
+from camcal.cli.options import handler, named_option, out_option, report_option, rig_argument
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -13,15 +13,6 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal colour match``."""
-    parser.description = (
-        "Fit a colour transform from camera B's linear RGB to camera A's. Image route: a "
-        "stereo pair (--images A=IMG --images B=IMG; the first camera is the target A), "
-        "rectified with the rig's calibration unless --rectified; SGBM disparity with a "
-        "left-right check picks reliable, unoccluded, unsaturated pixels, the fit is robust "
-        "(LMedS + IRLS) and judged by CIEDE2000 on held-out image tiles. Chart route: "
-        "--fits and --patches for both cameras (same chart): both go to XYZ, the residual "
-        "camera-to-camera CIEDE2000 is reported. Writes a *.colour.json of kind match."
-    )
     rig_argument(parser, "a calibrated *.rig.json holding both cameras", nargs="?")
     named_option(parser, "--images", "NAME=IMG", "one image per camera, target first")
     parser.add_argument("--rectified", action="store_true", help="the images are rectified already")
@@ -39,10 +30,17 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="robust fitting (default: lmeds-irls for images, none for charts)")
     out_option(parser, "MATCH.colour.json", "match file to write")
     report_option(parser, "difference images and Delta E maps (or chart plots)")
-    parser.set_defaults(func=_match)
+    handler(parser, _match)
 
 
 def _match(args: argparse.Namespace) -> int:
+    """Fit a colour transform from camera B's linear RGB to camera A's. Image route: a stereo pair (--images A=IMG
+    --images B=IMG; the first camera is the target A), rectified with the rig's calibration unless
+    --rectified; SGBM disparity with a left-right check picks reliable, unoccluded, unsaturated pixels, the
+    fit is robust (LMedS + IRLS) and judged by CIEDE2000 on held-out image tiles. Chart route: --fits and
+    --patches for both cameras (same chart): both go to XYZ, the residual camera-to-camera CIEDE2000 is
+    reported. Writes a *.colour.json of kind match.
+    """
     from camcal.colour.fitfile import load_fit
     from camcal.colour.match import match_image_files, match_patch_files
     from camcal.colour.match_models import parse_match_model

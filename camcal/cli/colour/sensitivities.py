@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import camera_label_option, name_value, out_option, report_option
+from camcal.cli.options import camera_label_option, handler, name_value, out_option, report_option
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -13,18 +13,6 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal colour sensitivities``."""
-    parser.description = (
-        "Estimate a camera's spectral sensitivities from chart captures (linear images: raw or "
-        "linear TIFF/EXR) and/or spectral patch CSVs, each under a known illuminant, with "
-        "positivity, smoothness and the regularisation chosen by K-fold cross-validation; "
-        "or read measured curves (--measured). Writes *.ssf.json and *.ssf.csv and prints the "
-        "Vora-Trussell mu-factor and the Luther-Ives deviation."
-    )
-    parser.epilog = (
-        "ILLUMINANT: a colour-science SDS_ILLUMINANTS name (D65, A, FL2, LED-B3...) or a CSV "
-        "wavelength,value. Spectral patch CSV header: name,R,G,B,<nm>,<nm>,... (linear camera "
-        "RGB then reflectance samples). Measured CSV: wavelength,R,G,B[,sigma_R,sigma_G,sigma_B]."
-    )
     parser.add_argument("--chart", nargs="+", action="extend", metavar="ILLUMINANT=IMAGE", default=[],
                         help="a linear photo of a ColorChecker 24 under ILLUMINANT (repeatable)")
     parser.add_argument("--patches", nargs="+", action="extend", metavar="ILLUMINANT=FILE.csv", default=[],
@@ -40,10 +28,19 @@ def register(parser: argparse.ArgumentParser) -> None:
                                                          "relative RMS error and both mu-factors")
     out_option(parser, "CAMERA.ssf.json", "file to write (+ .ssf.csv)")
     report_option(parser, "plot with 95 %% bands (sensitivities.png)")
-    parser.set_defaults(func=_sensitivities)
+    handler(parser, _sensitivities)
 
 
 def _sensitivities(args: argparse.Namespace) -> int:
+    """Estimate a camera's spectral sensitivities from chart captures (linear images: raw or linear TIFF/EXR)
+    and/or spectral patch CSVs, each under a known illuminant, with positivity, smoothness and the
+    regularisation chosen by K-fold cross-validation; or read measured curves (--measured). Writes
+    *.ssf.json and *.ssf.csv and prints the Vora-Trussell mu-factor and the Luther-Ives deviation.
+
+    ILLUMINANT: a colour-science SDS_ILLUMINANTS name (D65, A, FL2, LED-B3...) or a CSV wavelength,value.
+    Spectral patch CSV header: name,R,G,B,<nm>,<nm>,... (linear camera RGB then reflectance samples).
+    Measured CSV: wavelength,R,G,B[,sigma_R,sigma_G,sigma_B].
+    """
     import numpy as np
 
     from camcal.colour.ssf import (capture_from_chart, estimate_from_captures, load_sensitivities,
