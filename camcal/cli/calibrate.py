@@ -162,6 +162,5 @@ def _board(args: argparse.Namespace) -> int:
     )
     out.wrote(args.out, "rig")
     if args.report:
-        for path in write_report(result, args.report):
-            out.wrote(path, "report")
+        out.wrote_each(write_report(result, args.report), "report", say=True)
     return 3 if problems else 0
