@@ -1,1 +1,1 @@
-"""Primitives that import nothing else of camcal: errors, progress, atomic writes, JSON files, frame lists."""
+"""Primitives that import nothing else of camcal: errors, progress, atomic writes, JSON files, frame ranges."""

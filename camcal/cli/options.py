@@ -15,7 +15,7 @@ import re
 from collections.abc import Sequence
 
 from camcal.base.errors import CamcalError
-from camcal.base.frames import parse_frames
+from camcal.base.frame_ranges import parse_frames
 
 __all__ = [
     "LOSSES",
@@ -179,8 +179,8 @@ def loss_option(parser, help: str) -> None:
 
 
 def parse_holdout(text: str, frames: list[int]) -> set[int]:
-    """``--holdout``: frame numbers and ranges (``21-25,3``, as :func:`camcal.base.frames.parse_frames`) or a
-    fraction of the frames (``0.2``, evenly spaced)."""
+    """``--holdout``: frame numbers and ranges (``21-25,3``, as
+    :func:`camcal.base.frame_ranges.parse_frames`) or a fraction of the frames (``0.2``, evenly spaced)."""
     text = text.strip()
     if re.fullmatch(r"0?\.\d+", text):
         fraction = float(text)

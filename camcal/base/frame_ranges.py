@@ -1,4 +1,4 @@
-"""Frame lists: ``1001-1240``, ``1001-1240x2`` or ``1,5,10-12`` as sorted frame numbers."""
+"""Frame ranges: ``1001-1240``, ``1001-1240x2`` or ``1,5,10-12`` as sorted frame numbers."""
 
 from __future__ import annotations
 

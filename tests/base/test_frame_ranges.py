@@ -1,9 +1,9 @@
-"""Frame lists (``camcal batch --frames``, ``camcal calibrate board --holdout``)."""
+"""Frame ranges (``camcal batch --frames``, ``camcal calibrate board --holdout``)."""
 
 import pytest
 
 from camcal.base.errors import CamcalError
-from camcal.base.frames import parse_frames
+from camcal.base.frame_ranges import parse_frames
 
 
 def test_parse_frames():
