@@ -966,7 +966,11 @@ def _calibrate_opencv(board: Board, names: list[str], by_frame: list[dict], mode
             break
         outliers.extend(new)
     labels = tuple(f"{name}.{label}" for label in _INTRINSICS + MODELS[model])
-    covariance = np.diag(std_intrinsics.ravel()[:len(labels)] ** 2)
+    sigmas = std_intrinsics.ravel()[:len(labels)]
+    if not np.all(np.isfinite(sigmas)):
+        raise CamcalError(f"camera {name!r}: the {model} calibration is degenerate (OpenCV's intrinsic sigmas are "
+                          "not finite): vary the board poses more")
+    covariance = np.diag(sigmas**2)
     camera_of_point = np.zeros(len(residuals), np.int64)
     rig = _build_rig(names, (size,), [params], [(np.eye(3), np.zeros(3))], camera_of_point, image_of_point,
                      residuals, covariance, labels, board, model, units)

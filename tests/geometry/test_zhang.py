@@ -365,7 +365,9 @@ def test_model_auto_chooses_by_heldout_rms():
     detections = board_views(truth, 16, np.random.default_rng(8))
     result = calibrate_board(BOARD, detections)  # auto is the default
     scores = result.model_heldout_rms_px
-    assert set(scores) <= set(AUTO_MODELS) and {"none", "division", "polynomial", "kannala-brandt"} <= set(scores)
+    assert {score.model for score in result.model_ranking} == set(AUTO_MODELS)
+    assert all((score.rms_px is None) == bool(score.reason) for score in result.model_ranking)
+    assert {"division", "polynomial", "kannala-brandt", "opencv"} <= set(scores)
     assert [s.model for s in result.model_ranking][0] == min(scores, key=scores.get)
     assert result.model == "division" and result.rig.cameras[0].distortion.model == "division"
     assert all("\n" not in score.describe() for score in result.model_ranking)
