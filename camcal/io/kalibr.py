@@ -52,7 +52,8 @@ _KANNALA_BRANDT = "kannala-brandt"
 def _holds(distortion: Distortion) -> bool:
     if distortion.model in ("none", _KANNALA_BRANDT):
         return True
-    return distortion.model in ("polynomial", "opencv") and distortion.params.get("k3", 0.0) == 0.0
+    return (distortion.model in ("polynomial", "opencv") and distortion.params.get("k3", 0.0) == 0.0
+            and distortion.opencv_terms == 5)  # radtan: k1 k2 p1 p2, no rational or thin-prism terms
 
 
 def _camera_entry(camera: Camera) -> dict:
