@@ -30,9 +30,12 @@ def register(parser: argparse.ArgumentParser) -> None:
     named_option(board, "--camera", "NAME=GLOB", "a camera and its images, e.g. left='shots/left*.jpg' "
                  "right='shots/right*.jpg' (several entries or a repeated option; globs absolute or relative)",
                  required=True)
-    board.add_argument("--model", default="polynomial", choices=("polynomial", "division", "opencv", "kannala-brandt", "auto"),
-                       help="distortion model; kannala-brandt is OpenCV's fisheye model; auto: the lowest RMS on "
-                       "every 4th training frame held out (default: polynomial)")
+    board.add_argument("--model", default="auto",
+                       choices=("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational",
+                                "opencv-thin-prism", "auto"),
+                       help="lens model; kannala-brandt is OpenCV's fisheye model, opencv-rational and "
+                       "opencv-thin-prism its 8- and 12-coefficient models; auto (default) ranks every model by "
+                       "views held out in turn and keeps the simplest within 1 %% of the best")
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
                        "numbers and ranges (21-25) or a fraction (0.2)")
@@ -123,9 +126,10 @@ def _board(args: argparse.Namespace) -> int:
     result.rig.save(args.out)
     for note in result.notes:
         print(note)
-    if result.model_heldout_rms_px:
-        scores = ", ".join(f"{model} {rms:.4f} px" for model, rms in result.model_heldout_rms_px.items())
-        print(f"model auto: RMS on every 4th training frame, held out to choose: {scores}; chose {result.model}")
+    if result.model_ranking:
+        print(f"model auto: views held out in turn, chose {result.model}")
+        for score in result.model_ranking:
+            print("  " + score.describe())
     if result.relabelled:
         print("relabelled by a half turn (symmetric board) to agree with the rig: "
               + ", ".join(image for _, image in result.relabelled))
@@ -157,6 +161,8 @@ def _board(args: argparse.Namespace) -> int:
         cameras={camera.name: {"K": camera.K, "distortion": camera.distortion.to_dict(), "c": camera.c,
                                "quality": camera.quality.to_dict()} for camera in result.rig.cameras},
         model=result.model, heldout_rms_px=result.heldout_rms_px, model_heldout_rms_px=dict(result.model_heldout_rms_px),
+        model_ranking=[{"model": s.model, "rms_px": s.rms_px, "n_params": s.n_params, "reason": s.reason}
+                       for s in result.model_ranking],
         relabelled=[image for _, image in result.relabelled], dropped=[image for _, image in result.dropped],
         quality_problems=problems,
     )
