@@ -6,7 +6,7 @@ the views determine it (:func:`principal_point_limit_px`), and the sigmas are
 the larger of the covariance's and a delete-one-frame jackknife's
 (:func:`self_calibrate`). Intrinsics are COLMAP parameter vectors of the
 COLMAP twin of each camcal lens model (:data:`MODELS`,
-:mod:`camcal.io.colmap`).
+:mod:`camcal.model.colmap`).
 
 References
 ----------
@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
 from camcal.geometry.jackknife import MAX_GROUPS, MIN_FRAMES, frame_jackknife
-from camcal.io.colmap import camera_from_colmap, camera_to_colmap
+from camcal.model.colmap import camera_from_colmap, camera_to_colmap
 from camcal.model.distortion import Distortion, fit_distortion
 
 __all__ = [

@@ -5,7 +5,7 @@ The reconstruction (one rig, from :mod:`camcal.pipelines.solve`) becomes a
 ``rig_from_world`` and whose cameras hold ``cam_from_rig`` (the reference
 sensor at the rig origin), with its sparse points beside it
 (:class:`SparseModel`). COLMAP's pixel centre (0.5) is converted at the
-boundary (:mod:`camcal.io.colmap`). Before camcal's refinement, observations
+boundary (:mod:`camcal.model.colmap`). Before camcal's refinement, observations
 the noise does not explain are dropped (:func:`reject_outliers`).
 
 References
@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleResult
 from camcal.geometry.selfcal import SelfCalibration
-from camcal.io.colmap import camera_from_colmap
+from camcal.model.colmap import camera_from_colmap
 from camcal.model.camera import from_colmap, pixels_from_colmap
 from camcal.model.rig import Frame, Rig, make_provenance
 

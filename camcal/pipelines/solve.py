@@ -45,7 +45,7 @@ from camcal.geometry.bundle import (
 )
 from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, self_calibrate
 from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sparse_model
-from camcal.io.colmap import camera_from_colmap
+from camcal.model.colmap import camera_from_colmap
 from camcal.io.ply import write_points_ply
 from camcal.model.rig import Camera, Rig
 

@@ -12,7 +12,7 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleState
 from camcal.model.camera import rotation_angle_deg
 from camcal.geometry.selfcal import principal_point_limit_px, self_calibrate
-from camcal.io.colmap import camera_from_colmap
+from camcal.model.colmap import camera_from_colmap
 from camcal.model.rig import Camera
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
 

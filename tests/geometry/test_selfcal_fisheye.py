@@ -14,7 +14,7 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleState
 from camcal.model.camera import rotation_angle_deg
 from camcal.model.distortion import Distortion
-from camcal.io.colmap import camera_from_colmap
+from camcal.model.colmap import camera_from_colmap
 from camcal.model.rig import Camera
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
 
