@@ -4,11 +4,11 @@ and the batch's cost per frame against the single-frame ``camcal undistort`` pat
 The frames (RGB FLOAT, ZIP-compressed, smooth content plus noise) are
 generated in a temporary directory. Timings:
 
-- ``1 process``: :func:`camcal.batch.process_frame` in a loop in this
+- ``1 process``: :func:`camcal.pipelines.batch.process_frame` in a loop in this
   process (no Dask): maps built once, then read, remap, write per frame;
-- ``Dask N workers``: :func:`camcal.batch.run_batch` on a new
+- ``Dask N workers``: :func:`camcal.pipelines.batch.run_batch` on a new
   ``LocalCluster`` of N worker processes (start-up included);
-- ``camcal undistort``: :func:`camcal.geometry.undistort.undistort_images`
+- ``camcal undistort``: :func:`camcal.pipelines.undistort.undistort_images`
   called once per frame, as a script calling the single-frame verb per
   frame would (map rebuilt on every call), and the CLI itself for one frame
   (``python -m camcal undistort``, interpreter start-up included).
@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-from camcal.batch import make_job, process_frame, run_batch
+from camcal.pipelines.batch import make_job, process_frame, run_batch
 from camcal.model.distortion import Distortion
-from camcal.geometry.undistort import undistort_images
+from camcal.pipelines.undistort import undistort_images
 from camcal.model.rig import Rig
 from camcal.synthetic import example_camera
 

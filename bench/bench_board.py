@@ -38,7 +38,8 @@ import cv2
 import numpy as np
 
 from camcal.cli import main
-from camcal.geometry.board import detect_in_images, frame_number, parse_board
+from camcal.geometry.board import frame_number, parse_board
+from camcal.pipelines.board import detect_in_images
 from camcal.geometry.zhang import calibrate_board
 from camcal.model.rig import Rig
 

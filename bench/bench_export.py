@@ -24,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "colour"))
 
-from camcal.batch import ColourStep  # noqa: E402
+from camcal.pipelines.batch import ColourStep  # noqa: E402
 from camcal.colour.evaluate import delta_E  # noqa: E402
 from camcal.colour.export_ocio import output_matrix  # noqa: E402
 from colour_export_helpers import codes_of, make_fit  # noqa: E402

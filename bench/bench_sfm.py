@@ -29,7 +29,7 @@ import pycolmap
 from camcal.geometry.bundle import (BundleOptions, bundle_adjust, ceres_covariance, marginal_covariance,
                                    state_from_reconstruction)
 from camcal.model.camera import rotation_angle_deg
-from camcal.geometry.sfm import solve_pycolmap_plain, solve_sfm
+from camcal.pipelines.solve import solve_pycolmap_plain, solve_sfm
 from camcal.synthetic import example_stereo_rig, render_rig_orbit
 
 

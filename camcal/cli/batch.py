@@ -45,7 +45,7 @@ def _batch(args: argparse.Namespace) -> int:
     Exit status: 0 all frames written, 1 some frames failed (listed), 2 bad input.
     """
     from camcal.base.frame_ranges import parse_frames
-    from camcal.batch import make_job, run_batch
+    from camcal.pipelines.batch import make_job, run_batch
 
     geometry = "undistort" if args.undistort else "rectify" if args.rectify else None
     job = make_job(args.rig, args.camera, args.in_pattern, args.out, geometry, args.colour, args.mode, args.overscan,

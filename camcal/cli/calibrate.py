@@ -97,7 +97,8 @@ def _board(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from camcal.geometry.board import default_cache_dir, detect_in_images, frame_number, parse_board
+    from camcal.geometry.board import frame_number, parse_board
+    from camcal.pipelines.board import default_cache_dir, detect_in_images
     from camcal.geometry.zhang import calibrate_board, quality_problems
     from camcal.base.progress import Progress
     from camcal.report.calibration import write_report

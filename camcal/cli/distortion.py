@@ -44,7 +44,9 @@ def _fit(args: argparse.Namespace) -> int:
 
     from pathlib import Path
 
-    from camcal.geometry.plumbline import fit_plumbline, lines_from_images, read_lines
+    from camcal.geometry.lines import lines_from_images
+    from camcal.geometry.plumbline import fit_plumbline
+    from camcal.io.lines import read_lines
     from camcal.io.frames import imread
     from camcal.base.jsonfile import write_json
 

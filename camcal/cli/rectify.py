@@ -37,7 +37,9 @@ def _rectify(args: argparse.Namespace) -> int:
     (Hartley 1999). Matches come from --matches (CSV camera_a,u_a,v_a,camera_b,u_b,v_b) or from SIFT on the
     first image of each --images sequence.
     """
-    from camcal.geometry.rectify import RectifyWarper, match_images, read_matches_csv, rectify
+    from camcal.geometry.rectify import RectifyWarper, rectify
+    from camcal.io.matches import read_matches_csv
+    from camcal.pipelines.rectify import match_image_files, write_rectified
     from camcal.base.jsonfile import write_json
     from camcal.model.rig import Rig
 
@@ -53,7 +55,7 @@ def _rectify(args: argparse.Namespace) -> int:
     if args.matches:
         matches = read_matches_csv(args.matches)
     elif images and (args.method == "hartley" or args.refine):
-        matches = match_images(rig, {name: files[0] for name, files in images.items()})
+        matches = match_image_files(rig, {name: files[0] for name, files in images.items()})
     else:
         matches = None
     method = {"camera": "Nozick 2011" if args.refine else "camera", "hartley": "Hartley 1999"}[args.method]
@@ -62,7 +64,7 @@ def _rectify(args: argparse.Namespace) -> int:
     if args.write:
         warper = RectifyWarper(result.rig)
         for name in result.names:
-            written += warper.write(name, images.get(name, []), args.write)
+            written += write_rectified(warper, name, images.get(name, []), args.write)
     result.rig.save(args.out)
     print(result.summary())
     out = summary_of(args)

@@ -53,7 +53,8 @@ def _solve(args: argparse.Namespace) -> int:
     """
     from pathlib import Path
 
-    from camcal.geometry.sfm import LENS_MODELS, MODELS, collect_images, solve_pycolmap_plain, solve_sfm
+    from camcal.geometry.selfcal import LENS_MODELS, MODELS
+    from camcal.pipelines.solve import collect_images, solve_pycolmap_plain, solve_sfm
     from camcal.model.rig import Rig
 
     folders = [Path(folder) for folder in args.folders]

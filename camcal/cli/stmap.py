@@ -23,7 +23,7 @@ def _stmap(args: argparse.Namespace) -> int:
     """Write NAME_undistort.exr and NAME_redistort.exr (R = (x + 0.5) / W, G = 1 - (y + 0.5) / H of the pixel to
     sample) and the undistorted rig.
     """
-    from camcal.geometry.stmap import write_stmaps
+    from camcal.io.stmap import write_stmaps
     from camcal.model.rig import Rig
 
     paths = write_stmaps(Rig.load(args.rig), args.camera, args.out, args.overscan)

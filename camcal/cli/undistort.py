@@ -28,7 +28,7 @@ def _undistort(args: argparse.Namespace) -> int:
     """Undistort images with one remap per image; writes them under their own names and DIR/undistorted.rig.json
     with the new K and distortion none.
     """
-    from camcal.geometry.undistort import undistort_images
+    from camcal.pipelines.undistort import undistort_images
     from camcal.model.rig import Rig
 
     rig = Rig.load(args.rig)

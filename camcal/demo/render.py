@@ -61,7 +61,7 @@ def _write_plate(render: Path, maps, out: Path, bits: int) -> Path:
     """Apply the lens to a render and write it as a linear 8- or 16-bit PNG."""
     import cv2  # noqa: PLC0415
 
-    from camcal.geometry.stmap import read_exr  # noqa: PLC0415
+    from camcal.io.stmap import read_exr  # noqa: PLC0415
     from camcal.base.atomic import atomic_path  # noqa: PLC0415
 
     rgb = read_exr(render)[..., :3]

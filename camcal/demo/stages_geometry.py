@@ -29,7 +29,8 @@ __all__ = [
 
 
 def stage_calibrate_board(ctx: DemoContext) -> StageResult:
-    from camcal.geometry.board import detect_in_images, parse_board  # noqa: PLC0415
+    from camcal.geometry.board import parse_board  # noqa: PLC0415
+    from camcal.pipelines.board import detect_in_images  # noqa: PLC0415
     from camcal.geometry.zhang import calibrate_board  # noqa: PLC0415
     from camcal.report.calibration import write_report  # noqa: PLC0415
 

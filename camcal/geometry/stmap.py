@@ -16,24 +16,20 @@ Two maps per camera:
 - redistort: output is the plate-sized distorted image; it samples the
   undistorted (overscanned) image, e.g. a CG render made with ``K_new``.
 
-Written as 32-bit float OpenEXR with the OpenEXR bindings
-(:func:`camcal.io.frames.imwrite`): the OpenCV 5 wheels have no EXR codec.
+Written as 32-bit float OpenEXR by :mod:`camcal.io.stmap`.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from camcal.geometry.undistort import make_undistorter
-from camcal.io.frames import imread, imwrite
-from camcal.model.rig import Camera, Rig, make_provenance
+from camcal.model.rig import Camera
 
-__all__ = ["STMaps", "st_from_pixels", "pixels_from_st", "make_stmaps", "write_exr", "read_exr", "write_stmaps"]
+__all__ = ["STMaps", "st_from_pixels", "pixels_from_st", "make_stmaps"]
 
 
 def st_from_pixels(x: NDArray, y: NDArray, source_size: tuple[int, int]) -> NDArray[np.float32]:
@@ -124,36 +120,3 @@ def make_stmaps(camera: Camera, overscan: float = 1.1) -> STMaps:
         target[:, 0].reshape(height, width), target[:, 1].reshape(height, width), undistorter.view.image_size
     )
     return STMaps(undistort, redistort, camera.image_size, undistorter.undistorted_camera())
-
-
-def write_exr(path: str | os.PathLike, rgb: NDArray) -> Path:
-    """Write a float32 RGB image as OpenEXR (FLOAT channels, atomically)."""
-    return imwrite(path, np.asarray(rgb, dtype=np.float32)[..., ::-1])
-
-
-def read_exr(path: str | os.PathLike) -> NDArray[np.float32]:
-    """Read an EXR written by :func:`write_exr`, as RGB float32."""
-    return imread(path)[..., ::-1].copy()
-
-
-def write_stmaps(rig: Rig, camera_name: str, out_dir: str | os.PathLike, overscan: float = 1.1) -> list[Path]:
-    """Write ``<camera>_undistort.exr``, ``<camera>_redistort.exr`` and the undistorted rig.
-
-    Returns
-    -------
-    list of Path
-        The two maps and ``<camera>_undistorted.rig.json`` (the rig with the
-        camera replaced by its undistorted camera: ``K_new`` on the
-        overscan canvas, distortion none).
-    """
-    camera = rig.camera(camera_name)
-    maps = make_stmaps(camera, overscan)
-    out_dir = Path(out_dir)
-    paths = [
-        write_exr(out_dir / f"{camera_name}_undistort.exr", maps.undistort),
-        write_exr(out_dir / f"{camera_name}_redistort.exr", maps.redistort),
-    ]
-    cameras = tuple(maps.undistorted if c.name == camera_name else c for c in rig.cameras)
-    provenance = make_provenance("stmap", source_camera=camera_name, overscan=overscan)
-    paths.append(Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(out_dir / f"{camera_name}_undistorted.rig.json"))
-    return paths

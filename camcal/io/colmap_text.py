@@ -1,6 +1,6 @@
 """COLMAP's text model (``cameras.txt``, ``images.txt``, ``points3D.txt``) for camcal rigs.
 
-The camera models and the half-pixel shift are :mod:`camcal.io.colmap`'s
+The camera models and the half-pixel shift are :mod:`camcal.model.colmap`'s
 exact mappings; this module writes and reads COLMAP's documented text
 layout (colmap.github.io/format.html)::
 
@@ -37,7 +37,7 @@ from camcal.model.camera import from_colmap, to_colmap
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_write_text
 from camcal.base.limits import FILE_BYTES, check_file_size
-from camcal.io.colmap import camera_from_colmap, camera_to_colmap
+from camcal.model.colmap import camera_from_colmap, camera_to_colmap
 from camcal.io.conversion import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
 from camcal.io.ply import read_points_ply
 from camcal.io.points_csv import finite_numbers

@@ -22,7 +22,7 @@ kept on the node as user knobs (``image_width``, ``image_height``,
 ``lens_model``, ``lens_params``, ``lens_center``) so that the import
 reads them back.
 
-Lens: for every camera with a lens, the ST-maps (:mod:`camcal.geometry.stmap`)
+Lens: for every camera with a lens, the ST-maps (:mod:`camcal.io.stmap`)
 are written beside the script, ``<script>_stmaps/<camera>_undistort.exr``
 and ``..._redistort.exr``, and the script holds the chain
 ``Read (plate) -> STMap (undistort map) -> ... -> STMap (redistort map)``,
@@ -111,7 +111,7 @@ def _node_name(name: str) -> str:
 
 def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_path: Path | None = None) -> ExportResult:
     """Write the script (and the ST-maps of cameras with a lens) (see the module docstring)."""
-    from camcal.geometry.stmap import write_stmaps
+    from camcal.io.stmap import write_stmaps
 
     if out.suffix.lower() != ".nk":
         raise CamcalError(f"a Nuke script must end in .nk, got {out.name!r}")

@@ -129,13 +129,13 @@ def export(
     """Write the rig as a USD stage (see the module docstring); with ``stmaps`` the lens ST-maps too.
 
     The maps go to ``<stage>_stmaps/<camera>_undistort.exr`` / ``_redistort.exr``
-    (:func:`camcal.geometry.stmap.write_stmaps`) and the camera's customData
+    (:func:`camcal.io.stmap.write_stmaps`) and the camera's customData
     ``camcal.stmap_undistort`` / ``camcal.stmap_redistort`` hold their paths
     relative to the stage.
     """
     from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
-    from camcal.geometry.stmap import write_stmaps
+    from camcal.io.stmap import write_stmaps
 
     if out.suffix.lower() not in SUFFIXES:
         raise CamcalError(f"a USD file must end in {', '.join(SUFFIXES)}, got {out.name!r}")

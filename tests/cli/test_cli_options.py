@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-import camcal.geometry.sfm as sfm
+import camcal.pipelines.solve as solve
 from camcal.cli import build_parser, main
 from camcal.cli.options import expand_glob
 from camcal.base.errors import CamcalError
@@ -84,7 +84,7 @@ def test_solve_takes_absolute_and_relative_globs(frames, monkeypatch, tmp_path, 
         seen.update(images)
         raise CamcalError("stop here")
 
-    monkeypatch.setattr(sfm, "solve_sfm", fake_solve)
+    monkeypatch.setattr(solve, "solve_sfm", fake_solve)
     left = str(frames / "L_*.png") if kind == "absolute" else "L_*.png"
     code = main(["solve", str(frames), "--camera", f"left={left}", "right=R_*.png", "--out", str(tmp_path / "o")])
     assert code == 2 and seen == {"left": [frames / "L_01.png", frames / "L_02.png"], "right": [frames / "R_01.png"]}

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from camcal.base.errors import CamcalError
-from camcal.geometry.board import Board, detect_board, detect_in_images, frame_number, parse_board
+from camcal.geometry.board import Board, detect_board, frame_number, parse_board
+from camcal.pipelines.board import detect_in_images
 
 
 def render_chessboard(columns: int, rows: int, square_px: int, margin: int = 40, flip: bool = False):
@@ -116,7 +117,7 @@ def test_real_pairs_labelled_alike(shared_data):
 
 def test_detections_cached_by_content_and_threads_agree(tmp_path, monkeypatch):
     """A second pass reads the cache (no detection runs); a changed image is detected again; threads give the same corners."""
-    import camcal.geometry.board as board_module
+    import camcal.pipelines.board as board_module
 
     board = Board("chessboard", 9, 6, 1.0)
     image, truth = render_chessboard(9, 6, 40)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-import camcal.geometry.bundle as bundle_module
+import camcal.geometry.bundle.covariance as covariance_module
+import camcal.geometry.bundle.solve as solve_module
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import (
     BoardObservations,
@@ -160,7 +161,7 @@ def test_board_observations_set_metric_scale():
     board_R *= np.linalg.det(board_R)
     world = corners @ board_R.T + centre
     cameras, frames, ids, xys = [], [], [], []
-    from camcal.geometry.bundle import _project  # the projection under test against pycolmap above
+    from camcal.geometry.bundle.state import _project  # the projection under test against pycolmap above
 
     rng = np.random.default_rng(5)
     for frame in range(len(true_state.frame_R)):
@@ -223,16 +224,16 @@ def capture_covariance(monkeypatch, dense_reference=True):
     sizes)``.
     """
     calls = []
-    ours = bundle_module.marginal_covariance
+    ours = covariance_module.marginal_covariance
 
     def with_references(problem, reconstruction, blocks, *args):
         mine = ours(problem, reconstruction, blocks, *args)
-        full = bundle_module.ceres_covariance(problem, blocks)
+        full = covariance_module.ceres_covariance(problem, blocks)
         sizes = [problem.parameter_block_tangent_size(b) for b in blocks]
         offsets = np.r_[0, np.cumsum(sizes)]
         dense = None
         if dense_reference:
-            J = bundle_module._jacobian(problem, reconstruction, blocks)[0].toarray()
+            J = covariance_module._jacobian(problem, reconstruction, blocks)[0].toarray()
             norms = np.linalg.norm(J, axis=0)
             R = scipy.linalg.qr(J / norms, mode="r")[0][:J.shape[1]]
             R_inverse = scipy.linalg.solve_triangular(R, np.eye(len(R)))[:offsets[-1]]
@@ -242,7 +243,7 @@ def capture_covariance(monkeypatch, dense_reference=True):
         calls.append((mine, full, dense, sizes))
         return mine
 
-    monkeypatch.setattr(bundle_module, "marginal_covariance", with_references)
+    monkeypatch.setattr(solve_module, "marginal_covariance", with_references)
     return calls
 
 
@@ -285,7 +286,7 @@ def with_far_points(state, truth, distances, rng):
     ~baseline / distance), observed with ``SIGMA_PX`` noise wherever it lands in the images."""
     centre = -truth.frame_R[0].T @ truth.frame_t[0]
     points, cams, frames, ids, xys = [], [], [], [], []
-    from camcal.geometry.bundle import _project  # the projection tested against pycolmap above
+    from camcal.geometry.bundle.state import _project  # the projection tested against pycolmap above
 
     for k, distance in enumerate(distances):
         direction = truth.frame_R[0].T @ np.array([0.04 * k, 0.03, 1.0])

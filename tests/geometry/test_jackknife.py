@@ -4,7 +4,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from test_sfm_selfcal import stereo_rig, tracks_state
+from test_selfcal import stereo_rig, tracks_state
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, bundle_adjust

@@ -9,17 +9,9 @@ import pytest
 from camcal.cli import main
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
-from camcal.geometry.plumbline import (
-    LineSet,
-    detect_chessboard_lines,
-    estimate_division_StrandHayman2005,
-    fit_circle,
-    fit_plumbline,
-    lines_from_edges,
-    read_lines,
-    straightness_rms,
-    write_lines,
-)
+from camcal.geometry.lines import LineSet, detect_chessboard_lines, fit_circle, lines_from_edges
+from camcal.geometry.plumbline import estimate_division_StrandHayman2005, fit_plumbline, straightness_rms
+from camcal.io.lines import read_lines, write_lines
 
 W, H = 1920, 1080
 CENTRE = (1003.0, 527.0)
@@ -197,7 +189,7 @@ def left_corners(shared_data):
 
 
 def test_real_chessboards_straighter_than_opencv_calibration(left_corners):
-    from camcal.geometry.plumbline import lines_from_chessboard
+    from camcal.geometry.lines import lines_from_chessboard
 
     corners, size = left_corners
     lines = LineSet((), size)

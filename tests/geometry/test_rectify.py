@@ -17,15 +17,15 @@ from camcal.geometry.rectify import (
     CentresOffLineWarning,
     RectifyWarper,
     image_deformation,
-    match_images,
-    read_matches_csv,
     rectify,
     rectify_calibrated,
     rectify_Hartley1999,
     rectify_Nozick2011,
     vertical_disparity,
 )
+from camcal.io.matches import read_matches_csv
 from camcal.model.rig import Camera, Rig
+from camcal.pipelines.rectify import match_image_files
 
 SIZE = (1280, 720)
 SIGMA_PX = 0.2
@@ -513,7 +513,7 @@ def test_real_pairs_rectify_at_least_as_well_as_opencv(stereo_calibration):
 def test_sift_matches_on_real_pairs_agree_with_the_calibration(stereo_calibration, shared_data):
     rig, *_ = stereo_calibration
     folder = shared_data / "stereo_chessboard"
-    matches = match_images(rig, {"left": folder / "left21.jpg", "right": folder / "right21.jpg"})
+    matches = match_image_files(rig, {"left": folder / "left21.jpg", "right": folder / "right21.jpg"})
     rectified = rectify_calibrated(rig).rig
     ((xa, xb),) = matches.values()
     rows = [vertical_disparity(rectified, {("left", "right"): (xa[i:i + 1], xb[i:i + 1])})[0].max_px

@@ -6,7 +6,8 @@ import pytest
 
 from camcal.cli import main
 from camcal.model.distortion import Distortion
-from camcal.geometry.stmap import make_stmaps, pixels_from_st, read_exr, st_from_pixels, write_exr
+from camcal.geometry.stmap import make_stmaps, pixels_from_st, st_from_pixels
+from camcal.io.stmap import read_exr, write_exr
 from camcal.geometry.undistort import make_undistorter
 from camcal.model.rig import Rig
 from camcal.synthetic import example_camera

@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 
 from camcal.cli import main
 from camcal.base.errors import CamcalError
-from camcal.geometry.board import Board, Detection, detect_in_images, frame_number
+from camcal.geometry.board import Board, Detection, frame_number
+from camcal.pipelines.board import detect_in_images
 from camcal.model.distortion import Distortion
 from camcal.geometry.zhang import AUTO_MODELS, calibrate_board
 from camcal.report.calibration import write_report

@@ -8,7 +8,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
-from camcal.geometry.stmap import make_stmaps, read_exr
+from camcal.geometry.stmap import make_stmaps
+from camcal.io.stmap import read_exr
 from camcal.io.interchange import export_rig, import_rig
 
 from interchange_rigs import division_rig, moving_rig, stereo_rig, world_points

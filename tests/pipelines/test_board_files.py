@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.geometry.board import Board, detect_in_images
+from camcal.geometry.board import Board
+from camcal.pipelines.board import detect_in_images
 from camcal.model.distortion import Distortion
 from camcal.io.frames import imwrite
 

@@ -20,7 +20,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from camcal.batch import (
+from camcal.pipelines.batch import (
     ColourStep, make_job, process_frame, record_path, run_batch,
 )
 from camcal.cli import main
@@ -37,7 +37,7 @@ import cv2  # noqa: E402  (after camcal.io.frames: EXR enabled in OpenCV)
 
 SIZE = (160, 120)
 FRAMES = tuple(range(1001, 1013))
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 # -- fixtures -----------------------------------------------------------------------

@@ -10,7 +10,7 @@ import pytest
 from camcal.cli import main
 from camcal.base.errors import CamcalError
 from camcal.model.camera import rotation_angle_deg, similarity_Umeyama1991
-from camcal.geometry.sfm import collect_images, solve_sfm
+from camcal.pipelines.solve import collect_images, solve_sfm
 from camcal.io.ply import read_points_ply, write_points_ply
 from camcal.model.rig import Rig
 from camcal.synthetic import render_stereo_sequence

@@ -11,8 +11,8 @@ from scipy.spatial.transform import Rotation
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleState
 from camcal.model.camera import rotation_angle_deg
-from camcal.geometry.sfm import principal_point_limit_px, self_calibrate
-from camcal.io.colmap import camera_from_colmap
+from camcal.geometry.selfcal import principal_point_limit_px, self_calibrate
+from camcal.model.colmap import camera_from_colmap
 from camcal.model.rig import Camera
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
 
@@ -210,7 +210,7 @@ def test_uncertainty_covers_the_error_on_rendered_rigs(tmp_path):
     within two plain jackknife sigmas. The widening comes from Tukey's interval, not from those scenes; these seeds
     (20-39, 8-12 frames) were first run with it."""
     from camcal.geometry.jackknife import interval_factor
-    from camcal.geometry.sfm import solve_sfm
+    from camcal.pipelines.solve import solve_sfm
     from camcal.synthetic import render_rig_orbit
 
     ratios: dict[str, list[float]] = {"reported": [], "covariance": [], "jackknife before widening": []}
@@ -257,7 +257,7 @@ RENDERED_SCENES = {
 @pytest.mark.parametrize("scene", list(RENDERED_SCENES))
 def test_solve_recovers_rendered_rig_at_least_as_well_as_plain_pycolmap(tmp_path, capsys, scene):
     from camcal.cli import main
-    from camcal.geometry.sfm import solve_pycolmap_plain
+    from camcal.pipelines.solve import solve_pycolmap_plain
     from camcal.model.rig import Rig
     from camcal.synthetic import render_rig_orbit
 

@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-import camcal.geometry.sfm as sfm
+import camcal.geometry.selfcal as selfcal
+import camcal.pipelines.solve as solve
 from camcal.cli import main
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleState
 from camcal.model.camera import rotation_angle_deg
 from camcal.model.distortion import Distortion
-from camcal.io.colmap import camera_from_colmap
+from camcal.model.colmap import camera_from_colmap
 from camcal.model.rig import Camera
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
 
@@ -95,7 +96,7 @@ def test_self_calibration_recovers_a_fisheye_rig(seed_model):
     state = fisheye_tracks(cameras, rng, seed_model)
     for k, camera in enumerate(cameras):  # a real fisheye test: rays far beyond a pinhole's comfort
         assert widest_angle_deg(camera, state.obs_xy[state.obs_camera == k]) > 80.0
-    result, decisions = sfm.self_calibrate(state, BundleOptions(), ("kannala-brandt",))
+    result, decisions = selfcal.self_calibrate(state, BundleOptions(), ("kannala-brandt",))
     print("\n".join(decisions.lines()))
     print(result.summary())
     assert result.state.models == ("OPENCV_FISHEYE", "OPENCV_FISHEYE")
@@ -124,20 +125,20 @@ def test_self_calibration_recovers_a_fisheye_rig(seed_model):
 def test_auto_never_chooses_a_fisheye_and_the_cli_maps_a_fisheye_with_a_pinhole_model(monkeypatch, tmp_path):
     """COLMAP refuses fisheye pairs without a focal prior: ``--model kannala-brandt`` maps with
     SIMPLE_RADIAL and self-calibrates kannala-brandt (the conversion the SIMPLE_DIVISION seed above tests)."""
-    assert sfm.MODELS["kannala-brandt"] == "OPENCV_FISHEYE" and "kannala-brandt" not in sfm.LENS_MODELS
+    assert selfcal.MODELS["kannala-brandt"] == "OPENCV_FISHEYE" and "kannala-brandt" not in selfcal.LENS_MODELS
     seen = []
 
     def fake_solve(images, out, **options):
         seen.append((options["camera_model"], options["lens_models"]))
         raise CamcalError("stop here")
 
-    monkeypatch.setattr(sfm, "solve_sfm", fake_solve)
+    monkeypatch.setattr(solve, "solve_sfm", fake_solve)
     folder = tmp_path / "left"
     folder.mkdir()
     (folder / "0001.png").write_bytes(b"x")
     for model in ("kannala-brandt", "auto"):
         assert main(["solve", str(folder), "--model", model, "--out", str(tmp_path / "o")]) == 2
-    assert seen == [("SIMPLE_RADIAL", ("kannala-brandt",)), ("SIMPLE_RADIAL", sfm.LENS_MODELS)]
+    assert seen == [("SIMPLE_RADIAL", ("kannala-brandt",)), ("SIMPLE_RADIAL", selfcal.LENS_MODELS)]
 
 
 @pytest.mark.slow
@@ -153,7 +154,7 @@ def test_fisheye_uncertainty_covers_the_error_over_seeded_scenes():
         lenses = [{name: value * rng.uniform(0.6, 1.4) for name, value in lens.items()} for lens in LENSES]
         cameras = tuple(dataclasses.replace(camera, distortion=Distortion("kannala-brandt", lens))
                         for camera, lens in zip(rig, lenses))
-        result, _ = sfm.self_calibrate(fisheye_tracks(cameras, rng), BundleOptions(), ("kannala-brandt",), seed=seed)
+        result, _ = selfcal.self_calibrate(fisheye_tracks(cameras, rng), BundleOptions(), ("kannala-brandt",), seed=seed)
         for k, truth in enumerate(cameras):
             solved = solved_camera(result.state, k)
             errors = {"fx": solved.K[0, 0] - truth.K[0, 0], "fy": solved.K[1, 1] - truth.K[1, 1],

@@ -6,7 +6,7 @@ import pytest
 
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
-from camcal.io.colmap import camera_from_colmap, camera_to_colmap
+from camcal.model.colmap import camera_from_colmap, camera_to_colmap
 from camcal.synthetic import example_camera, points_in_view
 
 CASES = {

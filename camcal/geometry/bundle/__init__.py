@@ -1,0 +1,55 @@
+"""Rig-aware bundle adjustment on Ceres: camcal's one nonlinear calibration engine.
+
+- :mod:`~camcal.geometry.bundle.state`: what is refined (:class:`BundleState`,
+  :class:`BoardObservations`), how (:class:`BundleOptions`), what it measured
+  (:class:`BundleResult`), the cost (:func:`robust_cost`, :func:`residuals`)
+  and the anchors of the gauge (:func:`hold_rig`, :func:`attach_board`);
+- :mod:`~camcal.geometry.bundle.reconstruction`: a state from and into a
+  pycolmap ``Reconstruction``;
+- :mod:`~camcal.geometry.bundle.solve`: :func:`bundle_adjust`, pycolmap's Ceres
+  bundle adjuster on the state;
+- :mod:`~camcal.geometry.bundle.covariance`: the marginal covariance of the
+  intrinsics and rig poses (:func:`marginal_covariance`).
+
+References
+----------
+Triggs, B., McLauchlan, P., Hartley, R. & Fitzgibbon, A. (2000). Bundle
+Adjustment - A Modern Synthesis. Vision Algorithms: Theory and Practice.
+Schoenberger, J. L. & Frahm, J.-M. (2016). Structure-from-Motion Revisited.
+CVPR (COLMAP).
+Agarwal, S., Mierle, K. et al. Ceres Solver: loss functions, manifolds,
+covariance estimation.
+"""
+
+from camcal.geometry.bundle.covariance import MIN_POINT_SINGULAR_RATIO, ceres_covariance, marginal_covariance
+from camcal.geometry.bundle.reconstruction import state_from_reconstruction, state_to_reconstruction
+from camcal.geometry.bundle.solve import bundle_adjust
+from camcal.geometry.bundle.state import (
+    LOSSES,
+    BoardObservations,
+    BundleOptions,
+    BundleResult,
+    BundleState,
+    attach_board,
+    hold_rig,
+    residuals,
+    robust_cost,
+)
+
+__all__ = [
+    "LOSSES",
+    "MIN_POINT_SINGULAR_RATIO",
+    "BoardObservations",
+    "BundleOptions",
+    "BundleResult",
+    "BundleState",
+    "attach_board",
+    "bundle_adjust",
+    "ceres_covariance",
+    "hold_rig",
+    "marginal_covariance",
+    "residuals",
+    "robust_cost",
+    "state_from_reconstruction",
+    "state_to_reconstruction",
+]

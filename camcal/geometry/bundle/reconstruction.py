@@ -1,0 +1,84 @@
+"""A :class:`~camcal.geometry.bundle.state.BundleState` from and into a pycolmap ``Reconstruction``.
+
+Pixels move between COLMAP's convention (pixel centre 0.5) and camcal's (0)
+here (:func:`camcal.model.camera.pixels_from_colmap`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from camcal.base.errors import CamcalError
+from camcal.geometry.bundle.state import BundleState
+from camcal.model.camera import pixels_from_colmap
+
+__all__ = ["state_from_reconstruction", "state_to_reconstruction"]
+
+
+def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | None = None) -> BundleState:
+    """A :class:`BundleState` from a pycolmap ``Reconstruction`` with one rig.
+
+    ``camera_names`` maps COLMAP camera ids to names (default ``camera<id>``);
+    the rig's reference sensor becomes camera 0. Pixels move from COLMAP's
+    convention (pixel centre 0.5) to camcal's (0).
+    """
+    import pycolmap  # noqa: PLC0415 - heavy dependency, only here
+
+    if reconstruction.num_rigs() != 1:
+        raise CamcalError(f"expected one rig in the reconstruction, got {reconstruction.num_rigs()}")
+    rig = next(iter(reconstruction.rigs.values()))
+    ref = rig.ref_sensor_id.id
+    camera_ids = [ref] + sorted(cid for cid in reconstruction.cameras if cid != ref)
+    names = camera_names or {cid: f"camera{cid}" for cid in camera_ids}
+    sensor_R = np.repeat(np.eye(3)[None], len(camera_ids), axis=0)
+    sensor_t = np.zeros((len(camera_ids), 3))
+    for index, cid in enumerate(camera_ids[1:], start=1):
+        pose = rig.sensor_from_rig(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cid))
+        sensor_R[index], sensor_t[index] = pose.rotation.matrix(), pose.translation
+    frame_ids = sorted(reconstruction.reg_frame_ids())
+    frame_pos = {fid: k for k, fid in enumerate(frame_ids)}
+    frame_R = np.array([reconstruction.frame(fid).rig_from_world.rotation.matrix() for fid in frame_ids])
+    frame_t = np.array([reconstruction.frame(fid).rig_from_world.translation for fid in frame_ids])
+    point_ids = sorted(reconstruction.points3D)
+    point_pos = {pid: k for k, pid in enumerate(point_ids)}
+    camera_pos = {cid: k for k, cid in enumerate(camera_ids)}
+    cams, frames, pts, xys = [], [], [], []
+    for image in reconstruction.images.values():
+        if not image.has_pose or image.frame_id not in frame_pos:
+            continue
+        for p in image.points2D:
+            if p.has_point3D():
+                cams.append(camera_pos[image.camera_id])
+                frames.append(frame_pos[image.frame_id])
+                pts.append(point_pos[p.point3D_id])
+                xys.append(p.xy)
+    cameras = [reconstruction.cameras[cid] for cid in camera_ids]
+    return BundleState(
+        camera_names=tuple(names[cid] for cid in camera_ids),
+        models=tuple(c.model.name for c in cameras),
+        image_sizes=tuple((c.width, c.height) for c in cameras),
+        params=tuple(np.array(c.params, dtype=np.float64) for c in cameras),
+        sensor_R=sensor_R, sensor_t=sensor_t, frame_R=frame_R, frame_t=frame_t, frame_ids=tuple(frame_ids),
+        points=np.array([reconstruction.points3D[pid].xyz for pid in point_ids]).reshape(-1, 3),
+        point_ids=tuple(point_ids),
+        obs_camera=np.array(cams, dtype=np.int64), obs_frame=np.array(frames, dtype=np.int64),
+        obs_point=np.array(pts, dtype=np.int64), obs_xy=pixels_from_colmap(np.array(xys, dtype=np.float64).reshape(-1, 2)),
+    )
+
+
+def state_to_reconstruction(state: BundleState, reconstruction) -> None:
+    """Write a refined state back into the pycolmap ``Reconstruction`` it came from (in place)."""
+    import pycolmap  # noqa: PLC0415
+
+    rig = next(iter(reconstruction.rigs.values()))
+    camera_ids = [rig.ref_sensor_id.id] + sorted(cid for cid in reconstruction.cameras if cid != rig.ref_sensor_id.id)
+    for index, cid in enumerate(camera_ids):
+        reconstruction.cameras[cid].params = state.params[index]
+        if index:
+            rig.set_sensor_from_rig(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cid),
+                                    pycolmap.Rigid3d(pycolmap.Rotation3d(state.sensor_R[index]), state.sensor_t[index]))
+    for k, fid in enumerate(state.frame_ids):
+        reconstruction.frame(fid).rig_from_world = pycolmap.Rigid3d(
+            pycolmap.Rotation3d(state.frame_R[k]), state.frame_t[k])
+    for k, pid in enumerate(state.point_ids):
+        reconstruction.points3D[pid].xyz = state.points[k]

@@ -1,0 +1,461 @@
+"""Structure from motion on image folders: pycolmap features, matches and mapping, then camcal's refinement.
+
+One folder of images gives one camera moving over frames; several folders,
+one per camera of a rig with the same file name per frame, give a rig whose
+cameras share one relative pose over all frames (pycolmap's rig support:
+``RigConfig`` + ``apply_rig_config`` before mapping, so that the mapper's
+bundle adjustment keeps ``sensor_from_rig`` common to every frame).
+
+The result is a :class:`camcal.model.rig.Rig` (:func:`camcal.geometry.sfm.sparse_model`)
+written as ``solve.rig.json`` with a sibling PLY of the sparse points.
+
+After mapping, camcal's bundle adjustment (:mod:`camcal.geometry.bundle`)
+refines the seed: intrinsics shared per camera, one rig pose for all frames,
+optionally held at a known calibration (``known_rig``, e.g. from
+``calibrate board``, which also gives the reconstruction its units), a robust
+loss, the lens models chosen and the uncertainty of the intrinsics and the
+rig pose (:func:`camcal.geometry.selfcal.self_calibrate`).
+
+References
+----------
+Schoenberger, J. L. & Frahm, J.-M. (2016). Structure-from-Motion Revisited.
+CVPR.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from camcal.base.errors import CamcalError
+from camcal.geometry.bundle import (
+    BundleOptions,
+    BundleResult,
+    bundle_adjust,
+    hold_rig,
+    state_from_reconstruction,
+    state_to_reconstruction,
+)
+from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, self_calibrate
+from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sparse_model
+from camcal.model.colmap import camera_from_colmap
+from camcal.io.ply import write_points_ply
+from camcal.model.rig import Camera, Rig
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "MAPPERS",
+    "MATCHERS",
+    "PycolmapPeer",
+    "SfmResult",
+    "collect_images",
+    "solve_pycolmap_plain",
+    "solve_sfm",
+]
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
+MATCHERS = ("exhaustive", "sequential")
+MAPPERS = ("incremental", "global")
+
+
+@dataclass(frozen=True)
+class SfmResult:
+    """What structure from motion recovered.
+
+    Attributes
+    ----------
+    rig : Rig
+        Cameras (cam_from_rig), per-frame rig poses, points file name.
+    n_images, n_registered : int
+        Images given, images with a pose.
+    unregistered : tuple of str
+        Images without a pose (``camera/file``).
+    n_points : int
+        Sparse 3D points.
+    rms_px : float
+        RMS reprojection error of every observation through the camcal rig
+        (distortion included), in pixels.
+    per_camera_rms_px : dict
+        The same per camera.
+    reconstruction_dir : Path
+        The COLMAP model (binary), for other tools.
+    bundle : BundleResult or None
+        camcal's refinement of the pycolmap seed (costs, RMS before/after,
+        sigmas), None when not refined.
+    self_calibration : SelfCalibration or None
+        The lens models chosen (held-out RMS of each) and the principal point
+        decisions, None when not refined or with one fixed COLMAP model.
+    """
+
+    rig: Rig
+    n_images: int
+    n_registered: int
+    unregistered: tuple[str, ...]
+    n_points: int
+    rms_px: float
+    per_camera_rms_px: dict[str, float]
+    reconstruction_dir: Path
+    bundle: BundleResult | None = None
+    self_calibration: SelfCalibration | None = None
+
+
+def _list_images(folder: Path, pattern: str = "*") -> list[Path]:
+    if not folder.is_dir():
+        raise CamcalError(f"image folder not found: {folder}")
+    images = sorted(p for p in folder.glob(pattern) if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not images:
+        raise CamcalError(f"no images ({', '.join(IMAGE_SUFFIXES)}) matching {pattern!r} in {folder}")
+    return images
+
+
+def collect_images(folders: list[Path], camera_globs: dict[str, str] | None = None) -> dict[str, list[Path]]:
+    """Images per camera: one folder per camera (named after it), or globs in one folder.
+
+    Parameters
+    ----------
+    folders : list of Path
+        Image folders. Without ``camera_globs`` each is one camera; a single
+        folder holding only sub-folders of images is a rig, one camera per
+        sub-folder.
+    camera_globs : dict of str to str, optional
+        Camera name -> glob relative to the (single) folder, e.g.
+        ``{"left": "*_L.png", "right": "*_R.png"}``; frames pair up by sorted order.
+    """
+    folders = [Path(folder) for folder in folders]
+    if camera_globs:
+        if len(folders) != 1:
+            raise CamcalError("--camera NAME=GLOB selects images inside one folder: give exactly one")
+        return {name: _list_images(folders[0], pattern) for name, pattern in camera_globs.items()}
+    if len(folders) == 1 and folders[0].is_dir():
+        subfolders = sorted(p for p in folders[0].iterdir() if p.is_dir())
+        if subfolders and not any(p.suffix.lower() in IMAGE_SUFFIXES for p in folders[0].iterdir() if p.is_file()):
+            folders = subfolders
+    names = [folder.name for folder in folders]
+    if len(set(names)) != len(names):
+        raise CamcalError("image folders must have distinct names (they name the cameras)")
+    return {folder.name: _list_images(folder) for folder in folders}
+
+
+def _stage_images(images: dict[str, list[Path]], staging: Path) -> dict[str, Path]:
+    """Link each camera's images under ``staging/<camera>/`` (COLMAP's rig layout).
+
+    Frames pair up by position in each camera's sorted list: the k-th image
+    of every camera is linked under the same name ``<k>.<suffix>``.
+
+    Returns
+    -------
+    dict
+        Staged name (``camera/<k>.<suffix>``, COLMAP's image name) -> the user's image.
+    """
+    if staging.exists():
+        shutil.rmtree(staging)
+    staged: dict[str, Path] = {}
+    for camera, paths in images.items():
+        (staging / camera).mkdir(parents=True)
+        for index, path in enumerate(paths):
+            name = f"{index:06d}{path.suffix.lower()}"
+            os.symlink(path.resolve(), staging / camera / name)
+            staged[f"{camera}/{name}"] = path
+    return staged
+
+
+def solve_sfm(
+    folders: dict[str, Path | list[Path]],
+    out_dir: Path,
+    camera_model: str = "SIMPLE_RADIAL",
+    matcher: str = "exhaustive",
+    mapper: str = "incremental",
+    seed: int = 0,
+    num_threads: int = -1,
+    refine: bool = True,
+    known_rig: Rig | None = None,
+    loss: str = "trivial",
+    lens_models: tuple[str, ...] | None = LENS_MODELS,
+    principal_point: str = "auto",
+    max_num_features: int = 8192,
+    progress: Callable[[str], None] | None = None,
+    jackknife: bool = True,
+) -> SfmResult:
+    """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
+
+    Parameters
+    ----------
+    folders : dict of str to Path or list of Path
+        Camera name -> its image folder (or its images, see
+        :func:`collect_images`). With several cameras, frames pair up by the
+        sorted order of each camera's images; the first camera is the rig's
+        reference.
+    out_dir : Path
+        Receives ``database.db``, ``images/`` (links), ``sparse/`` (the COLMAP
+        model), ``solve.rig.json`` and ``points.ply``.
+    camera_model : str
+        COLMAP model for every camera: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL,
+        RADIAL, OPENCV, SIMPLE_DIVISION... (one with a camcal counterpart).
+    matcher : {"exhaustive", "sequential"}
+        Exhaustive for unordered sets under ~50 images; sequential for video.
+    mapper : {"incremental", "global"}
+    seed : int
+        The mapper's random seed (repeatable runs).
+    num_threads : int
+        -1 uses every core.
+    refine : bool
+        Run camcal's bundle adjustment after pycolmap's mapping.
+    known_rig : Rig, optional
+        A calibrated rig with the same camera names (``calibrate board``):
+        the cameras' relative poses are held at it and the reconstruction
+        takes its units.
+    loss : {"trivial", "huber", "soft_l1", "cauchy"}
+        Robust loss of the refinement (scale 1 px).
+    lens_models : tuple of str or None
+        camcal lens models each camera chooses among by held-out residual
+        (:func:`self_calibrate`); one model is used as given; None keeps
+        ``camera_model``.
+    principal_point : {"auto", "refine", "centre"}
+        Refine the principal point where its sigma says the views determine
+        it (``auto``), always, or never (COLMAP's default).
+    max_num_features : int
+        SIFT features per image (pycolmap's ``max_num_features``).
+    progress : callable, optional
+        Called with each stage's message (the CLI prints them to stderr).
+    jackknife : bool
+        Sigmas also by the delete-one-frame jackknife (:func:`self_calibrate`).
+
+    Returns
+    -------
+    SfmResult
+    """
+    import pycolmap  # noqa: PLC0415 - optional heavy dependency, only here
+
+    if not folders:
+        raise CamcalError("need at least one image folder")
+    if matcher not in MATCHERS:
+        raise CamcalError(f"unknown matcher {matcher!r}, expected one of: {', '.join(MATCHERS)}")
+    if mapper not in MAPPERS:
+        raise CamcalError(f"unknown mapper {mapper!r}, expected one of: {', '.join(MAPPERS)}")
+    if not hasattr(pycolmap.CameraModelId, camera_model):
+        raise CamcalError(f"unknown COLMAP camera model {camera_model!r}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    image_dir = out_dir / "images"
+    images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
+              for name, value in folders.items()}
+    if known_rig is not None:
+        missing = [name for name in images if name not in {camera.name for camera in known_rig.cameras}]
+        if missing:
+            raise CamcalError(f"the known rig has no camera named {', '.join(map(repr, missing))}")
+    options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None)
+    staged = _stage_images(images, image_dir)
+    image_names = list(staged)
+    if len(image_names) < 2:
+        raise CamcalError(f"need at least 2 images, got {len(image_names)}")
+    database = out_dir / "database.db"
+    database.unlink(missing_ok=True)
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = camera_model
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = num_threads
+    extraction.sift.max_num_features = max_num_features
+    _say(progress, f"extracting features from {len(image_names)} images")
+    pycolmap.extract_features(
+        database, image_dir, image_names=image_names, camera_mode=pycolmap.CameraMode.PER_FOLDER,
+        reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
+    )
+    _say(progress, f"matching ({matcher})")
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = num_threads
+    # matches re-searched along the verified epipolar geometry: more, longer tracks
+    matching.guided_matching = True
+    match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
+    match(database, matching_options=matching, device=pycolmap.Device.cpu)
+    sparse = out_dir / "sparse"
+    if sparse.exists():
+        shutil.rmtree(sparse)
+    sparse.mkdir()
+    _say(progress, f"mapping ({mapper})")
+    models = _map(pycolmap, database, image_dir, sparse, mapper, seed, num_threads)
+    if len(folders) > 1 and models:
+        # COLMAP needs sensor_from_rig to start a rig-constrained mapping: take it
+        # from an unconstrained first pass, then map again with the rig.
+        rig_config = pycolmap.RigConfig(
+            cameras=[
+                pycolmap.RigConfigCamera(ref_sensor=index == 0, image_prefix=f"{name}/")
+                for index, name in enumerate(folders)
+            ]
+        )
+        first_pass = max(models.values(), key=lambda r: r.num_reg_images())
+        db = pycolmap.Database.open(database)
+        try:
+            pycolmap.apply_rig_config([rig_config], db, first_pass)
+        finally:
+            db.close()
+        shutil.rmtree(sparse)
+        sparse.mkdir()
+        _say(progress, f"mapping ({mapper}) with the rig constraint")
+        models = _map(pycolmap, database, image_dir, sparse, mapper, seed, num_threads)
+    if not models:
+        raise CamcalError("structure from motion registered no images: too little texture or overlap?")
+    reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
+    bundle = calibration = None
+    if refine:
+        _say(progress, "bundle adjustment (camcal)")
+        names = {camera_id: camera_name(reconstruction, camera_id) for camera_id in reconstruction.cameras}
+        state = state_from_reconstruction(reconstruction, names)
+        if known_rig is not None:
+            state = hold_rig(state, relative_poses(known_rig, state.camera_names[0]))
+        if lens_models is None:
+            pp_options = dataclasses.replace(options, refine_principal_point=principal_point == "refine")
+            bundle = bundle_adjust(state, pp_options)
+        else:
+            # the mapper's principal point is the image centre: free it once, then drop the matches
+            # that no camera model explains (mismatches, features astride an occluding edge)
+            _say(progress, "bundle adjustment (camcal) with the principal point free, then outlier rejection")
+            pre = bundle_adjust(state, dataclasses.replace(options, refine_principal_point=principal_point != "centre"))
+            state_to_reconstruction(pre.state, reconstruction)
+            _say(progress, reject_outliers(reconstruction))
+            state = state_from_reconstruction(reconstruction, names)
+            bundle, calibration = self_calibrate(state, options, tuple(lens_models), principal_point, seed, progress,
+                                                 jackknife)
+            for line in calibration.lines():
+                _say(progress, line)
+        camera_ids = {name: camera_id for camera_id, name in names.items()}
+        for name, model in zip(bundle.state.camera_names, bundle.state.models):
+            reconstruction.cameras[camera_ids[name]].model = getattr(pycolmap.CameraModelId, model)
+        state_to_reconstruction(bundle.state, reconstruction)
+    model_dir = sparse / "best"
+    model_dir.mkdir(exist_ok=True)
+    reconstruction.write(model_dir)
+    originals = {name: Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
+                 for name, path in staged.items()}
+    units = known_rig.units if known_rig is not None else "arbitrary"
+    return _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle, calibration)
+
+
+@dataclass(frozen=True)
+class PycolmapPeer:
+    """Plain pycolmap's self-calibration of the same images, for comparison.
+
+    Attributes
+    ----------
+    cameras : dict of str to Camera
+        Camera name -> its intrinsics and lens (pose: identity).
+    rms_px : dict of str to float
+        Camera name -> RMS reprojection error (pycolmap's own residuals).
+    right_from_left : dict of str to list of ndarray
+        Camera name -> ``cam_from_reference`` rotation of every frame in which
+        both it and the reference camera (the first) are registered: plain
+        pycolmap has no rig constraint, so each frame has its own.
+    n_registered : int
+    """
+
+    cameras: dict[str, Camera]
+    rms_px: dict[str, float]
+    right_from_left: dict[str, list[NDArray[np.float64]]]
+    n_registered: int
+
+
+def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, camera_model: str = "SIMPLE_DIVISION",
+                         seed: int = 0) -> PycolmapPeer:
+    """The plain pycolmap pipeline a user would script, on the same images as :func:`solve_sfm`.
+
+    Default SIFT extraction with one camera per folder (``camera_model``),
+    exhaustive matching, incremental mapping, then
+    ``pycolmap.bundle_adjustment`` with ``refine_principal_point``. No rig
+    constraint. Writes only under ``out_dir``.
+    """
+    import pycolmap  # noqa: PLC0415
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
+              for name, value in folders.items()}
+    staged = _stage_images(images, out_dir / "images")
+    database = out_dir / "database.db"
+    database.unlink(missing_ok=True)
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = camera_model
+    pycolmap.extract_features(database, out_dir / "images", image_names=list(staged),
+                              camera_mode=pycolmap.CameraMode.PER_FOLDER, reader_options=reader,
+                              device=pycolmap.Device.cpu)
+    pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
+    sparse = out_dir / "sparse"
+    shutil.rmtree(sparse, ignore_errors=True)
+    sparse.mkdir()
+    models = _map(pycolmap, database, out_dir / "images", sparse, "incremental", seed, -1)
+    if not models:
+        raise CamcalError("plain pycolmap registered no images")
+    reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_principal_point = True
+    pycolmap.bundle_adjustment(reconstruction, options)
+    cameras, squared, rotations = {}, {}, {}
+    for camera_id, camera in reconstruction.cameras.items():
+        name = camera_name(reconstruction, camera_id)
+        cameras[name] = camera_from_colmap(name, camera.model.name, (camera.width, camera.height), camera.params,
+                                           np.eye(3), np.zeros(3))
+    reference = next(iter(folders))
+    by_frame: dict[str, dict[str, NDArray[np.float64]]] = {}
+    for image in reconstruction.images.values():
+        if not image.has_pose:
+            continue
+        name, file = image.name.split("/", 1)
+        by_frame.setdefault(file, {})[name] = image.cam_from_world().rotation.matrix()
+        for point in image.points2D:
+            if point.has_point3D():
+                projected = image.project_point(reconstruction.points3D[point.point3D_id].xyz)
+                if projected is not None:
+                    squared.setdefault(name, []).append(float(np.sum((point.xy - projected) ** 2)))
+    for poses in by_frame.values():
+        for name, R in poses.items():
+            if name != reference and reference in poses:
+                rotations.setdefault(name, []).append(R @ poses[reference].T)
+    return PycolmapPeer(cameras, {name: float(np.sqrt(np.mean(v))) for name, v in squared.items()}, rotations,
+                        reconstruction.num_reg_images())
+
+
+def _map(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, seed: int, num_threads: int) -> dict:
+    if mapper == "incremental":
+        options = pycolmap.IncrementalPipelineOptions()
+        options.random_seed = seed
+        options.num_threads = num_threads
+        return pycolmap.incremental_mapping(database, image_dir, sparse, options=options)
+    return pycolmap.global_mapping(database, image_dir, sparse)
+
+
+def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir: Path,
+               originals: dict[str, str], units: str, bundle: BundleResult | None,
+               calibration: SelfCalibration | None) -> SfmResult:
+    """Convert a pycolmap reconstruction with one rig into camcal's Rig; write its points and the rig.
+
+    ``originals`` maps every staged image name (COLMAP's) to the user's
+    image, relative to ``out_dir``: the frames point at those.
+    """
+    points_path = out_dir / "points.ply"
+    model = sparse_model(reconstruction, camera_names, originals, units, bundle, calibration, points_path.name)
+    write_points_ply(points_path, model.xyz, model.colours, model.track_lengths)
+    model.rig.save(out_dir / "solve.rig.json")
+    return SfmResult(
+        rig=model.rig,
+        n_images=len(originals),
+        n_registered=len(model.registered),
+        unregistered=tuple(sorted(set(originals) - set(model.registered))),
+        n_points=len(model.xyz),
+        rms_px=model.rms_px,
+        per_camera_rms_px=model.per_camera_rms_px,
+        reconstruction_dir=model_dir,
+        bundle=bundle,
+        self_calibration=calibration,
+    )
+
+
+def _say(progress: Callable[[str], None] | None, message: str) -> None:
+    """Hand a stage message to the caller's progress callback, if any."""
+    if progress is not None:
+        progress(message)

@@ -1,0 +1,69 @@
+"""Undistortion of image files: every image read and checked, then each written with the undistorted rig."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+from camcal.base.errors import CamcalError
+from camcal.geometry.undistort import make_undistorter
+from camcal.io.frames import imread, imwrite
+from camcal.model.rig import Rig, make_provenance
+
+__all__ = ["undistort_images"]
+
+
+def undistort_images(
+    rig: Rig,
+    camera_name: str,
+    images: Sequence[str | os.PathLike],
+    out_dir: str | os.PathLike,
+    mode: str = "crop",
+    overscan: float = 1.1,
+    max_fov_deg: float | None = None,
+) -> tuple[Path, list[Path]]:
+    """Undistort image files of one rig camera and write the undistorted rig.
+
+    Parameters
+    ----------
+    rig : Rig
+    camera_name : str
+    images : sequence of path
+        Images of that camera, read with ``cv2.IMREAD_UNCHANGED`` (8/16 bit,
+        float EXR where OpenCV reads them).
+    out_dir : path
+        Receives each image under its own name and ``undistorted.rig.json``
+        (the rig with that camera replaced by its undistorted camera).
+    mode, overscan, max_fov_deg
+        See :func:`undistorted_view`.
+
+    Returns
+    -------
+    rig_path : Path
+    image_paths : list of Path
+
+    Notes
+    -----
+    Every image is read and checked before anything is written; each
+    output is written atomically.
+    """
+    camera = rig.camera(camera_name)
+    undistorter = make_undistorter(camera, mode, overscan, max_fov_deg)
+    out_dir = Path(out_dir)
+    loaded = []
+    for path in images:
+        image = imread(path)
+        width, height = camera.image_size
+        if image.shape[:2] != (height, width):
+            raise CamcalError(f"{path} is {image.shape[1]}x{image.shape[0]} px, camera {camera_name!r} is {width}x{height}")
+        loaded.append((Path(path), image))
+    if len({path.name for path, _ in loaded}) != len(loaded):
+        raise CamcalError("input images must have distinct file names (outputs keep them)")
+    written = []
+    for path, image in loaded:
+        written.append(imwrite(out_dir / path.name, undistorter.apply(image)))
+    cameras = tuple(undistorter.undistorted_camera() if c.name == camera_name else c for c in rig.cameras)
+    provenance = make_provenance("undistort", source_camera=camera_name, mode=mode)
+    rig_path = Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(out_dir / "undistorted.rig.json")
+    return rig_path, written
