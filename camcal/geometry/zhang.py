@@ -644,7 +644,7 @@ def calibrate_board(
         The target; its square size sets the unit of every length.
     detections : mapping of str to sequence of Detection
         Camera name -> the board detections of its images (from
-        :func:`camcal.geometry.board.detect_in_images`). The first camera
+        :func:`camcal.pipelines.board.detect_in_images`). The first camera
         is the reference. Views are matched (and held out) by the frame
         number in the image file names (one camera with repeated numbers:
         by position).
