@@ -64,7 +64,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.colour.fitfile import ColourFit, load_fit
+from camcal.colour.export.ocio_fit import fit_processor
+from camcal.colour.fit.record import ColourFit
+from camcal.io.colourfile import load_fit
 from camcal.base.errors import CamcalError
 from camcal.geometry.remap import RemapMaps, build_maps
 from camcal.geometry.undistort import MODES, make_undistorter
@@ -289,7 +291,7 @@ def make_job(
     if os.path.abspath(in_pattern) == os.path.abspath(out_pattern):
         raise CamcalError(f"the output pattern {out_pattern!r} would overwrite the input frames")
     if fit is not None:
-        fit.processor(colour_space)  # a fit the exporter refuses, or an unknown space, fails here, not per frame
+        fit_processor(fit, colour_space)  # a fit the exporter refuses, or an unknown space, fails here, not per frame
     return BatchJob(
         camera=source.to_dict(), geometry=geometry, mode=mode, overscan=float(overscan),
         colour=None if fit is None else fit.to_dict(), in_pattern=in_pattern, out_pattern=out_pattern,
@@ -322,7 +324,7 @@ class ColourStep:
 
     def __init__(self, fit: ColourFit, space: str = "ACES2065-1") -> None:
         self.fit = fit
-        self.processor = fit.processor(space)
+        self.processor = fit_processor(fit, space)
 
     @property
     def kind(self) -> str:

@@ -7,8 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.colour.characterise import Characterisation
-from camcal.colour.evaluate import DELTA_E_METHODS, delta_E, patch_table, plot_report, write_patch_table
+from camcal.colour.fit.characterise import Characterisation
+from camcal.colour.difference import DELTA_E_METHODS, delta_E
+from camcal.colour.fit.evaluate import patch_table
+from camcal.report.colour_plots import plot_report
+from camcal.io.patches import write_patch_table
 from camcal.base.atomic import atomic_path
 
 __all__ = ["write_report"]

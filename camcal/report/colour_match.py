@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.colour.evaluate import delta_E, plot_report
-from camcal.colour.match import MatchResult, target_space
+from camcal.colour.difference import delta_E
+from camcal.report.colour_plots import plot_report
+from camcal.colour.match.routes import MatchResult, target_space
 from camcal.base.atomic import atomic_path
 from camcal.io.frames import imwrite
 

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from camcal.colour.characterise import characterise
-from camcal.colour.patches import PatchSet
+from camcal.colour.fit.characterise import characterise
+from camcal.colour.chart.patches import PatchSet
 
 GAMMA = 2.2  # the simulated camera's encoding: code = linear ** (1 / 2.2)
 

@@ -2,15 +2,12 @@ import cv2
 import numpy as np
 import pytest
 
-from camcal.colour.chart import (
-    chart_from_corners,
-    detect_chart,
-    read_image,
-    reference_chart,
-    sample_patches,
-)
-from camcal.colour.characterise import characterise, patches_from_chart
-from camcal.colour.evaluate import XYZ_to_Lab, delta_E
+from camcal.colour.chart.detect import chart_from_corners, detect_chart, sample_patches
+from camcal.io.colourimage import read_image
+from camcal.colour.chart.reference import reference_chart
+from camcal.colour.fit.characterise import characterise
+from camcal.pipelines.colour import patches_from_chart
+from camcal.colour.difference import XYZ_to_Lab, delta_E
 from camcal.base.errors import CamcalError
 
 CORNERS = np.array([[150, 120], [500, 110], [510, 350], [140, 360]], float)

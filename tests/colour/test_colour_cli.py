@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.colour import load_fit
-from camcal.colour.patches import PatchSet, read_patch_csv, write_patch_csv
+from camcal.io.colourfile import load_fit
+from camcal.colour.chart.patches import PatchSet
+from camcal.io.patches import read_patch_csv, write_patch_csv
 
 
 def test_colour_help(capsys):

@@ -1,18 +1,11 @@
 import numpy as np
 import pytest
 
-from camcal.colour.evaluate import (
-    DELTA_E_METHODS,
-    DeltaEStats,
-    XYZ_to_Lab,
-    delta_E,
-    evaluate_model,
-    leave_one_out_predictions,
-    patch_table,
-    plot_report,
-    write_patch_table,
-)
-from camcal.colour.models import fit_model
+from camcal.colour.difference import DELTA_E_METHODS, DeltaEStats, XYZ_to_Lab, delta_E
+from camcal.colour.fit.evaluate import evaluate_model, leave_one_out_predictions, patch_table
+from camcal.report.colour_plots import plot_report
+from camcal.io.patches import write_patch_table
+from camcal.colour.fit.fitting import fit_model
 from camcal.base.errors import CamcalError
 
 

@@ -4,13 +4,14 @@ import pytest
 
 ocio = pytest.importorskip("PyOpenColorIO")
 
-from camcal.colour.characterise import characterise  # noqa: E402
-from camcal.colour.export_icc import icc_profile_from_fit  # noqa: E402
-from camcal.colour.export_ocio import export_ocio  # noqa: E402
-from camcal.colour.fitfile import load_fit  # noqa: E402
-from camcal.colour.patches import PatchSet  # noqa: E402
-from camcal.colour.select import select_model  # noqa: E402
+from camcal.colour.fit.characterise import characterise  # noqa: E402
+from camcal.colour.export.icc import icc_profile_from_fit  # noqa: E402
+from camcal.io.ocio import export_ocio  # noqa: E402
+from camcal.io.colourfile import load_fit  # noqa: E402
+from camcal.colour.chart.patches import PatchSet  # noqa: E402
+from camcal.colour.fit.select import select_model  # noqa: E402
 from camcal.base.errors import CamcalError  # noqa: E402
+from camcal.io.colourfile import save_colour_file
 from colour_export_helpers import make_fit  # noqa: E402
 
 
@@ -43,7 +44,7 @@ def test_auto_refuses_what_the_exporter_refuses(tmp_path, sim):
     """The real check (the exporters' bake_model, as ``colour fit`` passes it, here limited to a 17^3 grid
     so that it refuses): root-polynomial:3 fits rank above the matrix by leave-one-out on the Nikon but do
     not bake in 17^3; auto passes over them, and the OCIO exporter with the same grid refuses those fits."""
-    from camcal.colour.export_ocio import bake_model
+    from camcal.colour.bake.samples import bake_model
 
     def exportable(model):
         baked = bake_model(model, sim.white, illuminant="D65", lut_sizes=(17,))
@@ -65,7 +66,7 @@ def test_auto_refuses_what_the_exporter_refuses(tmp_path, sim):
 @pytest.mark.parametrize("camera", ["Nikon 5100 (NPL)", "Sigma SDMerill (NPL)"])
 def test_auto_pick_exports_through_both_exporters(tmp_path, sim_factory, camera):
     sim = sim_factory(camera)
-    fit = load_fit(make_fit(sim, "auto").save(tmp_path / "cam.colour.json"))  # the new keys round-trip
+    fit = load_fit(save_colour_file(make_fit(sim, "auto"), tmp_path / "cam.colour.json"))  # the new keys round-trip
     picked = fit.selection["picked"]
     assert picked["exportable"] is True
     result = export_ocio([("cam", fit)], tmp_path / "ocio", base="camcal")

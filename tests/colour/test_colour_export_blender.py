@@ -9,7 +9,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from camcal.colour.export_ocio import export_ocio
+from camcal.io.ocio import export_ocio
 from colour_export_helpers import make_fit
 
 SCRIPT = textwrap.dedent(

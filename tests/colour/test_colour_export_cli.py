@@ -3,15 +3,16 @@
 import pytest
 
 from camcal.cli import main
-from camcal.colour.export_icc import check_icc
+from camcal.colour.export.icc import check_icc
+from camcal.io.colourfile import save_colour_file
 from colour_export_helpers import make_fit
 
 
 @pytest.fixture(scope="module")
 def fit_files(sim, tmp_path_factory):
     folder = tmp_path_factory.mktemp("fits")
-    matrix = make_fit(sim, "matrix3x3", camera="left").save(folder / "left.colour.json")
-    baked = make_fit(sim, "root-polynomial:2", camera=None).save(folder / "right.colour.json")
+    matrix = save_colour_file(make_fit(sim, "matrix3x3", camera="left"), folder / "left.colour.json")
+    baked = save_colour_file(make_fit(sim, "root-polynomial:2", camera=None), folder / "right.colour.json")
     return matrix, baked
 
 

@@ -8,9 +8,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from camcal.colour.evaluate import delta_E
-from camcal.colour.export_icc import D50_XYZ, check_icc, export_icc, icc_profile_from_fit, write_icc
-from camcal.colour.lcms import lcms_to_XYZ, load_lcms
+from camcal.colour.difference import delta_E
+from camcal.colour.export.icc import D50_XYZ, check_icc, icc_profile_from_fit
+from camcal.io.icc import export_icc, write_icc
+from camcal.colour.export.lcms import lcms_to_XYZ, load_lcms
 from camcal.base.errors import CamcalError
 from colour_export_helpers import code_grid, codes_of, make_fit
 
@@ -66,7 +67,7 @@ def test_littlecms_reproduces_the_fit(profiles, case, sim):
     fit, profile = profiles[case]
     from scipy.spatial import Delaunay
 
-    from camcal.colour.export_ocio import chart_gamut_samples
+    from camcal.colour.export.ocio_fit import chart_gamut_samples
 
     grid = code_grid(25)
     grid = grid[Delaunay(chart_gamut_samples(fit)).find_simplex(fit.linearise(grid)) >= 0]

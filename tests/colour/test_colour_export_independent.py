@@ -14,11 +14,12 @@ import colour  # noqa: E402
 from colour.quality.datasets import SDS_TCS, SDS_VS  # noqa: E402
 from scipy.spatial import Delaunay  # noqa: E402
 
-from camcal.colour.evaluate import delta_E  # noqa: E402
-from camcal.colour.export_icc import D50_XYZ, _bradford_to_D50, icc_profile_from_fit  # noqa: E402
-from camcal.colour.export_ocio import chart_gamut_samples  # noqa: E402
-from camcal.colour.lcms import lcms_to_XYZ, load_lcms  # noqa: E402
-from camcal.colour.spectral import reflectance_set  # noqa: E402
+from camcal.colour.difference import delta_E  # noqa: E402
+from camcal.colour.export.icc import D50_XYZ, _bradford_to_D50, icc_profile_from_fit  # noqa: E402
+from camcal.colour.export.ocio_fit import chart_gamut_samples  # noqa: E402
+from camcal.colour.export.lcms import lcms_to_XYZ, load_lcms  # noqa: E402
+from camcal.colour.spectral.data import reflectance_set  # noqa: E402
+from camcal.colour.export.ocio_fit import fit_processor  # noqa: E402
 from colour_export_helpers import codes_of, make_fit  # noqa: E402
 
 
@@ -39,7 +40,7 @@ def test_baked_exports_hold_on_independent_colours(sim_factory, camera, model):
     sim = sim_factory(camera)
     fit = make_fit(sim, model)
     try:
-        processor = fit.processor("CIE XYZ")
+        processor = fit_processor(fit, "CIE XYZ")
     except Exception as error:  # a model the exporter refuses: auto must never be one
         assert model != "auto", error
         pytest.skip(f"{camera} {model}: refused by the exporter ({error})")

@@ -8,10 +8,13 @@ ocio = pytest.importorskip("PyOpenColorIO")
 import colour  # noqa: E402
 
 from camcal.cli import main  # noqa: E402
-from camcal.colour.evaluate import delta_E  # noqa: E402
-from camcal.colour.export_ocio import CAMCAL_BASE, export_ocio, look_name  # noqa: E402
-from camcal.colour.matchfile import ColourMatch  # noqa: E402
-from camcal.colour.robust import fit_match_model  # noqa: E402
+from camcal.colour.difference import delta_E  # noqa: E402
+from camcal.colour.export.ocio_config import CAMCAL_BASE  # noqa: E402
+from camcal.io.ocio import export_ocio  # noqa: E402
+from camcal.colour.export.ocio_fit import look_name  # noqa: E402
+from camcal.colour.match.record import ColourMatch  # noqa: E402
+from camcal.colour.match.robust import fit_match_model  # noqa: E402
+from camcal.io.colourfile import save_colour_file
 
 M_TRUE = np.array([[1.10, -0.08, 0.03], [0.05, 0.93, 0.04], [-0.02, 0.09, 0.88]])
 
@@ -67,7 +70,7 @@ def test_nonlinear_match_look_is_baked_within_delta_E(tmp_path, model):
 
 
 def test_cli_exports_a_match_and_refuses_icc(tmp_path):
-    path = make_match("matrix3x3").save(tmp_path / "m.colour.json")
+    path = save_colour_file(make_match("matrix3x3"), tmp_path / "m.colour.json")
     assert main(["colour", "export", str(path), "--ocio", str(tmp_path / "cfg"), "--base", "camcal"]) == 0
     config = ocio.Config.CreateFromFile(str(tmp_path / "cfg" / "config.ocio"))
     assert config.getLook(look_name("right", "left")) is not None

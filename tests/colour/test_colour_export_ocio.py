@@ -10,22 +10,14 @@ import pytest
 ocio = pytest.importorskip("PyOpenColorIO")
 import colour  # noqa: E402
 
-from camcal.colour.evaluate import delta_E  # noqa: E402
-from camcal.colour.export_ocio import (  # noqa: E402
-    ConfigSpec,
-    LogShaper,
-    LookSpec,
-    bake_samples,
-    base_config_path,
-    build_ocio_config,
-    chart_gamut_samples,
-    export_ocio,
-    linearisation_transforms,
-    transform_from_callable,
-    write_ocio_config,
-)
-from camcal.colour.linearise import fit_linearisation  # noqa: E402
+from camcal.colour.difference import delta_E  # noqa: E402
+from camcal.colour.export.ocio_config import ConfigSpec, LookSpec, build_ocio_config, linearisation_transforms
+from camcal.colour.bake.transforms import LogShaper, transform_from_callable
+from camcal.colour.export.ocio_fit import bake_samples, chart_gamut_samples
+from camcal.io.ocio import base_config_path, export_ocio, load_base_config, write_ocio_config
+from camcal.colour.chart.linearise import fit_linearisation  # noqa: E402
 from camcal.base.errors import CamcalError  # noqa: E402
+from camcal.colour.export.ocio_fit import fit_processor
 from colour_export_helpers import code_grid, codes_of, make_fit  # noqa: E402
 
 XYZ_D65 = "CIE XYZ-D65 - Scene-referred"  # in camcal's base and in the ACES studio config
@@ -165,7 +157,7 @@ def test_a_model_that_cannot_bake_is_refused_with_the_error_reached(tmp_path, si
 
 
 def test_linearisations_lut1d_exact_named_sampled(sim):
-    from camcal.colour.characterise import neutral_indices
+    from camcal.colour.fit.characterise import neutral_indices
 
     Y = sim.XYZ_train[:, 1]
     neutral = neutral_indices(sim.XYZ_train, sim.white)
@@ -200,7 +192,7 @@ def test_generic_look_from_a_callable(tmp_path):
     assert baked.kind == "lut3d" and baked.bake_error.max <= 0.2
     files = {"luts/match.clf": baked.clf_text("camcal:match")}
     look = LookSpec("camcal match", "ACEScg", ocio.FileTransform("match.clf"), "test match", files)
-    path = write_ocio_config(ConfigSpec(base="camcal", looks=(look,)), tmp_path)
+    path = write_ocio_config(ConfigSpec(base=load_base_config("camcal"), looks=(look,)), tmp_path)
     config = ocio.Config.CreateFromFile(str(path))
     transform = ocio.LookTransform(src="ACEScg", dst="ACEScg", looks="camcal match")
     cpu = config.getProcessor(transform).getDefaultCPUProcessor()
@@ -225,7 +217,7 @@ def test_errors_leave_no_output(tmp_path, sim):
     with pytest.raises(CamcalError, match="not found"):
         export_ocio([("a", fit)], out, base=str(tmp_path / "missing.ocio"))
     with pytest.raises(CamcalError, match="already exists"):
-        build_ocio_config(ConfigSpec(base="camcal", looks=(LookSpec("x", "ACEScg", ocio.MatrixTransform()),
+        build_ocio_config(ConfigSpec(base=load_base_config("camcal"), looks=(LookSpec("x", "ACEScg", ocio.MatrixTransform()),
                                                              LookSpec("x", "ACEScg", ocio.MatrixTransform()))))
     assert not out.exists()
 
@@ -233,10 +225,11 @@ def test_errors_leave_no_output(tmp_path, sim):
 def test_inverse_of_a_sigma_root_polynomial_is_the_cameras_own_rgb():
     """A root-polynomial fit of the Sigma SDMerill (large cancelling coefficients) maps several RGB to
     one XYZ; inverting it must give back the camera's non-negative RGB of each patch."""
-    from camcal.colour.characterise import characterise
-    from camcal.colour.export_ocio import invert_model
-    from camcal.colour.patches import PatchSet
-    from camcal.colour.spectral import SimulatedCamera, reflectance_set
+    from camcal.colour.fit.characterise import characterise
+    from camcal.colour.bake.samples import invert_model
+    from camcal.colour.chart.patches import PatchSet
+    from camcal.colour.spectral.simulate import SimulatedCamera
+    from camcal.colour.spectral.data import reflectance_set
 
     camera = SimulatedCamera.from_colour("Sigma SDMerill (NPL)", "D65")
     names, chart = reflectance_set("ISO 17321-1", camera.wavelengths)
@@ -250,9 +243,9 @@ def test_inverse_of_a_sigma_root_polynomial_is_the_cameras_own_rgb():
 
 @pytest.mark.parametrize("space", ["ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ"])
 def test_library_apply_is_the_exported_transform_in_the_chosen_space(sim, space):
-    """fit.processor(space): a matrix fit through OCIO equals numpy + colour-science's conversion (Bradford)."""
+    """fit_processor(fit, space): a matrix fit through OCIO equals numpy + colour-science's conversion (Bradford)."""
     fit = make_fit(sim, "matrix3x3")
-    processor = fit.processor(space)
+    processor = fit_processor(fit, space)
     assert processor.kind == "matrix" and processor.bake_error is None
     codes = codes_of(sim.RGB_test).reshape(10, 19, 3)
     got = processor.apply(codes)
@@ -270,4 +263,4 @@ def test_library_apply_is_the_exported_transform_in_the_chosen_space(sim, space)
     frame = codes.astype(np.float32)
     assert processor.apply(frame, in_place=True) is frame
     with pytest.raises(CamcalError, match="unknown output space 'sRGB'"):
-        fit.processor("sRGB")
+        fit_processor(fit, "sRGB")

@@ -3,11 +3,12 @@ import json
 import numpy as np
 import pytest
 
-from camcal.colour import load_colour_file, load_fit
-from camcal.colour.characterise import characterise
-from camcal.colour.fitfile import ColourFit
-from camcal.colour.patches import PatchSet
+from camcal.io.colourfile import load_colour_file, load_fit
+from camcal.colour.fit.characterise import characterise
+from camcal.colour.fit.record import ColourFit
+from camcal.colour.chart.patches import PatchSet
 from camcal.base.errors import CamcalError
+from camcal.io.colourfile import save_colour_file
 
 
 @pytest.fixture(scope="module")
@@ -27,10 +28,10 @@ def fits(sim):
 @pytest.mark.parametrize("name", ["matrix3x3", "polynomial:10", "root-polynomial:2", "rbf:polyharmonic-3", "lut"])
 def test_exact_round_trip(tmp_path, fits, name):
     fit = fits[name]
-    path = fit.save(tmp_path / "cam.colour.json")
+    path = save_colour_file(fit, tmp_path / "cam.colour.json")
     again = load_fit(path)
     assert again == fit
-    again.save(tmp_path / "again.colour.json")
+    save_colour_file(again, tmp_path / "again.colour.json")
     assert (tmp_path / "again.colour.json").read_bytes() == path.read_bytes()
     rgb = np.random.default_rng(1).random((50, 3))
     np.testing.assert_array_equal(again.apply(rgb), fit.apply(rgb))
@@ -93,5 +94,5 @@ def test_missing_and_malformed_files(tmp_path):
 
 
 def test_atomic_write_leaves_no_temporary(tmp_path, fits):
-    fits["matrix3x3"].save(tmp_path / "a.colour.json")
+    save_colour_file(fits["matrix3x3"], tmp_path / "a.colour.json")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.colour.json"]

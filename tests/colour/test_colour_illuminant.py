@@ -11,13 +11,17 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.colour.evaluate import delta_E
-from camcal.colour.fitfile import load_fit
-from camcal.colour.illuminant import LINEAR_CANDIDATES, adapt_model, characterise_for_illuminant, reflectance_XYZ
-from camcal.colour.models import LinearTermsModel, terms_Finlayson2015
-from camcal.colour.patches import PatchSet, write_patch_csv
-from camcal.colour.spectral import camera_sensitivities, reflectance_set
-from camcal.colour.ssf import Sensitivities, estimate_from_captures, Capture, illuminant_spd, write_sensitivities
+from camcal.colour.difference import delta_E
+from camcal.io.colourfile import load_fit
+from camcal.colour.fit.illuminant import LINEAR_CANDIDATES, adapt_model, characterise_for_illuminant, reflectance_XYZ
+from camcal.colour.fit.models import LinearTermsModel
+from camcal.colour.fit.terms import terms_Finlayson2015
+from camcal.colour.chart.patches import PatchSet
+from camcal.io.patches import write_patch_csv
+from camcal.colour.spectral.data import camera_sensitivities, reflectance_set
+from camcal.colour.spectral.sensitivities import Sensitivities, illuminant_spd
+from camcal.colour.spectral.captures import estimate_from_captures, Capture
+from camcal.io.ssf import write_sensitivities
 from camcal.base.errors import CamcalError
 
 GRIDS = {"Nikon 5100 (NPL)": np.arange(400.0, 701.0, 10.0), "Sigma SDMerill (NPL)": np.arange(400.0, 681.0, 10.0)}

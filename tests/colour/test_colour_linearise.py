@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from camcal.colour.linearise import ChannelCurve, Linearisation, fit_linearisation, named_function
+from camcal.colour.chart.linearise import ChannelCurve, Linearisation, fit_linearisation, named_function
 from camcal.base.errors import CamcalError
 
 Y = np.array([0.031, 0.090, 0.19, 0.36, 0.59, 0.90])

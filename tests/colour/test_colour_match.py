@@ -5,11 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from camcal.colour import ColourMatch, load_colour_file, load_match
-from camcal.colour.fitfile import FILE_KINDS, reader_of
-from camcal.colour.match_models import Lut3DModel, parse_match_model
-from camcal.colour.robust import fit_match_model
+from camcal.colour.match.record import ColourMatch
+from camcal.io.colourfile import load_colour_file, load_match
+from camcal.io.colourfile import FILE_KINDS, reader_of
+from camcal.colour.match.models import Lut3DModel, parse_match_model
+from camcal.colour.match.robust import fit_match_model
 from camcal.base.errors import CamcalError
+from camcal.io.colourfile import save_colour_file
 
 M_TRUE = np.array([[1.10, -0.08, 0.03], [0.05, 0.93, 0.04], [-0.02, 0.09, 0.88]])
 
@@ -131,11 +133,11 @@ def _match(model):
 @pytest.mark.parametrize("model", ["matrix3x3", "root-polynomial:2", "lut3d:5"])
 def test_match_file_round_trip(tmp_path, model):
     match = _match(model)
-    path = match.save(tmp_path / "m.colour.json")
+    path = save_colour_file(match, tmp_path / "m.colour.json")
     back = load_match(path)
     assert back == match
     assert isinstance(load_colour_file(path), ColourMatch)
-    assert FILE_KINDS["match"] == ("camcal.colour.matchfile", "ColourMatch")
+    assert FILE_KINDS["match"] is ColourMatch
     assert reader_of("match") == ColourMatch.from_dict
     x = _samples(50, seed=2)
     np.testing.assert_array_equal(back.apply(x), match.apply(x))

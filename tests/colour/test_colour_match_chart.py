@@ -5,12 +5,13 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from camcal.colour.characterise import characterise
-from camcal.colour.evaluate import delta_E
-from camcal.colour.match import match_charts
+from camcal.colour.fit.characterise import characterise
+from camcal.colour.difference import delta_E
+from camcal.colour.match.routes import match_charts
 from camcal.report.colour_match import write_report
-from camcal.colour.patches import PatchSet
-from camcal.colour.spectral import SimulatedCamera, camera_sensitivities, reflectance_set
+from camcal.colour.chart.patches import PatchSet
+from camcal.colour.spectral.simulate import SimulatedCamera
+from camcal.colour.spectral.data import camera_sensitivities, reflectance_set
 from camcal.base.errors import CamcalError
 
 

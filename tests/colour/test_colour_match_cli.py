@@ -5,11 +5,12 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.colour import load_colour_file
-from camcal.colour.characterise import characterise
-from camcal.colour.match import match_image_files
-from camcal.colour.matchfile import ColourMatch
-from camcal.colour.patches import PatchSet, write_patch_csv
+from camcal.io.colourfile import load_colour_file, save_colour_file
+from camcal.colour.fit.characterise import characterise
+from camcal.pipelines.colour import match_image_files
+from camcal.colour.match.record import ColourMatch
+from camcal.colour.chart.patches import PatchSet
+from camcal.io.patches import write_patch_csv
 from camcal.base.errors import CamcalError
 from camcal.model.rig import Rig
 from camcal.synthetic import example_camera, layered_stereo_pair, procedural_texture, render_planes
@@ -111,8 +112,8 @@ def test_chart_route_from_fits_and_patches(tmp_path, capsys, sim_factory):
     files = {}
     for name, sim in (("nikon", nikon), ("sigma", sigma)):
         patches = PatchSet(sim.names_train, sim.RGB_train, sim.XYZ_train)
-        characterise(patches, white="D65", model="matrix3x3", camera=name, loo=False).fit.save(
-            tmp_path / f"{name}.colour.json")
+        save_colour_file(characterise(patches, white="D65", model="matrix3x3", camera=name, loo=False).fit,
+                         tmp_path / f"{name}.colour.json")
         write_patch_csv(tmp_path / f"{name}.csv", patches)
         write_patch_csv(tmp_path / f"{name}_test.csv", PatchSet(sim.names_test, sim.RGB_test, sim.XYZ_test))
         files[name] = name

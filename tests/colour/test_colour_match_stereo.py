@@ -13,8 +13,9 @@ import cv2
 import numpy as np
 import pytest
 
-from camcal.colour.evaluate import delta_E
-from camcal.colour.match import REC709_SPACE, match_images, rec709_XYZ
+from camcal.colour.difference import delta_E
+from camcal.colour.match.routes import REC709_SPACE, rec709_XYZ
+from camcal.pipelines.colour import match_images
 from camcal.geometry.correspondence import stereo_correspondences
 from camcal.report.colour_match import write_report
 from camcal.base.errors import CamcalError

@@ -2,19 +2,10 @@ import numpy as np
 import pytest
 from colour.characterisation import matrix_augmented_Cheung2004, polynomial_expansion_Finlayson2015
 
-from camcal.colour.evaluate import delta_E
-from camcal.colour.models import (
-    CHEUNG_TERMS,
-    LinearTermsModel,
-    RBFModel,
-    delta_E2000_components,
-    expand,
-    fit_model,
-    model_from_dict,
-    parse_model_spec,
-    terms_Cheung2004,
-    terms_Finlayson2015,
-)
+from camcal.colour.difference import delta_E
+from camcal.colour.fit.terms import CHEUNG_TERMS, expand, parse_model_spec, terms_Cheung2004, terms_Finlayson2015
+from camcal.colour.fit.models import LinearTermsModel, RBFModel, model_from_dict
+from camcal.colour.fit.fitting import delta_E2000_components, fit_model
 from camcal.base.errors import CamcalError
 
 RNG = np.random.default_rng(3)

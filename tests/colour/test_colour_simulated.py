@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from colour.characterisation import apply_matrix_colour_correction, matrix_colour_correction
 
-from camcal.colour.characterise import characterise
-from camcal.colour.evaluate import delta_E
-from camcal.colour.patches import PatchSet
+from camcal.colour.fit.characterise import characterise
+from camcal.colour.difference import delta_E
+from camcal.colour.chart.patches import PatchSet
 
 MODELS = ["matrix3x3", "polynomial:7", "polynomial:10", "root-polynomial:2", "root-polynomial:3",
           "rbf:polyharmonic-3", "rbf:thin-plate"]

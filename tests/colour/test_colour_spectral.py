@@ -1,15 +1,9 @@
 import numpy as np
 import pytest
 
-from camcal.colour.spectral import (
-    CAMERAS,
-    SimulatedCamera,
-    adapt_XYZ,
-    estimate_sensitivities,
-    illuminant_white_XYZ,
-    mu_factor,
-    reflectance_set,
-)
+from camcal.colour.spectral.data import CAMERAS, adapt_XYZ, illuminant_white_XYZ, reflectance_set
+from camcal.colour.spectral.simulate import SimulatedCamera
+from camcal.colour.spectral.estimate import estimate_sensitivities, mu_factor
 from camcal.base.errors import CamcalError
 
 

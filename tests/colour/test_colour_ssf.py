@@ -11,18 +11,16 @@ import numpy as np
 import pytest
 
 from camcal.cli import main
-from camcal.colour.spectral import camera_sensitivities, reflectance_set
-from camcal.colour.ssf import (
-    Capture,
+from camcal.colour.spectral.data import camera_sensitivities, reflectance_set
+from camcal.colour.spectral.captures import Capture, estimate_from_captures
+from camcal.colour.spectral.sensitivities import (
     Sensitivities,
-    estimate_from_captures,
     illuminant_spd,
-    load_sensitivities,
     luther_ives_deviation,
     cmfs_on,
     relative_rms_error,
-    write_sensitivities,
 )
+from camcal.io.ssf import load_sensitivities, write_sensitivities
 from camcal.base.errors import CamcalError
 
 NOISE = 0.002

@@ -17,7 +17,7 @@ media white (relative colorimetric, PCS white Y = 1).
   ``multiProcessElementsType``, §10.14, 32-bit float, shared by both:
   LittleCMS takes the float tag of the intent asked, ``D2B1`` for relative
   colorimetric, in preference to ``A2Bx``) holding the same baked transform as the OCIO
-  export (:func:`camcal.colour.export_ocio.bake_fit`): per-channel curves
+  export (:func:`camcal.colour.export.ocio_fit.bake_fit`): per-channel curves
   (linearisation and log2 shaper, sampled), the matrix to log-chromaticity
   coordinates, the float CLUT (the OCIO Lut3D's table), the inverse log2
   shaper as formula segments and the matrix (with ``chad``) to PCS XYZ. It
@@ -47,8 +47,9 @@ PCS XYZ in LUT-based tags is the 16-bit encoding of ICC.1:2010 §6.3.4.2
 ``XYZ = v * 65535 / 32768``.
 
 Every profile is checked before it is written (:func:`check_icc`: size
-field, 4-byte alignment, tag table bounds, tag types, profile ID) and then
-written atomically: no truncated or corrupt profile reaches the disk.
+field, 4-byte alignment, tag table bounds, tag types, profile ID; then
+:func:`camcal.io.icc.write_icc` writes it atomically): no truncated or
+corrupt profile reaches the disk.
 
 References
 ----------
@@ -63,21 +64,19 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
-import os
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from camcal.colour.evaluate import DeltaEStats, delta_E
-from camcal.colour.export_ocio import LUT_SIZES, BakedTransform, LogShaper, bake_fit, chart_gamut_samples
-from camcal.colour.fitfile import ColourFit
-from camcal.colour.linearise import ChannelCurve
 from camcal.base.errors import CamcalError
-from camcal.base.atomic import atomic_path
+from camcal.colour.bake.transforms import LUT_SIZES, BakedTransform, LogShaper
+from camcal.colour.chart.linearise import ChannelCurve
+from camcal.colour.difference import DeltaEStats, delta_E
+from camcal.colour.export.ocio_fit import bake_fit, chart_gamut_samples
+from camcal.colour.fit.record import ColourFit
 
 __all__ = [
     "D50_XYZ",
@@ -86,8 +85,6 @@ __all__ = [
     "ICCInfo",
     "icc_profile_from_fit",
     "check_icc",
-    "write_icc",
-    "export_icc",
 ]
 
 # ICC.1:2010 §7.2.16: the PCS illuminant, as encoded in s15Fixed16.
@@ -599,22 +596,3 @@ def icc_profile_from_fit(
         f"a {n}^3 CLUT still leaves CIEDE2000 up to {error.max:.3f} over the chart gamut "
         f"(allowed {max_delta_E:g}); allow a larger bake error or refit with a smoother model"
     )
-
-
-def write_icc(profile: ICCProfile, path: str | os.PathLike) -> Path:
-    """Check the bytes, then write them atomically (temporary file + rename)."""
-    check_icc(profile.data)
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(profile.data)
-        if tmp.read_bytes() != profile.data:  # pragma: no cover - a failing disk
-            raise CamcalError(f"writing {path} failed: the bytes read back differ")
-    return path
-
-
-def export_icc(fit: ColourFit, camera: str, path: str | os.PathLike, *, version: int = 4,
-               max_delta_E: float = 0.2, lut_sizes: Sequence[int] = LUT_SIZES) -> ICCProfile:
-    """Build, check and write the ICC profile of a characterisation; returns it."""
-    profile = icc_profile_from_fit(fit, camera, version=version, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
-    write_icc(profile, path)
-    return profile

@@ -60,14 +60,15 @@ from typing import Any
 
 import numpy as np
 
-from camcal.colour.characterise import Characterisation, characterise, neutral_indices, white_from_name
-from camcal.colour.evaluate import DeltaEStats, delta_E
-from camcal.colour.fitfile import ColourFit
-from camcal.colour.models import LinearTermsModel, parse_term
-from camcal.colour.patches import PatchSet
-from camcal.colour import spectral
-from camcal.colour.spectral import CAT_TRANSFORMS, reflectance_set
-from camcal.colour.ssf import Sensitivities, illuminant_spd
+from camcal.colour.fit.characterise import Characterisation, characterise, neutral_indices, white_from_name
+from camcal.colour.difference import DeltaEStats, delta_E
+from camcal.colour.fit.record import ColourFit
+from camcal.colour.fit.models import LinearTermsModel
+from camcal.colour.fit.terms import parse_term
+from camcal.colour.chart.patches import PatchSet
+from camcal.colour.spectral.data import reflectance_XYZ as spectral_reflectance_XYZ
+from camcal.colour.spectral.data import CAT_TRANSFORMS, reflectance_set
+from camcal.colour.spectral.sensitivities import Sensitivities, illuminant_spd
 from camcal.base.errors import CamcalError
 
 __all__ = [
@@ -101,7 +102,7 @@ def reflectance_XYZ(reflectances: str, illuminant: str) -> tuple[list[str], np.n
     """
     names, R = reflectance_set(reflectances, _COLORIMETRY_GRID)
     L = illuminant_spd(illuminant, _COLORIMETRY_GRID)
-    XYZ, white = spectral.reflectance_XYZ(R, L, (_COLORIMETRY_GRID[0], _COLORIMETRY_GRID[-1], 5.0))
+    XYZ, white = spectral_reflectance_XYZ(R, L, (_COLORIMETRY_GRID[0], _COLORIMETRY_GRID[-1], 5.0))
     return names, XYZ, white
 
 

@@ -1,4 +1,4 @@
-"""Patch sets: camera RGB beside reference XYZ, and their CSV file.
+"""Patch files: the patch CSV (camera RGB beside reference XYZ) and per-patch Delta E tables.
 
 CSV header ``R,G,B,X,Y,Z`` (camera RGB, reference XYZ under the scene
 illuminant with the perfect white Y = 1), with an optional first column
@@ -11,45 +11,16 @@ from __future__ import annotations
 import csv
 import io
 import os
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from camcal.base.atomic import atomic_path
 from camcal.base.errors import CamcalError
+from camcal.colour.chart.patches import PatchSet
 from camcal.io.points_csv import finite_numbers
 
-__all__ = ["PatchSet", "read_patch_csv", "write_patch_csv"]
-
-
-@dataclass(frozen=True, eq=False)
-class PatchSet:
-    """``N`` patches: names, camera RGB ``(N, 3)``, reference XYZ ``(N, 3)``."""
-
-    names: tuple[str, ...]
-    RGB: np.ndarray
-    XYZ: np.ndarray
-
-    def __post_init__(self) -> None:
-        RGB = np.array(self.RGB, dtype=np.float64)
-        XYZ = np.array(self.XYZ, dtype=np.float64)
-        if RGB.ndim != 2 or RGB.shape[1] != 3 or XYZ.shape != RGB.shape or len(self.names) != RGB.shape[0]:
-            raise CamcalError(
-                f"a patch set needs N names, RGB (N, 3) and XYZ (N, 3), got {len(self.names)}, "
-                f"{RGB.shape}, {XYZ.shape}"
-            )
-        object.__setattr__(self, "RGB", RGB)
-        object.__setattr__(self, "XYZ", XYZ)
-        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
-
-    def __len__(self) -> int:
-        return len(self.names)
-
-    def subset(self, keep: Any) -> PatchSet:
-        keep = np.asarray(keep)
-        idx = np.flatnonzero(keep) if keep.dtype == bool else keep
-        return PatchSet(tuple(self.names[i] for i in idx), self.RGB[idx], self.XYZ[idx])
+__all__ = ["read_patch_csv", "write_patch_csv", "write_patch_table"]
 
 
 def read_patch_csv(path: str | os.PathLike) -> PatchSet:
@@ -103,3 +74,12 @@ def write_patch_csv(path: str | os.PathLike, patches: PatchSet) -> None:
         for name, rgb, xyz in zip(patches.names, patches.RGB, patches.XYZ):
             writer.writerow([name, *(repr(float(v)) for v in rgb), *(repr(float(v)) for v in xyz)])
     os.replace(tmp, path)
+
+
+def write_patch_table(path: str | os.PathLike, rows: list[dict]) -> None:
+    """Write :func:`camcal.colour.fit.evaluate.patch_table` rows as CSV (atomically)."""
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]))
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in row.items()})

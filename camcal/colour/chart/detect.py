@@ -1,17 +1,4 @@
-"""Reference colour charts, chart detection in an image, patch sampling.
-
-Reference charts come from colour-science:
-
-- ``ColorChecker24 - After November 2014`` (default; alias ``cc24``),
-  ``ColorChecker24 - Before November 2014`` (``cc24-2005``),
-  ``BabelColor Average`` (``babel``), ``ColorCheckerSG - After November
-  2014`` (``sg``, 140 patches) and the other ``CCS_COLOURCHECKERS`` entries:
-  xyY under their D50 illuminant;
-- ``ISO 17321-1`` and ``ColorChecker N Ohta``: reflectance spectra,
-  integrated with the CIE 1931 observer under the chosen illuminant.
-
-Reference XYZ are relative with Y = 1 for the perfect white. A chart's
-``illuminant`` is the white its XYZ are relative to (D50 for xyY data).
+"""Chart detection in an image and patch sampling: an image array to patches beside reference XYZ.
 
 Detection: OpenCV's ``cv2.mcc`` (contrib) finds a 24-patch ColorChecker and
 gives each patch's corners; a homography from the chart's patch grid to the
@@ -27,151 +14,32 @@ patch, mapped through the homography, a trimmed mean per channel (the
 1 % of the patch's pixels touch 0 or the maximum code value in any
 channel, ``noisy`` when a channel's standard deviation exceeds 5 % of the
 white's mean code value.
+
+:func:`patches_from_image` chains them: detect (or take four corners),
+sample, drop clipped patches, pair the code values with the reference
+chart's XYZ (an image file: :func:`camcal.pipelines.colour.patches_from_chart`).
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.colour.chart.patches import PatchSet
+from camcal.colour.chart.reference import ReferenceChart
 
 __all__ = [
-    "CHART_ALIASES",
-    "ReferenceChart",
-    "reference_chart",
-    "read_image",
     "ChartDetection",
     "detect_chart",
     "chart_from_corners",
     "PatchSamples",
     "sample_patches",
+    "ChartPatches",
+    "patches_from_image",
 ]
-
-DEFAULT_CHART = "ColorChecker24 - After November 2014"
-CHART_ALIASES = {
-    "cc24": "ColorChecker24 - After November 2014",
-    "cc24-2014": "ColorChecker24 - After November 2014",
-    "cc24-2005": "ColorChecker24 - Before November 2014",
-    "babel": "BabelColor Average",
-    "sg": "ColorCheckerSG - After November 2014",
-    "sg-2005": "ColorCheckerSG - Before November 2014",
-}
-_SPECTRAL = ("ISO 17321-1", "ColorChecker N Ohta")
-
-
-@dataclass(frozen=True, eq=False)
-class ReferenceChart:
-    """A chart's patch names and reference XYZ (white Y = 1).
-
-    Attributes
-    ----------
-    name
-        colour-science's name of the data.
-    patch_names
-        ``N`` names in chart order (row by row from the top-left).
-    XYZ
-        ``(N, 3)`` relative XYZ under ``illuminant``.
-    illuminant
-        Name of the white the XYZ are relative to (e.g. ``"D50"``).
-    white_XYZ
-        XYZ of that white (Y = 1).
-    rows, columns
-        Patch grid.
-    """
-
-    name: str
-    patch_names: tuple[str, ...]
-    XYZ: np.ndarray
-    illuminant: str
-    white_XYZ: np.ndarray
-    rows: int
-    columns: int
-
-    @property
-    def neutral(self) -> np.ndarray:
-        """Indices of the neutral patches (CIELAB chroma below 4)."""
-        from camcal.colour.evaluate import XYZ_to_Lab
-
-        Lab = XYZ_to_Lab(self.XYZ, self.white_XYZ)
-        return np.flatnonzero(np.hypot(Lab[:, 1], Lab[:, 2]) < 4.0)
-
-
-def reference_chart(name: str = DEFAULT_CHART, illuminant: str = "D50") -> ReferenceChart:
-    """Reference XYZ of a colour chart from colour-science.
-
-    Parameters
-    ----------
-    name
-        A ``CCS_COLOURCHECKERS`` name, an alias of :data:`CHART_ALIASES`,
-        or a spectral set (``ISO 17321-1``, ``ColorChecker N Ohta``).
-    illuminant
-        For spectral sets, the CIE illuminant to integrate under; xyY charts
-        are measured under D50 and are chromatically adapted (CAT02) when
-        another illuminant is asked for.
-
-    Returns
-    -------
-    ReferenceChart
-    """
-    import colour
-
-    from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ, reflectance_XYZ
-
-    key = CHART_ALIASES.get(str(name).lower(), name)
-    white = illuminant_white_XYZ(illuminant)
-    if key in _SPECTRAL:
-        sds = colour.SDS_COLOURCHECKERS[key]
-        if illuminant not in colour.SDS_ILLUMINANTS:
-            raise CamcalError(f"unknown illuminant {illuminant!r} for spectral chart {key!r}")
-        XYZ, white = reflectance_XYZ(sds, illuminant)
-        return ReferenceChart(key, tuple(sds.keys()), XYZ, illuminant, white, 4, 6)
-    if key not in colour.CCS_COLOURCHECKERS:
-        names = [k for k in colour.CCS_COLOURCHECKERS if " " in k] + list(_SPECTRAL)
-        raise CamcalError(
-            f"unknown reference chart {name!r}, expected one of: {', '.join(names)} "
-            f"(aliases: {', '.join(CHART_ALIASES)})"
-        )
-    cc = colour.CCS_COLOURCHECKERS[key]
-    xyY = np.array(list(cc.data.values()), dtype=np.float64)
-    XYZ = np.asarray(colour.xyY_to_XYZ(xyY), dtype=np.float64)
-    chart_white = np.asarray(colour.xy_to_XYZ(cc.illuminant), dtype=np.float64)
-    if np.allclose(colour.XYZ_to_xy(white), cc.illuminant, atol=1e-4):
-        white = chart_white
-    else:
-        XYZ = adapt_XYZ(XYZ, chart_white, white, "CAT02")
-    return ReferenceChart(key, tuple(cc.data.keys()), XYZ, illuminant, white, int(cc.rows), int(cc.columns))
-
-
-def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read an image as float RGB normalised code values ``(H, W, 3)`` in [0, 1].
-
-    8- and 16-bit integer images are divided by 255 or 65535; float images
-    (EXR, TIFF) are returned as they are; raw camera files (DNG, CR2, NEF,
-    ARW ...) give camera-native linear RGB at half size with black 0 and
-    white 1, saturated pixels at 1 (:func:`camcal.io.raw.read_raw`).
-    """
-    from camcal.io.frames import imread
-    from camcal.io.raw import is_raw, read_raw
-
-    path = Path(path)
-    if not path.is_file():
-        raise CamcalError(f"chart image not found: {path}")
-    if is_raw(path):
-        return read_raw(path).RGB
-    image = imread(path)
-    if image.ndim == 2:
-        image = np.repeat(image[:, :, None], 3, axis=2)
-    image = image[:, :, :3][:, :, ::-1]
-    if image.dtype == np.uint8:
-        return image.astype(np.float64) / 255.0
-    if image.dtype == np.uint16:
-        return image.astype(np.float64) / 65535.0
-    return image.astype(np.float64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -380,3 +248,53 @@ def sample_patches(
     white_level = max(float(np.max(RGB)), 1e-6)
     noisy = np.any(std > 0.05 * white_level, axis=1)
     return PatchSamples(RGB, std, n_pixels, clipped, noisy)
+
+
+@dataclass(frozen=True, eq=False)
+class ChartPatches:
+    """What a chart photo gave: patches (code values) and how they were found."""
+
+    patches: PatchSet
+    reference: ReferenceChart
+    detection: ChartDetection
+    samples: PatchSamples
+    excluded: tuple[str, ...]
+
+
+def patches_from_image(
+    image: np.ndarray,
+    chart: ReferenceChart,
+    *,
+    corners: Any = None,
+    keep_clipped: bool = False,
+) -> ChartPatches:
+    """Detect, sample and pair a chart image's patches with reference XYZ.
+
+    Parameters
+    ----------
+    image
+        ``(H, W, 3)`` float RGB code values normalised to [0, 1] (as
+        :func:`camcal.io.colourimage.read_image` gives).
+    chart
+        The reference chart (:func:`camcal.colour.chart.reference.reference_chart`),
+        its XYZ under the white the patches are for.
+    corners
+        ``(4, 2)`` manual grid corners; ``None`` detects with cv2.mcc.
+    keep_clipped
+        Keep patches flagged clipped (dropped by default).
+
+    Returns
+    -------
+    ChartPatches
+        Code values normalised to [0, 1] and XYZ relative to the chart's
+        white.
+    """
+    if corners is None:
+        detection = detect_chart(image, chart.rows, chart.columns)
+    else:
+        detection = chart_from_corners(corners, chart.rows, chart.columns)
+    samples = sample_patches(image, detection)
+    keep = np.ones(len(chart.patch_names), dtype=bool) if keep_clipped else ~samples.clipped
+    excluded = tuple(n for n, k in zip(chart.patch_names, keep) if not k)
+    patches = PatchSet(chart.patch_names, samples.RGB, chart.XYZ).subset(keep)
+    return ChartPatches(patches, chart, detection, samples, excluded)

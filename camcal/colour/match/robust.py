@@ -11,10 +11,16 @@ from typing import Any
 
 import numpy as np
 
-from camcal.colour.match_models import (
-    LUT_SIZE, LUT_SMOOTHING, Lut3DModel, MatchModel, parse_match_model, trilinear_weights,
+from camcal.colour.match.models import (
+    LUT_SIZE,
+    LUT_SMOOTHING,
+    Lut3DModel,
+    MatchModel,
+    parse_match_model,
+    trilinear_weights,
 )
-from camcal.colour.models import LinearTermsModel, expand, parse_model_spec
+from camcal.colour.fit.models import LinearTermsModel
+from camcal.colour.fit.terms import expand, parse_model_spec
 from camcal.base.errors import CamcalError
 
 __all__ = [

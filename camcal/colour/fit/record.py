@@ -1,10 +1,12 @@
-"""The colour fit file ``*.colour.json``: the contract between colour parts.
+"""The colour fit record: what a ``*.colour.json`` holds, as data (``to_dict`` / ``from_dict``).
 
 Exporters (OCIO colour space, ICC input profile) and the camera-to-camera
 match read only this file. It is JSON, versioned, validated on load (one
 error naming the bad field; unknown keys are rejected), written atomically
 (temporary file + rename) and round-trips exactly (floats are written with
-Python's shortest repr, which reads back to the same double).
+Python's shortest repr, which reads back to the same double). Reading and
+writing the file: :mod:`camcal.io.colourfile` (``load_fit``,
+``load_colour_file``, ``save_colour_file``).
 
 Format, version 1, kind ``characterisation``::
 
@@ -80,32 +82,28 @@ handed to the exporters' check.
 
 Using a fit::
 
+    from camcal.io.colourfile import load_fit
     fit = load_fit("cam.colour.json")
     XYZ = fit.apply(RGB_linear)        # (N, 3) LINEAR camera RGB -> XYZ
     RGB_linear = fit.linearise(codes)  # (N, 3) code values in [0, 1] -> linear
     XYZ = fit.apply_codes(codes)       # both: code values -> XYZ
-    image = fit.processor("ACEScg").apply(codes)  # fast: OCIO's CPU processor (float32)
+    # fast: OCIO's CPU processor (float32), camcal.colour.export.fit_processor
+    image = fit_processor(fit, "ACEScg").apply(codes)
 
 XYZ is relative to the target white, Y = 1 for the perfect white.
-Every ``kind`` is listed explicitly in :data:`FILE_KINDS` (the class whose
-``from_dict`` reads it, imported when a file of that kind is read): nothing
-registers itself as a side effect of an import.
+Every ``kind`` is listed in :data:`KINDS`; :data:`camcal.io.colourfile.FILE_KINDS`
+names the class whose ``from_dict`` reads each: nothing registers itself as
+a side effect of an import.
 """
 
 from __future__ import annotations
 
-import importlib
-import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
-from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
-from camcal.colour.linearise import CURVE_KINDS, Linearisation
-from camcal.colour.models import MODEL_KINDS, OBJECTIVES, RBF_KERNELS, LinearTermsModel, RBFModel, model_from_dict
 from camcal.base.errors import CamcalError
 from camcal.base.fields import boolean_field as _boolean
 from camcal.base.fields import integer_field as _integer
@@ -114,18 +112,16 @@ from camcal.base.fields import matrix_field as _matrix
 from camcal.base.fields import number_field as _number
 from camcal.base.fields import string_field as _string
 from camcal.base.fields import vector_field as _vector
-from camcal.base.jsonfile import read_json, write_json
+from camcal.colour.chart.linearise import CURVE_KINDS, Linearisation
+from camcal.colour.fit.models import LinearTermsModel, RBFModel, model_from_dict
+from camcal.colour.fit.terms import MODEL_KINDS, OBJECTIVES, RBF_KERNELS
 
 __all__ = [
     "FORMAT",
     "VERSION",
-    "FILE_KINDS",
-    "reader_of",
+    "KINDS",
     "LinearisedModel",
     "ColourFit",
-    "load_fit",
-    "load_colour_file",
-    "read_colour_dict",
     "check_header",
     "check_linearisation",
     "check_provenance",
@@ -135,12 +131,14 @@ __all__ = [
 
 FORMAT = "camcal.colour"
 VERSION = 1
+#: Every kind of ``*.colour.json`` (the classes reading them: :data:`camcal.io.colourfile.FILE_KINDS`).
+KINDS = ("characterisation", "match")
 
 
 # --------------------------------------------------------------------------
 # Schema checking: each helper names the field path in its error (the generic
 # ones are camcal.base.fields'; these are the colour file's own, public for the
-# other kinds: camcal.colour.matchfile).
+# other kinds: camcal.colour.match.record).
 
 
 def check_stats(value: Any, where: str, nullable: bool = True) -> None:
@@ -310,8 +308,9 @@ class LinearisedModel:
     ``linearise(codes)``: code values ``(N, 3)`` in [0, 1] to linear camera
     RGB; ``apply(RGB)``: LINEAR camera RGB ``(N, 3)`` through the model
     (XYZ for a characterisation, the other camera's RGB for a match);
-    ``apply_codes(codes)``: both, ``apply(linearise(codes))``; ``save``
-    writes the file atomically; equality compares the files' contents.
+    ``apply_codes(codes)``: both, ``apply(linearise(codes))``; equality
+    compares the files' contents (:func:`camcal.io.colourfile.save_colour_file`
+    writes one).
     """
 
     linearisation: Linearisation
@@ -328,10 +327,6 @@ class LinearisedModel:
     def apply_codes(self, codes: Any) -> np.ndarray:
         """Code values ``(N, 3)`` through linearisation and model: ``apply(linearise(codes))``."""
         return self.apply(self.linearise(codes))
-
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the file atomically; returns its path."""
-        return write_json(path, self.to_dict())  # type: ignore[attr-defined]
 
     def __eq__(self, other: object) -> bool:
         return type(other) is type(self) and self.to_dict() == other.to_dict()  # type: ignore[attr-defined]
@@ -368,20 +363,6 @@ class ColourFit(LinearisedModel):
     capture: dict | None = None
 
     kind = "characterisation"
-
-    def processor(self, space: str = "CIE XYZ"):
-        """The fast image path: one OCIO CPU processor from code values to ``space``.
-
-        Exact for a ``matrix3x3`` fit; other models go through the baked Lut3D
-        the OCIO export writes (within its bake error, see
-        :func:`camcal.colour.export_ocio.fit_processor`). ``space``:
-        ``"CIE XYZ"`` (this fit's XYZ), ``"ACES2065-1"``, ``"ACEScg"``,
-        ``"lin Rec.709"``. ``processor(space).apply(codes)`` takes ``(..., 3)``
-        code values and returns float32.
-        """
-        from camcal.colour.export_ocio import fit_processor  # noqa: PLC0415 - OCIO is imported there only
-
-        return fit_processor(self, space)
 
     def to_dict(self) -> dict:
         """The file's JSON object."""
@@ -452,66 +433,8 @@ def check_header(data: Any, kind: str | None = None) -> str:
     if data.get("version") != VERSION or isinstance(data.get("version"), bool):
         raise CamcalError(f"version: this camcal reads version {VERSION}, got {data.get('version')!r}")
     found = data.get("kind")
-    if found not in FILE_KINDS:
-        raise CamcalError(f"kind: expected one of: {', '.join(FILE_KINDS)}, got {found!r}")
+    if found not in KINDS:
+        raise CamcalError(f"kind: expected one of: {', '.join(KINDS)}, got {found!r}")
     if kind is not None and found != kind:
         raise CamcalError(f"kind: expected {kind!r}, got {found!r}")
     return found
-
-
-#: Every kind of ``*.colour.json``: kind -> (module, class) whose ``from_dict`` reads it.
-FILE_KINDS: Mapping[str, tuple[str, str]] = MappingProxyType({
-    "characterisation": ("camcal.colour.fitfile", "ColourFit"),
-    "match": ("camcal.colour.matchfile", "ColourMatch"),
-})
-
-
-def reader_of(kind: str) -> Callable[[dict], Any]:
-    """The ``from_dict`` of the class that reads files of ``kind`` (see :data:`FILE_KINDS`)."""
-    module, name = FILE_KINDS[kind]
-    return getattr(importlib.import_module(module), name).from_dict
-
-
-def read_colour_dict(path: str | os.PathLike) -> dict:
-    """The JSON object of a ``*.colour.json`` file (parsed, not validated)."""
-    return read_json(path, "colour fit file")
-
-
-def load_colour_file(path: str | os.PathLike, kind: str | None = None) -> Any:
-    """Load a ``*.colour.json`` of any kind (dispatching on ``kind`` in the file).
-
-    Parameters
-    ----------
-    path
-        The file.
-    kind
-        When given, the file must be of this kind.
-
-    Raises
-    ------
-    CamcalError
-        ``"<path>: <field>: <what is wrong>"`` for a bad file.
-    """
-    data = read_colour_dict(path)
-    try:
-        found = check_header(data, kind)
-        return reader_of(found)(data)
-    except CamcalError as error:
-        raise CamcalError(f"{path}: {error}") from None
-
-
-def load_fit(path: str | os.PathLike) -> ColourFit:
-    """Load and validate a characterisation ``*.colour.json``.
-
-    Returns
-    -------
-    ColourFit
-        ``.apply(RGB_linear)`` gives XYZ (white Y = 1); ``.linearise(codes)``
-        gives linear RGB from code values.
-
-    Raises
-    ------
-    CamcalError
-        ``"<path>: <field>: <what is wrong>"`` for a bad file.
-    """
-    return load_colour_file(path, "characterisation")

@@ -39,8 +39,10 @@ import re
 
 import numpy as np
 
-from camcal.colour.evaluate import delta_E, leave_one_out_predictions
-from camcal.colour.models import ModelSpec, fit_model, parse_model_spec
+from camcal.colour.difference import delta_E
+from camcal.colour.fit.evaluate import leave_one_out_predictions
+from camcal.colour.fit.terms import ModelSpec, parse_model_spec
+from camcal.colour.fit.fitting import fit_model
 from camcal.base.errors import CamcalError
 
 __all__ = ["RIDGE_GRID", "N_REFINE", "TIE", "Candidate", "Selection", "select_model"]

@@ -84,40 +84,40 @@ References
   using root-polynomial regression. IEEE TIP 24(5), 1460-1470.
 - Garcia, E., Gupta, M. R. (2009). Lattice regression. NeurIPS 22.
 
-Modules: :mod:`camcal.colour.match_models` (Lut3D, the model parser),
-:mod:`camcal.colour.robust` (LMedS + IRLS), :mod:`camcal.colour.matchfile`
-(the file kind), :mod:`camcal.geometry.correspondence` (stereo
-correspondences), :mod:`camcal.report.colour_match` (the report); this
-module holds the two routes and their file-level pipelines.
+Modules: :mod:`camcal.colour.match.models` (Lut3D, the model parser),
+:mod:`camcal.colour.match.robust` (LMedS + IRLS), :mod:`camcal.colour.match.record`
+(the file kind), :mod:`camcal.report.colour_match` (the report); this
+module holds the two routes on arrays. The stereo correspondences come from
+:func:`camcal.geometry.correspondence.stereo_correspondences`, called by
+:func:`camcal.pipelines.colour.match_images`; the file-level pipelines are
+:func:`camcal.pipelines.colour.match_image_files` and
+:func:`camcal.pipelines.colour.match_patch_files`.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from camcal.colour.evaluate import DeltaEStats, delta_E
-from camcal.colour.fitfile import ColourFit
-from camcal.colour.linearise import Linearisation
-from camcal.colour.match_models import LUT_SMOOTHING
-from camcal.colour.matchfile import ColourMatch, match_provenance
-from camcal.colour.robust import RobustFit, fit_match_model
-from camcal.colour.spectral import adapt_XYZ
+from camcal.colour.difference import DeltaEStats, delta_E
+from camcal.colour.fit.record import ColourFit
+from camcal.colour.chart.linearise import ChannelCurve, Linearisation, named_function
+from camcal.colour.match.models import LUT_SMOOTHING
+from camcal.colour.match.record import ColourMatch, match_provenance
+from camcal.colour.match.robust import RobustFit, fit_match_model
+from camcal.colour.spectral.data import adapt_XYZ
 from camcal.base.errors import CamcalError
-from camcal.geometry.correspondence import Correspondences, stereo_correspondences
 
 __all__ = [
     "REC709_SPACE",
     "rec709_XYZ",
     "target_space",
     "MatchResult",
-    "match_images",
+    "match_correspondences",
     "match_charts",
-    "match_image_files",
-    "match_patch_files",
+    "encoding_linearisation",
 ]
 
 
@@ -172,7 +172,9 @@ class MatchResult:
     test_inliers
         ``(M,)`` held-out samples within the fit's threshold, or ``None``.
     correspondences
-        Image route: the :class:`Correspondences`; ``None`` for charts.
+        Image route: the stereo correspondences
+        (:class:`camcal.geometry.correspondence.Correspondences`, set by
+        :func:`camcal.pipelines.colour.match_images`); ``None`` for charts.
     fit_target
         Camera A's characterisation used for Delta E, or ``None``.
     """
@@ -184,7 +186,7 @@ class MatchResult:
     test_source: np.ndarray | None = None
     test_target: np.ndarray | None = None
     test_inliers: np.ndarray | None = None
-    correspondences: Correspondences | None = None
+    correspondences: Any = None
     fit_target: ColourFit | None = None
 
 
@@ -196,13 +198,14 @@ def _tile_split(shape: tuple[int, int], tile: int, fraction: float, rng: np.rand
     return np.repeat(np.repeat(held, tile, axis=0), tile, axis=1)[:height, :width]
 
 
-def match_images(
-    RGB_A: Any,
-    RGB_B: Any,
+def match_correspondences(
+    RGB_source: Any,
+    RGB_target: Any,
+    valid: Any,
     *,
+    counts: dict | None = None,
     model: str = "matrix3x3",
     robust: str = "lmeds-irls",
-    a_is_left: bool | None = None,
     fit_target: ColourFit | None = None,
     source: str | None = None,
     target: str | None = None,
@@ -213,19 +216,23 @@ def match_images(
     smoothing: float = LUT_SMOOTHING,
     seed: int = 0,
     provenance_source: str | None = None,
-    **stereo: Any,
 ) -> MatchResult:
-    """Fit a camera B -> camera A colour match from a rectified stereo pair.
+    """Fit a camera B -> camera A colour match from dense correspondences of a rectified stereo pair.
 
     Parameters
     ----------
-    RGB_A, RGB_B
-        ``(H, W, 3)`` LINEAR RGB of the rectified views of A (target) and B
-        (source).
+    RGB_source, RGB_target
+        ``(H, W, 3)`` LINEAR RGB of camera B (source) sampled at the
+        correspondences and of camera A (target), on A's pixel grid (as
+        :func:`camcal.geometry.correspondence.stereo_correspondences` gives).
+    valid
+        ``(H, W)`` bool: the pixels whose correspondence is reliable.
+    counts
+        Pixel counts ``total``, ``disparity``, ``consistent``, ``valid``
+        quoted when too few correspondences remain (``None``: the valid
+        count only).
     model, robust, smoothing
         See :func:`fit_match_model`.
-    a_is_left
-        Whether A is the left view (``None``: found from the data).
     fit_target
         Camera A's characterisation, for Delta E in XYZ; ``None`` reads A's
         RGB as linear Rec. 709 (see the module docstring).
@@ -240,29 +247,31 @@ def match_images(
         At most this many training pixels (a random subset) enter the fit.
     seed
         Random seed (split, subset, LMedS).
-    **stereo
-        Options of :func:`stereo_correspondences`.
 
     Returns
     -------
     MatchResult
+        ``correspondences`` is ``None`` (the caller that made them sets it).
     """
     if not 0.0 < test_fraction < 1.0:
         raise CamcalError(f"test_fraction must be between 0 and 1, got {test_fraction}")
-    corr = stereo_correspondences(RGB_A, RGB_B, a_is_left=a_is_left, **stereo)
+    valid = np.asarray(valid, dtype=bool)
     rng = np.random.default_rng(seed)
-    held = _tile_split(corr.valid.shape, tile_px, test_fraction, rng)
-    train_idx = np.flatnonzero(corr.valid & ~held)
-    test_idx = np.flatnonzero(corr.valid & held)
+    held = _tile_split(valid.shape, tile_px, test_fraction, rng)
+    train_idx = np.flatnonzero(valid & ~held)
+    test_idx = np.flatnonzero(valid & held)
     need = 200
     if train_idx.size < need or test_idx.size < 20:
-        raise CamcalError(f"too few reliable correspondences: {corr.counts['valid']} of {corr.counts['total']} "
-                          f"pixels (disparity {corr.counts['disparity']}, left-right consistent "
-                          f"{corr.counts['consistent']}); need {need} for the fit")
+        if counts is None:
+            raise CamcalError(f"too few reliable correspondences: {int(valid.sum())} of {valid.size} pixels; "
+                              f"need {need} for the fit")
+        raise CamcalError(f"too few reliable correspondences: {counts['valid']} of {counts['total']} "
+                          f"pixels (disparity {counts['disparity']}, left-right consistent "
+                          f"{counts['consistent']}); need {need} for the fit")
     if train_idx.size > max_samples:
         train_idx = np.sort(rng.choice(train_idx, max_samples, replace=False))
-    src = corr.source.reshape(-1, 3)
-    tgt = corr.target.reshape(-1, 3)
+    src = np.asarray(RGB_source, dtype=np.float64).reshape(-1, 3)
+    tgt = np.asarray(RGB_target, dtype=np.float64).reshape(-1, 3)
     fit = fit_match_model(src[train_idx], tgt[train_idx], model, robust=robust, smoothing=smoothing, seed=seed)
     to_XYZ, white, space = target_space(fit_target)
     test_B, test_A = src[test_idx], tgt[test_idx]
@@ -289,7 +298,7 @@ def match_images(
         source=source, target=target, linearisation=linearisation or Linearisation.identity(),
         provenance=match_provenance(provenance_source),
     )
-    return MatchResult(match, fit, train_B, train_A, test_B, test_A, inliers, corr, fit_target)
+    return MatchResult(match, fit, train_B, train_A, test_B, test_A, inliers, None, fit_target)
 
 
 # --------------------------------------------------------------------------
@@ -410,149 +419,8 @@ def match_charts(
     return MatchResult(match, fit, lin_B, lin_A, test_B, test_A, inliers, None, fit_target)
 
 
-# --------------------------------------------------------------------------
-# From files (what the CLI calls)
-
-
-def _encoding(name: str) -> Linearisation:
+def encoding_linearisation(name: str) -> Linearisation:
     """Linearisation of a named encoding: ``linear`` or a colour-science transfer function."""
-    from camcal.colour.linearise import ChannelCurve, named_function
-
     if name == "linear":
         return Linearisation.identity()
     return Linearisation((ChannelCurve("named", {"function": named_function(name), "scale": 1.0}),) * 3)
-
-
-def match_image_files(
-    images: dict[str, str | os.PathLike],
-    *,
-    rig: Any = None,
-    rectified: bool = False,
-    fits: dict[str, ColourFit] | None = None,
-    encoding: str = "linear",
-    model: str = "matrix3x3",
-    robust: str = "lmeds-irls",
-    seed: int = 0,
-) -> MatchResult:
-    """The image route from files: read, linearise, rectify if needed, match.
-
-    Parameters
-    ----------
-    images
-        Two entries ``{target_name: path, source_name: path}`` in that order:
-        the first camera is the target (A), the second is matched to it (B).
-    rig
-        A :class:`camcal.model.rig.Rig` holding both cameras, or ``None``. With a
-        rig, the left view is the camera further along the rectified x axis'
-        negative side; unless ``rectified``, both images are rectified with
-        :func:`camcal.geometry.rectify.rectify_calibrated` (undistortion and
-        rectification in one remap) after linearisation.
-    rectified
-        The images are rectified already (required without a rig).
-    fits
-        Characterisations by camera name: a camera's fit gives its
-        linearisation, the target's fit the XYZ for Delta E.
-    encoding
-        Encoding of cameras without a fit: ``linear`` or a transfer
-        function name (``sRGB``, ``ITU-R BT.709``, ``ARRI LogC3``...).
-    model, robust, seed
-        See :func:`match_images`.
-
-    Returns
-    -------
-    MatchResult
-    """
-    from camcal.colour.chart import read_image
-
-    if len(images) != 2:
-        raise CamcalError(f"colour match needs exactly two cameras' images, got {len(images)}: {', '.join(images)}")
-    fits = fits or {}
-    for name in fits:
-        if name not in images:
-            raise CamcalError(f"a fit is given for camera {name!r}, which has no image")
-    target, source = list(images)
-    if rig is None and not rectified:
-        raise CamcalError("without a rig the images must already be rectified (say so with --rectified)")
-    linear = {}
-    linearisations = {}
-    for name, path in images.items():
-        lin = fits[name].linearisation if name in fits else _encoding(encoding)
-        linearisations[name] = lin
-        linear[name] = lin.apply(read_image(path))
-    a_is_left = None
-    if rig is not None:
-        from camcal.geometry.rectify import RectifyWarper, rectify_calibrated
-
-        for name in images:
-            rig.camera(name)
-        result = rectify_calibrated(rig, [target, source])
-        x = {name: float((result.R_rect @ rig.camera(name).c)[0]) for name in images}
-        a_is_left = x[target] < x[source]
-        if not rectified:
-            warper = RectifyWarper(result.rig)
-            linear = {name: warper.warp(name, image.astype(np.float32)).astype(np.float64)
-                      for name, image in linear.items()}
-    if linear[target].shape != linear[source].shape:
-        raise CamcalError(f"the two images differ in size: {linear[target].shape[1]}x{linear[target].shape[0]} "
-                          f"and {linear[source].shape[1]}x{linear[source].shape[0]} px")
-    return match_images(linear[target], linear[source], model=model, robust=robust, a_is_left=a_is_left,
-                        fit_target=fits.get(target), source=source, target=target,
-                        linearisation=linearisations[source], seed=seed,
-                        provenance_source=f"{images[target]}, {images[source]}")
-
-
-def match_patch_files(
-    fits: dict[str, ColourFit],
-    patches: dict[str, str | os.PathLike],
-    *,
-    test_patches: dict[str, str | os.PathLike] | None = None,
-    model: str = "matrix3x3",
-    robust: str = "none",
-) -> MatchResult:
-    """The chart route from files: two fits and the two cameras' patch CSVs.
-
-    Parameters
-    ----------
-    fits
-        ``{target_name: fit, source_name: fit}``, target first.
-    patches
-        Patch CSVs of the same chart by camera name (code values in each
-        fit's encoding; the target's XYZ column is the reference, adapted to
-        the target fit's white as that fit was).
-    test_patches
-        Independent patch CSVs by camera name, optional.
-    model, robust
-        See :func:`match_charts`.
-
-    Returns
-    -------
-    MatchResult
-    """
-    from camcal.colour.patches import read_patch_csv
-
-    if len(fits) != 2 or set(patches) != set(fits):
-        raise CamcalError("the chart route needs a fit and a patch file for each of two cameras, got fits for "
-                          f"{', '.join(fits) or 'none'} and patches for {', '.join(patches) or 'none'}")
-    target, source = list(fits)
-
-    def pair(files: dict) -> tuple:
-        if set(files) != set(fits):
-            raise CamcalError(f"patch files must name the cameras {target} and {source}, got {', '.join(files)}")
-        sets = {name: read_patch_csv(path) for name, path in files.items()}
-        if sets[target].names != sets[source].names:
-            raise CamcalError(f"the patch files of {target} and {source} list different patches "
-                              f"({len(sets[target])} and {len(sets[source])})")
-        return sets[source], sets[target]
-
-    train_B, train_A = pair(patches)
-    test = None
-    if test_patches:
-        test_B, test_A = pair(test_patches)
-        test = (test_B.RGB, test_A.RGB)
-    reference = train_A.XYZ
-    fit_A = fits[target]
-    if fit_A.adaptation is not None:
-        reference = adapt_XYZ(reference, fit_A.training_white_XYZ, fit_A.target_white_XYZ, fit_A.adaptation)
-    return match_charts(fits[source], fits[target], train_B.RGB, train_A.RGB, XYZ_reference=reference,
-                        test=test, model=model, robust=robust, source=source, target=target,
-                        provenance_source=f"{patches[target]}, {patches[source]}")

@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from camcal.colour.models import LinearTermsModel, parse_model_spec
+from camcal.colour.fit.models import LinearTermsModel
+from camcal.colour.fit.terms import parse_model_spec
 from camcal.base.errors import CamcalError
 
 __all__ = [

@@ -1,14 +1,15 @@
-"""The ``colour fit`` pipeline: patches (or a chart photo) to a ``*.colour.json``.
+"""Characterisation: patches (camera RGB beside reference XYZ) to a :class:`ColourFit`.
 
-Steps, each a function the CLI calls:
+Steps of ``colour fit``:
 
-1. :func:`patches_from_chart`: read the image, detect the chart (cv2.mcc or
-   four manual corners), sample every patch, drop clipped patches, pair the
-   code values with the reference chart's XYZ.
+1. :func:`camcal.pipelines.colour.patches_from_chart` (or
+   :func:`camcal.colour.chart.detect.patches_from_image` on an image array):
+   detect the chart (cv2.mcc or four manual corners), sample every patch,
+   drop clipped patches, pair the code values with the reference chart's XYZ.
 2. :func:`characterise`: fit the linearisation on the neutral patches
    (or take the one given), adapt the reference to the target white if
    asked, fit the model (``auto`` picks by leave-one-out, see
-   :mod:`camcal.colour.select`), evaluate CIEDE2000 on training,
+   :mod:`camcal.colour.fit.select`), evaluate CIEDE2000 on training,
    leave-one-out and an independent set, and build the :class:`ColourFit`.
 3. :func:`camcal.report.characterisation.write_report`: per-patch tables,
    the ``auto`` candidate table and the plots.
@@ -20,35 +21,26 @@ independent patch set is in the same encoding as the training set.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from camcal.colour.chart import (
-    ChartDetection,
-    PatchSamples,
-    ReferenceChart,
-    chart_from_corners,
-    detect_chart,
-    read_image,
-    reference_chart,
-    sample_patches,
-)
-from camcal.colour.evaluate import ColourFitResult, XYZ_to_Lab, evaluate_model
-from camcal.colour.fitfile import ColourFit
-from camcal.colour.linearise import Linearisation, fit_linearisation
-from camcal.colour.models import fit_model, parse_model_spec
-from camcal.colour.patches import PatchSet
-from camcal.colour.select import Selection, select_model
-from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ
 from camcal.base.errors import CamcalError
 from camcal.base.jsonfile import utc_timestamp
+from camcal.colour.bake.samples import bake_model
+from camcal.colour.chart.linearise import Linearisation, fit_linearisation
+from camcal.colour.chart.patches import PatchSet
+from camcal.colour.difference import XYZ_to_Lab
+from camcal.colour.fit.evaluate import ColourFitResult, evaluate_model
+from camcal.colour.fit.fitting import fit_model
+from camcal.colour.fit.record import ColourFit
+from camcal.colour.fit.select import Selection, select_model
+from camcal.colour.fit.terms import parse_model_spec
+from camcal.colour.spectral.data import adapt_XYZ, illuminant_white_XYZ
 
-__all__ = ["ChartPatches", "Characterisation", "white_from_name", "patches_from_chart",
-           "neutral_indices", "characterise"]
+__all__ = ["Characterisation", "white_from_name", "neutral_indices", "characterise"]
 
 
 def white_from_name(text: str) -> tuple[str, np.ndarray]:
@@ -69,60 +61,6 @@ def white_from_name(text: str) -> tuple[str, np.ndarray]:
             raise CamcalError(f"white {text!r}: chromaticity out of range")
         return f"x={x:g},y={y:g}", np.array([x / y, 1.0, (1 - x - y) / y])
     return text, illuminant_white_XYZ(text)
-
-
-@dataclass(frozen=True, eq=False)
-class ChartPatches:
-    """What a chart photo gave: patches (code values) and how they were found."""
-
-    patches: PatchSet
-    reference: ReferenceChart
-    detection: ChartDetection
-    samples: PatchSamples
-    excluded: tuple[str, ...]
-
-
-def patches_from_chart(
-    image_path: str | os.PathLike,
-    reference: str = "ColorChecker24 - After November 2014",
-    *,
-    corners: Any = None,
-    keep_clipped: bool = False,
-    illuminant: str = "D50",
-) -> ChartPatches:
-    """Detect, sample and pair a chart photo's patches with reference XYZ.
-
-    Parameters
-    ----------
-    image_path
-        The photo (8/16-bit or float).
-    reference
-        Reference chart name (see :func:`camcal.colour.chart.reference_chart`).
-    corners
-        ``(4, 2)`` manual grid corners; ``None`` detects with cv2.mcc.
-    keep_clipped
-        Keep patches flagged clipped (dropped by default).
-    illuminant
-        White of the reference XYZ (the chart's data are adapted to it when
-        they were measured under another, see ``reference_chart``).
-
-    Returns
-    -------
-    ChartPatches
-        Code values normalised to [0, 1] and XYZ relative to the chart's
-        white.
-    """
-    chart = reference_chart(reference, illuminant)
-    image = read_image(image_path)
-    if corners is None:
-        detection = detect_chart(image, chart.rows, chart.columns)
-    else:
-        detection = chart_from_corners(corners, chart.rows, chart.columns)
-    samples = sample_patches(image, detection)
-    keep = np.ones(len(chart.patch_names), dtype=bool) if keep_clipped else ~samples.clipped
-    excluded = tuple(n for n, k in zip(chart.patch_names, keep) if not k)
-    patches = PatchSet(chart.patch_names, samples.RGB, chart.XYZ).subset(keep)
-    return ChartPatches(patches, chart, detection, samples, excluded)
 
 
 def neutral_indices(XYZ: Any, white_XYZ: Any, chroma: float = 4.0) -> np.ndarray:
@@ -167,8 +105,6 @@ class Characterisation:
 def _export_check(white_XYZ: np.ndarray, reference: str | None, illuminant: str):
     """``auto``'s exportability check: the exporters' own bake of a candidate model (every Lut3D size, as they do)."""
     def exportable(model) -> float | None:
-        from camcal.colour.export_ocio import bake_model  # noqa: PLC0415
-
         baked = bake_model(model, white_XYZ, reference=reference, illuminant=illuminant)
         return None if baked.bake_error is None else baked.bake_error.max
 

@@ -1,35 +1,35 @@
-"""The ``match`` kind of ``*.colour.json``: :class:`ColourMatch`, its checks and loader.
+"""The ``match`` kind of ``*.colour.json``: :class:`ColourMatch` and its checks (the data).
 
-Listed in :data:`camcal.colour.fitfile.FILE_KINDS`; the format is documented
-in :mod:`camcal.colour.match`.
+Listed in :data:`camcal.colour.fit.record.KINDS`; the format is documented
+in :mod:`camcal.colour.match.routes`; :func:`camcal.io.colourfile.load_match`
+reads the file.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from camcal.colour.evaluate import DeltaEStats
-from camcal.colour.fitfile import (
-    LinearisedModel, check_header, check_linearisation, check_provenance, check_stats, load_colour_file,
+from camcal.colour.difference import DeltaEStats
+from camcal.colour.fit.record import (
+    LinearisedModel,
+    check_header,
+    check_linearisation,
+    check_provenance,
+    check_stats,
     model_and_linearisation,
 )
-from camcal.colour.linearise import Linearisation
-from camcal.colour.match_models import Lut3DModel, MATCH_MODELS, MatchModel
-from camcal.colour.models import model_from_dict
-from camcal.colour.robust import ROBUST_METHODS
+from camcal.colour.chart.linearise import Linearisation
+from camcal.colour.match.models import Lut3DModel, MATCH_MODELS, MatchModel
+from camcal.colour.fit.models import model_from_dict
+from camcal.colour.match.robust import ROBUST_METHODS
 from camcal.base.errors import CamcalError
 from camcal.base.jsonfile import utc_timestamp
 from camcal.base.fields import integer_field, keys_field, matrix_field, number_field, string_field, vector_field
 
-__all__ = [
-    "match_provenance",
-    "ColourMatch",
-    "load_match",
-]
+__all__ = ["match_provenance", "ColourMatch"]
 
 
 # --------------------------------------------------------------------------
@@ -175,14 +175,3 @@ class ColourMatch(LinearisedModel):
         if ev["n_test_outliers"] is not None:
             lines.append(f"held-out outliers (beyond the fit's threshold): {ev['n_test_outliers']}")
         return "\n".join(lines)
-
-
-def load_match(path: str | os.PathLike) -> ColourMatch:
-    """Load and validate a ``*.colour.json`` of kind ``match``.
-
-    Raises
-    ------
-    CamcalError
-        ``"<path>: <field>: <what is wrong>"`` for a bad file.
-    """
-    return load_colour_file(path, "match")

@@ -1,0 +1,1 @@
+"""Pipelines: paths in, files out; each step a function the CLI calls."""
