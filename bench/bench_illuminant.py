@@ -10,7 +10,7 @@ The camera's sensitivities are known three ways:
 - ``estimated, 5 lights``: estimated from the chart captured under D65, FL2,
   LED-B3, FL11 and D50 (no capture under A).
 
-Routes (camcal.colour.illuminant): ``spectral`` (fit on the 190 RAW to ACES
+Routes (camcal.colour.fit.illuminant): ``spectral`` (fit on the 190 RAW to ACES
 reflectances rendered through the sensitivities under A), ``CAT02`` and
 ``Bradford`` (fit on the chart under D65, white balance from the
 sensitivities, von Kries adaptation of the output). camcal picks the route and its

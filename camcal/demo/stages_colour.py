@@ -206,7 +206,7 @@ def stage_colour_export(ctx: DemoContext) -> StageResult:
     from camcal.colour.spectral.data import adapt_XYZ, illuminant_white_XYZ  # noqa: PLC0415
 
     stage = "colour export"
-    # auto only picks fits the exporters take (camcal.colour.select): no refit is ever needed here
+    # auto only picks fits the exporters take (camcal.colour.fit.select): no refit is ever needed here
     fits, commands = dict(ctx.need("colour_fits", stage)), []
     samples = {name: np.vstack([read_patch_csv(ctx.need("chart_patches", stage)[name]).RGB,
                                 read_patch_csv(ctx.need("independent_patches", stage)[name]).RGB])

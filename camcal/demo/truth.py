@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.demo.core import DemoConfig, DemoTruth, FULL
 from camcal.base.errors import CamcalError
+from camcal.demo.core import DemoConfig, DemoTruth, FULL
 from camcal.model.camera import look_at
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Frame, Rig, make_provenance
@@ -122,7 +122,7 @@ def board_corners(board, R, t) -> NDArray[np.float64]:
 def reference_XYZ(reflectances: str, illuminant: str) -> NDArray[np.float64]:
     """True XYZ (perfect white Y = 1) of a colour-science reflectance set under a CIE illuminant.
 
-    Integrated exactly as ``camcal.colour.chart.reference_chart`` integrates
+    Integrated exactly as ``camcal.colour.chart.reference.reference_chart`` integrates
     the spectral charts (CIE 1931 2 degree observer, 380 to 780 nm every 5 nm),
     so that training and independent references agree whatever a camera's
     own spectral range (the Sigma's data stop at 400-680 nm).

@@ -134,9 +134,9 @@ def plot_sensitivities(
     """Plot the curves with ``+-1.96 sigma`` bands and, if given, other curves to compare.
 
     ``sigma`` includes the smoothing bias (see
-    :class:`~camcal.colour.spectral.SensitivityEstimate`): the nominal 95 %
+    :class:`~camcal.colour.spectral.estimate.SensitivityEstimate`): the nominal 95 %
     band covered 94.2 % of the true curves' samples on simulated cameras
-    (89.6-96.9 % per case, 84-100 % per draw; tests/colour/spectral/test_ssf.py, slow).
+    (89.6-96.9 % per case, 84-100 % per draw; tests/colour/spectral/test_colour_ssf.py, slow).
 
     ``truth`` is resampled on the grid and scaled by the common factor of
     :func:`camcal.colour.spectral.sensitivities.relative_rms_error`. Written with matplotlib's Agg backend.

@@ -530,7 +530,7 @@ def icc_profile_from_fit(
         4 (ICC.1:2010, default) or 2 (ICC.1:2001-04).
     max_delta_E, lut_sizes
         For a LUT profile: v4 bakes the D2B0 as the OCIO export does
-        (:func:`camcal.colour.export_ocio.bake_fit`: the smallest size within
+        (:func:`camcal.colour.export.ocio_fit.bake_fit`: the smallest size within
         ``max_delta_E`` CIEDE2000 over the chart gamut and plausible surface
         colours, else refused) and writes the A2B0 at the smallest size within
         ``max_delta_E`` over the chart gamut (the largest when none is); v2

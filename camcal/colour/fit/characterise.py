@@ -158,7 +158,7 @@ def characterise(
     loo
         Compute leave-one-out figures (always on for ``auto``).
     candidates
-        Models ``auto`` may pick (default: :func:`camcal.colour.select.select_model`'s list).
+        Models ``auto`` may pick (default: :func:`camcal.colour.fit.select.select_model`'s list).
 
     Returns
     -------

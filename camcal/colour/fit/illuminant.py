@@ -23,7 +23,7 @@ each route fitted with every model of :data:`LINEAR_CANDIDATES` under
 ``Munsell validation``: used by no fit) rendered under B through the
 sensitivities (taken as the truth, as RAW to ACES does), or, with
 ``n_cameras > 0``, through that many plausible cameras drawn from the
-sensitivities' uncertainty (:meth:`camcal.colour.ssf.Sensitivities.samples`).
+sensitivities' uncertainty (:meth:`camcal.colour.spectral.sensitivities.Sensitivities.samples`).
 The pair with the lowest root mean square CIEDE2000 is picked: RMS weighs
 the few large errors of a fit that bends away outside its training
 colours, so a root-polynomial that explodes there is not picked (on the
@@ -38,7 +38,7 @@ from the one D65 chart, the best by held-out mean in 6 of 6. Posterior
 sampling (``n_cameras``) is not the default.
 
 Conventions: camera RGB under B is linear at the exposure where the perfect
-white has G = 1 (what :class:`~camcal.colour.spectral.SimulatedCamera`
+white has G = 1 (what :class:`~camcal.colour.spectral.simulate.SimulatedCamera`
 gives); XYZ are relative to the white of B with Y = 1; colorimetry of
 reflectances integrates the CIE 1931 observer on 360-780 nm in 5 nm steps,
 camera RGB on the sensitivities' grid.
@@ -60,16 +60,16 @@ from typing import Any
 
 import numpy as np
 
-from camcal.colour.fit.characterise import Characterisation, characterise, neutral_indices, white_from_name
-from camcal.colour.difference import DeltaEStats, delta_E
-from camcal.colour.fit.record import ColourFit
-from camcal.colour.fit.models import LinearTermsModel
-from camcal.colour.fit.terms import parse_term
+from camcal.base.errors import CamcalError
 from camcal.colour.chart.patches import PatchSet
+from camcal.colour.difference import DeltaEStats, delta_E
+from camcal.colour.fit.characterise import Characterisation, characterise, neutral_indices, white_from_name
+from camcal.colour.fit.models import LinearTermsModel
+from camcal.colour.fit.record import ColourFit
+from camcal.colour.fit.terms import parse_term
 from camcal.colour.spectral.data import reflectance_XYZ as spectral_reflectance_XYZ
 from camcal.colour.spectral.data import CAT_TRANSFORMS, reflectance_set
 from camcal.colour.spectral.sensitivities import Sensitivities, illuminant_spd
-from camcal.base.errors import CamcalError
 
 __all__ = [
     "ROUTES",

@@ -28,7 +28,7 @@ Format, version 1, kind ``characterisation``::
         "selection": null | {"method": str, "picked": CANDIDATE,
                              "reason": str, "candidates": [CANDIDATE...]},
         "illuminant_change": {...}   # optional: a fit made for another light
-      },                             # (camcal.colour.illuminant): for_illuminant,
+      },                             # (camcal.colour.fit.illuminant): for_illuminant,
                                      # route, reason, candidates [{route, model,
                                      # rms, mean, p95, max}] (model and rms
                                      # optional), the reflectance sets used
@@ -87,7 +87,7 @@ Using a fit::
     XYZ = fit.apply(RGB_linear)        # (N, 3) LINEAR camera RGB -> XYZ
     RGB_linear = fit.linearise(codes)  # (N, 3) code values in [0, 1] -> linear
     XYZ = fit.apply_codes(codes)       # both: code values -> XYZ
-    # fast: OCIO's CPU processor (float32), camcal.colour.export.fit_processor
+    # fast: OCIO's CPU processor (float32), camcal.colour.export.ocio_fit.fit_processor
     image = fit_processor(fit, "ACEScg").apply(codes)
 
 XYZ is relative to the target white, Y = 1 for the perfect white.

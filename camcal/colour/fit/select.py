@@ -16,7 +16,7 @@ ranked by leave-one-out mean CIEDE2000 over both stages; ties within
 :data:`TIE` go to the simpler model (fewer terms, then ``xyz``). Going down
 that ranking, each is fitted to all patches and handed to the exporters'
 own check (``exportable``; ``colour fit`` passes
-:func:`camcal.colour.export_ocio.bake_model` with the exporters' sizes: a
+:func:`camcal.colour.bake.samples.bake_model` with the exporters' sizes: a
 ``matrix3x3`` is exact, any other model must bake within CIEDE2000 0.2 over
 the chart gamut and plausible surface colours); the first that passes is
 picked, the ones refused before it are recorded with their bake error. The
@@ -39,11 +39,11 @@ import re
 
 import numpy as np
 
+from camcal.base.errors import CamcalError
 from camcal.colour.difference import delta_E
 from camcal.colour.fit.evaluate import leave_one_out_predictions
-from camcal.colour.fit.terms import ModelSpec, parse_model_spec
 from camcal.colour.fit.fitting import fit_model
-from camcal.base.errors import CamcalError
+from camcal.colour.fit.terms import ModelSpec, parse_model_spec
 
 __all__ = ["RIDGE_GRID", "N_REFINE", "TIE", "Candidate", "Selection", "select_model"]
 

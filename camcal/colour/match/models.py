@@ -1,7 +1,7 @@
 """The models a camera-to-camera colour match uses: the Lut3D model and the model parser.
 
-See :mod:`camcal.colour.match` for the whole method; ``matrix3x3``,
-``polynomial`` and ``root-polynomial`` come from :mod:`camcal.colour.models`.
+See :mod:`camcal.colour.match.routes` for the whole method; ``matrix3x3``,
+``polynomial`` and ``root-polynomial`` come from :mod:`camcal.colour.fit.models`.
 """
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
+from camcal.base.errors import CamcalError
 from camcal.colour.fit.models import LinearTermsModel
 from camcal.colour.fit.terms import parse_model_spec
-from camcal.base.errors import CamcalError
 
 __all__ = [
     "MATCH_MODELS",

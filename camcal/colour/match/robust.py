@@ -19,9 +19,9 @@ from camcal.colour.match.models import (
     parse_match_model,
     trilinear_weights,
 )
+from camcal.base.errors import CamcalError
 from camcal.colour.fit.models import LinearTermsModel
 from camcal.colour.fit.terms import expand, parse_model_spec
-from camcal.base.errors import CamcalError
 
 __all__ = [
     "ROBUST_METHODS",
@@ -145,7 +145,7 @@ class RobustFit:
     Attributes
     ----------
     model
-        :class:`~camcal.colour.models.LinearTermsModel` or :class:`Lut3DModel`.
+        :class:`~camcal.colour.fit.models.LinearTermsModel` or :class:`Lut3DModel`.
     weights
         ``(N,)`` final robust weights in [0, 1] (1 everywhere for ``none``).
     inliers

@@ -30,8 +30,8 @@ inputs clamped to the box (as OpenColorIO's Lut3D does), fitted by lattice
 regression (*Garcia & Gupta 2009*) with a second-difference smoothness
 penalty that extends the table smoothly where the data do not reach.
 
-File: a ``*.colour.json`` of kind ``match`` (:mod:`camcal.colour.matchfile`,
-listed in :data:`camcal.colour.fitfile.FILE_KINDS`)::
+File: a ``*.colour.json`` of kind ``match`` (:mod:`camcal.colour.match.record`,
+listed in :data:`camcal.colour.fit.record.KINDS`)::
 
     {
       "format": "camcal.colour", "version": 1, "kind": "match",
@@ -57,7 +57,7 @@ listed in :data:`camcal.colour.fitfile.FILE_KINDS`)::
 ``MATCH_MODEL``: ``{"kind": "matrix3x3" | "polynomial" | "root-polynomial",
 "terms": [...], "coefficients": [[...T...] x 3]}`` (rows R, G, B of the
 target, ``A = coefficients @ terms(B)``; terms as in
-:mod:`camcal.colour.models`), or ``{"kind": "lut3d", "size": N,
+:mod:`camcal.colour.fit.models`), or ``{"kind": "lut3d", "size": N,
 "domain_min": [3], "domain_max": [3], "smoothing": s, "table": [[R, G, B] x
 N^3]}`` with the table in CLF order: the red index varies slowest, blue
 fastest, ``table[(i N + j) N + k]`` is the output at input
@@ -101,14 +101,14 @@ from typing import Any
 
 import numpy as np
 
+from camcal.base.errors import CamcalError
+from camcal.colour.chart.linearise import ChannelCurve, Linearisation, named_function
 from camcal.colour.difference import DeltaEStats, delta_E
 from camcal.colour.fit.record import ColourFit
-from camcal.colour.chart.linearise import ChannelCurve, Linearisation, named_function
 from camcal.colour.match.models import LUT_SMOOTHING
 from camcal.colour.match.record import ColourMatch, match_provenance
 from camcal.colour.match.robust import RobustFit, fit_match_model
 from camcal.colour.spectral.data import adapt_XYZ
-from camcal.base.errors import CamcalError
 
 __all__ = [
     "REC709_SPACE",

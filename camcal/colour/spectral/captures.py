@@ -104,7 +104,7 @@ def capture_exposures(captures: Sequence[Capture]) -> np.ndarray:
     Minimises, over ``log k_c``, the penalised misfit of the ridge solution
     ``s(k) = argmin sum_c |k_c A_c s - RGB_c|^2 + lambda |D s|^2`` (all
     channels, unconstrained, ``lambda`` = :data:`EXPOSURE_LAMBDA` in the
-    units of :func:`~camcal.colour.spectral.estimate_sensitivities`): a
+    units of :func:`~camcal.colour.spectral.estimate.estimate_sensitivities`): a
     fairly smooth ``s`` so that the exposures cannot trade off against the
     curves' shape (with several illuminants they otherwise would). Started
     from exposures matching each capture's mean G to its mean stimulus power.
@@ -150,7 +150,7 @@ def estimate_from_captures(
 
     Model: ``RGB_c = k_c (R_c * L_c) @ s`` for capture ``c`` with exposure
     ``k_c`` (``k_0 = 1``). The exposures come first (:func:`capture_exposures`),
-    then :func:`~camcal.colour.spectral.estimate_sensitivities` runs on all
+    then :func:`~camcal.colour.spectral.estimate.estimate_sensitivities` runs on all
     captures' RGB divided by them (positivity, smoothness, ``lambda`` per
     channel by K-fold cross-validation).
 
@@ -158,7 +158,7 @@ def estimate_from_captures(
     -------
     Sensitivities
         Normalised to largest value 1, with the covariance (posterior plus
-        smoothing bias, see :class:`~camcal.colour.spectral.SensitivityEstimate`) and
+        smoothing bias, see :class:`~camcal.colour.spectral.estimate.SensitivityEstimate`) and
         the ``estimation`` block (per capture: illuminant, source, patch
         count, exposure relative to the first).
     """

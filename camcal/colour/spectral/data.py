@@ -66,7 +66,7 @@ def reflectance_XYZ(reflectances: Any, illuminant: Any,
     """XYZ of reflectance spectra under an illuminant, and of the perfect white (Y = 1).
 
     The one spectral integration of camcal (chart references, the demo's
-    truth, :meth:`SimulatedCamera.XYZ`, :func:`camcal.colour.illuminant.reflectance_XYZ`).
+    truth, :meth:`SimulatedCamera.XYZ`, :func:`camcal.colour.fit.illuminant.reflectance_XYZ`).
 
     Parameters
     ----------

@@ -97,7 +97,7 @@ class SensitivityEstimate:
         smoothing, largest at the Sigma's 660 nm cut-off, is not in it);
         this one covers 94.2 % over 4 cases x 10 seeded draws (89.6-96.9 %
         per case, 84-100 % per draw; slow test in
-        tests/colour/test_colour_ssf.py). It does not cover a wrong
+        tests/colour/spectral/test_colour_ssf.py). It does not cover a wrong
         illuminant or reflectance.
     """
 
@@ -148,7 +148,7 @@ def estimate_sensitivities(
     On simulated ColorChecker captures under 5 lights with 0.2 %
     multiplicative noise the weighting brought the mu-factor error of the
     Sigma SDMerill from up to 0.032 to at most 0.017 over 20 draws
-    (tests/colour/test_colour_ssf.py, slow).
+    (tests/colour/spectral/test_colour_ssf.py, slow).
 
     Parameters
     ----------
