@@ -45,10 +45,11 @@ warnings.filterwarnings("ignore")
 
 from colour.characterisation import apply_matrix_colour_correction, matrix_colour_correction  # noqa: E402
 
-from camcal.colour.characterise import characterise  # noqa: E402
-from camcal.colour.evaluate import DeltaEStats, delta_E  # noqa: E402
-from camcal.colour.patches import PatchSet  # noqa: E402
-from camcal.colour.spectral import SimulatedCamera, reflectance_set  # noqa: E402
+from camcal.colour.fit.characterise import characterise  # noqa: E402
+from camcal.colour.difference import DeltaEStats, delta_E  # noqa: E402
+from camcal.colour.chart.patches import PatchSet  # noqa: E402
+from camcal.colour.spectral.simulate import SimulatedCamera  # noqa: E402
+from camcal.colour.spectral.data import reflectance_set  # noqa: E402
 
 SCENES = [("Nikon 5100 (NPL)", "D65"), ("Sigma SDMerill (NPL)", "A")]
 NOISE = 0.002

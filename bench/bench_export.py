@@ -3,7 +3,7 @@
 For a matrix fit (exact MatrixTransform) and a root-polynomial fit (the
 baked log-chromaticity Lut3D), same frame, same run:
 
-- library: ``fit.processor("ACEScg").apply(frame, in_place=True)``;
+- library: ``fit_processor(fit, "ACEScg").apply(frame, in_place=True)``;
 - batch: the colour step of ``camcal batch`` (``ColourStep.apply``);
 - peer: OCIO's CPU processor of the same transform, called directly
   (``cpu.applyRGB`` on the frame) - the processor both of ours use, so the
@@ -25,8 +25,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "colour"))
 
 from camcal.pipelines.batch import ColourStep  # noqa: E402
-from camcal.colour.evaluate import delta_E  # noqa: E402
-from camcal.colour.export_ocio import output_matrix  # noqa: E402
+from camcal.colour.difference import delta_E  # noqa: E402
+from camcal.colour.export.ocio_fit import fit_processor, output_matrix  # noqa: E402
 from colour_export_helpers import codes_of, make_fit  # noqa: E402
 from conftest import make_sim  # noqa: E402
 
@@ -54,7 +54,7 @@ def main() -> int:
     frame = codes_of(picks * rng.uniform(0.5, 1.2, (picks.shape[0], 1))).astype(np.float32).reshape(*SIZE, 3)
     for model in ("matrix3x3", "root-polynomial:2"):
         fit = make_fit(sim, model)
-        processor = fit.processor(SPACE)
+        processor = fit_processor(fit, SPACE)
         step = ColourStep(fit, SPACE)
         out = output_matrix(fit.target_white_XYZ, SPACE)
 

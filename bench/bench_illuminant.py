@@ -10,7 +10,7 @@ The camera's sensitivities are known three ways:
 - ``estimated, 5 lights``: estimated from the chart captured under D65, FL2,
   LED-B3, FL11 and D50 (no capture under A).
 
-Routes (camcal.colour.illuminant): ``spectral`` (fit on the 190 RAW to ACES
+Routes (camcal.colour.fit.illuminant): ``spectral`` (fit on the 190 RAW to ACES
 reflectances rendered through the sensitivities under A), ``CAT02`` and
 ``Bradford`` (fit on the chart under D65, white balance from the
 sensitivities, von Kries adaptation of the output). camcal picks the route and its
@@ -40,12 +40,13 @@ import numpy as np
 
 warnings.filterwarnings("ignore")
 
-from camcal.colour.characterise import white_from_name  # noqa: E402
-from camcal.colour.evaluate import DeltaEStats, delta_E  # noqa: E402
-from camcal.colour.illuminant import characterise_for_illuminant, reflectance_XYZ  # noqa: E402
-from camcal.colour.patches import PatchSet  # noqa: E402
-from camcal.colour.spectral import camera_sensitivities, reflectance_set  # noqa: E402
-from camcal.colour.ssf import Capture, Sensitivities, estimate_from_captures, illuminant_spd  # noqa: E402
+from camcal.colour.fit.characterise import white_from_name  # noqa: E402
+from camcal.colour.difference import DeltaEStats, delta_E  # noqa: E402
+from camcal.colour.fit.illuminant import characterise_for_illuminant, reflectance_XYZ  # noqa: E402
+from camcal.colour.chart.patches import PatchSet  # noqa: E402
+from camcal.colour.spectral.data import camera_sensitivities, reflectance_set  # noqa: E402
+from camcal.colour.spectral.captures import Capture, estimate_from_captures  # noqa: E402
+from camcal.colour.spectral.sensitivities import Sensitivities, illuminant_spd  # noqa: E402
 
 CAMERAS = {"Nikon 5100 (NPL)": np.arange(400.0, 701.0, 10.0), "Sigma SDMerill (NPL)": np.arange(400.0, 681.0, 10.0)}
 CHART_LIGHT, USE_LIGHT = "D65", "A"

@@ -23,9 +23,10 @@ import time
 import cv2
 import numpy as np
 
-from camcal.colour.evaluate import delta_E
-from camcal.colour.match import match_images, rec709_XYZ
-from camcal.colour.robust import fit_match_model
+from camcal.colour.difference import delta_E
+from camcal.pipelines.colour import match_images
+from camcal.colour.match.routes import rec709_XYZ
+from camcal.colour.match.robust import fit_match_model
 from camcal.synthetic import layered_stereo_pair
 
 M_TRUE = np.array([[1.10, -0.08, 0.03], [0.05, 0.93, 0.04], [-0.02, 0.09, 0.88]])

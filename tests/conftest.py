@@ -64,7 +64,8 @@ class SimData:
 def make_sim(camera="Nikon 5100 (NPL)", illuminant="D65", seed=0) -> SimData:
     """Simulated camera data: Nikon 5100 (NPL) under D65 by default, 0.2 % noise;
     training ColorChecker 24 (BabelColor Average), independent: 190 RAW-to-ACES reflectances."""
-    from camcal.colour.spectral import SimulatedCamera, reflectance_set
+    from camcal.colour.spectral.simulate import SimulatedCamera
+    from camcal.colour.spectral.data import reflectance_set
 
     cam = SimulatedCamera.from_colour(camera, illuminant)
     names_cc, R_cc = reflectance_set("BabelColor Average", cam.wavelengths)

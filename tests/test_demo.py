@@ -61,9 +61,11 @@ def test_quick_run_colour_exports(quick):
     """The OCIO config holds both cameras and the match Look; auto's fits export as they are (no refit)."""
     import PyOpenColorIO as ocio
 
-    from camcal.colour.export_icc import check_icc, icc_profile_from_fit
-    from camcal.colour.export_ocio import CAMCAL_BASE, colour_space_from_fit, load_base_config
-    from camcal.colour.fitfile import load_fit
+    from camcal.colour.export.icc import check_icc, icc_profile_from_fit
+    from camcal.colour.export.ocio_config import CAMCAL_BASE
+    from camcal.colour.export.ocio_fit import colour_space_from_fit
+    from camcal.io.ocio import load_base_config
+    from camcal.io.colourfile import load_fit
 
     out, report = quick
     config = ocio.Config.CreateFromFile(str(out / "ocio" / "config.ocio"))
@@ -101,7 +103,7 @@ def test_quick_run_plates_carry_the_true_lens(quick):
 @pytest.mark.parametrize("illuminant", ["D65", "A"])
 def test_independent_truth_integrates_like_the_chart_reference(illuminant):
     """The independent set's true XYZ and the chart's reference XYZ come from one integration."""
-    from camcal.colour.chart import reference_chart
+    from camcal.colour.chart.reference import reference_chart
 
     chart = reference_chart("ISO 17321-1", illuminant)
     assert np.abs(reference_XYZ("ISO 17321-1", illuminant) - chart.XYZ).max() < 1e-12

@@ -54,11 +54,12 @@ def test_wheel_in_a_fresh_venv_imports_into_blender_and_exports_ocio(tmp_path, s
     _run([camcal, "blender", "import", rig_path, "--blend", tmp_path / "one.blend"], cwd=tmp_path, env=env)
     assert (tmp_path / "one.blend").stat().st_size > 0
 
-    from camcal.colour.characterise import characterise
-    from camcal.colour.patches import PatchSet
+    from camcal.colour.fit.characterise import characterise
+    from camcal.colour.chart.patches import PatchSet
+    from camcal.io.colourfile import save_colour_file
 
     fit = characterise(PatchSet(sim.names_train, sim.RGB_train, sim.XYZ_train), white="D65", model="matrix3x3",
                        loo=False).fit
-    fit_path = fit.save(tmp_path / "cam.colour.json")
+    fit_path = save_colour_file(fit, tmp_path / "cam.colour.json")
     _run([camcal, "colour", "export", fit_path, "--ocio", tmp_path / "ocio", "--base", "camcal"], cwd=tmp_path, env=env)
     assert "camcal" in (tmp_path / "ocio" / "config.ocio").read_text()

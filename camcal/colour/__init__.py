@@ -1,25 +1,28 @@
-"""Colour characterisation: charts, linearisation, models, evaluation, spectral.
+"""Colour characterisation in stages: pure maths on arrays and dataclasses (no files).
 
-The hand-off to the rest of camcal is the fit file ``*.colour.json``
-(:mod:`camcal.colour.fitfile` documents it)::
+Sub-packages, bottom up (each imports only those before it):
 
-    from camcal.colour import load_fit
+- :mod:`~camcal.colour.difference`: CIELAB, Delta E and their statistics;
+- :mod:`~camcal.colour.spectral`: spectral data, simulated cameras,
+  sensitivity estimation, illuminants, chromatic adaptation;
+- :mod:`~camcal.colour.chart`: reference charts, detection and sampling,
+  patch sets, linearisation;
+- :mod:`~camcal.colour.bake`: a colour function as OCIO transforms (matrix
+  or shaper + Lut3D) and where its bake must hold;
+- :mod:`~camcal.colour.fit`: characterisation models, fitting, ``auto``
+  selection, evaluation, fits for another illuminant, the fit record;
+- :mod:`~camcal.colour.match`: camera-to-camera matching and its record;
+- :mod:`~camcal.colour.export`: OCIO colour spaces and Looks, ICC profiles.
+
+The files (``*.colour.json``, ``*.ssf.json``, patch CSVs, OCIO configs, ICC
+profiles, chart images) are read and written by :mod:`camcal.io`; the steps
+from paths to files are in :mod:`camcal.pipelines.colour`::
+
+    from camcal.io.colourfile import load_fit
     fit = load_fit("cam.colour.json")
     XYZ = fit.apply(RGB_linear)       # (N, 3) linear camera RGB -> XYZ, white Y = 1
     XYZ = fit.apply_codes(codes)      # (N, 3) code values in [0, 1] -> XYZ
     RGB_linear = fit.linearise(codes)
-
-Modules: ``chart`` (reference charts, cv2.mcc detection, sampling),
-``linearise`` (per-channel curves), ``models`` (matrix3x3, polynomial,
-root-polynomial, rbf), ``select`` (``--model auto``), ``evaluate`` (Delta E
-statistics, leave-one-out, plots), ``spectral`` (simulated cameras,
-sensitivity estimation, mu-factor, chromatic adaptation), ``patches`` (patch
-CSV), ``characterise`` (the ``colour fit`` pipeline), ``fitfile`` (the file),
-``match`` (camera-to-camera matching: chart and stereo routes), ``match_models``,
-``robust``, ``matchfile`` (its file kind, listed in ``fitfile.FILE_KINDS``).
 """
 
-from camcal.colour.fitfile import ColourFit, load_colour_file, load_fit
-from camcal.colour.matchfile import ColourMatch, load_match
-
-__all__ = ["ColourFit", "ColourMatch", "load_fit", "load_colour_file", "load_match"]
+__all__: list[str] = []

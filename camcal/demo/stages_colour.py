@@ -37,7 +37,7 @@ def _colour_science_best(train, test, white) -> tuple[float, str]:
     """colour-science's best ``matrix_colour_correction`` on the independent set (oracle pick)."""
     from colour.characterisation import apply_matrix_colour_correction, matrix_colour_correction  # noqa: PLC0415
 
-    from camcal.colour.evaluate import delta_E  # noqa: PLC0415
+    from camcal.colour.difference import delta_E  # noqa: PLC0415
 
     best = []
     for method, kw in _COLOUR_SCIENCE:
@@ -61,9 +61,10 @@ def _independent_csv(ctx: DemoContext, name: str) -> Path:
 
 
 def stage_colour_fit(ctx: DemoContext) -> StageResult:
-    from camcal.colour.characterise import patches_from_chart  # noqa: PLC0415
-    from camcal.colour.fitfile import load_fit  # noqa: PLC0415
-    from camcal.colour.patches import PatchSet, read_patch_csv, write_patch_csv  # noqa: PLC0415
+    from camcal.pipelines.colour import patches_from_chart  # noqa: PLC0415
+    from camcal.io.colourfile import load_fit  # noqa: PLC0415
+    from camcal.colour.chart.patches import PatchSet  # noqa: PLC0415
+    from camcal.io.patches import read_patch_csv, write_patch_csv  # noqa: PLC0415
 
     stage = "colour fit"
     truth = ctx.truth
@@ -117,9 +118,9 @@ def stage_colour_fit(ctx: DemoContext) -> StageResult:
 
 
 def stage_colour_match(ctx: DemoContext) -> StageResult:
-    from camcal.colour.evaluate import delta_E  # noqa: PLC0415
-    from camcal.colour.fitfile import load_fit  # noqa: PLC0415
-    from camcal.colour.matchfile import load_match  # noqa: PLC0415
+    from camcal.colour.difference import delta_E  # noqa: PLC0415
+    from camcal.io.colourfile import load_fit  # noqa: PLC0415
+    from camcal.io.colourfile import load_match  # noqa: PLC0415
 
     stage = "colour match"
     fits = ctx.need("colour_fits", stage)
@@ -186,7 +187,7 @@ def _ocio_apply(processor, RGB: NDArray) -> NDArray[np.float64]:
     """OCIO's CPU processor without its fast approximations (lossless optimisation)."""
     import PyOpenColorIO as ocio  # noqa: PLC0415
 
-    from camcal.colour.export_ocio import apply_cpu  # noqa: PLC0415
+    from camcal.colour.bake.transforms import apply_cpu  # noqa: PLC0415
 
     return apply_cpu(processor.getOptimizedCPUProcessor(ocio.OPTIMIZATION_LOSSLESS), RGB)
 
@@ -194,17 +195,18 @@ def _ocio_apply(processor, RGB: NDArray) -> NDArray[np.float64]:
 def stage_colour_export(ctx: DemoContext) -> StageResult:
     import PyOpenColorIO as ocio  # noqa: PLC0415
 
-    from camcal.colour.evaluate import delta_E  # noqa: PLC0415
-    from camcal.colour.export_icc import D50_XYZ  # noqa: PLC0415
-    from camcal.colour.export_ocio import colour_space_name, look_name  # noqa: PLC0415
-    from camcal.colour.fitfile import load_fit  # noqa: PLC0415
-    from camcal.colour.lcms import lcms_to_XYZ, load_lcms  # noqa: PLC0415
-    from camcal.colour.matchfile import load_match  # noqa: PLC0415
-    from camcal.colour.patches import read_patch_csv  # noqa: PLC0415
-    from camcal.colour.spectral import adapt_XYZ, illuminant_white_XYZ  # noqa: PLC0415
+    from camcal.colour.difference import delta_E  # noqa: PLC0415
+    from camcal.colour.export.icc import D50_XYZ  # noqa: PLC0415
+    from camcal.colour.export.ocio_config import colour_space_name  # noqa: PLC0415
+    from camcal.colour.export.ocio_fit import look_name  # noqa: PLC0415
+    from camcal.io.colourfile import load_fit  # noqa: PLC0415
+    from camcal.colour.export.lcms import lcms_to_XYZ, load_lcms  # noqa: PLC0415
+    from camcal.io.colourfile import load_match  # noqa: PLC0415
+    from camcal.io.patches import read_patch_csv  # noqa: PLC0415
+    from camcal.colour.spectral.data import adapt_XYZ, illuminant_white_XYZ  # noqa: PLC0415
 
     stage = "colour export"
-    # auto only picks fits the exporters take (camcal.colour.select): no refit is ever needed here
+    # auto only picks fits the exporters take (camcal.colour.fit.select): no refit is ever needed here
     fits, commands = dict(ctx.need("colour_fits", stage)), []
     samples = {name: np.vstack([read_patch_csv(ctx.need("chart_patches", stage)[name]).RGB,
                                 read_patch_csv(ctx.need("independent_patches", stage)[name]).RGB])

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.demo.core import DemoConfig, DemoTruth, FULL
 from camcal.base.errors import CamcalError
+from camcal.demo.core import DemoConfig, DemoTruth, FULL
 from camcal.model.camera import look_at
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Frame, Rig, make_provenance
@@ -122,7 +122,7 @@ def board_corners(board, R, t) -> NDArray[np.float64]:
 def reference_XYZ(reflectances: str, illuminant: str) -> NDArray[np.float64]:
     """True XYZ (perfect white Y = 1) of a colour-science reflectance set under a CIE illuminant.
 
-    Integrated exactly as ``camcal.colour.chart.reference_chart`` integrates
+    Integrated exactly as ``camcal.colour.chart.reference.reference_chart`` integrates
     the spectral charts (CIE 1931 2 degree observer, 380 to 780 nm every 5 nm),
     so that training and independent references agree whatever a camera's
     own spectral range (the Sigma's data stop at 400-680 nm).
@@ -131,7 +131,7 @@ def reference_XYZ(reflectances: str, illuminant: str) -> NDArray[np.float64]:
     -----
     ``XYZ = k sum_l R(l) S(l) xyz(l)`` with ``k = 1 / sum_l S(l) y(l)``.
     """
-    from camcal.colour.spectral import reflectance_set, reflectance_XYZ  # noqa: PLC0415
+    from camcal.colour.spectral.data import reflectance_set, reflectance_XYZ  # noqa: PLC0415
 
     shape = (380.0, 780.0, 5.0)
     _, R = reflectance_set(reflectances, np.arange(shape[0], shape[1] + shape[2], shape[2]))
@@ -145,7 +145,8 @@ def chart_albedos(truth: DemoTruth) -> dict[str, tuple[NDArray, NDArray, NDArray
     ``SimulatedCamera.RGB`` (white G = 1), times ``0.8 / max(RGB_white)`` so
     that the perfect white would render at 0.8 at most.
     """
-    from camcal.colour.spectral import SimulatedCamera, reflectance_set  # noqa: PLC0415
+    from camcal.colour.spectral.simulate import SimulatedCamera  # noqa: PLC0415
+    from camcal.colour.spectral.data import reflectance_set  # noqa: PLC0415
 
     test_XYZ = reference_XYZ("rawtoaces 190", truth.illuminant)
     out = {}

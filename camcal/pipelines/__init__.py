@@ -1,1 +1,1 @@
-"""Paths in, files out: the steps the CLI calls (calibrate, solve, batch, undistort, rectify...)."""
+"""Paths in, files out: the steps the CLI calls (calibrate, solve, batch, undistort, rectify, colour)."""

@@ -64,13 +64,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.colour.fitfile import ColourFit, load_fit
 from camcal.base.errors import CamcalError
-from camcal.geometry.remap import RemapMaps, build_maps
-from camcal.geometry.undistort import MODES, make_undistorter
-from camcal.io.frames import ImageFrame, frame_format, read_frame, write_frame
 from camcal.base.jsonfile import read_json, write_json
 from camcal.base.progress import Progress
+from camcal.colour.export.ocio_fit import fit_processor
+from camcal.colour.fit.record import ColourFit
+from camcal.geometry.remap import RemapMaps, build_maps
+from camcal.geometry.undistort import MODES, make_undistorter
+from camcal.io.colourfile import load_fit
+from camcal.io.frames import ImageFrame, frame_format, read_frame, write_frame
 from camcal.model.rig import Camera, Rig
 
 __all__ = [
@@ -93,7 +95,7 @@ __all__ = [
 
 #: Geometric steps a job can do (or None: colour only).
 GEOMETRY = ("undistort", "rectify")
-#: Output spaces of the colour step (camcal.colour.export_ocio.OUTPUT_SPACES).
+#: Output spaces of the colour step (camcal.colour.export.ocio_fit.OUTPUT_SPACES).
 COLOUR_SPACES = ("ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ")
 #: Folder, beside the outputs, of the per-frame completion records.
 RECORD_DIR = ".camcal-batch"
@@ -256,7 +258,7 @@ def make_job(
     if os.path.abspath(in_pattern) == os.path.abspath(out_pattern):
         raise CamcalError(f"the output pattern {out_pattern!r} would overwrite the input frames")
     if fit is not None:
-        fit.processor(colour_space)  # a fit the exporter refuses, or an unknown space, fails here, not per frame
+        fit_processor(fit, colour_space)  # a fit the exporter refuses, or an unknown space, fails here, not per frame
     return BatchJob(
         camera=source.to_dict(), geometry=geometry, mode=mode, overscan=float(overscan),
         colour=None if fit is None else fit.to_dict(), in_pattern=in_pattern, out_pattern=out_pattern,
@@ -279,7 +281,7 @@ class ColourStep:
 
     Notes
     -----
-    One path, :meth:`camcal.colour.fitfile.ColourFit.processor`: the OCIO
+    One path, :func:`camcal.colour.export.ocio_fit.fit_processor`: the OCIO
     CPU processor of the fit's exported transform (linearisation, model,
     matrix to ``space``), exact for a ``matrix3x3`` fit, the baked
     log-chromaticity Lut3D otherwise (``kind`` and ``bake_error`` say
@@ -289,7 +291,7 @@ class ColourStep:
 
     def __init__(self, fit: ColourFit, space: str = "ACES2065-1") -> None:
         self.fit = fit
-        self.processor = fit.processor(space)
+        self.processor = fit_processor(fit, space)
 
     @property
     def kind(self) -> str:

@@ -7,9 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.colour.characterise import Characterisation
-from camcal.colour.evaluate import DELTA_E_METHODS, delta_E, patch_table, plot_report, write_patch_table
 from camcal.base.atomic import atomic_path
+from camcal.colour.difference import DELTA_E_METHODS, delta_E
+from camcal.colour.fit.characterise import Characterisation
+from camcal.colour.fit.evaluate import patch_table
+from camcal.io.patches import write_patch_table
+from camcal.report.colour_plots import plot_report
 
 __all__ = ["write_report"]
 
@@ -21,7 +24,7 @@ def write_report(outcome: Characterisation, out_dir: str | os.PathLike, title: s
     ``loo_patches.csv`` (the same with leave-one-out predictions),
     ``test_patches.csv`` (independent set), ``candidates.csv`` (``auto``),
     ``summary.txt``, and the plots of
-    :func:`camcal.colour.evaluate.plot_report` under ``train/`` and
+    :func:`camcal.report.colour_plots.plot_report` under ``train/`` and
     ``test/``.
     """
     directory = Path(out_dir)

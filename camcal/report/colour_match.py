@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from camcal.colour.evaluate import delta_E, plot_report
-from camcal.colour.match import MatchResult, target_space
 from camcal.base.atomic import atomic_path
+from camcal.colour.difference import delta_E
+from camcal.colour.match.routes import MatchResult, target_space
 from camcal.io.frames import imwrite
+from camcal.report.colour_plots import plot_report
 
 __all__ = [
     "write_report",
@@ -48,7 +49,7 @@ def write_report(result: MatchResult, out_dir: str | os.PathLike, delta_E_max: f
     (CIEDE2000 maps, colour map 0 to ``delta_E_max``, black where no
     correspondence was kept) and ``valid.png`` (white: kept pixels). Chart
     route: the swatches, histogram and a*b* plots of
-    :func:`camcal.colour.evaluate.plot_report`, reference A and prediction
+    :func:`camcal.report.colour_plots.plot_report`, reference A and prediction
     ``f(B)``, both through A's characterisation. Both: ``summary.txt``.
 
     Returns

@@ -55,9 +55,11 @@ def inputs(tmp_path_factory):
 
 def _spectral_inputs(root):
     """Spectral patch CSVs (good, with a NaN) and a good ``*.ssf.json`` for the spectral verbs."""
-    from camcal.colour.patches import PatchSet, write_patch_csv
-    from camcal.colour.spectral import camera_sensitivities, reflectance_set
-    from camcal.colour.ssf import Sensitivities, write_sensitivities
+    from camcal.colour.chart.patches import PatchSet
+    from camcal.io.patches import write_patch_csv
+    from camcal.colour.spectral.data import camera_sensitivities, reflectance_set
+    from camcal.colour.spectral.sensitivities import Sensitivities
+    from camcal.io.ssf import write_sensitivities
 
     wl = np.arange(400.0, 701.0, 10.0)
     sens = Sensitivities(wl, camera_sensitivities("Nikon 5100 (NPL)", wl)[1], camera="nikon")

@@ -9,8 +9,9 @@ import pytest
 
 from camcal.cli import main
 from camcal.cli.summary import SUMMARY_FORMAT, SUMMARY_VERSION
-from camcal.colour.fitfile import load_fit
-from camcal.colour.patches import PatchSet, write_patch_csv
+from camcal.io.colourfile import load_fit
+from camcal.colour.chart.patches import PatchSet
+from camcal.io.patches import write_patch_csv
 from camcal.model.rig import Rig
 from camcal.synthetic import example_camera
 
@@ -98,8 +99,9 @@ def test_colour_fit_then_export(patch_csvs, tmp_path, capsys):
 @pytest.fixture
 def spectral_inputs(tmp_path):
     """A ColorChecker's spectral patch CSV and patch CSV under D65, and the true curves (Nikon 5100)."""
-    from camcal.colour.spectral import camera_sensitivities, reflectance_set
-    from camcal.colour.ssf import Sensitivities, write_sensitivities
+    from camcal.colour.spectral.data import camera_sensitivities, reflectance_set
+    from camcal.colour.spectral.sensitivities import Sensitivities
+    from camcal.io.ssf import write_sensitivities
 
     wl = np.arange(400.0, 701.0, 10.0)
     true = Sensitivities(wl, camera_sensitivities("Nikon 5100 (NPL)", wl)[1], camera="nikon")
@@ -115,7 +117,7 @@ def spectral_inputs(tmp_path):
 
 
 def test_colour_sensitivities(spectral_inputs, tmp_path, capsys):
-    from camcal.colour.ssf import load_sensitivities
+    from camcal.io.ssf import load_sensitivities
 
     true, true_path, spectral, _ = spectral_inputs
     out = tmp_path / "est.ssf.json"

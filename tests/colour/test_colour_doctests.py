@@ -5,8 +5,10 @@ import importlib
 
 import pytest
 
-MODULES = ["evaluate", "models", "spectral", "linearise", "chart", "fitfile", "select", "patches", "characterise",
-           "ssf", "illuminant"]
+MODULES = ["difference", "fit.evaluate", "fit.terms", "fit.models", "fit.fitting", "spectral.data",
+           "spectral.simulate", "spectral.estimate", "chart.linearise", "chart.reference", "chart.detect",
+           "fit.record", "fit.select", "chart.patches", "fit.characterise", "spectral.sensitivities",
+           "spectral.captures", "fit.illuminant"]
 
 
 @pytest.mark.parametrize("name", MODULES)

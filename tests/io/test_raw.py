@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from dng_writer import write_cfa_dng  # noqa: E402
 
 from camcal.cli import main  # noqa: E402
-from camcal.colour.characterise import patches_from_chart  # noqa: E402
+from camcal.pipelines.colour import patches_from_chart  # noqa: E402
 from camcal.base.errors import CamcalError  # noqa: E402
 from camcal.io.raw import read_raw, read_raw_mosaic  # noqa: E402
 

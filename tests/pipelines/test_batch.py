@@ -24,14 +24,15 @@ from camcal.pipelines.batch import (
     ColourStep, make_job, process_frame, record_path, run_batch,
 )
 from camcal.cli import main
-from camcal.colour.characterise import characterise
-from camcal.colour.patches import PatchSet
+from camcal.colour.fit.characterise import characterise
+from camcal.colour.chart.patches import PatchSet
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
 from camcal.geometry.undistort import make_undistorter
 from camcal.io.frames import read_frame
 from camcal.model.rig import Rectification, Rig
 from camcal.synthetic import example_camera
+from camcal.io.colourfile import save_colour_file
 
 import cv2  # noqa: E402  (after camcal.io.frames: EXR enabled in OpenCV)
 
@@ -170,7 +171,7 @@ def _space_of(XYZ, white, space):
 
 def test_colour_step_writes_the_chosen_space(tmp_path, matrix_fit):
     rig = _rig(tmp_path)
-    fit_path = matrix_fit.save(tmp_path / "left.colour.json")
+    fit_path = save_colour_file(matrix_fit, tmp_path / "left.colour.json")
     for kind, space in (("exr-float", "ACEScg"), ("png16", "lin Rec.709"), ("exr-float", "CIE XYZ")):
         pattern = _sequence(tmp_path, kind, FRAMES[:1])
         suffix = Path(pattern).suffix
@@ -197,8 +198,8 @@ def test_colour_step_writes_the_chosen_space(tmp_path, matrix_fit):
 def test_colour_step_class_applies_the_baked_fit_within_its_bake_error(sim, fit, space):
     """A polynomial fit goes through the baked Lut3D: within CIEDE2000 0.2 of the numpy fit on
     independent colours (190 reflectances the fit never saw), converted back to XYZ."""
-    from camcal.colour.evaluate import delta_E
-    from camcal.colour.export_ocio import output_matrix
+    from camcal.colour.difference import delta_E
+    from camcal.colour.export.ocio_fit import output_matrix
 
     codes = (sim.RGB_test / np.max(sim.RGB_train)).astype(np.float32).reshape(10, 19, 3)
     step = ColourStep(fit, space)
@@ -220,7 +221,7 @@ def test_two_worker_cluster_equals_single_process_bit_for_bit(tmp_path, client, 
     pattern = _sequence(tmp_path, kind, FRAMES)
     suffix = Path(pattern).suffix
     job = make_job(rig, "left", pattern, str(tmp_path / "dask" / f"left.%04d{suffix}"), geometry,
-                   fit.save(tmp_path / "left.colour.json"))
+                   save_colour_file(fit, tmp_path / "left.colour.json"))
     report = run_batch(job, FRAMES, client=client, progress=False)
     assert report.ok and report.n_workers == 2
     assert [r.frame for r in report.written] == list(FRAMES)

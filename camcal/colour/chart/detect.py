@@ -1,0 +1,300 @@
+"""Chart detection in an image and patch sampling: an image array to patches beside reference XYZ.
+
+Detection: OpenCV's ``cv2.mcc`` (contrib) finds a 24-patch ColorChecker and
+gives each patch's corners; a homography from the chart's patch grid to the
+image is fitted to the 24 patch centres. A manual override takes the four
+outer corners of the patch grid instead, in the order top-left (the corner
+of ``dark skin``), top-right (``bluish green``), bottom-right
+(``black``), bottom-left (``white``), pixel (0, 0) the centre of the
+top-left pixel.
+
+Sampling: the central ``fraction`` (default 0.5 of the cell width) of each
+patch, mapped through the homography, a trimmed mean per channel (the
+``trim`` fraction cut at each end), plus flags: ``clipped`` when more than
+1 % of the patch's pixels touch 0 or the maximum code value in any
+channel, ``noisy`` when a channel's standard deviation exceeds 5 % of the
+white's mean code value.
+
+:func:`patches_from_image` chains them: detect (or take four corners),
+sample, drop clipped patches, pair the code values with the reference
+chart's XYZ (an image file: :func:`camcal.pipelines.colour.patches_from_chart`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from camcal.base.errors import CamcalError
+from camcal.colour.chart.patches import PatchSet
+from camcal.colour.chart.reference import ReferenceChart
+
+__all__ = [
+    "ChartDetection",
+    "detect_chart",
+    "chart_from_corners",
+    "PatchSamples",
+    "sample_patches",
+    "ChartPatches",
+    "patches_from_image",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class ChartDetection:
+    """Where the chart's patch grid is in the image.
+
+    Attributes
+    ----------
+    H
+        3x3 homography from grid coordinates (``u`` across the columns,
+        ``v`` down the rows, both 0 to 1 over the whole patch grid) to
+        pixels.
+    corners
+        ``(4, 2)`` pixel corners of the grid: top-left, top-right,
+        bottom-right, bottom-left.
+    rows, columns
+        Patch grid.
+    method
+        ``"cv2.mcc"`` or ``"manual"``.
+    fit_rms_px
+        RMS distance between the detector's patch centres and the fitted
+        grid (0 for manual corners).
+    """
+
+    H: np.ndarray
+    corners: np.ndarray
+    rows: int
+    columns: int
+    method: str
+    fit_rms_px: float = 0.0
+
+    def patch_centres(self) -> np.ndarray:
+        """``(rows * columns, 2)`` pixel centres in chart order."""
+        return _apply_H(self.H, _grid_centres(self.rows, self.columns))
+
+
+def _grid_centres(rows: int, columns: int) -> np.ndarray:
+    r, c = np.divmod(np.arange(rows * columns), columns)
+    return np.column_stack([(c + 0.5) / columns, (r + 0.5) / rows])
+
+
+def _apply_H(H: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    p = np.column_stack([uv, np.ones(len(uv))]) @ H.T
+    return p[:, :2] / p[:, 2:3]
+
+
+_UNIT_CORNERS = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+
+
+def chart_from_corners(corners: Any, rows: int = 4, columns: int = 6) -> ChartDetection:
+    """A detection from four manual corners of the patch grid.
+
+    Parameters
+    ----------
+    corners
+        ``(4, 2)`` pixels: top-left (dark skin), top-right (bluish green),
+        bottom-right (black), bottom-left (white).
+    """
+    import cv2
+
+    corners = np.asarray(corners, dtype=np.float64)
+    if corners.shape != (4, 2) or not np.all(np.isfinite(corners)):
+        raise CamcalError(f"need 4 corners as (x, y) pixel pairs, got shape {corners.shape}")
+    area = 0.5 * np.abs(np.dot(corners[:, 0], np.roll(corners[:, 1], 1)) - np.dot(corners[:, 1], np.roll(corners[:, 0], 1)))
+    if area < 16.0:
+        raise CamcalError("the 4 chart corners enclose no area")
+    H = cv2.getPerspectiveTransform(_UNIT_CORNERS.astype(np.float32), corners.astype(np.float32))
+    return ChartDetection(np.asarray(H, dtype=np.float64), corners, rows, columns, "manual")
+
+
+def detect_chart(image: np.ndarray, rows: int = 4, columns: int = 6) -> ChartDetection:
+    """Find a 24-patch ColorChecker with OpenCV's ``cv2.mcc``.
+
+    Parameters
+    ----------
+    image
+        ``(H, W, 3)`` RGB normalised code values (from :func:`read_image`).
+
+    Returns
+    -------
+    ChartDetection
+
+    Raises
+    ------
+    CamcalError
+        When no chart is found ("no ColorChecker found in the image").
+    """
+    import cv2
+
+    if (rows, columns) != (4, 6):
+        raise CamcalError(
+            "automatic detection supports the 24-patch ColorChecker only; give --corners "
+            "for other charts, or give --patches"
+        )
+    bgr = np.ascontiguousarray((np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)[:, :, ::-1])
+    detector = cv2.mcc.CCheckerDetector_create()
+    if hasattr(detector, "setColorChartType"):
+        # OpenCV 5: the chart type is a detector setting (unset, it is not MCC24)
+        # and process() takes only (image, nc).
+        detector.setColorChartType(cv2.mcc.MCC24)
+        found = detector.process(bgr, 1)
+    else:  # OpenCV 4.x: process(image, chartType, nc)
+        found = detector.process(bgr, cv2.mcc.MCC24, 1)
+    if not found:
+        raise CamcalError(
+            "no ColorChecker found in the image (cv2.mcc); give its corners with --corners"
+        )
+    checker = detector.getBestColorChecker()
+    quads = np.asarray(checker.getColorCharts(), dtype=np.float64).reshape(-1, 4, 2)
+    if quads.shape[0] != rows * columns:
+        raise CamcalError(f"cv2.mcc returned {quads.shape[0]} patches, expected {rows * columns}")
+    centres = quads.mean(axis=1)
+    grid = _grid_centres(rows, columns)
+    H, _ = cv2.findHomography(grid.astype(np.float64), centres.astype(np.float64), 0)
+    if H is None:
+        raise CamcalError("cv2.mcc's patch centres do not form a chart grid")
+    fitted = _apply_H(H, grid)
+    rms = float(np.sqrt(np.mean(np.sum((fitted - centres) ** 2, axis=1))))
+    return ChartDetection(H, _apply_H(H, _UNIT_CORNERS), rows, columns, "cv2.mcc", rms)
+
+
+@dataclass(frozen=True, eq=False)
+class PatchSamples:
+    """Per-patch statistics of an image's patches (normalised code values).
+
+    Attributes
+    ----------
+    RGB
+        ``(N, 3)`` trimmed means.
+    std
+        ``(N, 3)`` standard deviations of the kept pixels.
+    n_pixels
+        ``(N,)`` pixels sampled per patch.
+    clipped, noisy
+        ``(N,)`` flags (see the module docstring).
+    """
+
+    RGB: np.ndarray
+    std: np.ndarray
+    n_pixels: np.ndarray
+    clipped: np.ndarray
+    noisy: np.ndarray
+
+
+def sample_patches(
+    image: np.ndarray,
+    detection: ChartDetection,
+    *,
+    fraction: float = 0.5,
+    trim: float = 0.1,
+    clip_low: float = 0.5 / 255,
+    clip_high: float = 254.5 / 255,
+) -> PatchSamples:
+    """Trimmed-mean code values of the central part of every patch.
+
+    Parameters
+    ----------
+    image
+        ``(H, W, 3)`` normalised code values.
+    detection
+        The chart's grid in the image.
+    fraction
+        Side of the sampled square as a fraction of the patch cell.
+    trim
+        Fraction cut at each end of every channel before averaging.
+    clip_low, clip_high
+        Code values counted as clipped (at or beyond).
+
+    Returns
+    -------
+    PatchSamples
+    """
+    import cv2
+
+    if not 0 < fraction <= 1 or not 0 <= trim < 0.5:
+        raise CamcalError(f"need 0 < fraction <= 1 and 0 <= trim < 0.5, got {fraction}, {trim}")
+    height, width = image.shape[:2]
+    rows, columns = detection.rows, detection.columns
+    N = rows * columns
+    RGB = np.zeros((N, 3))
+    std = np.zeros((N, 3))
+    n_pixels = np.zeros(N, dtype=int)
+    clipped = np.zeros(N, dtype=bool)
+    grid = _grid_centres(rows, columns)
+    half = np.array([0.5 / columns, 0.5 / rows]) * fraction
+    square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=np.float64)
+    for i in range(N):
+        quad = _apply_H(detection.H, grid[i] + square * half)
+        x0, y0 = np.floor(quad.min(axis=0)).astype(int)
+        x1, y1 = np.ceil(quad.max(axis=0)).astype(int) + 1
+        if x0 < 0 or y0 < 0 or x1 > width or y1 > height:
+            raise CamcalError(f"patch {i + 1} of the chart lies outside the image")
+        mask = np.zeros((y1 - y0, x1 - x0), dtype=np.uint8)
+        cv2.fillConvexPoly(mask, np.round(quad - [x0, y0]).astype(np.int32), 1)
+        pixels = image[y0:y1, x0:x1][mask.astype(bool)]
+        if pixels.shape[0] < 4:
+            raise CamcalError(f"patch {i + 1} covers fewer than 4 pixels: the chart is too small")
+        n_pixels[i] = pixels.shape[0]
+        touching = np.any((pixels <= clip_low) | (pixels >= clip_high), axis=1)
+        clipped[i] = np.mean(touching) > 0.01
+        ordered = np.sort(pixels, axis=0)
+        k = int(np.floor(trim * ordered.shape[0]))
+        kept = ordered[k : ordered.shape[0] - k]
+        RGB[i] = kept.mean(axis=0)
+        std[i] = kept.std(axis=0)
+    white_level = max(float(np.max(RGB)), 1e-6)
+    noisy = np.any(std > 0.05 * white_level, axis=1)
+    return PatchSamples(RGB, std, n_pixels, clipped, noisy)
+
+
+@dataclass(frozen=True, eq=False)
+class ChartPatches:
+    """What a chart photo gave: patches (code values) and how they were found."""
+
+    patches: PatchSet
+    reference: ReferenceChart
+    detection: ChartDetection
+    samples: PatchSamples
+    excluded: tuple[str, ...]
+
+
+def patches_from_image(
+    image: np.ndarray,
+    chart: ReferenceChart,
+    *,
+    corners: Any = None,
+    keep_clipped: bool = False,
+) -> ChartPatches:
+    """Detect, sample and pair a chart image's patches with reference XYZ.
+
+    Parameters
+    ----------
+    image
+        ``(H, W, 3)`` float RGB code values normalised to [0, 1] (as
+        :func:`camcal.io.colourimage.read_image` gives).
+    chart
+        The reference chart (:func:`camcal.colour.chart.reference.reference_chart`),
+        its XYZ under the white the patches are for.
+    corners
+        ``(4, 2)`` manual grid corners; ``None`` detects with cv2.mcc.
+    keep_clipped
+        Keep patches flagged clipped (dropped by default).
+
+    Returns
+    -------
+    ChartPatches
+        Code values normalised to [0, 1] and XYZ relative to the chart's
+        white.
+    """
+    if corners is None:
+        detection = detect_chart(image, chart.rows, chart.columns)
+    else:
+        detection = chart_from_corners(corners, chart.rows, chart.columns)
+    samples = sample_patches(image, detection)
+    keep = np.ones(len(chart.patch_names), dtype=bool) if keep_clipped else ~samples.clipped
+    excluded = tuple(n for n, k in zip(chart.patch_names, keep) if not k)
+    patches = PatchSet(chart.patch_names, samples.RGB, chart.XYZ).subset(keep)
+    return ChartPatches(patches, chart, detection, samples, excluded)
