@@ -10,7 +10,6 @@ and nesting depth).
 
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import math
 import os
@@ -21,12 +20,7 @@ from camcal.base.atomic import atomic_write_text
 from camcal.base.errors import CamcalError
 from camcal.base.limits import JSON_BYTES, JSON_DEPTH, check_file_size
 
-__all__ = ["dumps", "parse_json", "read_json", "utc_timestamp", "write_json"]
-
-
-def utc_timestamp() -> str:
-    """The current UTC time as written in camcal files' provenance: ``YYYY-MM-DDTHH:MM:SSZ``."""
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+__all__ = ["dumps", "parse_json", "read_json", "write_json"]
 
 
 def _is_number(value: Any) -> bool:

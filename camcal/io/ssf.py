@@ -16,7 +16,8 @@ import numpy as np
 
 from camcal.base.atomic import atomic_write_text
 from camcal.base.errors import CamcalError
-from camcal.base.jsonfile import read_json, utc_timestamp, write_json
+from camcal.base.clock import utc_timestamp
+from camcal.base.jsonfile import read_json, write_json
 from camcal.colour.spectral.captures import Capture
 from camcal.colour.spectral.data import resample_spectral
 from camcal.colour.spectral.sensitivities import DEFAULT_WAVELENGTHS, Sensitivities, normalised_spd

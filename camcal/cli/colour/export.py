@@ -43,7 +43,8 @@ def _export(args: argparse.Namespace) -> int:
     import dataclasses
     from pathlib import Path
 
-    from camcal.colour.fitfile import ColourFit, load_colour_file
+    from camcal.colour.fit.record import ColourFit
+    from camcal.io.colourfile import load_colour_file
 
     if not args.ocio and not args.icc:
         raise CamcalError("nothing to write: give --ocio OUTDIR and/or --icc OUT.icc")
@@ -66,12 +67,13 @@ def _export(args: argparse.Namespace) -> int:
         raise CamcalError("--icc needs a characterisation (kind characterisation); a camera match has no ICC profile")
     profile = None
     if args.icc:
-        from camcal.colour.export_icc import icc_profile_from_fit, write_icc
+        from camcal.colour.export.icc import icc_profile_from_fit
+        from camcal.io.icc import write_icc
 
         profile = icc_profile_from_fit(fits[0][1], fits[0][0], version=args.icc_version,
                                        max_delta_E=args.max_bake_error)
     if args.ocio:
-        from camcal.colour.export_ocio import export_ocio
+        from camcal.io.ocio import export_ocio
 
         result = export_ocio(fits, args.ocio, base=args.base, cat=args.cat, max_delta_E=args.max_bake_error,
                              matches=matches)

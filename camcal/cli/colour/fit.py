@@ -92,8 +92,10 @@ def _fit(args: argparse.Namespace) -> int:
     """
     import dataclasses
 
-    from camcal.colour.characterise import characterise, patches_from_chart
-    from camcal.colour.patches import read_patch_csv
+    from camcal.colour.fit.characterise import characterise
+    from camcal.io.colourfile import save_colour_file
+    from camcal.io.patches import read_patch_csv
+    from camcal.pipelines.colour import patches_from_chart
     from camcal.io.raw import is_raw
     from camcal.report.characterisation import write_report
 
@@ -138,15 +140,16 @@ def _fit(args: argparse.Namespace) -> int:
     out.figures(model=outcome.result.model.label, linearisation=outcome.fit.linearisation.label,
                 selection=None if outcome.selection is None else outcome.selection.reason,
                 n_train=len(train), delta_E2000=stats)
-    out.wrote(fit.save(args.out), "colour fit")
+    out.wrote(save_colour_file(fit, args.out), "colour fit")
     if args.report:
         out.report(write_report(outcome, args.report, title=args.camera or ""), args.report)
     return 0
 
 
 def _fit_for_illuminant(args: argparse.Namespace, train, reference, linearise: str) -> int:
-    from camcal.colour.illuminant import characterise_for_illuminant
-    from camcal.colour.ssf import load_sensitivities
+    from camcal.colour.fit.illuminant import characterise_for_illuminant
+    from camcal.io.colourfile import save_colour_file
+    from camcal.io.ssf import load_sensitivities
 
     if not args.sensitivities:
         raise CamcalError("--for-illuminant needs --sensitivities SSF (from 'camcal colour sensitivities')")
@@ -169,7 +172,7 @@ def _fit_for_illuminant(args: argparse.Namespace, train, reference, linearise: s
     out.figures(for_illuminant=args.for_illuminant, route=outcome.picked, model=fit.model.label,
                 n_train=len(train), reason=outcome.reason, validation_reflectances=args.validation_reflectances,
                 delta_E2000_validation={score.route: score.to_dict() for score in outcome.scores})
-    out.wrote(fit.save(args.out), "colour fit")
+    out.wrote(save_colour_file(fit, args.out), "colour fit")
     return 0
 
 

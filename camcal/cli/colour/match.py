@@ -41,9 +41,9 @@ def _match(args: argparse.Namespace) -> int:
     --patches for both cameras (same chart): both go to XYZ, the residual camera-to-camera CIEDE2000 is
     reported. Writes a *.colour.json of kind match.
     """
-    from camcal.colour.fitfile import load_fit
-    from camcal.colour.match import match_image_files, match_patch_files
-    from camcal.colour.match_models import parse_match_model
+    from camcal.colour.match.models import parse_match_model
+    from camcal.io.colourfile import load_fit, save_colour_file
+    from camcal.pipelines.colour import match_image_files, match_patch_files
     from camcal.report.colour_match import write_report
 
     parse_match_model(args.model)
@@ -72,7 +72,7 @@ def _match(args: argparse.Namespace) -> int:
     out = summary_of(args)
     out.figures(model=args.model, evaluation=result.match.evaluation,
                 correspondences=dict(result.correspondences.counts) if images else None)
-    out.wrote(result.match.save(args.out), "colour match")
+    out.wrote(save_colour_file(result.match, args.out), "colour match")
     if args.report:
         out.report(write_report(result, args.report), args.report)
     return 0

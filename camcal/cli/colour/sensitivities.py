@@ -43,9 +43,11 @@ def _sensitivities(args: argparse.Namespace) -> int:
     """
     import numpy as np
 
-    from camcal.colour.ssf import (capture_from_chart, estimate_from_captures, load_sensitivities,
-                                   plot_sensitivities, read_sensitivities_csv, read_spectral_patch_csv,
-                                   relative_rms_error, write_sensitivities)
+    from camcal.colour.spectral.captures import estimate_from_captures
+    from camcal.colour.spectral.sensitivities import relative_rms_error
+    from camcal.io.ssf import load_sensitivities, read_sensitivities_csv, read_spectral_patch_csv, write_sensitivities
+    from camcal.pipelines.colour import capture_from_chart
+    from camcal.report.colour_plots import plot_sensitivities
 
     try:
         start, end, step = (float(v) for v in args.wavelengths.split(","))

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
-from camcal.base.jsonfile import utc_timestamp
+from camcal.base.clock import utc_timestamp
 from camcal.colour.bake.samples import bake_model
 from camcal.colour.chart.linearise import Linearisation, fit_linearisation
 from camcal.colour.chart.patches import PatchSet

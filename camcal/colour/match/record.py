@@ -23,7 +23,7 @@ from camcal.colour.fit.record import (
 )
 from camcal.base.errors import CamcalError
 from camcal.base.fields import integer_field, keys_field, matrix_field, number_field, string_field, vector_field
-from camcal.base.jsonfile import utc_timestamp
+from camcal.base.clock import utc_timestamp
 from camcal.colour.chart.linearise import Linearisation
 from camcal.colour.fit.models import model_from_dict
 from camcal.colour.match.models import Lut3DModel, MATCH_MODELS, MatchModel

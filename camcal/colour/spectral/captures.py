@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
-from camcal.base.jsonfile import utc_timestamp
+from camcal.base.clock import utc_timestamp
 from camcal.colour.spectral.data import resample_spectral
 from camcal.colour.spectral.estimate import estimate_sensitivities
 from camcal.colour.spectral.sensitivities import DEFAULT_WAVELENGTHS, Sensitivities
