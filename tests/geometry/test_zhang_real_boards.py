@@ -1,0 +1,92 @@
+"""camcal's default lens model (auto) against OpenCV's models on real wide-angle boards, views held out.
+
+The corners are OpenCV's ``findChessboardCornersSB`` (EXHAUSTIVE | ACCURACY) on public real image sets,
+committed as ``tests/data/real_boards/*.json`` (sources and licences in that folder's README): every tool
+gets the same corners and the same split (every 6th view held out, each posed by PnP with the fitted
+intrinsics held), so the lens model and the solver are what is compared (``bench/bench_lens_models.py``
+does the same on image folders).
+"""
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from camcal.geometry import zhang
+from camcal.geometry.board import Board, Detection
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "real_boards"
+SETS = ("udacity_gopro", "udacity_dashcam")
+
+
+def load(name: str):
+    data = json.loads((DATA / f"{name}.json").read_text())
+    board = Board("chessboard", data["board"]["columns"], data["board"]["rows"], 1.0)
+    size = tuple(data["image_size"])
+    views = [Detection(f"view{n:03d}.jpg", size, np.arange(board.n_corners), np.asarray(corners, np.float64), "sb")
+             for n, corners in enumerate(data["corners_px"].values())]
+    return board, views
+
+
+def heldout_rms(board, camera, views) -> float:
+    r = np.concatenate([zhang._posed_residuals(board, camera, d) for d in views])
+    return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+
+
+def opencv_heldout(board, train, held, size) -> dict[str, float]:
+    """Held-out RMS of OpenCV's default, rational, rational + thin-prism and fisheye models."""
+    obj = [board.object_points[d.ids].astype(np.float32) for d in train]
+    img = [d.corners_px.astype(np.float32).reshape(-1, 1, 2) for d in train]
+    out = {}
+    for name, flags, n in (("default", 0, 5), ("rational", cv2.CALIB_RATIONAL_MODEL, 8),
+                           ("rational+thin-prism", cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL, 12)):
+        _, K, dist, _, _ = cv2.calibrateCamera(obj, img, size, None, None, flags=flags)
+        camera = Camera("cv", size, K, Distortion.from_opencv_coefficients(dist.ravel()[:n]), np.eye(3), np.zeros(3))
+        out[name] = heldout_rms(board, camera, held)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    _, K, D, _, _ = cv2.fisheye.calibrate([o.reshape(1, -1, 3).astype(np.float64) for o in obj],
+                                          [i.reshape(1, -1, 2).astype(np.float64) for i in img], size, None, None,
+                                          flags=zhang._fisheye_flags("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW"),
+                                          criteria=criteria)
+    lens = Distortion("kannala-brandt", dict(zip(("k1", "k2", "k3", "k4"), D.ravel())))
+    out["fisheye"] = heldout_rms(board, Camera("cv", size, K, lens, np.eye(3), np.zeros(3)), held)
+    return out
+
+
+@pytest.fixture(scope="module", params=SETS)
+def measured(request):
+    board, views = load(request.param)
+    held = [d for n, d in enumerate(views) if n % 6 == 0]
+    train = [d for n, d in enumerate(views) if n % 6]
+    result = zhang.calibrate_board(board, {"cam": views}, units="squares", holdout=set(range(0, len(views), 6)))
+    return request.param, result, opencv_heldout(board, train, held, views[0].image_size)
+
+
+@pytest.mark.slow
+def test_default_never_refuses_where_one_of_its_models_fits(measured):
+    name, result, _ = measured
+    assert any(score.rms_px is not None for score in result.model_ranking)
+    assert zhang.quality_problems(result) == [], name
+    assert result.heldout_rms_px is not None and np.isfinite(result.heldout_rms_px)
+
+
+@pytest.mark.slow
+def test_default_is_at_parity_with_opencvs_best_model_on_the_gopro(measured):
+    # measured (README, "Lens model choice"): 1.017 x on the GoPro; the car camera's 1.09 x is the xfail below
+    name, result, peers = measured
+    if name != "udacity_gopro":
+        pytest.skip("parity is held on the GoPro; the car camera is behind (README, Lens model choice)")
+    assert result.heldout_rms_px <= 1.05 * min(peers.values()), (name, result.model, result.heldout_rms_px, peers)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 27, not met yet: camcal's models reach OpenCV's optima on "
+                   "the same corners (GoPro 1.017 x); on the car camera the cross-validated choice (kannala-brandt) "
+                   "is 1.09 x OpenCV's thin prism on the 3 held-out views (README, Lens model choice)")
+def test_default_beats_opencvs_best_model_by_three_percent(measured):
+    name, result, peers = measured
+    assert result.heldout_rms_px <= 0.97 * min(peers.values()), (name, result.model, result.heldout_rms_px, peers)
