@@ -36,6 +36,7 @@ from camcal.geometry.correspondence import stereo_correspondences
 from camcal.geometry.rectify import RectifyWarper, rectify_calibrated
 from camcal.io.colourimage import read_image
 from camcal.io.patches import read_patch_csv
+from camcal.io.raw import is_raw, read_raw
 from camcal.io.ssf import read_illuminant_spd
 
 __all__ = ["patches_from_chart", "capture_from_chart", "match_images", "match_image_files", "match_patch_files"]
@@ -60,7 +61,10 @@ def patches_from_chart(
     corners
         ``(4, 2)`` manual grid corners; ``None`` detects with cv2.mcc.
     keep_clipped
-        Keep patches flagged clipped (dropped by default).
+        Keep patches flagged clipped (dropped by default). A raw file's
+        patches are clipped only where its pixels are saturated: dark ones
+        are measured (values below black kept) and weighted by their
+        signal-to-noise ratio.
     illuminant
         White of the reference XYZ (the chart's data are adapted to it when
         they were measured under another, see ``reference_chart``).
@@ -72,6 +76,10 @@ def patches_from_chart(
         white (:func:`camcal.colour.chart.detect.patches_from_image`).
     """
     chart = reference_chart(reference, illuminant)
+    if is_raw(image_path):
+        raw = read_raw(image_path)
+        return patches_from_image(raw.RGB, chart, corners=corners, keep_clipped=keep_clipped,
+                                  saturated=raw.saturated, linear=True)
     image = read_image(image_path)
     return patches_from_image(image, chart, corners=corners, keep_clipped=keep_clipped)
 

@@ -106,9 +106,13 @@ def _fit(args: argparse.Namespace) -> int:
                                    keep_clipped=args.keep_clipped, illuminant=args.illuminant)
         train = found.patches
         reference = found.reference.name
-        excluded = f" (dropped clipped: {', '.join(found.excluded)})" if found.excluded else ""
+        clipped = "saturated" if is_raw(args.chart) else "clipped"
+        excluded = f" (dropped {clipped}: {', '.join(found.excluded)})" if found.excluded else ""
         print(f"chart found by {found.detection.method}: {len(train)} / "
               f"{len(found.reference.patch_names)} patches used{excluded}")
+        if found.too_dark:
+            print(f"too dark: {len(found.too_dark)} patch(es) measured and weighted down by their signal-to-noise "
+                  f"ratio (kept): {', '.join(found.too_dark)}")
         noisy = [n for n, flag in zip(found.reference.patch_names, found.samples.noisy) if flag]
         if noisy:
             print(f"flagged noisy (kept): {', '.join(noisy)}")
@@ -139,7 +143,8 @@ def _fit(args: argparse.Namespace) -> int:
         ("train", outcome.result.stats_train), ("loo", outcome.result.stats_loo), ("test", outcome.result.stats_test))}
     out.figures(model=outcome.result.model.label, linearisation=outcome.fit.linearisation.label,
                 selection=None if outcome.selection is None else outcome.selection.reason,
-                n_train=len(train), delta_E2000=stats)
+                n_train=len(train), delta_E2000=stats,
+                **({"n_too_dark": len(found.too_dark), "n_dropped": len(found.excluded)} if args.chart else {}))
     out.wrote(save_colour_file(fit, args.out), "colour fit")
     if args.report:
         out.report(write_report(outcome, args.report, title=args.camera or ""), args.report)

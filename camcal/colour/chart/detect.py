@@ -11,13 +11,30 @@ top-left pixel.
 Sampling: the central ``fraction`` (default 0.5 of the cell width) of each
 patch, mapped through the homography, a trimmed mean per channel (the
 ``trim`` fraction cut at each end), plus flags: ``clipped`` when more than
-1 % of the patch's pixels touch 0 or the maximum code value in any
-channel, ``noisy`` when a channel's standard deviation exceeds 5 % of the
+1 % of the patch's pixels touch the maximum code value in any channel
+(or are flagged saturated by the raw reader), or touch 0 in an encoded
+image, ``noisy`` when a channel's standard deviation exceeds 5 % of the
 white's mean code value.
 
+Linear raw data (black subtracted, ``clip_low=None``) have no floor: a
+dark patch's pixels scatter around its true value, some below the black
+level, and the mean of them all (negative values kept) is unbiased, where
+clipping at black would bias it up and dropping it would lose the patch.
+Each patch gets its signal-to-noise ratio ``snr`` (the norm of its mean
+RGB over the norm of the standard errors of the mean, ``std / sqrt(n)``
+of all its pixels) and a fit weight :func:`snr_weights`
+``w = 1 / (1 + (SNR_REFERENCE / snr)^2)``: the patch's relative variance
+``1 / snr^2`` beside :data:`REFERENCE_UNCERTAINTY` (1 %, the order of
+the patch-to-patch and chart-to-chart variation of a ColorChecker's
+reflectances, which bounds what any patch can teach), as inverse-variance
+weights. A patch whose noise exceeds that uncertainty (``snr`` below
+``SNR_REFERENCE`` = 100, weight below 0.5) is reported "too dark": it is
+kept, measured and weighted, never dropped.
+
 :func:`patches_from_image` chains them: detect (or take four corners),
-sample, drop clipped patches, pair the code values with the reference
-chart's XYZ (an image file: :func:`camcal.pipelines.colour.patches_from_chart`).
+sample, drop clipped (saturated) patches, pair the code values with the
+reference chart's XYZ, weights set (an image file:
+:func:`camcal.pipelines.colour.patches_from_chart`).
 """
 
 from __future__ import annotations
@@ -35,6 +52,9 @@ __all__ = [
     "ChartDetection",
     "detect_chart",
     "chart_from_corners",
+    "REFERENCE_UNCERTAINTY",
+    "SNR_REFERENCE",
+    "snr_weights",
     "PatchSamples",
     "sample_patches",
     "ChartPatches",
@@ -161,6 +181,24 @@ def detect_chart(image: np.ndarray, rows: int = 4, columns: int = 6) -> ChartDet
     return ChartDetection(H, _apply_H(H, _UNIT_CORNERS), rows, columns, "cv2.mcc", rms)
 
 
+REFERENCE_UNCERTAINTY = 0.01
+SNR_REFERENCE = 1.0 / REFERENCE_UNCERTAINTY
+
+
+def snr_weights(snr: Any) -> np.ndarray:
+    """Inverse-variance fit weights from patch signal-to-noise ratios (see the module docstring).
+
+    Examples
+    --------
+    >>> snr_weights([np.inf, 100.0, 10.0]).round(4).tolist()
+    [1.0, 0.5, 0.0099]
+    """
+    snr = np.asarray(snr, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        ratio = np.where(snr > 0, SNR_REFERENCE / np.maximum(snr, 1e-300), np.inf)
+    return np.maximum(1.0 / (1.0 + ratio**2), 1e-12)
+
+
 @dataclass(frozen=True, eq=False)
 class PatchSamples:
     """Per-patch statistics of an image's patches (normalised code values).
@@ -175,6 +213,8 @@ class PatchSamples:
         ``(N,)`` pixels sampled per patch.
     clipped, noisy
         ``(N,)`` flags (see the module docstring).
+    snr
+        ``(N,)`` signal-to-noise ratio of each patch mean (``inf`` without noise).
     """
 
     RGB: np.ndarray
@@ -182,6 +222,17 @@ class PatchSamples:
     n_pixels: np.ndarray
     clipped: np.ndarray
     noisy: np.ndarray
+    snr: np.ndarray
+
+    @property
+    def weights(self) -> np.ndarray:
+        """``(N,)`` fit weights (:func:`snr_weights`)."""
+        return snr_weights(self.snr)
+
+    @property
+    def too_dark(self) -> np.ndarray:
+        """``(N,)`` patches whose noise exceeds :data:`REFERENCE_UNCERTAINTY` (kept, weighted down)."""
+        return self.snr < SNR_REFERENCE
 
 
 def sample_patches(
@@ -190,8 +241,9 @@ def sample_patches(
     *,
     fraction: float = 0.5,
     trim: float = 0.1,
-    clip_low: float = 0.5 / 255,
+    clip_low: float | None = 0.5 / 255,
     clip_high: float = 254.5 / 255,
+    saturated: np.ndarray | None = None,
 ) -> PatchSamples:
     """Trimmed-mean code values of the central part of every patch.
 
@@ -206,7 +258,11 @@ def sample_patches(
     trim
         Fraction cut at each end of every channel before averaging.
     clip_low, clip_high
-        Code values counted as clipped (at or beyond).
+        Code values counted as clipped (at or beyond); ``clip_low=None``
+        for linear data with the black level subtracted (no floor: values
+        below black are noise and stay in the mean).
+    saturated
+        ``(H, W)`` pixels flagged saturated (a raw file's), counted as clipped.
 
     Returns
     -------
@@ -223,6 +279,7 @@ def sample_patches(
     std = np.zeros((N, 3))
     n_pixels = np.zeros(N, dtype=int)
     clipped = np.zeros(N, dtype=bool)
+    snr = np.full(N, np.inf)
     grid = _grid_centres(rows, columns)
     half = np.array([0.5 / columns, 0.5 / rows]) * fraction
     square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=np.float64)
@@ -238,16 +295,23 @@ def sample_patches(
         if pixels.shape[0] < 4:
             raise CamcalError(f"patch {i + 1} covers fewer than 4 pixels: the chart is too small")
         n_pixels[i] = pixels.shape[0]
-        touching = np.any((pixels <= clip_low) | (pixels >= clip_high), axis=1)
+        touching = np.any(pixels >= clip_high, axis=1)
+        if clip_low is not None:
+            touching |= np.any(pixels <= clip_low, axis=1)
+        if saturated is not None:
+            touching |= saturated[y0:y1, x0:x1][mask.astype(bool)]
         clipped[i] = np.mean(touching) > 0.01
+        noise = float(np.linalg.norm(pixels.std(axis=0) / np.sqrt(pixels.shape[0])))
         ordered = np.sort(pixels, axis=0)
         k = int(np.floor(trim * ordered.shape[0]))
         kept = ordered[k : ordered.shape[0] - k]
         RGB[i] = kept.mean(axis=0)
         std[i] = kept.std(axis=0)
+        if noise > 0:
+            snr[i] = float(np.linalg.norm(RGB[i])) / noise
     white_level = max(float(np.max(RGB)), 1e-6)
     noisy = np.any(std > 0.05 * white_level, axis=1)
-    return PatchSamples(RGB, std, n_pixels, clipped, noisy)
+    return PatchSamples(RGB, std, n_pixels, clipped, noisy, snr)
 
 
 @dataclass(frozen=True, eq=False)
@@ -260,6 +324,12 @@ class ChartPatches:
     samples: PatchSamples
     excluded: tuple[str, ...]
 
+    @property
+    def too_dark(self) -> tuple[str, ...]:
+        """Names of the used patches whose noise exceeds the reference uncertainty (kept, weighted down)."""
+        return tuple(n for n, dark, clip in zip(self.reference.patch_names, self.samples.too_dark,
+                                                self.samples.clipped) if dark and n in self.patches.names)
+
 
 def patches_from_image(
     image: np.ndarray,
@@ -267,6 +337,8 @@ def patches_from_image(
     *,
     corners: Any = None,
     keep_clipped: bool = False,
+    saturated: np.ndarray | None = None,
+    linear: bool = False,
 ) -> ChartPatches:
     """Detect, sample and pair a chart image's patches with reference XYZ.
 
@@ -282,19 +354,27 @@ def patches_from_image(
         ``(4, 2)`` manual grid corners; ``None`` detects with cv2.mcc.
     keep_clipped
         Keep patches flagged clipped (dropped by default).
+    saturated
+        ``(H, W)`` saturated pixels (a raw file's flags).
+    linear
+        The image is linear with the black level subtracted (raw): no floor
+        at 0, values below black kept in the patch means.
 
     Returns
     -------
     ChartPatches
         Code values normalised to [0, 1] and XYZ relative to the chart's
-        white.
+        white; the patches weighted by their signal-to-noise ratio.
     """
     if corners is None:
         detection = detect_chart(image, chart.rows, chart.columns)
     else:
         detection = chart_from_corners(corners, chart.rows, chart.columns)
-    samples = sample_patches(image, detection)
+    if linear:
+        samples = sample_patches(image, detection, clip_low=None, saturated=saturated)
+    else:
+        samples = sample_patches(image, detection, saturated=saturated)
     keep = np.ones(len(chart.patch_names), dtype=bool) if keep_clipped else ~samples.clipped
     excluded = tuple(n for n, k in zip(chart.patch_names, keep) if not k)
-    patches = PatchSet(chart.patch_names, samples.RGB, chart.XYZ).subset(keep)
+    patches = PatchSet(chart.patch_names, samples.RGB, chart.XYZ, samples.weights).subset(keep)
     return ChartPatches(patches, chart, detection, samples, excluded)

@@ -91,6 +91,8 @@ class Characterisation:
                     else f", smoothing {self.fit.model.smoothing:g})")]
         if self.selection is not None:
             lines.append(f"auto picked it: {self.selection.reason}")
+            lines.append("ranking (best score first):")
+            lines.extend(self.selection.ranking())
         lines.append(f"linearisation: {self.fit.linearisation.label}"
                      + (f" (neutral residual {100 * self.fit.linearisation.residual:.2f} %)"
                         if self.fit.linearisation.residual is not None else ""))
@@ -134,7 +136,9 @@ def characterise(
     ----------
     train
         Training patches: camera RGB (code values when ``linearise`` is not
-        ``"none"``) and XYZ relative to ``white`` (perfect white Y = 1).
+        ``"none"``) and XYZ relative to ``white`` (perfect white Y = 1);
+        their ``weights`` (a chart photo's signal-to-noise weights) weigh
+        every fit, leave-one-out refit and ``auto``'s ranking.
     white
         Training illuminant: CIE name or ``"x,y"``.
     model
@@ -188,7 +192,7 @@ def characterise(
 
     def prepare(patches: PatchSet) -> PatchSet:
         XYZ = patches.XYZ if adapt is None else adapt_XYZ(patches.XYZ, white_XYZ, target_XYZ, adapt)
-        return PatchSet(patches.names, linearisation.apply(patches.RGB), XYZ)
+        return PatchSet(patches.names, linearisation.apply(patches.RGB), XYZ, patches.weights)
 
     train_lin = prepare(train)
     test_lin = prepare(test) if test is not None else None
@@ -198,7 +202,8 @@ def characterise(
     if model == "auto":
         objectives = ("xyz", "de2000") if objective is None else (objective,)
         selection = select_model(RGB, XYZ, target_XYZ, objectives=objectives, candidates=candidates,
-                                 exportable=_export_check(target_XYZ, reference, white_name))
+                                 exportable=_export_check(target_XYZ, reference, white_name),
+                                 weights=train.weights)
         spec = selection.picked.spec
         chosen_objective = selection.picked.objective
         regularisation = selection.picked.regularisation
@@ -216,14 +221,15 @@ def characterise(
         Y = XYZ[neutral, 1]
         RGB_white = (Y @ RGB[neutral]) / (Y @ Y)
 
-    def fit(R: np.ndarray, X: np.ndarray):
+    def fit(R: np.ndarray, X: np.ndarray, w: np.ndarray | None = None):
         return fit_model(spec, R, X, objective=chosen_objective, regularisation=regularisation,
-                         white_XYZ=target_XYZ, RGB_white=RGB_white)
+                         white_XYZ=target_XYZ, RGB_white=RGB_white, weights=w)
 
     result = evaluate_model(
         fit, RGB, XYZ, target_XYZ,
         test=None if test_lin is None else (test_lin.RGB, test_lin.XYZ),
         loo=loo or selection is not None,
+        weights=train.weights,
     )
     from camcal import __version__
 

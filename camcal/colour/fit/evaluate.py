@@ -29,7 +29,7 @@ __all__ = ["leave_one_out_predictions", "ColourFitResult", "evaluate_model", "pa
 
 
 def leave_one_out_predictions(
-    fit: Callable[[np.ndarray, np.ndarray], Any], RGB: Any, XYZ: Any
+    fit: Callable[..., Any], RGB: Any, XYZ: Any, weights: Any = None
 ) -> np.ndarray:
     """Predict each patch from a model refitted without it.
 
@@ -40,6 +40,9 @@ def leave_one_out_predictions(
         choice (model, objective, regularisation) must be fixed inside it.
     RGB, XYZ
         ``(N, 3)`` training data.
+    weights
+        ``(N,)`` patch weights: when given, ``fit(RGB, XYZ, weights)`` is
+        called with the kept patches' weights.
 
     Returns
     -------
@@ -49,11 +52,13 @@ def leave_one_out_predictions(
     RGB = np.asarray(RGB, dtype=np.float64)
     XYZ = np.asarray(XYZ, dtype=np.float64)
     N = RGB.shape[0]
+    weights = None if weights is None else np.asarray(weights, dtype=np.float64)
     out = np.empty_like(XYZ)
     keep = np.ones(N, dtype=bool)
     for i in range(N):
         keep[i] = False
-        out[i] = fit(RGB[keep], XYZ[keep]).apply(RGB[i : i + 1])[0]
+        model = fit(RGB[keep], XYZ[keep]) if weights is None else fit(RGB[keep], XYZ[keep], weights[keep])
+        out[i] = model.apply(RGB[i : i + 1])[0]
         keep[i] = True
     return out
 
@@ -103,6 +108,7 @@ def evaluate_model(
     test: tuple[Any, Any] | None = None,
     loo: bool = True,
     model: Any = None,
+    weights: Any = None,
 ) -> ColourFitResult:
     """Fit on all patches and report CIEDE2000 on train, leave-one-out, test.
 
@@ -120,6 +126,9 @@ def evaluate_model(
         Whether to compute the leave-one-out figures.
     model
         The model already fitted on all patches (refitted when ``None``).
+    weights
+        ``(N,)`` patch weights handed to ``fit(RGB, XYZ, weights)`` (see
+        :func:`leave_one_out_predictions`); the figures stay unweighted.
 
     Returns
     -------
@@ -128,9 +137,9 @@ def evaluate_model(
     RGB = np.asarray(RGB, dtype=np.float64)
     XYZ = np.asarray(XYZ, dtype=np.float64)
     if model is None:
-        model = fit(RGB, XYZ)
+        model = fit(RGB, XYZ) if weights is None else fit(RGB, XYZ, weights)
     dE_train = delta_E(model.apply(RGB), XYZ, white_XYZ)
-    XYZ_loo = leave_one_out_predictions(fit, RGB, XYZ) if loo else None
+    XYZ_loo = leave_one_out_predictions(fit, RGB, XYZ, weights) if loo else None
     dE_loo = None if XYZ_loo is None else delta_E(XYZ_loo, XYZ, white_XYZ)
     dE_test = None
     if test is not None:

@@ -10,6 +10,12 @@ or ``"de2000"`` (sum of squared CIEDE2000 per patch, minimised by
 available for ``rbf``). Regularisation ``lambda`` is a ridge penalty on the
 non-linear terms only: ``|A M^T - XYZ|^2 / N + lambda |M_nl|^2``.
 
+Weights (``weights``, ``(N,)`` positive, e.g. a chart photo's
+signal-to-noise weights, :func:`camcal.colour.chart.detect.snr_weights`)
+make every objective a weighted one: each patch's squared residual counts
+``w_i / mean(w)`` times (so equal weights change nothing); for an RBF the
+smoothing of patch ``i`` is ``lambda / w_i`` (a weighted smoothing spline).
+
 References
 ----------
 - Sharma, G., Wu, W., Dalal, E. N. (2005). The CIEDE2000 color-difference
@@ -29,7 +35,18 @@ from camcal.colour.difference import XYZ_to_Lab, delta_E
 from camcal.colour.fit.models import LinearTermsModel, Model, RBFModel, rbf_kernel
 from camcal.colour.fit.terms import OBJECTIVES, RBF_KERNELS, ModelSpec, expand, nonlinear_mask, parse_model_spec
 
-__all__ = ["RBF_SMOOTHING_GRID", "fit_model", "fit_linear_terms", "fit_rbf", "delta_E2000_components"]
+__all__ = ["RBF_SMOOTHING_GRID", "fit_model", "fit_linear_terms", "fit_rbf", "delta_E2000_components",
+           "normalised_weights"]
+
+
+def normalised_weights(weights: Any, N: int) -> np.ndarray:
+    """``(N,)`` weights scaled to mean 1 (ones when ``weights`` is ``None``)."""
+    if weights is None:
+        return np.ones(N)
+    w = np.asarray(weights, dtype=np.float64)
+    if w.shape != (N,) or not np.all(np.isfinite(w)) or np.any(w <= 0):
+        raise CamcalError(f"weights must be {N} positive finite numbers, got shape {w.shape}")
+    return w / w.mean()
 
 
 def _check_training(RGB: Any, XYZ: Any, n_params: int, what: str) -> tuple[np.ndarray, np.ndarray]:
@@ -66,6 +83,7 @@ def fit_linear_terms(
     white_XYZ: Any = (0.9505, 1.0, 1.089),
     RGB_white: Any = None,
     max_nfev: int = 400,
+    weights: Any = None,
 ) -> LinearTermsModel:
     """Fit ``XYZ = M @ expand(RGB, terms)``.
 
@@ -88,6 +106,8 @@ def fit_linear_terms(
     RGB_white
         Camera RGB of the perfect white; when given, the fit is white
         preserving: ``M @ expand(RGB_white) = white_XYZ`` exactly.
+    weights
+        ``(N,)`` patch weights (see the module docstring), ``None`` for equal.
 
     Returns
     -------
@@ -99,7 +119,9 @@ def fit_linear_terms(
     T = len(terms)
     RGB, XYZ = _check_training(RGB, XYZ, T if regularisation == 0 else 3, kind)
     N = RGB.shape[0]
+    w = normalised_weights(weights, N)
     A = expand(RGB, terms)
+    Aw = A * w[:, None]
     penalty = nonlinear_mask(terms).astype(np.float64) * float(regularisation)
     white_XYZ = np.asarray(white_XYZ, dtype=np.float64)
 
@@ -112,7 +134,8 @@ def fit_linear_terms(
         A_red = A @ Nb
         target = XYZ - A @ M0.T
         P = Nb.T @ np.diag(penalty) @ Nb
-        Z = np.linalg.solve(A_red.T @ A_red / N + P + 1e-15 * np.eye(T - 1), A_red.T @ target / N).T
+        Z = np.linalg.solve(A_red.T @ (w[:, None] * A_red) / N + P + 1e-15 * np.eye(T - 1),
+                            A_red.T @ (w[:, None] * target) / N).T
         M = M0 + Z @ Nb.T
 
         def unpack(p: np.ndarray) -> np.ndarray:
@@ -120,8 +143,8 @@ def fit_linear_terms(
 
         p0 = Z.ravel()
     else:
-        ATA = A.T @ A / N + np.diag(penalty)
-        M = np.linalg.lstsq(ATA, A.T @ XYZ / N, rcond=None)[0].T
+        ATA = Aw.T @ A / N + np.diag(penalty)
+        M = np.linalg.lstsq(ATA, Aw.T @ XYZ / N, rcond=None)[0].T
 
         def unpack(p: np.ndarray) -> np.ndarray:
             return p.reshape(-1, 3, T)
@@ -129,7 +152,7 @@ def fit_linear_terms(
         p0 = M.ravel()
 
     if objective == "de2000":
-        M = _refine_de2000(A, XYZ, white_XYZ, unpack, p0, penalty, max_nfev)
+        M = _refine_de2000(A, XYZ, white_XYZ, unpack, p0, penalty, max_nfev, w)
     return LinearTermsModel(
         kind=kind,
         terms=terms,
@@ -204,6 +227,7 @@ def _refine_de2000(
     p0: np.ndarray,
     penalty: np.ndarray,
     max_nfev: int,
+    w: np.ndarray | None = None,
 ) -> np.ndarray:
     """Minimise the sum of squared CIEDE2000 over the parameters ``p``.
 
@@ -219,19 +243,20 @@ def _refine_de2000(
 
     Lab_ref = XYZ_to_Lab(XYZ, white_XYZ)
     N = A.shape[0]
+    root_w = np.ones((N, 1)) if w is None else np.sqrt(w)[:, None]
 
     def penalties(Ms: np.ndarray) -> np.ndarray:  # (B, 3, T) -> (B, 3*T)
         return (np.sqrt(penalty)[None, None, :] * Ms).reshape(Ms.shape[0], -1)
 
     def colour_residuals(Ms: np.ndarray) -> np.ndarray:  # (B, 3, T) -> (B, 3N)
         pred = np.einsum("nt,bkt->bnk", A, Ms)
-        comp = delta_E2000_components(XYZ_to_Lab(pred, white_XYZ), Lab_ref[None])
+        comp = delta_E2000_components(XYZ_to_Lab(pred, white_XYZ), Lab_ref[None]) * root_w[None]
         return comp.reshape(Ms.shape[0], -1)
 
     M_start = unpack(p0[None])
     scale = 0.0
     if np.any(penalty):
-        xyz_sq = np.sum((A @ M_start[0].T - XYZ) ** 2)
+        xyz_sq = np.sum(root_w**2 * (A @ M_start[0].T - XYZ) ** 2)
         scale = np.sqrt(N * np.sum(colour_residuals(M_start) ** 2) / max(xyz_sq, 1e-300))
 
     def residuals_batch(P: np.ndarray) -> np.ndarray:
@@ -250,10 +275,10 @@ def _refine_de2000(
     return unpack(result.x[None])[0]
 
 
-def _rbf_system(RGB: np.ndarray, kernel: str, smoothing: float) -> np.ndarray:
+def _rbf_system(RGB: np.ndarray, kernel: str, smoothing: float, w: np.ndarray | None = None) -> np.ndarray:
     N = RGB.shape[0]
     r = np.linalg.norm(RGB[:, None, :] - RGB[None, :, :], axis=-1)
-    Phi = rbf_kernel(r, kernel) + smoothing * np.eye(N)
+    Phi = rbf_kernel(r, kernel) + smoothing * np.diag(np.ones(N) if w is None else 1.0 / w)
     P = np.hstack([RGB, np.ones((N, 1))])
     S = np.zeros((N + 4, N + 4))
     S[:N, :N] = Phi
@@ -262,22 +287,23 @@ def _rbf_system(RGB: np.ndarray, kernel: str, smoothing: float) -> np.ndarray:
     return S
 
 
-def _rbf_solve(RGB: np.ndarray, XYZ: np.ndarray, kernel: str, smoothing: float):
+def _rbf_solve(RGB: np.ndarray, XYZ: np.ndarray, kernel: str, smoothing: float, w: np.ndarray | None = None):
     N = RGB.shape[0]
-    S = _rbf_system(RGB, kernel, smoothing)
+    S = _rbf_system(RGB, kernel, smoothing, w)
     rhs = np.vstack([XYZ, np.zeros((4, 3))])
     sol = np.linalg.lstsq(S, rhs, rcond=None)[0]
     return sol[:N], sol[N:].T  # weights (N, 3), L (3, 4)
 
 
-def _rbf_loo_predictions(RGB: np.ndarray, XYZ: np.ndarray, kernel: str, smoothing: float) -> np.ndarray:
+def _rbf_loo_predictions(RGB: np.ndarray, XYZ: np.ndarray, kernel: str, smoothing: float,
+                         w: np.ndarray | None = None) -> np.ndarray:
     """Exact leave-one-out predictions of a smoothing RBF (a linear smoother).
 
     With ``H`` the hat matrix (fitted = H XYZ), the leave-one-out residual is
     ``e_i / (1 - H_ii)``; valid for ``smoothing > 0``.
     """
     N = RGB.shape[0]
-    S = _rbf_system(RGB, kernel, smoothing)
+    S = _rbf_system(RGB, kernel, smoothing, w)
     rhs = np.vstack([np.eye(N), np.zeros((4, N))])
     sol = np.linalg.lstsq(S, rhs, rcond=None)[0]
     Phi0 = rbf_kernel(np.linalg.norm(RGB[:, None, :] - RGB[None, :, :], axis=-1), kernel)
@@ -299,6 +325,7 @@ def fit_rbf(
     smoothing: float | None = None,
     white_XYZ: Any = (0.9505, 1.0, 1.089),
     objective: str = "xyz",
+    weights: Any = None,
 ) -> RBFModel:
     """Fit a polyharmonic RBF network with a linear part (*Thomas 2011*).
 
@@ -313,6 +340,9 @@ def fit_rbf(
         :data:`RBF_SMOOTHING_GRID` by exact leave-one-out mean CIEDE2000.
     white_XYZ
         Target white, for CIELAB when choosing ``smoothing``.
+    weights
+        ``(N,)`` patch weights: smoothing ``lambda / w_i`` per patch and the
+        weighted mean CIEDE2000 choosing it.
 
     Returns
     -------
@@ -323,16 +353,17 @@ def fit_rbf(
     RGB, XYZ = _check_training(RGB, XYZ, 5, "rbf")
     if kernel not in RBF_KERNELS:
         raise CamcalError(f"unknown RBF kernel {kernel!r}, expected one of: {', '.join(RBF_KERNELS)}")
+    w = None if weights is None else normalised_weights(weights, RGB.shape[0])
     if smoothing is None:
         best = None
         for lam in RBF_SMOOTHING_GRID:
-            pred = _rbf_loo_predictions(RGB, XYZ, kernel, lam)
-            score = float(np.mean(delta_E(pred, XYZ, white_XYZ)))
+            pred = _rbf_loo_predictions(RGB, XYZ, kernel, lam, w)
+            score = float(np.average(delta_E(pred, XYZ, white_XYZ), weights=w))
             if best is None or score < best[0]:
                 best = (score, lam)
         smoothing = best[1]
-    weights, L = _rbf_solve(RGB, XYZ, kernel, float(smoothing))
-    return RBFModel(kernel=kernel, centres=RGB, weights=weights, L=L, smoothing=float(smoothing))
+    coefficients, L = _rbf_solve(RGB, XYZ, kernel, float(smoothing), w)
+    return RBFModel(kernel=kernel, centres=RGB, weights=coefficients, L=L, smoothing=float(smoothing))
 
 
 def fit_model(
@@ -345,6 +376,7 @@ def fit_model(
     white_XYZ: Any = (0.9505, 1.0, 1.089),
     RGB_white: Any = None,
     smoothing: float | None = None,
+    weights: Any = None,
 ) -> Model:
     """Fit the model ``spec`` to training patches (the one dispatcher).
 
@@ -365,6 +397,9 @@ def fit_model(
         preserving, ignored otherwise.
     smoothing
         RBF smoothing; ``None`` picks it by leave-one-out.
+    weights
+        ``(N,)`` positive patch weights (signal-to-noise weights of a chart
+        photo); ``None`` weighs every patch equally.
 
     Returns
     -------
@@ -374,7 +409,7 @@ def fit_model(
         spec = parse_model_spec(spec)
     if spec.kind == "rbf":
         return fit_rbf(RGB, XYZ, kernel=spec.kernel, smoothing=smoothing,
-                       white_XYZ=white_XYZ, objective=objective)
+                       white_XYZ=white_XYZ, objective=objective, weights=weights)
     if spec.white_preserving and RGB_white is None:
         raise CamcalError(
             f"{spec.label} needs the camera RGB of the white (no neutral patches given)"
@@ -388,4 +423,5 @@ def fit_model(
         regularisation=regularisation,
         white_XYZ=white_XYZ,
         RGB_white=RGB_white if spec.white_preserving else None,
+        weights=weights,
     )

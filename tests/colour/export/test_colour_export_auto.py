@@ -9,7 +9,7 @@ from camcal.colour.export.icc import icc_profile_from_fit  # noqa: E402
 from camcal.io.ocio import export_ocio  # noqa: E402
 from camcal.io.colourfile import load_fit  # noqa: E402
 from camcal.colour.chart.patches import PatchSet  # noqa: E402
-from camcal.colour.fit.select import select_model  # noqa: E402
+from camcal.colour.fit.select import PARSIMONY_CAP, select_model  # noqa: E402
 from camcal.base.errors import CamcalError  # noqa: E402
 from camcal.io.colourfile import save_colour_file
 from colour_export_helpers import make_fit  # noqa: E402
@@ -32,8 +32,10 @@ def test_auto_walks_down_its_ranking_past_refused_models(sim):
     assert checked.picked.spec.kind == "matrix3x3" and checked.picked.exportable is True
     refused = [c for c in checked.candidates if c.exportable is False]
     # every candidate ranked above the matrix was asked, in order, and refused
-    better = [c for c in plain.candidates if c.loo_mean < checked.picked.loo_mean - 0.005]
-    assert len(refused) == len(better) == len(asked) - 1 and asked[-1] == "matrix3x3"
+    # (every candidate more than the parsimony cap below the matrix was, and none above the matrix)
+    better = {c.label for c in plain.candidates if c.score < checked.picked.score * (1 - PARSIMONY_CAP)}
+    assert better <= {c.label for c in refused} and len(refused) == len(asked) - 1 and asked[-1] == "matrix3x3"
+    assert all(c.score < checked.picked.score for c in refused)
     assert all(c.bake_error_max == pytest.approx(1.234) for c in refused)
     assert "failed the export bake check" in checked.reason
     data = checked.to_dict()
@@ -54,7 +56,7 @@ def test_auto_refuses_what_the_exporter_refuses(tmp_path, sim):
                              candidates=("root-polynomial:3", "matrix3x3"), exportable=exportable)
     refused = [c for c in selection.candidates if c.exportable is False]
     assert refused and selection.picked.exportable is True
-    assert all(c.loo_mean < selection.picked.loo_mean and c.bake_error_max > 0.2 for c in refused)
+    assert all(c.score < selection.picked.score and c.bake_error_max > 0.2 for c in refused)
     first = refused[0]
     train = PatchSet(sim.names_train, sim.RGB_train, sim.XYZ_train)
     fit = characterise(train, white="D65", model=first.spec.label, regularisation=first.regularisation,

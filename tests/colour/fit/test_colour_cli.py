@@ -65,7 +65,8 @@ def test_auto_from_cli_says_what_and_why(tmp_path, csvs, capsys):
     out = tmp_path / "auto.colour.json"
     assert main(["colour", "fit", "--patches", str(train), "--illuminant", "D65", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "auto picked it: lowest leave-one-out mean CIEDE2000" in text
+    assert "auto picked it: simplest of" in text and "leave-one-out mean CIEDE2000" in text
+    assert "ranking (best score first):" in text and "<- picked" in text
     data = json.loads(out.read_text())
     assert data["training"]["selection"]["picked"]["model"] in text
 
