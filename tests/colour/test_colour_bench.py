@@ -14,7 +14,9 @@ def test_bench_without_colprof_prints_skipped(monkeypatch, capsys):
     real_which = shutil.which
     monkeypatch.setattr(bench.shutil, "which", lambda name: None if name in ("colprof", "xicclu") else real_which(name))
     monkeypatch.setattr(bench, "SCENES", bench.SCENES[:1])
+    monkeypatch.setattr(bench, "CAMCAL_MODELS", ["matrix3x3", "auto"])
     assert bench.main() == 0
     out = capsys.readouterr().out
     assert "skipped: colprof not installed" in out
     assert "colour-science best" in out and "ratio" in out
+    assert "auto gap: picked" in out and "(issue 31: <= 2 %)" in out

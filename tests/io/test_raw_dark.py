@@ -119,3 +119,35 @@ def test_cli_uses_all_patches_and_says_too_dark(dim_chart, tmp_path, capsys):
     assert "24 / 24 patches used" in text and "dropped" not in text
     n_dark = summary["figures"]["n_too_dark"]
     assert n_dark > 0 and f"too dark: {n_dark} patch(es) measured and weighted down" in text
+
+
+def test_auto_with_the_spectral_route_on_the_dim_chart(dim_chart, tmp_path, capsys):
+    """End to end: every patch used, auto ranks chart-only and spectral candidates (sensitivities estimated from
+    the dim chart itself) and says which it wrote; held out on 190 reflectances, auto on all 24 weighted patches
+    beats auto with the dark patches dropped."""
+    cam, names, R, truth, path, corners, RGB_ind, XYZ_ind = dim_chart
+    out = tmp_path / "dim_auto.colour.json"
+    assert main(["colour", "fit", "--chart", str(path), "--reference", "babel", "--illuminant", "D65",
+                 "--corners", ",".join(str(v) for v in corners.ravel()), "--objective", "xyz",
+                 "--spectra", "BabelColor Average", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "24 / 24 patches used" in text and "spectral route: sensitivities estimated" in text
+    assert "written: on the chart's own patches held out" in text and "ranking (best score first):" in text
+    white = cam.white_XYZ
+    found = patches_from_chart(path, "babel", corners=corners, illuminant="D65")
+    old = sample_patches(read_raw(path).RGB, found.detection)
+    xy = f"{white[0] / white.sum():.10f},{white[1] / white.sum():.10f}"
+    every = PatchSet(found.patches.names, found.patches.RGB, cam.XYZ(R), found.patches.weights)
+    figures = {}
+    for label, patches, spectra in (("24, spectral route considered", every, "BabelColor Average"),
+                                    ("24, chart only", every, None),
+                                    (f"{int((~old.clipped).sum())}, dark ones dropped", every.subset(~old.clipped),
+                                     None)):
+        fit = characterise(patches, white=xy, model="auto", objective="xyz", linearise="none", loo=False,
+                           spectra=spectra, illuminant="D65").fit
+        figures[label] = float(np.mean(delta_E(fit.model.apply(RGB_ind), XYZ_ind, white)))
+    print("auto held out on 190 reflectances:", figures)
+    dropped = figures[f"{int((~old.clipped).sum())}, dark ones dropped"]
+    # measured here: 0.857 (chart only), 0.889 (spectral route picked by the chart's leave-one-out), 0.890 (dropped):
+    # the spectral route's pick is not reliably better on this camera (see issue 31's report)
+    assert figures["24, chart only"] < dropped

@@ -42,6 +42,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="white of the output XYZ (default: the training white)")
     parser.add_argument("--adaptation", choices=("CAT02", "Bradford"), default="CAT02",
                         help="chromatic adaptation to the target white (default: %(default)s)")
+    parser.add_argument("--spectra", default=None, metavar="NAME",
+                        help="the chart's spectral data (BabelColor Average, ColorChecker N Ohta, ISO 17321-1), "
+                             "patch names matching: with --model auto, sensitivities are estimated from the chart, "
+                             "candidates scored on 300 Munsell colours rendered through them and also trained on "
+                             "300 others beside the chart (the spectral route); the chart-only and spectral picks "
+                             "are compared on the chart's patches held out and the better one written")
     parser.add_argument("--test-patches", metavar="FILE.csv",
                         help="independent patches, same encoding and white as the training ones")
     camera_label_option(parser)
@@ -135,6 +141,7 @@ def _fit(args: argparse.Namespace) -> int:
         regularisation=args.regularisation, linearise=linearise,
         test=test, target_white=args.target_white, adaptation=args.adaptation,
         camera=args.camera, reference=reference, source=args.chart or args.patches,
+        spectra=args.spectra,
     )
     print(outcome.summary())
     fit = _with_capture(args, outcome.fit)

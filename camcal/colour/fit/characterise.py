@@ -34,9 +34,9 @@ from camcal.colour.chart.linearise import Linearisation, fit_linearisation
 from camcal.colour.chart.patches import PatchSet
 from camcal.colour.difference import XYZ_to_Lab
 from camcal.colour.fit.evaluate import ColourFitResult, evaluate_model
-from camcal.colour.fit.fitting import fit_model
 from camcal.colour.fit.record import ColourFit
-from camcal.colour.fit.select import Selection, select_model
+from camcal.colour.fit.select import Selection, fitter, select_model
+from camcal.colour.fit.synthetic import SyntheticSets, synthesise_from_chart
 from camcal.colour.fit.terms import parse_model_spec
 from camcal.colour.spectral.data import adapt_XYZ, illuminant_white_XYZ
 
@@ -83,12 +83,15 @@ class Characterisation:
     train: PatchSet
     test: PatchSet | None
     selection: Selection | None
+    synthetic: SyntheticSets | None = None
 
     def summary(self) -> str:
         """A few human lines: model, why, and CIEDE2000 on each set."""
         lines = [f"model: {self.result.model.label} ({self.fit.model.to_dict().get('objective')}"
                  + (f", lambda {self.fit.model.regularisation:g})" if hasattr(self.fit.model, "regularisation")
                     else f", smoothing {self.fit.model.smoothing:g})")]
+        if self.synthetic is not None:
+            lines.append(f"spectral route: {self.synthetic.describe()}")
         if self.selection is not None:
             lines.append(f"auto picked it: {self.selection.reason}")
             lines.append("ranking (best score first):")
@@ -129,6 +132,8 @@ def characterise(
     source: str | None = None,
     loo: bool = True,
     candidates: Sequence[str] | None = None,
+    spectra: str | None = None,
+    illuminant: str | None = None,
 ) -> Characterisation:
     """Fit and evaluate a characterisation.
 
@@ -163,6 +168,15 @@ def characterise(
         Compute leave-one-out figures (always on for ``auto``).
     candidates
         Models ``auto`` may pick (default: :func:`camcal.colour.fit.select.select_model`'s list).
+    spectra
+        The chart's spectral data (``BabelColor Average``...; patch names
+        must match): with ``auto``, sensitivities are estimated from the
+        chart and two Munsell sets rendered through them
+        (:mod:`camcal.colour.fit.synthetic`): candidates are scored on the
+        held-out one and also trained on the other (the spectral route); the
+        chart's RGB must be linear (or linearised).
+    illuminant
+        CIE name of the chart's light for ``spectra`` (default: ``white``).
 
     Returns
     -------
@@ -199,11 +213,21 @@ def characterise(
     RGB, XYZ = train_lin.RGB, train_lin.XYZ
 
     selection = None
+    synthetic = None
+    validation = spectral = None
+    if spectra is not None and model == "auto":
+        synthetic = synthesise_from_chart(train_lin, spectra, illuminant or white_name)
+
+        def target(XYZ_s: np.ndarray) -> np.ndarray:
+            return XYZ_s if adapt is None else adapt_XYZ(XYZ_s, white_XYZ, target_XYZ, adapt)
+
+        validation = (synthetic.held_out.RGB, target(synthetic.held_out.XYZ))
+        spectral = (synthetic.training.RGB, target(synthetic.training.XYZ))
     if model == "auto":
         objectives = ("xyz", "de2000") if objective is None else (objective,)
         selection = select_model(RGB, XYZ, target_XYZ, objectives=objectives, candidates=candidates,
                                  exportable=_export_check(target_XYZ, reference, white_name),
-                                 weights=train.weights)
+                                 weights=train.weights, validation=validation, spectral=spectral)
         spec = selection.picked.spec
         chosen_objective = selection.picked.objective
         regularisation = selection.picked.regularisation
@@ -221,9 +245,8 @@ def characterise(
         Y = XYZ[neutral, 1]
         RGB_white = (Y @ RGB[neutral]) / (Y @ Y)
 
-    def fit(R: np.ndarray, X: np.ndarray, w: np.ndarray | None = None):
-        return fit_model(spec, R, X, objective=chosen_objective, regularisation=regularisation,
-                         white_XYZ=target_XYZ, RGB_white=RGB_white, weights=w)
+    extra = spectral if selection is not None and selection.picked.training == "spectral" else None
+    fit = fitter(spec, chosen_objective, regularisation, target_XYZ, extra, RGB_white)
 
     result = evaluate_model(
         fit, RGB, XYZ, target_XYZ,
@@ -252,4 +275,4 @@ def characterise(
         selection=None if selection is None else selection.to_dict(),
         provenance=provenance,
     )
-    return Characterisation(colour_fit, result, train_lin, test_lin, selection)
+    return Characterisation(colour_fit, result, train_lin, test_lin, selection, synthetic)

@@ -202,7 +202,9 @@ def _check_model(value: Any, where: str) -> None:
 
 def _check_candidate(value: Any, where: str) -> None:
     _keys(value, where, ("model", "objective", "regularisation", "loo_mean", "loo_p95"),
-          ("exportable", "bake_error_max", "score", "score_se", "validation_mean"))
+          ("exportable", "bake_error_max", "score", "score_se", "validation_mean", "training"))
+    if "training" in value:
+        _string(value["training"], f"{where}.training", ("chart", "spectral"))
     for key in ("score", "score_se", "validation_mean"):
         if key in value:
             _number(value[key], f"{where}.{key}", 0.0)

@@ -62,7 +62,7 @@ from camcal.colour.fit.evaluate import leave_one_out_predictions
 from camcal.colour.fit.fitting import fit_model
 from camcal.colour.fit.terms import ModelSpec, parse_model_spec
 
-__all__ = ["RIDGE_GRID", "N_REFINE", "PARSIMONY_CAP", "Candidate", "Selection", "select_model"]
+__all__ = ["RIDGE_GRID", "N_REFINE", "PARSIMONY_CAP", "Candidate", "Selection", "fitter", "select_model"]
 
 RIDGE_GRID = (0.0, 1e-6, 1e-5, 1e-4, 1e-3)
 N_REFINE = 3
@@ -85,6 +85,7 @@ class Candidate:
     score: float = float("nan")
     score_se: float = 0.0
     validation_mean: float | None = None
+    training: str = "chart"
 
     @property
     def n_params(self) -> int:
@@ -93,13 +94,14 @@ class Candidate:
     @property
     def label(self) -> str:
         reg = f", lambda {self.regularisation:g}" if self.spec.kind != "rbf" else ""
-        return f"{self.spec.label} ({self.objective}{reg})"
+        route = ", spectral" if self.training == "spectral" else ""
+        return f"{self.spec.label} ({self.objective}{reg}{route})"
 
     def to_dict(self) -> dict:
         out = {"model": self.spec.label, "objective": self.objective,
                "regularisation": float(self.regularisation),
                "loo_mean": float(self.loo_mean), "loo_p95": float(self.loo_p95),
-               "score": float(self.score), "score_se": float(self.score_se)}
+               "score": float(self.score), "score_se": float(self.score_se), "training": self.training}
         if self.validation_mean is not None:
             out["validation_mean"] = float(self.validation_mean)
         if self.exportable is not None:
@@ -116,6 +118,7 @@ class Selection:
     picked: Candidate
     candidates: tuple[Candidate, ...]
     score_name: str = "leave-one-out"
+    rivals: tuple[Candidate, ...] = ()
 
     @property
     def best(self) -> Candidate:
@@ -132,6 +135,12 @@ class Selection:
             text += f" against {best.score:.3f} for {best.label} (+{100 * (self.picked.score / best.score - 1):.1f} %)"
         else:
             text += " (the lowest)"
+        if len(self.rivals) == 2:
+            chart, spectral = self.rivals
+            winner, loser = (spectral, chart) if self.picked is spectral else (chart, spectral)
+            text += (f"; {'spectral route' if winner is spectral else 'chart-only fit'} written: on the chart's own "
+                     f"patches held out (leave-one-out) {winner.label} gives {winner.loo_mean:.3f} against "
+                     f"{loser.loo_mean:.3f} for {loser.label}")
         if refused:
             text += (f", once {len(refused)} candidate(s) failed the export bake check (CIEDE2000 over the chart "
                      "gamut and plausible surfaces: "
@@ -148,7 +157,7 @@ class Selection:
                     else f"  bake max {c.bake_error_max:.3f}" if c.exportable else
                     f"  bake refused ({c.bake_error_max if c.bake_error_max is not None else float('nan'):.2f})")
             mark = "  <- picked" if c is self.picked else ""
-            lines.append(f"  {c.label:44s} {self.score_name} {c.score:.3f} +- {c.score_se:.3f}, "
+            lines.append(f"  {c.label:54s} {self.score_name} {c.score:.3f} +- {c.score_se:.3f}, "
                          f"LOO {c.loo_mean:.3f}{bake}{mark}")
         return lines
 
@@ -159,11 +168,26 @@ class Selection:
                 "candidates": [c.to_dict() for c in self.candidates]}
 
 
-def _errors(spec: ModelSpec, objective: str, lam: float, RGB, XYZ, white_XYZ, weights, validation):
-    """Per-patch leave-one-out CIEDE2000 and, with a validation set, its per-colour CIEDE2000."""
+def fitter(spec: ModelSpec, objective: str, lam: float, white_XYZ: Any, extra: tuple[Any, Any] | None = None,
+           RGB_white: Any = None) -> Callable[..., Any]:
+    """``fit(RGB, XYZ, w=None) -> model`` with every choice fixed; with ``extra`` (synthesised RGB, XYZ) the
+    spectral route: fitted on the patches given (the chart's captures, anchors) beside ``extra``, the anchors
+    together weighing as much as all of ``extra``."""
     def fit(R, X, w=None):
-        return fit_model(spec, R, X, objective=objective, regularisation=lam, white_XYZ=white_XYZ, weights=w)
+        if extra is not None:
+            n, m = len(R), len(extra[0])
+            anchor = (np.ones(n) if w is None else np.asarray(w, dtype=np.float64) / np.mean(w)) * m / n
+            R, X = np.vstack([R, extra[0]]), np.vstack([X, extra[1]])
+            w = np.concatenate([anchor, np.ones(m)])
+        return fit_model(spec, R, X, objective=objective, regularisation=lam, white_XYZ=white_XYZ, weights=w,
+                         RGB_white=RGB_white)
 
+    return fit
+
+
+def _errors(spec: ModelSpec, objective: str, lam: float, RGB, XYZ, white_XYZ, weights, validation, extra=None):
+    """Per-patch leave-one-out CIEDE2000 and, with a validation set, its per-colour CIEDE2000."""
+    fit = fitter(spec, objective, lam, white_XYZ, extra)
     loo = delta_E(leave_one_out_predictions(fit, RGB, XYZ, weights), XYZ, white_XYZ)
     held = None
     if validation is not None:
@@ -188,6 +212,7 @@ def select_model(
     exportable: Callable[[Any], float | None] | None = None,
     weights: Any = None,
     validation: tuple[Any, Any] | None = None,
+    spectral: tuple[Any, Any] | None = None,
 ) -> Selection:
     """Pick model, objective and ridge ``lambda`` by held-out CIEDE2000 with parsimony (module docstring).
 
@@ -213,6 +238,12 @@ def select_model(
     validation
         ``(RGB, XYZ)`` of held-out colours in the units of ``RGB`` and
         ``XYZ``: scores candidates instead of leave-one-out.
+    spectral
+        ``(RGB, XYZ)`` of synthesised training colours (needs ``validation``):
+        every linear-terms candidate also trained on them beside the chart's
+        patches (the spectral route, :func:`fitter`). The simplest-within-margin
+        spectral candidate and chart candidate are then compared on the
+        chart's own patches held out (leave-one-out), the better one picked.
 
     Returns
     -------
@@ -229,11 +260,18 @@ def select_model(
     names = list(candidates) if candidates is not None else list(_LINEAR_CANDIDATES + _RBF_CANDIDATES)
     errors: dict[int, np.ndarray] = {}
 
-    def candidate(spec: ModelSpec, objective: str, lam: float) -> Candidate:
-        loo, held = _errors(spec, objective, lam, RGB, XYZ, white_XYZ, weights, validation)
-        c = Candidate(spec, objective, lam, float(np.average(loo, weights=w)), float(np.percentile(loo, 95)),
-                      score=float(np.average(loo, weights=w)) if held is None else float(np.mean(held)),
-                      validation_mean=None if held is None else float(np.mean(held)))
+    if spectral is not None and validation is None:
+        raise CamcalError("the spectral candidates are scored on held-out colours: give validation too")
+    extra = None if spectral is None else tuple(np.asarray(a, dtype=np.float64) for a in spectral)
+
+    def candidate(spec: ModelSpec, objective: str, lam: float, route: str = "chart") -> Candidate:
+        spectral_route = route == "spectral"
+        loo, held = _errors(spec, objective, lam, RGB, XYZ, white_XYZ, weights, validation,
+                            extra if spectral_route else None)
+        loo_mean = float(np.average(loo, weights=w))
+        c = Candidate(spec, objective, lam, loo_mean, float(np.percentile(loo, 95)),
+                      score=loo_mean if held is None else float(np.mean(held)),
+                      validation_mean=None if held is None else float(np.mean(held)), training=route)
         errors[id(c)] = loo if held is None else held
         return c
 
@@ -258,23 +296,43 @@ def select_model(
         linear = sorted((c for c in stage1 if c.spec.kind != "rbf"), key=lambda c: c.score)
         for c in linear[:N_REFINE]:
             final.append(candidate(c.spec, "de2000", c.regularisation))
+    if extra is not None:
+        seen = set()
+        for c in sorted((c for c in stage1 if c.spec.kind != "rbf"), key=lambda c: c.score):
+            if c.spec.label not in seen:  # the synthesised colours regularise: each model once, its best lambda
+                seen.add(c.spec.label)
+                if "xyz" in objectives:
+                    final.append(candidate(c.spec, "xyz", c.regularisation, "spectral"))
+                if "de2000" in objectives and len(seen) <= N_REFINE:
+                    final.append(candidate(c.spec, "de2000", c.regularisation, "spectral"))
     if not final:
         raise CamcalError("no candidate model for the objectives asked")
     ew = np.ones(len(validation[1])) if validation is not None else w
     remaining = list(final)
     checked: dict[int, Candidate] = {}
-    scored: dict[int, Candidate] = {}
+    overall = min(final, key=lambda c: c.score)
+    scored = {id(c): replace(c, score_se=_paired_se(errors[id(c)], errors[id(overall)], ew)) for c in final}
+
+    def parsimonious(pool: list[Candidate]) -> Candidate | None:
+        if not pool:
+            return None
+        best = min(pool, key=lambda c: c.score)
+        ses = {id(c): _paired_se(errors[id(c)], errors[id(best)], ew) for c in pool}
+        close = [c for c in pool if c.score <= best.score + min(ses[id(c)], PARSIMONY_CAP * best.score)]
+        return min(close, key=lambda c: (c.n_params, c.objective != "xyz", c.score))
+
+    rivals: tuple = ()
     while True:
-        best = min(remaining, key=lambda c: c.score)
-        ses = {id(c): _paired_se(errors[id(c)], errors[id(best)], ew) for c in remaining}
-        close = [c for c in remaining if c.score <= best.score + min(ses[id(c)], PARSIMONY_CAP * best.score)]
-        picked = min(close, key=lambda c: (c.n_params, c.objective != "xyz", c.score))
-        if not scored:
-            scored = {id(c): replace(c, score_se=ses[id(c)]) for c in final}
+        picked = parsimonious([c for c in remaining if c.training == "chart"])
+        rival = parsimonious([c for c in remaining if c.training == "spectral"])
+        if rival is not None:
+            rivals = tuple(x for x in (picked, rival) if x is not None)
+            if picked is None or scored[id(rival)].loo_mean < scored[id(picked)].loo_mean:
+                picked = rival
         if exportable is None:
             break
-        model = fit_model(picked.spec, RGB, XYZ, objective=picked.objective, regularisation=picked.regularisation,
-                          white_XYZ=white_XYZ, weights=weights)
+        model = fitter(picked.spec, picked.objective, picked.regularisation, white_XYZ,
+                       extra if picked.training == "spectral" else None)(RGB, XYZ, weights)
         try:
             error = exportable(model)
         except CamcalError as refusal:
@@ -288,9 +346,8 @@ def select_model(
         checked[id(picked)] = replace(scored[id(picked)], exportable=True, bake_error_max=error)
         break
     everything = tuple(checked.get(id(c), scored[id(c)]) for c in final)
-    if exportable is not None:
-        picked = next(c for c in everything if c.exportable)
-    else:
-        picked = scored[id(picked)]
+    final_of = {id(c): x for c, x in zip(final, everything)}
+    picked = final_of[id(picked)]
     return Selection(picked=picked, candidates=everything,
-                     score_name="leave-one-out" if validation is None else "held-out")
+                     score_name="leave-one-out" if validation is None else "held-out",
+                     rivals=tuple(final_of[id(r)] for r in rivals))

@@ -1,0 +1,61 @@
+"""``auto``: held-out score, the one-standard-error parsimony rule (capped), the spectral route, the ranking."""
+
+import numpy as np
+import pytest
+
+from camcal.colour.chart.patches import PatchSet
+from camcal.colour.fit.characterise import characterise
+from camcal.colour.fit.select import PARSIMONY_CAP, select_model
+from camcal.colour.fit.synthetic import synthesise_from_chart
+
+SIMPLE = ("matrix3x3", "polynomial:7", "root-polynomial:2")
+
+
+def _simpler(a, b):
+    return (a.n_params, a.objective != "xyz") < (b.n_params, b.objective != "xyz")
+
+
+def test_pick_is_the_simplest_within_one_standard_error_capped(sim):
+    selection = select_model(sim.RGB_train, sim.XYZ_train, sim.white, objectives=("xyz",), candidates=SIMPLE)
+    best = selection.best
+    p = selection.picked
+    assert p.score <= best.score + min(p.score_se, PARSIMONY_CAP * best.score) + 1e-12
+    for c in selection.candidates:  # nothing simpler than the pick was within its margin of the best
+        if _simpler(c, p):
+            assert c.score > best.score + min(c.score_se, PARSIMONY_CAP * best.score)
+    lines = selection.ranking()
+    assert len(lines) == len(selection.candidates) and sum("<- picked" in line for line in lines) == 1
+    assert [float(line.split("leave-one-out ")[1].split()[0]) for line in lines] == sorted(
+        round(c.score, 3) for c in selection.candidates)
+
+
+def test_weights_change_nothing_when_equal(sim):
+    plain = select_model(sim.RGB_train, sim.XYZ_train, sim.white, objectives=("xyz",), candidates=SIMPLE)
+    equal = select_model(sim.RGB_train, sim.XYZ_train, sim.white, objectives=("xyz",), candidates=SIMPLE,
+                         weights=np.full(len(sim.RGB_train), 3.0))
+    assert [c.score for c in plain.candidates] == pytest.approx([c.score for c in equal.candidates], rel=1e-9)
+
+
+def test_spectral_route_scored_on_held_out_colours_and_says_why(sim):
+    """Sensitivities estimated from the 24 patches alone; the spectral candidates trained on 300 Munsell colours
+    through them beside the chart; everything scored on 300 other Munsell colours; chart-only against
+    spectral decided on the chart's own patches held out."""
+    train = PatchSet(sim.names_train, sim.RGB_train * 0.37, sim.XYZ_train)  # any exposure
+    synthetic = synthesise_from_chart(train, "BabelColor Average", "D65")
+    assert synthetic.chart_rms < 0.02 and len(synthetic.training) == len(synthetic.held_out) == 300
+    white = sim.white
+    xy = f"{white[0] / white.sum():.10f},{white[1] / white.sum():.10f}"
+    test = PatchSet(sim.names_test, sim.RGB_test * 0.37, sim.XYZ_test)
+    out = characterise(train, white=xy, model="auto", objective="xyz", candidates=SIMPLE, test=test,
+                       spectra="BabelColor Average", illuminant="D65")
+    selection = out.selection
+    assert selection.score_name == "held-out" and {c.training for c in selection.candidates} == {"chart", "spectral"}
+    chart, spectral = selection.rivals
+    assert chart.training == "chart" and spectral.training == "spectral"
+    winner = spectral if spectral.loo_mean < chart.loo_mean else chart
+    assert selection.picked is winner
+    assert ("spectral route written" if winner is spectral else "chart-only fit written") in selection.reason
+    assert "spectral route: sensitivities estimated from the chart's 24 patches" in out.summary()
+    assert out.fit.selection["picked"]["training"] == winner.training
+    # the written fit is the one judged: the independent figure is of the picked route's model
+    assert out.result.stats_test.mean < 1.2
