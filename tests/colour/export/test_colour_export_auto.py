@@ -9,7 +9,7 @@ from camcal.colour.export.icc import icc_profile_from_fit  # noqa: E402
 from camcal.io.ocio import export_ocio  # noqa: E402
 from camcal.io.colourfile import load_fit  # noqa: E402
 from camcal.colour.chart.patches import PatchSet  # noqa: E402
-from camcal.colour.fit.select import PARSIMONY_CAP, select_model  # noqa: E402
+from camcal.colour.fit.select import select_model  # noqa: E402
 from camcal.base.errors import CamcalError  # noqa: E402
 from camcal.io.colourfile import save_colour_file
 from colour_export_helpers import make_fit  # noqa: E402
@@ -32,10 +32,9 @@ def test_auto_walks_down_its_ranking_past_refused_models(sim):
     assert checked.picked.spec.kind == "matrix3x3" and checked.picked.exportable is True
     refused = [c for c in checked.candidates if c.exportable is False]
     # every candidate ranked above the matrix was asked, in order, and refused
-    # (every candidate more than the parsimony cap below the matrix was, and none above the matrix)
-    better = {c.label for c in plain.candidates if c.score < checked.picked.score * (1 - PARSIMONY_CAP)}
-    assert better <= {c.label for c in refused} and len(refused) == len(asked) - 1 and asked[-1] == "matrix3x3"
-    assert all(c.score < checked.picked.score for c in refused)
+    # asked in order, the unchecked pick first, the matrix last, every other one refused
+    assert len(refused) == len(asked) - 1 and asked[-1] == "matrix3x3" and asked[0] == plain.picked.spec.label
+    assert plain.picked.label in {c.label for c in refused}
     assert all(c.bake_error_max == pytest.approx(1.234) for c in refused)
     assert "failed the export bake check" in checked.reason
     data = checked.to_dict()
