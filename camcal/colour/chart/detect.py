@@ -358,13 +358,15 @@ def patches_from_image(
         ``(H, W)`` saturated pixels (a raw file's flags).
     linear
         The image is linear with the black level subtracted (raw): no floor
-        at 0, values below black kept in the patch means.
+        at 0, values below black kept in the patch means, and the patches
+        weighted by their signal-to-noise ratio (encoded images: no weights,
+        their code values' noise is not the noise in linear light).
 
     Returns
     -------
     ChartPatches
         Code values normalised to [0, 1] and XYZ relative to the chart's
-        white; the patches weighted by their signal-to-noise ratio.
+        white.
     """
     if corners is None:
         detection = detect_chart(image, chart.rows, chart.columns)
@@ -376,5 +378,6 @@ def patches_from_image(
         samples = sample_patches(image, detection, saturated=saturated)
     keep = np.ones(len(chart.patch_names), dtype=bool) if keep_clipped else ~samples.clipped
     excluded = tuple(n for n, k in zip(chart.patch_names, keep) if not k)
-    patches = PatchSet(chart.patch_names, samples.RGB, chart.XYZ, samples.weights).subset(keep)
+    # weights only where the noise is measured in linear light: a code value's noise is not the linear one
+    patches = PatchSet(chart.patch_names, samples.RGB, chart.XYZ, samples.weights if linear else None).subset(keep)
     return ChartPatches(patches, chart, detection, samples, excluded)

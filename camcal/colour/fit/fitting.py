@@ -121,7 +121,6 @@ def fit_linear_terms(
     N = RGB.shape[0]
     w = normalised_weights(weights, N)
     A = expand(RGB, terms)
-    Aw = A * w[:, None]
     penalty = nonlinear_mask(terms).astype(np.float64) * float(regularisation)
     white_XYZ = np.asarray(white_XYZ, dtype=np.float64)
 
@@ -143,8 +142,12 @@ def fit_linear_terms(
 
         p0 = Z.ravel()
     else:
-        ATA = Aw.T @ A / N + np.diag(penalty)
-        M = np.linalg.lstsq(ATA, Aw.T @ XYZ / N, rcond=None)[0].T
+        # least squares on the (weighted) design itself, the ridge as extra rows: the objective of the
+        # module docstring without forming the normal equations (as accurate as colour-science's lstsq)
+        root = np.sqrt(w / N)[:, None]
+        design = np.vstack([root * A, np.diag(np.sqrt(penalty))])
+        target = np.vstack([root * XYZ, np.zeros((T, 3))])
+        M = np.linalg.lstsq(design, target, rcond=None)[0].T
 
         def unpack(p: np.ndarray) -> np.ndarray:
             return p.reshape(-1, 3, T)
