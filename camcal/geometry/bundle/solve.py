@@ -425,7 +425,8 @@ def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, pro
     if sigma2 > 0:
         for cost in costs:
             cost.weight = np.sqrt(sigma2) / cost.prior.sigma
-    inverse, n_left_out = marginal_covariance(problem, reconstruction, blocks)
+    # the priors are Python cost functions: one thread, or the Jacobian's evaluation waits on the GIL forever
+    inverse, n_left_out = marginal_covariance(problem, reconstruction, blocks, num_threads=1 if costs else 2)
     if inverse.size == 0:
         return np.zeros((0, 0)), (), n_left_out
     scale = np.asarray(scales)
