@@ -27,7 +27,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "(mapped with SIMPLE_RADIAL, then refined as OPENCV_FISHEYE)")
     parser.add_argument("--camera-model", help="COLMAP camera model to map with; alone, it is kept (no choice)")
     parser.add_argument("--principal-point", default="auto", choices=("auto", "refine", "centre"),
-                        help="refine it where its sigma says the views determine it (auto), always, or never")
+                        help="refine it under the sensor's prior, the image centre +- 2 %% of the diagonal (auto), "
+                        "by the images alone (refine), or hold it at the centre")
+    parser.add_argument("--prior", action="append", default=[], metavar="CAMERA.NAME=MEAN+-SIGMA",
+                        help="a Gaussian prior on an intrinsic (f, fx, fy, aspect, cx, cy, lambda, k1, k2, p1, p2; "
+                        "camcal's units and pixel convention), e.g. left.f=1200+-30; repeatable. The rig's "
+                        "intrinsics and sigmas are then the posterior's")
     parser.add_argument("--uncertainty", default="jackknife", choices=("jackknife", "covariance"),
                         help="sigmas: the larger of the covariance and a delete-one-frame jackknife (one more "
                         "refinement per frame, at most 20), which sees errors an image's features share; "
@@ -48,11 +53,12 @@ def register(parser: argparse.ArgumentParser) -> None:
 def _solve(args: argparse.Namespace) -> int:
     """One folder per camera (or one folder of per-camera sub-folders, or --camera NAME=GLOB inside one folder);
     several cameras form a rig whose frames pair up by sorted order. Each camera's lens model is chosen by
-    held-out residual and the principal point is refined where its sigma says the views determine it (both
-    printed). Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
+    held-out residual; the principal point and the lens are refined under the sensor's Gaussian priors and the
+    user's (--prior), and what the images do not determine is said with its sigma. Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
     """
     from pathlib import Path
 
+    from camcal.geometry.bundle import parse_prior
     from camcal.geometry.selfcal import LENS_MODELS, MODELS
     from camcal.pipelines.solve import collect_images, solve_pycolmap_plain, solve_sfm
     from camcal.model.rig import Rig
@@ -80,7 +86,7 @@ def _solve(args: argparse.Namespace) -> int:
     result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
                        seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
                        lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features,
-                       jackknife=args.uncertainty == "jackknife",
+                       jackknife=args.uncertainty == "jackknife", priors=tuple(parse_prior(text) for text in args.prior),
                        progress=lambda message: print(f"camcal solve: {message}", file=sys.stderr, flush=True))
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
@@ -110,7 +116,8 @@ def _solve(args: argparse.Namespace) -> int:
     if result.self_calibration is not None:
         calibration = result.self_calibration
         out.figures(lens_models=calibration.lens_models, heldout_rms_px_by_model=calibration.heldout_rms_px,
-                    principal_point={d.camera: {"refined": d.refined, "limit_px": d.limit_px,
+                    principal_point={d.camera: {"refined": d.refined, "determined": d.determined,
+                                                "prior_sigma_px": d.prior_sigma_px if math.isfinite(d.prior_sigma_px) else None,
                                                 "sigma_px": [v if math.isfinite(v) else None for v in d.sigma_px],
                                                 "reason": d.reason} for d in calibration.principal_point},
                     uncertainty={"covariance_sigmas": calibration.covariance_sigmas,

@@ -38,6 +38,7 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import (
     BundleOptions,
     BundleResult,
+    PriorSpec,
     bundle_adjust,
     hold_rig,
     state_from_reconstruction,
@@ -182,6 +183,7 @@ def solve_sfm(
     max_num_features: int = 8192,
     progress: Callable[[str], None] | None = None,
     jackknife: bool = True,
+    priors: tuple[PriorSpec, ...] = (),
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -218,14 +220,18 @@ def solve_sfm(
         (:func:`self_calibrate`); one model is used as given; None keeps
         ``camera_model``.
     principal_point : {"auto", "refine", "centre"}
-        Refine the principal point where its sigma says the views determine
-        it (``auto``), always, or never (COLMAP's default).
+        Refine the principal point (and the lens) under the sensor's
+        Gaussian priors (``auto``), by the images alone, or hold it at the
+        image centre (COLMAP's default).
     max_num_features : int
         SIFT features per image (pycolmap's ``max_num_features``).
     progress : callable, optional
         Called with each stage's message (the CLI prints them to stderr).
     jackknife : bool
         Sigmas also by the delete-one-frame jackknife (:func:`self_calibrate`).
+    priors : tuple of PriorSpec
+        Gaussian priors on intrinsics (e.g. ``parse_prior("left.f=1200+-30")``);
+        the rig's intrinsics are then the posterior's.
 
     Returns
     -------
@@ -250,7 +256,8 @@ def solve_sfm(
         missing = [name for name in images if name not in {camera.name for camera in known_rig.cameras}]
         if missing:
             raise CamcalError(f"the known rig has no camera named {', '.join(map(repr, missing))}")
-    options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None)
+    options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
+    free_pp = dict(refine_principal_point=principal_point != "centre", default_priors=principal_point == "auto")
     staged = _stage_images(images, image_dir)
     image_names = list(staged)
     if len(image_names) < 2:
@@ -311,13 +318,13 @@ def solve_sfm(
         if known_rig is not None:
             state = hold_rig(state, relative_poses(known_rig, state.camera_names[0]))
         if lens_models is None:
-            pp_options = dataclasses.replace(options, refine_principal_point=principal_point == "refine")
+            pp_options = dataclasses.replace(options, **free_pp)
             bundle = bundle_adjust(state, pp_options)
         else:
             # the mapper's principal point is the image centre: free it once, then drop the matches
             # that no camera model explains (mismatches, features astride an occluding edge)
             _say(progress, "bundle adjustment (camcal) with the principal point free, then outlier rejection")
-            pre = bundle_adjust(state, dataclasses.replace(options, refine_principal_point=principal_point != "centre"))
+            pre = bundle_adjust(state, dataclasses.replace(options, **free_pp))
             state_to_reconstruction(pre.state, reconstruction)
             _say(progress, reject_outliers(reconstruction))
             state = state_from_reconstruction(reconstruction, names)
