@@ -19,7 +19,8 @@ Two kinds of planar target:
 ``charuco:DICT:WxH:SQUARE:MARKER``
     A ChArUco board of ``W x H`` SQUARES with ArUco markers from the
     dictionary ``DICT`` (e.g. ``DICT_5X5_100``), detected with
-    ``cv2.aruco.CharucoDetector``; corners may be partially visible.
+    ``cv2.aruco.CharucoDetector``; corners may be partially visible; refined
+    like a chessboard's, on the part of each square the marker leaves clear.
 
 Board coordinates: corner ``id`` of a chessboard is ``row * W + col`` at
 ``(col * square, row * square, 0)``; ChArUco corners are those of
@@ -64,6 +65,7 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.base.atomic import atomic_path
+from camcal.geometry.corners import grid_spacing_px, refine_corners
 from camcal.io.frames import imread
 
 __all__ = [
@@ -91,7 +93,7 @@ _SUBPIX_WINDOW_PX = (3, 15)
 #: Fewest ChArUco corners kept in one image (a pose needs non-collinear points).
 MIN_CHARUCO_CORNERS = 6
 #: Part of every cache key: change it whenever detection changes what it returns.
-_DETECTOR_VERSION = "half-classic-sb-subpix-adaptive-v4"
+_DETECTOR_VERSION = "half-classic-sb-subpix-adaptive-xfit-v5"
 
 
 @dataclass(frozen=True)
@@ -288,6 +290,12 @@ def _canonical_chessboard(gray: NDArray[np.uint8], corners: NDArray[np.float64],
     return grid.reshape(-1, 2)
 
 
+def _refine(gray: NDArray[np.uint8], corners: NDArray, grid: NDArray[np.int64], clear: float) -> NDArray[np.float64]:
+    """The X-junction fit of :func:`camcal.geometry.corners.refine_corners` (``clear``: part of a square free of markers)."""
+    corners = corners.reshape(-1, 2).astype(np.float64)
+    return refine_corners(gray, corners, clear * grid_spacing_px(corners, grid)).corners_px
+
+
 def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection | None:
     """Find ``board`` in one image.
 
@@ -317,8 +325,10 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         # them again with cornerSubPix, which converges to the saddle point whatever the start
         corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), _SUBPIX_CRITERIA)
         ids = ids.ravel().astype(np.int64)
+        grid = np.stack([ids % (board.columns - 1), ids // (board.columns - 1)], axis=1)
+        corners = _refine(gray, corners, grid, 0.8 * (board.square - board.marker) / board.square)
         order = np.argsort(ids)
-        return Detection(name, (width, height), ids[order], corners.reshape(-1, 2).astype(np.float64)[order], "charuco")
+        return Detection(name, (width, height), ids[order], corners[order], "charuco")
     pattern = (board.columns, board.rows)
     found = False
     if min(height, width) >= _HALF_SIZE_MIN_PX:
@@ -345,7 +355,9 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
     spacing = min(np.linalg.norm(np.diff(grid, axis=axis), axis=2).min() for axis in (0, 1))
     half = int(np.clip(round(_SUBPIX_WINDOW_FRACTION * spacing), *_SUBPIX_WINDOW_PX))
     corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
-    corners = _canonical_chessboard(gray, corners.reshape(-1, 2).astype(np.float64), board.columns, board.rows)
+    col, row = np.meshgrid(np.arange(board.columns), np.arange(board.rows))
+    corners = _refine(gray, corners, np.stack([col.ravel(), row.ravel()], axis=1), 1.0)
+    corners = _canonical_chessboard(gray, corners, board.columns, board.rows)
     return Detection(name, (width, height), np.arange(board.n_corners, dtype=np.int64), corners, detector)
 
 
