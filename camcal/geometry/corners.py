@@ -252,12 +252,10 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
     normal[:, 9, 9] += rms**2 / _SAGITTA_PRIOR_PX**2
     normal[:, 10, 10] += rms**2 / _SAGITTA_PRIOR_PX**2
     sigma = np.full(n, np.nan)
-    for i in range(n):
-        try:
-            cov = np.linalg.inv(normal[i])
-            sigma[i] = rms[i] * np.sqrt(max(cov[0, 0] + cov[1, 1], 0.0) / 2)
-        except np.linalg.LinAlgError:
-            pass
+    finite = np.isfinite(normal).all(axis=(1, 2)) & (np.linalg.cond(np.where(np.isfinite(normal), normal, 0.0)) < 1e14)
+    if finite.any():
+        cov = np.linalg.inv(normal[finite])
+        sigma[finite] = rms[finite] * np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 0.0) / 2)
     params[:, 0:2] += base
     return params, converged, rms, sigma, valid.reshape(n, -1).any(axis=1)
 
@@ -323,7 +321,11 @@ def refine_corners(
     a taper that moves with the centre (flat to 0.7 r, zero at r), so that
     a point-symmetric corner sees a point-symmetric window. It runs on the
     level of a 2x area-averaging pyramid where ``r <= WINDOW_CAP_PX``
-    (a corner in 4K with 300 px squares: level 3). A corner is rejected
+    (a corner in 4K with 300 px squares: level 3), then once more on a
+    window clear of the neighbouring corners by three fitted blur widths
+    where the blur reaches them, and once more a level finer where the
+    edges are sharper than half a pixel of the level (on half the window:
+    the same cost). A corner is rejected
     (``ok`` False) when the fit diverges, moves by more than a quarter of
     the square, finds no contrast above its residual or the two edges
     within 12 degrees of each other.
@@ -366,23 +368,39 @@ def refine_corners(
     level[usable] = np.maximum(0, np.ceil(np.log2(radius_full[usable] / WINDOW_CAP_PX))).astype(np.int64)
     pyramid = _level_images(gray.astype(np.float32), int(level[usable].max()))
     level = np.minimum(level, len(pyramid) - 1)
-    for lv in np.unique(level[usable]):
-        idx = np.flatnonzero(usable & (level == lv))
+
+    def fit(idx: NDArray, starts: NDArray, radii: NDArray, lv: int) -> None:
+        """Fit corners ``idx`` at level ``lv``; a refit replaces only the earlier results it improves on."""
         k = 2.0**lv
-        start = (corners[idx] - (k - 1) / 2) / k
-        radius = np.maximum(radius_full[idx] / k, 2.5)
-        params, converged, res_rms, sig, seen = _fit_level(pyramid[lv], start, radius, max_iterations)
+        radius = np.maximum(radii / k, 2.5)
+        params, converged, res_rms, sig, seen = _fit_level(pyramid[lv], (starts - (k - 1) / 2) / k, radius, max_iterations)
         refined = params[:, :2] * k + (k - 1) / 2
         shift = np.hypot(*(refined - corners[idx]).T)
         angle = np.abs(np.mod(params[:, 2] - params[:, 3] + np.pi / 2, np.pi) - np.pi / 2)
         good = (converged & seen & np.isfinite(refined).all(axis=1) & (shift <= MAX_SHIFT_FRACTION * squares[idx])
-                & (np.abs(params[:, 6]) > 3 * res_rms) & (angle > np.radians(12))
-                & (params[:, 4] < radius))
-        out[idx[good]] = refined[good]
+                & (np.abs(params[:, 6]) > 3 * res_rms) & (angle > np.radians(12)) & (params[:, 4] < radius))
+        write = good | ~ok[idx]
+        idx, good = idx[write], good[write]
+        out[idx] = np.where(good[:, None], refined[write], corners[idx])
         ok[idx] = good
-        rms[idx] = res_rms
-        blur[idx] = params[:, 4] * k
-        sigma[idx] = sig * k
+        rms[idx] = res_rms[write]
+        blur[idx] = params[write, 4] * k
+        sigma[idx] = sig[write] * k
+
+    for lv in np.unique(level[usable]):
+        idx = np.flatnonzero(usable & (level == lv))
+        fit(idx, corners[idx], radius_full[idx], int(lv))
+    # blur that reaches the next corners: a window clear of them by 3 blur widths, from the fit's corner
+    clear = squares - 3.0 * blur
+    again = np.flatnonzero(ok & (clear < radius_full) & (clear >= 0.25 * squares))
+    for lv in np.unique(level[again]):
+        idx = again[level[again] == lv]
+        fit(idx, out[idx], clear[idx], int(lv))
+    # edges sharper than half a pixel of the level: once more a level finer, on a window of the same size there
+    finer = np.flatnonzero(ok & (level >= 1) & (blur < 0.5 * 2.0**level))
+    for lv in np.unique(level[finer]):
+        idx = finer[level[finer] == lv]
+        fit(idx, out[idx], np.minimum(np.minimum(radius_full[idx], clear[idx]), WINDOW_CAP_PX * 2.0 ** (lv - 1)), int(lv) - 1)
     return CornerRefinement(out, ok, rms, blur, sigma)
 
 
