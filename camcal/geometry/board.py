@@ -7,7 +7,7 @@ Two kinds of planar target:
     squares of side ``SQUARE`` (in the board's units, e.g. metres, or 1.0
     to measure in squares). Found by ``cv2.findChessboardCorners`` (the
     fastest; on a half-size copy first when the image is 400 px or more
-    on both sides), falling back to ``cv2.findChessboardCornersSB`` (plain, then
+    on both sides, a quarter-size one before it from 1600 px), falling back to ``cv2.findChessboardCornersSB`` (plain, then
     with its exhaustive and accuracy flags) when it fails; either way
     refined by ``cv2.cornerSubPix`` with a window of half-size
     ``0.45 x`` the smallest corner spacing in the image (3 to 15 px): a
@@ -19,7 +19,8 @@ Two kinds of planar target:
 ``charuco:DICT:WxH:SQUARE:MARKER``
     A ChArUco board of ``W x H`` SQUARES with ArUco markers from the
     dictionary ``DICT`` (e.g. ``DICT_5X5_100``), detected with
-    ``cv2.aruco.CharucoDetector``; corners may be partially visible.
+    ``cv2.aruco.CharucoDetector``; corners may be partially visible; refined
+    like a chessboard's, on the part of each square the marker leaves clear.
 
 Board coordinates: corner ``id`` of a chessboard is ``row * W + col`` at
 ``(col * square, row * square, 0)``; ChArUco corners are those of
@@ -56,6 +57,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.geometry.corners import grid_spacing_px, refine_corners
 
 __all__ = [
     "DETECTOR_SETTINGS",
@@ -73,7 +75,7 @@ __all__ = [
 _SB_FLAGS = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
-#: Images at least this large (both sides) are searched at half size first.
+#: Images at least this large (both sides) are searched at half size first (twice as large: quarter size).
 _HALF_SIZE_MIN_PX = 400
 #: cornerSubPix half-window as a fraction of the smallest corner spacing, and its bounds in px.
 _SUBPIX_WINDOW_FRACTION = 0.45
@@ -81,7 +83,7 @@ _SUBPIX_WINDOW_PX = (3, 15)
 #: Fewest ChArUco corners kept in one image (a pose needs non-collinear points).
 MIN_CHARUCO_CORNERS = 6
 #: Part of every cache key: change it whenever detection changes what it returns.
-_DETECTOR_VERSION = "half-classic-sb-subpix-adaptive-v4"
+_DETECTOR_VERSION = "half-classic-sb-subpix-adaptive-xfit-v5"
 #: The detector's version and settings: a detection cached under others is not reused.
 DETECTOR_SETTINGS = f"{_DETECTOR_VERSION}|{_SB_FLAGS}|{_CLASSIC_FLAGS}|{_SUBPIX_CRITERIA}|{cv2.__version__}"
 
@@ -280,6 +282,12 @@ def _canonical_chessboard(gray: NDArray[np.uint8], corners: NDArray[np.float64],
     return grid.reshape(-1, 2)
 
 
+def _refine(gray: NDArray[np.uint8], corners: NDArray, grid: NDArray[np.int64], clear: float) -> NDArray[np.float64]:
+    """The X-junction fit of :func:`camcal.geometry.corners.refine_corners` (``clear``: part of a square free of markers)."""
+    corners = corners.reshape(-1, 2).astype(np.float64)
+    return refine_corners(gray, corners, clear * grid_spacing_px(corners, grid)).corners_px
+
+
 def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection | None:
     """Find ``board`` in one image.
 
@@ -309,17 +317,20 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         # them again with cornerSubPix, which converges to the saddle point whatever the start
         corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), _SUBPIX_CRITERIA)
         ids = ids.ravel().astype(np.int64)
+        grid = np.stack([ids % (board.columns - 1), ids // (board.columns - 1)], axis=1)
+        corners = _refine(gray, corners, grid, 0.8 * (board.square - board.marker) / board.square)
         order = np.argsort(ids)
-        return Detection(name, (width, height), ids[order], corners.reshape(-1, 2).astype(np.float64)[order], "charuco")
+        return Detection(name, (width, height), ids[order], corners[order], "charuco")
     pattern = (board.columns, board.rows)
     found = False
-    if min(height, width) >= _HALF_SIZE_MIN_PX:
-        # find the board on a half-size image (4x fewer pixels, 5x faster on the real pairs);
-        # cornerSubPix below refines at full size from there: pixel centres map as 2 x + 0.5
-        half = cv2.resize(gray, (width // 2, height // 2), interpolation=cv2.INTER_AREA)
-        found, corners = cv2.findChessboardCorners(half, pattern, flags=_CLASSIC_FLAGS)
-        if found:
-            corners = 2.0 * corners + 0.5
+    for factor in (4, 2):  # a quarter-size copy first from 1600 px on both sides (4K frames)
+        if not found and min(height, width) >= _HALF_SIZE_MIN_PX * factor // 2:
+            # find the board on a reduced image (4x fewer pixels at half size, 5x faster on the real
+            # pairs); the refinement below works at full size: pixel centres map as f x + (f - 1) / 2
+            small = cv2.resize(gray, (width // factor, height // factor), interpolation=cv2.INTER_AREA)
+            found, corners = cv2.findChessboardCorners(small, pattern, flags=_CLASSIC_FLAGS)
+            if found:
+                corners = factor * corners + (factor - 1) / 2
     if not found:
         found, corners = cv2.findChessboardCorners(gray, pattern, flags=_CLASSIC_FLAGS)
     detector = "classic"
@@ -337,7 +348,9 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
     spacing = min(np.linalg.norm(np.diff(grid, axis=axis), axis=2).min() for axis in (0, 1))
     half = int(np.clip(round(_SUBPIX_WINDOW_FRACTION * spacing), *_SUBPIX_WINDOW_PX))
     corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
-    corners = _canonical_chessboard(gray, corners.reshape(-1, 2).astype(np.float64), board.columns, board.rows)
+    col, row = np.meshgrid(np.arange(board.columns), np.arange(board.rows))
+    corners = _refine(gray, corners, np.stack([col.ravel(), row.ravel()], axis=1), 1.0)
+    corners = _canonical_chessboard(gray, corners, board.columns, board.rows)
     return Detection(name, (width, height), np.arange(board.n_corners, dtype=np.int64), corners, detector)
 
 
