@@ -182,7 +182,8 @@ def _held_indices(state: BundleState, camera: int, options: BundleOptions) -> li
 
 
 def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
-                  progress: Callable[[int, int], None] | None = None) -> BundleResult:
+                  progress: Callable[[int, int], None] | None = None,
+                  inspect: Callable[[object, _Colmap], None] | None = None) -> BundleResult:
     """Refine a reconstruction on Ceres: shared intrinsics, shared rig, frames, points, board.
 
     Parameters
@@ -201,6 +202,10 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
         and with ``done = total`` once the covariance is computed. An
         exception it raises stops the solve and propagates. Nothing is
         printed; :meth:`BundleResult.summary` describes the run.
+    inspect : callable, optional
+        Called as ``inspect(problem, colmap)`` once Ceres has stopped, with
+        the Ceres problem at the solution and the reconstruction it refines
+        (:mod:`camcal.geometry.bundle.deletion` reads its Jacobian).
 
     Returns
     -------
@@ -268,6 +273,8 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
         solver_options.callbacks = [_iteration_callback(progress, total)]
     summary = pyceres.SolverSummary()
     pyceres.solve(solver_options, problem, summary)
+    if inspect is not None:
+        inspect(problem, colmap)
     if progress is not None:
         progress(options.max_iterations, total)
     refined = _from_colmap(state, colmap)
