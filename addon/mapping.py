@@ -391,16 +391,24 @@ def polynomial_undistort(point, center, focal, ks, iterations=50):
 
 
 def opencv_distort(point, center, focal, params):
-    """OpenCV's radial-tangential model (k1, k2, p1, p2[, k3]) in coordinates
-    normalised by one ``focal`` around ``center`` (y down)."""
+    """OpenCV's model (k1, k2, p1, p2[, k3][, k4, k5, k6][, s1..s4]) in coordinates
+    normalised by one ``focal`` around ``center`` (y down).
+
+    ``radial = (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)``,
+    ``x_d = x radial + 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4``,
+    ``y_d = y radial + p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4``
+    (OpenCV's calib3d documentation)."""
     x = (point[0] - center[0]) / focal
     y = (point[1] - center[1]) / focal
     r2 = x * x + y * y
     k1, k2, k3 = params["k1"], params["k2"], params.get("k3", 0.0)
+    k4, k5, k6 = params.get("k4", 0.0), params.get("k5", 0.0), params.get("k6", 0.0)
     p1, p2 = params["p1"], params["p2"]
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    radial = (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / (1.0 + r2 * (k4 + r2 * (k5 + r2 * k6)))
     xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
     yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    xd += r2 * (params.get("s1", 0.0) + r2 * params.get("s2", 0.0))
+    yd += r2 * (params.get("s3", 0.0) + r2 * params.get("s4", 0.0))
     return (center[0] + xd * focal, center[1] + yd * focal)
 
 
@@ -462,7 +470,9 @@ def blender_lens(distortion, K, image_size, margins=(0, 0)):
         ``POLYNOMIAL`` (radius normalised by the focal length ``fx``).
         ``opencv`` becomes ``BROWN`` with ``brown_p1 = p2`` and
         ``brown_p2 = -p1`` (libmv swaps OpenCV's tangential terms, and
-        Blender's y axis points up); exact only with fx == fy.
+        Blender's y axis points up); exact only with fx == fy and
+        without OpenCV's rational (k4..k6) and thin-prism (s1..s4) terms,
+        which BROWN lacks (left out, said in ``note``).
     K : 3x3
         Gives the focal length (pixels) used for normalised models.
     image_size : (W, H)
@@ -501,7 +511,11 @@ def blender_lens(distortion, K, image_size, margins=(0, 0)):
         }
     else:  # rigfile validates models; keep the error explicit anyway
         raise ValueError(f"unknown distortion model {model!r}")
-    if model in ("polynomial", "opencv") and (abs(fx - fy) > 1e-9 * fx or K[0][1] != 0):
+    extra = [name for name in ("k4", "k5", "k6", "s1", "s2", "s3", "s4") if p.get(name, 0.0)]
+    if model == "opencv" and extra:
+        # Blender's BROWN model is k1..k4 polynomial + p1, p2: no rational denominator, no thin prism
+        exact, note = False, f"Blender's BROWN model has no {', '.join(extra)}: they are left out (use the ST-maps)"
+    elif model in ("polynomial", "opencv") and (abs(fx - fy) > 1e-9 * fx or K[0][1] != 0):
         # camcal normalises with K^-1 (fx, fy and skew); Blender with fx alone.
         exact, note = False, "Blender normalises both axes by one focal length (fx), without skew"
     return BlenderLens(

@@ -46,7 +46,7 @@ DISTORTION_PARAMS = {
     "none": ((), ()),
     "division": (("lambda",), ()),
     "polynomial": (("k1", "k2"), ("k3",)),
-    "opencv": (("k1", "k2", "p1", "p2", "k3"), ()),
+    "opencv": (("k1", "k2", "p1", "p2", "k3"), ("k4", "k5", "k6", "s1", "s2", "s3", "s4")),
     "kannala-brandt": (("k1", "k2", "k3", "k4"), ()),
 }
 

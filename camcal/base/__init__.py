@@ -1,1 +1,1 @@
-"""Primitives that import nothing else of camcal: errors, progress, atomic writes, JSON files."""
+"""Primitives that import nothing else of camcal: errors, progress, atomic writes, JSON files, fields, limits, frame ranges."""

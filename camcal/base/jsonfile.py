@@ -3,21 +3,25 @@
 Writing: 2-space indentation with arrays of numbers kept on one line (a
 3x3 matrix reads as three rows), floats at ``repr`` precision so that files
 round-trip exactly, NaN and infinity refused. Reading: one-line errors that
-name the file (missing, unreadable, malformed JSON, NaN/Infinity literals).
+name the file (missing, unreadable, malformed JSON, NaN/Infinity literals
+with their field path, and the caps of :mod:`camcal.base.limits`: file size
+and nesting depth).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
 
-from camcal.base.errors import CamcalError
 from camcal.base.atomic import atomic_write_text
+from camcal.base.errors import CamcalError
+from camcal.base.limits import JSON_BYTES, JSON_DEPTH, check_file_size
 
-__all__ = ["dumps", "read_json", "utc_timestamp", "write_json"]
+__all__ = ["dumps", "parse_json", "read_json", "utc_timestamp", "write_json"]
 
 
 def utc_timestamp() -> str:
@@ -59,12 +63,60 @@ def write_json(path: str | os.PathLike, data: Any) -> Path:
     return path
 
 
-def _reject_constant(name: str) -> None:
-    raise CamcalError(f"non-finite number {name} in JSON")
+class _NonFinite:
+    """What a ``NaN`` / ``Infinity`` literal parses to, found by :func:`_check_tree` with its field path."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+
+def _field(path: str, key: Any) -> str:
+    return f"{path}[{key}]" if isinstance(key, int) else f"{path}.{key}" if path else str(key)
+
+
+def _check_tree(data: Any) -> None:
+    """Refuse nesting past :data:`~camcal.base.limits.JSON_DEPTH` and non-finite numbers, naming the field."""
+    cap = JSON_DEPTH.value
+    stack = [(data, "", 0)]
+    while stack:
+        value, path, depth = stack.pop()
+        if isinstance(value, (dict, list)):
+            if depth >= cap:
+                raise CamcalError(f"{path or 'the top level'}: nested deeper than {cap} levels, the cap "
+                                  f"({JSON_DEPTH.how_to_raise()})")
+            items = value.items() if isinstance(value, dict) else enumerate(value)
+            stack.extend((item, _field(path, key), depth + 1) for key, item in items)
+        elif isinstance(value, _NonFinite):
+            raise CamcalError(f"{path or 'the top level'}: non-finite number {value.name} in JSON")
+        elif isinstance(value, float) and not math.isfinite(value):
+            raise CamcalError(f"{path or 'the top level'}: number out of range (read as {value}) in JSON")
+
+
+def parse_json(text: str) -> Any:
+    """Parse JSON text within the caps of :mod:`camcal.base.limits`; one-line :class:`CamcalError` otherwise.
+
+    Refused: malformed JSON, nesting deeper than ``JSON_DEPTH``, ``NaN`` /
+    ``Infinity`` literals and numbers out of the float range (the message
+    names the field, e.g. ``cameras[0].K[0][0]``).
+    """
+    try:
+        data = json.loads(text, parse_constant=_NonFinite)
+    except json.JSONDecodeError as error:
+        raise CamcalError(f"not valid JSON ({error.msg} at line {error.lineno}, column {error.colno})") from None
+    except RecursionError:
+        raise CamcalError(f"not readable JSON: nested deeper than {JSON_DEPTH.value} levels, the cap "
+                          f"({JSON_DEPTH.how_to_raise()})") from None
+    except ValueError as error:  # e.g. an integer past Python's 4300-digit conversion limit
+        raise CamcalError(f"not valid JSON ({str(error).splitlines()[0]})") from None
+    _check_tree(data)
+    return data
 
 
 def read_json(path: str | os.PathLike, what: str = "file") -> Any:
     """Parse a JSON file, raising one-line :class:`CamcalError` on any problem.
+
+    The file's size is checked against :data:`~camcal.base.limits.JSON_BYTES`
+    before it is read, then :func:`parse_json`.
 
     Parameters
     ----------
@@ -73,6 +125,7 @@ def read_json(path: str | os.PathLike, what: str = "file") -> Any:
         What the file is, for messages (``"rig file"``, ``"lines file"``).
     """
     path = Path(path)
+    check_file_size(path, JSON_BYTES, what)
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -80,10 +133,6 @@ def read_json(path: str | os.PathLike, what: str = "file") -> Any:
     except (OSError, UnicodeDecodeError) as error:
         raise CamcalError(f"cannot read {what} {path}: {error}") from None
     try:
-        return json.loads(text, parse_constant=_reject_constant)
-    except json.JSONDecodeError as error:
-        raise CamcalError(
-            f"{path}: not valid JSON ({error.msg} at line {error.lineno}, column {error.colno})"
-        ) from None
+        return parse_json(text)
     except CamcalError as error:
         raise CamcalError(f"{path}: {error}") from None

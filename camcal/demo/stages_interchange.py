@@ -26,7 +26,8 @@ def stage_rig_export(ctx: DemoContext) -> StageResult:
     import cv2  # noqa: PLC0415
     from pxr import Usd, UsdGeom  # noqa: PLC0415
 
-    from camcal.io.interchange import import_rig, max_pixel_residual  # noqa: PLC0415
+    from camcal.io.conversion import max_pixel_residual  # noqa: PLC0415
+    from camcal.io.interchange import import_rig  # noqa: PLC0415
 
     stage = "rig export"
     rig_path = ctx.need("board_rig", stage)

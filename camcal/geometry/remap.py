@@ -17,7 +17,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from camcal.base.errors import CamcalError
-from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera
 
 __all__ = ["RemapMaps", "build_maps", "build_maps_reference", "undistort_homography"]
@@ -100,12 +99,6 @@ def build_maps_reference(camera: Camera, H: ArrayLike, output_size: tuple[int, i
     return _finish(source[:, 0].reshape(height, width), source[:, 1].reshape(height, width))
 
 
-def _opencv_coefficients(distortion: Distortion) -> NDArray[np.float64]:
-    """OpenCV's ``(k1, k2, p1, p2, k3)`` of a ``none`` / ``polynomial`` / ``opencv`` model."""
-    p = distortion.params
-    return np.array([p.get("k1", 0.0), p.get("k2", 0.0), p.get("p1", 0.0), p.get("p2", 0.0), p.get("k3", 0.0)])
-
-
 def build_maps(camera: Camera, H: ArrayLike, output_size: tuple[int, int]) -> RemapMaps:
     """Maps that sample ``camera``'s image at ``distort(H^-1 x_o)``.
 
@@ -129,7 +122,9 @@ def build_maps(camera: Camera, H: ArrayLike, output_size: tuple[int, int]) -> Re
     to < 1e-3 px):
 
     - ``none`` / ``polynomial`` / ``opencv`` without skew:
-      ``cv2.initUndistortRectifyMap(K, dist, I, H K, size, CV_32FC1)``.
+      ``cv2.initUndistortRectifyMap(K, dist, I, H K, size, CV_32FC1)``
+      (``dist`` OpenCV's 5-, 8- or 12-vector, rational and thin prism
+      included).
       OpenCV samples ``K distort((P R)^-1 x_o)`` for a new camera matrix
       ``P`` and rectifying rotation ``R``; with ``R = I`` and ``P = H K``,
       ``(H K)^-1 x_o = K^-1 H^-1 x_o`` is the normalised undistorted point
@@ -148,7 +143,7 @@ def build_maps(camera: Camera, H: ArrayLike, output_size: tuple[int, int]) -> Re
     distortion = camera.distortion
     if distortion.model in ("none", "polynomial", "opencv") and camera.K[0, 1] == 0.0:
         map_x, map_y = cv2.initUndistortRectifyMap(
-            camera.K, _opencv_coefficients(distortion), np.eye(3), H @ camera.K, (width, height), cv2.CV_32FC1
+            camera.K, distortion.opencv_coefficients(), np.eye(3), H @ camera.K, (width, height), cv2.CV_32FC1
         )
         return _finish(map_x, map_y)
     if distortion.model == "kannala-brandt" and camera.K[0, 1] == 0.0 and distortion.max_angle_rad >= 0.5 * np.pi:

@@ -72,6 +72,7 @@ from types import MappingProxyType
 
 import cv2
 import numpy as np
+import scipy.optimize
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
@@ -82,28 +83,39 @@ from camcal.model.camera import chordal_mean_rotation, rotation_angle_deg
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig, make_provenance
 
-__all__ = ["MODELS", "AUTO_MODELS", "MIN_IMAGES", "CalibrationResult", "calibrate_board", "quality_problems"]
+__all__ = ["MODELS", "AUTO_MODELS", "AUTO_MARGIN", "MIN_IMAGES", "ModelScore", "CalibrationResult", "calibrate_board", "quality_problems"]
 
-#: Distortion models and the parameters refined for each.
+#: Lens models a board calibration fits and the distortion parameters refined for each.
 MODELS: Mapping[str, tuple[str, ...]] = MappingProxyType(
-    {"polynomial": ("k1", "k2"), "opencv": ("k1", "k2", "p1", "p2", "k3"), "division": ("lambda",),
-     "kannala-brandt": ("k1", "k2", "k3", "k4")}
+    {"none": (), "division": ("lambda",), "polynomial": ("k1", "k2"), "kannala-brandt": ("k1", "k2", "k3", "k4"),
+     "opencv": ("k1", "k2", "p1", "p2", "k3"),
+     "opencv-rational": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+     "opencv-thin-prism": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")}
 )
-#: The models ``model="auto"`` chooses among (the pinhole ones; OpenCV's pinhole start fails on fisheyes).
-AUTO_MODELS = ("polynomial", "opencv", "division")
+#: The models ``model="auto"`` chooses among, simplest first (the parsimony order): every model.
+AUTO_MODELS = ("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational", "opencv-thin-prism")
+#: ``model="auto"`` keeps the simplest model whose cross-validated RMS is within this share of the best.
+AUTO_MARGIN = 0.01
+#: The camcal distortion model of each fitted lens model.
+_LENS = {"opencv-rational": "opencv", "opencv-thin-prism": "opencv"}
 #: Fewest images with the board per camera.
 MIN_IMAGES = 3
 _INTRINSICS = ("fx", "fy", "cx", "cy")
 _OPENCV_FLAGS = {
+    "none": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K1 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3,
     "polynomial": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,
     "opencv": 0,
+    "opencv-rational": cv2.CALIB_RATIONAL_MODEL,
+    "opencv-thin-prism": cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL,
     "division": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3,
 }
 _MAX_OUTLIER_ROUNDS = 3
 #: camcal model -> the COLMAP model that is exactly it, and the COLMAP parameters held at 0.
 _COLMAP_MODELS: Mapping[str, tuple[str, tuple[str, ...]]] = MappingProxyType({
+    "none": ("PINHOLE", ()),
     "polynomial": ("OPENCV", ("p1", "p2")),
     "opencv": ("FULL_OPENCV", ("k4", "k5", "k6")),
+    "opencv-rational": ("FULL_OPENCV", ()),
     "division": ("SIMPLE_DIVISION", ()),
     "kannala-brandt": ("OPENCV_FISHEYE", ()),
 })
@@ -112,6 +124,35 @@ _MODEL_NOTES = {"division": "division model: fx = fy imposed (COLMAP's SIMPLE_DI
 #: Quality gate (:func:`quality_problems`): a calibration beyond these is not written without --force.
 MAX_RMS_PX = 1.5
 MAX_FOCAL_SIGMA_REL = 0.05
+
+
+@dataclass(frozen=True)
+class ModelScore:
+    """One lens model's cross-validated error in ``model="auto"``.
+
+    Attributes
+    ----------
+    model : str
+        A name of :data:`MODELS`.
+    rms_px : float or None
+        RMS over every held-out view of every fold (each view posed by PnP
+        with the fold's intrinsics held), in pixels; None when ranked out.
+    n_params : int
+        Lens parameters (focal lengths, principal point, distortion).
+    reason : str
+        Why the model was ranked out (empty when scored).
+    """
+
+    model: str
+    rms_px: float | None
+    n_params: int
+    reason: str = ""
+
+    def describe(self) -> str:
+        """``opencv-rational  0.3821 px  (12 parameters)`` or ``... ranked out: <reason>``."""
+        if self.rms_px is None:
+            return f"{self.model}: ranked out: {self.reason}"
+        return f"{self.model}: {self.rms_px:.4f} px held out ({self.n_params} parameters)"
 
 
 @dataclass(frozen=True)
@@ -155,8 +196,11 @@ class CalibrationResult:
     heldout_images : tuple of (str, str)
         ``(camera name, image name)`` of the held-out views.
     model_heldout_rms_px : dict of str to float
-        ``model="auto"``: the RMS of every model tried on the training
-        frames it held out to choose (every 4th).
+        ``model="auto"``: the cross-validated RMS of every model that could
+        be fitted (:func:`_rank_models`).
+    model_ranking : tuple of ModelScore
+        ``model="auto"``: every model, best first, those ranked out last
+        with their reason (:meth:`ModelScore.describe` prints one line each).
     relabelled : tuple of (str, str)
         Views whose corner labelling was turned by a half turn to agree with
         the rig (symmetric chessboards only).
@@ -181,6 +225,7 @@ class CalibrationResult:
     heldout_rms_px: float | None = None
     heldout_images: tuple[tuple[str, str], ...] = ()
     model_heldout_rms_px: Mapping[str, float] = field(default_factory=dict)
+    model_ranking: tuple[ModelScore, ...] = ()
     relabelled: tuple[tuple[str, str], ...] = ()
     dropped: tuple[tuple[str, str], ...] = ()
     notes: tuple[str, ...] = ()
@@ -291,20 +336,77 @@ def _frame_number_or_none(name: str) -> int | None:
 
 
 def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name: str):
-    """OpenCV's calibrateCamera: K, distortion vector and cam_from_board per view."""
+    """OpenCV's calibrateCamera: K, distortion vector and cam_from_board per view.
+
+    With few views OpenCV's own start can diverge (a focal length ten times
+    off). The start is therefore checked against a plain pinhole fit
+    (no distortion, principal point at the image centre: few unknowns, it
+    does not diverge): when the model's fit is not finite, fits worse than
+    that pinhole, or puts the focal length off it by more than a factor of
+    two, the model is fitted again from the pinhole's K
+    (``CALIB_USE_INTRINSIC_GUESS``), and failing that the pinhole itself
+    (zero distortion) is the start.
+    """
     keys = sorted(views)
     if model == "kannala-brandt":
         return _opencv_fisheye_start(board, views, keys, name)
     object_points = [board.object_points[views[k].ids].astype(np.float32) for k in keys]
     image_points = [views[k].corners_px.astype(np.float32).reshape(-1, 1, 2) for k in keys]
-    try:
-        _, K, dist, rvecs, tvecs = cv2.calibrateCamera(
-            object_points, image_points, views[keys[0]].image_size, None, None, flags=_OPENCV_FLAGS[model]
-        )
-    except cv2.error as error:
-        raise CamcalError(f"camera {name!r}: OpenCV calibrateCamera failed ({str(error).strip().splitlines()[-1]})") from None
+    size = views[keys[0]].image_size
+
+    def fit(flags: int, K=None, dist=None):
+        try:
+            rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(object_points, image_points, size, K, dist, flags=flags)
+        except cv2.error as error:
+            return None, _one_line(error)
+        values = np.concatenate([K.ravel(), dist.ravel(), np.ravel(rvecs), np.ravel(tvecs)])
+        return ((rms, K, dist, rvecs, tvecs) if np.all(np.isfinite(values)) and np.isfinite(rms) else None), ""
+
+    plain, reason = fit(_OPENCV_FLAGS["none"] | cv2.CALIB_FIX_PRINCIPAL_POINT)
+    if plain is None:
+        raise CamcalError(f"camera {name!r}: OpenCV calibrateCamera failed ({reason or 'non-finite result'})")
+
+    def sound(candidate) -> bool:
+        return (candidate is not None and candidate[0] <= plain[0] * (1.0 + 1e-9)
+                and all(0.5 < candidate[1][i, i] / plain[1][i, i] < 2.0 for i in (0, 1)))
+
+    chosen, _ = fit(_OPENCV_FLAGS[model])
+    if not sound(chosen):
+        chosen, _ = fit(_OPENCV_FLAGS[model] | cv2.CALIB_USE_INTRINSIC_GUESS, plain[1].copy(), None)
+    if not sound(chosen):
+        chosen = plain
+    _, K, dist, rvecs, tvecs = chosen
     poses = {k: (cv2.Rodrigues(r)[0], t.ravel()) for k, r, t in zip(keys, rvecs, tvecs)}
     return K, dist.ravel(), poses
+
+
+def _poses_in_front(board: Board, views: Mapping[int, Detection], K: NDArray, dist: NDArray,
+                    poses: Mapping[int, tuple[NDArray, NDArray]]) -> dict[int, tuple[NDArray, NDArray]]:
+    """The start poses with every corner in front of the camera (``z > 0``).
+
+    A view whose corners nearly line up (a strip of a board) can get a
+    mirrored pose from OpenCV's start, with the board behind the camera,
+    where no pinhole model images it. Such a view is posed again by
+    ``solvePnP`` (IPPE, then iterative) with the start's K and distortion;
+    a view still behind the camera is left out of the result.
+    """
+    kept = {}
+    for f, (R, t) in poses.items():
+        X = board.object_points[views[f].ids]
+        if np.all(X @ R.T @ [0.0, 0.0, 1.0] + t[2] > 0.0):
+            kept[f] = (R, t)
+            continue
+        for method in (cv2.SOLVEPNP_IPPE, cv2.SOLVEPNP_ITERATIVE):
+            try:
+                ok, rvec, tvec = cv2.solvePnP(X, views[f].corners_px, K, dist, flags=method)
+            except cv2.error:
+                continue
+            if ok:
+                R_new, t_new = cv2.Rodrigues(rvec)[0], tvec.ravel()
+                if np.all((X @ R_new.T + t_new)[:, 2] > 0.0):
+                    kept[f] = (R_new, t_new)
+                    break
+    return kept
 
 
 def _fisheye_flags(*names: str) -> int:
@@ -466,10 +568,14 @@ def _resolve_half_turns(board: Board, names: list[str], by_frame: list[dict], st
 def _colmap_params(model: str, K: NDArray, dist: NDArray) -> NDArray[np.float64]:
     """COLMAP's parameter vector (pixel centre at 0.5) from OpenCV's K and distortion vector."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5
+    if model == "none":
+        return np.array([fx, fy, cx, cy])
     if model == "polynomial":
         return np.array([fx, fy, cx, cy, dist[0], dist[1], 0.0, 0.0])
-    if model == "opencv":
-        return np.array([fx, fy, cx, cy, dist[0], dist[1], dist[2], dist[3], dist[4], 0.0, 0.0, 0.0])
+    if model in ("opencv", "opencv-rational"):  # FULL_OPENCV: k1 k2 p1 p2 k3 k4 k5 k6, OpenCV's order
+        vector = np.zeros(8)
+        vector[:len(dist[:8 if model == "opencv-rational" else 5])] = dist[:8 if model == "opencv-rational" else 5]
+        return np.concatenate([[fx, fy, cx, cy], vector])
     if model == "kannala-brandt":  # OpenCV's fisheye vector is COLMAP's OPENCV_FISHEYE k1..k4
         return np.array([fx, fy, cx, cy, dist[0], dist[1], dist[2], dist[3]])
     # division: x_d ~ x_u (1 - lambda r^2) to first order, so lambda = -k1 / f^2 and COLMAP's k = lambda f^2 = -k1
@@ -483,7 +589,7 @@ def _camcal_lens(model: str, params: NDArray) -> tuple[NDArray[np.float64], Dist
         return np.array([[f, 0.0, cx - 0.5], [0.0, f, cy - 0.5], [0.0, 0.0, 1.0]]), Distortion("division", {"lambda": k / f**2})
     fx, fy, cx, cy = params[:4]
     K = np.array([[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
-    return K, Distortion(model, dict(zip(MODELS[model], (params[4:6] if model == "polynomial" else params[4:9]))))
+    return K, Distortion(_LENS.get(model, model), dict(zip(MODELS[model], params[4:4 + len(MODELS[model])])))
 
 
 def _camcal_covariance(covariance: NDArray, colmap_names: tuple[str, ...], names: list[str], model: str,
@@ -522,7 +628,7 @@ def _camcal_covariance(covariance: NDArray, colmap_names: tuple[str, ...], names
 def calibrate_board(
     board: Board,
     detections: Mapping[str, Sequence[Detection]],
-    model: str = "polynomial",
+    model: str = "auto",
     units: str = "m",
     outlier_factor: float = 3.0,
     min_outlier_px: float = 1.0,
@@ -538,16 +644,25 @@ def calibrate_board(
         The target; its square size sets the unit of every length.
     detections : mapping of str to sequence of Detection
         Camera name -> the board detections of its images (from
-        :func:`camcal.geometry.board.detect_in_images`). The first camera
+        :func:`camcal.pipelines.board.detect_in_images`). The first camera
         is the reference. Views are matched (and held out) by the frame
         number in the image file names (one camera with repeated numbers:
         by position).
     model : str
-        ``polynomial`` (k1, k2), ``opencv`` (k1, k2, p1, p2, k3),
-        ``division`` (Strand & Hayman lambda, centred on the principal
-        point, fx = fy) or ``auto`` (the one with the lowest RMS on every 4th
-        training frame, held out for the choice; ``holdout`` is never used
-        to choose).
+        ``auto`` (default) or one of :data:`MODELS`: ``none``, ``division``
+        (Strand & Hayman lambda, centred on the principal point, fx = fy),
+        ``polynomial`` (k1, k2), ``kannala-brandt`` (k1..k4), ``opencv``
+        (k1, k2, p1, p2, k3), ``opencv-rational`` (+ k4, k5, k6),
+        ``opencv-thin-prism`` (+ s1..s4; one camera, fitted by OpenCV).
+        ``auto`` ranks every model by leave-views-out cross-validation on
+        the training views (:func:`_rank_models`; ``holdout`` is never used
+        to choose) and keeps the simplest (order of :data:`AUTO_MODELS`)
+        within :data:`AUTO_MARGIN` (1 %) of the best; a model that cannot be
+        fitted is ranked out with its reason; the chosen model is fitted on
+        every training view, and if that fit fails or fails
+        :func:`quality_problems`, the next in the ranking is (said in
+        :attr:`CalibrationResult.notes`). The ranking is
+        :attr:`CalibrationResult.model_ranking`.
     units : str
         Name of the board's length unit, stored in the rig.
     outlier_factor, min_outlier_px : float
@@ -589,17 +704,85 @@ def calibrate_board(
                    loss_scale=loss_scale)
     if model != "auto":
         return _calibrate(board, names, by_frame, model, holdout, **options)
-    # the choice never sees the held-out frames: it holds out every 4th of the training frames
+    # the choice never sees the held-out frames
     training = [{f: d for f, d in views.items() if f not in holdout} for views in by_frame]
+    ranking = _rank_models(board, names, training, options)
+    scored = [score for score in ranking if score.rms_px is not None]
+    order = [score.model for score in scored] or ["polynomial"]
+    if scored:  # parsimony: the simplest model within AUTO_MARGIN of the best goes first
+        limit = (1.0 + AUTO_MARGIN) * scored[0].rms_px
+        simplest = min((s.model for s in scored if s.rms_px <= limit), key=AUTO_MODELS.index)
+        order.remove(simplest)
+        order.insert(0, simplest)
+    failures = []
+    for candidate in order:
+        try:
+            result = _calibrate(board, names, by_frame, candidate, holdout, **options)
+        except _FIT_ERRORS as error:
+            failures.append(f"{candidate}: {_one_line(error)}")
+            continue
+        problems = quality_problems(result)
+        if problems and candidate != order[-1]:
+            failures.append(f"{candidate}: {'; '.join(problems)}")
+            continue
+        notes = [f"model auto: {failure} (next model tried)" for failure in failures]
+        if not scored:
+            notes.append("model auto: too few views to hold any out (need "
+                         f"{MIN_IMAGES + 1}); the polynomial model is fitted without a choice")
+        return dataclasses.replace(result, model_ranking=ranking, notes=result.notes + tuple(notes),
+                                   model_heldout_rms_px={s.model: s.rms_px for s in scored})
+    raise CamcalError("no lens model could be fitted: " + "; ".join(failures))
+
+
+#: Errors of a model that cannot be fitted to a set of views (the engine's own checks surface as ValueError).
+_FIT_ERRORS = (CamcalError, cv2.error, ValueError, np.linalg.LinAlgError)
+#: Most folds of the leave-views-out cross-validation of ``model="auto"``.
+_AUTO_FOLDS = 4
+
+
+def _one_line(error: Exception) -> str:
+    text = str(error).strip().splitlines()
+    return text[-1] if text else type(error).__name__
+
+
+def _rank_models(board: Board, names: list[str], training: list[dict], options: dict) -> tuple[ModelScore, ...]:
+    """Every model of :data:`AUTO_MODELS` scored by leave-views-out cross-validation, best first.
+
+    Notes
+    -----
+    The training frames are split into ``k = min(4, n)`` folds (every k-th
+    frame); each model is fitted k times, each time without one fold, whose
+    views are then posed by PnP with the fitted intrinsics held
+    (:func:`_heldout_rms`). The score is the RMS over all held-out corners
+    of all folds, ``sqrt(sum_folds sum |r|^2 / N)``. A model that fails in
+    any fold (the fit refused or diverged, a held-out view not posable,
+    a non-finite error) is ranked out with the reason, never raised.
+    With fewer than ``MIN_IMAGES + 1`` frames nothing can be held out and
+    every model is ranked out.
+    """
     frames = sorted(set().union(*[set(views) for views in training]))
-    trial = set(frames[3::4])
-    if not trial:
-        raise CamcalError(f"model auto chooses by held-out views: it needs at least 4 training views, got {len(frames)}")
-    scores = {candidate: _calibrate(board, names, training, candidate, trial, **options).heldout_rms_px
-              for candidate in AUTO_MODELS}
-    best = min(scores, key=scores.get)
-    result = _calibrate(board, names, by_frame, best, holdout, **options)
-    return dataclasses.replace(result, model_heldout_rms_px=scores)
+    n_folds = min(_AUTO_FOLDS, len(frames))
+    if len(frames) < MIN_IMAGES + 1:
+        reason = f"{len(frames)} views: too few to hold one out (need {MIN_IMAGES + 1})"
+        return tuple(ModelScore(m, None, 4 + len(MODELS[m]), reason) for m in AUTO_MODELS)
+    folds = [set(frames[k::n_folds]) for k in range(n_folds)]
+    scores = []
+    for candidate in AUTO_MODELS:
+        squared, count, reason = 0.0, 0, ""
+        for fold in folds:
+            try:
+                result = _calibrate(board, names, training, candidate, fold, **options)
+            except _FIT_ERRORS as error:
+                reason = _one_line(error)
+                break
+            n = sum(len(views[f].ids) for views in training for f in fold if f in views)
+            if result.heldout_rms_px is None or not np.isfinite(result.heldout_rms_px):
+                reason = "non-finite held-out error"
+                break
+            squared, count = squared + result.heldout_rms_px**2 * n, count + n
+        n_params = (3 if candidate == "division" else 4) + len(MODELS[candidate])
+        scores.append(ModelScore(candidate, None if reason else float(np.sqrt(squared / count)), n_params, reason))
+    return tuple(sorted(scores, key=lambda s: (s.rms_px is None, s.rms_px or 0.0, AUTO_MODELS.index(s.model))))
 
 
 def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: str, holdout: set[int], units: str,
@@ -611,14 +794,35 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         if len(views) < MIN_IMAGES:
             raise CamcalError(f"camera {name!r}: {len(views)} images left for the fit after holding out "
                               f"{len(holdout)} frames, need at least {MIN_IMAGES}")
+    if model == "opencv-thin-prism":
+        result = _calibrate_opencv(board, names, by_frame, model, units, outlier_factor, min_outlier_px)
+        if not holdout:
+            return result
+        heldout_rms, per_camera, heldout_images = _heldout_rms(board, result.rig, held)
+        camera = result.rig.cameras[0]
+        rig = Rig((dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]}),),
+                  units=result.rig.units, provenance=result.rig.provenance)
+        return dataclasses.replace(result, rig=rig, heldout_rms_px=heldout_rms, heldout_images=heldout_images)
     colmap_model, fixed = _COLMAP_MODELS[model]
     starts, params = [], []
     for name, views in zip(names, by_frame):
         K, dist, poses = _opencv_start(board, views, model, name)
+        if model != "kannala-brandt":
+            poses = _poses_in_front(board, views, K, dist, poses)
         starts.append(poses)
         params.append(_colmap_params(model, K, dist))
+    behind = [(name, views.pop(f).image) for name, views, poses in zip(names, by_frame, starts)
+              for f in sorted(set(views) - set(poses))]
+    for name, views in zip(names, by_frame):
+        if len(views) < MIN_IMAGES:
+            raise CamcalError(f"camera {name!r}: {len(views)} views with the board in front of the camera at the "
+                              f"start, need at least {MIN_IMAGES}")
     by_frame, starts, relabelled, dropped = _resolve_half_turns(board, names, by_frame, starts)
+    dropped = behind + dropped
     notes = [_MODEL_NOTES[model]] if model in _MODEL_NOTES else []
+    if behind:
+        notes.append(f"{len(behind)} view(s) left out: no start pose puts the board in front of the camera "
+                     f"({', '.join(image for _, image in behind)})")
     if model == "kannala-brandt":
         by_frame, n_behind = _corners_in_front(board, by_frame, starts)
         if n_behind:
@@ -690,7 +894,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
                      covariance, labels, board, model, units)
     heldout_rms, heldout_images = None, ()
     if holdout:
-        heldout_rms, per_camera, heldout_images = _heldout_rms(board, rig, held, model)
+        heldout_rms, per_camera, heldout_images = _heldout_rms(board, rig, held)
         rig = Rig(tuple(dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]})
                         if camera.name in per_camera else camera for camera in rig.cameras),
                   units=rig.units, provenance=rig.provenance)
@@ -716,72 +920,120 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
     )
 
 
-def _heldout_rms(board: Board, rig: Rig, held: list[dict], model: str):
+def _calibrate_opencv(board: Board, names: list[str], by_frame: list[dict], model: str, units: str,
+                      outlier_factor: float, min_outlier_px: float) -> CalibrationResult:
+    """One camera fitted by OpenCV's ``calibrateCameraExtended`` alone (a model the Ceres engine lacks).
+
+    COLMAP has no pinhole camera with thin-prism terms, so ``opencv-thin-prism``
+    is OpenCV's Levenberg-Marquardt (flags ``CALIB_RATIONAL_MODEL |
+    CALIB_THIN_PRISM_MODEL``, the same cost: squared distorted-pixel
+    residuals), with the same outlier rounds. Its covariance is diagonal:
+    OpenCV's ``stdDeviationsIntrinsics`` (``sigma^2 (J^T J)^-1`` of the
+    intrinsics, ``sigma^2`` from the residuals).
+    """
+    if len(names) > 1:
+        raise CamcalError(f"model {model} calibrates one camera at a time (COLMAP's models, the rig engine's, "
+                          f"have no thin prism); got {len(names)} cameras")
+    name, views = names[0], by_frame[0]
+    size = next(iter(views.values())).image_size
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14)
+    outliers: list[int] = []
+    for round_ in range(_MAX_OUTLIER_ROUNDS + 1):
+        kept = [f for f in sorted(views) if f not in outliers]
+        if len(kept) < MIN_IMAGES:
+            raise CamcalError(f"camera {name!r}: only {len(kept)} images left after dropping outliers, need {MIN_IMAGES}")
+        object_points = [board.object_points[views[f].ids].astype(np.float32) for f in kept]
+        image_points = [views[f].corners_px.astype(np.float32).reshape(-1, 1, 2) for f in kept]
+        K, dist, _ = _opencv_start(board, {f: views[f] for f in kept}, model, name)
+        try:
+            _, K, dist, rvecs, tvecs, std_intrinsics, _, _ = cv2.calibrateCameraExtended(
+                object_points, image_points, size, K, dist, criteria=criteria,
+                flags=_OPENCV_FLAGS[model] | cv2.CALIB_USE_INTRINSIC_GUESS)
+        except cv2.error as error:
+            raise CamcalError(f"camera {name!r}: OpenCV calibrateCamera failed ({_one_line(error)})") from None
+        params = np.concatenate([[K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5], dist.ravel()[:len(MODELS[model])]])
+        _, lens = _camcal_lens(model, params)
+        residuals = np.concatenate([
+            lens.project_rays(board.object_points[views[f].ids] @ cv2.Rodrigues(r)[0].T + t.ravel(), K)
+            - views[f].corners_px for f, r, t in zip(kept, rvecs, tvecs)])
+        if not np.all(np.isfinite(residuals)) or not np.all(np.isfinite(params)):
+            raise CamcalError(f"camera {name!r}: OpenCV's {model} fit diverged (non-finite residuals)")
+        image_of_point = np.concatenate([np.full(len(views[f].ids), n) for n, f in enumerate(kept)])
+        image_rms = np.sqrt(np.bincount(image_of_point, np.sum(residuals**2, axis=1)) / np.bincount(image_of_point))
+        threshold = max(outlier_factor * np.median(image_rms), min_outlier_px)
+        new = [kept[n] for n in np.flatnonzero(image_rms > threshold)]
+        if not new or round_ == _MAX_OUTLIER_ROUNDS:
+            break
+        outliers.extend(new)
+    labels = tuple(f"{name}.{label}" for label in _INTRINSICS + MODELS[model])
+    sigmas = std_intrinsics.ravel()[:len(labels)]
+    if not np.all(np.isfinite(sigmas)):
+        raise CamcalError(f"camera {name!r}: the {model} calibration is degenerate (OpenCV's intrinsic sigmas are "
+                          "not finite): vary the board poses more")
+    covariance = np.diag(sigmas**2)
+    camera_of_point = np.zeros(len(residuals), np.int64)
+    rig = _build_rig(names, (size,), [params], [(np.eye(3), np.zeros(3))], camera_of_point, image_of_point,
+                     residuals, covariance, labels, board, model, units)
+    norms = np.linalg.norm(residuals, axis=1)
+    return CalibrationResult(
+        rig=rig, residuals_px=residuals, points_px=np.concatenate([views[f].corners_px for f in kept]),
+        camera_of_point=camera_of_point, image_of_point=image_of_point,
+        images=tuple((name, views[f].image) for f in kept), rms_px=float(np.sqrt(np.mean(norms**2))),
+        worst_px=float(norms.max()), outliers=tuple((name, views[f].image) for f in sorted(outliers)),
+        covariance=covariance, parameter_names=labels, model=model,
+        notes=(f"{model}: fitted by OpenCV's calibrateCamera (the Ceres engine's COLMAP models have no thin prism); "
+               "its covariance is diagonal",),
+    )
+
+
+def _heldout_rms(board: Board, rig: Rig, held: list[dict]):
     """RMS of the held-out views, each posed by PnP with the fitted intrinsics held.
 
-    Every held-out view of a camera is one frame of a one-camera bundle
-    adjustment whose intrinsics are constant (so only the view poses move),
-    started from OpenCV's ``solvePnP`` on the undistorted corners.
+    Each view's ``cam_from_board`` minimises ``sum |project(K, d, R X + t) -
+    x|^2`` over its six pose parameters alone (``scipy.optimize.least_squares``,
+    Levenberg-Marquardt, camcal's own projection of the fitted lens, so every
+    model is measured alike), started from OpenCV's ``solvePnP`` on the
+    undistorted corners. A view is posed on its own: a corner seen in one
+    view only counts like any other.
 
     Returns
     -------
     rms_px, per_camera_rms_px, images
     """
-    colmap_model, _ = _COLMAP_MODELS[model]
     squared, counts, per_camera, images = 0.0, 0, {}, []
     for camera, views in zip(rig.cameras, held):
         if not views:
             continue
-        keys = sorted(views)
-        frame_R, frame_t = [], []
-        views = dict(views)
-        for key in keys:
-            d = views[key]
-            ideal = camera.distortion.undistort(d.corners_px, camera.K)
-            front = np.all(np.isfinite(ideal), axis=1)  # a fisheye's corners beyond 90 degrees have no pinhole image
-            if not front.all():
-                d = views[key] = dataclasses.replace(d, ids=d.ids[front], corners_px=d.corners_px[front])
-                ideal = ideal[front]
-            ok, rvec, tvec = cv2.solvePnP(board.object_points[d.ids], ideal, camera.K, None)
-            if not ok:
-                raise CamcalError(f"camera {camera.name!r}, {d.image}: PnP failed on the held-out view")
-            frame_R.append(cv2.Rodrigues(rvec)[0])
-            frame_t.append(tvec.ravel())
-        observations = BoardObservations(
-            object_points=np.asarray(board.object_points, dtype=np.float64),
-            camera=np.zeros(sum(len(views[k].ids) for k in keys), np.int64),
-            frame=np.concatenate([np.full(len(views[k].ids), n) for n, k in enumerate(keys)]),
-            corner=np.concatenate([views[k].ids for k in keys]),
-            xy=np.concatenate([views[k].corners_px for k in keys]),
-        )
-        params = _colmap_params(model, camera.K, _opencv_vector(camera.distortion))
-        if model == "division":
-            params = np.array([camera.K[0, 0], camera.K[0, 2] + 0.5, camera.K[1, 2] + 0.5,
-                               camera.distortion.params["lambda"] * camera.K[0, 0] ** 2])
-        state = BundleState(
-            camera_names=(camera.name,), models=(colmap_model,), image_sizes=(camera.image_size,), params=(params,),
-            sensor_R=np.eye(3)[None], sensor_t=np.zeros((1, 3)), frame_R=np.array(frame_R), frame_t=np.array(frame_t),
-            frame_ids=tuple(keys), points=np.zeros((0, 3)), point_ids=(), obs_camera=np.zeros(0, np.int64),
-            obs_frame=np.zeros(0, np.int64), obs_point=np.zeros(0, np.int64), obs_xy=np.zeros((0, 2)),
-            board=observations, board_R=np.eye(3), board_t=np.zeros(3),
-        )
-        posed = bundle_adjust(state, BundleOptions(constant_intrinsics=(camera.name,), refine_points3D=False,
-                                                   compute_sigmas=False))
-        r = board_residuals(posed.state)[1]
-        s = float(np.sum(r * r))
-        per_camera[camera.name] = float(np.sqrt(s / len(r)))
-        squared, counts = squared + s, counts + len(r)
-        images.extend((camera.name, views[k].image) for k in keys)
+        s_camera, n_camera = 0.0, 0
+        for key in sorted(views):
+            r = _posed_residuals(board, camera, views[key])
+            s_camera, n_camera = s_camera + float(np.sum(r * r)), n_camera + len(r)
+            images.append((camera.name, views[key].image))
+        per_camera[camera.name] = float(np.sqrt(s_camera / n_camera))
+        squared, counts = squared + s_camera, counts + n_camera
     return float(np.sqrt(squared / counts)), per_camera, tuple(images)
 
 
-def _opencv_vector(distortion: Distortion) -> NDArray[np.float64]:
-    """OpenCV's (k1, k2, p1, p2, k3) of a polynomial or opencv distortion (zeros where absent),
-    or its fisheye (k1, k2, k3, k4) of a kannala-brandt one."""
-    p = distortion.params
-    if distortion.model == "kannala-brandt":
-        return np.array([p["k1"], p["k2"], p["k3"], p["k4"]])
-    return np.array([p.get("k1", 0.0), p.get("k2", 0.0), p.get("p1", 0.0), p.get("p2", 0.0), p.get("k3", 0.0)])
+def _posed_residuals(board: Board, camera: Camera, detection: Detection) -> NDArray[np.float64]:
+    """``projected - detected`` (N, 2) of one view posed with the camera's intrinsics held (see :func:`_heldout_rms`)."""
+    X = np.asarray(board.object_points[detection.ids], dtype=np.float64)
+    ideal = camera.distortion.undistort(detection.corners_px, camera.K)
+    front = np.all(np.isfinite(ideal), axis=1)  # a fisheye's corners beyond 90 degrees have no pinhole image
+    if front.sum() < 4:
+        raise CamcalError(f"camera {camera.name!r}, {detection.image}: fewer than 4 corners have an undistorted "
+                          "image under the fitted lens: the held-out view cannot be posed")
+    ok, rvec, tvec = cv2.solvePnP(X[front], ideal[front], camera.K, None)
+    if not ok:
+        raise CamcalError(f"camera {camera.name!r}, {detection.image}: PnP failed on the held-out view")
+
+    def residuals(pose: NDArray[np.float64]) -> NDArray[np.float64]:
+        R = cv2.Rodrigues(pose[:3])[0]
+        projected = camera.distortion.project_rays(X @ R.T + pose[3:], camera.K)
+        return np.nan_to_num(projected - detection.corners_px, nan=1e6).ravel()
+
+    solution = scipy.optimize.least_squares(residuals, np.concatenate([rvec.ravel(), tvec.ravel()]), method="lm",
+                                            x_scale="jac", xtol=1e-12, ftol=1e-12)
+    return solution.fun.reshape(-1, 2)
 
 
 def quality_problems(result: CalibrationResult) -> list[str]:

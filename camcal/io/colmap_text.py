@@ -36,8 +36,9 @@ from camcal.base.errors import CamcalError
 from camcal.model.camera import from_colmap, to_colmap
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_write_text
+from camcal.base.limits import FILE_BYTES, check_file_size
 from camcal.model.colmap import camera_from_colmap, camera_to_colmap
-from camcal.io.interchange import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
+from camcal.io.conversion import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
 from camcal.io.ply import read_points_ply
 from camcal.io.points_csv import finite_numbers
 from camcal.model.rig import Camera, Rig
@@ -125,6 +126,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
 
 def _rows(path: Path) -> list[tuple[int, list[str]]]:
     """Non-comment lines as (line number, fields); blank lines kept (images.txt pairs them)."""
+    check_file_size(path, FILE_BYTES, "COLMAP text file")
     rows = []
     for number, line in enumerate(path.read_text().splitlines(), start=1):
         if line.startswith("#"):

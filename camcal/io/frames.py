@@ -45,8 +45,10 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from camcal.base.errors import CamcalError  # noqa: E402
 from camcal.base.atomic import atomic_path  # noqa: E402
+from camcal.base.errors import CamcalError  # noqa: E402
+from camcal.base.limits import IMAGE_PIXELS  # noqa: E402
+from camcal.io.headers import check_image_header  # noqa: E402
 
 __all__ = ["FORMATS", "ImageFrame", "frame_format", "imread", "imwrite", "read_frame", "write_frame"]
 
@@ -132,16 +134,27 @@ def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> NDArra
     weights), and unless ``IMREAD_ANYDEPTH`` or ``IMREAD_UNCHANGED`` is given
     8-bit (``round(255 v)``, clipped), as OpenCV's own EXR decoder did.
 
+    The header's image size is checked against
+    :data:`camcal.base.limits.IMAGE_PIXELS` before any pixel is decoded
+    (:func:`camcal.io.headers.check_image_header`; for the formats it does
+    not parse, OpenCV's own cap is reported the same way).
+
     Raises
     ------
     CamcalError
-        ``"cannot read <path> (...)"`` for a missing, corrupt or unsupported file.
+        ``"cannot read <path> (...)"`` for a missing, corrupt or unsupported
+        file; an image past the pixel cap, naming its size and the cap.
     """
     if Path(path).suffix.lower() == ".exr":
         return _imread_exr(Path(path), flags)
+    check_image_header(Path(path))
     try:
         pixels = cv2.imread(str(path), flags)
     except cv2.error as error:
+        if "CV_IO_MAX_IMAGE" in str(error):
+            raise CamcalError(f"{path}: the image is larger than OpenCV's own cap (OPENCV_IO_MAX_IMAGE_PIXELS, "
+                              f"2^30 pixels by default); camcal's cap is {IMAGE_PIXELS.value:,} "
+                              f"{IMAGE_PIXELS.what} ({IMAGE_PIXELS.how_to_raise()})") from None
         raise CamcalError(f"cannot read {path} ({str(error).strip().splitlines()[-1]})") from None
     if pixels is None:
         raise CamcalError(f"cannot read {path} (missing, corrupt or not an image OpenCV reads)")
@@ -244,6 +257,7 @@ def read_frame(path: str | os.PathLike) -> ImageFrame:
 def _read_exr(path: Path) -> ImageFrame:
     import OpenEXR
 
+    check_image_header(path)
     try:
         with OpenEXR.File(str(path), separate_channels=True) as exr:
             if not exr.parts:

@@ -40,7 +40,8 @@ import numpy as np
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_write_text
-from camcal.io.interchange import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
+from camcal.base.limits import FILE_BYTES, check_file_size
+from camcal.io.conversion import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
 from camcal.model.rig import Camera, Rig
 
 __all__ = ["export", "load"]
@@ -51,7 +52,8 @@ _KANNALA_BRANDT = "kannala-brandt"
 def _holds(distortion: Distortion) -> bool:
     if distortion.model in ("none", _KANNALA_BRANDT):
         return True
-    return distortion.model in ("polynomial", "opencv") and distortion.params.get("k3", 0.0) == 0.0
+    return (distortion.model in ("polynomial", "opencv") and distortion.params.get("k3", 0.0) == 0.0
+            and distortion.opencv_terms == 5)  # radtan: k1 k2 p1 p2, no rational or thin-prism terms
 
 
 def _camera_entry(camera: Camera) -> dict:
@@ -103,7 +105,7 @@ def _numbers(entry: dict, key: str, count: int, where: str) -> list[float]:
     value = entry.get(key)
     if not isinstance(value, list) or len(value) != count or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-        raise CamcalError(f"{where}.{key} must be a list of {count} numbers, got {value!r}")
+        raise CamcalError(f"{where}.{key} must be a list of {count} numbers, got {value!r:.80}")
     if not all(np.isfinite(value)):
         raise CamcalError(f"{where}.{key} contains NaN or infinite values")
     return [float(v) for v in value]
@@ -113,10 +115,13 @@ def load(path: Path) -> ImportResult:
     """Read a Kalibr camchain (see the module docstring)."""
     import yaml
 
+    check_file_size(path, FILE_BYTES, "Kalibr camchain")
     try:
         data = yaml.safe_load(path.read_text())
     except (yaml.YAMLError, UnicodeDecodeError) as error:
         raise CamcalError(f"not a YAML file ({str(error).splitlines()[0]})") from None
+    except RecursionError:
+        raise CamcalError("not a Kalibr camchain: nested too deep to read") from None
     if not isinstance(data, dict) or not data or not all(isinstance(k, str) and k.startswith("cam") for k in data):
         raise CamcalError("not a Kalibr camchain: expected top-level keys cam0, cam1, ...")
     names = sorted(data, key=lambda key: int(key[3:]) if key[3:].isdigit() else -1)

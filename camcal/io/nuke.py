@@ -46,7 +46,8 @@ from scipy.spatial.transform import Rotation
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_write_text
-from camcal.io.interchange import (
+from camcal.base.limits import FILE_BYTES, check_file_size
+from camcal.io.conversion import (
     ExportResult,
     ImportResult,
     LensConversion,
@@ -248,6 +249,7 @@ def _vector(text: str | None, where: str) -> tuple[np.ndarray | dict[int, np.nda
 
 def load(path: Path) -> ImportResult:
     """Read the Camera3 nodes of a script (see the module docstring)."""
+    check_file_size(path, FILE_BYTES, "Nuke script")
     text = path.read_text(errors="replace")
     bodies = _blocks(text)
     if not bodies:

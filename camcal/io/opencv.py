@@ -5,7 +5,8 @@ The file's suffix picks the encoding: ``.yaml`` / ``.yml`` YAML, ``.xml`` XML.
 One camera (the names of OpenCV's ``calibration.cpp`` sample)::
 
     camera_name, image_width, image_height, camera_matrix (3x3),
-    distortion_coefficients (1x5: k1 k2 p1 p2 k3)
+    distortion_coefficients (1x5: k1 k2 p1 p2 k3; 1x8 with the rational
+    k4 k5 k6; 1x12 with the thin-prism s1 s2 s3 s4 too)
 
 A stereo pair (the names of OpenCV's ``stereo_calib.cpp`` sample)::
 
@@ -33,13 +34,16 @@ writes, with the same meaning. Both cameras of a stereo file are of one
 kind.
 
 OpenCV's pixel convention is camcal's (pixel (0, 0) at the centre of the
-top-left pixel). Its distortion is camcal's ``opencv`` model; ``polynomial``
-and ``none`` map exactly, the ``division`` lens is fitted (nearest
-``opencv`` model, residual reported). OpenCV's projection ignores skew
+top-left pixel). Its distortion is camcal's ``opencv`` model, rational and
+thin-prism terms included (written as the shortest of OpenCV's 5-, 8- and
+12-coefficient vectors that holds the lens); ``polynomial`` and ``none``
+map exactly, the ``division`` lens is fitted (nearest ``opencv`` model,
+residual reported). OpenCV's projection ignores skew
 (``cv2.projectPoints`` uses fx, fy, cx, cy; ``cv2.fisheye`` takes skew as a
 separate ``alpha``): a camera with skew is written without it, with the
 residual reported. On reading, 4, 5, 8, 12 or 14 coefficients are accepted
-when those beyond ``k3`` are zero (exactly 4 in a fisheye file).
+(exactly 4 in a fisheye file); the 14-vector's tilt ``tauX, tauY`` only
+when zero (camcal has no tilted-sensor model: a non-zero tilt is refused).
 
 The first camera's pose is the file's origin; a rig's world pose, frames
 and sparse points are not held (the summary says so).
@@ -54,9 +58,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
-from camcal.model.distortion import Distortion
+from camcal.model.distortion import OPENCV_COEFFICIENTS, Distortion
 from camcal.base.atomic import atomic_path
-from camcal.io.interchange import (
+from camcal.base.limits import FILE_BYTES, check_file_size
+from camcal.io.conversion import (
     ExportResult,
     ImportResult,
     LensConversion,
@@ -74,6 +79,8 @@ SUFFIXES = {".yaml": "YAML", ".yml": "YAML", ".xml": "XML"}
 _ROTATION_TOL_PX = 1e-6
 
 _FISHEYE = "kannala-brandt"
+#: The most coefficients an OpenCV distortion vector has (k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 tx ty).
+_MAX_COEFFICIENTS = 14
 _FISHEYE_FORMAT = "opencv fisheye (k1 k2 k3 k4)"
 _PINHOLE_FORMAT = "opencv (k1 k2 p1 p2 k3)"
 
@@ -87,6 +94,15 @@ def _holds(distortion: Distortion) -> bool:
     return distortion.model in ("none", "polynomial", "opencv")
 
 
+def _format(distortion: Distortion) -> str:
+    """The OpenCV vector a lens is written as: ``opencv (k1 ... k3)``, with k4..k6 and s1..s4 when it has them."""
+    if distortion.model == _FISHEYE:
+        return _FISHEYE_FORMAT
+    if not _holds(distortion):
+        return _PINHOLE_FORMAT
+    return f"opencv ({' '.join(OPENCV_COEFFICIENTS[:distortion.opencv_terms])})"
+
+
 def _holds_fisheye(distortion: Distortion) -> bool:
     return distortion.model == _FISHEYE
 
@@ -95,7 +111,7 @@ def _coefficients(distortion: Distortion) -> NDArray[np.float64]:
     p = distortion.params
     if distortion.model == _FISHEYE:
         return np.array([[p["k1"], p["k2"], p["k3"], p["k4"]]])
-    return np.array([[p.get("k1", 0.0), p.get("k2", 0.0), p.get("p1", 0.0), p.get("p2", 0.0), p.get("k3", 0.0)]])
+    return distortion.opencv_coefficients()[None, :]
 
 
 def rectification_rotation(camera: Camera) -> tuple[NDArray[np.float64], float]:
@@ -141,7 +157,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     converted, conversions = [], []
     for camera in chosen:
         camera_out, conversion = nearest_camera(camera, _holds_fisheye if fisheye else _holds, "opencv",
-                                                _FISHEYE_FORMAT if fisheye else _PINHOLE_FORMAT)
+                                                _format(camera.distortion))
         converted.append(camera_out)
         conversions.append(conversion)
     notes = []
@@ -222,6 +238,7 @@ def load(path: Path) -> ImportResult:
     import cv2
 
     _check_suffix(path)
+    check_file_size(path, FILE_BYTES, "OpenCV file")
     try:
         storage = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     except (cv2.error, SystemError) as error:  # a parse error surfaces as SystemError from the binding
@@ -244,15 +261,34 @@ def load(path: Path) -> ImportResult:
             raise CamcalError("no camera_matrix (one camera) and no K1, K2 (stereo pair) in the file")
     finally:
         storage.release()
-    conversions = tuple(LensConversion(c.name, _FISHEYE_FORMAT if fisheye else _PINHOLE_FORMAT, c.distortion.model,
-                                       True) for c in rig.cameras)
+    conversions = tuple(LensConversion(c.name, _format(c.distortion), c.distortion.model, True) for c in rig.cameras)
     return ImportResult(rig, conversions, ("the first camera is the origin; units are those of T",))
 
 
-def _matrix(storage, key: str, shape: tuple[int, ...] | None = None) -> NDArray[np.float64]:
+def _declared_elements(node, key: str) -> float:
+    """rows x cols an ``!!opencv-matrix`` declares, read before OpenCV allocates them."""
+    if not node.isMap():
+        return 0.0
+    sizes = [node.getNode(name) for name in ("rows", "cols")]
+    if any(not (size.isInt() or size.isReal()) for size in sizes):
+        raise CamcalError(f"{key} is not a matrix (rows and cols must be numbers)")
+    rows, cols = (size.real() for size in sizes)
+    if not all(np.isfinite(v) and v == int(v) and v >= 0 for v in (rows, cols)):
+        raise CamcalError(f"{key} declares {rows} x {cols}: rows and cols must be non-negative integers")
+    return rows * cols
+
+
+def _matrix(storage, key: str, shape: tuple[int, ...] | None = None, max_elements: int = _MAX_COEFFICIENTS
+            ) -> NDArray[np.float64]:
+    """A finite matrix of ``shape`` (any shape up to ``max_elements`` when None), its declared size checked first."""
     node = storage.getNode(key)
     if node.empty() or node.isNone():
         raise CamcalError(f"missing {key}")
+    limit = int(np.prod(shape)) if shape is not None else max_elements
+    declared = _declared_elements(node, key)
+    if declared > limit:
+        rows, cols = (int(node.getNode(name).real()) for name in ("rows", "cols"))
+        raise CamcalError(f"{key} declares {rows} x {cols} values, expected at most {limit}")
     value = node.mat()
     if value is None:
         raise CamcalError(f"{key} is not a matrix")
@@ -273,17 +309,19 @@ def _text(storage, key: str) -> str | None:
 
 def _size(storage, keys: set[str]) -> tuple[int, int]:
     if {"image_width", "image_height"} <= keys:
-        width, height = storage.getNode("image_width").real(), storage.getNode("image_height").real()
-    elif "image_size" in keys or "imageSize" in keys:
+        return _pixels(storage.getNode("image_width").real(), storage.getNode("image_height").real(), "image size")
+    if "image_size" in keys or "imageSize" in keys:
         node = storage.getNode("image_size" if "image_size" in keys else "imageSize")
         if not node.isSeq() or node.size() != 2:
             raise CamcalError("image_size must be a sequence [width, height]")
-        width, height = node.at(0).real(), node.at(1).real()
-    else:
-        raise CamcalError("no image size (image_width and image_height) in the file")
+        return _pixels(node.at(0).real(), node.at(1).real(), "image size")
+    raise CamcalError("no image size (image_width and image_height) in the file")
+
+
+def _pixels(width: float, height: float, what: str) -> tuple[int, int]:
     if not (np.isfinite(width) and np.isfinite(height) and width == int(width) and height == int(height)
             and width > 0 and height > 0):
-        raise CamcalError(f"image size must be two positive integers, got {width} x {height}")
+        raise CamcalError(f"{what} must be two positive integers, got {width} x {height}")
     return int(width), int(height)
 
 
@@ -304,14 +342,10 @@ def _distortion(storage, key: str, fisheye: bool) -> Distortion:
         if len(values) != 4:
             raise CamcalError(f"{key} has {len(values)} coefficients; a cv2.fisheye lens (fisheye_model: 1) has 4")
         return Distortion(_FISHEYE, dict(zip(("k1", "k2", "k3", "k4"), values)))
-    if len(values) not in (4, 5, 8, 12, 14):
-        raise CamcalError(f"{key} has {len(values)} coefficients; OpenCV uses 4, 5, 8, 12 or 14")
-    if np.any(values[5:] != 0.0):
-        raise CamcalError(f"{key} has rational, thin-prism or tilt terms (k4 and beyond); camcal's opencv "
-                          "model stops at k3")
-    k1, k2, p1, p2 = values[:4]
-    k3 = values[4] if len(values) > 4 else 0.0
-    return Distortion("opencv", {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3})
+    try:
+        return Distortion.from_opencv_coefficients(values)
+    except CamcalError as error:
+        raise CamcalError(f"{key}: {error}") from None
 
 
 def _read_camera(storage, K_key: str, D_key: str, name: str, size: tuple[int, int], R, c, fisheye: bool) -> Camera:
@@ -336,7 +370,8 @@ def _read_stereo(storage, keys: set[str], fisheye: bool) -> Rig:
     if rectified:
         rect_size = size
         if {"rectified_width", "rectified_height"} <= keys:
-            rect_size = (int(storage.getNode("rectified_width").real()), int(storage.getNode("rectified_height").real()))
+            rect_size = _pixels(storage.getNode("rectified_width").real(), storage.getNode("rectified_height").real(),
+                                "rectified size")
         cameras = []
         for camera, R_key, P_key in ((first, "R1", "P1"), (second, "R2", "P2")):
             R_rect, P = _matrix(storage, R_key, (3, 3)), _matrix(storage, P_key, (3, 4))

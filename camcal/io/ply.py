@@ -60,10 +60,13 @@ def read_points_ply(path: str | os.PathLike) -> np.ndarray:
     end = data.find(b"end_header\n")
     if not data.startswith(b"ply\n") or end < 0:
         raise CamcalError(f"{path}: not a PLY file")
-    header = data[:end].decode("ascii").splitlines()
+    header = data[:end].decode("ascii", errors="replace").splitlines()
     if "format binary_little_endian 1.0" not in header:
         raise CamcalError(f"{path}: only binary little-endian PLY is read here")
-    count = int(next(line.split()[2] for line in header if line.startswith("element vertex")))
+    try:
+        count = int(next(line.split()[2] for line in header if line.startswith("element vertex")))
+    except (StopIteration, IndexError, ValueError):
+        raise CamcalError(f"{path}: no vertex count (element vertex N) in the PLY header") from None
     dtype = _vertex_dtype("property int track_length" in header)
     body = data[end + len(b"end_header\n"):]
     if len(body) != count * dtype.itemsize:

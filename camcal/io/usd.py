@@ -55,7 +55,9 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_path
-from camcal.io.interchange import (
+from camcal.base.jsonfile import parse_json
+from camcal.base.limits import FILE_BYTES, check_file_size
+from camcal.io.conversion import (
     ExportResult,
     ImportResult,
     LensConversion,
@@ -227,13 +229,16 @@ def _custom(prim, key: str, where: str):
     if value is None:
         return None
     if key == "camcal:image_size":
-        return tuple(int(v) for v in value)
+        try:
+            return tuple(int(v) for v in value)
+        except (TypeError, ValueError, OverflowError):
+            raise CamcalError(f"{where}: customData {key} is not two integers, got {value!r:.80}") from None
     if not isinstance(value, str):
         raise CamcalError(f"{where}: customData {key} is not camcal's JSON")
     try:
-        return json.loads(value)
-    except (TypeError, ValueError):
-        raise CamcalError(f"{where}: customData {key} is not camcal's JSON") from None
+        return parse_json(value)
+    except CamcalError as error:
+        raise CamcalError(f"{where}: customData {key} is not camcal's JSON ({error})") from None
 
 
 def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
@@ -255,6 +260,7 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
     """
     from pxr import Sdf, Tf, Usd, UsdGeom
 
+    check_file_size(path, FILE_BYTES, "USD file")
     try:
         layer = Sdf.Layer.FindOrOpen(str(path))
         if layer is None:

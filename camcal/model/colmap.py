@@ -20,13 +20,14 @@ none                        PINHOLE (SIMPLE_PINHOLE when fx = fy)
 polynomial k1, k2           RADIAL when fx = fy, else OPENCV (p1 = p2 = 0)
 polynomial k1, k2, k3       FULL_OPENCV (p = 0, k4 = k5 = k6 = 0)
 opencv (k3 = 0)             OPENCV
-opencv                      FULL_OPENCV (k4 = k5 = k6 = 0)
+opencv (k1..k3[, k4..k6])   FULL_OPENCV (rational k4, k5, k6 as they are)
+opencv with s1..s4          none (COLMAP has no pinhole thin prism): refused
 division, centre = pp       SIMPLE_DIVISION (needs fx = fy)
 kannala-brandt k1..k4       OPENCV_FISHEYE (same k1..k4, same normalisation)
 ==========================  ==============================================
 
 COLMAP -> camcal accepts SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL,
-OPENCV, FULL_OPENCV (with k4 = k5 = k6 = 0), SIMPLE_DIVISION and DIVISION
+OPENCV, FULL_OPENCV (rational terms included), SIMPLE_DIVISION and DIVISION
 (with fx = fy), and the Kannala-Brandt family: SIMPLE_FISHEYE and FISHEYE
 (equidistant, all k = 0), SIMPLE_RADIAL_FISHEYE (k1), RADIAL_FISHEYE
 (k1, k2) and OPENCV_FISHEYE (k1..k4). Anything that has no exact
@@ -94,11 +95,12 @@ def camera_to_colmap(camera: Camera) -> ColmapCamera:
             return ColmapCamera("RADIAL", width, height, (fx, cx, cy, p["k1"], p["k2"]))
         return ColmapCamera("OPENCV", width, height, (fx, fy, cx, cy, p["k1"], p["k2"], 0.0, 0.0))
     if model in ("polynomial", "opencv"):
-        k1, k2, k3 = p["k1"], p["k2"], p.get("k3", 0.0)
-        p1, p2 = p.get("p1", 0.0), p.get("p2", 0.0)
-        if k3 == 0.0:
+        if camera.distortion.opencv_terms > 8:
+            raise CamcalError(f"camera {camera.name!r}: COLMAP's pinhole models have no thin-prism terms (s1..s4)")
+        k1, k2, p1, p2, k3, k4, k5, k6 = camera.distortion.opencv_coefficients(8)
+        if (k3, k4, k5, k6) == (0.0, 0.0, 0.0, 0.0):
             return ColmapCamera("OPENCV", width, height, (fx, fy, cx, cy, k1, k2, p1, p2))
-        return ColmapCamera("FULL_OPENCV", width, height, (fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0))
+        return ColmapCamera("FULL_OPENCV", width, height, (fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6))
     if model == "kannala-brandt":
         return ColmapCamera("OPENCV_FISHEYE", width, height, (fx, fy, cx, cy, p["k1"], p["k2"], p["k3"], p["k4"]))
     # division
@@ -169,9 +171,8 @@ def camera_from_colmap(
         distortion = Distortion("opencv", {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": 0.0})
     elif model == "FULL_OPENCV":
         k1, k2, p1, p2, k3, k4, k5, k6 = extra
-        if (k4, k5, k6) != (0.0, 0.0, 0.0):
-            raise CamcalError("FULL_OPENCV with rational terms k4, k5, k6 has no camcal counterpart")
-        distortion = Distortion("opencv", {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3})
+        distortion = Distortion("opencv", {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3}
+                                | ({"k4": k4, "k5": k5, "k6": k6} if (k4, k5, k6) != (0.0, 0.0, 0.0) else {}))
     elif model.endswith("FISHEYE"):
         k = (list(extra) + [0.0, 0.0, 0.0, 0.0])[:4]
         distortion = Distortion("kannala-brandt", {"k1": k[0], "k2": k[1], "k3": k[2], "k4": k[3]})

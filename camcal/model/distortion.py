@@ -11,10 +11,21 @@ Models
     Radial, in normalised coordinates ``x_n = K^-1 u`` centred on the
     principal point (as OpenCV, COLMAP and Blender's POLYNOMIAL):
     ``x_d = x_u (1 + k1 r_u^2 + k2 r_u^4 + k3 r_u^6)``, ``r_u = |x_u|``.
-``opencv`` (k1, k2, p1, p2, k3)
-    Brown-Conrady as in OpenCV, normalised coordinates:
-    ``x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)``,
-    ``y_d = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y``.
+``opencv`` (k1, k2, p1, p2, k3[, k4, k5, k6][, s1, s2, s3, s4])
+    Brown-Conrady with OpenCV's rational and thin-prism terms, exactly
+    OpenCV's formula (calib3d, "Camera Calibration and 3D Reconstruction";
+    ``cv2.projectPoints``) in normalised coordinates, ``r^2 = x^2 + y^2``::
+
+        radial = (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)
+        x_d = x radial + 2 p1 x y + p2 (r^2 + 2 x^2) + s1 r^2 + s2 r^4
+        y_d = y radial + p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4
+
+    The optional terms are absent (zero) unless given: OpenCV's 5-, 8- and
+    12-coefficient vectors ``(k1, k2, p1, p2, k3[, k4, k5, k6[, s1, s2, s3,
+    s4]])`` map one to one (:meth:`Distortion.opencv_coefficients`,
+    :meth:`Distortion.from_opencv_coefficients`); the 14-vector's tilt
+    ``(tauX, tauY)`` (a tilted sensor, a homography after the distortion)
+    is accepted only when zero.
 ``division`` (lambda)
     Strand & Hayman's one-parameter division model in PIXELS around the
     distortion centre ``center`` (default: the principal point):
@@ -50,6 +61,12 @@ Strand, R. & Hayman, E. (2005). Correcting radial distortion by circle
 fitting. BMVC.
 Brown, D. C. (1966). Decentering distortion of lenses. Photogrammetric
 Engineering.
+Weng, J., Cohen, P. & Herniou, M. (1992). Camera calibration with
+distortion models and accuracy evaluation. IEEE TPAMI 14(10) (thin prism).
+Claus, D. & Fitzgibbon, A. W. (2005). A rational function lens distortion
+model for general cameras. CVPR.
+OpenCV calib3d documentation, "Camera Calibration and 3D Reconstruction"
+(the rational, thin-prism and tilt terms of ``cv2.projectPoints``).
 Kannala, J. & Brandt, S. S. (2006). A generic camera model and calibration
 method for conventional, wide-angle, and fish-eye lenses. IEEE TPAMI 28(8).
 """
@@ -67,18 +84,23 @@ from numpy.typing import ArrayLike, NDArray
 
 from camcal.base.errors import CamcalError
 
-__all__ = ["MODEL_PARAMS", "Distortion", "DistortionFit", "fit_distortion", "frame_grid"]
+__all__ = ["MODEL_PARAMS", "OPENCV_COEFFICIENTS", "Distortion", "DistortionFit", "fit_distortion", "frame_grid"]
 
 #: Parameter names of each model: (required, optional).
 MODEL_PARAMS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = MappingProxyType(
     {
         "none": ((), ()),
         "polynomial": (("k1", "k2"), ("k3",)),
-        "opencv": (("k1", "k2", "p1", "p2", "k3"), ()),
+        "opencv": (("k1", "k2", "p1", "p2", "k3"), ("k4", "k5", "k6", "s1", "s2", "s3", "s4")),
         "division": (("lambda",), ()),
         "kannala-brandt": (("k1", "k2", "k3", "k4"), ()),
     }
 )
+
+#: OpenCV's distortion vector, in its order (the 14-vector adds the tilt ``tauX, tauY``, never held).
+OPENCV_COEFFICIENTS = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")
+_RATIONAL = ("k4", "k5", "k6")
+_THIN_PRISM = ("s1", "s2", "s3", "s4")
 
 #: Models defined in normalised coordinates ``K^-1 u`` around the principal point.
 _NORMALISED_MODELS = ("polynomial", "opencv", "kannala-brandt")
@@ -172,6 +194,66 @@ class Distortion:
         """True when the model leaves every point where it is (never for ``kannala-brandt``:
         with every k at 0 it is the equidistant fisheye, not the pinhole)."""
         return self.model != "kannala-brandt" and all(value == 0.0 for value in self.params.values())
+
+    # -- OpenCV's distortion vector ------------------------------------------------
+
+    @property
+    def opencv_terms(self) -> int:
+        """Length of the shortest OpenCV vector that holds this lens exactly: 5, 8 or 12.
+
+        ``none``, ``polynomial`` and ``opencv`` only; 8 when a rational term
+        (k4, k5, k6) is non-zero, 12 when a thin-prism term (s1..s4) is.
+        """
+        if self.model not in ("none", "polynomial", "opencv"):
+            raise CamcalError(f"a {self.model} lens has no OpenCV distortion vector")
+        p = self.params
+        if any(p.get(name, 0.0) for name in _THIN_PRISM):
+            return 12
+        if any(p.get(name, 0.0) for name in _RATIONAL):
+            return 8
+        return 5
+
+    def opencv_coefficients(self, length: int | None = None) -> NDArray[np.float64]:
+        """OpenCV's distortion vector ``(k1, k2, p1, p2, k3[, k4, k5, k6[, s1, s2, s3, s4]])``.
+
+        Parameters
+        ----------
+        length : int, optional
+            5, 8, 12 or 14 (tilt zero); default :attr:`opencv_terms`, the
+            shortest exact one. A length that drops non-zero terms is refused.
+
+        Returns
+        -------
+        ndarray, shape (length,)
+            Zeros where the model has no term (``none``, ``polynomial``).
+        """
+        needed = self.opencv_terms
+        length = needed if length is None else int(length)
+        if length not in (5, 8, 12, 14):
+            raise CamcalError(f"OpenCV distortion vectors have 5, 8, 12 or 14 coefficients, not {length}")
+        if length < needed:
+            raise CamcalError(f"this lens needs {needed} OpenCV coefficients, {length} would drop terms")
+        values = [self.params.get(name, 0.0) for name in OPENCV_COEFFICIENTS] + [0.0, 0.0]
+        return np.array(values[:length], dtype=np.float64)
+
+    @classmethod
+    def from_opencv_coefficients(cls, values: ArrayLike) -> Distortion:
+        """The ``opencv`` lens of an OpenCV distortion vector of 4, 5, 8, 12 or 14 coefficients.
+
+        Coefficients beyond the vector are zero (k3 of a 4-vector, the
+        rational and thin-prism terms of a 5-vector) and not stored; a
+        14-vector's tilt ``(tauX, tauY)`` must be zero (camcal's lens
+        models have no tilted sensor).
+        """
+        values = np.asarray(values, dtype=np.float64).ravel()
+        if len(values) not in (4, 5, 8, 12, 14):
+            raise CamcalError(f"OpenCV distortion vectors have 4, 5, 8, 12 or 14 coefficients, got {len(values)}")
+        if len(values) == 14 and np.any(values[12:] != 0.0):
+            raise CamcalError(f"OpenCV tilt terms tauX = {values[12]:.6g}, tauY = {values[13]:.6g} (a tilted "
+                              "sensor) are not held by camcal's lens models; only a zero tilt is accepted")
+        names = OPENCV_COEFFICIENTS[:max(5, min(len(values), 12))]
+        padded = np.concatenate([values, np.zeros(max(0, 5 - len(values)))])
+        return cls("opencv", dict(zip(names, (float(v) for v in padded))))
 
     # -- file boundary -------------------------------------------------------
 
@@ -298,12 +380,17 @@ class Distortion:
             return xy * scale[:, None]
         r2 = x * x + y * y
         radial = 1.0 + r2 * (p["k1"] + r2 * (p["k2"] + r2 * p.get("k3", 0.0)))
+        if self.model == "opencv" and any(p.get(name, 0.0) for name in _RATIONAL):
+            radial = radial / (1.0 + r2 * (p.get("k4", 0.0) + r2 * (p.get("k5", 0.0) + r2 * p.get("k6", 0.0))))
         xd = x * radial
         yd = y * radial
         if self.model == "opencv":
             p1, p2 = p["p1"], p["p2"]
             xd = xd + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
             yd = yd + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+            if any(p.get(name, 0.0) for name in _THIN_PRISM):
+                xd = xd + r2 * (p.get("s1", 0.0) + r2 * p.get("s2", 0.0))
+                yd = yd + r2 * (p.get("s3", 0.0) + r2 * p.get("s4", 0.0))
         return np.stack([xd, yd], axis=1)
 
     # -- rays (wide lenses) ----------------------------------------------------------
@@ -477,9 +564,14 @@ class Distortion:
         p = self.params
         x, y = xy[:, 0], xy[:, 1]
         k1, k2, k3 = p["k1"], p["k2"], p.get("k3", 0.0)
+        k4, k5, k6 = p.get("k4", 0.0), p.get("k5", 0.0), p.get("k6", 0.0)
         r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        numerator = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dnumerator_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        denominator = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        ddenominator_dr2 = k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2)
+        radial = numerator / denominator
+        dradial_dr2 = (dnumerator_dr2 * denominator - numerator * ddenominator_dr2) / denominator**2
         jac = np.empty((len(xy), 2, 2))
         jac[:, 0, 0] = radial + 2.0 * x * x * dradial_dr2
         jac[:, 0, 1] = 2.0 * x * y * dradial_dr2
@@ -491,6 +583,13 @@ class Distortion:
             jac[:, 0, 1] += 2.0 * p1 * x + 2.0 * p2 * y
             jac[:, 1, 0] += 2.0 * p1 * x + 2.0 * p2 * y
             jac[:, 1, 1] += 6.0 * p1 * y + 2.0 * p2 * x
+            # thin prism: d(s1 r^2 + s2 r^4)/dx = 2 x (s1 + 2 s2 r^2), likewise for y and s3, s4
+            prism_x = 2.0 * (p.get("s1", 0.0) + 2.0 * p.get("s2", 0.0) * r2)
+            prism_y = 2.0 * (p.get("s3", 0.0) + 2.0 * p.get("s4", 0.0) * r2)
+            jac[:, 0, 0] += prism_x * x
+            jac[:, 0, 1] += prism_x * y
+            jac[:, 1, 0] += prism_y * x
+            jac[:, 1, 1] += prism_y * y
         return jac
 
     def _division_distort(self, points: NDArray[np.float64], centre: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -50,6 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from camcal import __version__
 from camcal.base.errors import CamcalError
+from camcal.base.limits import check_image_size
 from camcal.model.camera import compose_P, project_pinhole, rotation_angle_deg
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_write_text
@@ -73,6 +74,11 @@ RIG_VERSION = 1
 UNKNOWN_PROVENANCE = "unknown"
 
 _ORTHONORMAL_TOL = 1e-6
+#: Focal lengths (and skew) are plausible within this factor of the larger image side, either way.
+_FOCAL_RANGE = 1000.0
+#: Principal points are plausible up to this many image sizes beyond the image's edges (generous: a diverged
+#: calibration, written with ``--force`` past the quality gate, has had one 2.5 widths off the image).
+_PP_MARGIN = 10.0
 
 
 # -- field validation helpers ---------------------------------------------------
@@ -101,6 +107,25 @@ def _check_K(K: NDArray[np.float64], name: str) -> None:
         raise CamcalError(f"{name} must have positive fx and fy, got fx={float(K[0, 0])!r}, fy={float(K[1, 1])!r}")
 
 
+def _check_plausible(K: NDArray[np.float64], image_size: tuple[int, int], name: str) -> None:
+    """A focal length and skew within a generous multiple of the image, a principal point near it."""
+    width, height = image_size
+    largest = max(width, height)
+    low, high = largest / _FOCAL_RANGE, largest * _FOCAL_RANGE
+    for label, value in (("fx", K[0, 0]), ("fy", K[1, 1])):
+        if not low <= value <= high:
+            raise CamcalError(f"{name}: {label} = {float(value)!r} is not a plausible focal length for a "
+                              f"{width}x{height} image (expected {low:.6g} <= {label} <= {high:.6g})")
+    if abs(K[0, 1]) > high:
+        raise CamcalError(f"{name}: skew = {float(K[0, 1])!r} is not plausible for a {width}x{height} image "
+                          f"(expected |skew| <= {high:.6g})")
+    for label, value, side in (("cx", K[0, 2], width), ("cy", K[1, 2], height)):
+        if not -_PP_MARGIN * side <= value <= (1 + _PP_MARGIN) * side:
+            raise CamcalError(f"{name}: {label} = {float(value)!r} is not a plausible principal point for a "
+                              f"{width}x{height} image (expected {-_PP_MARGIN * side:.6g} <= {label} <= "
+                              f"{(1 + _PP_MARGIN) * side:.6g})")
+
+
 def _check_rotation(R: NDArray[np.float64], name: str) -> None:
     error = np.abs(R.T @ R - np.eye(3)).max()
     if error > _ORTHONORMAL_TOL:
@@ -110,13 +135,16 @@ def _check_rotation(R: NDArray[np.float64], name: str) -> None:
 
 
 def _image_size(value: Any, name: str) -> tuple[int, int]:
+    """``[width, height]``, two positive integers within the pixel cap (:data:`camcal.base.limits.IMAGE_PIXELS`)."""
     if (
         not isinstance(value, (list, tuple))
         or len(value) != 2
         or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v > 0 for v in value)
     ):
-        raise CamcalError(f"{name} must be [width, height] as two positive integers, got {value!r}")
-    return int(value[0]), int(value[1])
+        raise CamcalError(f"{name} must be [width, height] as two positive integers, got {value!r:.80}")
+    width, height = int(value[0]), int(value[1])
+    check_image_size(width, height, f"{name} declares")
+    return width, height
 
 
 def _check_keys(data: Any, name: str, required: Iterable[str], optional: Iterable[str] = ()) -> None:
@@ -172,9 +200,11 @@ class Rectification(_DictEquality):
             raise CamcalError("rectification.H is singular")
         K_rect = _matrix(self.K_rect, (3, 3), "rectification.K_rect")
         _check_K(K_rect, "rectification.K_rect")
+        image_size = _image_size(self.image_size, "rectification.image_size")
+        _check_plausible(K_rect, image_size, "rectification.K_rect")
         object.__setattr__(self, "H", H)
         object.__setattr__(self, "K_rect", K_rect)
-        object.__setattr__(self, "image_size", _image_size(self.image_size, "rectification.image_size"))
+        object.__setattr__(self, "image_size", image_size)
 
     def to_dict(self) -> dict:
         return {"H": self.H.tolist(), "K_rect": self.K_rect.tolist(), "image_size": list(self.image_size)}
@@ -229,6 +259,7 @@ class Camera(_DictEquality):
         object.__setattr__(self, "image_size", _image_size(self.image_size, "image_size"))
         K = _matrix(self.K, (3, 3), "K")
         _check_K(K, "K")
+        _check_plausible(K, self.image_size, "K")
         object.__setattr__(self, "K", K)
         if not isinstance(self.distortion, Distortion):
             raise CamcalError(f"distortion must be a Distortion, got {type(self.distortion).__name__}")

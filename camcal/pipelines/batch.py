@@ -83,7 +83,6 @@ __all__ = [
     "FrameResult",
     "FrameFailure",
     "BatchReport",
-    "parse_frames",
     "frame_path",
     "make_job",
     "process_frame",
@@ -100,42 +99,10 @@ COLOUR_SPACES = ("ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ")
 RECORD_DIR = ".camcal-batch"
 _RECORD_FORMAT = "camcal.batch-frame"
 _PATTERN = re.compile(r"%(0\d+)?d")
-_MAX_FRAMES = 10_000_000
 _CACHE_SIZE = 4
 
 
 # -- frames and patterns ------------------------------------------------------------
-
-
-def parse_frames(text: str) -> tuple[int, ...]:
-    """Frame numbers from ``"1001-1240"``, ``"1001-1240x2"`` (every 2nd) or ``"1,5,10-12"``.
-
-    Returns
-    -------
-    tuple of int
-        Sorted, without repeats.
-
-    Examples
-    --------
-    >>> parse_frames("1001-1009x4,1,2")
-    (1, 2, 1001, 1005, 1009)
-    """
-    frames: set[int] = set()
-    for item in str(text).replace(" ", "").split(","):
-        match = re.fullmatch(r"(-?\d+)(?:-(-?\d+)(?:x(\d+))?)?", item)
-        if not match:
-            raise CamcalError(f"bad frame range {text!r}: expected e.g. 1001-1240, 1001-1240x2 or 1,5,10-12")
-        start = int(match.group(1))
-        end = int(match.group(2)) if match.group(2) is not None else start
-        step = int(match.group(3) or 1)
-        if end < start:
-            raise CamcalError(f"bad frame range {item!r}: the last frame is before the first")
-        if step < 1:
-            raise CamcalError(f"bad frame range {item!r}: the step must be at least 1")
-        if (end - start) // step + len(frames) > _MAX_FRAMES:
-            raise CamcalError(f"frame range {text!r} has more than {_MAX_FRAMES} frames")
-        frames.update(range(start, end + 1, step))
-    return tuple(sorted(frames))
 
 
 def _check_pattern(pattern: str, what: str) -> str:

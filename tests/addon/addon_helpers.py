@@ -93,8 +93,11 @@ def write_rig(path, cameras, frames=None, points=None):
 
 def project_ref(K, R, c, X, distortion=None):
     """camcal's projection (``Camera.project``): pixels (N, 2), centres at integers."""
+    K = np.asarray(K, dtype=float)
+    # the projection does not use the image size: one centred on the principal point keeps K plausible
+    size = (int(2 * abs(K[0, 2])) + 2, int(2 * abs(K[1, 2])) + 2)
     camera = Camera(
-        name="reference", image_size=(1, 1), K=np.asarray(K, dtype=float),
+        name="reference", image_size=size, K=K,
         distortion=Distortion.from_dict(distortion or {"model": "none"}),
         R=np.asarray(R, dtype=float), c=np.asarray(c, dtype=float),
     )

@@ -141,6 +141,22 @@ def test_lens_mapping(addon):
     assert (lens.params["brown_p1"], lens.params["brown_p2"]) == (0.02, -0.01)
 
 
+def test_opencv_rational_thin_prism_lens_in_blender(addon):
+    """The pure-Python OpenCV model equals camcal's (rational and thin prism); BROWN says what it leaves out."""
+    from camcal.model.distortion import Distortion as CamcalDistortion
+
+    m, Distortion = addon.mapping, addon.rigfile.Distortion
+    params = {"k1": -0.21, "k2": 0.04, "p1": 8e-4, "p2": -1.2e-3, "k3": -0.004, "k4": 0.05, "k5": 0.012,
+              "k6": 0.002, "s1": 1.1e-3, "s2": -4e-4, "s3": 1.6e-3, "s4": 2e-4}
+    K = np.array([[1000.0, 0, 950.0], [0, 1000.0, 530.0], [0, 0, 1]])
+    points = np.random.default_rng(3).uniform([0, 0], [1919, 1079], (200, 2))
+    ours = CamcalDistortion("opencv", params).distort(points, K)
+    theirs = np.array([m.opencv_distort(p, (950.0, 530.0), 1000.0, params) for p in points])
+    assert np.abs(ours - theirs).max() < 1e-9
+    lens = m.blender_lens(Distortion("opencv", params), K.tolist(), (1920, 1080))
+    assert not lens.exact and "no k4, k5, k6, s1, s2, s3, s4" in lens.note
+
+
 def test_pixel_conventions_and_margins(addon):
     m = addon.mapping
     assert m.to_blender_pixel((0.0, 0.0), 1080) == (0.5, 1079.5)

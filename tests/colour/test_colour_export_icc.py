@@ -1,6 +1,7 @@
 """ICC camera profiles: structure against the ICC.1 rules, LittleCMS (and ArgyllCMS) as peers."""
 
 import hashlib
+import os
 import shutil
 import struct
 import subprocess
@@ -62,6 +63,8 @@ def test_structure_follows_icc1(profiles, case):
 def test_littlecms_reproduces_the_fit(profiles, case, sim):
     lib = load_lcms()
     if lib is None:
+        if os.environ.get("CAMCAL_REQUIRE_ICC_TOOLS"):
+            pytest.fail("CAMCAL_REQUIRE_ICC_TOOLS is set but LittleCMS (liblcms2) is not available")
         pytest.skip("LittleCMS (liblcms2, or Pillow's bundled copy) is not available")
     fit, profile = profiles[case]
     from scipy.spatial import Delaunay
@@ -141,6 +144,8 @@ def _ti3(path, codes, XYZ):
 def test_argyll_reads_v2_profiles(profiles, tmp_path, sim):
     """ArgyllCMS (Debian's build reads ICC v2 only): iccdump -v 3 and profcheck's CIEDE2000."""
     if not (shutil.which("iccdump") and shutil.which("profcheck")):
+        if os.environ.get("CAMCAL_REQUIRE_ICC_TOOLS"):
+            pytest.fail("CAMCAL_REQUIRE_ICC_TOOLS is set but ArgyllCMS (iccdump, profcheck) is not installed")
         pytest.skip("ArgyllCMS (iccdump, profcheck) is not installed")
     for (model, lin, version), (fit, profile) in profiles.items():
         if version != 2:

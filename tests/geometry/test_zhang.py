@@ -13,7 +13,7 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection, frame_number
 from camcal.pipelines.board import detect_in_images
 from camcal.model.distortion import Distortion
-from camcal.geometry.zhang import calibrate_board
+from camcal.geometry.zhang import AUTO_MODELS, calibrate_board
 from camcal.report.calibration import write_report
 from camcal.model.rig import Camera, Rig
 
@@ -83,7 +83,7 @@ def check_against_truth(result, truth):
 
 def test_two_cameras_polynomial_against_truth():
     truth = true_rig(2, "polynomial")
-    result = calibrate_board(BOARD, board_views(truth, 30, np.random.default_rng(0)))
+    result = calibrate_board(BOARD, board_views(truth, 30, np.random.default_rng(0)), model="polynomial")
     check_against_truth(result, truth)
     assert result.n_outliers == 0
     for camera, true in zip(result.rig.cameras, truth):
@@ -129,7 +129,7 @@ def test_outlier_image_dropped_and_reported():
     detections = board_views(truth, 30, rng)
     bad = detections["cam1"][7]
     detections["cam1"][7] = Detection(bad.image, bad.image_size, bad.ids, bad.corners_px + rng.normal(0, 3.0, bad.corners_px.shape), "synthetic")
-    result = calibrate_board(BOARD, detections)
+    result = calibrate_board(BOARD, detections, model="polynomial")
     assert result.outliers == (("cam1", bad.image),)
     assert result.rig.cameras[1].quality["n_views"] == 29
     check_against_truth(result, truth)
@@ -139,9 +139,9 @@ def test_views_matched_by_frame_number_not_order():
     """Shuffling one camera's list changes nothing: views are paired by frame number."""
     truth = true_rig(2, "polynomial")
     detections = board_views(truth, 12, np.random.default_rng(4))
-    reference = calibrate_board(BOARD, detections)
+    reference = calibrate_board(BOARD, detections, model="polynomial")
     shuffled = dict(detections, cam1=detections["cam1"][::-1])
-    result = calibrate_board(BOARD, shuffled)
+    result = calibrate_board(BOARD, shuffled, model="polynomial")
     assert np.allclose(result.rig.cameras[1].c, reference.rig.cameras[1].c, atol=1e-8)
     assert [frame_number(d.image) for d in shuffled["cam1"]][0] == 11
 
@@ -171,7 +171,7 @@ def test_sigmas_cover_the_true_error():
     baseline_true = np.linalg.norm(truth[1].c)
     inside = {}
     for seed in range(20):
-        result = calibrate_board(BOARD, board_views(truth, 20, np.random.default_rng(100 + seed)))
+        result = calibrate_board(BOARD, board_views(truth, 20, np.random.default_rng(100 + seed)), model="polynomial")
         for camera, true in zip(result.rig.cameras, truth):
             sigma = camera.quality["sigma"]
             errors = {"fx": camera.K[0, 0] - true.K[0, 0], "fy": camera.K[1, 1] - true.K[1, 1],
@@ -314,11 +314,11 @@ def test_half_turned_labelling_in_one_camera_is_resolved():
     clean = board_views(truth, 60, np.random.default_rng(11), board=EVEN_BOARD)
     turned = set(range(2, 60, 5))
     detections = dict(clean, cam1=[half_turned(d) if n in turned else d for n, d in enumerate(clean["cam1"])])
-    result = calibrate_board(EVEN_BOARD, detections)
+    result = calibrate_board(EVEN_BOARD, detections, model="polynomial")
     assert sorted(image for _, image in result.relabelled) == sorted(clean["cam1"][n].image for n in turned)
     assert result.dropped == () and result.n_outliers == 0
     check_against_truth(result, truth)
-    reference = calibrate_board(EVEN_BOARD, clean)
+    reference = calibrate_board(EVEN_BOARD, clean, model="polynomial")
     for camera, expected in zip(result.rig.cameras, reference.rig.cameras):
         assert np.allclose(camera.K, expected.K, atol=1e-6) and np.allclose(camera.c, expected.c, atol=1e-9)
 
@@ -331,11 +331,11 @@ def test_quality_gate_catches_an_unresolved_half_turn(monkeypatch):
     detections = board_views(truth, 20, np.random.default_rng(11), board=EVEN_BOARD)
     detections["cam1"] = [half_turned(d) if n in {2, 5, 9, 14, 17} else d for n, d in enumerate(detections["cam1"])]
     monkeypatch.setattr(zhang, "_resolve_half_turns", lambda board, names, by_frame, starts: (by_frame, starts, [], []))
-    result = zhang.calibrate_board(EVEN_BOARD, detections, min_outlier_px=math.inf)
+    result = zhang.calibrate_board(EVEN_BOARD, detections, model="polynomial", min_outlier_px=math.inf)
     problems = zhang.quality_problems(result)
     assert problems and all("\n" not in p for p in problems)
     clean = board_views(truth, 20, np.random.default_rng(12), board=EVEN_BOARD)
-    assert zhang.quality_problems(calibrate_board(EVEN_BOARD, clean)) == []
+    assert zhang.quality_problems(calibrate_board(EVEN_BOARD, clean, model="polynomial")) == []
 
 
 def test_heldout_views_measured_by_pnp():
@@ -361,14 +361,17 @@ def test_heldout_views_measured_by_pnp():
 
 
 def test_model_auto_chooses_by_heldout_rms():
-    """A strong division lens: auto tries every model and keeps the lowest held-out RMS (the division model)."""
+    """A strong division lens: auto ranks every model by held-out RMS and keeps the division model."""
     truth = [dataclass_replace(c, distortion=Distortion("division", {"lambda": -6e-7})) for c in true_rig(1, "division")]
     detections = board_views(truth, 16, np.random.default_rng(8))
-    result = calibrate_board(BOARD, detections, model="auto")
+    result = calibrate_board(BOARD, detections)  # auto is the default
     scores = result.model_heldout_rms_px
-    assert set(scores) == {"polynomial", "opencv", "division"}
-    assert result.model == min(scores, key=scores.get) == "division"
-    assert result.rig.cameras[0].distortion.model == "division"
+    assert {score.model for score in result.model_ranking} == set(AUTO_MODELS)
+    assert all((score.rms_px is None) == bool(score.reason) for score in result.model_ranking)
+    assert {"division", "polynomial", "kannala-brandt", "opencv"} <= set(scores)
+    assert [s.model for s in result.model_ranking][0] == min(scores, key=scores.get)
+    assert result.model == "division" and result.rig.cameras[0].distortion.model == "division"
+    assert all("\n" not in score.describe() for score in result.model_ranking)
 
 
 def test_cli_quality_gate_refuses_with_one_line(shared_data, tmp_path, capsys, monkeypatch):

@@ -8,7 +8,8 @@ import pytest
 
 from camcal.base.errors import CamcalError
 from camcal.model.camera import pixels_from_colmap
-from camcal.io.interchange import export_rig, import_rig, max_pixel_residual
+from camcal.io.conversion import max_pixel_residual
+from camcal.io.interchange import export_rig, import_rig
 from camcal.io.ply import read_points_ply
 from camcal.model.rig import Rig
 

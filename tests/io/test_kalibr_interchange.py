@@ -5,7 +5,8 @@ import pytest
 import yaml
 
 from camcal.base.errors import CamcalError
-from camcal.io.interchange import export_rig, import_rig, max_pixel_residual
+from camcal.io.conversion import max_pixel_residual
+from camcal.io.interchange import export_rig, import_rig
 
 from interchange_rigs import BROWN, RADTAN, division_rig, fisheye_rig, relative_projection_error, stereo_rig, world_points
 

@@ -8,7 +8,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
-from camcal.io.interchange import export_rig, import_rig, max_pixel_residual
+from camcal.io.conversion import max_pixel_residual
+from camcal.io.interchange import export_rig, import_rig
 from camcal.model.rig import Rig
 
 from interchange_rigs import division_rig, fisheye_rig, relative_projection_error, stereo_rig, world_points

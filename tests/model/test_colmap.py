@@ -17,6 +17,8 @@ CASES = {
     "polynomial k3": dict(distortion=Distortion("polynomial", {"k1": -0.11, "k2": 0.02, "k3": -0.003})),
     "opencv": dict(distortion=Distortion("opencv", {"k1": -0.1, "k2": 0.01, "p1": 4e-4, "p2": -2e-4, "k3": 0.0})),
     "opencv k3": dict(distortion=Distortion("opencv", {"k1": -0.1, "k2": 0.01, "p1": 4e-4, "p2": -2e-4, "k3": 0.002})),
+    "opencv rational": dict(distortion=Distortion("opencv", {"k1": -0.1, "k2": 0.01, "p1": 4e-4, "p2": -2e-4, "k3": 0.002,
+                                                           "k4": 0.05, "k5": 0.01, "k6": -0.002})),
     "division": dict(fx=1500.0, fy=1500.0, distortion=Distortion("division", {"lambda": -6e-8})),
     "kannala-brandt": dict(fx=520.0, fy=517.0, distortion=Distortion(
         "kannala-brandt", {"k1": 0.021, "k2": -0.0042, "k3": 0.0013, "k4": -0.00021})),
@@ -58,6 +60,8 @@ def test_unmappable_cameras_are_refused():
         camera_to_colmap(example_camera(distortion=Distortion("division", {"lambda": -1e-7})))
     with pytest.raises(CamcalError, match="centred on the principal point"):
         camera_to_colmap(example_camera(fx=1500.0, fy=1500.0, distortion=Distortion("division", {"lambda": -1e-7}, center=(900.0, 500.0))))
+    with pytest.raises(CamcalError, match="no thin-prism terms"):
+        camera_to_colmap(example_camera(distortion=Distortion.from_opencv_coefficients([0.1] * 4 + [0.0] * 7 + [1e-3])))
     with pytest.raises(CamcalError, match="no camcal counterpart"):
         camera_from_colmap("x", "THIN_PRISM_FISHEYE", (10, 10), [1, 1, 1, 1] + [0] * 8, np.eye(3), np.zeros(3))
     with pytest.raises(CamcalError, match="takes 4 parameters, got 3"):

@@ -152,7 +152,7 @@ def test_malformed_files(tmp_path):
 
 def test_inputs_are_copied_not_aliased():
     K = example_camera().K.copy()
-    camera = Camera("a", (10, 10), K, Distortion.none(), np.eye(3), np.zeros(3))
+    camera = Camera("a", (1920, 1080), K, Distortion.none(), np.eye(3), np.zeros(3))
     K[0, 0] = 5.0
     assert camera.K[0, 0] != 5.0
     with pytest.raises(ValueError):

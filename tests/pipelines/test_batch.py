@@ -21,7 +21,7 @@ import OpenEXR
 import pytest
 
 from camcal.pipelines.batch import (
-    ColourStep, make_job, parse_frames, process_frame, record_path, run_batch,
+    ColourStep, make_job, process_frame, record_path, run_batch,
 )
 from camcal.cli import main
 from camcal.colour.characterise import characterise
@@ -112,18 +112,6 @@ def _single_process(job, frames, out_dir: Path):
     for frame in frames:
         process_frame(frame, local)
     return local
-
-
-# -- frame ranges --------------------------------------------------------------------
-
-
-def test_parse_frames():
-    assert parse_frames("1001-1005") == (1001, 1002, 1003, 1004, 1005)
-    assert parse_frames("1-9x4") == (1, 5, 9)
-    assert parse_frames("7, 3,2-4") == (2, 3, 4, 7)
-    for bad in ("1240-1001", "abc", "1-5x0", "", "1001-"):
-        with pytest.raises(CamcalError, match="frame range"):
-            parse_frames(bad)
 
 
 # -- single process against the existing single-frame paths --------------------------

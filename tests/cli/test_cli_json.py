@@ -7,7 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from camcal.cli import SUMMARY_FORMAT, SUMMARY_VERSION, main
+from camcal.cli import main
+from camcal.cli.summary import SUMMARY_FORMAT, SUMMARY_VERSION
 from camcal.colour.fitfile import load_fit
 from camcal.colour.patches import PatchSet, write_patch_csv
 from camcal.model.rig import Rig

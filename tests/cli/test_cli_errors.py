@@ -11,8 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from camcal import cli
-from camcal.cli import main
+from camcal.cli import app, main
 from camcal.io.points_csv import write_correspondences
 from camcal.model.rig import Rig
 from camcal.synthetic import example_camera, points_in_view
@@ -191,16 +190,16 @@ def _boom(args: argparse.Namespace) -> int:
 @pytest.fixture
 def broken_rig_show(monkeypatch):
     """``rig show`` whose handler fails like a bug in camcal would."""
-    real = cli.build_parser
+    real = app.build_parser
 
-    def build():
-        parser = real()
-        for path, leaf in cli._leaf_parsers(parser, ()):
+    def build(verbs=None):
+        parser = real(verbs)
+        for path, leaf in app.leaf_parsers(parser):
             if path == ("rig", "show"):
                 leaf.set_defaults(func=_boom)
         return parser
 
-    monkeypatch.setattr(cli, "build_parser", build)
+    monkeypatch.setattr(app, "build_parser", build)
 
 
 def test_internal_error_names_the_verb_and_debug(broken_rig_show, inputs, capsys):
@@ -225,16 +224,16 @@ def test_os_error_on_a_user_path_is_bad_input(monkeypatch, inputs, capsys):
     def unreadable(args):
         raise PermissionError(13, "Permission denied", str(inputs / "locked.png"))
 
-    real = cli.build_parser
+    real = app.build_parser
 
-    def build():
-        parser = real()
-        for path, leaf in cli._leaf_parsers(parser, ()):
+    def build(verbs=None):
+        parser = real(verbs)
+        for path, leaf in app.leaf_parsers(parser):
             if path == ("rig", "show"):
                 leaf.set_defaults(func=unreadable)
         return parser
 
-    monkeypatch.setattr(cli, "build_parser", build)
+    monkeypatch.setattr(app, "build_parser", build)
     assert main(["rig", "show", "x"]) == 2
     assert capsys.readouterr().err == f"camcal: error: {inputs / 'locked.png'}: Permission denied\n"
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 import camcal.pipelines.solve as solve
-from camcal.cli import build_parser, expand_glob, main
+from camcal.cli import build_parser, main
+from camcal.cli.options import expand_glob
 from camcal.base.errors import CamcalError
 from camcal.model.rig import Rig
 from camcal.synthetic import example_camera

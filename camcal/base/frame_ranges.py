@@ -1,0 +1,43 @@
+"""Frame ranges: ``1001-1240``, ``1001-1240x2`` or ``1,5,10-12`` as sorted frame numbers."""
+
+from __future__ import annotations
+
+import re
+
+from camcal.base.errors import CamcalError
+
+__all__ = ["MAX_FRAMES", "parse_frames"]
+
+#: The most frames one list may name.
+MAX_FRAMES = 10_000_000
+
+
+def parse_frames(text: str) -> tuple[int, ...]:
+    """Frame numbers from ``"1001-1240"``, ``"1001-1240x2"`` (every 2nd) or ``"1,5,10-12"``.
+
+    Returns
+    -------
+    tuple of int
+        Sorted, without repeats.
+
+    Examples
+    --------
+    >>> parse_frames("1001-1009x4,1,2")
+    (1, 2, 1001, 1005, 1009)
+    """
+    frames: set[int] = set()
+    for item in str(text).replace(" ", "").split(","):
+        match = re.fullmatch(r"(-?\d+)(?:-(-?\d+)(?:x(\d+))?)?", item)
+        if not match:
+            raise CamcalError(f"bad frame range {text!r}: expected e.g. 1001-1240, 1001-1240x2 or 1,5,10-12")
+        start = int(match.group(1))
+        end = int(match.group(2)) if match.group(2) is not None else start
+        step = int(match.group(3) or 1)
+        if end < start:
+            raise CamcalError(f"bad frame range {item!r}: the last frame is before the first")
+        if step < 1:
+            raise CamcalError(f"bad frame range {item!r}: the step must be at least 1")
+        if (end - start) // step + len(frames) > MAX_FRAMES:
+            raise CamcalError(f"frame range {text!r} has more than {MAX_FRAMES} frames")
+        frames.update(range(start, end + 1, step))
+    return tuple(sorted(frames))

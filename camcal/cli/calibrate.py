@@ -1,0 +1,173 @@
+"""``camcal calibrate dlt | board``: one camera from 3D-2D points, or a rig from board images."""
+
+from __future__ import annotations
+
+import argparse
+
+from camcal.base.errors import CamcalError
+from camcal.cli.options import (expand_glob, handler, image_size, image_size_option, loss_option, named_option,
+                                out_option, parse_holdout, report_option, verb_group)
+from camcal.cli.summary import summary_of
+
+__all__ = ["register"]
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """``dlt`` and ``board`` under ``camcal calibrate``."""
+    verbs = verb_group(parser, "calibrate_verb", "METHOD")
+    dlt = verbs.add_parser("dlt", help="one camera from 3D-2D correspondences (normalised DLT + LM)")
+    dlt.add_argument("--points", required=True, metavar="FILE.csv", help="correspondences X,Y,Z,u,v")
+    image_size_option(dlt, required=True)
+    dlt.add_argument("--name", default="camera", help="camera name in the rig (default: camera)")
+    out_option(dlt, "FILE.rig.json")
+    handler(dlt, _dlt)
+    board = verbs.add_parser(
+        "board", help="one camera or an N-camera rig from chessboard / ChArUco images (joint refinement)")
+    board.add_argument(
+        "--board", required=True, metavar="SPEC",
+        help="chessboard:WxH:SQUARE (inner corners) or charuco:DICT:WxH:SQUARE:MARKER (squares)",
+    )
+    named_option(board, "--camera", "NAME=GLOB", "a camera and its images, e.g. left='shots/left*.jpg' "
+                 "right='shots/right*.jpg' (several entries or a repeated option; globs absolute or relative)",
+                 required=True)
+    board.add_argument("--model", default="auto",
+                       choices=("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational",
+                                "opencv-thin-prism", "auto"),
+                       help="lens model; kannala-brandt is OpenCV's fisheye model, opencv-rational and "
+                       "opencv-thin-prism its 8- and 12-coefficient models; auto (default) ranks every model by "
+                       "views held out in turn and keeps the simplest within 1 %% of the best")
+    board.add_argument("--holdout", metavar="FRAMES",
+                       help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
+                       "numbers and ranges (21-25) or a fraction (0.2)")
+    loss_option(board, "robust loss on each corner (Ceres; default: trivial)")
+    board.add_argument("--loss-scale", type=float, default=1.0, metavar="PX", help="scale of the loss (default: 1 px)")
+    board.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="images detected at once (threads; default: the CPU count)")
+    board.add_argument("--cache", metavar="DIR",
+                       help="corner cache directory, keyed by image content and detector settings "
+                       "(default: $XDG_CACHE_HOME/camcal/corners)")
+    board.add_argument("--no-cache", action="store_true", help="detect again, do not read or write the cache")
+    board.add_argument("--force", action="store_true",
+                       help="write a rig that fails the quality gate (principal point outside the image, RMS over "
+                       "1.5 px, sigma fx over 5 %%) and exit 3 instead of refusing it")
+    board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
+    out_option(board, "FILE.rig.json")
+    report_option(board, "write PNG plots: residuals, per-image RMS, coverage")
+    handler(board, _board)
+
+
+def _dlt(args: argparse.Namespace) -> int:
+    """Calibrate one camera from n >= 6 non-coplanar 3D points and their pixels. The CSV has the header X,Y,Z,u,v;
+    pixel (0, 0) is the centre of the top-left pixel.
+    """
+    from camcal.geometry.dlt import calibrate_dlt
+    from camcal.io.points_csv import read_correspondences
+    from camcal.model.rig import Rig, make_provenance
+
+    size = image_size(args.image_size)
+    X, x = read_correspondences(args.points)
+    result = calibrate_dlt(X, x)
+    rig = Rig(
+        (result.to_camera(args.name, size),),
+        provenance=make_provenance("dlt", points=str(args.points)),
+    )
+    rig.save(args.out)
+    K, sigma = result.K, result.sigmas
+    print(
+        f"RMS reprojection error: {result.rms_px:.3f} px "
+        f"(worst {result.worst_px:.3f} px, {len(X)} points)"
+    )
+    print(
+        f"fx {K[0, 0]:.2f} +/- {sigma['fx']:.2f}  fy {K[1, 1]:.2f} +/- {sigma['fy']:.2f}  "
+        f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) px  skew {K[0, 1]:.3g}"
+    )
+    print(f"camera centre ({result.c[0]:.4f}, {result.c[1]:.4f}, {result.c[2]:.4f})")
+    out = summary_of(args)
+    out.figures(rms_px=result.rms_px, worst_px=result.worst_px, n_points=len(X), K=K, sigma=sigma, c=result.c)
+    out.wrote(args.out, "rig")
+    return 0
+
+
+def _board(args: argparse.Namespace) -> int:
+    """Detect the board in every image, calibrate each camera with OpenCV, then refine all intrinsics, distortion
+    and camera poses jointly. Views of several cameras are matched by the frame number in their file names;
+    the first camera is the reference (R = I, c = 0).
+    """
+    import os
+
+    import numpy as np
+
+    from camcal.geometry.board import frame_number, parse_board
+    from camcal.pipelines.board import default_cache_dir, detect_in_images
+    from camcal.geometry.zhang import calibrate_board, quality_problems
+    from camcal.base.progress import Progress
+    from camcal.report.calibration import write_report
+
+    board = parse_board(args.board)
+    if not args.camera:
+        raise CamcalError("--camera: give at least one camera, e.g. --camera left='shots/left*.jpg'")
+    cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()}
+    detections = {}
+    for name, files in cameras.items():
+        report = detect_in_images(board, files, progress=Progress(len(files), f"detecting {name}", "images").report,
+                                  workers=args.workers or os.cpu_count() or 1,
+                                  cache=None if args.no_cache else (args.cache or default_cache_dir()))
+        print(f"{name}: {report.summary()}")
+        detections[name] = report.detections
+    holdout: set[int] = set()
+    if args.holdout:
+        frames = sorted({frame_number(d.image) for views in detections.values() for d in views})
+        holdout = parse_holdout(args.holdout, frames)
+    result = calibrate_board(board, detections, model=args.model, units=args.units, loss=args.loss,
+                             loss_scale=args.loss_scale, holdout=holdout)
+    problems = quality_problems(result)
+    if problems and not args.force:
+        raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)
+                          + " (--force writes it anyway)")
+    result.rig.save(args.out)
+    for note in result.notes:
+        print(note)
+    if result.model_ranking:
+        print(f"model auto: views held out in turn, chose {result.model}")
+        for score in result.model_ranking:
+            print("  " + score.describe())
+    if result.relabelled:
+        print("relabelled by a half turn (symmetric board) to agree with the rig: "
+              + ", ".join(image for _, image in result.relabelled))
+    if result.dropped:
+        print("dropped (no corner labelling agrees with the rig): " + ", ".join(image for _, image in result.dropped))
+    print(result.summary())
+    if result.outliers:
+        print("dropped as outliers: " + ", ".join(image for _, image in result.outliers))
+    for camera in result.rig.cameras:
+        K, sigma = camera.K, camera.quality["sigma"]
+        line = (
+            f"{camera.name}: fx {K[0, 0]:.2f} +/- {sigma['fx']:.2f}  fy {K[1, 1]:.2f} +/- {sigma['fy']:.2f}  "
+            f"principal point ({K[0, 2]:.2f}, {K[1, 2]:.2f}) +/- ({sigma['cx']:.2f}, {sigma['cy']:.2f}) px  "
+            f"RMS {camera.quality['rms_px']:.3f} px"
+        )
+        if camera.quality.get("heldout_rms_px") is not None:
+            line += f" (held-out {camera.quality['heldout_rms_px']:.3f} px)"
+        if "baseline_rel" in sigma:
+            baseline = float(np.linalg.norm(camera.c))
+            line += (f"  baseline {baseline:.4f} +/- {sigma['baseline_rel'] * baseline:.4f} {result.rig.units}"
+                     f"  rotation +/- {sigma['rotation_deg']:.3f} deg")
+        print(line)
+    out = summary_of(args)
+    if problems:
+        out.warn("written with --force although " + "; ".join(problems))
+    out.figures(
+        summary=result.summary(), outliers=[image for _, image in result.outliers],
+        detections={name: len(found) for name, found in detections.items()},
+        cameras={camera.name: {"K": camera.K, "distortion": camera.distortion.to_dict(), "c": camera.c,
+                               "quality": camera.quality.to_dict()} for camera in result.rig.cameras},
+        model=result.model, heldout_rms_px=result.heldout_rms_px, model_heldout_rms_px=dict(result.model_heldout_rms_px),
+        model_ranking=[{"model": s.model, "rms_px": s.rms_px, "n_params": s.n_params, "reason": s.reason}
+                       for s in result.model_ranking],
+        relabelled=[image for _, image in result.relabelled], dropped=[image for _, image in result.dropped],
+        quality_problems=problems,
+    )
+    out.wrote(args.out, "rig")
+    if args.report:
+        out.wrote_each(write_report(result, args.report), "report", say=True)
+    return 3 if problems else 0

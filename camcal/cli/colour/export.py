@@ -1,0 +1,98 @@
+"""``camcal colour export``: fits as OCIO colour spaces (config + CLF) and ICC camera profiles."""
+
+from __future__ import annotations
+
+import argparse
+
+from camcal.base.errors import CamcalError
+from camcal.cli.options import handler
+from camcal.cli.summary import summary_of
+
+__all__ = ["register"]
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """The options of ``camcal colour export``."""
+    parser.add_argument("fits", nargs="+", metavar="FIT.colour.json", help="characterisation files")
+    parser.add_argument("--camera-name", metavar="NAME",
+                        help="camera name (one fit only; default: the fit's camera, else the file name)")
+    parser.add_argument("--ocio", metavar="OUTDIR", help="write OUTDIR/config.ocio and OUTDIR/luts/*.clf")
+    parser.add_argument("--base", default="ocio://studio-config-latest", metavar="CONFIG",
+                        help="config to add the spaces to (default: %(default)s; see below)")
+    parser.add_argument("--cat", choices=("Bradford", "CAT02"), default="Bradford",
+                        help="adaptation from the fit's white to the ACES white (default: %(default)s)")
+    parser.add_argument("--icc", metavar="OUT.icc", help="write an ICC camera profile (one fit only)")
+    parser.add_argument("--icc-version", type=int, choices=(4, 2), default=4,
+                        help="ICC profile version: 4 (ICC.1:2010, default) or 2 (ICC.1:2001-04)")
+    parser.add_argument("--max-bake-error", type=float, default=0.2, metavar="DE",
+                        help="largest CIEDE2000 a baked LUT may add over the chart gamut and plausible surface "
+                        "colours (default: %(default)s)")
+    handler(parser, _export)
+
+
+def _export(args: argparse.Namespace) -> int:
+    """Export characterisations (*.colour.json) as input colour spaces 'camcal <camera>' (family Input/camcal) of
+    an OpenColorIO config, and/or as an ICC camera profile. Matrix fits are exact; other models are baked
+    (log-chromaticity shaper + 3D LUT; ICC v4: float D2B0/D2B1 plus a 16-bit A2B0) with the bake error
+    checked over the chart gamut and plausible surface colours.
+
+    --base: 'camcal' (camcal's small ACES config, ocio_configs/camcal_base.ocio), an ocio:// built-in
+    (default: ocio://studio-config-latest, which needs OCIO 2.6; Blender 5.0 links OCIO 2.4: use 'camcal' or
+    ocio://studio-config-v2.2.0_aces-v1.3_ocio-v2.4 there) or a .ocio file with an aces_interchange role.
+    """
+    import dataclasses
+    from pathlib import Path
+
+    from camcal.colour.fitfile import ColourFit, load_colour_file
+
+    if not args.ocio and not args.icc:
+        raise CamcalError("nothing to write: give --ocio OUTDIR and/or --icc OUT.icc")
+    if args.camera_name and len(args.fits) > 1:
+        raise CamcalError(f"--camera-name needs exactly one fit, got {len(args.fits)}")
+    if args.icc and len(args.fits) > 1:
+        raise CamcalError(f"--icc writes one profile: give one fit, got {len(args.fits)}")
+    if not (args.max_bake_error > 0):
+        raise CamcalError(f"--max-bake-error must be > 0, got {args.max_bake_error}")
+    out = summary_of(args)
+    fits, matches = [], []
+    for path in args.fits:
+        fit = load_colour_file(path)
+        if not isinstance(fit, ColourFit):
+            matches.append(fit)
+            continue
+        name = args.camera_name or fit.camera or Path(path).name.removesuffix(".json").removesuffix(".colour")
+        fits.append((name, fit))
+    if args.icc and not fits:
+        raise CamcalError("--icc needs a characterisation (kind characterisation); a camera match has no ICC profile")
+    profile = None
+    if args.icc:
+        from camcal.colour.export_icc import icc_profile_from_fit, write_icc
+
+        profile = icc_profile_from_fit(fits[0][1], fits[0][0], version=args.icc_version,
+                                       max_delta_E=args.max_bake_error)
+    if args.ocio:
+        from camcal.colour.export_ocio import export_ocio
+
+        result = export_ocio(fits, args.ocio, base=args.base, cat=args.cat, max_delta_E=args.max_bake_error,
+                             matches=matches)
+        for space in result.spaces:
+            print(space.summary())
+        print(f"wrote {result.config_path} (base {result.base}, {len(fits)} camera space(s), {len(matches)} match Look(s))")
+        out.figures(base=result.base, n_matches=len(matches), spaces=[{
+            "name": space.name, "camera": space.camera, "model": space.model, "kind": space.kind,
+            "lut_size": space.lut_size, "clf": space.clf, "linearisation_error": space.linearisation_error,
+            "bake_error_delta_E2000": None if space.bake_error is None else dataclasses.asdict(space.bake_error),
+        } for space in result.spaces])
+        out.wrote(result.config_path, "ocio config", say=False)
+        for space in result.spaces:
+            if space.clf:
+                out.wrote(Path(args.ocio) / space.clf, "clf", say=False)
+    if profile is not None:
+        write_icc(profile, args.icc)
+        print(f"wrote {args.icc} (ICC v{profile.version}, {profile.summary()})")
+        out.figures(icc={"version": profile.version, "kind": profile.kind, "bake_error_delta_E2000":
+                         None if profile.kind == "matrix-trc" else dataclasses.asdict(profile.bake_error),
+                         "float_clut_size": profile.float_clut_size, "float_bake_error_delta_E2000":
+                         None if profile.float_bake_error is None else dataclasses.asdict(profile.float_bake_error)})
+        out.wrote(args.icc, "icc", say=False)
+    return 0

@@ -1,0 +1,94 @@
+"""``camcal distortion fit``: a lens model from straight lines (plumb-line fit)."""
+
+from __future__ import annotations
+
+import argparse
+
+from camcal.base.errors import CamcalError
+from camcal.cli.options import handler, out_option, report_option, verb_group
+from camcal.cli.summary import summary_of
+
+__all__ = ["register"]
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """``fit`` under ``camcal distortion``."""
+    verbs = verb_group(parser, "distortion_verb")
+    fit = verbs.add_parser("fit", help="plumb-line fit (Strand & Hayman, refined by Devernay & Faugeras)")
+    fit.add_argument("images", nargs="*", metavar="IMAGES", help="images of one camera")
+    fit.add_argument("--lines", metavar="LINES.json", help="line points instead of images")
+    fit.add_argument("--pattern", metavar="COLSxROWS", help="chessboard inner corners, e.g. 9x6 (default: edges)")
+    fit.add_argument("--model", choices=("division", "polynomial"), default="division")
+    fit.add_argument("--fit-centre", action="store_true", help="fit the distortion centre too")
+    out_option(fit, "lens.json")
+    report_option(fit, "write per-line figures to DIR/plumbline_report.json")
+    handler(fit, _fit)
+
+
+def _pattern(value: str) -> tuple[int, int]:
+    try:
+        cols, rows = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        raise CamcalError(f"--pattern must look like 9x6 (inner corners), got {value!r}") from None
+    if cols < 2 or rows < 2:
+        raise CamcalError(f"--pattern needs at least 2x2 inner corners, got {value!r}")
+    return cols, rows
+
+
+def _fit(args: argparse.Namespace) -> int:
+    """Fit a division or polynomial lens model so that straight lines become straight. Lines come from chessboard
+    rows/columns (--pattern), from long edges in IMAGES, or from LINES.json: {"image_size": [W, H], "lines":
+    [[[x, y], ...], ...]}.
+    """
+    import cv2
+
+    from pathlib import Path
+
+    from camcal.geometry.lines import lines_from_images
+    from camcal.geometry.plumbline import fit_plumbline
+    from camcal.io.lines import read_lines
+    from camcal.io.frames import imread
+    from camcal.base.jsonfile import write_json
+
+    if bool(args.images) == bool(args.lines):
+        raise CamcalError("give either IMAGES or --lines LINES.json (not both)")
+    if args.lines:
+        lines = read_lines(args.lines)
+        skipped: list[str] = []
+    else:
+        images = []
+        for path in args.images:
+            images.append(imread(path, cv2.IMREAD_GRAYSCALE))
+        pattern = _pattern(args.pattern) if args.pattern else None
+        lines, skipped_index = lines_from_images(images, pattern)
+        skipped = [args.images[i] for i in skipped_index]
+        what = "board" if pattern else "long straight edges"
+        print(f"{what} found in {len(images) - len(skipped)} / {len(images)} images"
+              + (f" (skipped: {', '.join(skipped)})" if skipped else ""))
+    result = fit_plumbline(lines, args.model, fit_center=args.fit_centre)
+    write_json(args.out, result.to_dict())
+    if args.report:
+        write_json(Path(args.report) / "plumbline_report.json", {
+            **result.to_dict(),
+            "strand_hayman": {
+                "distortion": result.initial.distortion.to_dict(),
+                "lambda_per_line": result.initial.lambda_per_line.tolist(),
+                "weights": result.initial.weights.tolist(),
+            },
+            "rms_before_px": result.rms_before_px.tolist(),
+            "rms_after_px": result.rms_after_px.tolist(),
+        })
+    params = ", ".join(f"{k} {v:.6g}" for k, v in result.distortion.params.items())
+    centre = result.distortion.center or tuple(result.K[:2, 2])
+    print(f"{result.distortion.model}: {params} about ({centre[0]:.2f}, {centre[1]:.2f}) px")
+    out = summary_of(args)
+    out.figures(distortion=result.distortion.to_dict(), straightness_rms_before_px=result.straightness_rms_before_px,
+                straightness_rms_px=result.straightness_rms_px, worst_line_rms_px=float(result.rms_after_px.max()),
+                n_lines=result.n_lines, n_points=result.n_points, skipped=skipped)
+    out.wrote(args.out, "lens", say=False)
+    if args.report:
+        out.wrote(Path(args.report) / "plumbline_report.json", "report", say=False)
+    print(f"straightness RMS: {result.straightness_rms_before_px:.3f} px before, "
+          f"{result.straightness_rms_px:.3f} px after (worst line {result.rms_after_px.max():.3f} px, "
+          f"{result.n_lines} lines, {result.n_points} points)")
+    return 0

@@ -1,0 +1,194 @@
+"""The options several verbs share, written once: NAME=VALUE camera specs and globs, rig, out, report, holdout.
+
+A verb module adds a shared option with the function named after it
+(``out_option(parser, "FILE.rig.json")``), so one option is spelled, typed
+and checked the same in every verb that has it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import inspect
+import os
+import re
+from collections.abc import Sequence
+
+from camcal.base.errors import CamcalError
+from camcal.base.frame_ranges import parse_frames
+
+__all__ = [
+    "LOSSES",
+    "NamedValues",
+    "camera_label_option",
+    "camera_option",
+    "expand_glob",
+    "handler",
+    "image_size",
+    "image_size_option",
+    "loss_option",
+    "max_fov_option",
+    "name_value",
+    "named_option",
+    "out_option",
+    "parse_holdout",
+    "report_option",
+    "rig_argument",
+    "undistort_mode_options",
+    "verb_group",
+]
+
+#: Robust losses of the bundle adjustments (Ceres' names).
+LOSSES = ("trivial", "huber", "soft_l1", "cauchy")
+
+
+def handler(parser: argparse.ArgumentParser, run) -> None:
+    """``run`` handles the verb (parsed namespace in, exit code out); its docstring is the verb's ``--help``.
+
+    The docstring's first paragraph is printed before the options (the
+    description), the rest after them (the epilog), so the help says what
+    the function that runs the verb does, in its words.
+    """
+    description, _, epilog = inspect.cleandoc(run.__doc__ or "").partition("\n\n")
+    parser.set_defaults(func=run)
+    parser.description = description or None
+    parser.epilog = epilog or None
+
+
+def verb_group(parser: argparse.ArgumentParser, dest: str, metavar: str = "VERB"):
+    """The sub-verbs of a verb group (``camcal rig show``); one of them is required."""
+    verbs = parser.add_subparsers(dest=dest, metavar=metavar)
+    verbs.required = True
+    return verbs
+
+
+# -- NAME=VALUE options and globs --------------------------------------------------------
+
+
+def name_value(entry: str, option: str, form: str) -> tuple[str, str]:
+    """Split a ``NAME=VALUE`` option value, or fail naming the option."""
+    name, sep, value = entry.partition("=")
+    if not sep or not name or not value:
+        raise CamcalError(f"{option}: expected {form}, got {entry!r}")
+    return name, value
+
+
+class NamedValues(argparse.Action):
+    """A ``NAME=VALUE`` option: repeatable and multi-valued mean the same.
+
+    ``--images left=A right=B`` and ``--images left=A --images right=B`` both
+    give ``{"left": "A", "right": "B"}`` (in order). A name given twice or an
+    entry without ``=`` raises :class:`CamcalError` naming the option and the
+    entry. The default is an empty dict.
+    """
+
+    def __init__(self, option_strings, dest, nargs=None, default=None, **kwargs) -> None:
+        super().__init__(option_strings, dest, nargs="+", default={}, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        current = dict(getattr(namespace, self.dest, None) or {})
+        form = self.metavar if isinstance(self.metavar, str) else "NAME=VALUE"
+        for entry in values:
+            name, value = name_value(entry, option_string, form)
+            if name in current:
+                raise CamcalError(f"{option_string} {entry}: name {name!r} given twice")
+            current[name] = value
+        setattr(namespace, self.dest, current)
+
+
+def named_option(parser, option: str, metavar: str, help: str, required: bool = False) -> None:
+    """A :class:`NamedValues` option such as ``--camera NAME=GLOB``."""
+    parser.add_argument(option, required=required, action=NamedValues, metavar=metavar, help=help)
+
+
+def expand_glob(option: str, name: str, pattern: str, root: str | os.PathLike | None = None,
+                what: str = "image") -> list[str]:
+    """The files a glob matches, sorted; absolute or relative (to ``root``, else the cwd).
+
+    Raises
+    ------
+    CamcalError
+        ``"--images left=L/*.png: no image matches"`` when nothing matches.
+    """
+    full = os.path.join(os.fspath(root), os.path.expanduser(pattern)) if root else os.path.expanduser(pattern)
+    files = sorted(path for path in glob.glob(full) if os.path.isfile(path))
+    if not files:
+        where = f" (in {root})" if root and not os.path.isabs(pattern) else ""
+        raise CamcalError(f"{option} {name}={pattern}: no {what} matches{where}")
+    return files
+
+
+# -- rigs, cameras, files written --------------------------------------------------------
+
+
+def rig_argument(parser, help: str = "a *.rig.json file", metavar: str = "RIG", **kwargs) -> None:
+    """The positional rig file (``RIG``)."""
+    parser.add_argument("rig", metavar=metavar, help=help, **kwargs)
+
+
+def camera_option(parser) -> None:
+    """``--camera NAME``: the one rig camera a verb works on."""
+    parser.add_argument("--camera", required=True, metavar="NAME")
+
+
+def camera_label_option(parser) -> None:
+    """``--camera NAME``: the camera name a colour verb records in its file."""
+    parser.add_argument("--camera", default=None, help="camera name recorded in the file")
+
+
+def out_option(parser, metavar: str, help: str | None = None) -> None:
+    """``--out``: the file or folder a verb writes (required)."""
+    parser.add_argument("--out", required=True, metavar=metavar, help=help)
+
+
+def report_option(parser, help: str) -> None:
+    """``--report DIR``: figures and plots beside the result."""
+    parser.add_argument("--report", metavar="DIR", help=help)
+
+
+def image_size_option(parser, help: str | None = None, required: bool = False) -> None:
+    """``--image-size W H`` (checked with :func:`image_size`)."""
+    parser.add_argument("--image-size", required=required, nargs=2, type=int, metavar=("W", "H"), help=help)
+
+
+def image_size(value: Sequence[int]) -> tuple[int, int]:
+    """``--image-size W H`` as ``(width, height)``, both positive."""
+    width, height = value
+    if width <= 0 or height <= 0:
+        raise CamcalError(f"--image-size must be two positive integers, got {width} {height}")
+    return width, height
+
+
+def undistort_mode_options(parser, mode_help: str) -> None:
+    """``--mode crop|keep|overscan`` and ``--overscan``: the pinhole camera an undistortion makes."""
+    parser.add_argument("--mode", choices=("crop", "keep", "overscan"), default="crop", help=mode_help)
+    parser.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+
+
+def max_fov_option(parser, help: str) -> None:
+    """``--max-fov DEG``: the widest angle a pinhole output holds."""
+    parser.add_argument("--max-fov", type=float, metavar="DEG", help=help)
+
+
+def loss_option(parser, help: str) -> None:
+    """``--loss``: the robust loss of a bundle adjustment (:data:`LOSSES`)."""
+    parser.add_argument("--loss", default="trivial", choices=LOSSES, help=help)
+
+
+# -- frame lists -----------------------------------------------------------------------------
+
+
+def parse_holdout(text: str, frames: list[int]) -> set[int]:
+    """``--holdout``: frame numbers and ranges (``21-25,3``, as
+    :func:`camcal.base.frame_ranges.parse_frames`) or a fraction of the frames (``0.2``, evenly spaced)."""
+    text = text.strip()
+    if re.fullmatch(r"0?\.\d+", text):
+        fraction = float(text)
+        count = max(1, round(fraction * len(frames)))
+        step = len(frames) / count
+        return {frames[min(len(frames) - 1, int((k + 0.5) * step))] for k in range(count)}
+    try:
+        return set(parse_frames(text))
+    except CamcalError as error:
+        raise CamcalError(f"bad --holdout {text!r} ({error}): expected frame numbers and ranges (21-25,3) "
+                          "or a fraction (0.2)") from None

@@ -1,0 +1,78 @@
+"""``camcal rectify``: 2 or N views onto one image plane (calibrated, N-view refined, or Hartley from matches)."""
+
+from __future__ import annotations
+
+import argparse
+
+from camcal.base.errors import CamcalError
+from camcal.cli.options import (expand_glob, handler, max_fov_option, named_option, out_option, report_option,
+                                rig_argument)
+from camcal.cli.summary import summary_of
+
+__all__ = ["register"]
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """The options of ``camcal rectify``."""
+    rig_argument(parser, "a calibrated *.rig.json")
+    parser.add_argument("--method", choices=("camera", "hartley"), default="camera")
+    parser.add_argument("--refine", action="store_true", help="camera method: refine on matches (Nozick 2011)")
+    named_option(parser, "--images", "NAME=GLOB", "images per camera, e.g. left='L/*.png' right='R/*.png' "
+                 "(several entries or a repeated option; globs absolute or relative)")
+    parser.add_argument("--matches", metavar="FILE.csv", help="point matches in original pixels")
+    parser.add_argument("--alpha", type=float, default=0.0,
+                        help="0: only pixels all views see (default); 1: every source pixel")
+    max_fov_option(parser, "widest full angle about the rectified viewing direction the pinhole rectified images "
+                   "hold (default: 120 when a camera has a kannala-brandt fisheye, no cap otherwise)")
+    out_option(parser, "FILE.rig.json", "the rectified rig")
+    parser.add_argument("--write", metavar="DIR", help="write rectified images to DIR/<camera>/")
+    report_option(parser, "write DIR/rectification.json with the figures")
+    handler(parser, _rectify)
+
+
+def _rectify(args: argparse.Namespace) -> int:
+    """Rectify a rig's cameras onto one image plane and store per camera rectification {H, K_rect, image_size}, H
+    mapping UNDISTORTED original pixels to rectified pixels. --method camera uses the calibration (with
+    --refine: the N-view refinement of Nozick 2011 on matches); --method hartley uses only point matches
+    (Hartley 1999). Matches come from --matches (CSV camera_a,u_a,v_a,camera_b,u_b,v_b) or from SIFT on the
+    first image of each --images sequence.
+    """
+    from camcal.geometry.rectify import RectifyWarper, rectify
+    from camcal.io.matches import read_matches_csv
+    from camcal.pipelines.rectify import match_image_files, write_rectified
+    from camcal.base.jsonfile import write_json
+    from camcal.model.rig import Rig
+
+    if not 0.0 <= args.alpha <= 1.0:
+        raise CamcalError(f"--alpha must be in [0, 1], got {args.alpha}")
+    if args.write and not args.images:
+        raise CamcalError("--write needs --images NAME=GLOB for the cameras to rectify")
+    rig = Rig.load(args.rig)
+    for name in args.images:
+        rig.camera(name)
+    images = {name: expand_glob("--images", name, pattern) for name, pattern in args.images.items()}
+    names = list(images) if len(images) >= 2 else None
+    if args.matches:
+        matches = read_matches_csv(args.matches)
+    elif images and (args.method == "hartley" or args.refine):
+        matches = match_image_files(rig, {name: files[0] for name, files in images.items()})
+    else:
+        matches = None
+    method = {"camera": "Nozick 2011" if args.refine else "camera", "hartley": "Hartley 1999"}[args.method]
+    result = rectify(rig, method, matches, names, args.alpha, args.max_fov)
+    written = []
+    if args.write:
+        warper = RectifyWarper(result.rig)
+        for name in result.names:
+            written += write_rectified(warper, name, images.get(name, []), args.write)
+    result.rig.save(args.out)
+    print(result.summary())
+    out = summary_of(args)
+    out.figures(**result.to_report())
+    out.wrote_each(written, "image")
+    if written:
+        print(f"wrote {len(written)} rectified image(s) to {args.write}")
+    if args.report:
+        out.wrote(write_json(f"{args.report}/rectification.json", result.to_report()), "report")
+    out.wrote(args.out, "rig")
+    return 0

@@ -1,0 +1,35 @@
+"""``camcal stmap``: undistort / redistort ST-maps (EXR) of a rig camera for comp packages."""
+
+from __future__ import annotations
+
+import argparse
+
+from camcal.cli.options import camera_option, handler, out_option, rig_argument
+from camcal.cli.summary import summary_of
+
+__all__ = ["register"]
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """The options of ``camcal stmap``."""
+    rig_argument(parser)
+    camera_option(parser)
+    parser.add_argument("--overscan", type=float, default=1.1, help="undistorted canvas factor (default 1.1)")
+    out_option(parser, "DIR")
+    handler(parser, _stmap)
+
+
+def _stmap(args: argparse.Namespace) -> int:
+    """Write NAME_undistort.exr and NAME_redistort.exr (R = (x + 0.5) / W, G = 1 - (y + 0.5) / H of the pixel to
+    sample) and the undistorted rig.
+    """
+    from camcal.io.stmap import write_stmaps
+    from camcal.model.rig import Rig
+
+    paths = write_stmaps(Rig.load(args.rig), args.camera, args.out, args.overscan)
+    print(f"ST-maps of {args.camera!r} with overscan {args.overscan:g}")
+    out = summary_of(args)
+    out.figures(camera=args.camera, overscan=args.overscan)
+    for path in paths:
+        out.wrote(path, "stmap" if str(path).endswith(".exr") else "rig")
+    return 0

@@ -1,0 +1,46 @@
+"""``camcal undistort``: undistorted images of a rig camera and the rig of the new pinhole camera."""
+
+from __future__ import annotations
+
+import argparse
+
+from camcal.cli.options import (camera_option, handler, max_fov_option, out_option, rig_argument,
+                                undistort_mode_options)
+from camcal.cli.summary import summary_of
+
+__all__ = ["register"]
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    """The options of ``camcal undistort``."""
+    rig_argument(parser)
+    camera_option(parser)
+    parser.add_argument("images", nargs="+", metavar="IMAGES")
+    undistort_mode_options(parser, "crop: no black borders; keep: every source pixel kept (bigger canvas); "
+                           "overscan: canvas --overscan times the plate (default: crop)")
+    max_fov_option(parser, "crop / keep: widest full angle about the axis the pinhole output holds "
+                   "(default: 120 for a kannala-brandt fisheye, no cap for the other lenses)")
+    out_option(parser, "DIR")
+    handler(parser, _undistort)
+
+
+def _undistort(args: argparse.Namespace) -> int:
+    """Undistort images with one remap per image; writes them under their own names and DIR/undistorted.rig.json
+    with the new K and distortion none.
+    """
+    from camcal.pipelines.undistort import undistort_images
+    from camcal.model.rig import Rig
+
+    rig = Rig.load(args.rig)
+    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan,
+                                         args.max_fov)
+    camera = Rig.load(rig_path).camera(args.camera)
+    width, height = camera.image_size
+    print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
+          f"fx {camera.K[0, 0]:.3f} fy {camera.K[1, 1]:.3f} principal point ({camera.K[0, 2]:.2f}, {camera.K[1, 2]:.2f})")
+    print(f"wrote {rig_path} and {len(written)} image(s) in {args.out}")
+    out = summary_of(args)
+    out.figures(camera=args.camera, mode=args.mode, image_size=[width, height], K=camera.K)
+    out.wrote(rig_path, "rig", say=False)
+    out.wrote_each(written, "image")
+    return 0
