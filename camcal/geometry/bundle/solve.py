@@ -268,6 +268,9 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
     rms_before = _rms(state)
     # the adjuster's own solve, with pyceres' solver options: pycolmap's binding of them has no callbacks
     solver_options = _pyceres_solver_options(ba.ceres.create_solver_options(config, problem))
+    # one thread: Ceres' threads add into the reduced system in the order they finish, and the solution
+    # then differs from run to run in its last digits (frame poses by 1e-6 on a rendered stereo sequence)
+    solver_options.num_threads = 1
     total = options.max_iterations + int(options.compute_sigmas)
     if progress is not None:
         solver_options.callbacks = [_iteration_callback(progress, total)]
