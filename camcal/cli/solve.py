@@ -34,10 +34,13 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "camcal's units and pixel convention), e.g. left.f=1200+-30; repeatable. The rig's "
                         "intrinsics and sigmas are then the posterior's")
     parser.add_argument("--uncertainty", default="jackknife", choices=("jackknife", "covariance"),
-                        help="sigmas: the larger of the covariance and a delete-one-frame jackknife (one more "
-                        "refinement per frame, at most 20), which sees errors an image's features share; "
-                        "or the covariance alone (faster, too small on real features)")
+                        help="sigmas: the larger of the covariance and a delete-one-frame jackknife (one "
+                        "Gauss-Newton step per frame or group of frames, at most 20), which sees errors an image's "
+                        "features share; or the covariance alone (too small on real features)")
     parser.add_argument("--features", type=int, default=8192, metavar="N", help="SIFT features per image (8192)")
+    parser.add_argument("--guided-matching", action="store_true",
+                        help="match each verified pair again along its epipolar geometry (more, longer tracks; "
+                        "10-20 times the matching time on the CPU)")
     parser.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"))
     parser.add_argument("--mapper", default="incremental", choices=("incremental", "global"))
     loss_option(parser, "robust loss of camcal's bundle adjustment (scale 1 px)")
@@ -45,7 +48,11 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compare-pycolmap", action="store_true",
                         help="also run plain pycolmap (SIMPLE_DIVISION, principal point refined) on the same images "
                         "into OUT/pycolmap and print its intrinsics beside camcal's")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seeds every random choice (COLMAP's RANSAC and mapper, the held-out points): the same "
+                        "images and options give the same rig; recorded in its provenance (0)")
+    parser.add_argument("--verbose", action="store_true",
+                        help="also show COLMAP's own log lines on stderr (always written to OUT/colmap.log)")
     out_option(parser, "DIR")
     handler(parser, _solve)
 
@@ -60,7 +67,7 @@ def _solve(args: argparse.Namespace) -> int:
 
     from camcal.geometry.bundle import parse_prior
     from camcal.geometry.selfcal import LENS_MODELS, MODELS
-    from camcal.pipelines.solve import collect_images, solve_pycolmap_plain, solve_sfm
+    from camcal.pipelines.solve import COLMAP_LOG, collect_images, solve_pycolmap_plain, solve_sfm
     from camcal.model.rig import Rig
 
     folders = [Path(folder) for folder in args.folders]
@@ -87,6 +94,7 @@ def _solve(args: argparse.Namespace) -> int:
                        seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
                        lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features,
                        jackknife=args.uncertainty == "jackknife", priors=tuple(parse_prior(text) for text in args.prior),
+                       verbose=args.verbose, guided_matching=args.guided_matching,
                        progress=lambda message: print(f"camcal solve: {message}", file=sys.stderr, flush=True))
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
@@ -96,7 +104,8 @@ def _solve(args: argparse.Namespace) -> int:
         print(result.bundle.summary())
     if result.self_calibration is not None:
         print("\n".join(result.self_calibration.lines()))
-    peer = solve_pycolmap_plain(images, Path(args.out) / "pycolmap", seed=args.seed) if args.compare_pycolmap else None
+    peer = (solve_pycolmap_plain(images, Path(args.out) / "pycolmap", seed=args.seed, verbose=args.verbose)
+            if args.compare_pycolmap else None)
     for camera in result.rig.cameras:
         sigma = camera.quality.get("sigma", {})
         print(f"{camera.name}: {_intrinsics_line(camera, sigma)}"
@@ -107,7 +116,8 @@ def _solve(args: argparse.Namespace) -> int:
         if peer is not None and camera.name in peer.cameras:
             print(f"{camera.name} (plain pycolmap): {_intrinsics_line(peer.cameras[camera.name], {})}; "
                   f"RMS {peer.rms_px[camera.name]:.3f} px")
-    print(f"wrote {Path(args.out) / 'solve.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
+    print(f"wrote {Path(args.out) / 'solve.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in "
+          f"{result.reconstruction_dir} (COLMAP's log: {Path(args.out) / COLMAP_LOG})")
     out = summary_of(args)
     out.figures(n_images=result.n_images, n_registered=result.n_registered, unregistered=list(result.unregistered),
                 rms_px=result.rms_px, per_camera_rms_px=dict(result.per_camera_rms_px), n_points=result.n_points,
@@ -129,6 +139,7 @@ def _solve(args: argparse.Namespace) -> int:
     out.wrote(Path(args.out) / "solve.rig.json", "rig", say=False)
     out.wrote(Path(args.out) / "points.ply", "points", say=False)
     out.wrote(result.reconstruction_dir, "colmap model", say=False)
+    out.wrote(Path(args.out) / COLMAP_LOG, "log", say=False)
     return 0
 
 

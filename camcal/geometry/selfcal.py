@@ -285,8 +285,8 @@ def self_calibrate(
         Called with each stage's message (the CLI prints them to stderr).
     jackknife : bool
         Also estimate the sigmas by the delete-one-frame jackknife
-        (:func:`camcal.geometry.jackknife.frame_jackknife`, one refinement
-        per frame or group of frames) and report the larger of the two.
+        (:func:`camcal.geometry.jackknife.frame_jackknife`, one Gauss-Newton
+        step per frame or group of frames) and report the larger of the two.
 
     Returns
     -------
@@ -356,7 +356,7 @@ def self_calibrate(
     skipped = ("asked" if not jackknife else
                f"the jackknife needs {MIN_FRAMES} frames, got {n_frames}" if n_frames < MIN_FRAMES else "")
     if not skipped:
-        _say(progress, f"uncertainty: delete-one-frame jackknife ({min(n_frames, MAX_GROUPS)} refinements)")
+        _say(progress, f"uncertainty: delete-one-frame jackknife ({min(n_frames, MAX_GROUPS)} groups of frames)")
         spread = frame_jackknife(final, final_options)
         jackknife_sigmas, groups = spread.widened_sigmas, spread.n_groups
         # a singular covariance leaves keys only the jackknife has

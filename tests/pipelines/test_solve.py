@@ -1,6 +1,7 @@
 """pycolmap SfM -> camcal Rig, against a rendered scene with known cameras."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -10,7 +11,7 @@ import pytest
 from camcal.cli import main
 from camcal.base.errors import CamcalError
 from camcal.model.camera import rotation_angle_deg, similarity_Umeyama1991
-from camcal.pipelines.solve import collect_images, solve_sfm
+from camcal.pipelines.solve import COLMAP_LOG, collect_images, solve_sfm
 from camcal.io.ply import read_points_ply, write_points_ply
 from camcal.model.rig import Rig
 from camcal.synthetic import render_stereo_sequence
@@ -119,3 +120,44 @@ def test_solve_cli_help_and_bad_input(tmp_path):
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "image folder not found" in bad.stderr
     assert not (tmp_path / "o" / "solve.rig.json").exists()
+
+
+GLOG_LINE = re.compile(r"^[IWEF]\d{8} ")
+
+
+def _numbers(value, path=""):
+    """Every leaf of a rig file's JSON, by its path; the creation time left out (it is the clock's)."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if key != "created":
+                yield from _numbers(item, f"{path}.{key}")
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            yield from _numbers(item, f"{path}[{index}]")
+    else:
+        yield path, value
+
+
+@pytest.mark.slow
+def test_solve_twice_gives_the_same_rig_and_only_camcal_writes_to_stderr(tmp_path):
+    render_stereo_sequence(tmp_path / "in", n_frames=5)
+    script = (
+        "import sys\n"
+        "from camcal.pipelines.solve import solve_sfm\n"
+        f"solve_sfm({{'left': {str(tmp_path / 'in/left')!r}, 'right': {str(tmp_path / 'in/right')!r}}}, "
+        f"{str(tmp_path / 'first')!r}, max_num_features=2048, "
+        "progress=lambda m: print(f'camcal solve: {m}', file=sys.stderr, flush=True))\n"
+    )
+    first = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    lines = first.stderr.splitlines()
+    assert lines and all(line.startswith("camcal solve: ") for line in lines), lines[:5]
+    assert not any(GLOG_LINE.match(line) or "Linear solver failure" in line for line in lines)
+    log = (tmp_path / "first" / COLMAP_LOG).read_text()
+    assert any(GLOG_LINE.match(line) for line in log.splitlines())  # COLMAP's own lines are in the log
+    solve_sfm({"left": tmp_path / "in/left", "right": tmp_path / "in/right"}, tmp_path / "second", max_num_features=2048)
+    a = dict(_numbers(json.loads((tmp_path / "first/solve.rig.json").read_text())))
+    b = dict(_numbers(json.loads((tmp_path / "second/solve.rig.json").read_text())))
+    assert a[".provenance.seed"] == 0 and set(a) == set(b)
+    differing = {key: (a[key], b[key]) for key in a if a[key] != b[key]}
+    for key, (x, y) in differing.items():
+        assert isinstance(x, float) and abs(x - y) <= 1e-9 * max(abs(x), abs(y)), (key, x, y)

@@ -186,7 +186,8 @@ def _held_indices(state: BundleState, camera: int, options: BundleOptions) -> li
 
 
 def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
-                  progress: Callable[[int, int], None] | None = None) -> BundleResult:
+                  progress: Callable[[int, int], None] | None = None,
+                  inspect: Callable[[object, _Colmap], None] | None = None) -> BundleResult:
     """Refine a reconstruction on Ceres: shared intrinsics, shared rig, frames, points, board.
 
     Parameters
@@ -205,6 +206,10 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
         and with ``done = total`` once the covariance is computed. An
         exception it raises stops the solve and propagates. Nothing is
         printed; :meth:`BundleResult.summary` describes the run.
+    inspect : callable, optional
+        Called as ``inspect(problem, colmap)`` once Ceres has stopped, with
+        the Ceres problem at the solution and the reconstruction it refines
+        (:mod:`camcal.geometry.bundle.deletion` reads its Jacobian).
 
     Returns
     -------
@@ -277,6 +282,9 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
     rms_before = _rms(state)
     # the adjuster's own solve, with pyceres' solver options: pycolmap's binding of them has no callbacks
     solver_options = _pyceres_solver_options(ba.ceres.create_solver_options(config, problem))
+    # one thread: Ceres' threads add into the reduced system in the order they finish, and the solution
+    # then differs from run to run in its last digits (frame poses by 1e-6 on a rendered stereo sequence)
+    solver_options.num_threads = 1
     total = options.max_iterations + int(options.compute_sigmas)
     if progress is not None:
         solver_options.callbacks = [_iteration_callback(progress, total)]
@@ -293,6 +301,8 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
         summary = pyceres.SolverSummary()
         pyceres.solve(solver_options, problem, summary)
         iterations += int(summary.num_successful_steps + summary.num_unsuccessful_steps) - 1
+    if inspect is not None:
+        inspect(problem, colmap)
     if progress is not None:
         progress(options.max_iterations, total)
     refined = _from_colmap(state, colmap)
