@@ -213,6 +213,7 @@ def projection_sigma_map(camera: Camera, distance: float | None = None, source_p
         an output pixel has no source pixel or ray.
     """
     import scipy.interpolate  # noqa: PLC0415
+    import scipy.ndimage  # noqa: PLC0415
 
     if source_px is None:
         width, height = camera.image_size
@@ -223,15 +224,22 @@ def projection_sigma_map(camera: Camera, distance: float | None = None, source_p
     if source_px is None:
         at = np.column_stack([gx.ravel(), gy.ravel()])
     else:
-        at = np.column_stack([scipy.interpolate.RegularGridInterpolator(
-            (np.arange(height), np.arange(width)), source_px[..., i])((gy.ravel(), gx.ravel())) for i in range(2)])
+        at = np.asarray(source_px, dtype=np.float64)[np.ix_(ys.astype(int), xs.astype(int))].reshape(-1, 2)
     sigma = np.full(len(at), np.nan)
     ok = np.all(np.isfinite(at), axis=1)
     if ok.any():
         sigma[ok] = projection_sigma(camera, at[ok], distance, covariance)
-    grid = scipy.interpolate.RegularGridInterpolator((ys, xs), sigma.reshape(len(ys), len(xs)))
+    sigma = sigma.reshape(len(ys), len(xs))
+    missing = ~np.isfinite(sigma)
+    if missing.any() and not missing.all():  # the nearest grid value, so that NaN does not spread by a cell
+        nearest = scipy.ndimage.distance_transform_edt(missing, return_distances=False, return_indices=True)
+        sigma = sigma[tuple(nearest)]
+    grid = scipy.interpolate.RegularGridInterpolator((ys, xs), sigma)
     v, u = np.mgrid[0:height, 0:width]
-    return grid((v.ravel().astype(float), u.ravel().astype(float))).reshape(height, width).astype(np.float32)
+    out = grid((v.ravel().astype(float), u.ravel().astype(float))).reshape(height, width)
+    if source_px is not None:
+        out[~np.all(np.isfinite(source_px), axis=-1)] = np.nan
+    return out.astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -262,8 +270,8 @@ class SigmaSummary:
 
     def to_dict(self) -> dict:
         """The figures for ``--json``."""
-        return {"worst_px": self.worst_px, "median_px": self.median_px, "corners_px": list(self.corners_px),
-                "distance": self.distance}
+        return {"worst_px": self.worst_px, "median_px": self.median_px,
+                "corners_px": [c if np.isfinite(c) else None for c in self.corners_px], "distance": self.distance}
 
 
 def summarise_sigma(sigma_map: NDArray, distance: float | None = None) -> SigmaSummary:
@@ -272,5 +280,5 @@ def summarise_sigma(sigma_map: NDArray, distance: float | None = None) -> SigmaS
     finite = values[np.isfinite(values)]
     if finite.size == 0:
         raise CamcalError("the sigma map has no finite value")
-    corners = tuple(float(values[i, j]) for i, j in ((0, 0), (0, -1), (-1, 0), (-1, -1)))
+    corners = tuple(float(values[i, j]) for i, j in ((0, 0), (0, -1), (-1, 0), (-1, -1)))  # NaN: no source pixel
     return SigmaSummary(float(finite.max()), float(np.median(finite)), corners, distance)
