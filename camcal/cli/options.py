@@ -22,6 +22,7 @@ __all__ = [
     "NamedValues",
     "camera_label_option",
     "camera_option",
+    "distance_option",
     "expand_glob",
     "handler",
     "image_size",
@@ -34,6 +35,7 @@ __all__ = [
     "parse_holdout",
     "report_option",
     "rig_argument",
+    "sigma_options",
     "undistort_mode_options",
     "verb_group",
 ]
@@ -163,6 +165,28 @@ def undistort_mode_options(parser, mode_help: str) -> None:
     """``--mode crop|keep|overscan`` and ``--overscan``: the pinhole camera an undistortion makes."""
     parser.add_argument("--mode", choices=("crop", "keep", "overscan"), default="crop", help=mode_help)
     parser.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+
+
+def distance_option(parser) -> None:
+    """``--distance D``: where along the rays projection uncertainty is taken (rig units; default infinity)."""
+    parser.add_argument("--distance", type=_positive_float, default=None, metavar="D",
+                        help="distance along the rays in the rig's units (default: infinity)")
+
+
+def sigma_options(parser, what: str) -> None:
+    """``--sigma`` (a projection-sigma EXR beside the outputs) and its ``--distance``."""
+    parser.add_argument("--sigma", action="store_true", help=f"also write {what}")
+    distance_option(parser)
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value > 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
+    return value
 
 
 def max_fov_option(parser, help: str) -> None:

@@ -79,8 +79,11 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection, frame_number
 from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState, bundle_adjust
 from camcal.geometry.bundle import residuals as board_residuals
+from camcal.geometry.bundle.solve import GAUGE_NAMES
+from camcal.geometry.uncertainty import GAUGE, POSE, projection_sigma, sigma_grid
 from camcal.model.camera import chordal_mean_rotation, rotation_angle_deg
 from camcal.model.distortion import Distortion
+from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera, Rig, make_provenance
 
 __all__ = ["MODELS", "AUTO_MODELS", "AUTO_MARGIN", "MIN_IMAGES", "ModelScore", "CalibrationResult", "calibrate_board", "quality_problems"]
@@ -618,6 +621,9 @@ def _camcal_covariance(covariance: NDArray, colmap_names: tuple[str, ...], names
             for label in ("rx", "ry", "rz", "tx", "ty", "tz"):
                 labels.append(f"{camera}.{label}")
                 rows.append(row({f"{camera}.{label}": 1.0}))
+    for label in GAUGE_NAMES if GAUGE_NAMES[0] in column else ():  # the board gauge (projection uncertainty)
+        labels.append(label)
+        rows.append(row({label: 1.0}))
     A = np.array(rows)
     return A @ covariance @ A.T, tuple(labels)
 
@@ -1059,6 +1065,24 @@ def quality_problems(result: CalibrationResult) -> list[str]:
     return problems
 
 
+def _with_projection_sigma(camera: Camera, covariance: NDArray, labels: tuple[str, ...], model: str) -> Camera:
+    """The camera with ``quality.covariance`` (its intrinsics, its pose, the board gauge) and
+    ``quality.worst_projection_sigma_px`` (at infinity, over a 16-pixel grid of the frame;
+    :mod:`camcal.geometry.uncertainty`)."""
+    pairs = [(f"{camera.name}.{label}", label) for label in _INTRINSICS + MODELS[model] + POSE]
+    pairs = [(label, name) for label, name in pairs + list(zip(GAUGE_NAMES, GAUGE)) if label in labels]
+    index = [labels.index(label) for label, _ in pairs]
+    names = [name for _, name in pairs]
+    block = covariance[np.ix_(index, index)]
+    parameters = ParameterCovariance(tuple(names), 0.5 * (block + block.T))
+    camera = dataclasses.replace(camera, quality={**camera.quality.to_dict(), "covariance": parameters})
+    xs, ys = sigma_grid(camera.image_size, 16.0)
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    worst = float(np.nanmax(projection_sigma(camera, grid)))
+    return dataclasses.replace(camera, quality={**camera.quality.to_dict(), "covariance": parameters,
+                                                "worst_projection_sigma_px": worst})
+
+
 def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_point, residuals, covariance, labels,
                board, model, units) -> Rig:
     sigma_by_label = dict(zip(labels, np.sqrt(np.clip(np.diag(covariance), 0.0, None))))
@@ -1079,7 +1103,7 @@ def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_
             sigmas["baseline_direction_deg"] = float(
                 np.degrees(np.sqrt(max(np.trace(across @ translation @ across), 0.0)) / max(length, 1e-300)))
             sigmas["rotation_deg"] = float(np.degrees(np.sqrt(max(np.trace(rotation), 0.0))))
-        cameras.append(
+        cameras.append(_with_projection_sigma(
             Camera(
                 name=name,
                 image_size=image_sizes[j],
@@ -1094,7 +1118,6 @@ def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_
                     "n_observations": int(mine.sum()),
                     "sigma": sigmas,
                 },
-            )
-        )
+            ), covariance, labels, model))
     method = "chessboard" if board.kind == "chessboard" else "charuco"
     return Rig(tuple(cameras), units=units, provenance=make_provenance(method, board=board.spec(), model=model))

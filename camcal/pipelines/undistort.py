@@ -7,11 +7,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from camcal.base.errors import CamcalError
+import numpy as np
+
+from camcal.geometry.uncertainty import SigmaSummary, projection_sigma_map, summarise_sigma
 from camcal.geometry.undistort import make_undistorter
 from camcal.io.frames import imread, imwrite
+from camcal.io.stmap import write_sigma_map
 from camcal.model.rig import Rig, make_provenance
 
-__all__ = ["undistort_images"]
+__all__ = ["undistort_images", "write_undistorted_sigma"]
 
 
 def undistort_images(
@@ -67,3 +71,20 @@ def undistort_images(
     provenance = make_provenance("undistort", source_camera=camera_name, mode=mode)
     rig_path = Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(out_dir / "undistorted.rig.json")
     return rig_path, written
+
+
+def write_undistorted_sigma(rig: Rig, camera_name: str, out_dir: str | os.PathLike, mode: str = "crop",
+                            overscan: float = 1.1, max_fov_deg: float | None = None,
+                            distance: float | None = None) -> tuple[Path, SigmaSummary]:
+    """Write ``sigma.exr``: pixel for pixel with :func:`undistort_images`' outputs (same arguments).
+
+    Each pixel holds the projection sigma (plate pixels, worst direction;
+    :mod:`camcal.geometry.uncertainty`) of the plate pixel the undistortion
+    samples there, NaN where it samples none.
+    """
+    undistorter = make_undistorter(rig.camera(camera_name), mode, overscan, max_fov_deg)
+    maps = undistorter.maps
+    source = np.stack([maps.map_x, maps.map_y], axis=-1).astype(np.float64)
+    source[(maps.map_x < 0) | (maps.map_y < 0)] = np.nan
+    sigma = projection_sigma_map(undistorter.camera, distance, source)
+    return write_sigma_map(Path(out_dir) / "sigma.exr", sigma), summarise_sigma(sigma, distance)

@@ -435,12 +435,61 @@ def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, pro
     if sigma2 > 0:
         for cost in costs:
             cost.weight = np.sqrt(sigma2) / cost.prior.sigma
-    # the priors are Python cost functions: one thread, or the Jacobian's evaluation waits on the GIL forever
-    inverse, n_left_out = marginal_covariance(problem, reconstruction, blocks, num_threads=1 if costs else 2)
+    frames = _board_frames(state, colmap, problem)
+    # one thread: the priors are Python cost functions (on more threads the Jacobian's evaluation waits on
+    # the GIL forever), and threads that sum in the order they finish would make two runs differ
+    inverse, n_left_out = marginal_covariance(problem, reconstruction, blocks + [block for block, _ in frames],
+                                              num_threads=1)
     if inverse.size == 0:
         return np.zeros((0, 0)), (), n_left_out
-    scale = np.asarray(scales)
-    return sigma2 * inverse * np.outer(scale, scale), tuple(names), n_left_out
+    B = np.diag(scales)
+    if frames:
+        B = np.vstack([np.hstack([B, np.zeros((len(names), inverse.shape[0] - len(names)))]),
+                       _gauge_rows(len(names), [t for _, t in frames])])
+        names += list(GAUGE_NAMES)
+    return sigma2 * (B @ inverse @ B.T), tuple(names), n_left_out
+
+
+#: Names of the board gauge in :attr:`BundleResult.covariance_names` (:func:`_gauge_rows`).
+GAUGE_NAMES = ("gauge.rx", "gauge.ry", "gauge.rz", "gauge.tx", "gauge.ty", "gauge.tz")
+
+
+def _board_frames(state: BundleState, colmap: _Colmap, problem) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """``(params block, translation)`` of every free ``rig_from_board`` frame pose (board problems only)."""
+    if state.board is None:
+        return []
+    out = []
+    for _, fid in sorted(colmap.frame_ids.items()):
+        pose = colmap.reconstruction.frame(fid).rig_from_world
+        if is_free_block(problem, pose.params):
+            out.append((pose.params, np.array(pose.translation, dtype=np.float64)))
+    return out
+
+
+def _gauge_rows(n_before: int, translations: list[NDArray[np.float64]]) -> NDArray[np.float64]:
+    """The 6 rows mapping the frames' tangent perturbations to the board gauge ``(delta_bar, epsilon)``.
+
+    Notes
+    -----
+    mrcal's projection uncertainty (Kogan, mrcal 2.x, "projection
+    uncertainty") moves a point of the reference frame through every board
+    frame and back with the perturbed poses and averages:
+    ``p' = mean_i T_i' T_i^-1 p``, ``T_i = rig_from_board_i``. With Ceres'
+    perturbations ``R_i' = exp(delta_i) R_i`` (``delta_i = 2 d_i``, ``d_i``
+    the quaternion tangent) and ``t_i' = t_i + tau_i``, to first order
+    ``p' = p + delta_bar x p + epsilon`` with ``delta_bar = mean_i delta_i``
+    and ``epsilon = mean_i (tau_i + t_i x delta_i)``: a 6-vector whose
+    covariance with the intrinsics and rig poses is all the projection
+    uncertainty needs (:mod:`camcal.geometry.uncertainty`).
+    """
+    n = len(translations)
+    rows = np.zeros((6, n_before + 6 * n))
+    for i, t in enumerate(translations):
+        o = n_before + 6 * i
+        rows[:3, o:o + 3] = 2.0 * np.eye(3) / n
+        rows[3:, o:o + 3] = 2.0 * np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]]) / n
+        rows[3:, o + 3:o + 6] = np.eye(3) / n
+    return rows
 
 
 

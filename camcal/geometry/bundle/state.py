@@ -265,7 +265,10 @@ class BundleResult:
         ``camera.<COLMAP parameter>`` for the free intrinsics, then
         ``camera.rx, .ry, .rz`` (rotation vector applied on the left of
         ``sensor_from_rig``, radians) and ``camera.tx, .ty, .tz`` for each
-        refined rig pose.
+        refined rig pose; with a board, then ``gauge.rx .. gauge.tz``: the
+        mean perturbation of the board poses (rotation vector, then
+        translation, in the reference camera's frame), which projection
+        uncertainty needs (mrcal's gauge; ``solve._gauge_rows``).
     n_points_out_of_covariance : int
         Scene points left out of the covariance (not of the fit): seen
         along parallel rays to the rounding of the Jacobian, their depth is
