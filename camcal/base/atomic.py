@@ -22,7 +22,7 @@ import contextlib
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from camcal.base.errors import CamcalError
@@ -72,7 +72,7 @@ def atomic_write_text(target: str | os.PathLike, text: str) -> None:
 
 
 @contextlib.contextmanager
-def atomic_dir(target: str | os.PathLike) -> Iterator[Path]:
+def atomic_dir(target: str | os.PathLike, replace: Iterable[str] = ()) -> Iterator[Path]:
     """Yield a new, empty folder beside ``target``; on success it becomes ``target``, on any error it is removed.
 
     Parameters
@@ -80,6 +80,10 @@ def atomic_dir(target: str | os.PathLike) -> Iterator[Path]:
     target : path
         The final folder. Missing parent folders are created, and removed
         again (when still empty) if the run fails.
+    replace : iterable of str
+        Entries of an existing ``target`` that the run owns as a whole (e.g.
+        ``solve``'s ``sparse``): removed before the run's own take their
+        place, instead of being merged into.
 
     Notes
     -----
@@ -102,7 +106,7 @@ def atomic_dir(target: str | os.PathLike) -> Iterator[Path]:
         os.chmod(staging, 0o777 & ~_UMASK)
         yield staging
         if target.is_dir():
-            _merge(staging, target)
+            _merge(staging, target, frozenset(replace))
         else:
             os.rename(staging, target)
     except BaseException:
@@ -113,8 +117,12 @@ def atomic_dir(target: str | os.PathLike) -> Iterator[Path]:
 
 
 def final_path(path: str | os.PathLike, staging: Path, target: str | os.PathLike) -> Path:
-    """Where ``path``, written inside :func:`atomic_dir`'s ``staging`` folder, is once the run succeeded."""
-    return Path(target) / Path(path).relative_to(staging)
+    """Where ``path``, written inside :func:`atomic_dir`'s ``staging`` folder, is once the run succeeded.
+
+    A path outside ``staging`` is returned unchanged.
+    """
+    path = Path(path)
+    return Path(target) / path.relative_to(staging) if path.is_relative_to(staging) else path
 
 
 def _make_parents(folder: Path) -> list[Path]:
@@ -148,10 +156,12 @@ def _remove_empty(created: list[Path]) -> None:
             return
 
 
-def _merge(source: Path, target: Path) -> None:
+def _merge(source: Path, target: Path, replace: frozenset[str] = frozenset()) -> None:
     """Move the entries of ``source`` into the existing folder ``target`` (one rename each, folders merged)."""
     for entry in sorted(source.iterdir()):
         destination = target / entry.name
+        if entry.name in replace and destination.is_dir() and not destination.is_symlink():
+            shutil.rmtree(destination)
         entry_is_dir = entry.is_dir() and not entry.is_symlink()
         if destination.is_dir() and not destination.is_symlink():
             if not entry_is_dir:
