@@ -63,7 +63,10 @@ def read_patch_csv(path: str | os.PathLike) -> PatchSet:
     path = Path(path)
     if not path.is_file():
         raise CamcalError(f"patch file not found: {path}")
-    text = path.read_text(encoding="utf-8-sig")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise CamcalError(f"{path}: not UTF-8 text (byte {error.start})") from None
     rows = [
         (number, row)
         for number, row in enumerate(csv.reader(io.StringIO(text)), start=1)

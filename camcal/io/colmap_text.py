@@ -125,8 +125,12 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
 def _rows(path: Path) -> list[tuple[int, list[str]]]:
     """Non-comment lines as (line number, fields); blank lines kept (images.txt pairs them)."""
     check_file_size(path, FILE_BYTES, "COLMAP text file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise CamcalError(f"{path.name} is not UTF-8 text (byte {error.start})") from None
     rows = []
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    for number, line in enumerate(text.splitlines(), start=1):
         if line.startswith("#"):
             continue
         rows.append((number, line.split()))

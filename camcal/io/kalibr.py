@@ -154,7 +154,10 @@ def load(path: Path) -> ImportResult:
             T = np.asarray(entry.get("T_cn_cnm1"), dtype=object)
             if T.shape != (4, 4):
                 raise CamcalError(f"{key}.T_cn_cnm1 must be a 4x4 matrix")
-            T = np.array(T, dtype=np.float64)
+            try:
+                T = np.array(T, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise CamcalError(f"{key}.T_cn_cnm1 must hold numbers") from None
             if not np.all(np.isfinite(T)):
                 raise CamcalError(f"{key}.T_cn_cnm1 contains NaN or infinite values")
             R = T[:3, :3] @ R_prev

@@ -268,7 +268,10 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
         layer.Reload()  # a layer this process opened before may have been rewritten since
         stage = Usd.Stage.Open(layer)
     except Tf.ErrorException as error:
-        reason = " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("' ")
+        try:
+            reason = " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("' ")
+        except UnicodeDecodeError:  # pxr's message quotes the file's bytes, which need not be UTF-8
+            reason = "not UTF-8 text"
         raise CamcalError(f"not a USD file ({reason})") from None
     cameras, conversions, world_poses, prims, notes = [], [], [], [], []
     times = None
