@@ -14,6 +14,7 @@ import datetime as _dt
 import json
 import math
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +74,10 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return data
 
 
+#: Integers past this do not convert to a float (OverflowError); every number camcal reads is used as one.
+_FLOAT_MAX = int(sys.float_info.max)
+
+
 class _NonFinite:
     """What a ``NaN`` / ``Infinity`` literal parses to, found by :func:`_check_tree` with its field path."""
 
@@ -100,6 +105,9 @@ def _check_tree(data: Any) -> None:
             raise CamcalError(f"{path or 'the top level'}: non-finite number {value.name} in JSON")
         elif isinstance(value, float) and not math.isfinite(value):
             raise CamcalError(f"{path or 'the top level'}: number out of range (read as {value}) in JSON")
+        elif isinstance(value, int) and not isinstance(value, bool) and abs(value) > _FLOAT_MAX:
+            raise CamcalError(f"{path or 'the top level'}: integer of {len(str(abs(value)))} digits, out of the "
+                              "float range, in JSON")
 
 
 def parse_json(text: str) -> Any:

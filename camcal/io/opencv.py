@@ -262,6 +262,8 @@ def load(path: Path) -> ImportResult:
     except cv2.error as error:  # a node of the wrong kind (a matrix without dt, a root that is no map...)
         reason = str(error).strip().splitlines()[-1].split(" error: ", 1)[-1]
         raise CamcalError(f"{path}: OpenCV cannot read the file ({reason})") from None
+    except UnicodeDecodeError as error:  # a key or a string that is not UTF-8
+        raise CamcalError(f"{path}: not UTF-8 text (byte {error.start} of a key or a string)") from None
     finally:
         storage.release()
     conversions = tuple(LensConversion(c.name, _format(c.distortion), c.distortion.model, True) for c in rig.cameras)

@@ -182,7 +182,11 @@ FOUND = {
     # OpenCV asserts on a root that is no map and on a matrix without dt: cv2.error
     "opencv": [b"%YAML:1.0\n---\n- 1\n- 2\n",
                b"%YAML:1.0\n---\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n"
-               b"   data: [1, 2, 3, 4, 5, 6, 7, 8, 9]\nimage_width: 10\nimage_height: 10\n"],
+               b"   data: [1, 2, 3, 4, 5, 6, 7, 8, 9]\nimage_width: 10\nimage_height: 10\n",
+               # a key that is not UTF-8: UnicodeDecodeError from the binding
+               SEEDS["opencv"].replace(b"\nD1:", b"\n\x80D1:")],
+    # an integer past the float range: OverflowError where the reader made it a float
+    "colour fit": [re.sub(rb"\[0\.4\d*", b"[" + b"9" * 400, SEEDS["colour fit"], count=1)],
     # a string where a number belongs: float("0/0") raised ValueError
     "kalibr": [SEEDS["kalibr"].replace(b"- [0.0, 0.0, 0.0, 1.0]", b"- [0.0, 0/0, 0.0, 1.0]")],
     # pxr's error quotes the bad bytes: str() of the error raised UnicodeDecodeError
@@ -205,6 +209,7 @@ def test_rig_json(files, content):
 
 @FUZZ
 @given(content=inputs(SEEDS["colour fit"]))
+@example(content=FOUND["colour fit"][0])
 def test_colour_fit_json(files, content):
     run_reader("colour fit JSON", load_colour_file, files.write("a.colour.json", content))
 
