@@ -74,6 +74,8 @@ def name_value(entry: str, option: str, form: str) -> tuple[str, str]:
     name, sep, value = entry.partition("=")
     if not sep or not name or not value:
         raise CamcalError(f"{option}: expected {form}, got {entry!r}")
+    if not entry.isprintable():
+        raise CamcalError(f"{option}: {entry!r} holds a control character (a newline?)")
     return name, value
 
 

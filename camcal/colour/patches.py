@@ -52,6 +52,11 @@ class PatchSet:
         return PatchSet(tuple(self.names[i] for i in idx), self.RGB[idx], self.XYZ[idx])
 
 
+def _shown(text: str) -> str:
+    """``text`` for a one-line message: as is when printable, else its repr (a quoted cell may hold newlines)."""
+    return text if text.isprintable() else repr(text)
+
+
 def read_patch_csv(path: str | os.PathLike) -> PatchSet:
     """Read a patch CSV (see the module docstring).
 
@@ -78,7 +83,7 @@ def read_patch_csv(path: str | os.PathLike) -> PatchSet:
     expected = ["R", "G", "B", "X", "Y", "Z"]
     has_name = header[:1] == ["name"]
     if (header[1:] if has_name else header) != expected:
-        raise CamcalError(f"{path}: header must be R,G,B,X,Y,Z with an optional first column name, got {','.join(header)}")
+        raise CamcalError(f"{path}: header must be R,G,B,X,Y,Z with an optional first column name, got {_shown(','.join(header))}")
     names, values = [], []
     for number, row in rows[1:]:
         cells = [cell.strip() for cell in row]

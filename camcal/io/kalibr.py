@@ -106,9 +106,13 @@ def _numbers(entry: dict, key: str, count: int, where: str) -> list[float]:
     if not isinstance(value, list) or len(value) != count or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
         raise CamcalError(f"{where}.{key} must be a list of {count} numbers, got {value!r:.80}")
-    if not all(np.isfinite(value)):
+    try:
+        numbers = [float(v) for v in value]
+    except OverflowError:
+        raise CamcalError(f"{where}.{key} holds an integer out of the float range") from None
+    if not all(np.isfinite(numbers)):
         raise CamcalError(f"{where}.{key} contains NaN or infinite values")
-    return [float(v) for v in value]
+    return numbers
 
 
 def load(path: Path) -> ImportResult:

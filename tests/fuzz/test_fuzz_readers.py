@@ -188,13 +188,21 @@ FOUND = {
     # an integer past the float range: OverflowError where the reader made it a float
     "colour fit": [re.sub(rb"\[0\.4\d*", b"[" + b"9" * 400, SEEDS["colour fit"], count=1)],
     # a string where a number belongs: float("0/0") raised ValueError
-    "kalibr": [SEEDS["kalibr"].replace(b"- [0.0, 0.0, 0.0, 1.0]", b"- [0.0, 0/0, 0.0, 1.0]")],
+    "kalibr": [SEEDS["kalibr"].replace(b"- [0.0, 0.0, 0.0, 1.0]", b"- [0.0, 0/0, 0.0, 1.0]"),
+               # an integer past the float range: np.isfinite raised TypeError on the object array
+               SEEDS["kalibr"].replace(b"intrinsics: [1500.0", b"intrinsics: [" + b"9" * 400, 1)],
     # pxr's error quotes the bad bytes: str() of the error raised UnicodeDecodeError
     "usd": [SEEDS["usd"].replace(b"#usda 1.0", b"#usda\x80 1.0")],
     # not UTF-8: read_text raised UnicodeDecodeError
     "colmap": [b"\x80" + SEEDS["colmap"]["cameras.txt"]],
-    "patches": [b"\xee" + SEEDS["patches"][1:]],
+    "patches": [b"\xee" + SEEDS["patches"][1:],
+                # an opening quote makes the header one cell holding every line: the message had newlines
+                b'"' + SEEDS["patches"]],
     "matches": [b"\x80"],
+    # past Python's 4300-digit int conversion limit: ValueError
+    "frames": ["9" * 5000],
+    # a newline inside an entry: the message had two lines
+    "camera specs": [["left=shots/left*.jpg", "left=shots/left*.jpg\nleft=shots/left*.jpg"]],
 }
 
 
@@ -252,6 +260,7 @@ def test_colmap_text_found(files, content):
 @FUZZ
 @given(content=inputs(SEEDS["patches"]))
 @example(content=FOUND["patches"][0])
+@example(content=FOUND["patches"][1])
 def test_patch_csv(files, content):
     run_reader("patch CSV", read_patch_csv, files.write("p.csv", content))
 
@@ -287,6 +296,7 @@ def texts(*seeds: str):
 
 @FUZZ
 @given(text=texts("1001-1240", "1001-1240x2", "1,5,10-12", "-5--1"))
+@example(text=FOUND["frames"][0])
 def test_frame_lists(text):
     run_reader("frame list", parse_frames, text)
 
@@ -299,6 +309,7 @@ def _camera_specs(values: list[str]) -> dict:
 
 @FUZZ
 @given(values=st.lists(texts("left=shots/left*.jpg", "right=/abs/R_*.png", "a=b=c"), min_size=1, max_size=3))
+@example(values=FOUND["camera specs"][0])
 def test_camera_specs(values):
     run_reader("camera spec", _camera_specs, values)
 
