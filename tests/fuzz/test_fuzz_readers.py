@@ -192,7 +192,9 @@ FOUND = {
                # an integer past the float range: np.isfinite raised TypeError on the object array
                SEEDS["kalibr"].replace(b"intrinsics: [1500.0", b"intrinsics: [" + b"9" * 400, 1)],
     # pxr's error quotes the bad bytes: str() of the error raised UnicodeDecodeError
-    "usd": [SEEDS["usd"].replace(b"#usda 1.0", b"#usda\x80 1.0")],
+    "usd": [SEEDS["usd"].replace(b"#usda 1.0", b"#usda\x80 1.0"),
+            # an invalid xformOp name: pxr raised Tf.ErrorException while computing the pose
+            SEEDS["usd"].replace(b'xformOpOrder = ["xformOp:transform"]', b'xformOpOrder = ["xformOp;transform"]', 1)],
     # not UTF-8: read_text raised UnicodeDecodeError
     "colmap": [b"\x80" + SEEDS["colmap"]["cameras.txt"]],
     "patches": [b"\xee" + SEEDS["patches"][1:],
