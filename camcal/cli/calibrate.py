@@ -6,7 +6,7 @@ import argparse
 
 from camcal.base.errors import CamcalError
 from camcal.cli.options import (expand_glob, handler, image_size, image_size_option, loss_option, named_option,
-                                out_option, parse_holdout, report_option, verb_group)
+                                out_option, output_folder, parse_holdout, report_option, verb_group)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -97,6 +97,7 @@ def _board(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from camcal.base.atomic import final_path
     from camcal.geometry.board import frame_number, parse_board
     from camcal.pipelines.board import default_cache_dir, detect_in_images
     from camcal.geometry.zhang import calibrate_board, quality_problems
@@ -124,7 +125,10 @@ def _board(args: argparse.Namespace) -> int:
     if problems and not args.force:
         raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)
                           + " (--force writes it anyway)")
-    result.rig.save(args.out)
+    with output_folder(args.report) as report_dir:
+        reports = [] if report_dir is None else write_report(result, report_dir)
+        result.rig.save(args.out)
+    reports = [final_path(path, report_dir, args.report) for path in reports]
     for note in result.notes:
         print(note)
     if result.model_ranking:
@@ -169,5 +173,5 @@ def _board(args: argparse.Namespace) -> int:
     )
     out.wrote(args.out, "rig")
     if args.report:
-        out.wrote_each(write_report(result, args.report), "report", say=True)
+        out.wrote_each(reports, "report", say=True)
     return 3 if problems else 0

@@ -8,12 +8,15 @@ and checked the same in every verb that has it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import inspect
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from pathlib import Path
 
+from camcal.base.atomic import atomic_dir
 from camcal.base.errors import CamcalError
 from camcal.base.frame_ranges import parse_frames
 
@@ -32,6 +35,7 @@ __all__ = [
     "name_value",
     "named_option",
     "out_option",
+    "output_folder",
     "parse_holdout",
     "report_option",
     "rig_argument",
@@ -72,6 +76,8 @@ def name_value(entry: str, option: str, form: str) -> tuple[str, str]:
     name, sep, value = entry.partition("=")
     if not sep or not name or not value:
         raise CamcalError(f"{option}: expected {form}, got {entry!r}")
+    if not entry.isprintable():
+        raise CamcalError(f"{option}: {entry!r} holds a control character (a newline?)")
     return name, value
 
 
@@ -146,6 +152,24 @@ def out_option(parser, metavar: str, help: str | None = None) -> None:
 def report_option(parser, help: str) -> None:
     """``--report DIR``: figures and plots beside the result."""
     parser.add_argument("--report", metavar="DIR", help=help)
+
+
+@contextlib.contextmanager
+def output_folder(path: str | None) -> Iterator[Path | None]:
+    """The folder a folder option names (``--report DIR``, ``--write DIR``), or None when it is not given.
+
+    The verb writes into the yielded temporary folder beside ``path``; it is
+    renamed to ``path`` when the verb's block ends and removed on any error
+    (:func:`camcal.base.atomic.atomic_dir`: an existing folder keeps its
+    other files, files of the same names are replaced at the end). Paths
+    written inside it map to their final place with
+    :func:`camcal.base.atomic.final_path`.
+    """
+    if path is None:
+        yield None
+        return
+    with atomic_dir(path) as staging:
+        yield staging
 
 
 def image_size_option(parser, help: str | None = None, required: bool = False) -> None:

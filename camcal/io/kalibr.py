@@ -106,9 +106,13 @@ def _numbers(entry: dict, key: str, count: int, where: str) -> list[float]:
     if not isinstance(value, list) or len(value) != count or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
         raise CamcalError(f"{where}.{key} must be a list of {count} numbers, got {value!r:.80}")
-    if not all(np.isfinite(value)):
+    try:
+        numbers = [float(v) for v in value]
+    except OverflowError:
+        raise CamcalError(f"{where}.{key} holds an integer out of the float range") from None
+    if not all(np.isfinite(numbers)):
         raise CamcalError(f"{where}.{key} contains NaN or infinite values")
-    return [float(v) for v in value]
+    return numbers
 
 
 def load(path: Path) -> ImportResult:
@@ -154,7 +158,10 @@ def load(path: Path) -> ImportResult:
             T = np.asarray(entry.get("T_cn_cnm1"), dtype=object)
             if T.shape != (4, 4):
                 raise CamcalError(f"{key}.T_cn_cnm1 must be a 4x4 matrix")
-            T = np.array(T, dtype=np.float64)
+            try:
+                T = np.array(T, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise CamcalError(f"{key}.T_cn_cnm1 must hold numbers") from None
             if not np.all(np.isfinite(T)):
                 raise CamcalError(f"{key}.T_cn_cnm1 contains NaN or infinite values")
             R = T[:3, :3] @ R_prev

@@ -259,6 +259,11 @@ def load(path: Path) -> ImportResult:
             raise CamcalError("a stereo file needs K1, D1, K2, D2, R and T; K1/K2 are missing")
         else:
             raise CamcalError("no camera_matrix (one camera) and no K1, K2 (stereo pair) in the file")
+    except cv2.error as error:  # a node of the wrong kind (a matrix without dt, a root that is no map...)
+        reason = str(error).strip().splitlines()[-1].split(" error: ", 1)[-1]
+        raise CamcalError(f"{path}: OpenCV cannot read the file ({reason})") from None
+    except UnicodeDecodeError as error:  # a key or a string that is not UTF-8
+        raise CamcalError(f"{path}: not UTF-8 text (byte {error.start} of a key or a string)") from None
     finally:
         storage.release()
     conversions = tuple(LensConversion(c.name, _format(c.distortion), c.distortion.model, True) for c in rig.cameras)

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from camcal.base.atomic import atomic_dir, final_path
 from camcal.geometry.stmap import make_stmaps, pixels_from_st
 from camcal.geometry.uncertainty import SigmaSummary, projection_sigma_map, summarise_sigma
 from camcal.io.frames import imread, imwrite
@@ -33,7 +34,10 @@ def read_exr(path: str | os.PathLike) -> NDArray[np.float32]:
 
 
 def write_stmaps(rig: Rig, camera_name: str, out_dir: str | os.PathLike, overscan: float = 1.1) -> list[Path]:
-    """Write ``<camera>_undistort.exr``, ``<camera>_redistort.exr`` and the undistorted rig.
+    """Write ``<camera>_undistort.exr``, ``<camera>_redistort.exr`` and the undistorted rig into ``out_dir``.
+
+    The folder is built under a temporary name and renamed at the end
+    (:func:`camcal.base.atomic.atomic_dir`).
 
     Returns
     -------
@@ -44,15 +48,15 @@ def write_stmaps(rig: Rig, camera_name: str, out_dir: str | os.PathLike, oversca
     """
     camera = rig.camera(camera_name)
     maps = make_stmaps(camera, overscan)
-    out_dir = Path(out_dir)
-    paths = [
-        write_exr(out_dir / f"{camera_name}_undistort.exr", maps.undistort),
-        write_exr(out_dir / f"{camera_name}_redistort.exr", maps.redistort),
-    ]
     cameras = tuple(maps.undistorted if c.name == camera_name else c for c in rig.cameras)
     provenance = make_provenance("stmap", source_camera=camera_name, overscan=overscan)
-    paths.append(Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(out_dir / f"{camera_name}_undistorted.rig.json"))
-    return paths
+    with atomic_dir(out_dir) as staging:
+        paths = [
+            write_exr(staging / f"{camera_name}_undistort.exr", maps.undistort),
+            write_exr(staging / f"{camera_name}_redistort.exr", maps.redistort),
+            Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(staging / f"{camera_name}_undistorted.rig.json"),
+        ]
+    return [final_path(path, staging, out_dir) for path in paths]
 
 
 def write_sigma_map(path: str | os.PathLike, sigma: NDArray) -> Path:

@@ -23,6 +23,7 @@ from camcal.base.atomic import atomic_path
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import DETECTOR_SETTINGS, Board, Detection, DetectionReport, detect_board
 from camcal.io.frames import imread
+from camcal.io.headers import check_image_header
 
 __all__ = ["default_cache_dir", "detect_in_images"]
 
@@ -74,6 +75,8 @@ def _detect_file(board: Board, path: str, content: bytes) -> tuple[tuple[int, in
         except CamcalError:
             image = None
     else:
+        if content:
+            check_image_header(Path(path), content)  # a forged size stops here, not in OpenCV's allocator
         image = cv2.imdecode(np.frombuffer(content, np.uint8), cv2.IMREAD_GRAYSCALE) if content else None
     if image is None:
         return None, None
@@ -118,7 +121,9 @@ def detect_in_images(
     Raises
     ------
     CamcalError
-        No paths, or images of different sizes.
+        No paths, images of different sizes, or an image whose header
+        declares more pixels than :data:`camcal.base.limits.IMAGE_PIXELS`
+        (checked before decoding: :func:`camcal.io.headers.check_image_header`).
     """
     paths = [Path(p) for p in paths]
     if not paths:

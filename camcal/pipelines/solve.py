@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from camcal.base.atomic import atomic_dir, final_path
 from camcal.base.errors import CamcalError
 from camcal.base.native_log import native_output_to
 from camcal.geometry.bundle import (
@@ -69,6 +70,8 @@ MATCHERS = ("exhaustive", "sequential")
 MAPPERS = ("incremental", "global")
 #: the file in the output folder that receives COLMAP's, glog's and Ceres' own lines.
 COLMAP_LOG = "colmap.log"
+#: What a solve writes in its folder as a whole: an earlier run's are replaced, not merged into.
+_OWNED = ("images", "sparse", "database.db")
 
 
 @dataclass(frozen=True)
@@ -203,7 +206,10 @@ def solve_sfm(
         reference.
     out_dir : Path
         Receives ``database.db``, ``images/`` (links), ``sparse/`` (the COLMAP
-        model), ``solve.rig.json`` and ``points.ply``.
+        model), ``solve.rig.json`` and ``points.ply``; built under a temporary
+        name and renamed at the end, removed on any error
+        (:func:`camcal.base.atomic.atomic_dir`; an earlier run's ``images/``
+        and ``sparse/`` in it are replaced as a whole).
     camera_model : str
         COLMAP model for every camera: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL,
         RADIAL, OPENCV, SIMPLE_DIVISION... (one with a camcal counterpart).
@@ -256,20 +262,6 @@ def solve_sfm(
     -------
     SfmResult
     """
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / COLMAP_LOG).unlink(missing_ok=True)
-    with native_output_to(out_dir / COLMAP_LOG, echo=verbose):
-        return _solve_sfm(folders, out_dir, camera_model, matcher, mapper, seed, num_threads, refine, known_rig, loss,
-                          lens_models, principal_point, max_num_features, progress, jackknife, guided_matching,
-                          priors)
-
-
-def _solve_sfm(folders, out_dir: Path, camera_model: str, matcher: str, mapper: str, seed: int, num_threads: int,
-               refine: bool, known_rig: Rig | None, loss: str, lens_models: tuple[str, ...] | None,
-               principal_point: str, max_num_features: int, progress: Callable[[str], None] | None,
-               jackknife: bool, guided_matching: bool, priors: tuple[PriorSpec, ...]) -> SfmResult:
-    """:func:`solve_sfm` with COLMAP's output already captured."""
     import pycolmap  # noqa: PLC0415 - optional heavy dependency, only here
 
     if not folders:
@@ -280,21 +272,34 @@ def _solve_sfm(folders, out_dir: Path, camera_model: str, matcher: str, mapper: 
         raise CamcalError(f"unknown mapper {mapper!r}, expected one of: {', '.join(MAPPERS)}")
     if not hasattr(pycolmap.CameraModelId, camera_model):
         raise CamcalError(f"unknown COLMAP camera model {camera_model!r}")
-    image_dir = out_dir / "images"
     images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
               for name, value in folders.items()}
     if known_rig is not None:
         missing = [name for name in images if name not in {camera.name for camera in known_rig.cameras}]
         if missing:
             raise CamcalError(f"the known rig has no camera named {', '.join(map(repr, missing))}")
+    n_images = sum(len(paths) for paths in images.values())
+    if n_images < 2:
+        raise CamcalError(f"need at least 2 images, got {n_images}")
+    target = Path(out_dir)
+    with atomic_dir(target, replace=_OWNED + (COLMAP_LOG,)) as staging:
+        with native_output_to(staging / COLMAP_LOG, echo=verbose):
+            result = _solve_in(pycolmap, images, folders, staging, camera_model, matcher, mapper, seed, num_threads,
+                               refine, known_rig, loss, lens_models, principal_point, max_num_features, progress,
+                               jackknife, guided_matching, priors)
+    return dataclasses.replace(result, reconstruction_dir=final_path(result.reconstruction_dir, staging, target))
+
+
+def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, mapper, seed, num_threads, refine,
+              known_rig, loss, lens_models, principal_point, max_num_features, progress, jackknife,
+              guided_matching: bool, priors: tuple[PriorSpec, ...]) -> SfmResult:
+    """:func:`solve_sfm`'s work inside its (temporary) output folder, COLMAP's output captured."""
+    image_dir = out_dir / "images"
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
     free_pp = dict(refine_principal_point=principal_point != "centre", default_priors=principal_point == "auto")
     staged = _stage_images(images, image_dir)
     image_names = list(staged)
-    if len(image_names) < 2:
-        raise CamcalError(f"need at least 2 images, got {len(image_names)}")
     database = out_dir / "database.db"
-    database.unlink(missing_ok=True)
 
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
@@ -314,8 +319,6 @@ def _solve_sfm(folders, out_dir: Path, camera_model: str, matcher: str, mapper: 
     match(database, matching_options=matching, verification_options=_verification(pycolmap, seed),
           device=pycolmap.Device.cpu)
     sparse = out_dir / "sparse"
-    if sparse.exists():
-        shutil.rmtree(sparse)
     sparse.mkdir()
     _say(progress, f"mapping ({mapper})")
     models = _map(pycolmap, database, image_dir, sparse, mapper, seed)
@@ -410,22 +413,19 @@ def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, c
     ``out_dir``; COLMAP's lines go to ``out_dir/colmap.log`` (and stderr
     with ``verbose``).
     """
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / COLMAP_LOG).unlink(missing_ok=True)
-    with native_output_to(out_dir / COLMAP_LOG, echo=verbose):
-        return _solve_pycolmap_plain(folders, out_dir, camera_model, seed)
-
-
-def _solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, camera_model: str,
-                          seed: int) -> PycolmapPeer:
     import pycolmap  # noqa: PLC0415
 
     images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
               for name, value in folders.items()}
+    with atomic_dir(out_dir, replace=_OWNED + (COLMAP_LOG,)) as staging:
+        with native_output_to(staging / COLMAP_LOG, echo=verbose):
+            return _plain_in(pycolmap, images, folders, staging, camera_model, seed)
+
+
+def _plain_in(pycolmap, images, folders, out_dir: Path, camera_model: str, seed: int) -> PycolmapPeer:
+    """:func:`solve_pycolmap_plain`'s work inside its (temporary) output folder."""
     staged = _stage_images(images, out_dir / "images")
     database = out_dir / "database.db"
-    database.unlink(missing_ok=True)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
     pycolmap.extract_features(database, out_dir / "images", image_names=list(staged),
@@ -433,7 +433,6 @@ def _solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, 
                               device=pycolmap.Device.cpu)
     pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
     sparse = out_dir / "sparse"
-    shutil.rmtree(sparse, ignore_errors=True)
     sparse.mkdir()
     options = pycolmap.IncrementalPipelineOptions()
     options.random_seed = seed

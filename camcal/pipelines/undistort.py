@@ -6,9 +6,10 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from camcal.base.errors import CamcalError
 import numpy as np
 
+from camcal.base.atomic import atomic_dir, final_path
+from camcal.base.errors import CamcalError
 from camcal.geometry.uncertainty import SigmaSummary, projection_sigma_map, summarise_sigma
 from camcal.geometry.undistort import make_undistorter
 from camcal.io.frames import imread, imwrite
@@ -49,8 +50,9 @@ def undistort_images(
 
     Notes
     -----
-    Every image is read and checked before anything is written; each
-    output is written atomically.
+    Every image is read and checked before anything is written; the folder
+    is built under a temporary name and renamed at the end
+    (:func:`camcal.base.atomic.atomic_dir`).
     """
     camera = rig.camera(camera_name)
     undistorter = make_undistorter(camera, mode, overscan, max_fov_deg)
@@ -64,13 +66,14 @@ def undistort_images(
         loaded.append((Path(path), image))
     if len({path.name for path, _ in loaded}) != len(loaded):
         raise CamcalError("input images must have distinct file names (outputs keep them)")
-    written = []
-    for path, image in loaded:
-        written.append(imwrite(out_dir / path.name, undistorter.apply(image)))
     cameras = tuple(undistorter.undistorted_camera() if c.name == camera_name else c for c in rig.cameras)
     provenance = make_provenance("undistort", source_camera=camera_name, mode=mode)
-    rig_path = Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(out_dir / "undistorted.rig.json")
-    return rig_path, written
+    with atomic_dir(out_dir) as staging:
+        written = [final_path(imwrite(staging / path.name, undistorter.apply(image)), staging, out_dir)
+                   for path, image in loaded]
+        Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(staging / "undistorted.rig.json")
+    return out_dir / "undistorted.rig.json", written
+
 
 
 def write_undistorted_sigma(rig: Rig, camera_name: str, out_dir: str | os.PathLike, mode: str = "crop",
