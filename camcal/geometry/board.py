@@ -21,6 +21,26 @@ Two kinds of planar target:
     dictionary ``DICT`` (e.g. ``DICT_5X5_100``), detected with
     ``cv2.aruco.CharucoDetector``; corners may be partially visible.
 
+Boards as they are printed, options after the sizes (any order):
+
+``:inverted`` (ChArUco)
+    White markers on black: detected on the inverted image (``255 - I``).
+``:legacy`` (ChArUco)
+    OpenCV's legacy pattern (``CharucoBoard.setLegacyPattern(True)``, the
+    layout of OpenCV < 4.6 for an even number of rows).
+``:two-sided`` (ChArUco and chessboard)
+    Printed on the back as the mirror image, each back corner at the same
+    board point as the front one: the back's texture at board point
+    ``(X, Y)`` is the front's, so a camera behind the board sees the front
+    pattern mirrored. A ChArUco board is detected on the image and on its
+    mirror image (``x' = W - 1 - x``); the detection with more corners is
+    kept, the mirrored one's corners mapped back (``x = W - 1 - x'``) and
+    keeping their ids, i.e. their board points. A chessboard looks alike
+    from both sides (its detection is the same on the mirror image): which
+    side a view shows is decided by the rig
+    (:func:`camcal.geometry.zhang.calibrate_board`), like the half turn of
+    a symmetric board.
+
 Board coordinates: corner ``id`` of a chessboard is ``row * W + col`` at
 ``(col * square, row * square, 0)``; ChArUco corners are those of
 ``cv2.aruco.CharucoBoard.getChessboardCorners``. The board is the plane
@@ -65,6 +85,7 @@ __all__ = [
     "parse_board",
     "detect_board",
     "frame_number",
+    "video_frame_label",
 ]
 
 # No CALIB_CB_NORMALIZE_IMAGE for the SB detector: its histogram equalisation bends the
@@ -103,6 +124,12 @@ class Board:
         ChArUco only: side of a marker, smaller than ``square``.
     dictionary : str, optional
         ChArUco only: an ``cv2.aruco`` predefined dictionary name.
+    inverted : bool
+        ChArUco only: white markers on black.
+    two_sided : bool
+        Printed on the back as the mirror image, corners at the same board points.
+    legacy : bool
+        ChArUco only: OpenCV's legacy pattern.
 
     Examples
     --------
@@ -117,6 +144,9 @@ class Board:
     square: float
     marker: float | None = None
     dictionary: str | None = None
+    inverted: bool = False
+    two_sided: bool = False
+    legacy: bool = False
     object_points: NDArray[np.float64] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -137,6 +167,8 @@ class Board:
         else:
             if self.marker is not None or self.dictionary is not None:
                 raise CamcalError("marker size and dictionary apply only to charuco boards")
+            if self.inverted or self.legacy:
+                raise CamcalError("the inverted and legacy options apply only to charuco boards")
             col, row = np.meshgrid(np.arange(self.columns), np.arange(self.rows))
             points = np.stack([col.ravel(), row.ravel(), np.zeros(col.size)], axis=1) * self.square
         points.setflags(write=False)
@@ -152,34 +184,54 @@ class Board:
         if self.kind != "charuco":
             raise CamcalError("not a charuco board")
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, str(self.dictionary)))
-        return cv2.aruco.CharucoBoard((self.columns, self.rows), self.square, self.marker, dictionary)
+        board = cv2.aruco.CharucoBoard((self.columns, self.rows), self.square, self.marker, dictionary)
+        board.setLegacyPattern(self.legacy)
+        return board
 
     def spec(self) -> str:
         """The string :func:`parse_board` reads back."""
+        options = "".join(f":{name}" for name, on in (("inverted", self.inverted), ("two-sided", self.two_sided),
+                                                       ("legacy", self.legacy)) if on)
         if self.kind == "chessboard":
-            return f"chessboard:{self.columns}x{self.rows}:{self.square:g}"
-        return f"charuco:{self.dictionary}:{self.columns}x{self.rows}:{self.square:g}:{self.marker:g}"
+            return f"chessboard:{self.columns}x{self.rows}:{self.square:g}{options}"
+        return f"charuco:{self.dictionary}:{self.columns}x{self.rows}:{self.square:g}:{self.marker:g}{options}"
+
+
+#: The options each board kind takes after its sizes.
+_BOARD_OPTIONS = {"chessboard": ("two-sided",), "charuco": ("inverted", "two-sided", "legacy")}
 
 
 def parse_board(spec: str) -> Board:
-    """Parse ``chessboard:WxH:SQUARE`` or ``charuco:DICT:WxH:SQUARE:MARKER``.
+    """Parse ``chessboard:WxH:SQUARE[:two-sided]`` or ``charuco:DICT:WxH:SQUARE:MARKER[:inverted][:two-sided][:legacy]``.
 
     Parameters
     ----------
     spec : str
-        E.g. ``chessboard:9x6:0.025`` (9x6 inner corners, 25 mm squares) or
-        ``charuco:DICT_5X5_100:7x5:0.04:0.03``.
+        E.g. ``chessboard:9x6:0.025`` (9x6 inner corners, 25 mm squares),
+        ``charuco:DICT_5X5_100:7x5:0.04:0.03`` or
+        ``charuco:DICT_4X4_1000:4x5:0.054:0.0405:inverted:two-sided``.
 
     Returns
     -------
     Board
     """
     parts = str(spec).strip().split(":")
-    usage = "expected chessboard:WxH:SQUARE or charuco:DICT:WxH:SQUARE:MARKER"
+    usage = ("expected chessboard:WxH:SQUARE[:two-sided] or "
+             "charuco:DICT:WxH:SQUARE:MARKER[:inverted][:two-sided][:legacy]")
     size_index = {"chessboard": 1, "charuco": 2}.get(parts[0])
     expected_len = {"chessboard": 3, "charuco": 5}.get(parts[0])
-    if size_index is None or len(parts) != expected_len:
+    if size_index is None or len(parts) < expected_len:
         raise CamcalError(f"bad board {spec!r}: {usage}")
+    options = parts[expected_len:]
+    parts = parts[:expected_len]
+    allowed = _BOARD_OPTIONS[parts[0]]
+    for option in options:
+        if option not in allowed:
+            raise CamcalError(f"bad board {spec!r}: unknown option {option!r} for a {parts[0]} "
+                              f"(expected {', '.join(allowed)})")
+    if len(set(options)) < len(options):
+        raise CamcalError(f"bad board {spec!r}: an option is given twice")
+    flags = {"inverted": "inverted" in options, "two_sided": "two-sided" in options, "legacy": "legacy" in options}
     match = re.fullmatch(r"(\d+)x(\d+)", parts[size_index])
     if not match:
         raise CamcalError(f"bad board size {parts[size_index]!r} in {spec!r}: expected WxH, e.g. 9x6")
@@ -189,8 +241,8 @@ def parse_board(spec: str) -> Board:
         raise CamcalError(f"bad board {spec!r}: square and marker sizes must be numbers") from None
     columns, rows = int(match.group(1)), int(match.group(2))
     if parts[0] == "chessboard":
-        return Board("chessboard", columns, rows, numbers[0])
-    return Board("charuco", columns, rows, numbers[0], marker=numbers[1], dictionary=parts[1])
+        return Board("chessboard", columns, rows, numbers[0], **flags)
+    return Board("charuco", columns, rows, numbers[0], marker=numbers[1], dictionary=parts[1], **flags)
 
 
 @dataclass(frozen=True)
@@ -208,7 +260,8 @@ class Detection:
     corners_px : ndarray, shape (M, 2)
         Corner pixels, pixel (0, 0) at the centre of the top-left pixel.
     detector : str
-        ``"sb"``, ``"classic"`` or ``"charuco"``.
+        ``"sb"``, ``"classic"``, ``"charuco"`` or ``"charuco-mirrored"`` (a
+        two-sided board's back, found on the mirror image).
     """
 
     image: str
@@ -280,6 +333,26 @@ def _canonical_chessboard(gray: NDArray[np.uint8], corners: NDArray[np.float64],
     return grid.reshape(-1, 2)
 
 
+def _charuco_corners(board: Board, gray: NDArray[np.uint8]):
+    """ChArUco corners and ids (OpenCV's arrays, or None) and the detector's name.
+
+    A two-sided board is also looked for on the mirror image (its back, seen
+    from behind); the mirrored detection's corners are mapped back
+    (``x = W - 1 - x'``) with their ids, and the one with more corners wins
+    (the front on a tie).
+    """
+    detector = cv2.aruco.CharucoDetector(board.charuco_board())
+    corners, ids, _, _ = detector.detectBoard(gray)
+    found = (corners, ids, "charuco")
+    if board.two_sided:
+        mirrored, mirrored_ids, _, _ = detector.detectBoard(np.ascontiguousarray(gray[:, ::-1]))
+        if mirrored_ids is not None and len(mirrored_ids) > (0 if ids is None else len(ids)):
+            mirrored = mirrored.reshape(-1, 1, 2).astype(np.float32)
+            mirrored[:, 0, 0] = gray.shape[1] - 1 - mirrored[:, 0, 0]
+            found = (mirrored, mirrored_ids, "charuco-mirrored")
+    return found
+
+
 def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection | None:
     """Find ``board`` in one image.
 
@@ -300,9 +373,11 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     if gray.dtype != np.uint8:
         raise CamcalError(f"{name}: expected an 8-bit image, got {gray.dtype}")
+    if board.inverted:  # white markers on black: the detector looks for black ones
+        gray = 255 - gray
     height, width = gray.shape
     if board.kind == "charuco":
-        corners, ids, _, _ = cv2.aruco.CharucoDetector(board.charuco_board()).detectBoard(gray)
+        corners, ids, charuco = _charuco_corners(board, gray)
         if ids is None or len(ids) < MIN_CHARUCO_CORNERS:
             return None
         # OpenCV <= 4.12 returns ChArUco corners biased by +0.5 px (opencv/opencv#25539): refine
@@ -310,7 +385,7 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), _SUBPIX_CRITERIA)
         ids = ids.ravel().astype(np.int64)
         order = np.argsort(ids)
-        return Detection(name, (width, height), ids[order], corners.reshape(-1, 2).astype(np.float64)[order], "charuco")
+        return Detection(name, (width, height), ids[order], corners.reshape(-1, 2).astype(np.float64)[order], charuco)
     pattern = (board.columns, board.rows)
     found = False
     if min(height, width) >= _HALF_SIZE_MIN_PX:
@@ -341,11 +416,20 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
     return Detection(name, (width, height), np.arange(board.n_corners, dtype=np.int64), corners, detector)
 
 
+def video_frame_label(video: str, frame: int) -> str:
+    """The name of frame ``frame`` of a video in detections: ``cam_0.mp4#12`` (read back by :func:`frame_number`)."""
+    return f"{PurePath(video).name}#{int(frame)}"
+
+
 def frame_number(name: str) -> int:
     """The frame number in an image's file name: the last group of digits of its stem.
 
-    ``left07.jpg`` -> 7, ``cam2_frame_0113.png`` -> 113.
+    ``left07.jpg`` -> 7, ``cam2_frame_0113.png`` -> 113; a video frame's
+    label (:func:`video_frame_label`) ``cam_0.mp4#12`` -> 12.
     """
+    video = re.fullmatch(r".*#(\d+)", str(name))
+    if video:
+        return int(video.group(1))
     digits = re.findall(r"\d+", PurePath(name).stem)
     if not digits:
         raise CamcalError(f"no frame number in the file name {name!r} (views of several cameras are matched by it)")
