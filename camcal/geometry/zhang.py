@@ -710,6 +710,10 @@ def calibrate_board(
     if model != "auto" and model not in MODELS:
         raise CamcalError(f"unknown distortion model {model!r}, expected one of: {', '.join(MODELS)}, auto")
     names, by_frame = _check_detections(detections, board)
+    if board.kind == "chessboard" and board.two_sided and len(names) > 1:
+        raise CamcalError("a two-sided chessboard calibrates one camera at a time: its back cannot be told from its "
+                          "front in an image, so the views of a rig cannot be labelled alike (use a two-sided ChArUco "
+                          "board)")
     holdout = {int(f) for f in holdout}
     unknown = holdout - set().union(*[set(views) for views in by_frame])
     if unknown:

@@ -270,11 +270,12 @@ def detect_in_video(
     cache_file = Path(cache) / f"video-{_video_cache_key(board, path)}.json" if cache is not None else None
     done, n_frames = _read_video_cache(cache_file) if cache_file is not None else ({}, None)
     total = max(1, -(-(n_frames or info.frame_count) // every))
-    count = 0
+    count, reported = 0, [-1]
 
     def report_progress() -> None:
-        if progress is not None:
-            progress(min(count, total), total)
+        if progress is not None and min(count, total) != reported[0]:
+            reported[0] = min(count, total)
+            progress(reported[0], total)
 
     complete = n_frames is not None and all(k in done for k in range(0, n_frames, every))
     if not complete:
