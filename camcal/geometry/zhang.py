@@ -780,8 +780,8 @@ def _check_linked(names: list[str], frames: list[set[int]]) -> None:
         groups.append(sorted(group))
     if len(groups) > 1:
         described = " | ".join(", ".join(names[i] for i in group) for group in groups)
-        raise CamcalError(f"cameras not linked through shared frames: {described} (no training frame with the "
-                          "board seen by cameras of two groups: the rig cannot be placed in one frame)")
+        raise CamcalError(f"cameras not linked through shared frames: {described} (the groups share no frame "
+                          "with the board: the rig cannot be placed in one frame)")
 
 
 def _known_lenses(names: list[str], by_frame: list[dict], intrinsics: Mapping[str, Camera],
