@@ -25,11 +25,22 @@ def register(parser: argparse.ArgumentParser) -> None:
         "board", help="one camera or an N-camera rig from chessboard / ChArUco images (joint refinement)")
     board.add_argument(
         "--board", required=True, metavar="SPEC",
-        help="chessboard:WxH:SQUARE (inner corners) or charuco:DICT:WxH:SQUARE:MARKER (squares)",
+        help="chessboard:WxH:SQUARE[:two-sided] (inner corners) or "
+        "charuco:DICT:WxH:SQUARE:MARKER[:inverted][:two-sided][:legacy] (squares); inverted = white markers on "
+        "black, two-sided = the back printed as the mirror image (cameras behind the board see it mirrored), "
+        "legacy = OpenCV's legacy ChArUco pattern",
     )
-    named_option(board, "--camera", "NAME=GLOB", "a camera and its images, e.g. left='shots/left*.jpg' "
-                 "right='shots/right*.jpg' (several entries or a repeated option; globs absolute or relative)",
-                 required=True)
+    named_option(board, "--camera", "NAME=GLOB|VIDEO", "a camera and its images, e.g. left='shots/left*.jpg' "
+                 "right='shots/right*.jpg', or its video (cam0=cam_0.mp4; .mp4 .mov .avi .mkv, frame k of the "
+                 "video is frame number k, from 0) (several entries or a repeated option; globs absolute or "
+                 "relative)", required=True)
+    board.add_argument("--every", type=int, default=1, metavar="N",
+                       help="videos: detect every N-th frame (frames 0, N, 2N...; default 1)")
+    board.add_argument("--intrinsics", metavar="RIG",
+                       help="a rig file holding every camera's K and lens (by name): held, only the poses are "
+                       "solved (the lens model is the rig's)")
+    board.add_argument("--refine-intrinsics", action="store_true",
+                       help="with --intrinsics: start from them and refine them")
     board.add_argument("--model", default="auto",
                        choices=("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational",
                                 "opencv-thin-prism", "auto"),
@@ -99,28 +110,58 @@ def _board(args: argparse.Namespace) -> int:
 
     from camcal.base.atomic import final_path
     from camcal.geometry.board import frame_number, parse_board
-    from camcal.pipelines.board import default_cache_dir, detect_in_images
+    from camcal.pipelines.board import default_cache_dir, detect_in_images, detect_in_video
     from camcal.geometry.zhang import calibrate_board, quality_problems
     from camcal.base.progress import Progress
+    from camcal.io.video import is_video, video_info
+    from camcal.model.rig import Rig
     from camcal.report.calibration import write_report
 
     board = parse_board(args.board)
     if not args.camera:
         raise CamcalError("--camera: give at least one camera, e.g. --camera left='shots/left*.jpg'")
-    cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()}
+    if args.every < 1:
+        raise CamcalError(f"--every must be 1 or more, got {args.every}")
+    if args.refine_intrinsics and not args.intrinsics:
+        raise CamcalError("--refine-intrinsics needs --intrinsics RIG (the start)")
+    intrinsics = None
+    if args.intrinsics:
+        intrinsics = {camera.name: camera for camera in Rig.load(args.intrinsics).cameras}
+        missing = [name for name in args.camera if name not in intrinsics]
+        if missing:
+            raise CamcalError(f"--intrinsics {args.intrinsics}: no camera named {', '.join(missing)} "
+                              f"(it has: {', '.join(intrinsics)})")
+    videos = {name: value for name, value in args.camera.items() if is_video(value)}
+    for name, video in videos.items():  # every video decodable before any work
+        video_info(video)
+    cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()
+               if name not in videos}
+    workers = args.workers or os.cpu_count() or 1
+    cache = None if args.no_cache else (args.cache or default_cache_dir())
     detections = {}
-    for name, files in cameras.items():
-        report = detect_in_images(board, files, progress=Progress(len(files), f"detecting {name}", "images").report,
-                                  workers=args.workers or os.cpu_count() or 1,
-                                  cache=None if args.no_cache else (args.cache or default_cache_dir()))
-        print(f"{name}: {report.summary()}")
+    for name in args.camera:
+        if name in videos:
+            total = max(1, -(-video_info(videos[name]).frame_count // args.every))
+            report = detect_in_video(board, videos[name], every=args.every, workers=workers, cache=cache,
+                                     progress=Progress(total, f"detecting {name}", "frames").report)
+            skipped = [str(frame_number(label)) for label in report.skipped]
+            text = f"{name}: board found in {len(report.detections)} / {report.n_images} frames of {videos[name]}"
+            if skipped:
+                text += f" (not in frames {', '.join(skipped[:12])}{', ...' if len(skipped) > 12 else ''})"
+            print(text)
+        else:
+            files = cameras[name]
+            report = detect_in_images(board, files, progress=Progress(len(files), f"detecting {name}", "images").report,
+                                      workers=workers, cache=cache)
+            print(f"{name}: {report.summary()}")
         detections[name] = report.detections
     holdout: set[int] = set()
     if args.holdout:
         frames = sorted({frame_number(d.image) for views in detections.values() for d in views})
         holdout = parse_holdout(args.holdout, frames)
     result = calibrate_board(board, detections, model=args.model, units=args.units, loss=args.loss,
-                             loss_scale=args.loss_scale, holdout=holdout)
+                             loss_scale=args.loss_scale, holdout=holdout, intrinsics=intrinsics,
+                             refine_intrinsics=args.refine_intrinsics)
     problems = quality_problems(result)
     if problems and not args.force:
         raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)

@@ -22,6 +22,27 @@ Two kinds of planar target:
     ``cv2.aruco.CharucoDetector``; corners may be partially visible; refined
     like a chessboard's, on the part of each square the marker leaves clear.
 
+Boards as they are printed, options after the sizes (any order):
+
+``:inverted`` (ChArUco)
+    White markers on black: detected on the inverted image (``255 - I``).
+``:legacy`` (ChArUco)
+    OpenCV's legacy pattern (``CharucoBoard.setLegacyPattern(True)``, the
+    layout of OpenCV < 4.6 for an even number of rows).
+``:two-sided`` (ChArUco and chessboard)
+    Printed on the back as the mirror image, each back corner at the same
+    board point as the front one: the back's texture at board point
+    ``(X, Y)`` is the front's, so a camera behind the board sees the front
+    pattern mirrored. A ChArUco board is detected on the image and on its
+    mirror image (``x' = W - 1 - x``); the detection with more corners is
+    kept, the mirrored one's corners mapped back (``x = W - 1 - x'``) and
+    keeping their ids, i.e. their board points. A chessboard looks alike
+    from both sides (its detection is the same on the mirror image): one
+    camera calibrates from either side (a mirrored labelling of a plane is
+    another valid pose), but which side a view of a rig shows is not
+    decided yet, so :func:`camcal.geometry.zhang.calibrate_board` refuses
+    a two-sided chessboard for more than one camera.
+
 Board coordinates: corner ``id`` of a chessboard is ``row * W + col`` at
 ``(col * square, row * square, 0)``; ChArUco corners are those of
 ``cv2.aruco.CharucoBoard.getChessboardCorners``. The board is the plane
@@ -67,6 +88,7 @@ __all__ = [
     "parse_board",
     "detect_board",
     "frame_number",
+    "video_frame_label",
 ]
 
 # No CALIB_CB_NORMALIZE_IMAGE for the SB detector: its histogram equalisation bends the
@@ -105,6 +127,12 @@ class Board:
         ChArUco only: side of a marker, smaller than ``square``.
     dictionary : str, optional
         ChArUco only: an ``cv2.aruco`` predefined dictionary name.
+    inverted : bool
+        ChArUco only: white markers on black.
+    two_sided : bool
+        Printed on the back as the mirror image, corners at the same board points.
+    legacy : bool
+        ChArUco only: OpenCV's legacy pattern.
 
     Examples
     --------
@@ -119,6 +147,9 @@ class Board:
     square: float
     marker: float | None = None
     dictionary: str | None = None
+    inverted: bool = False
+    two_sided: bool = False
+    legacy: bool = False
     object_points: NDArray[np.float64] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -139,6 +170,8 @@ class Board:
         else:
             if self.marker is not None or self.dictionary is not None:
                 raise CamcalError("marker size and dictionary apply only to charuco boards")
+            if self.inverted or self.legacy:
+                raise CamcalError("the inverted and legacy options apply only to charuco boards")
             col, row = np.meshgrid(np.arange(self.columns), np.arange(self.rows))
             points = np.stack([col.ravel(), row.ravel(), np.zeros(col.size)], axis=1) * self.square
         points.setflags(write=False)
@@ -154,34 +187,54 @@ class Board:
         if self.kind != "charuco":
             raise CamcalError("not a charuco board")
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, str(self.dictionary)))
-        return cv2.aruco.CharucoBoard((self.columns, self.rows), self.square, self.marker, dictionary)
+        board = cv2.aruco.CharucoBoard((self.columns, self.rows), self.square, self.marker, dictionary)
+        board.setLegacyPattern(self.legacy)
+        return board
 
     def spec(self) -> str:
         """The string :func:`parse_board` reads back."""
+        options = "".join(f":{name}" for name, on in (("inverted", self.inverted), ("two-sided", self.two_sided),
+                                                       ("legacy", self.legacy)) if on)
         if self.kind == "chessboard":
-            return f"chessboard:{self.columns}x{self.rows}:{self.square:g}"
-        return f"charuco:{self.dictionary}:{self.columns}x{self.rows}:{self.square:g}:{self.marker:g}"
+            return f"chessboard:{self.columns}x{self.rows}:{self.square:g}{options}"
+        return f"charuco:{self.dictionary}:{self.columns}x{self.rows}:{self.square:g}:{self.marker:g}{options}"
+
+
+#: The options each board kind takes after its sizes.
+_BOARD_OPTIONS = {"chessboard": ("two-sided",), "charuco": ("inverted", "two-sided", "legacy")}
 
 
 def parse_board(spec: str) -> Board:
-    """Parse ``chessboard:WxH:SQUARE`` or ``charuco:DICT:WxH:SQUARE:MARKER``.
+    """Parse ``chessboard:WxH:SQUARE[:two-sided]`` or ``charuco:DICT:WxH:SQUARE:MARKER[:inverted][:two-sided][:legacy]``.
 
     Parameters
     ----------
     spec : str
-        E.g. ``chessboard:9x6:0.025`` (9x6 inner corners, 25 mm squares) or
-        ``charuco:DICT_5X5_100:7x5:0.04:0.03``.
+        E.g. ``chessboard:9x6:0.025`` (9x6 inner corners, 25 mm squares),
+        ``charuco:DICT_5X5_100:7x5:0.04:0.03`` or
+        ``charuco:DICT_4X4_1000:4x5:0.054:0.0405:inverted:two-sided``.
 
     Returns
     -------
     Board
     """
     parts = str(spec).strip().split(":")
-    usage = "expected chessboard:WxH:SQUARE or charuco:DICT:WxH:SQUARE:MARKER"
+    usage = ("expected chessboard:WxH:SQUARE[:two-sided] or "
+             "charuco:DICT:WxH:SQUARE:MARKER[:inverted][:two-sided][:legacy]")
     size_index = {"chessboard": 1, "charuco": 2}.get(parts[0])
     expected_len = {"chessboard": 3, "charuco": 5}.get(parts[0])
-    if size_index is None or len(parts) != expected_len:
+    if size_index is None or len(parts) < expected_len:
         raise CamcalError(f"bad board {spec!r}: {usage}")
+    options = parts[expected_len:]
+    parts = parts[:expected_len]
+    allowed = _BOARD_OPTIONS[parts[0]]
+    for option in options:
+        if option not in allowed:
+            raise CamcalError(f"bad board {spec!r}: unknown option {option!r} for a {parts[0]} "
+                              f"(expected {', '.join(allowed)})")
+    if len(set(options)) < len(options):
+        raise CamcalError(f"bad board {spec!r}: an option is given twice")
+    flags = {"inverted": "inverted" in options, "two_sided": "two-sided" in options, "legacy": "legacy" in options}
     match = re.fullmatch(r"(\d+)x(\d+)", parts[size_index])
     if not match:
         raise CamcalError(f"bad board size {parts[size_index]!r} in {spec!r}: expected WxH, e.g. 9x6")
@@ -191,8 +244,8 @@ def parse_board(spec: str) -> Board:
         raise CamcalError(f"bad board {spec!r}: square and marker sizes must be numbers") from None
     columns, rows = int(match.group(1)), int(match.group(2))
     if parts[0] == "chessboard":
-        return Board("chessboard", columns, rows, numbers[0])
-    return Board("charuco", columns, rows, numbers[0], marker=numbers[1], dictionary=parts[1])
+        return Board("chessboard", columns, rows, numbers[0], **flags)
+    return Board("charuco", columns, rows, numbers[0], marker=numbers[1], dictionary=parts[1], **flags)
 
 
 @dataclass(frozen=True)
@@ -210,7 +263,8 @@ class Detection:
     corners_px : ndarray, shape (M, 2)
         Corner pixels, pixel (0, 0) at the centre of the top-left pixel.
     detector : str
-        ``"sb"``, ``"classic"`` or ``"charuco"``.
+        ``"sb"``, ``"classic"``, ``"charuco"`` or ``"charuco-mirrored"`` (a
+        two-sided board's back, found on the mirror image).
     """
 
     image: str
@@ -288,6 +342,26 @@ def _refine(gray: NDArray[np.uint8], corners: NDArray, grid: NDArray[np.int64], 
     return refine_corners(gray, corners, clear * grid_spacing_px(corners, grid)).corners_px
 
 
+def _charuco_corners(board: Board, gray: NDArray[np.uint8]):
+    """ChArUco corners and ids (OpenCV's arrays, or None) and the detector's name.
+
+    A two-sided board is also looked for on the mirror image (its back, seen
+    from behind); the mirrored detection's corners are mapped back
+    (``x = W - 1 - x'``) with their ids, and the one with more corners wins
+    (the front on a tie).
+    """
+    detector = cv2.aruco.CharucoDetector(board.charuco_board())
+    corners, ids, _, _ = detector.detectBoard(gray)
+    found = (corners, ids, "charuco")
+    if board.two_sided:
+        mirrored, mirrored_ids, _, _ = detector.detectBoard(np.ascontiguousarray(gray[:, ::-1]))
+        if mirrored_ids is not None and len(mirrored_ids) > (0 if ids is None else len(ids)):
+            mirrored = mirrored.reshape(-1, 1, 2).astype(np.float32)
+            mirrored[:, 0, 0] = gray.shape[1] - 1 - mirrored[:, 0, 0]
+            found = (mirrored, mirrored_ids, "charuco-mirrored")
+    return found
+
+
 def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection | None:
     """Find ``board`` in one image.
 
@@ -308,9 +382,11 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     if gray.dtype != np.uint8:
         raise CamcalError(f"{name}: expected an 8-bit image, got {gray.dtype}")
+    if board.inverted:  # white markers on black: the detector looks for black ones
+        gray = 255 - gray
     height, width = gray.shape
     if board.kind == "charuco":
-        corners, ids, _, _ = cv2.aruco.CharucoDetector(board.charuco_board()).detectBoard(gray)
+        corners, ids, charuco = _charuco_corners(board, gray)
         if ids is None or len(ids) < MIN_CHARUCO_CORNERS:
             return None
         # OpenCV <= 4.12 returns ChArUco corners biased by +0.5 px (opencv/opencv#25539): refine
@@ -320,7 +396,7 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         grid = np.stack([ids % (board.columns - 1), ids // (board.columns - 1)], axis=1)
         corners = _refine(gray, corners, grid, 0.8 * (board.square - board.marker) / board.square)
         order = np.argsort(ids)
-        return Detection(name, (width, height), ids[order], corners[order], "charuco")
+        return Detection(name, (width, height), ids[order], corners[order], charuco)
     pattern = (board.columns, board.rows)
     found = False
     for factor in (4, 2):  # a quarter-size copy first from 1600 px on both sides (4K frames)
@@ -354,11 +430,20 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
     return Detection(name, (width, height), np.arange(board.n_corners, dtype=np.int64), corners, detector)
 
 
+def video_frame_label(video: str, frame: int) -> str:
+    """The name of frame ``frame`` of a video in detections: ``cam_0.mp4#12`` (read back by :func:`frame_number`)."""
+    return f"{PurePath(video).name}#{int(frame)}"
+
+
 def frame_number(name: str) -> int:
     """The frame number in an image's file name: the last group of digits of its stem.
 
-    ``left07.jpg`` -> 7, ``cam2_frame_0113.png`` -> 113.
+    ``left07.jpg`` -> 7, ``cam2_frame_0113.png`` -> 113; a video frame's
+    label (:func:`video_frame_label`) ``cam_0.mp4#12`` -> 12.
     """
+    video = re.fullmatch(r".*#(\d+)", str(name))
+    if video:
+        return int(video.group(1))
     digits = re.findall(r"\d+", PurePath(name).stem)
     if not digits:
         raise CamcalError(f"no frame number in the file name {name!r} (views of several cameras are matched by it)")

@@ -604,7 +604,8 @@ def _camcal_covariance(covariance: NDArray, colmap_names: tuple[str, ...], names
     def row(entries: dict[str, float]) -> NDArray[np.float64]:
         r = np.zeros(len(colmap_names))
         for name, value in entries.items():
-            r[column[name]] = value
+            if name in column:  # a held parameter is not in the covariance: its sigma is 0
+                r[column[name]] = value
         return r
 
     for j, camera in enumerate(names):
@@ -641,6 +642,8 @@ def calibrate_board(
     loss: str = "trivial",
     loss_scale: float = 1.0,
     holdout: Collection[int] = (),
+    intrinsics: Mapping[str, Camera] | None = None,
+    refine_intrinsics: bool = False,
 ) -> CalibrationResult:
     """Calibrate one camera or an N-camera rig from images of a planar board.
 
@@ -679,6 +682,16 @@ def calibrate_board(
         ``huber``, ``soft_l1``, ``cauchy``), scale in pixels.
     holdout : collection of int
         Frame numbers left out of the fit and reported as held-out RMS.
+    intrinsics : mapping of str to Camera, optional
+        Camera name -> a calibrated camera (e.g. the cameras of a rig file):
+        its K and lens are held and only the poses are solved (extrinsics
+        only), unless ``refine_intrinsics``. Every camera of
+        ``detections`` must be in it, with the same image size, zero skew,
+        and one lens model shared by all (the fitted model: ``model`` must
+        be ``auto`` or that model); each camera's start poses are PnP with
+        its own lens.
+    refine_intrinsics : bool
+        With ``intrinsics``: use them as the start and refine them.
 
     Returns
     -------
@@ -688,8 +701,9 @@ def calibrate_board(
     ------
     CamcalError
         Unknown model, fewer than :data:`MIN_IMAGES` usable images for a
-        camera, a camera sharing no frame with the others, or a degenerate
-        problem.
+        camera, cameras not linked to each other through shared frames (one
+        line naming the separate groups), intrinsics that do not fit the
+        cameras, or a degenerate problem.
 
     Notes
     -----
@@ -702,12 +716,21 @@ def calibrate_board(
     if model != "auto" and model not in MODELS:
         raise CamcalError(f"unknown distortion model {model!r}, expected one of: {', '.join(MODELS)}, auto")
     names, by_frame = _check_detections(detections, board)
+    if board.kind == "chessboard" and board.two_sided and len(names) > 1:
+        raise CamcalError("a two-sided chessboard calibrates one camera at a time: its back cannot be told from its "
+                          "front in an image, so the views of a rig cannot be labelled alike (use a two-sided ChArUco "
+                          "board)")
     holdout = {int(f) for f in holdout}
     unknown = holdout - set().union(*[set(views) for views in by_frame])
     if unknown:
         raise CamcalError(f"held-out frame(s) {', '.join(map(str, sorted(unknown)))} are not among the views")
+    _check_linked(names, [{f for f in views if f not in holdout} for views in by_frame])
     options = dict(units=units, outlier_factor=outlier_factor, min_outlier_px=min_outlier_px, loss=loss,
                    loss_scale=loss_scale)
+    if intrinsics is not None:
+        model, known = _known_lenses(names, by_frame, intrinsics, model)
+        return _calibrate(board, names, by_frame, model, holdout, known=known, refine_known=refine_intrinsics,
+                          **options)
     if model != "auto":
         return _calibrate(board, names, by_frame, model, holdout, **options)
     # the choice never sees the held-out frames
@@ -738,6 +761,112 @@ def calibrate_board(
         return dataclasses.replace(result, model_ranking=ranking, notes=result.notes + tuple(notes),
                                    model_heldout_rms_px={s.model: s.rms_px for s in scored})
     raise CamcalError("no lens model could be fitted: " + "; ".join(failures))
+
+
+def _check_linked(names: list[str], frames: list[set[int]]) -> None:
+    """Every camera linked to the others through frames they share (the view graph is connected), else one line.
+
+    Raises
+    ------
+    CamcalError
+        ``cameras not linked through shared frames: cam0, cam1 | cam2 (...)``, naming the separate groups.
+    """
+    groups: list[list[int]] = []
+    left = set(range(len(names)))
+    while left:
+        queue, group = deque([min(left)]), []
+        left.discard(queue[0])
+        while queue:
+            i = queue.popleft()
+            group.append(i)
+            for j in sorted(left):
+                if frames[i] & frames[j]:
+                    left.discard(j)
+                    queue.append(j)
+        groups.append(sorted(group))
+    if len(groups) > 1:
+        described = " | ".join(", ".join(names[i] for i in group) for group in groups)
+        raise CamcalError(f"cameras not linked through shared frames: {described} (the groups share no frame "
+                          "with the board: the rig cannot be placed in one frame)")
+
+
+def _known_lenses(names: list[str], by_frame: list[dict], intrinsics: Mapping[str, Camera],
+                  model: str) -> tuple[str, dict[str, NDArray[np.float64]]]:
+    """The fitted model and each camera's COLMAP parameters from calibrated cameras (``intrinsics=``)."""
+    missing = [name for name in names if name not in intrinsics]
+    if missing:
+        raise CamcalError(f"camera(s) {', '.join(missing)} not in the intrinsics (it has: "
+                          f"{', '.join(intrinsics) or 'no camera'})")
+    lenses, known = {}, {}
+    for name, views in zip(names, by_frame):
+        camera = intrinsics[name]
+        size = tuple(next(iter(views.values())).image_size)
+        if tuple(camera.image_size) != size:
+            raise CamcalError(f"camera {name!r}: the intrinsics are for {camera.image_size[0]}x{camera.image_size[1]} "
+                              f"images, its frames are {size[0]}x{size[1]}")
+        if abs(camera.K[0, 1]) > 1e-9 * abs(camera.K[0, 0]):
+            raise CamcalError(f"camera {name!r}: the intrinsics have skew {camera.K[0, 1]:g}; the rig engine's models "
+                              "have none")
+        lenses[name], known[name] = _lens_params(name, camera)
+    if len(set(lenses.values())) > 1:
+        raise CamcalError("the intrinsics' cameras have different lens models ("
+                          + ", ".join(f"{name}: {lens}" for name, lens in lenses.items()) + "); give one model")
+    lens = next(iter(lenses.values()))
+    if model not in ("auto", lens):
+        raise CamcalError(f"--model {model} but the intrinsics' lens model is {lens}")
+    return lens, known
+
+
+def _lens_params(name: str, camera: Camera) -> tuple[str, NDArray[np.float64]]:
+    """The calibration model and COLMAP parameters (pixel centre at 0.5) of a calibrated camera."""
+    distortion, K = camera.distortion, camera.K
+    values = dict(distortion.params)
+    if distortion.model == "none":
+        return "none", _colmap_params("none", K, np.zeros(0))
+    if distortion.model == "polynomial":
+        if values.get("k3", 0.0) != 0.0:
+            raise CamcalError(f"camera {name!r}: a polynomial lens with k3 is not a model the rig engine has "
+                              "(polynomial is k1, k2)")
+        return "polynomial", _colmap_params("polynomial", K, np.array([values["k1"], values["k2"]]))
+    if distortion.model == "division":
+        centre = np.asarray(distortion.center if distortion.center is not None else K[:2, 2], dtype=np.float64)
+        if abs(K[0, 0] - K[1, 1]) > 1e-9 * K[0, 0] or np.abs(centre - K[:2, 2]).max() > 1e-6:
+            raise CamcalError(f"camera {name!r}: a division lens needs fx = fy and its centre at the principal "
+                              "point here (COLMAP's SIMPLE_DIVISION)")
+        f = K[0, 0]
+        return "division", np.array([f, K[0, 2] + 0.5, K[1, 2] + 0.5, values["lambda"] * f**2])
+    if distortion.model == "kannala-brandt":
+        return "kannala-brandt", _colmap_params("kannala-brandt", K, np.array([values[k] for k in MODELS["kannala-brandt"]]))
+    if distortion.model == "opencv":
+        if any(values.get(k, 0.0) != 0.0 for k in ("s1", "s2", "s3", "s4")):
+            raise CamcalError(f"camera {name!r}: thin-prism terms are not in the rig engine's models")
+        rational = any(values.get(k, 0.0) != 0.0 for k in ("k4", "k5", "k6"))
+        lens = "opencv-rational" if rational else "opencv"
+        vector = np.array([values.get(k, 0.0) for k in MODELS[lens]])
+        return lens, _colmap_params(lens, K, vector)
+    raise CamcalError(f"camera {name!r}: lens model {distortion.model!r} cannot be held")
+
+
+def _known_start(board: Board, views: Mapping[int, Detection], K: NDArray,
+                 lens: Distortion) -> dict[int, tuple[NDArray, NDArray]]:
+    """cam_from_board of each view by PnP with a calibrated lens (views not posable in front are left out)."""
+    poses = {}
+    for f, detection in views.items():
+        X = np.asarray(board.object_points[detection.ids], dtype=np.float64)
+        ideal = lens.undistort(detection.corners_px, K)
+        front = np.all(np.isfinite(ideal), axis=1)
+        if front.sum() < 4:
+            continue
+        for method in (cv2.SOLVEPNP_IPPE, cv2.SOLVEPNP_ITERATIVE):
+            try:
+                ok, rvec, tvec = cv2.solvePnP(X[front], ideal[front], K, None, flags=method)
+            except cv2.error:
+                continue
+            R, t = cv2.Rodrigues(rvec)[0], tvec.ravel()
+            if ok and np.all((X @ R.T + t)[:, 2] > 0.0):
+                poses[f] = (R, t)
+                break
+    return poses
 
 
 #: Errors of a model that cannot be fitted to a set of views (the engine's own checks surface as ValueError).
@@ -792,8 +921,13 @@ def _rank_models(board: Board, names: list[str], training: list[dict], options: 
 
 
 def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: str, holdout: set[int], units: str,
-               outlier_factor: float, min_outlier_px: float, loss: str, loss_scale: float) -> CalibrationResult:
-    """One model, the views of ``holdout`` left out of the fit and then measured."""
+               outlier_factor: float, min_outlier_px: float, loss: str, loss_scale: float,
+               known: Mapping[str, NDArray] | None = None, refine_known: bool = False) -> CalibrationResult:
+    """One model, the views of ``holdout`` left out of the fit and then measured.
+
+    ``known``: camera name -> COLMAP parameters of a calibrated lens (:func:`_known_lenses`), held unless
+    ``refine_known``; the start poses are then PnP with those lenses.
+    """
     by_frame = [{f: d for f, d in views.items() if f not in holdout} for views in by_frame_all]
     held = [{f: d for f, d in views.items() if f in holdout} for views in by_frame_all]
     for name, views in zip(names, by_frame):
@@ -812,6 +946,11 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
     colmap_model, fixed = _COLMAP_MODELS[model]
     starts, params = [], []
     for name, views in zip(names, by_frame):
+        if known is not None:
+            params.append(np.asarray(known[name], dtype=np.float64).copy())
+            K, lens = _camcal_lens(model, params[-1])
+            starts.append(_known_start(board, views, K, lens))
+            continue
         K, dist, poses = _opencv_start(board, views, model, name)
         if model != "kannala-brandt":
             poses = _poses_in_front(board, views, K, dist, poses)
@@ -847,7 +986,10 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         R_b, t_b = starts[j][f]
         view_start[f] = (R_j.T @ R_b, R_j.T @ (t_b - t_j))
     options = BundleOptions(refine_principal_point=True, refine_points3D=False, loss=loss, loss_scale=loss_scale,
-                            fixed_params={name: fixed for name in names})
+                            fixed_params={name: fixed for name in names},
+                            constant_intrinsics=tuple(names) if known is not None and not refine_known else ())
+    if known is not None:
+        notes.append("intrinsics " + ("refined from the given start" if refine_known else "held (extrinsics only)"))
     image_sizes = tuple(next(iter(views.values())).image_size for views in by_frame)
 
     for round_ in range(_MAX_OUTLIER_ROUNDS + 1):
