@@ -90,6 +90,6 @@ def test_default_beats_opencvs_best_model_by_three_percent(measured, request):
     if name == "udacity_dashcam":
         request.applymarker(pytest.mark.xfail(strict=True, reason=(
             "issue 27, not met yet on the car camera: the cross-validated choice (kannala-brandt) is 1.09 x "
-            "OpenCV's thin prism on the 3 held-out views; its 13 training views rank the thin-prism fisheye last "
+            "OpenCV's thin prism on the 3 held-out views; its 13 training views rank the thin-prism fisheye next to last "
             "(README, Lens model choice)")))
     assert result.heldout_rms_px <= 0.97 * min(peers.values()), (name, result.model, result.heldout_rms_px, peers)
