@@ -43,9 +43,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                        help="with --intrinsics: start from them and refine them")
     board.add_argument("--model", default="auto",
                        choices=("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational",
-                                "opencv-thin-prism", "auto"),
+                                "opencv-thin-prism", "kannala-brandt-thin-prism", "auto"),
                        help="lens model; kannala-brandt is OpenCV's fisheye model, opencv-rational and "
-                       "opencv-thin-prism its 8- and 12-coefficient models; auto (default) ranks every model by "
+                       "opencv-thin-prism its 8- and 12-coefficient models, kannala-brandt-thin-prism COLMAP's "
+                       "RAD_TAN_THIN_PRISM_FISHEYE (six radial terms, tangential, thin prism); division "
+                       "estimates fx and fy (its aspect = fx / fy); auto (default) ranks every model by "
                        "views held out in turn and keeps the simplest within 1 %% of the best")
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "

@@ -22,9 +22,10 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    points: the board's frame is the world. camcal's models are COLMAP's
    exactly: ``polynomial`` is ``OPENCV`` with p1 = p2 = 0 held, ``opencv``
    is ``FULL_OPENCV`` with k4 = k5 = k6 = 0 held, ``division`` is
-   ``SIMPLE_DIVISION``, which has ONE focal length: with this model
-   fx = fy is imposed (and said so in :attr:`CalibrationResult.notes`),
-   ``kannala-brandt`` is ``OPENCV_FISHEYE``.
+   ``DIVISION`` (two focal lengths: the lens's ``aspect`` is ``fx / fy``,
+   so non-square pixels and anamorphic squeezes are estimated),
+   ``kannala-brandt`` is ``OPENCV_FISHEYE`` and
+   ``kannala-brandt-thin-prism`` is ``RAD_TAN_THIN_PRISM_FISHEYE``.
 4. Images whose RMS is far above the median (``> max(outlier_factor x
    median, min_outlier_px)``) are dropped, reported, and the problem is
    solved again.
@@ -46,9 +47,11 @@ board's units (its square size); pixel (0, 0) is the centre of the
 top-left pixel; skew is fixed at 0 (COLMAP's models have none).
 Distortion models (see :mod:`camcal.model.distortion`): ``polynomial``
 (k1, k2), ``opencv`` (k1, k2, p1, p2, k3) or ``division`` (Strand & Hayman
-lambda in 1/px^2, centred on the principal point, fx = fy; OpenCV has no
-such model: it is initialised from OpenCV's k1 as ``lambda = -k1 / f^2``)
-or ``kannala-brandt`` (k1..k4 of OpenCV's fisheye model).
+lambda in 1/px^2, centred on the principal point, radius in x pixels with
+``aspect = fx / fy``; OpenCV has no such model: it is initialised from
+OpenCV's k1 as ``lambda = -k1 / fx^2``) or ``kannala-brandt`` (k1..k4 of
+OpenCV's fisheye model) or ``kannala-brandt-thin-prism`` (k1..k6, p1, p2,
+s1..s4; started from OpenCV's fisheye fit, the rest at 0).
 
 References
 ----------
@@ -93,10 +96,12 @@ MODELS: Mapping[str, tuple[str, ...]] = MappingProxyType(
     {"none": (), "division": ("lambda",), "polynomial": ("k1", "k2"), "kannala-brandt": ("k1", "k2", "k3", "k4"),
      "opencv": ("k1", "k2", "p1", "p2", "k3"),
      "opencv-rational": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
-     "opencv-thin-prism": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")}
+     "opencv-thin-prism": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4"),
+     "kannala-brandt-thin-prism": ("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2", "s1", "s2", "s3", "s4")}
 )
 #: The models ``model="auto"`` chooses among, simplest first (the parsimony order): every model.
-AUTO_MODELS = ("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational", "opencv-thin-prism")
+AUTO_MODELS = ("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational", "opencv-thin-prism",
+               "kannala-brandt-thin-prism")
 #: ``model="auto"`` keeps the simplest model whose cross-validated RMS is within this share of the best.
 AUTO_MARGIN = 0.01
 #: The camcal distortion model of each fitted lens model.
@@ -119,11 +124,15 @@ _COLMAP_MODELS: Mapping[str, tuple[str, tuple[str, ...]]] = MappingProxyType({
     "polynomial": ("OPENCV", ("p1", "p2")),
     "opencv": ("FULL_OPENCV", ("k4", "k5", "k6")),
     "opencv-rational": ("FULL_OPENCV", ()),
-    "division": ("SIMPLE_DIVISION", ()),
+    "division": ("DIVISION", ()),
     "kannala-brandt": ("OPENCV_FISHEYE", ()),
+    "kannala-brandt-thin-prism": ("RAD_TAN_THIN_PRISM_FISHEYE", ()),
 })
-#: What a calibration with fewer constraints than the model would have must say.
-_MODEL_NOTES = {"division": "division model: fx = fy imposed (COLMAP's SIMPLE_DIVISION has one focal length)"}
+#: The Kannala-Brandt models: started from ``cv2.fisheye``, corners beyond 90 degrees left out.
+_FISHEYE = ("kannala-brandt", "kannala-brandt-thin-prism")
+#: camcal parameter -> COLMAP parameter where the names differ (RAD_TAN_THIN_PRISM_FISHEYE's k0..k5, p0, s0..s3).
+_COLMAP_NAMES = {"kannala-brandt-thin-prism": {"k1": "k0", "k2": "k1", "k3": "k2", "k4": "k3", "k5": "k4", "k6": "k5",
+                                               "p1": "p1", "p2": "p0", "s1": "s0", "s2": "s1", "s3": "s2", "s4": "s3"}}
 #: Quality gate (:func:`quality_problems`): a calibration beyond these is not written without --force.
 MAX_RMS_PX = 1.5
 MAX_FOCAL_SIGMA_REL = 0.05
@@ -351,7 +360,7 @@ def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name
     (zero distortion) is the start.
     """
     keys = sorted(views)
-    if model == "kannala-brandt":
+    if model in _FISHEYE:
         return _opencv_fisheye_start(board, views, keys, name)
     object_points = [board.object_points[views[k].ids].astype(np.float32) for k in keys]
     image_points = [views[k].corners_px.astype(np.float32).reshape(-1, 1, 2) for k in keys]
@@ -581,17 +590,23 @@ def _colmap_params(model: str, K: NDArray, dist: NDArray) -> NDArray[np.float64]
         return np.concatenate([[fx, fy, cx, cy], vector])
     if model == "kannala-brandt":  # OpenCV's fisheye vector is COLMAP's OPENCV_FISHEYE k1..k4
         return np.array([fx, fy, cx, cy, dist[0], dist[1], dist[2], dist[3]])
-    # division: x_d ~ x_u (1 - lambda r^2) to first order, so lambda = -k1 / f^2 and COLMAP's k = lambda f^2 = -k1
-    return np.array([0.5 * (fx + fy), cx, cy, -dist[0]])
+    if model == "kannala-brandt-thin-prism":  # k0..k3 from OpenCV's fisheye k1..k4, the rest at 0
+        return np.concatenate([[fx, fy, cx, cy], dist[:4], np.zeros(8)])
+    # division: x_d ~ x_u (1 - lambda r^2) to first order, so lambda = -k1 / fx^2 and COLMAP's k = lambda fx^2 = -k1
+    return np.array([fx, fy, cx, cy, -dist[0]])
 
 
 def _camcal_lens(model: str, params: NDArray) -> tuple[NDArray[np.float64], Distortion]:
     """camcal's K (pixel centre at 0) and distortion of COLMAP parameters (:data:`_COLMAP_MODELS`)."""
-    if model == "division":
-        f, cx, cy, k = params
-        return np.array([[f, 0.0, cx - 0.5], [0.0, f, cy - 0.5], [0.0, 0.0, 1.0]]), Distortion("division", {"lambda": k / f**2})
     fx, fy, cx, cy = params[:4]
     K = np.array([[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
+    if model == "division":  # COLMAP's DIVISION: k in normalised units, round in normalised coordinates
+        return K, Distortion("division", {"lambda": params[4] / fx**2, "aspect": fx / fy})
+    names = _COLMAP_NAMES.get(model, {})
+    if names:  # by COLMAP's parameter order
+        by_colmap = {colmap: camcal for camcal, colmap in names.items()}
+        order = [by_colmap[n] for n in ("k0", "k1", "k2", "k3", "k4", "k5", "p0", "p1", "s0", "s1", "s2", "s3")]
+        return K, Distortion(model, dict(zip(order, params[4:4 + len(order)])))
     return K, Distortion(_LENS.get(model, model), dict(zip(MODELS[model], params[4:4 + len(MODELS[model])])))
 
 
@@ -611,13 +626,11 @@ def _camcal_covariance(covariance: NDArray, colmap_names: tuple[str, ...], names
     for j, camera in enumerate(names):
         for label in _INTRINSICS + MODELS[model]:
             labels.append(f"{camera}.{label}")
-            if model == "division" and label in ("fx", "fy"):
-                rows.append(row({f"{camera}.f": 1.0}))
-            elif label == "lambda":
-                f, k = params[j][0], params[j][3]
-                rows.append(row({f"{camera}.f": -2.0 * k / f**3, f"{camera}.k": 1.0 / f**2}))
+            if label == "lambda":  # lambda = k / fx^2
+                fx, k = params[j][0], params[j][4]
+                rows.append(row({f"{camera}.fx": -2.0 * k / fx**3, f"{camera}.k": 1.0 / fx**2}))
             else:
-                rows.append(row({f"{camera}.{label}": 1.0}))
+                rows.append(row({f"{camera}.{_COLMAP_NAMES.get(model, {}).get(label, label)}": 1.0}))
         if j:
             for label in ("rx", "ry", "rz", "tx", "ty", "tz"):
                 labels.append(f"{camera}.{label}")
@@ -659,10 +672,12 @@ def calibrate_board(
         by position).
     model : str
         ``auto`` (default) or one of :data:`MODELS`: ``none``, ``division``
-        (Strand & Hayman lambda, centred on the principal point, fx = fy),
-        ``polynomial`` (k1, k2), ``kannala-brandt`` (k1..k4), ``opencv``
-        (k1, k2, p1, p2, k3), ``opencv-rational`` (+ k4, k5, k6),
-        ``opencv-thin-prism`` (+ s1..s4; one camera, fitted by OpenCV).
+        (Strand & Hayman lambda, centred on the principal point, its
+        ``aspect`` = fx / fy), ``polynomial`` (k1, k2), ``kannala-brandt``
+        (k1..k4), ``opencv`` (k1, k2, p1, p2, k3), ``opencv-rational``
+        (+ k4, k5, k6), ``opencv-thin-prism`` (+ s1..s4; one camera, fitted
+        by OpenCV), ``kannala-brandt-thin-prism`` (k1..k6, p1, p2, s1..s4:
+        COLMAP's RAD_TAN_THIN_PRISM_FISHEYE).
         ``auto`` ranks every model by leave-views-out cross-validation on
         the training views (:func:`_rank_models`; ``holdout`` is never used
         to choose) and keeps the simplest (order of :data:`AUTO_MODELS`)
@@ -915,7 +930,7 @@ def _rank_models(board: Board, names: list[str], training: list[dict], options: 
                 reason = "non-finite held-out error"
                 break
             squared, count = squared + result.heldout_rms_px**2 * n, count + n
-        n_params = (3 if candidate == "division" else 4) + len(MODELS[candidate])
+        n_params = 4 + len(MODELS[candidate])
         scores.append(ModelScore(candidate, None if reason else float(np.sqrt(squared / count)), n_params, reason))
     return tuple(sorted(scores, key=lambda s: (s.rms_px is None, s.rms_px or 0.0, AUTO_MODELS.index(s.model))))
 
@@ -952,7 +967,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
             starts.append(_known_start(board, views, K, lens))
             continue
         K, dist, poses = _opencv_start(board, views, model, name)
-        if model != "kannala-brandt":
+        if model not in _FISHEYE:
             poses = _poses_in_front(board, views, K, dist, poses)
         starts.append(poses)
         params.append(_colmap_params(model, K, dist))
@@ -964,15 +979,15 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
                               f"start, need at least {MIN_IMAGES}")
     by_frame, starts, relabelled, dropped = _resolve_half_turns(board, names, by_frame, starts)
     dropped = behind + dropped
-    notes = [_MODEL_NOTES[model]] if model in _MODEL_NOTES else []
+    notes = []
     if behind:
         notes.append(f"{len(behind)} view(s) left out: no start pose puts the board in front of the camera "
                      f"({', '.join(image for _, image in behind)})")
-    if model == "kannala-brandt":
+    if model in _FISHEYE:
         by_frame, n_behind = _corners_in_front(board, by_frame, starts)
         if n_behind:
             notes.append(f"{n_behind} corner(s) beyond 90 degrees from the optical axis left out "
-                         "(COLMAP's OPENCV_FISHEYE, the engine's model, images only rays in front of the camera)")
+                         f"(COLMAP's {colmap_model}, the engine's model, images only rays in front of the camera)")
     cam_poses = _camera_poses(names, starts)
 
     # every frame seen by any camera is one board pose, first placed by the lowest camera seeing it
