@@ -86,8 +86,8 @@ class ParameterCovariance:
     Examples
     --------
     >>> c = ParameterCovariance.from_dict({"names": ["fx", "cx"], "matrix": [[0.25, 0.0], [0.0, 0.04]]})
-    >>> c.array[1, 1], c.to_dict()["names"]
-    (np.float64(0.04), ['fx', 'cx'])
+    >>> float(c.array[1, 1]), c.to_dict()["names"]
+    (0.04, ['fx', 'cx'])
     """
 
     names: tuple[str, ...]
