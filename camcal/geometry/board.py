@@ -7,7 +7,7 @@ Two kinds of planar target:
     squares of side ``SQUARE`` (in the board's units, e.g. metres, or 1.0
     to measure in squares). Found by ``cv2.findChessboardCorners`` (the
     fastest), falling back to ``cv2.findChessboardCornersSB`` (plain, then
-    with its exhaustive and accuracy flags) when it fails; each search runs
+    with its exhaustive and accuracy flags) when it fails; all three run
     on a quarter-size copy first when the image is 800 px or more on both
     sides, then on a half-size one from 400 px, full size last; either way
     refined by ``cv2.cornerSubPix`` with a window of half-size
@@ -289,24 +289,23 @@ def _refine(gray: NDArray[np.uint8], corners: NDArray, grid: NDArray[np.int64], 
     return refine_corners(gray, corners, clear * grid_spacing_px(corners, grid)).corners_px
 
 
-def _find_reduced_first(gray: NDArray[np.uint8], *finders) -> tuple[bool, NDArray | None]:
-    """Run each finder on a quarter-size copy (both sides >= 800 px), then half size (>= 400 px), then full size.
+def _find_reduced_first(gray: NDArray[np.uint8], *finders) -> tuple[bool, NDArray | None, int]:
+    """Run the finders in turn on a quarter-size copy (both sides >= 800 px), then half size (>= 400 px), then full size.
 
-    The first success wins; its corners are mapped back to full-size pixels (pixel centres map as
-    ``f x + (f - 1) / 2``). A reduced copy has 4x (16x) fewer pixels: the board is found that much
-    faster, and the refinement at full size makes up the accuracy.
+    The first success wins: its corners mapped back to full-size pixels (pixel centres map as
+    ``f x + (f - 1) / 2``) and the finder's index. A reduced copy has 4x (16x) fewer pixels: the board is
+    found that much faster, and the refinement at full size makes up the accuracy.
     """
     height, width = gray.shape
     for factor in (4, 2, 1):
         if factor > 1 and min(height, width) < _HALF_SIZE_MIN_PX * factor // 2:
             continue
         image = gray if factor == 1 else cv2.resize(gray, (width // factor, height // factor), interpolation=cv2.INTER_AREA)
-        for finder in finders:
+        for index, finder in enumerate(finders):
             found, corners = finder(image)
             if found:
-                return True, factor * corners + (factor - 1) / 2
-    return False, None
-
+                return True, factor * corners + (factor - 1) / 2, index
+    return False, None, -1
 
 def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection | None:
     """Find ``board`` in one image.
@@ -342,16 +341,19 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         order = np.argsort(ids)
         return Detection(name, (width, height), ids[order], corners[order], "charuco")
     pattern = (board.columns, board.rows)
-    detector = "classic"
-    found, corners = _find_reduced_first(gray, lambda img: cv2.findChessboardCorners(img, pattern, flags=_CLASSIC_FLAGS))
+    # every search on reduced copies before any at full size: SB at full size took 30 s per call on a 4K
+    # frame and the classic search 45-100 s on a 2048x1536 one, where quarter-size copies take 0.1-0.6 s;
+    # the refinement below works at full size
+    detectors = ("classic", "sb", "sb")
+    found, corners, which = _find_reduced_first(
+        gray,
+        lambda img: cv2.findChessboardCorners(img, pattern, flags=_CLASSIC_FLAGS),
+        lambda img: cv2.findChessboardCornersSB(img, pattern, flags=0),
+        lambda img: cv2.findChessboardCornersSB(img, pattern, flags=_SB_FLAGS),
+    )
     if not found:
-        # SB on reduced copies too: at full size on a 4K frame it took 30 s per call where the quarter-size
-        # copy takes 0.15 s; the X-junction fit below refines at full size (full size the last resort)
-        detector = "sb"
-        found, corners = _find_reduced_first(gray, lambda img: cv2.findChessboardCornersSB(img, pattern, flags=0),
-                                             lambda img: cv2.findChessboardCornersSB(img, pattern, flags=_SB_FLAGS))
-        if not found:
-            return None
+        return None
+    detector = detectors[which]
     # The SB corners are pulled towards the image centre (0.1 px at 300 px from it, on
     # `camcal demo`'s rendered boards, with or without lens distortion): cornerSubPix
     # converges to the saddle point and removes that bias (0.0002 px left).
