@@ -311,6 +311,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         database, image_dir, image_names=image_names, camera_mode=pycolmap.CameraMode.PER_FOLDER,
         reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
     )
+    _number_by_name(pycolmap, database)
     _say(progress, f"matching ({matcher})")
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = num_threads
@@ -491,6 +492,47 @@ def _extraction_options(pycolmap, paths: list[Path], max_num_features: int, num_
     if sizes and max(sizes) >= UPSAMPLE_BELOW_PX:
         options.sift.first_octave = 0
     return options
+
+
+def _number_by_name(pycolmap, database: Path) -> None:
+    """Renumber the images (and their frames) of a freshly extracted ``database`` in the order of their names.
+
+    COLMAP's extraction threads write each image as they finish it, so the
+    ids -- the order the matcher and the mapper take images and pairs in --
+    changed from run to run, and with them the reconstruction (in its 7th
+    digit on a rendered stereo sequence). Cameras and rigs keep their ids
+    (the reader, on one thread, creates them in name order); pose priors
+    (EXIF GPS) follow their image.
+    """
+    ordered = database.with_name(database.stem + ".ordered.db")
+    old, new = pycolmap.Database.open(database), pycolmap.Database.open(ordered)
+    try:
+        for camera in old.read_all_cameras():
+            new.write_camera(camera, use_camera_id=True)
+        for rig in old.read_all_rigs():
+            new.write_rig(rig, use_rig_id=True)
+        frame_of = {}
+        for frame in old.read_all_frames():
+            (data_id,) = frame.data_ids  # extraction makes one frame per image; the rig config comes later
+            frame_of[data_id.id] = (frame.rig_id, data_id.sensor_id)
+        priors = {prior.corr_data_id.id: prior for prior in old.read_all_pose_priors()}
+        for image in sorted(old.read_all_images(), key=lambda image: image.name):
+            image_id = new.write_image(pycolmap.Image(name=image.name, camera_id=image.camera_id))
+            if image.image_id in priors:
+                prior = priors[image.image_id]
+                prior.corr_data_id = pycolmap.data_t(prior.corr_data_id.sensor_id, image_id)
+                new.write_pose_prior(prior)
+            new.write_keypoints(image_id, old.read_keypoints(image.image_id))
+            new.write_descriptors(image_id, old.read_descriptors(image.image_id))
+            rig_id, sensor_id = frame_of[image.image_id]
+            frame = pycolmap.Frame()
+            frame.rig_id = rig_id
+            frame.add_data_id(pycolmap.data_t(sensor_id, image_id))
+            new.write_frame(frame)
+    finally:
+        old.close()
+        new.close()
+    ordered.replace(database)
 
 
 def _verification(pycolmap, seed: int):
