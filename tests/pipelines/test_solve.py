@@ -178,3 +178,17 @@ def test_solve_twice_on_a_small_scene_gives_the_same_rig(tmp_path):
 @pytest.mark.slow
 def test_solve_twice_gives_the_same_rig_and_only_camcal_writes_to_stderr(tmp_path):
     _solve_twice(tmp_path, width=640, max_num_features=2048)
+
+
+@pytest.mark.slow
+def test_solve_twice_on_real_stereo_pairs_gives_the_same_rig(tmp_path, shared_data):
+    """Six of OpenCV's real stereo pairs (a chessboard on a desk, 640x480): the two rig files equal to 1e-9."""
+    folder = shared_data / "stereo_chessboard"
+    folders = {name: [folder / f"{name}{index:02d}.jpg" for index in range(1, 7)] for name in ("left", "right")}
+    for out in ("first", "second"):
+        solve_sfm(folders, tmp_path / out)
+    a = dict(_numbers(json.loads((tmp_path / "first/solve.rig.json").read_text())))
+    b = dict(_numbers(json.loads((tmp_path / "second/solve.rig.json").read_text())))
+    assert set(a) == set(b) and any(".sigma." in key for key in a)
+    for key in a:
+        assert a[key] == b[key] or abs(a[key] - b[key]) <= 1e-9 * max(abs(a[key]), abs(b[key])), (key, a[key], b[key])
