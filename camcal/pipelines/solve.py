@@ -46,6 +46,7 @@ from camcal.geometry.bundle import (
     state_from_reconstruction,
     state_to_reconstruction,
 )
+from camcal.geometry.jackknife import METHODS as JACKKNIFE_METHODS
 from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, self_calibrate
 from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sparse_model
 from camcal.model.colmap import camera_from_colmap
@@ -190,7 +191,7 @@ def solve_sfm(
     principal_point: str = "auto",
     max_num_features: int = 8192,
     progress: Callable[[str], None] | None = None,
-    jackknife: bool = True,
+    jackknife: str | None = "step",
     priors: tuple[PriorSpec, ...] = (),
     verbose: bool = False,
     guided_matching: bool = False,
@@ -245,8 +246,10 @@ def solve_sfm(
         SIFT features per image (pycolmap's ``max_num_features``).
     progress : callable, optional
         Called with each stage's message (the CLI prints them to stderr).
-    jackknife : bool
-        Sigmas also by the delete-one-frame jackknife (:func:`self_calibrate`).
+    jackknife : {"step", "refit"} or None
+        Sigmas also by the delete-one-frame jackknife, each replicate by one
+        Gauss-Newton step or a full refit; None: the covariance alone
+        (:func:`self_calibrate`).
     priors : tuple of PriorSpec
         Gaussian priors on intrinsics (e.g. ``parse_prior("left.f=1200+-30")``);
         the rig's intrinsics are then the posterior's.
@@ -270,6 +273,8 @@ def solve_sfm(
         raise CamcalError(f"unknown matcher {matcher!r}, expected one of: {', '.join(MATCHERS)}")
     if mapper not in MAPPERS:
         raise CamcalError(f"unknown mapper {mapper!r}, expected one of: {', '.join(MAPPERS)}")
+    if jackknife is not None and jackknife not in JACKKNIFE_METHODS:
+        raise CamcalError(f"unknown jackknife method {jackknife!r}, expected one of: {', '.join(JACKKNIFE_METHODS)}")
     if not hasattr(pycolmap.CameraModelId, camera_model):
         raise CamcalError(f"unknown COLMAP camera model {camera_model!r}")
     images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]

@@ -115,7 +115,7 @@ def test_collect_images_by_folder_subfolder_and_glob(tmp_path):
 
 def test_solve_cli_help_and_bad_input(tmp_path):
     help_run = subprocess.run([sys.executable, "-m", "camcal", "solve", "--help"], capture_output=True, text=True)
-    assert help_run.returncode == 0 and "usage: camcal solve" in help_run.stdout
+    assert help_run.returncode == 0 and "usage: camcal solve" in help_run.stdout and "jackknife-refit" in help_run.stdout
     bad = subprocess.run([sys.executable, "-m", "camcal", "solve", str(tmp_path / "nope"), "--out", str(tmp_path / "o")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "image folder not found" in bad.stderr
