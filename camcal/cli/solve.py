@@ -12,6 +12,9 @@ from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
 
+#: ``--uncertainty`` -> the jackknife's replicate method (camcal.geometry.jackknife.METHODS), None: covariance alone.
+UNCERTAINTY = {"jackknife": "step", "jackknife-refit": "refit", "covariance": None}
+
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal solve``."""
@@ -33,10 +36,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="a Gaussian prior on an intrinsic (f, fx, fy, aspect, cx, cy, lambda, k1, k2, p1, p2; "
                         "camcal's units and pixel convention), e.g. left.f=1200+-30; repeatable. The rig's "
                         "intrinsics and sigmas are then the posterior's")
-    parser.add_argument("--uncertainty", default="jackknife", choices=("jackknife", "covariance"),
+    parser.add_argument("--uncertainty", default="jackknife", choices=tuple(UNCERTAINTY),
                         help="sigmas: the larger of the covariance and a delete-one-frame jackknife (one "
                         "Gauss-Newton step per frame or group of frames, at most 20), which sees errors an image's "
-                        "features share; or the covariance alone (too small on real features)")
+                        "features share; the same with a full bundle adjustment per group (jackknife-refit, "
+                        "slower); or the covariance alone (too small on real features)")
     parser.add_argument("--features", type=int, default=8192, metavar="N", help="SIFT features per image (8192)")
     parser.add_argument("--guided-matching", action="store_true",
                         help="match each verified pair again along its epipolar geometry (more, longer tracks; "
@@ -93,7 +97,7 @@ def _solve(args: argparse.Namespace) -> int:
     result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
                        seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
                        lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features,
-                       jackknife=args.uncertainty == "jackknife", priors=tuple(parse_prior(text) for text in args.prior),
+                       jackknife=UNCERTAINTY[args.uncertainty], priors=tuple(parse_prior(text) for text in args.prior),
                        verbose=args.verbose, guided_matching=args.guided_matching,
                        progress=lambda message: print(f"camcal solve: {message}", file=sys.stderr, flush=True))
     print(f"registered {result.n_registered} / {result.n_images} images"
@@ -132,7 +136,8 @@ def _solve(args: argparse.Namespace) -> int:
                                                 "reason": d.reason} for d in calibration.principal_point},
                     uncertainty={"covariance_sigmas": calibration.covariance_sigmas,
                                  "jackknife_sigmas": calibration.jackknife_sigmas,
-                                 "jackknife_groups": calibration.jackknife_groups})
+                                 "jackknife_groups": calibration.jackknife_groups,
+                                 "jackknife_method": calibration.jackknife_method or None})
     if peer is not None:
         out.figures(pycolmap={name: {"K": camera.K, "distortion": camera.distortion.to_dict(),
                                      "rms_px": peer.rms_px.get(name)} for name, camera in peer.cameras.items()})

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
 from camcal.geometry.bundle.prior import PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, undetermined
-from camcal.geometry.jackknife import MAX_GROUPS, MIN_FRAMES, frame_jackknife
+from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife
 from camcal.model.colmap import camera_from_colmap, camera_to_colmap
 from camcal.model.distortion import Distortion, fit_distortion
 
@@ -115,6 +115,8 @@ class SelfCalibration:
         Frames (or groups of frames) left out in turn; 0 when not run.
     jackknife_skipped : str
         Why the jackknife was not run ("" when it was).
+    jackknife_method : str
+        How its replicates were solved (:data:`camcal.geometry.jackknife.METHODS`; "" when not run).
     """
 
     lens_models: dict[str, str]
@@ -127,6 +129,7 @@ class SelfCalibration:
     jackknife_sigmas: dict[str, float] = dataclasses.field(default_factory=dict)
     jackknife_groups: int = 0
     jackknife_skipped: str = ""
+    jackknife_method: str = ""
 
     def lines(self) -> list[str]:
         """The decisions, one line per camera and question, for the user."""
@@ -142,8 +145,9 @@ class SelfCalibration:
         if self.jackknife_groups:
             ratios = ", ".join(f"{key} {self.jackknife_sigmas[key] / value:.2g}" for key, value in
                                self.covariance_sigmas.items() if key in self.jackknife_sigmas and value > 0)
+            how = "full refits" if self.jackknife_method == "refit" else "one Gauss-Newton step each"
             rows.append(f"uncertainty: the larger of the covariance sigma and a delete-one-frame jackknife over "
-                        f"{self.jackknife_groups} groups of frames, widened for its {self.jackknife_groups - 1} "
+                        f"{self.jackknife_groups} groups of frames ({how}), widened for its {self.jackknife_groups - 1} "
                         f"degrees of freedom (jackknife / covariance: {ratios})")
         else:
             rows.append(f"uncertainty: covariance sigmas only ({self.jackknife_skipped}); "
@@ -259,7 +263,7 @@ def self_calibrate(
     principal_point: str = "auto",
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
-    jackknife: bool = True,
+    jackknife: str | None = "step",
 ) -> tuple[BundleResult, SelfCalibration]:
     """Bundle adjustment that chooses each camera's lens model and whether to refine its principal point.
 
@@ -283,10 +287,11 @@ def self_calibrate(
         Chooses the held-out points.
     progress : callable, optional
         Called with each stage's message (the CLI prints them to stderr).
-    jackknife : bool
+    jackknife : {"step", "refit"} or None
         Also estimate the sigmas by the delete-one-frame jackknife
-        (:func:`camcal.geometry.jackknife.frame_jackknife`, one Gauss-Newton
-        step per frame or group of frames) and report the larger of the two.
+        (:func:`camcal.geometry.jackknife.frame_jackknife`), each replicate
+        by one Gauss-Newton step (``step``) or a full refit (``refit``), and
+        report the larger of the two; None: the covariance alone.
 
     Returns
     -------
@@ -323,6 +328,8 @@ def self_calibrate(
     if principal_point not in PRINCIPAL_POINT_MODES:
         raise CamcalError(f"unknown principal point mode {principal_point!r}, "
                           f"expected one of: {', '.join(PRINCIPAL_POINT_MODES)}")
+    if jackknife is not None and jackknife not in METHODS:
+        raise CamcalError(f"unknown jackknife method {jackknife!r}, expected one of: {', '.join(METHODS)}, or None")
     if not lens_models:
         raise CamcalError("need at least one lens model to choose from")
     unknown = [model for model in lens_models if model not in MODELS]
@@ -353,11 +360,11 @@ def self_calibrate(
     decisions = tuple(_principal_point_decision(final, k, principal_point) for k in range(len(names)))
     covariance_sigmas, jackknife_sigmas, groups = dict(final.sigmas), {}, 0
     n_frames = len(np.unique(final.state.obs_frame))
-    skipped = ("asked" if not jackknife else
+    skipped = ("asked" if jackknife is None else
                f"the jackknife needs {MIN_FRAMES} frames, got {n_frames}" if n_frames < MIN_FRAMES else "")
     if not skipped:
         _say(progress, f"uncertainty: delete-one-frame jackknife ({min(n_frames, MAX_GROUPS)} groups of frames)")
-        spread = frame_jackknife(final, final_options)
+        spread = frame_jackknife(final, final_options, method=jackknife)
         jackknife_sigmas, groups = spread.widened_sigmas, spread.n_groups
         # a singular covariance leaves keys only the jackknife has
         final = dataclasses.replace(final, sigmas={key: max(covariance_sigmas.get(key, 0.0), jackknife_sigmas.get(key, 0.0))
@@ -366,7 +373,7 @@ def self_calibrate(
         lens_models=chosen, heldout_rms_px=table, n_heldout_points=int(held_mask.sum()),
         principal_point=decisions, undetermined=tuple(undetermined(final.priors, final.prior_posterior_sigmas)),
         unused_priors=tuple(spec.label for spec in final.unused_priors), covariance_sigmas=covariance_sigmas, jackknife_sigmas=jackknife_sigmas,
-        jackknife_groups=groups, jackknife_skipped=skipped,
+        jackknife_groups=groups, jackknife_skipped=skipped, jackknife_method=spread.method if not skipped else "",
     )
     return final, report
 

@@ -46,6 +46,7 @@ from camcal.geometry.bundle import (
     state_from_reconstruction,
     state_to_reconstruction,
 )
+from camcal.geometry.jackknife import METHODS as JACKKNIFE_METHODS
 from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, self_calibrate
 from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sparse_model
 from camcal.model.colmap import camera_from_colmap
@@ -190,7 +191,7 @@ def solve_sfm(
     principal_point: str = "auto",
     max_num_features: int = 8192,
     progress: Callable[[str], None] | None = None,
-    jackknife: bool = True,
+    jackknife: str | None = "step",
     priors: tuple[PriorSpec, ...] = (),
     verbose: bool = False,
     guided_matching: bool = False,
@@ -245,8 +246,10 @@ def solve_sfm(
         SIFT features per image (pycolmap's ``max_num_features``).
     progress : callable, optional
         Called with each stage's message (the CLI prints them to stderr).
-    jackknife : bool
-        Sigmas also by the delete-one-frame jackknife (:func:`self_calibrate`).
+    jackknife : {"step", "refit"} or None
+        Sigmas also by the delete-one-frame jackknife, each replicate by one
+        Gauss-Newton step or a full refit; None: the covariance alone
+        (:func:`self_calibrate`).
     priors : tuple of PriorSpec
         Gaussian priors on intrinsics (e.g. ``parse_prior("left.f=1200+-30")``);
         the rig's intrinsics are then the posterior's.
@@ -270,6 +273,8 @@ def solve_sfm(
         raise CamcalError(f"unknown matcher {matcher!r}, expected one of: {', '.join(MATCHERS)}")
     if mapper not in MAPPERS:
         raise CamcalError(f"unknown mapper {mapper!r}, expected one of: {', '.join(MAPPERS)}")
+    if jackknife is not None and jackknife not in JACKKNIFE_METHODS:
+        raise CamcalError(f"unknown jackknife method {jackknife!r}, expected one of: {', '.join(JACKKNIFE_METHODS)}")
     if not hasattr(pycolmap.CameraModelId, camera_model):
         raise CamcalError(f"unknown COLMAP camera model {camera_model!r}")
     images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
@@ -311,6 +316,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         database, image_dir, image_names=image_names, camera_mode=pycolmap.CameraMode.PER_FOLDER,
         reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
     )
+    _number_by_name(pycolmap, database)
     _say(progress, f"matching ({matcher})")
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = num_threads
@@ -491,6 +497,47 @@ def _extraction_options(pycolmap, paths: list[Path], max_num_features: int, num_
     if sizes and max(sizes) >= UPSAMPLE_BELOW_PX:
         options.sift.first_octave = 0
     return options
+
+
+def _number_by_name(pycolmap, database: Path) -> None:
+    """Renumber the images (and their frames) of a freshly extracted ``database`` in the order of their names.
+
+    COLMAP's extraction threads write each image as they finish it, so the
+    ids -- the order the matcher and the mapper take images and pairs in --
+    changed from run to run, and with them the reconstruction (in its 7th
+    digit on a rendered stereo sequence). Cameras and rigs keep their ids
+    (the reader, on one thread, creates them in name order); pose priors
+    (EXIF GPS) follow their image.
+    """
+    ordered = database.with_name(database.stem + ".ordered.db")
+    old, new = pycolmap.Database.open(database), pycolmap.Database.open(ordered)
+    try:
+        for camera in old.read_all_cameras():
+            new.write_camera(camera, use_camera_id=True)
+        for rig in old.read_all_rigs():
+            new.write_rig(rig, use_rig_id=True)
+        frame_of = {}
+        for frame in old.read_all_frames():
+            (data_id,) = frame.data_ids  # extraction makes one frame per image; the rig config comes later
+            frame_of[data_id.id] = (frame.rig_id, data_id.sensor_id)
+        priors = {prior.corr_data_id.id: prior for prior in old.read_all_pose_priors()}
+        for image in sorted(old.read_all_images(), key=lambda image: image.name):
+            image_id = new.write_image(pycolmap.Image(name=image.name, camera_id=image.camera_id))
+            if image.image_id in priors:
+                prior = priors[image.image_id]
+                prior.corr_data_id = pycolmap.data_t(prior.corr_data_id.sensor_id, image_id)
+                new.write_pose_prior(prior)
+            new.write_keypoints(image_id, old.read_keypoints(image.image_id))
+            new.write_descriptors(image_id, old.read_descriptors(image.image_id))
+            rig_id, sensor_id = frame_of[image.image_id]
+            frame = pycolmap.Frame()
+            frame.rig_id = rig_id
+            frame.add_data_id(pycolmap.data_t(sensor_id, image_id))
+            new.write_frame(frame)
+    finally:
+        old.close()
+        new.close()
+    ordered.replace(database)
 
 
 def _verification(pycolmap, seed: int):

@@ -159,6 +159,22 @@ def test_self_calibrate_bad_input():
         self_calibrate(state, BundleOptions(), principal_point="middle")
     with pytest.raises(CamcalError, match="unknown lens model 'fisheye'"):
         self_calibrate(state, BundleOptions(), ("fisheye",))
+    with pytest.raises(CamcalError, match="unknown jackknife method 'bootstrap'"):
+        self_calibrate(state, BundleOptions(), jackknife="bootstrap")
+
+
+def test_jackknife_method_passes_through_and_refits_agree_with_steps():
+    state = tracks_state(stereo_rig(), np.random.default_rng(3), n_frames=5, n_points=400)
+    runs = {method: self_calibrate(state, BundleOptions(), ("division",), jackknife=method)[1]
+            for method in ("step", "refit", None)}
+    assert runs["step"].jackknife_method == "step" and runs["refit"].jackknife_method == "refit"
+    assert runs["step"].jackknife_groups == runs["refit"].jackknife_groups == 5
+    assert any("(full refits)" in line for line in runs["refit"].lines())
+    assert any("(one Gauss-Newton step each)" in line for line in runs["step"].lines())
+    for key, value in runs["refit"].jackknife_sigmas.items():  # one step is the refit to first order
+        assert runs["step"].jackknife_sigmas[key] == pytest.approx(value, rel=0.05), key
+    assert runs[None].jackknife_groups == 0 and runs[None].jackknife_method == ""
+    assert any(line.startswith("uncertainty: covariance sigmas only (asked)") for line in runs[None].lines())
 
 
 @pytest.mark.slow

@@ -143,8 +143,17 @@ def _layout(state: BundleState, options: BundleOptions, colmap, problem) -> tupl
     return blocks, arrays, n_cameras
 
 
-def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``S^+ b`` for a symmetric positive semi-definite ``S`` (Cholesky when regular, else eigen-decomposition)."""
+def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64], singular: bool) -> NDArray[np.float64]:
+    """``S^+ b`` for a symmetric positive semi-definite ``S``: Cholesky unless ``singular`` or it fails, else eigen.
+
+    ``singular``: ``S`` is known to have a null space (the group held a gauge
+    frame). Cholesky would not reliably refuse it: the Jacobi-scaled
+    pivot of a null direction is rounding (1e-16 to 1e-13), on either side
+    of any threshold, and where it passes the step gains a null-space
+    component of ``b``'s rounding over that pivot, a different one per run
+    (the baseline direction's jackknife sigma moved by 1e-4 relative when
+    the solution moved by 1e-11). The eigen-decomposition drops it.
+    """
     import scipy.linalg  # noqa: PLC0415
 
     out = np.zeros_like(b)
@@ -156,6 +165,8 @@ def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.
     scaled = S[np.ix_(used, used)] * np.outer(scale, scale)
     rhs = b[used] * scale
     try:
+        if singular:
+            raise np.linalg.LinAlgError("a gauge frame left out")
         factor = scipy.linalg.cholesky(scaled, lower=True)
         if np.min(np.diag(factor)) ** 2 < 1e-14:
             raise np.linalg.LinAlgError("nearly singular")
@@ -218,6 +229,9 @@ def _steps(state: BundleState, options: BundleOptions, colmap, problem,
     point_rows = np.zeros((n_rows, 3))
     point_rows[Jp.row, Jp.col % 3] = Jp.data
     J_c = J[:, :n_c].tocsr()
+    # the gauge frames: held constant, or with a held translation axis; without one, S is singular
+    gauge = [frame for frame in colmap.frame_ids if not any(block.kind == "frame" and block.index == frame
+                                                             and len(block.free) == 3 for block in blocks)]
     replicates = []
     for group in groups:
         deleted = np.isin(row_frame, group)
@@ -249,7 +263,7 @@ def _steps(state: BundleState, options: BundleOptions, colmap, problem,
             G = (H_inv_sparse @ H_pc).tocsr()
             S -= (H_pc.T @ G).toarray()
             b -= G.T @ b_p.ravel()
-        delta_c = -_pseudo_solve(S, b)
+        delta_c = -_pseudo_solve(S, b, singular=bool(np.isin(group, gauge).any()))
         replicates.append(_apply(state, blocks, delta_c))
     return replicates
 
