@@ -75,7 +75,7 @@ from camcal.geometry.bundle import BoardObservations
 from camcal.geometry.jackknife import MIN_FRAMES, interval_factor
 from camcal.model.distortion import Distortion
 
-__all__ = ["ViewJackknife", "design_effect", "view_jackknife"]
+__all__ = ["ViewJackknife", "board_jacobian", "design_effect", "view_jackknife"]
 
 _K_ENTRIES = {"fx": ((0, 0),), "fy": ((1, 1),), "cx": ((0, 2),), "cy": ((1, 2),), "f": ((0, 0), (1, 1))}
 _POSE = ("rx", "ry", "rz", "tx", "ty", "tz")
@@ -127,6 +127,80 @@ def _rotate(R: NDArray, rotvec: NDArray) -> NDArray:
     return Rotation.from_rotvec(rotvec).as_matrix() @ R
 
 
+def board_jacobian(lenses: Sequence[tuple[NDArray, Distortion, tuple[str, ...]]], sensor_R: NDArray,
+                   sensor_t: NDArray, frame_R: NDArray, frame_t: NDArray, X: NDArray, cam: NDArray, frame: NDArray,
+                   ) -> tuple[list[tuple[int, str]], NDArray, NDArray, NDArray]:
+    """Central-difference Jacobian of board corners' projections (module docstring's parameters).
+
+    ``X`` (N, 3) are the corners on the board, ``cam`` and ``frame`` (N,)
+    the camera and view of each. Returns the global columns ``(camera,
+    name)``, their Jacobian (2N, G) (rows ``x0, y0, x1, ...``), the Jacobian
+    (2N, 6) of each corner's projection by its own view's pose ``(delta,
+    tau)`` and the projections (N, 2).
+    """
+    X = np.asarray(X, dtype=np.float64)
+    n_views = len(frame_R)
+    # the global parameters: (camera, name) per free intrinsic, then (camera, pose axis) per non-reference camera
+    columns = [(c, name) for c, (_, _, free) in enumerate(lenses) for name in free]
+    columns += [(c, axis) for c in range(1, len(lenses)) for axis in _POSE]
+
+    def project(lens_of, sR, st, fR, ft) -> NDArray:
+        out = np.empty((len(X), 2))
+        p_rig = np.einsum("nij,nj->ni", fR[frame], X) + ft[frame]
+        for c, (K, distortion) in enumerate(lens_of):
+            rows = cam == c
+            out[rows] = distortion.project_rays(p_rig[rows] @ sR[c].T + st[c], K)
+        return out
+
+    base = [(np.asarray(K, dtype=np.float64), d) for K, d, _ in lenses]
+    sR, st = np.asarray(sensor_R, dtype=np.float64), np.asarray(sensor_t, dtype=np.float64)
+    fR, ft = np.asarray(frame_R, dtype=np.float64), np.asarray(frame_t, dtype=np.float64)
+    projected = project(base, sR, st, fR, ft)
+
+    def global_step(k: int, h: float) -> NDArray:
+        c, name = columns[k]
+        if name in _POSE:
+            e = np.zeros(3)
+            e[_POSE.index(name) % 3] = h
+            R2, t2 = sR.copy(), st.copy()
+            if name[0] == "r":
+                R2[c] = _rotate(sR[c], e)
+            else:
+                t2[c] = st[c] + e
+            return project(base, R2, t2, fR, ft)
+        lens = list(base)
+        lens[c] = _lens(*base[c], name, h)
+        return project(lens, sR, st, fR, ft)
+
+    def steps(k: int) -> float:
+        c, name = columns[k]
+        if name in _POSE:
+            return 1e-6 if name[0] == "r" else 1e-6 * max(float(np.linalg.norm(st[c])), 1e-3)
+        K, distortion = base[c]
+        value = abs(K[_K_ENTRIES[name][0]]) if name in _K_ENTRIES else abs(distortion.params[name])
+        if name in _K_ENTRIES:
+            return 1e-6 * max(value, 1.0)
+        # a distortion coefficient: relative to its value
+        return 1e-6 * max(value, 1e-12) if value else 1e-9
+
+    Jg = np.empty((2 * len(X), len(columns)))
+    for k in range(len(columns)):
+        h = steps(k)
+        Jg[:, k] = (global_step(k, h).ravel() - global_step(k, -h).ravel()) / (2.0 * h)
+    # each view's pose moves only its own corners: one pass per axis for all views at once
+    scale = 1e-6 * max(float(np.median(np.linalg.norm(ft, axis=1))), 1e-3)
+    Jp = np.empty((2 * len(X), 6))
+    for axis in range(6):
+        h = 1e-6 if axis < 3 else scale
+        e = np.zeros((n_views, 3))
+        e[:, axis % 3] = h
+        plus = (fR, ft + e) if axis >= 3 else (_rotate(fR, e), ft)
+        minus = (fR, ft - e) if axis >= 3 else (_rotate(fR, -e), ft)
+        Jp[:, axis] = (project(base, sR, st, *plus).ravel() - project(base, sR, st, *minus).ravel()) / (2.0 * h)
+
+    return columns, Jg, Jp, projected
+
+
 def view_jackknife(lenses: Sequence[tuple[NDArray, Distortion, tuple[str, ...]]], sensor_R: NDArray,
                    sensor_t: NDArray, frame_R: NDArray, frame_t: NDArray, observations: BoardObservations,
                    names: Sequence[str], camera_names: Sequence[str]) -> ViewJackknife | None:
@@ -154,66 +228,11 @@ def view_jackknife(lenses: Sequence[tuple[NDArray, Distortion, tuple[str, ...]]]
     n_views = len(frame_R)
     if n_views < MIN_FRAMES:
         return None
-    X = np.asarray(observations.object_points, dtype=np.float64)[observations.corner]
     cam, frame, xy = observations.camera, observations.frame, observations.xy
-    # the global parameters: (camera, name) per free intrinsic, then (camera, pose axis) per non-reference camera
-    columns = [(c, name) for c, (_, _, free) in enumerate(lenses) for name in free]
-    columns += [(c, axis) for c in range(1, len(lenses)) for axis in _POSE]
-
-    def project(lens_of, sR, st, fR, ft) -> NDArray:
-        out = np.empty((len(xy), 2))
-        p_rig = np.einsum("nij,nj->ni", fR[frame], X) + ft[frame]
-        for c, (K, distortion) in enumerate(lens_of):
-            rows = cam == c
-            out[rows] = distortion.project_rays(p_rig[rows] @ sR[c].T + st[c], K)
-        return out
-
-    base = [(np.asarray(K, dtype=np.float64), d) for K, d, _ in lenses]
-    sR, st = np.asarray(sensor_R, dtype=np.float64), np.asarray(sensor_t, dtype=np.float64)
-    fR, ft = np.asarray(frame_R, dtype=np.float64), np.asarray(frame_t, dtype=np.float64)
-    r = (project(base, sR, st, fR, ft) - xy).ravel()
-
-    def global_step(k: int, h: float) -> NDArray:
-        c, name = columns[k]
-        if name in _POSE:
-            e = np.zeros(3)
-            e[_POSE.index(name) % 3] = h
-            R2, t2 = sR.copy(), st.copy()
-            if name[0] == "r":
-                R2[c] = _rotate(sR[c], e)
-            else:
-                t2[c] = st[c] + e
-            return project(base, R2, t2, fR, ft)
-        lens = list(base)
-        lens[c] = _lens(*base[c], name, h)
-        return project(lens, sR, st, fR, ft)
-
-    def steps(k: int) -> float:
-        c, name = columns[k]
-        if name in _POSE:
-            return 1e-6 if name[0] == "r" else 1e-6 * max(float(np.linalg.norm(st[c])), 1e-3)
-        K, distortion = base[c]
-        value = abs(K[_K_ENTRIES[name][0]]) if name in _K_ENTRIES else abs(distortion.params[name])
-        if name in _K_ENTRIES:
-            return 1e-6 * max(value, 1.0)
-        # a distortion coefficient: a step moving the frame's corner by about 1e-4 px
-        return 1e-6 * max(value, 1e-12) if value else 1e-9
-
-    Jg = np.empty((len(r), len(columns)))
-    for k in range(len(columns)):
-        h = steps(k)
-        Jg[:, k] = (global_step(k, h).ravel() - global_step(k, -h).ravel()) / (2.0 * h)
-    # each view's pose moves only its own corners: one pass per axis for all views at once
-    scale = 1e-6 * max(float(np.median(np.linalg.norm(ft, axis=1))), 1e-3)
-    Jp = np.empty((len(r), 6))
-    for axis in range(6):
-        h = 1e-6 if axis < 3 else scale
-        e = np.zeros((n_views, 3))
-        e[:, axis % 3] = h
-        plus = (fR, ft + e) if axis >= 3 else (_rotate(fR, e), ft)
-        minus = (fR, ft - e) if axis >= 3 else (_rotate(fR, -e), ft)
-        Jp[:, axis] = (project(base, sR, st, *plus).ravel() - project(base, sR, st, *minus).ravel()) / (2.0 * h)
-
+    X = np.asarray(observations.object_points, dtype=np.float64)[observations.corner]
+    columns, Jg, Jp, projected = board_jacobian(lenses, sensor_R, sensor_t, frame_R, frame_t, X, cam, frame)
+    r = (projected - xy).ravel()
+    ft = np.asarray(frame_t, dtype=np.float64)
     # Jacobi scaling: a distortion coefficient's column is ~1e8 times a focal length's
     column_scale = 1.0 / np.maximum(np.linalg.norm(Jg, axis=0), 1e-300)
     G = len(columns)
