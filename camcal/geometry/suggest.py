@@ -23,7 +23,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
+import scipy.optimize
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
@@ -33,7 +35,7 @@ from camcal.geometry.view_jackknife import board_jacobian
 from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera
 
-__all__ = ["SuggestedView", "candidate_poses", "expected_worst_sigma", "suggest_views"]
+__all__ = ["SuggestedView", "candidate_poses", "expected_worst_sigma", "pose_views", "suggest_views"]
 
 #: Tilts (degrees about the board's x and y axes) of the candidates.
 TILTS_DEG = ((0.0, 0.0), (35.0, 0.0), (-35.0, 0.0), (0.0, 35.0), (0.0, -35.0))
@@ -222,3 +224,24 @@ def suggest_views(camera: Camera, object_points: NDArray, poses, n: int = 1) -> 
         out.append(SuggestedView(R, t, corners, centre, d, tilt, unit * scores[best]))
         views.append(len(taken) + best)
     return out
+
+
+def pose_views(camera: Camera, object_points: NDArray, detections) -> list[tuple[NDArray, NDArray]]:
+    """``cam_from_board`` of each detection with the camera's intrinsics held: PnP on the undistorted rays,
+    then least squares on the reprojection (:meth:`~camcal.model.distortion.Distortion.project_rays`)."""
+    X_all = np.asarray(object_points, dtype=np.float64)
+    poses = []
+    for detection in detections:
+        X, x = X_all[detection.ids], np.asarray(detection.corners_px, dtype=np.float64)
+        rays = camera.distortion.rays_from_pixels(x, camera.K)
+        ok, rvec, tvec = cv2.solvePnP(X, rays[:, :2] / rays[:, 2:], np.eye(3), None)
+        if not ok:
+            raise CamcalError(f"{detection.image}: the board could not be posed with the calibrated camera")
+
+        def residuals(pose, X=X, x=x):
+            R = Rotation.from_rotvec(pose[:3]).as_matrix()
+            return (camera.distortion.project_rays(X @ R.T + pose[3:], camera.K) - x).ravel()
+
+        pose = scipy.optimize.least_squares(residuals, np.r_[rvec.ravel(), tvec.ravel()], method="lm").x
+        poses.append((Rotation.from_rotvec(pose[:3]).as_matrix(), pose[3:]))
+    return poses
