@@ -64,6 +64,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                        help="write a rig that fails the quality gate (principal point outside the image, RMS over "
                        "1.5 px, sigma fx over 5 %%) and exit 3 instead of refusing it")
     board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
+    board.add_argument("--suggest", type=int, default=0, metavar="N",
+                       help="propose the next N board poses that most lower the worst projection sigma of the "
+                       "first camera (expected, from the views taken), drawn on a frame-sized preview PNG")
+    board.add_argument("--suggest-preview", metavar="FILE.png",
+                       help="where --suggest draws its shot list (default: OUT without .rig.json + .suggest.png)")
     out_option(board, "FILE.rig.json")
     report_option(board, "write PNG plots: residuals, per-image RMS, coverage")
     handler(board, _board)
@@ -200,6 +205,24 @@ def _board(args: argparse.Namespace) -> int:
             line += (f"  baseline {baseline:.4f} +/- {sigma['baseline_rel'] * baseline:.4f} {result.rig.units}"
                      f"  rotation +/- {sigma['rotation_deg']:.3f} deg")
         print(line)
+    shots, preview = [], None
+    if args.suggest > 0:
+        from camcal.geometry.suggest import pose_views, suggest_views
+        from camcal.report.calibration import write_suggestion_preview
+
+        camera = result.rig.cameras[0]
+        kept = {image for name, image in result.images if name == camera.name}
+        views = [d for d in detections[camera.name] if d.image in kept]
+        shots = suggest_views(camera, board.object_points, pose_views(camera, board.object_points, views),
+                              args.suggest)
+        out_path = str(args.out)
+        preview = args.suggest_preview or (out_path[:-len(".rig.json")] if out_path.endswith(".rig.json")
+                                           else out_path) + ".suggest.png"
+        preview = write_suggestion_preview(camera, shots, preview)
+        print(f"{camera.name}: worst projection sigma now {camera.quality['worst_projection_sigma_px']:.3g} px; "
+              f"next views (preview {preview}):")
+        for number, shot in enumerate(shots, start=1):
+            print(f"  {number}. {shot.describe()}")
     out = summary_of(args)
     if problems:
         out.warn("written with --force although " + "; ".join(problems))
@@ -214,7 +237,12 @@ def _board(args: argparse.Namespace) -> int:
         relabelled=[image for _, image in result.relabelled], dropped=[image for _, image in result.dropped],
         quality_problems=problems,
     )
+    if shots:
+        out.figures(suggested=[{"centre_px": shot.centre_px, "distance": shot.distance, "tilt_deg": list(shot.tilt_deg),
+                                "R": shot.R, "t": shot.t, "worst_sigma_px": shot.worst_sigma_px} for shot in shots])
     out.wrote(args.out, "rig")
+    if preview is not None:
+        out.wrote(preview, "suggest")
     if args.report:
         out.wrote_each(reports, "report", say=True)
     return 3 if problems else 0

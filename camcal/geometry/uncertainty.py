@@ -56,7 +56,7 @@ from camcal.model.distortion import Distortion
 from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera
 
-__all__ = ["GAUGE", "POSE", "SigmaSummary", "camera_covariance", "projection_covariance", "projection_sigma",
+__all__ = ["GAUGE", "POSE", "SigmaSummary", "camera_covariance", "projection_covariance", "projection_jacobian", "projection_sigma",
            "projection_sigma_map", "sigma_grid", "summarise_sigma"]
 
 #: Names of the board gauge in a camera's covariance (module docstring).
@@ -101,6 +101,8 @@ def projection_covariance(camera: Camera, pixels_px: ArrayLike, distance: float 
                           covariance: ParameterCovariance | None = None) -> NDArray[np.float64]:
     """The 2x2 covariance of the projection of the ray through each pixel (module docstring).
 
+    ``J Sigma J^T`` with ``J`` of :func:`projection_jacobian`.
+
     Parameters
     ----------
     camera : Camera
@@ -122,6 +124,14 @@ def projection_covariance(camera: Camera, pixels_px: ArrayLike, distance: float 
         In pixels squared; NaN for pixels without a ray.
     """
     covariance = camera_covariance(camera) if covariance is None else covariance
+    J = projection_jacobian(camera, pixels_px, distance, covariance)
+    return np.einsum("nip,pq,njq->nij", J, covariance.array, J)
+
+
+def projection_jacobian(camera: Camera, pixels_px: ArrayLike, distance: float | None,
+                        covariance: ParameterCovariance) -> NDArray[np.float64]:
+    """``dq/d(parameters)`` (N, 2, P) of the reprojected ray through each pixel, over ``covariance.names``
+    (module docstring; each intrinsic stepped by 1e-3 of its sigma in ``covariance``)."""
     if distance is not None and not (np.isfinite(distance) and distance > 0):
         raise CamcalError(f"distance must be a positive number (or infinity), got {distance!r}")
     pixels = np.asarray(pixels_px, dtype=np.float64).reshape(-1, 2)
@@ -164,7 +174,7 @@ def projection_covariance(camera: Camera, pixels_px: ArrayLike, distance: float 
     for k, name in enumerate(names):
         if name in columns:
             J[:, :, k] = np.einsum("nij,nj->ni", J_p, columns[name])
-    return np.einsum("nip,pq,njq->nij", J, C, J)
+    return J
 
 
 def projection_sigma(camera: Camera, pixels_px: ArrayLike, distance: float | None = None,

@@ -84,6 +84,7 @@ from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState
 from camcal.geometry.bundle import residuals as board_residuals
 from camcal.geometry.bundle.solve import GAUGE_NAMES
 from camcal.geometry.uncertainty import GAUGE, POSE, projection_sigma, sigma_grid
+from camcal.geometry.view_jackknife import design_effect, view_jackknife
 from camcal.model.camera import chordal_mean_rotation, rotation_angle_deg
 from camcal.model.distortion import Distortion
 from camcal.model.quality import ParameterCovariance
@@ -1053,8 +1054,9 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
     if solution.covariance.size == 0:
         raise CamcalError("the calibration is degenerate (singular normal equations): vary the board poses more")
     covariance, labels = _camcal_covariance(solution.covariance, solution.covariance_names, names, model, params)
+    jackknife = _view_jackknife(labels, names, model, params, refined, observations) if loss == "trivial" else None
     rig = _build_rig(names, image_sizes, params, cam_poses, observations.camera, image_of_point, residuals,
-                     covariance, labels, board, model, units)
+                     covariance, labels, board, model, units, jackknife)
     heldout_rms, heldout_images = None, ()
     if holdout:
         heldout_rms, per_camera, heldout_images = _heldout_rms(board, rig, held)
@@ -1081,6 +1083,17 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         dropped=tuple(dropped),
         notes=tuple(notes),
     )
+
+
+def _view_jackknife(labels: tuple[str, ...], names: list[str], model: str, params: list[NDArray],
+                    refined: BundleState, observations: BoardObservations) -> NDArray | None:
+    """The delete-one-view jackknife covariance over ``labels`` (:mod:`camcal.geometry.view_jackknife`);
+    None below its minimum of views (plain least squares only: no robust loss)."""
+    free = ("f", "cx", "cy") if model == "division" else _INTRINSICS
+    lenses = [(*_camcal_lens(model, params[j]), free + MODELS[model]) for j in range(len(names))]
+    jackknife = view_jackknife(lenses, refined.sensor_R, refined.sensor_t, refined.frame_R, refined.frame_t,
+                               observations, labels, names)
+    return None if jackknife is None else jackknife.covariance
 
 
 def _calibrate_opencv(board: Board, names: list[str], by_frame: list[dict], model: str, units: str,
@@ -1222,26 +1235,42 @@ def quality_problems(result: CalibrationResult) -> list[str]:
     return problems
 
 
-def _with_projection_sigma(camera: Camera, covariance: NDArray, labels: tuple[str, ...], model: str) -> Camera:
+def _with_projection_sigma(camera: Camera, covariance: NDArray, labels: tuple[str, ...], model: str,
+                           jackknife: NDArray | None = None) -> Camera:
     """The camera with ``quality.covariance`` (its intrinsics, its pose, the board gauge) and
     ``quality.worst_projection_sigma_px`` (at infinity, over a 16-pixel grid of the frame;
-    :mod:`camcal.geometry.uncertainty`)."""
+    :mod:`camcal.geometry.uncertainty`).
+
+    With the delete-one-view ``jackknife`` covariance the block is scaled by
+    the design effect of the camera's projection
+    (:func:`camcal.geometry.view_jackknife.design_effect`): the corners'
+    errors are correlated within a view. ``quality.sigma`` (per parameter)
+    stays the corners' covariance."""
     pairs = [(f"{camera.name}.{label}", label) for label in _INTRINSICS + MODELS[model] + POSE]
     pairs = [(label, name) for label, name in pairs + list(zip(GAUGE_NAMES, GAUGE)) if label in labels]
     index = [labels.index(label) for label, _ in pairs]
     names = [name for _, name in pairs]
-    block = covariance[np.ix_(index, index)]
-    parameters = ParameterCovariance(tuple(names), 0.5 * (block + block.T))
+
+    def block_of(matrix: NDArray) -> ParameterCovariance:
+        block = matrix[np.ix_(index, index)]
+        return ParameterCovariance(tuple(names), 0.5 * (block + block.T))
+
+    parameters = block_of(covariance)
     camera = dataclasses.replace(camera, quality={**camera.quality.to_dict(), "covariance": parameters})
     xs, ys = sigma_grid(camera.image_size, 16.0)
     grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
-    worst = float(np.nanmax(projection_sigma(camera, grid)))
+    sigma = projection_sigma(camera, grid)
+    if jackknife is not None:
+        factor = design_effect(sigma, projection_sigma(camera, grid, covariance=block_of(jackknife)))
+        parameters = ParameterCovariance(tuple(names), factor * parameters.array)
+        sigma = sigma * np.sqrt(factor)
+    worst = float(np.nanmax(sigma))
     return dataclasses.replace(camera, quality={**camera.quality.to_dict(), "covariance": parameters,
                                                 "worst_projection_sigma_px": worst})
 
 
 def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_point, residuals, covariance, labels,
-               board, model, units) -> Rig:
+               board, model, units, jackknife=None) -> Rig:
     sigma_by_label = dict(zip(labels, np.sqrt(np.clip(np.diag(covariance), 0.0, None))))
     cameras = []
     for j, name in enumerate(names):
@@ -1275,6 +1304,6 @@ def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_
                     "n_observations": int(mine.sum()),
                     "sigma": sigmas,
                 },
-            ), covariance, labels, model))
+            ), covariance, labels, model, jackknife))
     method = "chessboard" if board.kind == "chessboard" else "charuco"
     return Rig(tuple(cameras), units=units, provenance=make_provenance(method, board=board.spec(), model=model))
