@@ -83,6 +83,7 @@ from camcal.geometry.corners import grid_spacing_px, refine_corners
 
 __all__ = [
     "DETECTOR_SETTINGS",
+    "MAX_BOARD_SIDE",
     "Board",
     "Detection",
     "DetectionReport",
@@ -103,6 +104,8 @@ _HALF_SIZE_MIN_PX = 400
 #: cornerSubPix half-window as a fraction of the smallest corner spacing, and its bounds in px.
 _SUBPIX_WINDOW_FRACTION = 0.45
 _SUBPIX_WINDOW_PX = (3, 15)
+#: Most squares (or inner corners) per side of a board: beyond it a spec is a typo, not a print.
+MAX_BOARD_SIDE = 1000
 #: Fewest ChArUco corners kept in one image (a pose needs non-collinear points).
 MIN_CHARUCO_CORNERS = 6
 #: Part of every cache key: change it whenever detection changes what it returns.
@@ -160,6 +163,9 @@ class Board:
         if self.columns < minimum or self.rows < minimum:
             what = "inner corners" if self.kind == "chessboard" else "squares"
             raise CamcalError(f"a {self.kind} needs at least {minimum}x{minimum} {what}, got {self.columns}x{self.rows}")
+        if self.columns > MAX_BOARD_SIDE or self.rows > MAX_BOARD_SIDE:
+            raise CamcalError(f"a {self.kind} of {self.columns}x{self.rows} is not a printable board "
+                              f"(at most {MAX_BOARD_SIDE} per side)")
         if not np.isfinite(self.square) or self.square <= 0:
             raise CamcalError(f"square size must be a positive number, got {self.square!r}")
         if self.kind == "charuco":
@@ -167,7 +173,12 @@ class Board:
                 raise CamcalError(f"charuco marker size must be positive and below the square size, got {self.marker!r}")
             if not hasattr(cv2.aruco, str(self.dictionary)) or not str(self.dictionary).startswith("DICT_"):
                 raise CamcalError(f"unknown ArUco dictionary {self.dictionary!r}, e.g. DICT_5X5_100")
-            points = np.asarray(self.charuco_board().getChessboardCorners(), dtype=np.float64)
+            try:
+                points = np.asarray(self.charuco_board().getChessboardCorners(), dtype=np.float64)
+            except cv2.error:
+                size = int(str(self.dictionary).rsplit("_", 1)[-1]) if str(self.dictionary)[-1].isdigit() else None
+                raise CamcalError(f"a {self.columns}x{self.rows} charuco board needs {self.columns * self.rows // 2} "
+                                  f"markers; {self.dictionary} holds {size or 'fewer'}") from None
         else:
             if self.marker is not None or self.dictionary is not None:
                 raise CamcalError("marker size and dictionary apply only to charuco boards")

@@ -285,7 +285,9 @@ def solve_sfm(
             raise CamcalError(f"the known rig has no camera named {', '.join(map(repr, missing))}")
     n_images = sum(len(paths) for paths in images.values())
     if n_images < 2:
-        raise CamcalError(f"need at least 2 images, got {n_images}")
+        where = "; ".join(f"{name}: " + (f"folder {value}" if isinstance(value, (str, os.PathLike)) else
+                                          ", ".join(map(str, value)) or "no file") for name, value in folders.items())
+        raise CamcalError(f"need at least 2 images, got {n_images} ({where})")
     target = Path(out_dir)
     with atomic_dir(target, replace=_OWNED + (COLMAP_LOG,)) as staging:
         with native_output_to(staging / COLMAP_LOG, echo=verbose):

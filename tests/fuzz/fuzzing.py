@@ -16,7 +16,7 @@ EXAMPLES: Counter = Counter()
 PROFILE = os.environ.get("CAMCAL_FUZZ", "quick").strip() or "quick"
 _COMMON = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
                                                      HealthCheck.filter_too_much])
-settings.register_profile("camcal-fuzz-quick", max_examples=30, derandomize=True, database=None, **_COMMON)
+settings.register_profile("camcal-fuzz-quick", max_examples=200, derandomize=True, database=None, **_COMMON)
 settings.register_profile("camcal-fuzz-long", max_examples=int(os.environ.get("CAMCAL_FUZZ_EXAMPLES", "1500")),
                           **_COMMON)
 if PROFILE not in ("quick", "long"):

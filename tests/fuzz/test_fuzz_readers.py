@@ -318,5 +318,7 @@ def test_camera_specs(values):
 
 @FUZZ
 @given(text=texts("chessboard:9x6:0.025", "charuco:DICT_5X5_100:7x5:0.04:0.03"))
+@example(text="chessboard:4294967296x6:0.025")  # found: numpy asked for 32 GiB of corner ids
+@example(text="charuco:DICT_5X5_100:42949672967x5:0.04:0.03")  # found: cv2.error building the board
 def test_board_specs(text):
     run_reader("board spec", parse_board, text)
