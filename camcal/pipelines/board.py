@@ -12,10 +12,11 @@ the video's content, the board and the detector settings.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -83,6 +84,18 @@ def _write_json(path: Path, payload: dict) -> None:
             temporary.write_text(json.dumps(payload))
     except OSError:
         pass
+
+
+@contextlib.contextmanager
+def _opencv_threads_off(active: bool = True) -> Iterator[None]:
+    """OpenCV on one thread while camcal's own worker threads detect (restored after, also on errors)."""
+    threads = cv2.getNumThreads()
+    if active:
+        cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
 
 
 def _detect_file(board: Board, path: str, content: bytes) -> tuple[tuple[int, int] | None, Detection | None]:
@@ -172,18 +185,13 @@ def detect_in_images(
 
     n_workers = min(max(1, workers), len(pending))
     if n_workers > 1:
-        threads = cv2.getNumThreads()
-        cv2.setNumThreads(1)
-        try:
-            with ThreadPoolExecutor(max_workers=n_workers) as pool:
-                futures = [(index, pool.submit(_detect_file, board, str(paths[index]), content))
-                           for index, content in pending]
-                for index, future in futures:
-                    results[index] = future.result()
-                    count += 1
-                    report_progress()
-        finally:
-            cv2.setNumThreads(threads)
+        with _opencv_threads_off(), ThreadPoolExecutor(max_workers=n_workers) as pool:
+            futures = [(index, pool.submit(_detect_file, board, str(paths[index]), content))
+                       for index, content in pending]
+            for index, future in futures:
+                results[index] = future.result()
+                count += 1
+                report_progress()
     else:
         for index, content in pending:
             results[index] = _detect_file(board, str(paths[index]), content)
@@ -293,27 +301,21 @@ def detect_in_video(
         count = sum(1 for k in done if k % every == 0)
         report_progress()
         n_workers = max(1, workers)
-        threads = cv2.getNumThreads()
-        if n_workers > 1:
-            cv2.setNumThreads(1)
-        try:
-            with ThreadPoolExecutor(max_workers=n_workers) as pool:
-                in_flight: list = []
+        with _opencv_threads_off(n_workers > 1), ThreadPoolExecutor(max_workers=n_workers) as pool:
+            in_flight: list = []
 
-                def collect(n_left: int) -> None:
-                    nonlocal count
-                    while len(in_flight) > n_left:
-                        k, future = in_flight.pop(0)
-                        done[k] = future.result()
-                        count += 1
-                        report_progress()
+            def collect(n_left: int) -> None:
+                nonlocal count
+                while len(in_flight) > n_left:
+                    k, future = in_flight.pop(0)
+                    done[k] = future.result()
+                    count += 1
+                    report_progress()
 
-                for k, image in iter_frames(path, every=1, wanted=wanted):
-                    in_flight.append((k, pool.submit(detect_board, board, image, video_frame_label(path, k))))
-                    collect(2 * n_workers)
-                collect(0)
-        finally:
-            cv2.setNumThreads(threads)
+            for k, image in iter_frames(path, every=1, wanted=wanted):
+                in_flight.append((k, pool.submit(detect_board, board, image, video_frame_label(path, k))))
+                collect(2 * n_workers)
+            collect(0)
         n_frames = seen[0]
         if cache_file is not None:
             _write_json(cache_file, {"n_frames": n_frames,
