@@ -7,7 +7,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: test test-all demo bench addon clean python
+.PHONY: test test-all fuzz demo bench addon clean python
 
 python:
 	@test -n "$(PYTHON)" || { echo "camcal: Python 3.13 not found (tried python3.13, ~/.pyenv/versions/3.13*/bin, /usr/local/bin, /usr/bin); install it or run make PYTHON=/path/to/python3.13" >&2; exit 2; }
@@ -25,6 +25,12 @@ test: $(STAMP)
 
 test-all: $(STAMP)
 	$(PY) -m pytest -q
+
+# Every reader against mutated and random files, minutes (make test runs the quick profile);
+# more examples per reader: make fuzz CAMCAL_FUZZ_EXAMPLES=10000
+CAMCAL_FUZZ_EXAMPLES ?= 1500
+fuzz: $(STAMP)
+	CAMCAL_FUZZ=long CAMCAL_FUZZ_EXAMPLES=$(CAMCAL_FUZZ_EXAMPLES) $(PY) -m pytest -q tests/fuzz
 
 demo: $(STAMP)
 	$(VENV)/bin/camcal demo --out demo_out

@@ -186,7 +186,7 @@ def import_rig(
             plate = None
         clip = None
         # a fisheye's lens is in its panoramic camera itself (see _set_fisheye), not in a MovieClip
-        if distortion and cam.distortion.model not in ("none", "kannala-brandt"):
+        if distortion and cam.distortion.model != "none" and cam.distortion.model not in rigfile.FISHEYE_MODELS:
             clip = _lens_clip(cam, obj, plate, result, path, aux_directory, scene)
             result.clips[cam.name] = clip
             if compositor:
@@ -238,7 +238,7 @@ def _set_intrinsics(data, b):
 
 
 def _set_fisheye(data, cam, sensor_fit, result):
-    """A ``kannala-brandt`` lens: Cycles' panoramic fisheye-polynomial camera (mapping.blender_fisheye)."""
+    """A Kannala-Brandt lens: Cycles' panoramic fisheye-polynomial camera (mapping.blender_fisheye)."""
     try:
         f = mapping.blender_fisheye(cam.K, cam.size, cam.distortion.params, cam.sensor_width_mm, sensor_fit)
     except ValueError as error:
@@ -259,6 +259,13 @@ def _set_fisheye(data, cam, sensor_fit, result):
         f"camera {cam.name!r}: fisheye as Cycles' fisheye-polynomial camera (renders with Cycles only); "
         f"the quartic matches the lens to {f.fit_max_px:.3g} px at worst, {f.fit_rms_px:.3g} px RMS over the frame"
     )
+    if cam.distortion.model != "kannala-brandt":
+        offset = mapping.thin_prism_offset_px(cam.K, cam.size, cam.distortion.params)
+        data["camcal_fisheye_left_out_px"] = offset
+        result.warnings.append(
+            f"camera {cam.name!r}: inexact: Cycles' fisheye camera is radial; the lens's tangential and thin-prism "
+            f"terms (up to {offset:.3g} px over the frame) are left out (use the ST-maps for exact plates)"
+        )
 
 
 def _build_camera(cam, base, sensor_fit, collection, root, result):
@@ -270,7 +277,7 @@ def _build_camera(cam, base, sensor_fit, collection, root, result):
     name = f"{base}_{cam.name}"
     data = bpy.data.cameras.new(name)
     _set_intrinsics(data, b)
-    if cam.distortion.model == "kannala-brandt":
+    if cam.distortion.model in rigfile.FISHEYE_MODELS:
         _set_fisheye(data, cam, sensor_fit, result)
     data["camcal_name"] = cam.name
     data["camcal_K"] = [v for row in cam.K for v in row]

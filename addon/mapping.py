@@ -49,6 +49,8 @@ __all__ = [
     "fisheye_polynomial_ray",
     "kannala_brandt_theta_d",
     "kannala_brandt_theta",
+    "fisheye_radial_terms",
+    "thin_prism_offset_px",
     "division_distort",
     "division_undistort",
     "polynomial_distort",
@@ -332,18 +334,19 @@ def from_blender_pixel(point, height):
     return (point[0] - 0.5, height - 0.5 - point[1])
 
 
-def division_undistort(point, center, lam):
-    """Strand & Hayman: ``x_u = c + (x_d - c) / (1 + lambda r_d^2)`` (pixels)."""
+def division_undistort(point, center, lam, aspect=1.0):
+    """Strand & Hayman: ``x_u = c + (x_d - c) / (1 + lambda r_d^2)`` (pixels; ``r_d^2 = dx^2 + (aspect dy)^2``)."""
     dx, dy = point[0] - center[0], point[1] - center[1]
-    f = 1.0 / (1.0 + lam * (dx * dx + dy * dy))
+    f = 1.0 / (1.0 + lam * (dx * dx + aspect * aspect * dy * dy))
     return (center[0] + dx * f, center[1] + dy * f)
 
 
-def division_distort(point, center, lam):
+def division_distort(point, center, lam, aspect=1.0):
     """Inverse of :func:`division_undistort`: the root of
-    ``lambda r_u r_d^2 - r_d + r_u = 0`` that is continuous at ``r_u = 0``."""
+    ``lambda r_u r_d^2 - r_d + r_u = 0`` that is continuous at ``r_u = 0``
+    (radii in x pixels, ``r^2 = dx^2 + (aspect dy)^2``)."""
     dx, dy = point[0] - center[0], point[1] - center[1]
-    ru = math.hypot(dx, dy)
+    ru = math.hypot(dx, aspect * dy)
     if ru == 0.0 or lam == 0.0:
         return (float(point[0]), float(point[1]))
     disc = 1.0 - 4.0 * lam * ru * ru
@@ -419,7 +422,7 @@ def distort(distortion, point, center, focal):
     """
     p = distortion.params
     if distortion.model == "division":
-        return division_distort(point, center, p["lambda"])
+        return division_distort(point, center, p["lambda"], p.get("aspect", 1.0))
     if distortion.model == "polynomial":
         return polynomial_distort(point, center, focal, [p.get(k, 0.0) for k in ("k1", "k2", "k3")])
     if distortion.model == "opencv":
@@ -499,6 +502,10 @@ def blender_lens(distortion, K, image_size, margins=(0, 0)):
     elif model == "division":
         half = max(Wc, Hc) / 2.0
         blender_model, params = "NUKE", {"nuke_k1": p["lambda"] * half * half, "nuke_k2": 0.0}
+        if p.get("aspect", 1.0) != 1.0:
+            # camcal's radius is in x pixels with y scaled by the aspect; Blender's NUKE radius is in pixels
+            exact, note = False, (f"Blender's NUKE model is round in pixels; this lens's radius scales y by its "
+                                  f"aspect {p['aspect']:.6g} (use the ST-maps)")
     elif model == "polynomial":
         blender_model = "POLYNOMIAL"
         params = {"k1": p.get("k1", 0.0), "k2": p.get("k2", 0.0), "k3": p.get("k3", 0.0)}
@@ -535,14 +542,47 @@ def blender_lens(distortion, K, image_size, margins=(0, 0)):
 
 def kannala_brandt_theta_d(theta, ks):
     """Kannala & Brandt (2006), OpenCV's fisheye model:
-    ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``."""
+    ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8)``
+    (``ks`` of any length: six for the thin-prism fisheye's radial part)."""
     t2 = theta * theta
-    return theta * (1.0 + t2 * (ks[0] + t2 * (ks[1] + t2 * (ks[2] + t2 * ks[3]))))
+    series = 0.0
+    for k in reversed(ks):
+        series = t2 * (k + series)
+    return theta * (1.0 + series)
 
 
 def _kannala_brandt_slope(theta, ks):
     t2 = theta * theta
-    return 1.0 + t2 * (3.0 * ks[0] + t2 * (5.0 * ks[1] + t2 * (7.0 * ks[2] + t2 * 9.0 * ks[3])))
+    series = 0.0
+    for n in reversed(range(len(ks))):
+        series = t2 * ((2 * n + 3) * ks[n] + series)
+    return 1.0 + series
+
+
+def fisheye_radial_terms(params):
+    """``k1..k4`` of a ``kannala-brandt`` lens, ``k1..k6`` of a ``kannala-brandt-thin-prism`` one."""
+    return [float(params[k]) for k in ("k1", "k2", "k3", "k4", "k5", "k6") if k in params]
+
+
+def thin_prism_offset_px(K, image_size, params, step=16):
+    """Largest shift (pixels) the tangential and thin-prism terms of a ``kannala-brandt-thin-prism``
+    lens make over the frame: what Cycles' radial fisheye camera leaves out.
+
+    The terms act on the fisheye point ``(x, y)`` (normalised): ``dx = 2 p1 x y + p2 (r^2 + 2 x^2)
+    + s1 r^2 + s2 r^4``, ``dy = p1 (r^2 + 2 y^2) + 2 p2 x y + s3 r^2 + s4 r^4``; evaluated at the
+    frame's pixels (to first order in the shift)."""
+    fx, fy, cx, cy = float(K[0][0]), float(K[1][1]), float(K[0][2]), float(K[1][2])
+    p1, p2 = params.get("p1", 0.0), params.get("p2", 0.0)
+    s1, s2, s3, s4 = (params.get(k, 0.0) for k in ("s1", "s2", "s3", "s4"))
+    worst = 0.0
+    for u in range(0, int(image_size[0]), step):
+        for v in range(0, int(image_size[1]), step):
+            x, y = (u - cx) / fx, (v - cy) / fy
+            r2 = x * x + y * y
+            dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x) + r2 * (s1 + r2 * s2)
+            dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + r2 * (s3 + r2 * s4)
+            worst = max(worst, math.hypot(dx * fx, dy * fy))
+    return worst
 
 
 def _kannala_brandt_max_angle(ks):
@@ -663,7 +703,10 @@ def blender_fisheye(K, image_size, params, sensor_width_mm=36.0, sensor_fit="AUT
         integers (camcal's convention); ``fx != fy`` goes to the pixel aspect.
     image_size : (int, int)
     params : mapping
-        ``k1, k2, k3, k4`` of camcal's model (OpenCV's fisheye model).
+        ``k1, k2, k3, k4`` of camcal's model (OpenCV's fisheye model); with
+        ``k5, k6`` (``kannala-brandt-thin-prism``) its six radial terms; the
+        tangential and thin-prism terms are not Cycles': they are left out
+        (:func:`thin_prism_offset_px` says by how much).
     sensor_width_mm : float
     sensor_fit : {'AUTO', 'HORIZONTAL', 'VERTICAL'}
     n_samples : int
@@ -694,7 +737,7 @@ def blender_fisheye(K, image_size, params, sensor_width_mm=36.0, sensor_fit="AUT
         raise ValueError("skew cannot be represented by Blender's fisheye camera")
     b = blender_intrinsics(K, image_size, sensor_width_mm, sensor_fit)
     fx, cx, cy = float(K[0][0]), float(K[0][2]), float(K[1][2])
-    ks = [float(params[k]) for k in ("k1", "k2", "k3", "k4")]
+    ks = fisheye_radial_terms(params)
     pitch_x, pitch_y = _pixel_pitch_mm(b)
     g = fx * pitch_x
     theta_limit = _kannala_brandt_max_angle(ks)

@@ -36,6 +36,7 @@ __all__ = [
     "load_rig",
     "parse_rig",
     "DISTORTION_PARAMS",
+    "FISHEYE_MODELS",
 ]
 
 RIG_FORMAT = "camcal.rig"
@@ -44,11 +45,14 @@ RIG_VERSIONS = (1,)
 # Parameters each distortion model needs (optional ones after the "|").
 DISTORTION_PARAMS = {
     "none": ((), ()),
-    "division": (("lambda",), ()),
+    "division": (("lambda",), ("aspect",)),
     "polynomial": (("k1", "k2"), ("k3",)),
     "opencv": (("k1", "k2", "p1", "p2", "k3"), ("k4", "k5", "k6", "s1", "s2", "s3", "s4")),
     "kannala-brandt": (("k1", "k2", "k3", "k4"), ()),
+    "kannala-brandt-thin-prism": (("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2", "s1", "s2", "s3", "s4"), ()),
 }
+#: The Kannala-Brandt models (Cycles' panoramic fisheye camera carries their radial part).
+FISHEYE_MODELS = ("kannala-brandt", "kannala-brandt-thin-prism")
 
 ORTHONORMAL_TOL = 1e-6
 

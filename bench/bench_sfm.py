@@ -14,11 +14,20 @@
    the engine's former method) on the same solved Ceres problem: time and
    agreement.
 
+4. A real scene with a known calibration: openMVG's Sceaux castle (11
+   photographs, 2832 x 2128, ``K.txt``: f = 2905.88 px), found in
+   ``$CAMCAL_SCEAUX_DIR`` or ``/work/data/sceaux`` (skipped with the reason
+   otherwise; ``git clone https://github.com/openMVG/ImageDataset_SceauxCastle``
+   and point the variable at its ``images`` folder): ``solve`` against the
+   plain pycolmap pipeline on the same images in the same run, wall time and
+   focal error against openMVG's calibration.
+
 Prints ``name: ours X, peer Y, ratio Y/X``. ``--frames N`` renders fewer
-rig positions (default 12).
+rig positions (default 12); ``--real-only`` runs only the real scene.
 """
 
 import argparse
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -66,6 +75,39 @@ def bench_solve(frames: int) -> None:
     peer_deg = float(np.median([rotation_angle_deg(R @ true_rotation.T) for R in peer.right_from_left["right"]]))
     print(f"solve rig rotation error (deg; peer: median per frame, no rig): ours {ours_deg:.4f}, peer {peer_deg:.4f}, "
           f"ratio {peer_deg / ours_deg:.2f}")
+
+
+SCEAUX_DIRS = (os.environ.get("CAMCAL_SCEAUX_DIR", ""), "/work/data/sceaux")
+#: openMVG's calibration of the Sceaux castle photographs (images/K.txt of openMVG/ImageDataset_SceauxCastle).
+SCEAUX_FOCAL_PX = 2905.88
+
+
+def bench_real_scene() -> None:
+    """``solve`` against plain pycolmap on openMVG's Sceaux castle: time and focal error against openMVG's K."""
+    folder = next((Path(p) for p in SCEAUX_DIRS if p and any(Path(p).glob("*.JPG"))), None)
+    if folder is None:
+        print(f"real scene: skipped, no Sceaux castle images (*.JPG) in {' or '.join(p for p in SCEAUX_DIRS if p)}; "
+              "set CAMCAL_SCEAUX_DIR")
+        return
+    focal = SCEAUX_FOCAL_PX
+    if (folder / "K.txt").is_file():
+        focal = float((folder / "K.txt").read_text().split()[0])
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        start = time.perf_counter()
+        peer = solve_pycolmap_plain({"sceaux": folder}, root / "plain")
+        theirs = time.perf_counter() - start
+        start = time.perf_counter()
+        result = solve_sfm({"sceaux": folder}, root / "camcal")
+        ours = time.perf_counter() - start
+    n = len(list(folder.glob("*.JPG")))
+    print(f"real scene (Sceaux castle, {n} photographs) solve time (s): ours {ours:.1f}, peer (plain pycolmap) "
+          f"{theirs:.1f}, ratio {theirs / ours:.2f} (solve / plain {ours / theirs:.2f})")
+    mine, other = result.rig.camera("sceaux").K[0, 0], peer.cameras["sceaux"].K[0, 0]
+    a, b = 100 * abs(mine / focal - 1), 100 * abs(other / focal - 1)
+    print(f"real scene focal error (%, openMVG's f = {focal:g} px): ours {a:.3f} (f {mine:.1f}), "
+          f"peer {b:.3f} (f {other:.1f}), ratio {b / max(a, 1e-12):.2f}; registered ours {result.n_registered}, "
+          f"peer {peer.n_registered}")
 
 
 def _noisy_rig_reconstruction():
@@ -124,6 +166,25 @@ def bench_bundle() -> None:
           f"(final cost {with_progress.final_cost:.9g})")
 
 
+def bench_jackknife() -> None:
+    """The delete-one-frame jackknife by one Gauss-Newton step per frame against full refits: time and sigmas."""
+    from camcal.geometry.jackknife import frame_jackknife  # noqa: PLC0415
+
+    options = BundleOptions(refine_principal_point=True)
+    full = bundle_adjust(state_from_reconstruction(_noisy_rig_reconstruction()), options)
+    start = time.perf_counter()
+    step = frame_jackknife(full, options)
+    ours = time.perf_counter() - start
+    start = time.perf_counter()
+    refit = frame_jackknife(full, options, method="refit")
+    peer = time.perf_counter() - start
+    ratios = {key: step.sigmas[key] / value for key, value in refit.sigmas.items() if value > 0}
+    print(f"jackknife time (s, {step.n_groups} frames): ours (one step each) {ours:.2f}, full refits {peer:.2f}, "
+          f"ratio {peer / ours:.1f}")
+    print(f"jackknife sigma step / refit: min {min(ratios.values()):.3f}, max {max(ratios.values()):.3f} "
+          f"({', '.join(f'{k} {v:.3f}' for k, v in ratios.items())})")
+
+
 def bench_covariance() -> None:
     """Intrinsics and rig-pose covariance on the solved problem: camcal's marginalisation against Ceres' QR."""
     reconstruction = _noisy_rig_reconstruction()
@@ -158,8 +219,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--bundle-only", action="store_true", help="skip the structure-from-motion comparison")
+    parser.add_argument("--real-only", action="store_true", help="only the real scene")
     args = parser.parse_args()
+    if args.real_only:
+        bench_real_scene()
+        return
+    bench_real_scene()
     bench_bundle()
+    bench_jackknife()
     bench_covariance()
     if not args.bundle_only:
         bench_solve(args.frames)

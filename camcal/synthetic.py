@@ -20,7 +20,7 @@ from camcal.model.rig import Camera
 
 __all__ = ["example_camera", "example_stereo_rig", "points_in_view", "procedural_texture", "colour_texture", "layered_stereo_pair",
            "room_corner_planes", "orbit_set_planes", "render_planes", "render_stereo_sequence", "orbit_rig_poses",
-           "render_rig_orbit"]
+           "lateral_rig_poses", "render_rig_orbit", "render_rig_poses"]
 
 
 def example_camera(
@@ -363,12 +363,60 @@ def render_rig_orbit(
     dict
         ``(camera name, frame) -> Camera`` posed in the world (the truth).
     """
-    root = Path(root)
     rng = np.random.default_rng(seed)
     planes = orbit_set_planes(rng, extent)
     textures = tuple(procedural_texture(rng) for _ in planes)
+    poses = orbit_rig_poses(rng, n_frames, radius, roll_deg, extent)
+    return render_rig_poses(root, cameras, poses, planes, textures, image_noise, rng)
+
+
+def lateral_rig_poses(
+    rng: np.random.Generator, n_frames: int = 7, step: float = 0.25, distance: float = 2.5, jitter_deg: float = 2.0,
+    extent: float = 8.0,
+) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Rig poses sliding sideways in front of the centre of a set of side ``extent``: weak self-calibration geometry.
+
+    The rig moves ``step`` metres along the world x axis per position, ``distance``
+    metres in front of the set's centre (at 1.4 to 1.6 m height), every view
+    looking along +y with only ``jitter_deg`` (uniform) of yaw and pitch and
+    no roll: the views differ by translation, so a principal point shift is
+    nearly a common rotation of every view and the focal length is fixed
+    only by the parallax of the set's depth.
+
+    Returns
+    -------
+    list of (R, c)
+        Per position the rotation world -> rig and the rig's centre in the world.
+    """
+    centre = np.array([extent / 2, extent / 2, 0.8])
+    poses = []
+    for i in range(n_frames):
+        position = centre + [step * (i - (n_frames - 1) / 2), -distance, rng.uniform(0.6, 0.8)]
+        yaw, pitch = np.radians(rng.uniform(-jitter_deg, jitter_deg, 2))
+        forward = np.array([np.sin(yaw) * np.cos(pitch), np.cos(yaw) * np.cos(pitch), np.sin(pitch)])
+        poses.append((look_at(position, position + forward), position))
+    return poses
+
+
+def render_rig_poses(
+    root: str | os.PathLike,
+    cameras: tuple[Camera, ...],
+    poses: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    planes: tuple[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]], ...],
+    textures: tuple[NDArray[np.uint8], ...],
+    image_noise: float = 0.0,
+    rng: np.random.Generator | None = None,
+) -> dict[tuple[str, int], Camera]:
+    """Render a camera rig at the rig poses ``(R world -> rig, centre)`` through textured planes (:func:`render_planes`).
+
+    Writes ``root/<camera>/0000.png``...; ``image_noise`` (grey levels, drawn
+    from ``rng``) is added to every image. Returns ``(camera name, frame) ->
+    Camera`` posed in the world (the truth).
+    """
+    root = Path(root)
+    rng = rng if rng is not None else np.random.default_rng(0)
     truth = {}
-    for i, (rig_R, position) in enumerate(orbit_rig_poses(rng, n_frames, radius, roll_deg, extent)):
+    for i, (rig_R, position) in enumerate(poses):
         for camera in cameras:
             posed = Camera(camera.name, camera.image_size, camera.K, camera.distortion, camera.R @ rig_R,
                            position + rig_R.T @ camera.c)

@@ -27,7 +27,7 @@ def parse_frames(text: str) -> tuple[int, ...]:
     """
     frames: set[int] = set()
     for item in str(text).replace(" ", "").split(","):
-        match = re.fullmatch(r"(-?\d+)(?:-(-?\d+)(?:x(\d+))?)?", item)
+        match = re.fullmatch(r"(-?\d{1,18})(?:-(-?\d{1,18})(?:x(\d{1,18}))?)?", item)
         if not match:
             raise CamcalError(f"bad frame range {text!r}: expected e.g. 1001-1240, 1001-1240x2 or 1,5,10-12")
         start = int(match.group(1))

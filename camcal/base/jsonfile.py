@@ -3,7 +3,7 @@
 Writing: 2-space indentation with arrays of numbers kept on one line (a
 3x3 matrix reads as three rows), floats at ``repr`` precision so that files
 round-trip exactly, NaN and infinity refused. Reading: one-line errors that
-name the file (missing, unreadable, malformed JSON, NaN/Infinity literals
+name the file (missing, unreadable, malformed JSON, duplicate keys, NaN/Infinity literals
 with their field path, and the caps of :mod:`camcal.base.limits`: file size
 and nesting depth).
 """
@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +58,20 @@ def write_json(path: str | os.PathLike, data: Any) -> Path:
     return path
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """A JSON object's dict, refusing a key given twice (``json`` would keep the last one without a word)."""
+    data: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in data:
+            raise CamcalError(f"key {key!r} given twice in one JSON object")
+        data[key] = value
+    return data
+
+
+#: Integers past this do not convert to a float (OverflowError); every number camcal reads is used as one.
+_FLOAT_MAX = int(sys.float_info.max)
+
+
 class _NonFinite:
     """What a ``NaN`` / ``Infinity`` literal parses to, found by :func:`_check_tree` with its field path."""
 
@@ -84,17 +99,21 @@ def _check_tree(data: Any) -> None:
             raise CamcalError(f"{path or 'the top level'}: non-finite number {value.name} in JSON")
         elif isinstance(value, float) and not math.isfinite(value):
             raise CamcalError(f"{path or 'the top level'}: number out of range (read as {value}) in JSON")
+        elif isinstance(value, int) and not isinstance(value, bool) and abs(value) > _FLOAT_MAX:
+            raise CamcalError(f"{path or 'the top level'}: integer of {len(str(abs(value)))} digits, out of the "
+                              "float range, in JSON")
 
 
 def parse_json(text: str) -> Any:
     """Parse JSON text within the caps of :mod:`camcal.base.limits`; one-line :class:`CamcalError` otherwise.
 
-    Refused: malformed JSON, nesting deeper than ``JSON_DEPTH``, ``NaN`` /
-    ``Infinity`` literals and numbers out of the float range (the message
-    names the field, e.g. ``cameras[0].K[0][0]``).
+    Refused: malformed JSON, a key given twice in one object, nesting
+    deeper than ``JSON_DEPTH``, ``NaN`` / ``Infinity`` literals and numbers
+    out of the float range (the message names the field, e.g.
+    ``cameras[0].K[0][0]``).
     """
     try:
-        data = json.loads(text, parse_constant=_NonFinite)
+        data = json.loads(text, parse_constant=_NonFinite, object_pairs_hook=_unique_keys)
     except json.JSONDecodeError as error:
         raise CamcalError(f"not valid JSON ({error.msg} at line {error.lineno}, column {error.colno})") from None
     except RecursionError:

@@ -23,6 +23,7 @@ VERBS: dict[str, tuple[str, str]] = {
     "distortion": ("distortion", "lens distortion from straight lines"),
     "undistort": ("undistort", "undistort images of a rig camera"),
     "stmap": ("stmap", "undistort/redistort ST-maps (EXR) for comp packages"),
+    "sigma": ("sigma", "per-pixel projection uncertainty (EXR) of a calibrated camera"),
     "rectify": ("rectify", "rectify 2 or N views (calibrated, N-view refined, or Hartley from matches)"),
     "solve": ("solve", "cameras from images: pycolmap structure from motion + camcal bundle adjustment"),
     "blender": ("blender", "Blender hand-off (needs the bpy module: camcal[blender])"),

@@ -6,7 +6,7 @@ import argparse
 
 from camcal.base.errors import CamcalError
 from camcal.cli.options import (expand_glob, handler, image_size, image_size_option, loss_option, named_option,
-                                out_option, parse_holdout, report_option, verb_group)
+                                out_option, output_folder, parse_holdout, report_option, verb_group)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -25,16 +25,29 @@ def register(parser: argparse.ArgumentParser) -> None:
         "board", help="one camera or an N-camera rig from chessboard / ChArUco images (joint refinement)")
     board.add_argument(
         "--board", required=True, metavar="SPEC",
-        help="chessboard:WxH:SQUARE (inner corners) or charuco:DICT:WxH:SQUARE:MARKER (squares)",
+        help="chessboard:WxH:SQUARE[:two-sided] (inner corners) or "
+        "charuco:DICT:WxH:SQUARE:MARKER[:inverted][:two-sided][:legacy] (squares); inverted = white markers on "
+        "black, two-sided = the back printed as the mirror image (cameras behind the board see it mirrored), "
+        "legacy = OpenCV's legacy ChArUco pattern",
     )
-    named_option(board, "--camera", "NAME=GLOB", "a camera and its images, e.g. left='shots/left*.jpg' "
-                 "right='shots/right*.jpg' (several entries or a repeated option; globs absolute or relative)",
-                 required=True)
+    named_option(board, "--camera", "NAME=GLOB|VIDEO", "a camera and its images, e.g. left='shots/left*.jpg' "
+                 "right='shots/right*.jpg', or its video (cam0=cam_0.mp4; .mp4 .mov .avi .mkv, frame k of the "
+                 "video is frame number k, from 0) (several entries or a repeated option; globs absolute or "
+                 "relative)", required=True)
+    board.add_argument("--every", type=int, default=1, metavar="N",
+                       help="videos: detect every N-th frame (frames 0, N, 2N...; default 1)")
+    board.add_argument("--intrinsics", metavar="RIG",
+                       help="a rig file holding every camera's K and lens (by name): held, only the poses are "
+                       "solved (the lens model is the rig's)")
+    board.add_argument("--refine-intrinsics", action="store_true",
+                       help="with --intrinsics: start from them and refine them")
     board.add_argument("--model", default="auto",
                        choices=("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational",
-                                "opencv-thin-prism", "auto"),
+                                "opencv-thin-prism", "kannala-brandt-thin-prism", "auto"),
                        help="lens model; kannala-brandt is OpenCV's fisheye model, opencv-rational and "
-                       "opencv-thin-prism its 8- and 12-coefficient models; auto (default) ranks every model by "
+                       "opencv-thin-prism its 8- and 12-coefficient models, kannala-brandt-thin-prism COLMAP's "
+                       "RAD_TAN_THIN_PRISM_FISHEYE (six radial terms, tangential, thin prism); division "
+                       "estimates fx and fy (its aspect = fx / fy); auto (default) ranks every model by "
                        "views held out in turn and keeps the simplest within 1 %% of the best")
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
@@ -51,6 +64,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                        help="write a rig that fails the quality gate (principal point outside the image, RMS over "
                        "1.5 px, sigma fx over 5 %%) and exit 3 instead of refusing it")
     board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
+    board.add_argument("--suggest", type=int, default=0, metavar="N",
+                       help="propose the next N board poses that most lower the worst projection sigma of the "
+                       "first camera (expected, from the views taken), drawn on a frame-sized preview PNG")
+    board.add_argument("--suggest-preview", metavar="FILE.png",
+                       help="where --suggest draws its shot list (default: OUT without .rig.json + .suggest.png)")
     out_option(board, "FILE.rig.json")
     report_option(board, "write PNG plots: residuals, per-image RMS, coverage")
     handler(board, _board)
@@ -97,34 +115,68 @@ def _board(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from camcal.base.atomic import final_path
     from camcal.geometry.board import frame_number, parse_board
-    from camcal.pipelines.board import default_cache_dir, detect_in_images
+    from camcal.pipelines.board import default_cache_dir, detect_in_images, detect_in_video
     from camcal.geometry.zhang import calibrate_board, quality_problems
     from camcal.base.progress import Progress
+    from camcal.io.video import is_video, video_info
+    from camcal.model.rig import Rig
     from camcal.report.calibration import write_report
 
     board = parse_board(args.board)
     if not args.camera:
         raise CamcalError("--camera: give at least one camera, e.g. --camera left='shots/left*.jpg'")
-    cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()}
+    if args.every < 1:
+        raise CamcalError(f"--every must be 1 or more, got {args.every}")
+    if args.refine_intrinsics and not args.intrinsics:
+        raise CamcalError("--refine-intrinsics needs --intrinsics RIG (the start)")
+    intrinsics = None
+    if args.intrinsics:
+        intrinsics = {camera.name: camera for camera in Rig.load(args.intrinsics).cameras}
+        missing = [name for name in args.camera if name not in intrinsics]
+        if missing:
+            raise CamcalError(f"--intrinsics {args.intrinsics}: no camera named {', '.join(missing)} "
+                              f"(it has: {', '.join(intrinsics)})")
+    videos = {name: value for name, value in args.camera.items() if is_video(value)}
+    for name, video in videos.items():  # every video decodable before any work
+        video_info(video)
+    cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()
+               if name not in videos}
+    workers = args.workers or os.cpu_count() or 1
+    cache = None if args.no_cache else (args.cache or default_cache_dir())
     detections = {}
-    for name, files in cameras.items():
-        report = detect_in_images(board, files, progress=Progress(len(files), f"detecting {name}", "images").report,
-                                  workers=args.workers or os.cpu_count() or 1,
-                                  cache=None if args.no_cache else (args.cache or default_cache_dir()))
-        print(f"{name}: {report.summary()}")
+    for name in args.camera:
+        if name in videos:
+            total = max(1, -(-video_info(videos[name]).frame_count // args.every))
+            report = detect_in_video(board, videos[name], every=args.every, workers=workers, cache=cache,
+                                     progress=Progress(total, f"detecting {name}", "frames").report)
+            skipped = [str(frame_number(label)) for label in report.skipped]
+            text = f"{name}: board found in {len(report.detections)} / {report.n_images} frames of {videos[name]}"
+            if skipped:
+                text += f" (not in frames {', '.join(skipped[:12])}{', ...' if len(skipped) > 12 else ''})"
+            print(text)
+        else:
+            files = cameras[name]
+            report = detect_in_images(board, files, progress=Progress(len(files), f"detecting {name}", "images").report,
+                                      workers=workers, cache=cache)
+            print(f"{name}: {report.summary()}")
         detections[name] = report.detections
     holdout: set[int] = set()
     if args.holdout:
         frames = sorted({frame_number(d.image) for views in detections.values() for d in views})
         holdout = parse_holdout(args.holdout, frames)
     result = calibrate_board(board, detections, model=args.model, units=args.units, loss=args.loss,
-                             loss_scale=args.loss_scale, holdout=holdout)
+                             loss_scale=args.loss_scale, holdout=holdout, intrinsics=intrinsics,
+                             refine_intrinsics=args.refine_intrinsics)
     problems = quality_problems(result)
     if problems and not args.force:
         raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)
                           + " (--force writes it anyway)")
-    result.rig.save(args.out)
+    with output_folder(args.report) as report_dir:
+        reports = [] if report_dir is None else write_report(result, report_dir)
+        result.rig.save(args.out)
+    reports = [final_path(path, report_dir, args.report) for path in reports]
     for note in result.notes:
         print(note)
     if result.model_ranking:
@@ -153,6 +205,24 @@ def _board(args: argparse.Namespace) -> int:
             line += (f"  baseline {baseline:.4f} +/- {sigma['baseline_rel'] * baseline:.4f} {result.rig.units}"
                      f"  rotation +/- {sigma['rotation_deg']:.3f} deg")
         print(line)
+    shots, preview = [], None
+    if args.suggest > 0:
+        from camcal.geometry.suggest import pose_views, suggest_views
+        from camcal.report.calibration import write_suggestion_preview
+
+        camera = result.rig.cameras[0]
+        kept = {image for name, image in result.images if name == camera.name}
+        views = [d for d in detections[camera.name] if d.image in kept]
+        shots = suggest_views(camera, board.object_points, pose_views(camera, board.object_points, views),
+                              args.suggest)
+        out_path = str(args.out)
+        preview = args.suggest_preview or (out_path[:-len(".rig.json")] if out_path.endswith(".rig.json")
+                                           else out_path) + ".suggest.png"
+        preview = write_suggestion_preview(camera, shots, preview)
+        print(f"{camera.name}: worst projection sigma now {camera.quality['worst_projection_sigma_px']:.3g} px; "
+              f"next views (preview {preview}):")
+        for number, shot in enumerate(shots, start=1):
+            print(f"  {number}. {shot.describe()}")
     out = summary_of(args)
     if problems:
         out.warn("written with --force although " + "; ".join(problems))
@@ -167,7 +237,12 @@ def _board(args: argparse.Namespace) -> int:
         relabelled=[image for _, image in result.relabelled], dropped=[image for _, image in result.dropped],
         quality_problems=problems,
     )
+    if shots:
+        out.figures(suggested=[{"centre_px": shot.centre_px, "distance": shot.distance, "tilt_deg": list(shot.tilt_deg),
+                                "R": shot.R, "t": shot.t, "worst_sigma_px": shot.worst_sigma_px} for shot in shots])
     out.wrote(args.out, "rig")
+    if preview is not None:
+        out.wrote(preview, "suggest")
     if args.report:
-        out.wrote_each(write_report(result, args.report), "report", say=True)
+        out.wrote_each(reports, "report", say=True)
     return 3 if problems else 0

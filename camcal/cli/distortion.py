@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import handler, out_option, report_option, verb_group
+from camcal.cli.options import handler, out_option, output_folder, report_option, verb_group
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -66,18 +66,19 @@ def _fit(args: argparse.Namespace) -> int:
         print(f"{what} found in {len(images) - len(skipped)} / {len(images)} images"
               + (f" (skipped: {', '.join(skipped)})" if skipped else ""))
     result = fit_plumbline(lines, args.model, fit_center=args.fit_centre)
-    write_json(args.out, result.to_dict())
-    if args.report:
-        write_json(Path(args.report) / "plumbline_report.json", {
-            **result.to_dict(),
-            "strand_hayman": {
-                "distortion": result.initial.distortion.to_dict(),
-                "lambda_per_line": result.initial.lambda_per_line.tolist(),
-                "weights": result.initial.weights.tolist(),
-            },
-            "rms_before_px": result.rms_before_px.tolist(),
-            "rms_after_px": result.rms_after_px.tolist(),
-        })
+    with output_folder(args.report) as report_dir:
+        if report_dir is not None:
+            write_json(report_dir / "plumbline_report.json", {
+                **result.to_dict(),
+                "strand_hayman": {
+                    "distortion": result.initial.distortion.to_dict(),
+                    "lambda_per_line": result.initial.lambda_per_line.tolist(),
+                    "weights": result.initial.weights.tolist(),
+                },
+                "rms_before_px": result.rms_before_px.tolist(),
+                "rms_after_px": result.rms_after_px.tolist(),
+            })
+        write_json(args.out, result.to_dict())
     params = ", ".join(f"{k} {v:.6g}" for k, v in result.distortion.params.items())
     centre = result.distortion.center or tuple(result.K[:2, 2])
     print(f"{result.distortion.model}: {params} about ({centre[0]:.2f}, {centre[1]:.2f}) px")

@@ -8,12 +8,15 @@ and checked the same in every verb that has it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import glob
 import inspect
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from pathlib import Path
 
+from camcal.base.atomic import atomic_dir
 from camcal.base.errors import CamcalError
 from camcal.base.frame_ranges import parse_frames
 
@@ -22,6 +25,7 @@ __all__ = [
     "NamedValues",
     "camera_label_option",
     "camera_option",
+    "distance_option",
     "expand_glob",
     "handler",
     "image_size",
@@ -31,9 +35,11 @@ __all__ = [
     "name_value",
     "named_option",
     "out_option",
+    "output_folder",
     "parse_holdout",
     "report_option",
     "rig_argument",
+    "sigma_options",
     "undistort_mode_options",
     "verb_group",
 ]
@@ -70,6 +76,8 @@ def name_value(entry: str, option: str, form: str) -> tuple[str, str]:
     name, sep, value = entry.partition("=")
     if not sep or not name or not value:
         raise CamcalError(f"{option}: expected {form}, got {entry!r}")
+    if not entry.isprintable():
+        raise CamcalError(f"{option}: {entry!r} holds a control character (a newline?)")
     return name, value
 
 
@@ -146,6 +154,24 @@ def report_option(parser, help: str) -> None:
     parser.add_argument("--report", metavar="DIR", help=help)
 
 
+@contextlib.contextmanager
+def output_folder(path: str | None) -> Iterator[Path | None]:
+    """The folder a folder option names (``--report DIR``, ``--write DIR``), or None when it is not given.
+
+    The verb writes into the yielded temporary folder beside ``path``; it is
+    renamed to ``path`` when the verb's block ends and removed on any error
+    (:func:`camcal.base.atomic.atomic_dir`: an existing folder keeps its
+    other files, files of the same names are replaced at the end). Paths
+    written inside it map to their final place with
+    :func:`camcal.base.atomic.final_path`.
+    """
+    if path is None:
+        yield None
+        return
+    with atomic_dir(path) as staging:
+        yield staging
+
+
 def image_size_option(parser, help: str | None = None, required: bool = False) -> None:
     """``--image-size W H`` (checked with :func:`image_size`)."""
     parser.add_argument("--image-size", required=required, nargs=2, type=int, metavar=("W", "H"), help=help)
@@ -163,6 +189,28 @@ def undistort_mode_options(parser, mode_help: str) -> None:
     """``--mode crop|keep|overscan`` and ``--overscan``: the pinhole camera an undistortion makes."""
     parser.add_argument("--mode", choices=("crop", "keep", "overscan"), default="crop", help=mode_help)
     parser.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+
+
+def distance_option(parser) -> None:
+    """``--distance D``: where along the rays projection uncertainty is taken (rig units; default infinity)."""
+    parser.add_argument("--distance", type=_positive_float, default=None, metavar="D",
+                        help="distance along the rays in the rig's units (default: infinity)")
+
+
+def sigma_options(parser, what: str) -> None:
+    """``--sigma`` (a projection-sigma EXR beside the outputs) and its ``--distance``."""
+    parser.add_argument("--sigma", action="store_true", help=f"also write {what}")
+    distance_option(parser)
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (value > 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
+    return value
 
 
 def max_fov_option(parser, help: str) -> None:

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import (expand_glob, handler, max_fov_option, named_option, out_option, report_option,
-                                rig_argument)
+from camcal.cli.options import (expand_glob, handler, max_fov_option, named_option, out_option, output_folder,
+                                report_option, rig_argument)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -37,6 +37,9 @@ def _rectify(args: argparse.Namespace) -> int:
     (Hartley 1999). Matches come from --matches (CSV camera_a,u_a,v_a,camera_b,u_b,v_b) or from SIFT on the
     first image of each --images sequence.
     """
+    from pathlib import Path
+
+    from camcal.base.atomic import final_path
     from camcal.geometry.rectify import RectifyWarper, rectify
     from camcal.io.matches import read_matches_csv
     from camcal.pipelines.rectify import match_image_files, write_rectified
@@ -61,11 +64,15 @@ def _rectify(args: argparse.Namespace) -> int:
     method = {"camera": "Nozick 2011" if args.refine else "camera", "hartley": "Hartley 1999"}[args.method]
     result = rectify(rig, method, matches, names, args.alpha, args.max_fov)
     written = []
-    if args.write:
-        warper = RectifyWarper(result.rig)
-        for name in result.names:
-            written += write_rectified(warper, name, images.get(name, []), args.write)
-    result.rig.save(args.out)
+    with output_folder(args.write) as write_dir, output_folder(args.report) as report_dir:
+        if write_dir is not None:
+            warper = RectifyWarper(result.rig)
+            for name in result.names:
+                written += write_rectified(warper, name, images.get(name, []), write_dir)
+        if report_dir is not None:
+            write_json(report_dir / "rectification.json", result.to_report())
+        result.rig.save(args.out)
+    written = [final_path(path, write_dir, args.write) for path in written]
     print(result.summary())
     out = summary_of(args)
     out.figures(**result.to_report())
@@ -73,6 +80,6 @@ def _rectify(args: argparse.Namespace) -> int:
     if written:
         print(f"wrote {len(written)} rectified image(s) to {args.write}")
     if args.report:
-        out.wrote(write_json(f"{args.report}/rectification.json", result.to_report()), "report")
+        out.wrote(Path(args.report) / "rectification.json", "report")
     out.wrote(args.out, "rig")
     return 0

@@ -12,6 +12,9 @@ from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
 
+#: ``--uncertainty`` -> the jackknife's replicate method (camcal.geometry.jackknife.METHODS), None: covariance alone.
+UNCERTAINTY = {"jackknife": "step", "jackknife-refit": "refit", "covariance": None}
+
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal solve``."""
@@ -27,12 +30,21 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "(mapped with SIMPLE_RADIAL, then refined as OPENCV_FISHEYE)")
     parser.add_argument("--camera-model", help="COLMAP camera model to map with; alone, it is kept (no choice)")
     parser.add_argument("--principal-point", default="auto", choices=("auto", "refine", "centre"),
-                        help="refine it where its sigma says the views determine it (auto), always, or never")
-    parser.add_argument("--uncertainty", default="jackknife", choices=("jackknife", "covariance"),
-                        help="sigmas: the larger of the covariance and a delete-one-frame jackknife (one more "
-                        "refinement per frame, at most 20), which sees errors an image's features share; "
-                        "or the covariance alone (faster, too small on real features)")
+                        help="refine it under the sensor's prior, the image centre +- 2 %% of the diagonal (auto), "
+                        "by the images alone (refine), or hold it at the centre")
+    parser.add_argument("--prior", action="append", default=[], metavar="CAMERA.NAME=MEAN+-SIGMA",
+                        help="a Gaussian prior on an intrinsic (f, fx, fy, aspect, cx, cy, lambda, k1, k2, p1, p2; "
+                        "camcal's units and pixel convention), e.g. left.f=1200+-30; repeatable. The rig's "
+                        "intrinsics and sigmas are then the posterior's")
+    parser.add_argument("--uncertainty", default="jackknife", choices=tuple(UNCERTAINTY),
+                        help="sigmas: the larger of the covariance and a delete-one-frame jackknife (one "
+                        "Gauss-Newton step per frame or group of frames, at most 20), which sees errors an image's "
+                        "features share; the same with a full bundle adjustment per group (jackknife-refit, "
+                        "slower); or the covariance alone (too small on real features)")
     parser.add_argument("--features", type=int, default=8192, metavar="N", help="SIFT features per image (8192)")
+    parser.add_argument("--guided-matching", action="store_true",
+                        help="match each verified pair again along its epipolar geometry (more, longer tracks; "
+                        "10-20 times the matching time on the CPU)")
     parser.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"))
     parser.add_argument("--mapper", default="incremental", choices=("incremental", "global"))
     loss_option(parser, "robust loss of camcal's bundle adjustment (scale 1 px)")
@@ -40,7 +52,11 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compare-pycolmap", action="store_true",
                         help="also run plain pycolmap (SIMPLE_DIVISION, principal point refined) on the same images "
                         "into OUT/pycolmap and print its intrinsics beside camcal's")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seeds every random choice (COLMAP's RANSAC and mapper, the held-out points): the same "
+                        "images and options give the same rig; recorded in its provenance (0)")
+    parser.add_argument("--verbose", action="store_true",
+                        help="also show COLMAP's own log lines on stderr (always written to OUT/colmap.log)")
     out_option(parser, "DIR")
     handler(parser, _solve)
 
@@ -48,13 +64,14 @@ def register(parser: argparse.ArgumentParser) -> None:
 def _solve(args: argparse.Namespace) -> int:
     """One folder per camera (or one folder of per-camera sub-folders, or --camera NAME=GLOB inside one folder);
     several cameras form a rig whose frames pair up by sorted order. Each camera's lens model is chosen by
-    held-out residual and the principal point is refined where its sigma says the views determine it (both
-    printed). Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
+    held-out residual; the principal point and the lens are refined under the sensor's Gaussian priors and the
+    user's (--prior), and what the images do not determine is said with its sigma. Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
     """
     from pathlib import Path
 
+    from camcal.geometry.bundle import parse_prior
     from camcal.geometry.selfcal import LENS_MODELS, MODELS
-    from camcal.pipelines.solve import collect_images, solve_pycolmap_plain, solve_sfm
+    from camcal.pipelines.solve import COLMAP_LOG, collect_images, solve_pycolmap_plain, solve_sfm
     from camcal.model.rig import Rig
 
     folders = [Path(folder) for folder in args.folders]
@@ -80,7 +97,8 @@ def _solve(args: argparse.Namespace) -> int:
     result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
                        seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
                        lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features,
-                       jackknife=args.uncertainty == "jackknife",
+                       jackknife=UNCERTAINTY[args.uncertainty], priors=tuple(parse_prior(text) for text in args.prior),
+                       verbose=args.verbose, guided_matching=args.guided_matching,
                        progress=lambda message: print(f"camcal solve: {message}", file=sys.stderr, flush=True))
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
@@ -90,7 +108,8 @@ def _solve(args: argparse.Namespace) -> int:
         print(result.bundle.summary())
     if result.self_calibration is not None:
         print("\n".join(result.self_calibration.lines()))
-    peer = solve_pycolmap_plain(images, Path(args.out) / "pycolmap", seed=args.seed) if args.compare_pycolmap else None
+    peer = (solve_pycolmap_plain(images, Path(args.out) / "pycolmap", seed=args.seed, verbose=args.verbose)
+            if args.compare_pycolmap else None)
     for camera in result.rig.cameras:
         sigma = camera.quality.get("sigma", {})
         print(f"{camera.name}: {_intrinsics_line(camera, sigma)}"
@@ -101,7 +120,8 @@ def _solve(args: argparse.Namespace) -> int:
         if peer is not None and camera.name in peer.cameras:
             print(f"{camera.name} (plain pycolmap): {_intrinsics_line(peer.cameras[camera.name], {})}; "
                   f"RMS {peer.rms_px[camera.name]:.3f} px")
-    print(f"wrote {Path(args.out) / 'solve.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in {result.reconstruction_dir}")
+    print(f"wrote {Path(args.out) / 'solve.rig.json'}, {Path(args.out) / 'points.ply'} and the COLMAP model in "
+          f"{result.reconstruction_dir} (COLMAP's log: {Path(args.out) / COLMAP_LOG})")
     out = summary_of(args)
     out.figures(n_images=result.n_images, n_registered=result.n_registered, unregistered=list(result.unregistered),
                 rms_px=result.rms_px, per_camera_rms_px=dict(result.per_camera_rms_px), n_points=result.n_points,
@@ -110,18 +130,21 @@ def _solve(args: argparse.Namespace) -> int:
     if result.self_calibration is not None:
         calibration = result.self_calibration
         out.figures(lens_models=calibration.lens_models, heldout_rms_px_by_model=calibration.heldout_rms_px,
-                    principal_point={d.camera: {"refined": d.refined, "limit_px": d.limit_px,
+                    principal_point={d.camera: {"refined": d.refined, "determined": d.determined,
+                                                "prior_sigma_px": d.prior_sigma_px if math.isfinite(d.prior_sigma_px) else None,
                                                 "sigma_px": [v if math.isfinite(v) else None for v in d.sigma_px],
                                                 "reason": d.reason} for d in calibration.principal_point},
                     uncertainty={"covariance_sigmas": calibration.covariance_sigmas,
                                  "jackknife_sigmas": calibration.jackknife_sigmas,
-                                 "jackknife_groups": calibration.jackknife_groups})
+                                 "jackknife_groups": calibration.jackknife_groups,
+                                 "jackknife_method": calibration.jackknife_method or None})
     if peer is not None:
         out.figures(pycolmap={name: {"K": camera.K, "distortion": camera.distortion.to_dict(),
                                      "rms_px": peer.rms_px.get(name)} for name, camera in peer.cameras.items()})
     out.wrote(Path(args.out) / "solve.rig.json", "rig", say=False)
     out.wrote(Path(args.out) / "points.ply", "points", say=False)
     out.wrote(result.reconstruction_dir, "colmap model", say=False)
+    out.wrote(Path(args.out) / COLMAP_LOG, "log", say=False)
     return 0
 
 

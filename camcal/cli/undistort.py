@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import (camera_option, handler, max_fov_option, out_option, rig_argument,
+from camcal.cli.options import (camera_option, handler, max_fov_option, out_option, rig_argument, sigma_options,
                                 undistort_mode_options)
 from camcal.cli.summary import summary_of
 
@@ -21,6 +21,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     max_fov_option(parser, "crop / keep: widest full angle about the axis the pinhole output holds "
                    "(default: 120 for a kannala-brandt fisheye, no cap for the other lenses)")
     out_option(parser, "DIR")
+    sigma_options(parser, "DIR/sigma.exr, pixel for pixel with the undistorted images: the projection sigma "
+                  "(plate pixels) of the plate pixel each one samples")
     handler(parser, _undistort)
 
 
@@ -28,7 +30,7 @@ def _undistort(args: argparse.Namespace) -> int:
     """Undistort images with one remap per image; writes them under their own names and DIR/undistorted.rig.json
     with the new K and distortion none.
     """
-    from camcal.pipelines.undistort import undistort_images
+    from camcal.pipelines.undistort import undistort_images, write_undistorted_sigma
     from camcal.model.rig import Rig
 
     rig = Rig.load(args.rig)
@@ -43,4 +45,10 @@ def _undistort(args: argparse.Namespace) -> int:
     out.figures(camera=args.camera, mode=args.mode, image_size=[width, height], K=camera.K)
     out.wrote(rig_path, "rig", say=False)
     out.wrote_each(written, "image")
+    if args.sigma:
+        path, sigma = write_undistorted_sigma(rig, args.camera, args.out, args.mode, args.overscan, args.max_fov,
+                                              args.distance)
+        print(sigma.describe())
+        out.figures(sigma=sigma.to_dict())
+        out.wrote(path, "sigma")
     return 0

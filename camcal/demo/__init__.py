@@ -75,6 +75,7 @@ from camcal.demo.stages_geometry import (
 )
 from camcal.demo.stages_interchange import stage_rig_export
 from camcal.demo.truth import make_truth, reference_XYZ, true_match_matrix
+from camcal.base.atomic import atomic_dir, final_path
 from camcal.base.errors import CamcalError
 
 __all__ = [
@@ -123,7 +124,9 @@ def run_demo(out_dir: str | os.PathLike, config: DemoConfig = FULL, stages: Sequ
     Parameters
     ----------
     out_dir : path
-        Output folder (created).
+        Output folder: built under a temporary name beside it and renamed at
+        the end, removed if a stage raises
+        (:func:`camcal.base.atomic.atomic_dir`).
     config : DemoConfig
         Sizes and the stages to run (:data:`FULL` for ``make demo``).
     stages : sequence of Stage, optional
@@ -140,19 +143,20 @@ def run_demo(out_dir: str | os.PathLike, config: DemoConfig = FULL, stages: Sequ
     if unknown:
         raise CamcalError(f"demo: unknown stage(s) {', '.join(map(repr, unknown))}; expected some of: "
                           + ", ".join(s.name for s in stages))
-    out_dir.mkdir(parents=True, exist_ok=True)
-    ctx = DemoContext(out_dir, config, make_truth(config))
-    rows, outputs, sections, seconds = [], [], [], []
-    for stage in stages:
-        if config.stages is not None and stage.name not in config.stages:
-            continue
-        print(f"camcal demo: {stage.name}", file=sys.stderr, flush=True)
-        start = time.perf_counter()
-        result = stage.run(ctx)
-        seconds.append((stage.name, time.perf_counter() - start))
-        rows += result.rows
-        outputs += result.outputs
-        sections += result.sections
-    report = DemoReport(tuple(rows), tuple(outputs), tuple(sections), tuple(seconds))
-    path = write_html(report, out_dir)
-    return dataclasses.replace(report, report=path)
+    with atomic_dir(out_dir) as staging:
+        ctx = DemoContext(staging, config, make_truth(config))
+        rows, outputs, sections, seconds = [], [], [], []
+        for stage in stages:
+            if config.stages is not None and stage.name not in config.stages:
+                continue
+            print(f"camcal demo: {stage.name}", file=sys.stderr, flush=True)
+            start = time.perf_counter()
+            result = stage.run(ctx)
+            seconds.append((stage.name, time.perf_counter() - start))
+            rows += result.rows
+            outputs += result.outputs
+            sections += result.sections
+        report = DemoReport(tuple(rows), tuple(outputs), tuple(sections), tuple(seconds))
+        write_html(report, staging)
+    outputs = tuple((label, final_path(path, staging, out_dir)) for label, path in report.outputs)
+    return dataclasses.replace(report, outputs=outputs, report=out_dir / "report.html")

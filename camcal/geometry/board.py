@@ -6,9 +6,10 @@ Two kinds of planar target:
     A chessboard with ``W x H`` INNER corners (OpenCV's pattern size) and
     squares of side ``SQUARE`` (in the board's units, e.g. metres, or 1.0
     to measure in squares). Found by ``cv2.findChessboardCorners`` (the
-    fastest; on a half-size copy first when the image is 400 px or more
-    on both sides), falling back to ``cv2.findChessboardCornersSB`` (plain, then
-    with its exhaustive and accuracy flags) when it fails; either way
+    fastest), falling back to ``cv2.findChessboardCornersSB`` (plain, then
+    with its exhaustive and accuracy flags) when it fails; all three run
+    on a quarter-size copy first when the image is 800 px or more on both
+    sides, then on a half-size one from 400 px, full size last; either way
     refined by ``cv2.cornerSubPix`` with a window of half-size
     ``0.45 x`` the smallest corner spacing in the image (3 to 15 px): a
     window that spans most of a square converges to the same saddle point
@@ -19,7 +20,29 @@ Two kinds of planar target:
 ``charuco:DICT:WxH:SQUARE:MARKER``
     A ChArUco board of ``W x H`` SQUARES with ArUco markers from the
     dictionary ``DICT`` (e.g. ``DICT_5X5_100``), detected with
-    ``cv2.aruco.CharucoDetector``; corners may be partially visible.
+    ``cv2.aruco.CharucoDetector``; corners may be partially visible; refined
+    like a chessboard's, on the part of each square the marker leaves clear.
+
+Boards as they are printed, options after the sizes (any order):
+
+``:inverted`` (ChArUco)
+    White markers on black: detected on the inverted image (``255 - I``).
+``:legacy`` (ChArUco)
+    OpenCV's legacy pattern (``CharucoBoard.setLegacyPattern(True)``, the
+    layout of OpenCV < 4.6 for an even number of rows).
+``:two-sided`` (ChArUco and chessboard)
+    Printed on the back as the mirror image, each back corner at the same
+    board point as the front one: the back's texture at board point
+    ``(X, Y)`` is the front's, so a camera behind the board sees the front
+    pattern mirrored. A ChArUco board is detected on the image and on its
+    mirror image (``x' = W - 1 - x``); the detection with more corners is
+    kept, the mirrored one's corners mapped back (``x = W - 1 - x'``) and
+    keeping their ids, i.e. their board points. A chessboard looks alike
+    from both sides (its detection is the same on the mirror image): one
+    camera calibrates from either side (a mirrored labelling of a plane is
+    another valid pose), but which side a view of a rig shows is not
+    decided yet, so :func:`camcal.geometry.zhang.calibrate_board` refuses
+    a two-sided chessboard for more than one camera.
 
 Board coordinates: corner ``id`` of a chessboard is ``row * W + col`` at
 ``(col * square, row * square, 0)``; ChArUco corners are those of
@@ -56,15 +79,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.geometry.corners import grid_spacing_px, refine_corners
 
 __all__ = [
     "DETECTOR_SETTINGS",
+    "MAX_BOARD_SIDE",
     "Board",
     "Detection",
     "DetectionReport",
     "parse_board",
     "detect_board",
     "frame_number",
+    "video_frame_label",
 ]
 
 # No CALIB_CB_NORMALIZE_IMAGE for the SB detector: its histogram equalisation bends the
@@ -73,15 +99,17 @@ __all__ = [
 _SB_FLAGS = cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
-#: Images at least this large (both sides) are searched at half size first.
+#: Images at least this large (both sides) are searched at half size first (twice as large: quarter size).
 _HALF_SIZE_MIN_PX = 400
 #: cornerSubPix half-window as a fraction of the smallest corner spacing, and its bounds in px.
 _SUBPIX_WINDOW_FRACTION = 0.45
 _SUBPIX_WINDOW_PX = (3, 15)
+#: Most squares (or inner corners) per side of a board: beyond it a spec is a typo, not a print.
+MAX_BOARD_SIDE = 1000
 #: Fewest ChArUco corners kept in one image (a pose needs non-collinear points).
 MIN_CHARUCO_CORNERS = 6
 #: Part of every cache key: change it whenever detection changes what it returns.
-_DETECTOR_VERSION = "half-classic-sb-subpix-adaptive-v4"
+_DETECTOR_VERSION = "reduced-classic-reduced-sb-subpix-adaptive-xfit-v6"
 #: The detector's version and settings: a detection cached under others is not reused.
 DETECTOR_SETTINGS = f"{_DETECTOR_VERSION}|{_SB_FLAGS}|{_CLASSIC_FLAGS}|{_SUBPIX_CRITERIA}|{cv2.__version__}"
 
@@ -103,6 +131,12 @@ class Board:
         ChArUco only: side of a marker, smaller than ``square``.
     dictionary : str, optional
         ChArUco only: an ``cv2.aruco`` predefined dictionary name.
+    inverted : bool
+        ChArUco only: white markers on black.
+    two_sided : bool
+        Printed on the back as the mirror image, corners at the same board points.
+    legacy : bool
+        ChArUco only: OpenCV's legacy pattern.
 
     Examples
     --------
@@ -117,6 +151,9 @@ class Board:
     square: float
     marker: float | None = None
     dictionary: str | None = None
+    inverted: bool = False
+    two_sided: bool = False
+    legacy: bool = False
     object_points: NDArray[np.float64] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -126,6 +163,9 @@ class Board:
         if self.columns < minimum or self.rows < minimum:
             what = "inner corners" if self.kind == "chessboard" else "squares"
             raise CamcalError(f"a {self.kind} needs at least {minimum}x{minimum} {what}, got {self.columns}x{self.rows}")
+        if self.columns > MAX_BOARD_SIDE or self.rows > MAX_BOARD_SIDE:
+            raise CamcalError(f"a {self.kind} of {self.columns}x{self.rows} is not a printable board "
+                              f"(at most {MAX_BOARD_SIDE} per side)")
         if not np.isfinite(self.square) or self.square <= 0:
             raise CamcalError(f"square size must be a positive number, got {self.square!r}")
         if self.kind == "charuco":
@@ -133,10 +173,17 @@ class Board:
                 raise CamcalError(f"charuco marker size must be positive and below the square size, got {self.marker!r}")
             if not hasattr(cv2.aruco, str(self.dictionary)) or not str(self.dictionary).startswith("DICT_"):
                 raise CamcalError(f"unknown ArUco dictionary {self.dictionary!r}, e.g. DICT_5X5_100")
-            points = np.asarray(self.charuco_board().getChessboardCorners(), dtype=np.float64)
+            try:
+                points = np.asarray(self.charuco_board().getChessboardCorners(), dtype=np.float64)
+            except cv2.error:
+                size = int(str(self.dictionary).rsplit("_", 1)[-1]) if str(self.dictionary)[-1].isdigit() else None
+                raise CamcalError(f"a {self.columns}x{self.rows} charuco board needs {self.columns * self.rows // 2} "
+                                  f"markers; {self.dictionary} holds {size or 'fewer'}") from None
         else:
             if self.marker is not None or self.dictionary is not None:
                 raise CamcalError("marker size and dictionary apply only to charuco boards")
+            if self.inverted or self.legacy:
+                raise CamcalError("the inverted and legacy options apply only to charuco boards")
             col, row = np.meshgrid(np.arange(self.columns), np.arange(self.rows))
             points = np.stack([col.ravel(), row.ravel(), np.zeros(col.size)], axis=1) * self.square
         points.setflags(write=False)
@@ -152,34 +199,54 @@ class Board:
         if self.kind != "charuco":
             raise CamcalError("not a charuco board")
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, str(self.dictionary)))
-        return cv2.aruco.CharucoBoard((self.columns, self.rows), self.square, self.marker, dictionary)
+        board = cv2.aruco.CharucoBoard((self.columns, self.rows), self.square, self.marker, dictionary)
+        board.setLegacyPattern(self.legacy)
+        return board
 
     def spec(self) -> str:
         """The string :func:`parse_board` reads back."""
+        options = "".join(f":{name}" for name, on in (("inverted", self.inverted), ("two-sided", self.two_sided),
+                                                       ("legacy", self.legacy)) if on)
         if self.kind == "chessboard":
-            return f"chessboard:{self.columns}x{self.rows}:{self.square:g}"
-        return f"charuco:{self.dictionary}:{self.columns}x{self.rows}:{self.square:g}:{self.marker:g}"
+            return f"chessboard:{self.columns}x{self.rows}:{self.square:g}{options}"
+        return f"charuco:{self.dictionary}:{self.columns}x{self.rows}:{self.square:g}:{self.marker:g}{options}"
+
+
+#: The options each board kind takes after its sizes.
+_BOARD_OPTIONS = {"chessboard": ("two-sided",), "charuco": ("inverted", "two-sided", "legacy")}
 
 
 def parse_board(spec: str) -> Board:
-    """Parse ``chessboard:WxH:SQUARE`` or ``charuco:DICT:WxH:SQUARE:MARKER``.
+    """Parse ``chessboard:WxH:SQUARE[:two-sided]`` or ``charuco:DICT:WxH:SQUARE:MARKER[:inverted][:two-sided][:legacy]``.
 
     Parameters
     ----------
     spec : str
-        E.g. ``chessboard:9x6:0.025`` (9x6 inner corners, 25 mm squares) or
-        ``charuco:DICT_5X5_100:7x5:0.04:0.03``.
+        E.g. ``chessboard:9x6:0.025`` (9x6 inner corners, 25 mm squares),
+        ``charuco:DICT_5X5_100:7x5:0.04:0.03`` or
+        ``charuco:DICT_4X4_1000:4x5:0.054:0.0405:inverted:two-sided``.
 
     Returns
     -------
     Board
     """
     parts = str(spec).strip().split(":")
-    usage = "expected chessboard:WxH:SQUARE or charuco:DICT:WxH:SQUARE:MARKER"
+    usage = ("expected chessboard:WxH:SQUARE[:two-sided] or "
+             "charuco:DICT:WxH:SQUARE:MARKER[:inverted][:two-sided][:legacy]")
     size_index = {"chessboard": 1, "charuco": 2}.get(parts[0])
     expected_len = {"chessboard": 3, "charuco": 5}.get(parts[0])
-    if size_index is None or len(parts) != expected_len:
+    if size_index is None or len(parts) < expected_len:
         raise CamcalError(f"bad board {spec!r}: {usage}")
+    options = parts[expected_len:]
+    parts = parts[:expected_len]
+    allowed = _BOARD_OPTIONS[parts[0]]
+    for option in options:
+        if option not in allowed:
+            raise CamcalError(f"bad board {spec!r}: unknown option {option!r} for a {parts[0]} "
+                              f"(expected {', '.join(allowed)})")
+    if len(set(options)) < len(options):
+        raise CamcalError(f"bad board {spec!r}: an option is given twice")
+    flags = {"inverted": "inverted" in options, "two_sided": "two-sided" in options, "legacy": "legacy" in options}
     match = re.fullmatch(r"(\d+)x(\d+)", parts[size_index])
     if not match:
         raise CamcalError(f"bad board size {parts[size_index]!r} in {spec!r}: expected WxH, e.g. 9x6")
@@ -189,8 +256,8 @@ def parse_board(spec: str) -> Board:
         raise CamcalError(f"bad board {spec!r}: square and marker sizes must be numbers") from None
     columns, rows = int(match.group(1)), int(match.group(2))
     if parts[0] == "chessboard":
-        return Board("chessboard", columns, rows, numbers[0])
-    return Board("charuco", columns, rows, numbers[0], marker=numbers[1], dictionary=parts[1])
+        return Board("chessboard", columns, rows, numbers[0], **flags)
+    return Board("charuco", columns, rows, numbers[0], marker=numbers[1], dictionary=parts[1], **flags)
 
 
 @dataclass(frozen=True)
@@ -208,7 +275,8 @@ class Detection:
     corners_px : ndarray, shape (M, 2)
         Corner pixels, pixel (0, 0) at the centre of the top-left pixel.
     detector : str
-        ``"sb"``, ``"classic"`` or ``"charuco"``.
+        ``"sb"``, ``"classic"``, ``"charuco"`` or ``"charuco-mirrored"`` (a
+        two-sided board's back, found on the mirror image).
     """
 
     image: str
@@ -280,6 +348,50 @@ def _canonical_chessboard(gray: NDArray[np.uint8], corners: NDArray[np.float64],
     return grid.reshape(-1, 2)
 
 
+def _refine(gray: NDArray[np.uint8], corners: NDArray, grid: NDArray[np.int64], clear: float) -> NDArray[np.float64]:
+    """The X-junction fit of :func:`camcal.geometry.corners.refine_corners` (``clear``: part of a square free of markers)."""
+    corners = corners.reshape(-1, 2).astype(np.float64)
+    return refine_corners(gray, corners, clear * grid_spacing_px(corners, grid)).corners_px
+
+
+def _charuco_corners(board: Board, gray: NDArray[np.uint8]):
+    """ChArUco corners and ids (OpenCV's arrays, or None) and the detector's name.
+
+    A two-sided board is also looked for on the mirror image (its back, seen
+    from behind); the mirrored detection's corners are mapped back
+    (``x = W - 1 - x'``) with their ids, and the one with more corners wins
+    (the front on a tie).
+    """
+    detector = cv2.aruco.CharucoDetector(board.charuco_board())
+    corners, ids, _, _ = detector.detectBoard(gray)
+    found = (corners, ids, "charuco")
+    if board.two_sided:
+        mirrored, mirrored_ids, _, _ = detector.detectBoard(np.ascontiguousarray(gray[:, ::-1]))
+        if mirrored_ids is not None and len(mirrored_ids) > (0 if ids is None else len(ids)):
+            mirrored = mirrored.reshape(-1, 1, 2).astype(np.float32)
+            mirrored[:, 0, 0] = gray.shape[1] - 1 - mirrored[:, 0, 0]
+            found = (mirrored, mirrored_ids, "charuco-mirrored")
+    return found
+
+def _find_reduced_first(gray: NDArray[np.uint8], *finders) -> tuple[bool, NDArray | None, int]:
+    """Run the finders in turn on a quarter-size copy (both sides >= 800 px), then half size (>= 400 px), then full size.
+
+    The first success wins: its corners mapped back to full-size pixels (pixel centres map as
+    ``f x + (f - 1) / 2``) and the finder's index. A reduced copy has 4x (16x) fewer pixels: the board is
+    found that much faster, and the refinement at full size makes up the accuracy.
+    """
+    height, width = gray.shape
+    for factor in (4, 2, 1):
+        if factor > 1 and min(height, width) < _HALF_SIZE_MIN_PX * factor // 2:
+            continue
+        image = gray if factor == 1 else cv2.resize(gray, (width // factor, height // factor), interpolation=cv2.INTER_AREA)
+        for index, finder in enumerate(finders):
+            found, corners = finder(image)
+            if found:
+                return True, factor * corners + (factor - 1) / 2, index
+    return False, None, -1
+
+
 def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection | None:
     """Find ``board`` in one image.
 
@@ -300,36 +412,35 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     if gray.dtype != np.uint8:
         raise CamcalError(f"{name}: expected an 8-bit image, got {gray.dtype}")
+    if board.inverted:  # white markers on black: the detector looks for black ones
+        gray = 255 - gray
     height, width = gray.shape
     if board.kind == "charuco":
-        corners, ids, _, _ = cv2.aruco.CharucoDetector(board.charuco_board()).detectBoard(gray)
+        corners, ids, charuco = _charuco_corners(board, gray)
         if ids is None or len(ids) < MIN_CHARUCO_CORNERS:
             return None
         # OpenCV <= 4.12 returns ChArUco corners biased by +0.5 px (opencv/opencv#25539): refine
         # them again with cornerSubPix, which converges to the saddle point whatever the start
         corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), _SUBPIX_CRITERIA)
         ids = ids.ravel().astype(np.int64)
+        grid = np.stack([ids % (board.columns - 1), ids // (board.columns - 1)], axis=1)
+        corners = _refine(gray, corners, grid, 0.8 * (board.square - board.marker) / board.square)
         order = np.argsort(ids)
-        return Detection(name, (width, height), ids[order], corners.reshape(-1, 2).astype(np.float64)[order], "charuco")
+        return Detection(name, (width, height), ids[order], corners[order], charuco)
     pattern = (board.columns, board.rows)
-    found = False
-    if min(height, width) >= _HALF_SIZE_MIN_PX:
-        # find the board on a half-size image (4x fewer pixels, 5x faster on the real pairs);
-        # cornerSubPix below refines at full size from there: pixel centres map as 2 x + 0.5
-        half = cv2.resize(gray, (width // 2, height // 2), interpolation=cv2.INTER_AREA)
-        found, corners = cv2.findChessboardCorners(half, pattern, flags=_CLASSIC_FLAGS)
-        if found:
-            corners = 2.0 * corners + 0.5
+    # every search on reduced copies before any at full size: SB at full size took 30 s per call on a 4K
+    # frame and the classic search 45-100 s on a 2048x1536 one, where quarter-size copies take 0.1-0.6 s;
+    # the refinement below works at full size
+    detectors = ("classic", "sb", "sb")
+    found, corners, which = _find_reduced_first(
+        gray,
+        lambda img: cv2.findChessboardCorners(img, pattern, flags=_CLASSIC_FLAGS),
+        lambda img: cv2.findChessboardCornersSB(img, pattern, flags=0),
+        lambda img: cv2.findChessboardCornersSB(img, pattern, flags=_SB_FLAGS),
+    )
     if not found:
-        found, corners = cv2.findChessboardCorners(gray, pattern, flags=_CLASSIC_FLAGS)
-    detector = "classic"
-    if not found:
-        detector = "sb"
-        found, corners = cv2.findChessboardCornersSB(gray, pattern, flags=0)
-        if not found:
-            found, corners = cv2.findChessboardCornersSB(gray, pattern, flags=_SB_FLAGS)
-        if not found:
-            return None
+        return None
+    detector = detectors[which]
     # The SB corners are pulled towards the image centre (0.1 px at 300 px from it, on
     # `camcal demo`'s rendered boards, with or without lens distortion): cornerSubPix
     # converges to the saddle point and removes that bias (0.0002 px left).
@@ -337,15 +448,26 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
     spacing = min(np.linalg.norm(np.diff(grid, axis=axis), axis=2).min() for axis in (0, 1))
     half = int(np.clip(round(_SUBPIX_WINDOW_FRACTION * spacing), *_SUBPIX_WINDOW_PX))
     corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
-    corners = _canonical_chessboard(gray, corners.reshape(-1, 2).astype(np.float64), board.columns, board.rows)
+    col, row = np.meshgrid(np.arange(board.columns), np.arange(board.rows))
+    corners = _refine(gray, corners, np.stack([col.ravel(), row.ravel()], axis=1), 1.0)
+    corners = _canonical_chessboard(gray, corners, board.columns, board.rows)
     return Detection(name, (width, height), np.arange(board.n_corners, dtype=np.int64), corners, detector)
+
+
+def video_frame_label(video: str, frame: int) -> str:
+    """The name of frame ``frame`` of a video in detections: ``cam_0.mp4#12`` (read back by :func:`frame_number`)."""
+    return f"{PurePath(video).name}#{int(frame)}"
 
 
 def frame_number(name: str) -> int:
     """The frame number in an image's file name: the last group of digits of its stem.
 
-    ``left07.jpg`` -> 7, ``cam2_frame_0113.png`` -> 113.
+    ``left07.jpg`` -> 7, ``cam2_frame_0113.png`` -> 113; a video frame's
+    label (:func:`video_frame_label`) ``cam_0.mp4#12`` -> 12.
     """
+    video = re.fullmatch(r".*#(\d+)", str(name))
+    if video:
+        return int(video.group(1))
     digits = re.findall(r"\d+", PurePath(name).stem)
     if not digits:
         raise CamcalError(f"no frame number in the file name {name!r} (views of several cameras are matched by it)")

@@ -8,7 +8,7 @@ errs the same way on every image. The intrinsics then move more from scene
 to scene than the observation count suggests, and the covariance sigma is
 too small for the error (issue 18: 2-5 sigma on rendered rigs).
 
-The jackknife re-runs the refinement ``n`` times, each time without one
+The jackknife solves the refinement ``n`` times, each time without one
 frame's observations (both cameras of a rig position; with more than
 :data:`MAX_GROUPS` frames, one group of consecutive frames), starting from
 the full solution, and estimates the variance of each quantity ``theta`` from
@@ -19,6 +19,14 @@ Efron & Stein 1981; for grouped data Shao & Tu 1995, section 2.3)::
 
 Whatever makes the frames disagree (correlated location errors, scene
 dependence) is in it; a bias common to every frame is not.
+
+Each replicate is by default one Gauss-Newton step from the full solution
+on the problem without the group (``method="step"``,
+:func:`camcal.geometry.bundle.deletion.one_step_replicates`: one Jacobian,
+one reduced system per group), not a full refit (``method="refit"``, one
+nonlinear bundle adjustment per group); on pycolmap's synthetic rigs and
+camcal's rendered scenes the two give sigmas within a few percent
+(``bench/bench_sfm.py`` prints the ratio and the times).
 
 With ``n`` as small as a rig's 10 positions the variance estimate has
 ``n - 1`` degrees of freedom and is itself uncertain: Tukey's jackknife
@@ -59,13 +67,17 @@ from scipy.stats import norm, t
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
+from camcal.geometry.bundle.deletion import DeletionUnsupported, one_step_replicates
 
-__all__ = ["MAX_GROUPS", "MIN_FRAMES", "FrameJackknife", "frame_jackknife", "interval_factor", "without_frames"]
+__all__ = ["MAX_GROUPS", "METHODS", "MIN_FRAMES", "FrameJackknife", "frame_jackknife", "interval_factor",
+           "without_frames"]
 
 #: fewer frames give a variance estimate with too few degrees of freedom to print.
 MIN_FRAMES = 5
 #: more frames are left out in consecutive groups (a long sequence costs at most this many refinements).
 MAX_GROUPS = 20
+#: how each replicate is solved: one Gauss-Newton step from the full solution, or a full refit.
+METHODS = ("step", "refit")
 
 
 @dataclass(frozen=True)
@@ -85,12 +97,16 @@ class FrameJackknife:
         Frames with observations.
     n_groups : int
         Groups of frames left out in turn (the jackknife's ``n``).
+    method : str
+        How the replicates were solved (:data:`METHODS`); ``refit`` also
+        when ``step`` was asked of a problem it does not handle.
     """
 
     sigmas: dict[str, float]
     replicates: dict[str, NDArray[np.float64]]
     n_frames: int
     n_groups: int
+    method: str = "refit"
 
     @property
     def widened_sigmas(self) -> dict[str, float]:
@@ -141,7 +157,7 @@ def _rig_deviations(full: BundleState, replicate: BundleState, frames: NDArray[n
 
 def frame_jackknife(result: BundleResult, options: BundleOptions,
                     progress: Callable[[int, int], None] | None = None,
-                    max_groups: int = MAX_GROUPS) -> FrameJackknife:
+                    max_groups: int = MAX_GROUPS, method: str = "step") -> FrameJackknife:
     """Sigmas of a refinement's intrinsics and rig pose by leaving out one frame at a time.
 
     Parameters
@@ -155,6 +171,11 @@ def frame_jackknife(result: BundleResult, options: BundleOptions,
         ``progress(done, total)`` after each replicate.
     max_groups : int
         Frames are left out in at most this many groups of consecutive frames.
+    method : {"step", "refit"}
+        Each replicate by one Gauss-Newton step from the full solution
+        (:func:`~camcal.geometry.bundle.deletion.one_step_replicates`; falls
+        back to refits where it does not apply, e.g. with a board) or by a
+        full bundle adjustment.
 
     Returns
     -------
@@ -175,13 +196,21 @@ def frame_jackknife(result: BundleResult, options: BundleOptions,
     frames = np.unique(state.obs_frame)
     if len(frames) < MIN_FRAMES:
         raise CamcalError(f"the frame jackknife needs at least {MIN_FRAMES} frames with observations, got {len(frames)}")
+    if method not in METHODS:
+        raise CamcalError(f"unknown jackknife method {method!r}, expected one of: {', '.join(METHODS)}")
     quiet = dataclasses.replace(options, compute_sigmas=False)
     intrinsics = {f"{state.camera_names[k]}.{name}": (k, i) for k in range(len(state.camera_names))
                   for i, name in enumerate(state.param_names(k))}
     values: dict[str, list[NDArray[np.float64]]] = {key: [] for key in intrinsics}
     groups = np.array_split(frames, min(len(frames), max_groups))
+    steps = None
+    if method == "step":
+        try:
+            steps = one_step_replicates(state, quiet, groups)
+        except DeletionUnsupported:
+            method = "refit"
     for done, group in enumerate(groups, start=1):
-        replicate = bundle_adjust(without_frames(state, group), quiet).state
+        replicate = steps[done - 1] if steps is not None else bundle_adjust(without_frames(state, group), quiet).state
         for key, (k, i) in intrinsics.items():
             values[key].append(replicate.params[k][i:i + 1])
         if options.refine_sensor_from_rig:
@@ -194,4 +223,4 @@ def frame_jackknife(result: BundleResult, options: BundleOptions,
     replicates = {key: np.array(v) for key, v in values.items()
                   if key not in intrinsics or np.any(np.array(v) != state.params[intrinsics[key][0]][intrinsics[key][1]])}
     sigmas = {key: float(np.sqrt((n - 1) / n * np.sum((v - v.mean(axis=0)) ** 2))) for key, v in replicates.items()}
-    return FrameJackknife(sigmas=sigmas, replicates=replicates, n_frames=len(frames), n_groups=n)
+    return FrameJackknife(sigmas=sigmas, replicates=replicates, n_frames=len(frames), n_groups=n, method=method)

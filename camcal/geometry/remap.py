@@ -157,7 +157,8 @@ def build_maps(camera: Camera, H: ArrayLike, output_size: tuple[int, int]) -> Re
         cx, cy = distortion.center if distortion.center is not None else camera.K[:2, 2]
         x -= cx
         y -= cy
-        discriminant = 1.0 - 4.0 * distortion.params["lambda"] * (x * x + y * y)
+        aspect = distortion.params.get("aspect", 1.0)
+        discriminant = 1.0 - 4.0 * distortion.params["lambda"] * (x * x + aspect * aspect * y * y)
         with np.errstate(invalid="ignore"):
             scale = 2.0 / (1.0 + np.sqrt(discriminant))
         scale[discriminant < 0.0] = np.nan

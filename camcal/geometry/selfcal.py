@@ -1,9 +1,10 @@
 """Self-calibration on a structure-from-motion seed: each camera's lens model and principal point chosen.
 
 The lens model is chosen by the residual of points held out of the fit
-(:func:`heldout_rms`), the principal point refined only where its sigma says
-the views determine it (:func:`principal_point_limit_px`), and the sigmas are
-the larger of the covariance's and a delete-one-frame jackknife's
+(:func:`heldout_rms`), the principal point and the lens refined under the
+sensor's Gaussian priors (:mod:`camcal.geometry.bundle.prior`: the principal
+point about the image centre, never held there), and the sigmas are the
+larger of the posterior covariance's and a delete-one-frame jackknife's
 (:func:`self_calibrate`). Intrinsics are COLMAP parameter vectors of the
 COLMAP twin of each camcal lens model (:data:`MODELS`,
 :mod:`camcal.model.colmap`).
@@ -25,7 +26,8 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
-from camcal.geometry.jackknife import MAX_GROUPS, MIN_FRAMES, frame_jackknife
+from camcal.geometry.bundle.prior import PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, undetermined
+from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife
 from camcal.model.colmap import camera_from_colmap, camera_to_colmap
 from camcal.model.distortion import Distortion, fit_distortion
 
@@ -38,7 +40,6 @@ __all__ = [
     "PrincipalPointDecision",
     "SelfCalibration",
     "heldout_rms",
-    "principal_point_limit_px",
     "self_calibrate",
 ]
 
@@ -64,12 +65,15 @@ class PrincipalPointDecision:
     ----------
     camera : str
     refined : bool
-        True: refined with the rest; False: held at the image centre.
+        True: refined with the rest; False: held at the image centre (asked).
     sigma_px : (float, float)
-        One-sigma of (cx, cy) from the fit with the principal point free
-        (points marginalised); NaN when that fit was not run (``centre``).
-    limit_px : float
-        The largest sigma at which the data count as determining it.
+        Posterior one-sigma of (cx, cy) (points marginalised, the prior's
+        information included); NaN when held or the covariance is singular.
+    prior_sigma_px : float
+        The prior's sigma about the image centre; NaN without a prior.
+    determined : bool
+        Whether the images determine it: the posterior sigma below
+        :data:`~camcal.geometry.bundle.prior.UNDETERMINED_RATIO` of the prior's.
     reason : str
         The decision in words, with its numbers.
     """
@@ -77,7 +81,8 @@ class PrincipalPointDecision:
     camera: str
     refined: bool
     sigma_px: tuple[float, float]
-    limit_px: float
+    prior_sigma_px: float
+    determined: bool
     reason: str
 
 
@@ -96,6 +101,11 @@ class SelfCalibration:
     n_heldout_points : int
         Sparse points held out.
     principal_point : tuple of PrincipalPointDecision
+    undetermined : tuple of str
+        One line per intrinsic that the images barely determine (posterior
+        sigma near its prior's: :func:`camcal.geometry.bundle.prior.undetermined`).
+    unused_priors : tuple of str
+        Given priors on an intrinsic the chosen lens model does not have.
     covariance_sigmas, jackknife_sigmas : dict of str to float
         The final fit's sigmas from the Ceres covariance and from the
         delete-one-frame jackknife, widened for its ``n - 1`` degrees of
@@ -105,16 +115,21 @@ class SelfCalibration:
         Frames (or groups of frames) left out in turn; 0 when not run.
     jackknife_skipped : str
         Why the jackknife was not run ("" when it was).
+    jackknife_method : str
+        How its replicates were solved (:data:`camcal.geometry.jackknife.METHODS`; "" when not run).
     """
 
     lens_models: dict[str, str]
     heldout_rms_px: dict[str, dict[str, float]]
     n_heldout_points: int
     principal_point: tuple[PrincipalPointDecision, ...]
+    undetermined: tuple[str, ...] = ()
+    unused_priors: tuple[str, ...] = ()
     covariance_sigmas: dict[str, float] = dataclasses.field(default_factory=dict)
     jackknife_sigmas: dict[str, float] = dataclasses.field(default_factory=dict)
     jackknife_groups: int = 0
     jackknife_skipped: str = ""
+    jackknife_method: str = ""
 
     def lines(self) -> list[str]:
         """The decisions, one line per camera and question, for the user."""
@@ -123,26 +138,21 @@ class SelfCalibration:
             table = ", ".join(f"{name} {value:.4f}" for name, value in self.heldout_rms_px[camera].items())
             rows.append(f"{camera}: lens model {model} (held-out RMS px over {self.n_heldout_points} points: {table})")
         rows += [f"{decision.camera}: {decision.reason}" for decision in self.principal_point]
+        rows += [line for line in self.undetermined if not line.split(":", 1)[0].endswith((".cx", ".cy"))]
+        rows += [f"prior on {label} not used: the chosen lens model has no such parameter" for label in self.unused_priors]
+        rows.append("skew: 0, not a parameter (digital sensors' pixel rows and columns are orthogonal); "
+                    "fx = fy except in the opencv lens model (square pixels)")
         if self.jackknife_groups:
             ratios = ", ".join(f"{key} {self.jackknife_sigmas[key] / value:.2g}" for key, value in
                                self.covariance_sigmas.items() if key in self.jackknife_sigmas and value > 0)
+            how = "full refits" if self.jackknife_method == "refit" else "one Gauss-Newton step each"
             rows.append(f"uncertainty: the larger of the covariance sigma and a delete-one-frame jackknife over "
-                        f"{self.jackknife_groups} groups of frames, widened for its {self.jackknife_groups - 1} "
+                        f"{self.jackknife_groups} groups of frames ({how}), widened for its {self.jackknife_groups - 1} "
                         f"degrees of freedom (jackknife / covariance: {ratios})")
         else:
             rows.append(f"uncertainty: covariance sigmas only ({self.jackknife_skipped}); "
                         "they measure independent noise, not errors shared by an image's features")
         return rows
-
-
-def principal_point_limit_px(image_size: tuple[int, int]) -> float:
-    """Sigma below which the views determine a principal point: 0.2 % of the diagonal, at least 1 px.
-
-    Holding the principal point at the image centre costs its true offset
-    (commonly 0.2-1 % of the diagonal); refining it costs its sigma. Refining
-    wins when the sigma is smaller than the offsets lenses commonly have.
-    """
-    return max(1.0, 0.002 * float(np.hypot(*image_size)))
 
 
 def _lens_params(state: BundleState, camera: int, model: str) -> NDArray[np.float64]:
@@ -175,15 +185,6 @@ def _with_lenses(state: BundleState, lenses: dict[str, str]) -> BundleState:
     """The state with each camera's lens model replaced (``camera name -> camcal model``)."""
     params = tuple(_lens_params(state, k, lenses[name]) for k, name in enumerate(state.camera_names))
     return dataclasses.replace(state, models=tuple(MODELS[lenses[name]] for name in state.camera_names), params=params)
-
-
-def _centred(state: BundleState, camera: int) -> NDArray[np.float64]:
-    """Camera ``camera``'s parameters with the principal point at the image centre (COLMAP: w/2, h/2)."""
-    params = state.params[camera].copy()
-    names = state.param_names(camera)
-    width, height = state.image_sizes[camera]
-    params[names.index("cx")], params[names.index("cy")] = width / 2.0, height / 2.0
-    return params
 
 
 def _project_observations(state: BundleState, X: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -262,7 +263,7 @@ def self_calibrate(
     principal_point: str = "auto",
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
-    jackknife: bool = True,
+    jackknife: str | None = "step",
 ) -> tuple[BundleResult, SelfCalibration]:
     """Bundle adjustment that chooses each camera's lens model and whether to refine its principal point.
 
@@ -277,16 +278,20 @@ def self_calibrate(
         camcal lens models to choose among (:data:`LENS_MODELS`); one model
         is used as given (its held-out RMS is still measured).
     principal_point : {"auto", "refine", "centre"}
-        ``auto`` refines each camera's where its sigma(cx), sigma(cy) are below
-        :func:`principal_point_limit_px`, and holds the others at the image centre.
+        ``auto`` refines it under the sensor's prior (the image centre +-
+        :data:`~camcal.geometry.bundle.prior.PRINCIPAL_POINT_PRIOR` of the
+        diagonal), with the lens under its default priors
+        (``BundleOptions.default_priors``); ``refine`` lets the images alone
+        decide (no default prior); ``centre`` holds it at the image centre.
     seed : int
         Chooses the held-out points.
     progress : callable, optional
         Called with each stage's message (the CLI prints them to stderr).
-    jackknife : bool
+    jackknife : {"step", "refit"} or None
         Also estimate the sigmas by the delete-one-frame jackknife
-        (:func:`camcal.geometry.jackknife.frame_jackknife`, one refinement
-        per frame or group of frames) and report the larger of the two.
+        (:func:`camcal.geometry.jackknife.frame_jackknife`), each replicate
+        by one Gauss-Newton step (``step``) or a full refit (``refit``), and
+        report the larger of the two; None: the covariance alone.
 
     Returns
     -------
@@ -305,11 +310,15 @@ def self_calibrate(
     on the rest; the held-out points are re-triangulated through each fit
     (:func:`heldout_rms`) and each camera takes the model with the lowest
     held-out RMS (a model later in ``lens_models``, simplest first, must beat
-    an earlier one by more than :data:`LENS_MODEL_MARGIN`). Principal point:
-    the final fit runs with it free; its covariance (Ceres, ``sigma^2
-    (J^T J)^-1``, Triggs et al. 2000, section 6) gives sigma(cx), sigma(cy); when
-    they exceed the limit the fit is run again with that camera's held at the
-    centre (``BundleOptions.fixed_params``). Uncertainty: features located
+    an earlier one by more than :data:`LENS_MODEL_MARGIN`). Principal point
+    and lens: every fit carries Gaussian priors on them (and the user's
+    priors, ``options.priors``), so the estimate is the posterior's mode and
+    the covariance (Ceres, ``sigma^2 (J^T J)^-1``, Triggs et al. 2000,
+    section 6) the posterior's, the priors' information included; where the
+    posterior sigma stays near the prior's the report says that the images do
+    not determine the value. A principal point held at the centre instead
+    moves its offset into the focal length and the lens (issue 28: 4-9 %
+    focal errors on lateral slides). Uncertainty: features located
     in images share errors within an image (viewing angle, blur, sampling),
     which the covariance, built for independent noise, does not see; on
     rendered rigs its sigmas were 2-5 times below the error. The jackknife
@@ -319,6 +328,8 @@ def self_calibrate(
     if principal_point not in PRINCIPAL_POINT_MODES:
         raise CamcalError(f"unknown principal point mode {principal_point!r}, "
                           f"expected one of: {', '.join(PRINCIPAL_POINT_MODES)}")
+    if jackknife is not None and jackknife not in METHODS:
+        raise CamcalError(f"unknown jackknife method {jackknife!r}, expected one of: {', '.join(METHODS)}, or None")
     if not lens_models:
         raise CamcalError("need at least one lens model to choose from")
     unknown = [model for model in lens_models if model not in MODELS]
@@ -327,7 +338,8 @@ def self_calibrate(
     names = state.camera_names
     held_mask = np.random.default_rng(seed).random(len(state.points)) < HELDOUT_FRACTION
     train, heldout = state.subset(~held_mask), state.subset(held_mask)
-    free_pp = dataclasses.replace(options, refine_principal_point=principal_point != "centre")
+    free_pp = dataclasses.replace(options, refine_principal_point=principal_point != "centre",
+                                  default_priors=principal_point != "refine")
     table: dict[str, dict[str, float]] = {name: {} for name in names}
     for model in lens_models:
         _say(progress, f"lens model {model}: fitting {len(train.points)} points, {len(heldout.points)} held out")
@@ -345,53 +357,48 @@ def self_calibrate(
     _say(progress, "bundle adjustment with the chosen lens models")
     final_options = free_pp
     final = bundle_adjust(_with_lenses(state, chosen), final_options)
-    decisions = []
-    if principal_point == "centre":
-        decisions = [PrincipalPointDecision(name, False, (np.nan, np.nan), principal_point_limit_px(size),
-                                            "principal point held at the image centre (asked)")
-                     for name, size in zip(names, state.image_sizes)]
-    else:
-        for name, size in zip(names, state.image_sizes):
-            sigma = (final.sigmas.get(f"{name}.cx", np.inf), final.sigmas.get(f"{name}.cy", np.inf))
-            limit = principal_point_limit_px(size)
-            numbers = (f"sigma(cx, cy) = ({sigma[0]:.3g}, {sigma[1]:.3g}) px" if np.all(np.isfinite(sigma))
-                       else "sigma(cx, cy) undefined (singular covariance)")
-            if principal_point == "refine":
-                decision = PrincipalPointDecision(name, True, sigma, limit, f"principal point refined (asked; {numbers})")
-            elif max(sigma) < limit:
-                decision = PrincipalPointDecision(name, True, sigma, limit,
-                                                  f"principal point refined: {numbers} < {limit:.3g} px")
-            else:
-                bound = f" >= {limit:.3g} px" if np.all(np.isfinite(sigma)) else ""
-                decision = PrincipalPointDecision(
-                    name, False, sigma, limit, f"principal point held at the image centre: {numbers}{bound}, "
-                    "the views do not determine it (add rotation and roll about the viewing axis)")
-            decisions.append(decision)
-        held = [k for k, decision in enumerate(decisions) if not decision.refined]
-        if held:
-            _say(progress, "bundle adjustment with the undetermined principal points at the image centre")
-            params = tuple(_centred(final.state, k) if k in held else final.state.params[k] for k in range(len(names)))
-            fixed = {names[k]: ("cx", "cy") for k in held}
-            final_options = dataclasses.replace(free_pp, fixed_params=fixed)
-            final = bundle_adjust(dataclasses.replace(final.state, params=params), final_options)
+    decisions = tuple(_principal_point_decision(final, k, principal_point) for k in range(len(names)))
     covariance_sigmas, jackknife_sigmas, groups = dict(final.sigmas), {}, 0
     n_frames = len(np.unique(final.state.obs_frame))
-    skipped = ("asked" if not jackknife else
+    skipped = ("asked" if jackknife is None else
                f"the jackknife needs {MIN_FRAMES} frames, got {n_frames}" if n_frames < MIN_FRAMES else "")
     if not skipped:
-        _say(progress, f"uncertainty: delete-one-frame jackknife ({min(n_frames, MAX_GROUPS)} refinements)")
-        spread = frame_jackknife(final, final_options)
+        _say(progress, f"uncertainty: delete-one-frame jackknife ({min(n_frames, MAX_GROUPS)} groups of frames)")
+        spread = frame_jackknife(final, final_options, method=jackknife)
         jackknife_sigmas, groups = spread.widened_sigmas, spread.n_groups
         # a singular covariance leaves keys only the jackknife has
         final = dataclasses.replace(final, sigmas={key: max(covariance_sigmas.get(key, 0.0), jackknife_sigmas.get(key, 0.0))
                                                    for key in {**covariance_sigmas, **jackknife_sigmas}})
     report = SelfCalibration(
         lens_models=chosen, heldout_rms_px=table, n_heldout_points=int(held_mask.sum()),
-        principal_point=tuple(decisions), covariance_sigmas=covariance_sigmas, jackknife_sigmas=jackknife_sigmas,
-        jackknife_groups=groups, jackknife_skipped=skipped,
+        principal_point=decisions, undetermined=tuple(undetermined(final.priors, final.prior_posterior_sigmas)),
+        unused_priors=tuple(spec.label for spec in final.unused_priors), covariance_sigmas=covariance_sigmas, jackknife_sigmas=jackknife_sigmas,
+        jackknife_groups=groups, jackknife_skipped=skipped, jackknife_method=spread.method if not skipped else "",
     )
     return final, report
 
+
+
+def _principal_point_decision(final: BundleResult, camera: int, mode: str) -> PrincipalPointDecision:
+    """What became of camera ``camera``'s principal point, in one line with its sigmas."""
+    state = final.state
+    name, size = state.camera_names[camera], state.image_sizes[camera]
+    if mode == "centre":
+        return PrincipalPointDecision(name, False, (np.nan, np.nan), np.nan, False,
+                                      "principal point held at the image centre (asked)")
+    sigma = (final.sigmas.get(f"{name}.cx", np.nan), final.sigmas.get(f"{name}.cy", np.nan))
+    numbers = (f"sigma(cx, cy) = ({sigma[0]:.3g}, {sigma[1]:.3g}) px" if np.all(np.isfinite(sigma))
+               else "sigma(cx, cy) undefined (singular covariance)")
+    if mode == "refine":
+        return PrincipalPointDecision(name, True, sigma, np.nan, bool(np.all(np.isfinite(sigma))),
+                                      f"principal point refined by the images alone (asked; {numbers})")
+    prior = PRINCIPAL_POINT_PRIOR * float(np.hypot(*size))
+    determined = bool(np.all(np.isfinite(sigma)) and max(sigma) < UNDETERMINED_RATIO * prior)
+    reason = f"principal point refined: {numbers}, prior image centre +- {prior:.3g} px"
+    if not determined:
+        reason += (": the views barely determine it, the prior decides "
+                   "(add rotation and roll about the viewing axis)")
+    return PrincipalPointDecision(name, True, sigma, prior, determined, reason)
 
 
 def _say(progress: Callable[[str], None] | None, message: str) -> None:

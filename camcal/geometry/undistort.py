@@ -14,7 +14,7 @@ with the source camera's pose. Three ways to choose ``K_new``:
     pixel lands inside it (nothing lost, black corners). A pinhole image
     cannot hold rays at 90 degrees from the axis, so the field of view kept
     is capped at ``max_fov_deg`` (full angle; by default 120 degrees for a
-    ``kannala-brandt`` fisheye, no cap for the other models): source pixels
+    Kannala-Brandt fisheye, no cap for the other models): source pixels
     beyond it are left out. (A pinhole view of a fisheye stretches its
     edges by ``1 / cos^2`` of the angle: 4x at 60 degrees.)
 ``overscan``
@@ -45,7 +45,7 @@ __all__ = ["MODES", "FISHEYE_FOV_DEG", "UndistortedView", "Undistorter", "undist
 
 #: How K_new is chosen (see the module docstring).
 MODES = ("crop", "keep", "overscan")
-#: Full field of view ``crop`` and ``keep`` hold of a ``kannala-brandt`` lens unless told otherwise, degrees.
+#: Full field of view ``crop`` and ``keep`` hold of a Kannala-Brandt lens unless told otherwise, degrees.
 FISHEYE_FOV_DEG = 120.0
 
 _BORDER_SAMPLES = 512
@@ -94,7 +94,7 @@ def undistorted_view(
     max_fov_deg : float, optional
         ``crop`` and ``keep``: the widest full angle about the optical axis
         the output holds, in (0, 180) degrees; ``None``:
-        :data:`FISHEYE_FOV_DEG` for ``kannala-brandt``, no cap otherwise.
+        :data:`FISHEYE_FOV_DEG` for a Kannala-Brandt lens, no cap otherwise.
 
     Returns
     -------
@@ -126,7 +126,7 @@ def undistorted_view(
         K_new[0, 2] += (new_width - width) / 2.0
         K_new[1, 2] += (new_height - height) / 2.0
         return UndistortedView(K_new, (new_width, new_height))
-    if max_fov_deg is None and camera.distortion.model == "kannala-brandt":
+    if max_fov_deg is None and camera.distortion.is_fisheye:
         max_fov_deg = FISHEYE_FOV_DEG
     if mode == "keep":
         if max_fov_deg is None:

@@ -22,9 +22,10 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    points: the board's frame is the world. camcal's models are COLMAP's
    exactly: ``polynomial`` is ``OPENCV`` with p1 = p2 = 0 held, ``opencv``
    is ``FULL_OPENCV`` with k4 = k5 = k6 = 0 held, ``division`` is
-   ``SIMPLE_DIVISION``, which has ONE focal length: with this model
-   fx = fy is imposed (and said so in :attr:`CalibrationResult.notes`),
-   ``kannala-brandt`` is ``OPENCV_FISHEYE``.
+   ``DIVISION`` (two focal lengths: the lens's ``aspect`` is ``fx / fy``,
+   so non-square pixels and anamorphic squeezes are estimated),
+   ``kannala-brandt`` is ``OPENCV_FISHEYE`` and
+   ``kannala-brandt-thin-prism`` is ``RAD_TAN_THIN_PRISM_FISHEYE``.
 4. Images whose RMS is far above the median (``> max(outlier_factor x
    median, min_outlier_px)``) are dropped, reported, and the problem is
    solved again.
@@ -46,9 +47,11 @@ board's units (its square size); pixel (0, 0) is the centre of the
 top-left pixel; skew is fixed at 0 (COLMAP's models have none).
 Distortion models (see :mod:`camcal.model.distortion`): ``polynomial``
 (k1, k2), ``opencv`` (k1, k2, p1, p2, k3) or ``division`` (Strand & Hayman
-lambda in 1/px^2, centred on the principal point, fx = fy; OpenCV has no
-such model: it is initialised from OpenCV's k1 as ``lambda = -k1 / f^2``)
-or ``kannala-brandt`` (k1..k4 of OpenCV's fisheye model).
+lambda in 1/px^2, centred on the principal point, radius in x pixels with
+``aspect = fx / fy``; OpenCV has no such model: it is initialised from
+OpenCV's k1 as ``lambda = -k1 / fx^2``) or ``kannala-brandt`` (k1..k4 of
+OpenCV's fisheye model) or ``kannala-brandt-thin-prism`` (k1..k6, p1, p2,
+s1..s4; started from OpenCV's fisheye fit, the rest at 0).
 
 References
 ----------
@@ -79,8 +82,12 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection, frame_number
 from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState, bundle_adjust
 from camcal.geometry.bundle import residuals as board_residuals
+from camcal.geometry.bundle.solve import GAUGE_NAMES
+from camcal.geometry.uncertainty import GAUGE, POSE, projection_sigma, sigma_grid
+from camcal.geometry.view_jackknife import design_effect, view_jackknife
 from camcal.model.camera import chordal_mean_rotation, rotation_angle_deg
 from camcal.model.distortion import Distortion
+from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera, Rig, make_provenance
 
 __all__ = ["MODELS", "AUTO_MODELS", "AUTO_MARGIN", "MIN_IMAGES", "ModelScore", "CalibrationResult", "calibrate_board", "quality_problems"]
@@ -90,10 +97,12 @@ MODELS: Mapping[str, tuple[str, ...]] = MappingProxyType(
     {"none": (), "division": ("lambda",), "polynomial": ("k1", "k2"), "kannala-brandt": ("k1", "k2", "k3", "k4"),
      "opencv": ("k1", "k2", "p1", "p2", "k3"),
      "opencv-rational": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
-     "opencv-thin-prism": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4")}
+     "opencv-thin-prism": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4"),
+     "kannala-brandt-thin-prism": ("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2", "s1", "s2", "s3", "s4")}
 )
 #: The models ``model="auto"`` chooses among, simplest first (the parsimony order): every model.
-AUTO_MODELS = ("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational", "opencv-thin-prism")
+AUTO_MODELS = ("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational", "opencv-thin-prism",
+               "kannala-brandt-thin-prism")
 #: ``model="auto"`` keeps the simplest model whose cross-validated RMS is within this share of the best.
 AUTO_MARGIN = 0.01
 #: The camcal distortion model of each fitted lens model.
@@ -116,11 +125,15 @@ _COLMAP_MODELS: Mapping[str, tuple[str, tuple[str, ...]]] = MappingProxyType({
     "polynomial": ("OPENCV", ("p1", "p2")),
     "opencv": ("FULL_OPENCV", ("k4", "k5", "k6")),
     "opencv-rational": ("FULL_OPENCV", ()),
-    "division": ("SIMPLE_DIVISION", ()),
+    "division": ("DIVISION", ()),
     "kannala-brandt": ("OPENCV_FISHEYE", ()),
+    "kannala-brandt-thin-prism": ("RAD_TAN_THIN_PRISM_FISHEYE", ()),
 })
-#: What a calibration with fewer constraints than the model would have must say.
-_MODEL_NOTES = {"division": "division model: fx = fy imposed (COLMAP's SIMPLE_DIVISION has one focal length)"}
+#: The Kannala-Brandt models: started from ``cv2.fisheye``, corners beyond 90 degrees left out.
+_FISHEYE = ("kannala-brandt", "kannala-brandt-thin-prism")
+#: camcal parameter -> COLMAP parameter where the names differ (RAD_TAN_THIN_PRISM_FISHEYE's k0..k5, p0, s0..s3).
+_COLMAP_NAMES = {"kannala-brandt-thin-prism": {"k1": "k0", "k2": "k1", "k3": "k2", "k4": "k3", "k5": "k4", "k6": "k5",
+                                               "p1": "p1", "p2": "p0", "s1": "s0", "s2": "s1", "s3": "s2", "s4": "s3"}}
 #: Quality gate (:func:`quality_problems`): a calibration beyond these is not written without --force.
 MAX_RMS_PX = 1.5
 MAX_FOCAL_SIGMA_REL = 0.05
@@ -348,7 +361,7 @@ def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name
     (zero distortion) is the start.
     """
     keys = sorted(views)
-    if model == "kannala-brandt":
+    if model in _FISHEYE:
         return _opencv_fisheye_start(board, views, keys, name)
     object_points = [board.object_points[views[k].ids].astype(np.float32) for k in keys]
     image_points = [views[k].corners_px.astype(np.float32).reshape(-1, 1, 2) for k in keys]
@@ -578,17 +591,23 @@ def _colmap_params(model: str, K: NDArray, dist: NDArray) -> NDArray[np.float64]
         return np.concatenate([[fx, fy, cx, cy], vector])
     if model == "kannala-brandt":  # OpenCV's fisheye vector is COLMAP's OPENCV_FISHEYE k1..k4
         return np.array([fx, fy, cx, cy, dist[0], dist[1], dist[2], dist[3]])
-    # division: x_d ~ x_u (1 - lambda r^2) to first order, so lambda = -k1 / f^2 and COLMAP's k = lambda f^2 = -k1
-    return np.array([0.5 * (fx + fy), cx, cy, -dist[0]])
+    if model == "kannala-brandt-thin-prism":  # k0..k3 from OpenCV's fisheye k1..k4, the rest at 0
+        return np.concatenate([[fx, fy, cx, cy], dist[:4], np.zeros(8)])
+    # division: x_d ~ x_u (1 - lambda r^2) to first order, so lambda = -k1 / fx^2 and COLMAP's k = lambda fx^2 = -k1
+    return np.array([fx, fy, cx, cy, -dist[0]])
 
 
 def _camcal_lens(model: str, params: NDArray) -> tuple[NDArray[np.float64], Distortion]:
     """camcal's K (pixel centre at 0) and distortion of COLMAP parameters (:data:`_COLMAP_MODELS`)."""
-    if model == "division":
-        f, cx, cy, k = params
-        return np.array([[f, 0.0, cx - 0.5], [0.0, f, cy - 0.5], [0.0, 0.0, 1.0]]), Distortion("division", {"lambda": k / f**2})
     fx, fy, cx, cy = params[:4]
     K = np.array([[fx, 0.0, cx - 0.5], [0.0, fy, cy - 0.5], [0.0, 0.0, 1.0]])
+    if model == "division":  # COLMAP's DIVISION: k in normalised units, round in normalised coordinates
+        return K, Distortion("division", {"lambda": params[4] / fx**2, "aspect": fx / fy})
+    names = _COLMAP_NAMES.get(model, {})
+    if names:  # by COLMAP's parameter order
+        by_colmap = {colmap: camcal for camcal, colmap in names.items()}
+        order = [by_colmap[n] for n in ("k0", "k1", "k2", "k3", "k4", "k5", "p0", "p1", "s0", "s1", "s2", "s3")]
+        return K, Distortion(model, dict(zip(order, params[4:4 + len(order)])))
     return K, Distortion(_LENS.get(model, model), dict(zip(MODELS[model], params[4:4 + len(MODELS[model])])))
 
 
@@ -601,23 +620,25 @@ def _camcal_covariance(covariance: NDArray, colmap_names: tuple[str, ...], names
     def row(entries: dict[str, float]) -> NDArray[np.float64]:
         r = np.zeros(len(colmap_names))
         for name, value in entries.items():
-            r[column[name]] = value
+            if name in column:  # a held parameter is not in the covariance: its sigma is 0
+                r[column[name]] = value
         return r
 
     for j, camera in enumerate(names):
         for label in _INTRINSICS + MODELS[model]:
             labels.append(f"{camera}.{label}")
-            if model == "division" and label in ("fx", "fy"):
-                rows.append(row({f"{camera}.f": 1.0}))
-            elif label == "lambda":
-                f, k = params[j][0], params[j][3]
-                rows.append(row({f"{camera}.f": -2.0 * k / f**3, f"{camera}.k": 1.0 / f**2}))
+            if label == "lambda":  # lambda = k / fx^2
+                fx, k = params[j][0], params[j][4]
+                rows.append(row({f"{camera}.fx": -2.0 * k / fx**3, f"{camera}.k": 1.0 / fx**2}))
             else:
-                rows.append(row({f"{camera}.{label}": 1.0}))
+                rows.append(row({f"{camera}.{_COLMAP_NAMES.get(model, {}).get(label, label)}": 1.0}))
         if j:
             for label in ("rx", "ry", "rz", "tx", "ty", "tz"):
                 labels.append(f"{camera}.{label}")
                 rows.append(row({f"{camera}.{label}": 1.0}))
+    for label in GAUGE_NAMES if GAUGE_NAMES[0] in column else ():  # the board gauge (projection uncertainty)
+        labels.append(label)
+        rows.append(row({label: 1.0}))
     A = np.array(rows)
     return A @ covariance @ A.T, tuple(labels)
 
@@ -635,6 +656,8 @@ def calibrate_board(
     loss: str = "trivial",
     loss_scale: float = 1.0,
     holdout: Collection[int] = (),
+    intrinsics: Mapping[str, Camera] | None = None,
+    refine_intrinsics: bool = False,
 ) -> CalibrationResult:
     """Calibrate one camera or an N-camera rig from images of a planar board.
 
@@ -650,10 +673,12 @@ def calibrate_board(
         by position).
     model : str
         ``auto`` (default) or one of :data:`MODELS`: ``none``, ``division``
-        (Strand & Hayman lambda, centred on the principal point, fx = fy),
-        ``polynomial`` (k1, k2), ``kannala-brandt`` (k1..k4), ``opencv``
-        (k1, k2, p1, p2, k3), ``opencv-rational`` (+ k4, k5, k6),
-        ``opencv-thin-prism`` (+ s1..s4; one camera, fitted by OpenCV).
+        (Strand & Hayman lambda, centred on the principal point, its
+        ``aspect`` = fx / fy), ``polynomial`` (k1, k2), ``kannala-brandt``
+        (k1..k4), ``opencv`` (k1, k2, p1, p2, k3), ``opencv-rational``
+        (+ k4, k5, k6), ``opencv-thin-prism`` (+ s1..s4; one camera, fitted
+        by OpenCV), ``kannala-brandt-thin-prism`` (k1..k6, p1, p2, s1..s4:
+        COLMAP's RAD_TAN_THIN_PRISM_FISHEYE).
         ``auto`` ranks every model by leave-views-out cross-validation on
         the training views (:func:`_rank_models`; ``holdout`` is never used
         to choose) and keeps the simplest (order of :data:`AUTO_MODELS`)
@@ -673,6 +698,16 @@ def calibrate_board(
         ``huber``, ``soft_l1``, ``cauchy``), scale in pixels.
     holdout : collection of int
         Frame numbers left out of the fit and reported as held-out RMS.
+    intrinsics : mapping of str to Camera, optional
+        Camera name -> a calibrated camera (e.g. the cameras of a rig file):
+        its K and lens are held and only the poses are solved (extrinsics
+        only), unless ``refine_intrinsics``. Every camera of
+        ``detections`` must be in it, with the same image size, zero skew,
+        and one lens model shared by all (the fitted model: ``model`` must
+        be ``auto`` or that model); each camera's start poses are PnP with
+        its own lens.
+    refine_intrinsics : bool
+        With ``intrinsics``: use them as the start and refine them.
 
     Returns
     -------
@@ -682,8 +717,9 @@ def calibrate_board(
     ------
     CamcalError
         Unknown model, fewer than :data:`MIN_IMAGES` usable images for a
-        camera, a camera sharing no frame with the others, or a degenerate
-        problem.
+        camera, cameras not linked to each other through shared frames (one
+        line naming the separate groups), intrinsics that do not fit the
+        cameras, or a degenerate problem.
 
     Notes
     -----
@@ -696,12 +732,21 @@ def calibrate_board(
     if model != "auto" and model not in MODELS:
         raise CamcalError(f"unknown distortion model {model!r}, expected one of: {', '.join(MODELS)}, auto")
     names, by_frame = _check_detections(detections, board)
+    if board.kind == "chessboard" and board.two_sided and len(names) > 1:
+        raise CamcalError("a two-sided chessboard calibrates one camera at a time: its back cannot be told from its "
+                          "front in an image, so the views of a rig cannot be labelled alike (use a two-sided ChArUco "
+                          "board)")
     holdout = {int(f) for f in holdout}
     unknown = holdout - set().union(*[set(views) for views in by_frame])
     if unknown:
         raise CamcalError(f"held-out frame(s) {', '.join(map(str, sorted(unknown)))} are not among the views")
+    _check_linked(names, [{f for f in views if f not in holdout} for views in by_frame])
     options = dict(units=units, outlier_factor=outlier_factor, min_outlier_px=min_outlier_px, loss=loss,
                    loss_scale=loss_scale)
+    if intrinsics is not None:
+        model, known = _known_lenses(names, by_frame, intrinsics, model)
+        return _calibrate(board, names, by_frame, model, holdout, known=known, refine_known=refine_intrinsics,
+                          **options)
     if model != "auto":
         return _calibrate(board, names, by_frame, model, holdout, **options)
     # the choice never sees the held-out frames
@@ -732,6 +777,112 @@ def calibrate_board(
         return dataclasses.replace(result, model_ranking=ranking, notes=result.notes + tuple(notes),
                                    model_heldout_rms_px={s.model: s.rms_px for s in scored})
     raise CamcalError("no lens model could be fitted: " + "; ".join(failures))
+
+
+def _check_linked(names: list[str], frames: list[set[int]]) -> None:
+    """Every camera linked to the others through frames they share (the view graph is connected), else one line.
+
+    Raises
+    ------
+    CamcalError
+        ``cameras not linked through shared frames: cam0, cam1 | cam2 (...)``, naming the separate groups.
+    """
+    groups: list[list[int]] = []
+    left = set(range(len(names)))
+    while left:
+        queue, group = deque([min(left)]), []
+        left.discard(queue[0])
+        while queue:
+            i = queue.popleft()
+            group.append(i)
+            for j in sorted(left):
+                if frames[i] & frames[j]:
+                    left.discard(j)
+                    queue.append(j)
+        groups.append(sorted(group))
+    if len(groups) > 1:
+        described = " | ".join(", ".join(names[i] for i in group) for group in groups)
+        raise CamcalError(f"cameras not linked through shared frames: {described} (the groups share no frame "
+                          "with the board: the rig cannot be placed in one frame)")
+
+
+def _known_lenses(names: list[str], by_frame: list[dict], intrinsics: Mapping[str, Camera],
+                  model: str) -> tuple[str, dict[str, NDArray[np.float64]]]:
+    """The fitted model and each camera's COLMAP parameters from calibrated cameras (``intrinsics=``)."""
+    missing = [name for name in names if name not in intrinsics]
+    if missing:
+        raise CamcalError(f"camera(s) {', '.join(missing)} not in the intrinsics (it has: "
+                          f"{', '.join(intrinsics) or 'no camera'})")
+    lenses, known = {}, {}
+    for name, views in zip(names, by_frame):
+        camera = intrinsics[name]
+        size = tuple(next(iter(views.values())).image_size)
+        if tuple(camera.image_size) != size:
+            raise CamcalError(f"camera {name!r}: the intrinsics are for {camera.image_size[0]}x{camera.image_size[1]} "
+                              f"images, its frames are {size[0]}x{size[1]}")
+        if abs(camera.K[0, 1]) > 1e-9 * abs(camera.K[0, 0]):
+            raise CamcalError(f"camera {name!r}: the intrinsics have skew {camera.K[0, 1]:g}; the rig engine's models "
+                              "have none")
+        lenses[name], known[name] = _lens_params(name, camera)
+    if len(set(lenses.values())) > 1:
+        raise CamcalError("the intrinsics' cameras have different lens models ("
+                          + ", ".join(f"{name}: {lens}" for name, lens in lenses.items()) + "); give one model")
+    lens = next(iter(lenses.values()))
+    if model not in ("auto", lens):
+        raise CamcalError(f"--model {model} but the intrinsics' lens model is {lens}")
+    return lens, known
+
+
+def _lens_params(name: str, camera: Camera) -> tuple[str, NDArray[np.float64]]:
+    """The calibration model and COLMAP parameters (pixel centre at 0.5) of a calibrated camera."""
+    distortion, K = camera.distortion, camera.K
+    values = dict(distortion.params)
+    if distortion.model == "none":
+        return "none", _colmap_params("none", K, np.zeros(0))
+    if distortion.model == "polynomial":
+        if values.get("k3", 0.0) != 0.0:
+            raise CamcalError(f"camera {name!r}: a polynomial lens with k3 is not a model the rig engine has "
+                              "(polynomial is k1, k2)")
+        return "polynomial", _colmap_params("polynomial", K, np.array([values["k1"], values["k2"]]))
+    if distortion.model == "division":
+        centre = np.asarray(distortion.center if distortion.center is not None else K[:2, 2], dtype=np.float64)
+        if abs(K[0, 0] - K[1, 1]) > 1e-9 * K[0, 0] or np.abs(centre - K[:2, 2]).max() > 1e-6:
+            raise CamcalError(f"camera {name!r}: a division lens needs fx = fy and its centre at the principal "
+                              "point here (COLMAP's SIMPLE_DIVISION)")
+        f = K[0, 0]
+        return "division", np.array([f, K[0, 2] + 0.5, K[1, 2] + 0.5, values["lambda"] * f**2])
+    if distortion.model == "kannala-brandt":
+        return "kannala-brandt", _colmap_params("kannala-brandt", K, np.array([values[k] for k in MODELS["kannala-brandt"]]))
+    if distortion.model == "opencv":
+        if any(values.get(k, 0.0) != 0.0 for k in ("s1", "s2", "s3", "s4")):
+            raise CamcalError(f"camera {name!r}: thin-prism terms are not in the rig engine's models")
+        rational = any(values.get(k, 0.0) != 0.0 for k in ("k4", "k5", "k6"))
+        lens = "opencv-rational" if rational else "opencv"
+        vector = np.array([values.get(k, 0.0) for k in MODELS[lens]])
+        return lens, _colmap_params(lens, K, vector)
+    raise CamcalError(f"camera {name!r}: lens model {distortion.model!r} cannot be held")
+
+
+def _known_start(board: Board, views: Mapping[int, Detection], K: NDArray,
+                 lens: Distortion) -> dict[int, tuple[NDArray, NDArray]]:
+    """cam_from_board of each view by PnP with a calibrated lens (views not posable in front are left out)."""
+    poses = {}
+    for f, detection in views.items():
+        X = np.asarray(board.object_points[detection.ids], dtype=np.float64)
+        ideal = lens.undistort(detection.corners_px, K)
+        front = np.all(np.isfinite(ideal), axis=1)
+        if front.sum() < 4:
+            continue
+        for method in (cv2.SOLVEPNP_IPPE, cv2.SOLVEPNP_ITERATIVE):
+            try:
+                ok, rvec, tvec = cv2.solvePnP(X[front], ideal[front], K, None, flags=method)
+            except cv2.error:
+                continue
+            R, t = cv2.Rodrigues(rvec)[0], tvec.ravel()
+            if ok and np.all((X @ R.T + t)[:, 2] > 0.0):
+                poses[f] = (R, t)
+                break
+    return poses
 
 
 #: Errors of a model that cannot be fitted to a set of views (the engine's own checks surface as ValueError).
@@ -780,14 +931,19 @@ def _rank_models(board: Board, names: list[str], training: list[dict], options: 
                 reason = "non-finite held-out error"
                 break
             squared, count = squared + result.heldout_rms_px**2 * n, count + n
-        n_params = (3 if candidate == "division" else 4) + len(MODELS[candidate])
+        n_params = 4 + len(MODELS[candidate])
         scores.append(ModelScore(candidate, None if reason else float(np.sqrt(squared / count)), n_params, reason))
     return tuple(sorted(scores, key=lambda s: (s.rms_px is None, s.rms_px or 0.0, AUTO_MODELS.index(s.model))))
 
 
 def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: str, holdout: set[int], units: str,
-               outlier_factor: float, min_outlier_px: float, loss: str, loss_scale: float) -> CalibrationResult:
-    """One model, the views of ``holdout`` left out of the fit and then measured."""
+               outlier_factor: float, min_outlier_px: float, loss: str, loss_scale: float,
+               known: Mapping[str, NDArray] | None = None, refine_known: bool = False) -> CalibrationResult:
+    """One model, the views of ``holdout`` left out of the fit and then measured.
+
+    ``known``: camera name -> COLMAP parameters of a calibrated lens (:func:`_known_lenses`), held unless
+    ``refine_known``; the start poses are then PnP with those lenses.
+    """
     by_frame = [{f: d for f, d in views.items() if f not in holdout} for views in by_frame_all]
     held = [{f: d for f, d in views.items() if f in holdout} for views in by_frame_all]
     for name, views in zip(names, by_frame):
@@ -806,8 +962,13 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
     colmap_model, fixed = _COLMAP_MODELS[model]
     starts, params = [], []
     for name, views in zip(names, by_frame):
+        if known is not None:
+            params.append(np.asarray(known[name], dtype=np.float64).copy())
+            K, lens = _camcal_lens(model, params[-1])
+            starts.append(_known_start(board, views, K, lens))
+            continue
         K, dist, poses = _opencv_start(board, views, model, name)
-        if model != "kannala-brandt":
+        if model not in _FISHEYE:
             poses = _poses_in_front(board, views, K, dist, poses)
         starts.append(poses)
         params.append(_colmap_params(model, K, dist))
@@ -819,15 +980,15 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
                               f"start, need at least {MIN_IMAGES}")
     by_frame, starts, relabelled, dropped = _resolve_half_turns(board, names, by_frame, starts)
     dropped = behind + dropped
-    notes = [_MODEL_NOTES[model]] if model in _MODEL_NOTES else []
+    notes = []
     if behind:
         notes.append(f"{len(behind)} view(s) left out: no start pose puts the board in front of the camera "
                      f"({', '.join(image for _, image in behind)})")
-    if model == "kannala-brandt":
+    if model in _FISHEYE:
         by_frame, n_behind = _corners_in_front(board, by_frame, starts)
         if n_behind:
             notes.append(f"{n_behind} corner(s) beyond 90 degrees from the optical axis left out "
-                         "(COLMAP's OPENCV_FISHEYE, the engine's model, images only rays in front of the camera)")
+                         f"(COLMAP's {colmap_model}, the engine's model, images only rays in front of the camera)")
     cam_poses = _camera_poses(names, starts)
 
     # every frame seen by any camera is one board pose, first placed by the lowest camera seeing it
@@ -841,7 +1002,10 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         R_b, t_b = starts[j][f]
         view_start[f] = (R_j.T @ R_b, R_j.T @ (t_b - t_j))
     options = BundleOptions(refine_principal_point=True, refine_points3D=False, loss=loss, loss_scale=loss_scale,
-                            fixed_params={name: fixed for name in names})
+                            fixed_params={name: fixed for name in names},
+                            constant_intrinsics=tuple(names) if known is not None and not refine_known else ())
+    if known is not None:
+        notes.append("intrinsics " + ("refined from the given start" if refine_known else "held (extrinsics only)"))
     image_sizes = tuple(next(iter(views.values())).image_size for views in by_frame)
 
     for round_ in range(_MAX_OUTLIER_ROUNDS + 1):
@@ -890,8 +1054,9 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
     if solution.covariance.size == 0:
         raise CamcalError("the calibration is degenerate (singular normal equations): vary the board poses more")
     covariance, labels = _camcal_covariance(solution.covariance, solution.covariance_names, names, model, params)
+    jackknife = _view_jackknife(labels, names, model, params, refined, observations) if loss == "trivial" else None
     rig = _build_rig(names, image_sizes, params, cam_poses, observations.camera, image_of_point, residuals,
-                     covariance, labels, board, model, units)
+                     covariance, labels, board, model, units, jackknife)
     heldout_rms, heldout_images = None, ()
     if holdout:
         heldout_rms, per_camera, heldout_images = _heldout_rms(board, rig, held)
@@ -918,6 +1083,17 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         dropped=tuple(dropped),
         notes=tuple(notes),
     )
+
+
+def _view_jackknife(labels: tuple[str, ...], names: list[str], model: str, params: list[NDArray],
+                    refined: BundleState, observations: BoardObservations) -> NDArray | None:
+    """The delete-one-view jackknife covariance over ``labels`` (:mod:`camcal.geometry.view_jackknife`);
+    None below its minimum of views (plain least squares only: no robust loss)."""
+    free = ("f", "cx", "cy") if model == "division" else _INTRINSICS
+    lenses = [(*_camcal_lens(model, params[j]), free + MODELS[model]) for j in range(len(names))]
+    jackknife = view_jackknife(lenses, refined.sensor_R, refined.sensor_t, refined.frame_R, refined.frame_t,
+                               observations, labels, names)
+    return None if jackknife is None else jackknife.covariance
 
 
 def _calibrate_opencv(board: Board, names: list[str], by_frame: list[dict], model: str, units: str,
@@ -1059,8 +1235,42 @@ def quality_problems(result: CalibrationResult) -> list[str]:
     return problems
 
 
+def _with_projection_sigma(camera: Camera, covariance: NDArray, labels: tuple[str, ...], model: str,
+                           jackknife: NDArray | None = None) -> Camera:
+    """The camera with ``quality.covariance`` (its intrinsics, its pose, the board gauge) and
+    ``quality.worst_projection_sigma_px`` (at infinity, over a 16-pixel grid of the frame;
+    :mod:`camcal.geometry.uncertainty`).
+
+    With the delete-one-view ``jackknife`` covariance the block is scaled by
+    the design effect of the camera's projection
+    (:func:`camcal.geometry.view_jackknife.design_effect`): the corners'
+    errors are correlated within a view. ``quality.sigma`` (per parameter)
+    stays the corners' covariance."""
+    pairs = [(f"{camera.name}.{label}", label) for label in _INTRINSICS + MODELS[model] + POSE]
+    pairs = [(label, name) for label, name in pairs + list(zip(GAUGE_NAMES, GAUGE)) if label in labels]
+    index = [labels.index(label) for label, _ in pairs]
+    names = [name for _, name in pairs]
+
+    def block_of(matrix: NDArray) -> ParameterCovariance:
+        block = matrix[np.ix_(index, index)]
+        return ParameterCovariance(tuple(names), 0.5 * (block + block.T))
+
+    parameters = block_of(covariance)
+    camera = dataclasses.replace(camera, quality={**camera.quality.to_dict(), "covariance": parameters})
+    xs, ys = sigma_grid(camera.image_size, 16.0)
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    sigma = projection_sigma(camera, grid)
+    if jackknife is not None:
+        factor = design_effect(sigma, projection_sigma(camera, grid, covariance=block_of(jackknife)))
+        parameters = ParameterCovariance(tuple(names), factor * parameters.array)
+        sigma = sigma * np.sqrt(factor)
+    worst = float(np.nanmax(sigma))
+    return dataclasses.replace(camera, quality={**camera.quality.to_dict(), "covariance": parameters,
+                                                "worst_projection_sigma_px": worst})
+
+
 def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_point, residuals, covariance, labels,
-               board, model, units) -> Rig:
+               board, model, units, jackknife=None) -> Rig:
     sigma_by_label = dict(zip(labels, np.sqrt(np.clip(np.diag(covariance), 0.0, None))))
     cameras = []
     for j, name in enumerate(names):
@@ -1079,7 +1289,7 @@ def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_
             sigmas["baseline_direction_deg"] = float(
                 np.degrees(np.sqrt(max(np.trace(across @ translation @ across), 0.0)) / max(length, 1e-300)))
             sigmas["rotation_deg"] = float(np.degrees(np.sqrt(max(np.trace(rotation), 0.0))))
-        cameras.append(
+        cameras.append(_with_projection_sigma(
             Camera(
                 name=name,
                 image_size=image_sizes[j],
@@ -1094,7 +1304,6 @@ def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_
                     "n_observations": int(mine.sum()),
                     "sigma": sigmas,
                 },
-            )
-        )
+            ), covariance, labels, model, jackknife))
     method = "chessboard" if board.kind == "chessboard" else "charuco"
     return Rig(tuple(cameras), units=units, provenance=make_provenance(method, board=board.spec(), model=model))

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.model.camera import from_colmap, to_colmap
 from camcal.model.distortion import Distortion
-from camcal.base.atomic import atomic_write_text
+from camcal.base.atomic import atomic_dir
 from camcal.base.limits import FILE_BYTES, check_file_size
 from camcal.model.colmap import camera_from_colmap, camera_to_colmap
 from camcal.io.conversion import ExportResult, ImportResult, LensConversion, nearest_camera, select_cameras
@@ -113,12 +113,10 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
         "points3D.txt": header + "# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
         f"# Number of points: {len(point_lines)}, mean track length: 0\n" + "".join(line + "\n" for line in point_lines),
     }
-    out.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for name in FILES:
-        atomic_write_text(out / name, texts[name])
-        paths.append(out / name)
-    return ExportResult(tuple(paths), tuple(conversions), tuple(notes))
+    with atomic_dir(out) as staging:
+        for name in FILES:
+            (staging / name).write_text(texts[name], encoding="utf-8")
+    return ExportResult(tuple(Path(out) / name for name in FILES), tuple(conversions), tuple(notes))
 
 
 # -- reading ---------------------------------------------------------------------
@@ -127,8 +125,12 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
 def _rows(path: Path) -> list[tuple[int, list[str]]]:
     """Non-comment lines as (line number, fields); blank lines kept (images.txt pairs them)."""
     check_file_size(path, FILE_BYTES, "COLMAP text file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise CamcalError(f"{path.name} is not UTF-8 text (byte {error.start})") from None
     rows = []
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    for number, line in enumerate(text.splitlines(), start=1):
         if line.startswith("#"):
             continue
         rows.append((number, line.split()))

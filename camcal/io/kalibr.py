@@ -24,7 +24,9 @@ reported. ``T_cn_cnm1`` is ``[[R_n R_{n-1}^T, R_n (c_{n-1} - c_n)], [0, 0,
 0, 1]]``. ``pinhole-equi`` (``distortion_model: equidistant``, Kalibr's
 Kannala-Brandt model ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3
 theta^6 + k4 theta^8)``, the same as ``cv2.fisheye``) holds camcal's
-``kannala-brandt`` lens exactly, coefficients ``[k1, k2, k3, k4]``.
+``kannala-brandt`` lens exactly, coefficients ``[k1, k2, k3, k4]``; a
+``kannala-brandt-thin-prism`` lens goes as the nearest equidistant one
+(k1..k4 fitted over the frame, max residual reported).
 
 Kalibr has no world frame: imported rigs put cam0 at the origin; a rig's
 frames and points are not written.
@@ -80,8 +82,11 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     chain, conversions = {}, []
     previous = None
     for index, camera in enumerate(select_cameras(rig, cameras)):
-        target = "pinhole-equi" if camera.distortion.model == _KANNALA_BRANDT else "pinhole-radtan"
-        converted, conversion = nearest_camera(camera, _holds, "opencv", target, with_k3=False)
+        # a thin-prism fisheye goes as the nearest equidistant lens (k1..k4), its residual printed
+        fisheye = camera.distortion.is_fisheye
+        converted, conversion = nearest_camera(camera, _holds, _KANNALA_BRANDT if fisheye else "opencv",
+                                               "pinhole-equi" if fisheye else "pinhole-radtan",
+                                               with_k3=None if fisheye else False)
         conversions.append(conversion)
         entry = _camera_entry(converted)
         if previous is not None:
@@ -106,9 +111,13 @@ def _numbers(entry: dict, key: str, count: int, where: str) -> list[float]:
     if not isinstance(value, list) or len(value) != count or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
         raise CamcalError(f"{where}.{key} must be a list of {count} numbers, got {value!r:.80}")
-    if not all(np.isfinite(value)):
+    try:
+        numbers = [float(v) for v in value]
+    except OverflowError:
+        raise CamcalError(f"{where}.{key} holds an integer out of the float range") from None
+    if not all(np.isfinite(numbers)):
         raise CamcalError(f"{where}.{key} contains NaN or infinite values")
-    return [float(v) for v in value]
+    return numbers
 
 
 def load(path: Path) -> ImportResult:
@@ -154,7 +163,10 @@ def load(path: Path) -> ImportResult:
             T = np.asarray(entry.get("T_cn_cnm1"), dtype=object)
             if T.shape != (4, 4):
                 raise CamcalError(f"{key}.T_cn_cnm1 must be a 4x4 matrix")
-            T = np.array(T, dtype=np.float64)
+            try:
+                T = np.array(T, dtype=np.float64)
+            except (TypeError, ValueError):
+                raise CamcalError(f"{key}.T_cn_cnm1 must hold numbers") from None
             if not np.all(np.isfinite(T)):
                 raise CamcalError(f"{key}.T_cn_cnm1 contains NaN or infinite values")
             R = T[:3, :3] @ R_prev

@@ -31,6 +31,8 @@ def read_matches_csv(path: str | os.PathLike) -> dict[tuple[str, str], tuple[NDA
             rows = list(csv.reader(handle))
     except OSError as error:
         raise CamcalError(f"cannot read matches file {path}: {error.strerror}") from None
+    except UnicodeDecodeError as error:
+        raise CamcalError(f"{path}: not UTF-8 text (byte {error.start})") from None
     if not rows or [cell.strip() for cell in rows[0]] != header:
         raise CamcalError(f"{path}: the first line must be {','.join(header)}")
     collected: dict[tuple[str, str], list[list[float]]] = {}

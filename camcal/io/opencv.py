@@ -31,7 +31,8 @@ model) adds ``fisheye_model: 1`` (the key of OpenCV's calibration sample,
 ``k1 k2 k3 k4`` (1x4) in ``distortion_coefficients`` or ``D1`` / ``D2``;
 the rectification entries are then the ones ``cv2.fisheye.stereoRectify``
 writes, with the same meaning. Both cameras of a stereo file are of one
-kind.
+kind; a ``kannala-brandt-thin-prism`` lens is written as the nearest
+``cv2.fisheye`` lens (k1..k4 fitted over the frame, max residual reported).
 
 OpenCV's pixel convention is camcal's (pixel (0, 0) at the centre of the
 top-left pixel). Its distortion is camcal's ``opencv`` model, rational and
@@ -148,7 +149,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     if len(chosen) > 2:
         raise CamcalError(f"an OpenCV file holds one camera or a stereo pair; the rig has {len(chosen)} cameras "
                           f"({', '.join(c.name for c in chosen)}): choose one or two with --camera")
-    fisheye = [camera.distortion.model == _FISHEYE for camera in chosen]
+    fisheye = [camera.distortion.is_fisheye for camera in chosen]
     if any(fisheye) and not all(fisheye):
         raise CamcalError(f"an OpenCV stereo file holds two cv2.fisheye lenses or two pinhole lenses; "
                           f"{chosen[fisheye.index(True)].name!r} is {_FISHEYE}, "
@@ -156,8 +157,10 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     fisheye = all(fisheye)
     converted, conversions = [], []
     for camera in chosen:
-        camera_out, conversion = nearest_camera(camera, _holds_fisheye if fisheye else _holds, "opencv",
-                                                _format(camera.distortion))
+        # a thin-prism fisheye goes as the nearest cv2.fisheye lens (k1..k4), its residual printed
+        camera_out, conversion = nearest_camera(camera, _holds_fisheye if fisheye else _holds,
+                                                _FISHEYE if fisheye else "opencv",
+                                                _FISHEYE_FORMAT if fisheye else _format(camera.distortion))
         converted.append(camera_out)
         conversions.append(conversion)
     notes = []
@@ -259,6 +262,11 @@ def load(path: Path) -> ImportResult:
             raise CamcalError("a stereo file needs K1, D1, K2, D2, R and T; K1/K2 are missing")
         else:
             raise CamcalError("no camera_matrix (one camera) and no K1, K2 (stereo pair) in the file")
+    except cv2.error as error:  # a node of the wrong kind (a matrix without dt, a root that is no map...)
+        reason = str(error).strip().splitlines()[-1].split(" error: ", 1)[-1]
+        raise CamcalError(f"{path}: OpenCV cannot read the file ({reason})") from None
+    except UnicodeDecodeError as error:  # a key or a string that is not UTF-8
+        raise CamcalError(f"{path}: not UTF-8 text (byte {error.start} of a key or a string)") from None
     finally:
         storage.release()
     conversions = tuple(LensConversion(c.name, _format(c.distortion), c.distortion.model, True) for c in rig.cameras)

@@ -23,6 +23,11 @@ from camcal.io.points_csv import finite_numbers
 __all__ = ["read_patch_csv", "write_patch_csv", "write_patch_table"]
 
 
+def _shown(text: str) -> str:
+    """``text`` for a one-line message: as is when printable, else its repr (a quoted cell may hold newlines)."""
+    return text if text.isprintable() else repr(text)
+
+
 def read_patch_csv(path: str | os.PathLike) -> PatchSet:
     """Read a patch CSV (see the module docstring).
 
@@ -34,7 +39,10 @@ def read_patch_csv(path: str | os.PathLike) -> PatchSet:
     path = Path(path)
     if not path.is_file():
         raise CamcalError(f"patch file not found: {path}")
-    text = path.read_text(encoding="utf-8-sig")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise CamcalError(f"{path}: not UTF-8 text (byte {error.start})") from None
     rows = [
         (number, row)
         for number, row in enumerate(csv.reader(io.StringIO(text)), start=1)
@@ -46,7 +54,7 @@ def read_patch_csv(path: str | os.PathLike) -> PatchSet:
     expected = ["R", "G", "B", "X", "Y", "Z"]
     has_name = header[:1] == ["name"]
     if (header[1:] if has_name else header) != expected:
-        raise CamcalError(f"{path}: header must be R,G,B,X,Y,Z with an optional first column name, got {','.join(header)}")
+        raise CamcalError(f"{path}: header must be R,G,B,X,Y,Z with an optional first column name, got {_shown(','.join(header))}")
     names, values = [], []
     for number, row in rows[1:]:
         cells = [cell.strip() for cell in row]

@@ -241,6 +241,14 @@ def _custom(prim, key: str, where: str):
         raise CamcalError(f"{where}: customData {key} is not camcal's JSON ({error})") from None
 
 
+def _reason(error: Exception) -> str:
+    """The last clause of a pxr error, on one line."""
+    try:
+        return " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("' ")
+    except UnicodeDecodeError:  # pxr's message quotes the file's bytes, which need not be UTF-8
+        return "not UTF-8 text"
+
+
 def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
     """Read the UsdGeom.Camera prims of a stage as a rig (see the module docstring).
 
@@ -268,61 +276,63 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
         layer.Reload()  # a layer this process opened before may have been rewritten since
         stage = Usd.Stage.Open(layer)
     except Tf.ErrorException as error:
-        reason = " ".join(str(error).split()).rsplit(" : ", 1)[-1].strip("' ")
-        raise CamcalError(f"not a USD file ({reason})") from None
+        raise CamcalError(f"not a USD file ({_reason(error)})") from None
     cameras, conversions, world_poses, prims, notes = [], [], [], [], []
     times = None
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdGeom.Camera):
-            continue
-        where = f"camera {prim.GetPath()}"
-        size = _custom(prim, "camcal:image_size", where)
-        if size is None and image_size is None:
-            raise CamcalError(f"{where} has no image size (no camcal customData; USD cameras hold none): "
-                              "give it with --image-size W H")
-        values = {name: prim.GetAttribute(name).Get() for name in
-                  ("focalLength", "horizontalAperture", "verticalAperture",
-                   "horizontalApertureOffset", "verticalApertureOffset")}
-        if any(v is None or not np.isfinite(v) for v in values.values()):
-            raise CamcalError(f"{where}: focal length or apertures missing or not finite")
-        if values["focalLength"] <= 0 or values["horizontalAperture"] <= 0 or values["verticalAperture"] <= 0:
-            raise CamcalError(f"{where}: focal length and apertures must be positive")
-        if size is None:
-            size = image_size
-            aperture_aspect = values["horizontalAperture"] / values["verticalAperture"]
-            if abs(aperture_aspect / (size[0] / size[1]) - 1.0) > 1e-3:
-                notes.append(f"{where}: aperture aspect {aperture_aspect:.4g} is not the image's "
-                             f"{size[0] / size[1]:.4g}: read as non-square pixels (fx / fy "
-                             f"{size[0] / size[1] / aperture_aspect:.4g}, the Gf.Camera frustum's mapping); a "
-                             "renderer that fits the aperture to the image sees square pixels and a wider view")
-        K = _K_from_usd(values, size)
-        exact_K = _custom(prim, "camcal:K", where)
-        if exact_K is not None:
-            exact_K = np.asarray(exact_K, dtype=np.float64)
-            written = _float32(usd_intrinsics(Camera(prim.GetName(), size, exact_K, Distortion.none(), np.eye(3),
-                                                     np.zeros(3), prim.GetCustomDataByKey("camcal:sensor_width_mm"))))
-            if written == _float32(values):  # the camera was not edited since camcal wrote it: its exact K
-                K = exact_K
-        lens = _custom(prim, "camcal:distortion", where)
-        distortion = Distortion.none() if lens is None else Distortion.from_dict(lens)
-        name = prim.GetCustomDataByKey("camcal:name") or prim.GetName()
-        xformable = UsdGeom.Xformable(prim)
-        samples = xformable.GetTimeSamples()
-        if samples:
-            times = samples if times is None else times
-            if list(samples) != list(times):
-                raise CamcalError(f"{where}: its time samples differ from the other cameras'")
-            poses = [_pose(xformable.ComputeLocalToWorldTransform(Usd.TimeCode(t))) for t in samples]
-        else:
-            poses = [_pose(xformable.ComputeLocalToWorldTransform(Usd.TimeCode.Default()))]
-        world_poses.append(poses)
-        prims.append(prim)
-        width = prim.GetCustomDataByKey("camcal:sensor_width_mm")
-        try:
-            cameras.append(Camera(name, size, K, distortion, *poses[0], sensor_width_mm=width))
-        except CamcalError as error:
-            raise CamcalError(f"{where}: {error}") from None
-        conversions.append(LensConversion(name, "UsdGeom.Camera", distortion.model, True))
+    try:
+        for prim in stage.Traverse():
+            if not prim.IsA(UsdGeom.Camera):
+                continue
+            where = f"camera {prim.GetPath()}"
+            size = _custom(prim, "camcal:image_size", where)
+            if size is None and image_size is None:
+                raise CamcalError(f"{where} has no image size (no camcal customData; USD cameras hold none): "
+                                  "give it with --image-size W H")
+            values = {name: prim.GetAttribute(name).Get() for name in
+                      ("focalLength", "horizontalAperture", "verticalAperture",
+                       "horizontalApertureOffset", "verticalApertureOffset")}
+            if any(v is None or not np.isfinite(v) for v in values.values()):
+                raise CamcalError(f"{where}: focal length or apertures missing or not finite")
+            if values["focalLength"] <= 0 or values["horizontalAperture"] <= 0 or values["verticalAperture"] <= 0:
+                raise CamcalError(f"{where}: focal length and apertures must be positive")
+            if size is None:
+                size = image_size
+                aperture_aspect = values["horizontalAperture"] / values["verticalAperture"]
+                if abs(aperture_aspect / (size[0] / size[1]) - 1.0) > 1e-3:
+                    notes.append(f"{where}: aperture aspect {aperture_aspect:.4g} is not the image's "
+                                 f"{size[0] / size[1]:.4g}: read as non-square pixels (fx / fy "
+                                 f"{size[0] / size[1] / aperture_aspect:.4g}, the Gf.Camera frustum's mapping); a "
+                                 "renderer that fits the aperture to the image sees square pixels and a wider view")
+            K = _K_from_usd(values, size)
+            exact_K = _custom(prim, "camcal:K", where)
+            if exact_K is not None:
+                exact_K = np.asarray(exact_K, dtype=np.float64)
+                written = _float32(usd_intrinsics(Camera(prim.GetName(), size, exact_K, Distortion.none(), np.eye(3),
+                                                         np.zeros(3), prim.GetCustomDataByKey("camcal:sensor_width_mm"))))
+                if written == _float32(values):  # the camera was not edited since camcal wrote it: its exact K
+                    K = exact_K
+            lens = _custom(prim, "camcal:distortion", where)
+            distortion = Distortion.none() if lens is None else Distortion.from_dict(lens)
+            name = prim.GetCustomDataByKey("camcal:name") or prim.GetName()
+            xformable = UsdGeom.Xformable(prim)
+            samples = xformable.GetTimeSamples()
+            if samples:
+                times = samples if times is None else times
+                if list(samples) != list(times):
+                    raise CamcalError(f"{where}: its time samples differ from the other cameras'")
+                poses = [_pose(xformable.ComputeLocalToWorldTransform(Usd.TimeCode(t))) for t in samples]
+            else:
+                poses = [_pose(xformable.ComputeLocalToWorldTransform(Usd.TimeCode.Default()))]
+            world_poses.append(poses)
+            prims.append(prim)
+            width = prim.GetCustomDataByKey("camcal:sensor_width_mm")
+            try:
+                cameras.append(Camera(name, size, K, distortion, *poses[0], sensor_width_mm=width))
+            except CamcalError as error:
+                raise CamcalError(f"{where}: {error}") from None
+            conversions.append(LensConversion(name, "UsdGeom.Camera", distortion.model, True))
+    except Tf.ErrorException as error:  # e.g. an invalid xformOp name: pxr raises while computing the pose
+        raise CamcalError(f"USD cannot read the stage ({_reason(error)})") from None
     if not cameras:
         raise CamcalError("no UsdGeom.Camera in the stage")
     units = stage.GetRootLayer().customLayerData.get("camcal:units")

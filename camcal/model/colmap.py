@@ -8,8 +8,9 @@ COLMAP differs from camcal in two ways that matter here:
   ``x = (u - cx) / fx``; camcal's ``division`` model acts on pixels. For the
   one-parameter division model ``x_u = x_d / (1 + k r_d^2)`` (COLMAP, r in
   normalised units) and ``x_u = c + (x_d - c) / (1 + lambda r_d^2)`` (camcal,
-  r in pixels) are the same lens when ``fx = fy = f``, the centre is the
-  principal point and ``k = lambda f^2``.
+  r in x pixels, ``r_d^2 = dx^2 + (aspect dy)^2``) are the same lens when
+  the centre is the principal point, ``aspect = fx / fy`` and
+  ``k = lambda fx^2``.
 
 Exact mappings (camcal -> COLMAP):
 
@@ -22,21 +23,24 @@ polynomial k1, k2, k3       FULL_OPENCV (p = 0, k4 = k5 = k6 = 0)
 opencv (k3 = 0)             OPENCV
 opencv (k1..k3[, k4..k6])   FULL_OPENCV (rational k4, k5, k6 as they are)
 opencv with s1..s4          none (COLMAP has no pinhole thin prism): refused
-division, centre = pp       SIMPLE_DIVISION (needs fx = fy)
+division, centre = pp       SIMPLE_DIVISION (fx = fy, aspect 1), DIVISION
+                            (aspect = fx / fy)
 kannala-brandt k1..k4       OPENCV_FISHEYE (same k1..k4, same normalisation)
+kannala-brandt-thin-prism   RAD_TAN_THIN_PRISM_FISHEYE: k0..k5 = k1..k6,
+                            p0 = p2, p1 = p1, s0..s3 = s1..s4
 ==========================  ==============================================
 
 COLMAP -> camcal accepts SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL,
-OPENCV, FULL_OPENCV (rational terms included), SIMPLE_DIVISION and DIVISION
-(with fx = fy), and the Kannala-Brandt family: SIMPLE_FISHEYE and FISHEYE
+OPENCV, FULL_OPENCV (rational terms included), SIMPLE_DIVISION and DIVISION,
+and the Kannala-Brandt family: SIMPLE_FISHEYE and FISHEYE
 (equidistant, all k = 0), SIMPLE_RADIAL_FISHEYE (k1), RADIAL_FISHEYE
-(k1, k2) and OPENCV_FISHEYE (k1..k4). Anything that has no exact
+(k1, k2), OPENCV_FISHEYE (k1..k4) and RAD_TAN_THIN_PRISM_FISHEYE. Anything that has no exact
 counterpart is refused with the reason; camcal cameras with skew cannot be
 expressed in COLMAP.
 
 COLMAP's fisheye models image only rays in front of the camera (it takes
-``x / z``, ``y / z`` and refuses ``z <= 0``); camcal's ``kannala-brandt``
-also images rays up to its ``max_angle_rad`` (beyond 90 degrees), which
+``x / z``, ``y / z`` and refuses ``z <= 0``); camcal's Kannala-Brandt lenses
+also image rays up to its ``max_angle_rad`` (beyond 90 degrees), which
 COLMAP cannot carry.
 """
 
@@ -71,7 +75,8 @@ def camera_to_colmap(camera: Camera) -> ColmapCamera:
     Raises
     ------
     CamcalError
-        Skew, or a division model off the principal point or with fx != fy.
+        Skew, or a division model off the principal point or whose
+        ``aspect`` is not ``fx / fy``.
 
     Notes
     -----
@@ -103,6 +108,9 @@ def camera_to_colmap(camera: Camera) -> ColmapCamera:
         return ColmapCamera("FULL_OPENCV", width, height, (fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6))
     if model == "kannala-brandt":
         return ColmapCamera("OPENCV_FISHEYE", width, height, (fx, fy, cx, cy, p["k1"], p["k2"], p["k3"], p["k4"]))
+    if model == "kannala-brandt-thin-prism":
+        extra = tuple(p[name] for name in ("k1", "k2", "k3", "k4", "k5", "k6", "p2", "p1", "s1", "s2", "s3", "s4"))
+        return ColmapCamera("RAD_TAN_THIN_PRISM_FISHEYE", width, height, (fx, fy, cx, cy) + extra)
     # division
     centre = camera.distortion.center
     if centre is not None and tuple(centre) != (camera.K[0, 2], camera.K[1, 2]):
@@ -110,12 +118,15 @@ def camera_to_colmap(camera: Camera) -> ColmapCamera:
             f"camera {camera.name!r}: COLMAP's division model is centred on the principal point, "
             f"the lens centre is at {centre}"
         )
-    if not square:
+    aspect = p.get("aspect", 1.0)
+    if square and aspect == 1.0:
+        return ColmapCamera("SIMPLE_DIVISION", width, height, (fx, cx, cy, p["lambda"] * fx * fx))
+    if abs(aspect - fx / fy) > 1e-12 * aspect:
         raise CamcalError(
-            f"camera {camera.name!r}: the pixel division model needs fx = fy to map to COLMAP "
-            f"(fx {fx!r}, fy {fy!r})"
+            f"camera {camera.name!r}: COLMAP's division model is round in normalised coordinates, so it needs "
+            f"the division aspect = fx / fy = {fx / fy!r} (the lens has aspect {aspect!r})"
         )
-    return ColmapCamera("SIMPLE_DIVISION", width, height, (fx, cx, cy, p["lambda"] * fx * fx))
+    return ColmapCamera("DIVISION", width, height, (fx, fy, cx, cy, p["lambda"] * fx * fx))
 
 
 def camera_from_colmap(
@@ -144,6 +155,7 @@ def camera_from_colmap(
         "SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5,
         "OPENCV": 8, "FULL_OPENCV": 12, "SIMPLE_DIVISION": 4, "DIVISION": 5,
         "SIMPLE_FISHEYE": 3, "FISHEYE": 4, "SIMPLE_RADIAL_FISHEYE": 4, "RADIAL_FISHEYE": 5, "OPENCV_FISHEYE": 8,
+        "RAD_TAN_THIN_PRISM_FISHEYE": 16,
     }
     if model not in expected:
         raise CamcalError(
@@ -173,11 +185,13 @@ def camera_from_colmap(
         k1, k2, p1, p2, k3, k4, k5, k6 = extra
         distortion = Distortion("opencv", {"k1": k1, "k2": k2, "p1": p1, "p2": p2, "k3": k3}
                                 | ({"k4": k4, "k5": k5, "k6": k6} if (k4, k5, k6) != (0.0, 0.0, 0.0) else {}))
+    elif model == "RAD_TAN_THIN_PRISM_FISHEYE":
+        names = ("k1", "k2", "k3", "k4", "k5", "k6", "p2", "p1", "s1", "s2", "s3", "s4")
+        distortion = Distortion("kannala-brandt-thin-prism", dict(zip(names, extra)))
     elif model.endswith("FISHEYE"):
         k = (list(extra) + [0.0, 0.0, 0.0, 0.0])[:4]
         distortion = Distortion("kannala-brandt", {"k1": k[0], "k2": k[1], "k3": k[2], "k4": k[3]})
     else:  # SIMPLE_DIVISION, DIVISION
-        if fx != fy:
-            raise CamcalError(f"COLMAP DIVISION with fx != fy ({fx!r}, {fy!r}) is not camcal's pixel division model")
-        distortion = Distortion("division", {"lambda": extra[0] / (fx * fx)}, center=(K[0, 2], K[1, 2]))
+        aspect = {} if fx == fy else {"aspect": fx / fy}
+        distortion = Distortion("division", {"lambda": extra[0] / (fx * fx)} | aspect, center=(K[0, 2], K[1, 2]))
     return Camera(name=name, image_size=image_size, K=K, distortion=distortion, R=R, c=c)

@@ -26,11 +26,16 @@ Models
     :meth:`Distortion.from_opencv_coefficients`); the 14-vector's tilt
     ``(tauX, tauY)`` (a tilted sensor, a homography after the distortion)
     is accepted only when zero.
-``division`` (lambda)
+``division`` (lambda[, aspect])
     Strand & Hayman's one-parameter division model in PIXELS around the
     distortion centre ``center`` (default: the principal point):
     ``x_u = c + (x_d - c) / (1 + lambda r_d^2)``, ``r_d = |x_d - c|`` in px,
-    ``lambda`` in 1/px^2 (negative for barrel distortion).
+    ``lambda`` in 1/px^2 (negative for barrel distortion). With the optional
+    ``aspect`` (default 1) the radius is measured in x pixels,
+    ``r_d^2 = dx^2 + (aspect dy)^2``: with ``aspect = fx / fy`` the lens is
+    round in normalised coordinates, not in pixels (non-square pixels, an
+    anamorphic squeeze), which is COLMAP's ``DIVISION`` with two focal
+    lengths, ``k = lambda fx^2``.
 ``kannala-brandt`` (k1, k2, k3, k4)
     Kannala & Brandt's fisheye model as OpenCV's ``cv2.fisheye`` and
     COLMAP's ``OPENCV_FISHEYE`` use it, in normalised coordinates centred on
@@ -38,6 +43,20 @@ Models
     lands at radius ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 +
     k3 theta^6 + k4 theta^8)``, so ``x_d = (theta_d / r_u) x_u`` with
     ``r_u = |x_u| = tan(theta)``.
+``kannala-brandt-thin-prism`` (k1..k6, p1, p2, s1, s2, s3, s4)
+    COLMAP's ``RAD_TAN_THIN_PRISM_FISHEYE``: Kannala-Brandt with six radial
+    terms, ``theta_d = theta (1 + k1 theta^2 + ... + k6 theta^12)``, giving
+    ``(x_r, y_r) = (theta_d / r_u) x_u``, then OpenCV's tangential and
+    thin-prism terms on that point, ``rho^2 = x_r^2 + y_r^2``::
+
+        x_d = x_r + 2 p1 x_r y_r + p2 (rho^2 + 2 x_r^2) + s1 rho^2 + s2 rho^4
+        y_d = y_r + p1 (rho^2 + 2 y_r^2) + 2 p2 x_r y_r + s3 rho^2 + s4 rho^4
+
+    COLMAP's parameters ``k0..k5, p0, p1, s0..s3`` are ``k1..k6, p2, p1,
+    s1..s4`` (its ``p0`` plays OpenCV's ``p2``). The inverse undoes the
+    tangential and prism terms by Newton iterations (their 2x2 Jacobian),
+    then the radial part on the angle as for ``kannala-brandt``.
+
 
 The division model inverts in closed form; the polynomial models invert by
 Newton iterations to 1e-10 px; Kannala-Brandt inverts ``theta_d(theta)``
@@ -84,7 +103,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from camcal.base.errors import CamcalError
 
-__all__ = ["MODEL_PARAMS", "OPENCV_COEFFICIENTS", "Distortion", "DistortionFit", "fit_distortion", "frame_grid"]
+__all__ = ["FISHEYE_MODELS", "MODEL_PARAMS", "OPENCV_COEFFICIENTS", "Distortion", "DistortionFit", "fit_distortion", "frame_grid"]
 
 #: Parameter names of each model: (required, optional).
 MODEL_PARAMS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = MappingProxyType(
@@ -92,8 +111,9 @@ MODEL_PARAMS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = MappingPro
         "none": ((), ()),
         "polynomial": (("k1", "k2"), ("k3",)),
         "opencv": (("k1", "k2", "p1", "p2", "k3"), ("k4", "k5", "k6", "s1", "s2", "s3", "s4")),
-        "division": (("lambda",), ()),
+        "division": (("lambda",), ("aspect",)),
         "kannala-brandt": (("k1", "k2", "k3", "k4"), ()),
+        "kannala-brandt-thin-prism": (("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2", "s1", "s2", "s3", "s4"), ()),
     }
 )
 
@@ -103,7 +123,9 @@ _RATIONAL = ("k4", "k5", "k6")
 _THIN_PRISM = ("s1", "s2", "s3", "s4")
 
 #: Models defined in normalised coordinates ``K^-1 u`` around the principal point.
-_NORMALISED_MODELS = ("polynomial", "opencv", "kannala-brandt")
+_NORMALISED_MODELS = ("polynomial", "opencv", "kannala-brandt", "kannala-brandt-thin-prism")
+#: The fisheye models: radius from the ray's angle, rays imaged up to :attr:`Distortion.max_angle_rad`.
+FISHEYE_MODELS = ("kannala-brandt", "kannala-brandt-thin-prism")
 
 _NEWTON_TOL_PX = 1e-10
 _NEWTON_MAX_ITER = 50
@@ -172,6 +194,8 @@ class Distortion:
             if not math.isfinite(value):
                 raise CamcalError(f"distortion parameter {name!r} is not finite ({value})")
             params[name] = float(value)
+        if params.get("aspect", 1.0) <= 0.0:
+            raise CamcalError(f"division 'aspect' must be positive, got {params['aspect']!r}")
         object.__setattr__(self, "params", MappingProxyType(params))
         if self.center is not None:
             if self.model != "division":
@@ -190,10 +214,17 @@ class Distortion:
         return cls("none", {})
 
     @property
+    def is_fisheye(self) -> bool:
+        """True for the Kannala-Brandt models (:data:`FISHEYE_MODELS`): they image rays beyond 90 degrees."""
+        return self.model in FISHEYE_MODELS
+
+    @property
     def is_identity(self) -> bool:
         """True when the model leaves every point where it is (never for ``kannala-brandt``:
         with every k at 0 it is the equidistant fisheye, not the pinhole)."""
-        return self.model != "kannala-brandt" and all(value == 0.0 for value in self.params.values())
+        if self.model == "division":
+            return self.params["lambda"] == 0.0
+        return self.model not in FISHEYE_MODELS and all(value == 0.0 for value in self.params.values())
 
     # -- OpenCV's distortion vector ------------------------------------------------
 
@@ -313,7 +344,7 @@ class Distortion:
         if self.model == "none":
             return points.copy()
         if self.model == "division":
-            return self._division_distort(points, self._centre(K))
+            return self._division_distort(points, self._centre(K), self.params.get("aspect", 1.0))
         normalised = _pixels_to_normalised(points, K)
         return _normalised_to_pixels(self.distort_normalised(normalised), K)
 
@@ -339,8 +370,8 @@ class Distortion:
         K = np.asarray(K, dtype=np.float64)
         if self.model == "none":
             return points.copy()
-        if self.model == "kannala-brandt":
-            xy_d = _pixels_to_normalised(points, K)
+        if self.is_fisheye:
+            xy_d = self._undo_tangential_prism(_pixels_to_normalised(points, K), K)
             theta_d = np.hypot(xy_d[:, 0], xy_d[:, 1])
             theta = self._theta_from_theta_d(theta_d)
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -350,7 +381,7 @@ class Distortion:
         if self.model == "division":
             centre = self._centre(K)
             offset = points - centre
-            r2 = np.sum(offset**2, axis=1, keepdims=True)
+            r2 = offset[:, 0:1] ** 2 + (self.params.get("aspect", 1.0) * offset[:, 1:2]) ** 2
             return centre + offset / (1.0 + self.params["lambda"] * r2)
         # Newton on the normalised coordinates; tolerance scaled to pixels.
         target = _pixels_to_normalised(points, K)
@@ -365,19 +396,19 @@ class Distortion:
         return _normalised_to_pixels(estimate, K)
 
     def distort_normalised(self, xy: ArrayLike) -> NDArray[np.float64]:
-        """Apply a ``polynomial`` / ``opencv`` / ``kannala-brandt`` model to normalised coordinates (N, 2)."""
+        """Apply a ``polynomial`` / ``opencv`` / Kannala-Brandt model to normalised coordinates (N, 2)."""
         xy = _as_points(xy, "normalised points")
         if self.model not in _NORMALISED_MODELS:
             raise CamcalError(f"model {self.model!r} is not defined in normalised coordinates")
         p = self.params
         x, y = xy[:, 0], xy[:, 1]
-        if self.model == "kannala-brandt":
+        if self.is_fisheye:
             r = np.hypot(x, y)
             theta = np.arctan(r)
             with np.errstate(invalid="ignore", divide="ignore"):
                 scale = np.where(r == 0.0, 1.0, self.theta_d(theta) / r)
             scale[theta > self.max_angle_rad] = np.nan
-            return xy * scale[:, None]
+            return self._tangential_prism(xy * scale[:, None])
         r2 = x * x + y * y
         radial = 1.0 + r2 * (p["k1"] + r2 * (p["k2"] + r2 * p.get("k3", 0.0)))
         if self.model == "opencv" and any(p.get(name, 0.0) for name in _RATIONAL):
@@ -409,27 +440,83 @@ class Distortion:
             The normalised image radius of each angle (``theta_d`` in the
             notation of OpenCV's fisheye module).
         """
-        if self.model != "kannala-brandt":
+        if not self.is_fisheye:
             raise CamcalError(f"theta_d is the Kannala-Brandt radius; this model is {self.model!r}")
-        p = self.params
         theta = np.asarray(theta, dtype=np.float64)
         t2 = theta * theta
-        return theta * (1.0 + t2 * (p["k1"] + t2 * (p["k2"] + t2 * (p["k3"] + t2 * p["k4"]))))
+        series = np.zeros_like(t2)
+        for k in reversed(self._radial_terms()):
+            series = t2 * (k + series)
+        return theta * (1.0 + series)
+
+    def _radial_terms(self) -> tuple[float, ...]:
+        """Kannala-Brandt's k1..k4 (k1..k6 with the thin prism)."""
+        names = ("k1", "k2", "k3", "k4", "k5", "k6") if self.model == "kannala-brandt-thin-prism" else ("k1", "k2", "k3", "k4")
+        return tuple(self.params[name] for name in names)
+
+    def _theta_d_slope(self, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``d theta_d / d theta = 1 + 3 k1 theta^2 + 5 k2 theta^4 + ...``."""
+        t2 = theta * theta
+        series = np.zeros_like(t2)
+        for n, k in reversed(list(enumerate(self._radial_terms()))):
+            series = t2 * ((2 * n + 3) * k + series)
+        return 1.0 + series
+
+    def _tangential_prism(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``kannala-brandt-thin-prism``: OpenCV's tangential and thin-prism terms on the fisheye point (identity otherwise)."""
+        if self.model != "kannala-brandt-thin-prism":
+            return xy
+        p = self.params
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        xd = x + 2.0 * p["p1"] * x * y + p["p2"] * (r2 + 2.0 * x * x) + r2 * (p["s1"] + r2 * p["s2"])
+        yd = y + p["p1"] * (r2 + 2.0 * y * y) + 2.0 * p["p2"] * x * y + r2 * (p["s3"] + r2 * p["s4"])
+        return np.stack([xd, yd], axis=1)
+
+    def _tangential_prism_jacobian(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        """d(:meth:`_tangential_prism`)/d(x, y), shape (N, 2, 2)."""
+        p = self.params
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        prism_x = 2.0 * (p["s1"] + 2.0 * p["s2"] * r2)
+        prism_y = 2.0 * (p["s3"] + 2.0 * p["s4"] * r2)
+        jac = np.empty((len(xy), 2, 2))
+        jac[:, 0, 0] = 1.0 + 2.0 * p["p1"] * y + 6.0 * p["p2"] * x + prism_x * x
+        jac[:, 0, 1] = 2.0 * p["p1"] * x + 2.0 * p["p2"] * y + prism_x * y
+        jac[:, 1, 0] = 2.0 * p["p1"] * x + 2.0 * p["p2"] * y + prism_y * x
+        jac[:, 1, 1] = 1.0 + 6.0 * p["p1"] * y + 2.0 * p["p2"] * x + prism_y * y
+        return jac
+
+    def _undo_tangential_prism(self, xy_d: NDArray[np.float64], K: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Inverse of :meth:`_tangential_prism` by Newton iterations to 1e-10 px (NaN where they do not converge)."""
+        if self.model != "kannala-brandt-thin-prism":
+            return xy_d
+        tol = _NEWTON_TOL_PX / max(K[0, 0], K[1, 1])
+        estimate = xy_d.copy()
+        for _ in range(_NEWTON_MAX_ITER):
+            residual = self._tangential_prism(estimate) - xy_d
+            if np.all(~(np.abs(residual) >= tol)):
+                break
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                estimate = estimate - np.linalg.solve(self._tangential_prism_jacobian(estimate), residual[:, :, None])[:, :, 0]
+        bad = ~np.all(np.abs(self._tangential_prism(estimate) - xy_d) < 1e3 * tol, axis=1)
+        estimate[bad] = np.nan
+        return estimate
 
     @property
     def max_angle_rad(self) -> float:
         """Largest angle from the optical axis the model maps one-to-one, radians.
 
-        ``kannala-brandt``: the first angle where ``d theta_d / d theta =
+        Kannala-Brandt: the first angle where ``d theta_d / d theta =
         1 + 3 k1 theta^2 + 5 k2 theta^4 + 7 k3 theta^6 + 9 k4 theta^8``
-        reaches 0, at most pi (180 deg); every other model: pi / 2 (a
+        (``+ 11 k5 theta^10 + 13 k6 theta^12`` with the thin prism) reaches 0, at most pi (180 deg); every other model: pi / 2 (a
         pinhole image exists only in front of the camera).
         """
-        if self.model != "kannala-brandt":
+        if not self.is_fisheye:
             return 0.5 * np.pi
-        p = self.params
-        # roots in t = theta^2 of 9 k4 t^4 + 7 k3 t^3 + 5 k2 t^2 + 3 k1 t + 1
-        coefficients = np.trim_zeros([9.0 * p["k4"], 7.0 * p["k3"], 5.0 * p["k2"], 3.0 * p["k1"], 1.0], "f")
+        # roots in t = theta^2 of ... + 9 k4 t^4 + 7 k3 t^3 + 5 k2 t^2 + 3 k1 t + 1
+        terms = self._radial_terms()
+        coefficients = np.trim_zeros([(2 * n + 3) * terms[n] for n in reversed(range(len(terms)))] + [1.0], "f")
         roots = np.roots(coefficients) if len(coefficients) > 1 else np.array([])
         real = roots[(np.abs(roots.imag) <= 1e-12 * np.abs(roots)) & (roots.real > 0.0)].real
         return float(min(np.pi, np.sqrt(real.min()))) if len(real) else float(np.pi)
@@ -452,12 +539,10 @@ class Distortion:
         target = flat[active]
         table = np.linspace(0.0, theta_max, 4097)
         theta = np.interp(target, self.theta_d(table), table)
-        p = self.params
 
         def newton_step(theta, target):
-            t2 = theta * theta
             residual = self.theta_d(theta) - target
-            slope = 1.0 + t2 * (3.0 * p["k1"] + t2 * (5.0 * p["k2"] + t2 * (7.0 * p["k3"] + t2 * 9.0 * p["k4"])))
+            slope = self._theta_d_slope(theta)
             with np.errstate(divide="ignore", invalid="ignore"):
                 return theta - residual / slope, residual
 
@@ -518,13 +603,13 @@ class Distortion:
         if rays.ndim != 2 or rays.shape[1] != 3:
             raise CamcalError(f"rays must have shape (N, 3), got {rays.shape}")
         K = np.asarray(K, dtype=np.float64)
-        if self.model == "kannala-brandt":
+        if self.is_fisheye:
             rho = np.hypot(rays[:, 0], rays[:, 1])
             theta = np.arctan2(rho, rays[:, 2])
             with np.errstate(invalid="ignore", divide="ignore"):
                 scale = np.where(rho > 0.0, self.theta_d(theta) / rho, 0.0)
             scale[~(theta <= self.max_angle_rad)] = np.nan
-            return _normalised_to_pixels(rays[:, :2] * scale[:, None], K)
+            return _normalised_to_pixels(self._tangential_prism(rays[:, :2] * scale[:, None]), K)
         depth = rays[:, 2:3]
         with np.errstate(divide="ignore", invalid="ignore"):
             normalised = np.where(depth > 0.0, rays[:, :2] / depth, np.nan)
@@ -548,8 +633,8 @@ class Distortion:
         """
         points = _as_points(points_px)
         K = np.asarray(K, dtype=np.float64)
-        if self.model == "kannala-brandt":
-            xy_d = _pixels_to_normalised(points, K)
+        if self.is_fisheye:
+            xy_d = self._undo_tangential_prism(_pixels_to_normalised(points, K), K)
             theta_d = np.hypot(xy_d[:, 0], xy_d[:, 1])
             theta = self._theta_from_theta_d(theta_d)
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -592,18 +677,20 @@ class Distortion:
             jac[:, 1, 1] += prism_y * y
         return jac
 
-    def _division_distort(self, points: NDArray[np.float64], centre: NDArray[np.float64]) -> NDArray[np.float64]:
+    def _division_distort(self, points: NDArray[np.float64], centre: NDArray[np.float64],
+                          aspect: float = 1.0) -> NDArray[np.float64]:
         """Closed-form inverse of the division model.
 
         Notes
         -----
         With ``r_u = r_d / (1 + lambda r_d^2)``, ``r_d`` solves
         ``lambda r_u r_d^2 - r_d + r_u = 0``; the root continuous at
-        ``r_u = 0`` is ``r_d = 2 r_u / (1 + sqrt(1 - 4 lambda r_u^2))``.
+        ``r_u = 0`` is ``r_d = 2 r_u / (1 + sqrt(1 - 4 lambda r_u^2))``
+        (radii in x pixels: ``r^2 = dx^2 + (aspect dy)^2``).
         """
         lam = self.params["lambda"]
         offset = points - centre
-        r2_u = np.sum(offset**2, axis=1, keepdims=True)
+        r2_u = offset[:, 0:1] ** 2 + (aspect * offset[:, 1:2]) ** 2
         discriminant = 1.0 - 4.0 * lam * r2_u
         with np.errstate(invalid="ignore"):
             scale = 2.0 / (1.0 + np.sqrt(discriminant))

@@ -8,7 +8,10 @@ the same documented keys, with their units in their names::
                 "sigma": {"fx": 0.4, "fy": 0.4, "cx": 0.3, "cy": 0.3, "skew": 0.0,
                           "k1": 1e-4, "lambda": 2e-9,
                           "rotation_deg": 0.01, "baseline_rel": 0.001,
-                          "baseline_direction_deg": 0.02}}
+                          "baseline_direction_deg": 0.02},
+                "worst_projection_sigma_px": 0.12,
+                "covariance": {"names": ["fx", "fy", ..., "gauge_tz"],
+                               "matrix": [[...], ...]}}
 
 Keys (every one optional):
 
@@ -28,6 +31,18 @@ Keys (every one optional):
     (degrees, the rotation's angle), ``baseline_rel`` (sigma of the
     baseline's length over its length, no unit) and
     ``baseline_direction_deg`` (degrees, the baseline's direction).
+- ``worst_projection_sigma_px``: the largest, over the frame, worst-direction
+  standard deviation of the projection of a ray at infinity (pixels;
+  :mod:`camcal.geometry.uncertainty`).
+- ``covariance``: what projection uncertainty needs
+  (:class:`ParameterCovariance`): the covariance of the camera's
+  intrinsics under their sigma names (``fx``, ``fy``, ``cx``, ``cy``, the
+  distortion parameters), its pose relative to the reference camera
+  (``rx, ry, rz``: rotation vector applied on the left of
+  ``cam_from_reference``, radians; ``tx, ty, tz``: translation, rig units)
+  and the board gauge (``gauge_rx .. gauge_tz``: the mean perturbation of
+  the board poses in the reference camera's frame, mrcal's gauge). Optional:
+  files written before it load without it.
 
 Older files are read too: ``n_points`` is ``n_observations``; sigma ``s``
 is ``skew``, ``f`` (one focal length) is ``fx`` and ``fy``; an absolute
@@ -47,7 +62,7 @@ import numpy as np
 
 from camcal.base.errors import CamcalError
 
-__all__ = ["INTRINSIC_SIGMAS", "POSE_SIGMAS", "Quality"]
+__all__ = ["INTRINSIC_SIGMAS", "POSE_SIGMAS", "ParameterCovariance", "Quality"]
 
 #: Sigma keys of the intrinsics, in pixels.
 INTRINSIC_SIGMAS = ("fx", "fy", "cx", "cy", "skew")
@@ -55,6 +70,67 @@ INTRINSIC_SIGMAS = ("fx", "fy", "cx", "cy", "skew")
 POSE_SIGMAS = ("rotation_deg", "baseline_rel", "baseline_direction_deg")
 
 _COUNTS = ("n_views", "n_observations", "n_outliers")
+
+
+@dataclass(frozen=True)
+class ParameterCovariance:
+    """A covariance matrix with the name of each of its rows (the ``quality.covariance`` of the rig file).
+
+    Attributes
+    ----------
+    names : tuple of str
+        One distinct name per row (see the module docstring).
+    matrix : tuple of tuple of float
+        Symmetric, finite, non-negative diagonal; :attr:`array` is it as an ndarray.
+
+    Examples
+    --------
+    >>> c = ParameterCovariance.from_dict({"names": ["fx", "cx"], "matrix": [[0.25, 0.0], [0.0, 0.04]]})
+    >>> float(c.array[1, 1]), c.to_dict()["names"]
+    (0.04, ['fx', 'cx'])
+    """
+
+    names: tuple[str, ...]
+    matrix: tuple[tuple[float, ...], ...]
+
+    def __post_init__(self) -> None:
+        names = tuple(self.names)
+        if not all(isinstance(n, str) and n for n in names) or len(set(names)) != len(names):
+            raise CamcalError(f"quality.covariance.names must be distinct non-empty strings, got {list(names)!r}")
+        try:
+            array = np.array(self.matrix, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise CamcalError("quality.covariance.matrix must be a square array of numbers") from None
+        if array.shape != (len(names), len(names)):
+            raise CamcalError(f"quality.covariance.matrix must be {len(names)}x{len(names)} (one row per name), "
+                              f"got shape {'x'.join(map(str, array.shape)) or 'a scalar'}")
+        if not np.all(np.isfinite(array)):
+            raise CamcalError("quality.covariance.matrix contains NaN or infinite values")
+        scale = max(float(np.max(np.abs(array))), 1e-300) if array.size else 1.0
+        if not np.allclose(array, array.T, rtol=1e-9, atol=1e-12 * scale) or np.any(np.diag(array) < 0):
+            raise CamcalError("quality.covariance.matrix must be symmetric with a non-negative diagonal")
+        object.__setattr__(self, "names", names)
+        object.__setattr__(self, "matrix", tuple(tuple(float(v) for v in row) for row in array))
+
+    @property
+    def array(self) -> np.ndarray:
+        """The matrix as a (P, P) float64 array."""
+        return np.array(self.matrix, dtype=np.float64).reshape(len(self.names), len(self.names))
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"names": [...], "matrix": [[...], ...]}``."""
+        return {"names": list(self.names), "matrix": [list(row) for row in self.matrix]}
+
+    @classmethod
+    def from_dict(cls, data: Any) -> ParameterCovariance:
+        """Read ``quality.covariance``; a :class:`ParameterCovariance` is returned as is."""
+        if isinstance(data, ParameterCovariance):
+            return data
+        if not isinstance(data, Mapping) or set(data) != {"names", "matrix"}:
+            raise CamcalError("quality.covariance must be an object with exactly 'names' and 'matrix'")
+        if not isinstance(data["names"], (list, tuple)):
+            raise CamcalError(f"quality.covariance.names must be a list of strings, got {data['names']!r}")
+        return cls(tuple(data["names"]), data["matrix"])
 _LEGACY_TOP = {"n_points": "n_observations"}
 
 
@@ -83,11 +159,16 @@ class Quality(Mapping):
     n_observations: int | None = None
     n_outliers: int | None = None
     sigma: Mapping[str, float] = field(default_factory=dict)
+    worst_projection_sigma_px: float | None = None
+    covariance: ParameterCovariance | None = None
 
     def __post_init__(self) -> None:
         for item in fields(self):
             value = getattr(self, item.name)
             if item.name == "sigma" or value is None:
+                continue
+            if item.name == "covariance":
+                object.__setattr__(self, "covariance", ParameterCovariance.from_dict(value))
                 continue
             if item.name in _COUNTS:
                 if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
@@ -110,6 +191,9 @@ class Quality(Mapping):
             if item.name == "sigma":
                 if value:
                     out["sigma"] = dict(value)
+            elif item.name == "covariance":
+                if value is not None:
+                    out["covariance"] = value.to_dict()
             elif value is not None:
                 out[item.name] = value
         return out

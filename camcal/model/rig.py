@@ -297,12 +297,12 @@ class Camera(_DictEquality):
         ndarray, shape (N, 2)
             ``distort(K R (X - c))`` in pixels, pixel (0, 0) at the centre of
             the top-left pixel; NaN for points at or behind the camera plane,
-            except for a ``kannala-brandt`` lens, which images rays up to its
+            except for a Kannala-Brandt lens, which images rays up to its
             :attr:`~camcal.model.distortion.Distortion.max_angle_rad`
             (:meth:`~camcal.model.distortion.Distortion.project_rays`).
         """
         X = np.asarray(X, dtype=np.float64)
-        if self.distortion.model != "kannala-brandt":
+        if not self.distortion.is_fisheye:
             return self.distortion.distort(project_pinhole(self.K, self.R, self.c, X), self.K)
         if X.ndim != 2 or X.shape[1] != 3:
             raise CamcalError(f"world points must have shape (N, 3), got {X.shape}")

@@ -1,18 +1,22 @@
-"""Calibration boards found in image files: worker threads and a cache keyed by content.
+"""Calibration boards found in image and video files: worker threads and a cache keyed by content.
 
 Detection over many images (:func:`detect_in_images`) runs in worker
 threads and keeps each image's result in a cache keyed by the file's
 content (SHA-256) and the detector settings
 (:data:`camcal.geometry.board.DETECTOR_SETTINGS`), so that calibrating again
-with other options does not detect again.
+with other options does not detect again. Detection over a video's frames
+(:func:`detect_in_video`) streams them (one decoded frame per worker in
+memory) and caches every frame's result in one file per video, keyed by
+the video's content, the board and the detector settings.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -21,10 +25,13 @@ import numpy as np
 
 from camcal.base.atomic import atomic_path
 from camcal.base.errors import CamcalError
-from camcal.geometry.board import DETECTOR_SETTINGS, Board, Detection, DetectionReport, detect_board
+from camcal.geometry.board import (DETECTOR_SETTINGS, Board, Detection, DetectionReport, detect_board,
+                                   video_frame_label)
 from camcal.io.frames import imread
+from camcal.io.headers import check_image_header
+from camcal.io.video import iter_frames, video_info
 
-__all__ = ["default_cache_dir", "detect_in_images"]
+__all__ = ["default_cache_dir", "detect_in_images", "detect_in_video"]
 
 
 def default_cache_dir() -> Path:
@@ -40,30 +47,55 @@ def _cache_key(board: Board, content: bytes) -> str:
     return digest.hexdigest()
 
 
+def _detection_from_json(d: dict | None) -> Detection | None:
+    if d is None:
+        return None
+    return Detection(d["image"], tuple(d["image_size"]), np.asarray(d["ids"], dtype=np.int64),
+                     np.asarray(d["corners_px"], dtype=np.float64).reshape(-1, 2), d["detector"])
+
+
+def _detection_to_json(detection: Detection | None) -> dict | None:
+    if detection is None:
+        return None
+    return {"image": detection.image, "image_size": list(detection.image_size), "ids": detection.ids.tolist(),
+            "corners_px": detection.corners_px.tolist(), "detector": detection.detector}
+
+
 def _read_cached(path: Path) -> tuple[tuple[int, int] | None, Detection | None] | None:
     """A cached result ``(image size or None if unreadable, detection or None)``; None when absent or unreadable."""
     try:
         data = json.loads(path.read_text())
         size = tuple(data["size"]) if data["size"] is not None else None
-        if data["detection"] is None:
-            return size, None
-        d = data["detection"]
-        return size, Detection(d["image"], tuple(d["image_size"]), np.asarray(d["ids"], dtype=np.int64),
-                               np.asarray(d["corners_px"], dtype=np.float64).reshape(-1, 2), d["detector"])
+        return size, _detection_from_json(data["detection"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
 
 
 def _write_cached(path: Path, size: tuple[int, int] | None, detection: Detection | None) -> None:
     """Write one result atomically (temp file + rename); a cache that cannot be written is skipped."""
-    payload = {"size": list(size) if size else None, "detection": None if detection is None else {
-        "image": detection.image, "image_size": list(detection.image_size), "ids": detection.ids.tolist(),
-        "corners_px": detection.corners_px.tolist(), "detector": detection.detector}}
+    payload = {"size": list(size) if size else None, "detection": _detection_to_json(detection)}
+    _write_json(path, payload)
+
+
+def _write_json(path: Path, payload: dict) -> None:
+    """Write a cache file atomically (temp file + rename); a cache that cannot be written is skipped."""
     try:
         with atomic_path(path) as temporary:
             temporary.write_text(json.dumps(payload))
     except OSError:
         pass
+
+
+@contextlib.contextmanager
+def _opencv_threads_off(active: bool = True) -> Iterator[None]:
+    """OpenCV on one thread while camcal's own worker threads detect (restored after, also on errors)."""
+    threads = cv2.getNumThreads()
+    if active:
+        cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
 
 
 def _detect_file(board: Board, path: str, content: bytes) -> tuple[tuple[int, int] | None, Detection | None]:
@@ -74,6 +106,8 @@ def _detect_file(board: Board, path: str, content: bytes) -> tuple[tuple[int, in
         except CamcalError:
             image = None
     else:
+        if content:
+            check_image_header(Path(path), content)  # a forged size stops here, not in OpenCV's allocator
         image = cv2.imdecode(np.frombuffer(content, np.uint8), cv2.IMREAD_GRAYSCALE) if content else None
     if image is None:
         return None, None
@@ -118,7 +152,9 @@ def detect_in_images(
     Raises
     ------
     CamcalError
-        No paths, or images of different sizes.
+        No paths, images of different sizes, or an image whose header
+        declares more pixels than :data:`camcal.base.limits.IMAGE_PIXELS`
+        (checked before decoding: :func:`camcal.io.headers.check_image_header`).
     """
     paths = [Path(p) for p in paths]
     if not paths:
@@ -149,18 +185,13 @@ def detect_in_images(
 
     n_workers = min(max(1, workers), len(pending))
     if n_workers > 1:
-        threads = cv2.getNumThreads()
-        cv2.setNumThreads(1)
-        try:
-            with ThreadPoolExecutor(max_workers=n_workers) as pool:
-                futures = [(index, pool.submit(_detect_file, board, str(paths[index]), content))
-                           for index, content in pending]
-                for index, future in futures:
-                    results[index] = future.result()
-                    count += 1
-                    report_progress()
-        finally:
-            cv2.setNumThreads(threads)
+        with _opencv_threads_off(), ThreadPoolExecutor(max_workers=n_workers) as pool:
+            futures = [(index, pool.submit(_detect_file, board, str(paths[index]), content))
+                       for index, content in pending]
+            for index, future in futures:
+                results[index] = future.result()
+                count += 1
+                report_progress()
     else:
         for index, content in pending:
             results[index] = _detect_file(board, str(paths[index]), content)
@@ -184,4 +215,120 @@ def detect_in_images(
             skipped.append(path.name)
         else:
             detections.append(detection)
+    return DetectionReport(tuple(detections), tuple(skipped))
+
+
+def _video_cache_key(board: Board, path: Path) -> str:
+    """SHA-256 of the video's bytes (read in blocks), the board and the detector settings."""
+    with open(path, "rb") as stream:
+        digest = hashlib.file_digest(stream, "sha256")
+    digest.update(f"|video|{board.spec()}|{DETECTOR_SETTINGS}".encode())
+    return digest.hexdigest()
+
+
+def _read_video_cache(path: Path) -> tuple[dict[int, Detection | None], int | None]:
+    """The cached frames ``{frame: detection or None}`` and the video's frame count (None if never decoded whole)."""
+    try:
+        data = json.loads(path.read_text())
+        frames = {int(k): _detection_from_json(d) for k, d in data["frames"].items()}
+        return frames, (int(data["n_frames"]) if data["n_frames"] is not None else None)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}, None
+
+
+def detect_in_video(
+    board: Board,
+    path: str | os.PathLike,
+    every: int = 1,
+    progress: Callable[[int, int], None] | None = None,
+    workers: int = 1,
+    cache: str | os.PathLike | None = None,
+) -> DetectionReport:
+    """Detect ``board`` in every ``every``-th frame of a video, streamed (:func:`camcal.io.video.iter_frames`).
+
+    Parameters
+    ----------
+    board : Board
+    path : path
+        A video file (:data:`camcal.io.video.VIDEO_SUFFIXES`).
+    every : int
+        Frames 0, every, 2 every... are detected.
+    progress : callable, optional
+        ``progress(done, total)`` after each frame; ``total`` is the
+        container's frame count (an estimate) divided by ``every``.
+    workers : int
+        Frames detected at once (threads, as :func:`detect_in_images`); at
+        most ``2 x workers`` decoded frames are held at a time.
+    cache : path, optional
+        Directory of cached detections: one JSON file per video (keyed by
+        the SHA-256 of its bytes, the board and the detector settings)
+        holding every frame detected so far; a run whose frames are all in
+        it decodes nothing. None detects every frame.
+
+    Returns
+    -------
+    DetectionReport
+        Detections named ``VIDEO#K`` (:func:`camcal.geometry.board.video_frame_label`,
+        frame number ``K``); frames without the board are listed as skipped.
+
+    Raises
+    ------
+    CamcalError
+        The video cannot be decoded (one line naming it), or ``every < 1``.
+    """
+    path = Path(path)
+    if int(every) < 1:
+        raise CamcalError(f"--every must be 1 or more, got {every}")
+    info = video_info(path)
+    cache_file = Path(cache) / f"video-{_video_cache_key(board, path)}.json" if cache is not None else None
+    done, n_frames = _read_video_cache(cache_file) if cache_file is not None else ({}, None)
+    total = max(1, -(-(n_frames or info.frame_count) // every))
+    count, reported = 0, [-1]
+
+    def report_progress() -> None:
+        if progress is not None and min(count, total) != reported[0]:
+            reported[0] = min(count, total)
+            progress(reported[0], total)
+
+    complete = n_frames is not None and all(k in done for k in range(0, n_frames, every))
+    if not complete:
+        seen = [0]
+
+        def wanted(k: int) -> bool:
+            seen[0] = k + 1
+            return k % every == 0 and k not in done
+
+        count = sum(1 for k in done if k % every == 0)
+        report_progress()
+        n_workers = max(1, workers)
+        with _opencv_threads_off(n_workers > 1), ThreadPoolExecutor(max_workers=n_workers) as pool:
+            in_flight: list = []
+
+            def collect(n_left: int) -> None:
+                nonlocal count
+                while len(in_flight) > n_left:
+                    k, future = in_flight.pop(0)
+                    done[k] = future.result()
+                    count += 1
+                    report_progress()
+
+            for k, image in iter_frames(path, every=1, wanted=wanted):
+                in_flight.append((k, pool.submit(detect_board, board, image, video_frame_label(path, k))))
+                collect(2 * n_workers)
+            collect(0)
+        n_frames = seen[0]
+        if cache_file is not None:
+            _write_json(cache_file, {"n_frames": n_frames,
+                                     "frames": {str(k): _detection_to_json(d) for k, d in sorted(done.items())}})
+    count = total
+    report_progress()
+    detections, skipped = [], []
+    for k in range(0, n_frames, every):
+        detection = done.get(k)
+        label = video_frame_label(path, k)
+        if detection is None:
+            skipped.append(label)
+        else:  # the cached detection was named after the file it was first found in
+            detections.append(Detection(label, detection.image_size, detection.ids, detection.corners_px,
+                                        detection.detector))
     return DetectionReport(tuple(detections), tuple(skipped))

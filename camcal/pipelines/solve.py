@@ -34,15 +34,19 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from camcal.base.atomic import atomic_dir, final_path
 from camcal.base.errors import CamcalError
+from camcal.base.native_log import native_output_to
 from camcal.geometry.bundle import (
     BundleOptions,
     BundleResult,
+    PriorSpec,
     bundle_adjust,
     hold_rig,
     state_from_reconstruction,
     state_to_reconstruction,
 )
+from camcal.geometry.jackknife import METHODS as JACKKNIFE_METHODS
 from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, self_calibrate
 from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sparse_model
 from camcal.model.colmap import camera_from_colmap
@@ -50,6 +54,8 @@ from camcal.io.ply import write_points_ply
 from camcal.model.rig import Camera, Rig
 
 __all__ = [
+    "COLMAP_LOG",
+    "UPSAMPLE_BELOW_PX",
     "IMAGE_SUFFIXES",
     "MAPPERS",
     "MATCHERS",
@@ -63,6 +69,10 @@ __all__ = [
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
 MATCHERS = ("exhaustive", "sequential")
 MAPPERS = ("incremental", "global")
+#: the file in the output folder that receives COLMAP's, glog's and Ceres' own lines.
+COLMAP_LOG = "colmap.log"
+#: What a solve writes in its folder as a whole: an earlier run's are replaced, not merged into.
+_OWNED = ("images", "sparse", "database.db")
 
 
 @dataclass(frozen=True)
@@ -181,7 +191,10 @@ def solve_sfm(
     principal_point: str = "auto",
     max_num_features: int = 8192,
     progress: Callable[[str], None] | None = None,
-    jackknife: bool = True,
+    jackknife: str | None = "step",
+    priors: tuple[PriorSpec, ...] = (),
+    verbose: bool = False,
+    guided_matching: bool = False,
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -194,7 +207,10 @@ def solve_sfm(
         reference.
     out_dir : Path
         Receives ``database.db``, ``images/`` (links), ``sparse/`` (the COLMAP
-        model), ``solve.rig.json`` and ``points.ply``.
+        model), ``solve.rig.json`` and ``points.ply``; built under a temporary
+        name and renamed at the end, removed on any error
+        (:func:`camcal.base.atomic.atomic_dir`; an earlier run's ``images/``
+        and ``sparse/`` in it are replaced as a whole).
     camera_model : str
         COLMAP model for every camera: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL,
         RADIAL, OPENCV, SIMPLE_DIVISION... (one with a camcal counterpart).
@@ -202,9 +218,14 @@ def solve_sfm(
         Exhaustive for unordered sets under ~50 images; sequential for video.
     mapper : {"incremental", "global"}
     seed : int
-        The mapper's random seed (repeatable runs).
+        Seeds every random choice: COLMAP's global generator, the RANSAC of
+        the geometric verification, the mapper, the held-out points of the
+        lens-model choice. The same images and options then give the same
+        rig (recorded in its provenance).
     num_threads : int
-        -1 uses every core.
+        Threads of feature extraction and matching (-1: every core); their
+        results do not depend on scheduling. The mapper runs on one thread,
+        so that its bundle adjustments sum in a fixed order.
     refine : bool
         Run camcal's bundle adjustment after pycolmap's mapping.
     known_rig : Rig, optional
@@ -218,14 +239,27 @@ def solve_sfm(
         (:func:`self_calibrate`); one model is used as given; None keeps
         ``camera_model``.
     principal_point : {"auto", "refine", "centre"}
-        Refine the principal point where its sigma says the views determine
-        it (``auto``), always, or never (COLMAP's default).
+        Refine the principal point (and the lens) under the sensor's
+        Gaussian priors (``auto``), by the images alone, or hold it at the
+        image centre (COLMAP's default).
     max_num_features : int
         SIFT features per image (pycolmap's ``max_num_features``).
     progress : callable, optional
         Called with each stage's message (the CLI prints them to stderr).
-    jackknife : bool
-        Sigmas also by the delete-one-frame jackknife (:func:`self_calibrate`).
+    jackknife : {"step", "refit"} or None
+        Sigmas also by the delete-one-frame jackknife, each replicate by one
+        Gauss-Newton step or a full refit; None: the covariance alone
+        (:func:`self_calibrate`).
+    priors : tuple of PriorSpec
+        Gaussian priors on intrinsics (e.g. ``parse_prior("left.f=1200+-30")``);
+        the rig's intrinsics are then the posterior's.
+    verbose : bool
+        Also show COLMAP's own log lines on stderr; they always go to
+        ``out_dir/colmap.log`` (:data:`COLMAP_LOG`).
+    guided_matching : bool
+        Match each verified pair again along its epipolar geometry (more,
+        longer tracks); on the CPU it costs 10-20 times the matching itself
+        (345 s against 21 s for 12 images of 640 x 480 with 8192 features).
 
     Returns
     -------
@@ -239,48 +273,63 @@ def solve_sfm(
         raise CamcalError(f"unknown matcher {matcher!r}, expected one of: {', '.join(MATCHERS)}")
     if mapper not in MAPPERS:
         raise CamcalError(f"unknown mapper {mapper!r}, expected one of: {', '.join(MAPPERS)}")
+    if jackknife is not None and jackknife not in JACKKNIFE_METHODS:
+        raise CamcalError(f"unknown jackknife method {jackknife!r}, expected one of: {', '.join(JACKKNIFE_METHODS)}")
     if not hasattr(pycolmap.CameraModelId, camera_model):
         raise CamcalError(f"unknown COLMAP camera model {camera_model!r}")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    image_dir = out_dir / "images"
     images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
               for name, value in folders.items()}
     if known_rig is not None:
         missing = [name for name in images if name not in {camera.name for camera in known_rig.cameras}]
         if missing:
             raise CamcalError(f"the known rig has no camera named {', '.join(map(repr, missing))}")
-    options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None)
+    n_images = sum(len(paths) for paths in images.values())
+    if n_images < 2:
+        where = "; ".join(f"{name}: " + (f"folder {value}" if isinstance(value, (str, os.PathLike)) else
+                                          ", ".join(map(str, value)) or "no file") for name, value in folders.items())
+        raise CamcalError(f"need at least 2 images, got {n_images} ({where})")
+    target = Path(out_dir)
+    with atomic_dir(target, replace=_OWNED + (COLMAP_LOG,)) as staging:
+        with native_output_to(staging / COLMAP_LOG, echo=verbose):
+            result = _solve_in(pycolmap, images, folders, staging, camera_model, matcher, mapper, seed, num_threads,
+                               refine, known_rig, loss, lens_models, principal_point, max_num_features, progress,
+                               jackknife, guided_matching, priors)
+    return dataclasses.replace(result, reconstruction_dir=final_path(result.reconstruction_dir, staging, target))
+
+
+def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, mapper, seed, num_threads, refine,
+              known_rig, loss, lens_models, principal_point, max_num_features, progress, jackknife,
+              guided_matching: bool, priors: tuple[PriorSpec, ...]) -> SfmResult:
+    """:func:`solve_sfm`'s work inside its (temporary) output folder, COLMAP's output captured."""
+    image_dir = out_dir / "images"
+    options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
+    free_pp = dict(refine_principal_point=principal_point != "centre", default_priors=principal_point == "auto")
     staged = _stage_images(images, image_dir)
     image_names = list(staged)
-    if len(image_names) < 2:
-        raise CamcalError(f"need at least 2 images, got {len(image_names)}")
     database = out_dir / "database.db"
-    database.unlink(missing_ok=True)
 
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = num_threads
-    extraction.sift.max_num_features = max_num_features
+    extraction = _extraction_options(pycolmap, [paths[0] for paths in images.values() if paths], max_num_features,
+                                     num_threads)
     _say(progress, f"extracting features from {len(image_names)} images")
+    pycolmap.set_random_seed(seed)
     pycolmap.extract_features(
         database, image_dir, image_names=image_names, camera_mode=pycolmap.CameraMode.PER_FOLDER,
         reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
     )
+    _number_by_name(pycolmap, database)
     _say(progress, f"matching ({matcher})")
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = num_threads
-    # matches re-searched along the verified epipolar geometry: more, longer tracks
-    matching.guided_matching = True
+    matching.guided_matching = guided_matching
     match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
-    match(database, matching_options=matching, device=pycolmap.Device.cpu)
+    match(database, matching_options=matching, verification_options=_verification(pycolmap, seed),
+          device=pycolmap.Device.cpu)
     sparse = out_dir / "sparse"
-    if sparse.exists():
-        shutil.rmtree(sparse)
     sparse.mkdir()
     _say(progress, f"mapping ({mapper})")
-    models = _map(pycolmap, database, image_dir, sparse, mapper, seed, num_threads)
+    models = _map(pycolmap, database, image_dir, sparse, mapper, seed)
     if len(folders) > 1 and models:
         # COLMAP needs sensor_from_rig to start a rig-constrained mapping: take it
         # from an unconstrained first pass, then map again with the rig.
@@ -299,7 +348,7 @@ def solve_sfm(
         shutil.rmtree(sparse)
         sparse.mkdir()
         _say(progress, f"mapping ({mapper}) with the rig constraint")
-        models = _map(pycolmap, database, image_dir, sparse, mapper, seed, num_threads)
+        models = _map(pycolmap, database, image_dir, sparse, mapper, seed)
     if not models:
         raise CamcalError("structure from motion registered no images: too little texture or overlap?")
     reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
@@ -311,13 +360,13 @@ def solve_sfm(
         if known_rig is not None:
             state = hold_rig(state, relative_poses(known_rig, state.camera_names[0]))
         if lens_models is None:
-            pp_options = dataclasses.replace(options, refine_principal_point=principal_point == "refine")
+            pp_options = dataclasses.replace(options, **free_pp)
             bundle = bundle_adjust(state, pp_options)
         else:
             # the mapper's principal point is the image centre: free it once, then drop the matches
             # that no camera model explains (mismatches, features astride an occluding edge)
             _say(progress, "bundle adjustment (camcal) with the principal point free, then outlier rejection")
-            pre = bundle_adjust(state, dataclasses.replace(options, refine_principal_point=principal_point != "centre"))
+            pre = bundle_adjust(state, dataclasses.replace(options, **free_pp))
             state_to_reconstruction(pre.state, reconstruction)
             _say(progress, reject_outliers(reconstruction))
             state = state_from_reconstruction(reconstruction, names)
@@ -335,7 +384,7 @@ def solve_sfm(
     originals = {name: Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
                  for name, path in staged.items()}
     units = known_rig.units if known_rig is not None else "arbitrary"
-    return _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle, calibration)
+    return _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle, calibration, seed)
 
 
 @dataclass(frozen=True)
@@ -362,23 +411,29 @@ class PycolmapPeer:
 
 
 def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, camera_model: str = "SIMPLE_DIVISION",
-                         seed: int = 0) -> PycolmapPeer:
+                         seed: int = 0, verbose: bool = False) -> PycolmapPeer:
     """The plain pycolmap pipeline a user would script, on the same images as :func:`solve_sfm`.
 
     Default SIFT extraction with one camera per folder (``camera_model``),
-    exhaustive matching, incremental mapping, then
-    ``pycolmap.bundle_adjustment`` with ``refine_principal_point``. No rig
-    constraint. Writes only under ``out_dir``.
+    exhaustive matching, incremental mapping (pycolmap's defaults, every
+    core), then ``pycolmap.bundle_adjustment`` with
+    ``refine_principal_point``. No rig constraint. Writes only under
+    ``out_dir``; COLMAP's lines go to ``out_dir/colmap.log`` (and stderr
+    with ``verbose``).
     """
     import pycolmap  # noqa: PLC0415
 
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
               for name, value in folders.items()}
+    with atomic_dir(out_dir, replace=_OWNED + (COLMAP_LOG,)) as staging:
+        with native_output_to(staging / COLMAP_LOG, echo=verbose):
+            return _plain_in(pycolmap, images, folders, staging, camera_model, seed)
+
+
+def _plain_in(pycolmap, images, folders, out_dir: Path, camera_model: str, seed: int) -> PycolmapPeer:
+    """:func:`solve_pycolmap_plain`'s work inside its (temporary) output folder."""
     staged = _stage_images(images, out_dir / "images")
     database = out_dir / "database.db"
-    database.unlink(missing_ok=True)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
     pycolmap.extract_features(database, out_dir / "images", image_names=list(staged),
@@ -386,9 +441,10 @@ def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, c
                               device=pycolmap.Device.cpu)
     pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
     sparse = out_dir / "sparse"
-    shutil.rmtree(sparse, ignore_errors=True)
     sparse.mkdir()
-    models = _map(pycolmap, database, out_dir / "images", sparse, "incremental", seed, -1)
+    options = pycolmap.IncrementalPipelineOptions()
+    options.random_seed = seed
+    models = pycolmap.incremental_mapping(database, out_dir / "images", sparse, options=options)
     if not models:
         raise CamcalError("plain pycolmap registered no images")
     reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
@@ -420,29 +476,109 @@ def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, c
                         reconstruction.num_reg_images())
 
 
-def _map(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, seed: int, num_threads: int) -> dict:
+#: images of at least this many pixels are not upsampled before SIFT (:func:`_extraction_options`).
+UPSAMPLE_BELOW_PX = 4_000_000
+
+
+def _extraction_options(pycolmap, paths: list[Path], max_num_features: int, num_threads: int):
+    """SIFT options sized to the images (``paths``: one of each camera's): no upsampled octave from 4 Mpx up.
+
+    COLMAP's SIFT starts at octave -1 (the image upsampled twice) and, past
+    ``max_num_features``, keeps the larger-scale features: on a 6 Mpx
+    photograph the octaves from 0 up already give more than 8192 features,
+    so the upsampled octave (4 times the pixels of the image, most of the
+    extraction time) is computed only to be dropped.
+    """
+    import cv2  # noqa: PLC0415
+
+    options = pycolmap.FeatureExtractionOptions()
+    options.num_threads = num_threads
+    options.sift.max_num_features = max_num_features
+    sizes = [image.shape[0] * image.shape[1] for image in (cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+                                                             for path in paths) if image is not None]
+    if sizes and max(sizes) >= UPSAMPLE_BELOW_PX:
+        options.sift.first_octave = 0
+    return options
+
+
+def _number_by_name(pycolmap, database: Path) -> None:
+    """Renumber the images (and their frames) of a freshly extracted ``database`` in the order of their names.
+
+    COLMAP's extraction threads write each image as they finish it, so the
+    ids -- the order the matcher and the mapper take images and pairs in --
+    changed from run to run, and with them the reconstruction (in its 7th
+    digit on a rendered stereo sequence). Cameras and rigs keep their ids
+    (the reader, on one thread, creates them in name order); pose priors
+    (EXIF GPS) follow their image.
+    """
+    ordered = database.with_name(database.stem + ".ordered.db")
+    old, new = pycolmap.Database.open(database), pycolmap.Database.open(ordered)
+    try:
+        for camera in old.read_all_cameras():
+            new.write_camera(camera, use_camera_id=True)
+        for rig in old.read_all_rigs():
+            new.write_rig(rig, use_rig_id=True)
+        frame_of = {}
+        for frame in old.read_all_frames():
+            (data_id,) = frame.data_ids  # extraction makes one frame per image; the rig config comes later
+            frame_of[data_id.id] = (frame.rig_id, data_id.sensor_id)
+        priors = {prior.corr_data_id.id: prior for prior in old.read_all_pose_priors()}
+        for image in sorted(old.read_all_images(), key=lambda image: image.name):
+            image_id = new.write_image(pycolmap.Image(name=image.name, camera_id=image.camera_id))
+            if image.image_id in priors:
+                prior = priors[image.image_id]
+                prior.corr_data_id = pycolmap.data_t(prior.corr_data_id.sensor_id, image_id)
+                new.write_pose_prior(prior)
+            new.write_keypoints(image_id, old.read_keypoints(image.image_id))
+            new.write_descriptors(image_id, old.read_descriptors(image.image_id))
+            rig_id, sensor_id = frame_of[image.image_id]
+            frame = pycolmap.Frame()
+            frame.rig_id = rig_id
+            frame.add_data_id(pycolmap.data_t(sensor_id, image_id))
+            new.write_frame(frame)
+    finally:
+        old.close()
+        new.close()
+    ordered.replace(database)
+
+
+def _verification(pycolmap, seed: int):
+    """Geometric verification options with a seeded RANSAC (COLMAP's default seed -1 draws from the clock)."""
+    options = pycolmap.TwoViewGeometryOptions()
+    options.ransac.random_seed = seed
+    return options
+
+
+def _map(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, seed: int) -> dict:
+    """COLMAP's mapping, seeded and on one thread (multi-threaded Ceres sums in the order threads finish)."""
+    pycolmap.set_random_seed(seed)
     if mapper == "incremental":
         options = pycolmap.IncrementalPipelineOptions()
         options.random_seed = seed
-        options.num_threads = num_threads
+        options.num_threads = 1
         return pycolmap.incremental_mapping(database, image_dir, sparse, options=options)
-    return pycolmap.global_mapping(database, image_dir, sparse)
+    options = pycolmap.GlobalPipelineOptions()
+    options.random_seed = seed
+    options.num_threads = 1
+    return pycolmap.global_mapping(database, image_dir, sparse, options=options)
 
 
 def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir: Path,
                originals: dict[str, str], units: str, bundle: BundleResult | None,
-               calibration: SelfCalibration | None) -> SfmResult:
+               calibration: SelfCalibration | None, seed: int) -> SfmResult:
     """Convert a pycolmap reconstruction with one rig into camcal's Rig; write its points and the rig.
 
     ``originals`` maps every staged image name (COLMAP's) to the user's
-    image, relative to ``out_dir``: the frames point at those.
+    image, relative to ``out_dir``: the frames point at those. The rig's
+    provenance records the seed.
     """
     points_path = out_dir / "points.ply"
     model = sparse_model(reconstruction, camera_names, originals, units, bundle, calibration, points_path.name)
+    rig = dataclasses.replace(model.rig, provenance={**model.rig.provenance, "seed": seed})
     write_points_ply(points_path, model.xyz, model.colours, model.track_lengths)
-    model.rig.save(out_dir / "solve.rig.json")
+    rig.save(out_dir / "solve.rig.json")
     return SfmResult(
-        rig=model.rig,
+        rig=rig,
         n_images=len(originals),
         n_registered=len(model.registered),
         unregistered=tuple(sorted(set(originals) - set(model.registered))),

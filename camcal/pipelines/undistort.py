@@ -6,12 +6,17 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+
+from camcal.base.atomic import atomic_dir, final_path
 from camcal.base.errors import CamcalError
+from camcal.geometry.uncertainty import SigmaSummary, projection_sigma_map, summarise_sigma
 from camcal.geometry.undistort import make_undistorter
 from camcal.io.frames import imread, imwrite
+from camcal.io.stmap import write_sigma_map
 from camcal.model.rig import Rig, make_provenance
 
-__all__ = ["undistort_images"]
+__all__ = ["undistort_images", "write_undistorted_sigma"]
 
 
 def undistort_images(
@@ -45,8 +50,9 @@ def undistort_images(
 
     Notes
     -----
-    Every image is read and checked before anything is written; each
-    output is written atomically.
+    Every image is read and checked before anything is written; the folder
+    is built under a temporary name and renamed at the end
+    (:func:`camcal.base.atomic.atomic_dir`).
     """
     camera = rig.camera(camera_name)
     undistorter = make_undistorter(camera, mode, overscan, max_fov_deg)
@@ -60,10 +66,28 @@ def undistort_images(
         loaded.append((Path(path), image))
     if len({path.name for path, _ in loaded}) != len(loaded):
         raise CamcalError("input images must have distinct file names (outputs keep them)")
-    written = []
-    for path, image in loaded:
-        written.append(imwrite(out_dir / path.name, undistorter.apply(image)))
     cameras = tuple(undistorter.undistorted_camera() if c.name == camera_name else c for c in rig.cameras)
     provenance = make_provenance("undistort", source_camera=camera_name, mode=mode)
-    rig_path = Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(out_dir / "undistorted.rig.json")
-    return rig_path, written
+    with atomic_dir(out_dir) as staging:
+        written = [final_path(imwrite(staging / path.name, undistorter.apply(image)), staging, out_dir)
+                   for path, image in loaded]
+        Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(staging / "undistorted.rig.json")
+    return out_dir / "undistorted.rig.json", written
+
+
+
+def write_undistorted_sigma(rig: Rig, camera_name: str, out_dir: str | os.PathLike, mode: str = "crop",
+                            overscan: float = 1.1, max_fov_deg: float | None = None,
+                            distance: float | None = None) -> tuple[Path, SigmaSummary]:
+    """Write ``sigma.exr``: pixel for pixel with :func:`undistort_images`' outputs (same arguments).
+
+    Each pixel holds the projection sigma (plate pixels, worst direction;
+    :mod:`camcal.geometry.uncertainty`) of the plate pixel the undistortion
+    samples there, NaN where it samples none.
+    """
+    undistorter = make_undistorter(rig.camera(camera_name), mode, overscan, max_fov_deg)
+    maps = undistorter.maps
+    source = np.stack([maps.map_x, maps.map_y], axis=-1).astype(np.float64)
+    source[(maps.map_x < 0) | (maps.map_y < 0)] = np.nan
+    sigma = projection_sigma_map(undistorter.camera, distance, source)
+    return write_sigma_map(Path(out_dir) / "sigma.exr", sigma), summarise_sigma(sigma, distance)

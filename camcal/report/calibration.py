@@ -1,4 +1,4 @@
-"""The ``calibrate board --report`` plots: residuals, corner coverage, RMS per image."""
+"""The ``calibrate board --report`` plots (residuals, corner coverage, RMS per image) and ``--suggest``'s preview."""
 
 from __future__ import annotations
 
@@ -11,9 +11,10 @@ import numpy as np
 
 from camcal.geometry.zhang import CalibrationResult
 from camcal.io.frames import imwrite
+from camcal.model.rig import Camera
 from camcal.report import RESIDUAL_LABEL
 
-__all__ = ["write_report"]
+__all__ = ["write_report", "write_suggestion_preview"]
 
 
 def _palette(n: int) -> list[tuple[int, int, int]]:
@@ -83,3 +84,20 @@ def write_report(result: CalibrationResult, out_dir: str | os.PathLike) -> list[
                 cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     written.append(imwrite(directory / "per_image_rms.png", canvas))
     return written
+
+
+def write_suggestion_preview(camera: Camera, shots, path: str | os.PathLike) -> Path:
+    """A frame-sized PNG with each suggested board view (:class:`camcal.geometry.suggest.SuggestedView`)
+    drawn as its outline and numbered in the order of the shot list."""
+    width, height = camera.image_size
+    canvas = np.full((height, width, 3), 40, np.uint8)
+    colours = _palette(len(shots))
+    for number, (shot, colour) in enumerate(zip(shots, colours), start=1):
+        hull = cv2.convexHull(np.round(shot.corners_px).astype(np.int32))
+        cv2.polylines(canvas, [hull], True, colour, 2, cv2.LINE_AA)
+        for x, y in np.round(shot.corners_px).astype(int):
+            cv2.circle(canvas, (int(x), int(y)), 2, colour, -1, cv2.LINE_AA)
+        cx, cy = np.round(shot.centre_px).astype(int)
+        cv2.putText(canvas, str(number), (int(cx) - 8, int(cy) + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.9, colour, 2,
+                    cv2.LINE_AA)
+    return imwrite(Path(path), canvas)

@@ -187,3 +187,44 @@ def test_cli_blender_import_writes_the_fisheye_camera(addon, tmp_path, capsys):
     assert (kind, panorama) == ("PANO", "FISHEYE_LENS_POLYNOMIAL")
     assert float(k1) == pytest.approx(f.polynomial[1], rel=1e-6)
     assert float(shift_x) == pytest.approx(f.shift_x, abs=1e-7)
+
+
+#: the render lens with COLMAP's RAD_TAN_THIN_PRISM_FISHEYE terms
+PARAMS_TP = PARAMS | {"k5": 2e-5, "k6": -1e-6, "p1": 4e-4, "p2": -3e-4, "s1": 5e-4, "s2": -1e-4, "s3": -4e-4, "s4": 1e-4}
+
+
+def test_thin_prism_fisheye_radial_part_exact_and_the_rest_reported(addon, tmp_path):
+    """kannala-brandt-thin-prism: Cycles gets the six-term radial part (fitted as for kannala-brandt), the
+    tangential and thin-prism terms are left out and their size over the frame is what the mapping reports."""
+    m = addon.mapping
+    radial = {k: PARAMS_TP[k] for k in ("k1", "k2", "k3", "k4", "k5", "k6")}
+    radial |= dict.fromkeys(("p1", "p2", "s1", "s2", "s3", "s4"), 0.0)
+    f = m.blender_fisheye(K.tolist(), SIZE, PARAMS_TP)
+    u, v = np.meshgrid(np.arange(0.0, SIZE[0], 2.0), np.arange(0.0, SIZE[1], 2.0))
+    pixels = np.column_stack([u.ravel(), v.ravel()])
+    rays = np.array([m.fisheye_polynomial_ray(f, p) for p in pixels], dtype=float)
+    radial_only = Distortion("kannala-brandt-thin-prism", radial).project_rays(rays, K)
+    assert np.max(np.linalg.norm(radial_only - pixels, axis=1)) <= f.fit_max_px * 1.05 + 1e-9 < 0.01
+    full = Distortion("kannala-brandt-thin-prism", PARAMS_TP).project_rays(rays, K)
+    left_out = float(np.max(np.linalg.norm(full - radial_only, axis=1)))
+    reported = m.thin_prism_offset_px(K.tolist(), SIZE, PARAMS_TP, step=2)
+    print(f"thin prism left out: {left_out:.4f} px, reported {reported:.4f} px")
+    assert reported == pytest.approx(left_out, rel=0.05)
+    rig = addon.rigfile.load_rig(str(write_rig(tmp_path / "tp.rig.json", [camera_dict(
+        "fish", SIZE, K, distortion={"model": "kannala-brandt-thin-prism", "params": PARAMS_TP})])))
+    assert rig.cameras[0].distortion.model in addon.rigfile.FISHEYE_MODELS
+
+
+def test_division_aspect_distorts_like_camcal(addon):
+    m = addon.mapping
+    lens = Distortion("division", {"lambda": -1.5e-7, "aspect": 2.0})
+    Kd = np.array([[1400.0, 0.0, 641.3], [0.0, 700.0, 357.8], [0.0, 0.0, 1.0]])
+    rng = np.random.default_rng(3)
+    ideal = rng.uniform([0.0, 0.0], [1280.0, 720.0], (50, 2))
+    ours = np.array([m.division_distort(p, (641.3, 357.8), -1.5e-7, 2.0) for p in ideal])
+    assert np.abs(ours - lens.distort(ideal, Kd)).max() < 1e-9
+    back = np.array([m.division_undistort(p, (641.3, 357.8), -1.5e-7, 2.0) for p in ours])
+    assert np.abs(back - ideal).max() < 1e-9
+    rig_lens = addon.rigfile.Distortion("division", {"lambda": -1.5e-7, "aspect": 2.0}, (641.3, 357.8))
+    blender = m.blender_lens(rig_lens, Kd.tolist(), (1280, 720))
+    assert not blender.exact and "aspect" in blender.note

@@ -41,6 +41,22 @@ def test_calibrate_board(real_pair_shots, tmp_path, capsys):
     assert summary["figures"]["detections"] == {"left": 6, "right": 6}
 
 
+def test_calibrate_board_suggest(real_pair_shots, tmp_path, capsys):
+    """--suggest 2: a shot list of two views, each lowering the expected worst sigma, drawn on a frame-sized PNG."""
+    folder = real_pair_shots
+    out = tmp_path / "left.rig.json"
+    code, summary, human = run_json(["calibrate", "board", "--board", "chessboard:9x6:1", "--units", "squares",
+                                     "--camera", f"left={folder}/left*.jpg", "--model", "polynomial",
+                                     "--suggest", "2", "--out", str(out)], capsys)
+    preview = tmp_path / "left.suggest.png"
+    assert code == 0 and {"path": str(preview), "kind": "suggest"} in summary["files"] and "next views" in human
+    camera = Rig.load(out).cameras[0]
+    sigmas = [camera.quality["worst_projection_sigma_px"]] + [s["worst_sigma_px"] for s in summary["figures"]["suggested"]]
+    assert len(sigmas) == 3 and sigmas[0] > sigmas[1] > sigmas[2]
+    image = cv2.imread(str(preview))
+    assert image.shape[:2] == camera.image_size[::-1] and image.max() > 40
+
+
 @pytest.fixture
 def small_rig(tmp_path):
     size = (320, 240)

@@ -148,3 +148,30 @@ def test_detections_cached_by_content_and_threads_agree(tmp_path, monkeypatch):
     cv2.imwrite(str(paths[2]), changed)  # new content: not in the cache
     with pytest.raises(AssertionError, match="detected although cached"):
         detect_in_images(board, paths, cache=cache)
+
+
+def test_4k_board_the_classic_search_misses_found_by_reduced_sb_and_refined(monkeypatch):
+    """A 4K frame where the classic search fails: SB runs on the quarter-size copy (never at full size, 30 s
+    there), and the full-size refinement brings its corners to the truth."""
+    board = Board("chessboard", 9, 6, 1.0)
+    image, truth = render_chessboard(9, 6, 200)
+    offset = np.array([880, 700])
+    image = np.pad(image, ((offset[1], 2880 - image.shape[0] - offset[1]), (offset[0], 3840 - image.shape[1] - offset[0])),
+                   constant_values=230)
+    noise = np.random.default_rng(27).normal(0.0, 2.0, image.shape)
+    image = np.clip(np.rint(image + noise), 0, 255).astype(np.uint8)
+    truth = truth + offset
+    searched = []
+    find_sb = cv2.findChessboardCornersSB
+
+    def recording_sb(gray, *args, **kwargs):
+        searched.append(gray.shape)
+        return find_sb(gray, *args, **kwargs)
+
+    monkeypatch.setattr(cv2, "findChessboardCorners", lambda *a, **k: (False, None))
+    monkeypatch.setattr(cv2, "findChessboardCornersSB", recording_sb)
+    detection = detect_board(board, image)
+    assert detection is not None and detection.detector == "sb"
+    assert searched == [(720, 960)]  # the quarter-size copy, found at the first call
+    error = np.linalg.norm(detection.corners_px - truth, axis=1)
+    assert np.sqrt(np.mean(error**2)) < 0.015 and error.max() < 0.03  # measured 0.0050 and 0.0105

@@ -226,8 +226,8 @@ def capture_covariance(monkeypatch, dense_reference=True):
     calls = []
     ours = covariance_module.marginal_covariance
 
-    def with_references(problem, reconstruction, blocks, *args):
-        mine = ours(problem, reconstruction, blocks, *args)
+    def with_references(problem, reconstruction, blocks, *args, **kwargs):
+        mine = ours(problem, reconstruction, blocks, *args, **kwargs)
         full = covariance_module.ceres_covariance(problem, blocks)
         sizes = [problem.parameter_block_tangent_size(b) for b in blocks]
         offsets = np.r_[0, np.cumsum(sizes)]

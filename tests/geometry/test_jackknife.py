@@ -52,6 +52,22 @@ def test_jackknife_sees_errors_shared_by_an_image_that_the_covariance_misses():
         assert 0.4 * expected < jackknife < 2.0 * expected
 
 
+def test_one_gauss_newton_step_per_frame_matches_full_refits():
+    # the default replicates (one Gauss-Newton step from the full solution) against full refits: the frame's
+    # influence is small, so the step lands within a few percent of the refit's move, and the sigmas agree
+    state = tracks_state(stereo_rig(), np.random.default_rng(5), n_frames=6, n_points=500)
+    full = bundle_adjust(state, OPTIONS)
+    step, refit = frame_jackknife(full, OPTIONS), frame_jackknife(full, OPTIONS, method="refit")
+    assert (step.method, refit.method) == ("step", "refit") and set(step.sigmas) == set(refit.sigmas)
+    for key, value in refit.sigmas.items():
+        assert step.sigmas[key] == pytest.approx(value, rel=0.05), key
+    for key, moved in refit.replicates.items():
+        spread = np.max(np.abs(moved - moved.mean(axis=0)))
+        assert np.max(np.abs(step.replicates[key] - moved)) < 0.05 * spread, key
+    with pytest.raises(CamcalError, match="unknown jackknife method"):
+        frame_jackknife(full, OPTIONS, method="magic")
+
+
 @pytest.mark.parametrize("n", [5, 10, 20])
 def test_widened_sigmas_cover_as_tukeys_t_interval(n):
     # the jackknife of a mean over n groups is s / sqrt(n), exactly Student-t with n - 1 degrees of freedom:

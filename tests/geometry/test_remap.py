@@ -35,9 +35,14 @@ FAST_LENSES = {
     "opencv": Distortion("opencv", {"k1": -0.18, "k2": 0.04, "p1": 0.001, "p2": -0.0008, "k3": 0.01}),
     "division": Distortion("division", {"lambda": -4e-7}, center=(322.0, 236.0)),
     "division-past-range": Distortion("division", {"lambda": 3e-6}),
+    "division-aspect": Distortion("division", {"lambda": -4e-7, "aspect": 520.0 / 518.0}),
     "kannala-brandt": Distortion("kannala-brandt", {"k1": 0.021, "k2": -0.0042, "k3": 0.0013, "k4": -0.00021}),
     # one-to-one only up to 37 degrees: the reference path, NaN beyond
     "kannala-brandt-past-range": Distortion("kannala-brandt", {"k1": -0.9, "k2": 0.0, "k3": 0.0, "k4": 0.0}),
+    # no fast path: the reference itself (the test checks that the dispatch reaches it)
+    "kannala-brandt-thin-prism": Distortion("kannala-brandt-thin-prism", {
+        "k1": 0.021, "k2": -0.0042, "k3": 0.0013, "k4": -0.00021, "k5": 2e-5, "k6": -1e-6, "p1": 4e-4,
+        "p2": -3e-4, "s1": 5e-4, "s2": -1e-4, "s3": -4e-4, "s4": 1e-4}),
 }
 
 

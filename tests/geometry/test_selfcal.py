@@ -10,8 +10,9 @@ from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleState
+from camcal.geometry.bundle.prior import PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO
 from camcal.model.camera import rotation_angle_deg
-from camcal.geometry.selfcal import principal_point_limit_px, self_calibrate
+from camcal.geometry.selfcal import self_calibrate
 from camcal.model.colmap import camera_from_colmap
 from camcal.model.rig import Camera
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
@@ -126,8 +127,9 @@ def test_lens_model_chosen_by_heldout_residual_is_the_true_one_when_it_matters()
         assert decisions.lens_models[name] == "division" and table["division"] < table["polynomial"]
 
 
-def test_principal_point_held_with_a_reason_when_the_views_do_not_determine_it():
-    # a long lens translated sideways without turning: a principal point shift is a rotation of every view
+def test_principal_point_the_views_do_not_determine_is_the_prior_and_says_so():
+    # a long lens translated sideways without turning: a principal point shift is a rotation of every view,
+    # so the principal point stays where the sensor's prior puts it, with the prior's sigma, and is never held
     rng = np.random.default_rng(7)
     cameras = stereo_rig(f=4000.0, lam=(0.0, 0.0))
     R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # looking along +x at the set
@@ -135,18 +137,20 @@ def test_principal_point_held_with_a_reason_when_the_views_do_not_determine_it()
     state = tracks_state(cameras, rng, poses=poses, n_points=800)
     stages = []
     result, decisions = self_calibrate(state, BundleOptions(), ("division",), progress=stages.append)
-    print("\n".join(decisions.lines()))
+    lines = decisions.lines()
+    print("\n".join(lines))
     # the stages reach the caller's callback (nothing is printed by the library)
-    assert stages[-1] == "bundle adjustment with the undetermined principal points at the image centre"
     assert any(stage.startswith("lens model division: fitting") for stage in stages)
-    for decision in decisions.principal_point:
-        assert not decision.refined
-        assert max(decision.sigma_px) >= decision.limit_px == principal_point_limit_px((960, 720))
-        assert "held at the image centre" in decision.reason
-    for k in range(2):
+    prior = PRINCIPAL_POINT_PRIOR * np.hypot(960, 720)
+    for k, decision in enumerate(decisions.principal_point):
+        assert decision.refined and not decision.determined and decision.prior_sigma_px == prior
+        assert "the views barely determine it, the prior decides" in decision.reason
+        # the posterior is the prior: its sigma is the prior's, and the truth (6-8 px off) lies well inside it
+        assert UNDETERMINED_RATIO * prior < max(decision.sigma_px) and max(decision.sigma_px) <= prior
         solved = intrinsics(result.state, k)
-        assert np.allclose(solved.K[:2, 2], [(960 - 1) / 2, (720 - 1) / 2])
-        assert f"{result.state.camera_names[k]}.cx" not in result.sigmas
+        assert np.all(np.abs(solved.K[:2, 2] - cameras[k].K[:2, 2]) < 2 * np.array(decision.sigma_px))
+        assert f"{result.state.camera_names[k]}.cx" in result.sigmas
+    assert any(line.startswith("skew: 0") for line in lines)
 
 
 def test_self_calibrate_bad_input():
@@ -155,6 +159,22 @@ def test_self_calibrate_bad_input():
         self_calibrate(state, BundleOptions(), principal_point="middle")
     with pytest.raises(CamcalError, match="unknown lens model 'fisheye'"):
         self_calibrate(state, BundleOptions(), ("fisheye",))
+    with pytest.raises(CamcalError, match="unknown jackknife method 'bootstrap'"):
+        self_calibrate(state, BundleOptions(), jackknife="bootstrap")
+
+
+def test_jackknife_method_passes_through_and_refits_agree_with_steps():
+    state = tracks_state(stereo_rig(), np.random.default_rng(3), n_frames=5, n_points=400)
+    runs = {method: self_calibrate(state, BundleOptions(), ("division",), jackknife=method)[1]
+            for method in ("step", "refit", None)}
+    assert runs["step"].jackknife_method == "step" and runs["refit"].jackknife_method == "refit"
+    assert runs["step"].jackknife_groups == runs["refit"].jackknife_groups == 5
+    assert any("(full refits)" in line for line in runs["refit"].lines())
+    assert any("(one Gauss-Newton step each)" in line for line in runs["step"].lines())
+    for key, value in runs["refit"].jackknife_sigmas.items():  # one step is the refit to first order
+        assert runs["step"].jackknife_sigmas[key] == pytest.approx(value, rel=0.05), key
+    assert runs[None].jackknife_groups == 0 and runs[None].jackknife_method == ""
+    assert any(line.startswith("uncertainty: covariance sigmas only (asked)") for line in runs[None].lines())
 
 
 @pytest.mark.slow
@@ -324,4 +344,17 @@ def test_solve_cli_bad_feature_count_is_one_line(tmp_path, capsys):
     assert main(["solve", str(tmp_path / "left"), "--out", str(tmp_path / "out"), "--features", "10"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["camcal: error: --features must be at least 100, got 10"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_solve_cli_bad_prior_is_one_line(tmp_path, capsys):
+    import cv2
+
+    from camcal.cli import main
+
+    (tmp_path / "left").mkdir()
+    cv2.imwrite(str(tmp_path / "left" / "0000.png"), np.zeros((8, 8), np.uint8))
+    assert main(["solve", str(tmp_path / "left"), "--out", str(tmp_path / "out"), "--prior", "left.f=1200"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["camcal: error: prior 'left.f=1200': expected CAMERA.NAME=MEAN+-SIGMA, e.g. left.f=1200+-30"]
     assert not (tmp_path / "out").exists()

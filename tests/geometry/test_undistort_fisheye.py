@@ -15,6 +15,11 @@ W, H = 480, 360
 K = np.array([[137.0, 0.0, 241.3], [0.0, 136.2, 178.6], [0.0, 0.0, 1.0]])
 LENS = Distortion("kannala-brandt", {"k1": 0.021, "k2": -0.0042, "k3": 0.0013, "k4": -0.00021})
 CAMERA = Camera("fish", (W, H), K, LENS, np.eye(3), np.zeros(3))
+#: the same lens with COLMAP's RAD_TAN_THIN_PRISM_FISHEYE terms (k5, k6, tangential, thin prism)
+LENS_TP = Distortion("kannala-brandt-thin-prism", {"k1": 0.021, "k2": -0.0042, "k3": 0.0013, "k4": -0.00021,
+                                                   "k5": 2e-5, "k6": -1e-6, "p1": 4e-4, "p2": -3e-4,
+                                                   "s1": 5e-4, "s2": -1e-4, "s3": -4e-4, "s4": 1e-4})
+CAMERA_TP = Camera("fish-tp", (W, H), K, LENS_TP, np.eye(3), np.zeros(3))
 
 
 def angle_deg(camera, pixels):
@@ -27,16 +32,19 @@ def test_the_lens_sees_beyond_90_degrees():
     assert np.all(angle_deg(CAMERA, corners) > 90.0)
 
 
-def test_crop_default_field_of_view_and_no_black_border():
-    view = undistorted_view(CAMERA, "crop")
+@pytest.mark.parametrize("camera", [CAMERA, CAMERA_TP], ids=["kannala-brandt", "kannala-brandt-thin-prism"])
+def test_crop_default_field_of_view_and_no_black_border(camera):
+    view = undistorted_view(camera, "crop")
     border = _border(view.image_size)
     # the widest output ray is at half the default field of view
     ideal = Camera("u", view.image_size, view.K_new, Distortion.none(), np.eye(3), np.zeros(3))
     assert angle_deg(ideal, border).max() == pytest.approx(FISHEYE_FOV_DEG / 2, abs=1e-6)
     # and every output pixel samples inside the plate
-    maps = make_undistorter(CAMERA, "crop").maps
+    maps = make_undistorter(camera, "crop").maps
     assert maps.map_x.min() >= -0.5 and maps.map_x.max() <= W - 0.5
     assert maps.map_y.min() >= -0.5 and maps.map_y.max() <= H - 0.5
+    if camera is not CAMERA:
+        return
     # a wider cap is limited by the plate's frame instead
     wide = undistorted_view(CAMERA, "crop", max_fov_deg=170.0)
     assert wide.K_new[0, 0] < view.K_new[0, 0]
@@ -83,12 +91,13 @@ def test_undistorted_image_matches_a_pinhole_render():
     assert abs(np.mean(undistorted[valid] - pinhole[valid])) < 1.0
 
 
-def test_stmaps_undistort_and_redistort_are_inverse():
-    maps = make_stmaps(CAMERA, overscan=1.5)
+@pytest.mark.parametrize("camera", [CAMERA, CAMERA_TP], ids=["kannala-brandt", "kannala-brandt-thin-prism"])
+def test_stmaps_undistort_and_redistort_are_inverse(camera):
+    maps = make_stmaps(camera, overscan=1.5)
     width_u, height_u = maps.undistorted.image_size
     # redistort: plate pixel -> undistorted pixel; undistort: undistorted pixel -> plate pixel
     x_u, y_u = pixels_from_st(maps.redistort, maps.undistorted.image_size)
-    x_p, y_p = pixels_from_st(maps.undistort, CAMERA.image_size)
+    x_p, y_p = pixels_from_st(maps.undistort, camera.image_size)
     u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
     on_canvas = (x_u >= 0) & (x_u <= width_u - 1) & (y_u >= 0) & (y_u <= height_u - 1)
     assert on_canvas.mean() > 0.3
@@ -101,7 +110,7 @@ def test_stmaps_undistort_and_redistort_are_inverse():
     # bilinear interpolation of a smooth map at a 1 px grid: well under a hundredth of a pixel here
     assert np.percentile(error, 99) < 0.01
     # plate pixels beyond 90 degrees have no undistorted position: the sentinel, outside [0, 1]
-    beyond = angle_deg(CAMERA, np.column_stack([u.ravel(), v.ravel()])).reshape(H, W) >= 90.0
+    beyond = angle_deg(camera, np.column_stack([u.ravel(), v.ravel()])).reshape(H, W) >= 90.0
     assert beyond.any()
     assert np.all((maps.redistort[beyond][:, 0] < 0) | (maps.redistort[beyond][:, 0] > 1))
 

@@ -76,7 +76,7 @@ def test_default_never_refuses_where_one_of_its_models_fits(measured):
 
 @pytest.mark.slow
 def test_default_is_at_parity_with_opencvs_best_model_on_the_gopro(measured):
-    # measured (README, "Lens model choice"): 1.017 x on the GoPro; the car camera's 1.09 x is the xfail below
+    # measured (README, "Lens model choice"): 0.959 x on the GoPro; the car camera's 1.09 x is the xfail below
     name, result, peers = measured
     if name != "udacity_gopro":
         pytest.skip("parity is held on the GoPro; the car camera is behind (README, Lens model choice)")
@@ -84,9 +84,12 @@ def test_default_is_at_parity_with_opencvs_best_model_on_the_gopro(measured):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue 27, not met yet: camcal's models reach OpenCV's optima on "
-                   "the same corners (GoPro 1.017 x); on the car camera the cross-validated choice (kannala-brandt) "
-                   "is 1.09 x OpenCV's thin prism on the 3 held-out views (README, Lens model choice)")
-def test_default_beats_opencvs_best_model_by_three_percent(measured):
+def test_default_beats_opencvs_best_model_by_three_percent(measured, request):
+    # measured (README, "Lens model choice"): the GoPro 0.959 x with kannala-brandt-thin-prism, chosen by auto
     name, result, peers = measured
+    if name == "udacity_dashcam":
+        request.applymarker(pytest.mark.xfail(strict=True, reason=(
+            "issue 27, not met yet on the car camera: the cross-validated choice (kannala-brandt) is 1.09 x "
+            "OpenCV's thin prism on the 3 held-out views; its 13 training views rank the thin-prism fisheye next to last "
+            "(README, Lens model choice)")))
     assert result.heldout_rms_px <= 0.97 * min(peers.values()), (name, result.model, result.heldout_rms_px, peers)

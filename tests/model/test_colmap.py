@@ -53,11 +53,47 @@ def test_division_parameter_scaling_on_a_known_point():
     assert colmap.params == (f, 640.0, 480.0, lam * f * f)
 
 
+def test_division_with_two_focals_is_colmap_division():
+    """fx != fy: the division lens with aspect fx / fy is COLMAP's DIVISION, k = lambda fx^2; another aspect is refused."""
+    with pytest.raises(CamcalError, match="aspect = fx / fy"):
+        camera_to_colmap(example_camera(fx=1600.0, fy=800.0, distortion=Distortion("division", {"lambda": -1e-7})))
+    camera = example_camera(fx=1600.0, fy=800.0, principal_point=(639.5, 479.5), image_size=(1280, 960),
+                            distortion=Distortion("division", {"lambda": -1e-7, "aspect": 2.0}))
+    colmap = camera_to_colmap(camera)
+    assert colmap.model == "DIVISION"
+    assert colmap.params == (1600.0, 800.0, 640.0, 480.0, -1e-7 * 1600.0**2)
+    X = points_in_view(camera, 200, np.random.default_rng(1))
+    _, theirs = colmap_pixels(camera, X)
+    assert np.abs(theirs - 0.5 - camera.project(X)).max() < 1e-8
+    back = camera_from_colmap("back", colmap.model, camera.image_size, colmap.params, camera.R, camera.c)
+    assert np.abs(back.project(X) - camera.project(X)).max() < 1e-8
+    assert back.distortion.params["aspect"] == 2.0
+
+
+def test_rad_tan_thin_prism_fisheye_both_ways():
+    """kannala-brandt-thin-prism is RAD_TAN_THIN_PRISM_FISHEYE (COLMAP's p0 is OpenCV's p2) to 1e-8 px."""
+    names = ("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2", "s1", "s2", "s3", "s4")
+    values = (0.02, -0.01, 0.003, -5e-4, 1e-4, -1e-5, 3e-4, -2e-4, 1e-4, -5e-5, 2e-4, 3e-5)
+    lens = Distortion("kannala-brandt-thin-prism", dict(zip(names, values)))
+    camera = example_camera(fx=455.0, fy=452.5, principal_point=(803.7, 596.2), image_size=(1600, 1200),
+                            distortion=lens)
+    colmap = camera_to_colmap(camera)
+    assert colmap.model == "RAD_TAN_THIN_PRISM_FISHEYE"
+    assert colmap.params[10:12] == (-2e-4, 3e-4)
+    pc = pycolmap.Camera(model=colmap.model, width=colmap.width, height=colmap.height, params=list(colmap.params))
+    rng = np.random.default_rng(7)
+    theta, phi = rng.uniform(0.0, np.radians(85.0), 2000), rng.uniform(-np.pi, np.pi, 2000)
+    rays = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    ours = lens.project_rays(rays, camera.K)
+    assert np.abs(pc.img_from_cam(rays) - 0.5 - ours).max() < 1e-8
+    assert np.abs(lens.rays_from_pixels(ours, camera.K) - rays).max() < 1e-10
+    back = camera_from_colmap("back", colmap.model, camera.image_size, colmap.params, camera.R, camera.c)
+    assert back.distortion == lens
+
+
 def test_unmappable_cameras_are_refused():
     with pytest.raises(CamcalError, match="skew"):
         camera_to_colmap(example_camera(skew=0.5))
-    with pytest.raises(CamcalError, match="fx = fy"):
-        camera_to_colmap(example_camera(distortion=Distortion("division", {"lambda": -1e-7})))
     with pytest.raises(CamcalError, match="centred on the principal point"):
         camera_to_colmap(example_camera(fx=1500.0, fy=1500.0, distortion=Distortion("division", {"lambda": -1e-7}, center=(900.0, 500.0))))
     with pytest.raises(CamcalError, match="no thin-prism terms"):

@@ -1,6 +1,7 @@
 """pycolmap SfM -> camcal Rig, against a rendered scene with known cameras."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -10,7 +11,7 @@ import pytest
 from camcal.cli import main
 from camcal.base.errors import CamcalError
 from camcal.model.camera import rotation_angle_deg, similarity_Umeyama1991
-from camcal.pipelines.solve import collect_images, solve_sfm
+from camcal.pipelines.solve import COLMAP_LOG, collect_images, solve_sfm
 from camcal.io.ply import read_points_ply, write_points_ply
 from camcal.model.rig import Rig
 from camcal.synthetic import render_stereo_sequence
@@ -114,8 +115,80 @@ def test_collect_images_by_folder_subfolder_and_glob(tmp_path):
 
 def test_solve_cli_help_and_bad_input(tmp_path):
     help_run = subprocess.run([sys.executable, "-m", "camcal", "solve", "--help"], capture_output=True, text=True)
-    assert help_run.returncode == 0 and "usage: camcal solve" in help_run.stdout
+    assert help_run.returncode == 0 and "usage: camcal solve" in help_run.stdout and "jackknife-refit" in help_run.stdout
     bad = subprocess.run([sys.executable, "-m", "camcal", "solve", str(tmp_path / "nope"), "--out", str(tmp_path / "o")],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "image folder not found" in bad.stderr
     assert not (tmp_path / "o" / "solve.rig.json").exists()
+
+
+GLOG_LINE = re.compile(r"^[IWEF]\d{8} ")
+
+
+def _numbers(value, path=""):
+    """Every leaf of a rig file's JSON, by its path; the creation time left out (it is the clock's)."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if key != "created":
+                yield from _numbers(item, f"{path}.{key}")
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            yield from _numbers(item, f"{path}[{index}]")
+    else:
+        yield path, value
+
+
+def _solve_twice(tmp_path, width: int, max_num_features: int) -> None:
+    """Solve a rendered 5-position stereo sequence ``width`` px wide twice, the first time in its own process:
+    only camcal's lines on stderr (COLMAP's in the log), and the two rig files equal to 1e-9 relative.
+
+    COLMAP's extraction threads and pycolmap's Ceres threads are the sources of difference this
+    guards against (the images' ids in finishing order, sums in finishing order)."""
+    focal, height = 500.0 * width / 640, width * 3 // 4
+    render_stereo_sequence(tmp_path / "in", n_frames=5, image_size=(width, height),
+                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
+    script = (
+        "import sys\n"
+        "from camcal.pipelines.solve import solve_sfm\n"
+        f"solve_sfm({{'left': {str(tmp_path / 'in/left')!r}, 'right': {str(tmp_path / 'in/right')!r}}}, "
+        f"{str(tmp_path / 'first')!r}, max_num_features={max_num_features}, "
+        "progress=lambda m: print(f'camcal solve: {m}', file=sys.stderr, flush=True))\n"
+    )
+    first = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    lines = first.stderr.splitlines()
+    assert lines and all(line.startswith("camcal solve: ") for line in lines), lines[:5]
+    assert not any(GLOG_LINE.match(line) or "Linear solver failure" in line for line in lines)
+    log = (tmp_path / "first" / COLMAP_LOG).read_text()
+    assert any(GLOG_LINE.match(line) for line in log.splitlines())  # COLMAP's own lines are in the log
+    solve_sfm({"left": tmp_path / "in/left", "right": tmp_path / "in/right"}, tmp_path / "second",
+              max_num_features=max_num_features)
+    a = dict(_numbers(json.loads((tmp_path / "first/solve.rig.json").read_text())))
+    b = dict(_numbers(json.loads((tmp_path / "second/solve.rig.json").read_text())))
+    assert a[".provenance.seed"] == 0 and set(a) == set(b)
+    assert any(".sigma." in key for key in a)  # the jackknife's and the covariance's sigmas are compared too
+    differing = {key: (a[key], b[key]) for key in a if a[key] != b[key]}
+    for key, (x, y) in differing.items():
+        assert isinstance(x, float) and abs(x - y) <= 1e-9 * max(abs(x), abs(y)), (key, x, y)
+
+
+def test_solve_twice_on_a_small_scene_gives_the_same_rig(tmp_path):
+    _solve_twice(tmp_path, width=256, max_num_features=512)
+
+
+@pytest.mark.slow
+def test_solve_twice_gives_the_same_rig_and_only_camcal_writes_to_stderr(tmp_path):
+    _solve_twice(tmp_path, width=640, max_num_features=2048)
+
+
+@pytest.mark.slow
+def test_solve_twice_on_real_stereo_pairs_gives_the_same_rig(tmp_path, shared_data):
+    """Six of OpenCV's real stereo pairs (a chessboard on a desk, 640x480): the two rig files equal to 1e-9."""
+    folder = shared_data / "stereo_chessboard"
+    folders = {name: [folder / f"{name}{index:02d}.jpg" for index in range(1, 7)] for name in ("left", "right")}
+    for out in ("first", "second"):
+        solve_sfm(folders, tmp_path / out)
+    a = dict(_numbers(json.loads((tmp_path / "first/solve.rig.json").read_text())))
+    b = dict(_numbers(json.loads((tmp_path / "second/solve.rig.json").read_text())))
+    assert set(a) == set(b) and any(".sigma." in key for key in a)
+    for key in a:
+        assert a[key] == b[key] or abs(a[key] - b[key]) <= 1e-9 * max(abs(a[key]), abs(b[key])), (key, a[key], b[key])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import handler
+from camcal.cli.options import handler, output_folder
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -75,8 +75,12 @@ def _export(args: argparse.Namespace) -> int:
     if args.ocio:
         from camcal.io.ocio import export_ocio
 
-        result = export_ocio(fits, args.ocio, base=args.base, cat=args.cat, max_delta_E=args.max_bake_error,
-                             matches=matches)
+        from camcal.base.atomic import final_path
+
+        with output_folder(args.ocio) as ocio_dir:
+            result = export_ocio(fits, ocio_dir, base=args.base, cat=args.cat, max_delta_E=args.max_bake_error,
+                                 matches=matches)
+        result = dataclasses.replace(result, config_path=final_path(result.config_path, ocio_dir, args.ocio))
         for space in result.spaces:
             print(space.summary())
         print(f"wrote {result.config_path} (base {result.base}, {len(fits)} camera space(s), {len(matches)} match Look(s))")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import camera_label_option, handler, out_option, report_option
+from camcal.cli.options import camera_label_option, handler, out_option, output_folder, report_option
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -103,6 +103,7 @@ def _fit(args: argparse.Namespace) -> int:
     from camcal.io.patches import read_patch_csv
     from camcal.pipelines.colour import patches_from_chart
     from camcal.io.raw import is_raw
+    from camcal.base.atomic import final_path
     from camcal.report.characterisation import write_report
 
     reference = None
@@ -152,9 +153,11 @@ def _fit(args: argparse.Namespace) -> int:
                 selection=None if outcome.selection is None else outcome.selection.reason,
                 n_train=len(train), delta_E2000=stats,
                 **({"n_too_dark": len(found.too_dark), "n_dropped": len(found.excluded)} if args.chart else {}))
-    out.wrote(save_colour_file(fit, args.out), "colour fit")
+    with output_folder(args.report) as report_dir:
+        reports = [] if report_dir is None else write_report(outcome, report_dir, title=args.camera or "")
+        out.wrote(save_colour_file(fit, args.out), "colour fit")
     if args.report:
-        out.report(write_report(outcome, args.report, title=args.camera or ""), args.report)
+        out.report([final_path(path, report_dir, args.report) for path in reports], args.report)
     return 0
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import handler, named_option, out_option, report_option, rig_argument
+from camcal.cli.options import handler, named_option, out_option, output_folder, report_option, rig_argument
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -44,6 +44,7 @@ def _match(args: argparse.Namespace) -> int:
     from camcal.colour.match.models import parse_match_model
     from camcal.io.colourfile import load_fit, save_colour_file
     from camcal.pipelines.colour import match_image_files, match_patch_files
+    from camcal.base.atomic import final_path
     from camcal.report.colour_match import write_report
 
     parse_match_model(args.model)
@@ -72,7 +73,9 @@ def _match(args: argparse.Namespace) -> int:
     out = summary_of(args)
     out.figures(model=args.model, evaluation=result.match.evaluation,
                 correspondences=dict(result.correspondences.counts) if images else None)
-    out.wrote(save_colour_file(result.match, args.out), "colour match")
+    with output_folder(args.report) as report_dir:
+        reports = [] if report_dir is None else write_report(result, report_dir)
+        out.wrote(save_colour_file(result.match, args.out), "colour match")
     if args.report:
-        out.report(write_report(result, args.report), args.report)
+        out.report([final_path(path, report_dir, args.report) for path in reports], args.report)
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import camera_label_option, handler, name_value, out_option, report_option
+from camcal.cli.options import camera_label_option, handler, name_value, out_option, output_folder, report_option
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -87,13 +87,16 @@ def _sensitivities(args: argparse.Namespace) -> int:
               f"vs {reference.mu_factor():.4f}")
         out.figures(compare={"reference": args.compare, "relative_rms_error": [float(v) for v in per_channel],
                              "relative_rms_error_overall": overall, "mu_factor": reference.mu_factor()})
-    json_path, csv_path = write_sensitivities(args.out, sens)
+    with output_folder(args.report) as report_dir:
+        if report_dir is not None:
+            plot_sensitivities(report_dir / "sensitivities.png", sens, reference, title=args.camera or "")
+        json_path, csv_path = write_sensitivities(args.out, sens)
     out.wrote(json_path, "sensitivities")
     out.wrote(csv_path, "sensitivities csv")
     if args.report:
         from pathlib import Path
 
-        path = plot_sensitivities(Path(args.report) / "sensitivities.png", sens, reference, title=args.camera or "")
+        path = Path(args.report) / "sensitivities.png"
         out.wrote(path, "report", say=False)
         print(f"report: {path}")
     return 0

@@ -31,16 +31,11 @@ Conventions
   so ``XYZ = M @ expand(RGB)`` as in colour-science's
   ``matrix_colour_correction``; for ``matrix3x3`` this is the usual 3x3
   matrix an OCIO ``MatrixTransform`` takes.
-- Terms are written as strings: ``"1"``, ``"R"``, ``"R*G"``, ``"R^2*G"``
-  for polynomials and ``"(R*G)^(1/2)"``, ``"(R*G^2)^(1/3)"`` for root terms.
-  Root terms use sign-preserving powers (``sign(x) |x|^p``), as
-  colour-science does, so slightly negative noisy inputs stay finite.
+- Terms are strings, written and expanded as :mod:`camcal.colour.fit.terms`
+  describes (polynomial and sign-preserving root terms).
 
-Objectives: ``"xyz"`` (regularised linear least squares in XYZ, closed form)
-or ``"de2000"`` (sum of squared CIEDE2000 per patch, minimised by
-``scipy.optimize.least_squares`` from the least-squares solution; not
-available for ``rbf``). Regularisation ``lambda`` is a ridge penalty on the
-non-linear terms only: ``|A M^T - XYZ|^2 / N + lambda |M_nl|^2``.
+The objectives and the regularisation are those of the fit dispatcher,
+:func:`camcal.colour.fit.fitting.fit_model`.
 
 References
 ----------

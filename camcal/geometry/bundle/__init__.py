@@ -9,7 +9,9 @@
 - :mod:`~camcal.geometry.bundle.solve`: :func:`bundle_adjust`, pycolmap's Ceres
   bundle adjuster on the state;
 - :mod:`~camcal.geometry.bundle.covariance`: the marginal covariance of the
-  intrinsics and rig poses (:func:`marginal_covariance`).
+  intrinsics and rig poses (:func:`marginal_covariance`);
+- :mod:`~camcal.geometry.bundle.prior`: Gaussian priors on intrinsics
+  (:class:`PriorSpec`, :func:`parse_prior`, the sensor's defaults).
 
 References
 ----------
@@ -22,6 +24,7 @@ covariance estimation.
 """
 
 from camcal.geometry.bundle.covariance import MIN_POINT_SINGULAR_RATIO, ceres_covariance, marginal_covariance
+from camcal.geometry.bundle.prior import PriorSpec, parse_prior
 from camcal.geometry.bundle.reconstruction import state_from_reconstruction, state_to_reconstruction
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import (
@@ -43,11 +46,13 @@ __all__ = [
     "BundleOptions",
     "BundleResult",
     "BundleState",
+    "PriorSpec",
     "attach_board",
     "bundle_adjust",
     "ceres_covariance",
     "hold_rig",
     "marginal_covariance",
+    "parse_prior",
     "residuals",
     "robust_cost",
     "state_from_reconstruction",

@@ -76,7 +76,7 @@ def ceres_covariance(problem, blocks: list[NDArray[np.float64]], num_threads: in
 
 
 def marginal_covariance(problem, reconstruction, blocks: list[NDArray[np.float64]],
-                        min_point_singular_ratio: float = MIN_POINT_SINGULAR_RATIO,
+                        min_point_singular_ratio: float = MIN_POINT_SINGULAR_RATIO, num_threads: int = 2,
                         ) -> tuple[NDArray[np.float64], int]:
     """``(J^T J)^-1`` of some parameter blocks of a COLMAP bundle adjustment, all other unknowns marginalised.
 
@@ -94,6 +94,10 @@ def marginal_covariance(problem, reconstruction, blocks: list[NDArray[np.float64
     min_point_singular_ratio : float
         A free 3D point whose own Jacobian rows ``J_p`` (2k x 3) have
         ``sigma_min < ratio x sigma_max`` is left out of the covariance.
+    num_threads : int
+        Ceres' threads for the Jacobian; 1 when the problem has Python cost
+        functions (pyceres' ``evaluate_jacobian`` holds the GIL that their
+        evaluation on a worker thread would wait for).
 
     Returns
     -------
@@ -140,7 +144,7 @@ def marginal_covariance(problem, reconstruction, blocks: list[NDArray[np.float64
     import scipy.linalg  # noqa: PLC0415
     import scipy.sparse  # noqa: PLC0415
 
-    J, n_wanted, n_camera = _jacobian(problem, reconstruction, blocks)
+    J, n_wanted, n_camera = _jacobian(problem, reconstruction, blocks, num_threads)
     n_points = (J.shape[1] - n_camera) // 3
 
     # the 3x3 information block of each point, from the rows (residuals) that see it
@@ -198,7 +202,7 @@ def marginal_covariance(problem, reconstruction, blocks: list[NDArray[np.float64
     return 0.5 * (covariance + covariance.T), n_left_out
 
 
-def _jacobian(problem, reconstruction, blocks: list[NDArray[np.float64]]):
+def _jacobian(problem, reconstruction, blocks: list[NDArray[np.float64]], num_threads: int = 2):
     """Ceres' Jacobian (SciPy CSR, loss applied) of a COLMAP problem, columns: ``blocks``, other free blocks, points.
 
     Returns the matrix, the columns of ``blocks`` and the columns before the
@@ -219,7 +223,7 @@ def _jacobian(problem, reconstruction, blocks: list[NDArray[np.float64]]):
     rest = [block for block in others if is_free_block(problem, block) and block.ctypes.data not in wanted]
     evaluate = pyceres.EvaluateOptions()
     evaluate.set_parameter_blocks(list(blocks) + rest + [block for block in points if is_free_block(problem, block)])
-    evaluate.num_threads = 2
+    evaluate.num_threads = num_threads
     crs = problem.evaluate_jacobian(evaluate)
     J = scipy.sparse.csr_matrix((np.asarray(crs.values), np.asarray(crs.cols), np.asarray(crs.rows)),
                                 shape=(crs.num_rows, crs.num_cols))

@@ -29,10 +29,14 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle.covariance import is_free_block, marginal_covariance
+from camcal.geometry.bundle.prior import Prior, posterior_sigma, prior_weights, resolve_priors
 from camcal.geometry.bundle.state import BundleOptions, BundleResult, BundleState, model_layout, residuals
 from camcal.model.camera import pixels_to_colmap
 
 __all__ = ["bundle_adjust"]
+
+#: the priors are weighed again with the solved noise when the start's estimate was off by more than this factor.
+_NOISE_RATIO = 1.5
 
 
 def _rms(state: BundleState) -> dict[str, float]:
@@ -182,7 +186,8 @@ def _held_indices(state: BundleState, camera: int, options: BundleOptions) -> li
 
 
 def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
-                  progress: Callable[[int, int], None] | None = None) -> BundleResult:
+                  progress: Callable[[int, int], None] | None = None,
+                  inspect: Callable[[object, _Colmap], None] | None = None) -> BundleResult:
     """Refine a reconstruction on Ceres: shared intrinsics, shared rig, frames, points, board.
 
     Parameters
@@ -201,6 +206,10 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
         and with ``done = total`` once the covariance is computed. An
         exception it raises stops the solve and propagates. Nothing is
         printed; :meth:`BundleResult.summary` describes the run.
+    inspect : callable, optional
+        Called as ``inspect(problem, colmap)`` once Ceres has stopped, with
+        the Ceres problem at the solution and the reconstruction it refines
+        (:mod:`camcal.geometry.bundle.deletion` reads its Jacobian).
 
     Returns
     -------
@@ -260,31 +269,60 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
         elif held:
             problem.set_manifold(block, pyceres.SubsetManifold(len(block), held))
 
+    free = {index: set(range(len(reconstruction.cameras[cid].params))) - set(_held_indices(state, index, options))
+            for index, cid in enumerate(colmap.camera_ids)
+            if is_free_block(problem, reconstruction.cameras[cid].params)}
+    priors, unused = resolve_priors(state, options.priors, options.default_priors, free)
+    noise = options.prior_noise_px if options.prior_noise_px is not None else _noise_px(state)
+    costs = [_prior_cost(prior, weight, len(reconstruction.cameras[colmap.camera_ids[prior.camera]].params))
+             for prior, weight in zip(priors, prior_weights(priors, noise))]
+    for cost in costs:
+        problem.add_residual_block(cost, None, [reconstruction.cameras[colmap.camera_ids[cost.prior.camera]].params])
+
     rms_before = _rms(state)
     # the adjuster's own solve, with pyceres' solver options: pycolmap's binding of them has no callbacks
     solver_options = _pyceres_solver_options(ba.ceres.create_solver_options(config, problem))
+    # one thread: Ceres' threads add into the reduced system in the order they finish, and the solution
+    # then differs from run to run in its last digits (frame poses by 1e-6 on a rendered stereo sequence)
+    solver_options.num_threads = 1
     total = options.max_iterations + int(options.compute_sigmas)
     if progress is not None:
         solver_options.callbacks = [_iteration_callback(progress, total)]
     summary = pyceres.SolverSummary()
     pyceres.solve(solver_options, problem, summary)
+    # Ceres counts its iteration 0 (the start) as a successful step
+    iterations = int(summary.num_successful_steps + summary.num_unsuccessful_steps) - 1
+    initial_cost = float(summary.initial_cost)
+    solved = np.sqrt(_image_sigma2(colmap, summary, costs))
+    if costs and options.prior_noise_px is None and solved > 0 and abs(np.log(noise / solved)) > np.log(_NOISE_RATIO):
+        # the start's residuals misjudged the noise that weighs the priors: solve again with the solved noise
+        for cost in costs:
+            cost.weight = solved / cost.prior.sigma
+        summary = pyceres.SolverSummary()
+        pyceres.solve(solver_options, problem, summary)
+        iterations += int(summary.num_successful_steps + summary.num_unsuccessful_steps) - 1
+    if inspect is not None:
+        inspect(problem, colmap)
     if progress is not None:
         progress(options.max_iterations, total)
     refined = _from_colmap(state, colmap)
     covariance, covariance_names, sigmas, n_left_out = np.zeros((0, 0)), (), {}, 0
+    posterior = tuple(float("nan") for _ in priors)
     if options.compute_sigmas:
-        covariance, covariance_names, n_left_out = _covariance(state, options, colmap, problem, summary)
+        covariance, covariance_names, n_left_out = _covariance(state, options, colmap, problem, summary, costs)
         sigmas = _sigmas(refined, covariance, covariance_names)
+        posterior = tuple(posterior_sigma(prior, covariance, covariance_names, state.param_names(prior.camera),
+                                          state.camera_names[prior.camera]) if len(covariance_names) else float("nan")
+                          for prior in priors)
         if progress is not None:
             progress(total, total)
     return BundleResult(
-        state=refined, initial_cost=float(summary.initial_cost), final_cost=float(summary.final_cost),
+        state=refined, initial_cost=initial_cost, final_cost=float(summary.final_cost),
         rms_before_px=rms_before, rms_after_px=_rms(refined), sigmas=sigmas,
-        # Ceres counts its iteration 0 (the start) as a successful step
-        n_iterations=int(summary.num_successful_steps + summary.num_unsuccessful_steps) - 1,
+        n_iterations=iterations,
         n_residuals=int(summary.num_residuals), n_parameters=int(summary.num_effective_parameters_reduced),
         covariance=covariance, covariance_names=covariance_names, n_points_out_of_covariance=n_left_out,
-        termination=str(summary.message),
+        termination=str(summary.message), priors=priors, prior_posterior_sigmas=posterior, unused_priors=unused,
     )
 
 
@@ -313,12 +351,61 @@ def _iteration_callback(progress: Callable[[int, int], None], total: int):
     return IterationProgress()
 
 
+def _noise_px(state: BundleState) -> float:
+    """Per-axis reprojection noise of the state, robustly: the median residual norm over ``sqrt(2 ln 2)`` (Rayleigh)."""
+    scene, board = residuals(state)
+    r = scene if board is None else np.vstack([scene, board])
+    norms = np.linalg.norm(r, axis=1)
+    norms = norms[np.isfinite(norms)]
+    return max(float(np.median(norms)) / np.sqrt(2.0 * np.log(2.0)), 1e-3) if len(norms) else 1.0
+
+
+def _image_sigma2(colmap: _Colmap, summary, costs: list) -> float:
+    """Per-axis noise variance of the images' residuals at the solution (priors' residuals left out); NaN without redundancy."""
+    dof = summary.num_residuals - len(costs) - summary.num_effective_parameters_reduced
+    if dof <= 0:
+        return float("nan")
+    cameras = colmap.reconstruction.cameras
+    prior_cost = 0.5 * sum(cost.residual(np.asarray(cameras[colmap.camera_ids[cost.prior.camera]].params)) ** 2
+                           for cost in costs)
+    return 2.0 * max(float(summary.final_cost) - prior_cost, 0.0) / dof
+
+
+def _prior_cost(prior: Prior, weight: float, size: int):
+    """A pyceres cost ``w (a . x - mean)`` on one camera's parameter block of ``size`` parameters."""
+    import pyceres  # noqa: PLC0415
+
+    class PriorCost(pyceres.CostFunction):
+        def __init__(self) -> None:
+            super().__init__()
+            self.prior, self.weight = prior, weight
+            self.row = np.zeros(size)
+            self.row[list(prior.indices)] = prior.coefficients
+            self.set_num_residuals(1)
+            self.set_parameter_block_sizes([size])
+
+        def residual(self, params: NDArray[np.float64]) -> float:
+            return self.weight * (float(self.row @ params) - self.prior.mean)
+
+        def Evaluate(self, parameters, residuals, jacobians) -> bool:  # noqa: N802 - pyceres' name
+            residuals[0] = self.residual(parameters[0])
+            if jacobians is not None and jacobians[0] is not None:
+                jacobians[0][:] = self.weight * self.row
+            return True
+
+    return PriorCost()
+
+
 def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, problem,
-                summary) -> tuple[NDArray[np.float64], tuple[str, ...], int]:
+                summary, costs: list) -> tuple[NDArray[np.float64], tuple[str, ...], int]:
     """``sigma^2 (J^T J)^-1`` of the free intrinsics and rig poses, its names and the points left out of it.
 
     Empty (and 0) when there is nothing to estimate, no redundancy, or the
     reduced normal equations are singular (:func:`marginal_covariance`).
+    ``sigma^2`` comes from the images' residuals alone; the priors' rows
+    are re-weighed to ``sigma / sigma_prior`` first, so that the result is
+    ``(J_img^T J_img / sigma^2 + sum a a^T / sigma_prior^2)^-1``, the
+    posterior covariance (:mod:`~camcal.geometry.bundle.prior`).
     """
     reconstruction = colmap.reconstruction
     blocks, names, scales = [], [], []
@@ -342,15 +429,67 @@ def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, pro
         blocks.append(block)
         names += [f"{camera}.{axis}" for axis in ("rx", "ry", "rz", "tx", "ty", "tz")]
         scales += [2.0, 2.0, 2.0, 1.0, 1.0, 1.0]  # Ceres' quaternion tangent d is half the rotation vector
-    dof = summary.num_residuals - summary.num_effective_parameters_reduced
-    if not blocks or dof <= 0:
+    sigma2 = _image_sigma2(colmap, summary, costs)
+    if not blocks or np.isnan(sigma2):
         return np.zeros((0, 0)), (), 0
-    inverse, n_left_out = marginal_covariance(problem, reconstruction, blocks)
+    if sigma2 > 0:
+        for cost in costs:
+            cost.weight = np.sqrt(sigma2) / cost.prior.sigma
+    frames = _board_frames(state, colmap, problem)
+    # one thread: the priors are Python cost functions (on more threads the Jacobian's evaluation waits on
+    # the GIL forever), and threads that sum in the order they finish would make two runs differ
+    inverse, n_left_out = marginal_covariance(problem, reconstruction, blocks + [block for block, _ in frames],
+                                              num_threads=1)
     if inverse.size == 0:
         return np.zeros((0, 0)), (), n_left_out
-    sigma2 = 2.0 * float(summary.final_cost) / dof
-    scale = np.asarray(scales)
-    return sigma2 * inverse * np.outer(scale, scale), tuple(names), n_left_out
+    B = np.diag(scales)
+    if frames:
+        B = np.vstack([np.hstack([B, np.zeros((len(names), inverse.shape[0] - len(names)))]),
+                       _gauge_rows(len(names), [t for _, t in frames])])
+        names += list(GAUGE_NAMES)
+    return sigma2 * (B @ inverse @ B.T), tuple(names), n_left_out
+
+
+#: Names of the board gauge in :attr:`BundleResult.covariance_names` (:func:`_gauge_rows`).
+GAUGE_NAMES = ("gauge.rx", "gauge.ry", "gauge.rz", "gauge.tx", "gauge.ty", "gauge.tz")
+
+
+def _board_frames(state: BundleState, colmap: _Colmap, problem) -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """``(params block, translation)`` of every free ``rig_from_board`` frame pose (board problems only)."""
+    if state.board is None:
+        return []
+    out = []
+    for _, fid in sorted(colmap.frame_ids.items()):
+        pose = colmap.reconstruction.frame(fid).rig_from_world
+        if is_free_block(problem, pose.params):
+            out.append((pose.params, np.array(pose.translation, dtype=np.float64)))
+    return out
+
+
+def _gauge_rows(n_before: int, translations: list[NDArray[np.float64]]) -> NDArray[np.float64]:
+    """The 6 rows mapping the frames' tangent perturbations to the board gauge ``(delta_bar, epsilon)``.
+
+    Notes
+    -----
+    mrcal's projection uncertainty (Kogan, mrcal 2.x, "projection
+    uncertainty") moves a point of the reference frame through every board
+    frame and back with the perturbed poses and averages:
+    ``p' = mean_i T_i' T_i^-1 p``, ``T_i = rig_from_board_i``. With Ceres'
+    perturbations ``R_i' = exp(delta_i) R_i`` (``delta_i = 2 d_i``, ``d_i``
+    the quaternion tangent) and ``t_i' = t_i + tau_i``, to first order
+    ``p' = p + delta_bar x p + epsilon`` with ``delta_bar = mean_i delta_i``
+    and ``epsilon = mean_i (tau_i + t_i x delta_i)``: a 6-vector whose
+    covariance with the intrinsics and rig poses is all the projection
+    uncertainty needs (:mod:`camcal.geometry.uncertainty`).
+    """
+    n = len(translations)
+    rows = np.zeros((6, n_before + 6 * n))
+    for i, t in enumerate(translations):
+        o = n_before + 6 * i
+        rows[:3, o:o + 3] = 2.0 * np.eye(3) / n
+        rows[3:, o:o + 3] = 2.0 * np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]]) / n
+        rows[3:, o + 3:o + 6] = np.eye(3) / n
+    return rows
 
 
 

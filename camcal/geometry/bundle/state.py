@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
+from camcal.geometry.bundle.prior import Prior, PriorSpec, undetermined
 from camcal.model.colmap import camera_from_colmap
 from camcal.model.camera import chordal_mean_rotation
 
@@ -200,6 +201,17 @@ class BundleOptions:
         Cameras whose intrinsics are all held.
     compute_sigmas : bool
         Estimate the covariance of the intrinsics and the rig poses.
+    priors : tuple of PriorSpec
+        Gaussian priors on intrinsics (:mod:`~camcal.geometry.bundle.prior`);
+        the estimate is then the posterior's mode and the sigmas the posterior's.
+    default_priors : bool
+        Also put the sensor's default priors on every free intrinsic
+        (:func:`~camcal.geometry.bundle.prior.default_specs`) that no given
+        prior names.
+    prior_noise_px : float or None
+        Reprojection noise (px per axis) that weighs the priors against the
+        images in the fit; None: from the start's median residual. The
+        covariance re-weighs them with the solved noise.
     """
 
     refine_focal_length: bool = True
@@ -214,6 +226,9 @@ class BundleOptions:
     fixed_params: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     constant_intrinsics: tuple[str, ...] = ()
     compute_sigmas: bool = True
+    priors: tuple[PriorSpec, ...] = ()
+    default_priors: bool = False
+    prior_noise_px: float | None = None
 
     def __post_init__(self) -> None:
         if self.loss not in LOSSES:
@@ -250,7 +265,10 @@ class BundleResult:
         ``camera.<COLMAP parameter>`` for the free intrinsics, then
         ``camera.rx, .ry, .rz`` (rotation vector applied on the left of
         ``sensor_from_rig``, radians) and ``camera.tx, .ty, .tz`` for each
-        refined rig pose.
+        refined rig pose; with a board, then ``gauge.rx .. gauge.tz``: the
+        mean perturbation of the board poses (rotation vector, then
+        translation, in the reference camera's frame), which projection
+        uncertainty needs (mrcal's gauge; ``solve._gauge_rows``).
     n_points_out_of_covariance : int
         Scene points left out of the covariance (not of the fit): seen
         along parallel rays to the rounding of the Jacobian, their depth is
@@ -258,6 +276,13 @@ class BundleResult:
         then conservative.
     termination : str
         Ceres' termination message.
+    priors : tuple of Prior
+        The priors in the problem (their residuals are part of the costs).
+    prior_posterior_sigmas : tuple of float
+        Posterior sigma of each prior's quantity, in its spec's units (NaN
+        without a covariance).
+    unused_priors : tuple of PriorSpec
+        Given priors on an intrinsic the camera's model does not have.
     """
 
     state: BundleState
@@ -273,10 +298,18 @@ class BundleResult:
     covariance_names: tuple[str, ...] = ()
     n_points_out_of_covariance: int = 0
     termination: str = ""
+    priors: tuple[Prior, ...] = ()
+    prior_posterior_sigmas: tuple[float, ...] = ()
+    unused_priors: tuple[PriorSpec, ...] = ()
 
     def summary(self) -> str:
         """Per-camera RMS before -> after and the cost."""
         rows = [f"  {name}: {self.rms_before_px[name]:.4f} -> {self.rms_after_px[name]:.4f} px" for name in self.rms_after_px]
+        if self.priors:
+            rows.append(f"  {len(self.priors)} Gaussian prior(s) on intrinsics in the cost; the sigmas are the posterior's")
+        rows += [f"  {line}" for line in undetermined(self.priors, self.prior_posterior_sigmas)]
+        rows += [f"  prior on {spec.label} not used: camera {spec.camera!r} has no such parameter in its lens model"
+                 for spec in self.unused_priors]
         if self.n_points_out_of_covariance:
             rows.append(f"  {self.n_points_out_of_covariance} point(s) seen along nearly parallel rays left out of "
                         "the sigmas (not of the fit)")

@@ -76,7 +76,7 @@ def _border_rays(camera: Camera, pixels: NDArray[np.float64], half_angle: float 
     if not lost.any():
         return rays
     reach = camera.distortion.max_angle_rad
-    if half_angle is None or camera.distortion.model != "kannala-brandt" or half_angle >= reach:
+    if half_angle is None or not camera.distortion.is_fisheye or half_angle >= reach:
         raise CamcalError(f"camera {camera.name!r}: its {camera.distortion.model} lens model maps part of the "
                           "frame's border to no ray (beyond the model's range); cap the field of view below "
                           f"{math.degrees(2 * reach):.0f} degrees")
@@ -103,7 +103,7 @@ def _capped(rays: NDArray[np.float64], axis: NDArray[np.float64], half_angle: fl
 def fov_half_angle(cameras: Sequence[Camera], max_fov_deg: float | None) -> float | None:
     """Half the field-of-view cap in radians: ``max_fov_deg``, or FISHEYE_FOV_DEG with a fisheye, or none."""
     if max_fov_deg is None:
-        if not any(camera.distortion.model == "kannala-brandt" for camera in cameras):
+        if not any(camera.distortion.is_fisheye for camera in cameras):
             return None
         max_fov_deg = FISHEYE_FOV_DEG
     if isinstance(max_fov_deg, bool) or not isinstance(max_fov_deg, (int, float)) or not 0.0 < max_fov_deg < 180.0:
@@ -210,7 +210,7 @@ def _check_epipole_outside(camera: Camera, direction: NDArray[np.float64], half_
         reach = min(half_angle if half_angle is not None else np.pi, camera.distortion.max_angle_rad)
         if not math.acos(np.clip(ray[2], -1.0, 1.0)) < reach:
             continue
-        if camera.distortion.model == "kannala-brandt":
+        if camera.distortion.is_fisheye:
             u, v = camera.distortion.project_rays(ray[None, :], camera.K)[0]
         else:
             u, v = (camera.K @ ray)[:2] / (camera.K @ ray)[2]

@@ -1,19 +1,6 @@
 """Rectification methods: calibrated, Nozick 2011 N-view, Hartley 1999; :func:`rectify` dispatches.
 
-- :func:`rectify_calibrated` (``"camera"``): the centres' line is fitted,
-  one common rotation ``R_rect`` (x along the line, the rotation nearest the
-  cameras' mean rotation: ``cv2.stereoRectify``'s choice for two cameras)
-  and one shared ``K_rect`` (square pixels, the
-  cameras' mean focal length, principal point and size chosen by
-  ``alpha``), ``H_i = K_rect R_rect R_i^T K_i^-1`` (Fusiello et al. 2000,
-  generalised to N cameras as in Nozick 2011).
-- :func:`rectify_Nozick2011`: the calibrated start, then a joint
-  refinement of every camera's rotation and focal length minimising the
-  vertical disparity of every correspondence between all views.
-- :func:`rectify_Hartley1999`: two views, no calibration (only K and
-  distortion, to undistort): robust F (RANSAC, OpenCV), the second
-  epipole sent to infinity along x, and the matching transform of the first
-  image that minimises the disparity.
+Each method is described in the package docstring (:mod:`camcal.geometry.rectify`).
 
 References
 ----------

@@ -1,0 +1,128 @@
+"""Output that native libraries write straight to file descriptors 1 and 2, captured into a log file.
+
+COLMAP, glog and Ceres (inside pycolmap and pyceres) print their progress
+lines (``I20261125 21:37:31.42 ... feature_extraction.cc:498] ...``) and
+warnings (``Linear solver failure``) with ``fwrite`` on the process's
+standard error, not through Python's ``sys.stderr``: redirecting
+``sys.stderr`` does not silence them. :func:`native_output_to` redirects
+the descriptors themselves (``os.dup2`` onto a pipe) for the duration of a
+``with`` block; a thread copies what arrives into the log file and, when
+asked, on to the real stderr. Python's own ``sys.stdout`` / ``sys.stderr``
+are pointed at the real descriptors meanwhile, so the caller's lines
+(progress, messages) still reach the terminal and stay out of the log.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+__all__ = ["native_output_to"]
+
+_CHUNK = 65536
+
+
+def _flush_c_stdio() -> None:
+    """Flush the C library's stdio buffers (``fflush(NULL)``), where a libc is loadable."""
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):
+        pass
+
+
+def _python_stream_on(fd: int):
+    """``sys.stdout`` or ``sys.stderr`` if it writes to descriptor ``fd`` (not when a test harness replaced it)."""
+    stream = sys.stdout if fd == 1 else sys.stderr
+    try:
+        return stream if stream is not None and stream.fileno() == fd else None
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+@contextlib.contextmanager
+def native_output_to(log_path: str | os.PathLike, echo: bool = False, fds: tuple[int, ...] = (1, 2)) -> Iterator[Path]:
+    """Send what native code writes to ``fds`` into ``log_path`` (appended) while the block runs.
+
+    Parameters
+    ----------
+    log_path : path
+        The log file; created (with its folder) or appended to.
+    echo : bool
+        Also copy every captured line to the real standard error
+        (``--verbose``).
+    fds : tuple of int
+        The descriptors captured (1 stdout, 2 stderr).
+
+    Yields
+    ------
+    Path
+        The log file.
+
+    Notes
+    -----
+    The descriptors are restored in a ``finally``, after the C library's
+    buffers are flushed and the copying thread has drained the pipe, so an
+    exception inside the block leaves the process's output as it was.
+    """
+    log_path = Path(log_path)
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, OSError, ValueError):
+            stream.flush()
+    _flush_c_stdio()
+    saved = {fd: os.dup(fd) for fd in fds}
+    read_end, write_end = os.pipe()
+    log = open(log_path, "ab")  # noqa: SIM115 - closed in the finally below
+    echo_fd = saved.get(2, 2)
+
+    def copy() -> None:
+        while True:
+            chunk = os.read(read_end, _CHUNK)
+            if not chunk:
+                return
+            log.write(chunk)
+            log.flush()
+            if echo:
+                with contextlib.suppress(OSError):
+                    os.write(echo_fd, chunk)
+
+    copier = threading.Thread(target=copy, name="native-output-log", daemon=True)
+    copier.start()
+    swapped = {}
+    try:
+        for fd in fds:
+            os.dup2(write_end, fd)
+        # the caller's own Python lines go to the real descriptors, not into the log
+        for fd in fds:
+            stream = _python_stream_on(fd)
+            if stream is not None:
+                # its own descriptor, closed when the last reference goes (a progress bar may keep one)
+                replacement = open(os.dup(saved[fd]), "w", encoding=getattr(stream, "encoding", None) or "utf-8",  # noqa: SIM115
+                                   errors="backslashreplace", buffering=1)
+                swapped[fd] = (stream, replacement)
+                if fd == 1:
+                    sys.stdout = replacement
+                else:
+                    sys.stderr = replacement
+        yield log_path
+    finally:
+        for fd, (stream, replacement) in swapped.items():
+            replacement.flush()
+            if fd == 1:
+                sys.stdout = stream
+            else:
+                sys.stderr = stream
+        _flush_c_stdio()
+        for fd in fds:
+            os.dup2(saved[fd], fd)
+        os.close(write_end)  # the last writer: the copier reads to the end, then stops
+        copier.join()
+        for fd in fds:
+            os.close(saved[fd])
+        os.close(read_end)
+        log.close()

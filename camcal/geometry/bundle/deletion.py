@@ -1,0 +1,326 @@
+"""The bundle adjustment without some frames, to first order: one Gauss-Newton step from the full solution.
+
+The delete-one-frame jackknife (:mod:`camcal.geometry.jackknife`) needs the
+solution of the problem without each frame (or group of frames). A full
+refit per group costs a whole bundle adjustment each; from the full
+solution ``theta`` the replicate is, to first order, one Gauss-Newton step
+on the problem without the group's residuals::
+
+    theta_(g) = theta - (J_(g)^T J_(g))^+ J_(g)^T r_(g)
+
+with ``J_(g)``, ``r_(g)`` the Jacobian and residuals of the remaining
+observations at ``theta`` (Ceres' own, the loss applied), the deleted
+frames' poses and the points left with fewer than two observations out
+(as :func:`camcal.geometry.jackknife.without_frames` drops them). The
+points are eliminated by the Schur complement of their 3x3 blocks (Triggs
+et al. 2000, section 6.1), so each replicate costs a sparse product and a
+dense factorisation of the cameras' and frames' reduced system, not a
+nonlinear solve. Deleting one of the two frames that fix the gauge leaves
+the remaining system singular along the gauge (rotation, translation,
+scale): the reduced system is then solved by its pseudo-inverse, which
+moves the intrinsics and the rig rotation -- gauge invariants -- exactly as
+any other gauge choice would. This is the one-step jackknife (Efron & Stein
+1981 call the linearised version the infinitesimal jackknife); it differs
+from the full refit by the curvature of the problem over one frame's
+influence, small where the jackknife itself is meaningful.
+
+References
+----------
+Triggs, B., McLauchlan, P., Hartley, R. & Fitzgibbon, A. (2000). Bundle
+Adjustment - A Modern Synthesis. Vision Algorithms: Theory and Practice.
+Efron, B. & Stein, C. (1981). The jackknife estimate of variance. Annals
+of Statistics 9.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from camcal.base.errors import CamcalError
+from camcal.geometry.bundle.covariance import is_free_block
+from camcal.geometry.bundle.solve import bundle_adjust
+from camcal.geometry.bundle.state import BundleOptions, BundleState, model_layout
+
+__all__ = ["DeletionUnsupported", "one_step_replicates"]
+
+#: eigenvalues of the Jacobi-scaled reduced system below this share of the largest are its null space (the gauge).
+_NULL_RATIO = 1e-11
+#: a point's 3x3 block with ``lambda_min`` below this share of ``lambda_max`` is left free along that direction.
+_POINT_NULL_RATIO = 1e-10
+
+
+class DeletionUnsupported(CamcalError):
+    """The problem has a shape the one-step replicates do not handle (a board, constant points...): refit instead."""
+
+
+@dataclasses.dataclass
+class _Block:
+    kind: str  # "camera", "sensor", "frame", "point"
+    index: int  # camera, frame or point position in the state
+    columns: slice
+    free: tuple[int, ...] = ()  # camera: the free COLMAP parameters; frame: the free translation axes
+
+
+def _free_params(state: BundleState, camera: int, options: BundleOptions) -> tuple[int, ...]:
+    """The COLMAP parameters of camera ``camera`` the options leave free (:class:`BundleOptions`)."""
+    names, focal, pp, extra = model_layout(state.models[camera])
+    name = state.camera_names[camera]
+    if name in options.constant_intrinsics:
+        return ()
+    held = set(options.fixed_params.get(name, ()))
+    held = {names.index(param) for param in held if param in names}
+    for refined, index in ((options.refine_focal_length, focal), (options.refine_principal_point, pp),
+                           (options.refine_extra_params, extra)):
+        if not refined:
+            held.update(index)
+    return tuple(k for k in range(len(names)) if k not in held)
+
+
+def _gauge_axis(state: BundleState, colmap, problem) -> int:
+    """The translation axis COLMAP's ``TWO_CAMS_FROM_WORLD`` gauge holds on its second frame.
+
+    COLMAP holds the first frame (in image order) and, on the next frame, the
+    axis of the largest component of ``frame1_from_world frame2_from_world^-1``'s
+    translation.
+    """
+    fixed = [frame for frame, fid in colmap.frame_ids.items()
+             if not is_free_block(problem, colmap.reconstruction.frame(fid).rig_from_world.params)]
+    if len(fixed) != 1:
+        raise DeletionUnsupported(f"expected one constant frame in the gauge, found {len(fixed)}")
+    f1 = fixed[0]
+    partial = [frame for frame, fid in colmap.frame_ids.items()
+               if problem.parameter_block_tangent_size(colmap.reconstruction.frame(fid).rig_from_world.params) == 5]
+    if len(partial) != 1:
+        return -1
+    f2 = partial[0]
+    baseline = state.frame_t[f1] - state.frame_R[f1] @ state.frame_R[f2].T @ state.frame_t[f2]
+    return int(np.argmax(np.abs(baseline)))
+
+
+def _layout(state: BundleState, options: BundleOptions, colmap, problem) -> tuple[list[_Block], list, int]:
+    """The free parameter blocks in column order: cameras, rig sensors, frames, then points."""
+    reconstruction = colmap.reconstruction
+    blocks, arrays, start = [], [], 0
+
+    def add(kind: str, index: int, array, free: tuple[int, ...] = ()) -> None:
+        nonlocal start
+        size = problem.parameter_block_tangent_size(array)
+        blocks.append(_Block(kind, index, slice(start, start + size), free))
+        arrays.append(array)
+        start += size
+
+    for index, cid in enumerate(colmap.camera_ids):
+        array = reconstruction.cameras[cid].params
+        if is_free_block(problem, array):
+            free = _free_params(state, index, options)
+            if len(free) != problem.parameter_block_tangent_size(array):
+                raise DeletionUnsupported(f"camera {state.camera_names[index]!r}: {len(free)} free parameters "
+                                          f"expected, Ceres has {problem.parameter_block_tangent_size(array)}")
+            add("camera", index, array, free)
+    sensors = {sensor.id: pose for sensor, pose in reconstruction.rig(1).non_ref_sensors.items()}
+    for index, cid in enumerate(colmap.camera_ids[1:], start=1):
+        if is_free_block(problem, sensors[cid].params):
+            add("sensor", index, sensors[cid].params)
+    axis = _gauge_axis(state, colmap, problem) if options.refine_sensor_from_rig or len(state.camera_names) == 1 else -1
+    for frame, fid in sorted(colmap.frame_ids.items()):
+        array = reconstruction.frame(fid).rig_from_world.params
+        if is_free_block(problem, array):
+            free = (0, 1, 2) if problem.parameter_block_tangent_size(array) == 6 else \
+                tuple(k for k in range(3) if k != axis)
+            if axis < 0 and len(free) != 3:
+                raise DeletionUnsupported("a frame pose with a partial manifold outside the gauge")
+            add("frame", frame, array, free)
+    n_cameras = start
+    for p, pid in enumerate(colmap.point_ids):
+        if pid >= 0 and is_free_block(problem, reconstruction.points3D[pid].xyz):
+            add("point", p, reconstruction.points3D[pid].xyz)
+    if start == n_cameras:
+        raise DeletionUnsupported("no free points")
+    return blocks, arrays, n_cameras
+
+
+def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64], singular: bool) -> NDArray[np.float64]:
+    """``S^+ b`` for a symmetric positive semi-definite ``S``: Cholesky unless ``singular`` or it fails, else eigen.
+
+    ``singular``: ``S`` is known to have a null space (the group held a gauge
+    frame). Cholesky would not reliably refuse it: the Jacobi-scaled
+    pivot of a null direction is rounding (1e-16 to 1e-13), on either side
+    of any threshold, and where it passes the step gains a null-space
+    component of ``b``'s rounding over that pivot, a different one per run
+    (the baseline direction's jackknife sigma moved by 1e-4 relative when
+    the solution moved by 1e-11). The eigen-decomposition drops it.
+    """
+    import scipy.linalg  # noqa: PLC0415
+
+    out = np.zeros_like(b)
+    d = np.diag(S).copy()
+    used = d > 0
+    if not np.any(used):
+        return out
+    scale = 1.0 / np.sqrt(d[used])
+    scaled = S[np.ix_(used, used)] * np.outer(scale, scale)
+    rhs = b[used] * scale
+    try:
+        if singular:
+            raise np.linalg.LinAlgError("a gauge frame left out")
+        factor = scipy.linalg.cholesky(scaled, lower=True)
+        if np.min(np.diag(factor)) ** 2 < 1e-14:
+            raise np.linalg.LinAlgError("nearly singular")
+        x = scipy.linalg.cho_solve((factor, True), rhs)
+    except np.linalg.LinAlgError:
+        values, vectors = np.linalg.eigh(scaled)
+        keep = values > _NULL_RATIO * values[-1]
+        x = vectors[:, keep] @ ((vectors[:, keep].T @ rhs) / values[keep])
+    out[used] = x * scale
+    return out
+
+
+def _steps(state: BundleState, options: BundleOptions, colmap, problem,
+           groups: list[NDArray[np.int64]]) -> list[BundleState]:
+    """The one-step replicate of ``state`` without each group of frames (module docstring)."""
+    import pyceres  # noqa: PLC0415
+    import scipy.sparse  # noqa: PLC0415
+
+    if state.board is not None or not options.refine_points3D:
+        raise DeletionUnsupported("a board or constant points")
+    blocks, arrays, n_c = _layout(state, options, colmap, problem)
+    evaluate = pyceres.EvaluateOptions()
+    evaluate.set_parameter_blocks(arrays)
+    evaluate.num_threads = 1
+    crs = problem.evaluate_jacobian(evaluate)
+    J = scipy.sparse.csr_matrix((np.asarray(crs.values), np.asarray(crs.cols), np.asarray(crs.rows)),
+                                shape=(crs.num_rows, crs.num_cols))
+    r = np.asarray(problem.evaluate_residuals(evaluate), dtype=np.float64)
+    n_rows, n_points = J.shape[0], (J.shape[1] - n_c) // 3
+
+    # each row's frame and point, from the columns it touches
+    column_frame = np.full(J.shape[1], -1, dtype=np.int64)
+    column_point = np.full(J.shape[1], -1, dtype=np.int64)
+    point_of_column_block = []
+    for block in blocks:
+        if block.kind == "frame":
+            column_frame[block.columns] = block.index
+        elif block.kind == "point":
+            column_point[block.columns] = len(point_of_column_block)
+            point_of_column_block.append(block.index)
+    entry_row = np.repeat(np.arange(n_rows), np.diff(J.indptr))
+    row_frame = np.full(n_rows, -1, dtype=np.int64)
+    row_point = np.full(n_rows, -1, dtype=np.int64)
+    on_frame, on_point = column_frame[J.indices] >= 0, column_point[J.indices] >= 0
+    row_frame[entry_row[on_frame]] = column_frame[J.indices[on_frame]]
+    row_point[entry_row[on_point]] = column_point[J.indices[on_point]]
+    orphans = (row_frame < 0) & (row_point >= 0)
+    if np.any(orphans):
+        held = sorted(set(colmap.frame_ids) - {block.index for block in blocks if block.kind == "frame"})
+        if len(held) != 1:
+            raise DeletionUnsupported(f"observations of {len(held)} constant frames")
+        row_frame[orphans] = held[0]
+    observed = np.bincount(state.obs_frame, minlength=len(state.frame_R))
+    assigned = np.bincount(row_frame[row_frame >= 0], minlength=len(state.frame_R))
+    if not np.array_equal(assigned, 2 * observed):
+        raise DeletionUnsupported("the Jacobian's rows do not match the observations frame by frame")
+
+    # the point columns of every row (3 per row, zero where the row has no free point)
+    Jp = J[:, n_c:].tocoo()
+    point_rows = np.zeros((n_rows, 3))
+    point_rows[Jp.row, Jp.col % 3] = Jp.data
+    J_c = J[:, :n_c].tocsr()
+    # the gauge frames: held constant, or with a held translation axis; without one, S is singular
+    gauge = [frame for frame in colmap.frame_ids if not any(block.kind == "frame" and block.index == frame
+                                                             and len(block.free) == 3 for block in blocks)]
+    replicates = []
+    for group in groups:
+        deleted = np.isin(row_frame, group)
+        counts = np.bincount(row_point[~deleted & (row_point >= 0)], minlength=n_points) // 2
+        kept = ~deleted & ((row_point < 0) | (counts[np.maximum(row_point, 0)] >= 2))
+        rows = np.flatnonzero(kept)
+        A, rk, P, pk = J_c[rows], r[rows], point_rows[rows], row_point[rows]
+        seen = pk >= 0
+        H_pp = np.zeros((n_points, 3, 3))
+        b_p = np.zeros((n_points, 3))
+        for i in range(3):
+            b_p[:, i] = np.bincount(pk[seen], P[seen, i] * rk[seen], minlength=n_points)
+            for j in range(i, 3):
+                H_pp[:, i, j] = H_pp[:, j, i] = np.bincount(pk[seen], P[seen, i] * P[seen, j], minlength=n_points)
+        values, vectors = np.linalg.eigh(H_pp)
+        inverse_values = np.where(values > _POINT_NULL_RATIO * np.maximum(values[:, 2:], 1e-300),
+                                  1.0 / np.where(values > 0, values, 1.0), 0.0)
+        H_inv = np.einsum("pij,pj,pkj->pik", vectors, inverse_values, vectors)
+        # H_pc: each row's point block (3 entries) times its camera row, summed per point
+        rows_of = np.flatnonzero(seen)
+        W = scipy.sparse.csr_matrix((P[rows_of].ravel(), (np.repeat(3 * pk[rows_of], 3) + np.tile(np.arange(3), len(rows_of)),
+                                                          np.repeat(rows_of, 3))), shape=(3 * n_points, len(rows)))
+        H_pc = (W @ A).tocsr()
+        S = (A.T @ A).toarray()
+        b = A.T @ rk
+        if n_points:
+            H_inv_sparse = scipy.sparse.bsr_matrix((H_inv, np.arange(n_points), np.arange(n_points + 1)),
+                                                   shape=(3 * n_points, 3 * n_points))
+            G = (H_inv_sparse @ H_pc).tocsr()
+            S -= (H_pc.T @ G).toarray()
+            b -= G.T @ b_p.ravel()
+        delta_c = -_pseudo_solve(S, b, singular=bool(np.isin(group, gauge).any()))
+        replicates.append(_apply(state, blocks, delta_c))
+    return replicates
+
+
+def _apply(state: BundleState, blocks: list[_Block], delta: NDArray[np.float64]) -> BundleState:
+    """The state moved by a tangent-space step of its cameras, rig sensors and frames (Ceres' manifolds)."""
+    params = [p.copy() for p in state.params]
+    sensor_R, sensor_t = state.sensor_R.copy(), state.sensor_t.copy()
+    frame_R, frame_t = state.frame_R.copy(), state.frame_t.copy()
+    for block in blocks:
+        if block.kind == "point":
+            continue
+        d = delta[block.columns]
+        if block.kind == "camera":
+            params[block.index][list(block.free)] += d
+            continue
+        # Ceres' EigenQuaternionManifold: q' = [sin|d| d/|d|, cos|d|] q, a rotation vector 2 d applied on the left
+        rotation = Rotation.from_rotvec(2.0 * d[:3]).as_matrix()
+        if block.kind == "sensor":
+            sensor_R[block.index] = rotation @ sensor_R[block.index]
+            sensor_t[block.index] = sensor_t[block.index] + d[3:]
+        else:
+            frame_R[block.index] = rotation @ frame_R[block.index]
+            frame_t[block.index, list(block.free)] += d[3:]
+    return dataclasses.replace(state, params=tuple(params), sensor_R=sensor_R, sensor_t=sensor_t, frame_R=frame_R,
+                               frame_t=frame_t)
+
+
+def one_step_replicates(state: BundleState, options: BundleOptions,
+                        groups: list[NDArray[np.int64]]) -> list[BundleState]:
+    """The solution without each group of frames, by one Gauss-Newton step from ``state`` (module docstring).
+
+    Parameters
+    ----------
+    state : BundleState
+        A converged bundle adjustment (every frame).
+    options : BundleOptions
+        The options it was solved with (what is free, the loss).
+    groups : list of ndarray of int
+        Frame positions left out together, one replicate per entry.
+
+    Returns
+    -------
+    list of BundleState
+        One per group: the intrinsics, rig and frame poses moved by the step
+        (points as in ``state``).
+
+    Raises
+    ------
+    DeletionUnsupported
+        A board, constant points, or a gauge other than COLMAP's two frames
+        or one held frame: use full refits.
+    """
+    out: list[list[BundleState]] = []
+
+    def inspect(problem, colmap) -> None:
+        out.append(_steps(state, options, colmap, problem, groups))
+
+    bundle_adjust(state, dataclasses.replace(options, max_iterations=0, compute_sigmas=False), inspect=inspect)
+    return out[0]

@@ -1,0 +1,294 @@
+"""Projection uncertainty: the per-pixel sigma of where a camera images the ray through each pixel.
+
+For a pixel ``q`` of a calibrated camera, the ray through it (at a
+distance ``d`` along the ray, or at infinity) is projected again with
+perturbed parameters; the 2x2 covariance of that projection, propagated to
+first order from the calibration's covariance, is the projection
+uncertainty, and its worst-direction standard deviation (the square root
+of its largest eigenvalue) is what the maps hold.
+
+The gauge is handled as mrcal does (Kogan, mrcal 2.x, "Projection
+uncertainty"): the point is unprojected with the estimated intrinsics,
+carried into the board (reference) frame through the MEAN of the board
+poses and back with their perturbed values, and reprojected with the
+perturbed intrinsics, so the uncertainty of the camera's frame relative to
+the boards' is part of it. To first order the mean of the perturbed board
+poses moves a reference-frame point ``p`` to ``p + delta_bar x p +
+epsilon`` (:func:`camcal.geometry.bundle.solve._gauge_rows`), and a rig
+camera's own pose ``cam_from_reference`` perturbs it by ``rho x (R p_ref) +
+tau``. With ``theta`` the intrinsics::
+
+    p_ref = R^T (p - t)                       (p = d v / |v|, v = unproject(q))
+    p'    = p + rho x (p - t) + tau + R (delta_bar x p_ref + epsilon)
+    q'    = project(theta + dtheta, p')
+    J     = [dq/dtheta, dq/dp dp/d(rho, tau), dq/dp dp/d(delta_bar, epsilon)]
+    Sigma_q = J Sigma J^T,   sigma_worst = sqrt(lambda_max(Sigma_q))
+
+At infinity ``p`` is the unit ray and the translations drop out (``dq/dp``
+scales as ``1/d`` while ``dp/dtau`` stays bounded). ``dq/dtheta`` and
+``dq/dp`` are central differences of camcal's own projection
+(:meth:`camcal.model.distortion.Distortion.project_rays`), each parameter
+stepped by 1e-3 of its own sigma. What the figures cover is the sampling
+noise of the corners the calibration saw, not model error.
+
+Conventions: pixel (0, 0) is the centre of the top-left pixel; camera axes
++x right, +y down, +z forward; ``R, t`` is ``cam_from_reference``
+(``t = -R c``).
+
+References
+----------
+Kogan, D. mrcal 2.x documentation: "Projection uncertainty"
+(https://mrcal.secretsauce.net/uncertainty.html), 2022.
+Hartley, R. & Zisserman, A. (2004). Multiple View Geometry, 2nd ed.,
+section 5.2 (forward propagation of covariance, ``J Sigma J^T``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from camcal.base.errors import CamcalError
+from camcal.model.distortion import Distortion
+from camcal.model.quality import ParameterCovariance
+from camcal.model.rig import Camera
+
+__all__ = ["GAUGE", "POSE", "SigmaSummary", "camera_covariance", "projection_covariance", "projection_jacobian", "projection_sigma",
+           "projection_sigma_map", "sigma_grid", "summarise_sigma"]
+
+#: Names of the board gauge in a camera's covariance (module docstring).
+GAUGE = ("gauge_rx", "gauge_ry", "gauge_rz", "gauge_tx", "gauge_ty", "gauge_tz")
+#: Names of a rig camera's pose ``cam_from_reference`` in its covariance.
+POSE = ("rx", "ry", "rz", "tx", "ty", "tz")
+_K_ENTRIES = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2), "skew": (0, 1)}
+#: Grid step (pixels) of a sigma map; the map between grid points is bilinear (sigma is smooth over the frame).
+MAP_STEP_PX = 8
+
+
+def camera_covariance(camera: Camera) -> ParameterCovariance:
+    """The camera's ``quality.covariance``, or a one-line error saying how to get one."""
+    covariance = camera.quality.covariance
+    if covariance is None:
+        raise CamcalError(f"camera {camera.name!r} has no covariance in its rig file (quality.covariance): "
+                          "calibrate it again with `camcal calibrate board` to get projection uncertainty")
+    return covariance
+
+
+def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``[v]x`` for each row of ``v`` (N, 3) -> (N, 3, 3)."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def _perturbed(camera: Camera, name: str, step: float) -> tuple[NDArray[np.float64], Distortion]:
+    """K and distortion with intrinsic ``name`` moved by ``step``."""
+    K = np.array(camera.K, dtype=np.float64)
+    if name in _K_ENTRIES:
+        K[_K_ENTRIES[name]] += step
+        return K, camera.distortion
+    params = dict(camera.distortion.params)
+    params[name] += step
+    return K, dataclasses.replace(camera.distortion, params=params)
+
+
+def projection_covariance(camera: Camera, pixels_px: ArrayLike, distance: float | None = None,
+                          covariance: ParameterCovariance | None = None) -> NDArray[np.float64]:
+    """The 2x2 covariance of the projection of the ray through each pixel (module docstring).
+
+    ``J Sigma J^T`` with ``J`` of :func:`projection_jacobian`.
+
+    Parameters
+    ----------
+    camera : Camera
+        The calibrated camera (its ``R, c`` relative to the reference camera).
+    pixels_px : array_like, shape (N, 2)
+        Distorted pixels (pixel (0, 0) at the centre of the top-left pixel).
+    distance : float, optional
+        Distance along the ray in the rig's units; None (default) is
+        infinity.
+    covariance : ParameterCovariance, optional
+        Defaults to ``camera.quality.covariance``. Names it lacks (no
+        gauge, no pose) contribute nothing; names it has that are neither
+        the camera's intrinsics, :data:`POSE` nor :data:`GAUGE` are an
+        error.
+
+    Returns
+    -------
+    ndarray, shape (N, 2, 2)
+        In pixels squared; NaN for pixels without a ray.
+    """
+    covariance = camera_covariance(camera) if covariance is None else covariance
+    J = projection_jacobian(camera, pixels_px, distance, covariance)
+    return np.einsum("nip,pq,njq->nij", J, covariance.array, J)
+
+
+def projection_jacobian(camera: Camera, pixels_px: ArrayLike, distance: float | None,
+                        covariance: ParameterCovariance) -> NDArray[np.float64]:
+    """``dq/d(parameters)`` (N, 2, P) of the reprojected ray through each pixel, over ``covariance.names``
+    (module docstring; each intrinsic stepped by 1e-3 of its sigma in ``covariance``)."""
+    if distance is not None and not (np.isfinite(distance) and distance > 0):
+        raise CamcalError(f"distance must be a positive number (or infinity), got {distance!r}")
+    pixels = np.asarray(pixels_px, dtype=np.float64).reshape(-1, 2)
+    names, C = covariance.names, covariance.array
+    intrinsic = set(_K_ENTRIES) | set(camera.distortion.params)
+    unknown = [n for n in names if n not in intrinsic and n not in POSE and n not in GAUGE]
+    if unknown:
+        raise CamcalError(f"camera {camera.name!r}: covariance names {', '.join(unknown)} are not parameters of its "
+                          f"{camera.distortion.model} lens, its pose or the gauge")
+    v = camera.distortion.rays_from_pixels(pixels, camera.K)
+    v = v / np.linalg.norm(v, axis=1, keepdims=True)
+    R = np.asarray(camera.R, dtype=np.float64)
+    t = -R @ np.asarray(camera.c, dtype=np.float64)
+    at_infinity = distance is None
+    p = v if at_infinity else v * distance
+    sigmas = np.sqrt(np.clip(np.diag(C), 0.0, None))
+    J = np.zeros((len(p), 2, len(names)))
+    # dq/dtheta: central differences, each intrinsic stepped by 1e-3 of its sigma
+    for k, name in enumerate(names):
+        if name not in intrinsic or sigmas[k] == 0.0:
+            continue
+        h = 1e-3 * sigmas[k]
+        K_p, d_p = _perturbed(camera, name, h)
+        K_m, d_m = _perturbed(camera, name, -h)
+        J[:, :, k] = (d_p.project_rays(p, K_p) - d_m.project_rays(p, K_m)) / (2.0 * h)
+    # dq/dp: central differences along the camera axes
+    h = 1e-6 * np.linalg.norm(p, axis=1, keepdims=True)
+    J_p = np.stack([(camera.distortion.project_rays(p + h * e, camera.K)
+                     - camera.distortion.project_rays(p - h * e, camera.K)) / (2.0 * h) for e in np.eye(3)], axis=2)
+    # dp/d(pose) and dp/d(gauge), first order (module docstring); at infinity the translations drop out
+    relative = p if at_infinity else p - t  # R p_ref
+    p_ref = relative @ R  # R^T (p - t), rows
+    columns = {}
+    for e, axis in enumerate("xyz"):
+        columns[f"r{axis}"] = -_skew(relative)[:, :, e]                # dp/drho = -[p - t]x
+        columns[f"gauge_r{axis}"] = -(R @ _skew(p_ref))[:, :, e]       # dp/ddelta_bar = -R [p_ref]x
+        if not at_infinity:
+            columns[f"t{axis}"] = np.broadcast_to(np.eye(3)[e], p.shape)  # dp/dtau = I
+            columns[f"gauge_t{axis}"] = np.broadcast_to(R[:, e], p.shape)  # dp/depsilon = R
+    for k, name in enumerate(names):
+        if name in columns:
+            J[:, :, k] = np.einsum("nij,nj->ni", J_p, columns[name])
+    return J
+
+
+def projection_sigma(camera: Camera, pixels_px: ArrayLike, distance: float | None = None,
+                     covariance: ParameterCovariance | None = None) -> NDArray[np.float64]:
+    """Worst-direction standard deviation (pixels) of the projection of the ray through each pixel.
+
+    ``sqrt(lambda_max)`` of :func:`projection_covariance`'s 2x2 matrix
+    ``[[a, b], [b, c]]``: ``lambda_max = (a + c) / 2 + sqrt(((a - c) / 2)^2
+    + b^2)``. Shape (N,); NaN for pixels without a ray.
+    """
+    S = projection_covariance(camera, pixels_px, distance, covariance)
+    a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 1, 1]
+    return np.sqrt(np.clip(0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b**2), 0.0, None))
+
+
+def sigma_grid(size: tuple[int, int], step: float = MAP_STEP_PX) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Pixel coordinates of a map's grid: every ``step`` pixels from 0, the last row and column included."""
+    width, height = size
+    xs = np.unique(np.r_[np.arange(0.0, width - 1, step), width - 1.0])
+    ys = np.unique(np.r_[np.arange(0.0, height - 1, step), height - 1.0])
+    return xs, ys
+
+
+def projection_sigma_map(camera: Camera, distance: float | None = None, source_px: NDArray | None = None,
+                         step: float = MAP_STEP_PX, covariance: ParameterCovariance | None = None,
+                         ) -> NDArray[np.float32]:
+    """A per-pixel sigma image: exact on a grid every ``step`` pixels, bilinear between.
+
+    Parameters
+    ----------
+    camera : Camera
+    distance : float, optional
+        Distance along the rays (rig units); None is infinity.
+    source_px : ndarray, shape (H, W, 2), optional
+        For a map on another canvas (an undistorted image, an ST-map's
+        output): the camera pixel each output pixel looks up (NaN: none).
+        Default: the camera's own image, pixel for pixel (a plate-sized
+        map, aligned with the redistort ST-map).
+    step : float
+        Grid step in output pixels.
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        Worst-direction sigma in pixels of the camera's image; NaN where
+        an output pixel has no source pixel or ray.
+    """
+    import scipy.interpolate  # noqa: PLC0415
+    import scipy.ndimage  # noqa: PLC0415
+
+    if source_px is None:
+        width, height = camera.image_size
+    else:
+        height, width = source_px.shape[:2]
+    xs, ys = sigma_grid((width, height), step)
+    gx, gy = np.meshgrid(xs, ys)
+    if source_px is None:
+        at = np.column_stack([gx.ravel(), gy.ravel()])
+    else:
+        at = np.asarray(source_px, dtype=np.float64)[np.ix_(ys.astype(int), xs.astype(int))].reshape(-1, 2)
+    sigma = np.full(len(at), np.nan)
+    ok = np.all(np.isfinite(at), axis=1)
+    if ok.any():
+        sigma[ok] = projection_sigma(camera, at[ok], distance, covariance)
+    sigma = sigma.reshape(len(ys), len(xs))
+    missing = ~np.isfinite(sigma)
+    if missing.any() and not missing.all():  # the nearest grid value, so that NaN does not spread by a cell
+        nearest = scipy.ndimage.distance_transform_edt(missing, return_distances=False, return_indices=True)
+        sigma = sigma[tuple(nearest)]
+    grid = scipy.interpolate.RegularGridInterpolator((ys, xs), sigma)
+    v, u = np.mgrid[0:height, 0:width]
+    out = grid((v.ravel().astype(float), u.ravel().astype(float))).reshape(height, width)
+    if source_px is not None:
+        out[~np.all(np.isfinite(source_px), axis=-1)] = np.nan
+    return out.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class SigmaSummary:
+    """Worst and median projection sigma of a map, in the frame and at its four corners (pixels).
+
+    Attributes
+    ----------
+    worst_px, median_px : float
+        Over every pixel with a value.
+    corners_px : tuple of float
+        Top-left, top-right, bottom-left, bottom-right pixels.
+    distance : float or None
+        The distance of the rays (None: infinity).
+    """
+
+    worst_px: float
+    median_px: float
+    corners_px: tuple[float, float, float, float]
+    distance: float | None = None
+
+    def describe(self) -> str:
+        """``projection sigma at infinity: worst 0.21 px, median 0.05 px; corners 0.2 / 0.19 / 0.21 / 0.18 px``."""
+        where = "at infinity" if self.distance is None else f"at distance {self.distance:g}"
+        corners = " / ".join(f"{c:.3g}" for c in self.corners_px)
+        return (f"projection sigma {where}: worst {self.worst_px:.3g} px, median {self.median_px:.3g} px; "
+                f"corners (TL / TR / BL / BR) {corners} px")
+
+    def to_dict(self) -> dict:
+        """The figures for ``--json``."""
+        return {"worst_px": self.worst_px, "median_px": self.median_px,
+                "corners_px": [c if np.isfinite(c) else None for c in self.corners_px], "distance": self.distance}
+
+
+def summarise_sigma(sigma_map: NDArray, distance: float | None = None) -> SigmaSummary:
+    """:class:`SigmaSummary` of a sigma map (NaN pixels ignored)."""
+    values = np.asarray(sigma_map, dtype=np.float64)
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        raise CamcalError("the sigma map has no finite value")
+    corners = tuple(float(values[i, j]) for i, j in ((0, 0), (0, -1), (-1, 0), (-1, -1)))  # NaN: no source pixel
+    return SigmaSummary(float(finite.max()), float(np.median(finite)), corners, distance)

@@ -1,0 +1,40 @@
+"""Native output (file descriptors 1 and 2) captured into a log file; Python's own lines still shown."""
+
+import subprocess
+import sys
+import textwrap
+
+
+def _run(tmp_path, echo: bool) -> subprocess.CompletedProcess:
+    script = textwrap.dedent(f"""
+        import os, sys
+        from camcal.base.native_log import native_output_to
+        with native_output_to({str(tmp_path / "out" / "native.log")!r}, echo={echo}):
+            os.write(2, b"I20261125 21:37:31.424757 1 native.cc:1] from C on fd 2\\n")
+            os.write(1, b"from C on fd 1\\n")
+            print("camcal: a line of our own", file=sys.stderr)
+            print("camcal: on stdout")
+        os.write(2, b"after the block\\n")
+        try:
+            with native_output_to({str(tmp_path / "out" / "native.log")!r}):
+                os.write(2, b"W20261125 before an error\\n")
+                raise RuntimeError("boom")
+        except RuntimeError:
+            print("caught", file=sys.stderr)
+    """)
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+
+
+def test_native_lines_go_to_the_log_only(tmp_path):
+    run = _run(tmp_path, echo=False)
+    log = (tmp_path / "out" / "native.log").read_text()
+    assert "from C on fd 2" in log and "from C on fd 1" in log and "before an error" in log
+    assert "camcal" not in log and "after the block" not in log
+    assert run.stderr.splitlines() == ["camcal: a line of our own", "after the block", "caught"]
+    assert run.stdout.splitlines() == ["camcal: on stdout"]
+
+
+def test_echo_copies_native_lines_to_stderr(tmp_path):
+    run = _run(tmp_path, echo=True)
+    assert "from C on fd 2" in run.stderr and "from C on fd 1" in run.stderr
+    assert "camcal: a line of our own" in run.stderr and "from C" not in run.stdout
