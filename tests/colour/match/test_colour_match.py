@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from camcal.colour.match.record import ColourMatch
+from camcal.colour.match.record import ColourMatch, match_provenance
 from camcal.io.colourfile import load_colour_file, load_match
 from camcal.io.colourfile import FILE_KINDS, reader_of
 from camcal.colour.match.models import Lut3DModel, parse_match_model
@@ -127,7 +127,7 @@ def _match(model):
                                                     "chart": None},
                        fit={"route": "image", "robust": "none", "n_fit": 500, "n_inliers": 500,
                             "inlier_threshold": None},
-                       source="right", target="left")
+                       source="right", target="left", provenance=match_provenance(None))
 
 
 @pytest.mark.parametrize("model", ["matrix3x3", "root-polynomial:2", "lut3d:5"])
