@@ -7,7 +7,10 @@ One dispatcher, :func:`fit_model`, fits any model of
 Objectives: ``"xyz"`` (regularised linear least squares in XYZ, closed form)
 or ``"de2000"`` (sum of squared CIEDE2000 per patch, minimised by
 ``scipy.optimize.least_squares`` from the least-squares solution; not
-available for ``rbf``). Regularisation ``lambda`` is a ridge penalty on the
+available for ``rbf``), or ``"xyz+de2000"``: the mean of those two fits
+coefficients (both fit the same terms, so the mean is one model of those
+terms and its predictions are the mean of theirs; the model average
+``auto`` ranks, :mod:`camcal.colour.fit.select`). Regularisation ``lambda`` is a ridge penalty on the
 non-linear terms only: ``|A M^T - XYZ|^2 / N + lambda |M_nl|^2``.
 
 Weights (``weights``, ``(N,)`` positive, e.g. a chart photo's
@@ -98,7 +101,7 @@ def fit_linear_terms(
     objective
         ``"xyz"``: closed-form regularised least squares in XYZ;
         ``"de2000"``: minimise the sum of squared CIEDE2000, started from
-        the ``"xyz"`` solution.
+        the ``"xyz"`` solution; ``"xyz+de2000"``: the mean of the two.
     regularisation
         Ridge ``lambda`` on the non-linear terms (see the module docstring).
     white_XYZ
@@ -114,7 +117,7 @@ def fit_linear_terms(
     LinearTermsModel
     """
     if objective not in OBJECTIVES:
-        raise CamcalError(f"unknown objective {objective!r}, expected one of: xyz, de2000")
+        raise CamcalError(f"unknown objective {objective!r}, expected one of: {', '.join(OBJECTIVES)}")
     terms = tuple(terms)
     T = len(terms)
     RGB, XYZ = _check_training(RGB, XYZ, T if regularisation == 0 else 3, kind)
@@ -156,6 +159,8 @@ def fit_linear_terms(
 
     if objective == "de2000":
         M = _refine_de2000(A, XYZ, white_XYZ, unpack, p0, penalty, max_nfev, w)
+    elif objective == "xyz+de2000":
+        M = (M + _refine_de2000(A, XYZ, white_XYZ, unpack, p0, penalty, max_nfev, w)) / 2
     return LinearTermsModel(
         kind=kind,
         terms=terms,
@@ -390,7 +395,7 @@ def fit_model(
     RGB, XYZ
         ``(N, 3)`` linear camera RGB and reference XYZ, white Y = 1.
     objective
-        ``"xyz"`` or ``"de2000"`` (linear-terms models only).
+        ``"xyz"``, ``"de2000"`` or ``"xyz+de2000"`` (the last two for linear-terms models only).
     regularisation
         Ridge ``lambda`` for the non-linear terms.
     white_XYZ

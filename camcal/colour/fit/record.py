@@ -61,7 +61,7 @@ samples, linear interpolation, linear extension beyond the domain),
 
     {"kind": "polynomial", "terms": ["R", "G", "B", "R*G", ..., "1"],
      "coefficients": [[...T...], [...T...], [...T...]],   # rows X, Y, Z
-     "white_preserving": false, "objective": "xyz" | "de2000",
+     "white_preserving": false, "objective": "xyz" | "de2000" | "xyz+de2000",
      "regularisation": 0.0}
 
 with ``XYZ = coefficients @ terms(RGB)``; root terms read

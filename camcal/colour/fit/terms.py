@@ -40,7 +40,9 @@ __all__ = [
 
 
 MODEL_KINDS = ("matrix3x3", "polynomial", "root-polynomial", "rbf")
-OBJECTIVES = ("xyz", "de2000")
+#: ``xyz+de2000`` is the mean of the ``xyz`` and ``de2000`` fits (same terms, same ``lambda``): one
+#: linear-terms model, the model average ``auto`` adds (:mod:`camcal.colour.fit.select`).
+OBJECTIVES = ("xyz", "de2000", "xyz+de2000")
 RBF_KERNELS = ("polyharmonic-1", "polyharmonic-3", "thin-plate")
 
 # Exponents (R, G, B) of Cheung et al. (2004) term sets, in colour-science's

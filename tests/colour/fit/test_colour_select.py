@@ -31,13 +31,32 @@ def test_pick_is_the_simplest_within_one_standard_error(sim):
 
 
 def test_objective_is_no_simplicity_the_lower_score_of_a_model_wins(sim):
-    """Both objectives fit the same terms: within the margin, the pick has the lowest score of its size."""
+    """The objectives fit the same terms: within the margin, the pick has the lowest score of its size."""
     selection = select_model(sim.RGB_train, sim.XYZ_train, sim.white, candidates=SIMPLE)
     p, best = selection.picked, selection.best
-    assert {c.objective for c in selection.candidates} == {"xyz", "de2000"}
+    assert {c.objective for c in selection.candidates} == {"xyz", "de2000", "xyz+de2000"}
     for c in selection.candidates:
         if c.n_params == p.n_params and c.score <= best.score + c.score_se:
             assert p.score <= c.score
+
+
+def test_averaged_candidate_is_the_mean_of_its_two_fits(sim):
+    """xyz+de2000: one model of the same terms whose coefficients, and so predictions, are the mean of the xyz
+    and de2000 fits; its leave-one-out score is that of the mean prediction, without a refit."""
+    from camcal.colour.difference import delta_E
+    from camcal.colour.fit.evaluate import leave_one_out_predictions
+    from camcal.colour.fit.select import fitter
+
+    selection = select_model(sim.RGB_train, sim.XYZ_train, sim.white, candidates=("root-polynomial:2",))
+    mean = next(c for c in selection.candidates if c.objective == "xyz+de2000")
+    fits = {o: fitter(mean.spec, o, mean.regularisation, sim.white) for o in ("xyz", "de2000", "xyz+de2000")}
+    models = {o: f(sim.RGB_train, sim.XYZ_train) for o, f in fits.items()}
+    assert models["xyz+de2000"].M == pytest.approx((models["xyz"].M + models["de2000"].M) / 2, rel=1e-9)
+    loo = leave_one_out_predictions(fits["xyz+de2000"], sim.RGB_train, sim.XYZ_train)
+    assert mean.loo_mean == pytest.approx(float(np.mean(delta_E(loo, sim.XYZ_train, sim.white))), rel=1e-6)
+    # averaging two fits of one model lowers the variance: its leave-one-out beats the worse of the two
+    pair = [c for c in selection.candidates if c.regularisation == mean.regularisation and c.objective != mean.objective]
+    assert mean.loo_mean < max(c.loo_mean for c in pair)
 
 
 def test_weights_change_nothing_when_equal(sim):

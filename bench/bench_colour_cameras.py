@@ -1,0 +1,130 @@
+"""Benchmark: camcal ``colour fit`` against colour-science on measured cameras no test uses.
+
+Fifteen cameras' measured spectral sensitivities from the RAW-to-ACES
+repository (``tests/data/camera_sensitivities``, see its README; the Nikon
+D5100 is left out, the tests use its NPL measurement). For each camera, the
+same data for every tool: the camera simulated under a CIE illuminant
+(0.2 % multiplicative noise), trained on the ColorChecker 24 (BabelColor
+Average spectra) and judged on an independent set (the 190 RAW-to-ACES
+training reflectances), CIEDE2000 from colour-science against the same XYZ.
+
+- camcal: ``colour fit``'s default, ``--model auto`` on the chart
+  (:func:`camcal.colour.fit.characterise.characterise`); with ``--spectra``
+  also the spectral route (the chart's spectra given, slower);
+- colour-science 0.4.6 ``matrix_colour_correction``: Cheung 2004,
+  Finlayson 2015, Vandermonde with every parameter; "best" is the lowest
+  independent mean per camera, an oracle pick that favours the peer.
+
+Issue 31 asks for camcal's default at <= 0.85 x colour-science's best on
+average and better on every camera. Measured (D65, 2026-11-26): better on
+all 15, mean ratio 0.930 (0.851 Dalsa to 0.979 ARRI D-21), the peer's best
+Finlayson 2015 degree 2 on 14 of them. The last lines follow the project's
+form ``name: ours X, peer Y, ratio Y/X``.
+
+Run with ``.venv/bin/python bench/bench_colour_cameras.py [--spectra] [ILLUMINANT ...]``
+(default D65).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+warnings.filterwarnings("ignore")
+
+import colour  # noqa: E402
+from colour.characterisation import apply_matrix_colour_correction, matrix_colour_correction  # noqa: E402
+
+from camcal.colour.chart.patches import PatchSet  # noqa: E402
+from camcal.colour.difference import delta_E  # noqa: E402
+from camcal.colour.fit.characterise import characterise  # noqa: E402
+from camcal.colour.spectral.data import CMFS_NAME, reflectance_set, resample_spectral  # noqa: E402
+from camcal.colour.spectral.simulate import SimulatedCamera  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "camera_sensitivities"
+NOISE = 0.002
+SPECTRA = "BabelColor Average"
+COLOUR_SCIENCE = (
+    [("Cheung 2004", {"terms": t}) for t in (3, 5, 7, 8, 10, 11, 14, 16, 17, 19, 20, 22)]
+    + [("Finlayson 2015", {"degree": d}) for d in (1, 2, 3)]
+    + [("Vandermonde", {"degree": d}) for d in (1, 2, 3)]
+)
+
+
+def load_camera(path: Path, illuminant: str) -> SimulatedCamera:
+    """A RAW-to-ACES sensitivity file (JSON, R G B per wavelength) as a simulated camera."""
+    data = json.loads(path.read_text())["spectral_data"]["data"]["main"]
+    wavelengths = np.array(sorted(float(k) for k in data))
+    sens = np.array([data[k] for k in sorted(data, key=float)], dtype=np.float64)
+    S = resample_spectral(colour.SDS_ILLUMINANTS[illuminant], wavelengths)
+    cmfs = resample_spectral(colour.MSDS_CMFS[CMFS_NAME], wavelengths)
+    return SimulatedCamera(wavelengths, sens, S, cmfs, path.name.split("_380")[0], illuminant)
+
+
+def scene(cam: SimulatedCamera, seed: int = 0) -> tuple[PatchSet, PatchSet]:
+    names_cc, R_cc = reflectance_set(SPECTRA, cam.wavelengths)
+    names_ind, R_ind = reflectance_set("rawtoaces 190", cam.wavelengths)
+    return (PatchSet(names_cc, cam.RGB(R_cc, NOISE, seed), cam.XYZ(R_cc)),
+            PatchSet(names_ind, cam.RGB(R_ind, NOISE, seed + 100), cam.XYZ(R_ind)))
+
+
+def colour_science_best(train: PatchSet, test: PatchSet, white: np.ndarray) -> tuple[float, float, str]:
+    best = None
+    for method, kw in COLOUR_SCIENCE:
+        M = matrix_colour_correction(train.RGB, train.XYZ, method=method, **kw)
+        d = delta_E(apply_matrix_colour_correction(test.RGB, M, method=method, **kw), test.XYZ, white)
+        label = f"{method} " + ", ".join(f"{k}={v}" for k, v in kw.items())
+        if best is None or d.mean() < best[0]:
+            best = (float(d.mean()), float(np.percentile(d, 95)), label)
+    return best
+
+
+def main(illuminants: list[str], spectra: bool = False) -> int:
+    files = sorted(DATA.glob("*.json"))
+    if not files:
+        print(f"skipped: no sensitivity files in {DATA}")
+        return 0
+    summary = []
+    for illuminant in illuminants:
+        print(f"\nunder {illuminant}, 0.2 % noise: train ColorChecker 24, independent rawtoaces 190, mean CIEDE2000")
+        print(f"{'camera':22s} {'camcal auto':>11s} {'p95':>6s} {'+spectra':>9s} {'p95':>6s} | "
+              f"{'c-s best':>8s} {'p95':>6s} {'ratio':>6s} {'ratio+sp':>8s}  pick / peer")
+        ratios, ratios_sp = [], []
+        for path in files:
+            cam = load_camera(path, illuminant)
+            train, test = scene(cam)
+            white = cam.white_XYZ
+            xy = f"{white[0] / white.sum():.10f},{white[1] / white.sum():.10f}"
+            start = time.perf_counter()
+            auto = characterise(train, white=xy, model="auto", test=test, loo=False)
+            spectral = characterise(train, white=xy, model="auto", test=test, loo=False, spectra=SPECTRA,
+                                    illuminant=illuminant) if spectra else auto
+            seconds = time.perf_counter() - start
+            peer, peer_p95, peer_label = colour_science_best(train, test, white)
+            a, s = auto.result.stats_test, spectral.result.stats_test
+            ratios.append(a.mean / peer)
+            ratios_sp.append(s.mean / peer)
+            sp = (f"{s.mean:9.3f} {s.p95:6.3f}" if spectra else f"{'-':>9s} {'-':>6s}")
+            sp_ratio = f"{s.mean / peer:8.3f}" if spectra else f"{'-':>8s}"
+            print(f"{cam.name:22s} {a.mean:11.3f} {a.p95:6.3f} {sp} | {peer:8.3f} "
+                  f"{peer_p95:6.3f} {a.mean / peer:6.3f} {sp_ratio}  {auto.selection.picked.label} / "
+                  f"{peer_label} ({seconds:.0f} s)", flush=True)
+        summary.append((illuminant, ratios, ratios_sp))
+    print()
+    for illuminant, ratios, ratios_sp in summary:
+        for what, r in (("auto", ratios), ("auto --spectra", ratios_sp))[:2 if spectra else 1]:
+            r = np.asarray(r)
+            print(f"colour {len(r)} cameras under {illuminant}, camcal {what} / colour-science best: mean ratio "
+                  f"{r.mean():.3f} (issue 31: <= 0.85), worst {r.max():.3f}, better on {int(np.sum(r < 1))} of "
+                  f"{len(r)}")
+    return 0
+
+
+if __name__ == "__main__":
+    args = sys.argv[1:]
+    sys.exit(main([a for a in args if a != "--spectra"] or ["D65"], "--spectra" in args))
