@@ -19,7 +19,7 @@ from raw_chart_scenes import write_raw_chart
 
 from camcal.base.errors import CamcalError
 from camcal.cli import main
-from camcal.colour.chart.detect import detect_chart, reference_linear_RGB
+from camcal.colour.chart.detect import detect_chart, reference_linear_RGB, sample_patches
 from camcal.colour.chart.reference import reference_chart
 from camcal.colour.spectral.simulate import SimulatedCamera
 from camcal.io.raw import read_raw
@@ -119,3 +119,51 @@ def test_colour_fit_end_to_end_without_corners_beside_peers(captures, key, tmp_p
     ocio = tmp_path / "ocio"
     assert main(["colour", "export", str(out), "--ocio", str(ocio), "--base", "camcal"]) == 0
     assert (ocio / "config.ocio").is_file()
+
+
+@pytest.mark.parametrize("stops", [3.0, 5.0])
+def test_a_real_chart_underexposed_into_a_raw_file(shared_data, tmp_path, stops):
+    """The real photo's chart (../shared/data) as a raw capture `stops` under: its sRGB decoded to linear, scaled,
+    mosaicked (RGGB), shot and read noise, a DNG. The chart is found without corners, every patch in the
+    place found on the photo itself (half-size pixels), and the patches read from the dim raw keep the photo's
+    linear colours (their chromaticities)."""
+    import colour
+    from dng_writer import write_cfa_dng
+
+    from camcal.io.colourimage import read_image
+
+    photo = read_image(shared_data / "colorchecker_photo" / "img-colorchecker.jpg")
+    on_photo = patches_from_chart(shared_data / "colorchecker_photo" / "img-colorchecker.jpg")
+    linear = np.asarray(colour.cctf_decoding(photo, function="sRGB")) * 2.0 ** -stops
+    height, width = (linear.shape[0] // 2) * 2, (linear.shape[1] // 2) * 2
+    signal = np.zeros((height, width))
+    for (i, j), ch in {(0, 0): 0, (0, 1): 1, (1, 0): 1, (1, 1): 2}.items():
+        signal[i::2, j::2] = linear[i:height:2, j:width:2, ch]
+    rng = np.random.default_rng(11)
+    full_well, black, white = 2500.0, 512, 16383
+    dn = black + rng.poisson(signal * full_well) * (white - black) / full_well + 3.0 * rng.standard_normal(signal.shape)
+    path = tmp_path / "real_chart_dim.dng"
+    write_cfa_dng(path, np.clip(np.round(dn), 0, white).astype(np.uint16), "RGGB", (black,) * 4, white, "camcal",
+                  "real photo under")
+    found = patches_from_chart(path)
+    assert found.detection.method == "segmentation" and len(found.patches) + len(found.excluded) == 24
+    assert found.excluded == ()  # nothing saturates 3 stops under; the photo's clipped yellow and cyan are kept
+    half = (on_photo.detection.patch_centres() - 0.5) / 2.0  # photo pixel -> half-size raw pixel
+    # within 0.15 pitch, as cv2.mcc and the segmentation agree on the photo itself (the sampled square
+    # reaches 0.25 pitch from the centre); measured 5 stops under: 3.2 px of 25
+    assert np.abs(found.detection.patch_centres() - half).max() < 0.15 * _pitch(half)
+    # the photo's own linear patches (its detection, the same sampling) at the same exposure
+    truth = sample_patches(linear, on_photo.detection, clip_low=None).RGB
+    chroma = found.patches.RGB / found.patches.RGB.sum(axis=1, keepdims=True)
+    chroma_truth = truth / truth.sum(axis=1, keepdims=True)
+    # each patch's chromaticity within 4 of its standard errors (its pixels' spread over their count, through
+    # chromaticity's Jacobian), plus 0.005 for the photo's and the mosaic's different pixels
+    RGB = found.patches.RGB
+    se = found.samples.std / np.sqrt(found.samples.n_pixels[:, None])
+    S = RGB.sum(axis=1, keepdims=True)
+    J = (np.eye(3)[None] * S[:, :, None] - RGB[:, :, None]) / S[:, :, None] ** 2  # d chroma_c / d RGB_k
+    se_chroma = np.sqrt(np.einsum("nck,nk->nc", J**2, se**2))
+    diff = np.abs(chroma - chroma_truth)
+    print(f"{stops} stops under: worst chromaticity difference {diff.max():.4f}, "
+          f"worst in standard errors {(diff / se_chroma).max():.1f}")
+    assert np.all(diff < 4 * se_chroma + 0.005)
