@@ -167,3 +167,16 @@ def test_a_real_chart_underexposed_into_a_raw_file(shared_data, tmp_path, stops)
     print(f"{stops} stops under: worst chromaticity difference {diff.max():.4f}, "
           f"worst in standard errors {(diff / se_chroma).max():.1f}")
     assert np.all(diff < 4 * se_chroma + 0.005)
+
+
+def test_detector_option(captures, tmp_path, capsys):
+    chart, illuminant = captures["sigma-passport-A-1-under"]
+    out = tmp_path / "sigma.colour.json"
+    for detector in ("segmentation", "cv2.mcc"):
+        assert main(["colour", "fit", "--chart", str(chart.path), "--reference", "babel", "--illuminant", illuminant,
+                     "--detector", detector, "--model", "matrix3x3", "--out", str(out)]) == 0
+        assert f"chart found by {detector}: 24 / 24 patches used" in capsys.readouterr().out
+    patches = tmp_path / "p.csv"
+    patches.write_text("R,G,B,X,Y,Z\n" + "\n".join("0.1,0.2,0.3,0.1,0.2,0.3" for _ in range(12)))
+    assert main(["colour", "fit", "--patches", str(patches), "--detector", "cv2.mcc", "--out", str(out)]) == 2
+    assert "--detector applies to --chart only" in capsys.readouterr().err
