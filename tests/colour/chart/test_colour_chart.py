@@ -197,3 +197,17 @@ def test_real_chart_photo_against_cv2_ccm(shared_data):
         print(f"  cv2.ccm {kind}: train {train:.2f} LOO {loo:.2f} (getLoss, RMS: {loss:.2f})")
     assert outcome.fit.linearisation.residual < 0.01
     assert ours.stats_loo.mean < min(loo for _, loo, _ in peer.values())
+
+
+def test_no_colorchecker_on_real_chessboard_photos(shared_data):
+    """A chessboard is a lattice of squares too: its greys do not agree with the chart's colours, so neither
+    detector (segmentation, then cv2.mcc with its order checked) reports a ColorChecker, as a photo or as a raw
+    view (measured: none on 39 chessboard photos of five cameras)."""
+    from camcal.colour.chart.detect import reference_linear_RGB
+
+    reference = reference_linear_RGB(reference_chart())
+    for path in sorted((shared_data / "stereo_chessboard").glob("*.jpg"))[::10]:
+        image = read_image(path)
+        for linear in (False, True):
+            with pytest.raises(CamcalError, match="no ColorChecker found"):
+                detect_chart(image, reference_RGB=reference, linear=linear)
