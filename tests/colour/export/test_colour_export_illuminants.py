@@ -110,3 +110,37 @@ def test_light_names_and_errors(fits, tmp_path, capsys):
     assert not (tmp_path / "dup").exists()
     code = main(["colour", "export", str(out["D65"][0]), "--by-illuminant", "--icc", str(tmp_path / "x.icc")])
     assert code == 2 and "--by-illuminant names OCIO colour spaces" in capsys.readouterr().err
+
+
+def test_raw_charts_under_two_lights_to_one_config(tmp_path, capsys):
+    """End to end from raw files: the Nikon's chart synthesised as a DNG under D65 (3.5 stops under) and under A
+    (a Passport, 1 stop under), each through ``colour fit --chart`` without corners, then one config whose spaces
+    are named by the lights the fits record."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "chart"))
+    from raw_chart_scenes import write_raw_chart
+
+    from camcal.io.colourfile import load_colour_file
+    from camcal.pipelines.colour import patches_from_chart
+
+    fits = []
+    for light, layout, stops in (("D65", "classic", 3.5), ("A", "passport", 1.0)):
+        chart = write_raw_chart(tmp_path / f"{light}.dng", SimulatedCamera.from_colour("Nikon 5100 (NPL)", light),
+                                layout=layout, stops_under=stops, full_well=2500.0, seed=6)
+        fit_path = tmp_path / f"{light}.colour.json"
+        assert main(["colour", "fit", "--chart", str(chart.path), "--reference", "babel", "--illuminant", light,
+                     "--model", "matrix3x3", "--camera", "D5100", "--out", str(fit_path)]) == 0
+        assert "24 / 24 patches used" in capsys.readouterr().out
+        fits.append((light, fit_path, patches_from_chart(chart.path, "babel", illuminant=light)))
+    assert main(["colour", "export", *[str(p) for _, p, _ in fits], "--by-illuminant", "--ocio", str(tmp_path / "o"),
+                 "--base", "camcal"]) == 0
+    config = ocio.Config.CreateFromFile(str(tmp_path / "o" / "config.ocio"))
+    for light, fit_path, found in fits:
+        fit = load_colour_file(fit_path)
+        cpu = config.getProcessor(f"camcal D5100 ({light})", XYZ_D65).getOptimizedCPUProcessor(
+            ocio.OPTIMIZATION_LOSSLESS)
+        pixels = np.ascontiguousarray(found.patches.RGB, dtype=np.float32)
+        cpu.applyRGB(pixels)
+        np.testing.assert_allclose(pixels, _to_D65(fit, fit.apply(found.patches.RGB)), rtol=1e-4, atol=1e-6)
