@@ -49,6 +49,7 @@ def patches_from_chart(
     corners: Any = None,
     keep_clipped: bool = False,
     illuminant: str = "D50",
+    detector: str = "auto",
 ) -> ChartPatches:
     """Detect, sample and pair a chart photo's patches with reference XYZ.
 
@@ -59,7 +60,9 @@ def patches_from_chart(
     reference
         Reference chart name (see :func:`camcal.colour.chart.reference.reference_chart`).
     corners
-        ``(4, 2)`` manual grid corners; ``None`` detects with cv2.mcc.
+        ``(4, 2)`` manual grid corners; ``None`` detects the chart
+        (:func:`camcal.colour.chart.detect.detect_chart`, on a normalised,
+        sRGB-encoded view of a raw file's linear image).
     keep_clipped
         Keep patches flagged clipped (dropped by default). A raw file's
         patches are clipped only where its pixels are saturated: dark ones
@@ -68,6 +71,8 @@ def patches_from_chart(
     illuminant
         White of the reference XYZ (the chart's data are adapted to it when
         they were measured under another, see ``reference_chart``).
+    detector
+        ``auto``, ``segmentation`` or ``cv2.mcc`` (:func:`camcal.colour.chart.detect.detect_chart`).
 
     Returns
     -------
@@ -79,9 +84,9 @@ def patches_from_chart(
     if is_raw(image_path):
         raw = read_raw(image_path)
         return patches_from_image(raw.RGB, chart, corners=corners, keep_clipped=keep_clipped,
-                                  saturated=raw.saturated, linear=True)
+                                  saturated=raw.saturated, linear=True, detector=detector)
     image = read_image(image_path)
-    return patches_from_image(image, chart, corners=corners, keep_clipped=keep_clipped)
+    return patches_from_image(image, chart, corners=corners, keep_clipped=keep_clipped, detector=detector)
 
 
 def capture_from_chart(

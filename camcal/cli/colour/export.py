@@ -13,10 +13,15 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal colour export``."""
-    parser.add_argument("fits", nargs="+", metavar="FIT.colour.json", help="characterisation files")
+    parser.add_argument("fits", nargs="+", metavar="FIT.colour.json",
+                        help="characterisation files (with --by-illuminant, LIGHT=FIT.colour.json names the light)")
     parser.add_argument("--camera-name", metavar="NAME",
                         help="camera name (one fit only; default: the fit's camera, else the file name)")
     parser.add_argument("--ocio", metavar="OUTDIR", help="write OUTDIR/config.ocio and OUTDIR/luts/*.clf")
+    parser.add_argument("--by-illuminant", action="store_true",
+                        help="one space per fit named 'camcal <camera> (<light>)': a camera's fits for D65, A and "
+                             "any measured light in one config (the light: the fit's --for-illuminant, else the "
+                             "illuminant its chart was shot under, a light file's name, or LIGHT= before the fit)")
     parser.add_argument("--base", default="ocio://studio-config-latest", metavar="CONFIG",
                         help="config to add the spaces to (default: %(default)s; see below)")
     parser.add_argument("--cat", choices=("Bradford", "CAT02"), default="Bradford",
@@ -36,6 +41,9 @@ def _export(args: argparse.Namespace) -> int:
     (log-chromaticity shaper + 3D LUT; ICC v4: float D2B0/D2B1 plus a 16-bit A2B0) with the bake error
     checked over the chart gamut and plausible surface colours.
 
+    --by-illuminant: a camera's fits for several lights (D65, A, a measured light) as one config, one space per
+    light, 'camcal <camera> (<light>)'.
+
     --base: 'camcal' (camcal's small ACES config, ocio_configs/camcal_base.ocio), an ocio:// built-in
     (default: ocio://studio-config-latest, which needs OCIO 2.6; Blender 5.0 links OCIO 2.4: use 'camcal' or
     ocio://studio-config-v2.2.0_aces-v1.3_ocio-v2.4 there) or a .ocio file with an aces_interchange role.
@@ -48,21 +56,35 @@ def _export(args: argparse.Namespace) -> int:
 
     if not args.ocio and not args.icc:
         raise CamcalError("nothing to write: give --ocio OUTDIR and/or --icc OUT.icc")
-    if args.camera_name and len(args.fits) > 1:
-        raise CamcalError(f"--camera-name needs exactly one fit, got {len(args.fits)}")
+    if args.camera_name and len(args.fits) > 1 and not args.by_illuminant:
+        raise CamcalError(f"--camera-name needs exactly one fit (or --by-illuminant), got {len(args.fits)}")
+    if args.by_illuminant and not args.ocio:
+        raise CamcalError("--by-illuminant names OCIO colour spaces: give --ocio OUTDIR")
     if args.icc and len(args.fits) > 1:
         raise CamcalError(f"--icc writes one profile: give one fit, got {len(args.fits)}")
     if not (args.max_bake_error > 0):
         raise CamcalError(f"--max-bake-error must be > 0, got {args.max_bake_error}")
     out = summary_of(args)
-    fits, matches = [], []
-    for path in args.fits:
+    fits, matches, lights = [], [], []
+    for entry in args.fits:
+        path, light = entry, None
+        if args.by_illuminant and "=" in entry and not Path(entry).is_file():
+            light, path = entry.split("=", 1)
+            if not light.strip():
+                raise CamcalError(f"empty light name in {entry!r} (expected LIGHT=FIT.colour.json)")
         fit = load_colour_file(path)
         if not isinstance(fit, ColourFit):
+            if light is not None:
+                raise CamcalError(f"{path} is a camera match, not a characterisation: it has no light to name")
             matches.append(fit)
             continue
         name = args.camera_name or fit.camera or Path(path).name.removesuffix(".json").removesuffix(".colour")
         fits.append((name, fit))
+        lights.append(light)
+    if args.by_illuminant:
+        from camcal.colour.export.ocio_fit import names_by_illuminant
+
+        fits = names_by_illuminant([(name, fit, light) for (name, fit), light in zip(fits, lights)])
     if args.icc and not fits:
         raise CamcalError("--icc needs a characterisation (kind characterisation); a camera match has no ICC profile")
     profile = None

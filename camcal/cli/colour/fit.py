@@ -23,6 +23,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--corners", metavar="X,Y,...",
                         help="manual chart corners instead of detection: 8 numbers, top-left (dark "
                              "skin), top-right, bottom-right, bottom-left of the patch grid")
+    parser.add_argument("--detector", choices=("auto", "segmentation", "cv2.mcc"), default="auto",
+                        help="chart detection without --corners: camcal's segmentation, OpenCV's cv2.mcc, or auto "
+                             "(segmentation, then cv2.mcc); both on a normalised sRGB view of a raw file")
     parser.add_argument("--keep-clipped", action="store_true", help="keep patches flagged clipped")
     parser.add_argument("--model", default="auto",
                         help="auto | matrix3x3[:white-preserving] | polynomial:N | root-polynomial:D "
@@ -110,7 +113,8 @@ def _fit(args: argparse.Namespace) -> int:
     if args.chart:
         corners = _parse_corners(args.corners) if args.corners else None
         found = patches_from_chart(args.chart, args.reference, corners=corners,
-                                   keep_clipped=args.keep_clipped, illuminant=args.illuminant)
+                                   keep_clipped=args.keep_clipped, illuminant=args.illuminant,
+                                   detector=args.detector)
         train = found.patches
         reference = found.reference.name
         clipped = "saturated" if is_raw(args.chart) else "clipped"
@@ -128,6 +132,8 @@ def _fit(args: argparse.Namespace) -> int:
     else:
         if args.corners:
             raise CamcalError("--corners applies to --chart only")
+        if args.detector != "auto":
+            raise CamcalError("--detector applies to --chart only")
         train = read_patch_csv(args.patches)
         print(f"read {len(train)} patches from {args.patches}")
         linearise = args.linearise or "none"

@@ -2,6 +2,7 @@
 
 Modules: ``reference`` (:func:`reference_chart`), ``detect``
 (:func:`detect_chart`, :func:`sample_patches`, :func:`patches_from_image`),
+``find`` (the detection view of a raw image and camcal's segmentation detector),
 ``patches`` (:class:`PatchSet`), ``linearise`` (:func:`fit_linearisation`).
 """
 

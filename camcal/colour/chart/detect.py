@@ -1,8 +1,13 @@
 """Chart detection in an image and patch sampling: an image array to patches beside reference XYZ.
 
-Detection: OpenCV's ``cv2.mcc`` (contrib) finds a 24-patch ColorChecker and
-gives each patch's corners; a homography from the chart's patch grid to the
-image is fitted to the 24 patch centres. A manual override takes the four
+Detection (:func:`detect_chart`), on a normalised, sRGB-encoded view of
+the image (a raw file's linear RGB is too dark and green to detect on):
+camcal's segmentation (:mod:`camcal.colour.chart.find`: square regions on
+a lattice, oriented by the reference chart's colours; it also finds the
+classic chart on a ColorChecker Passport page), and where it finds none,
+OpenCV's ``cv2.mcc`` (contrib), its patch order checked against the
+reference's colours. A homography from the chart's patch grid to
+the image is fitted to the patch centres found. A manual override takes the four
 outer corners of the patch grid instead, in the order top-left (the corner
 of ``dark skin``), top-right (``bluish green``), bottom-right
 (``black``), bottom-left (``white``), pixel (0, 0) the centre of the
@@ -51,6 +56,8 @@ from camcal.colour.chart.reference import ReferenceChart
 __all__ = [
     "ChartDetection",
     "detect_chart",
+    "DETECTORS",
+    "reference_linear_RGB",
     "chart_from_corners",
     "REFERENCE_UNCERTAINTY",
     "SNR_REFERENCE",
@@ -78,7 +85,7 @@ class ChartDetection:
     rows, columns
         Patch grid.
     method
-        ``"cv2.mcc"`` or ``"manual"``.
+        ``"cv2.mcc"``, ``"segmentation"`` or ``"manual"``.
     fit_rms_px
         RMS distance between the detector's patch centres and the fitted
         grid (0 for manual corners).
@@ -130,13 +137,99 @@ def chart_from_corners(corners: Any, rows: int = 4, columns: int = 6) -> ChartDe
     return ChartDetection(np.asarray(H, dtype=np.float64), corners, rows, columns, "manual")
 
 
-def detect_chart(image: np.ndarray, rows: int = 4, columns: int = 6) -> ChartDetection:
-    """Find a 24-patch ColorChecker with OpenCV's ``cv2.mcc``.
+def _mcc(view: np.ndarray, rows: int, columns: int) -> np.ndarray | None:
+    """cv2.mcc's ``(24, 2)`` patch centres in chart order on an 8-bit RGB view, or ``None``."""
+    import cv2
+
+    bgr = np.ascontiguousarray(view[:, :, ::-1])
+    detector = cv2.mcc.CCheckerDetector_create()
+    if hasattr(detector, "setColorChartType"):
+        # OpenCV 5: the chart type is a detector setting (unset, it is not MCC24)
+        # and process() takes only (image, nc).
+        detector.setColorChartType(cv2.mcc.MCC24)
+        found = detector.process(bgr, 1)
+    else:  # OpenCV 4.x: process(image, chartType, nc)
+        found = detector.process(bgr, cv2.mcc.MCC24, 1)
+    if not found:
+        return None
+    quads = np.asarray(detector.getBestColorChecker().getColorCharts(), dtype=np.float64).reshape(-1, 4, 2)
+    if quads.shape[0] != rows * columns:
+        return None
+    return quads.mean(axis=1)
+
+
+def _grid_fit(centres: np.ndarray, index: np.ndarray, rows: int, columns: int, method: str) -> ChartDetection:
+    """The chart grid's homography by least squares on the patch centres found (``index``: chart order).
+
+    A centre more than 3 times the median distance (and over 1 px) from
+    the first fit is left out and the grid fitted again (a patch seen
+    merged with its neighbour's edge).
+    """
+    import cv2
+
+    grid = _grid_centres(rows, columns)[index]
+    keep = np.ones(len(grid), dtype=bool)
+    for _ in range(2):
+        H, _ = cv2.findHomography(grid[keep].astype(np.float64), centres[keep].astype(np.float64), 0)
+        if H is None:
+            raise CamcalError(f"the patch centres {method} found do not form a chart grid")
+        distance = np.linalg.norm(_apply_H(H, grid) - centres, axis=1)
+        outlier = distance > max(1.0, 3.0 * float(np.median(distance)))
+        if not outlier.any() or (~outlier).sum() < 8:
+            break
+        keep = ~outlier
+    rms = float(np.sqrt(np.mean(distance[keep] ** 2)))
+    return ChartDetection(H, _apply_H(H, _UNIT_CORNERS), rows, columns, method, rms)
+
+
+def _oriented(view: np.ndarray, centres: np.ndarray, reference_RGB: Any, rows: int, columns: int):
+    """cv2.mcc's centres in the order (as given or turned a half turn) whose colours agree best with the
+    reference's, and that agreement (:func:`camcal.colour.chart.find.colour_score`)."""
+    from camcal.colour.chart.find import colour_score, sample_view
+
+    measured = sample_view(view, centres)
+    half_turn = np.arange(rows * columns)[::-1]
+    scores = [colour_score(measured, reference_RGB), colour_score(measured[half_turn], reference_RGB)]
+    if scores[1] > scores[0]:
+        return centres[half_turn], scores[1]
+    return centres, scores[0]
+
+
+DETECTORS = ("auto", "cv2.mcc", "segmentation")
+
+
+def detect_chart(
+    image: np.ndarray,
+    rows: int = 4,
+    columns: int = 6,
+    *,
+    linear: bool = False,
+    reference_RGB: Any = None,
+    detector: str = "auto",
+) -> ChartDetection:
+    """Find a 24-patch ColorChecker: camcal's segmentation, then OpenCV's ``cv2.mcc``.
+
+    Both run on :func:`camcal.colour.chart.find.detection_view` (a linear
+    image normalised per channel and sRGB-encoded), never on the linear
+    values themselves. ``auto`` takes the segmentation's answer
+    (:func:`camcal.colour.chart.find.find_chart_segmentation`, which needs
+    ``reference_RGB`` to orient the chart) when it finds the chart, else
+    cv2.mcc's: on synthesised raw captures (bench/bench_chart_detect.py)
+    the segmentation found more charts, more accurately. With ``reference_RGB``,
+    cv2.mcc's patch order is checked against the reference's colours too:
+    it can return the chart a half turn round (seen on dim raw views), and
+    its answer is refused when the colours do not agree
+    (:data:`camcal.colour.chart.find.MIN_COLOUR_SCORE`).
 
     Parameters
     ----------
     image
-        ``(H, W, 3)`` RGB normalised code values (from :func:`read_image`).
+        ``(H, W, 3)`` RGB: normalised code values, or linear with black 0
+        when ``linear`` (raw).
+    reference_RGB
+        ``(24, 3)`` the chart's linear RGB (for the segmentation's orientation).
+    detector
+        ``auto``, ``cv2.mcc`` or ``segmentation``.
 
     Returns
     -------
@@ -147,38 +240,34 @@ def detect_chart(image: np.ndarray, rows: int = 4, columns: int = 6) -> ChartDet
     CamcalError
         When no chart is found ("no ColorChecker found in the image").
     """
-    import cv2
+    from camcal.colour.chart.find import MIN_COLOUR_SCORE, detection_view, find_chart_segmentation
 
     if (rows, columns) != (4, 6):
         raise CamcalError(
             "automatic detection supports the 24-patch ColorChecker only; give --corners "
             "for other charts, or give --patches"
         )
-    bgr = np.ascontiguousarray((np.clip(image, 0, 1) * 255 + 0.5).astype(np.uint8)[:, :, ::-1])
-    detector = cv2.mcc.CCheckerDetector_create()
-    if hasattr(detector, "setColorChartType"):
-        # OpenCV 5: the chart type is a detector setting (unset, it is not MCC24)
-        # and process() takes only (image, nc).
-        detector.setColorChartType(cv2.mcc.MCC24)
-        found = detector.process(bgr, 1)
-    else:  # OpenCV 4.x: process(image, chartType, nc)
-        found = detector.process(bgr, cv2.mcc.MCC24, 1)
-    if not found:
-        raise CamcalError(
-            "no ColorChecker found in the image (cv2.mcc); give its corners with --corners"
-        )
-    checker = detector.getBestColorChecker()
-    quads = np.asarray(checker.getColorCharts(), dtype=np.float64).reshape(-1, 4, 2)
-    if quads.shape[0] != rows * columns:
-        raise CamcalError(f"cv2.mcc returned {quads.shape[0]} patches, expected {rows * columns}")
-    centres = quads.mean(axis=1)
-    grid = _grid_centres(rows, columns)
-    H, _ = cv2.findHomography(grid.astype(np.float64), centres.astype(np.float64), 0)
-    if H is None:
-        raise CamcalError("cv2.mcc's patch centres do not form a chart grid")
-    fitted = _apply_H(H, grid)
-    rms = float(np.sqrt(np.mean(np.sum((fitted - centres) ** 2, axis=1))))
-    return ChartDetection(H, _apply_H(H, _UNIT_CORNERS), rows, columns, "cv2.mcc", rms)
+    if detector not in DETECTORS:
+        raise CamcalError(f"unknown chart detector {detector!r}, expected one of: {', '.join(DETECTORS)}")
+    view = detection_view(image, linear=linear)
+    tried = []
+    if detector in ("auto", "segmentation") and reference_RGB is not None:
+        tried.append("segmentation")
+        found = find_chart_segmentation(view, reference_RGB, rows, columns)
+        if found is not None:
+            return _grid_fit(found.centres, found.index, rows, columns, "segmentation")
+    if detector in ("auto", "cv2.mcc"):
+        tried.append("cv2.mcc")
+        centres = _mcc(view, rows, columns)
+        if centres is not None and reference_RGB is not None:
+            centres, score = _oriented(view, centres, reference_RGB, rows, columns)
+            if score < MIN_COLOUR_SCORE:
+                centres = None
+        if centres is not None:
+            return _grid_fit(centres, np.arange(rows * columns), rows, columns, "cv2.mcc")
+    raise CamcalError(
+        f"no ColorChecker found in the image ({' nor '.join(tried)}); give its corners with --corners"
+    )
 
 
 REFERENCE_UNCERTAINTY = 0.01
@@ -197,6 +286,13 @@ def snr_weights(snr: Any) -> np.ndarray:
     with np.errstate(divide="ignore"):
         ratio = np.where(snr > 0, SNR_REFERENCE / np.maximum(snr, 1e-300), np.inf)
     return np.maximum(1.0 / (1.0 + ratio**2), 1e-12)
+
+
+def reference_linear_RGB(chart: ReferenceChart) -> np.ndarray:
+    """The chart's linear sRGB (its XYZ through the sRGB matrix; for orienting a detection)."""
+    import colour
+
+    return np.asarray(colour.XYZ_to_RGB(chart.XYZ, "sRGB", colour.XYZ_to_xy(chart.white_XYZ)), dtype=np.float64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -339,6 +435,7 @@ def patches_from_image(
     keep_clipped: bool = False,
     saturated: np.ndarray | None = None,
     linear: bool = False,
+    detector: str = "auto",
 ) -> ChartPatches:
     """Detect, sample and pair a chart image's patches with reference XYZ.
 
@@ -351,7 +448,7 @@ def patches_from_image(
         The reference chart (:func:`camcal.colour.chart.reference.reference_chart`),
         its XYZ under the white the patches are for.
     corners
-        ``(4, 2)`` manual grid corners; ``None`` detects with cv2.mcc.
+        ``(4, 2)`` manual grid corners; ``None`` detects (:func:`detect_chart`).
     keep_clipped
         Keep patches flagged clipped (dropped by default).
     saturated
@@ -361,6 +458,8 @@ def patches_from_image(
         at 0, values below black kept in the patch means, and the patches
         weighted by their signal-to-noise ratio (encoded images: no weights,
         their code values' noise is not the noise in linear light).
+    detector
+        :func:`detect_chart`'s ``detector``.
 
     Returns
     -------
@@ -369,7 +468,8 @@ def patches_from_image(
         white.
     """
     if corners is None:
-        detection = detect_chart(image, chart.rows, chart.columns)
+        detection = detect_chart(image, chart.rows, chart.columns, linear=linear,
+                                 reference_RGB=reference_linear_RGB(chart), detector=detector)
     else:
         detection = chart_from_corners(corners, chart.rows, chart.columns)
     if linear:

@@ -33,6 +33,12 @@ A camera match (kind ``match``) becomes a Look (:func:`look_from_match`).
 :func:`config_spec_from_fits` describes a whole config;
 :func:`camcal.io.ocio.export_ocio` writes it. :func:`fit_processor` applies a
 fit to images with the same transforms.
+
+A camera's fits for several lights (D65, A, a measured light) go into one
+config together, one input space per light named ``camcal <camera>
+(<light>)`` (:func:`names_by_illuminant`): the light a fit is for is its
+``--for-illuminant`` target, else the illuminant its chart was shot under,
+a measured light's file name without its suffix, or a label given for it.
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ from __future__ import annotations
 import posixpath
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import PurePath
 from typing import Any
 
 import numpy as np
@@ -78,6 +85,8 @@ __all__ = [
     "look_name",
     "look_from_match",
     "config_spec_from_fits",
+    "illuminant_label",
+    "names_by_illuminant",
     "OUTPUT_SPACES",
     "output_matrix",
     "FitProcessor",
@@ -311,6 +320,66 @@ def config_spec_from_fits(
         looks.append(look)
         reports.append(report)
     return ConfigSpec(base=base, colour_spaces=tuple(specs), looks=tuple(looks)), tuple(reports)
+
+
+_LIGHT_FILE_SUFFIXES = (".csv", ".spd", ".txt", ".json")
+
+
+def illuminant_label(fit: ColourFit) -> str:
+    """The light a fit is for: its illuminant change's target, else its training illuminant.
+
+    A measured light given as a file becomes the file's name without its
+    suffix.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> illuminant_label(SimpleNamespace(illuminant_change=None, training_illuminant="/lights/studio LED.csv"))
+    'studio LED'
+    >>> illuminant_label(SimpleNamespace(illuminant_change={"for_illuminant": "A"}, training_illuminant="D65"))
+    'A'
+    """
+    change = getattr(fit, "illuminant_change", None)
+    label = str(change["for_illuminant"]) if change else str(fit.training_illuminant)
+    pure = PurePath(label)
+    if pure.suffix.lower() in _LIGHT_FILE_SUFFIXES:
+        label = pure.stem
+    return label.strip()
+
+
+def names_by_illuminant(fits: Sequence[tuple[str, ColourFit, str | None]]) -> list[tuple[str, ColourFit]]:
+    """``(camera, fit, light or None)`` to ``(camera (light), fit)``: one space name per camera and light.
+
+    The light is :func:`illuminant_label` unless given; a camera name that
+    already ends with `` (light)`` (a ``colour fit --for-illuminant`` fit's)
+    keeps it once.
+
+    Raises
+    ------
+    CamcalError
+        Two fits for the same camera and light.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> d65 = SimpleNamespace(illuminant_change=None, training_illuminant="D65")
+    >>> a = SimpleNamespace(illuminant_change={"for_illuminant": "A"}, training_illuminant="D65")
+    >>> [n for n, _ in names_by_illuminant([("nikon", d65, None), ("nikon (A)", a, None), ("nikon", d65, "LED")])]
+    ['nikon (D65)', 'nikon (A)', 'nikon (LED)']
+    """
+    named: list[tuple[str, ColourFit]] = []
+    for camera, fit, light in fits:
+        light = (light or illuminant_label(fit)).strip()
+        if not light:
+            raise CamcalError(f"the fit of camera {camera!r} names no light: give it as LIGHT=FIT.colour.json")
+        base = camera.removesuffix(f" ({light})")
+        named.append((f"{base} ({light})", fit))
+    names = [name for name, _ in named]
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise CamcalError(f"two fits for the same camera and light: {', '.join(twice)} (name the lights with "
+                          f"LIGHT=FIT.colour.json)")
+    return named
 
 
 # --------------------------------------------------------------------------
