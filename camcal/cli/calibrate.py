@@ -183,9 +183,6 @@ def _board(args: argparse.Namespace) -> int:
         print(f"model auto: views held out in turn, chose {result.model}")
         for score in result.model_ranking:
             print("  " + score.describe())
-    if result.relabelled:
-        print("relabelled by a half turn (symmetric board) to agree with the rig: "
-              + ", ".join(image for _, image in result.relabelled))
     if result.dropped:
         print("dropped (no corner labelling agrees with the rig): " + ", ".join(image for _, image in result.dropped))
     print(result.summary())

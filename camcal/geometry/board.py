@@ -38,11 +38,12 @@ Boards as they are printed, options after the sizes (any order):
     mirror image (``x' = W - 1 - x``); the detection with more corners is
     kept, the mirrored one's corners mapped back (``x = W - 1 - x'``) and
     keeping their ids, i.e. their board points. A chessboard looks alike
-    from both sides (its detection is the same on the mirror image): one
-    camera calibrates from either side (a mirrored labelling of a plane is
-    another valid pose), but which side a view of a rig shows is not
-    decided yet, so :func:`camcal.geometry.zhang.calibrate_board` refuses
-    a two-sided chessboard for more than one camera.
+    from both sides (its detection is the same on the mirror image): its
+    corners are labelled as if seen from the front, and one camera
+    calibrates from either side (a mirrored labelling of a plane is another
+    valid pose); in a rig, the side each view shows is decided by the
+    board pose the other cameras of its frame see
+    (:func:`camcal.geometry.labelling.resolve_labellings`).
 
 Board coordinates: corner ``id`` of a chessboard is ``row * W + col`` at
 ``(col * square, row * square, 0)``; ChArUco corners are those of
