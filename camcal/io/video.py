@@ -134,12 +134,11 @@ def iter_frames(path: str | os.PathLike, every: int = 1, wanted=None,
     with _capture(path) as capture:
         k = 0
         while True:
-            keep = k % every == 0 and (wanted is None or wanted(k))
             if not capture.grab():
                 if k == 0:
                     raise CamcalError(f"{Path(path).name}: cannot be decoded as a video (no frame could be read)")
                 return
-            if keep:
+            if k % every == 0 and (wanted is None or wanted(k)):  # asked only of frames that exist
                 ok, frame = capture.retrieve()
                 if not ok or frame is None:
                     if k == 0:

@@ -226,7 +226,8 @@ def _video_cache_key(board: Board, path: Path) -> str:
     """SHA-256 of the video's bytes (read in blocks), the board and the detector settings."""
     with open(path, "rb") as stream:
         digest = hashlib.file_digest(stream, "sha256")
-    digest.update(f"|video|{board.spec()}|{DETECTOR_SETTINGS}".encode())
+    # "video-v2": the frame count of caches written before it was one too many (the frame after the last)
+    digest.update(f"|video-v2|{board.spec()}|{DETECTOR_SETTINGS}".encode())
     return digest.hexdigest()
 
 

@@ -59,6 +59,8 @@ CASES = [
      "--out {out}/a.rig.json --report {out}/r --no-cache"),
     ("calibrate board giant header", "calibrate board --board chessboard:9x6:1 --camera left={in}/giant.png "
      "--out {out}/a.rig.json --no-cache"),
+    ("calibrate board --timestamps", "calibrate board --board chessboard:9x6:1 --camera left={in}/plain.png "
+     "--timestamps {in}/patches.csv --out {out}/a.rig.json --report {out}/r --no-cache"),
     ("calibrate dlt", "calibrate dlt --points {in}/patches.csv --image-size 640 480 --out {out}/a.rig.json"),
     ("distortion fit --report", "distortion fit --lines {in}/lines.json --out {out}/lens.json --report {out}/r"),
     ("undistort", "undistort {in}/good.rig.json --camera left {in}/plate.png {in}/garbage.png --out {out}/u"),
