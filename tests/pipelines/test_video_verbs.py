@@ -136,3 +136,29 @@ def test_rectify_videos_as_their_frames(stereo_videos, capsys):
                  "--write", str(folder / "w_bad"), "--out", str(folder / "bad.rig.json")]) == 2
     assert "broken.mp4" in capsys.readouterr().err
     assert not (folder / "w_bad").exists() and not (folder / "bad.rig.json").exists()
+
+
+@pytest.mark.slow
+def test_solve_on_videos_as_on_their_frames(tmp_path, capsys):
+    """SfM on two lossless videos (FFV1) of a rendered stereo sequence = SfM on the same frames as PNG folders."""
+    from camcal.synthetic import render_stereo_sequence
+
+    render_stereo_sequence(tmp_path / "in")
+    for name in ("left", "right"):
+        frames = sorted((tmp_path / "in" / name).glob("*.png"))
+        first = cv2.imread(str(frames[0]))
+        writer = cv2.VideoWriter(str(tmp_path / "in" / f"{name}.mkv"), cv2.VideoWriter_fourcc(*"FFV1"), 10,
+                                 (first.shape[1], first.shape[0]))
+        for frame in frames:
+            writer.write(cv2.imread(str(frame)))
+        writer.release()
+    assert main(["solve", str(tmp_path / "in"), "--camera", "left=left.mkv", "right=right.mkv", "--out",
+                 str(tmp_path / "video")]) == 0
+    from_video = capsys.readouterr().out
+    assert main(["solve", str(tmp_path / "in/left"), str(tmp_path / "in/right"), "--out", str(tmp_path / "png")]) == 0
+    from_png = capsys.readouterr().out
+    assert "registered 14 / 14 images" in from_video
+    video, png = Rig.load(tmp_path / "video/solve.rig.json"), Rig.load(tmp_path / "png/solve.rig.json")
+    for a, b in zip(video.cameras, png.cameras):
+        assert a.name == b.name and np.allclose(a.K, b.K, rtol=1e-6) and np.allclose(a.c, b.c, atol=1e-6)
+    print(f"\n{from_video.splitlines()[1]}\n{from_png.splitlines()[1]}")
