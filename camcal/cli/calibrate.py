@@ -35,7 +35,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                  "video is frame number k, from 0) (several entries or a repeated option; globs absolute or "
                  "relative)", required=True)
     board.add_argument("--every", type=int, default=1, metavar="N",
-                       help="videos: detect every N-th frame (frames 0, N, 2N...; default 1)")
+                       help="videos: detect every N-th frame (frames 0, N, 2N...; default 1); with --timestamps, the "
+                       "first camera's, and the other cameras' frames matched to them")
     board.add_argument("--timestamps", metavar="FILE.csv",
                        help="frame times, CSV with the header camera,frame,time (seconds, one clock for all; frame "
                        "k of a video is its k-th frame from 0, of images the number in the file name): each camera's "
@@ -166,8 +167,10 @@ def _board(args: argparse.Namespace) -> int:
     detections, reports = {}, {}
     for name in args.camera:
         if name in videos:
-            total = max(1, -(-video_info(videos[name]).frame_count // args.every))
-            report = detect_in_video(board, videos[name], every=args.every, workers=workers, cache=cache,
+            # by time, another camera's frames matching the first camera's 0, N, 2N... are not its own 0, N, 2N...
+            every = 1 if timestamps is not None and name != next(iter(args.camera)) else args.every
+            total = max(1, -(-video_info(videos[name]).frame_count // every))
+            report = detect_in_video(board, videos[name], every=every, workers=workers, cache=cache,
                                      progress=Progress(total, f"detecting {name}", "frames").report)
             skipped = [str(frame_number(label)) for label in report.skipped]
             text = f"{name}: board found in {len(report.detections)} / {report.n_images} frames of {videos[name]}"
@@ -185,7 +188,8 @@ def _board(args: argparse.Namespace) -> int:
         from camcal.pipelines.board import synchronise_detections
 
         detections, sync, dropped = synchronise_detections(reports, timestamps, args.time_tolerance,
-                                                           sources={name: str(path) for name, path in videos.items()})
+                                                           sources={name: str(path) for name, path in videos.items()},
+                                                           every=args.every)
         print(f"synchronised by time ({args.timestamps}): views numbered by {sync.reference}'s frames, matched "
               f"within {1e3 * sync.tolerance_s:.3g} ms")
         for name in args.camera:

@@ -341,9 +341,8 @@ def detect_in_video(
 
 
 def synchronise_detections(reports: Mapping[str, DetectionReport], timestamps: Timestamps,
-                           tolerance_s: float | None = None,
-                           sources: Mapping[str, str] | None = None) -> tuple[dict[str, list[Detection]],
-                                                                              Synchronisation, dict[str, int]]:
+                           tolerance_s: float | None = None, sources: Mapping[str, str] | None = None,
+                           every: int = 1) -> tuple[dict[str, list[Detection]], Synchronisation, dict[str, int]]:
     """The views of every camera numbered by time (:func:`camcal.io.timestamps.synchronise`) instead of by index.
 
     Parameters
@@ -356,6 +355,11 @@ def synchronise_detections(reports: Mapping[str, DetectionReport], timestamps: T
         Largest time difference of a match (default: half the reference's frame period).
     sources : mapping of str to str, optional
         Camera -> its video's name, for the messages.
+    every : int
+        Keep the views matched to the reference's frames 0, every, 2 every...
+        (detect the reference's every ``every``-th frame and the other
+        cameras' every frame: their frames matching those are not the same
+        numbers).
 
     Returns
     -------
@@ -364,7 +368,8 @@ def synchronise_detections(reports: Mapping[str, DetectionReport], timestamps: T
         reference frame they are matched to
         (:func:`camcal.geometry.board.synchronised_label`); per camera the
         number of views dropped (no time, or no reference frame within the
-        tolerance).
+        tolerance; the views matched to frames ``every`` leaves out are not
+        counted).
 
     Raises
     ------
@@ -381,11 +386,13 @@ def synchronise_detections(reports: Mapping[str, DetectionReport], timestamps: T
     detections, dropped = {}, {}
     for camera, report in reports.items():
         numbers = synchronisation.numbers[camera]
-        kept = []
+        kept, n_dropped = [], 0
         for detection in report.detections:
             number = numbers.get(frame_number(detection.image))
-            if number is not None:
+            if number is None:
+                n_dropped += 1
+            elif number % every == 0:
                 kept.append(dataclasses.replace(detection, image=synchronised_label(detection.image, number)))
         detections[camera] = kept
-        dropped[camera] = len(report.detections) - len(kept)
+        dropped[camera] = n_dropped
     return detections, synchronisation, dropped

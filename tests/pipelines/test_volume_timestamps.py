@@ -147,3 +147,25 @@ def test_time_tolerance_needs_timestamps(recording, monkeypatch, capsys):
     folder, _ = recording
     monkeypatch.chdir(folder)
     assert "--time-tolerance needs --timestamps" in run_bad(command("--time-tolerance", "0.01"), folder, capsys)
+
+
+def test_every_keeps_the_views_matched_to_the_first_cameras_kept_frames(tmp_path):
+    """--every 2 with cam1 one frame late: cam1's views kept are its odd frames (matched to cam0's even ones)."""
+    from camcal.geometry.board import Detection, DetectionReport, frame_number, video_frame_label
+    from camcal.io.timestamps import read_timestamps
+    from camcal.pipelines.board import synchronise_detections
+
+    (tmp_path / "ts.csv").write_text("camera,frame,time\n" + "".join(
+        f"cam{c},{k},{(k + c) / 30:.6f}\n" for c in range(2) for k in range(10)))
+
+    def report(video, frames):
+        views = tuple(Detection(video_frame_label(video, k), (64, 48), np.arange(6), np.zeros((6, 2)), "synthetic")
+                      for k in frames)
+        return DetectionReport(views, (), 10)
+
+    reports = {"cam0": report("a.mp4", range(0, 10, 2)), "cam1": report("b.mp4", range(10))}
+    detections, sync, dropped = synchronise_detections(reports, read_timestamps(tmp_path / "ts.csv"), every=2)
+    assert [frame_number(d.image) for d in detections["cam0"]] == [0, 2, 4, 6, 8]
+    assert [d.image for d in detections["cam1"]] == [f"b.mp4#{k}@{k + 1}" for k in (1, 3, 5, 7)]
+    assert dropped == {"cam0": 0, "cam1": 1}  # cam1's frame 9 is at cam0's frame 10, which cam0 never recorded
+    assert sync.offsets_s["cam1"] == pytest.approx(0.0, abs=1e-6)
