@@ -169,3 +169,24 @@ def test_every_keeps_the_views_matched_to_the_first_cameras_kept_frames(tmp_path
     assert [d.image for d in detections["cam1"]] == [f"b.mp4#{k}@{k + 1}" for k in (1, 3, 5, 7)]
     assert dropped == {"cam0": 0, "cam1": 1}  # cam1's frame 9 is at cam0's frame 10, which cam0 never recorded
     assert sync.offsets_s["cam1"] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_image_cameras_synchronise_by_the_number_in_their_file_names(tmp_path):
+    """Images: frame k is the number in the file name; a camera without the board in a frame is no error."""
+    from camcal.geometry.board import Detection, DetectionReport, frame_number
+    from camcal.io.timestamps import read_timestamps
+    from camcal.pipelines.board import synchronise_detections
+
+    (tmp_path / "ts.csv").write_text("camera,frame,time\n" + "".join(
+        f"{name},{k},{t0 + k / 24:.6f}\n" for name, t0 in (("left", 0.0), ("right", 0.125)) for k in range(1, 9)))
+
+    def report(prefix, frames):
+        return DetectionReport(tuple(Detection(f"{prefix}{k:02d}.png", (64, 48), np.arange(6), np.zeros((6, 2)),
+                                               "synthetic") for k in frames), ())
+
+    reports = {"left": report("left", range(1, 9)), "right": report("right", (1, 2, 4, 5))}
+    detections, sync, dropped = synchronise_detections(reports, read_timestamps(tmp_path / "ts.csv"))
+    # right starts 3 frames (0.125 s) late: its frame k is left's frame k + 3; its frames 6-8 have no match
+    assert [(d.image, frame_number(d.image)) for d in detections["right"]] == [
+        ("right01.png@4", 4), ("right02.png@5", 5), ("right04.png@7", 7), ("right05.png@8", 8)]
+    assert dropped == {"left": 0, "right": 0} and sync.offsets_s["right"] == pytest.approx(0.0, abs=1e-6)
