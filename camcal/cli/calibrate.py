@@ -35,7 +35,16 @@ def register(parser: argparse.ArgumentParser) -> None:
                  "video is frame number k, from 0) (several entries or a repeated option; globs absolute or "
                  "relative)", required=True)
     board.add_argument("--every", type=int, default=1, metavar="N",
-                       help="videos: detect every N-th frame (frames 0, N, 2N...; default 1)")
+                       help="videos: detect every N-th frame (frames 0, N, 2N...; default 1); with --timestamps, the "
+                       "first camera's, and the other cameras' frames matched to them")
+    board.add_argument("--timestamps", metavar="FILE.csv",
+                       help="frame times, CSV with the header camera,frame,time (seconds, one clock for all; frame "
+                       "k of a video is its k-th frame from 0, of images the number in the file name): each camera's "
+                       "frames are matched to the first camera's nearest in time instead of by frame number, and "
+                       "numbered like them; frames without a match are dropped (counted)")
+    board.add_argument("--time-tolerance", type=float, metavar="S",
+                       help="with --timestamps: the largest time difference of a match, in seconds (default: half "
+                       "the first camera's frame period)")
     board.add_argument("--intrinsics", metavar="RIG",
                        help="a rig file holding every camera's K and lens (by name): held, only the poses are "
                        "solved (the lens model is the rig's)")
@@ -108,8 +117,8 @@ def _dlt(args: argparse.Namespace) -> int:
 
 def _board(args: argparse.Namespace) -> int:
     """Detect the board in every image, calibrate each camera with OpenCV, then refine all intrinsics, distortion
-    and camera poses jointly. Views of several cameras are matched by the frame number in their file names;
-    the first camera is the reference (R = I, c = 0).
+    and camera poses jointly. Views of several cameras are matched by the frame number in their file names (of a
+    video: frame k is its k-th frame), or by time (--timestamps); the first camera is the reference (R = I, c = 0).
     """
     import os
 
@@ -131,6 +140,16 @@ def _board(args: argparse.Namespace) -> int:
         raise CamcalError(f"--every must be 1 or more, got {args.every}")
     if args.refine_intrinsics and not args.intrinsics:
         raise CamcalError("--refine-intrinsics needs --intrinsics RIG (the start)")
+    if args.time_tolerance is not None and not args.timestamps:
+        raise CamcalError("--time-tolerance needs --timestamps FILE.csv")
+    if args.time_tolerance is not None and not (0 < args.time_tolerance < float("inf")):
+        raise CamcalError(f"--time-tolerance must be a positive number of seconds, got {args.time_tolerance}")
+    timestamps = None
+    if args.timestamps:
+        from camcal.io.timestamps import read_timestamps
+
+        timestamps = read_timestamps(args.timestamps)
+        timestamps.check_cameras(list(args.camera))
     intrinsics = None
     if args.intrinsics:
         intrinsics = {camera.name: camera for camera in Rig.load(args.intrinsics).cameras}
@@ -145,11 +164,13 @@ def _board(args: argparse.Namespace) -> int:
                if name not in videos}
     workers = args.workers or os.cpu_count() or 1
     cache = None if args.no_cache else (args.cache or default_cache_dir())
-    detections = {}
+    detections, reports = {}, {}
     for name in args.camera:
         if name in videos:
-            total = max(1, -(-video_info(videos[name]).frame_count // args.every))
-            report = detect_in_video(board, videos[name], every=args.every, workers=workers, cache=cache,
+            # by time, another camera's frames matching the first camera's 0, N, 2N... are not its own 0, N, 2N...
+            every = 1 if timestamps is not None and name != next(iter(args.camera)) else args.every
+            total = max(1, -(-video_info(videos[name]).frame_count // every))
+            report = detect_in_video(board, videos[name], every=every, workers=workers, cache=cache,
                                      progress=Progress(total, f"detecting {name}", "frames").report)
             skipped = [str(frame_number(label)) for label in report.skipped]
             text = f"{name}: board found in {len(report.detections)} / {report.n_images} frames of {videos[name]}"
@@ -161,7 +182,20 @@ def _board(args: argparse.Namespace) -> int:
             report = detect_in_images(board, files, progress=Progress(len(files), f"detecting {name}", "images").report,
                                       workers=workers, cache=cache)
             print(f"{name}: {report.summary()}")
+        reports[name] = report
         detections[name] = report.detections
+    if timestamps is not None:
+        from camcal.pipelines.board import synchronise_detections
+
+        detections, sync, dropped = synchronise_detections(reports, timestamps, args.time_tolerance,
+                                                           sources={name: str(path) for name, path in videos.items()},
+                                                           every=args.every)
+        print(f"synchronised by time ({args.timestamps}): views numbered by {sync.reference}'s frames, matched "
+              f"within {1e3 * sync.tolerance_s:.3g} ms")
+        for name in args.camera:
+            offset = "" if name == sync.reference else f", {sync.offsets_s[name]:+.4f} s from {sync.reference}"
+            print(f"  {name}: {len(detections[name])} views kept, {dropped[name]} dropped (no frame of "
+                  f"{sync.reference} within the tolerance, or no time){offset}")
     holdout: set[int] = set()
     if args.holdout:
         frames = sorted({frame_number(d.image) for views in detections.values() for d in views})
@@ -183,9 +217,6 @@ def _board(args: argparse.Namespace) -> int:
         print(f"model auto: views held out in turn, chose {result.model}")
         for score in result.model_ranking:
             print("  " + score.describe())
-    if result.relabelled:
-        print("relabelled by a half turn (symmetric board) to agree with the rig: "
-              + ", ".join(image for _, image in result.relabelled))
     if result.dropped:
         print("dropped (no corner labelling agrees with the rig): " + ", ".join(image for _, image in result.dropped))
     print(result.summary())
@@ -237,6 +268,9 @@ def _board(args: argparse.Namespace) -> int:
         relabelled=[image for _, image in result.relabelled], dropped=[image for _, image in result.dropped],
         quality_problems=problems,
     )
+    if timestamps is not None:
+        out.figures(synchronisation={"reference": sync.reference, "tolerance_s": sync.tolerance_s,
+                                     "offsets_s": dict(sync.offsets_s), "dropped": dropped})
     if shots:
         out.figures(suggested=[{"centre_px": shot.centre_px, "distance": shot.distance, "tilt_deg": list(shot.tilt_deg),
                                 "R": shot.R, "t": shot.t, "worst_sigma_px": shot.worst_sigma_px} for shot in shots])

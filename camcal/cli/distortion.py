@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import handler, out_option, output_folder, report_option, verb_group
+from camcal.cli.options import every_option, handler, out_option, output_folder, report_option, verb_group
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -15,7 +15,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     """``fit`` under ``camcal distortion``."""
     verbs = verb_group(parser, "distortion_verb")
     fit = verbs.add_parser("fit", help="plumb-line fit (Strand & Hayman, refined by Devernay & Faugeras)")
-    fit.add_argument("images", nargs="*", metavar="IMAGES", help="images of one camera")
+    fit.add_argument("images", nargs="*", metavar="IMAGES|VIDEO", help="images of one camera, or its videos")
+    every_option(fit)
     fit.add_argument("--lines", metavar="LINES.json", help="line points instead of images")
     fit.add_argument("--pattern", metavar="COLSxROWS", help="chessboard inner corners, e.g. 9x6 (default: edges)")
     fit.add_argument("--model", choices=("division", "polynomial"), default="division")
@@ -38,13 +39,15 @@ def _pattern(value: str) -> tuple[int, int]:
 def _fit(args: argparse.Namespace) -> int:
     """Fit a division or polynomial lens model so that straight lines become straight. Lines come from chessboard
     rows/columns (--pattern), from long edges in IMAGES, or from LINES.json: {"image_size": [W, H], "lines":
-    [[[x, y], ...], ...]}.
+    [[[x, y], ...], ...]}. A video in IMAGES is streamed, one frame at a time (--every N: frames 0, N, 2N...).
     """
     import cv2
 
     from pathlib import Path
 
+    from camcal.geometry.board import video_frame_label
     from camcal.geometry.lines import lines_from_images
+    from camcal.io.video import is_video, iter_frames
     from camcal.geometry.plumbline import fit_plumbline
     from camcal.io.lines import read_lines
     from camcal.io.frames import imread
@@ -56,14 +59,25 @@ def _fit(args: argparse.Namespace) -> int:
         lines = read_lines(args.lines)
         skipped: list[str] = []
     else:
-        images = []
-        for path in args.images:
-            images.append(imread(path, cv2.IMREAD_GRAYSCALE))
+        if args.every < 1:
+            raise CamcalError(f"--every must be 1 or more, got {args.every}")
+        names: list[str] = []  # each image's name, as it is read (a video's frames are streamed)
+
+        def frames():
+            for path in args.images:
+                if is_video(path):
+                    for k, image in iter_frames(path, every=args.every):
+                        names.append(video_frame_label(path, k))
+                        yield image
+                else:
+                    names.append(path)
+                    yield imread(path, cv2.IMREAD_GRAYSCALE)
+
         pattern = _pattern(args.pattern) if args.pattern else None
-        lines, skipped_index = lines_from_images(images, pattern)
-        skipped = [args.images[i] for i in skipped_index]
+        lines, skipped_index = lines_from_images(frames(), pattern)
+        skipped = [names[i] for i in skipped_index]
         what = "board" if pattern else "long straight edges"
-        print(f"{what} found in {len(images) - len(skipped)} / {len(images)} images"
+        print(f"{what} found in {len(names) - len(skipped)} / {len(names)} images"
               + (f" (skipped: {', '.join(skipped)})" if skipped else ""))
     result = fit_plumbline(lines, args.model, fit_center=args.fit_centre)
     with output_folder(args.report) as report_dir:

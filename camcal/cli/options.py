@@ -26,6 +26,7 @@ __all__ = [
     "camera_label_option",
     "camera_option",
     "distance_option",
+    "every_option",
     "expand_glob",
     "handler",
     "image_size",
@@ -216,6 +217,12 @@ def _positive_float(text: str) -> float:
 def max_fov_option(parser, help: str) -> None:
     """``--max-fov DEG``: the widest angle a pinhole output holds."""
     parser.add_argument("--max-fov", type=float, metavar="DEG", help=help)
+
+
+def every_option(parser) -> None:
+    """``--every N``: of a video given for a camera's images, every N-th frame (0, N, 2N...)."""
+    parser.add_argument("--every", type=int, default=1, metavar="N",
+                        help="videos (.mp4 .mov .avi .mkv, streamed): every N-th frame (frames 0, N, 2N...; default 1)")
 
 
 def loss_option(parser, help: str) -> None:

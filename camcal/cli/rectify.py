@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import (expand_glob, handler, max_fov_option, named_option, out_option, output_folder,
-                                report_option, rig_argument)
+from camcal.cli.options import (every_option, expand_glob, handler, max_fov_option, named_option, out_option,
+                                output_folder, report_option, rig_argument)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -17,8 +17,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     rig_argument(parser, "a calibrated *.rig.json")
     parser.add_argument("--method", choices=("camera", "hartley"), default="camera")
     parser.add_argument("--refine", action="store_true", help="camera method: refine on matches (Nozick 2011)")
-    named_option(parser, "--images", "NAME=GLOB", "images per camera, e.g. left='L/*.png' right='R/*.png' "
-                 "(several entries or a repeated option; globs absolute or relative)")
+    named_option(parser, "--images", "NAME=GLOB|VIDEO", "images per camera, e.g. left='L/*.png' right='R/*.png', "
+                 "or a video per camera (left=L.mp4: streamed, frame k written as L_00000k.png) (several entries or "
+                 "a repeated option; globs absolute or relative)")
+    every_option(parser)
     parser.add_argument("--matches", metavar="FILE.csv", help="point matches in original pixels")
     parser.add_argument("--alpha", type=float, default=0.0,
                         help="0: only pixels all views see (default); 1: every source pixel")
@@ -35,13 +37,14 @@ def _rectify(args: argparse.Namespace) -> int:
     mapping UNDISTORTED original pixels to rectified pixels. --method camera uses the calibration (with
     --refine: the N-view refinement of Nozick 2011 on matches); --method hartley uses only point matches
     (Hartley 1999). Matches come from --matches (CSV camera_a,u_a,v_a,camera_b,u_b,v_b) or from SIFT on the
-    first image of each --images sequence.
+    first image of each --images sequence (of a video: its frame 0).
     """
     from pathlib import Path
 
     from camcal.base.atomic import final_path
     from camcal.geometry.rectify import RectifyWarper, rectify
     from camcal.io.matches import read_matches_csv
+    from camcal.io.video import is_video, video_info
     from camcal.pipelines.rectify import match_image_files, write_rectified
     from camcal.base.jsonfile import write_json
     from camcal.model.rig import Rig
@@ -53,7 +56,13 @@ def _rectify(args: argparse.Namespace) -> int:
     rig = Rig.load(args.rig)
     for name in args.images:
         rig.camera(name)
-    images = {name: expand_glob("--images", name, pattern) for name, pattern in args.images.items()}
+    if args.every < 1:
+        raise CamcalError(f"--every must be 1 or more, got {args.every}")
+    images = {name: [pattern] if is_video(pattern) else expand_glob("--images", name, pattern)
+              for name, pattern in args.images.items()}
+    for name, pattern in args.images.items():
+        if is_video(pattern):
+            video_info(pattern)  # decodable, before anything is computed or written
     names = list(images) if len(images) >= 2 else None
     if args.matches:
         matches = read_matches_csv(args.matches)
@@ -68,7 +77,7 @@ def _rectify(args: argparse.Namespace) -> int:
         if write_dir is not None:
             warper = RectifyWarper(result.rig)
             for name in result.names:
-                written += write_rectified(warper, name, images.get(name, []), write_dir)
+                written += write_rectified(warper, name, images.get(name, []), write_dir, args.every)
         if report_dir is not None:
             write_json(report_dir / "rectification.json", result.to_report())
         result.rig.save(args.out)

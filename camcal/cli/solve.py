@@ -7,7 +7,7 @@ import math
 import sys
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import expand_glob, handler, loss_option, named_option, out_option
+from camcal.cli.options import every_option, expand_glob, handler, loss_option, named_option, out_option
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -19,8 +19,10 @@ UNCERTAINTY = {"jackknife": "step", "jackknife-refit": "refit", "covariance": No
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal solve``."""
     parser.add_argument("folders", nargs="+", metavar="IMAGES_DIR", help="image folder(s)")
-    named_option(parser, "--camera", "NAME=GLOB", "a camera's images, e.g. left='*_L.png' right='*_R.png' "
-                 "(relative to IMAGES_DIR, or absolute; several entries or a repeated option)")
+    named_option(parser, "--camera", "NAME=GLOB|VIDEO", "a camera's images, e.g. left='*_L.png' right='*_R.png', "
+                 "or its video (left=left.mp4: every --every-th frame, streamed into OUT/images; the k-th frames "
+                 "kept pair up) (relative to IMAGES_DIR, or absolute; several entries or a repeated option)")
+    every_option(parser)
     parser.add_argument("--rig", metavar="KNOWN.rig.json",
                         help="hold the cameras' relative poses at this calibration (and take its units)")
     parser.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none", "kannala-brandt"),
@@ -98,7 +100,7 @@ def _solve(args: argparse.Namespace) -> int:
                        seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
                        lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features,
                        jackknife=UNCERTAINTY[args.uncertainty], priors=tuple(parse_prior(text) for text in args.prior),
-                       verbose=args.verbose, guided_matching=args.guided_matching,
+                       verbose=args.verbose, guided_matching=args.guided_matching, every=args.every,
                        progress=lambda message: print(f"camcal solve: {message}", file=sys.stderr, flush=True))
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))
@@ -108,7 +110,8 @@ def _solve(args: argparse.Namespace) -> int:
         print(result.bundle.summary())
     if result.self_calibration is not None:
         print("\n".join(result.self_calibration.lines()))
-    peer = (solve_pycolmap_plain(images, Path(args.out) / "pycolmap", seed=args.seed, verbose=args.verbose)
+    peer = (solve_pycolmap_plain(images, Path(args.out) / "pycolmap", seed=args.seed, verbose=args.verbose,
+                                 every=args.every)
             if args.compare_pycolmap else None)
     for camera in result.rig.cameras:
         sigma = camera.quality.get("sigma", {})

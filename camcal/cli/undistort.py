@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import (camera_option, handler, max_fov_option, out_option, rig_argument, sigma_options,
-                                undistort_mode_options)
+from camcal.base.errors import CamcalError
+from camcal.cli.options import (camera_option, every_option, handler, max_fov_option, out_option, rig_argument,
+                                sigma_options, undistort_mode_options)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -15,7 +16,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal undistort``."""
     rig_argument(parser)
     camera_option(parser)
-    parser.add_argument("images", nargs="+", metavar="IMAGES")
+    parser.add_argument("images", nargs="+", metavar="IMAGES|VIDEO",
+                        help="image files, or videos (frame k of clip.mp4 written as clip_00000k.png)")
+    every_option(parser)
     undistort_mode_options(parser, "crop: no black borders; keep: every source pixel kept (bigger canvas); "
                            "overscan: canvas --overscan times the plate (default: crop)")
     max_fov_option(parser, "crop / keep: widest full angle about the axis the pinhole output holds "
@@ -28,17 +31,27 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def _undistort(args: argparse.Namespace) -> int:
     """Undistort images with one remap per image; writes them under their own names and DIR/undistorted.rig.json
-    with the new K and distortion none.
+    with the new K and distortion none. Videos are streamed, one frame at a time (--every N: frames 0, N, 2N...).
     """
-    from camcal.pipelines.undistort import undistort_images, write_undistorted_sigma
+    from camcal.io.video import is_video
+    from camcal.pipelines.undistort import undistort_images, undistort_videos, write_undistorted_sigma
     from camcal.model.rig import Rig
 
+    if args.every < 1:
+        raise CamcalError(f"--every must be 1 or more, got {args.every}")
+    videos = [path for path in args.images if is_video(path)]
+    if videos and len(videos) != len(args.images):
+        raise CamcalError("give images or videos, not both (undistort them in two runs)")
     rig = Rig.load(args.rig)
-    rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan,
-                                         args.max_fov)
+    if videos:
+        rig_path, written = undistort_videos(rig, args.camera, videos, args.out, args.every, args.mode,
+                                             args.overscan, args.max_fov)
+    else:
+        rig_path, written = undistort_images(rig, args.camera, args.images, args.out, args.mode, args.overscan,
+                                             args.max_fov)
     camera = Rig.load(rig_path).camera(args.camera)
     width, height = camera.image_size
-    print(f"undistorted {len(written)} image(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
+    print(f"undistorted {len(written)} {'frame' if videos else 'image'}(s) of {args.camera!r} ({args.mode}): {width}x{height} px, "
           f"fx {camera.K[0, 0]:.3f} fy {camera.K[1, 1]:.3f} principal point ({camera.K[0, 2]:.2f}, {camera.K[1, 2]:.2f})")
     print(f"wrote {rig_path} and {len(written)} image(s) in {args.out}")
     out = summary_of(args)

@@ -38,11 +38,12 @@ Boards as they are printed, options after the sizes (any order):
     mirror image (``x' = W - 1 - x``); the detection with more corners is
     kept, the mirrored one's corners mapped back (``x = W - 1 - x'``) and
     keeping their ids, i.e. their board points. A chessboard looks alike
-    from both sides (its detection is the same on the mirror image): one
-    camera calibrates from either side (a mirrored labelling of a plane is
-    another valid pose), but which side a view of a rig shows is not
-    decided yet, so :func:`camcal.geometry.zhang.calibrate_board` refuses
-    a two-sided chessboard for more than one camera.
+    from both sides (its detection is the same on the mirror image): its
+    corners are labelled as if seen from the front, and one camera
+    calibrates from either side (a mirrored labelling of a plane is another
+    valid pose); in a rig, the side each view shows is decided by the
+    board pose the other cameras of its frame see
+    (:func:`camcal.geometry.labelling.resolve_labellings`).
 
 Board coordinates: corner ``id`` of a chessboard is ``row * W + col`` at
 ``(col * square, row * square, 0)``; ChArUco corners are those of
@@ -90,6 +91,7 @@ __all__ = [
     "parse_board",
     "detect_board",
     "frame_number",
+    "synchronised_label",
     "video_frame_label",
 ]
 
@@ -296,10 +298,13 @@ class DetectionReport:
         One per image where the board was found.
     skipped : tuple of str
         Images where it was not found (or could not be read).
+    n_frames : int or None
+        A video's frames decoded (None for images).
     """
 
     detections: tuple[Detection, ...]
     skipped: tuple[str, ...]
+    n_frames: int | None = None
 
     @property
     def n_images(self) -> int:
@@ -459,12 +464,21 @@ def video_frame_label(video: str, frame: int) -> str:
     return f"{PurePath(video).name}#{int(frame)}"
 
 
+def synchronised_label(name: str, number: int) -> str:
+    """A view's name with the frame number it is synchronised to: ``cam_1.mp4#15@12`` (read by :func:`frame_number`)."""
+    return f"{name}@{int(number)}"
+
+
 def frame_number(name: str) -> int:
     """The frame number in an image's file name: the last group of digits of its stem.
 
     ``left07.jpg`` -> 7, ``cam2_frame_0113.png`` -> 113; a video frame's
-    label (:func:`video_frame_label`) ``cam_0.mp4#12`` -> 12.
+    label (:func:`video_frame_label`) ``cam_0.mp4#12`` -> 12; a view
+    synchronised by time (:func:`synchronised_label`) ``cam_1.mp4#15@12`` -> 12.
     """
+    synchronised = re.fullmatch(r".+@(\d+)", str(name))
+    if synchronised:
+        return int(synchronised.group(1))
     video = re.fullmatch(r".*#(\d+)", str(name))
     if video:
         return int(video.group(1))

@@ -16,7 +16,7 @@ fitting. Proc. British Machine Vision Conference (BMVC).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -331,13 +331,14 @@ def _circle_rms(points: NDArray[np.float64]) -> float:
     return float(np.sqrt(np.mean(distance**2)) * scale)
 
 
-def lines_from_images(images: Sequence[NDArray], pattern_size: tuple[int, int] | None = None) -> tuple[LineSet, list[int]]:
+def lines_from_images(images: Iterable[NDArray], pattern_size: tuple[int, int] | None = None) -> tuple[LineSet, list[int]]:
     """Lines from several images: chessboard rows/columns, or edges.
 
     Parameters
     ----------
-    images : sequence of ndarray
-        Images of one camera (same size).
+    images : iterable of ndarray
+        Images of one camera (same size), taken one at a time (a generator
+        of video frames holds one frame in memory).
     pattern_size : (int, int), optional
         Inner corners (cols, rows) of a chessboard; ``None`` uses edges.
 
@@ -348,18 +349,18 @@ def lines_from_images(images: Sequence[NDArray], pattern_size: tuple[int, int] |
     skipped : list of int
         Indices of images that gave no lines.
     """
-    if not images:
-        raise CamcalError("no images given")
-    sizes = {(image.shape[1], image.shape[0]) for image in images}
-    if len(sizes) != 1:
-        raise CamcalError(f"images must all have the same size, got {sorted(sizes)}")
-    size = sizes.pop()
-    total = LineSet((), size)
-    skipped = []
+    total, skipped = None, []
     for number, image in enumerate(images):
+        size = (image.shape[1], image.shape[0])
+        if total is None:
+            total = LineSet((), size)
+        elif size != total.image_size:
+            raise CamcalError(f"images must all have the same size, got {sorted({tuple(total.image_size), size})}")
         found = detect_chessboard_lines(image, pattern_size) if pattern_size else lines_from_edges(image)
         if found is None or not found.lines:
             skipped.append(number)
             continue
         total = total + found
+    if total is None:
+        raise CamcalError("no images given")
     return total, skipped

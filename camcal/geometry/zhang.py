@@ -11,10 +11,12 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    the per-view relative poses ``cam_j_from_board (cam_i_from_board)^-1``,
    chained over cameras sharing views.
    On a chessboard that is symmetric under a half turn (``W + H`` even)
-   the corner labelling of a view may differ between cameras: each
-   non-reference view takes the labelling (as detected, or turned by a
-   half turn) whose relative pose agrees with the consensus of the
-   others; a view that agrees with neither is dropped and reported.
+   or printed on both sides (a camera behind it sees it mirrored) the
+   corner labelling of a view may differ between cameras: each
+   non-reference view takes the labelling (as detected, turned by a half
+   turn, or mirrored: :mod:`camcal.geometry.labelling`) whose relative
+   pose agrees with the consensus of the cameras labelled before it; a
+   view that agrees with none is dropped and reported.
 3. ONE bundle adjustment (:mod:`camcal.geometry.bundle`, pycolmap's Ceres
    adjuster) refines every camera's intrinsics and distortion, every
    camera-to-reference pose (``sensor_from_rig``) and every board pose (one
@@ -83,6 +85,7 @@ from camcal.geometry.board import Board, Detection, frame_number
 from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState, bundle_adjust
 from camcal.geometry.bundle import residuals as board_residuals
 from camcal.geometry.bundle.solve import GAUGE_NAMES
+from camcal.geometry.labelling import resolve_labellings
 from camcal.geometry.uncertainty import GAUGE, POSE, projection_sigma, sigma_grid
 from camcal.geometry.view_jackknife import design_effect, view_jackknife
 from camcal.model.camera import chordal_mean_rotation, rotation_angle_deg
@@ -215,8 +218,9 @@ class CalibrationResult:
         ``model="auto"``: every model, best first, those ranked out last
         with their reason (:meth:`ModelScore.describe` prints one line each).
     relabelled : tuple of (str, str)
-        Views whose corner labelling was turned by a half turn to agree with
-        the rig (symmetric chessboards only).
+        Views whose corner labelling was turned by a half turn or mirrored
+        (seen from the back) to agree with the rig (symmetric or two-sided
+        chessboards only; :attr:`notes` says which).
     dropped : tuple of (str, str)
         Views dropped because no labelling agreed with the rig.
     notes : tuple of str
@@ -501,80 +505,6 @@ def _camera_poses(names: list[str], starts: list[dict]) -> list[tuple[NDArray, N
     return poses
 
 
-# -- symmetric chessboards: one labelling per frame ------------------------------------------
-
-
-def _half_turn_pose(board: Board, R: NDArray, t: NDArray) -> tuple[NDArray, NDArray]:
-    """``cam_from_board`` of a view whose corner ids are turned by a half turn (id -> N - 1 - id).
-
-    The turned labels' board coordinates map to the detected ones by
-    ``X = Rz(pi) X' + ((W - 1) s, (H - 1) s, 0)``, so ``R' = R Rz(pi)`` and
-    ``t' = R ((W - 1) s, (H - 1) s, 0) + t``.
-    """
-    half_turn = np.diag([-1.0, -1.0, 1.0])
-    shift = np.array([(board.columns - 1) * board.square, (board.rows - 1) * board.square, 0.0])
-    return R @ half_turn, R @ shift + t
-
-
-def _half_turned(board: Board, detection: Detection) -> Detection:
-    """The same corners labelled after a half turn of the board (id -> N - 1 - id)."""
-    ids = board.n_corners - 1 - detection.ids
-    order = np.argsort(ids)
-    return Detection(detection.image, detection.image_size, ids[order], detection.corners_px[order], detection.detector)
-
-
-#: A view's relative pose must agree with the rig's consensus within this angle (a half turn is 180 deg).
-_LABEL_AGREEMENT_DEG = 20.0
-
-
-def _resolve_half_turns(board: Board, names: list[str], by_frame: list[dict], starts: list[dict]):
-    """Relabel the views of a symmetric chessboard so that every camera labels a frame alike.
-
-    Notes
-    -----
-    A chessboard with ``W + H`` even looks the same after a half turn, so
-    its detected labelling may differ between the cameras of one frame. For
-    every non-reference camera ``j`` and frame ``f`` it shares with the
-    reference, the relative rotation ``R_j R_0^T`` is computed with ``j``'s
-    labelling as detected and turned (:func:`_half_turn_pose`); the
-    candidate agreeing (within 20 deg) with the most frames is the rig's
-    rotation, each view takes the labelling closest to it, and a view with
-    neither within 20 deg is dropped.
-
-    Returns
-    -------
-    by_frame, starts, relabelled, dropped
-    """
-    if board.kind != "chessboard" or (board.columns + board.rows) % 2 == 1:
-        return by_frame, starts, [], []
-    by_frame = [dict(views) for views in by_frame]
-    starts = [dict(poses) for poses in starts]
-    relabelled, dropped = [], []
-    for j in range(1, len(names)):
-        shared = sorted(set(starts[0]) & set(starts[j]))
-        if not shared:
-            continue
-        candidates = []
-        for f in shared:
-            R_0 = starts[0][f][0]
-            R_j, t_j = starts[j][f]
-            candidates.append((R_j @ R_0.T, _half_turn_pose(board, R_j, t_j)[0] @ R_0.T))
-        flat = [R for pair in candidates for R in pair]
-        support = [sum(min(rotation_angle_deg(R @ other.T) for other in pair) < _LABEL_AGREEMENT_DEG
-                       for pair in candidates) for R in flat]
-        consensus = flat[int(np.argmax(support))]
-        for f, (as_detected, turned) in zip(shared, candidates):
-            angles = (rotation_angle_deg(as_detected @ consensus.T), rotation_angle_deg(turned @ consensus.T))
-            if min(angles) > _LABEL_AGREEMENT_DEG:
-                dropped.append((names[j], by_frame[j].pop(f).image))
-                del starts[j][f]
-            elif angles[1] < angles[0]:
-                by_frame[j][f] = _half_turned(board, by_frame[j][f])
-                starts[j][f] = _half_turn_pose(board, *starts[j][f])
-                relabelled.append((names[j], by_frame[j][f].image))
-    return by_frame, starts, relabelled, dropped
-
-
 # -- COLMAP parameters <-> camcal cameras -----------------------------------------------------
 
 
@@ -732,10 +662,6 @@ def calibrate_board(
     if model != "auto" and model not in MODELS:
         raise CamcalError(f"unknown distortion model {model!r}, expected one of: {', '.join(MODELS)}, auto")
     names, by_frame = _check_detections(detections, board)
-    if board.kind == "chessboard" and board.two_sided and len(names) > 1:
-        raise CamcalError("a two-sided chessboard calibrates one camera at a time: its back cannot be told from its "
-                          "front in an image, so the views of a rig cannot be labelled alike (use a two-sided ChArUco "
-                          "board)")
     holdout = {int(f) for f in holdout}
     unknown = holdout - set().union(*[set(views) for views in by_frame])
     if unknown:
@@ -978,9 +904,14 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         if len(views) < MIN_IMAGES:
             raise CamcalError(f"camera {name!r}: {len(views)} views with the board in front of the camera at the "
                               f"start, need at least {MIN_IMAGES}")
-    by_frame, starts, relabelled, dropped = _resolve_half_turns(board, names, by_frame, starts)
-    dropped = behind + dropped
+    by_frame, starts, relabelling, dropped = resolve_labellings(board, names, by_frame, starts)
+    relabelled = [(name, image) for name, image, _ in relabelling]
+    dropped = behind + [(name, image) for name, image, _ in dropped]
     notes = []
+    for how in sorted({how for _, _, how in relabelling}):
+        views = [image for _, image, other in relabelling if other == how]
+        notes.append(f"{len(views)} view(s) relabelled ({how}) to agree with the rig's other cameras: "
+                     + ", ".join(views))
     if behind:
         notes.append(f"{len(behind)} view(s) left out: no start pose puts the board in front of the camera "
                      f"({', '.join(image for _, image in behind)})")

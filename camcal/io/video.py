@@ -28,7 +28,7 @@ from numpy.typing import NDArray  # noqa: E402
 
 from camcal.base.errors import CamcalError  # noqa: E402
 
-__all__ = ["VIDEO_SUFFIXES", "VideoInfo", "is_video", "iter_frames", "video_info"]
+__all__ = ["VIDEO_SUFFIXES", "VideoInfo", "first_frame", "frame_file_name", "is_video", "iter_frames", "video_info"]
 
 #: File name suffixes read as video.
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv")
@@ -134,12 +134,11 @@ def iter_frames(path: str | os.PathLike, every: int = 1, wanted=None,
     with _capture(path) as capture:
         k = 0
         while True:
-            keep = k % every == 0 and (wanted is None or wanted(k))
             if not capture.grab():
                 if k == 0:
                     raise CamcalError(f"{Path(path).name}: cannot be decoded as a video (no frame could be read)")
                 return
-            if keep:
+            if k % every == 0 and (wanted is None or wanted(k)):  # asked only of frames that exist
                 ok, frame = capture.retrieve()
                 if not ok or frame is None:
                     if k == 0:
@@ -149,3 +148,15 @@ def iter_frames(path: str | os.PathLike, every: int = 1, wanted=None,
                     frame = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
                 yield k, frame
             k += 1
+
+
+def first_frame(path: str | os.PathLike, gray: bool = False) -> NDArray[np.uint8]:
+    """Frame 0 of a video (8-bit grey or BGR), e.g. to match features between cameras."""
+    for _, image in iter_frames(path, gray=gray):
+        return image
+    raise CamcalError(f"{Path(path).name}: cannot be decoded as a video (no frame could be read)")
+
+
+def frame_file_name(path: str | os.PathLike, frame: int, suffix: str = ".png") -> str:
+    """The file a verb writes frame ``frame`` of a video to: ``cam_0_000012.png`` for ``cam_0.mp4``."""
+    return f"{Path(path).stem}_{int(frame):06d}{suffix}"

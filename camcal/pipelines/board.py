@@ -7,16 +7,19 @@ content (SHA-256) and the detector settings
 with other options does not detect again. Detection over a video's frames
 (:func:`detect_in_video`) streams them (one decoded frame per worker in
 memory) and caches every frame's result in one file per video, keyed by
-the video's content, the board and the detector settings.
+the video's content, the board and the detector settings. Views of
+several cameras are matched by frame number, or by time from a timestamps
+file (:func:`synchronise_detections`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import os
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -26,12 +29,13 @@ import numpy as np
 from camcal.base.atomic import atomic_path
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import (DETECTOR_SETTINGS, Board, Detection, DetectionReport, detect_board,
-                                   video_frame_label)
+                                   frame_number, synchronised_label, video_frame_label)
 from camcal.io.frames import imread
 from camcal.io.headers import check_image_header
+from camcal.io.timestamps import Synchronisation, Timestamps, synchronise
 from camcal.io.video import iter_frames, video_info
 
-__all__ = ["default_cache_dir", "detect_in_images", "detect_in_video"]
+__all__ = ["default_cache_dir", "detect_in_images", "detect_in_video", "synchronise_detections"]
 
 
 def default_cache_dir() -> Path:
@@ -222,7 +226,8 @@ def _video_cache_key(board: Board, path: Path) -> str:
     """SHA-256 of the video's bytes (read in blocks), the board and the detector settings."""
     with open(path, "rb") as stream:
         digest = hashlib.file_digest(stream, "sha256")
-    digest.update(f"|video|{board.spec()}|{DETECTOR_SETTINGS}".encode())
+    # "video-v2": the frame count of caches written before it was one too many (the frame after the last)
+    digest.update(f"|video-v2|{board.spec()}|{DETECTOR_SETTINGS}".encode())
     return digest.hexdigest()
 
 
@@ -269,7 +274,8 @@ def detect_in_video(
     -------
     DetectionReport
         Detections named ``VIDEO#K`` (:func:`camcal.geometry.board.video_frame_label`,
-        frame number ``K``); frames without the board are listed as skipped.
+        frame number ``K``); frames without the board are listed as skipped;
+        ``n_frames`` is the number of frames the video decoded to.
 
     Raises
     ------
@@ -331,4 +337,62 @@ def detect_in_video(
         else:  # the cached detection was named after the file it was first found in
             detections.append(Detection(label, detection.image_size, detection.ids, detection.corners_px,
                                         detection.detector))
-    return DetectionReport(tuple(detections), tuple(skipped))
+    return DetectionReport(tuple(detections), tuple(skipped), n_frames)
+
+
+def synchronise_detections(reports: Mapping[str, DetectionReport], timestamps: Timestamps,
+                           tolerance_s: float | None = None, sources: Mapping[str, str] | None = None,
+                           every: int = 1) -> tuple[dict[str, list[Detection]], Synchronisation, dict[str, int]]:
+    """The views of every camera numbered by time (:func:`camcal.io.timestamps.synchronise`) instead of by index.
+
+    Parameters
+    ----------
+    reports : mapping of str to DetectionReport
+        Camera -> its detections (:func:`detect_in_video` or
+        :func:`detect_in_images`), the reference camera first.
+    timestamps : Timestamps
+    tolerance_s : float, optional
+        Largest time difference of a match (default: half the reference's frame period).
+    sources : mapping of str to str, optional
+        Camera -> its video's name, for the messages.
+    every : int
+        Keep the views matched to the reference's frames 0, every, 2 every...
+        (detect the reference's every ``every``-th frame and the other
+        cameras' every frame: their frames matching those are not the same
+        numbers).
+
+    Returns
+    -------
+    detections, synchronisation, dropped
+        Camera -> its matched views, renamed ``LABEL@K`` with ``K`` the
+        reference frame they are matched to
+        (:func:`camcal.geometry.board.synchronised_label`); per camera the
+        number of views dropped (no time, or no reference frame within the
+        tolerance; the views matched to frames ``every`` leaves out are not
+        counted).
+
+    Raises
+    ------
+    CamcalError
+        A camera of the file not given, a camera given without times, or a
+        frame past the end of its video (one line).
+    """
+    cameras = list(reports)
+    timestamps.check_cameras(cameras)
+    for camera, report in reports.items():
+        if report.n_frames is not None:
+            timestamps.check_frames(camera, report.n_frames, (sources or {}).get(camera, camera))
+    synchronisation = synchronise(timestamps, cameras, tolerance_s)
+    detections, dropped = {}, {}
+    for camera, report in reports.items():
+        numbers = synchronisation.numbers[camera]
+        kept, n_dropped = [], 0
+        for detection in report.detections:
+            number = numbers.get(frame_number(detection.image))
+            if number is None:
+                n_dropped += 1
+            elif number % every == 0:
+                kept.append(dataclasses.replace(detection, image=synchronised_label(detection.image, number)))
+        detections[camera] = kept
+        dropped[camera] = n_dropped
+    return detections, synchronisation, dropped

@@ -50,7 +50,9 @@ from camcal.geometry.jackknife import METHODS as JACKKNIFE_METHODS
 from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, self_calibrate
 from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sparse_model
 from camcal.model.colmap import camera_from_colmap
+from camcal.io.frames import imwrite
 from camcal.io.ply import write_points_ply
+from camcal.io.video import is_video, iter_frames, video_info
 from camcal.model.rig import Camera, Rig
 
 __all__ = [
@@ -153,22 +155,40 @@ def collect_images(folders: list[Path], camera_globs: dict[str, str] | None = No
     return {folder.name: _list_images(folder) for folder in folders}
 
 
-def _stage_images(images: dict[str, list[Path]], staging: Path) -> dict[str, Path]:
+def _video_of(paths: list[Path]) -> Path | None:
+    """The video a camera's images are (one video file), else None; a video among images is refused."""
+    videos = [path for path in paths if is_video(path)]
+    if videos and len(paths) > 1:
+        raise CamcalError(f"give a camera one video or images, not both ({videos[0].name} among {len(paths)} files)")
+    return videos[0] if videos else None
+
+
+def _stage_images(images: dict[str, list[Path]], staging: Path, every: int = 1) -> dict[str, Path]:
     """Link each camera's images under ``staging/<camera>/`` (COLMAP's rig layout).
 
     Frames pair up by position in each camera's sorted list: the k-th image
-    of every camera is linked under the same name ``<k>.<suffix>``.
+    of every camera is linked under the same name ``<k>.<suffix>``. A
+    camera given as one video has its every ``every``-th frame decoded
+    (streamed, :func:`camcal.io.video.iter_frames`) and written there as
+    ``<k>.png`` instead: the k-th kept frame of every video pairs up.
 
     Returns
     -------
     dict
-        Staged name (``camera/<k>.<suffix>``, COLMAP's image name) -> the user's image.
+        Staged name (``camera/<k>.<suffix>``, COLMAP's image name) -> the user's image (a video's frame: the
+        staged file).
     """
     if staging.exists():
         shutil.rmtree(staging)
     staged: dict[str, Path] = {}
     for camera, paths in images.items():
         (staging / camera).mkdir(parents=True)
+        video = _video_of(paths)
+        if video is not None:
+            for index, (_, image) in enumerate(iter_frames(video, every=every, gray=False)):
+                name = f"{index:06d}.png"
+                staged[f"{camera}/{name}"] = imwrite(staging / camera / name, image)
+            continue
         for index, path in enumerate(paths):
             name = f"{index:06d}{path.suffix.lower()}"
             os.symlink(path.resolve(), staging / camera / name)
@@ -195,6 +215,7 @@ def solve_sfm(
     priors: tuple[PriorSpec, ...] = (),
     verbose: bool = False,
     guided_matching: bool = False,
+    every: int = 1,
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -202,7 +223,8 @@ def solve_sfm(
     ----------
     folders : dict of str to Path or list of Path
         Camera name -> its image folder (or its images, see
-        :func:`collect_images`). With several cameras, frames pair up by the
+        :func:`collect_images`, or one video: its every ``every``-th frame,
+        streamed into ``out_dir/images``). With several cameras, frames pair up by the
         sorted order of each camera's images; the first camera is the rig's
         reference.
     out_dir : Path
@@ -256,6 +278,8 @@ def solve_sfm(
     verbose : bool
         Also show COLMAP's own log lines on stderr; they always go to
         ``out_dir/colmap.log`` (:data:`COLMAP_LOG`).
+    every : int
+        Of a camera given as a video, frames 0, every, 2 every... are used.
     guided_matching : bool
         Match each verified pair again along its epipolar geometry (more,
         longer tracks); on the CPU it costs 10-20 times the matching itself
@@ -283,7 +307,11 @@ def solve_sfm(
         missing = [name for name in images if name not in {camera.name for camera in known_rig.cameras}]
         if missing:
             raise CamcalError(f"the known rig has no camera named {', '.join(map(repr, missing))}")
-    n_images = sum(len(paths) for paths in images.values())
+    if int(every) < 1:
+        raise CamcalError(f"--every must be 1 or more, got {every}")
+    videos = {name: _video_of(paths) for name, paths in images.items()}
+    n_images = sum(len(paths) if videos[name] is None else -(-max(1, video_info(videos[name]).frame_count) // every)
+                   for name, paths in images.items())
     if n_images < 2:
         where = "; ".join(f"{name}: " + (f"folder {value}" if isinstance(value, (str, os.PathLike)) else
                                           ", ".join(map(str, value)) or "no file") for name, value in folders.items())
@@ -293,25 +321,27 @@ def solve_sfm(
         with native_output_to(staging / COLMAP_LOG, echo=verbose):
             result = _solve_in(pycolmap, images, folders, staging, camera_model, matcher, mapper, seed, num_threads,
                                refine, known_rig, loss, lens_models, principal_point, max_num_features, progress,
-                               jackknife, guided_matching, priors)
+                               jackknife, guided_matching, priors, every)
     return dataclasses.replace(result, reconstruction_dir=final_path(result.reconstruction_dir, staging, target))
 
 
 def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, mapper, seed, num_threads, refine,
               known_rig, loss, lens_models, principal_point, max_num_features, progress, jackknife,
-              guided_matching: bool, priors: tuple[PriorSpec, ...]) -> SfmResult:
+              guided_matching: bool, priors: tuple[PriorSpec, ...], every: int = 1) -> SfmResult:
     """:func:`solve_sfm`'s work inside its (temporary) output folder, COLMAP's output captured."""
     image_dir = out_dir / "images"
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
     free_pp = dict(refine_principal_point=principal_point != "centre", default_priors=principal_point == "auto")
-    staged = _stage_images(images, image_dir)
+    staged = _stage_images(images, image_dir, every)
     image_names = list(staged)
     database = out_dir / "database.db"
 
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
-    extraction = _extraction_options(pycolmap, [paths[0] for paths in images.values() if paths], max_num_features,
-                                     num_threads)
+    firsts: dict[str, Path] = {}
+    for name in image_names:
+        firsts.setdefault(name.split("/")[0], image_dir / name)
+    extraction = _extraction_options(pycolmap, list(firsts.values()), max_num_features, num_threads)
     _say(progress, f"extracting features from {len(image_names)} images")
     pycolmap.set_random_seed(seed)
     pycolmap.extract_features(
@@ -411,7 +441,7 @@ class PycolmapPeer:
 
 
 def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, camera_model: str = "SIMPLE_DIVISION",
-                         seed: int = 0, verbose: bool = False) -> PycolmapPeer:
+                         seed: int = 0, verbose: bool = False, every: int = 1) -> PycolmapPeer:
     """The plain pycolmap pipeline a user would script, on the same images as :func:`solve_sfm`.
 
     Default SIFT extraction with one camera per folder (``camera_model``),
@@ -427,12 +457,12 @@ def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, c
               for name, value in folders.items()}
     with atomic_dir(out_dir, replace=_OWNED + (COLMAP_LOG,)) as staging:
         with native_output_to(staging / COLMAP_LOG, echo=verbose):
-            return _plain_in(pycolmap, images, folders, staging, camera_model, seed)
+            return _plain_in(pycolmap, images, folders, staging, camera_model, seed, every)
 
 
-def _plain_in(pycolmap, images, folders, out_dir: Path, camera_model: str, seed: int) -> PycolmapPeer:
+def _plain_in(pycolmap, images, folders, out_dir: Path, camera_model: str, seed: int, every: int = 1) -> PycolmapPeer:
     """:func:`solve_pycolmap_plain`'s work inside its (temporary) output folder."""
-    staged = _stage_images(images, out_dir / "images")
+    staged = _stage_images(images, out_dir / "images", every)
     database = out_dir / "database.db"
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model

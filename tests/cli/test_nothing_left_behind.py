@@ -46,6 +46,7 @@ def workspace(tmp_path):
     (root / "flat").mkdir()
     for name in ("a.png", "b.png"):
         cv2.imwrite(str(root / "flat" / name), np.full((120, 160), 128, np.uint8))
+    (root / "broken.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 8)
     (root / "patches.csv").write_text("R,G,B,X,Y,Z\n0.1,0.2,nan,0.1,0.1,0.1\n")
     (root / "lines.json").write_text('{"image_size": [100, 100], "lines": "not a list"}')
     return tmp_path
@@ -59,6 +60,14 @@ CASES = [
      "--out {out}/a.rig.json --report {out}/r --no-cache"),
     ("calibrate board giant header", "calibrate board --board chessboard:9x6:1 --camera left={in}/giant.png "
      "--out {out}/a.rig.json --no-cache"),
+    ("calibrate board --timestamps", "calibrate board --board chessboard:9x6:1 --camera left={in}/plain.png "
+     "--timestamps {in}/patches.csv --out {out}/a.rig.json --report {out}/r --no-cache"),
+    ("calibrate board video", "calibrate board --board chessboard:9x6:1 --camera left={in}/broken.mp4 "
+     "--out {out}/a.rig.json --report {out}/r --no-cache"),
+    ("undistort video", "undistort {in}/good.rig.json --camera left {in}/broken.mp4 --out {out}/u"),
+    ("rectify video --write", "rectify {in}/good.rig.json --images left={in}/broken.mp4 right={in}/plate.png "
+     "--write {out}/w --out {out}/r.rig.json"),
+    ("distortion fit video", "distortion fit {in}/broken.mp4 --out {out}/lens.json --report {out}/r"),
     ("calibrate dlt", "calibrate dlt --points {in}/patches.csv --image-size 640 480 --out {out}/a.rig.json"),
     ("distortion fit --report", "distortion fit --lines {in}/lines.json --out {out}/lens.json --report {out}/r"),
     ("undistort", "undistort {in}/good.rig.json --camera left {in}/plate.png {in}/garbage.png --out {out}/u"),

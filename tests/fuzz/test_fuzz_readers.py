@@ -11,7 +11,7 @@ with the input that caused it; every such input found is kept below as an
 
 Readers: rig JSON, colour fit and match JSON, OpenCV YAML, Kalibr YAML,
 COLMAP text, USD (.usda), Nuke, patch CSV, points CSV, matches CSV, lines
-JSON, frame lists, camera specs (NAME=VALUE), board specs. COLMAP's binary
+JSON, timestamps CSV (read, then synchronised), frame lists, camera specs (NAME=VALUE), board specs. COLMAP's binary
 model is not read by camcal (``rig import --from colmap`` names the
 converter to run), so it has no reader here.
 
@@ -43,6 +43,7 @@ from camcal.io.interchange import export_rig, import_rig
 from camcal.io.lines import read_lines, write_lines
 from camcal.io.matches import read_matches_csv
 from camcal.io.points_csv import read_correspondences, write_correspondences
+from camcal.io.timestamps import read_timestamps, synchronise
 from camcal.model.rig import Rig
 from camcal.synthetic import example_camera, points_in_view
 
@@ -158,6 +159,10 @@ def _seeds() -> dict[str, bytes | dict[str, bytes]]:
         write_lines(root / "lines.json", LineSet(tuple(np.cumsum(rng.normal(size=(3, 6, 2)), axis=1) + 50),
                                                  (100, 100)))
         seeds["lines"] = (root / "lines.json").read_bytes()
+        jitter = np.random.default_rng(4)
+        seeds["timestamps"] = ("camera,frame,time\n" + "".join(
+            f"cam{c},{k},{10 + c * 0.013 + k / 30 + jitter.uniform(-1e-3, 1e-3)!r}\n" for c in range(2)
+            for k in range(6))).encode()
         names = tuple(f"patch{i:02d}" for i in range(24))
         RGB = rng.uniform(0.05, 0.9, (24, 3))
         M = np.array([[0.41, 0.36, 0.18], [0.21, 0.72, 0.07], [0.02, 0.12, 0.95]])
@@ -284,6 +289,17 @@ def test_matches_csv(files, content):
 @given(content=inputs(SEEDS["lines"]))
 def test_lines_json(files, content):
     run_reader("lines JSON", read_lines, files.write("lines.json", content))
+
+
+def _synchronised(path):
+    timestamps = read_timestamps(path)
+    return synchronise(timestamps, sorted(timestamps.times))
+
+
+@FUZZ
+@given(content=inputs(SEEDS["timestamps"]))
+def test_timestamps_csv(files, content):
+    run_reader("timestamps CSV", _synchronised, files.write("ts.csv", content))
 
 
 # -- text the user types ---------------------------------------------------------

@@ -23,10 +23,25 @@ from camcal.model.rig import Camera
 _PX_PER_M, _MARGIN = 4000, 40
 
 
+def board_extent(board: Board) -> np.ndarray:
+    """The printed squares' corners ``(x0, y0), (x1, y1)`` in board coordinates (a chessboard's reach one square
+    beyond its outer inner corners)."""
+    if board.kind == "charuco":
+        return np.array([[0.0, 0.0], [board.columns, board.rows]]) * board.square
+    return np.array([[-1.0, -1.0], [board.columns, board.rows]]) * board.square
+
+
 def board_texture(board: Board) -> np.ndarray:
-    """The printed board (white markers on black when inverted), :data:`_PX_PER_M` px per metre."""
-    size = (round(board.columns * board.square * _PX_PER_M) + 2 * _MARGIN,
-            round(board.rows * board.square * _PX_PER_M) + 2 * _MARGIN)
+    """The printed board (white markers on black when inverted), :data:`_PX_PER_M` px per metre from its
+    :func:`board_extent`; a chessboard's first interior square (corners 0, 1, W, W + 1) is black."""
+    (x0, y0), (x1, y1) = board_extent(board)
+    size = (round((x1 - x0) * _PX_PER_M) + 2 * _MARGIN, round((y1 - y0) * _PX_PER_M) + 2 * _MARGIN)
+    if board.kind == "chessboard":
+        u, v = np.meshgrid(np.arange(size[0]), np.arange(size[1]))
+        i = np.floor((u + 0.5 - _MARGIN) / (board.square * _PX_PER_M)).astype(int)
+        j = np.floor((v + 0.5 - _MARGIN) / (board.square * _PX_PER_M)).astype(int)
+        inside = (i >= 0) & (j >= 0) & (i <= board.columns) & (j <= board.rows)
+        return np.where(inside & ((i + j) % 2 == 0), 0, 255).astype(np.uint8)
     image = board.charuco_board().generateImage(size, marginSize=_MARGIN)
     return 255 - image if board.inverted else image
 
@@ -77,7 +92,7 @@ def make_volume(n_cameras: int, n_frames: int, image_size=(640, 480), radius: fl
 
 def board_origin_pose(board: Board, R_wb: np.ndarray, centre: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """world_from_board with the board's centre at ``centre``."""
-    middle = np.array([board.columns * board.square / 2, board.rows * board.square / 2, 0.0])
+    middle = np.append(board_extent(board).mean(axis=0), 0.0)
     return R_wb, centre - R_wb @ middle
 
 
@@ -86,8 +101,8 @@ def render_view(board: Board, texture: np.ndarray, camera: Camera, R_wb: np.ndar
     """The camera's 8-bit grey image of the board, or None when the board is not seen whole at < 70 deg."""
     R_cb = camera.R @ R_wb
     t_cb = camera.R @ (t_wb - camera.c)
-    outline = np.array([[0, 0, 0], [board.columns, 0, 0], [0, board.rows, 0], [board.columns, board.rows, 0]],
-                       float) * board.square
+    (x0, y0), (x1, y1) = board_extent(board)
+    outline = np.array([[x0, y0, 0], [x1, y0, 0], [x0, y1, 0], [x1, y1, 0]])
     X = outline @ R_cb.T + t_cb
     if np.any(X[:, 2] <= 0.1):
         return None
@@ -99,8 +114,8 @@ def render_view(board: Board, texture: np.ndarray, camera: Camera, R_wb: np.ndar
     if np.any(corners < 8) or np.any(corners > np.array([width, height]) - 9):
         return None
     # texture pixel (u, v) is board point ((u + 0.5 - margin) / ppm, ...); pinhole image, then the lens by remap
-    A = np.array([[1 / _PX_PER_M, 0, (0.5 - _MARGIN) / _PX_PER_M], [0, 1 / _PX_PER_M, (0.5 - _MARGIN) / _PX_PER_M],
-                  [0, 0, 1]])
+    A = np.array([[1 / _PX_PER_M, 0, (0.5 - _MARGIN) / _PX_PER_M + x0],
+                  [0, 1 / _PX_PER_M, (0.5 - _MARGIN) / _PX_PER_M + y0], [0, 0, 1]])
     H = camera.K @ np.column_stack([R_cb[:, 0], R_cb[:, 1], t_cb]) @ A
     scale = 2  # supersampled, then averaged down: no aliasing of the small squares
     S = np.diag([scale, scale, 1.0]) @ np.array([[1, 0, 0.5], [0, 1, 0.5], [0, 0, 1]])

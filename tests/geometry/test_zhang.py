@@ -330,7 +330,7 @@ def test_quality_gate_catches_an_unresolved_half_turn(monkeypatch):
     truth = true_rig(2, "polynomial")
     detections = board_views(truth, 20, np.random.default_rng(11), board=EVEN_BOARD)
     detections["cam1"] = [half_turned(d) if n in {2, 5, 9, 14, 17} else d for n, d in enumerate(detections["cam1"])]
-    monkeypatch.setattr(zhang, "_resolve_half_turns", lambda board, names, by_frame, starts: (by_frame, starts, [], []))
+    monkeypatch.setattr(zhang, "resolve_labellings", lambda board, names, by_frame, starts: (by_frame, starts, [], []))
     result = zhang.calibrate_board(EVEN_BOARD, detections, model="polynomial", min_outlier_px=math.inf)
     problems = zhang.quality_problems(result)
     assert problems and all("\n" not in p for p in problems)

@@ -52,10 +52,12 @@ def test_cameras_not_linked_name_the_groups():
         calibrate_board(BOARD, detections)
 
 
-def test_two_sided_chessboard_one_camera_only():
+def test_two_sided_chessboard_seen_from_the_front_by_a_rig():
+    """Every view from the front: no view relabelled, the rig as with a one-sided board (the ring of cameras
+    around one is tests/geometry/test_labelling.py)."""
     truth = true_rig(2, "polynomial")
-    detections = board_views(truth, 6, np.random.default_rng(5))
+    detections = board_views(truth, 20, np.random.default_rng(5))
     two_sided = Board("chessboard", 12, 9, 0.04, two_sided=True)
-    with pytest.raises(CamcalError, match="one camera at a time"):
-        calibrate_board(two_sided, detections)
-    assert calibrate_board(two_sided, {"cam0": detections["cam0"]}, model="polynomial").rms_px < 0.2
+    result = calibrate_board(two_sided, detections, model="polynomial")
+    assert result.relabelled == () and result.dropped == ()
+    check_against_truth(result, truth)

@@ -25,6 +25,9 @@ def test_frames_numbered_from_zero_and_every(counter_video):
     assert all(image.shape == (48, 64) and abs(float(image.mean()) - 20 * k) < 2 for k, image in frames)
     assert [k for k, _ in iter_frames(counter_video, every=3)] == [0, 3, 6, 9]
     assert [k for k, _ in iter_frames(counter_video, wanted=lambda k: k > 6)] == [7, 8, 9]
+    asked = []
+    list(iter_frames(counter_video, wanted=lambda k: asked.append(k) or False))
+    assert asked == list(range(10))  # only frames that exist (the count of a video is the last asked + 1)
     info = video_info(counter_video)
     assert info.size == (64, 48) and info.frame_count == 10 and info.fps == 25
 
