@@ -55,7 +55,11 @@ def register(parser: argparse.ArgumentParser) -> None:
     loss_option(board, "robust loss on each corner (Ceres; default: trivial)")
     board.add_argument("--loss-scale", type=float, default=1.0, metavar="PX", help="scale of the loss (default: 1 px)")
     board.add_argument("--workers", type=int, default=None, metavar="N",
-                       help="images detected at once (threads; default: the CPU count)")
+                       help="images or frames detected at once (threads, or Dask worker processes; default: the "
+                       "CPU count)")
+    board.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="detect video frames on this Dask cluster (its workers must see the videos); without "
+                       "it, videos of 2000 frames or more (after --every) run on a local Dask cluster, fewer in threads")
     board.add_argument("--cache", metavar="DIR",
                        help="corner cache directory, keyed by image content and detector settings "
                        "(default: $XDG_CACHE_HOME/camcal/corners)")
@@ -118,6 +122,7 @@ def _board(args: argparse.Namespace) -> int:
     from camcal.base.atomic import final_path
     from camcal.geometry.board import frame_number, parse_board
     from camcal.pipelines.board import default_cache_dir, detect_in_images, detect_in_video
+    from camcal.pipelines.distributed import detect_in_videos, use_dask
     from camcal.geometry.zhang import calibrate_board, quality_problems
     from camcal.base.progress import Progress
     from camcal.io.video import is_video, video_info
@@ -145,12 +150,18 @@ def _board(args: argparse.Namespace) -> int:
                if name not in videos}
     workers = args.workers or os.cpu_count() or 1
     cache = None if args.no_cache else (args.cache or default_cache_dir())
-    detections = {}
+    detections, on_dask = {}, {}
+    n_video_frames = sum(-(-video_info(path).frame_count // args.every) for path in videos.values())
+    if videos and use_dask(n_video_frames, args.scheduler):
+        on_dask = detect_in_videos(board, videos, every=args.every, workers=args.workers, scheduler=args.scheduler,
+                                   cache=cache, progress=Progress(n_video_frames, f"detecting {len(videos)} "
+                                                                  "camera(s) on Dask", "frames").report)
     for name in args.camera:
         if name in videos:
             total = max(1, -(-video_info(videos[name]).frame_count // args.every))
-            report = detect_in_video(board, videos[name], every=args.every, workers=workers, cache=cache,
-                                     progress=Progress(total, f"detecting {name}", "frames").report)
+            report = on_dask[name] if name in on_dask else detect_in_video(
+                board, videos[name], every=args.every, workers=workers, cache=cache,
+                progress=Progress(total, f"detecting {name}", "frames").report)
             skipped = [str(frame_number(label)) for label in report.skipped]
             text = f"{name}: board found in {len(report.detections)} / {report.n_images} frames of {videos[name]}"
             if skipped:
