@@ -52,6 +52,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
                        "numbers and ranges (21-25) or a fraction (0.2)")
+    board.add_argument("--max-views", type=int, metavar="N",
+                       help="solve on at most N frames (board positions), chosen for coverage of each camera's image "
+                       "and board tilts and of frames shared by pairs of cameras; the other frames are held out and "
+                       "reported as held-out RMS")
     loss_option(board, "robust loss on each corner (Ceres; default: trivial)")
     board.add_argument("--loss-scale", type=float, default=1.0, metavar="PX", help="scale of the loss (default: 1 px)")
     board.add_argument("--workers", type=int, default=None, metavar="N",
@@ -177,6 +181,17 @@ def _board(args: argparse.Namespace) -> int:
     if args.holdout:
         frames = sorted({frame_number(d.image) for views in detections.values() for d in views})
         holdout = parse_holdout(args.holdout, frames)
+    if args.max_views is not None:
+        from camcal.geometry.view_selection import select_frames
+
+        if args.max_views < 1:
+            raise CamcalError(f"--max-views must be 1 or more, got {args.max_views}")
+        frames = {frame_number(d.image) for views in detections.values() for d in views} - holdout
+        chosen = select_frames(board, detections, args.max_views, intrinsics=intrinsics, exclude=holdout)
+        if len(chosen) < len(frames):
+            print(f"solving on {len(chosen)} of {len(frames)} frames, chosen for coverage (--max-views); the other "
+                  f"{len(frames) - len(chosen)} are held out")
+            holdout |= frames - set(chosen)
     result = calibrate_board(board, detections, model=args.model, units=args.units, loss=args.loss,
                              loss_scale=args.loss_scale, holdout=holdout, intrinsics=intrinsics,
                              refine_intrinsics=args.refine_intrinsics)

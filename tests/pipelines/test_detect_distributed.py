@@ -79,8 +79,10 @@ def test_bad_input_is_one_error(videos, client, tmp_path):
         detect_in_videos(board, {"cam0": tmp_path / "broken.mp4"}, client=client, chunk_frames=0)
 
 
-def test_calibrate_board_on_a_scheduler(videos, client, tmp_path, capsys):
-    """`calibrate board --scheduler ADDRESS` detects on that cluster and writes the rig of every camera."""
+@pytest.mark.slow
+def test_calibrate_board_on_a_scheduler_with_max_views(videos, client, tmp_path, capsys):
+    """`calibrate board --scheduler ADDRESS --max-views 8` detects on that cluster, solves on 8 frames chosen by
+    coverage, holds out the others and writes the rig of every camera."""
     from camcal.cli import main
     from camcal.model.rig import Rig
 
@@ -89,12 +91,16 @@ def test_calibrate_board_on_a_scheduler(videos, client, tmp_path, capsys):
     Rig(tuple(volume.cameras[:3])).save(tmp_path / "intr.rig.json")
     argv = ["calibrate", "board", "--board", SPEC, *[f"--camera={name}={path}" for name, path in paths.items()],
             "--intrinsics", str(tmp_path / "intr.rig.json"), "--scheduler", client.scheduler.address,
-            "--no-cache", "--out", str(tmp_path / "rig.rig.json")]
+            "--max-views", "8", "--no-cache", "--out", str(tmp_path / "rig.rig.json")]
     code = main(argv)
     captured = capsys.readouterr()
     assert code == 0, captured.out + captured.err
     assert "on Dask" in captured.err
-    assert [c.name for c in Rig.load(tmp_path / "rig.rig.json").cameras] == list(paths)
+    rig = Rig.load(tmp_path / "rig.rig.json")
+    assert [c.name for c in rig.cameras] == list(paths)
+    frames = {int(d.image.split("#")[1]) for path in paths.values() for d in detect_in_video(board, path).detections}
+    assert f"solving on 8 of {len(frames)} frames, chosen for coverage" in captured.out
+    assert all(0 < c.quality["heldout_rms_px"] < 1.0 for c in rig.cameras)
     for name, path in paths.items():
         found = len(detect_in_video(board, path).detections)
         assert f"{name}: board found in {found} / 16 frames" in captured.out
