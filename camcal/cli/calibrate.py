@@ -200,7 +200,7 @@ def _board(args: argparse.Namespace) -> int:
         raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)
                           + " (--force writes it anyway)")
     with output_folder(args.report) as report_dir:
-        reports = [] if report_dir is None else write_report(result, report_dir)
+        reports = [] if report_dir is None else write_report(result, report_dir, board)
         result.rig.save(args.out)
     reports = [final_path(path, report_dir, args.report) for path in reports]
     for note in result.notes:
