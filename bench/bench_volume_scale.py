@@ -11,8 +11,10 @@ whose whole tree (the Dask workers too) is sampled for memory:
 - Dask: :func:`camcal.pipelines.distributed.detect_in_videos` on a local
   cluster of ``--workers`` processes, start-up included.
 
-Printed: frames per second, end-to-end time, peak memory of the process tree
-(resident set, sampled every 0.1 s) and the ratio Dask / one process; the
+Printed: frames per second, end-to-end time, CPU time per frame (user +
+system of the whole process tree: what a shared machine's load does not
+change), peak memory of the process tree (resident set, sampled every
+0.1 s) and the ratio Dask / one process; the
 corners of the two runs are compared (identical count of detections and
 corners). Usage::
 
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import subprocess
 import sys
 import tempfile
@@ -106,6 +109,7 @@ def measure(mode: str, folder: Path, workers: int) -> dict:
 
     with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as handle:
         out = Path(handle.name)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     child = subprocess.Popen([sys.executable, __file__, "--run", mode, "--folder", str(folder),
                               "--workers", str(workers), "--result", str(out)])
@@ -127,11 +131,13 @@ def measure(mode: str, folder: Path, workers: int) -> dict:
     stop.set()
     sampler.join()
     wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)  # the child and every descendant it waited for
+    cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
     if code != 0:
         raise SystemExit(f"the {mode} run failed (exit {code})")
     figures = json.loads(out.read_text())
     out.unlink()
-    return {**figures, "wall": wall, "peak_mb": peak[0] / 2**20}
+    return {**figures, "wall": wall, "cpu": cpu, "peak_mb": peak[0] / 2**20}
 
 
 def main() -> None:
@@ -161,7 +167,8 @@ def main() -> None:
                         ("dask", f"Dask, {args.workers} local worker processes")):
         r = results[mode]
         print(f"{label:34s} {r['frames'] / r['seconds']:7.2f} frames/s  detection {r['seconds']:7.1f} s  "
-              f"end-to-end {r['wall']:7.1f} s  peak memory {r['peak_mb']:6.0f} MB  (board in {r['found']} / "
+              f"end-to-end {r['wall']:7.1f} s  CPU {1e3 * r['cpu'] / r['frames']:5.0f} ms/frame  "
+              f"peak memory {r['peak_mb']:6.0f} MB  (board in {r['found']} / "
               f"{r['frames']} frames)")
     same = results["process"]["corners"] == results["dask"]["corners"]
     print(f"ratio Dask / one process: {results['process']['seconds'] / results['dask']['seconds']:.2f}x frames/s, "
