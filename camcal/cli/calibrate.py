@@ -138,6 +138,8 @@ def _board(args: argparse.Namespace) -> int:
         raise CamcalError("--camera: give at least one camera, e.g. --camera left='shots/left*.jpg'")
     if args.every < 1:
         raise CamcalError(f"--every must be 1 or more, got {args.every}")
+    if args.max_views is not None and args.max_views < 1:
+        raise CamcalError(f"--max-views must be 1 or more, got {args.max_views}")
     if args.refine_intrinsics and not args.intrinsics:
         raise CamcalError("--refine-intrinsics needs --intrinsics RIG (the start)")
     intrinsics = None
@@ -184,8 +186,6 @@ def _board(args: argparse.Namespace) -> int:
     if args.max_views is not None:
         from camcal.geometry.view_selection import select_frames
 
-        if args.max_views < 1:
-            raise CamcalError(f"--max-views must be 1 or more, got {args.max_views}")
         frames = {frame_number(d.image) for views in detections.values() for d in views} - holdout
         chosen = select_frames(board, detections, args.max_views, intrinsics=intrinsics, exclude=holdout)
         if len(chosen) < len(frames):

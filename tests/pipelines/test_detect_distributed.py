@@ -104,3 +104,14 @@ def test_calibrate_board_on_a_scheduler_with_max_views(videos, client, tmp_path,
     for name, path in paths.items():
         found = len(detect_in_video(board, path).detections)
         assert f"{name}: board found in {found} / 16 frames" in captured.out
+
+
+def test_bad_max_views_is_one_line_before_any_work(videos, tmp_path, capsys):
+    from camcal.cli import main
+
+    _, paths = videos
+    code = main(["calibrate", "board", "--board", SPEC, f"--camera=cam0={paths['cam0']}", "--max-views", "0",
+                 "--out", str(tmp_path / "rig.rig.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.strip() == "camcal: error: --max-views must be 1 or more, got 0"
+    assert not list(tmp_path.iterdir())
