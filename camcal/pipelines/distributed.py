@@ -15,12 +15,12 @@ whose workers must see the video paths and have camcal installed. The rule
 for ``calibrate board``: Dask when a scheduler is given, or when the videos
 hold at least :data:`DASK_MIN_FRAMES` frames to detect; below that the
 local cluster's start-up (about 5-7 s for two workers here) outweighs what
-it saves, and detection runs in-process in threads. On one machine the two
-detect at about the same rate (``bench/bench_volume_scale.py`` on 2 shared
-cores: 0.99x at 4 cameras x 120 frames of 1280x720, Dask spending 1.5x the
-CPU time per frame and 3x the memory, its scheduler and worker processes);
-what Dask adds is more machines (``--scheduler``) and processes where the
-detector holds the GIL.
+it saves, and detection runs in-process in threads. On one machine Dask is
+not cheaper (``bench/bench_volume_scale.py`` on 2 cores shared with other
+jobs, 1280x720: 1.62x the frames per second of the threads at 16 cameras x
+60 frames, 0.99x at 4 x 120, but 1.4-1.5x the CPU time per frame and 3x the
+memory, its scheduler and worker processes); what it adds is more machines
+(``--scheduler``) and processes where the detector holds the GIL.
 """
 
 from __future__ import annotations
