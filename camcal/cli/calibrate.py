@@ -61,10 +61,18 @@ def register(parser: argparse.ArgumentParser) -> None:
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
                        "numbers and ranges (21-25) or a fraction (0.2)")
+    board.add_argument("--max-views", type=int, metavar="N",
+                       help="solve on at most N frames (board positions), chosen for coverage of each camera's image "
+                       "and board tilts and of frames shared by pairs of cameras; the other frames are held out and "
+                       "reported as held-out RMS")
     loss_option(board, "robust loss on each corner (Ceres; default: trivial)")
     board.add_argument("--loss-scale", type=float, default=1.0, metavar="PX", help="scale of the loss (default: 1 px)")
     board.add_argument("--workers", type=int, default=None, metavar="N",
-                       help="images detected at once (threads; default: the CPU count)")
+                       help="images or frames detected at once (threads, or Dask worker processes; default: the "
+                       "CPU count)")
+    board.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="detect video frames on this Dask cluster (its workers must see the videos); without "
+                       "it, videos of 2000 frames or more (after --every) run on a local Dask cluster, fewer in threads")
     board.add_argument("--cache", metavar="DIR",
                        help="corner cache directory, keyed by image content and detector settings "
                        "(default: $XDG_CACHE_HOME/camcal/corners)")
@@ -127,6 +135,7 @@ def _board(args: argparse.Namespace) -> int:
     from camcal.base.atomic import final_path
     from camcal.geometry.board import frame_number, parse_board
     from camcal.pipelines.board import default_cache_dir, detect_in_images, detect_in_video
+    from camcal.pipelines.distributed import detect_in_videos, use_dask
     from camcal.geometry.zhang import calibrate_board, quality_problems
     from camcal.base.progress import Progress
     from camcal.io.video import is_video, video_info
@@ -138,6 +147,8 @@ def _board(args: argparse.Namespace) -> int:
         raise CamcalError("--camera: give at least one camera, e.g. --camera left='shots/left*.jpg'")
     if args.every < 1:
         raise CamcalError(f"--every must be 1 or more, got {args.every}")
+    if args.max_views is not None and args.max_views < 1:
+        raise CamcalError(f"--max-views must be 1 or more, got {args.max_views}")
     if args.refine_intrinsics and not args.intrinsics:
         raise CamcalError("--refine-intrinsics needs --intrinsics RIG (the start)")
     if args.time_tolerance is not None and not args.timestamps:
@@ -164,14 +175,23 @@ def _board(args: argparse.Namespace) -> int:
                if name not in videos}
     workers = args.workers or os.cpu_count() or 1
     cache = None if args.no_cache else (args.cache or default_cache_dir())
-    detections, reports = {}, {}
+    first = next(iter(args.camera))
+    # by time, another camera's frames matching the first camera's 0, N, 2N... are not its own 0, N, 2N...
+    every = {name: 1 if timestamps is not None and name != first else args.every for name in videos}
+    detections, reports, on_dask = {}, {}, {}
+    n_video_frames = sum(-(-video_info(path).frame_count // every[name]) for name, path in videos.items())
+    if videos and use_dask(n_video_frames, args.scheduler):
+        for step in sorted(set(every.values())):
+            group = {name: path for name, path in videos.items() if every[name] == step}
+            on_dask |= detect_in_videos(board, group, every=step, workers=args.workers, scheduler=args.scheduler,
+                                        cache=cache, progress=Progress(n_video_frames, f"detecting {len(group)} "
+                                                                       "camera(s) on Dask", "frames").report)
     for name in args.camera:
         if name in videos:
-            # by time, another camera's frames matching the first camera's 0, N, 2N... are not its own 0, N, 2N...
-            every = 1 if timestamps is not None and name != next(iter(args.camera)) else args.every
-            total = max(1, -(-video_info(videos[name]).frame_count // every))
-            report = detect_in_video(board, videos[name], every=every, workers=workers, cache=cache,
-                                     progress=Progress(total, f"detecting {name}", "frames").report)
+            total = max(1, -(-video_info(videos[name]).frame_count // every[name]))
+            report = on_dask[name] if name in on_dask else detect_in_video(
+                board, videos[name], every=every[name], workers=workers, cache=cache,
+                progress=Progress(total, f"detecting {name}", "frames").report)
             skipped = [str(frame_number(label)) for label in report.skipped]
             text = f"{name}: board found in {len(report.detections)} / {report.n_images} frames of {videos[name]}"
             if skipped:
@@ -200,6 +220,15 @@ def _board(args: argparse.Namespace) -> int:
     if args.holdout:
         frames = sorted({frame_number(d.image) for views in detections.values() for d in views})
         holdout = parse_holdout(args.holdout, frames)
+    if args.max_views is not None:
+        from camcal.geometry.view_selection import select_frames
+
+        frames = {frame_number(d.image) for views in detections.values() for d in views} - holdout
+        chosen = select_frames(board, detections, args.max_views, intrinsics=intrinsics, exclude=holdout)
+        if len(chosen) < len(frames):
+            print(f"solving on {len(chosen)} of {len(frames)} frames, chosen for coverage (--max-views); the other "
+                  f"{len(frames) - len(chosen)} are held out")
+            holdout |= frames - set(chosen)
     result = calibrate_board(board, detections, model=args.model, units=args.units, loss=args.loss,
                              loss_scale=args.loss_scale, holdout=holdout, intrinsics=intrinsics,
                              refine_intrinsics=args.refine_intrinsics)
@@ -208,7 +237,7 @@ def _board(args: argparse.Namespace) -> int:
         raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)
                           + " (--force writes it anyway)")
     with output_folder(args.report) as report_dir:
-        reports = [] if report_dir is None else write_report(result, report_dir)
+        reports = [] if report_dir is None else write_report(result, report_dir, board)
         result.rig.save(args.out)
     reports = [final_path(path, report_dir, args.report) for path in reports]
     for note in result.notes:

@@ -225,6 +225,14 @@ class CalibrationResult:
         Views dropped because no labelling agreed with the rig.
     notes : tuple of str
         Constraints the fit imposed beyond the model's definition.
+    board_poses : tuple of (int, ndarray, ndarray)
+        ``(frame, R, t)`` of every frame solved: ``reference_from_board``
+        (a board point ``X`` is at ``R X + t`` in the reference camera's
+        coordinates), in the board's units.
+    heldout_residuals_px, heldout_points_px : ndarray, shape (H, 2)
+        ``projected - detected`` and the detected corners of the held-out views.
+    heldout_camera_of_point : ndarray of int, shape (H,)
+        Index into ``rig.cameras`` of each held-out corner.
     """
 
     rig: Rig
@@ -246,6 +254,10 @@ class CalibrationResult:
     relabelled: tuple[tuple[str, str], ...] = ()
     dropped: tuple[tuple[str, str], ...] = ()
     notes: tuple[str, ...] = ()
+    board_poses: tuple[tuple[int, NDArray[np.float64], NDArray[np.float64]], ...] = ()
+    heldout_residuals_px: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
+    heldout_points_px: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
+    heldout_camera_of_point: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def n_outliers(self) -> int:
@@ -880,7 +892,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         result = _calibrate_opencv(board, names, by_frame, model, units, outlier_factor, min_outlier_px)
         if not holdout:
             return result
-        heldout_rms, per_camera, heldout_images = _heldout_rms(board, result.rig, held)
+        heldout_rms, per_camera, heldout_images, _ = _heldout_rms(board, result.rig, held)
         camera = result.rig.cameras[0]
         rig = Rig((dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]}),),
                   units=result.rig.units, provenance=result.rig.provenance)
@@ -988,9 +1000,9 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
     jackknife = _view_jackknife(labels, names, model, params, refined, observations) if loss == "trivial" else None
     rig = _build_rig(names, image_sizes, params, cam_poses, observations.camera, image_of_point, residuals,
                      covariance, labels, board, model, units, jackknife)
-    heldout_rms, heldout_images = None, ()
+    heldout_rms, heldout_images, heldout = None, (), []
     if holdout:
-        heldout_rms, per_camera, heldout_images = _heldout_rms(board, rig, held)
+        heldout_rms, per_camera, heldout_images, heldout = _heldout_rms(board, rig, held)
         rig = Rig(tuple(dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]})
                         if camera.name in per_camera else camera for camera in rig.cameras),
                   units=rig.units, provenance=rig.provenance)
@@ -1013,6 +1025,11 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         relabelled=tuple(relabelled),
         dropped=tuple(dropped),
         notes=tuple(notes),
+        board_poses=tuple((f, *view_start[f]) for f in sorted({f for _, f in kept})),
+        heldout_residuals_px=np.concatenate([r for _, r, _ in heldout]) if heldout else np.zeros((0, 2)),
+        heldout_points_px=np.concatenate([x for _, _, x in heldout]) if heldout else np.zeros((0, 2)),
+        heldout_camera_of_point=(np.concatenate([np.full(len(r), j) for j, r, _ in heldout]) if heldout
+                                 else np.zeros(0, np.int64)),
     )
 
 
@@ -1105,10 +1122,11 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict]):
 
     Returns
     -------
-    rms_px, per_camera_rms_px, images
+    rms_px, per_camera_rms_px, images, views
+        ``views``: ``(camera index, projected - detected, detected)`` of each held-out view.
     """
-    squared, counts, per_camera, images = 0.0, 0, {}, []
-    for camera, views in zip(rig.cameras, held):
+    squared, counts, per_camera, images, residuals = 0.0, 0, {}, [], []
+    for j, (camera, views) in enumerate(zip(rig.cameras, held)):
         if not views:
             continue
         s_camera, n_camera = 0.0, 0
@@ -1116,9 +1134,10 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict]):
             r = _posed_residuals(board, camera, views[key])
             s_camera, n_camera = s_camera + float(np.sum(r * r)), n_camera + len(r)
             images.append((camera.name, views[key].image))
+            residuals.append((j, r, views[key].corners_px))
         per_camera[camera.name] = float(np.sqrt(s_camera / n_camera))
         squared, counts = squared + s_camera, counts + n_camera
-    return float(np.sqrt(squared / counts)), per_camera, tuple(images)
+    return float(np.sqrt(squared / counts)), per_camera, tuple(images), residuals
 
 
 def _posed_residuals(board: Board, camera: Camera, detection: Detection) -> NDArray[np.float64]:

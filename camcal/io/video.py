@@ -100,8 +100,8 @@ def video_info(path: str | os.PathLike) -> VideoInfo:
                          int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0))
 
 
-def iter_frames(path: str | os.PathLike, every: int = 1, wanted=None,
-                gray: bool = True) -> Iterator[tuple[int, NDArray[np.uint8]]]:
+def iter_frames(path: str | os.PathLike, every: int = 1, wanted=None, gray: bool = True, start: int = 0,
+                stop: int | None = None) -> Iterator[tuple[int, NDArray[np.uint8]]]:
     """Yield ``(frame_number, image)`` of every ``every``-th frame (0, every, 2 every...), decoded in order.
 
     Parameters
@@ -116,6 +116,12 @@ def iter_frames(path: str | os.PathLike, every: int = 1, wanted=None,
         default all of them.
     gray : bool
         8-bit grey images (default) or OpenCV's BGR.
+    start, stop : int
+        Only frames ``start <= k < stop`` (``stop`` None: to the end). The
+        decoder seeks to ``start`` (FFmpeg: the key frame before it, then
+        decoding forward); when it cannot say it landed on ``start``, the
+        frames before it are decoded and skipped instead, so frame numbers
+        are the same as when decoding from 0.
 
     Raises
     ------
@@ -131,9 +137,19 @@ def iter_frames(path: str | os.PathLike, every: int = 1, wanted=None,
     """
     if int(every) < 1:
         raise CamcalError(f"--every must be 1 or more, got {every}")
+    start = max(0, int(start))
     with _capture(path) as capture:
         k = 0
-        while True:
+        if start > 0:
+            if capture.set(cv2.CAP_PROP_POS_FRAMES, start) and capture.get(cv2.CAP_PROP_POS_FRAMES) == start:
+                k = start
+            else:  # back to frame 0 (a failed seek may leave the decoder anywhere), then skip forward
+                capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
+                while k < start and capture.grab():
+                    k += 1
+                if k < start:
+                    return
+        while stop is None or k < stop:
             if not capture.grab():
                 if k == 0:
                     raise CamcalError(f"{Path(path).name}: cannot be decoded as a video (no frame could be read)")

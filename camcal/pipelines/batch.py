@@ -56,7 +56,7 @@ import socket
 import threading
 import time
 import uuid
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -74,6 +74,7 @@ from camcal.geometry.undistort import MODES, make_undistorter
 from camcal.io.colourfile import load_fit
 from camcal.io.frames import ImageFrame, frame_format, read_frame, write_frame
 from camcal.model.rig import Camera, Rig
+from camcal.pipelines.distributed import dask_client
 
 __all__ = [
     "GEOMETRY",
@@ -522,29 +523,6 @@ class BatchReport:
         return "\n".join(lines)
 
 
-@contextlib.contextmanager
-def _dask_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
-    """A ``distributed.Client``: on the scheduler at ``scheduler``, else on a new ``LocalCluster``."""
-    import logging
-
-    from distributed import Client, LocalCluster
-
-    if scheduler is not None:
-        try:
-            client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as error:
-            raise CamcalError(f"cannot reach the Dask scheduler at {scheduler}: {error}") from None
-        with client:
-            yield client
-        return
-    if workers is not None and workers < 1:
-        raise CamcalError(f"--workers must be at least 1, got {workers}")
-    # dashboard_address=":0": the scheduler's HTTP server (always started) on a free port, not 8787
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=":0", silence_logs=logging.CRITICAL) as cluster, Client(cluster) as client:
-        yield client
-
-
 def run_batch(
     job: BatchJob,
     frames: Sequence[int],
@@ -610,7 +588,7 @@ def run_batch(
                 _remove_stale_temporaries(job.output_path(frame))
         run = uuid.uuid4().hex
         bar = Progress(len(todo), label="batch", unit="frames", enabled=progress)
-        owned = contextlib.nullcontext(client) if client is not None else _dask_client(workers, scheduler)
+        owned = contextlib.nullcontext(client) if client is not None else dask_client(workers, scheduler)
         with owned as dask:
             from distributed import as_completed
 

@@ -35,7 +35,8 @@ from camcal.io.headers import check_image_header
 from camcal.io.timestamps import Synchronisation, Timestamps, synchronise
 from camcal.io.video import iter_frames, video_info
 
-__all__ = ["default_cache_dir", "detect_in_images", "detect_in_video", "synchronise_detections"]
+__all__ = ["default_cache_dir", "detect_in_images", "detect_in_video", "read_video_cache", "synchronise_detections",
+           "video_cache_file", "video_report", "write_video_cache"]
 
 
 def default_cache_dir() -> Path:
@@ -231,8 +232,15 @@ def _video_cache_key(board: Board, path: Path) -> str:
     return digest.hexdigest()
 
 
-def _read_video_cache(path: Path) -> tuple[dict[int, Detection | None], int | None]:
+def video_cache_file(board: Board, path: str | os.PathLike, cache: str | os.PathLike | None) -> Path | None:
+    """The file in ``cache`` holding the detections of ``board`` in the video at ``path`` (None without a cache)."""
+    return Path(cache) / f"video-{_video_cache_key(board, Path(path))}.json" if cache is not None else None
+
+
+def read_video_cache(path: Path | None) -> tuple[dict[int, Detection | None], int | None]:
     """The cached frames ``{frame: detection or None}`` and the video's frame count (None if never decoded whole)."""
+    if path is None:
+        return {}, None
     try:
         data = json.loads(path.read_text())
         frames = {int(k): _detection_from_json(d) for k, d in data["frames"].items()}
@@ -286,8 +294,8 @@ def detect_in_video(
     if int(every) < 1:
         raise CamcalError(f"--every must be 1 or more, got {every}")
     info = video_info(path)
-    cache_file = Path(cache) / f"video-{_video_cache_key(board, path)}.json" if cache is not None else None
-    done, n_frames = _read_video_cache(cache_file) if cache_file is not None else ({}, None)
+    cache_file = video_cache_file(board, path, cache)
+    done, n_frames = read_video_cache(cache_file)
     total = max(1, -(-(n_frames or info.frame_count) // every))
     count, reported = 0, [-1]
 
@@ -323,11 +331,22 @@ def detect_in_video(
                 collect(2 * n_workers)
             collect(0)
         n_frames = seen[0]
-        if cache_file is not None:
-            _write_json(cache_file, {"n_frames": n_frames,
-                                     "frames": {str(k): _detection_to_json(d) for k, d in sorted(done.items())}})
+        write_video_cache(cache_file, n_frames, done)
     count = total
     report_progress()
+    return video_report(path, done, n_frames, every)
+
+
+def write_video_cache(path: Path | None, n_frames: int, done: dict[int, Detection | None]) -> None:
+    """Write a video's detections ``{frame: detection or None}`` and frame count (atomic; skipped when None)."""
+    if path is not None:
+        _write_json(path, {"n_frames": n_frames,
+                           "frames": {str(k): _detection_to_json(d) for k, d in sorted(done.items())}})
+
+
+def video_report(path: str | os.PathLike, done: dict[int, Detection | None], n_frames: int,
+                 every: int) -> DetectionReport:
+    """The report of frames ``0, every, 2 every... < n_frames`` from ``done``, detections named ``VIDEO#K``."""
     detections, skipped = [], []
     for k in range(0, n_frames, every):
         detection = done.get(k)

@@ -9,10 +9,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from camcal.geometry.board import Board
 from camcal.geometry.zhang import CalibrationResult
 from camcal.io.frames import imwrite
 from camcal.model.rig import Camera
 from camcal.report import RESIDUAL_LABEL
+from camcal.report.volume import write_volume_report
 
 __all__ = ["write_report", "write_suggestion_preview"]
 
@@ -22,8 +24,8 @@ def _palette(n: int) -> list[tuple[int, int, int]]:
     return [tuple(int(255 * v) for v in colorsys.hsv_to_rgb(i / max(n, 1), 0.85, 0.8)[::-1]) for i in range(n)]
 
 
-def write_report(result: CalibrationResult, out_dir: str | os.PathLike) -> list[Path]:
-    """PNG plots of a calibration, written atomically into ``out_dir``.
+def write_report(result: CalibrationResult, out_dir: str | os.PathLike, board: Board | None = None) -> list[Path]:
+    """PNG plots of a calibration and its page, written atomically into ``out_dir``.
 
     Per camera, ``residuals_<camera>.png`` (every corner with its
     reprojection residual ``observed - projected`` magnified, an arrow from
@@ -31,7 +33,9 @@ def write_report(result: CalibrationResult, out_dir: str | os.PathLike) -> list[
     ``coverage_<camera>.png`` (the corners of each image in its own colour,
     with the board outline); for the whole rig, ``per_image_rms.png``
     (RMS of each image kept, one bar per image, cameras in turn, the
-    median as a line).
+    median as a line); the page ``index.html`` with the camera layout and
+    each camera's held-out residuals (:func:`camcal.report.volume.write_volume_report`;
+    ``board`` draws the board positions as outlines).
 
     Returns
     -------
@@ -83,7 +87,7 @@ def write_report(result: CalibrationResult, out_dir: str | os.PathLike) -> list[
     cv2.putText(canvas, f"RMS per image (max {top:.3f} px, line = median)", (10, 25),
                 cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     written.append(imwrite(directory / "per_image_rms.png", canvas))
-    return written
+    return written + write_volume_report(result, directory, board)
 
 
 def write_suggestion_preview(camera: Camera, shots, path: str | os.PathLike) -> Path:

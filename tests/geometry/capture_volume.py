@@ -96,23 +96,31 @@ def board_origin_pose(board: Board, R_wb: np.ndarray, centre: np.ndarray) -> tup
     return R_wb, centre - R_wb @ middle
 
 
-def render_view(board: Board, texture: np.ndarray, camera: Camera, R_wb: np.ndarray, t_wb: np.ndarray,
-                rng: np.random.Generator, noise: float = 2.0) -> np.ndarray | None:
-    """The camera's 8-bit grey image of the board, or None when the board is not seen whole at < 70 deg."""
+def board_seen(board: Board, camera: Camera, R_wb: np.ndarray, t_wb: np.ndarray) -> bool:
+    """Whether the camera sees the board whole (8 px inside the image), in front, at < 70 deg."""
     R_cb = camera.R @ R_wb
     t_cb = camera.R @ (t_wb - camera.c)
     (x0, y0), (x1, y1) = board_extent(board)
     outline = np.array([[x0, y0, 0], [x1, y0, 0], [x0, y1, 0], [x1, y1, 0]])
     X = outline @ R_cb.T + t_cb
     if np.any(X[:, 2] <= 0.1):
-        return None
+        return False
     ray = X.mean(axis=0) / np.linalg.norm(X.mean(axis=0))
     if abs(ray @ R_cb[:, 2]) < np.cos(np.radians(70)):
-        return None
+        return False
     corners = camera.project(outline @ R_wb.T + t_wb)
     width, height = camera.image_size
-    if np.any(corners < 8) or np.any(corners > np.array([width, height]) - 9):
+    return not (np.any(corners < 8) or np.any(corners > np.array([width, height]) - 9))
+
+
+def render_view(board: Board, texture: np.ndarray, camera: Camera, R_wb: np.ndarray, t_wb: np.ndarray,
+                rng: np.random.Generator, noise: float = 2.0) -> np.ndarray | None:
+    """The camera's 8-bit grey image of the board, or None when the board is not seen whole at < 70 deg."""
+    if not board_seen(board, camera, R_wb, t_wb):
         return None
+    R_cb = camera.R @ R_wb
+    t_cb = camera.R @ (t_wb - camera.c)
+    width, height = camera.image_size
     # texture pixel (u, v) is board point ((u + 0.5 - margin) / ppm, ...); pinhole image, then the lens by remap
     A = np.array([[1 / _PX_PER_M, 0, (0.5 - _MARGIN) / _PX_PER_M + x0],
                   [0, 1 / _PX_PER_M, (0.5 - _MARGIN) / _PX_PER_M + y0], [0, 0, 1]])
