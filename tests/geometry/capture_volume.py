@@ -121,6 +121,7 @@ def render_view(board: Board, texture: np.ndarray, camera: Camera, R_wb: np.ndar
     R_cb = camera.R @ R_wb
     t_cb = camera.R @ (t_wb - camera.c)
     width, height = camera.image_size
+    (x0, y0), _ = board_extent(board)
     # texture pixel (u, v) is board point ((u + 0.5 - margin) / ppm, ...); pinhole image, then the lens by remap
     A = np.array([[1 / _PX_PER_M, 0, (0.5 - _MARGIN) / _PX_PER_M + x0],
                   [0, 1 / _PX_PER_M, (0.5 - _MARGIN) / _PX_PER_M + y0], [0, 0, 1]])
