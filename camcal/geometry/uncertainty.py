@@ -46,17 +46,19 @@ section 5.2 (forward propagation of covariance, ``J Sigma J^T``).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.model.colmap import camera_from_colmap
 from camcal.model.distortion import Distortion
 from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera
 
-__all__ = ["GAUGE", "POSE", "SigmaSummary", "camera_covariance", "perturbed_lens", "projection_covariance",
+__all__ = ["GAUGE", "POSE", "SigmaSummary", "camera_covariance", "covariance_from_colmap", "perturbed_lens", "projection_covariance",
            "projection_jacobian", "projection_sigma", "projection_sigma_map", "sigma_grid", "summarise_sigma",
            "upsample_grid"]
 
@@ -78,6 +80,61 @@ def camera_covariance(camera: Camera) -> ParameterCovariance:
     return covariance
 
 
+def _camcal_values(camera: Camera, model: str, params: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``fx, fy, cx, cy`` and ``camera``'s distortion parameters of the camcal camera of COLMAP ``params``."""
+    lens = camera_from_colmap(camera.name, model, camera.image_size, params, np.eye(3), np.zeros(3))
+    return np.r_[lens.K[0, 0], lens.K[1, 1], lens.K[0, 2], lens.K[1, 2],
+                 [lens.distortion.params.get(key, 0.0) for key in camera.distortion.params]]
+
+
+def covariance_from_colmap(cameras: Sequence[Camera], models: Sequence[str], params: Sequence[ArrayLike],
+                           colmap_names: Sequence[Sequence[str]], names: Sequence[str], matrix: ArrayLike,
+                           index: int) -> ParameterCovariance | None:
+    """Camera ``index``'s ``quality.covariance`` from a bundle adjustment's covariance over COLMAP's parameters.
+
+    ``names`` / ``matrix``: :attr:`camcal.geometry.bundle.BundleResult.covariance` and its names
+    (``CAMERA.f``, ``CAMERA.k``, ``CAMERA.rx`` ...). Each camera's free COLMAP parameters ``p`` are carried
+    to camcal's ``theta = (fx, fy, cx, cy, distortion)`` of :func:`camcal.model.colmap.camera_from_colmap` by
+    ``A = dtheta/dp`` (central differences), ``Sigma_theta = A Sigma_p A^T``; the rig pose ``rx .. tz``
+    (rotation vector on the left of ``cam_from_reference``, translation) is kept as it is. The camera's own
+    parameters take their plain names; the earlier cameras' (``cameras[:index]``) keep ``NAME.param``, the
+    cross-covariance a pair's figures use. None when the camera has no free parameter in it.
+    """
+    names = list(names)
+    matrix = np.asarray(matrix, dtype=np.float64)
+    rows, out_names = [], []
+    for j in range(index + 1):
+        camera = cameras[j]
+        prefix = "" if j == index else f"{camera.name}."
+        p0 = np.asarray(params[j], dtype=np.float64)
+        free = [(k, names.index(f"{camera.name}.{n}")) for k, n in enumerate(colmap_names[j])
+                if f"{camera.name}.{n}" in names]
+        labels = [prefix + n for n in ("fx", "fy", "cx", "cy", *camera.distortion.params)]
+        if free:
+            A = np.zeros((len(labels), len(free)))
+            for c, (k, _) in enumerate(free):
+                h = 1e-6 * max(abs(p0[k]), 1e-3)
+                step = np.zeros_like(p0)
+                step[k] = h
+                A[:, c] = (_camcal_values(camera, models[j], p0 + step)
+                           - _camcal_values(camera, models[j], p0 - step)) / (2.0 * h)
+            rows.append((A, [m for _, m in free]))
+            out_names += labels
+        pose = [names.index(f"{camera.name}.{axis}") for axis in POSE if f"{camera.name}.{axis}" in names]
+        if pose:
+            rows.append((np.eye(len(pose)), pose))
+            out_names += [prefix + axis for axis in POSE if f"{camera.name}.{axis}" in names]
+    if not any(name in out_names for name in ("fx", "rx")):
+        return None
+    T = np.zeros((len(out_names), len(names)))
+    r = 0
+    for A, source in rows:
+        T[r:r + A.shape[0], source] = A
+        r += A.shape[0]
+    covariance = T @ matrix @ T.T
+    return ParameterCovariance(tuple(out_names), 0.5 * (covariance + covariance.T))
+
+
 def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
     """``[v]x`` for each row of ``v`` (N, 3) -> (N, 3, 3)."""
     out = np.zeros(v.shape[:-1] + (3, 3))
@@ -88,10 +145,14 @@ def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def perturbed_lens(camera: Camera, name: str, step: float) -> tuple[NDArray[np.float64], Distortion]:
-    """K and distortion with intrinsic ``name`` moved by ``step``."""
+    """K and distortion with intrinsic ``name`` moved by ``step``; a distortion centre stored at the principal
+    point (COLMAP's division cameras) is the principal point and moves with it."""
     K = np.array(camera.K, dtype=np.float64)
     if name in _K_ENTRIES:
         K[_K_ENTRIES[name]] += step
+        centre = camera.distortion.center
+        if name in ("cx", "cy") and centre is not None and np.allclose(centre, camera.K[:2, 2], rtol=0, atol=1e-9):
+            return K, dataclasses.replace(camera.distortion, center=(K[0, 2], K[1, 2]))
         return K, camera.distortion
     params = dict(camera.distortion.params)
     params[name] += step
