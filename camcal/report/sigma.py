@@ -20,7 +20,7 @@ from camcal.base.atomic import atomic_path
 from camcal.geometry.uncertainty import projection_sigma_map
 from camcal.model.rig import Camera
 
-__all__ = ["plot_sigma_map", "write_sigma_heatmaps"]
+__all__ = ["heatmap_image", "plot_sigma_map", "write_heatmap_png", "write_sigma_heatmaps"]
 
 
 def plot_sigma_map(sigma: NDArray, path: str | os.PathLike, title: str, unit: str = "px") -> Path:
@@ -65,6 +65,36 @@ def plot_sigma_map(sigma: NDArray, path: str | os.PathLike, title: str, unit: st
     with atomic_path(target, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=90, format="png")
     plt.close(fig)
+    return target
+
+
+def heatmap_image(sigma: NDArray, vmax: float | None = None) -> NDArray[np.uint8]:
+    """The map as a (H, W, 3) RGB heat map, pixel for pixel: viridis from 0 to ``vmax`` (default: its largest
+    value), NaN pixels black. For overlays (the Blender add-on's camera background)."""
+    import matplotlib  # noqa: PLC0415
+
+    values = np.asarray(sigma, dtype=np.float64)
+    finite = values[np.isfinite(values)]
+    top = vmax if vmax is not None else (float(finite.max()) if finite.size else 1.0)
+    scaled = np.clip(np.nan_to_num(values, nan=0.0) / max(top, 1e-300), 0.0, 1.0)
+    rgb = np.round(255 * matplotlib.colormaps["viridis"](scaled)[..., :3]).astype(np.uint8)
+    rgb[~np.isfinite(values)] = 0
+    return rgb
+
+
+def write_heatmap_png(sigma: NDArray, path: str | os.PathLike, vmax: float | None = None) -> Path:
+    """Write :func:`heatmap_image` as an 8-bit PNG, atomically; the scale's top is in the PNG's text
+    (``camcal.sigma_max``, pixels)."""
+    from PIL import Image, PngImagePlugin  # noqa: PLC0415
+
+    values = np.asarray(sigma, dtype=np.float64)
+    finite = values[np.isfinite(values)]
+    top = vmax if vmax is not None else (float(finite.max()) if finite.size else 1.0)
+    info = PngImagePlugin.PngInfo()
+    info.add_text("camcal.sigma_max", f"{top:.6g}")
+    target = Path(path)
+    with atomic_path(target, suffix=".png") as tmp:
+        Image.fromarray(heatmap_image(values, top)).save(tmp, format="PNG", pnginfo=info)
     return target
 
 

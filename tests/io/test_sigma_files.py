@@ -131,3 +131,16 @@ def test_heat_map_follows_the_values(tmp_path):
     row = image[image.shape[0] // 2].astype(float)
     dark = np.argmin(row[: image.shape[1] // 2])
     assert row[dark] < 80 and row.max() > 180
+
+
+def test_sigma_verb_heatmap_is_pixel_for_pixel(rig_file, tmp_path, capsys):
+    import cv2
+
+    from camcal.report.sigma import heatmap_image
+
+    out, png = tmp_path / "sigma.exr", tmp_path / "sigma.png"
+    assert main(["sigma", str(rig_file), "--camera", "cam", "--out", str(out), "--heatmap", str(png), "--json"]) == 0
+    assert {"path": str(png), "kind": "heatmap"} in json.loads(capsys.readouterr().out)["files"]
+    rgb = cv2.imread(str(png))[..., ::-1]
+    assert rgb.shape == (240, 320, 3)
+    assert np.array_equal(rgb, heatmap_image(read_sigma_map(out)))
