@@ -4,7 +4,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from . import importer
+from . import importer, overlay
 from .rigfile import RigFileError
 
 __all__ = ["register", "unregister", "classes"]
@@ -146,6 +146,64 @@ class CAMCAL_OT_toggle_stereo(bpy.types.Operator):
         return {"FINISHED"}
 
 
+#: Name of the background image slot a sigma overlay takes (one per camera).
+SIGMA_OVERLAY = "camcal sigma"
+
+
+def show_sigma_overlay(obj, path, alpha=0.6):
+    """Show a sigma map (PNG heat map or EXR) as ``obj``'s background overlay, in front of its plate.
+
+    The map must be the camera's image size (:func:`.overlay.check_overlay`): it is stretched onto the
+    camera frame, pixel for pixel with the plate. A previous sigma overlay of the camera is replaced.
+    Returns the background image entry.
+    """
+    overlay.check_overlay(path, tuple(obj.data["camcal_image_size"]))
+    data = obj.data
+    for bg in list(data.background_images):
+        if bg.image is not None and bg.image.get("camcal_overlay") == SIGMA_OVERLAY:
+            data.background_images.remove(bg)
+    image = bpy.data.images.load(path, check_existing=False)
+    image["camcal_overlay"] = SIGMA_OVERLAY
+    image.colorspace_settings.name = "sRGB" if path.lower().endswith(".png") else "Non-Color"
+    worst = overlay.sigma_max(path)
+    if worst is not None:
+        image["camcal_sigma_max_px"] = worst
+    data.show_background_images = True
+    bg = data.background_images.new()
+    bg.source = "IMAGE"
+    bg.image = image
+    bg.alpha = alpha
+    bg.display_depth = "FRONT"
+    bg.frame_method = "STRETCH"
+    return bg
+
+
+class CAMCAL_OT_sigma_overlay(bpy.types.Operator, ImportHelper):
+    """Show a camera's projection-sigma map (camcal sigma --heatmap PNG, or its EXR) over its view"""
+
+    bl_idname = "camcal.sigma_overlay"
+    bl_label = "Show sigma map"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filename_ext = ".png"
+    filter_glob: StringProperty(default="*.png;*.exr", options={"HIDDEN"})
+    camera: StringProperty(name="Camera object", description="Default: the scene camera")
+    alpha: FloatProperty(name="Opacity", default=0.6, min=0.0, max=1.0)
+
+    def execute(self, context):
+        obj = bpy.data.objects.get(self.camera) if self.camera else context.scene.camera
+        if not _camcal_camera(obj):
+            self.report({"ERROR"}, f"{self.camera or 'the scene camera'!r} is not a camera imported by camcal")
+            return {"CANCELLED"}
+        try:
+            show_sigma_overlay(obj, bpy.path.abspath(self.filepath), self.alpha)
+        except (overlay.OverlayError, OSError, RuntimeError) as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"sigma map shown on {obj.name!r}")
+        return {"FINISHED"}
+
+
 def menu_import(self, context):
     self.layout.operator(IMPORT_SCENE_OT_camcal_rig.bl_idname, text="camcal rig (.rig.json)")
 
@@ -156,6 +214,7 @@ classes = (
     CAMCAL_OT_set_active_camera,
     CAMCAL_OT_apply_resolution,
     CAMCAL_OT_toggle_stereo,
+    CAMCAL_OT_sigma_overlay,
 )
 
 

@@ -60,6 +60,8 @@ class VIEW3D_PT_camcal(bpy.types.Panel):
                 op.camera = obj.name
                 w, h = obj.data["camcal_image_size"]
                 box.label(text=f"  {w}x{h}, {_quality_text(obj.data)}")
+                op = box.operator("camcal.sigma_overlay", text="Show sigma map...", icon="IMAGE_RGB_ALPHA")
+                op.camera = obj.name
         render = scene.render
         row = layout.row(align=True)
         row.operator("camcal.toggle_stereo",

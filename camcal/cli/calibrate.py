@@ -87,7 +87,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     board.add_argument("--suggest-preview", metavar="FILE.png",
                        help="where --suggest draws its shot list (default: OUT without .rig.json + .suggest.png)")
     out_option(board, "FILE.rig.json")
-    report_option(board, "write PNG plots: residuals, per-image RMS, coverage")
+    report_option(board, "write PNG plots: residuals, per-image RMS, coverage, projection sigma heat maps")
     handler(board, _board)
 
 
@@ -237,7 +237,12 @@ def _board(args: argparse.Namespace) -> int:
         raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)
                           + " (--force writes it anyway)")
     with output_folder(args.report) as report_dir:
-        reports = [] if report_dir is None else write_report(result, report_dir, board)
+        if report_dir is not None:
+            from camcal.report.sigma import write_sigma_heatmaps
+
+            reports = write_report(result, report_dir, board) + write_sigma_heatmaps(result.rig.cameras, report_dir)
+        else:
+            reports = []
         result.rig.save(args.out)
     reports = [final_path(path, report_dir, args.report) for path in reports]
     for note in result.notes:

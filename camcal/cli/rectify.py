@@ -6,7 +6,7 @@ import argparse
 
 from camcal.base.errors import CamcalError
 from camcal.cli.options import (every_option, expand_glob, handler, max_fov_option, named_option, out_option,
-                                output_folder, report_option, rig_argument)
+                                output_folder, report_option, rig_argument, sigma_options)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -29,6 +29,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     out_option(parser, "FILE.rig.json", "the rectified rig")
     parser.add_argument("--write", metavar="DIR", help="write rectified images to DIR/<camera>/")
     report_option(parser, "write DIR/rectification.json with the figures")
+    sigma_options(parser, "per pair of consecutive cameras A-B, A-B_vertical_sigma.exr (the sigma of the vertical "
+                  "disparity, rectified pixels) and with --distance A-B_depth_sigma.exr (the sigma of the depth at "
+                  "that distance, rig units), pixel for pixel with A's rectified images, into the --write DIR (or "
+                  "the --report DIR); --method camera only")
     handler(parser, _rectify)
 
 
@@ -53,6 +57,10 @@ def _rectify(args: argparse.Namespace) -> int:
         raise CamcalError(f"--alpha must be in [0, 1], got {args.alpha}")
     if args.write and not args.images:
         raise CamcalError("--write needs --images NAME=GLOB for the cameras to rectify")
+    if args.sigma and not (args.write or args.report):
+        raise CamcalError("--sigma needs --write DIR or --report DIR for its EXRs")
+    if args.sigma and (args.method != "camera" or args.refine):
+        raise CamcalError("--sigma needs --method camera without --refine (a rotation of the calibrated cameras)")
     rig = Rig.load(args.rig)
     for name in args.images:
         rig.camera(name)
@@ -72,7 +80,13 @@ def _rectify(args: argparse.Namespace) -> int:
         matches = None
     method = {"camera": "Nozick 2011" if args.refine else "camera", "hartley": "Hartley 1999"}[args.method]
     result = rectify(rig, method, matches, names, args.alpha, args.max_fov)
-    written = []
+    pairs = []
+    if args.sigma:
+        from camcal.geometry.rectify.sigma import rectified_pair_sigma
+
+        pairs = [rectified_pair_sigma(result.rig.camera(a), result.rig.camera(b), args.distance, units=rig.units)
+                 for a, b in zip(result.names, result.names[1:])]
+    written, sigma_files = [], []
     with output_folder(args.write) as write_dir, output_folder(args.report) as report_dir:
         if write_dir is not None:
             warper = RectifyWarper(result.rig)
@@ -80,15 +94,31 @@ def _rectify(args: argparse.Namespace) -> int:
                 written += write_rectified(warper, name, images.get(name, []), write_dir, args.every)
         if report_dir is not None:
             write_json(report_dir / "rectification.json", result.to_report())
+        if pairs:
+            from camcal.io.stmap import write_sigma_map
+
+            sigma_dir, final_dir = (write_dir, args.write) if write_dir is not None else (report_dir, args.report)
+            for pair in pairs:
+                stem = sigma_dir / f"{pair.first}-{pair.second}"
+                sigma_files.append(write_sigma_map(f"{stem}_vertical_sigma.exr", pair.vertical_px))
+                if pair.depth is not None:
+                    sigma_files.append(write_sigma_map(f"{stem}_depth_sigma.exr", pair.depth))
         result.rig.save(args.out)
     written = [final_path(path, write_dir, args.write) for path in written]
+    if sigma_files:
+        sigma_files = [final_path(path, sigma_dir, final_dir) for path in sigma_files]
     print(result.summary())
+    for pair in pairs:
+        print(pair.describe())
     out = summary_of(args)
     out.figures(**result.to_report())
+    if pairs:
+        out.figures(sigma=[pair.to_dict() for pair in pairs])
     out.wrote_each(written, "image")
     if written:
         print(f"wrote {len(written)} rectified image(s) to {args.write}")
     if args.report:
         out.wrote(Path(args.report) / "rectification.json", "report")
+    out.wrote_each(sigma_files, "sigma", say=True)
     out.wrote(args.out, "rig")
     return 0

@@ -18,6 +18,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, metavar="SIGMA.EXR",
                         help="one-channel float EXR, plate-sized (pixel for pixel with the plate and the "
                              "camera's redistort ST-map)")
+    parser.add_argument("--heatmap", metavar="FILE.png",
+                        help="also write the map as a heat map PNG, pixel for pixel (viridis from 0 to its worst "
+                             "value): the Blender add-on shows it as the camera's background overlay")
     handler(parser, _sigma)
 
 
@@ -31,8 +34,15 @@ def _sigma(args: argparse.Namespace) -> int:
     sigma = projection_sigma_map(camera, args.distance)
     summary = summarise_sigma(sigma, args.distance)
     path = write_sigma_map(args.out, sigma)
+    heatmap = None
+    if args.heatmap:
+        from camcal.report.sigma import write_heatmap_png
+
+        heatmap = write_heatmap_png(sigma, args.heatmap)
     print(f"{args.camera}: {summary.describe()}")
     out = summary_of(args)
     out.figures(camera=args.camera, sigma=summary.to_dict())
     out.wrote(path, "sigma")
+    if heatmap is not None:
+        out.wrote(heatmap, "heatmap")
     return 0

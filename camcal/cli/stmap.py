@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import camera_option, handler, out_option, rig_argument, sigma_options
+from camcal.base.errors import CamcalError
+from camcal.cli.options import camera_option, handler, out_option, report_option, rig_argument, sigma_options
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -18,6 +19,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     out_option(parser, "DIR")
     sigma_options(parser, "NAME_sigma.exr (plate-sized, with the redistort map) and NAME_undistort_sigma.exr "
                   "(with the undistort map): the projection sigma in plate pixels")
+    report_option(parser, "with --sigma, write DIR/sigma_NAME.png and DIR/undistort_sigma_NAME.png: the sigma maps "
+                  "as heat maps with a colour bar")
     handler(parser, _stmap)
 
 
@@ -25,9 +28,13 @@ def _stmap(args: argparse.Namespace) -> int:
     """Write NAME_undistort.exr and NAME_redistort.exr (R = (x + 0.5) / W, G = 1 - (y + 0.5) / H of the pixel to
     sample) and the undistorted rig.
     """
-    from camcal.io.stmap import write_stmap_sigmas, write_stmaps
+    from camcal.base.atomic import final_path
+    from camcal.cli.options import output_folder
+    from camcal.io.stmap import read_sigma_map, write_stmap_sigmas, write_stmaps
     from camcal.model.rig import Rig
 
+    if args.report and not args.sigma:
+        raise CamcalError("--report draws the sigma maps: give --sigma too")
     rig = Rig.load(args.rig)
     paths = write_stmaps(rig, args.camera, args.out, args.overscan)
     print(f"ST-maps of {args.camera!r} with overscan {args.overscan:g}")
@@ -43,4 +50,14 @@ def _stmap(args: argparse.Namespace) -> int:
         out.figures(sigma=plate.to_dict(), undistort_sigma=undistorted.to_dict())
         for path, _ in sigmas:
             out.wrote(path, "sigma")
+        if args.report:
+            from camcal.report.sigma import plot_sigma_map
+
+            where = "at infinity" if args.distance is None else f"at distance {args.distance:g}"
+            with output_folder(args.report) as report_dir:
+                plots = [plot_sigma_map(read_sigma_map(path), report_dir / f"{kind}_{args.camera}.png",
+                                        f"{args.camera}: projection sigma {where} ({what})")
+                         for (path, _), kind, what in zip(sigmas, ("sigma", "undistort_sigma"),
+                                                          ("plate", "undistorted canvas"))]
+            out.wrote_each([final_path(path, report_dir, args.report) for path in plots], "report", say=True)
     return 0

@@ -33,6 +33,7 @@ def stage_calibrate_board(ctx: DemoContext) -> StageResult:
     from camcal.pipelines.board import detect_in_images  # noqa: PLC0415
     from camcal.geometry.zhang import calibrate_board  # noqa: PLC0415
     from camcal.report.calibration import write_report  # noqa: PLC0415
+    from camcal.report.sigma import write_sigma_heatmaps  # noqa: PLC0415
 
     truth = ctx.truth
     images = ctx.need("board_images", "calibrate board")
@@ -41,6 +42,7 @@ def stage_calibrate_board(ctx: DemoContext) -> StageResult:
     result = calibrate_board(board, detections, model="division", units="m")
     rig_path = result.rig.save(ctx.path("calibrate", "board.rig.json"))
     plots = write_report(result, ctx.out_dir / "calibrate")
+    sigma_plots = write_sigma_heatmaps(result.rig.cameras, ctx.out_dir / "calibrate")
     ctx.artifacts["board_rig"] = rig_path
     rows = []
     stage = "calibrate board"
@@ -63,6 +65,8 @@ def stage_calibrate_board(ctx: DemoContext) -> StageResult:
     relative_t, relative_r = right_t.R @ left_t.R.T, right_r.R @ left_r.R.T
     rows.append(DemoRow(stage, "relative rotation error", 0.0, rotation_angle_deg(relative_r @ relative_t.T),
                         rotation_angle_deg(relative_r @ relative_t.T), 0.02, "deg", "issue 3"))
+    sigma_row, sigma_text = _sigma_row(stage, board, detections["left"], result.rig.camera("left"), truth)
+    rows.append(sigma_row)
     residual_plot = plot_residuals(ctx.path("plots", "board_residuals.png"), result.rig.cameras,
                                     result.camera_of_point, result.points_px,
                                     -result.residuals_px)  # zhang's residuals_px are projected - detected
@@ -71,9 +75,27 @@ def stage_calibrate_board(ctx: DemoContext) -> StageResult:
                f"--report calibrate")
     body = (f"<pre>{html.escape(command)}</pre><pre>{html.escape(result.summary())}</pre>"
             f"{img_tag(ctx, residual_plot)}"
-            + "".join(img_tag(ctx, p, width=320) for p in plots))
+            + "".join(img_tag(ctx, p, width=320) for p in plots)
+            + f"<h3>Projection uncertainty</h3><p>{html.escape(sigma_text)}</p>"
+            + "".join(img_tag(ctx, p, width=420) for p in sigma_plots))
     return StageResult(tuple(rows), (("board calibration (board.rig.json)", rig_path),),
                        (ReportSection("Chessboard calibration", body, "calibrate-board"),))
+
+
+def _sigma_row(stage: str, board, detections, camera, truth) -> tuple[DemoRow, str]:
+    """The left camera's projection sigma against its true error in the board gauge (:mod:`camcal.demo.sigma_check`)."""
+    from camcal.demo.sigma_check import TOLERANCE_SIGMA, sigma_against_truth  # noqa: PLC0415
+    from camcal.geometry.board import frame_number  # noqa: PLC0415
+
+    # the left camera is the rig's frame: its true cam_from_board is the board pose itself
+    rotations = [truth.board_poses[frame_number(detection.image) - 1][0] for detection in detections]
+    error, sigma, ratio = sigma_against_truth(camera, truth.rig.camera("left"), board, detections, rotations)
+    text = (f"left camera, rays at infinity, 63 pixels over the frame, mrcal 2.2's board gauge: true projection "
+            f"error RMS {error:.3f} px, predicted sigma RMS {sigma:.3f} px, error / sigma RMS {ratio:.2f}. One "
+            f"calibration is one draw of its error: a 2-D Gaussian error exceeds {TOLERANCE_SIGMA:.2f} sigma with "
+            f"probability 0.27 %, the row's tolerance.")
+    return DemoRow(stage, "left projection error / sigma, RMS over the frame", error, sigma, ratio, TOLERANCE_SIGMA,
+                   "sigma", "issue 30"), text
 
 
 # -- stage: distortion fit (+ ST-maps) ----------------------------------------------------
@@ -103,16 +125,22 @@ def stage_distortion_fit(ctx: DemoContext) -> StageResult:
     ]
     board_rig = ctx.need("board_rig", stage)
     stmap_dir = ctx.out_dir / "stmap"
-    run_cli(["stmap", str(board_rig), "--camera", "left", "--out", str(stmap_dir)], stage)
+    stmap_argv = ["stmap", str(board_rig), "--camera", "left", "--out", str(stmap_dir), "--sigma", "--report",
+                  str(stmap_dir / "report")]
+    run_cli(stmap_argv, stage)
     outputs = (("plumb-line lens (left.lens.json)", lens),
                ("ST-map undistort, left (EXR)", stmap_dir / "left_undistort.exr"),
-               ("ST-map redistort, left (EXR)", stmap_dir / "left_redistort.exr"))
+               ("ST-map redistort, left (EXR)", stmap_dir / "left_redistort.exr"),
+               ("projection sigma, left (EXR, with the redistort map)", stmap_dir / "left_sigma.exr"))
     shown = ["distortion", "fit", str(Path(images[0]).parent / "*.png"), *argv[2 + len(images):]]
     body = (f"<pre>{html.escape(command_line(shown, ctx))}</pre>"
             f"<p>Plumb-line fit on the rows and columns of the left camera's chessboard views: lambda "
             f"{lam_r:.4e} (true {lam_t:.4e}), centre ({centre_r[0]:.2f}, {centre_r[1]:.2f}) px (true "
             f"({centre_t[0]:.2f}, {centre_t[1]:.2f})). ST-maps of the board calibration's left camera for comp "
-            f"packages (Nuke STMap):</p><pre>{html.escape(command_line(['stmap', str(board_rig), '--camera', 'left', '--out', str(stmap_dir)], ctx))}</pre>")
+            f"packages (Nuke STMap), with the projection sigma beside each map:</p>"
+            f"<pre>{html.escape(command_line(stmap_argv, ctx))}</pre>"
+            + "".join(img_tag(ctx, stmap_dir / "report" / f"{kind}_left.png", width=420)
+                      for kind in ("sigma", "undistort_sigma")))
     return StageResult(tuple(rows), outputs, (ReportSection("Lens distortion (plumb-line) and ST-maps", body, "distortion"),))
 
 

@@ -25,9 +25,11 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleResult
 from camcal.geometry.selfcal import SelfCalibration
+from camcal.geometry.uncertainty import covariance_from_colmap, projection_sigma, sigma_grid
 from camcal.model.colmap import camera_from_colmap
 from camcal.model.camera import from_colmap, pixels_from_colmap
-from camcal.model.rig import Frame, Rig, make_provenance
+from camcal.model.quality import ParameterCovariance
+from camcal.model.rig import Camera, Frame, Rig, make_provenance
 
 __all__ = [
     "MIN_TRIANGULATION_ANGLE_DEG",
@@ -250,6 +252,35 @@ def _quality_sigma(sigmas: dict[str, float], camera: str, model: str, focal: flo
     return out
 
 
+def _projection_quality(rig: Rig, camera: Camera, bundle: BundleResult, calibration: SelfCalibration | None) -> dict:
+    """``covariance`` and ``worst_projection_sigma_px`` of a solved camera (:mod:`camcal.geometry.uncertainty`:
+    its intrinsics and rig pose, no scene gauge), empty without a covariance.
+
+    With the delete-one-frame jackknife the covariance is scaled by its design effect
+    ``max(1, mean_k (sigma_jack,k / sigma_k)^2)`` over the camera's parameters (Kish's, per parameter: the
+    features' errors are correlated within a frame, as :func:`camcal.geometry.view_jackknife.design_effect`
+    scales a board calibration's)."""
+    state = bundle.state
+    if not len(bundle.covariance_names) or camera.name not in state.camera_names:
+        return {}
+    order = [rig.camera(name) for name in state.camera_names]
+    covariance = covariance_from_colmap(order, state.models, state.params,
+                                        [state.param_names(k) for k in range(len(order))], bundle.covariance_names,
+                                        bundle.covariance, state.camera_names.index(camera.name))
+    if covariance is None:
+        return {}
+    if calibration is not None and calibration.jackknife_sigmas:
+        prefix = f"{camera.name}."
+        ratios = [(calibration.jackknife_sigmas[key] / value) ** 2 for key, value in calibration.covariance_sigmas.items()
+                  if key.startswith(prefix) and value > 0 and key in calibration.jackknife_sigmas]
+        factor = max(1.0, float(np.mean(ratios))) if ratios else 1.0
+        covariance = ParameterCovariance(covariance.names, factor * covariance.array)
+    xs, ys = sigma_grid(camera.image_size, 16.0)
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    worst = float(np.nanmax(projection_sigma(camera, grid, covariance=covariance)))
+    return {"covariance": covariance, "worst_projection_sigma_px": worst}
+
+
 def _with_quality(rig: Rig, per_camera: dict[str, tuple[float, int]], bundle: BundleResult | None,
                   calibration: SelfCalibration | None) -> Rig:
     cameras = []
@@ -265,6 +296,7 @@ def _with_quality(rig: Rig, per_camera: dict[str, tuple[float, int]], bundle: Bu
             index = bundle.state.camera_names.index(camera.name)
             quality["sigma"] = _quality_sigma(bundle.sigmas, camera.name, bundle.state.models[index],
                                               float(bundle.state.params[index][0]))
+            quality.update(_projection_quality(rig, camera, bundle, calibration))
         cameras.append(dataclasses.replace(camera, quality=quality))
     return dataclasses.replace(rig, cameras=tuple(cameras))
 

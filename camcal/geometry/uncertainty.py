@@ -46,18 +46,21 @@ section 5.2 (forward propagation of covariance, ``J Sigma J^T``).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.model.colmap import camera_from_colmap
 from camcal.model.distortion import Distortion
 from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera
 
-__all__ = ["GAUGE", "POSE", "SigmaSummary", "camera_covariance", "projection_covariance", "projection_jacobian", "projection_sigma",
-           "projection_sigma_map", "sigma_grid", "summarise_sigma"]
+__all__ = ["GAUGE", "POSE", "SigmaSummary", "camera_covariance", "covariance_from_colmap", "perturbed_lens", "projection_covariance",
+           "projection_jacobian", "projection_sigma", "projection_sigma_map", "sigma_grid", "summarise_sigma",
+           "upsample_grid"]
 
 #: Names of the board gauge in a camera's covariance (module docstring).
 GAUGE = ("gauge_rx", "gauge_ry", "gauge_rz", "gauge_tx", "gauge_ty", "gauge_tz")
@@ -77,6 +80,61 @@ def camera_covariance(camera: Camera) -> ParameterCovariance:
     return covariance
 
 
+def _camcal_values(camera: Camera, model: str, params: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``fx, fy, cx, cy`` and ``camera``'s distortion parameters of the camcal camera of COLMAP ``params``."""
+    lens = camera_from_colmap(camera.name, model, camera.image_size, params, np.eye(3), np.zeros(3))
+    return np.r_[lens.K[0, 0], lens.K[1, 1], lens.K[0, 2], lens.K[1, 2],
+                 [lens.distortion.params.get(key, 0.0) for key in camera.distortion.params]]
+
+
+def covariance_from_colmap(cameras: Sequence[Camera], models: Sequence[str], params: Sequence[ArrayLike],
+                           colmap_names: Sequence[Sequence[str]], names: Sequence[str], matrix: ArrayLike,
+                           index: int) -> ParameterCovariance | None:
+    """Camera ``index``'s ``quality.covariance`` from a bundle adjustment's covariance over COLMAP's parameters.
+
+    ``names`` / ``matrix``: :attr:`camcal.geometry.bundle.BundleResult.covariance` and its names
+    (``CAMERA.f``, ``CAMERA.k``, ``CAMERA.rx`` ...). Each camera's free COLMAP parameters ``p`` are carried
+    to camcal's ``theta = (fx, fy, cx, cy, distortion)`` of :func:`camcal.model.colmap.camera_from_colmap` by
+    ``A = dtheta/dp`` (central differences), ``Sigma_theta = A Sigma_p A^T``; the rig pose ``rx .. tz``
+    (rotation vector on the left of ``cam_from_reference``, translation) is kept as it is. The camera's own
+    parameters take their plain names; the earlier cameras' (``cameras[:index]``) keep ``NAME.param``, the
+    cross-covariance a pair's figures use. None when the camera has no free parameter in it.
+    """
+    names = list(names)
+    matrix = np.asarray(matrix, dtype=np.float64)
+    rows, out_names = [], []
+    for j in range(index + 1):
+        camera = cameras[j]
+        prefix = "" if j == index else f"{camera.name}."
+        p0 = np.asarray(params[j], dtype=np.float64)
+        free = [(k, names.index(f"{camera.name}.{n}")) for k, n in enumerate(colmap_names[j])
+                if f"{camera.name}.{n}" in names]
+        labels = [prefix + n for n in ("fx", "fy", "cx", "cy", *camera.distortion.params)]
+        if free:
+            A = np.zeros((len(labels), len(free)))
+            for c, (k, _) in enumerate(free):
+                h = 1e-6 * max(abs(p0[k]), 1e-3)
+                step = np.zeros_like(p0)
+                step[k] = h
+                A[:, c] = (_camcal_values(camera, models[j], p0 + step)
+                           - _camcal_values(camera, models[j], p0 - step)) / (2.0 * h)
+            rows.append((A, [m for _, m in free]))
+            out_names += labels
+        pose = [names.index(f"{camera.name}.{axis}") for axis in POSE if f"{camera.name}.{axis}" in names]
+        if pose:
+            rows.append((np.eye(len(pose)), pose))
+            out_names += [prefix + axis for axis in POSE if f"{camera.name}.{axis}" in names]
+    if not any(name in out_names for name in ("fx", "rx")):
+        return None
+    T = np.zeros((len(out_names), len(names)))
+    r = 0
+    for A, source in rows:
+        T[r:r + A.shape[0], source] = A
+        r += A.shape[0]
+    covariance = T @ matrix @ T.T
+    return ParameterCovariance(tuple(out_names), 0.5 * (covariance + covariance.T))
+
+
 def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
     """``[v]x`` for each row of ``v`` (N, 3) -> (N, 3, 3)."""
     out = np.zeros(v.shape[:-1] + (3, 3))
@@ -86,11 +144,15 @@ def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
-def _perturbed(camera: Camera, name: str, step: float) -> tuple[NDArray[np.float64], Distortion]:
-    """K and distortion with intrinsic ``name`` moved by ``step``."""
+def perturbed_lens(camera: Camera, name: str, step: float) -> tuple[NDArray[np.float64], Distortion]:
+    """K and distortion with intrinsic ``name`` moved by ``step``; a distortion centre stored at the principal
+    point (COLMAP's division cameras) is the principal point and moves with it."""
     K = np.array(camera.K, dtype=np.float64)
     if name in _K_ENTRIES:
         K[_K_ENTRIES[name]] += step
+        centre = camera.distortion.center
+        if name in ("cx", "cy") and centre is not None and np.allclose(centre, camera.K[:2, 2], rtol=0, atol=1e-9):
+            return K, dataclasses.replace(camera.distortion, center=(K[0, 2], K[1, 2]))
         return K, camera.distortion
     params = dict(camera.distortion.params)
     params[name] += step
@@ -114,9 +176,11 @@ def projection_covariance(camera: Camera, pixels_px: ArrayLike, distance: float 
         infinity.
     covariance : ParameterCovariance, optional
         Defaults to ``camera.quality.covariance``. Names it lacks (no
-        gauge, no pose) contribute nothing; names it has that are neither
-        the camera's intrinsics, :data:`POSE` nor :data:`GAUGE` are an
-        error.
+        gauge, no pose) contribute nothing, nor do other cameras'
+        parameters ``NAME.param`` (the cross-covariance a pair's figures
+        use, :mod:`camcal.geometry.rectify.sigma`); any other name that is
+        neither the camera's intrinsics, :data:`POSE` nor :data:`GAUGE` is
+        an error.
 
     Returns
     -------
@@ -137,7 +201,7 @@ def projection_jacobian(camera: Camera, pixels_px: ArrayLike, distance: float | 
     pixels = np.asarray(pixels_px, dtype=np.float64).reshape(-1, 2)
     names, C = covariance.names, covariance.array
     intrinsic = set(_K_ENTRIES) | set(camera.distortion.params)
-    unknown = [n for n in names if n not in intrinsic and n not in POSE and n not in GAUGE]
+    unknown = [n for n in names if n not in intrinsic and n not in POSE and n not in GAUGE and "." not in n]
     if unknown:
         raise CamcalError(f"camera {camera.name!r}: covariance names {', '.join(unknown)} are not parameters of its "
                           f"{camera.distortion.model} lens, its pose or the gauge")
@@ -154,8 +218,8 @@ def projection_jacobian(camera: Camera, pixels_px: ArrayLike, distance: float | 
         if name not in intrinsic or sigmas[k] == 0.0:
             continue
         h = 1e-3 * sigmas[k]
-        K_p, d_p = _perturbed(camera, name, h)
-        K_m, d_m = _perturbed(camera, name, -h)
+        K_p, d_p = perturbed_lens(camera, name, h)
+        K_m, d_m = perturbed_lens(camera, name, -h)
         J[:, :, k] = (d_p.project_rays(p, K_p) - d_m.project_rays(p, K_m)) / (2.0 * h)
     # dq/dp: central differences along the camera axes
     h = 1e-6 * np.linalg.norm(p, axis=1, keepdims=True)
@@ -222,9 +286,6 @@ def projection_sigma_map(camera: Camera, distance: float | None = None, source_p
         Worst-direction sigma in pixels of the camera's image; NaN where
         an output pixel has no source pixel or ray.
     """
-    import scipy.interpolate  # noqa: PLC0415
-    import scipy.ndimage  # noqa: PLC0415
-
     if source_px is None:
         width, height = camera.image_size
     else:
@@ -239,22 +300,37 @@ def projection_sigma_map(camera: Camera, distance: float | None = None, source_p
     ok = np.all(np.isfinite(at), axis=1)
     if ok.any():
         sigma[ok] = projection_sigma(camera, at[ok], distance, covariance)
-    sigma = sigma.reshape(len(ys), len(xs))
-    missing = ~np.isfinite(sigma)
-    if missing.any() and not missing.all():  # the nearest grid value, so that NaN does not spread by a cell
-        nearest = scipy.ndimage.distance_transform_edt(missing, return_distances=False, return_indices=True)
+    missing = None if source_px is None else ~np.all(np.isfinite(source_px), axis=-1)
+    return upsample_grid(sigma.reshape(len(ys), len(xs)), xs, ys, (width, height), missing)
+
+
+def upsample_grid(values: NDArray, xs: NDArray, ys: NDArray, size: tuple[int, int],
+                  missing: NDArray | None = None) -> NDArray[np.float32]:
+    """A (H, W) float32 image from values on the grid ``xs, ys`` (:func:`sigma_grid`): bilinear between grid
+    points, a NaN grid value replaced by its nearest finite one (so NaN does not spread by a cell), NaN where
+    ``missing`` (H, W) is True."""
+    import scipy.interpolate  # noqa: PLC0415
+    import scipy.ndimage  # noqa: PLC0415
+
+    width, height = size
+    sigma = np.asarray(values, dtype=np.float64)
+    absent = ~np.isfinite(sigma)
+    if absent.all():
+        return np.full((height, width), np.nan, dtype=np.float32)
+    if absent.any():
+        nearest = scipy.ndimage.distance_transform_edt(absent, return_distances=False, return_indices=True)
         sigma = sigma[tuple(nearest)]
     grid = scipy.interpolate.RegularGridInterpolator((ys, xs), sigma)
     v, u = np.mgrid[0:height, 0:width]
     out = grid((v.ravel().astype(float), u.ravel().astype(float))).reshape(height, width)
-    if source_px is not None:
-        out[~np.all(np.isfinite(source_px), axis=-1)] = np.nan
+    if missing is not None:
+        out[missing] = np.nan
     return out.astype(np.float32)
 
 
 @dataclass(frozen=True)
 class SigmaSummary:
-    """Worst and median projection sigma of a map, in the frame and at its four corners (pixels).
+    """Worst and median sigma of a map, in the frame and at its four corners (pixels unless ``unit`` says).
 
     Attributes
     ----------
@@ -270,25 +346,29 @@ class SigmaSummary:
     median_px: float
     corners_px: tuple[float, float, float, float]
     distance: float | None = None
+    label: str = "projection sigma"
+    unit: str = "px"
 
     def describe(self) -> str:
         """``projection sigma at infinity: worst 0.21 px, median 0.05 px; corners 0.2 / 0.19 / 0.21 / 0.18 px``."""
         where = "at infinity" if self.distance is None else f"at distance {self.distance:g}"
         corners = " / ".join(f"{c:.3g}" for c in self.corners_px)
-        return (f"projection sigma {where}: worst {self.worst_px:.3g} px, median {self.median_px:.3g} px; "
-                f"corners (TL / TR / BL / BR) {corners} px")
+        return (f"{self.label} {where}: worst {self.worst_px:.3g} {self.unit}, median {self.median_px:.3g} "
+                f"{self.unit}; corners (TL / TR / BL / BR) {corners} {self.unit}")
 
     def to_dict(self) -> dict:
-        """The figures for ``--json``."""
-        return {"worst_px": self.worst_px, "median_px": self.median_px,
-                "corners_px": [c if np.isfinite(c) else None for c in self.corners_px], "distance": self.distance}
+        """The figures for ``--json`` (keys ``worst_px``..., or ``worst_m``... for a figure in metres)."""
+        unit = self.unit
+        return {f"worst_{unit}": self.worst_px, f"median_{unit}": self.median_px,
+                f"corners_{unit}": [c if np.isfinite(c) else None for c in self.corners_px], "distance": self.distance}
 
 
-def summarise_sigma(sigma_map: NDArray, distance: float | None = None) -> SigmaSummary:
+def summarise_sigma(sigma_map: NDArray, distance: float | None = None, label: str = "projection sigma",
+                    unit: str = "px") -> SigmaSummary:
     """:class:`SigmaSummary` of a sigma map (NaN pixels ignored)."""
     values = np.asarray(sigma_map, dtype=np.float64)
     finite = values[np.isfinite(values)]
     if finite.size == 0:
         raise CamcalError("the sigma map has no finite value")
     corners = tuple(float(values[i, j]) for i, j in ((0, 0), (0, -1), (-1, 0), (-1, -1)))  # NaN: no source pixel
-    return SigmaSummary(float(finite.max()), float(np.median(finite)), corners, distance)
+    return SigmaSummary(float(finite.max()), float(np.median(finite)), corners, distance, label, unit)

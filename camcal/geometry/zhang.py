@@ -1186,8 +1186,10 @@ def quality_problems(result: CalibrationResult) -> list[str]:
 
 
 def _with_projection_sigma(camera: Camera, covariance: NDArray, labels: tuple[str, ...], model: str,
-                           jackknife: NDArray | None = None) -> Camera:
-    """The camera with ``quality.covariance`` (its intrinsics, its pose, the board gauge) and
+                           jackknife: NDArray | None = None, earlier: Sequence[str] = ()) -> Camera:
+    """The camera with ``quality.covariance`` (its intrinsics, its pose, the board gauge and, under their
+    ``NAME.param`` labels, the intrinsics and poses of the ``earlier`` cameras: the cross-covariance a
+    pair's figures need, :mod:`camcal.geometry.rectify.sigma`) and
     ``quality.worst_projection_sigma_px`` (at infinity, over a 16-pixel grid of the frame;
     :mod:`camcal.geometry.uncertainty`).
 
@@ -1197,6 +1199,7 @@ def _with_projection_sigma(camera: Camera, covariance: NDArray, labels: tuple[st
     errors are correlated within a view. ``quality.sigma`` (per parameter)
     stays the corners' covariance."""
     pairs = [(f"{camera.name}.{label}", label) for label in _INTRINSICS + MODELS[model] + POSE]
+    pairs += [(f"{other}.{label}",) * 2 for other in earlier for label in _INTRINSICS + MODELS[model] + POSE]
     pairs = [(label, name) for label, name in pairs + list(zip(GAUGE_NAMES, GAUGE)) if label in labels]
     index = [labels.index(label) for label, _ in pairs]
     names = [name for _, name in pairs]
@@ -1254,6 +1257,6 @@ def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_
                     "n_observations": int(mine.sum()),
                     "sigma": sigmas,
                 },
-            ), covariance, labels, model, jackknife))
+            ), covariance, labels, model, jackknife, names[:j]))
     method = "chessboard" if board.kind == "chessboard" else "charuco"
     return Rig(tuple(cameras), units=units, provenance=make_provenance(method, board=board.spec(), model=model))

@@ -41,8 +41,11 @@ Keys (every one optional):
   (``rx, ry, rz``: rotation vector applied on the left of
   ``cam_from_reference``, radians; ``tx, ty, tz``: translation, rig units)
   and the board gauge (``gauge_rx .. gauge_tz``: the mean perturbation of
-  the board poses in the reference camera's frame, mrcal's gauge). Optional:
-  files written before it load without it.
+  the board poses in the reference camera's frame, mrcal's gauge; a
+  ``solve`` rig has none), and the intrinsics and poses of the cameras
+  before it in the rig under ``NAME.param`` (the cross-covariance a pair's
+  figures use: ``rectify --sigma``). Optional: files written before it
+  load without it.
 
 Older files are read too: ``n_points`` is ``n_observations``; sigma ``s``
 is ``skew``, ``f`` (one focal length) is ``fx`` and ``fy``; an absolute

@@ -5,9 +5,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
-from camcal.geometry.suggest import expected_worst_sigma, suggest_views
+from camcal.geometry.board import detect_board
+from camcal.geometry.suggest import expected_worst_sigma, pose_views, suggest_views
 from camcal.geometry.zhang import calibrate_board
-from tests.geometry.test_uncertainty import BOARD, posed, rendered_scene
+from tests.geometry.test_uncertainty import BOARD, board_texture, posed, render_view, rendered_scene
 
 
 def random_pose(camera, rng):
@@ -64,3 +65,65 @@ def test_no_covariance_is_one_line():
     bare = camera.__class__(camera.name, camera.image_size, camera.K, camera.distortion, camera.R, camera.c)
     with pytest.raises(CamcalError, match="worst projection sigma"):
         suggest_views(bare, BOARD.object_points, poses)
+
+
+def _recalibrated_worst(truth, detections, R, t, rng, texture):
+    """Render the board at ``(R, t)`` through the true camera, detect it, add it and recalibrate: the new
+    detections and the recalibrated camera's worst projection sigma (None when the board is not found whole)."""
+    image = render_view(truth, R, t, rng, texture)
+    found = detect_board(BOARD, image, f"cam_{len(detections):03d}.png")
+    if found is None or len(found.ids) != BOARD.n_corners:
+        return detections, None
+    detections = detections + [found]
+    camera = calibrate_board(BOARD, {"cam": detections}, model="division").rig.cameras[0]
+    return detections, camera
+
+
+def images_to_target(seed, n_start=5, n_suggested=5, max_random=15, size=(320, 240)):
+    """One rendered scene: from ``n_start`` views, five suggested views one at a time (each from the current
+    recalibration), then from the same start random views until their recalibrated worst sigma reaches the
+    suggested list's. Returns (suggested images, random images needed, or max_random + 1 when not reached)."""
+    truth, detections, _ = rendered_scene(seed, n_start, size)
+    texture = board_texture()
+    rng = np.random.default_rng(7000 + seed)
+    camera = calibrate_board(BOARD, {"cam": detections}, model="division").rig.cameras[0]
+    start, suggested = list(detections), 0
+    while suggested < n_suggested:
+        shot = suggest_views(camera, BOARD.object_points, pose_views(camera, BOARD.object_points, detections))[0]
+        # the suggestion is in the estimated camera's frame: render it through the truth (what a user would shoot)
+        detections, found = _recalibrated_worst(truth, detections, shot.R, shot.t, rng, texture)
+        if found is None:
+            break
+        camera, suggested = found, suggested + 1
+    target = camera.quality["worst_projection_sigma_px"]
+    detections, n_random = start, 0
+    while n_random <= max_random:
+        R, t = random_pose(truth, rng)
+        detections, found = _recalibrated_worst(truth, detections, R, t, rng, texture)
+        if found is None:
+            continue
+        n_random += 1
+        if found.quality["worst_projection_sigma_px"] <= target:
+            return suggested, n_random, target
+    return suggested, max_random + 1, target
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 30 open: with recalibrations on rendered corners (320x240, 5 start "
+                   "views, seeds 300-309) random views needed fewer or as many images as five suggested ones in 5 of "
+                   "10 scenes (66 random vs 50 suggested images in all, median 6 vs 5; two scenes not reached in 15): "
+                   "the suggestion ranks by expected information at the corners' noise, while the recalibrated worst "
+                   "sigma carries the delete-one-view jackknife's design effect: on seed 300 it went 0.41, 0.71, "
+                   "0.54, 0.51, 0.58 px over the five suggested views, 0.41 to 0.39 px without the design effect")
+def test_five_suggested_views_reach_a_target_with_fewer_images_than_random():
+    """Must-show, with recalibrations on rendered corners: the worst sigma five suggested views reach (each one
+    rendered, detected and recalibrated in turn) needs more random views of the same board, in >= 80 % of 10
+    seeded scenes, and in total."""
+    rows = [images_to_target(seed) for seed in range(300, 310)]
+    for seed, (suggested, random, target) in zip(range(300, 310), rows):
+        print(f"seed {seed}: target worst sigma {target:.3f} px reached by {suggested} suggested, "
+              f"{random if random <= 15 else '> 15'} random images")
+    suggested, random = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+    print(f"images to the target: suggested {suggested.sum()} in all, random {random.sum()} in all "
+          f"(median {np.median(suggested):.0f} vs {np.median(random):.0f}); fewer in {np.sum(suggested < random)}/10")
+    assert np.sum(suggested < random) >= 8 and suggested.sum() < random.sum()

@@ -205,12 +205,11 @@ def test_sigma_covers_the_error_on_rendered_boards_small():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="issue 30 open: the per-corner covariance covered 60-70 % within 2 sigma; "
-                   "scaled by the delete-one-view jackknife's design effect about 81 % (seeds 0-10), 87 % on other "
-                   "seeds: what is left is a bias common to every view (lambda), which no view-resampling sees")
 def test_sigma_covers_the_error_on_rendered_boards():
     """Must-show: over 20 seeded scenes rendered as images, |error| < 2 sigma at >= 90 % of sampled pixels and
-    median error / sigma >= 0.5, in the board gauge (mrcal 2.2's)."""
+    median error / sigma >= 0.5, in the board gauge (mrcal 2.2's). Measured on these scenes by
+    bench/bench_sigma_mrcal.py (the same functions): 93.2 % of 1260 pixels, median 0.98; mrcal 2.2 on the same
+    corners (LENSMODEL_OPENCV4) 80.4 %, median 1.34."""
     inside, median = coverage(range(20), 12)
     print(f"rendered: {100 * inside:.1f} % within 2 sigma, median error/sigma {median:.2f}")
     assert inside >= 0.9 and median >= 0.5

@@ -270,6 +270,7 @@ def test_cli_calibrates_a_real_subset(real_pair_shots, tmp_path, capsys):
     rig = Rig.load(out)
     assert [c.name for c in rig.cameras] == ["left", "right"] and rig.units == "squares"
     assert rig.cameras[1].quality["rms_px"] < 1.0 and (tmp_path / "report" / "per_image_rms.png").exists()
+    assert (tmp_path / "report" / "sigma_left.png").exists() and (tmp_path / "report" / "sigma_right.png").exists()
 
 
 @pytest.mark.parametrize(

@@ -99,3 +99,48 @@ def test_sigma_verb_help_and_bad_input(rig_file, tmp_path, capsys):
     assert main(["sigma", str(tmp_path / "old.rig.json"), "--camera", "cam", "--out", str(tmp_path / "s.exr")]) == 2
     assert "no covariance" in capsys.readouterr().err
     assert not (tmp_path / "s.exr").exists()
+
+
+def test_stmap_report_draws_the_sigma_maps_as_heat_maps(rig_file, tmp_path, capsys):
+    """The heat maps are the maps: the colour of a pixel follows its sigma (viridis, 0 at the darkest)."""
+    import cv2
+
+    out, report = tmp_path / "maps", tmp_path / "report"
+    assert main(["stmap", str(rig_file), "--camera", "cam", "--out", str(out), "--sigma", "--report", str(report),
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    plots = [report / "sigma_cam.png", report / "undistort_sigma_cam.png"]
+    assert {"path": str(plots[0]), "kind": "report"} in summary["files"]
+    for plot in plots:
+        image = cv2.imread(str(plot))
+        assert image is not None and image.shape[0] > 200 and image.std() > 10
+    assert main(["stmap", str(rig_file), "--camera", "cam", "--out", str(tmp_path / "x"), "--report",
+                 str(tmp_path / "r")]) == 2
+    assert "give --sigma too" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def test_heat_map_follows_the_values(tmp_path):
+    """A ramp drawn as a heat map: the image's brightness rises along the ramp (viridis is ordered in lightness)."""
+    import cv2
+
+    from camcal.report.sigma import plot_sigma_map
+
+    ramp = np.tile(np.linspace(0.0, 1.0, 200, dtype=np.float32), (100, 1))
+    ramp[:, :20] = np.nan
+    image = cv2.imread(str(plot_sigma_map(ramp, tmp_path / "ramp.png", "ramp")), cv2.IMREAD_GRAYSCALE)
+    row = image[image.shape[0] // 2].astype(float)
+    dark = np.argmin(row[: image.shape[1] // 2])
+    assert row[dark] < 80 and row.max() > 180
+
+
+def test_sigma_verb_heatmap_is_pixel_for_pixel(rig_file, tmp_path, capsys):
+    import cv2
+
+    from camcal.report.sigma import heatmap_image
+
+    out, png = tmp_path / "sigma.exr", tmp_path / "sigma.png"
+    assert main(["sigma", str(rig_file), "--camera", "cam", "--out", str(out), "--heatmap", str(png), "--json"]) == 0
+    assert {"path": str(png), "kind": "heatmap"} in json.loads(capsys.readouterr().out)["files"]
+    rgb = cv2.imread(str(png))[..., ::-1]
+    assert rgb.shape == (240, 320, 3)
+    assert np.array_equal(rgb, heatmap_image(read_sigma_map(out)))
