@@ -74,3 +74,24 @@ def test_auto_takes_the_field_only_where_the_lens_has_one():
     smooth = calibrate_board(BOARD, views(camera(None), 24, 2), holdout=held)
     assert not smooth.model.endswith(SPLINE_SUFFIX), [s.describe() for s in smooth.model_ranking]
     assert any(s.model.endswith(SPLINE_SUFFIX) and s.rms_px is not None for s in smooth.model_ranking)
+
+
+def test_undistortion_maps_and_exports_carry_the_field():
+    """Remap maps sample through the field; exports take the nearest parametric model and say how far it is."""
+    from camcal.geometry.remap import build_maps
+    from camcal.io.conversion import nearest_camera
+    from camcal.model.colmap import camera_to_colmap
+
+    truth = camera(bumpy_field())
+    maps = build_maps(truth, np.eye(3), SIZE)
+    xs, ys = np.meshgrid(np.arange(100, 1200, 100), np.arange(100, 900, 100))
+    expected = truth.distortion.distort(np.column_stack([xs.ravel(), ys.ravel()]), truth.K)
+    sampled = np.column_stack([maps.map_x[ys.ravel(), xs.ravel()], maps.map_y[ys.ravel(), xs.ravel()]])
+    assert np.abs(sampled - expected).max() < 1e-3  # float32 maps
+    plain = Camera(truth.name, SIZE, truth.K, KB, truth.R, truth.c)
+    assert np.abs(build_maps(plain, np.eye(3), SIZE).map_x[ys.ravel(), xs.ravel()] - sampled[:, 0]).max() > 1.0
+    converted, conversion = nearest_camera(truth, lambda d: d.model == "kannala-brandt", "kannala-brandt", "fisheye")
+    assert not converted.distortion.has_correction and not conversion.exact
+    assert 0.5 < conversion.max_px < 10.0  # the field's few pixels, what the nearest model loses
+    with pytest.raises(CamcalError, match="correction field"):
+        camera_to_colmap(truth)
