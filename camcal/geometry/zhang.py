@@ -36,10 +36,14 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
 6. Held-out views (``holdout``) are not used in the fit; each is then
    posed by PnP with the fitted intrinsics held (the same engine, one frame
    per view) and their RMS is reported beside the training RMS. With
-   ``model="auto"`` every pinhole model (:data:`AUTO_MODELS`; a fisheye
-   is asked for by name) is fitted with every 4th training frame held
-   out, the one with the lowest RMS on those is kept and fitted on all
-   training frames: the choice never sees ``holdout``.
+   ``model="auto"`` every model of :data:`AUTO_MODELS` is fitted with
+   every 4th training frame held out, the simplest within 1 % of the
+   lowest RMS on those is kept and fitted on all training frames: the
+   choice never sees ``holdout``. One camera with enough views: the best
+   model is also scored with a smooth correction field over the image
+   (``<model>+spline``, :mod:`camcal.geometry.spline_fit`), taken only
+   when it is better held out by more than 1 % and by more than one
+   standard error of the paired per-view differences.
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
@@ -690,7 +694,12 @@ def calibrate_board(
         every training view, and if that fit fails or fails
         :func:`quality_problems`, the next in the ranking is (said in
         :attr:`CalibrationResult.notes`). The ranking is
-        :attr:`CalibrationResult.model_ranking`.
+        :attr:`CalibrationResult.model_ranking`. One camera with at least
+        :data:`SPLINE_MIN_VIEWS` training views and the plain loss: the
+        best model with a correction field (``<model>+spline``) is ranked
+        too and taken first when :func:`_spline_chosen` says so. A model
+        with a correction field can be named (``kannala-brandt+spline``;
+        one camera, no given intrinsics).
     units : str
         Name of the board's length unit, stored in the rig.
     outlier_factor, min_outlier_px : float
@@ -1285,7 +1294,7 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict]):
     """RMS of the held-out views, each posed by PnP with the fitted intrinsics held.
 
     Each view's ``cam_from_board`` minimises ``sum |project(K, d, R X + t) -
-    x|^2`` over its six pose parameters alone (``scipy.optimize.least_squares``,
+    x|^2`` over its six pose parameters alone (:func:`camcal.geometry.spline_fit.pose_view`:
     Levenberg-Marquardt, camcal's own projection of the fitted lens, so every
     model is measured alike), started from OpenCV's ``solvePnP`` on the
     undistorted corners. A view is posed on its own: a corner seen in one

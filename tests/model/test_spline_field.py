@@ -77,3 +77,14 @@ def test_rig_file_round_trip_and_refusals():
         SplineField(SIZE, np.zeros((3, 10, 2)))
     with pytest.raises(CamcalError, match="image_size"):
         SplineField.from_dict({"image_size": [1280.5, 960], "coefficients": [[[0, 0]] * 4] * 4})
+
+
+def test_a_rig_file_keeps_the_field(tmp_path):
+    from camcal.model.rig import Camera, Rig
+
+    lens = Distortion("kannala-brandt", {"k1": -0.02, "k2": 0.01, "k3": 0.0, "k4": 0.0}, correction=smooth_field(8))
+    Rig((Camera("wide", SIZE, K, lens, np.eye(3), np.zeros(3)),)).save(tmp_path / "rig.json")
+    loaded = Rig.load(tmp_path / "rig.json").cameras[0]
+    assert loaded.distortion == lens
+    q = pixels(50, 9)
+    assert np.array_equal(loaded.distortion.undistort(q, K), lens.undistort(q, K))
