@@ -8,8 +8,8 @@ line when absent). Training RMS is printed beside each held-out figure. The last
 ``ours X, best peer Y (which), ours / best Z`` (issue 27 asks Z <= 0.97).
 
 mrcal runs ``LENSMODEL_OPENCV8`` and ``LENSMODEL_SPLINED_STEREOGRAPHIC`` on two grids (16x12 and 10x8 knots,
-order 3; ``fov_x_deg`` from camcal's fit of the same training views, the image width's angle plus 10 %), each
-seeded with OpenCV's default fit's focal length; the best of its configurations is its figure.
+order 3; ``fov_x_deg`` the image width's angle under OpenCV's rational fit plus 10 %), each seeded with OpenCV's
+default fit's focal length (:func:`mrcal_seed`); the best of its configurations is its figure.
 
 Usage: python bench/bench_lens_models.py [--cache DIR] DIR PATTERN COLUMNS ROWS [DIR PATTERN COLUMNS ROWS ...]
 (default: ../shared/data/stereo_chessboard left*.jpg and right*.jpg, 9x6). ``--cache DIR`` keeps each set's SB
@@ -93,6 +93,20 @@ def opencv_models(board, train, size):
         print(f"  opencv fisheye: failed ({error})")
 
 
+def mrcal_seed(cameras: dict, size) -> tuple[float, float]:
+    """mrcal's ``--focal`` (OpenCV's default fit's fx) and the field of view across the image (OpenCV's rational
+    fit, or its fisheye fit where the rational one has no ray at the edges): the peer's set-up owes nothing to camcal."""
+    focal = float(next(iter(cameras.values())).K[0, 0])
+    for name in ("rational", "fisheye"):
+        if name in cameras:
+            camera = cameras[name]
+            edges = camera.distortion.rays_from_pixels(np.array([[0.0, camera.K[1, 2]], [size[0] - 1.0, camera.K[1, 2]]]),
+                                                       camera.K)
+            if np.all(np.isfinite(edges)):
+                return focal, float(np.degrees(np.arccos(np.clip(edges[0] @ edges[1], -1.0, 1.0))))
+    return focal, 170.0
+
+
 def mrcal_models(board, train, held, size, focal: float, fov_x_deg: float):
     """(name, train RMS, held-out RMS) of mrcal's OPENCV8 and splined stereographic fits (bench/mrcal_peer.py)."""
     if not Path(MRCAL_PYTHON).exists():
@@ -126,17 +140,14 @@ def run(folder: Path, pattern: str, columns: int, rows: int, cache: Path | None)
     for score in result.model_ranking:
         print(f"  camcal {score.describe()}")
     print(f"  camcal default ({result.model}): {ours:.4f} px held out, {result.rms_px:.4f} px training")
-    peers, focal = {}, None
+    peers, cameras = {}, {}
     for name, camera in opencv_models(board, train, size):
-        focal = focal or float(camera.K[0, 0])
+        cameras[name] = camera
         try:
             peers[f"opencv {name}"] = (posed_rms(board, camera, held), posed_rms(board, camera, train))
         except Exception as error:  # noqa: BLE001
             print(f"  opencv {name}: posing failed ({error})")
-    camera = result.rig.cameras[0]
-    edges = camera.distortion.rays_from_pixels(np.array([[0.0, camera.K[1, 2]], [size[0] - 1.0, camera.K[1, 2]]]), camera.K)
-    fov_x = float(np.degrees(np.arccos(np.clip(edges[0] @ edges[1], -1, 1)))) if np.all(np.isfinite(edges)) else 170.0
-    for name, train_rms, held_rms in mrcal_models(board, train, held, size, focal or float(camera.K[0, 0]), fov_x):
+    for name, train_rms, held_rms in mrcal_models(board, train, held, size, *mrcal_seed(cameras, size)):
         peers[f"mrcal {name}"] = (held_rms, train_rms)
     for name, (held_rms, train_rms) in peers.items():
         print(f"  {name}: {held_rms:.4f} px held out, {train_rms:.4f} px training")

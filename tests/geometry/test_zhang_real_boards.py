@@ -100,12 +100,16 @@ def mrcal_measured(measured):
     board, views = load(name)
     held = [d for n, d in enumerate(views) if n % 6 == 0]
     train = [d for n, d in enumerate(views) if n % 6]
-    camera = result.rig.cameras[0]
-    size = camera.image_size
-    edges = camera.distortion.rays_from_pixels(np.array([[0.0, camera.K[1, 2]], [size[0] - 1.0, camera.K[1, 2]]]),
-                                               camera.K)
+    size = views[0].image_size
+    # the peer's set-up owes nothing to camcal: OpenCV's default fit's focal, its rational fit's field of view
+    obj = [board.object_points[d.ids].astype(np.float32) for d in train]
+    img = [d.corners_px.astype(np.float32).reshape(-1, 1, 2) for d in train]
+    focal = cv2.calibrateCamera(obj, img, size, None, None)[1][0, 0]
+    _, K, dist, _, _ = cv2.calibrateCamera(obj, img, size, None, None, flags=cv2.CALIB_RATIONAL_MODEL)
+    lens = Distortion.from_opencv_coefficients(dist.ravel()[:8])
+    edges = lens.rays_from_pixels(np.array([[0.0, K[1, 2]], [size[0] - 1.0, K[1, 2]]]), K)
     fov_x = float(np.degrees(np.arccos(np.clip(edges[0] @ edges[1], -1.0, 1.0))))
-    return name, result, mrcal_heldout(board, train, held, size, float(camera.K[0, 0]), fov_x)
+    return name, result, mrcal_heldout(board, train, held, size, float(focal), fov_x)
 
 
 @pytest.mark.slow
