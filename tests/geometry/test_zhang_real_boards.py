@@ -23,6 +23,8 @@ from camcal.model.rig import Camera
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "real_boards"
 SETS = ("udacity_gopro", "udacity_dashcam")
+MRCAL_DASHCAM_REASON = ("issue 27, not met on the car camera: auto's kannala-brandt 0.8295 px held out is 1.045 x mrcal's "
+                        "splined stereographic 10x8 (0.7937; OPENCV8 0.8567) (README, Lens model choice)")
 MRCAL_PEER = Path(__file__).resolve().parents[2] / "bench" / "mrcal_peer.py"
 SYSTEM_PYTHON = "/usr/bin/python3"
 
@@ -122,7 +124,7 @@ def test_default_never_refuses_where_one_of_its_models_fits(measured):
 
 @pytest.mark.slow
 def test_default_is_at_parity_with_opencvs_best_model_on_the_gopro(measured):
-    # measured (README, "Lens model choice"): 0.959 x on the GoPro; the car camera's 1.09 x is the xfail below
+    # measured (README, "Lens model choice"): 0.855 x on the GoPro; the car camera's 1.09 x is the xfail below
     name, result, peers = measured
     if name != "udacity_gopro":
         pytest.skip("parity is held on the GoPro; the car camera is behind (README, Lens model choice)")
@@ -131,13 +133,14 @@ def test_default_is_at_parity_with_opencvs_best_model_on_the_gopro(measured):
 
 @pytest.mark.slow
 def test_default_beats_opencvs_best_model_by_three_percent(measured, request):
-    # measured (README, "Lens model choice"): the GoPro 0.959 x with kannala-brandt-thin-prism, chosen by auto
+    # measured (README, "Lens model choice"): the GoPro 0.855 x with kannala-brandt-thin-prism+spline, chosen by auto
     name, result, peers = measured
     if name == "udacity_dashcam":
         request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "issue 27, not met yet on the car camera: the cross-validated choice (kannala-brandt) is 1.09 x "
-            "OpenCV's thin prism on the 3 held-out views; its 13 training views rank the thin-prism fisheye next to last "
-            "(README, Lens model choice)")))
+            "issue 27, not met on the car camera: auto keeps kannala-brandt (4-fold CV 0.944 px; "
+            "kannala-brandt+spline 0.988, opencv-thin-prism 1.039; leaving one view out picks the same): 0.8295 px "
+            "on the 3 held-out views, 1.090 x OpenCV's thin prism (0.7607); with 13 training views of noisy corners "
+            "(training RMS 0.82 px) the cross-validation cannot see the thin prism's gain (README, Lens model choice)")))
     assert result.heldout_rms_px <= 0.97 * min(peers.values()), (name, result.model, result.heldout_rms_px, peers)
 
 
