@@ -1,14 +1,26 @@
-"""Held-out RMS of camcal's default lens model (auto) against OpenCV's best model on real chessboard sets.
+"""Held-out RMS of camcal's default lens model (auto) against OpenCV's models, cv2.fisheye and mrcal on real sets.
 
 Every tool gets the same corners (OpenCV ``findChessboardCornersSB``, EXHAUSTIVE | ACCURACY) and the same
-split (every 6th view held out); each held-out view is posed by PnP with the fitted intrinsics held (camcal's
-``_posed_residuals``: the same LM pose fit for every tool). Prints ``name: ours X, peer Y, ratio Y/X``.
+split (every 6th view held out). camcal's and OpenCV's held-out views are posed by camcal's ``_posed_residuals``
+(LM over the pose with the fitted intrinsics held, the same for every model); mrcal's by mrcal itself
+(``bench/mrcal_peer.py``, run with the system python3 that Debian's python3-mrcal installs into; skipped with a
+line when absent). Training RMS is printed beside each held-out figure. The last line per set is
+``ours X, best peer Y (which), ours / best Z`` (issue 27 asks Z <= 0.97).
 
-Usage: python bench/bench_lens_models.py DIR PATTERN COLUMNS ROWS [DIR PATTERN COLUMNS ROWS ...]
-(default: ../shared/data/stereo_chessboard left*.jpg and right*.jpg, 9x6).
+mrcal runs ``LENSMODEL_OPENCV8`` and ``LENSMODEL_SPLINED_STEREOGRAPHIC`` on two grids (16x12 and 10x8 knots,
+order 3; ``fov_x_deg`` the image width's angle under OpenCV's rational fit plus 10 %), each seeded with OpenCV's
+default fit's focal length (:func:`mrcal_seed`); the best of its configurations is its figure.
+
+Usage: python bench/bench_lens_models.py [--cache DIR] DIR PATTERN COLUMNS ROWS [DIR PATTERN COLUMNS ROWS ...]
+(default: ../shared/data/stereo_chessboard left*.jpg and right*.jpg, 9x6). ``--cache DIR`` keeps each set's SB
+corners as JSON there (the detection is the slow part).
 """
 
 import dataclasses
+import hashlib
+import json
+import math
+import subprocess
 import sys
 from pathlib import Path
 
@@ -20,39 +32,53 @@ from camcal.geometry.board import Board, Detection
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera
 
+MRCAL_PYTHON = "/usr/bin/python3"
+MRCAL_PEER = Path(__file__).with_name("mrcal_peer.py")
 
-def sb_detections(folder: Path, pattern: str, board: Board) -> list[Detection]:
+
+def sb_detections(folder: Path, pattern: str, board: Board, cache: Path | None = None) -> list[Detection]:
     """SB corners of every image where the whole board is found (images of another size than most are skipped)."""
+    key = hashlib.sha1(f"{folder.resolve()}|{pattern}|{board.columns}x{board.rows}".encode()).hexdigest()[:16]
+    if cache is not None and (cache / f"{key}.json").exists():
+        data = json.loads((cache / f"{key}.json").read_text())
+        return [Detection(name, tuple(data["size"]), np.arange(board.n_corners), np.asarray(c, np.float64), "sb")
+                for name, c in data["corners"].items()]
     out = []
     flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
-    for n, path in enumerate(sorted(folder.glob(pattern))):
+    for path in sorted(folder.glob(pattern)):
         gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         found, corners = cv2.findChessboardCornersSB(gray, (board.columns, board.rows), flags=flags)
         if found:
-            out.append(Detection(f"view{len(out):03d}.jpg", (gray.shape[1], gray.shape[0]),
+            out.append(Detection(path.name, (gray.shape[1], gray.shape[0]),
                                  np.arange(board.n_corners), corners.reshape(-1, 2).astype(np.float64), "sb"))
     sizes = [d.image_size for d in out]
     size = max(set(sizes), key=sizes.count)
     skipped = [d for d in out if d.image_size != size]
     if skipped:
         print(f"  {folder.name}: {len(skipped)} image(s) not {size[0]}x{size[1]} skipped")
-    return [dataclasses.replace(d, image=f"view{n:03d}.jpg") for n, d in enumerate(d for d in out if d.image_size == size)]
+    views = [dataclasses.replace(d, image=f"view{n:03d}.jpg") for n, d in enumerate(d for d in out if d.image_size == size)]
+    if cache is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+        (cache / f"{key}.json").write_text(json.dumps({"size": list(size), "corners": {
+            d.image: d.corners_px.tolist() for d in views}}))
+    return views
 
 
-def heldout(board, camera, views) -> float:
+def posed_rms(board, camera, views) -> float:
     r = np.concatenate([zhang._posed_residuals(board, camera, d) for d in views])
     return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
 
 
 def opencv_models(board, train, size):
+    """(name, camera) of OpenCV's default, rational, rational + thin-prism and fisheye fits of ``train``."""
     obj = [board.object_points[d.ids].astype(np.float32) for d in train]
     img = [d.corners_px.astype(np.float32).reshape(-1, 1, 2) for d in train]
     for name, flags in (("default", 0), ("rational", cv2.CALIB_RATIONAL_MODEL),
                         ("rational+thin-prism", cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL)):
         try:
             _, K, dist, _, _ = cv2.calibrateCamera(obj, img, size, None, None, flags=flags)
-            yield name, Camera("cv", size, K, Distortion.from_opencv_coefficients(dist.ravel()[:12 if flags else 5]),
-                               np.eye(3), np.zeros(3))
+            n = 12 if flags & cv2.CALIB_THIN_PRISM_MODEL else 8 if flags else 5
+            yield name, Camera("cv", size, K, Distortion.from_opencv_coefficients(dist.ravel()[:n]), np.eye(3), np.zeros(3))
         except (cv2.error, Exception) as error:  # noqa: BLE001 - a peer's failure is a row, not a stop
             print(f"  opencv {name}: failed ({error})")
     try:
@@ -67,33 +93,78 @@ def opencv_models(board, train, size):
         print(f"  opencv fisheye: failed ({error})")
 
 
-def run(folder: Path, pattern: str, columns: int, rows: int) -> None:
+def mrcal_seed(cameras: dict, size) -> tuple[float, float]:
+    """mrcal's ``--focal`` (OpenCV's default fit's fx) and the field of view across the image (OpenCV's rational
+    fit, or its fisheye fit where the rational one has no ray at the edges): the peer's set-up owes nothing to camcal."""
+    focal = float(next(iter(cameras.values())).K[0, 0])
+    for name in ("rational", "fisheye"):
+        if name in cameras:
+            camera = cameras[name]
+            edges = camera.distortion.rays_from_pixels(np.array([[0.0, camera.K[1, 2]], [size[0] - 1.0, camera.K[1, 2]]]),
+                                                       camera.K)
+            if np.all(np.isfinite(edges)):
+                return focal, float(np.degrees(np.arccos(np.clip(edges[0] @ edges[1], -1.0, 1.0))))
+    return focal, 170.0
+
+
+def mrcal_models(board, train, held, size, focal: float, fov_x_deg: float):
+    """(name, train RMS, held-out RMS) of mrcal's OPENCV8 and splined stereographic fits (bench/mrcal_peer.py)."""
+    if not Path(MRCAL_PYTHON).exists():
+        print("  mrcal: skipped (no system python3; apt-get install mrcal python3-mrcal)")
+        return
+    fov = min(175, 5 * math.ceil(fov_x_deg * 1.1 / 5))
+    for lensmodel in ("LENSMODEL_OPENCV8", f"LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg={fov}",
+                      f"LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=10_Ny=8_fov_x_deg={fov}"):
+        spec = {"columns": board.columns, "rows": board.rows, "image_size": list(size), "focal": focal,
+                "lensmodel": lensmodel, "train": {d.image: d.corners_px.tolist() for d in train},
+                "held": {d.image: d.corners_px.tolist() for d in held}}
+        run = subprocess.run([MRCAL_PYTHON, str(MRCAL_PEER)], input=json.dumps(spec), capture_output=True, text=True)
+        name = lensmodel.replace("LENSMODEL_", "").replace("_order=3", "").replace(f"_fov_x_deg={fov}", "")
+        if run.returncode:
+            print(f"  mrcal {name}: failed ({(run.stderr.strip().splitlines() or ['?'])[-1]})")
+            continue
+        out = json.loads(run.stdout)
+        yield name, out["train_rms_px"], out["heldout_rms_px"]
+
+
+def run(folder: Path, pattern: str, columns: int, rows: int, cache: Path | None) -> dict:
     board = Board("chessboard", columns, rows, 1.0)
-    views = sb_detections(folder, pattern, board)
+    views = sb_detections(folder, pattern, board, cache)
     held = [d for n, d in enumerate(views) if n % 6 == 0]
     train = [d for n, d in enumerate(views) if n % 6]
     size = views[0].image_size
     result = zhang.calibrate_board(board, {"cam": views}, units="squares", holdout=set(range(0, len(views), 6)))
     ours = result.heldout_rms_px
-    peers = {}
-    for name, camera in opencv_models(board, train, size):
-        try:
-            peers[name] = heldout(board, camera, held)
-        except Exception as error:  # noqa: BLE001
-            print(f"  opencv {name}: held-out posing failed ({error})")
-    best = min(peers, key=peers.get)
     label = f"{folder.name}/{pattern}"
     print(f"{label}: {len(views)} views ({len(held)} held out), camcal auto -> {result.model}")
     for score in result.model_ranking:
         print(f"  camcal {score.describe()}")
-    for name, value in peers.items():
-        print(f"  opencv {name}: {value:.4f} px held out")
-    print(f"{label}: ours {ours:.4f}, peer {peers[best]:.4f} (opencv {best}), ratio {peers[best] / ours:.3f} "
-          f"(ours / best {ours / peers[best]:.3f}; issue 27 asks <= 0.97)")
+    print(f"  camcal default ({result.model}): {ours:.4f} px held out, {result.rms_px:.4f} px training")
+    peers, cameras = {}, {}
+    for name, camera in opencv_models(board, train, size):
+        cameras[name] = camera
+        try:
+            peers[f"opencv {name}"] = (posed_rms(board, camera, held), posed_rms(board, camera, train))
+        except Exception as error:  # noqa: BLE001
+            print(f"  opencv {name}: posing failed ({error})")
+    for name, train_rms, held_rms in mrcal_models(board, train, held, size, *mrcal_seed(cameras, size)):
+        peers[f"mrcal {name}"] = (held_rms, train_rms)
+    for name, (held_rms, train_rms) in peers.items():
+        print(f"  {name}: {held_rms:.4f} px held out, {train_rms:.4f} px training")
+    best = min(peers, key=lambda k: peers[k][0])
+    print(f"{label}: ours {ours:.4f} ({result.model}), best peer {peers[best][0]:.4f} ({best}), "
+          f"ours / best {ours / peers[best][0]:.3f} (issue 27 asks <= 0.97)")
+    return {"set": label, "ours": ours, "model": result.model, "best": best, "ratio": ours / peers[best][0]}
 
 
 if __name__ == "__main__":
-    args = sys.argv[1:] or ["../shared/data/stereo_chessboard", "left*.jpg", "9", "6",
-                            "../shared/data/stereo_chessboard", "right*.jpg", "9", "6"]
-    for k in range(0, len(args), 4):
-        run(Path(args[k]), args[k + 1], int(args[k + 2]), int(args[k + 3]))
+    args = sys.argv[1:]
+    cache = None
+    if args[:1] == ["--cache"]:
+        cache, args = Path(args[1]), args[2:]
+    args = args or ["../shared/data/stereo_chessboard", "left*.jpg", "9", "6",
+                    "../shared/data/stereo_chessboard", "right*.jpg", "9", "6"]
+    rows = [run(Path(args[k]), args[k + 1], int(args[k + 2]), int(args[k + 3]), cache) for k in range(0, len(args), 4)]
+    print("summary:")
+    for row in rows:
+        print(f"  {row['set']}: {row['ours']:.4f} ({row['model']}) / {row['best']} = {row['ratio']:.3f}")

@@ -141,6 +141,8 @@ def build_maps(camera: Camera, H: ArrayLike, output_size: tuple[int, int]) -> Re
     width, height = _check_size(output_size)
     H = np.asarray(H, dtype=np.float64)
     distortion = camera.distortion
+    if distortion.has_correction:  # OpenCV's maps know no correction field: the lens's own inverse
+        return build_maps_reference(camera, H, output_size)
     if distortion.model in ("none", "polynomial", "opencv") and camera.K[0, 1] == 0.0:
         map_x, map_y = cv2.initUndistortRectifyMap(
             camera.K, distortion.opencv_coefficients(), np.eye(3), H @ camera.K, (width, height), cv2.CV_32FC1

@@ -38,10 +38,14 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
 6. Held-out views (``holdout``) are not used in the fit; each is then
    posed by PnP with the fitted intrinsics held (the same engine, one frame
    per view) and their RMS is reported beside the training RMS. With
-   ``model="auto"`` every pinhole model (:data:`AUTO_MODELS`; a fisheye
-   is asked for by name) is fitted with every 4th training frame held
-   out, the one with the lowest RMS on those is kept and fitted on all
-   training frames: the choice never sees ``holdout``.
+   ``model="auto"`` every model of :data:`AUTO_MODELS` is fitted with
+   every 4th training frame held out, the simplest within 1 % of the
+   lowest RMS on those is kept and fitted on all training frames: the
+   choice never sees ``holdout``. One camera with enough views: the best
+   model is also scored with a smooth correction field over the image
+   (``<model>+spline``, :mod:`camcal.geometry.spline_fit`), taken only
+   when it is better held out by more than 1 % and by more than one
+   standard error of the paired per-view differences.
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
@@ -77,7 +81,6 @@ from types import MappingProxyType
 
 import cv2
 import numpy as np
-import scipy.optimize
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
@@ -86,6 +89,7 @@ from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState
 from camcal.geometry.bundle import residuals as board_residuals
 from camcal.geometry.bundle.solve import GAUGE_NAMES
 from camcal.geometry.labelling import resolve_labellings
+from camcal.geometry.spline_fit import fit_spline_lens, grid_shape, pose_view
 from camcal.geometry.uncertainty import GAUGE, POSE, projection_sigma, sigma_grid
 from camcal.geometry.view_jackknife import design_effect, view_jackknife
 from camcal.model.camera import chordal_mean_rotation, rotation_angle_deg
@@ -93,7 +97,7 @@ from camcal.model.distortion import Distortion
 from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera, Rig, make_provenance
 
-__all__ = ["MODELS", "AUTO_MODELS", "AUTO_MARGIN", "MIN_IMAGES", "ModelScore", "CalibrationResult", "calibrate_board", "quality_problems"]
+__all__ = ["MODELS", "AUTO_MODELS", "AUTO_MARGIN", "MIN_IMAGES", "SPLINE_MIN_VIEWS", "SPLINE_SUFFIX", "ModelScore", "CalibrationResult", "calibrate_board", "quality_problems"]
 
 #: Lens models a board calibration fits and the distortion parameters refined for each.
 MODELS: Mapping[str, tuple[str, ...]] = MappingProxyType(
@@ -211,6 +215,8 @@ class CalibrationResult:
         RMS over the held-out views (PnP with the intrinsics held), in pixels.
     heldout_images : tuple of (str, str)
         ``(camera name, image name)`` of the held-out views.
+    heldout_view_rms_px : tuple of float
+        The RMS of each held-out view, in the order of :attr:`heldout_images`.
     model_heldout_rms_px : dict of str to float
         ``model="auto"``: the cross-validated RMS of every model that could
         be fitted (:func:`_rank_models`).
@@ -249,6 +255,7 @@ class CalibrationResult:
     model: str = "polynomial"
     heldout_rms_px: float | None = None
     heldout_images: tuple[tuple[str, str], ...] = ()
+    heldout_view_rms_px: tuple[float, ...] = ()
     model_heldout_rms_px: Mapping[str, float] = field(default_factory=dict)
     model_ranking: tuple[ModelScore, ...] = ()
     relabelled: tuple[tuple[str, str], ...] = ()
@@ -629,7 +636,12 @@ def calibrate_board(
         every training view, and if that fit fails or fails
         :func:`quality_problems`, the next in the ranking is (said in
         :attr:`CalibrationResult.notes`). The ranking is
-        :attr:`CalibrationResult.model_ranking`.
+        :attr:`CalibrationResult.model_ranking`. One camera with at least
+        :data:`SPLINE_MIN_VIEWS` training views and the plain loss: the
+        best model with a correction field (``<model>+spline``) is ranked
+        too and taken first when :func:`_spline_chosen` says so. A model
+        with a correction field can be named (``kannala-brandt+spline``;
+        one camera, no given intrinsics).
     units : str
         Name of the board's length unit, stored in the rig.
     outlier_factor, min_outlier_px : float
@@ -671,8 +683,10 @@ def calibrate_board(
     the board pose ``T_i`` of every view ``i``; then
     ``Sigma = sigma^2 (J^T J)^-1``, ``sigma^2 = 2 cost / (2M - n)``.
     """
-    if model != "auto" and model not in MODELS:
-        raise CamcalError(f"unknown distortion model {model!r}, expected one of: {', '.join(MODELS)}, auto")
+    splined = model.endswith(SPLINE_SUFFIX) and model[:-len(SPLINE_SUFFIX)] in MODELS
+    if model != "auto" and model not in MODELS and not splined:
+        raise CamcalError(f"unknown distortion model {model!r}, expected one of: {', '.join(MODELS)}, auto "
+                          f"(or a model with a correction field, '<model>{SPLINE_SUFFIX}')")
     names, by_frame = _check_detections(detections, board)
     holdout = {int(f) for f in holdout}
     unknown = holdout - set().union(*[set(views) for views in by_frame])
@@ -681,26 +695,35 @@ def calibrate_board(
     _check_linked(names, [{f for f in views if f not in holdout} for views in by_frame])
     options = dict(units=units, outlier_factor=outlier_factor, min_outlier_px=min_outlier_px, loss=loss,
                    loss_scale=loss_scale)
+    if splined and (len(names) > 1 or intrinsics is not None):
+        raise CamcalError(f"model {model} calibrates one camera at a time, without given intrinsics")
     if intrinsics is not None:
         model, known = _known_lenses(names, by_frame, intrinsics, model)
         return _calibrate(board, names, by_frame, model, holdout, known=known, refine_known=refine_intrinsics,
                           **options)
+    if splined:
+        return _calibrate_spline(board, names, by_frame, model, holdout, **options)
     if model != "auto":
         return _calibrate(board, names, by_frame, model, holdout, **options)
     # the choice never sees the held-out frames
     training = [{f: d for f, d in views.items() if f not in holdout} for views in by_frame]
-    ranking = _rank_models(board, names, training, options)
+    ranking, squared, _ = _rank_models(board, names, training, options)
     scored = [score for score in ranking if score.rms_px is not None]
-    order = [score.model for score in scored] or ["polynomial"]
-    if scored:  # parsimony: the simplest model within AUTO_MARGIN of the best goes first
-        limit = (1.0 + AUTO_MARGIN) * scored[0].rms_px
-        simplest = min((s.model for s in scored if s.rms_px <= limit), key=AUTO_MODELS.index)
+    parametric = [score for score in scored if not score.model.endswith(SPLINE_SUFFIX)]
+    order = [score.model for score in parametric] or ["polynomial"]
+    if parametric:  # parsimony: the simplest model within AUTO_MARGIN of the best goes first
+        limit = (1.0 + AUTO_MARGIN) * parametric[0].rms_px
+        simplest = min((s.model for s in parametric if s.rms_px <= limit), key=AUTO_MODELS.index)
         order.remove(simplest)
         order.insert(0, simplest)
+        spline = next((s for s in scored if s.model.endswith(SPLINE_SUFFIX)), None)
+        if spline is not None and _spline_chosen(spline, parametric[0], squared):
+            order.insert(0, spline.model)
     failures = []
     for candidate in order:
         try:
-            result = _calibrate(board, names, by_frame, candidate, holdout, **options)
+            fit = _calibrate_spline if candidate.endswith(SPLINE_SUFFIX) else _calibrate
+            result = fit(board, names, by_frame, candidate, holdout, **options)
         except _FIT_ERRORS as error:
             failures.append(f"{candidate}: {_one_line(error)}")
             continue
@@ -827,6 +850,10 @@ def _known_start(board: Board, views: Mapping[int, Detection], K: NDArray,
 _FIT_ERRORS = (CamcalError, cv2.error, ValueError, np.linalg.LinAlgError)
 #: Most folds of the leave-views-out cross-validation of ``model="auto"``.
 _AUTO_FOLDS = 4
+#: ``model="auto"`` scores the best model with a correction field from this many training views (one camera).
+SPLINE_MIN_VIEWS = 8
+#: The name of a model with a correction field: ``<model>+spline``.
+SPLINE_SUFFIX = "+spline"
 
 
 def _one_line(error: Exception) -> str:
@@ -834,8 +861,10 @@ def _one_line(error: Exception) -> str:
     return text[-1] if text else type(error).__name__
 
 
-def _rank_models(board: Board, names: list[str], training: list[dict], options: dict) -> tuple[ModelScore, ...]:
-    """Every model of :data:`AUTO_MODELS` scored by leave-views-out cross-validation, best first.
+def _rank_models(board: Board, names: list[str], training: list[dict], options: dict
+                 ) -> tuple[tuple[ModelScore, ...], dict[str, NDArray[np.float64]], NDArray[np.float64]]:
+    """Every model of :data:`AUTO_MODELS` (and the best one with a correction field) scored by leave-views-out
+    cross-validation, best first, with each model's squared error per held-out view.
 
     Notes
     -----
@@ -848,30 +877,127 @@ def _rank_models(board: Board, names: list[str], training: list[dict], options: 
     a non-finite error) is ranked out with the reason, never raised.
     With fewer than ``MIN_IMAGES + 1`` frames nothing can be held out and
     every model is ranked out.
+
+    One camera with at least :data:`SPLINE_MIN_VIEWS` training frames and
+    the plain least-squares loss: the best-scored model is also scored
+    with a correction field (:mod:`camcal.geometry.spline_fit`), fitted
+    in each fold from that fold's fit of the model, as ``<model>+spline``.
+
+    Returns
+    -------
+    scores, squared (model -> sum of ``|r|^2`` of each held-out view, the same views in the same order for every
+    scored model), corners (the number of corners of each of those views)
     """
     frames = sorted(set().union(*[set(views) for views in training]))
     n_folds = min(_AUTO_FOLDS, len(frames))
     if len(frames) < MIN_IMAGES + 1:
         reason = f"{len(frames)} views: too few to hold one out (need {MIN_IMAGES + 1})"
-        return tuple(ModelScore(m, None, 4 + len(MODELS[m]), reason) for m in AUTO_MODELS)
+        return tuple(ModelScore(m, None, 4 + len(MODELS[m]), reason) for m in AUTO_MODELS), {}, np.zeros(0)
     folds = [set(frames[k::n_folds]) for k in range(n_folds)]
-    scores = []
+    held_views = [(j, f) for fold in folds for j in range(len(names)) for f in sorted(fold) if f in training[j]]
+    corners = np.array([len(training[j][f].ids) for j, f in held_views], dtype=np.float64)
+    scores, squared, fold_results = [], {}, {}
     for candidate in AUTO_MODELS:
-        squared, count, reason = 0.0, 0, ""
+        per_view, results, reason = [], [], ""
         for fold in folds:
             try:
                 result = _calibrate(board, names, training, candidate, fold, **options)
             except _FIT_ERRORS as error:
                 reason = _one_line(error)
                 break
-            n = sum(len(views[f].ids) for views in training for f in fold if f in views)
-            if result.heldout_rms_px is None or not np.isfinite(result.heldout_rms_px):
+            if result.heldout_rms_px is None or not np.all(np.isfinite(result.heldout_view_rms_px)):
                 reason = "non-finite held-out error"
                 break
-            squared, count = squared + result.heldout_rms_px**2 * n, count + n
+            per_view.extend(result.heldout_view_rms_px)
+            results.append(result)
         n_params = 4 + len(MODELS[candidate])
-        scores.append(ModelScore(candidate, None if reason else float(np.sqrt(squared / count)), n_params, reason))
-    return tuple(sorted(scores, key=lambda s: (s.rms_px is None, s.rms_px or 0.0, AUTO_MODELS.index(s.model))))
+        if not reason:
+            squared[candidate] = np.square(per_view) * corners
+            fold_results[candidate] = results
+        scores.append(ModelScore(candidate, None if reason else float(np.sqrt(squared[candidate].sum() / corners.sum())),
+                                 n_params, reason))
+    fitted = [score for score in scores if score.rms_px is not None]
+    if fitted and len(names) == 1 and len(frames) >= SPLINE_MIN_VIEWS and options["loss"] == "trivial":
+        base = min(fitted, key=lambda score: score.rms_px).model
+        scores.append(_score_spline(board, names[0], training[0], base, folds, fold_results[base], corners, squared))
+    ranked = sorted(scores, key=lambda s: (s.rms_px is None, s.rms_px or 0.0, s.n_params))
+    return tuple(ranked), squared, corners
+
+
+def _score_spline(board: Board, name: str, views: dict, base: str, folds: list[set[int]],
+                  results: list[CalibrationResult], corners: NDArray, squared: dict) -> ModelScore:
+    """``<base>+spline`` scored on the folds of :func:`_rank_models` (adds its per-view errors to ``squared``)."""
+    model = base + SPLINE_SUFFIX
+    nx, ny = grid_shape(next(iter(views.values())).image_size)
+    n_params = 4 + len(MODELS[base]) + 2 * nx * ny
+    per_view = []
+    for fold, result in zip(folds, results):
+        camera = result.rig.cameras[0]
+        kept = {image for _, image in result.images}
+        train = {f: d for f, d in views.items() if f not in fold and d.image in kept}
+        try:
+            fit = fit_spline_lens(board, train, camera.K, camera.distortion, MODELS[base])
+            splined = dataclasses.replace(camera, K=fit.K, distortion=fit.distortion)
+            per_view.extend(float(np.sum(r * r)) for r in
+                            (_posed_residuals(board, splined, views[f]) for f in sorted(fold) if f in views))
+        except _FIT_ERRORS as error:
+            return ModelScore(model, None, n_params, _one_line(error))
+    per_view = np.asarray(per_view)
+    if not np.all(np.isfinite(per_view)):
+        return ModelScore(model, None, n_params, "non-finite held-out error")
+    squared[model] = per_view
+    return ModelScore(model, float(np.sqrt(per_view.sum() / corners.sum())), n_params)
+
+
+def _spline_chosen(spline: ModelScore, base: ModelScore, squared: dict[str, NDArray]) -> bool:
+    """True when the correction field's cross-validated error is below its model's by more than
+    :data:`AUTO_MARGIN` and by more than one standard error of the paired per-view differences.
+
+    The views are the units (their corners' errors are correlated): with ``d_v`` the difference of
+    squared errors of view ``v`` (model minus model with the field), ``sum_v d_v > sqrt(V) sd(d)``
+    (the one-standard-error rule, Hastie, Tibshirani & Friedman 2009, section 7.10, on paired differences).
+    """
+    if spline.rms_px is None or base.rms_px is None or spline.rms_px >= (1.0 - AUTO_MARGIN) * base.rms_px:
+        return False
+    d = squared[base.model] - squared[spline.model]
+    return len(d) > 1 and float(d.sum()) > float(np.sqrt(len(d)) * np.std(d, ddof=1))
+
+
+def _calibrate_spline(board: Board, names: list[str], by_frame: list[dict], model: str, holdout: set[int],
+                      **options) -> CalibrationResult:
+    """``<model>+spline``: the model fitted by :func:`_calibrate`, then its correction field on the views it kept.
+
+    The covariance and the sigmas are the parametric part's at its own fit (the field's are not propagated).
+    """
+    base = model[:-len(SPLINE_SUFFIX)]
+    result = _calibrate(board, names, by_frame, base, holdout, **options)
+    camera = result.rig.cameras[0]
+    kept = {image for _, image in result.images}
+    views = {f: d for f, d in by_frame[0].items() if f not in holdout and d.image in kept}
+    fit = fit_spline_lens(board, views, camera.K, camera.distortion, MODELS[base])
+    norms = np.linalg.norm(fit.residuals_px, axis=1)
+    quality = {**camera.quality, "rms_px": float(np.sqrt(np.mean(norms**2))), "worst_px": float(norms.max()),
+               "n_observations": int(len(norms))}
+    quality.pop("heldout_rms_px", None)
+    camera = dataclasses.replace(camera, K=fit.K, distortion=fit.distortion, quality=quality)
+    heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
+    held = [{f: d for f, d in by_frame[0].items() if f in holdout}]
+    if holdout:
+        heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(board, Rig((camera,)), held)
+        camera = dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]})
+    ny, nx = fit.distortion.correction.shape
+    rig = Rig((camera,), units=result.rig.units, provenance={**result.rig.provenance, "model": model})
+    frames = sorted(views)
+    return dataclasses.replace(
+        result, rig=rig, residuals_px=fit.residuals_px, points_px=np.concatenate([views[f].corners_px for f in frames]),
+        camera_of_point=np.zeros(len(norms), np.int64),
+        image_of_point=np.concatenate([np.full(len(views[f].ids), n) for n, f in enumerate(frames)]),
+        images=tuple((names[0], views[f].image) for f in frames), rms_px=float(np.sqrt(np.mean(norms**2))),
+        worst_px=float(norms.max()), model=model, heldout_rms_px=heldout_rms, heldout_images=heldout_images,
+        heldout_view_rms_px=per_view, **_heldout_fields(heldout),
+        notes=result.notes + (f"{model}: {base} with a {nx}x{ny} B-spline correction field (RMS "
+                              f"{fit.distortion.correction.rms_px():.3f} px over the image); its covariance is "
+                              f"{base}'s at its own fit",))
 
 
 def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: str, holdout: set[int], units: str,
@@ -892,11 +1018,12 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         result = _calibrate_opencv(board, names, by_frame, model, units, outlier_factor, min_outlier_px)
         if not holdout:
             return result
-        heldout_rms, per_camera, heldout_images, _ = _heldout_rms(board, result.rig, held)
+        heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(board, result.rig, held)
         camera = result.rig.cameras[0]
         rig = Rig((dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]}),),
                   units=result.rig.units, provenance=result.rig.provenance)
-        return dataclasses.replace(result, rig=rig, heldout_rms_px=heldout_rms, heldout_images=heldout_images)
+        return dataclasses.replace(result, rig=rig, heldout_rms_px=heldout_rms, heldout_images=heldout_images,
+                                   heldout_view_rms_px=per_view, **_heldout_fields(heldout))
     colmap_model, fixed = _COLMAP_MODELS[model]
     starts, params = [], []
     for name, views in zip(names, by_frame):
@@ -1000,9 +1127,9 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
     jackknife = _view_jackknife(labels, names, model, params, refined, observations) if loss == "trivial" else None
     rig = _build_rig(names, image_sizes, params, cam_poses, observations.camera, image_of_point, residuals,
                      covariance, labels, board, model, units, jackknife)
-    heldout_rms, heldout_images, heldout = None, (), []
+    heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
     if holdout:
-        heldout_rms, per_camera, heldout_images, heldout = _heldout_rms(board, rig, held)
+        heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(board, rig, held)
         rig = Rig(tuple(dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]})
                         if camera.name in per_camera else camera for camera in rig.cameras),
                   units=rig.units, provenance=rig.provenance)
@@ -1022,15 +1149,23 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         model=model,
         heldout_rms_px=heldout_rms,
         heldout_images=heldout_images,
+        heldout_view_rms_px=per_view,
         relabelled=tuple(relabelled),
         dropped=tuple(dropped),
         notes=tuple(notes),
         board_poses=tuple((f, *view_start[f]) for f in sorted({f for _, f in kept})),
-        heldout_residuals_px=np.concatenate([r for _, r, _ in heldout]) if heldout else np.zeros((0, 2)),
-        heldout_points_px=np.concatenate([x for _, _, x in heldout]) if heldout else np.zeros((0, 2)),
-        heldout_camera_of_point=(np.concatenate([np.full(len(r), j) for j, r, _ in heldout]) if heldout
-                                 else np.zeros(0, np.int64)),
+        **_heldout_fields(heldout),
     )
+
+
+def _heldout_fields(heldout: list) -> dict:
+    """The result's held-out residuals, points and camera indices from :func:`_heldout_rms`'s ``views``."""
+    if not heldout:
+        return {"heldout_residuals_px": np.zeros((0, 2)), "heldout_points_px": np.zeros((0, 2)),
+                "heldout_camera_of_point": np.zeros(0, np.int64)}
+    return {"heldout_residuals_px": np.concatenate([r for _, r, _ in heldout]),
+            "heldout_points_px": np.concatenate([x for _, _, x in heldout]),
+            "heldout_camera_of_point": np.concatenate([np.full(len(r), j) for j, r, _ in heldout])}
 
 
 def _view_jackknife(labels: tuple[str, ...], names: list[str], model: str, params: list[NDArray],
@@ -1114,7 +1249,7 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict]):
     """RMS of the held-out views, each posed by PnP with the fitted intrinsics held.
 
     Each view's ``cam_from_board`` minimises ``sum |project(K, d, R X + t) -
-    x|^2`` over its six pose parameters alone (``scipy.optimize.least_squares``,
+    x|^2`` over its six pose parameters alone (:func:`camcal.geometry.spline_fit.pose_view`:
     Levenberg-Marquardt, camcal's own projection of the fitted lens, so every
     model is measured alike), started from OpenCV's ``solvePnP`` on the
     undistorted corners. A view is posed on its own: a corner seen in one
@@ -1122,10 +1257,11 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict]):
 
     Returns
     -------
-    rms_px, per_camera_rms_px, images, views
-        ``views``: ``(camera index, projected - detected, detected)`` of each held-out view.
+    rms_px, per_camera_rms_px, images, views, per_view_rms_px
+        ``views``: ``(camera index, projected - detected, detected)`` of each held-out view;
+        ``per_view_rms_px``: the RMS of each held-out view (both in the order of images).
     """
-    squared, counts, per_camera, images, residuals = 0.0, 0, {}, [], []
+    squared, counts, per_camera, images, residuals, per_view = 0.0, 0, {}, [], [], []
     for j, (camera, views) in enumerate(zip(rig.cameras, held)):
         if not views:
             continue
@@ -1135,31 +1271,18 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict]):
             s_camera, n_camera = s_camera + float(np.sum(r * r)), n_camera + len(r)
             images.append((camera.name, views[key].image))
             residuals.append((j, r, views[key].corners_px))
+            per_view.append(float(np.sqrt(np.mean(np.sum(r * r, axis=1)))))
         per_camera[camera.name] = float(np.sqrt(s_camera / n_camera))
         squared, counts = squared + s_camera, counts + n_camera
-    return float(np.sqrt(squared / counts)), per_camera, tuple(images), residuals
+    return float(np.sqrt(squared / counts)), per_camera, tuple(images), residuals, tuple(per_view)
 
 
 def _posed_residuals(board: Board, camera: Camera, detection: Detection) -> NDArray[np.float64]:
     """``projected - detected`` (N, 2) of one view posed with the camera's intrinsics held (see :func:`_heldout_rms`)."""
-    X = np.asarray(board.object_points[detection.ids], dtype=np.float64)
-    ideal = camera.distortion.undistort(detection.corners_px, camera.K)
-    front = np.all(np.isfinite(ideal), axis=1)  # a fisheye's corners beyond 90 degrees have no pinhole image
-    if front.sum() < 4:
-        raise CamcalError(f"camera {camera.name!r}, {detection.image}: fewer than 4 corners have an undistorted "
-                          "image under the fitted lens: the held-out view cannot be posed")
-    ok, rvec, tvec = cv2.solvePnP(X[front], ideal[front], camera.K, None)
-    if not ok:
-        raise CamcalError(f"camera {camera.name!r}, {detection.image}: PnP failed on the held-out view")
-
-    def residuals(pose: NDArray[np.float64]) -> NDArray[np.float64]:
-        R = cv2.Rodrigues(pose[:3])[0]
-        projected = camera.distortion.project_rays(X @ R.T + pose[3:], camera.K)
-        return np.nan_to_num(projected - detection.corners_px, nan=1e6).ravel()
-
-    solution = scipy.optimize.least_squares(residuals, np.concatenate([rvec.ravel(), tvec.ravel()]), method="lm",
-                                            x_scale="jac", xtol=1e-12, ftol=1e-12)
-    return solution.fun.reshape(-1, 2)
+    try:
+        return pose_view(board, camera.K, camera.distortion, detection)[2]
+    except CamcalError as error:
+        raise CamcalError(f"camera {camera.name!r}, held-out view {error}") from None
 
 
 def quality_problems(result: CalibrationResult) -> list[str]:

@@ -167,13 +167,13 @@ def nearest_camera(
     (Camera, LensConversion)
     """
     has_skew = camera.K[0, 1] != 0.0
-    if holds(camera.distortion) and (skew or not has_skew):
+    if not camera.distortion.has_correction and holds(camera.distortion) and (skew or not has_skew):
         return camera, LensConversion(camera.name, _describe_model(camera), target_name, True)
     K = camera.K.copy()
     if not skew:
         K[0, 1] = 0.0
     distortion = camera.distortion
-    if not holds(distortion):
+    if distortion.has_correction or not holds(distortion):  # no format holds a correction field: its nearest fit
         distortion = fit_distortion(distortion, camera.K, camera.image_size, fit_model, with_k3=with_k3).distortion
     converted = replace(camera, K=K, distortion=distortion)
     residual = max_pixel_residual(camera, converted)

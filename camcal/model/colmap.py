@@ -90,6 +90,9 @@ def camera_to_colmap(camera: Camera) -> ColmapCamera:
     width, height = camera.image_size
     model = camera.distortion.model
     p = camera.distortion.params
+    if camera.distortion.has_correction:
+        raise CamcalError(f"camera {camera.name!r} has a correction field ({model} + spline): COLMAP's models have "
+                          "none (rig export takes its nearest parametric model and prints what it loses)")
     square = fx == fy
     if model == "none":
         if square:

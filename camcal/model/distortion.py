@@ -102,6 +102,7 @@ import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.model.spline import SplineField
 
 __all__ = ["FISHEYE_MODELS", "MODEL_PARAMS", "OPENCV_COEFFICIENTS", "Distortion", "DistortionFit", "fit_distortion", "frame_grid"]
 
@@ -153,6 +154,11 @@ class Distortion:
     center : tuple of float, optional
         Distortion centre in pixels, only for ``division``; ``None`` means
         the principal point of the camera's K.
+    correction : SplineField, optional
+        A smooth displacement field over the image applied after the
+        model (:mod:`camcal.model.spline`): ``q = q0 + F(q0)`` with ``q0``
+        the model's distorted pixel; every mapping of this class includes
+        it, :meth:`without_correction` is the parametric part alone.
 
     Examples
     --------
@@ -167,8 +173,11 @@ class Distortion:
     model: str
     params: Mapping[str, float] = field(default_factory=dict)
     center: tuple[float, float] | None = None
+    correction: SplineField | None = None
 
     def __post_init__(self) -> None:
+        if self.correction is not None and not isinstance(self.correction, SplineField):
+            raise CamcalError(f"distortion correction must be a SplineField, got {type(self.correction).__name__}")
         if self.model not in MODEL_PARAMS:
             raise CamcalError(
                 f"unknown distortion model {self.model!r}, expected one of: "
@@ -222,6 +231,8 @@ class Distortion:
     def is_identity(self) -> bool:
         """True when the model leaves every point where it is (never for ``kannala-brandt``:
         with every k at 0 it is the equidistant fisheye, not the pinhole)."""
+        if self.correction is not None:
+            return False
         if self.model == "division":
             return self.params["lambda"] == 0.0
         return self.model not in FISHEYE_MODELS and all(value == 0.0 for value in self.params.values())
@@ -237,6 +248,9 @@ class Distortion:
         """
         if self.model not in ("none", "polynomial", "opencv"):
             raise CamcalError(f"a {self.model} lens has no OpenCV distortion vector")
+        if self.correction is not None:
+            raise CamcalError(f"a {self.model} lens with a correction field has no exact OpenCV distortion vector "
+                              "(take its nearest parametric model: fit_distortion of without_correction())")
         p = self.params
         if any(p.get(name, 0.0) for name in _THIN_PRISM):
             return 12
@@ -286,13 +300,24 @@ class Distortion:
         padded = np.concatenate([values, np.zeros(max(0, 5 - len(values)))])
         return cls("opencv", dict(zip(names, (float(v) for v in padded))))
 
+    @property
+    def has_correction(self) -> bool:
+        """True when a correction field (:mod:`camcal.model.spline`) follows the parametric model."""
+        return self.correction is not None
+
+    def without_correction(self) -> Distortion:
+        """The parametric model alone (the correction field dropped)."""
+        return Distortion(self.model, dict(self.params), self.center)
+
     # -- file boundary -------------------------------------------------------
 
     def to_dict(self) -> dict:
-        """The rig-file form: ``{"model", "params"[, "center"]}``."""
+        """The rig-file form: ``{"model", "params"[, "center"][, "correction"]}``."""
         out: dict = {"model": self.model, "params": dict(self.params)}
         if self.center is not None:
             out["center"] = list(self.center)
+        if self.correction is not None:
+            out["correction"] = self.correction.to_dict()
         return out
 
     @classmethod
@@ -300,7 +325,7 @@ class Distortion:
         """Inverse of :meth:`to_dict`; unknown keys are rejected."""
         if not isinstance(data, Mapping):
             raise CamcalError(f"distortion must be an object, got {type(data).__name__}")
-        unknown = sorted(set(data) - {"model", "params", "center"})
+        unknown = sorted(set(data) - {"model", "params", "center", "correction"})
         if unknown:
             raise CamcalError(f"distortion has unknown key(s): {', '.join(unknown)}")
         if "model" not in data:
@@ -311,7 +336,8 @@ class Distortion:
         center = data.get("center")
         if center is not None and (not isinstance(center, (list, tuple)) or len(center) != 2):
             raise CamcalError(f"distortion 'center' must be [x, y], got {center!r}")
-        return cls(str(data["model"]), dict(params), None if center is None else tuple(center))
+        correction = None if data.get("correction") is None else SplineField.from_dict(data["correction"])
+        return cls(str(data["model"]), dict(params), None if center is None else tuple(center), correction)
 
     # -- mappings --------------------------------------------------------------
 
@@ -342,11 +368,12 @@ class Distortion:
         points = _as_points(points_px)
         K = np.asarray(K, dtype=np.float64)
         if self.model == "none":
-            return points.copy()
-        if self.model == "division":
-            return self._division_distort(points, self._centre(K), self.params.get("aspect", 1.0))
-        normalised = _pixels_to_normalised(points, K)
-        return _normalised_to_pixels(self.distort_normalised(normalised), K)
+            distorted = points.copy()
+        elif self.model == "division":
+            distorted = self._division_distort(points, self._centre(K), self.params.get("aspect", 1.0))
+        else:
+            distorted = _normalised_to_pixels(self.distort_normalised(_pixels_to_normalised(points, K)), K)
+        return distorted if self.correction is None else self.correction.apply(distorted)
 
     def undistort(self, points_px: ArrayLike, K: ArrayLike) -> NDArray[np.float64]:
         """Map distorted pixels to undistorted pixels (inverse of :meth:`distort`).
@@ -368,6 +395,8 @@ class Distortion:
         """
         points = _as_points(points_px)
         K = np.asarray(K, dtype=np.float64)
+        if self.correction is not None:
+            points = self.correction.remove(points)
         if self.model == "none":
             return points.copy()
         if self.is_fisheye:
@@ -609,7 +638,8 @@ class Distortion:
             with np.errstate(invalid="ignore", divide="ignore"):
                 scale = np.where(rho > 0.0, self.theta_d(theta) / rho, 0.0)
             scale[~(theta <= self.max_angle_rad)] = np.nan
-            return _normalised_to_pixels(self._tangential_prism(rays[:, :2] * scale[:, None]), K)
+            pixels = _normalised_to_pixels(self._tangential_prism(rays[:, :2] * scale[:, None]), K)
+            return pixels if self.correction is None else self.correction.apply(pixels)
         depth = rays[:, 2:3]
         with np.errstate(divide="ignore", invalid="ignore"):
             normalised = np.where(depth > 0.0, rays[:, :2] / depth, np.nan)
@@ -634,6 +664,8 @@ class Distortion:
         points = _as_points(points_px)
         K = np.asarray(K, dtype=np.float64)
         if self.is_fisheye:
+            if self.correction is not None:
+                points = self.correction.remove(points)
             xy_d = self._undo_tangential_prism(_pixels_to_normalised(points, K), K)
             theta_d = np.hypot(xy_d[:, 0], xy_d[:, 1])
             theta = self._theta_from_theta_d(theta_d)

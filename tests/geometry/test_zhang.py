@@ -13,7 +13,7 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection, frame_number
 from camcal.pipelines.board import detect_in_images
 from camcal.model.distortion import Distortion
-from camcal.geometry.zhang import AUTO_MODELS, calibrate_board
+from camcal.geometry.zhang import AUTO_MODELS, SPLINE_SUFFIX, calibrate_board
 from camcal.report.calibration import write_report
 from camcal.model.rig import Camera, Rig
 
@@ -367,7 +367,9 @@ def test_model_auto_chooses_by_heldout_rms():
     detections = board_views(truth, 16, np.random.default_rng(8))
     result = calibrate_board(BOARD, detections)  # auto is the default
     scores = result.model_heldout_rms_px
-    assert {score.model for score in result.model_ranking} == set(AUTO_MODELS)
+    # every model, and the best one with a correction field (one camera, 13 training views): not taken here
+    ranked = {score.model for score in result.model_ranking}
+    assert set(AUTO_MODELS) <= ranked and all(m.endswith(SPLINE_SUFFIX) for m in ranked - set(AUTO_MODELS))
     assert all((score.rms_px is None) == bool(score.reason) for score in result.model_ranking)
     assert {"division", "polynomial", "kannala-brandt", "opencv"} <= set(scores)
     assert [s.model for s in result.model_ranking][0] == min(scores, key=scores.get)

@@ -8,6 +8,8 @@ does the same on image folders).
 """
 
 import json
+import math
+import subprocess
 from pathlib import Path
 
 import cv2
@@ -21,6 +23,17 @@ from camcal.model.rig import Camera
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "real_boards"
 SETS = ("udacity_gopro", "udacity_dashcam")
+MRCAL_DASHCAM_REASON = ("issue 27, not met on the car camera: auto's kannala-brandt 0.8295 px held out is 1.045 x mrcal's "
+                        "splined stereographic 10x8 (0.7937; OPENCV8 0.8567) (README, Lens model choice)")
+MRCAL_PEER = Path(__file__).resolve().parents[2] / "bench" / "mrcal_peer.py"
+SYSTEM_PYTHON = "/usr/bin/python3"
+
+
+def mrcal_available() -> bool:
+    try:
+        return subprocess.run([SYSTEM_PYTHON, "-c", "import mrcal"], capture_output=True).returncode == 0
+    except OSError:
+        return False
 
 
 def load(name: str):
@@ -57,6 +70,21 @@ def opencv_heldout(board, train, held, size) -> dict[str, float]:
     return out
 
 
+def mrcal_heldout(board, train, held, size, focal: float, fov_x_deg: float) -> dict[str, float]:
+    """Held-out RMS of mrcal's OPENCV8 and splined stereographic models (bench/mrcal_peer.py, the system python3)."""
+    fov = min(175, 5 * math.ceil(fov_x_deg * 1.1 / 5))
+    out = {}
+    for lensmodel in ("LENSMODEL_OPENCV8", f"LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg={fov}",
+                      f"LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=10_Ny=8_fov_x_deg={fov}"):
+        spec = {"columns": board.columns, "rows": board.rows, "image_size": list(size), "focal": focal,
+                "lensmodel": lensmodel, "train": {d.image: d.corners_px.tolist() for d in train},
+                "held": {d.image: d.corners_px.tolist() for d in held}}
+        run = subprocess.run([SYSTEM_PYTHON, str(MRCAL_PEER)], input=json.dumps(spec), capture_output=True, text=True,
+                             check=True)
+        out[lensmodel] = json.loads(run.stdout)["heldout_rms_px"]
+    return out
+
+
 @pytest.fixture(scope="module", params=SETS)
 def measured(request):
     board, views = load(request.param)
@@ -64,6 +92,26 @@ def measured(request):
     train = [d for n, d in enumerate(views) if n % 6]
     result = zhang.calibrate_board(board, {"cam": views}, units="squares", holdout=set(range(0, len(views), 6)))
     return request.param, result, opencv_heldout(board, train, held, views[0].image_size)
+
+
+@pytest.fixture(scope="module")
+def mrcal_measured(measured):
+    if not mrcal_available():
+        pytest.skip("mrcal is not installed for the system python3 (apt-get install mrcal python3-mrcal)")
+    name, result, peers = measured
+    board, views = load(name)
+    held = [d for n, d in enumerate(views) if n % 6 == 0]
+    train = [d for n, d in enumerate(views) if n % 6]
+    size = views[0].image_size
+    # the peer's set-up owes nothing to camcal: OpenCV's default fit's focal, its rational fit's field of view
+    obj = [board.object_points[d.ids].astype(np.float32) for d in train]
+    img = [d.corners_px.astype(np.float32).reshape(-1, 1, 2) for d in train]
+    focal = cv2.calibrateCamera(obj, img, size, None, None)[1][0, 0]
+    _, K, dist, _, _ = cv2.calibrateCamera(obj, img, size, None, None, flags=cv2.CALIB_RATIONAL_MODEL)
+    lens = Distortion.from_opencv_coefficients(dist.ravel()[:8])
+    edges = lens.rays_from_pixels(np.array([[0.0, K[1, 2]], [size[0] - 1.0, K[1, 2]]]), K)
+    fov_x = float(np.degrees(np.arccos(np.clip(edges[0] @ edges[1], -1.0, 1.0))))
+    return name, result, mrcal_heldout(board, train, held, size, float(focal), fov_x)
 
 
 @pytest.mark.slow
@@ -76,7 +124,7 @@ def test_default_never_refuses_where_one_of_its_models_fits(measured):
 
 @pytest.mark.slow
 def test_default_is_at_parity_with_opencvs_best_model_on_the_gopro(measured):
-    # measured (README, "Lens model choice"): 0.959 x on the GoPro; the car camera's 1.09 x is the xfail below
+    # measured (README, "Lens model choice"): 0.855 x on the GoPro; the car camera's 1.09 x is the xfail below
     name, result, peers = measured
     if name != "udacity_gopro":
         pytest.skip("parity is held on the GoPro; the car camera is behind (README, Lens model choice)")
@@ -85,11 +133,21 @@ def test_default_is_at_parity_with_opencvs_best_model_on_the_gopro(measured):
 
 @pytest.mark.slow
 def test_default_beats_opencvs_best_model_by_three_percent(measured, request):
-    # measured (README, "Lens model choice"): the GoPro 0.959 x with kannala-brandt-thin-prism, chosen by auto
+    # measured (README, "Lens model choice"): the GoPro 0.855 x with kannala-brandt-thin-prism+spline, chosen by auto
     name, result, peers = measured
     if name == "udacity_dashcam":
         request.applymarker(pytest.mark.xfail(strict=True, reason=(
-            "issue 27, not met yet on the car camera: the cross-validated choice (kannala-brandt) is 1.09 x "
-            "OpenCV's thin prism on the 3 held-out views; its 13 training views rank the thin-prism fisheye next to last "
-            "(README, Lens model choice)")))
+            "issue 27, not met on the car camera: auto keeps kannala-brandt (4-fold CV 0.944 px; "
+            "kannala-brandt+spline 0.988, opencv-thin-prism 1.039; leaving one view out picks the same): 0.8295 px "
+            "on the 3 held-out views, 1.090 x OpenCV's thin prism (0.7607); with 13 training views of noisy corners "
+            "(training RMS 0.82 px) the cross-validation cannot see the thin prism's gain (README, Lens model choice)")))
+    assert result.heldout_rms_px <= 0.97 * min(peers.values()), (name, result.model, result.heldout_rms_px, peers)
+
+
+@pytest.mark.slow
+def test_default_beats_mrcal_by_three_percent(mrcal_measured, request):
+    # mrcal OPENCV8 and splined stereographic (16x12 and 10x8 knots), flat board, the same corners and split
+    name, result, peers = mrcal_measured
+    if name == "udacity_dashcam":
+        request.applymarker(pytest.mark.xfail(strict=True, reason=MRCAL_DASHCAM_REASON))
     assert result.heldout_rms_px <= 0.97 * min(peers.values()), (name, result.model, result.heldout_rms_px, peers)
