@@ -44,7 +44,11 @@ def test_sigmas_cover_the_error_on_lateral_few_frame_rigs(tmp_path):
     a mean focal error no larger than plain pycolmap's (SIMPLE_DIVISION per folder, principal point refined).
 
     Seeds 0-19 (scenes where COLMAP's mapper registers nothing are drawn again, up to 4): the constants
-    of the priors come from sensors and lenses (camcal.geometry.bundle.prior), not from these scenes."""
+    of the priors come from sensors and lenses (camcal.geometry.bundle.prior), not from these scenes.
+    Measured (seeds 0-19, all mapped): 116 / 120 = 96.7 % within 2 sigma, mean focal error camcal 0.312 %,
+    plain pycolmap 0.510 %; the misses: seed 8's focal length (+1.61 px in both cameras, 3.4 sigma: a scale
+    shared by the rig that the delete-one-frame jackknife over 6 frames does not see) and seed 10's cy (2.2 and
+    2.8 sigma, 5 frames)."""
     from camcal.pipelines.solve import solve_pycolmap_plain, solve_sfm
 
     ratios, ours, theirs, failed = [], [], [], []
