@@ -22,8 +22,19 @@
    plain pycolmap pipeline on the same images in the same run, wall time and
    focal error against openMVG's calibration.
 
+5. Real scenes with a measured calibration: Strecha et al.'s dense MVS
+   benchmark (fountain-P11, Herz-Jesus-P8, entry-P10, castle-P19; 3072 x
+   2048, ground-truth K, R, t per image), found in ``$CAMCAL_STRECHA_DIR``
+   or ``/work/data/strecha`` (``<scene>/images/*.jpg`` and
+   ``<scene>/gt_dense_cameras/*.jpg.camera``; openMVG's
+   SfM_quality_evaluation repository holds a copy; skipped with the reason
+   otherwise): ``solve`` against plain pycolmap, wall time, focal (fx, fy)
+   and principal point errors, and the mean and largest error of the
+   relative rotation of every pair of registered images.
+
 Prints ``name: ours X, peer Y, ratio Y/X``. ``--frames N`` renders fewer
-rig positions (default 12); ``--real-only`` runs only the real scene.
+rig positions (default 12); ``--real-only`` runs only the real scenes,
+``--strecha SCENE`` (repeatable) only those of Strecha's.
 """
 
 import argparse
@@ -108,6 +119,73 @@ def bench_real_scene() -> None:
     print(f"real scene focal error (%, openMVG's f = {focal:g} px): ours {a:.3f} (f {mine:.1f}), "
           f"peer {b:.3f} (f {other:.1f}), ratio {b / max(a, 1e-12):.2f}; registered ours {result.n_registered}, "
           f"peer {peer.n_registered}")
+
+
+STRECHA_DIRS = (os.environ.get("CAMCAL_STRECHA_DIR", ""), "/work/data/strecha")
+STRECHA_SCENES = ("fountain-P11", "Herz-Jesus-P8", "entry-P10", "castle-P19")
+
+
+def _strecha_camera(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """K and the rotation world -> camera of one Strecha ``.camera`` file (K; 0 0 0; R camera -> world; centre; size)."""
+    rows = np.array([float(v) for v in path.read_text().split()])
+    return rows[:9].reshape(3, 3), rows[12:21].reshape(3, 3).T
+
+
+def _rotation_errors(estimated: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> np.ndarray:
+    """Angle (deg) between the estimated and the true relative rotation of every pair of images in both."""
+    names = sorted(set(estimated) & set(truth))
+    return np.array([rotation_angle_deg((estimated[b] @ estimated[a].T) @ (truth[b] @ truth[a].T).T)
+                     for i, a in enumerate(names) for b in names[i + 1:]])
+
+
+def bench_strecha(scenes: tuple[str, ...] = STRECHA_SCENES) -> None:
+    """``solve`` against plain pycolmap on Strecha's scenes: time, intrinsics and relative rotations vs the truth."""
+    root = next((Path(p) for p in STRECHA_DIRS if p and (Path(p) / scenes[0] / "gt_dense_cameras").is_dir()), None)
+    if root is None:
+        print(f"Strecha scenes: skipped, no {scenes[0]}/gt_dense_cameras in "
+              f"{' or '.join(p for p in STRECHA_DIRS if p)}; set CAMCAL_STRECHA_DIR")
+        return
+    totals = {"ours": 0.0, "peer": 0.0}
+    for scene in scenes:
+        folder = root / scene / "images"
+        images = sorted(folder.glob("*.jpg"))
+        truth = {path.name: _strecha_camera(root / scene / "gt_dense_cameras" / f"{path.name}.camera") for path in images}
+        K_true = next(iter(truth.values()))[0]
+        for path in images:  # both runs read the files from the page cache
+            path.read_bytes()
+        with tempfile.TemporaryDirectory() as tmp:
+            start = time.perf_counter()
+            peer = solve_pycolmap_plain({"cam": folder}, Path(tmp) / "plain")
+            theirs = time.perf_counter() - start
+            start = time.perf_counter()
+            result = solve_sfm({"cam": folder}, Path(tmp) / "camcal")
+            ours = time.perf_counter() - start
+        totals["ours"] += ours
+        totals["peer"] += theirs
+        camera = result.rig.camera("cam")
+        rotations = {Path(frame.images["cam"]).name: camera.R @ frame.R for frame in result.rig.frames}
+        peer_rotations = {Path(name).name: R for name, R in peer.cam_from_world.items()}
+        true_rotations = {name: R for name, (_, R) in truth.items()}
+        print(f"Strecha {scene} ({len(images)} images) solve time (s): ours {ours:.1f}, peer (plain pycolmap) "
+              f"{theirs:.1f}, ratio {theirs / ours:.2f} (solve / plain {ours / theirs:.2f}); registered ours "
+              f"{result.n_registered}, peer {peer.n_registered}")
+        for label, K in (("ours", camera.K), ("peer", peer.cameras["cam"].K)):
+            fx, fy = 100 * (K[0, 0] / K_true[0, 0] - 1), 100 * (K[1, 1] / K_true[1, 1] - 1)
+            pp = np.hypot(*(K[:2, 2] - K_true[:2, 2]))
+            print(f"Strecha {scene} {label}: fx error {fx:+.3f} %, fy error {fy:+.3f} % (focal error, mean |fx|, |fy|: "
+                  f"{(abs(fx) + abs(fy)) / 2:.3f} %), principal point error {pp:.2f} px "
+                  f"({K[0, 2] - K_true[0, 2]:+.2f}, {K[1, 2] - K_true[1, 2]:+.2f})")
+        if result.bundle is not None:
+            sigmas = result.bundle.sigmas
+            lens = result.self_calibration.lens_models["cam"] if result.self_calibration is not None else "-"
+            print(f"Strecha {scene} ours sigma: f {sigmas.get('cam.f', np.nan):.2f} px, cx {sigmas.get('cam.cx', np.nan):.2f}, "
+                  f"cy {sigmas.get('cam.cy', np.nan):.2f} px; lens model {lens}")
+        mine, other = _rotation_errors(rotations, true_rotations), _rotation_errors(peer_rotations, true_rotations)
+        print(f"Strecha {scene} relative rotation error (deg, {len(mine)} / {len(other)} pairs): mean ours "
+              f"{mine.mean():.4f}, peer {other.mean():.4f}, ratio {other.mean() / mine.mean():.2f}; largest ours "
+              f"{mine.max():.4f}, peer {other.max():.4f}")
+    print(f"Strecha scenes solve time (s, {len(scenes)} scenes): ours {totals['ours']:.1f}, peer {totals['peer']:.1f}, "
+          f"ratio {totals['peer'] / totals['ours']:.2f} (solve / plain {totals['ours'] / totals['peer']:.2f})")
 
 
 def _noisy_rig_reconstruction():
@@ -219,12 +297,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--bundle-only", action="store_true", help="skip the structure-from-motion comparison")
-    parser.add_argument("--real-only", action="store_true", help="only the real scene")
+    parser.add_argument("--real-only", action="store_true", help="only the real scenes")
+    parser.add_argument("--strecha", action="append", choices=STRECHA_SCENES, help="only these Strecha scenes")
     args = parser.parse_args()
+    if args.strecha:
+        bench_strecha(tuple(args.strecha))
+        return
     if args.real_only:
         bench_real_scene()
+        bench_strecha()
         return
     bench_real_scene()
+    bench_strecha()
     bench_bundle()
     bench_jackknife()
     bench_covariance()

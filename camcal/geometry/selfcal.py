@@ -32,6 +32,7 @@ from camcal.model.colmap import camera_from_colmap, camera_to_colmap
 from camcal.model.distortion import Distortion, fit_distortion
 
 __all__ = [
+    "FOCAL_UNDETERMINED",
     "HELDOUT_FRACTION",
     "LENS_MODELS",
     "LENS_MODEL_MARGIN",
@@ -55,6 +56,9 @@ PRINCIPAL_POINT_MODES = ("auto", "refine", "centre")
 LENS_MODEL_MARGIN = 0.01
 #: fraction of the sparse points (whole tracks) held out of the fit to choose the lens model.
 HELDOUT_FRACTION = 0.2
+#: relative sigma of a focal length above which the report says that the images barely determine it: no
+#: better than a lens's marked focal length (ISO 517 allows the marking +-5 % of the measured focal length).
+FOCAL_UNDETERMINED = 0.05
 
 
 @dataclass(frozen=True)
@@ -103,7 +107,9 @@ class SelfCalibration:
     principal_point : tuple of PrincipalPointDecision
     undetermined : tuple of str
         One line per intrinsic that the images barely determine (posterior
-        sigma near its prior's: :func:`camcal.geometry.bundle.prior.undetermined`).
+        sigma near its prior's: :func:`camcal.geometry.bundle.prior.undetermined`;
+        a focal length without a prior: its sigma above :data:`FOCAL_UNDETERMINED`
+        of its value, or undefined).
     unused_priors : tuple of str
         Given priors on an intrinsic the chosen lens model does not have.
     covariance_sigmas, jackknife_sigmas : dict of str to float
@@ -371,12 +377,31 @@ def self_calibrate(
                                                    for key in {**covariance_sigmas, **jackknife_sigmas}})
     report = SelfCalibration(
         lens_models=chosen, heldout_rms_px=table, n_heldout_points=int(held_mask.sum()),
-        principal_point=decisions, undetermined=tuple(undetermined(final.priors, final.prior_posterior_sigmas)),
+        principal_point=decisions,
+        undetermined=tuple(undetermined(final.priors, final.prior_posterior_sigmas) + _undetermined_focals(final)),
         unused_priors=tuple(spec.label for spec in final.unused_priors), covariance_sigmas=covariance_sigmas, jackknife_sigmas=jackknife_sigmas,
         jackknife_groups=groups, jackknife_skipped=skipped, jackknife_method=spread.method if not skipped else "",
     )
     return final, report
 
+
+
+def _undetermined_focals(final: BundleResult) -> list[str]:
+    """One line per focal length without a prior whose sigma is above :data:`FOCAL_UNDETERMINED` of it, or undefined."""
+    state, lines = final.state, []
+    given = {prior.spec.label for prior in final.priors}
+    for camera, name in enumerate(state.camera_names):
+        names = state.param_names(camera)
+        for key in ("f", "fx", "fy"):
+            if key not in names or f"{name}.{key}" in given or f"{name}.f" in given:
+                continue
+            value, sigma = float(state.params[camera][names.index(key)]), final.sigmas.get(f"{name}.{key}", np.nan)
+            if np.isfinite(sigma) and sigma <= FOCAL_UNDETERMINED * value:
+                continue
+            spread = f"sigma {sigma:.3g} px ({100 * sigma / value:.2g} %)" if np.isfinite(sigma) else "sigma undefined"
+            lines.append(f"{name}.{key}: the images barely determine it: {value:.6g} px, {spread}; give a prior "
+                         f"(--prior {name}.f=MEAN+-SIGMA) or views with more depth and rotation")
+    return lines
 
 
 def _principal_point_decision(final: BundleResult, camera: int, mode: str) -> PrincipalPointDecision:

@@ -432,12 +432,16 @@ class PycolmapPeer:
         both it and the reference camera (the first) are registered: plain
         pycolmap has no rig constraint, so each frame has its own.
     n_registered : int
+    cam_from_world : dict of str to ndarray
+        The user's image path -> the rotation world -> camera of every
+        registered image (for rotation errors against a ground truth).
     """
 
     cameras: dict[str, Camera]
     rms_px: dict[str, float]
     right_from_left: dict[str, list[NDArray[np.float64]]]
     n_registered: int
+    cam_from_world: dict[str, NDArray[np.float64]] = dataclasses.field(default_factory=dict)
 
 
 def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, camera_model: str = "SIMPLE_DIVISION",
@@ -488,11 +492,13 @@ def _plain_in(pycolmap, images, folders, out_dir: Path, camera_model: str, seed:
                                            np.eye(3), np.zeros(3))
     reference = next(iter(folders))
     by_frame: dict[str, dict[str, NDArray[np.float64]]] = {}
+    cam_from_world: dict[str, NDArray[np.float64]] = {}
     for image in reconstruction.images.values():
         if not image.has_pose:
             continue
         name, file = image.name.split("/", 1)
         by_frame.setdefault(file, {})[name] = image.cam_from_world().rotation.matrix()
+        cam_from_world[str(staged[image.name])] = by_frame[file][name]
         for point in image.points2D:
             if point.has_point3D():
                 projected = image.project_point(reconstruction.points3D[point.point3D_id].xyz)
@@ -503,7 +509,7 @@ def _plain_in(pycolmap, images, folders, out_dir: Path, camera_model: str, seed:
             if name != reference and reference in poses:
                 rotations.setdefault(name, []).append(R @ poses[reference].T)
     return PycolmapPeer(cameras, {name: float(np.sqrt(np.mean(v))) for name, v in squared.items()}, rotations,
-                        reconstruction.num_reg_images())
+                        reconstruction.num_reg_images(), cam_from_world)
 
 
 #: images of at least this many pixels are not upsampled before SIFT (:func:`_extraction_options`).

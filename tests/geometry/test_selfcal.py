@@ -12,7 +12,7 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleState
 from camcal.geometry.bundle.prior import PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO
 from camcal.model.camera import rotation_angle_deg
-from camcal.geometry.selfcal import self_calibrate
+from camcal.geometry.selfcal import FOCAL_UNDETERMINED, self_calibrate
 from camcal.model.colmap import camera_from_colmap
 from camcal.model.rig import Camera
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
@@ -93,6 +93,7 @@ def test_self_calibration_recovers_offcentre_principal_points_and_division_lens(
     print("\n".join(lines))
     assert all(d.refined for d in decisions.principal_point)
     assert any("principal point refined: sigma(cx, cy) = (" in line for line in lines)
+    assert not any("barely determine" in line for line in lines)  # an orbit fixes f: no line says otherwise
     for k, truth in enumerate(cameras):
         solved = intrinsics(result.state, k)
         name = truth.name
@@ -150,6 +151,11 @@ def test_principal_point_the_views_do_not_determine_is_the_prior_and_says_so():
         solved = intrinsics(result.state, k)
         assert np.all(np.abs(solved.K[:2, 2] - cameras[k].K[:2, 2]) < 2 * np.array(decision.sigma_px))
         assert f"{result.state.camera_names[k]}.cx" in result.sigmas
+        # the focal length has no prior: its sigma (above FOCAL_UNDETERMINED of it) covers the error, said in one line
+        name, sigma = cameras[k].name, result.sigmas[f"{cameras[k].name}.f"]
+        assert FOCAL_UNDETERMINED * solved.K[0, 0] < sigma and abs(solved.K[0, 0] - cameras[k].K[0, 0]) < 2 * sigma
+        assert sum(line.startswith(f"{name}.f: the images barely determine it: ") and f"sigma {sigma:.3g} px" in line
+                   for line in lines) == 1
     assert any(line.startswith("skew: 0") for line in lines)
 
 

@@ -44,7 +44,11 @@ def test_sigmas_cover_the_error_on_lateral_few_frame_rigs(tmp_path):
     a mean focal error no larger than plain pycolmap's (SIMPLE_DIVISION per folder, principal point refined).
 
     Seeds 0-19 (scenes where COLMAP's mapper registers nothing are drawn again, up to 4): the constants
-    of the priors come from sensors and lenses (camcal.geometry.bundle.prior), not from these scenes."""
+    of the priors come from sensors and lenses (camcal.geometry.bundle.prior), not from these scenes.
+    Measured (seeds 0-19, all mapped): 116 / 120 = 96.7 % within 2 sigma, mean focal error camcal 0.312 %,
+    plain pycolmap 0.510 %; the misses: seed 8's focal length (+1.61 px in both cameras, 3.4 sigma: a scale
+    shared by the rig that the delete-one-frame jackknife over 6 frames does not see) and seed 10's cy (2.2 and
+    2.8 sigma, 5 frames)."""
     from camcal.pipelines.solve import solve_pycolmap_plain, solve_sfm
 
     ratios, ours, theirs, failed = [], [], [], []
@@ -80,3 +84,66 @@ def test_sigmas_cover_the_error_on_lateral_few_frame_rigs(tmp_path):
     assert len(ours) == 40 and len(ratios) == 120
     assert np.mean(ratios < 2) >= 0.9
     assert np.mean(ours) <= np.mean(theirs)
+
+
+def long_lens_scene(seed):
+    """The scene of the original report, made harder: a 960 x 720 stereo rig with a long lens (f 1.25-1.45 image
+    widths), principal points 4-7 px off-centre, sliding sideways over 7 positions 0.25 m apart, no roll, no yaw
+    or pitch, in front of a set without boxes (the back wall and a strip of floor: little depth)."""
+    rng = np.random.default_rng(700 + seed)
+    angle, radius = rng.uniform(0, 2 * np.pi, 2), rng.uniform(4, 7, 2)
+    rig = dict(image_size=(960, 720), f=float(rng.uniform(1.25, 1.45) * 960),
+               pp_offsets=np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1),
+               lam=(-0.4e-7, -0.4e-7), rig_euler_deg=rng.uniform(-2, 2, 3), baseline=0.3, focal_ratio=1.01)
+    return example_stereo_rig(**rig)
+
+
+def render_long_lens(root, seed):
+    cameras = long_lens_scene(seed)
+    rng = np.random.default_rng(seed)
+    planes = orbit_set_planes(rng, n_boxes=0)
+    textures = tuple(procedural_texture(rng) for _ in planes)
+    poses = lateral_rig_poses(rng, 7, 0.25, 2.5, jitter_deg=0.0)
+    render_rig_poses(root, cameras, poses, planes, textures, 1.0, rng)
+    return cameras
+
+
+def covered_or_said(result, cameras):
+    """Per camera and intrinsic (f, cx, cy): its error, its sigma, and whether |error| < 2 sigma or the solve
+    says in one line that the images barely determine it."""
+    lines = result.self_calibration.lines()
+    rows = []
+    for truth in cameras:
+        solved = result.rig.camera(truth.name)
+        decision = next(d for d in result.self_calibration.principal_point if d.camera == truth.name)
+        for key, error in (("f", solved.K[0, 0] - truth.K[0, 0]), ("cx", solved.K[0, 2] - truth.K[0, 2]),
+                           ("cy", solved.K[1, 2] - truth.K[1, 2])):
+            sigma = result.bundle.sigmas[f"{truth.name}.{key}"]
+            said = (any(line.startswith(f"{truth.name}.f: the images barely determine it: ") for line in lines)
+                    if key == "f" else not decision.determined)
+            rows.append((f"{truth.name}.{key}", error, sigma, abs(error) < 2 * sigma or said, said))
+    return rows
+
+
+@pytest.mark.slow
+def test_long_lens_lateral_slide_sigma_covers_or_says_the_images_cannot_tell(tmp_path):
+    """The original report (focal errors 3.9-8.8 % with a printed sigma of 1.7 %), harder: on three seeded long-lens
+    lateral slides before little depth, every f, cx, cy of both cameras lies within 2 sigma of the truth, or the
+    solve says in one line that the images barely determine it (with the sigma).
+    Measured on seed 0 only (the machine's load stopped the rest): f +25.6 / +37.7 px against sigma 149 / 141 px
+    (11 %: said undetermined), principal points (-1.9, +3.2) / (-0.3, -0.4) px against sigma (1.3, 3.0) /
+    (2.7, 4.2) px."""
+    from camcal.pipelines.solve import solve_sfm
+
+    failures, report = [], []
+    for seed in range(3):
+        cameras = render_long_lens(tmp_path / f"in{seed}", seed)
+        folders = {c.name: tmp_path / f"in{seed}" / c.name for c in cameras}
+        with contextlib.redirect_stderr(io.StringIO()):
+            result = solve_sfm(folders, tmp_path / f"out{seed}", seed=seed)
+        rows = covered_or_said(result, cameras)
+        report.append(f"seed {seed}: " + ", ".join(f"{name} {error:+.2f}/{sigma:.2f}{' (said)' if said else ''}"
+                                                   for name, error, sigma, _, said in rows))
+        failures += [f"seed {seed} {name}" for name, _, _, ok, _ in rows if not ok]
+    print("\n".join(report))
+    assert not failures, (failures, report)

@@ -182,11 +182,20 @@ def test_solve_twice_gives_the_same_rig_and_only_camcal_writes_to_stderr(tmp_pat
 
 @pytest.mark.slow
 def test_solve_twice_on_real_stereo_pairs_gives_the_same_rig(tmp_path, shared_data):
-    """Six of OpenCV's real stereo pairs (a chessboard on a desk, 640x480): the two rig files equal to 1e-9."""
+    """Six of OpenCV's real stereo pairs (a chessboard on a desk, 640x480): the two rig files equal to 1e-9,
+    and a default ``camcal solve`` on them (its own process) writes only camcal's lines to stderr."""
     folder = shared_data / "stereo_chessboard"
     folders = {name: [folder / f"{name}{index:02d}.jpg" for index in range(1, 7)] for name in ("left", "right")}
-    for out in ("first", "second"):
-        solve_sfm(folders, tmp_path / out)
+    for name, paths in folders.items():
+        (tmp_path / "in" / name).mkdir(parents=True)
+        for path in paths:
+            (tmp_path / "in" / name / path.name).symlink_to(path)
+    first = subprocess.run([sys.executable, "-m", "camcal", "solve", str(tmp_path / "in/left"), str(tmp_path / "in/right"),
+                            "--out", str(tmp_path / "first")], capture_output=True, text=True, check=True)
+    lines = first.stderr.splitlines()
+    assert lines and all(line.startswith("camcal solve: ") for line in lines), lines[:5]
+    assert any(GLOG_LINE.match(line) for line in (tmp_path / "first" / COLMAP_LOG).read_text().splitlines())
+    solve_sfm({name: tmp_path / "in" / name for name in folders}, tmp_path / "second")
     a = dict(_numbers(json.loads((tmp_path / "first/solve.rig.json").read_text())))
     b = dict(_numbers(json.loads((tmp_path / "second/solve.rig.json").read_text())))
     assert set(a) == set(b) and any(".sigma." in key for key in a)
