@@ -29,7 +29,10 @@ Speed: time per 4K frame of camcal's ``detect_board`` (detection +
 refinement) against ``findChessboardCornersSB`` on the same frames: the ratio of
 the means (the target, 10x) and the median of the per-frame ratios.
 
-Run: ``python bench/bench_corners.py [--views 100] [--seed 27]``.
+Also ``--fisheye-views`` (default 20) views through a strong barrel lens (division lambda -0.3 to -0.9
+over the half-diagonal squared, boards off-centre and tilted), reported in a table of their own.
+
+Run: ``python bench/bench_corners.py [--views 100] [--fisheye-views 20] [--seed 27]``.
 """
 
 from __future__ import annotations
@@ -99,6 +102,40 @@ def make_view(rng: np.random.Generator, index: int, n_views: int):
     return view, dict(size=size, square=square, blur=blur, kind=kind, is_4k=is_4k, columns=columns, rows=rows)
 
 
+def make_fisheye_view(rng: np.random.Generator):
+    """One view through a strong barrel lens: division lambda of -0.3 to -0.9 over the half-diagonal squared
+    (a radius 1.4-2.5x its pinhole radius at the frame's corner), the board off-centre and tilted, every
+    corner's edges visibly bent."""
+    size = SIZES[rng.integers(3)]
+    half_diagonal = 0.5 * np.hypot(*size)
+    distortion = -rng.uniform(0.3, 0.9) / half_diagonal**2
+    centre = np.array([(size[0] - 1) / 2, (size[1] - 1) / 2])
+    while True:
+        columns, rows = int(rng.integers(5, 10)), int(rng.integers(4, 7))
+        if columns == rows:
+            continue
+        square = float(rng.uniform(0.08, 0.2)) * size[0]
+        H = board_homography(size, columns, rows, square, rng.uniform(0, 45), rng.uniform(0, 360),
+                             rng.uniform(-180, 180), tuple(centre + rng.uniform(-0.25, 0.25, 2) * size))
+        outline = H @ np.array([[-1, -1, 1], [columns, -1, 1], [-1, rows, 1], [columns, rows, 1]]).T
+        if np.any(outline[2] <= 0):
+            continue
+        radial = (outline[:2] / outline[2]).T - centre
+        r_u = np.linalg.norm(radial, axis=1)
+        r_d = (1 - np.sqrt(1 - 4 * distortion * r_u**2)) / (2 * distortion * r_u)
+        distorted = centre + radial * (r_d / r_u)[:, None]
+        if np.all(distorted >= 2) and np.all(distorted < np.array(size) - 3):
+            break
+    blur = float(np.exp(rng.uniform(np.log(0.5), np.log(3.0))))
+    black = rng.uniform(10, 70)
+    levels = (black, rng.uniform(max(black + 80, 150), 245), rng.uniform(60, 200))
+    view = render_board_view(rng, size, H, columns, rows, blur, distortion=distortion, levels=levels,
+                             full_well_e=float(np.exp(rng.uniform(np.log(2000), np.log(20000)))),
+                             read_noise_e=rng.uniform(2, 10), jpeg_quality=int(rng.integers(80, 96)))
+    return view, dict(size=size, square=float(np.median(view.square_px)), blur=blur, kind="fisheye", is_4k=False,
+                      columns=columns, rows=rows)
+
+
 def match(found: np.ndarray | None, truth: np.ndarray, square: np.ndarray) -> np.ndarray:
     """Per true corner, the error (px) of the nearest found corner; NaN where none is within 0.3 square."""
     errors = np.full(len(truth), np.nan)
@@ -164,7 +201,21 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, default=100)
     parser.add_argument("--seed", type=int, default=27)
+    parser.add_argument("--fisheye-views", type=int, default=20,
+                        help="views through a strong barrel lens, reported on their own")
     args = parser.parse_args()
+    fisheye = []
+    for index in range(args.fisheye_views):
+        rng = np.random.default_rng([args.seed, 1000 + index])
+        view, info = make_fisheye_view(rng)
+        errors, _, _ = run_detectors(view, info)
+        fisheye.append(dict(info, errors=errors, crb=corner_crb_px(view, WINDOW_FRACTION)))
+        e = {m: (np.sqrt(np.nanmean(v**2)) if np.isfinite(v).any() else float("nan")) for m, v in errors.items()}
+        print(f"fisheye {index:3d} {info['size'][0]}x{info['size'][1]} sq {view.square_px.min():.0f}-"
+              f"{view.square_px.max():.0f} blur {info['blur']:.2f}: camcal {e['camcal']:.4f} SB {e['SB']:.4f} "
+              f"classic {e['classic']:.4f} CRB {np.sqrt(np.nanmean(fisheye[-1]['crb']**2)):.4f}", flush=True)
+    if fisheye:
+        table("Strong barrel lens (division lambda -0.3 to -0.9 over the half-diagonal squared)", fisheye)
     rows = []
     for index in range(args.views):
         rng = np.random.default_rng([args.seed, index])  # each view reproducible on its own
@@ -176,6 +227,8 @@ def main() -> None:
         print(f"{index:3d} {info['size'][0]}x{info['size'][1]} {info['kind']:9s} sq {info['square']:6.1f} "
               f"blur {info['blur']:.2f}: camcal {e['camcal']:.4f} SB {e['SB']:.4f} classic {e['classic']:.4f} "
               f"CRB {np.sqrt(np.nanmean(rows[-1]['crb']**2)):.4f} camcal worst {worst:.3f}  t {t_camcal:.2f}s / SB {t_sb:.2f}s", flush=True)
+    if not rows:
+        return
     table("All views", rows)
     big = [r for r in rows if r["is_4k"]]
     table("4K views (3840x2880, squares 100-300 px)", big)

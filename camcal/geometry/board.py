@@ -7,7 +7,9 @@ Two kinds of planar target:
     squares of side ``SQUARE`` (in the board's units, e.g. metres, or 1.0
     to measure in squares). Found by ``cv2.findChessboardCorners`` (the
     fastest), falling back to ``cv2.findChessboardCornersSB`` (plain, then
-    with its exhaustive and accuracy flags) when it fails; all three run
+    with its exhaustive and accuracy flags) when it fails or when the
+    X-junction fit below rejects one of its corners (then the search at the
+    same size with the fewest rejected corners is kept); all three run
     on a quarter-size copy first when the image is 800 px or more on both
     sides, then on a half-size one from 400 px, full size last; either way
     refined by ``cv2.cornerSubPix`` with a window of half-size
@@ -72,6 +74,7 @@ highly reliable fiducial markers under occlusion. Pattern Recognition.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import PurePath
 
@@ -111,7 +114,7 @@ MAX_BOARD_SIDE = 1000
 #: Fewest ChArUco corners kept in one image (a pose needs non-collinear points).
 MIN_CHARUCO_CORNERS = 6
 #: Part of every cache key: change it whenever detection changes what it returns.
-_DETECTOR_VERSION = "reduced-classic-reduced-sb-subpix-adaptive-xfit-v6"
+_DETECTOR_VERSION = "reduced-classic-reduced-sb-subpix-adaptive-xfit-v7"
 #: The detector's version and settings: a detection cached under others is not reused.
 DETECTOR_SETTINGS = f"{_DETECTOR_VERSION}|{_SB_FLAGS}|{_CLASSIC_FLAGS}|{_SUBPIX_CRITERIA}|{cv2.__version__}"
 
@@ -353,10 +356,13 @@ def _canonical_chessboard(gray: NDArray[np.uint8], corners: NDArray[np.float64],
     return grid.reshape(-1, 2)
 
 
-def _refine(gray: NDArray[np.uint8], corners: NDArray, grid: NDArray[np.int64], clear: float) -> NDArray[np.float64]:
-    """The X-junction fit of :func:`camcal.geometry.corners.refine_corners` (``clear``: part of a square free of markers)."""
+def _refine(gray: NDArray[np.uint8], corners: NDArray, grid: NDArray[np.int64], clear: float
+            ) -> tuple[NDArray[np.float64], int]:
+    """The X-junction fit of :func:`camcal.geometry.corners.refine_corners` (``clear``: part of a square free of
+    markers): the corners and how many of them the fit rejected (kept where they were)."""
     corners = corners.reshape(-1, 2).astype(np.float64)
-    return refine_corners(gray, corners, clear * grid_spacing_px(corners, grid)).corners_px
+    result = refine_corners(gray, corners, clear * grid_spacing_px(corners, grid))
+    return result.corners_px, int(np.count_nonzero(~result.ok))
 
 
 def _charuco_corners(board: Board, gray: NDArray[np.uint8]):
@@ -378,11 +384,11 @@ def _charuco_corners(board: Board, gray: NDArray[np.uint8]):
             found = (mirrored, mirrored_ids, "charuco-mirrored")
     return found
 
-def _find_reduced_first(gray: NDArray[np.uint8], *finders) -> tuple[bool, NDArray | None, int]:
+def _search_reduced_first(gray: NDArray[np.uint8], *finders) -> Iterator[tuple[NDArray, int, int]]:
     """Run the finders in turn on a quarter-size copy (both sides >= 800 px), then half size (>= 400 px), then full size.
 
-    The first success wins: its corners mapped back to full-size pixels (pixel centres map as
-    ``f x + (f - 1) / 2``) and the finder's index. A reduced copy has 4x (16x) fewer pixels: the board is
+    Yields every success in that order: its corners mapped back to full-size pixels (pixel centres map as
+    ``f x + (f - 1) / 2``), the finder's index and the reduction ``f``. A reduced copy has 4x (16x) fewer pixels: the board is
     found that much faster, and the refinement at full size makes up the accuracy.
     """
     height, width = gray.shape
@@ -393,8 +399,7 @@ def _find_reduced_first(gray: NDArray[np.uint8], *finders) -> tuple[bool, NDArra
         for index, finder in enumerate(finders):
             found, corners = finder(image)
             if found:
-                return True, factor * corners + (factor - 1) / 2, index
-    return False, None, -1
+                yield factor * corners + (factor - 1) / 2, index, factor
 
 
 def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection | None:
@@ -429,7 +434,7 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), _SUBPIX_CRITERIA)
         ids = ids.ravel().astype(np.int64)
         grid = np.stack([ids % (board.columns - 1), ids // (board.columns - 1)], axis=1)
-        corners = _refine(gray, corners, grid, 0.8 * (board.square - board.marker) / board.square)
+        corners, _ = _refine(gray, corners, grid, 0.8 * (board.square - board.marker) / board.square)
         order = np.argsort(ids)
         return Detection(name, (width, height), ids[order], corners[order], charuco)
     pattern = (board.columns, board.rows)
@@ -437,24 +442,38 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
     # frame and the classic search 45-100 s on a 2048x1536 one, where quarter-size copies take 0.1-0.6 s;
     # the refinement below works at full size
     detectors = ("classic", "sb", "sb")
-    found, corners, which = _find_reduced_first(
+    searches = _search_reduced_first(
         gray,
         lambda img: cv2.findChessboardCorners(img, pattern, flags=_CLASSIC_FLAGS),
         lambda img: cv2.findChessboardCornersSB(img, pattern, flags=0),
         lambda img: cv2.findChessboardCornersSB(img, pattern, flags=_SB_FLAGS),
     )
-    if not found:
-        return None
-    detector = detectors[which]
-    # The SB corners are pulled towards the image centre (0.1 px at 300 px from it, on
-    # `camcal demo`'s rendered boards, with or without lens distortion): cornerSubPix
-    # converges to the saddle point and removes that bias (0.0002 px left).
-    grid = corners.reshape(board.rows, board.columns, 2)
-    spacing = min(np.linalg.norm(np.diff(grid, axis=axis), axis=2).min() for axis in (0, 1))
-    half = int(np.clip(round(_SUBPIX_WINDOW_FRACTION * spacing), *_SUBPIX_WINDOW_PX))
-    corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
     col, row = np.meshgrid(np.arange(board.columns), np.arange(board.rows))
-    corners = _refine(gray, corners, np.stack([col.ravel(), row.ravel()], axis=1), 1.0)
+    grid_ids = np.stack([col.ravel(), row.ravel()], axis=1)
+    best = None
+    # A search whose corners the X-junction fit rejects (the classic search puts an outer corner of a strongly
+    # bent board on the board's rim, 10-30 px off, on real fisheye and car-camera views) gives way to the next
+    # search at the same size (searches at full size can take seconds); if every one leaves some corner
+    # rejected, the one with the fewest is kept.
+    for corners, which, factor in searches:
+        if best is not None and factor != best[3]:
+            break
+        # The SB corners are pulled towards the image centre (0.1 px at 300 px from it, on
+        # `camcal demo`'s rendered boards, with or without lens distortion): cornerSubPix
+        # converges to the saddle point and removes that bias (0.0002 px left).
+        grid = corners.reshape(board.rows, board.columns, 2)
+        spacing = min(np.linalg.norm(np.diff(grid, axis=axis), axis=2).min() for axis in (0, 1))
+        half = int(np.clip(round(_SUBPIX_WINDOW_FRACTION * spacing), *_SUBPIX_WINDOW_PX))
+        corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
+        refined, n_rejected = _refine(gray, corners, grid_ids, 1.0)
+        if best is None or n_rejected < best[2]:
+            best = (refined, which, n_rejected, factor)
+        if n_rejected == 0:
+            break
+    if best is None:
+        return None
+    corners, which = best[:2]
+    detector = detectors[which]
     corners = _canonical_chessboard(gray, corners, board.columns, board.rows)
     return Detection(name, (width, height), np.arange(board.n_corners, dtype=np.int64), corners, detector)
 

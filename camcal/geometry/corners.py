@@ -115,6 +115,20 @@ def _initial_angles(patches: NDArray, weights: NDArray) -> NDArray[np.float64]:
     return np.stack([peak(first), peak(second)], axis=1)
 
 
+def _value(params: NDArray, offsets: NDArray, radius: NDArray) -> NDArray:
+    """Intensity ``I`` (N, M) of the X-junction model at sample offsets (N, M, 2), without its Jacobian."""
+    cx, cy, t1, t2, s, m, a, gx, gy, q1, q2 = (params[:, k : k + 1] for k in range(_N_PARAMS))
+    vx = offsets[..., 0] - cx
+    vy = offsets[..., 1] - cy
+    inv_r2 = 1.0 / (radius[:, None] ** 2)
+    f = 1.0
+    for theta, q in ((t1, q1), (t2, q2)):
+        nx, ny = np.cos(theta), np.sin(theta)
+        along = -ny * vx + nx * vy
+        f = f * erf((nx * vx + ny * vy + q * along * along * inv_r2) / (_SQRT2 * s))
+    return (m + a * f) * (1.0 + gx * vx + gy * vy)
+
+
 def _model(params: NDArray, offsets: NDArray, radius: NDArray) -> tuple[NDArray, NDArray]:
     """Intensity ``I`` (N, M) and Jacobian (N, M, 11) of the X-junction model at sample offsets (N, M, 2)."""
     cx, cy, t1, t2, s, m, a, gx, gy, q1, q2 = (params[:, k : k + 1] for k in range(_N_PARAMS))
@@ -187,6 +201,10 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
     g = np.hypot(0.5 * (patches[:, 1:-1, 2:] - patches[:, 1:-1, :-2]), 0.5 * (patches[:, 2:, 1:-1] - patches[:, :-2, 1:-1]))
     g_peak = np.max(g * (weights.reshape(patches.shape)[:, 1:-1, 1:-1] > 0), axis=(1, 2))
     blur0 = np.clip(np.abs(hi - lo) / (np.sqrt(2 * np.pi) * np.maximum(g_peak, 1e-12)), 0.7, radius / 3)
+    # the fit weighs only the disc inscribed in the patch (a window that moved by up to 2 px): a fifth fewer samples
+    disc = (ox * ox + oy * oy <= half * half).ravel()
+    offsets, flat, weights = offsets[:, disc], flat[:, disc], weights[:, disc]
+    valid = valid.reshape(n, -1)[:, disc]
     params = np.zeros((n, _N_PARAMS))
     params[:, 0:2] = centre0
     params[:, 2:4] = angles
@@ -210,7 +228,7 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
         if idx.size == 0:
             break
         p, off, rad = params[idx], offsets[idx], radius[idx]
-        w = _taper(off, p[:, :2], rad) * valid.reshape(n, -1)[idx]
+        w = _taper(off, p[:, :2], rad) * valid[idx]
         model, jac = _model(p, off, rad)
         res = flat[idx] - model
         cost = (w * res * res).sum(1)
@@ -231,8 +249,7 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
             step = np.stack([np.linalg.lstsq(d, g_, rcond=None)[0] for d, g_ in zip(damped, gradient)])
         trial = p + step
         trial[:, 4] = np.maximum(trial[:, 4], 0.25)
-        model_t, _ = _model(trial, off, rad)
-        res_t = flat[idx] - model_t
+        res_t = flat[idx] - _value(trial, off, rad)
         cost_t = (w * res_t * res_t).sum(1) + prior * (trial[:, 9] ** 2 + trial[:, 10] ** 2)
         cost_p = cost + prior * (p[:, 9] ** 2 + p[:, 10] ** 2)
         better = np.isfinite(cost_t) & (cost_t <= cost_p)
@@ -243,7 +260,7 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
         converged[idx[better & small]] = True
         active[idx[done]] = False
     converged |= active & (lam < 1e7)  # still improving at the last iteration: keep, checked below
-    w = _taper(offsets, params[:, :2], radius) * valid.reshape(n, -1)
+    w = _taper(offsets, params[:, :2], radius) * valid
     model, jac = _model(params, offsets, radius)
     res = flat - model
     dof = np.maximum(w.sum(1) - _N_PARAMS, 1.0)
@@ -257,7 +274,7 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
         cov = np.linalg.inv(normal[finite])
         sigma[finite] = rms[finite] * np.sqrt(np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 0.0) / 2)
     params[:, 0:2] += base
-    return params, converged, rms, sigma, valid.reshape(n, -1).any(axis=1)
+    return params, converged, rms, sigma, valid.any(axis=1)
 
 
 def refine_corners(

@@ -98,3 +98,27 @@ def test_grid_spacing_of_missing_neighbours_is_nan():
     assert spacing[:2].tolist() == [10.0, 10.0] and np.isnan(spacing[2])
     with pytest.raises(CamcalError, match="one grid position per corner"):
         grid_spacing_px([[0, 0]], [[0, 0], [1, 0]])
+
+
+def test_detection_whose_corner_the_fit_rejects_gives_way_to_the_next_search(monkeypatch):
+    """The classic search returning one corner 0.4 square off (as on real fisheye views, where it put an outer
+    corner on the board's rim): the X-junction fit rejects it, the SB search at the same size is kept."""
+    from camcal.geometry import board as board_module
+
+    rng = np.random.default_rng(7)
+    H = board_homography((480, 360), 7, 5, 30.0, 25, 40, 10)
+    view = render_board_view(rng, (480, 360), H, 7, 5, 1.0)
+    classic = cv2.findChessboardCorners
+
+    def misplaced(image, pattern, flags=0):
+        found, corners = classic(image, pattern, flags=flags)
+        if found:
+            corners = corners.copy()
+            corners.reshape(-1, 2)[11, 0] += 0.4 * 30.0
+        return found, corners
+
+    monkeypatch.setattr(board_module.cv2, "findChessboardCorners", misplaced)
+    detection = board_module.detect_board(board_module.Board("chessboard", 7, 5, 1.0), view.image)
+    assert detection is not None and detection.detector == "sb"
+    error = np.linalg.norm(detection.corners_px[:, None] - view.corners_px[None], axis=2).min(axis=1)
+    assert error.max() < 0.2
