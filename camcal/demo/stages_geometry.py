@@ -75,7 +75,10 @@ def stage_calibrate_board(ctx: DemoContext) -> StageResult:
                f"--report calibrate")
     body = (f"<pre>{html.escape(command)}</pre><pre>{html.escape(result.summary())}</pre>"
             f"{img_tag(ctx, residual_plot)}"
-            + "".join(img_tag(ctx, p, width=320) for p in plots)
+            + "".join(img_tag(ctx, p, width=320) for p in plots if p.suffix == ".png")
+            + "".join(f'<p><a href="{html.escape(os.path.relpath(p.resolve(), ctx.out_dir.resolve()))}">'
+                      f"{html.escape(p.name)}</a>: the calibration's own report (camera layout, held-out residuals)</p>"
+                      for p in plots if p.suffix == ".html")
             + f"<h3>Projection uncertainty</h3><p>{html.escape(sigma_text)}</p>"
             + "".join(img_tag(ctx, p, width=420) for p in sigma_plots))
     return StageResult(tuple(rows), (("board calibration (board.rig.json)", rig_path),),

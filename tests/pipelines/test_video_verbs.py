@@ -129,7 +129,8 @@ def test_rectify_videos_as_their_frames(stereo_videos, capsys):
         for file in written:
             assert np.array_equal(cv2.imread(str(folder / "w_video" / name / file), cv2.IMREAD_UNCHANGED),
                                   cv2.imread(str(folder / "w_images" / name / file), cv2.IMREAD_UNCHANGED))
-    assert Rig.load(folder / "video.rig.json") == Rig.load(folder / "images.rig.json")
+    # the same cameras (the provenance stamps the second each file was written)
+    assert Rig.load(folder / "video.rig.json").cameras == Rig.load(folder / "images.rig.json").cameras
     # a video that cannot be decoded: one line, exit 2, nothing written
     (folder / "broken.mp4").write_bytes(b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 8)
     assert main(["rectify", rig, "--images", f"left={folder}/left.avi", f"right={folder}/broken.mp4",
