@@ -25,7 +25,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "skin), top-right, bottom-right, bottom-left of the patch grid")
     parser.add_argument("--detector", choices=("auto", "segmentation", "cv2.mcc"), default="auto",
                         help="chart detection without --corners: camcal's segmentation, OpenCV's cv2.mcc, or auto "
-                             "(cv2.mcc, then segmentation); both on a normalised sRGB view of a raw file")
+                             "(segmentation, then cv2.mcc); both on a normalised sRGB view of a raw file")
     parser.add_argument("--keep-clipped", action="store_true", help="keep patches flagged clipped")
     parser.add_argument("--model", default="auto",
                         help="auto | matrix3x3[:white-preserving] | polynomial:N | root-polynomial:D "

@@ -207,20 +207,15 @@ def detect_chart(
     reference_RGB: Any = None,
     detector: str = "auto",
 ) -> ChartDetection:
-    """Find a 24-patch ColorChecker: OpenCV's ``cv2.mcc``, then camcal's segmentation.
+    """Find a 24-patch ColorChecker: camcal's segmentation, then OpenCV's ``cv2.mcc``.
 
     Both run on :func:`camcal.colour.chart.find.detection_view` (a linear
     image normalised per channel and sRGB-encoded), never on the linear
-    values themselves. ``auto`` takes cv2.mcc's answer when its colours
-    agree with the reference, else the segmentation's
+    values themselves. ``auto`` takes the segmentation's answer
     (:func:`camcal.colour.chart.find.find_chart_segmentation`, which needs
-    ``reference_RGB`` to orient the chart). On synthesised raw captures
-    (bench/bench_chart_detect.py) the segmentation alone found more charts
-    (37/37 against 29/37), more accurately (worst 2.0 px against 6.2 px),
-    and ``--detector segmentation`` asks for it; it is not yet first in
-    ``auto`` because on the demo's right camera its patches led to a fit
-    whose OCIO bake misses CIEDE2000 0.2 on the independent colours
-    (0.2006): the bake's samples do not cover every plausible surface. With ``reference_RGB``,
+    ``reference_RGB`` to orient the chart) when it finds the chart, else
+    cv2.mcc's: on synthesised raw captures (bench/bench_chart_detect.py)
+    the segmentation found more charts, more accurately. With ``reference_RGB``,
     cv2.mcc's patch order is checked against the reference's colours too:
     it can return the chart a half turn round (seen on dim raw views), and
     its answer is refused when the colours do not agree
@@ -256,6 +251,11 @@ def detect_chart(
         raise CamcalError(f"unknown chart detector {detector!r}, expected one of: {', '.join(DETECTORS)}")
     view = detection_view(image, linear=linear)
     tried = []
+    if detector in ("auto", "segmentation") and reference_RGB is not None:
+        tried.append("segmentation")
+        found = find_chart_segmentation(view, reference_RGB, rows, columns)
+        if found is not None:
+            return _grid_fit(found.centres, found.index, rows, columns, "segmentation")
     if detector in ("auto", "cv2.mcc"):
         tried.append("cv2.mcc")
         centres = _mcc(view, rows, columns)
@@ -265,11 +265,6 @@ def detect_chart(
                 centres = None
         if centres is not None:
             return _grid_fit(centres, np.arange(rows * columns), rows, columns, "cv2.mcc")
-    if detector in ("auto", "segmentation") and reference_RGB is not None:
-        tried.append("segmentation")
-        found = find_chart_segmentation(view, reference_RGB, rows, columns)
-        if found is not None:
-            return _grid_fit(found.centres, found.index, rows, columns, "segmentation")
     raise CamcalError(
         f"no ColorChecker found in the image ({' nor '.join(tried)}); give its corners with --corners"
     )

@@ -119,7 +119,7 @@ def test_real_photo_through_the_cli(tmp_path, shared_data, capsys):
     out = tmp_path / "photo.colour.json"
     assert main(["colour", "fit", "--chart", str(photo), "--model", "matrix3x3", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "chart found by cv2.mcc: 22 / 24 patches used (dropped clipped: yellow, cyan)" in text
+    assert "chart found by segmentation: 22 / 24 patches used (dropped clipped: yellow, cyan)" in text
     fit = load_fit(out)
     assert fit.reference == "ColorChecker24 - After November 2014"
     assert fit.linearisation.channels[0].kind == "lut1d"
