@@ -49,13 +49,8 @@ def _colour_science_best(train, test, white) -> tuple[float, str]:
 
 
 def _colour_fit_argv(ctx: DemoContext, name: str, model: str, out: Path) -> list[str]:
-    """``camcal colour fit`` of camera ``name``'s rendered chart, judged on its independent patches.
-
-    The chart is found by cv2.mcc, as before camcal's segmentation detector existed: with the segmentation's
-    patches the right camera's pick bakes to CIEDE2000 0.2006 on the independent colours, over the export
-    row's 0.2, because the bake's samples do not cover every plausible surface (an open finding, issue 31).
-    """
-    return ["colour", "fit", "--chart", str(ctx.need("chart_images", "colour fit")[name]), "--detector", "cv2.mcc",
+    """``camcal colour fit`` of camera ``name``'s rendered chart, judged on its independent patches."""
+    return ["colour", "fit", "--chart", str(ctx.need("chart_images", "colour fit")[name]),
             "--reference", "ISO 17321-1", "--illuminant", ctx.truth.illuminant, "--linearise", "none",
             "--model", model, "--test-patches", str(_independent_csv(ctx, name)), "--camera", name, "--out", str(out)]
 
