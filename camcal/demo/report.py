@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 
 from camcal.demo.core import COLOUR_EXPORTS_SECTION, DemoContext, DemoReport, format_number
 from camcal.report import RESIDUAL_LABEL
+from camcal.report.figures import pyplot, save_figure
 from camcal.model.rig import Camera
 
 __all__ = [
@@ -29,28 +30,10 @@ def img_tag(ctx: DemoContext, path: Path, width: int | None = None) -> str:
     return f'<a href="{html.escape(rel)}"><img src="{html.escape(rel)}" alt="{html.escape(Path(rel).stem)}"{size}></a>'
 
 
-def _pyplot():
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    return plt
-
-
-def _save(fig, path: Path) -> Path:
-    from camcal.base.atomic import atomic_path  # noqa: PLC0415
-
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, dpi=90, format="png")
-    _pyplot().close(fig)
-    return path
-
-
 def plot_images(path: Path, images: Sequence[str], titles: Sequence[str], columns: int) -> Path:
     import cv2  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = pyplot()
     rows = -(-len(images) // columns)
     fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.4 * rows), squeeze=False)
     for ax, image, title in zip(axes.ravel(), images, titles):
@@ -64,14 +47,14 @@ def plot_images(path: Path, images: Sequence[str], titles: Sequence[str], column
     for ax in axes.ravel()[len(images):]:
         ax.axis("off")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_residuals(path: Path, cameras: Sequence[Camera], camera_of_point: NDArray, points_px: NDArray,
                     residuals_px: NDArray, what: str = "corner", max_arrows: int = 3000) -> Path:
     """Reprojection residuals (observed - projected, :mod:`camcal.report`): vectors over each camera's image (at most
     ``max_arrows``, a fixed random subset), and the spread of all of them."""
-    plt = _pyplot()
+    plt = pyplot()
     rng = np.random.default_rng(0)
     fig, axes = plt.subplots(2, len(cameras), figsize=(5.2 * len(cameras), 8.0), squeeze=False)
     for j, camera in enumerate(cameras):
@@ -96,13 +79,13 @@ def plot_residuals(path: Path, cameras: Sequence[Camera], camera_of_point: NDArr
         ax.set_ylabel(f"y: {RESIDUAL_LABEL}")
         ax.set_title(f"{camera.name}: {len(residuals)} {what} residuals", fontsize=10)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_epipolar(path: Path, left: Path, right: Path) -> Path:
     import cv2  # noqa: PLC0415
 
-    plt = _pyplot()
+    plt = pyplot()
     images = [cv2.imread(str(p), cv2.IMREAD_GRAYSCALE) for p in (left, right)]
     height = max(image.shape[0] for image in images)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
@@ -113,7 +96,7 @@ def plot_epipolar(path: Path, left: Path, right: Path) -> Path:
         ax.set_title(title, fontsize=10)
         ax.axis("off")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 _CSS = """

@@ -26,31 +26,16 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.base.atomic import atomic_path, atomic_write_text
+from camcal.base.atomic import atomic_write_text
 from camcal.geometry.board import Board
 from camcal.geometry.zhang import CalibrationResult
 from camcal.report import RESIDUAL_LABEL
+from camcal.report.figures import pyplot, save_figure
 
 __all__ = ["FRUSTUM_SHARE", "layout_axes", "write_volume_report"]
 
 #: Frustum depth as a share of the volume's size (the largest extent of camera centres and boards).
 FRUSTUM_SHARE = 0.12
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, path: Path) -> Path:
-    with atomic_path(path, suffix=".png") as temporary:
-        fig.savefig(temporary, dpi=90, format="png")
-    _pyplot().close(fig)
-    return path
 
 
 def layout_axes(R: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -80,7 +65,7 @@ def _board_outlines(result: CalibrationResult, board: Board | None) -> list[NDAr
 
 
 def _plot_layout(result: CalibrationResult, board: Board | None, path: Path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     cameras = result.rig.cameras
     axes3 = layout_axes(np.array([c.R for c in cameras]))
     boards = _board_outlines(result, board)
@@ -112,11 +97,11 @@ def _plot_layout(result: CalibrationResult, board: Board | None, path: Path) -> 
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _plot_heldout(result: CalibrationResult, path: Path) -> Path:
-    plt = _pyplot()
+    plt = pyplot()
     cameras = result.rig.cameras
     columns = min(4, len(cameras))
     rows = -(-len(cameras) // columns)
@@ -143,7 +128,7 @@ def _plot_heldout(result: CalibrationResult, path: Path) -> Path:
     fig.suptitle(f"held-out corners ({len(residuals)}, {len(result.heldout_images)} views), "
                  "circle: the camera's held-out RMS", fontsize=9)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def write_volume_report(result: CalibrationResult, out_dir: str | os.PathLike,

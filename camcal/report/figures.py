@@ -1,0 +1,28 @@
+"""Matplotlib figures of the reports: the headless backend, and PNGs written atomically."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from camcal.base.atomic import atomic_path
+
+__all__ = ["pyplot", "save_figure"]
+
+
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend (no display needed), imported on first use."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    return plt
+
+
+def save_figure(fig: Any, path: Path) -> Path:
+    """Write ``fig`` to the PNG ``path`` (90 dpi, atomic) and close it."""
+    with atomic_path(path, suffix=".png") as temporary:
+        fig.savefig(temporary, dpi=90, format="png")
+    pyplot().close(fig)
+    return path
