@@ -169,8 +169,8 @@ def _board(args: argparse.Namespace) -> int:
             raise CamcalError(f"--intrinsics {args.intrinsics}: no camera named {', '.join(missing)} "
                               f"(it has: {', '.join(intrinsics)})")
     videos = {name: value for name, value in args.camera.items() if is_video(value)}
-    for name, video in videos.items():  # every video decodable before any work
-        video_info(video)
+    # every video decodable before any work; the containers' frame counts (estimates) size the progress
+    frame_counts = {name: video_info(video).frame_count for name, video in videos.items()}
     cameras = {name: expand_glob("--camera", name, pattern) for name, pattern in args.camera.items()
                if name not in videos}
     workers = args.workers or os.cpu_count() or 1
@@ -179,7 +179,7 @@ def _board(args: argparse.Namespace) -> int:
     # by time, another camera's frames matching the first camera's 0, N, 2N... are not its own 0, N, 2N...
     every = {name: 1 if timestamps is not None and name != first else args.every for name in videos}
     detections, reports, on_dask = {}, {}, {}
-    n_video_frames = sum(-(-video_info(path).frame_count // every[name]) for name, path in videos.items())
+    n_video_frames = sum(-(-frame_counts[name] // every[name]) for name in videos)
     if videos and use_dask(n_video_frames, args.scheduler):
         for step in sorted(set(every.values())):
             group = {name: path for name, path in videos.items() if every[name] == step}
@@ -188,7 +188,7 @@ def _board(args: argparse.Namespace) -> int:
                                                                        "camera(s) on Dask", "frames").report)
     for name in args.camera:
         if name in videos:
-            total = max(1, -(-video_info(videos[name]).frame_count // every[name]))
+            total = max(1, -(-frame_counts[name] // every[name]))
             report = on_dask[name] if name in on_dask else detect_in_video(
                 board, videos[name], every=every[name], workers=workers, cache=cache,
                 progress=Progress(total, f"detecting {name}", "frames").report)
