@@ -68,7 +68,10 @@ def test_undistort_a_video_as_its_frames(chessboard_videos, capsys):
     for name in written:
         assert np.array_equal(cv2.imread(str(out_video / name), cv2.IMREAD_UNCHANGED),
                               cv2.imread(str(out_images / name), cv2.IMREAD_UNCHANGED))
-    assert Rig.load(out_video / "undistorted.rig.json") == Rig.load(out_images / "undistorted.rig.json")
+    from_video, from_images = Rig.load(out_video / "undistorted.rig.json"), Rig.load(out_images / "undistorted.rig.json")
+    assert from_video.cameras == from_images.cameras
+    # the provenance's time stamp is the one thing that varies between runs
+    assert {**from_video.provenance, "created": None} == {**from_images.provenance, "created": None}
     # images and videos are not mixed; a bad --every is one line
     assert main(["undistort", rig, "--camera", "cam0", str(paths[0]), str(frames[0]), "--out", str(folder / "x")]) == 2
     assert main(["undistort", rig, "--camera", "cam0", str(paths[0]), "--every", "0", "--out", str(folder / "x")]) == 2
