@@ -153,7 +153,8 @@ def covariance_from_colmap(cameras: Sequence[Camera], models: Sequence[str], par
 
 
 def _spread(rotations: NDArray[np.float64]) -> float:
-    """``1 - s_max(mean_i R_i)``: 0 when every frame is turned alike about some axis (:data:`MIN_SCENE_GAUGE_SPREAD`)."""
+    """``1 - s_max(mean_i R_i)``: 0 when every frame is turned alike about some axis
+    (:data:`MIN_SCENE_GAUGE_SPREAD`)."""
     return float(1.0 - np.linalg.svd(rotations.mean(axis=0), compute_uv=False)[0])
 
 

@@ -30,7 +30,8 @@ def noisy_state(cameras, poses, X, rng) -> BundleState:
             depth = (X - posed.c) @ posed.R[2]
             with np.errstate(invalid="ignore"):
                 xy = posed.project(X)
-            seen = (depth > 0.3) & np.all(np.isfinite(xy), axis=1) & np.all((xy > 0) & (xy < np.array(camera.image_size) - 1), axis=1)
+            inside = np.all((xy > 0) & (xy < np.array(camera.image_size) - 1), axis=1)
+            seen = (depth > 0.3) & np.all(np.isfinite(xy), axis=1) & inside
             index = np.flatnonzero(seen)
             cams += [k] * len(index)
             frames += [f] * len(index)
