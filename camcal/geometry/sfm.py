@@ -254,7 +254,8 @@ def _quality_sigma(sigmas: dict[str, float], camera: str, model: str, focal: flo
 
 def _projection_quality(rig: Rig, camera: Camera, bundle: BundleResult, calibration: SelfCalibration | None) -> dict:
     """``covariance`` and ``worst_projection_sigma_px`` of a solved camera (:mod:`camcal.geometry.uncertainty`:
-    its intrinsics and rig pose, no scene gauge), empty without a covariance.
+    its intrinsics, its rig pose and the scene gauge, :func:`camcal.geometry.uncertainty.scene_gauge_rows`,
+    when the frames' turns determine it), empty without a covariance.
 
     With the delete-one-frame jackknife the covariance is scaled by its design effect
     ``max(1, mean_k (sigma_jack,k / sigma_k)^2)`` over the camera's parameters (Kish's, per parameter: the

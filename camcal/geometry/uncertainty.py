@@ -24,6 +24,12 @@ tau``. With ``theta`` the intrinsics::
     J     = [dq/dtheta, dq/dp dp/d(rho, tau), dq/dp dp/d(delta_bar, epsilon)]
     Sigma_q = J Sigma J^T,   sigma_worst = sqrt(lambda_max(Sigma_q))
 
+A solve (structure from motion) has no board: its covariance carries
+the scene gauge instead, the common turn of the camera frame over the
+frames once the world's own turn is taken out (:func:`scene_gauge_rows`,
+rotation only), under the same names; the truth's counterpart is
+:func:`scene_gauge_rotation`.
+
 At infinity ``p`` is the unit ray and the translations drop out (``dq/dp``
 scales as ``1/d`` while ``dp/dtau`` stays bounded). ``dq/dtheta`` and
 ``dq/dp`` are central differences of camcal's own projection
@@ -53,20 +59,25 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.model.camera import chordal_mean_rotation
 from camcal.model.colmap import camera_from_colmap
 from camcal.model.distortion import Distortion
 from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera
 
-__all__ = ["GAUGE", "POSE", "SigmaSummary", "camera_covariance", "covariance_from_colmap", "perturbed_lens", "projection_covariance",
-           "projection_jacobian", "projection_sigma", "projection_sigma_map", "sigma_grid", "summarise_sigma",
-           "upsample_grid"]
+__all__ = ["GAUGE", "MIN_SCENE_GAUGE_SPREAD", "POSE", "SigmaSummary", "camera_covariance", "covariance_from_colmap",
+           "perturbed_lens", "projection_covariance", "projection_jacobian", "projection_sigma", "projection_sigma_map",
+           "scene_gauge_rotation", "scene_gauge_rows", "sigma_grid", "summarise_sigma", "upsample_grid"]
 
 #: Names of the board gauge in a camera's covariance (module docstring).
 GAUGE = ("gauge_rx", "gauge_ry", "gauge_rz", "gauge_tx", "gauge_ty", "gauge_tz")
 #: Names of a rig camera's pose ``cam_from_reference`` in its covariance.
 POSE = ("rx", "ry", "rz", "tx", "ty", "tz")
 _K_ENTRIES = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2), "skew": (0, 1)}
+#: The scene gauge needs the frames turned about more than one axis: ``1 - s_max(mean_i R_i)``, the smallest
+#: eigenvalue of its normal equations per frame (:func:`scene_gauge_rows`), at least this (an RMS spread of the
+#: frames' rotations of about 8 degrees about every axis: ``1 - cos 8 deg``).
+MIN_SCENE_GAUGE_SPREAD = 0.01
 #: Grid step (pixels) of a sigma map; the map between grid points is bilinear (sigma is smooth over the frame).
 MAP_STEP_PX = 8
 
@@ -98,7 +109,9 @@ def covariance_from_colmap(cameras: Sequence[Camera], models: Sequence[str], par
     ``A = dtheta/dp`` (central differences), ``Sigma_theta = A Sigma_p A^T``; the rig pose ``rx .. tz``
     (rotation vector on the left of ``cam_from_reference``, translation) is kept as it is. The camera's own
     parameters take their plain names; the earlier cameras' (``cameras[:index]``) keep ``NAME.param``, the
-    cross-covariance a pair's figures use. None when the camera has no free parameter in it.
+    cross-covariance a pair's figures use; the gauge ``gauge.rx`` ... (the scene gauge of a solve,
+    :func:`scene_gauge_rows`) becomes :data:`GAUGE`'s ``gauge_rx`` .... None when the camera has no free
+    parameter in it.
     """
     names = list(names)
     matrix = np.asarray(matrix, dtype=np.float64)
@@ -126,6 +139,10 @@ def covariance_from_colmap(cameras: Sequence[Camera], models: Sequence[str], par
             out_names += [prefix + axis for axis in POSE if f"{camera.name}.{axis}" in names]
     if not any(name in out_names for name in ("fx", "rx")):
         return None
+    gauge = [(names.index(f"gauge.{axis[6:]}"), axis) for axis in GAUGE if f"gauge.{axis[6:]}" in names]
+    if gauge:  # the board or scene gauge, shared by every camera: its plain names
+        rows.append((np.eye(len(gauge)), [k for k, _ in gauge]))
+        out_names += [axis for _, axis in gauge]
     T = np.zeros((len(out_names), len(names)))
     r = 0
     for A, source in rows:
@@ -133,6 +150,95 @@ def covariance_from_colmap(cameras: Sequence[Camera], models: Sequence[str], par
         r += A.shape[0]
     covariance = T @ matrix @ T.T
     return ParameterCovariance(tuple(out_names), 0.5 * (covariance + covariance.T))
+
+
+def _spread(rotations: NDArray[np.float64]) -> float:
+    """``1 - s_max(mean_i R_i)``: 0 when every frame is turned alike about some axis
+    (:data:`MIN_SCENE_GAUGE_SPREAD`)."""
+    return float(1.0 - np.linalg.svd(rotations.mean(axis=0), compute_uv=False)[0])
+
+
+def scene_gauge_rows(rotations: ArrayLike) -> NDArray[np.float64] | None:
+    """The 3 x 3N rows mapping the frames' rotation perturbations to the scene gauge ``g`` of a solve.
+
+    A solve has no board: its world is fixed only up to a similarity, so the
+    rotation between the true and the estimated camera frames, averaged over
+    the frames (mrcal 2.2's gauge, :func:`camcal.geometry.bundle.solve._gauge_rows`
+    for boards), is taken after the rotation of the world that best agrees.
+    With the frames' poses ``rig_from_world`` perturbed as ``R_i' =
+    exp(delta_i) R_i``, a common turn ``g`` of the camera frame and a turn
+    ``W = exp(-w)`` of the world give ``delta_i = g + R_i w`` to first order;
+    ``(g, w)`` are the least squares solution of those ``3N`` equations::
+
+        [N I      sum R_i ] [g]   [sum delta_i      ]
+        [sum R_i^T  N I   ] [w] = [sum R_i^T delta_i]
+
+    and ``g`` is linear in the ``delta_i``: the first three rows of the
+    inverse times the right-hand side's matrix. ``g`` does not change when
+    the ``delta_i`` change by a turn of the world (``R_i w'``), so it does
+    not depend on how the solve fixed its gauge. The system is singular when
+    every frame is turned alike about one axis (``R_i a`` the same for all
+    ``i``: a camera dollied without turning, or turned about one axis only):
+    then ``g`` about that axis is a turn of the world, and None is returned
+    (below :data:`MIN_SCENE_GAUGE_SPREAD`).
+
+    Parameters
+    ----------
+    rotations : array_like, shape (N, 3, 3)
+        ``rig_from_world`` rotation of each frame.
+
+    Returns
+    -------
+    ndarray, shape (3, 3N), or None
+        ``g = rows @ concatenate(delta_i)``.
+    """
+    R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    n = len(R)
+    if n < 2 or _spread(R) < MIN_SCENE_GAUGE_SPREAD:
+        return None
+    M = np.block([[n * np.eye(3), R.sum(axis=0)], [R.sum(axis=0).T, n * np.eye(3)]])
+    B = np.vstack([np.tile(np.eye(3), (1, n)), np.hstack(list(np.transpose(R, (0, 2, 1))))])
+    return np.linalg.solve(M, B)[:3]
+
+
+def scene_gauge_rotation(true_rotations: ArrayLike, estimated_rotations: ArrayLike,
+                         max_iterations: int = 10000) -> NDArray[np.float64]:
+    """The rotation carrying a solve's estimated camera (rig) frame into the true one, in the scene gauge.
+
+    The rotations ``G`` (estimated -> true camera frame) and ``A``
+    (estimated -> true world) minimising ``sum_i |R_true_i A R_est_i^T -
+    G|_F^2`` over the frames (``R``: ``rig_from_world``), found by
+    alternating their chordal means (each step the exact minimiser of one
+    given the other, so the sum never grows): to first order the ``g`` of
+    :func:`scene_gauge_rows` (``G = exp(-g)``), as the board gauge's
+    chordal mean of ``R_true_i R_est_i^T`` is mrcal's mean of the board
+    poses.
+
+    Raises
+    ------
+    CamcalError
+        Fewer than 2 frames, different counts, or the true frames turned
+        alike about one axis (the gauge is then undetermined; :func:`scene_gauge_rows`).
+    """
+    true = np.asarray(true_rotations, dtype=np.float64).reshape(-1, 3, 3)
+    estimated = np.asarray(estimated_rotations, dtype=np.float64).reshape(-1, 3, 3)
+    if len(true) != len(estimated) or len(true) < 2:
+        raise CamcalError(f"need the same number (2 or more) of true and estimated frames, got {len(true)} and "
+                          f"{len(estimated)}")
+    spread = _spread(true)
+    if spread < MIN_SCENE_GAUGE_SPREAD:
+        raise CamcalError(f"the frames are turned alike about one axis (spread {spread:.2g} < "
+                          f"{MIN_SCENE_GAUGE_SPREAD}): the scene gauge is undetermined")
+    A = chordal_mean_rotation(np.transpose(true, (0, 2, 1)) @ estimated)
+    G = np.eye(3)
+    for _ in range(max_iterations):
+        G_next = chordal_mean_rotation(true @ A @ np.transpose(estimated, (0, 2, 1)))
+        A = chordal_mean_rotation(np.transpose(true, (0, 2, 1)) @ G_next @ estimated)
+        done = np.max(np.abs(G_next - G)) < 1e-14
+        G = G_next
+        if done:
+            break
+    return G
 
 
 def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:

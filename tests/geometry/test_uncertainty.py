@@ -9,7 +9,14 @@ from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection, detect_board
-from camcal.geometry.uncertainty import projection_covariance, projection_sigma, projection_sigma_map
+from camcal.geometry.uncertainty import (
+    MIN_SCENE_GAUGE_SPREAD,
+    projection_covariance,
+    projection_sigma,
+    projection_sigma_map,
+    scene_gauge_rotation,
+    scene_gauge_rows,
+)
 from camcal.geometry.zhang import calibrate_board
 from camcal.model.camera import chordal_mean_rotation
 from camcal.model.distortion import Distortion
@@ -178,6 +185,33 @@ def test_rig_camera_pose_and_gauge_cancel_when_equal_and_opposite():
     covariance = ParameterCovariance(("rx", "ry", "rz", "gauge_rx", "gauge_ry", "gauge_rz"),
                                      tuple(map(tuple, 1e-6 * np.outer(a, a))))
     assert np.max(projection_sigma(camera, [[10.0, 20.0], [600.0, 400.0]], covariance=covariance)) < 1e-8
+
+
+def test_scene_gauge_is_the_common_turn_of_the_frames_with_the_world_turn_taken_out():
+    """The rows' g (linear) and the truth's rotation (nonlinear) agree to first order; a turn of the whole world
+    changes neither; frames turned alike about one axis leave the gauge undetermined (None / one-line error)."""
+    rng = np.random.default_rng(4)
+    R = Rotation.random(7, random_state=5).as_matrix()
+    delta = rng.normal(0.0, 1e-5, (7, 3))
+    rows = scene_gauge_rows(R)
+    g = rows @ delta.ravel()
+    world = Rotation.from_rotvec([0.3, -0.2, 0.1]).as_matrix()  # the estimated world turned against the true
+    estimated = np.array([Rotation.from_rotvec(d).as_matrix() @ r for d, r in zip(delta, R)]) @ world.T
+    G = scene_gauge_rotation(R, estimated)
+    assert np.allclose(Rotation.from_matrix(G).as_rotvec(), -g, rtol=0, atol=1e-4 * np.linalg.norm(g))  # 2nd order
+    assert np.linalg.norm(g) > 1e-6
+    # a common turn of every frame is the gauge itself; a turn of the world (delta_i = R_i w) is none of it
+    common, w = np.array([1e-5, -2e-5, 3e-5]), rng.normal(0.0, 1e-5, 3)
+    assert np.allclose(rows @ np.tile(common, 7), common, atol=1e-18)
+    assert np.allclose(rows @ np.concatenate([r @ w for r in R]), 0.0, atol=1e-18)
+    about_z = np.array([Rotation.from_euler("zx", [a, 20], degrees=True).as_matrix() for a in (0, 40, 80, 120)])
+    assert scene_gauge_rows(about_z) is None
+    with pytest.raises(CamcalError, match="turned alike about one axis"):
+        scene_gauge_rotation(about_z, about_z)
+    tilted = about_z.copy()
+    tilted[0] = Rotation.from_euler("y", 60, degrees=True).as_matrix() @ tilted[0]
+    assert 1 - np.linalg.svd(tilted.mean(axis=0), compute_uv=False)[0] > MIN_SCENE_GAUGE_SPREAD
+    assert scene_gauge_rows(tilted) is not None
 
 
 def test_unknown_names_and_missing_covariance_are_one_line_errors():

@@ -16,6 +16,11 @@ Ceres ``SubsetManifold`` on the camera's block.
 Gauge: with a board, its constant corners; without one, when the points
 move, COLMAP's ``TWO_CAMS_FROM_WORLD`` gauge if nothing sets the scale, or
 the first frame's pose held when a rig held at a known calibration sets it.
+The covariance carries the board gauge (mrcal's mean of the board poses,
+:func:`_gauge_rows`) or, without a board, the scene gauge: the common turn
+of the camera frame over the frames once the world's turn is taken out
+(:func:`camcal.geometry.uncertainty.scene_gauge_rows`), which does not
+depend on how the solve fixed its own gauge.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.bundle.covariance import is_free_block, marginal_covariance
 from camcal.geometry.bundle.prior import Prior, posterior_sigma, prior_weights, resolve_priors
 from camcal.geometry.bundle.state import BundleOptions, BundleResult, BundleState, model_layout, residuals
+from camcal.geometry.uncertainty import scene_gauge_rows
 from camcal.model.camera import pixels_to_colmap
 
 __all__ = ["bundle_adjust"]
@@ -436,10 +442,13 @@ def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, pro
         for cost in costs:
             cost.weight = np.sqrt(sigma2) / cost.prior.sigma
     frames = _board_frames(state, colmap, problem)
+    scene = [] if frames or not options.refine_points3D else _scene_frames(colmap, problem)
+    scene_rows = scene_gauge_rows([R for _, R, _ in scene]) if scene else None
+    extra = [block for block, _ in frames] + ([block for block, _, free in scene if free] if scene_rows is not None
+                                                 else [])
     # one thread: the priors are Python cost functions (on more threads the Jacobian's evaluation waits on
     # the GIL forever), and threads that sum in the order they finish would make two runs differ
-    inverse, n_left_out = marginal_covariance(problem, reconstruction, blocks + [block for block, _ in frames],
-                                              num_threads=1)
+    inverse, n_left_out = marginal_covariance(problem, reconstruction, blocks + extra, num_threads=1)
     if inverse.size == 0:
         return np.zeros((0, 0)), (), n_left_out
     B = np.diag(scales)
@@ -447,6 +456,15 @@ def _covariance(state: BundleState, options: BundleOptions, colmap: _Colmap, pro
         B = np.vstack([np.hstack([B, np.zeros((len(names), inverse.shape[0] - len(names)))]),
                        _gauge_rows(len(names), [t for _, t in frames])])
         names += list(GAUGE_NAMES)
+    elif scene_rows is not None:
+        rows = np.zeros((3, inverse.shape[0]))
+        o = len(names)
+        for i, (block, _, free) in enumerate(scene):
+            if free:  # Ceres' quaternion tangent first (half the rotation vector), then the translation's
+                rows[:, o:o + 3] = 2.0 * scene_rows[:, 3 * i:3 * i + 3]
+                o += problem.parameter_block_tangent_size(block)
+        B = np.vstack([np.hstack([B, np.zeros((len(names), inverse.shape[0] - len(names)))]), rows])
+        names += list(GAUGE_NAMES[:3])
     return sigma2 * (B @ inverse @ B.T), tuple(names), n_left_out
 
 
@@ -463,6 +481,20 @@ def _board_frames(state: BundleState, colmap: _Colmap, problem) -> list[tuple[ND
         pose = colmap.reconstruction.frame(fid).rig_from_world
         if is_free_block(problem, pose.params):
             out.append((pose.params, np.array(pose.translation, dtype=np.float64)))
+    return out
+
+
+def _scene_frames(colmap: _Colmap, problem) -> list[tuple[NDArray[np.float64], NDArray[np.float64], bool]]:
+    """``(params block, rotation, free)`` of every frame pose ``rig_from_world`` of a problem without a board.
+
+    The scene gauge (:func:`camcal.geometry.uncertainty.scene_gauge_rows`) of
+    the frames' rotations: the frames the solve holds to fix its gauge
+    (COLMAP's ``TWO_CAMS_FROM_WORLD`` holds the first) enter with no perturbation."""
+    out = []
+    for _, fid in sorted(colmap.frame_ids.items()):
+        pose = colmap.reconstruction.frame(fid).rig_from_world
+        if problem.has_parameter_block(pose.params):
+            out.append((pose.params, pose.rotation.matrix(), is_free_block(problem, pose.params)))
     return out
 
 
