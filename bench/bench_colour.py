@@ -89,6 +89,8 @@ ARGYLL_TIMEOUT_S = 240
 TARGETS = {("Nikon 5100 (NPL)", "D65"): 0.75, ("Nikon 5100 (NPL)", "A"): 0.85, ("Sigma SDMerill (NPL)", "D65"): 1.7}
 
 
+
+
 def _cameras_bench():
     """bench_colour_cameras.py beside this file (its ``same_distribution_floor``)."""
     spec = importlib.util.spec_from_file_location("bench_colour_cameras",
@@ -96,6 +98,9 @@ def _cameras_bench():
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+CAMERAS = _cameras_bench()
 
 
 def scene(camera: str, illuminant: str, seed: int = 0):
@@ -252,7 +257,7 @@ def main() -> int:
                   f"gap {100 * (value / best - 1):+.1f} % (issue 31: <= 2 %); best that exports "
                   f"{export_label} {best_export:.3f}, gap {100 * (value / best_export - 1):+.1f} %")
         auto = next(r for r in ours if r["label"].startswith("camcal auto ->"))
-        cameras = _cameras_bench()
+        cameras = CAMERAS
         floor, floor_label = cameras.same_distribution_floor(test, white)
         target = TARGETS.get((camera, illuminant))
         print(f"trained on the independent colours themselves ({cameras.FLOOR_FOLDS}-fold cross-validation, the "

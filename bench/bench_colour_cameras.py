@@ -98,7 +98,7 @@ def colour_science_best(train: PatchSet, test: PatchSet, white: np.ndarray) -> t
     return best
 
 
-def same_distribution_floor(test: PatchSet, white: np.ndarray, models: tuple[str, ...] = FLOOR_MODELS,
+def same_distribution_floor(test: PatchSet, white: np.ndarray, models: tuple[str, ...] | None = None,
                             folds: int = FLOOR_FOLDS, seed: int = 0) -> tuple[float, str]:
     """Mean CIEDE2000 on the independent set when the fit trains on that set itself, and the pick's label.
 
@@ -113,6 +113,7 @@ def same_distribution_floor(test: PatchSet, white: np.ndarray, models: tuple[str
     metamerism and noise a camera's three channels leave are in it.
     """
     split = np.random.default_rng(seed).permutation(len(test)) % folds
+    models = FLOOR_MODELS if models is None else models
 
     def cross_validated(model: str, objective: str, lam: float) -> float:
         XYZ = np.zeros_like(test.XYZ)

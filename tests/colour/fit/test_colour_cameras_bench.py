@@ -30,6 +30,7 @@ def test_one_camera_prints_ours_against_the_peer(bench, tmp_path, monkeypatch, c
     name = "sony_ilce-7rm2_380_780_5.json"
     shutil.copy(bench.DATA / name, tmp_path / name)
     monkeypatch.setattr(bench, "DATA", tmp_path)
+    monkeypatch.setattr(bench, "FLOOR_MODELS", ("matrix3x3", "root-polynomial:2"))
     assert bench.main(["D65"]) == 0
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.startswith("sony_ilce-7rm2"))
