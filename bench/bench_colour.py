@@ -28,8 +28,9 @@ Without ``colprof`` on the PATH the Argyll rows print
 camcal's ``auto`` runs twice: on the chart alone (candidates ranked by
 leave-one-out) and with the chart's spectra (``spectra="BabelColor
 Average"``: sensitivities estimated from the chart, candidates scored on
-300 Munsell colours rendered through them and also trained on 300 others
-beside the chart's captures, the spectral route; camcal.colour.fit.synthetic).
+300 Munsell colours rendered through them and also trained on the 99 CIE
+2017 samples and 300 other Munsell colours beside the chart's captures, the
+spectral route; camcal.colour.fit.synthetic).
 For each, every candidate ``auto`` ranked is refitted and judged on the
 independent set: the gap of the pick to the best candidate is printed
 (issue 31: never more than 2 %), and to the best candidate that passes
