@@ -15,11 +15,25 @@ training reflectances), CIEDE2000 from colour-science against the same XYZ.
   Finlayson 2015, Vandermonde with every parameter; "best" is the lowest
   independent mean per camera, an oracle pick that favours the peer.
 
+A third column trains on the independent colours themselves:
+:func:`same_distribution_floor`, 10-fold cross-validation on the 190 over
+nine models (up to root-polynomial degree 4, 20-term polynomials and two
+RBFs), each with ``auto``'s ridge grid, the best picked with hindsight. It
+is what a fit of these models reaches when its training colours come from
+the test distribution, a bound no chart or other training set is expected
+to beat; issue 31's target is judged against it.
+
 Issue 31 asks for camcal's default at <= 0.85 x colour-science's best on
 average and better on every camera. Measured (D65, 2026-11-26): better on
 all 15, mean ratio 0.930 (0.851 Dalsa to 0.979 ARRI D-21), the peer's best
-Finlayson 2015 degree 2 on 14 of them. The last lines follow the project's
-form ``name: ours X, peer Y, ratio Y/X``.
+Finlayson 2015 degree 2 on 14 of them; trained on the 190 themselves (the
+floor above) the ratio is 0.879 (0.805 to 0.972), so 0.85 is out of reach of
+these models whatever they train on. ``--spectra`` (the chart's spectral
+route, training on the 99 CIE 2017 samples and 300 Munsell colours through
+sensitivities estimated from the chart): mean ratio 0.901, better on 14
+(Sigma SD1, a Foveon, 1.003; before the CIE 2017 samples and its own ridge:
+0.924). The last lines follow the project's form ``name: ours X, peer Y,
+ratio Y/X``.
 
 Run with ``.venv/bin/python bench/bench_colour_cameras.py [--spectra] [ILLUMINANT ...]``
 (default D65).
@@ -43,6 +57,8 @@ from colour.characterisation import apply_matrix_colour_correction, matrix_colou
 from camcal.colour.chart.patches import PatchSet  # noqa: E402
 from camcal.colour.difference import delta_E  # noqa: E402
 from camcal.colour.fit.characterise import characterise  # noqa: E402
+from camcal.colour.fit.fitting import fit_model  # noqa: E402
+from camcal.colour.fit.select import N_REFINE, RIDGE_GRID  # noqa: E402
 from camcal.colour.spectral.data import CMFS_NAME, reflectance_set, resample_spectral  # noqa: E402
 from camcal.colour.spectral.simulate import SimulatedCamera  # noqa: E402
 
@@ -54,6 +70,10 @@ COLOUR_SCIENCE = (
     + [("Finlayson 2015", {"degree": d}) for d in (1, 2, 3)]
     + [("Vandermonde", {"degree": d}) for d in (1, 2, 3)]
 )
+
+FLOOR_FOLDS = 10
+FLOOR_MODELS = ("matrix3x3", "polynomial:7", "polynomial:10", "polynomial:20", "root-polynomial:2",
+                "root-polynomial:3", "root-polynomial:4", "rbf:polyharmonic-3", "rbf:thin-plate")
 
 
 def load_camera(path: Path, illuminant: str) -> SimulatedCamera:
@@ -84,6 +104,42 @@ def colour_science_best(train: PatchSet, test: PatchSet, white: np.ndarray) -> t
     return best
 
 
+def same_distribution_floor(test: PatchSet, white: np.ndarray, models: tuple[str, ...] | None = None,
+                            folds: int = FLOOR_FOLDS, seed: int = 0) -> tuple[float, str]:
+    """Mean CIEDE2000 on the independent set when the fit trains on that set itself, and the pick's label.
+
+    ``folds``-fold cross-validation (seeded split) on the independent
+    colours: every model of ``models``, each linear-terms model with every
+    ridge ``lambda`` of ``auto``'s grid (objective ``xyz``), the
+    :data:`camcal.colour.fit.select.N_REFINE` best of those also with
+    ``de2000``; the lowest mean, picked with hindsight. The training colours
+    come from the test distribution itself (9/10 of it, 171 of the 190), so
+    this bounds from below what a chart fit of these models, or any training
+    set of other colours, can be expected to reach on this set: the
+    metamerism and noise a camera's three channels leave are in it.
+    """
+    split = np.random.default_rng(seed).permutation(len(test)) % folds
+    models = FLOOR_MODELS if models is None else models
+
+    def cross_validated(model: str, objective: str, lam: float) -> float:
+        XYZ = np.zeros_like(test.XYZ)
+        for k in range(folds):
+            train = split != k
+            fit = fit_model(model, test.RGB[train], test.XYZ[train], objective=objective, regularisation=lam,
+                            white_XYZ=white)
+            XYZ[~train] = fit.apply(test.RGB[~train])
+        return float(np.mean(delta_E(XYZ, test.XYZ, white)))
+
+    scored = []
+    for model in models:
+        grid = (0.0,) if model.startswith(("matrix", "rbf")) else RIDGE_GRID
+        scored += [(cross_validated(model, "xyz", lam), model, "xyz", lam) for lam in grid]
+    linear = sorted(s for s in scored if not s[1].startswith("rbf"))
+    scored += [(cross_validated(model, "de2000", lam), model, "de2000", lam) for _, model, _, lam in linear[:N_REFINE]]
+    value, model, objective, lam = min(scored)
+    return value, f"{model} ({objective}{'' if model.startswith('rbf') else f', lambda {lam:g}'})"
+
+
 def main(illuminants: list[str], spectra: bool = False) -> int:
     files = sorted(DATA.glob("*.json"))
     if not files:
@@ -93,8 +149,9 @@ def main(illuminants: list[str], spectra: bool = False) -> int:
     for illuminant in illuminants:
         print(f"\nunder {illuminant}, 0.2 % noise: train ColorChecker 24, independent rawtoaces 190, mean CIEDE2000")
         print(f"{'camera':22s} {'camcal auto':>11s} {'p95':>6s} {'+spectra':>9s} {'p95':>6s} | "
-              f"{'c-s best':>8s} {'p95':>6s} {'ratio':>6s} {'ratio+sp':>8s}  pick / peer")
-        ratios, ratios_sp = [], []
+              f"{'c-s best':>8s} {'p95':>6s} {'ratio':>6s} {'ratio+sp':>8s} | {'own CV':>6s} {'ratio':>6s}  "
+              "pick / peer / own CV's pick")
+        ratios, ratios_sp, floors = [], [], []
         for path in files:
             cam = load_camera(path, illuminant)
             train, test = scene(cam)
@@ -106,22 +163,29 @@ def main(illuminants: list[str], spectra: bool = False) -> int:
                                     illuminant=illuminant) if spectra else auto
             seconds = time.perf_counter() - start
             peer, peer_p95, peer_label = colour_science_best(train, test, white)
+            floor, floor_label = same_distribution_floor(test, white)
             a, s = auto.result.stats_test, spectral.result.stats_test
             ratios.append(a.mean / peer)
             ratios_sp.append(s.mean / peer)
+            floors.append(floor / peer)
             sp = (f"{s.mean:9.3f} {s.p95:6.3f}" if spectra else f"{'-':>9s} {'-':>6s}")
             sp_ratio = f"{s.mean / peer:8.3f}" if spectra else f"{'-':>8s}"
             print(f"{cam.name:22s} {a.mean:11.3f} {a.p95:6.3f} {sp} | {peer:8.3f} "
-                  f"{peer_p95:6.3f} {a.mean / peer:6.3f} {sp_ratio}  {auto.selection.picked.label} / "
-                  f"{peer_label} ({seconds:.0f} s)", flush=True)
-        summary.append((illuminant, ratios, ratios_sp))
+                  f"{peer_p95:6.3f} {a.mean / peer:6.3f} {sp_ratio} | {floor:6.3f} {floor / peer:6.3f}  "
+                  f"{auto.selection.picked.label} / {peer_label} / {floor_label} ({seconds:.0f} s)", flush=True)
+        summary.append((illuminant, ratios, ratios_sp, floors))
     print()
-    for illuminant, ratios, ratios_sp in summary:
+    for illuminant, ratios, ratios_sp, floors in summary:
         for what, r in (("auto", ratios), ("auto --spectra", ratios_sp))[:2 if spectra else 1]:
             r = np.asarray(r)
             print(f"colour {len(r)} cameras under {illuminant}, camcal {what} / colour-science best: mean ratio "
                   f"{r.mean():.3f} (issue 31: <= 0.85), worst {r.max():.3f}, better on {int(np.sum(r < 1))} of "
                   f"{len(r)}")
+        f, r = np.asarray(floors), np.asarray(ratios)
+        print(f"colour {len(f)} cameras under {illuminant}, trained on the independent colours themselves "
+              f"({FLOOR_FOLDS}-fold cross-validation, the best of {len(FLOOR_MODELS)} models with hindsight) / "
+              f"colour-science best: mean ratio {f.mean():.3f} (min {f.min():.3f}); camcal auto within "
+              f"{100 * (r / f - 1).max():+.1f} % of it, at or below it on {int(np.sum(r <= f))} of {len(f)}")
     return 0
 
 

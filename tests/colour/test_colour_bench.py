@@ -15,8 +15,10 @@ def test_bench_without_colprof_prints_skipped(monkeypatch, capsys):
     monkeypatch.setattr(bench.shutil, "which", lambda name: None if name in ("colprof", "xicclu") else real_which(name))
     monkeypatch.setattr(bench, "SCENES", bench.SCENES[:1])
     monkeypatch.setattr(bench, "CAMCAL_MODELS", ["matrix3x3", "auto"])
+    monkeypatch.setattr(bench.CAMERAS, "FLOOR_MODELS", ("matrix3x3",))
     assert bench.main() == 0
     out = capsys.readouterr().out
     assert "skipped: colprof not installed" in out
     assert "colour-science best" in out and "ratio" in out
     assert "auto gap: picked" in out and "(issue 31: <= 2 %)" in out
+    assert "trained on the independent colours themselves (10-fold cross-validation, the best of 1 models" in out

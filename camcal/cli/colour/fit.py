@@ -49,7 +49,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="the chart's spectral data (BabelColor Average, ColorChecker N Ohta, ISO 17321-1), "
                              "patch names matching: with --model auto, sensitivities are estimated from the chart, "
                              "candidates scored on 300 Munsell colours rendered through them and also trained on "
-                             "300 others beside the chart (the spectral route); the chart-only and spectral picks "
+                             "the 99 CIE 2017 samples and 300 other Munsell colours beside the chart (the spectral "
+                             "route, each model with the ridge the held-out colours prefer); the chart-only and "
+                             "spectral picks "
                              "are compared on the chart's patches held out and the better one written")
     parser.add_argument("--test-patches", metavar="FILE.csv",
                         help="independent patches, same encoding and white as the training ones")

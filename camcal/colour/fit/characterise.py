@@ -171,10 +171,11 @@ def characterise(
     spectra
         The chart's spectral data (``BabelColor Average``...; patch names
         must match): with ``auto``, sensitivities are estimated from the
-        chart and two Munsell sets rendered through them
-        (:mod:`camcal.colour.fit.synthetic`): candidates are scored on the
-        held-out one and also trained on the other (the spectral route); the
-        chart's RGB must be linear (or linearised).
+        chart and reflectance sets rendered through them
+        (:mod:`camcal.colour.fit.synthetic`): candidates are scored on 300
+        held-out Munsell colours and also trained on the 99 CIE 2017 samples
+        and 300 other Munsell colours (the spectral route); the chart's RGB
+        must be linear (or linearised).
     illuminant
         CIE name of the chart's light for ``spectra`` (default: ``white``).
 

@@ -9,9 +9,12 @@ smoothness, cross-validated), and two large reflectance sets no fit step
 otherwise sees are rendered through them under the chart's illuminant, the
 way an ACES IDT is built from spectral data (ACES P-2013-001, ISO 17321-1):
 
-- :data:`SYNTHETIC_TRAINING` (``Munsell validation``, 300 Munsell
-  colours): the spectral route's training colours, beside the chart's own
-  captures kept as anchors;
+- :data:`SYNTHETIC_TRAINING` (``CIE 2017 TCS``, the 99 measured colour
+  evaluation samples of CIE 224:2017, and ``Munsell validation``, 300
+  Munsell colours): the spectral route's training colours, beside the
+  chart's own captures kept as anchors. The measured samples bring the
+  spectral shapes of real surfaces (skins, foliage, textiles, prints) that
+  smooth reflectances recovered from Munsell chromaticities lack;
 - :data:`SYNTHETIC_HELD_OUT` (``Munsell held-out``, 300 other Munsell
   colours): the held-out colours ``auto`` scores its candidates on
   (:mod:`camcal.colour.fit.select`).
@@ -36,7 +39,7 @@ from camcal.colour.spectral.sensitivities import DEFAULT_WAVELENGTHS, Sensitivit
 
 __all__ = ["SYNTHETIC_TRAINING", "SYNTHETIC_HELD_OUT", "SyntheticSets", "synthesise_from_chart"]
 
-SYNTHETIC_TRAINING = "Munsell validation"
+SYNTHETIC_TRAINING = ("CIE 2017 TCS", "Munsell validation")
 SYNTHETIC_HELD_OUT = "Munsell held-out"
 _GRID = (360.0, 780.0, 5.0)
 
@@ -54,14 +57,15 @@ class SyntheticSets:
     def describe(self) -> str:
         return (f"sensitivities estimated from the chart's {self.sensitivities.estimation['captures'][0]['n_patches']}"
                 f" patches (chart RGB reproduced to {100 * self.chart_rms:.2f} % RMS); training "
-                f"{len(self.training)} ({SYNTHETIC_TRAINING}), held out {len(self.held_out)} ({SYNTHETIC_HELD_OUT})")
+                f"{len(self.training)} ({' + '.join(SYNTHETIC_TRAINING)}), held out {len(self.held_out)} ({SYNTHETIC_HELD_OUT})")
 
 
-def _rendered(name: str, sens: Sensitivities, illuminant: str, gains: np.ndarray) -> PatchSet:
+def _rendered(sets: tuple[str, ...], sens: Sensitivities, illuminant: str, gains: np.ndarray) -> PatchSet:
     grid = np.arange(_GRID[0], _GRID[1] + 1, _GRID[2])
-    names, R = reflectance_set(name, grid)
+    names = [n for name in sets for n in reflectance_set(name, grid)[0]]
+    R = np.vstack([reflectance_set(name, grid)[1] for name in sets])
     XYZ, _ = reflectance_XYZ(R, illuminant_spd(illuminant, grid), _GRID)
-    _, R_cam = reflectance_set(name, sens.wavelengths)
+    R_cam = np.vstack([reflectance_set(name, sens.wavelengths)[1] for name in sets])
     return PatchSet(tuple(names), sens.camera_under(illuminant).RGB(R_cam) * gains, XYZ)
 
 
@@ -88,4 +92,4 @@ def synthesise_from_chart(train: PatchSet, spectra: str, illuminant: str,
     gains = np.sum(rendered * train.RGB, axis=0) / np.sum(rendered**2, axis=0)
     chart_rms = float(np.sqrt(np.mean((rendered * gains - train.RGB) ** 2) / np.mean(train.RGB**2)))
     return SyntheticSets(sens, _rendered(SYNTHETIC_TRAINING, sens, illuminant, gains),
-                         _rendered(SYNTHETIC_HELD_OUT, sens, illuminant, gains), gains, chart_rms)
+                         _rendered((SYNTHETIC_HELD_OUT,), sens, illuminant, gains), gains, chart_rms)

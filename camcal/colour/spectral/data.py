@@ -35,7 +35,7 @@ CAMERAS = ("Nikon 5100 (NPL)", "Sigma SDMerill (NPL)")
 
 
 REFLECTANCE_SETS = ("BabelColor Average", "ColorChecker N Ohta", "ISO 17321-1", "PMC", "rawtoaces 190",
-                    "CIE 1995 TCS", "NIST CQS 9.0", "Munsell validation", "Munsell held-out")
+                    "CIE 1995 TCS", "CIE 2017 TCS", "NIST CQS 9.0", "Munsell validation", "Munsell held-out")
 MUNSELL_SUBSET = 300
 CAT_TRANSFORMS = ("CAT02", "Bradford")
 CMFS_NAME = "CIE 1931 2 Degree Standard Observer"
@@ -150,7 +150,10 @@ def reflectance_set(name: str, wavelengths: Any) -> tuple[list[str], np.ndarray]
         ``"BabelColor Average"``, ``"ColorChecker N Ohta"``, ``"ISO 17321-1"``
         (ColorChecker 24 spectra), ``"PMC"`` (30 patches), ``"rawtoaces
         190"`` (the 190 training reflectances of RAW to ACES), ``"CIE 1995
-        TCS"`` (the 14 test colour samples of CIE 13.3), ``"NIST CQS 9.0"``
+        TCS"`` (the 14 test colour samples of CIE 13.3), ``"CIE 2017 TCS"``
+        (the 99 colour evaluation samples of CIE 224:2017 and IES TM-30:
+        measured natural objects, skins, textiles, paints and prints chosen
+        to span colour space and spectral shapes), ``"NIST CQS 9.0"``
         (15 samples), or ``"Munsell validation"`` / ``"Munsell held-out"``:
         two disjoint sets of :data:`MUNSELL_SUBSET` real Munsell colours
         (renotation xyY under illuminant C, seeded draw) turned into
@@ -177,6 +180,11 @@ def reflectance_set(name: str, wavelengths: Any) -> tuple[list[str], np.ndarray]
             raise CamcalError(f"unknown reflectance set {name!r}, expected one of: {', '.join(REFLECTANCE_SETS)}")
         names, grid, values = _munsell_reflectances(name.endswith("held-out"))
         return list(names), np.array([np.interp(wavelengths, grid, v) for v in values])
+    if name == "CIE 2017 TCS":
+        from colour.quality.cfi2017 import load_TCS_CIE2017
+
+        msds = load_TCS_CIE2017(colour.SpectralShape(380, 780, 5))
+        return [str(label) for label in msds.labels], resample_spectral(msds, wavelengths).T
     if name in ("CIE 1995 TCS", "NIST CQS 9.0"):
         from colour.quality.datasets import SDS_TCS, SDS_VS
 

@@ -40,13 +40,15 @@ def _unmet(reason):
 @pytest.mark.slow
 @pytest.mark.parametrize("camera, illuminant, target", [
     pytest.param("Nikon 5100 (NPL)", "D65", 0.75, marks=_unmet(
-        "0.794 mean (p95 1.776); the best candidate auto ranked gives 0.780, colour-science's best 0.879; "
-        "trained on 624 colours rendered through the true sensitivities (Munsell 600 + chart) the best "
-        "root-polynomial gives 0.864")),
+        "0.794 mean (p95 1.776); the target is below what these models reach even trained on the 190 colours: "
+        "10-fold cross-validation on them, nine models with auto's ridge grid, best with hindsight, gives 0.761 "
+        "(bench_colour); --spectra (CIE 2017 + Munsell colours through sensitivities estimated from the chart) "
+        "0.777")),
     pytest.param("Nikon 5100 (NPL)", "A", 0.85, marks=_unmet(
-        "0.919 mean (p95 2.334); best candidate 0.909; with 624 true-sensitivity training colours 1.001")),
+        "0.919 mean (p95 2.334); the 190's own 10-fold cross-validation 0.898; --spectra keeps the chart fit")),
     pytest.param("Sigma SDMerill (NPL)", "D65", 1.7, marks=_unmet(
-        "1.916 mean (p95 4.397); best candidate 1.916; with 624 true-sensitivity training colours 1.831")),
+        "1.916 mean (p95 4.397); the 190's own 10-fold cross-validation 1.829; --spectra 1.988 (its "
+        "root-polynomial:3 fits, 1.82, fail the bake check)")),
 ])
 def test_independent_mean_within_target(sim_factory, camera, illuminant, target):
     _, _, out = _auto(sim_factory(camera, illuminant), illuminant)
@@ -91,6 +93,8 @@ def test_better_than_colour_science_best_on_every_unseen_camera(cameras):
 
 
 @pytest.mark.slow
-@_unmet("mean ratio 0.930 over 15 cameras (0.851 Dalsa to 0.979 ARRI D-21) against <= 0.85")
+@_unmet("mean ratio 0.930 over 15 cameras (0.851 Dalsa to 0.979 ARRI D-21) against <= 0.85; trained on the 190 "
+        "colours themselves (10-fold cross-validation, nine models, best with hindsight) the ratio is 0.879, so no "
+        "training set of these models is expected to reach 0.85 (bench_colour_cameras)")
 def test_mean_ratio_to_colour_science_best_on_unseen_cameras(cameras):
     assert np.mean(list(cameras.values())) <= 0.85

@@ -67,12 +67,13 @@ def test_weights_change_nothing_when_equal(sim):
 
 
 def test_spectral_route_scored_on_held_out_colours_and_says_why(sim):
-    """Sensitivities estimated from the 24 patches alone; the spectral candidates trained on 300 Munsell colours
-    through them beside the chart; everything scored on 300 other Munsell colours; chart-only against
-    spectral decided on the chart's own patches held out."""
+    """Sensitivities estimated from the 24 patches alone; the spectral candidates trained on the 99 CIE 2017
+    samples and 300 Munsell colours through them beside the chart; everything scored on 300 other Munsell
+    colours; chart-only against spectral decided on the chart's own patches held out."""
     train = PatchSet(sim.names_train, sim.RGB_train * 0.37, sim.XYZ_train)  # any exposure
     synthetic = synthesise_from_chart(train, "BabelColor Average", "D65")
-    assert synthetic.chart_rms < 0.02 and len(synthetic.training) == len(synthetic.held_out) == 300
+    assert synthetic.chart_rms < 0.02 and len(synthetic.training) == 399 and len(synthetic.held_out) == 300
+    assert not set(synthetic.training.names) & set(synthetic.held_out.names)
     white = sim.white
     xy = f"{white[0] / white.sum():.10f},{white[1] / white.sum():.10f}"
     test = PatchSet(sim.names_test, sim.RGB_test * 0.37, sim.XYZ_test)
@@ -91,3 +92,25 @@ def test_spectral_route_scored_on_held_out_colours_and_says_why(sim):
     assert out.fit.selection["picked"]["training"] == winner.training
     # the written fit is the one judged: the independent figure is of the picked route's model
     assert out.result.stats_test.mean < 1.2
+
+
+def test_spectral_candidates_take_the_ridge_their_held_out_colours_prefer(sim):
+    """A spectral model gets the grid's lambda with the lowest xyz error on the synthesised held-out colours,
+    refitted here through the public fitter, and the chart's leave-one-out lambda as a smoother fallback."""
+    from camcal.colour.difference import delta_E
+    from camcal.colour.fit.select import RIDGE_GRID, fitter
+
+    train = PatchSet(sim.names_train, sim.RGB_train, sim.XYZ_train)
+    synthetic = synthesise_from_chart(train, "BabelColor Average", "D65")
+    extra = (synthetic.training.RGB, synthetic.training.XYZ)
+    held = synthetic.held_out
+    selection = select_model(train.RGB, train.XYZ, sim.white, objectives=("xyz",), candidates=("root-polynomial:2",),
+                             validation=(held.RGB, held.XYZ), spectral=extra)
+    spectral = sorted((c for c in selection.candidates if c.training == "spectral"), key=lambda c: c.score)
+    chart = min((c for c in selection.candidates if c.training == "chart"), key=lambda c: c.score)
+    errors = {lam: float(np.mean(delta_E(fitter(spectral[0].spec, "xyz", lam, sim.white, extra)(
+        train.RGB, train.XYZ).apply(held.RGB), held.XYZ, sim.white))) for lam in RIDGE_GRID}
+    assert {c.regularisation for c in spectral} == {min(errors, key=errors.get), chart.regularisation}
+    assert len(spectral) == len({c.regularisation for c in spectral})
+    assert spectral[0].regularisation == min(errors, key=errors.get)
+    assert spectral[0].validation_mean == pytest.approx(min(errors.values()), rel=1e-9)

@@ -65,3 +65,15 @@ def test_simulated_camera_white():
     cam = SimulatedCamera.from_colour("Sigma SDMerill (NPL)", "A")
     assert cam.RGB_white[1] == pytest.approx(1.0)
     assert cam.white_XYZ[1] == pytest.approx(1.0)
+
+
+def test_cie_2017_samples_are_colour_sciences_measured_spectra():
+    """The 99 CIE 224:2017 samples on another grid equal colour-science's own 5 nm table at its wavelengths."""
+    import colour
+    from colour.quality.cfi2017 import load_TCS_CIE2017
+
+    names, R = reflectance_set("CIE 2017 TCS", np.arange(360.0, 781.0, 10.0))
+    table = load_TCS_CIE2017(colour.SpectralShape(380, 780, 5))
+    assert len(names) == len(set(names)) == 99 and R.shape == (99, 43)
+    np.testing.assert_allclose(R[:, 2:], table.values[::2].T, atol=1e-12)
+    assert np.all(R[:, 0] == R[:, 2])  # extended with the end value below 380 nm
