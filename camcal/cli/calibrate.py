@@ -11,6 +11,11 @@ from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
 
+#: ``calibrate board --model`` choices besides ``auto`` and ``<model>+spline`` (camcal.geometry.zhang.MODELS, written
+#: here so that ``--help`` does not import the solver; tests/cli check the two agree).
+_BOARD_MODELS = ("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational", "opencv-thin-prism",
+                 "kannala-brandt-thin-prism")
+
 
 def register(parser: argparse.ArgumentParser) -> None:
     """``dlt`` and ``board`` under ``camcal calibrate``."""
@@ -50,14 +55,16 @@ def register(parser: argparse.ArgumentParser) -> None:
                        "solved (the lens model is the rig's)")
     board.add_argument("--refine-intrinsics", action="store_true",
                        help="with --intrinsics: start from them and refine them")
-    board.add_argument("--model", default="auto",
-                       choices=("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational",
-                                "opencv-thin-prism", "kannala-brandt-thin-prism", "auto"),
-                       help="lens model; kannala-brandt is OpenCV's fisheye model, opencv-rational and "
-                       "opencv-thin-prism its 8- and 12-coefficient models, kannala-brandt-thin-prism COLMAP's "
-                       "RAD_TAN_THIN_PRISM_FISHEYE (six radial terms, tangential, thin prism); division "
-                       "estimates fx and fy (its aspect = fx / fy); auto (default) ranks every model by "
-                       "views held out in turn and keeps the simplest within 1 %% of the best")
+    board.add_argument("--model", default="auto", choices=_BOARD_MODELS + tuple(m + "+spline" for m in _BOARD_MODELS)
+                       + ("auto",), metavar="MODEL",
+                       help="lens model: " + ", ".join(_BOARD_MODELS) + ", any of them with a correction field "
+                       "(MODEL+spline, e.g. kannala-brandt+spline: a smooth B-spline displacement over the image "
+                       "after the model, one camera, without --intrinsics), or auto; kannala-brandt is OpenCV's "
+                       "fisheye model, opencv-rational and opencv-thin-prism its 8- and 12-coefficient models, "
+                       "kannala-brandt-thin-prism COLMAP's RAD_TAN_THIN_PRISM_FISHEYE (six radial terms, "
+                       "tangential, thin prism); division estimates fx and fy (its aspect = fx / fy); auto "
+                       "(default) ranks every model by views held out in turn and keeps the simplest within 1 %% "
+                       "of the best")
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
                        "numbers and ranges (21-25) or a fraction (0.2)")

@@ -97,7 +97,7 @@ from camcal.model.distortion import Distortion
 from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera, Rig, make_provenance
 
-__all__ = ["MODELS", "AUTO_MODELS", "AUTO_MARGIN", "MIN_IMAGES", "SPLINE_MIN_VIEWS", "SPLINE_SUFFIX", "ModelScore", "CalibrationResult", "calibrate_board", "quality_problems"]
+__all__ = ["MODELS", "AUTO_MODELS", "AUTO_MARGIN", "MIN_IMAGES", "SPLINE_MIN_VIEWS", "SPLINE_SUFFIX", "ModelScore", "CalibrationResult", "calibrate_board", "quality_problems", "fold_radius_px"]
 
 #: Lens models a board calibration fits and the distortion parameters refined for each.
 MODELS: Mapping[str, tuple[str, ...]] = MappingProxyType(
@@ -633,9 +633,11 @@ def calibrate_board(
         to choose) and keeps the simplest (order of :data:`AUTO_MODELS`)
         within :data:`AUTO_MARGIN` (1 %) of the best; a model that cannot be
         fitted is ranked out with its reason; the chosen model is fitted on
-        every training view, and if that fit fails or fails
-        :func:`quality_problems`, the next in the ranking is (said in
-        :attr:`CalibrationResult.notes`). The ranking is
+        every training view, and if that fit fails, fails
+        :func:`quality_problems` or folds inside the image
+        (:func:`fold_radius_px`: the views may leave the image's rim
+        unseen, and a polynomial can turn over there), the next in the
+        ranking is (said in :attr:`CalibrationResult.notes`). The ranking is
         :attr:`CalibrationResult.model_ranking`. One camera with at least
         :data:`SPLINE_MIN_VIEWS` training views and the plain loss: the
         best model with a correction field (``<model>+spline``) is ranked
@@ -728,6 +730,9 @@ def calibrate_board(
             failures.append(f"{candidate}: {_one_line(error)}")
             continue
         problems = quality_problems(result)
+        folds = [(camera.name, fold_radius_px(camera)) for camera in result.rig.cameras]
+        problems += [f"{name}: the lens folds {radius:.0f} px from the principal point, inside the image (its rays "
+                     "stop turning outward)" for name, radius in folds if radius is not None]
         if problems and candidate != order[-1]:
             failures.append(f"{candidate}: {'; '.join(problems)}")
             continue
@@ -1306,6 +1311,41 @@ def quality_problems(result: CalibrationResult) -> list[str]:
             problems.append(f"{camera.name}: fx {camera.K[0, 0]:.0f} +/- {sigma_fx:.0f} px "
                             f"(> {100 * MAX_FOCAL_SIGMA_REL:.0f} %)")
     return problems
+
+
+#: Directions from the principal point along which :func:`fold_radius_px` follows the lens, and its step in pixels.
+_FOLD_DIRECTIONS = 72
+_FOLD_STEP_PX = 1.0
+
+
+def fold_radius_px(camera: Camera) -> float | None:
+    """Distance from the principal point at which the lens stops mapping the image one-to-one, within the largest
+    circle about the principal point that the image holds (None when it does not fold there).
+
+    Along :data:`_FOLD_DIRECTIONS` lines out of the principal point, every :data:`_FOLD_STEP_PX` pixels, the ray of
+    each pixel (:meth:`Distortion.rays_from_pixels`) must exist and its angle from the optical axis must grow: a
+    lens whose angle stops growing (or has no ray) there maps two parts of the image onto one field, and every
+    point it would have to project beyond that radius is lost. Polynomial radial models fitted on views that leave
+    the image's rim empty can turn over before the rim (Kannala & Brandt 2006 discuss the same for their
+    polynomial in the angle); a held-out view out there is then posed far off.
+    """
+    width, height = camera.image_size
+    cx, cy = camera.K[0, 2], camera.K[1, 2]
+    radius = min(cx, cy, width - 1 - cx, height - 1 - cy)
+    if radius <= _FOLD_STEP_PX:
+        return None
+    steps = np.arange(_FOLD_STEP_PX, radius + _FOLD_STEP_PX, _FOLD_STEP_PX)
+    angles = np.linspace(0.0, 2.0 * np.pi, _FOLD_DIRECTIONS, endpoint=False)
+    directions = np.column_stack([np.cos(angles), np.sin(angles)])
+    pixels = np.array([cx, cy]) + (steps[None, :, None] * directions[:, None, :]).reshape(-1, 2)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        rays = camera.distortion.rays_from_pixels(pixels, camera.K).reshape(len(angles), len(steps), 3)
+        theta = np.arctan2(np.hypot(rays[..., 0], rays[..., 1]), rays[..., 2])
+    bad = ~np.isfinite(theta)
+    bad[:, 1:] |= ~(np.diff(theta, axis=1) > 0.0)
+    if not bad.any():
+        return None
+    return float(steps[np.argmax(bad, axis=1)[bad.any(axis=1)].min()])
 
 
 def _with_projection_sigma(camera: Camera, covariance: NDArray, labels: tuple[str, ...], model: str,

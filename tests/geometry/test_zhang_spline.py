@@ -95,3 +95,41 @@ def test_undistortion_maps_and_exports_carry_the_field():
     assert 0.5 < conversion.max_px < 10.0  # the field's few pixels, what the nearest model loses
     with pytest.raises(CamcalError, match="correction field"):
         camera_to_colmap(truth)
+
+
+def test_cli_board_models_are_the_solvers():
+    """``calibrate board --model`` offers every model of the solver, each with a correction field, and auto."""
+    from camcal.cli.calibrate import _BOARD_MODELS
+    from camcal.geometry.zhang import MODELS
+
+    assert _BOARD_MODELS == tuple(MODELS)
+
+
+def test_cli_fits_a_named_model_with_a_correction_field(tmp_path, capsys, monkeypatch):
+    """``camcal calibrate board --model kannala-brandt+spline`` writes the field into the rig, held-out views at the
+    noise; with two cameras it refuses in one line and writes nothing."""
+    from camcal.cli import main
+    from camcal.geometry.board import DetectionReport
+    from camcal.model.rig import Rig
+
+    truth = camera(bumpy_field())
+    detections = views(truth, 24, 3)["wide"]
+    for d in detections:
+        (tmp_path / d.image).write_bytes(b"")
+    monkeypatch.setattr("camcal.pipelines.board.detect_in_images",
+                        lambda board, paths, progress=None, **options: DetectionReport(tuple(detections), ()))
+    out = tmp_path / "wide.rig.json"
+    code = main(["calibrate", "board", "--board", "chessboard:9x6:0.04", "--camera", f"wide={tmp_path / 'view_*.png'}",
+                 "--model", "kannala-brandt" + SPLINE_SUFFIX, "--holdout", "0,6,12,18", "--out", str(out)])
+    printed = capsys.readouterr()
+    assert code == 0, printed
+    lens = Rig.load(out).cameras[0]
+    assert lens.distortion.model == "kannala-brandt" and lens.distortion.has_correction
+    assert lens.quality["heldout_rms_px"] < 1.2 * math.sqrt(2) * SIGMA_PX, printed.out
+    two = tmp_path / "two.rig.json"
+    code = main(["calibrate", "board", "--board", "chessboard:9x6:0.04", "--camera", f"a={tmp_path / 'view_*.png'}",
+                 f"b={tmp_path / 'view_*.png'}", "--model", "opencv" + SPLINE_SUFFIX, "--out", str(two)])
+    printed = capsys.readouterr()
+    assert code == 2 and not two.exists()
+    assert [line for line in printed.err.splitlines() if line.startswith("camcal: error:")] == [
+        "camcal: error: model opencv+spline calibrates one camera at a time, without given intrinsics"], printed.err
