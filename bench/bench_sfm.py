@@ -176,10 +176,13 @@ def bench_strecha(scenes: tuple[str, ...] = STRECHA_SCENES) -> None:
                   f"{(abs(fx) + abs(fy)) / 2:.3f} %), principal point error {pp:.2f} px "
                   f"({K[0, 2] - K_true[0, 2]:+.2f}, {K[1, 2] - K_true[1, 2]:+.2f})")
         if result.bundle is not None:
-            sigmas = result.bundle.sigmas
+            sigma = camera.quality.sigma
             lens = result.self_calibration.lens_models["cam"] if result.self_calibration is not None else "-"
-            print(f"Strecha {scene} ours sigma: f {sigmas.get('cam.f', np.nan):.2f} px, cx {sigmas.get('cam.cx', np.nan):.2f}, "
-                  f"cy {sigmas.get('cam.cy', np.nan):.2f} px; lens model {lens}")
+            entries = {"fx": (0, 0), "fy": (1, 1), "cx": (0, 2), "cy": (1, 2)}
+            ratios = {key: abs(camera.K[ij] - K_true[ij]) / sigma.get(key, np.nan) for key, ij in entries.items()}
+            print(f"Strecha {scene} ours sigma (px): " + ", ".join(f"{key} {sigma.get(key, np.nan):.2f}" for key in entries)
+                  + "; |error| / sigma: " + ", ".join(f"{key} {value:.2f}" for key, value in ratios.items())
+                  + f" ({sum(value < 2 for value in ratios.values())} / 4 within 2 sigma); lens model {lens}")
         mine, other = _rotation_errors(rotations, true_rotations), _rotation_errors(peer_rotations, true_rotations)
         print(f"Strecha {scene} relative rotation error (deg, {len(mine)} / {len(other)} pairs): mean ours "
               f"{mine.mean():.4f}, peer {other.mean():.4f}, ratio {other.mean() / mine.mean():.2f}; largest ours "

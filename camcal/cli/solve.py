@@ -26,11 +26,14 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rig", metavar="KNOWN.rig.json",
                         help="hold the cameras' relative poses at this calibration (and take its units)")
     parser.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none", "kannala-brandt"),
-                        help="camcal lens model (COLMAP SIMPLE_DIVISION / RADIAL / OPENCV / SIMPLE_PINHOLE / "
-                        "OPENCV_FISHEYE); auto (the default) chooses per camera by held-out residual among "
+                        help="camcal lens model (refined as COLMAP DIVISION / OPENCV with p1 = p2 = 0 / OPENCV / "
+                        "PINHOLE / OPENCV_FISHEYE: fx and fy apart, under the square-pixel prior fx - fy +- 1 %% "
+                        "of f except with --principal-point refine; skew 0); auto (the default) chooses per camera "
+                        "by held-out residual among "
                         "division, polynomial and opencv, never kannala-brandt: name it for a fisheye lens "
                         "(mapped with SIMPLE_RADIAL, then refined as OPENCV_FISHEYE)")
-    parser.add_argument("--camera-model", help="COLMAP camera model to map with; alone, it is kept (no choice)")
+    parser.add_argument("--camera-model", help="COLMAP camera model to map with; alone, it is kept (no choice; "
+                        "a model with one focal length then keeps fx = fy)")
     parser.add_argument("--principal-point", default="auto", choices=("auto", "refine", "centre"),
                         help="refine it under the sensor's prior, the image centre +- 2 %% of the diagonal (auto), "
                         "by the images alone (refine), or hold it at the centre")
@@ -72,7 +75,7 @@ def _solve(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from camcal.geometry.bundle import parse_prior
-    from camcal.geometry.selfcal import LENS_MODELS, MODELS
+    from camcal.geometry.selfcal import LENS_MODELS, MAPPING_MODELS
     from camcal.pipelines.solve import COLMAP_LOG, collect_images, solve_pycolmap_plain, solve_sfm
     from camcal.model.rig import Rig
 
@@ -94,8 +97,8 @@ def _solve(args: argparse.Namespace) -> int:
     lens_models = LENS_MODELS if model == "auto" else (None if model == "keep" else (model,))
     # COLMAP marks fisheye pairs without a focal prior as degenerate (no match survives): a fisheye maps with
     # SIMPLE_RADIAL and becomes kannala-brandt in the self-calibration (a fit of the lens, then the bundle)
-    mapped = model in MODELS and model != "kannala-brandt"
-    camera_model = args.camera_model or (MODELS[model] if mapped else "SIMPLE_RADIAL")
+    mapped = model in MAPPING_MODELS and model != "kannala-brandt"
+    camera_model = args.camera_model or (MAPPING_MODELS[model] if mapped else "SIMPLE_RADIAL")
     result = solve_sfm(images, Path(args.out), camera_model=camera_model, matcher=args.matcher, mapper=args.mapper,
                        seed=args.seed, refine=not args.no_refine, known_rig=known_rig, loss=args.loss,
                        lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features,

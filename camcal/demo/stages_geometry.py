@@ -276,7 +276,8 @@ def stage_solve(ctx: DemoContext) -> StageResult:
                                     *_sfm_residuals(out / "sparse" / "best", [c.name for c in rig.cameras]),
                                     what="feature")
     body = (f"<pre>{html.escape(command_line(argv, ctx))}</pre><p>pycolmap SIFT + incremental mapping with the rig "
-            f"constraint (division lens: COLMAP's SIMPLE_DIVISION), then camcal's bundle adjustment; RMS reprojection error through camcal's rig: "
+            f"constraint (division lens: mapped with COLMAP's SIMPLE_DIVISION), then camcal's bundle adjustment (COLMAP's "
+            f"DIVISION: fx and fy under the square-pixel prior); RMS reprojection error through camcal's rig: "
             f"{quality}. Poses compared after a similarity (Umeyama 1991) to the true ones; "
             f"scene size {size:g} m.</p>{img_tag(ctx, residual_plot)}")
     return StageResult(tuple(rows), (("SfM rig (solve.rig.json)", out / "solve.rig.json"), ("sparse points (points.ply)", out / "points.ply")),

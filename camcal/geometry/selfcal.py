@@ -7,7 +7,12 @@ point about the image centre, never held there), and the sigmas are the
 larger of the posterior covariance's and a delete-one-frame jackknife's
 (:func:`self_calibrate`). Intrinsics are COLMAP parameter vectors of the
 COLMAP twin of each camcal lens model (:data:`MODELS`,
-:mod:`camcal.model.colmap`).
+:mod:`camcal.model.colmap`), each with two focal lengths: the aspect ``fx / fy``
+is refined under a Gaussian prior (square pixels, ``fx - fy`` +-
+:data:`~camcal.geometry.bundle.prior.ASPECT_PRIOR` of ``f``), not held at 1
+(Strecha's real cameras: fx and fy 0.17 % apart). Skew is 0: no COLMAP
+camera model has it, and the pixel rows and columns of digital sensors are
+orthogonal (said in :meth:`SelfCalibration.lines`).
 
 References
 ----------
@@ -26,27 +31,40 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
-from camcal.geometry.bundle.prior import PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, undetermined
+from camcal.geometry.bundle.prior import ASPECT_PRIOR, PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, undetermined
+from camcal.geometry.bundle.state import model_layout
 from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife
 from camcal.model.colmap import camera_from_colmap, camera_to_colmap
 from camcal.model.distortion import Distortion, fit_distortion
+from camcal.model.rig import Camera
 
 __all__ = [
+    "FIXED_PARAMS",
     "FOCAL_UNDETERMINED",
     "HELDOUT_FRACTION",
     "LENS_MODELS",
     "LENS_MODEL_MARGIN",
+    "MAPPING_MODELS",
     "MODELS",
     "PRINCIPAL_POINT_MODES",
     "PrincipalPointDecision",
     "SelfCalibration",
+    "as_lens_model",
     "heldout_rms",
     "self_calibrate",
 ]
 
-#: camcal's distortion models and the COLMAP camera model that is exactly each of them.
-MODELS = {"division": "SIMPLE_DIVISION", "polynomial": "RADIAL", "opencv": "OPENCV", "none": "SIMPLE_PINHOLE",
+#: camcal's distortion models and the COLMAP camera model with two focal lengths (fx, fy) that the
+#: self-calibration refines each of them as: ``polynomial`` (k1, k2) is ``OPENCV`` with ``p1 = p2 = 0``
+#: held (:data:`FIXED_PARAMS`), COLMAP having no two-focal radial model.
+MODELS = {"division": "DIVISION", "polynomial": "OPENCV", "opencv": "OPENCV", "none": "PINHOLE",
           "kannala-brandt": "OPENCV_FISHEYE"}
+#: COLMAP parameters held at 0 in each camcal lens model's twin (:data:`MODELS`).
+FIXED_PARAMS = {"polynomial": ("p1", "p2")}
+#: the COLMAP model structure from motion maps a camcal lens model with (one focal length where COLMAP has one:
+#: the mapper's early bundle adjustments on two or three images do not determine the aspect).
+MAPPING_MODELS = {"division": "SIMPLE_DIVISION", "polynomial": "RADIAL", "opencv": "OPENCV", "none": "SIMPLE_PINHOLE",
+                  "kannala-brandt": "OPENCV_FISHEYE"}
 #: the lens models ``solve`` chooses among by held-out residual (``--model auto``), simplest first;
 #: pinhole models only: ``kannala-brandt`` (a fisheye) is used when named, never chosen.
 LENS_MODELS = ("division", "polynomial", "opencv")
@@ -123,6 +141,9 @@ class SelfCalibration:
         Why the jackknife was not run ("" when it was).
     jackknife_method : str
         How its replicates were solved (:data:`camcal.geometry.jackknife.METHODS`; "" when not run).
+    aspect_prior : bool
+        Whether ``fx - fy`` had the square-pixel prior (the default priors),
+        or the images alone decided it (``principal_point="refine"``).
     """
 
     lens_models: dict[str, str]
@@ -136,6 +157,7 @@ class SelfCalibration:
     jackknife_groups: int = 0
     jackknife_skipped: str = ""
     jackknife_method: str = ""
+    aspect_prior: bool = True
 
     def lines(self) -> list[str]:
         """The decisions, one line per camera and question, for the user."""
@@ -146,8 +168,10 @@ class SelfCalibration:
         rows += [f"{decision.camera}: {decision.reason}" for decision in self.principal_point]
         rows += [line for line in self.undetermined if not line.split(":", 1)[0].endswith((".cx", ".cy"))]
         rows += [f"prior on {label} not used: the chosen lens model has no such parameter" for label in self.unused_priors]
-        rows.append("skew: 0, not a parameter (digital sensors' pixel rows and columns are orthogonal); "
-                    "fx = fy except in the opencv lens model (square pixels)")
+        aspect = (f"under a prior fx - fy = 0 +- {100 * ASPECT_PRIOR:g} % of f (square pixels)" if self.aspect_prior
+                  else "by the images alone (asked)")
+        rows.append(f"aspect: fx and fy refined apart {aspect}; skew: 0, not a parameter (no COLMAP camera model "
+                    "has one; digital sensors' pixel rows and columns are orthogonal)")
         if self.jackknife_groups:
             ratios = ", ".join(f"{key} {self.jackknife_sigmas[key] / value:.2g}" for key, value in
                                self.covariance_sigmas.items() if key in self.jackknife_sigmas and value > 0)
@@ -162,18 +186,24 @@ class SelfCalibration:
 
 
 def _lens_params(state: BundleState, camera: int, model: str) -> NDArray[np.float64]:
-    """Camera ``camera``'s COLMAP parameters in the COLMAP twin of camcal ``model``.
+    """Camera ``camera``'s COLMAP parameters in the COLMAP twin of camcal ``model`` (:data:`MODELS`).
 
-    The focal length and principal point carry over; the distortion is
-    :func:`camcal.model.distortion.fit_distortion` of the current one
-    over the frame (a non-square focal becomes the mean focal first).
+    The focal lengths and principal point carry over; the distortion is
+    :func:`camcal.model.distortion.fit_distortion` of the current one over
+    the frame at the mean focal length (COLMAP's distortion acts on
+    normalised coordinates: with ``fx`` and ``fy`` put back it is the
+    start of the refinement, which moves all of them).
     """
+    names = state.param_names(camera)
     if state.models[camera] == MODELS[model]:
-        return state.params[camera].copy()
+        params = state.params[camera].copy()
+        params[[names.index(key) for key in FIXED_PARAMS.get(model, ())]] = 0.0
+        return params
     name, size = state.camera_names[camera], state.image_sizes[camera]
     lens = camera_from_colmap(name, state.models[camera], size, state.params[camera], np.eye(3), np.zeros(3))
+    fx, fy = float(lens.K[0, 0]), float(lens.K[1, 1])
     K = lens.K.copy()
-    K[0, 0] = K[1, 1] = 0.5 * (K[0, 0] + K[1, 1])
+    K[0, 0] = K[1, 1] = 0.5 * (fx + fy)
     K[0, 1] = 0.0
     if model == "none":
         distortion = Distortion.none()
@@ -182,9 +212,37 @@ def _lens_params(state: BundleState, camera: int, model: str) -> NDArray[np.floa
         if model == "opencv":
             distortion = Distortion("opencv", {**distortion.params, "k3": 0.0})
     colmap = camera_to_colmap(dataclasses.replace(lens, K=K, distortion=distortion))
-    if colmap.model != MODELS[model]:
+    single = colmap.model != "OPENCV" and not colmap.model.endswith("FISHEYE")
+    params = (fx, fy) + colmap.params[1:] if single else (fx, fy) + colmap.params[2:]
+    if model == "polynomial":  # RADIAL (f, cx, cy, k1, k2) -> OPENCV (fx, fy, cx, cy, k1, k2, p1, p2)
+        params += (0.0, 0.0)
+    if len(params) != len(model_layout(MODELS[model])[0]):
         raise CamcalError(f"camera {name!r}: {model} converted to COLMAP {colmap.model}, expected {MODELS[model]}")
-    return np.array(colmap.params, dtype=np.float64)
+    return np.array(params, dtype=np.float64)
+
+
+def as_lens_model(camera: Camera, model: str) -> Camera:
+    """The camera with its distortion named as camcal lens model ``model`` (the same projection).
+
+    ``polynomial`` is refined as COLMAP's ``OPENCV`` with ``p1 = p2 = 0``
+    held (:data:`MODELS`), which comes back as an ``opencv`` lens: its
+    ``k1, k2`` are the polynomial's.
+    """
+    distortion = camera.distortion
+    if model == "polynomial" and distortion.model == "opencv":
+        params = distortion.params
+        if any(params.get(key, 0.0) != 0.0 for key in ("p1", "p2", "k3")):
+            raise CamcalError(f"camera {camera.name!r}: an opencv lens with tangential or k3 terms is not polynomial")
+        return dataclasses.replace(camera, distortion=Distortion("polynomial", {"k1": params["k1"], "k2": params["k2"]}))
+    return camera
+
+
+def _fixed(options: BundleOptions, lenses: dict[str, str]) -> BundleOptions:
+    """``options`` with each camera's :data:`FIXED_PARAMS` held as well (``camera name -> camcal model``)."""
+    fixed = {name: tuple(options.fixed_params.get(name, ())) for name in options.fixed_params}
+    for name, model in lenses.items():
+        fixed[name] = tuple(dict.fromkeys(fixed.get(name, ()) + FIXED_PARAMS.get(model, ())))
+    return dataclasses.replace(options, fixed_params={name: held for name, held in fixed.items() if held})
 
 
 def _with_lenses(state: BundleState, lenses: dict[str, str]) -> BundleState:
@@ -349,8 +407,8 @@ def self_calibrate(
     table: dict[str, dict[str, float]] = {name: {} for name in names}
     for model in lens_models:
         _say(progress, f"lens model {model}: fitting {len(train.points)} points, {len(heldout.points)} held out")
-        fit = bundle_adjust(_with_lenses(train, dict.fromkeys(names, model)),
-                            dataclasses.replace(free_pp, compute_sigmas=False))
+        lenses = dict.fromkeys(names, model)
+        fit = bundle_adjust(_with_lenses(train, lenses), dataclasses.replace(_fixed(free_pp, lenses), compute_sigmas=False))
         for name, value in heldout_rms(fit.state, heldout).items():
             table[name][model] = value
     chosen = {}
@@ -361,7 +419,7 @@ def self_calibrate(
                 best = model
         chosen[name] = best
     _say(progress, "bundle adjustment with the chosen lens models")
-    final_options = free_pp
+    final_options = _fixed(free_pp, chosen)
     final = bundle_adjust(_with_lenses(state, chosen), final_options)
     decisions = tuple(_principal_point_decision(final, k, principal_point) for k in range(len(names)))
     covariance_sigmas, jackknife_sigmas, groups = dict(final.sigmas), {}, 0
@@ -381,6 +439,7 @@ def self_calibrate(
         undetermined=tuple(undetermined(final.priors, final.prior_posterior_sigmas) + _undetermined_focals(final)),
         unused_priors=tuple(spec.label for spec in final.unused_priors), covariance_sigmas=covariance_sigmas, jackknife_sigmas=jackknife_sigmas,
         jackknife_groups=groups, jackknife_skipped=skipped, jackknife_method=spread.method if not skipped else "",
+        aspect_prior=free_pp.default_priors,
     )
     return final, report
 

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleResult
-from camcal.geometry.selfcal import SelfCalibration
+from camcal.geometry.selfcal import SelfCalibration, as_lens_model
 from camcal.geometry.uncertainty import covariance_from_colmap, projection_sigma, sigma_grid
 from camcal.model.colmap import camera_from_colmap
 from camcal.model.camera import from_colmap, pixels_from_colmap
@@ -161,10 +161,11 @@ def sparse_model(reconstruction, camera_names: list[str], originals: dict[str, s
         else:
             sensor_from_rig = rig.sensor_from_rig(_sensor(camera_id))
             R, c = from_colmap(sensor_from_rig.rotation.quat, sensor_from_rig.translation)
-        cameras.append(
-            camera_from_colmap(name, colmap_camera.model.name, (colmap_camera.width, colmap_camera.height),
-                               colmap_camera.params, R, c)
-        )
+        camera = camera_from_colmap(name, colmap_camera.model.name, (colmap_camera.width, colmap_camera.height),
+                                    colmap_camera.params, R, c)
+        if calibration is not None and name in calibration.lens_models:
+            camera = as_lens_model(camera, calibration.lens_models[name])
+        cameras.append(camera)
         camera_of_sensor[camera_id] = name
     order = {name: index for index, name in enumerate(camera_names)}
     cameras.sort(key=lambda camera: order[camera.name])
@@ -233,7 +234,7 @@ def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str]
 
 def _quality_sigma(sigmas: dict[str, float], camera: str, model: str, focal: float) -> dict[str, float]:
     """A camera's sigmas under :mod:`camcal.model.quality`'s names: one focal ``f`` is ``fx`` and ``fy``,
-    COLMAP's division ``k`` becomes camcal's ``lambda = k / f^2`` (focal's own spread neglected),
+    COLMAP's division ``k`` becomes camcal's ``lambda = k / fx^2`` (focal's own spread neglected),
     SIMPLE_RADIAL's ``k`` is ``k1``."""
     prefix = f"{camera}."
     out = {}

@@ -48,7 +48,9 @@ Keys (every one optional):
   load without it.
 
 Older files are read too: ``n_points`` is ``n_observations``; sigma ``s``
-is ``skew``, ``f`` (one focal length) is ``fx`` and ``fy``; an absolute
+is ``skew``, ``f`` (one focal length) is ``fx`` and ``fy``, and so is a
+covariance row ``f`` (or ``NAME.f``: fully correlated ``fx`` and ``fy``
+rows); an absolute
 ``baseline`` / ``baseline_m`` (in the rig's units) becomes ``baseline_rel``
 given the camera's distance to the reference.
 """
@@ -133,7 +135,31 @@ class ParameterCovariance:
             raise CamcalError("quality.covariance must be an object with exactly 'names' and 'matrix'")
         if not isinstance(data["names"], (list, tuple)):
             raise CamcalError(f"quality.covariance.names must be a list of strings, got {data['names']!r}")
-        return cls(tuple(data["names"]), data["matrix"])
+        return _split_focal(cls(tuple(data["names"]), data["matrix"]))
+
+
+def _split_focal(covariance: ParameterCovariance) -> ParameterCovariance:
+    """One focal length ``f`` (or ``NAME.f``) as ``fx`` and ``fy``, fully correlated (``fx = fy = f``).
+
+    ``x = A f`` with ``A`` duplicating the row: ``Sigma' = A Sigma A^T``.
+    """
+    names = list(covariance.names)
+    if not any(name == "f" or name.endswith(".f") for name in names):
+        return covariance
+    source, out = [], []
+    for index, name in enumerate(names):
+        if name == "f" or name.endswith(".f"):
+            stem = name[:-1]
+            for axis in ("fx", "fy"):
+                if stem + axis in names:
+                    raise CamcalError(f"quality.covariance.names has both {name!r} and {stem + axis!r}")
+                source.append(index)
+                out.append(stem + axis)
+        else:
+            source.append(index)
+            out.append(name)
+    array = covariance.array[np.ix_(source, source)]
+    return ParameterCovariance(tuple(out), array)
 _LEGACY_TOP = {"n_points": "n_observations"}
 
 

@@ -258,8 +258,9 @@ def solve_sfm(
         Robust loss of the refinement (scale 1 px).
     lens_models : tuple of str or None
         camcal lens models each camera chooses among by held-out residual
-        (:func:`self_calibrate`); one model is used as given; None keeps
-        ``camera_model``.
+        (:func:`self_calibrate`; each refined with fx and fy apart under the
+        square-pixel prior); one model is used as given; None keeps
+        ``camera_model`` (one with a single focal length keeps fx = fy).
     principal_point : {"auto", "refine", "centre"}
         Refine the principal point (and the lens) under the sensor's
         Gaussian priors (``auto``), by the images alone, or hold it at the

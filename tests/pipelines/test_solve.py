@@ -66,7 +66,7 @@ def test_stereo_sequence_recovers_known_rig(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)  # --json: one object on stdout
     assert summary["verb"] == "solve" and summary["figures"]["n_registered"] == len(metric.frames) * 2
     assert summary["figures"]["uncertainty"]["jackknife_groups"] == 0
-    assert summary["figures"]["uncertainty"]["covariance_sigmas"]["left.f"] == pytest.approx(
+    assert summary["figures"]["uncertainty"]["covariance_sigmas"]["left.fx"] == pytest.approx(
         metric.camera("left").quality["sigma"]["fx"])
     assert {"path": str(tmp_path / "metric" / "solve.rig.json"), "kind": "rig"} in summary["files"]
     assert summary["figures"]["per_camera_rms_px"]["left"] == pytest.approx(metric.camera("left").quality["rms_px"])

@@ -37,15 +37,21 @@ def test_solve_rig_keeps_the_covariance_in_camcal_names(solved):
     covariance = left.quality.covariance
     assert covariance is not None and {"fx", "fy", "cx", "cy"} <= set(covariance.names)
     names = list(covariance.names)
-    # one COLMAP focal f is camcal's fx and fy: the same variance, fully correlated
-    # scaled by the frame jackknife's design effect: mean over the camera's parameters of (jackknife / covariance)^2
-    calibration = result.self_calibration
+    # COLMAP's fx and fy (the aspect refined under its prior) are camcal's, scaled by the frame jackknife's
+    # design effect: mean over the camera's parameters of (jackknife / covariance)^2
+    calibration, bundle = result.self_calibration, result.bundle
     ratios = [(calibration.jackknife_sigmas[k] / v) ** 2 for k, v in calibration.covariance_sigmas.items()
               if k.startswith("left.") and k in calibration.jackknife_sigmas]
     factor = max(1.0, float(np.mean(ratios)))
-    sigma_f = calibration.covariance_sigmas["left.f"]
-    assert covariance.array[names.index("fx"), names.index("fx")] == pytest.approx(factor * sigma_f**2, rel=1e-6)
-    assert covariance.array[names.index("fx"), names.index("fy")] == pytest.approx(factor * sigma_f**2, rel=1e-6)
+    for key in ("fx", "fy"):
+        sigma = calibration.covariance_sigmas[f"left.{key}"]
+        assert covariance.array[names.index(key), names.index(key)] == pytest.approx(factor * sigma**2, rel=1e-6)
+    fx, fy = bundle.covariance_names.index("left.fx"), bundle.covariance_names.index("left.fy")
+    assert covariance.array[names.index("fx"), names.index("fy")] == pytest.approx(factor * bundle.covariance[fx, fy],
+                                                                                   rel=1e-6)
+    # two parameters now: not fully correlated (the aspect's prior alone would allow 1 % of f between them)
+    correlation = bundle.covariance[fx, fy] / np.sqrt(bundle.covariance[fx, fx] * bundle.covariance[fy, fy])
+    assert correlation < 1 - 1e-6
     # the right camera carries its pose and the left camera's intrinsics (cross-covariance)
     assert {"rx", "tz", "left.fx"} <= set(right.quality.covariance.names)
     assert pair_covariance(left, right)[1]

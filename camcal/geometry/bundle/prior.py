@@ -15,7 +15,8 @@ Priors are given in camcal's conventions (:class:`PriorSpec`: ``f``,
 ``lambda`` of the division model in pixels^-2, ``k1``, ``k2``, ``p1``,
 ``p2``) and resolved against each camera's COLMAP model when the problem
 is built (:func:`resolve_priors`): ``lambda`` becomes COLMAP's ``k =
-lambda f^2`` at the current focal length, ``cx`` gains COLMAP's half pixel.
+lambda fx^2`` at the current focal length, ``cx`` gains COLMAP's half pixel;
+``f`` on a model with ``fx`` and ``fy`` is their mean.
 
 Default priors (:func:`default_specs`), from sensors and lenses rather than
 any data set:
@@ -32,9 +33,11 @@ any data set:
 - tangential terms ``p1, p2``: ``3 |p| r`` (their relative displacement
   at the corner) ~ N(0, :data:`TANGENTIAL_PRIOR`) (2 %: decentring of
   assembled lenses is a few tenths of a percent);
-- aspect, where the model has ``fx`` and ``fy``: ``fx - fy`` ~ N(0,
-  :data:`ASPECT_PRIOR` f) (1 %: square pixels; anamorphic lenses need the
-  user's prior).
+- aspect, where the model has ``fx`` and ``fy`` (every lens model of the
+  self-calibration, :data:`camcal.geometry.selfcal.MODELS`): ``fx - fy`` ~
+  N(0, :data:`ASPECT_PRIOR` f) (1 %: square pixels, up to the few tenths of
+  a percent by which real cameras' fx and fy differ, e.g. 0.17 % in
+  Strecha et al. 2008's; anamorphic lenses need the user's prior).
 
 Skew has no parameter in any of camcal's COLMAP models: it is 0, said in
 :meth:`camcal.geometry.selfcal.SelfCalibration.lines`.
@@ -222,7 +225,7 @@ def _resolve(state: BundleState, spec: PriorSpec) -> Prior | None:
     if spec.name == "lambda":
         if model not in ("SIMPLE_DIVISION", "DIVISION"):
             return None
-        focal = float(params[index["f"]])
+        focal = float(params[index["f" if "f" in index else "fx"]])  # camcal's lambda is in x pixels: k / fx^2
         return Prior(camera, (index["k"],), (1.0,), spec.mean * focal ** 2, spec.sigma * focal ** 2, spec,
                      scale=1.0 / focal ** 2)
     if model in ("SIMPLE_DIVISION", "DIVISION"):

@@ -1,0 +1,154 @@
+"""Non-square pixels in the self-calibration (issue 28, "no parameter is silently fixed"): fx and fy are refined
+apart under the square-pixel prior, and older rig files with one focal length still load."""
+
+import contextlib
+import dataclasses
+import io
+import json
+
+import numpy as np
+import pytest
+from test_selfcal import intrinsics, stereo_rig, tracks_state
+
+from camcal.base.errors import CamcalError
+from camcal.geometry.bundle import BundleOptions
+from camcal.geometry.selfcal import as_lens_model, self_calibrate
+from camcal.model.distortion import Distortion
+from camcal.model.quality import ParameterCovariance, Quality
+from camcal.model.rig import Camera
+
+#: fy / fx of the test cameras: 0.5 %, three times Strecha's real camera (0.17 %), half the prior's sigma.
+ASPECT = 1.005
+
+
+def non_square(cameras, aspect=ASPECT):
+    """The cameras with ``fy = aspect fx`` and their division lens round in normalised coordinates (COLMAP's)."""
+    out = []
+    for camera in cameras:
+        K = camera.K.copy()
+        K[1, 1] = aspect * K[0, 0]
+        lens = Distortion("division", {"lambda": camera.distortion.params["lambda"], "aspect": K[0, 0] / K[1, 1]},
+                          center=(K[0, 2], K[1, 2]))
+        out.append(dataclasses.replace(camera, K=K, distortion=lens))
+    return tuple(out)
+
+
+def aspect_sigma(result, name):
+    """Covariance sigma of ``fx - fy`` of camera ``name`` (px)."""
+    names = result.covariance_names
+    i, j = names.index(f"{name}.fx"), names.index(f"{name}.fy")
+    a = np.zeros(len(names))
+    a[[i, j]] = (1.0, -1.0)
+    return float(np.sqrt(a @ result.covariance @ a))
+
+
+def test_non_square_pixels_are_recovered_within_their_sigmas():
+    """Synthetic tracks (0.5 px noise) of a rig with fy 0.5 % above fx, over three seeds: fx and fy each within
+    3 sigma of the truth (one draw each), fx - fy within 3 of its sigma of the true -0.5 % and more than 5 of
+    them from 0 (square pixels, what a single focal length forced)."""
+    rows = []
+    for seed in range(3):
+        cameras = non_square(stereo_rig())
+        with contextlib.redirect_stderr(io.StringIO()):
+            result, report = self_calibrate(tracks_state(cameras, np.random.default_rng(seed), n_frames=6,
+                                                         n_points=900), BundleOptions(), ("division",), seed=seed)
+        assert any(line.startswith("aspect: fx and fy refined apart under a prior") for line in report.lines())
+        for k, truth in enumerate(cameras):
+            solved, name = intrinsics(result.state, k), truth.name
+            assert result.state.models[k] == "DIVISION"
+            errors = np.diag(solved.K)[:2] - np.diag(truth.K)[:2]
+            sigmas = np.array([result.sigmas[f"{name}.fx"], result.sigmas[f"{name}.fy"]])
+            difference, sigma = solved.K[0, 0] - solved.K[1, 1], aspect_sigma(result, name)
+            true_difference = truth.K[0, 0] - truth.K[1, 1]
+            rows.append(f"seed {seed} {name}: fx, fy error {errors.round(3)} px, sigma {sigmas.round(3)}; fx - fy "
+                        f"{difference:.3f} px (truth {true_difference:.3f}, sigma {sigma:.3f})")
+            assert np.all(np.abs(errors) < 3 * sigmas), rows[-1]
+            assert abs(difference - true_difference) < 3 * sigma and abs(difference) > 5 * sigma, rows[-1]
+    print("\n".join(rows))
+
+
+def test_polynomial_lens_is_refined_as_opencv_without_tangential_terms():
+    """``polynomial`` has no two-focal COLMAP model: it is OPENCV with p1 = p2 held at 0, and comes back as a
+    polynomial lens with the same projection."""
+    cameras = non_square(stereo_rig(lam=(-1e-7, -1e-7)))
+    with contextlib.redirect_stderr(io.StringIO()):
+        result, _ = self_calibrate(tracks_state(cameras, np.random.default_rng(4), n_frames=5, n_points=500),
+                                   BundleOptions(), ("polynomial",), jackknife=None)
+    for k, truth in enumerate(cameras):
+        assert result.state.models[k] == "OPENCV"
+        params = dict(zip(result.state.param_names(k), result.state.params[k]))
+        assert params["p1"] == params["p2"] == 0.0 and f"{truth.name}.p1" not in result.sigmas
+        assert abs(params["fx"] / params["fy"] - 1 / ASPECT) < 1e-3
+        opencv = intrinsics(result.state, k)
+        polynomial = as_lens_model(opencv, "polynomial")
+        assert polynomial.distortion.model == "polynomial" and set(polynomial.distortion.params) == {"k1", "k2"}
+        rays = np.random.default_rng(k).uniform([-0.6, -0.4, 1.0], [0.6, 0.4, 1.0], (50, 3))
+        assert np.allclose(polynomial.project(rays), opencv.project(rays), rtol=0, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_rendered_solve_recovers_non_square_pixels_within_their_sigmas(tmp_path):
+    """A rendered stereo orbit (SIFT features in images, 480 x 360, 8 positions) whose cameras have fy 0.5 % above
+    fx: ``solve`` recovers fx, fy, cx and cy of both cameras within 2 of their printed sigmas, and fx - fy
+    nearer the truth than square pixels."""
+    from camcal.pipelines.solve import solve_sfm
+    from camcal.synthetic import example_stereo_rig, render_rig_orbit
+
+    cameras = non_square(example_stereo_rig(image_size=(480, 360), f=336.0, lam=(-4.8e-7, -4.8e-7)))
+    render_rig_orbit(tmp_path / "in", cameras, n_frames=8, seed=1)
+    with contextlib.redirect_stderr(io.StringIO()):
+        result = solve_sfm({c.name: tmp_path / "in" / c.name for c in cameras}, tmp_path / "out",
+                           max_num_features=2048, seed=1)
+    rows, misses = [], []
+    for truth in cameras:
+        solved = result.rig.camera(truth.name)
+        sigma = solved.quality["sigma"]
+        for key, index in (("fx", (0, 0)), ("fy", (1, 1)), ("cx", (0, 2)), ("cy", (1, 2))):
+            error = solved.K[index] - truth.K[index]
+            rows.append(f"{truth.name}.{key} {error:+.3f}/{sigma[key]:.3f}")
+            if abs(error) >= 2 * sigma[key]:
+                misses.append(rows[-1])
+        difference, true_difference = solved.K[0, 0] - solved.K[1, 1], truth.K[0, 0] - truth.K[1, 1]
+        rows.append(f"{truth.name} fx - fy {difference:.3f} (truth {true_difference:.3f})")
+        assert abs(difference - true_difference) < abs(true_difference), rows[-1]
+    print("error/sigma px: " + ", ".join(rows))
+    assert not misses, rows
+
+
+def test_an_older_solve_rig_with_one_focal_length_still_loads_and_maps(tmp_path):
+    """Rig files written before fx and fy were apart: quality.sigma ``f``, and a covariance whose focal is one row
+    ``f`` (``NAME.f`` for an earlier camera) load as fully correlated fx and fy, and ``camcal sigma`` maps them
+    as it maps the same covariance written with fx and fy rows."""
+    from camcal.cli import main
+    from camcal.geometry.uncertainty import projection_sigma_map
+    from camcal.io.stmap import read_sigma_map
+    from camcal.model.rig import Rig
+
+    sigma_f, sigma_c = 0.8, 0.5
+    old = {"names": ["f", "cx", "cy", "lambda", "left.f"],
+           "matrix": [[sigma_f**2, 0.1, 0.0, 0.0, 0.2], [0.1, sigma_c**2, 0.0, 0.0, 0.0],
+                      [0.0, 0.0, sigma_c**2, 0.0, 0.0], [0.0, 0.0, 0.0, 1e-18, 0.0], [0.2, 0.0, 0.0, 0.0, 0.5]]}
+    covariance = ParameterCovariance.from_dict(old)
+    assert covariance.names == ("fx", "fy", "cx", "cy", "lambda", "left.fx", "left.fy")
+    array = covariance.array
+    assert array[0, 0] == array[1, 1] == array[0, 1] == pytest.approx(sigma_f**2)
+    assert array[0, 2] == array[1, 2] == pytest.approx(0.1) and array[5, 6] == pytest.approx(0.5)
+    assert array[0, 5] == array[1, 6] == pytest.approx(0.2)
+    quality = Quality.from_dict({"rms_px": 0.3, "sigma": {"f": sigma_f, "cx": sigma_c, "cy": sigma_c},
+                                 "covariance": {"names": old["names"][:4], "matrix": [r[:4] for r in old["matrix"][:4]]}})
+    assert quality["sigma"]["fx"] == quality["sigma"]["fy"] == sigma_f
+    with pytest.raises(CamcalError, match="both 'f' and 'fx'"):
+        ParameterCovariance.from_dict({"names": ["f", "fx"], "matrix": [[1.0, 0.0], [0.0, 1.0]]})
+
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    camera = Camera("cam", (320, 240), K, Distortion("division", {"lambda": -2e-7}, center=(160.0, 120.0)),
+                    np.eye(3), np.zeros(3), quality=quality)
+    Rig((camera,), units="m").save(tmp_path / "modern.rig.json")
+    data = json.loads((tmp_path / "modern.rig.json").read_text())
+    assert data["cameras"][0]["quality"]["covariance"]["names"][:2] == ["fx", "fy"]
+    data["cameras"][0]["quality"]["covariance"] = {"names": old["names"][:4],
+                                                   "matrix": [row[:4] for row in old["matrix"][:4]]}
+    data["cameras"][0]["quality"]["sigma"] = {"f": sigma_f, "cx": sigma_c, "cy": sigma_c}
+    (tmp_path / "old.rig.json").write_text(json.dumps(data))
+    assert main(["sigma", str(tmp_path / "old.rig.json"), "--camera", "cam", "--out", str(tmp_path / "old.exr")]) == 0
+    assert np.allclose(read_sigma_map(tmp_path / "old.exr"), projection_sigma_map(camera), rtol=1e-6, atol=0)
