@@ -43,6 +43,8 @@ WINDOW_FRACTION = 0.65
 MAX_SHIFT_FRACTION = 0.25
 _N_PARAMS = 13  # cx, cy, theta1, theta2, s, m, a, hx, hy, q1, q2, sx, sy
 _SQRT2 = np.sqrt(2.0)
+#: |z| beyond which erf(z) rounds to +-1 in double precision (erfc(6) = 2.2e-17).
+_ERF_FLAT = 6.0
 #: Prior standard deviation of the edges' sagitta at the window's rim (px at the level).
 _SAGITTA_PRIOR_PX = 0.5
 
@@ -115,27 +117,13 @@ def _initial_angles(patches: NDArray, weights: NDArray) -> NDArray[np.float64]:
     return np.stack([peak(first), peak(second)], axis=1)
 
 
-def _value(params: NDArray, offsets: NDArray, radius: NDArray) -> NDArray:
-    """Intensity ``I`` (N, M) of the X-junction model at sample offsets (N, M, 2), without its Jacobian."""
-    cx, cy, t1, t2, s, m, a, hx, hy, q1, q2, sx, sy = (params[:, k : k + 1] for k in range(_N_PARAMS))
-    vx = offsets[..., 0] - cx
-    vy = offsets[..., 1] - cy
-    inv_r2 = 1.0 / (radius[:, None] ** 2)
-    e = []
-    for theta, q in ((t1, q1), (t2, q2)):
-        nx, ny = np.cos(theta), np.sin(theta)
-        along = -ny * vx + nx * vy
-        e.append(erf((nx * vx + ny * vy + q * along * along * inv_r2) / (_SQRT2 * s)))
-    return m + sx * vx + sy * vy + (a + hx * vx + hy * vy) * e[0] * e[1]
-
-
 def _model(params: NDArray, offsets: NDArray, radius: NDArray) -> tuple[NDArray, NDArray]:
-    """Intensity ``I`` (N, M) and Jacobian (N, M, 13) of the X-junction model at sample offsets (N, M, 2)."""
+    """Intensity ``I`` (N, M) and Jacobian (N, 13, M) of the X-junction model at sample offsets (N, M, 2)."""
     cx, cy, t1, t2, s, m, a, hx, hy, q1, q2, sx, sy = (params[:, k : k + 1] for k in range(_N_PARAMS))
     vx = offsets[..., 0] - cx
     vy = offsets[..., 1] - cy
     inv_r2 = 1.0 / (radius[:, None] ** 2)
-    jac = np.empty(vx.shape + (_N_PARAMS,))
+    jac = np.empty((vx.shape[0], _N_PARAMS, vx.shape[1]))
     edges = []
     for theta, q in ((t1, q1), (t2, q2)):
         nx, ny = np.cos(theta), np.sin(theta)
@@ -143,8 +131,13 @@ def _model(params: NDArray, offsets: NDArray, radius: NDArray) -> tuple[NDArray,
         along = -ny * vx + nx * vy
         u = normal + q * along * along * inv_r2
         z = u / (_SQRT2 * s)
-        value = erf(z)
-        slope = np.sqrt(2.0 / np.pi) / s * np.exp(-z * z)  # d erf(u / (sqrt2 s)) / du
+        # beyond |z| = 6 erf is +-1 in double precision and its slope below 3e-16 of its peak: most of a window
+        near = np.abs(z) < _ERF_FLAT
+        value = np.sign(z)
+        value[near] = erf(z[near])
+        slope = np.zeros_like(z)
+        slope[near] = np.exp(-z[near] ** 2)
+        slope *= np.sqrt(2.0 / np.pi) / s  # d erf(u / (sqrt2 s)) / du
         du_dcx = -nx + 2 * q * along * inv_r2 * ny
         du_dcy = -ny - 2 * q * along * inv_r2 * nx
         du_dtheta = along - 2 * q * along * normal * inv_r2
@@ -154,19 +147,19 @@ def _model(params: NDArray, offsets: NDArray, radius: NDArray) -> tuple[NDArray,
     amplitude = a + hx * vx + hy * vy
     k1 = amplitude * e2 * d1  # dI / du_1
     k2 = amplitude * e1 * d2  # dI / du_2
-    jac[..., 0] = k1 * ax1 + k2 * ax2 - hx * f - sx
-    jac[..., 1] = k1 * ay1 + k2 * ay2 - hy * f - sy
-    jac[..., 2] = k1 * at1
-    jac[..., 3] = k2 * at2
-    jac[..., 4] = -(k1 * u1 + k2 * u2) / s
-    jac[..., 5] = 1.0
-    jac[..., 6] = f
-    jac[..., 7] = f * vx
-    jac[..., 8] = f * vy
-    jac[..., 9] = k1 * aq1
-    jac[..., 10] = k2 * aq2
-    jac[..., 11] = vx
-    jac[..., 12] = vy
+    jac[:, 0] = k1 * ax1 + k2 * ax2 - hx * f - sx
+    jac[:, 1] = k1 * ay1 + k2 * ay2 - hy * f - sy
+    jac[:, 2] = k1 * at1
+    jac[:, 3] = k2 * at2
+    jac[:, 4] = -(k1 * u1 + k2 * u2) / s
+    jac[:, 5] = 1.0
+    jac[:, 6] = f
+    jac[:, 7] = f * vx
+    jac[:, 8] = f * vy
+    jac[:, 9] = k1 * aq1
+    jac[:, 10] = k2 * aq2
+    jac[:, 11] = vx
+    jac[:, 12] = vy
     return m + sx * vx + sy * vy + amplitude * f, jac
 
 
@@ -214,7 +207,7 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
     # linear start of mean and amplitude on the start geometry
     params[:, 6] = 1.0
     _, jac = _model(params, offsets, radius)
-    f = jac[..., 6]
+    f = jac[:, 6]
     sw, sf, sff = weights.sum(1), (weights * f).sum(1), (weights * f * f).sum(1)
     si, sfi = (weights * flat).sum(1), (weights * f * flat).sum(1)
     det = sw * sff - sf * sf
@@ -225,18 +218,20 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
     active = np.ones(n, dtype=bool)
     converged = np.zeros(n, dtype=bool)
     eye = np.eye(_N_PARAMS)
+    # the model and its Jacobian at the current parameters of the active corners: each iteration evaluates them
+    # once, at the trial, and keeps them where the trial is accepted
+    model, jac = _model(params, offsets, radius)
     for _ in range(max_iterations):
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
         p, off, rad = params[idx], offsets[idx], radius[idx]
         w = _taper(off, p[:, :2], rad) * valid[idx]
-        model, jac = _model(p, off, rad)
         res = flat[idx] - model
         cost = (w * res * res).sum(1)
-        jw = jac * w[..., None]
-        normal = np.einsum("nmi,nmj->nij", jw, jac, optimize=True)
-        gradient = np.einsum("nmi,nm->ni", jw, res, optimize=True)
+        jw = jac * w[:, None, :]
+        normal = jw @ jac.transpose(0, 2, 1)
+        gradient = (jw @ res[..., None])[..., 0]
         noise_var = cost / np.maximum(w.sum(1), 1.0)
         prior = noise_var / _SAGITTA_PRIOR_PX**2
         normal[:, 9, 9] += prior
@@ -251,23 +246,30 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
             step = np.stack([np.linalg.lstsq(d, g_, rcond=None)[0] for d, g_ in zip(damped, gradient)])
         trial = p + step
         trial[:, 4] = np.maximum(trial[:, 4], 0.25)
-        res_t = flat[idx] - _value(trial, off, rad)
+        model_t, jac_t = _model(trial, off, rad)
+        res_t = flat[idx] - model_t
         cost_t = (w * res_t * res_t).sum(1) + prior * (trial[:, 9] ** 2 + trial[:, 10] ** 2)
         cost_p = cost + prior * (p[:, 9] ** 2 + p[:, 10] ** 2)
         better = np.isfinite(cost_t) & (cost_t <= cost_p)
         params[idx[better]] = trial[better]
+        if better.all():
+            model, jac = model_t, jac_t
+        else:
+            model[better], jac[better] = model_t[better], jac_t[better]
         lam[idx] = np.where(better, np.maximum(lam[idx] / 3, 1e-7), np.minimum(lam[idx] * 4, 1e7))
         small = np.hypot(step[:, 0], step[:, 1]) < 1e-5
         done = (better & small) | (lam[idx] >= 1e7)
         converged[idx[better & small]] = True
         active[idx[done]] = False
+        if done.any():
+            model, jac = model[~done], jac[~done]
     converged |= active & (lam < 1e7)  # still improving at the last iteration: keep, checked below
     w = _taper(offsets, params[:, :2], radius) * valid
     model, jac = _model(params, offsets, radius)
     res = flat - model
     dof = np.maximum(w.sum(1) - _N_PARAMS, 1.0)
     rms = np.sqrt((w * res * res).sum(1) / dof)
-    normal = np.einsum("nmi,nmj->nij", jac * w[..., None], jac, optimize=True)
+    normal = (jac * w[:, None, :]) @ jac.transpose(0, 2, 1)
     normal[:, 9, 9] += rms**2 / _SAGITTA_PRIOR_PX**2
     normal[:, 10, 10] += rms**2 / _SAGITTA_PRIOR_PX**2
     sigma = np.full(n, np.nan)
