@@ -50,6 +50,10 @@ _SAGITTA_PRIOR_PX = 0.5
 #: Fewest blur widths (Gaussian sigma) in the window's radius for the additive gradient to be fitted: on rendered
 #: boards without glare it cost 3-4 % of accuracy at 6.5, 17-30 % at 4.3-4.9, nothing at 9.8 and above.
 _GLARE_WINDOW_BLURS = 8.0
+#: Fewest blur widths in the window's radius for the illumination gradient to be fitted: a narrower window sees a
+#: saddle, whose shift is a linear ramp (on rendered boards of 15-20 px squares blurred by 3-4 px, fitting it
+#: left 0.29-0.68 px RMS, holding it 0.10 px).
+_GAIN_WINDOW_BLURS = 4.0
 
 
 @dataclass(frozen=True)
@@ -172,6 +176,68 @@ def _taper(offsets: NDArray, centre: NDArray, radius: NDArray) -> NDArray:
     return np.clip((radius[:, None] - rho) / (0.3 * radius[:, None]), 0.0, 1.0)
 
 
+def _levenberg_marquardt(params: NDArray, fixed: NDArray, offsets: NDArray, flat: NDArray, valid: NDArray,
+                         radius: NDArray, max_iterations: int) -> tuple[NDArray, NDArray]:
+    """Levenberg-Marquardt on the model, parameters where ``fixed`` (N, 13) held: (params, converged)."""
+    params = params.copy()
+    n = len(params)
+    lam = np.full(n, 1e-3)
+    active = np.ones(n, dtype=bool)
+    converged = np.zeros(n, dtype=bool)
+    eye = np.eye(_N_PARAMS)
+    # the model and its Jacobian at the current parameters of the active corners: each iteration evaluates them
+    # once, at the trial, and keeps them where the trial is accepted
+    model, jac = _model(params, offsets, radius)
+    jac *= ~fixed[:, :, None]
+    for _ in range(max_iterations):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        p, off, rad = params[idx], offsets[idx], radius[idx]
+        w = _taper(off, p[:, :2], rad) * valid[idx]
+        res = flat[idx] - model
+        cost = (w * res * res).sum(1)
+        jw = jac * w[:, None, :]
+        normal = jw @ jac.transpose(0, 2, 1)
+        gradient = (jw @ res[..., None])[..., 0]
+        noise_var = cost / np.maximum(w.sum(1), 1.0)
+        prior = noise_var / _SAGITTA_PRIOR_PX**2
+        normal[:, 9, 9] += prior
+        normal[:, 10, 10] += prior
+        gradient[:, 9] -= prior * p[:, 9]
+        gradient[:, 10] -= prior * p[:, 10]
+        normal += fixed[idx, :, None] * eye
+        diagonal = np.einsum("nii->ni", normal)
+        damped = normal + lam[idx, None, None] * (diagonal[:, :, None] * eye + 1e-9 * eye)
+        try:
+            step = np.linalg.solve(damped, gradient[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            step = np.stack([np.linalg.lstsq(d, g_, rcond=None)[0] for d, g_ in zip(damped, gradient)])
+        step[fixed[idx]] = 0.0
+        trial = p + step
+        trial[:, 4] = np.maximum(trial[:, 4], 0.25)
+        model_t, jac_t = _model(trial, off, rad)
+        jac_t *= ~fixed[idx, :, None]
+        res_t = flat[idx] - model_t
+        cost_t = (w * res_t * res_t).sum(1) + prior * (trial[:, 9] ** 2 + trial[:, 10] ** 2)
+        cost_p = cost + prior * (p[:, 9] ** 2 + p[:, 10] ** 2)
+        better = np.isfinite(cost_t) & (cost_t <= cost_p)
+        params[idx[better]] = trial[better]
+        if better.all():
+            model, jac = model_t, jac_t
+        else:
+            model[better], jac[better] = model_t[better], jac_t[better]
+        lam[idx] = np.where(better, np.maximum(lam[idx] / 3, 1e-7), np.minimum(lam[idx] * 4, 1e7))
+        small = np.hypot(step[:, 0], step[:, 1]) < 1e-5
+        done = (better & small) | (lam[idx] >= 1e7)
+        converged[idx[better & small]] = True
+        active[idx[done]] = False
+        if done.any():
+            model, jac = model[~done], jac[~done]
+    converged |= active & (lam < 1e7)  # still improving at the last iteration: keep, checked below
+    return params, converged
+
+
 def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_iterations: int
                ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
     """Fit the model around ``start`` (N, 2), level pixels: (params, converged, rms, sigma_xy, shift-ok mask)."""
@@ -218,70 +284,27 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
     # the blur of an edge of contrast 2 a whose steepest gradient is g_peak is 2 a / (sqrt(2 pi) g_peak)
     blur = 2.0 * np.abs(params[:, 6]) / (np.sqrt(2 * np.pi) * np.maximum(g_peak, 1e-12))
     tied = ~(radius >= _GLARE_WINDOW_BLURS * blur)
-    lam = np.full(n, 1e-3)
-    active = np.ones(n, dtype=bool)
-    converged = np.zeros(n, dtype=bool)
-    eye = np.eye(_N_PARAMS)
-    # the model and its Jacobian at the current parameters of the active corners: each iteration evaluates them
-    # once, at the trial, and keeps them where the trial is accepted
-    model, jac = _model(params, offsets, radius)
-    jac[tied, 11:] = 0.0
-    for _ in range(max_iterations):
-        idx = np.flatnonzero(active)
-        if idx.size == 0:
-            break
-        p, off, rad = params[idx], offsets[idx], radius[idx]
-        w = _taper(off, p[:, :2], rad) * valid[idx]
-        res = flat[idx] - model
-        cost = (w * res * res).sum(1)
-        jw = jac * w[:, None, :]
-        normal = jw @ jac.transpose(0, 2, 1)
-        gradient = (jw @ res[..., None])[..., 0]
-        noise_var = cost / np.maximum(w.sum(1), 1.0)
-        prior = noise_var / _SAGITTA_PRIOR_PX**2
-        normal[:, 9, 9] += prior
-        normal[:, 10, 10] += prior
-        gradient[:, 9] -= prior * p[:, 9]
-        gradient[:, 10] -= prior * p[:, 10]
-        normal[:, 11, 11] += tied[idx]
-        normal[:, 12, 12] += tied[idx]
-        diagonal = np.einsum("nii->ni", normal)
-        damped = normal + lam[idx, None, None] * (diagonal[:, :, None] * eye + 1e-9 * eye)
-        try:
-            step = np.linalg.solve(damped, gradient[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            step = np.stack([np.linalg.lstsq(d, g_, rcond=None)[0] for d, g_ in zip(damped, gradient)])
-        step[tied[idx], 11:] = 0.0
-        trial = p + step
-        trial[:, 4] = np.maximum(trial[:, 4], 0.25)
-        model_t, jac_t = _model(trial, off, rad)
-        jac_t[tied[idx], 11:] = 0.0
-        res_t = flat[idx] - model_t
-        cost_t = (w * res_t * res_t).sum(1) + prior * (trial[:, 9] ** 2 + trial[:, 10] ** 2)
-        cost_p = cost + prior * (p[:, 9] ** 2 + p[:, 10] ** 2)
-        better = np.isfinite(cost_t) & (cost_t <= cost_p)
-        params[idx[better]] = trial[better]
-        if better.all():
-            model, jac = model_t, jac_t
-        else:
-            model[better], jac[better] = model_t[better], jac_t[better]
-        lam[idx] = np.where(better, np.maximum(lam[idx] / 3, 1e-7), np.minimum(lam[idx] * 4, 1e7))
-        small = np.hypot(step[:, 0], step[:, 1]) < 1e-5
-        done = (better & small) | (lam[idx] >= 1e7)
-        converged[idx[better & small]] = True
-        active[idx[done]] = False
-        if done.any():
-            model, jac = model[~done], jac[~done]
-    converged |= active & (lam < 1e7)  # still improving at the last iteration: keep, checked below
+    fixed = np.zeros((n, _N_PARAMS), dtype=bool)
+    fixed[:, 11:] = tied[:, None]
+    params, converged = _levenberg_marquardt(params, fixed, offsets, flat, valid, radius, max_iterations)
+    # a window within a few fitted blur widths sees a saddle, whose shift is a linear ramp: the illumination
+    # gradient then trades off against the centre; held at zero there, the fit runs again from its result
+    narrow = np.flatnonzero(radius < _GAIN_WINDOW_BLURS * params[:, 4])
+    if narrow.size:
+        start_narrow = params[narrow].copy()
+        start_narrow[:, 7:9] = 0.0
+        fixed[narrow, 7:9] = True
+        params[narrow], converged[narrow] = _levenberg_marquardt(start_narrow, fixed[narrow], offsets[narrow],
+                                                                 flat[narrow], valid[narrow], radius[narrow],
+                                                                 max_iterations)
     w = _taper(offsets, params[:, :2], radius) * valid
     model, jac = _model(params, offsets, radius)
-    jac[tied, 11:] = 0.0
+    jac *= ~fixed[:, :, None]
     res = flat - model
-    dof = np.maximum(w.sum(1) - _N_PARAMS + 2 * tied, 1.0)
+    dof = np.maximum(w.sum(1) - _N_PARAMS + fixed.sum(1), 1.0)
     rms = np.sqrt((w * res * res).sum(1) / dof)
     normal = (jac * w[:, None, :]) @ jac.transpose(0, 2, 1)
-    normal[:, 11, 11] += tied
-    normal[:, 12, 12] += tied
+    normal += fixed[:, :, None] * np.eye(_N_PARAMS)
     normal[:, 9, 9] += rms**2 / _SAGITTA_PRIOR_PX**2
     normal[:, 10, 10] += rms**2 / _SAGITTA_PRIOR_PX**2
     sigma = np.full(n, np.nan)
@@ -358,7 +381,10 @@ def refine_corners(
     contrast and steepest gradient, since in a narrower window it trades
     off against the centre) and each edge's sagitta ``q_i`` at the window's
     rim (lens distortion bends edges; a weak prior of
-    0.5 px holds it where the window cannot tell). The fit weighs pixels by
+    0.5 px holds it where the window cannot tell). Where the window's
+    radius is within 4 fitted blur widths, the window sees a saddle, whose
+    shift is a linear ramp: the fit runs again from its result with ``g``
+    held at zero. The fit weighs pixels by
     a taper that moves with the centre (flat to 0.7 r, zero at r), so that
     a point-symmetric corner sees a point-symmetric window. It runs on the
     level of a 2x area-averaging pyramid where ``r <= WINDOW_CAP_PX``
