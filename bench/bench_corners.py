@@ -32,12 +32,15 @@ the means (the target, 10x) and the median of the per-frame ratios.
 Also ``--fisheye-views`` (default 20) views through a strong barrel lens (division lambda -0.3 to -0.9
 over the half-diagonal squared, boards off-centre and tilted), reported in a table of their own.
 
-Run: ``python bench/bench_corners.py [--views 100] [--fisheye-views 20] [--seed 27]``.
+Run: ``python bench/bench_corners.py [--views 100] [--fisheye-views 20] [--seed 27]``. Each view is seeded by
+its index, so a run can be split: ``--first 50 --views 50 --save b.pkl`` runs views 50-99 and saves their rows;
+``--merge a.pkl b.pkl`` prints the tables of saved runs together.
 """
 
 from __future__ import annotations
 
 import argparse
+import pickle
 import time
 
 import cv2
@@ -203,7 +206,17 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=27)
     parser.add_argument("--fisheye-views", type=int, default=20,
                         help="views through a strong barrel lens, reported on their own")
+    parser.add_argument("--first", type=int, default=0, help="index of the first view (to split a run)")
+    parser.add_argument("--save", help="save the views' rows to this file (pickle)")
+    parser.add_argument("--merge", nargs="+", help="print the tables of saved runs together, running nothing")
     args = parser.parse_args()
+    if args.merge:
+        rows = []
+        for path in args.merge:
+            with open(path, "rb") as handle:
+                rows += pickle.load(handle)
+        report(rows)
+        return
     fisheye = []
     for index in range(args.fisheye_views):
         rng = np.random.default_rng([args.seed, 1000 + index])
@@ -217,7 +230,7 @@ def main() -> None:
     if fisheye:
         table("Strong barrel lens (division lambda -0.3 to -0.9 over the half-diagonal squared)", fisheye)
     rows = []
-    for index in range(args.views):
+    for index in range(args.first, args.first + args.views):
         rng = np.random.default_rng([args.seed, index])  # each view reproducible on its own
         view, info = make_view(rng, index, args.views)
         errors, t_camcal, t_sb = run_detectors(view, info)
@@ -227,8 +240,15 @@ def main() -> None:
         print(f"{index:3d} {info['size'][0]}x{info['size'][1]} {info['kind']:9s} sq {info['square']:6.1f} "
               f"blur {info['blur']:.2f}: camcal {e['camcal']:.4f} SB {e['SB']:.4f} classic {e['classic']:.4f} "
               f"CRB {np.sqrt(np.nanmean(rows[-1]['crb']**2)):.4f} camcal worst {worst:.3f}  t {t_camcal:.2f}s / SB {t_sb:.2f}s", flush=True)
-    if not rows:
-        return
+    if args.save:
+        with open(args.save, "wb") as handle:
+            pickle.dump(rows, handle)
+    if rows:
+        report(rows)
+
+
+def report(rows: list[dict]) -> None:
+    """The tables over all views and the 4K ones, and the 4K speed."""
     table("All views", rows)
     big = [r for r in rows if r["is_4k"]]
     table("4K views (3840x2880, squares 100-300 px)", big)

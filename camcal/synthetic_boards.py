@@ -31,7 +31,7 @@ class BoardView:
     image : ndarray of uint8, shape (H, W)
         What a camera delivers (blurred, noisy, quantised, JPEG unless None).
     clean : ndarray of float32, shape (H, W)
-        The noise-free blurred render, in the image's 8-bit units.
+        The noise-free blurred render (glare included), in the image's 8-bit units.
     corners_px : ndarray, shape (rows * columns, 2)
         Exact inner corners, row-major (id = row * columns + col).
     columns, rows : int
@@ -127,6 +127,7 @@ def render_board_view(
     read_noise_e: float = 5.0,
     jpeg_quality: int | None = 90,
     supersample: int = 16,
+    glare: NDArray | None = None,
 ) -> BoardView:
     """Render one view of a chessboard with ``columns x rows`` inner corners.
 
@@ -151,6 +152,10 @@ def render_board_view(
         JPEG quality of the delivered image; None keeps the 8-bit image.
     supersample : int
         Stratified samples per side in pixels that an edge crosses.
+    glare : ndarray, shape (H, W), optional
+        Light added to the blurred render before the noise (8-bit units):
+        veiling glare or a reflection, which brightens dark and light
+        squares alike (a dark square can end up brighter than a light one).
     """
     width, height = image_size
     centre = distortion_centre if distortion_centre is not None else ((width - 1) / 2, (height - 1) / 2)
@@ -176,6 +181,8 @@ def render_board_view(
     clean = image.astype(np.float32)
     if blur_px > 0:
         clean = cv2.GaussianBlur(clean, (0, 0), blur_px, borderType=cv2.BORDER_REFLECT)
+    if glare is not None:
+        clean = clean + np.asarray(glare, dtype=np.float32)
     gain = full_well_e / 255.0  # electrons per 8-bit unit
     electrons = rng.poisson(np.maximum(clean, 0.0) * gain).astype(np.float64)
     noisy = (electrons + rng.normal(0.0, read_noise_e, clean.shape)) / gain

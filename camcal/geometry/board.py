@@ -114,7 +114,7 @@ MAX_BOARD_SIDE = 1000
 #: Fewest ChArUco corners kept in one image (a pose needs non-collinear points).
 MIN_CHARUCO_CORNERS = 6
 #: Part of every cache key: change it whenever detection changes what it returns.
-_DETECTOR_VERSION = "reduced-classic-reduced-sb-subpix-adaptive-xfit-v7"
+_DETECTOR_VERSION = "reduced-classic-reduced-sb-subpix-adaptive-xfit-v9"
 #: The detector's version and settings: a detection cached under others is not reused.
 DETECTOR_SETTINGS = f"{_DETECTOR_VERSION}|{_SB_FLAGS}|{_CLASSIC_FLAGS}|{_SUBPIX_CRITERIA}|{cv2.__version__}"
 

@@ -41,10 +41,19 @@ WINDOW_CAP_PX = 24.0
 WINDOW_FRACTION = 0.65
 #: Largest accepted move from the start, as a fraction of the square.
 MAX_SHIFT_FRACTION = 0.25
-_N_PARAMS = 11  # cx, cy, theta1, theta2, s, m, a, gx, gy, q1, q2
+_N_PARAMS = 13  # cx, cy, theta1, theta2, s, m, a, gx, gy, q1, q2, sx, sy
 _SQRT2 = np.sqrt(2.0)
+#: |z| beyond which erf(z) rounds to +-1 in double precision (erfc(6) = 2.2e-17).
+_ERF_FLAT = 6.0
 #: Prior standard deviation of the edges' sagitta at the window's rim (px at the level).
 _SAGITTA_PRIOR_PX = 0.5
+#: Fewest blur widths (Gaussian sigma) in the window's radius for the additive gradient to be fitted: on rendered
+#: boards without glare it cost 3-4 % of accuracy at 6.5, 17-30 % at 4.3-4.9, nothing at 9.8 and above.
+_GLARE_WINDOW_BLURS = 8.0
+#: Fewest blur widths in the window's radius for the illumination gradient to be fitted: a narrower window sees a
+#: saddle, whose shift is a linear ramp (on rendered boards of 15-20 px squares blurred by 3-4 px, fitting it
+#: left 0.29-0.68 px RMS, holding it 0.10 px).
+_GAIN_WINDOW_BLURS = 4.0
 
 
 @dataclass(frozen=True)
@@ -115,27 +124,13 @@ def _initial_angles(patches: NDArray, weights: NDArray) -> NDArray[np.float64]:
     return np.stack([peak(first), peak(second)], axis=1)
 
 
-def _value(params: NDArray, offsets: NDArray, radius: NDArray) -> NDArray:
-    """Intensity ``I`` (N, M) of the X-junction model at sample offsets (N, M, 2), without its Jacobian."""
-    cx, cy, t1, t2, s, m, a, gx, gy, q1, q2 = (params[:, k : k + 1] for k in range(_N_PARAMS))
-    vx = offsets[..., 0] - cx
-    vy = offsets[..., 1] - cy
-    inv_r2 = 1.0 / (radius[:, None] ** 2)
-    f = 1.0
-    for theta, q in ((t1, q1), (t2, q2)):
-        nx, ny = np.cos(theta), np.sin(theta)
-        along = -ny * vx + nx * vy
-        f = f * erf((nx * vx + ny * vy + q * along * along * inv_r2) / (_SQRT2 * s))
-    return (m + a * f) * (1.0 + gx * vx + gy * vy)
-
-
 def _model(params: NDArray, offsets: NDArray, radius: NDArray) -> tuple[NDArray, NDArray]:
-    """Intensity ``I`` (N, M) and Jacobian (N, M, 11) of the X-junction model at sample offsets (N, M, 2)."""
-    cx, cy, t1, t2, s, m, a, gx, gy, q1, q2 = (params[:, k : k + 1] for k in range(_N_PARAMS))
+    """Intensity ``I`` (N, M) and Jacobian (N, 13, M) of the X-junction model at sample offsets (N, M, 2)."""
+    cx, cy, t1, t2, s, m, a, gx, gy, q1, q2, sx, sy = (params[:, k : k + 1] for k in range(_N_PARAMS))
     vx = offsets[..., 0] - cx
     vy = offsets[..., 1] - cy
     inv_r2 = 1.0 / (radius[:, None] ** 2)
-    jac = np.empty(vx.shape + (_N_PARAMS,))
+    jac = np.empty((vx.shape[0], _N_PARAMS, vx.shape[1]))
     edges = []
     for theta, q in ((t1, q1), (t2, q2)):
         nx, ny = np.cos(theta), np.sin(theta)
@@ -143,8 +138,13 @@ def _model(params: NDArray, offsets: NDArray, radius: NDArray) -> tuple[NDArray,
         along = -ny * vx + nx * vy
         u = normal + q * along * along * inv_r2
         z = u / (_SQRT2 * s)
-        value = erf(z)
-        slope = np.sqrt(2.0 / np.pi) / s * np.exp(-z * z)  # d erf(u / (sqrt2 s)) / du
+        # beyond |z| = 6 erf is +-1 in double precision and its slope below 3e-16 of its peak: most of a window
+        near = np.abs(z) < _ERF_FLAT
+        value = np.sign(z)
+        value[near] = erf(z[near])
+        slope = np.zeros_like(z)
+        slope[near] = np.exp(-z[near] ** 2)
+        slope *= np.sqrt(2.0 / np.pi) / s  # d erf(u / (sqrt2 s)) / du
         du_dcx = -nx + 2 * q * along * inv_r2 * ny
         du_dcy = -ny - 2 * q * along * inv_r2 * nx
         du_dtheta = along - 2 * q * along * normal * inv_r2
@@ -154,24 +154,88 @@ def _model(params: NDArray, offsets: NDArray, radius: NDArray) -> tuple[NDArray,
     gain = 1.0 + gx * vx + gy * vy
     base = m + a * f
     scale = a * gain
-    jac[..., 0] = scale * (e2 * d1 * ax1 + e1 * d2 * ax2) - base * gx
-    jac[..., 1] = scale * (e2 * d1 * ay1 + e1 * d2 * ay2) - base * gy
-    jac[..., 2] = scale * e2 * d1 * at1
-    jac[..., 3] = scale * e1 * d2 * at2
-    jac[..., 4] = -scale * (e2 * d1 * u1 + e1 * d2 * u2) / s
-    jac[..., 5] = gain
-    jac[..., 6] = f * gain
-    jac[..., 7] = base * vx
-    jac[..., 8] = base * vy
-    jac[..., 9] = scale * e2 * d1 * aq1
-    jac[..., 10] = scale * e1 * d2 * aq2
-    return base * gain, jac
+    jac[:, 0] = scale * (e2 * d1 * ax1 + e1 * d2 * ax2) - base * gx - sx
+    jac[:, 1] = scale * (e2 * d1 * ay1 + e1 * d2 * ay2) - base * gy - sy
+    jac[:, 2] = scale * e2 * d1 * at1
+    jac[:, 3] = scale * e1 * d2 * at2
+    jac[:, 4] = -scale * (e2 * d1 * u1 + e1 * d2 * u2) / s
+    jac[:, 5] = gain
+    jac[:, 6] = f * gain
+    jac[:, 7] = base * vx
+    jac[:, 8] = base * vy
+    jac[:, 9] = scale * e2 * d1 * aq1
+    jac[:, 10] = scale * e1 * d2 * aq2
+    jac[:, 11] = vx
+    jac[:, 12] = vy
+    return base * gain + sx * vx + sy * vy, jac
 
 
 def _taper(offsets: NDArray, centre: NDArray, radius: NDArray) -> NDArray:
     """Window weights: 1 inside 0.7 r of the current centre, falling linearly to 0 at r."""
     rho = np.hypot(offsets[..., 0] - centre[:, 0:1], offsets[..., 1] - centre[:, 1:2])
     return np.clip((radius[:, None] - rho) / (0.3 * radius[:, None]), 0.0, 1.0)
+
+
+def _levenberg_marquardt(params: NDArray, fixed: NDArray, offsets: NDArray, flat: NDArray, valid: NDArray,
+                         radius: NDArray, max_iterations: int) -> tuple[NDArray, NDArray]:
+    """Levenberg-Marquardt on the model, parameters where ``fixed`` (N, 13) held: (params, converged)."""
+    params = params.copy()
+    n = len(params)
+    lam = np.full(n, 1e-3)
+    active = np.ones(n, dtype=bool)
+    converged = np.zeros(n, dtype=bool)
+    eye = np.eye(_N_PARAMS)
+    # the model and its Jacobian at the current parameters of the active corners: each iteration evaluates them
+    # once, at the trial, and keeps them where the trial is accepted
+    model, jac = _model(params, offsets, radius)
+    jac *= ~fixed[:, :, None]
+    for _ in range(max_iterations):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        p, off, rad = params[idx], offsets[idx], radius[idx]
+        w = _taper(off, p[:, :2], rad) * valid[idx]
+        res = flat[idx] - model
+        cost = (w * res * res).sum(1)
+        jw = jac * w[:, None, :]
+        normal = jw @ jac.transpose(0, 2, 1)
+        gradient = (jw @ res[..., None])[..., 0]
+        noise_var = cost / np.maximum(w.sum(1), 1.0)
+        prior = noise_var / _SAGITTA_PRIOR_PX**2
+        normal[:, 9, 9] += prior
+        normal[:, 10, 10] += prior
+        gradient[:, 9] -= prior * p[:, 9]
+        gradient[:, 10] -= prior * p[:, 10]
+        normal += fixed[idx, :, None] * eye
+        diagonal = np.einsum("nii->ni", normal)
+        damped = normal + lam[idx, None, None] * (diagonal[:, :, None] * eye + 1e-9 * eye)
+        try:
+            step = np.linalg.solve(damped, gradient[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            step = np.stack([np.linalg.lstsq(d, g_, rcond=None)[0] for d, g_ in zip(damped, gradient)])
+        step[fixed[idx]] = 0.0
+        trial = p + step
+        trial[:, 4] = np.maximum(trial[:, 4], 0.25)
+        model_t, jac_t = _model(trial, off, rad)
+        jac_t *= ~fixed[idx, :, None]
+        res_t = flat[idx] - model_t
+        cost_t = (w * res_t * res_t).sum(1) + prior * (trial[:, 9] ** 2 + trial[:, 10] ** 2)
+        cost_p = cost + prior * (p[:, 9] ** 2 + p[:, 10] ** 2)
+        better = np.isfinite(cost_t) & (cost_t <= cost_p)
+        params[idx[better]] = trial[better]
+        if better.all():
+            model, jac = model_t, jac_t
+        else:
+            model[better], jac[better] = model_t[better], jac_t[better]
+        lam[idx] = np.where(better, np.maximum(lam[idx] / 3, 1e-7), np.minimum(lam[idx] * 4, 1e7))
+        small = np.hypot(step[:, 0], step[:, 1]) < 1e-5
+        done = (better & small) | (lam[idx] >= 1e7)
+        converged[idx[better & small]] = True
+        active[idx[done]] = False
+        if done.any():
+            model, jac = model[~done], jac[~done]
+    converged |= active & (lam < 1e7)  # still improving at the last iteration: keep, checked below
+    return params, converged
 
 
 def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_iterations: int
@@ -196,11 +260,8 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
     weights = _taper(offsets, centre0, radius) * valid.reshape(n, -1)
     angles = _initial_angles(patches, weights.reshape(patches.shape))
     flat = patches.reshape(n, -1)
-    lo = np.percentile(np.where(weights > 0, flat, np.nan), 5, axis=1) if n else np.zeros(0)
-    hi = np.percentile(np.where(weights > 0, flat, np.nan), 95, axis=1) if n else np.zeros(0)
     g = np.hypot(0.5 * (patches[:, 1:-1, 2:] - patches[:, 1:-1, :-2]), 0.5 * (patches[:, 2:, 1:-1] - patches[:, :-2, 1:-1]))
     g_peak = np.max(g * (weights.reshape(patches.shape)[:, 1:-1, 1:-1] > 0), axis=(1, 2))
-    blur0 = np.clip(np.abs(hi - lo) / (np.sqrt(2 * np.pi) * np.maximum(g_peak, 1e-12)), 0.7, radius / 3)
     # the fit weighs only the disc inscribed in the patch (a window that moved by up to 2 px): a fifth fewer samples
     disc = (ox * ox + oy * oy <= half * half).ravel()
     offsets, flat, weights = offsets[:, disc], flat[:, disc], weights[:, disc]
@@ -208,64 +269,42 @@ def _fit_level(image: NDArray[np.float32], start: NDArray, radius: NDArray, max_
     params = np.zeros((n, _N_PARAMS))
     params[:, 0:2] = centre0
     params[:, 2:4] = angles
-    params[:, 4] = np.nan_to_num(blur0, nan=1.0)
+    params[:, 4] = 1.0
     # linear start of mean and amplitude on the start geometry
     params[:, 6] = 1.0
     _, jac = _model(params, offsets, radius)
-    f = jac[..., 6]
+    f = jac[:, 6]
     sw, sf, sff = weights.sum(1), (weights * f).sum(1), (weights * f * f).sum(1)
     si, sfi = (weights * flat).sum(1), (weights * f * flat).sum(1)
     det = sw * sff - sf * sf
     det = np.where(np.abs(det) > 1e-12, det, 1.0)
     params[:, 5] = (sff * si - sf * sfi) / det
     params[:, 6] = (sw * sfi - sf * si) / det
-    lam = np.full(n, 1e-3)
-    active = np.ones(n, dtype=bool)
-    converged = np.zeros(n, dtype=bool)
-    eye = np.eye(_N_PARAMS)
-    for _ in range(max_iterations):
-        idx = np.flatnonzero(active)
-        if idx.size == 0:
-            break
-        p, off, rad = params[idx], offsets[idx], radius[idx]
-        w = _taper(off, p[:, :2], rad) * valid[idx]
-        model, jac = _model(p, off, rad)
-        res = flat[idx] - model
-        cost = (w * res * res).sum(1)
-        jw = jac * w[..., None]
-        normal = np.einsum("nmi,nmj->nij", jw, jac, optimize=True)
-        gradient = np.einsum("nmi,nm->ni", jw, res, optimize=True)
-        noise_var = cost / np.maximum(w.sum(1), 1.0)
-        prior = noise_var / _SAGITTA_PRIOR_PX**2
-        normal[:, 9, 9] += prior
-        normal[:, 10, 10] += prior
-        gradient[:, 9] -= prior * p[:, 9]
-        gradient[:, 10] -= prior * p[:, 10]
-        diagonal = np.einsum("nii->ni", normal)
-        damped = normal + lam[idx, None, None] * (diagonal[:, :, None] * eye + 1e-9 * eye)
-        try:
-            step = np.linalg.solve(damped, gradient[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            step = np.stack([np.linalg.lstsq(d, g_, rcond=None)[0] for d, g_ in zip(damped, gradient)])
-        trial = p + step
-        trial[:, 4] = np.maximum(trial[:, 4], 0.25)
-        res_t = flat[idx] - _value(trial, off, rad)
-        cost_t = (w * res_t * res_t).sum(1) + prior * (trial[:, 9] ** 2 + trial[:, 10] ** 2)
-        cost_p = cost + prior * (p[:, 9] ** 2 + p[:, 10] ** 2)
-        better = np.isfinite(cost_t) & (cost_t <= cost_p)
-        params[idx[better]] = trial[better]
-        lam[idx] = np.where(better, np.maximum(lam[idx] / 3, 1e-7), np.minimum(lam[idx] * 4, 1e7))
-        small = np.hypot(step[:, 0], step[:, 1]) < 1e-5
-        done = (better & small) | (lam[idx] >= 1e7)
-        converged[idx[better & small]] = True
-        active[idx[done]] = False
-    converged |= active & (lam < 1e7)  # still improving at the last iteration: keep, checked below
+    # the additive gradient (glare) is free only where the window spans enough blur widths to tell it from a shift:
+    # the blur of an edge of contrast 2 a whose steepest gradient is g_peak is 2 a / (sqrt(2 pi) g_peak)
+    blur = 2.0 * np.abs(params[:, 6]) / (np.sqrt(2 * np.pi) * np.maximum(g_peak, 1e-12))
+    tied = ~(radius >= _GLARE_WINDOW_BLURS * blur)
+    fixed = np.zeros((n, _N_PARAMS), dtype=bool)
+    fixed[:, 11:] = tied[:, None]
+    params, converged = _levenberg_marquardt(params, fixed, offsets, flat, valid, radius, max_iterations)
+    # a window within a few fitted blur widths sees a saddle, whose shift is a linear ramp: the illumination
+    # gradient then trades off against the centre; held at zero there, the fit runs again from its result
+    narrow = np.flatnonzero(radius < _GAIN_WINDOW_BLURS * params[:, 4])
+    if narrow.size:
+        start_narrow = params[narrow].copy()
+        start_narrow[:, 7:9] = 0.0
+        fixed[narrow, 7:9] = True
+        params[narrow], converged[narrow] = _levenberg_marquardt(start_narrow, fixed[narrow], offsets[narrow],
+                                                                 flat[narrow], valid[narrow], radius[narrow],
+                                                                 max_iterations)
     w = _taper(offsets, params[:, :2], radius) * valid
     model, jac = _model(params, offsets, radius)
+    jac *= ~fixed[:, :, None]
     res = flat - model
-    dof = np.maximum(w.sum(1) - _N_PARAMS, 1.0)
+    dof = np.maximum(w.sum(1) - _N_PARAMS + fixed.sum(1), 1.0)
     rms = np.sqrt((w * res * res).sum(1) / dof)
-    normal = np.einsum("nmi,nmj->nij", jac * w[..., None], jac, optimize=True)
+    normal = (jac * w[:, None, :]) @ jac.transpose(0, 2, 1)
+    normal += fixed[:, :, None] * np.eye(_N_PARAMS)
     normal[:, 9, 9] += rms**2 / _SAGITTA_PRIOR_PX**2
     normal[:, 10, 10] += rms**2 / _SAGITTA_PRIOR_PX**2
     sigma = np.full(n, np.nan)
@@ -324,17 +363,28 @@ def refine_corners(
     ``n_i = (cos theta_i, sin theta_i)`` and tangents ``t_i`` of the two
     edges, the model is
 
-    ``I(p) = (m + a E(u_1) E(u_2)) (1 + g . v)``,
+    ``I(p) = (m + a E(u_1) E(u_2)) (1 + g . v) + g_G . v``,
     ``u_i = n_i . v + q_i (t_i . v)^2 / r^2``,
     ``E(u) = erf(u / (sqrt(2) s))``
 
     (the erf product is the exact blur of an X-junction with perpendicular
     edges, a point-symmetric approximation otherwise, so the centre stays
-    unbiased): 11 parameters per corner, the centre, both edge angles (free:
+    unbiased): 13 parameters per corner (11 where the window is narrow), the centre, both edge angles (free:
     perspective), the blur ``s``, the mean ``m`` and amplitude ``a``, an
-    illumination gradient ``g`` and each edge's sagitta ``q_i`` at the
-    window's rim (lens distortion bends edges; a weak prior of
-    0.5 px holds it where the window cannot tell). The fit weighs pixels by
+    illumination gradient ``g`` (light reflected off the board, ``I = L R``,
+    scales both), an additive gradient ``g_G`` (glare or flare added to it,
+    ``I = L R + G``, shifts the mean only: without it, under a glare
+    gradient strong enough that a dark square outshines the light one
+    opposite, the centre is dragged, 0.096 px against 0.049 px on rendered
+    boards; it is fitted only where the window's radius spans at least
+    8 blur widths, estimated from the window's
+    contrast and steepest gradient, since in a narrower window it trades
+    off against the centre) and each edge's sagitta ``q_i`` at the window's
+    rim (lens distortion bends edges; a weak prior of
+    0.5 px holds it where the window cannot tell). Where the window's
+    radius is within 4 fitted blur widths, the window sees a saddle, whose
+    shift is a linear ramp: the fit runs again from its result with ``g``
+    held at zero. The fit weighs pixels by
     a taper that moves with the centre (flat to 0.7 r, zero at r), so that
     a point-symmetric corner sees a point-symmetric window. It runs on the
     level of a 2x area-averaging pyramid where ``r <= WINDOW_CAP_PX``
