@@ -1,13 +1,18 @@
 """The scene gauge of a solve's covariance against repeated noisy solves of one scene (synthetic tracks)."""
 
+import sys
+from pathlib import Path
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from camcal.geometry.bundle import BundleOptions, BundleState, bundle_adjust
 from camcal.geometry.uncertainty import covariance_from_colmap, projection_covariance, scene_gauge_rotation
 from camcal.model.colmap import camera_from_colmap
-from camcal.model.rig import Camera
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
+
+sys.path.insert(0, str(Path(__file__).parent))
+from rig_tracks import observe_points  # noqa: E402
 
 NOISE_PX = 0.5
 
@@ -22,22 +27,7 @@ def scene(rng, n_frames=6, n_points=400):
 
 def noisy_state(cameras, poses, X, rng) -> BundleState:
     """The tracks of ``X`` with Gaussian noise of :data:`NOISE_PX`, started at the truth (SIMPLE_DIVISION)."""
-    cams, frames, points, xys = [], [], [], []
-    for f, (R_rig, c_rig) in enumerate(poses):
-        for k, camera in enumerate(cameras):
-            posed = Camera(camera.name, camera.image_size, camera.K, camera.distortion, camera.R @ R_rig,
-                           c_rig + R_rig.T @ camera.c)
-            depth = (X - posed.c) @ posed.R[2]
-            with np.errstate(invalid="ignore"):
-                xy = posed.project(X)
-            inside = np.all((xy > 0) & (xy < np.array(camera.image_size) - 1), axis=1)
-            seen = (depth > 0.3) & np.all(np.isfinite(xy), axis=1) & inside
-            index = np.flatnonzero(seen)
-            cams += [k] * len(index)
-            frames += [f] * len(index)
-            points += list(index)
-            xys.append(xy[index] + rng.normal(0.0, NOISE_PX, (len(index), 2)))
-    points = np.array(points)
+    cams, frames, points, xys = observe_points(cameras, poses, X, rng, NOISE_PX)
     keep_point = np.bincount(points, minlength=len(X)) >= 3
     keep = keep_point[points]
     params = [np.r_[c.K[0, 0], c.K[0, 2] + 0.5, c.K[1, 2] + 0.5, c.distortion.params["lambda"] * c.K[0, 0] ** 2]
@@ -49,8 +39,8 @@ def noisy_state(cameras, poses, X, rng) -> BundleState:
         sensor_R=np.array([np.eye(3), right.R]), sensor_t=np.array([np.zeros(3), -right.R @ right.c]),
         frame_R=np.array([R for R, _ in poses]), frame_t=np.array([-R @ c for R, c in poses]),
         frame_ids=tuple(range(len(poses))), points=X[keep_point], point_ids=tuple(range(int(keep_point.sum()))),
-        obs_camera=np.array(cams)[keep], obs_frame=np.array(frames)[keep],
-        obs_point=(np.cumsum(keep_point) - 1)[points[keep]], obs_xy=np.vstack(xys)[keep])
+        obs_camera=cams[keep], obs_frame=frames[keep],
+        obs_point=(np.cumsum(keep_point) - 1)[points[keep]], obs_xy=xys[keep])
 
 
 def test_scene_gauge_covariance_matches_repeated_solves():

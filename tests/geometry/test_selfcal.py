@@ -3,6 +3,8 @@ uncertainty that covers the error, against a rendered rig and against plain pyco
 
 import contextlib
 import io
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,8 +16,10 @@ from camcal.geometry.bundle.prior import PRINCIPAL_POINT_PRIOR, UNDETERMINED_RAT
 from camcal.model.camera import rotation_angle_deg
 from camcal.geometry.selfcal import FOCAL_UNDETERMINED, self_calibrate
 from camcal.model.colmap import camera_from_colmap
-from camcal.model.rig import Camera
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
+
+sys.path.insert(0, str(Path(__file__).parent))
+from rig_tracks import observe_points  # noqa: E402
 
 NOISE_PX = 0.5
 
@@ -31,23 +35,7 @@ def tracks_state(cameras, rng, n_frames=10, roll_deg=35.0, n_points=2500, noise_
     and the focal 1 % off, poses and points perturbed (what a pycolmap mapping hands over)."""
     poses = poses if poses is not None else orbit_rig_poses(rng, n_frames, roll_deg=roll_deg)
     X = rng.uniform([1.0, 1.0, 0.0], [7.0, 7.0, 3.0], (n_points, 3))
-    cams, frames, points, xys = [], [], [], []
-    for f, (R_rig, c_rig) in enumerate(poses):
-        for k, camera in enumerate(cameras):
-            posed = Camera(camera.name, camera.image_size, camera.K, camera.distortion, camera.R @ R_rig,
-                           c_rig + R_rig.T @ camera.c)
-            depth = (X - posed.c) @ posed.R[2]
-            with np.errstate(invalid="ignore"):
-                xy = posed.project(X)
-            width, height = camera.image_size
-            seen = (depth > 0.3) & np.all(np.isfinite(xy), axis=1) & (xy[:, 0] > 0) & (xy[:, 0] < width - 1) \
-                & (xy[:, 1] > 0) & (xy[:, 1] < height - 1)
-            index = np.flatnonzero(seen)
-            cams += [k] * len(index)
-            frames += [f] * len(index)
-            points += list(index)
-            xys.append(xy[index] + rng.normal(0.0, noise_px, (len(index), 2)))
-    points = np.array(points)
+    cams, frames, points, xys = observe_points(cameras, poses, X, rng, noise_px)
     counts = np.bincount(points, minlength=n_points)
     keep_point = counts >= 3
     keep = keep_point[points]
@@ -69,8 +57,8 @@ def tracks_state(cameras, rng, n_frames=10, roll_deg=35.0, n_points=2500, noise_
         frame_R=np.array(frame_R), frame_t=np.array(frame_t), frame_ids=tuple(range(len(poses))),
         points=X[keep_point] + rng.normal(0, 0.01, (int(keep_point.sum()), 3)),
         point_ids=tuple(range(int(keep_point.sum()))),
-        obs_camera=np.array(cams)[keep], obs_frame=np.array(frames)[keep], obs_point=renumber[points[keep]],
-        obs_xy=np.vstack(xys)[keep],
+        obs_camera=cams[keep], obs_frame=frames[keep], obs_point=renumber[points[keep]],
+        obs_xy=xys[keep],
     )
     return state
 
