@@ -58,6 +58,17 @@ TARGET_SPEED_RATIO = 10.0
 SIZES = [(640, 480), (1280, 960), (1920, 1080), (2048, 1536)]
 
 
+def render_with_random_exposure(rng: np.random.Generator, size, H, columns: int, rows: int, blur: float,
+                                distortion: float):
+    """The board rendered with random levels (black 10-70, white 150-245, background 60-200), full well
+    2,000-20,000 e-, read noise 2-10 e- and JPEG quality 80-95."""
+    black = rng.uniform(10, 70)
+    levels = (black, rng.uniform(max(black + 80, 150), 245), rng.uniform(60, 200))
+    return render_board_view(rng, size, H, columns, rows, blur, distortion=distortion, levels=levels,
+                             full_well_e=float(np.exp(rng.uniform(np.log(2000), np.log(20000)))),
+                             read_noise_e=rng.uniform(2, 10), jpeg_quality=int(rng.integers(80, 96)))
+
+
 def make_view(rng: np.random.Generator, index: int, n_views: int):
     """One random view and its description."""
     is_4k = index % 4 == 3
@@ -97,11 +108,7 @@ def make_view(rng: np.random.Generator, index: int, n_views: int):
         half_diagonal = 0.5 * np.hypot(*size)
         distortion = -rng.uniform(0.08, 0.2) / half_diagonal**2
     blur = float(np.exp(rng.uniform(np.log(0.5), np.log(5.0))))
-    black = rng.uniform(10, 70)
-    levels = (black, rng.uniform(max(black + 80, 150), 245), rng.uniform(60, 200))
-    view = render_board_view(rng, size, H, columns, rows, blur, distortion=distortion, levels=levels,
-                             full_well_e=float(np.exp(rng.uniform(np.log(2000), np.log(20000)))),
-                             read_noise_e=rng.uniform(2, 10), jpeg_quality=int(rng.integers(80, 96)))
+    view = render_with_random_exposure(rng, size, H, columns, rows, blur, distortion)
     return view, dict(size=size, square=square, blur=blur, kind=kind, is_4k=is_4k, columns=columns, rows=rows)
 
 
@@ -130,11 +137,7 @@ def make_fisheye_view(rng: np.random.Generator):
         if np.all(distorted >= 2) and np.all(distorted < np.array(size) - 3):
             break
     blur = float(np.exp(rng.uniform(np.log(0.5), np.log(3.0))))
-    black = rng.uniform(10, 70)
-    levels = (black, rng.uniform(max(black + 80, 150), 245), rng.uniform(60, 200))
-    view = render_board_view(rng, size, H, columns, rows, blur, distortion=distortion, levels=levels,
-                             full_well_e=float(np.exp(rng.uniform(np.log(2000), np.log(20000)))),
-                             read_noise_e=rng.uniform(2, 10), jpeg_quality=int(rng.integers(80, 96)))
+    view = render_with_random_exposure(rng, size, H, columns, rows, blur, distortion)
     return view, dict(size=size, square=float(np.median(view.square_px)), blur=blur, kind="fisheye", is_4k=False,
                       columns=columns, rows=rows)
 
