@@ -62,8 +62,9 @@ class SyntheticSets:
 
 def _rendered(sets: tuple[str, ...], sens: Sensitivities, illuminant: str, gains: np.ndarray) -> PatchSet:
     grid = np.arange(_GRID[0], _GRID[1] + 1, _GRID[2])
-    names = [n for name in sets for n in reflectance_set(name, grid)[0]]
-    R = np.vstack([reflectance_set(name, grid)[1] for name in sets])
+    on_grid = [reflectance_set(name, grid) for name in sets]
+    names = [n for set_names, _ in on_grid for n in set_names]
+    R = np.vstack([values for _, values in on_grid])
     XYZ, _ = reflectance_XYZ(R, illuminant_spd(illuminant, grid), _GRID)
     R_cam = np.vstack([reflectance_set(name, sens.wavelengths)[1] for name in sets])
     return PatchSet(tuple(names), sens.camera_under(illuminant).RGB(R_cam) * gains, XYZ)
