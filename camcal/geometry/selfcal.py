@@ -239,7 +239,7 @@ def as_lens_model(camera: Camera, model: str) -> Camera:
 
 def _fixed(options: BundleOptions, lenses: dict[str, str]) -> BundleOptions:
     """``options`` with each camera's :data:`FIXED_PARAMS` held as well (``camera name -> camcal model``)."""
-    fixed = {name: tuple(options.fixed_params.get(name, ())) for name in options.fixed_params}
+    fixed = {name: tuple(held) for name, held in options.fixed_params.items()}
     for name, model in lenses.items():
         fixed[name] = tuple(dict.fromkeys(fixed.get(name, ()) + FIXED_PARAMS.get(model, ())))
     return dataclasses.replace(options, fixed_params={name: held for name, held in fixed.items() if held})

@@ -160,6 +160,8 @@ def _split_focal(covariance: ParameterCovariance) -> ParameterCovariance:
             out.append(name)
     array = covariance.array[np.ix_(source, source)]
     return ParameterCovariance(tuple(out), array)
+
+
 _LEGACY_TOP = {"n_points": "n_observations"}
 
 
