@@ -28,7 +28,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                    "hold (default: 120 when a camera has a kannala-brandt fisheye, no cap otherwise)")
     out_option(parser, "FILE.rig.json", "the rectified rig")
     parser.add_argument("--write", metavar="DIR", help="write rectified images to DIR/<camera>/")
-    report_option(parser, "write DIR/rectification.json with the figures")
+    report_option(parser, "write DIR/rectification.json with the figures and the page DIR/index.html (with --sigma: "
+                  "heat maps of the sigma maps with a colour bar, worst and median values)")
     sigma_options(parser, "per pair of consecutive cameras A-B, A-B_vertical_sigma.exr (the sigma of the vertical "
                   "disparity, rectified pixels) and with --distance A-B_depth_sigma.exr (the sigma of the depth at "
                   "that distance, rig units), pixel for pixel with A's rectified images, into the --write DIR (or "
@@ -43,7 +44,7 @@ def _rectify(args: argparse.Namespace) -> int:
     (Hartley 1999). Matches come from --matches (CSV camera_a,u_a,v_a,camera_b,u_b,v_b) or from SIFT on the
     first image of each --images sequence (of a video: its frame 0).
     """
-    from pathlib import Path
+    import os
 
     from camcal.base.atomic import final_path
     from camcal.geometry.rectify import RectifyWarper, rectify
@@ -92,17 +93,26 @@ def _rectify(args: argparse.Namespace) -> int:
             warper = RectifyWarper(result.rig)
             for name in result.names:
                 written += write_rectified(warper, name, images.get(name, []), write_dir, args.every)
-        if report_dir is not None:
-            write_json(report_dir / "rectification.json", result.to_report())
+        links = {}
         if pairs:
             from camcal.io.stmap import write_sigma_map
 
             sigma_dir, final_dir = (write_dir, args.write) if write_dir is not None else (report_dir, args.report)
             for pair in pairs:
-                stem = sigma_dir / f"{pair.first}-{pair.second}"
-                sigma_files.append(write_sigma_map(f"{stem}_vertical_sigma.exr", pair.vertical_px))
-                if pair.depth is not None:
-                    sigma_files.append(write_sigma_map(f"{stem}_depth_sigma.exr", pair.depth))
+                for kind, values in (("vertical", pair.vertical_px), ("depth", pair.depth)):
+                    if values is None:  # depth at infinity
+                        continue
+                    path = write_sigma_map(sigma_dir / f"{pair.first}-{pair.second}_{kind}_sigma.exr", values)
+                    sigma_files.append(path)
+                    if args.report:
+                        links[pair.first, pair.second, kind] = os.path.relpath(final_path(path, sigma_dir, final_dir),
+                                                                               args.report)
+        reports = []
+        if report_dir is not None:
+            from camcal.report.rectification import write_report
+
+            write_json(report_dir / "rectification.json", result.to_report())
+            reports = [report_dir / "rectification.json", *write_report(result, report_dir, pairs, links)]
         result.rig.save(args.out)
     written = [final_path(path, write_dir, args.write) for path in written]
     if sigma_files:
@@ -117,8 +127,8 @@ def _rectify(args: argparse.Namespace) -> int:
     out.wrote_each(written, "image")
     if written:
         print(f"wrote {len(written)} rectified image(s) to {args.write}")
-    if args.report:
-        out.wrote(Path(args.report) / "rectification.json", "report")
+    if reports:
+        out.report([final_path(path, report_dir, args.report) for path in reports], args.report)
     out.wrote_each(sigma_files, "sigma", say=True)
     out.wrote(args.out, "rig")
     return 0

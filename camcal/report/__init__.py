@@ -7,6 +7,7 @@ returning the files written:
 - :mod:`camcal.report.characterisation` (``colour fit``),
 - :mod:`camcal.report.colour_match` (``colour match``),
 - :mod:`camcal.report.calibration` (``calibrate board``),
+- :mod:`camcal.report.rectification` (``rectify``: its page, with ``--sigma`` the sigma heat maps),
 - ``camcal.demo.report.write_html`` (``camcal demo``).
 
 Conventions every plot follows:

@@ -243,8 +243,11 @@ def rectified_pair_sigma(first: Camera, second: Camera, distance: float | None =
     def figures(moved: dict[str, Camera]) -> NDArray[np.float64]:
         a = _observe(moved[first.name], first, X, at_infinity)
         b = _observe(moved[second.name], second, X, at_infinity)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            depth = f_rect * baseline_x / (a[:, 0] - b[:, 0])
+        if at_infinity:  # no depth to triangulate (NaN, unlike inf, differences without a warning)
+            depth = np.full(len(a), np.nan)
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                depth = f_rect * baseline_x / (a[:, 0] - b[:, 0])
         return np.column_stack([a[:, 1] - b[:, 1], depth])
 
     sigmas = np.sqrt(np.clip(np.diag(covariance.array), 0.0, None))
