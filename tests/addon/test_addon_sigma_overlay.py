@@ -67,3 +67,23 @@ def test_sigma_overlay_operator_shows_the_map_pixel_for_pixel(registered, addon,
     other = write_heatmap_png(_ramp(160, 120), tmp_path / "small.png")
     with pytest.raises(RuntimeError, match="lines up only with its own camera"):
         bpy.ops.camcal.sigma_overlay(filepath=str(other), camera=camera.name)
+
+
+def test_sigma_overlay_operator_shows_an_exr_with_its_sigma_values(registered, addon, tmp_path):
+    """The EXR (``camcal sigma --out``, ``stmap --sigma``) as the overlay: Non-Color, its floats kept pixel for
+    pixel (Blender's rows bottom-up), no colour-scale top (that is the PNG's)."""
+    bpy = registered
+    path = write_rig(tmp_path / "e.rig.json", [camera_dict("a", (320, 240), K)])
+    addon.import_rig(bpy.context.scene, str(path))
+    camera = bpy.data.objects["e_a"]
+    sigma = _ramp()
+    sigma[10:20, 30:40] = np.nan  # no source pixel
+    exr = write_sigma_map(tmp_path / "a_sigma.exr", sigma)
+    assert bpy.ops.camcal.sigma_overlay(filepath=str(exr), camera=camera.name, alpha=0.4) == {"FINISHED"}
+    (bg,) = [bg for bg in camera.data.background_images if bg.image is not None]
+    image = bg.image
+    assert image.colorspace_settings.name == "Non-Color" and "camcal_sigma_max_px" not in image
+    assert tuple(image.size) == (320, 240) and bg.alpha == pytest.approx(0.4)
+    pixels = np.array(image.pixels[:]).reshape(240, 320, 4)[::-1, :, 0]
+    finite = np.isfinite(sigma)
+    assert np.allclose(pixels[finite], sigma[finite], rtol=1e-6)
