@@ -247,7 +247,8 @@ def _board(args: argparse.Namespace) -> int:
         if report_dir is not None:
             from camcal.report.sigma import write_sigma_heatmaps
 
-            reports = write_report(result, report_dir, board) + write_sigma_heatmaps(result.rig.cameras, report_dir)
+            sigma_maps = write_sigma_heatmaps(result.rig.cameras, report_dir)
+            reports = write_report(result, report_dir, board, sigma_maps) + sigma_maps
         else:
             reports = []
         result.rig.save(args.out)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import colorsys
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -24,7 +25,8 @@ def _palette(n: int) -> list[tuple[int, int, int]]:
     return [tuple(int(255 * v) for v in colorsys.hsv_to_rgb(i / max(n, 1), 0.85, 0.8)[::-1]) for i in range(n)]
 
 
-def write_report(result: CalibrationResult, out_dir: str | os.PathLike, board: Board | None = None) -> list[Path]:
+def write_report(result: CalibrationResult, out_dir: str | os.PathLike, board: Board | None = None,
+                 sigma_maps: Sequence[Path] = ()) -> list[Path]:
     """PNG plots of a calibration and its page, written atomically into ``out_dir``.
 
     Per camera, ``residuals_<camera>.png`` (every corner with its
@@ -35,7 +37,8 @@ def write_report(result: CalibrationResult, out_dir: str | os.PathLike, board: B
     (RMS of each image kept, one bar per image, cameras in turn, the
     median as a line); the page ``index.html`` with the camera layout and
     each camera's held-out residuals (:func:`camcal.report.volume.write_volume_report`;
-    ``board`` draws the board positions as outlines).
+    ``board`` draws the board positions as outlines; ``sigma_maps``, heat-map PNGs
+    already in ``out_dir``, are shown on it).
 
     Returns
     -------
@@ -87,7 +90,7 @@ def write_report(result: CalibrationResult, out_dir: str | os.PathLike, board: B
     cv2.putText(canvas, f"RMS per image (max {top:.3f} px, line = median)", (10, 25),
                 cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     written.append(imwrite(directory / "per_image_rms.png", canvas))
-    return written + write_volume_report(result, directory, board)
+    return written + write_volume_report(result, directory, board, sigma_maps)
 
 
 def write_suggestion_preview(camera: Camera, shots, path: str | os.PathLike) -> Path:

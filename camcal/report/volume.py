@@ -9,7 +9,9 @@
 - ``heldout_residuals.png``: per camera, the held-out corners' residuals
   ``observed - projected`` (px), the training and held-out RMS in its title;
 - a table per camera: centre, focal length, training and held-out RMS,
-  views used and held out.
+  views used and held out;
+- given them, each camera's projection-sigma heat map
+  (:func:`camcal.report.sigma.write_sigma_heatmaps`).
 
 "Up" is the mean of the cameras' up axes (``-y`` of each camera, in the
 reference camera's coordinates: ``P = K [R | -R c]``, camera axes x right,
@@ -21,7 +23,9 @@ from __future__ import annotations
 
 import html
 import os
+from collections.abc import Sequence
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
 from numpy.typing import NDArray
@@ -132,8 +136,9 @@ def _plot_heldout(result: CalibrationResult, path: Path) -> Path:
 
 
 def write_volume_report(result: CalibrationResult, out_dir: str | os.PathLike,
-                        board: Board | None = None) -> list[Path]:
-    """``layout.png``, ``heldout_residuals.png`` and ``index.html`` in ``out_dir`` (see the module docstring).
+                        board: Board | None = None, sigma_maps: Sequence[Path] = ()) -> list[Path]:
+    """``layout.png``, ``heldout_residuals.png`` and ``index.html`` in ``out_dir`` (see the module docstring);
+    ``sigma_maps``: heat-map PNGs already in ``out_dir``, shown on the page.
 
     Returns
     -------
@@ -160,6 +165,13 @@ def write_volume_report(result: CalibrationResult, out_dir: str | os.PathLike,
             f"<td class='num'>{'-' if heldout_rms is None else f'{heldout_rms:.4f}'}</td>"
             f"<td class='num'>{views[camera.name]}</td><td class='num'>{held[camera.name]}</td></tr>")
     summary = html.escape(result.summary())
+    sigma = ""
+    if sigma_maps:
+        images = "".join(f'<img class="sigma" src="{html.escape(quote(Path(path).name))}" '
+                         f'alt="projection sigma {html.escape(Path(path).stem)}" width="560"> ' for path in sigma_maps)
+        sigma = ("<h2>Projection uncertainty</h2>\n<p>Worst-direction sigma of the projected pixel (rays at the "
+                 "distance in each title), from the calibration's covariance: sampling noise, not model error. Each "
+                 f"scale runs from 0 to the map's worst value.</p>\n<p id=\"sigma\">{images}</p>\n")
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>camcal: {len(result.rig.cameras)}-camera calibration</title>
 <style>body{{font-family:sans-serif;margin:2em;max-width:1300px}} table{{border-collapse:collapse}}
@@ -175,7 +187,7 @@ img{{max-width:100%}}</style></head><body>
 <tbody>{''.join(rows)}</tbody></table>
 <h2>Held-out residuals</h2>
 <p><img id="heldout" src="{heldout.name}" alt="held-out residuals per camera"></p>
-</body></html>
+{sigma}</body></html>
 """
     index = directory / "index.html"
     atomic_write_text(index, page)

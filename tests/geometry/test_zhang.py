@@ -272,6 +272,8 @@ def test_cli_calibrates_a_real_subset(real_pair_shots, tmp_path, capsys):
     assert [c.name for c in rig.cameras] == ["left", "right"] and rig.units == "squares"
     assert rig.cameras[1].quality["rms_px"] < 1.0 and (tmp_path / "report" / "per_image_rms.png").exists()
     assert (tmp_path / "report" / "sigma_left.png").exists() and (tmp_path / "report" / "sigma_right.png").exists()
+    page = (tmp_path / "report" / "index.html").read_text()  # the page shows them
+    assert 'src="sigma_left.png"' in page and 'src="sigma_right.png"' in page
 
 
 @pytest.mark.parametrize(

@@ -79,3 +79,20 @@ def test_report_page_shows_every_camera(calibrated, tmp_path):
         assert float(cells[3]) == pytest.approx(camera.quality["heldout_rms_px"], abs=1e-4)
     layout = cv2.imread(str(tmp_path / "layout.png"))
     assert layout is not None and layout.shape[1] > 1000 and layout.std() > 5
+
+
+
+def test_report_page_shows_the_projection_sigma_maps(calibrated, tmp_path):
+    """calibrate board --report: each camera's sigma heat map (report.sigma) on the page; none without them."""
+    from camcal.report.sigma import write_sigma_heatmaps
+
+    board, _, result = calibrated
+    cameras = result.rig.cameras[:2]
+    write_report(result, tmp_path, board, write_sigma_heatmaps(cameras, tmp_path))
+    shown = re.findall(r'<img class="sigma" src="(.*?)"', (tmp_path / "index.html").read_text())
+    assert shown == [f"sigma_{camera.name}.png" for camera in cameras]
+    for name in shown:
+        image = cv2.imread(str(tmp_path / name))
+        assert image is not None and image.shape[0] > 300 and image.std() > 5
+    write_report(result, tmp_path / "plain", board)
+    assert 'id="sigma"' not in (tmp_path / "plain" / "index.html").read_text()
