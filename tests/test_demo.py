@@ -148,6 +148,16 @@ def open_in_chromium(page: Path, workdir: Path) -> tuple[_Page, list[str], np.nd
     return parsed, errors, cv2.imread(str(shot))
 
 
+def test_quick_run_report_shows_the_rectified_pairs_sigma_maps(quick):
+    """The rectify stage runs with --sigma --distance: its heat maps are written and the demo page shows them."""
+    out, _ = quick
+    page = (out / "report.html").read_text()
+    for kind in ("vertical", "depth"):
+        assert (out / "rectify" / f"sigma_{kind}_left-right.png").stat().st_size > 0
+        assert f'src="rectify/sigma_{kind}_left-right.png"' in page
+    assert (out / "rectify" / "images" / "left-right_depth_sigma.exr").exists()
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (.ci/run installs it)")
 def test_report_opens_in_chromium(quick, tmp_path):
     out, report = quick

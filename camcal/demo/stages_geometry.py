@@ -173,7 +173,8 @@ def stage_rectify(ctx: DemoContext) -> StageResult:
     rect_path = ctx.path("rectify", "rectified.rig.json")
     written_dir = ctx.out_dir / "rectify" / "images"
     argv = ["rectify", str(board_rig), "--images", f"left={pair_dir / 'left'}/*.png", f"right={pair_dir / 'right'}/*.png",
-            "--out", str(rect_path), "--write", str(written_dir), "--report", str(ctx.out_dir / "rectify")]
+            "--out", str(rect_path), "--write", str(written_dir), "--report", str(ctx.out_dir / "rectify"),
+            "--sigma", "--distance", f"{np.median([np.linalg.norm(t) for _, t in truth.board_poses]):.4g}"]
     run_cli(argv, stage)
     ctx.artifacts["rectified_rig"] = rect_path
     rig = Rig.load(rect_path)
@@ -209,7 +210,12 @@ def stage_rectify(ctx: DemoContext) -> StageResult:
             f"measured on every chessboard corner projected by the true cameras ({truth_disparity.n} "
             f"correspondences) and on the corners detected in the written rectified pair "
             f"<code>{html.escape(board_name)}</code>. Horizontal lines are epipolar lines after rectification.</p>"
-            + "".join(img_tag(ctx, f) for f in figures))
+            + "".join(img_tag(ctx, f) for f in figures)
+            + "<h3>Uncertainty of the rectified pair</h3><p>The sigma of the vertical disparity (rectified px) and "
+              "of the depth at the boards' median distance (rig units), propagated from the calibration's "
+              "covariance:</p>"
+            + "".join(img_tag(ctx, ctx.out_dir / "rectify" / f"sigma_{kind}_left-right.png", width=420)
+                      for kind in ("vertical", "depth")))
     return StageResult(tuple(rows), (("rectified rig (rectified.rig.json)", rect_path),
                                      ("rectified images", written_dir)),
                        (ReportSection("Rectification", body, "rectify"),))
