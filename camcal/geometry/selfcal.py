@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
+from camcal.geometry.bundle.deletion import DeletionUnsupported, FrameInfluences, frame_influences
 from camcal.geometry.bundle.prior import ASPECT_PRIOR, PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, undetermined
 from camcal.geometry.bundle.state import model_layout
 from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife
@@ -144,6 +145,12 @@ class SelfCalibration:
     aspect_prior : bool
         Whether ``fx - fy`` had the square-pixel prior (the default priors),
         or the images alone decided it (``principal_point="refine"``).
+    frame_influences : FrameInfluences or None
+        Each frame's influence on the final fit, scene gauge included
+        (:func:`camcal.geometry.bundle.deletion.frame_influences`): the
+        projection sigma's design effect
+        (:func:`camcal.geometry.uncertainty.shrunk_design_effect`); None when
+        the jackknife was not run or the problem has no one-step form.
     """
 
     lens_models: dict[str, str]
@@ -158,6 +165,7 @@ class SelfCalibration:
     jackknife_skipped: str = ""
     jackknife_method: str = ""
     aspect_prior: bool = True
+    frame_influences: FrameInfluences | None = None
 
     def lines(self) -> list[str]:
         """The decisions, one line per camera and question, for the user."""
@@ -422,7 +430,7 @@ def self_calibrate(
     final_options = _fixed(free_pp, chosen)
     final = bundle_adjust(_with_lenses(state, chosen), final_options)
     decisions = tuple(_principal_point_decision(final, k, principal_point) for k in range(len(names)))
-    covariance_sigmas, jackknife_sigmas, groups = dict(final.sigmas), {}, 0
+    covariance_sigmas, jackknife_sigmas, groups, influences = dict(final.sigmas), {}, 0, None
     n_frames = len(np.unique(final.state.obs_frame))
     skipped = ("asked" if jackknife is None else
                f"the jackknife needs {MIN_FRAMES} frames, got {n_frames}" if n_frames < MIN_FRAMES else "")
@@ -430,6 +438,10 @@ def self_calibrate(
         _say(progress, f"uncertainty: delete-one-frame jackknife ({min(n_frames, MAX_GROUPS)} groups of frames)")
         spread = frame_jackknife(final, final_options, method=jackknife)
         jackknife_sigmas, groups = spread.widened_sigmas, spread.n_groups
+        try:
+            influences = frame_influences(final.state, final_options)
+        except DeletionUnsupported:
+            influences = None
         # a singular covariance leaves keys only the jackknife has
         final = dataclasses.replace(final, sigmas={key: max(covariance_sigmas.get(key, 0.0), jackknife_sigmas.get(key, 0.0))
                                                    for key in {**covariance_sigmas, **jackknife_sigmas}})
@@ -439,7 +451,7 @@ def self_calibrate(
         undetermined=tuple(undetermined(final.priors, final.prior_posterior_sigmas) + _undetermined_focals(final)),
         unused_priors=tuple(spec.label for spec in final.unused_priors), covariance_sigmas=covariance_sigmas, jackknife_sigmas=jackknife_sigmas,
         jackknife_groups=groups, jackknife_skipped=skipped, jackknife_method=spread.method if not skipped else "",
-        aspect_prior=free_pp.default_priors,
+        aspect_prior=free_pp.default_priors, frame_influences=influences,
     )
     return final, report
 

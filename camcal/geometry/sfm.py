@@ -25,7 +25,8 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleResult
 from camcal.geometry.selfcal import SelfCalibration, as_lens_model
-from camcal.geometry.uncertainty import covariance_from_colmap, projection_sigma, sigma_grid
+from camcal.geometry.uncertainty import (covariance_from_colmap, projection_covariance, projection_sigma,
+                                         shrunk_design_effect, sigma_grid)
 from camcal.model.colmap import camera_from_colmap
 from camcal.model.camera import from_colmap, pixels_from_colmap
 from camcal.model.quality import ParameterCovariance
@@ -258,27 +259,40 @@ def _projection_quality(rig: Rig, camera: Camera, bundle: BundleResult, calibrat
     its intrinsics, its rig pose and the scene gauge, :func:`camcal.geometry.uncertainty.scene_gauge_rows`,
     when the frames' turns determine it), empty without a covariance.
 
-    With the delete-one-frame jackknife the covariance is scaled by its design effect
-    ``max(1, mean_k (sigma_jack,k / sigma_k)^2)`` over the camera's parameters (Kish's, per parameter: the
-    features' errors are correlated within a frame, as :func:`camcal.geometry.view_jackknife.design_effect`
-    scales a board calibration's)."""
+    With the delete-one-frame jackknife the covariance is scaled by the design effect of the camera's projection
+    (:func:`camcal.geometry.uncertainty.shrunk_design_effect`: the features' errors are correlated within a
+    frame), pooled over a grid of its frame: each frame's influence on the intrinsics, the rig pose and the
+    scene gauge together (:func:`camcal.geometry.bundle.deletion.frame_influences`) projected, so that a
+    principal point's move and the gauge's turn that cancel in the projection cancel in it too."""
     state = bundle.state
     if not len(bundle.covariance_names) or camera.name not in state.camera_names:
         return {}
     order = [rig.camera(name) for name in state.camera_names]
-    covariance = covariance_from_colmap(order, state.models, state.params,
-                                        [state.param_names(k) for k in range(len(order))], bundle.covariance_names,
-                                        bundle.covariance, state.camera_names.index(camera.name))
+    index = state.camera_names.index(camera.name)
+
+    def in_camcal_names(names, matrix) -> ParameterCovariance | None:
+        return covariance_from_colmap(order, state.models, state.params, [state.param_names(k) for k in range(len(order))],
+                                      names, matrix, index)
+
+    covariance = in_camcal_names(bundle.covariance_names, bundle.covariance)
     if covariance is None:
         return {}
-    if calibration is not None and calibration.jackknife_sigmas:
-        prefix = f"{camera.name}."
-        ratios = [(calibration.jackknife_sigmas[key] / value) ** 2 for key, value in calibration.covariance_sigmas.items()
-                  if key.startswith(prefix) and value > 0 and key in calibration.jackknife_sigmas]
-        factor = max(1.0, float(np.mean(ratios))) if ratios else 1.0
-        covariance = ParameterCovariance(covariance.names, factor * covariance.array)
     xs, ys = sigma_grid(camera.image_size, 16.0)
     grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
+    influences = calibration.frame_influences if calibration is not None else None
+    if influences is not None and len(influences.values) >= 2:
+        moves = influences.values - influences.values.mean(axis=0)
+        n = len(moves)
+
+        def pooled(matrix) -> float:
+            spread = in_camcal_names(influences.names, matrix)
+            if spread is None:
+                return float("nan")
+            return float(np.nanmean(np.trace(projection_covariance(camera, grid, covariance=spread), axis1=1, axis2=2)))
+
+        model = float(np.nanmean(np.trace(projection_covariance(camera, grid, covariance=covariance), axis1=1, axis2=2)))
+        factor = shrunk_design_effect(model, [(n - 1) / n * pooled(np.outer(move, move)) for move in moves])
+        covariance = ParameterCovariance(covariance.names, factor * covariance.array)
     worst = float(np.nanmax(projection_sigma(camera, grid, covariance=covariance)))
     return {"covariance": covariance, "worst_projection_sigma_px": worst}
 

@@ -67,7 +67,7 @@ from camcal.model.rig import Camera
 
 __all__ = ["GAUGE", "MIN_SCENE_GAUGE_SPREAD", "POSE", "SigmaSummary", "camera_covariance", "covariance_from_colmap",
            "perturbed_lens", "projection_covariance", "projection_jacobian", "projection_sigma", "projection_sigma_map",
-           "scene_gauge_rotation", "scene_gauge_rows", "sigma_grid", "summarise_sigma", "upsample_grid"]
+           "scene_gauge_rotation", "scene_gauge_rows", "shrunk_design_effect", "sigma_grid", "summarise_sigma", "upsample_grid"]
 
 #: Names of the board gauge in a camera's covariance (module docstring).
 GAUGE = ("gauge_rx", "gauge_ry", "gauge_rz", "gauge_tx", "gauge_ty", "gauge_tz")
@@ -239,6 +239,38 @@ def scene_gauge_rotation(true_rotations: ArrayLike, estimated_rotations: ArrayLi
         if done:
             break
     return G
+
+
+def shrunk_design_effect(model_variance: float, contributions: ArrayLike) -> float:
+    """The design effect of a camera's projection from a delete-one-frame jackknife, shrunk toward 1 as far as
+    the jackknife's own spread says it is unsure (Kish 1965; Ledoit & Wolf 2004).
+
+    ``contributions`` are the frames' terms ``c_k = (n - 1) / n |J (d_k - mean d)|^2`` (``d_k``: the move
+    of the parameters and the gauge when frame ``k`` is left out, ``J`` the projection Jacobian, pooled over
+    the frame's pixels) whose sum is the jackknife's projection variance ``v`` (Efron & Stein 1981); the
+    model's is ``m = model_variance`` (``sigma^2 (J^T J)^-1`` projected alike). With only 6-12 frames one
+    frame can carry most of ``v`` (it alone fixes a turn of the scene), and ``v`` is then a noisy, inflated
+    figure. Ledoit and Wolf's shrinkage toward the model takes the intensity
+    ``delta = min(1, var(v) / (v - m)^2)`` with ``var(v) = n var(c_k)`` (the sum of ``n`` terms), so that
+    the estimate ``delta m + (1 - delta) v`` leans on the model where the frames disagree about the
+    excess, on the jackknife where they agree. Returned as the ratio to ``m``, never below 1 (independent
+    features are the least the error can be).
+
+    References
+    ----------
+    Kish, L. (1965). Survey Sampling. Wiley (the design effect).
+    Efron, B. & Stein, C. (1981). The jackknife estimate of variance. Annals of Statistics 9.
+    Ledoit, O. & Wolf, M. (2004). A well-conditioned estimator for large-dimensional covariance matrices.
+    Journal of Multivariate Analysis 88 (the shrinkage intensity).
+    """
+    c = np.asarray(contributions, dtype=np.float64).ravel()
+    if len(c) < 2 or not np.all(np.isfinite(c)) or not model_variance > 0:
+        return 1.0
+    v = float(c.sum())
+    spread = len(c) * float(np.var(c, ddof=1))
+    gap = (v - model_variance) ** 2
+    delta = 1.0 if gap <= 0 else min(1.0, spread / gap)
+    return max(1.0, (delta * model_variance + (1.0 - delta) * v) / model_variance)
 
 
 def _skew(v: NDArray[np.float64]) -> NDArray[np.float64]:

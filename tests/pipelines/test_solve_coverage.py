@@ -73,17 +73,20 @@ def run_scene(seed: int, folder: Path, **options):
 
 
 XFAIL_REASON = (
-    "coverage met, median not (sigma inflated): seeds 0-19 97.6 % within 2 sigma, median error/sigma 0.48; held-out "
-    "seeds 24-47 93.0 %, median 0.41 (one camera 95.8 % / 0.60, stereo rig 91.7 % / 0.36). The covariance alone (scene "
-    "gauge in it) gives 69.1 % / 1.34 and 71.6 % / 1.34: the rig's covariance is that times the frame jackknife's "
-    "per-parameter design effect (median 8.2 and 10.3 on the variance, 2.4-146), where the errors needed about 2 "
-    "(median of mean (error / covariance sigma)^2: 1.95 and 2.26): f, cx, cy move 2-7 times their covariance sigma "
-    "between replicates, but in the projection a principal point's error and the gauge's turn cancel. A projection-"
-    "level design effect (jackknife over the projection with each replicate's gauge) inflated more (99.7 % / 0.37 on "
-    "seeds 0-23): with 6-12 frames one frame can carry the gauge (seed 23 without its portrait frame: spread of the "
-    "frames' turns 0.095 -> 0.0096); the cluster-robust sandwich over frames (infinitesimal jackknife) fell below "
-    "the covariance instead (seed 0: f sigma 0.23 against 0.37 px; each frame's own pose absorbs its residuals). Misses: seed 35 (held out) registered 2 of 7 frames 115 degrees off the truth "
-    "(RMS 0.2 px, error ~200 px: a wrong solve no sigma covers); seed 18 focal -1.12 +- 0.74 px (bias)")
+    "coverage met, median not on the held-out seeds (sigma inflated there). The design effect of the projection, "
+    "frames' influences on intrinsics, rig pose and scene gauge together (deletion.frame_influences), shrunk toward 1 "
+    "by the jackknife's own spread (uncertainty.shrunk_design_effect, Ledoit-Wolf), chosen on seeds 0-19: 97.7 % within "
+    "2 sigma, median error/sigma 0.54 (one camera 92.9 % / 0.71, stereo 100 % / 0.47); then held-out seeds 24-47: "
+    "92.9 %, median 0.41 (one camera 95.2 % / 0.64, stereo 91.7 % / 0.35; per type from the study on the cached solves) The per-parameter design effect it "
+    "replaced, same run: 98.4 % / 0.42 and 93.4 % / 0.39; the covariance alone 68.7 % / 1.23 and 72.2 % / 1.38. "
+    "Tried on seeds 0-19 and not kept: the full jackknife covariance with the gauge (CR3, 98.5 % / 0.38), the "
+    "Bell-McCaffrey CR2 sandwich (seeds 0-3: 49.5 % / 2.04, the covariance 50.8 % / 1.97: the residuals do not show "
+    "the frames' shared error, "
+    "each frame's pose and the points absorb it), the CR3 less its expectation under independent noise (83.8 % / 0.65). "
+    "What is left: stereo scenes whose frames agree on a large excess that the error does not show (seed 47: design "
+    "effect 136 shrunk by 0.32-0.34 only, the covariance's median 0.84-0.89 -> 0.07-0.08; seed 45: 25-27, 1.10-1.27 -> "
+    "0.21-0.25), and misses no sigma covers: seed 35 (held out) registered 2 of 7 frames 115 degrees "
+    "off the truth (error ~200 px), seed 18 focal -1.12 +- 0.74 px (bias)")
 #: A 2-D Gaussian error exceeds this many worst-direction sigmas with probability 0.27 %.
 CHI2_9973 = float(np.sqrt(-2.0 * np.log(0.0027)))
 
@@ -120,7 +123,11 @@ def coverage(seeds, folder: Path) -> tuple[float, float]:
 def test_solve_sigma_covers_the_error_over_seeded_scenes(tmp_path):
     """Must-show (issue 30): over 20 seeded rendered orbits (even seeds one moving camera, odd seeds a moving
     stereo rig), |error| < 2 sigma at >= 90 % of sampled pixels and median error / sigma >= 0.5, rays at
-    infinity in the scene gauge (:func:`camcal.geometry.uncertainty.scene_gauge_rotation`)."""
-    inside, median = coverage(range(20), tmp_path)
-    print(f"solve, scene gauge: {100 * inside:.1f} % within 2 sigma, median error/sigma {median:.2f}")
-    assert inside >= 0.9 and median >= 0.5
+    infinity in the scene gauge (:func:`camcal.geometry.uncertainty.scene_gauge_rotation`); on the seeds the
+    estimator was chosen on (0-19) and on 24 held out (24-47)."""
+    figures = {}
+    for label, seeds in (("seeds 0-19", range(20)), ("held-out seeds 24-47", range(24, 48))):
+        figures[label] = coverage(seeds, tmp_path)
+        print(f"solve, scene gauge, {label}: {100 * figures[label][0]:.1f} % within 2 sigma, median error/sigma "
+              f"{figures[label][1]:.2f}")
+    assert all(inside >= 0.9 and median >= 0.5 for inside, median in figures.values())

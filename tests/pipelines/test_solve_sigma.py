@@ -37,15 +37,14 @@ def test_solve_rig_keeps_the_covariance_in_camcal_names(solved):
     covariance = left.quality.covariance
     assert covariance is not None and {"fx", "fy", "cx", "cy"} <= set(covariance.names)
     names = list(covariance.names)
-    # COLMAP's fx and fy (the aspect refined under its prior) are camcal's, scaled by the frame jackknife's
-    # design effect: mean over the camera's parameters of (jackknife / covariance)^2
+    # COLMAP's fx and fy (the aspect refined under its prior) are camcal's, scaled by one design effect of the
+    # camera's projection (uncertainty.shrunk_design_effect over the frames' influences), at least 1
     calibration, bundle = result.self_calibration, result.bundle
-    ratios = [(calibration.jackknife_sigmas[k] / v) ** 2 for k, v in calibration.covariance_sigmas.items()
-              if k.startswith("left.") and k in calibration.jackknife_sigmas]
-    factor = max(1.0, float(np.mean(ratios)))
-    for key in ("fx", "fy"):
-        sigma = calibration.covariance_sigmas[f"left.{key}"]
-        assert covariance.array[names.index(key), names.index(key)] == pytest.approx(factor * sigma**2, rel=1e-6)
+    assert calibration.frame_influences is not None and len(calibration.frame_influences.values) == 5
+    factor = covariance.array[names.index("fx"), names.index("fx")] / calibration.covariance_sigmas["left.fx"] ** 2
+    assert factor >= 1.0
+    assert covariance.array[names.index("fy"), names.index("fy")] == pytest.approx(
+        factor * calibration.covariance_sigmas["left.fy"] ** 2, rel=1e-6)
     fx, fy = bundle.covariance_names.index("left.fx"), bundle.covariance_names.index("left.fy")
     assert covariance.array[names.index("fx"), names.index("fy")] == pytest.approx(factor * bundle.covariance[fx, fy],
                                                                                    rel=1e-6)

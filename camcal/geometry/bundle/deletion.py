@@ -24,8 +24,33 @@ any other gauge choice would. This is the one-step jackknife (Efron & Stein
 from the full refit by the curvature of the problem over one frame's
 influence, small where the jackknife itself is meaningful.
 
+The same deletion gives each frame's influence without a solve per frame
+(:func:`frame_influences`): by the Woodbury identity the step above is
+``H^-1 J_k^T (I - H_kk)^-1 r_k`` with ``H = J^T J`` of the whole problem
+and ``H_kk = J_k H^-1 J_k^T`` the frame's block of the hat matrix, the
+delete-one-cluster form of MacKinnon & White's (1985) jackknife
+covariance (Bell & McCaffrey 2002 call it CR3). It is taken over every
+free column, the frames' poses included, so that the scene gauge's turn
+(:func:`camcal.geometry.uncertainty.scene_gauge_rows`) moves with the
+intrinsics in each replicate. ``I - H_kk`` is singular along what only the
+frame fixes (its own pose, points it alone sees), where its residuals are
+zero: the Moore-Penrose inverse drops those directions (Pustejovsky &
+Tipton 2018). The points are eliminated from ``H_kk`` too: with ``D = I -
+P_k V^+ P_k^T`` (block diagonal, one block per point) and ``E =
+D^(+1/2) X_k F`` (``X_k`` the frame's rows with the points eliminated, ``F
+F^T = S^+``), ``(I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2)``, one thin
+SVD per frame.
+
 References
 ----------
+MacKinnon, J. G. & White, H. (1985). Some heteroskedasticity-consistent
+covariance matrix estimators with improved finite sample properties.
+Journal of Econometrics 29.
+Bell, R. M. & McCaffrey, D. F. (2002). Bias reduction in standard errors
+for linear regression with multi-stage samples. Survey Methodology 28.
+Pustejovsky, J. E. & Tipton, E. (2018). Small-sample methods for
+cluster-robust variance estimation and hypothesis testing in fixed effects
+models. Journal of Business & Economic Statistics 36.
 Triggs, B., McLauchlan, P., Hartley, R. & Fitzgibbon, A. (2000). Bundle
 Adjustment - A Modern Synthesis. Vision Algorithms: Theory and Practice.
 Efron, B. & Stein, C. (1981). The jackknife estimate of variance. Annals
@@ -44,13 +69,16 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.bundle.covariance import is_free_block
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import BundleOptions, BundleState, model_layout
+from camcal.geometry.uncertainty import scene_gauge_rows
 
-__all__ = ["DeletionUnsupported", "one_step_replicates"]
+__all__ = ["DeletionUnsupported", "FrameInfluences", "frame_influences", "one_step_replicates"]
 
 #: eigenvalues of the Jacobi-scaled reduced system below this share of the largest are its null space (the gauge).
 _NULL_RATIO = 1e-11
 #: a point's 3x3 block with ``lambda_min`` below this share of ``lambda_max`` is left free along that direction.
 _POINT_NULL_RATIO = 1e-10
+#: a leverage (a hat matrix eigenvalue) within this of 1: the cluster's residuals are zero along it.
+_LEVERAGE_NULL = 1e-8
 
 
 class DeletionUnsupported(CamcalError):
@@ -179,9 +207,23 @@ def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64], singular: bool
     return out
 
 
-def _steps(state: BundleState, options: BundleOptions, colmap, problem,
-           groups: list[NDArray[np.int64]]) -> list[BundleState]:
-    """The one-step replicate of ``state`` without each group of frames (module docstring)."""
+@dataclasses.dataclass
+class _System:
+    """The linearised problem at the solution: the Jacobian split into its camera / rig / frame columns and its
+    points' (3 per row), the residuals, and each row's frame and point (-1: none, e.g. a prior's row)."""
+
+    blocks: list[_Block]
+    J_c: object  # scipy.sparse.csr_matrix, rows x camera/rig/frame columns
+    point_rows: NDArray[np.float64]  # rows x 3: the row's derivative by its point
+    r: NDArray[np.float64]
+    row_frame: NDArray[np.int64]
+    row_point: NDArray[np.int64]
+    n_points: int
+    gauge: list[int]  # frame positions that hold the gauge (constant, or a held translation axis)
+
+
+def _system(state: BundleState, options: BundleOptions, colmap, problem) -> _System:
+    """The problem's Jacobian and residuals at ``state`` (Ceres' own, the loss applied), rows assigned to frames."""
     import pyceres  # noqa: PLC0415
     import scipy.sparse  # noqa: PLC0415
 
@@ -200,13 +242,13 @@ def _steps(state: BundleState, options: BundleOptions, colmap, problem,
     # each row's frame and point, from the columns it touches
     column_frame = np.full(J.shape[1], -1, dtype=np.int64)
     column_point = np.full(J.shape[1], -1, dtype=np.int64)
-    point_of_column_block = []
+    n_point_blocks = 0
     for block in blocks:
         if block.kind == "frame":
             column_frame[block.columns] = block.index
         elif block.kind == "point":
-            column_point[block.columns] = len(point_of_column_block)
-            point_of_column_block.append(block.index)
+            column_point[block.columns] = n_point_blocks
+            n_point_blocks += 1
     entry_row = np.repeat(np.arange(n_rows), np.diff(J.indptr))
     row_frame = np.full(n_rows, -1, dtype=np.int64)
     row_point = np.full(n_rows, -1, dtype=np.int64)
@@ -228,44 +270,122 @@ def _steps(state: BundleState, options: BundleOptions, colmap, problem,
     Jp = J[:, n_c:].tocoo()
     point_rows = np.zeros((n_rows, 3))
     point_rows[Jp.row, Jp.col % 3] = Jp.data
-    J_c = J[:, :n_c].tocsr()
     # the gauge frames: held constant, or with a held translation axis; without one, S is singular
     gauge = [frame for frame in colmap.frame_ids if not any(block.kind == "frame" and block.index == frame
                                                              and len(block.free) == 3 for block in blocks)]
+    return _System(blocks, J[:, :n_c].tocsr(), point_rows, r, row_frame, row_point, n_points, gauge)
+
+
+def _point_elimination(system: _System, kept: NDArray[np.bool_]):
+    """The points' 3x3 inverses ``V^+``, ``G = V^+ W`` and the reduced system ``S``, ``b`` over the rows ``kept``
+    (Schur complement of the points, Triggs et al. 2000, section 6.1)."""
+    import scipy.sparse  # noqa: PLC0415
+
+    n_points = system.n_points
+    rows = np.flatnonzero(kept)
+    A, rk, P, pk = system.J_c[rows], system.r[rows], system.point_rows[rows], system.row_point[rows]
+    seen = pk >= 0
+    H_pp = np.zeros((n_points, 3, 3))
+    b_p = np.zeros((n_points, 3))
+    for i in range(3):
+        b_p[:, i] = np.bincount(pk[seen], P[seen, i] * rk[seen], minlength=n_points)
+        for j in range(i, 3):
+            H_pp[:, i, j] = H_pp[:, j, i] = np.bincount(pk[seen], P[seen, i] * P[seen, j], minlength=n_points)
+    values, vectors = np.linalg.eigh(H_pp)
+    inverse_values = np.where(values > _POINT_NULL_RATIO * np.maximum(values[:, 2:], 1e-300),
+                              1.0 / np.where(values > 0, values, 1.0), 0.0)
+    H_inv = np.einsum("pij,pj,pkj->pik", vectors, inverse_values, vectors)
+    # H_pc: each row's point block (3 entries) times its camera row, summed per point
+    rows_of = np.flatnonzero(seen)
+    W = scipy.sparse.csr_matrix((P[rows_of].ravel(), (np.repeat(3 * pk[rows_of], 3) + np.tile(np.arange(3), len(rows_of)),
+                                                      np.repeat(rows_of, 3))), shape=(3 * n_points, len(rows)))
+    H_pc = (W @ A).tocsr()
+    S = (A.T @ A).toarray()
+    b = A.T @ rk
+    G = None
+    if n_points:
+        H_inv_sparse = scipy.sparse.bsr_matrix((H_inv, np.arange(n_points), np.arange(n_points + 1)),
+                                               shape=(3 * n_points, 3 * n_points))
+        G = (H_inv_sparse @ H_pc).tocsr()
+        S -= (H_pc.T @ G).toarray()
+        b -= G.T @ b_p.ravel()
+    return H_inv, G, S, b
+
+
+def _steps(state: BundleState, options: BundleOptions, colmap, problem,
+           groups: list[NDArray[np.int64]]) -> list[BundleState]:
+    """The one-step replicate of ``state`` without each group of frames (module docstring)."""
+    system = _system(state, options, colmap, problem)
     replicates = []
     for group in groups:
-        deleted = np.isin(row_frame, group)
-        counts = np.bincount(row_point[~deleted & (row_point >= 0)], minlength=n_points) // 2
-        kept = ~deleted & ((row_point < 0) | (counts[np.maximum(row_point, 0)] >= 2))
-        rows = np.flatnonzero(kept)
-        A, rk, P, pk = J_c[rows], r[rows], point_rows[rows], row_point[rows]
-        seen = pk >= 0
-        H_pp = np.zeros((n_points, 3, 3))
-        b_p = np.zeros((n_points, 3))
-        for i in range(3):
-            b_p[:, i] = np.bincount(pk[seen], P[seen, i] * rk[seen], minlength=n_points)
-            for j in range(i, 3):
-                H_pp[:, i, j] = H_pp[:, j, i] = np.bincount(pk[seen], P[seen, i] * P[seen, j], minlength=n_points)
-        values, vectors = np.linalg.eigh(H_pp)
-        inverse_values = np.where(values > _POINT_NULL_RATIO * np.maximum(values[:, 2:], 1e-300),
-                                  1.0 / np.where(values > 0, values, 1.0), 0.0)
-        H_inv = np.einsum("pij,pj,pkj->pik", vectors, inverse_values, vectors)
-        # H_pc: each row's point block (3 entries) times its camera row, summed per point
-        rows_of = np.flatnonzero(seen)
-        W = scipy.sparse.csr_matrix((P[rows_of].ravel(), (np.repeat(3 * pk[rows_of], 3) + np.tile(np.arange(3), len(rows_of)),
-                                                          np.repeat(rows_of, 3))), shape=(3 * n_points, len(rows)))
-        H_pc = (W @ A).tocsr()
-        S = (A.T @ A).toarray()
-        b = A.T @ rk
-        if n_points:
-            H_inv_sparse = scipy.sparse.bsr_matrix((H_inv, np.arange(n_points), np.arange(n_points + 1)),
-                                                   shape=(3 * n_points, 3 * n_points))
-            G = (H_inv_sparse @ H_pc).tocsr()
-            S -= (H_pc.T @ G).toarray()
-            b -= G.T @ b_p.ravel()
-        delta_c = -_pseudo_solve(S, b, singular=bool(np.isin(group, gauge).any()))
-        replicates.append(_apply(state, blocks, delta_c))
+        deleted = np.isin(system.row_frame, group)
+        counts = np.bincount(system.row_point[~deleted & (system.row_point >= 0)], minlength=system.n_points) // 2
+        kept = ~deleted & ((system.row_point < 0) | (counts[np.maximum(system.row_point, 0)] >= 2))
+        _, _, S, b = _point_elimination(system, kept)
+        delta_c = -_pseudo_solve(S, b, singular=bool(np.isin(group, system.gauge).any()))
+        replicates.append(_apply(state, system.blocks, delta_c))
     return replicates
+
+
+def _inverse_factor(S: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``F`` with ``F F^T = S^+`` for a symmetric positive semi-definite ``S`` (Jacobi-scaled eigen-decomposition,
+    null directions dropped as :func:`_pseudo_solve` drops them)."""
+    d = np.diag(S).copy()
+    scale = np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 0.0)
+    values, vectors = np.linalg.eigh(S * np.outer(scale, scale))
+    keep = values > _NULL_RATIO * values[-1]
+    return scale[:, None] * vectors[:, keep] / np.sqrt(values[keep])
+
+
+def _pinv_sqrt(blocks: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(B^+)^(1/2)`` of each symmetric positive semi-definite block ``B`` (shape (n, c, c)); eigenvalues
+    below :data:`_LEVERAGE_NULL` of the largest are null."""
+    values, vectors = np.linalg.eigh(blocks)
+    used = values > _LEVERAGE_NULL * np.maximum(values[:, -1:], 1e-300)
+    return np.einsum("nij,nj,nkj->nik", vectors, np.where(used, 1.0 / np.sqrt(np.where(used, values, 1.0)), 0.0),
+                     vectors)
+
+
+def _influences(system: _System) -> list[NDArray[np.float64]]:
+    """Each frame's influence on the camera, rig and frame columns (:func:`frame_influences`)."""
+    import scipy.sparse  # noqa: PLC0415
+
+    n_rows, n_c = system.J_c.shape
+    H_inv, G, S, _ = _point_elimination(system, np.ones(n_rows, dtype=bool))
+    F = _inverse_factor(S)
+    P, pk = system.point_rows, system.row_point
+    seen = pk >= 0
+    reduced = system.J_c.toarray()  # A - P V^+ W row by row: each row with its point eliminated
+    if G is not None:
+        G_rows = scipy.sparse.csr_matrix((P[seen].ravel(), (np.repeat(np.flatnonzero(seen), 3),
+                                                            (3 * pk[seen, None] + np.arange(3)).ravel())),
+                                         shape=(n_rows, G.shape[0]))
+        reduced -= (G_rows @ G).toarray()
+    out = []
+    for frame in np.unique(system.row_frame[system.row_frame >= 0]):
+        rows = np.flatnonzero(system.row_frame == frame)
+        key = np.where(pk[rows] >= 0, pk[rows], -1 - np.arange(len(rows)))  # a row without a point: its own block
+        rows = rows[np.argsort(key, kind="stable")]
+        key = np.sort(key, kind="stable")
+        _, starts, counts = np.unique(key, return_index=True, return_counts=True)
+        # D^(+1/2), D = I - P_k V^+ P_k^T: block diagonal, one block per point (its rows in this frame)
+        X, z = reduced[rows].copy(), system.r[rows].copy()
+        for c in np.unique(counts):
+            at = starts[counts == c, None] + np.arange(c)  # (n, c) positions in rows
+            Pb = P[rows[at]]
+            points = pk[rows[at[:, 0]]]
+            D = np.eye(c) - np.einsum("nci,nij,ndj->ncd", Pb, H_inv[np.maximum(points, 0)], Pb) * (points >= 0)[:, None, None]
+            root = _pinv_sqrt(D)
+            X[at] = np.einsum("ncd,ndq->ncq", root, X[at])
+            z[at] = np.einsum("ncd,nd->nc", root, z[at])
+        # (I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2), E = D^(+1/2) X_k F
+        U, singular, _ = np.linalg.svd(X @ F, full_matrices=False)
+        gap = 1.0 - singular**2
+        kept = gap > _LEVERAGE_NULL
+        factor = np.where(kept, 1.0 / np.where(kept, gap, 1.0), 0.0)
+        u = z + U @ ((factor - 1.0) * (U.T @ z))
+        out.append(F @ (F.T @ (X.T @ u)))
+    return out
 
 
 def _apply(state: BundleState, blocks: list[_Block], delta: NDArray[np.float64]) -> BundleState:
@@ -321,6 +441,69 @@ def one_step_replicates(state: BundleState, options: BundleOptions,
 
     def inspect(problem, colmap) -> None:
         out.append(_steps(state, options, colmap, problem, groups))
+
+    bundle_adjust(state, dataclasses.replace(options, max_iterations=0, compute_sigmas=False), inspect=inspect)
+    return out[0]
+
+
+
+@dataclasses.dataclass(frozen=True)
+class FrameInfluences:
+    """Each frame's influence on a bundle adjustment's intrinsics, rig poses and scene gauge.
+
+    Attributes
+    ----------
+    names : tuple of str
+        :attr:`camcal.geometry.bundle.BundleResult.covariance_names`' names
+        (``CAMERA.f``..., ``CAMERA.rx``..., ``gauge.rx``...; rotations as
+        rotation vectors).
+    values : ndarray, shape (n_frames, len(names))
+        ``theta_(k) - theta`` of each frame ``k``: the solution without its
+        observations, to first order (:func:`frame_influences`).
+    """
+
+    names: tuple[str, ...]
+    values: NDArray[np.float64]
+
+
+def frame_influences(state: BundleState, options: BundleOptions) -> FrameInfluences:
+    """How much leaving out each frame moves the solution, the scene gauge included (module docstring).
+
+    Raises
+    ------
+    DeletionUnsupported
+        As :func:`one_step_replicates`.
+    """
+    out: list[FrameInfluences] = []
+
+    def inspect(problem, colmap) -> None:
+        system = _system(state, options, colmap, problem)
+        influences = _influences(system)
+        names, columns, scales = [], [], []
+        for block in system.blocks:
+            if block.kind == "camera":
+                param_names = state.param_names(block.index)
+                names += [f"{state.camera_names[block.index]}.{param_names[k]}" for k in block.free]
+                scales += [1.0] * len(block.free)
+            elif block.kind == "sensor":
+                names += [f"{state.camera_names[block.index]}.{axis}" for axis in ("rx", "ry", "rz", "tx", "ty", "tz")]
+                scales += [2.0, 2.0, 2.0, 1.0, 1.0, 1.0]  # Ceres' quaternion tangent is half the rotation vector
+            else:
+                continue
+            columns += list(range(block.columns.start, block.columns.stop))
+        B = np.zeros((len(names), system.J_c.shape[1]))
+        B[np.arange(len(names)), columns] = scales
+        frames = sorted(colmap.frame_ids.items())
+        rows = scene_gauge_rows([colmap.reconstruction.frame(fid).rig_from_world.rotation.matrix() for _, fid in frames])
+        if rows is not None:  # the scene gauge of the frames' turns, held frames unperturbed (as the covariance's)
+            gauge = np.zeros((3, B.shape[1]))
+            for i, (frame, _) in enumerate(frames):
+                for block in system.blocks:
+                    if block.kind == "frame" and block.index == frame:
+                        gauge[:, block.columns.start:block.columns.start + 3] = 2.0 * rows[:, 3 * i:3 * i + 3]
+            B = np.vstack([B, gauge])
+            names += ["gauge.rx", "gauge.ry", "gauge.rz"]
+        out.append(FrameInfluences(tuple(names), np.array([B @ g for g in influences])))
 
     bundle_adjust(state, dataclasses.replace(options, max_iterations=0, compute_sigmas=False), inspect=inspect)
     return out[0]

@@ -1,0 +1,50 @@
+"""Each frame's influence on a bundle adjustment (the projection sigma's design effect), against the one-step
+replicates and constructed contributions."""
+
+import numpy as np
+import pytest
+from test_selfcal import stereo_rig, tracks_state
+
+from camcal.geometry.bundle import BundleOptions, bundle_adjust
+from camcal.geometry.bundle.deletion import frame_influences, one_step_replicates
+from camcal.geometry.uncertainty import shrunk_design_effect
+
+OPTIONS = BundleOptions(refine_principal_point=True)
+
+
+def test_influences_are_the_one_step_replicates_moves():
+    # Woodbury: (H - J_k^T J_k)^-1 J_k^T r_k = H^-1 J_k^T (I - H_kk)^-1 r_k, so the leverage-corrected influence of
+    # each frame is the move of the one-step replicate without it (itself within a few percent of a full refit,
+    # test_jackknife.py); the scene gauge rides along (the frames turn about more than one axis)
+    state = tracks_state(stereo_rig(), np.random.default_rng(5), n_frames=6, n_points=500)
+    full = bundle_adjust(state, OPTIONS)
+    frames = np.unique(full.state.obs_frame)
+    influences = frame_influences(full.state, OPTIONS)
+    replicates = one_step_replicates(full.state, OPTIONS, [np.array([f]) for f in frames])
+    assert influences.values.shape == (len(frames), len(influences.names))
+    assert {"gauge.rx", "gauge.ry", "gauge.rz", "right.rx"} <= set(influences.names)
+    assert tuple(n for n in influences.names if not n.startswith("gauge.")) == tuple(
+        n for n in full.covariance_names if not n.startswith("gauge."))
+    for camera, name in enumerate(full.state.camera_names):
+        for i, param in enumerate(full.state.param_names(camera)):
+            key = f"{name}.{param}"
+            moved = np.array([r.params[camera][i] - full.state.params[camera][i] for r in replicates])
+            mine = influences.values[:, influences.names.index(key)]
+            print(key, np.round(moved, 6), np.round(mine, 6))
+            assert np.max(np.abs(mine - moved)) < 1e-3 * np.max(np.abs(moved)) + 1e-12, key
+
+
+def test_shrunk_design_effect_on_constructed_contributions():
+    model = 2.0
+    # frames that agree: no shrinkage, the jackknife's variance over the model's
+    assert shrunk_design_effect(model, np.full(8, 4 * model / 8)) == pytest.approx(4.0)
+    # one frame carries the whole excess: its variance is the excess itself, shrunk all the way to the model
+    assert shrunk_design_effect(model, [10 * model] + [0.0] * 7) == 1.0
+    # in between: a convex combination of the two, never below 1
+    mixed = [3 * model / 8 + 0.3 * model * (-1) ** k for k in range(8)]
+    assert 1.0 < shrunk_design_effect(model, mixed) < 3.0
+    assert shrunk_design_effect(model, np.full(8, 0.5 * model / 8)) == 1.0
+    # the intensity by hand: n var(c) / (v - m)^2
+    c = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    delta = len(c) * np.var(c, ddof=1) / (c.sum() - model) ** 2
+    assert shrunk_design_effect(model, c) == pytest.approx((delta * model + (1 - delta) * c.sum()) / model)
