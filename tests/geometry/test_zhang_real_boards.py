@@ -52,8 +52,27 @@ def heldout_rms(board, camera, views) -> float:
     return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
 
 
+def release_object_heldout(board, train, held, size, flags: int) -> float:
+    """Held-out RMS of OpenCV's release-object fit (``calibrateCameraRO``, Strobl & Hirzinger 2011: the board's
+    points refined with the camera), each held-out view posed against the board it estimated."""
+    obj = [board.object_points[d.ids].astype(np.float32) for d in train]
+    img = [d.corners_px.astype(np.float32).reshape(-1, 1, 2) for d in train]
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    _, K, dist, _, _, points = cv2.calibrateCameraRO(obj, img, size, board.columns - 1, None, None, flags=flags,
+                                                     criteria=criteria)
+    X = points.reshape(-1, 3).astype(np.float64)
+    r = []
+    for d in held:
+        _, rvec, tvec = cv2.solvePnP(X[d.ids], d.corners_px, K, dist)
+        rvec, tvec = cv2.solvePnPRefineLM(X[d.ids], d.corners_px, K, dist, rvec, tvec, criteria)
+        r.append(cv2.projectPoints(X[d.ids], rvec, tvec, K, dist)[0].reshape(-1, 2) - d.corners_px)
+    r = np.concatenate(r)
+    return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+
+
 def opencv_heldout(board, train, held, size) -> dict[str, float]:
-    """Held-out RMS of OpenCV's default, rational, rational + thin-prism and fisheye models."""
+    """Held-out RMS of OpenCV's default, rational, rational + thin-prism and fisheye models (flat board), and of its
+    rational and rational + thin-prism release-object fits (the board refined, posed against it)."""
     obj = [board.object_points[d.ids].astype(np.float32) for d in train]
     img = [d.corners_px.astype(np.float32).reshape(-1, 1, 2) for d in train]
     out = {}
@@ -69,21 +88,26 @@ def opencv_heldout(board, train, held, size) -> dict[str, float]:
                                           criteria=criteria)
     lens = Distortion("kannala-brandt", dict(zip(("k1", "k2", "k3", "k4"), D.ravel())))
     out["fisheye"] = heldout_rms(board, Camera("cv", size, K, lens, np.eye(3), np.zeros(3)), held)
+    for name, flags in (("RO rational", cv2.CALIB_RATIONAL_MODEL),
+                        ("RO rational+thin-prism", cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL)):
+        out[name] = release_object_heldout(board, train, held, size, flags)
     return out
 
 
 def mrcal_heldout(board, train, held, size, focal: float, fov_x_deg: float) -> dict[str, float]:
-    """Held-out RMS of mrcal's OPENCV8 and splined stereographic models (bench/mrcal_peer.py, the system python3)."""
+    """Held-out RMS of mrcal's OPENCV8 and splined stereographic models (bench/mrcal_peer.py, the system python3),
+    each on a flat board and with mrcal's board warp solved (held-out views posed against its warped board)."""
     fov = min(175, 5 * math.ceil(fov_x_deg * 1.1 / 5))
     out = {}
     for lensmodel in ("LENSMODEL_OPENCV8", f"LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=16_Ny=12_fov_x_deg={fov}",
                       f"LENSMODEL_SPLINED_STEREOGRAPHIC_order=3_Nx=10_Ny=8_fov_x_deg={fov}"):
-        spec = {"columns": board.columns, "rows": board.rows, "image_size": list(size), "focal": focal,
-                "lensmodel": lensmodel, "train": {d.image: d.corners_px.tolist() for d in train},
-                "held": {d.image: d.corners_px.tolist() for d in held}}
-        run = subprocess.run([SYSTEM_PYTHON, str(MRCAL_PEER)], input=json.dumps(spec), capture_output=True, text=True,
-                             check=True)
-        out[lensmodel] = json.loads(run.stdout)["heldout_rms_px"]
+        for warp in (False, True):
+            spec = {"columns": board.columns, "rows": board.rows, "image_size": list(size), "focal": focal,
+                    "lensmodel": lensmodel, "train": {d.image: d.corners_px.tolist() for d in train},
+                    "held": {d.image: d.corners_px.tolist() for d in held}, "warp": warp}
+            run = subprocess.run([SYSTEM_PYTHON, str(MRCAL_PEER)], input=json.dumps(spec), capture_output=True,
+                                 text=True, check=True)
+            out[lensmodel + ("+warp" if warp else "")] = json.loads(run.stdout)["heldout_rms_px"]
     return out
 
 
