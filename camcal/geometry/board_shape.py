@@ -13,7 +13,12 @@ points moving along the board's normal (``X = (x, y, z)``). Gauge: a surface ``a
 rigid motion of a flat board, which the board poses already hold, so every basis column has its least-squares
 part in ``span{1, u, v}`` over the board's corners removed: the fitted surface has zero mean and zero tilt
 over the corners and cannot trade with the poses. Its scale is the board's (the corners' ``x, y`` are known),
-so it does not trade with the focal length either.
+so it does not trade with the focal length either. A term ``P_i`` with ``i`` at or above the board's corner
+columns (``j``: rows) repeats lower ones on the corners and is left out, so the degree ``columns + rows - 2``
+(``free``) frees every corner's height. With ``in_plane`` the corners also move in the board's plane by the
+same terms (a print stretched, sheared or warped), the similarity part (shift, turn, scale: the poses' and the
+square size's) taken out over the corners; ``free`` with ``in_plane`` frees every corner's 3D point like
+Strobl & Hirzinger's refinement (``3N - 7`` parameters).
 
 :func:`fit_board_shape` refines jointly the intrinsics ``fx, fy, cx, cy``, the lens's distortion parameters,
 every view's board pose and the surface's coefficients, minimising ``sum |project(K, d, R X(w) + t) - x|^2``

@@ -46,6 +46,14 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    (``<model>+spline``, :mod:`camcal.geometry.spline_fit`), taken only
    when it is better held out by more than 1 % and by more than one
    standard error of the paired per-view differences.
+7. The board's shape (one camera, ``board_shape``): the chosen model is
+   also scored on the same folds with the board's surface fitted
+   (:mod:`camcal.geometry.board_shape`: Legendre heights of total degree
+   2..d, every corner's height free, with or without the corners'
+   in-plane displacement; the flat fit's K, lens and poses refined with
+   it), each fold's held-out views posed against that fold's board, and a
+   shape is taken by the correction field's rule. A shape can be named,
+   or given and held (a rig seeing the same board again).
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
@@ -676,7 +684,7 @@ def calibrate_board(
         its own lens.
     refine_intrinsics : bool
         With ``intrinsics``: use them as the start and refine them.
-    board_shape : str
+    board_shape : str or BoardShape
         The board's shape (:mod:`camcal.geometry.board_shape`, one camera): ``flat``, a named shape of
         :data:`~camcal.geometry.board_shape.SHAPE_SPECS` (a surface ``z(x, y)`` of Legendre terms of total
         degree 2..d, ``2``, ``3``, ``4``, ``6`` or ``free``: every corner's height; ``+plane``: the corners'
