@@ -65,6 +65,15 @@ def register(parser: argparse.ArgumentParser) -> None:
                        "tangential, thin prism); division estimates fx and fy (its aspect = fx / fy); auto "
                        "(default) ranks every model by views held out in turn and keeps the simplest within 1 %% "
                        "of the best")
+    board.add_argument("--board-shape", default="auto", metavar="SHAPE",
+                       choices=("auto", "flat") + tuple(f"{d}{p}" for d in ("2", "3", "4", "6", "free")
+                                                        for p in ("", "+plane")),
+                       help="the board's shape (one camera): flat, a smooth surface z(x, y) of degree 2, 3, 4 or 6 "
+                       "or free (every corner's height), +plane: the corners' displacement in the board's plane too "
+                       "(e.g. 4+plane), fitted with the lens (a printed board bows, twists and stretches), or auto "
+                       "(default): with --model "
+                       "auto, a surface only where it beats the flat board on views held out in turn; with "
+                       "--intrinsics RIG whose board has a fitted surface, that surface is held)")
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
                        "numbers and ranges (21-25) or a fraction (0.2)")
@@ -168,9 +177,16 @@ def _board(args: argparse.Namespace) -> int:
 
         timestamps = read_timestamps(args.timestamps)
         timestamps.check_cameras(list(args.camera))
-    intrinsics = None
+    intrinsics, board_shape = None, args.board_shape
     if args.intrinsics:
-        intrinsics = {camera.name: camera for camera in Rig.load(args.intrinsics).cameras}
+        given = Rig.load(args.intrinsics)
+        intrinsics = {camera.name: camera for camera in given.cameras}
+        if ("board_shape" in given.provenance and args.board_shape == "auto"
+                and given.provenance.get("board") == board.spec()):
+            from camcal.geometry.board_shape import BoardShape
+
+            board_shape = BoardShape.from_dict(given.provenance["board_shape"])
+            print(f"--intrinsics {args.intrinsics}: its board's surface is held ({board_shape.describe(board)})")
         missing = [name for name in args.camera if name not in intrinsics]
         if missing:
             raise CamcalError(f"--intrinsics {args.intrinsics}: no camera named {', '.join(missing)} "
@@ -238,7 +254,7 @@ def _board(args: argparse.Namespace) -> int:
             holdout |= frames - set(chosen)
     result = calibrate_board(board, detections, model=args.model, units=args.units, loss=args.loss,
                              loss_scale=args.loss_scale, holdout=holdout, intrinsics=intrinsics,
-                             refine_intrinsics=args.refine_intrinsics)
+                             refine_intrinsics=args.refine_intrinsics, board_shape=board_shape)
     problems = quality_problems(result)
     if problems and not args.force:
         raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)
@@ -258,6 +274,10 @@ def _board(args: argparse.Namespace) -> int:
     if result.model_ranking:
         print(f"model auto: views held out in turn, chose {result.model}")
         for score in result.model_ranking:
+            print("  " + score.describe())
+    if result.shape_ranking:
+        print("board shape auto: views held out in turn (the same folds)")
+        for score in result.shape_ranking:
             print("  " + score.describe())
     if result.dropped:
         print("dropped (no corner labelling agrees with the rig): " + ", ".join(image for _, image in result.dropped))
@@ -308,6 +328,9 @@ def _board(args: argparse.Namespace) -> int:
         model_ranking=[{"model": s.model, "rms_px": s.rms_px, "n_params": s.n_params, "reason": s.reason}
                        for s in result.model_ranking],
         relabelled=[image for _, image in result.relabelled], dropped=[image for _, image in result.dropped],
+        board_shape=None if result.board_shape is None else result.board_shape.to_dict(),
+        shape_ranking=[{"model": s.model, "rms_px": s.rms_px, "n_params": s.n_params, "reason": s.reason}
+                       for s in result.shape_ranking],
         quality_problems=problems,
     )
     if timestamps is not None:

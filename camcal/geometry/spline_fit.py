@@ -68,14 +68,15 @@ def grid_shape(image_size: tuple[int, int], nx: int = DEFAULT_NX) -> tuple[int, 
     return nx, max(4, round(3 + (nx - 3) * (H - 1) / (W - 1)))
 
 
-def pose_view(board: Board, K: NDArray, distortion: Distortion, detection: Detection
-              ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+def pose_view(board: Board, K: NDArray, distortion: Distortion, detection: Detection,
+              points: NDArray | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """``(rvec, tvec, residuals)`` of one view posed with the intrinsics held.
 
     OpenCV's ``solvePnP`` on the undistorted corners, then Levenberg-Marquardt over the six pose
-    parameters of ``|project(K, d, R X + t) - x|^2`` with the lens's own projection.
+    parameters of ``|project(K, d, R X + t) - x|^2`` with the lens's own projection. ``points``: the
+    board's corners (N, 3) when the board is not flat (:meth:`camcal.geometry.board_shape.BoardShape.points`).
     """
-    X = np.asarray(board.object_points[detection.ids], dtype=np.float64)
+    X = np.asarray((board.object_points if points is None else points)[detection.ids], dtype=np.float64)
     ideal = distortion.undistort(detection.corners_px, K)
     front = np.all(np.isfinite(ideal), axis=1)
     if front.sum() < 4:
@@ -139,7 +140,7 @@ def _levenberg_marquardt(residuals, jacobian, start: NDArray[np.float64], max_it
 
 def fit_spline_lens(board: Board, views: Mapping[int, Detection], K: NDArray, distortion: Distortion,
                     refine: Sequence[str], nx: int = DEFAULT_NX, bending: float = DEFAULT_BENDING,
-                    ridge: float = DEFAULT_RIDGE) -> SplineFit:
+                    ridge: float = DEFAULT_RIDGE, points: NDArray | None = None) -> SplineFit:
     """Fit the field on top of a calibrated parametric lens (see the module docstring).
 
     Parameters
@@ -152,14 +153,17 @@ def fit_spline_lens(board: Board, views: Mapping[int, Detection], K: NDArray, di
         The distortion parameters refined with the field (the others are held).
     nx, bending, ridge :
         Knots across the image (:func:`grid_shape`), ``lambda`` and ``mu``.
+    points :
+        The board's corners (N, 3) when it is not flat (held; :mod:`camcal.geometry.board_shape`).
     """
     frames = sorted(views)
     size = next(iter(views.values())).image_size
     nx, ny = grid_shape(size, nx)
     base = Distortion(distortion.model, dict(distortion.params), distortion.center)
     field0 = SplineField.zeros(size, nx, ny)
-    starts = [pose_view(board, K, base, views[f]) for f in frames]
-    X = [np.asarray(board.object_points[views[f].ids], dtype=np.float64) for f in frames]
+    corners = board.object_points if points is None else points
+    starts = [pose_view(board, K, base, views[f], corners) for f in frames]
+    X = [np.asarray(corners[views[f].ids], dtype=np.float64) for f in frames]
     x = np.concatenate([views[f].corners_px for f in frames])
     counts = [len(v) for v in X]
     view_of = np.repeat(np.arange(len(frames)), counts)

@@ -46,6 +46,14 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    (``<model>+spline``, :mod:`camcal.geometry.spline_fit`), taken only
    when it is better held out by more than 1 % and by more than one
    standard error of the paired per-view differences.
+7. The board's shape (one camera, ``board_shape``): the chosen model is
+   also scored on the same folds with the board's surface fitted
+   (:mod:`camcal.geometry.board_shape`: Legendre heights of total degree
+   2..d, every corner's height free, with or without the corners'
+   in-plane displacement; the flat fit's K, lens and poses refined with
+   it), each fold's held-out views posed against that fold's board, and a
+   shape is taken by the correction field's rule. A shape can be named,
+   or given and held (a rig seeing the same board again).
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
@@ -85,6 +93,8 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection, frame_number
+from camcal.geometry.board_shape import (AUTO_SHAPES, SHAPE_SPECS, BoardShape, fit_board_shape, max_degree,
+                                        n_shape_params, parse_shape)
 from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState, bundle_adjust
 from camcal.geometry.bundle import residuals as board_residuals
 from camcal.geometry.bundle.solve import GAUGE_NAMES
@@ -97,7 +107,8 @@ from camcal.model.distortion import Distortion
 from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera, Rig, make_provenance
 
-__all__ = ["MODELS", "AUTO_MODELS", "AUTO_MARGIN", "MIN_IMAGES", "SPLINE_MIN_VIEWS", "SPLINE_SUFFIX", "ModelScore", "CalibrationResult", "calibrate_board", "quality_problems", "fold_radius_px"]
+__all__ = ["MODELS", "AUTO_MODELS", "AUTO_MARGIN", "BOARD_SHAPES", "MIN_IMAGES", "SPLINE_MIN_VIEWS", "SPLINE_SUFFIX",
+           "ModelScore", "CalibrationResult", "calibrate_board", "quality_problems", "fold_radius_px"]
 
 #: Lens models a board calibration fits and the distortion parameters refined for each.
 MODELS: Mapping[str, tuple[str, ...]] = MappingProxyType(
@@ -239,6 +250,12 @@ class CalibrationResult:
         ``projected - detected`` and the detected corners of the held-out views.
     heldout_camera_of_point : ndarray of int, shape (H,)
         Index into ``rig.cameras`` of each held-out corner.
+    board_shape : BoardShape or None
+        The board's fitted surface (:mod:`camcal.geometry.board_shape`); None for a flat board. The held-out
+        views are posed against it; the rig's ``provenance.board_shape`` stores it.
+    shape_ranking : tuple of ModelScore
+        ``board_shape="auto"``: the flat board and every shape scored (``<model>@board-<shape>``), best first,
+        scored on the same folds as the lens models.
     """
 
     rig: Rig
@@ -265,6 +282,8 @@ class CalibrationResult:
     heldout_residuals_px: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
     heldout_points_px: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
     heldout_camera_of_point: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    board_shape: BoardShape | None = None
+    shape_ranking: tuple[ModelScore, ...] = ()
 
     @property
     def n_outliers(self) -> int:
@@ -607,6 +626,7 @@ def calibrate_board(
     holdout: Collection[int] = (),
     intrinsics: Mapping[str, Camera] | None = None,
     refine_intrinsics: bool = False,
+    board_shape: str | BoardShape = "auto",
 ) -> CalibrationResult:
     """Calibrate one camera or an N-camera rig from images of a planar board.
 
@@ -664,6 +684,20 @@ def calibrate_board(
         its own lens.
     refine_intrinsics : bool
         With ``intrinsics``: use them as the start and refine them.
+    board_shape : str or BoardShape
+        The board's shape (:mod:`camcal.geometry.board_shape`, one camera): ``flat``, a named shape of
+        :data:`~camcal.geometry.board_shape.SHAPE_SPECS` (a surface ``z(x, y)`` of Legendre terms of total
+        degree 2..d, ``2``, ``3``, ``4``, ``6`` or ``free``: every corner's height; ``+plane``: the corners'
+        in-plane displacement too; fitted jointly with the lens and the poses), or ``auto`` (default): with
+        ``model="auto"``, one camera, at least :data:`SPLINE_MIN_VIEWS` training views and the plain loss,
+        every shape of :data:`~camcal.geometry.board_shape.AUTO_SHAPES` is scored on the model ranking's folds
+        from the chosen model's fit in each fold, and taken only when it beats the flat board by more than
+        :data:`AUTO_MARGIN` and one standard error of the paired per-view differences (the one with fewest
+        parameters within :data:`AUTO_MARGIN` of the best such); otherwise flat. The ranking is
+        :attr:`CalibrationResult.shape_ranking`; the surface, :attr:`CalibrationResult.board_shape`.
+        A :class:`~camcal.geometry.board_shape.BoardShape` (e.g. a rig file's ``provenance.board_shape``) is
+        held: the same board seen again, by any number of cameras, with any model (its corners are the
+        bundle's constant points; the held-out views are posed against it).
 
     Returns
     -------
@@ -689,6 +723,18 @@ def calibrate_board(
     if model != "auto" and model not in MODELS and not splined:
         raise CamcalError(f"unknown distortion model {model!r}, expected one of: {', '.join(MODELS)}, auto "
                           f"(or a model with a correction field, '<model>{SPLINE_SUFFIX}')")
+    if isinstance(board_shape, BoardShape):
+        return _calibrate_held_shape(board, detections, model, holdout, intrinsics, refine_intrinsics, board_shape,
+                                     units=units, outlier_factor=outlier_factor, min_outlier_px=min_outlier_px,
+                                     loss=loss, loss_scale=loss_scale)
+    if board_shape not in BOARD_SHAPES:
+        raise CamcalError(f"unknown board shape {board_shape!r}, expected one of: {', '.join(BOARD_SHAPES)}")
+    spec = board_shape if board_shape not in ("auto", "flat") else ""
+    if spec and (len(detections) > 1 or intrinsics is not None or model == "opencv-thin-prism"
+                 or spec not in _shape_specs(board)):
+        raise CamcalError(f"board shape {board_shape}: a board surface is fitted with one camera, without given "
+                          f"intrinsics, a model of the Ceres engine (not opencv-thin-prism), and a degree the "
+                          f"board's grid holds ({', '.join(_shape_specs(board)) or 'none'} here)")
     names, by_frame = _check_detections(detections, board)
     holdout = {int(f) for f in holdout}
     unknown = holdout - set().union(*[set(views) for views in by_frame])
@@ -703,13 +749,16 @@ def calibrate_board(
         model, known = _known_lenses(names, by_frame, intrinsics, model)
         return _calibrate(board, names, by_frame, model, holdout, known=known, refine_known=refine_intrinsics,
                           **options)
+    if spec and model != "auto":
+        return _calibrate_shaped(board, names, by_frame, model, holdout, spec, **options)
     if splined:
         return _calibrate_spline(board, names, by_frame, model, holdout, **options)
     if model != "auto":
         return _calibrate(board, names, by_frame, model, holdout, **options)
     # the choice never sees the held-out frames
     training = [{f: d for f, d in views.items() if f not in holdout} for views in by_frame]
-    ranking, squared, _ = _rank_models(board, names, training, options)
+    fold_results: dict = {}
+    ranking, squared, corners = _rank_models(board, names, training, options, fold_results)
     scored = [score for score in ranking if score.rms_px is not None]
     parametric = [score for score in scored if not score.model.endswith(SPLINE_SUFFIX)]
     order = [score.model for score in parametric] or ["polynomial"]
@@ -740,9 +789,68 @@ def calibrate_board(
         if not scored:
             notes.append("model auto: too few views to hold any out (need "
                          f"{MIN_IMAGES + 1}); the polynomial model is fitted without a choice")
-        return dataclasses.replace(result, model_ranking=ranking, notes=result.notes + tuple(notes),
-                                   model_heldout_rms_px={s.model: s.rms_px for s in scored})
+        result, shape_ranking, shape_notes = _with_board_shape(
+            board, names, by_frame, candidate, holdout, result, board_shape, spec, scored, squared, corners,
+            fold_results, training, options)
+        return dataclasses.replace(result, model_ranking=ranking, notes=result.notes + tuple(notes + shape_notes),
+                                   model_heldout_rms_px={s.model: s.rms_px for s in scored},
+                                   shape_ranking=shape_ranking)
     raise CamcalError("no lens model could be fitted: " + "; ".join(failures))
+
+
+def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], model: str, holdout: set[int],
+                      flat: CalibrationResult, board_shape: str, spec: str, scored: list[ModelScore], squared: dict,
+                      corners: NDArray, fold_results: dict, training: list[dict], options: dict
+                      ) -> tuple[CalibrationResult, tuple[ModelScore, ...], list[str]]:
+    """``model="auto"``'s result on the board shape of ``board_shape`` (see :func:`calibrate_board`): the flat
+    result, or the model refitted on the surface chosen (or named); with the shapes' ranking and notes."""
+    if board_shape == "flat":
+        return flat, (), []
+    base = model.removesuffix(SPLINE_SUFFIX)
+    flat_score = next((s for s in scored if s.model == model), None)
+    shape_ranking: tuple[ModelScore, ...] = ()
+    if not spec:
+        if (len(names) > 1 or flat_score is None or base not in fold_results or model == "opencv-thin-prism+spline"
+                or base == "opencv-thin-prism" or options["loss"] != "trivial"
+                or len(training[0]) < SPLINE_MIN_VIEWS):
+            return flat, (), []
+        shapes = _score_shapes(board, training[0], model, fold_results["folds"], fold_results[base], corners,
+                               squared)
+        spec = _shape_choice(model, flat_score, shapes, squared)
+        shape_ranking = tuple(sorted([flat_score, *shapes], key=lambda s: (s.rms_px is None, s.rms_px or 0.0)))
+        if not spec:
+            return flat, shape_ranking, ["board shape auto: flat (no surface beats the flat board held out)"]
+    try:
+        shaped = _calibrate_shaped(board, names, by_frame, model, holdout, spec, **options)
+    except _FIT_ERRORS as error:
+        return flat, shape_ranking, [f"board shape: the {spec} surface failed ({_one_line(error)}); flat kept"]
+    problems = quality_problems(shaped)
+    if problems:
+        return flat, shape_ranking, [f"board shape: the {spec} surface fails the quality gate "
+                                     f"({'; '.join(problems)}); flat kept"]
+    return shaped, shape_ranking, [f"board shape auto: {spec} chosen by held-out error"
+                                   if board_shape == "auto" else f"board shape: {spec}"]
+
+
+def _calibrate_held_shape(board: Board, detections: Mapping[str, Sequence[Detection]], model: str,
+                          holdout: Collection[int], intrinsics: Mapping[str, Camera] | None, refine_intrinsics: bool,
+                          shape: BoardShape, **options) -> CalibrationResult:
+    """:func:`calibrate_board` on a board whose surface is known and held (``model`` named, or ``auto`` with
+    ``intrinsics``: their model)."""
+    names, by_frame = _check_detections(detections, board)
+    holdout = {int(f) for f in holdout}
+    unknown = holdout - set().union(*[set(views) for views in by_frame])
+    if unknown:
+        raise CamcalError(f"held-out frame(s) {', '.join(map(str, sorted(unknown)))} are not among the views")
+    _check_linked(names, [{f for f in views if f not in holdout} for views in by_frame])
+    known = None
+    if intrinsics is not None:
+        model, known = _known_lenses(names, by_frame, intrinsics, model)
+    if model not in _COLMAP_MODELS:
+        raise CamcalError(f"a held board shape needs a named model of the rig engine or given intrinsics, got model "
+                          f"{model} (one of: {', '.join(_COLMAP_MODELS)})")
+    return _calibrate(board, names, by_frame, model, holdout, known=known, refine_known=refine_intrinsics,
+                      shape=shape, **options)
 
 
 def _check_linked(names: list[str], frames: list[set[int]]) -> None:
@@ -829,12 +937,13 @@ def _lens_params(name: str, camera: Camera) -> tuple[str, NDArray[np.float64]]:
     raise CamcalError(f"camera {name!r}: lens model {distortion.model!r} cannot be held")
 
 
-def _known_start(board: Board, views: Mapping[int, Detection], K: NDArray,
-                 lens: Distortion) -> dict[int, tuple[NDArray, NDArray]]:
-    """cam_from_board of each view by PnP with a calibrated lens (views not posable in front are left out)."""
+def _known_start(board: Board, views: Mapping[int, Detection], K: NDArray, lens: Distortion,
+                 points: NDArray | None = None) -> dict[int, tuple[NDArray, NDArray]]:
+    """cam_from_board of each view by PnP with a calibrated lens (views not posable in front are left out);
+    ``points``: the board's corners when it is not flat."""
     poses = {}
     for f, detection in views.items():
-        X = np.asarray(board.object_points[detection.ids], dtype=np.float64)
+        X = np.asarray((board.object_points if points is None else points)[detection.ids], dtype=np.float64)
         ideal = lens.undistort(detection.corners_px, K)
         front = np.all(np.isfinite(ideal), axis=1)
         if front.sum() < 4:
@@ -844,8 +953,10 @@ def _known_start(board: Board, views: Mapping[int, Detection], K: NDArray,
                 ok, rvec, tvec = cv2.solvePnP(X[front], ideal[front], K, None, flags=method)
             except cv2.error:
                 continue
+            if not ok or rvec is None or np.size(rvec) != 3:  # IPPE is for planar points only
+                continue
             R, t = cv2.Rodrigues(rvec)[0], tvec.ravel()
-            if ok and np.all((X @ R.T + t)[:, 2] > 0.0):
+            if np.all((X @ R.T + t)[:, 2] > 0.0):
                 poses[f] = (R, t)
                 break
     return poses
@@ -866,7 +977,7 @@ def _one_line(error: Exception) -> str:
     return text[-1] if text else type(error).__name__
 
 
-def _rank_models(board: Board, names: list[str], training: list[dict], options: dict
+def _rank_models(board: Board, names: list[str], training: list[dict], options: dict, fold_results: dict | None = None
                  ) -> tuple[tuple[ModelScore, ...], dict[str, NDArray[np.float64]], NDArray[np.float64]]:
     """Every model of :data:`AUTO_MODELS` (and the best one with a correction field) scored by leave-views-out
     cross-validation, best first, with each model's squared error per held-out view.
@@ -891,7 +1002,8 @@ def _rank_models(board: Board, names: list[str], training: list[dict], options: 
     Returns
     -------
     scores, squared (model -> sum of ``|r|^2`` of each held-out view, the same views in the same order for every
-    scored model), corners (the number of corners of each of those views)
+    scored model), corners (the number of corners of each of those views); ``fold_results``, when given, gets
+    ``"folds"`` (the folds) and every scored model's fit in each fold.
     """
     frames = sorted(set().union(*[set(views) for views in training]))
     n_folds = min(_AUTO_FOLDS, len(frames))
@@ -901,7 +1013,9 @@ def _rank_models(board: Board, names: list[str], training: list[dict], options: 
     folds = [set(frames[k::n_folds]) for k in range(n_folds)]
     held_views = [(j, f) for fold in folds for j in range(len(names)) for f in sorted(fold) if f in training[j]]
     corners = np.array([len(training[j][f].ids) for j, f in held_views], dtype=np.float64)
-    scores, squared, fold_results = [], {}, {}
+    scores, squared = [], {}
+    fold_results = {} if fold_results is None else fold_results
+    fold_results["folds"] = folds
     for candidate in AUTO_MODELS:
         per_view, results, reason = [], [], ""
         for fold in folds:
@@ -1005,14 +1119,126 @@ def _calibrate_spline(board: Board, names: list[str], by_frame: list[dict], mode
                               f"{base}'s at its own fit",))
 
 
+#: ``board_shape`` values: chosen by held-out error, flat, or a named shape.
+BOARD_SHAPES = ("auto", "flat") + SHAPE_SPECS
+#: The name of a lens model fitted on a board shape in :attr:`CalibrationResult.shape_ranking`: ``<model>@board-<shape>``.
+_SHAPE_TAG = "@board-"
+
+
+def _shape_specs(board: Board, names: Sequence[str] = SHAPE_SPECS) -> tuple[str, ...]:
+    """The shapes of ``names`` the board's corner grid holds (a degree up to :func:`max_degree`)."""
+    return tuple(s for s in names if parse_shape(board, s)[0] <= max_degree(board))
+
+
+def _fit_shape(board: Board, result: CalibrationResult, views: Mapping[int, Detection], model: str, spec: str):
+    """``(camera, shape, training residuals, views kept)``: the board's surface fitted with the lens on the views
+    ``result`` kept (started from its flat fit and board poses), then, for ``<model>+spline``, the correction
+    field on top with the surface held."""
+    base = model[:-len(SPLINE_SUFFIX)] if model.endswith(SPLINE_SUFFIX) else model
+    camera = result.rig.cameras[0]
+    kept = {image for _, image in result.images}
+    train = {f: d for f, d in views.items() if d.image in kept}
+    poses = {f: (R, t) for f, R, t in result.board_poses}
+    degree, in_plane = parse_shape(board, spec)
+    fit = fit_board_shape(board, train, camera.K, camera.distortion.without_correction(), MODELS[base], poses, degree,
+                          in_plane)
+    K, distortion, residuals = fit.K, fit.distortion, fit.residuals_px
+    if base != model:
+        splined = fit_spline_lens(board, fit.views, K, distortion, MODELS[base], points=fit.shape.points(board))
+        K, distortion, residuals = splined.K, splined.distortion, splined.residuals_px
+    return dataclasses.replace(camera, K=K, distortion=distortion), fit.shape, residuals, fit.views
+
+
+def _calibrate_shaped(board: Board, names: list[str], by_frame: list[dict], model: str, holdout: set[int],
+                      spec: str, **options) -> CalibrationResult:
+    """``model`` on a board of shape ``spec`` (:mod:`camcal.geometry.board_shape`): the flat fit
+    (:func:`_calibrate` or :func:`_calibrate_spline`'s parametric part), then the surface, the lens and the poses
+    refined jointly (and the correction field on top, with the surface held); the held-out views posed against
+    the fitted surface. One camera. The covariance and the sigmas are the flat fit's."""
+    if len(names) > 1:
+        raise CamcalError(f"a board surface is fitted with one camera at a time; got {len(names)} cameras")
+    base = model[:-len(SPLINE_SUFFIX)] if model.endswith(SPLINE_SUFFIX) else model
+    result = _calibrate(board, names, by_frame, base, holdout, **options)
+    training = {f: d for f, d in by_frame[0].items() if f not in holdout}
+    camera, shape, residuals, views = _fit_shape(board, result, training, model, spec)
+    points = shape.points(board)
+    norms = np.linalg.norm(residuals, axis=1)
+    quality = {**camera.quality, "rms_px": float(np.sqrt(np.mean(norms**2))), "worst_px": float(norms.max()),
+               "n_observations": int(len(norms))}
+    quality.pop("heldout_rms_px", None)
+    camera = dataclasses.replace(camera, quality=quality)
+    heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
+    if holdout:
+        held = [{f: d for f, d in by_frame[0].items() if f in holdout}]
+        heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(board, Rig((camera,)), held, points)
+        camera = dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]})
+    rig = Rig((camera,), units=result.rig.units,
+              provenance={**result.rig.provenance, "model": model, "board_shape": shape.to_dict()})
+    frames = sorted(views)
+    return dataclasses.replace(
+        result, rig=rig, residuals_px=residuals, points_px=np.concatenate([views[f].corners_px for f in frames]),
+        camera_of_point=np.zeros(len(norms), np.int64),
+        image_of_point=np.concatenate([np.full(len(views[f].ids), n) for n, f in enumerate(frames)]),
+        images=tuple((names[0], views[f].image) for f in frames), rms_px=float(np.sqrt(np.mean(norms**2))),
+        worst_px=float(norms.max()), model=model, heldout_rms_px=heldout_rms, heldout_images=heldout_images,
+        heldout_view_rms_px=per_view, board_shape=shape, **_heldout_fields(heldout),
+        notes=result.notes + (shape.describe(board) + f"; training RMS {result.rms_px:.4f} px on a flat board",
+                              f"{model} on board shape {spec}: its covariance is the flat fit's"))
+
+
+def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int]],
+                  results: list[CalibrationResult], corners: NDArray, squared: dict) -> list[ModelScore]:
+    """``<model>@board-<shape>`` for every shape of :data:`AUTO_SHAPES` the board holds, scored on the folds of :func:`_rank_models`
+    from each fold's flat fit (adds each one's per-view squared errors to ``squared``)."""
+    scores = []
+    for spec in _shape_specs(board, AUTO_SHAPES):
+        name = f"{model}{_SHAPE_TAG}{spec}"
+        n_params = 4 + len(MODELS[model.removesuffix(SPLINE_SUFFIX)]) + n_shape_params(board, spec)
+        per_view, reason = [], ""
+        for fold, result in zip(folds, results):
+            train = {f: d for f, d in view_sets.items() if f not in fold}
+            try:
+                camera, shape, _, _ = _fit_shape(board, result, train, model, spec)
+                points = shape.points(board)
+                per_view.extend(float(np.sum(r * r)) for r in
+                                (_posed_residuals(board, camera, view_sets[f], points) for f in sorted(fold)
+                                 if f in view_sets))
+            except _FIT_ERRORS as error:
+                reason = _one_line(error)
+                break
+        if not reason and not np.all(np.isfinite(per_view)):
+            reason = "non-finite held-out error"
+        if not reason:
+            squared[name] = np.asarray(per_view)
+        scores.append(ModelScore(name, None if reason else float(np.sqrt(squared[name].sum() / corners.sum())),
+                                 n_params, reason))
+    return scores
+
+
+def _shape_choice(model: str, flat: ModelScore, shapes: list[ModelScore], squared: dict) -> str:
+    """The board shape taken (empty: flat): the one with fewest parameters within :data:`AUTO_MARGIN` of the best
+    among those better than the flat board by more than :data:`AUTO_MARGIN` and one standard error of the paired
+    per-view differences (:func:`_spline_chosen`'s rule)."""
+    better = [s for s in shapes if s.rms_px is not None and _spline_chosen(s, flat, squared)]
+    if not better:
+        return ""
+    best = min(s.rms_px for s in better)
+    simplest = min((s for s in better if s.rms_px <= (1.0 + AUTO_MARGIN) * best), key=lambda s: s.n_params)
+    return simplest.model.rsplit(_SHAPE_TAG, 1)[1]
+
+
 def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: str, holdout: set[int], units: str,
                outlier_factor: float, min_outlier_px: float, loss: str, loss_scale: float,
-               known: Mapping[str, NDArray] | None = None, refine_known: bool = False) -> CalibrationResult:
+               known: Mapping[str, NDArray] | None = None, refine_known: bool = False,
+               shape: BoardShape | None = None) -> CalibrationResult:
     """One model, the views of ``holdout`` left out of the fit and then measured.
 
     ``known``: camera name -> COLMAP parameters of a calibrated lens (:func:`_known_lenses`), held unless
-    ``refine_known``; the start poses are then PnP with those lenses.
+    ``refine_known``; the start poses are then PnP with those lenses. ``shape``: a board surface held (its
+    corners are the bundle's constant points, the PnP starts with known lenses and the held-out views are posed
+    against it); the starts of fitted lenses are OpenCV's flat-board fits.
     """
+    points = board.object_points if shape is None else shape.points(board)
     by_frame = [{f: d for f, d in views.items() if f not in holdout} for views in by_frame_all]
     held = [{f: d for f, d in views.items() if f in holdout} for views in by_frame_all]
     for name, views in zip(names, by_frame):
@@ -1035,7 +1261,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         if known is not None:
             params.append(np.asarray(known[name], dtype=np.float64).copy())
             K, lens = _camcal_lens(model, params[-1])
-            starts.append(_known_start(board, views, K, lens))
+            starts.append(_known_start(board, views, K, lens, points))
             continue
         K, dist, poses = _opencv_start(board, views, model, name)
         if model not in _FISHEYE:
@@ -1093,7 +1319,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
                 raise CamcalError(f"camera {name!r}: only {n_left} images left after dropping outliers, need {MIN_IMAGES}")
         det = [by_frame[j][f] for j, f in kept]
         observations = BoardObservations(
-            object_points=np.asarray(board.object_points, dtype=np.float64),
+            object_points=np.asarray(points, dtype=np.float64),
             camera=np.concatenate([np.full(len(d.ids), j) for (j, _), d in zip(kept, det)]),
             frame=np.concatenate([np.full(len(d.ids), frame_index[f]) for (_, f), d in zip(kept, det)]),
             corner=np.concatenate([d.ids for d in det]),
@@ -1133,8 +1359,12 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
     rig = _build_rig(names, image_sizes, params, cam_poses, observations.camera, image_of_point, residuals,
                      covariance, labels, board, model, units, jackknife)
     heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
+    if shape is not None:
+        rig = Rig(rig.cameras, units=rig.units, provenance={**rig.provenance, "board_shape": shape.to_dict()})
+        notes.append(shape.describe(board).replace("fitted with the lens", "held"))
     if holdout:
-        heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(board, rig, held)
+        heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(
+            board, rig, held, None if shape is None else points)
         rig = Rig(tuple(dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]})
                         if camera.name in per_camera else camera for camera in rig.cameras),
                   units=rig.units, provenance=rig.provenance)
@@ -1159,6 +1389,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         dropped=tuple(dropped),
         notes=tuple(notes),
         board_poses=tuple((f, *view_start[f]) for f in sorted({f for _, f in kept})),
+        board_shape=shape,
         **_heldout_fields(heldout),
     )
 
@@ -1250,8 +1481,9 @@ def _calibrate_opencv(board: Board, names: list[str], by_frame: list[dict], mode
     )
 
 
-def _heldout_rms(board: Board, rig: Rig, held: list[dict]):
-    """RMS of the held-out views, each posed by PnP with the fitted intrinsics held.
+def _heldout_rms(board: Board, rig: Rig, held: list[dict], points: NDArray | None = None):
+    """RMS of the held-out views, each posed by PnP with the fitted intrinsics held (against the board's fitted
+    surface, ``points``, when it is not flat).
 
     Each view's ``cam_from_board`` minimises ``sum |project(K, d, R X + t) -
     x|^2`` over its six pose parameters alone (:func:`camcal.geometry.spline_fit.pose_view`:
@@ -1272,7 +1504,7 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict]):
             continue
         s_camera, n_camera = 0.0, 0
         for key in sorted(views):
-            r = _posed_residuals(board, camera, views[key])
+            r = _posed_residuals(board, camera, views[key], points)
             s_camera, n_camera = s_camera + float(np.sum(r * r)), n_camera + len(r)
             images.append((camera.name, views[key].image))
             residuals.append((j, r, views[key].corners_px))
@@ -1282,10 +1514,11 @@ def _heldout_rms(board: Board, rig: Rig, held: list[dict]):
     return float(np.sqrt(squared / counts)), per_camera, tuple(images), residuals, tuple(per_view)
 
 
-def _posed_residuals(board: Board, camera: Camera, detection: Detection) -> NDArray[np.float64]:
+def _posed_residuals(board: Board, camera: Camera, detection: Detection,
+                     points: NDArray | None = None) -> NDArray[np.float64]:
     """``projected - detected`` (N, 2) of one view posed with the camera's intrinsics held (see :func:`_heldout_rms`)."""
     try:
-        return pose_view(board, camera.K, camera.distortion, detection)[2]
+        return pose_view(board, camera.K, camera.distortion, detection, points)[2]
     except CamcalError as error:
         raise CamcalError(f"camera {camera.name!r}, held-out view {error}") from None
 
