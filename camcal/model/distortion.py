@@ -130,6 +130,8 @@ FISHEYE_MODELS = ("kannala-brandt", "kannala-brandt-thin-prism")
 
 _NEWTON_TOL_PX = 1e-10
 _NEWTON_MAX_ITER = 50
+#: Determinant of the normalised distortion Jacobian (about 1 at the centre) below which a point is past the fold.
+_SINGULAR_JACOBIAN = 1e-12
 
 
 def _as_points(points: ArrayLike, name: str = "points") -> NDArray[np.float64]:
@@ -421,7 +423,12 @@ class Distortion:
             if np.all(np.abs(residual) < tol):
                 break
             jac = self._jacobian_normalised(estimate)
-            estimate = estimate - np.linalg.solve(jac, residual[:, :, None])[:, :, 0]
+            # a point past the lens's fold (singular Jacobian) or already lost has no inverse: NaN, not an error
+            solvable = np.isfinite(jac).all(axis=(1, 2)) & np.isfinite(residual).all(axis=1)
+            solvable[solvable] = np.abs(np.linalg.det(jac[solvable])) > _SINGULAR_JACOBIAN
+            step = np.full_like(estimate, np.nan)
+            step[solvable] = np.linalg.solve(jac[solvable], residual[solvable][:, :, None])[:, :, 0]
+            estimate = estimate - step
         return _normalised_to_pixels(estimate, K)
 
     def distort_normalised(self, xy: ArrayLike) -> NDArray[np.float64]:

@@ -169,3 +169,15 @@ def test_fit_bad_arguments():
         fit_distortion(MODELS[0], K, (W, H), "none")
     with pytest.raises(CamcalError, match="fit_center applies only"):
         fit_distortion(MODELS[0], K, (W, H), "polynomial", fit_center=True)
+
+
+@pytest.mark.parametrize("model", ["polynomial", "opencv"])
+def test_a_pixel_on_the_lens_fold_has_no_inverse(model):
+    """k1 = -1/3 folds at r = 1 (d r_d / d r = 1 + 3 k1 r^2 = 0): the Newton inverse of a pixel there is NaN, not a
+    point billions of pixels away (it was 7e9 px) nor an error; a pixel inside the fold still round-trips."""
+    params = {"k1": -1 / 3, "k2": 0.0} | ({"p1": 0.0, "p2": 0.0, "k3": 0.0} if model == "opencv" else {})
+    lens = Distortion(model, params)
+    camera_K = np.array([[1000.0, 0.0, 500.0], [0.0, 1000.0, 400.0], [0.0, 0.0, 1.0]])
+    inside, on_fold_x, on_fold_y = lens.undistort(np.array([[600.0, 400.0], [1500.0, 400.0], [500.0, 1400.0]]), camera_K)
+    assert np.abs(lens.distort(inside[None], camera_K)[0] - [600.0, 400.0]).max() < 1e-8
+    assert np.isnan(on_fold_x).all() and np.isnan(on_fold_y).all()
