@@ -177,16 +177,21 @@ def board_shape(board, train, held, size, flags: int = cv2.CALIB_RATIONAL_MODEL)
     ro_rms, K, dist, _, _, points = cv2.calibrateCameraRO(obj, img, size, board.columns - 1, None, None,
                                                           flags=flags, criteria=crit)
 
-    def posed(X: np.ndarray) -> float:
-        r = []
-        for d in held:
-            _, rvec, tvec = cv2.solvePnP(X[d.ids], d.corners_px, K, dist)
-            rvec, tvec = cv2.solvePnPRefineLM(X[d.ids], d.corners_px, K, dist, rvec, tvec, crit)
-            r.append(cv2.projectPoints(X[d.ids], rvec, tvec, K, dist)[0].reshape(-1, 2) - d.corners_px)
-        r = np.concatenate(r)
-        return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+    return (flat_rms, ro_rms, opencv_held_out_rms(points.reshape(-1, 3).astype(np.float64), held, K, dist),
+            opencv_held_out_rms(board.object_points.astype(np.float64), held, K, dist))
 
-    return flat_rms, ro_rms, posed(points.reshape(-1, 3).astype(np.float64)), posed(board.object_points.astype(np.float64))
+
+def opencv_held_out_rms(X: np.ndarray, held, K: np.ndarray, dist: np.ndarray) -> float:
+    """RMS (px) of OpenCV's camera (K, dist) on the held-out views, each posed by PnP (then LM) against the board
+    points X (flat, or the board a release-object fit estimated)."""
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    r = []
+    for d in held:
+        _, rvec, tvec = cv2.solvePnP(X[d.ids], d.corners_px, K, dist)
+        rvec, tvec = cv2.solvePnPRefineLM(X[d.ids], d.corners_px, K, dist, rvec, tvec, crit)
+        r.append(cv2.projectPoints(X[d.ids], rvec, tvec, K, dist)[0].reshape(-1, 2) - d.corners_px)
+    r = np.concatenate(r)
+    return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
 
 
 def run(folder: Path, pattern: str, columns: int, rows: int, cache: Path | None, split: int = 0,

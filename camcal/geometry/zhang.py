@@ -735,12 +735,7 @@ def calibrate_board(
         raise CamcalError(f"board shape {board_shape}: a board surface is fitted with one camera, without given "
                           f"intrinsics, a model of the Ceres engine (not opencv-thin-prism), and a degree the "
                           f"board's grid holds ({', '.join(_shape_specs(board)) or 'none'} here)")
-    names, by_frame = _check_detections(detections, board)
-    holdout = {int(f) for f in holdout}
-    unknown = holdout - set().union(*[set(views) for views in by_frame])
-    if unknown:
-        raise CamcalError(f"held-out frame(s) {', '.join(map(str, sorted(unknown)))} are not among the views")
-    _check_linked(names, [{f for f in views if f not in holdout} for views in by_frame])
+    names, by_frame, holdout = _checked_views(detections, board, holdout)
     options = dict(units=units, outlier_factor=outlier_factor, min_outlier_px=min_outlier_px, loss=loss,
                    loss_scale=loss_scale)
     if splined and (len(names) > 1 or intrinsics is not None):
@@ -837,12 +832,7 @@ def _calibrate_held_shape(board: Board, detections: Mapping[str, Sequence[Detect
                           shape: BoardShape, **options) -> CalibrationResult:
     """:func:`calibrate_board` on a board whose surface is known and held (``model`` named, or ``auto`` with
     ``intrinsics``: their model)."""
-    names, by_frame = _check_detections(detections, board)
-    holdout = {int(f) for f in holdout}
-    unknown = holdout - set().union(*[set(views) for views in by_frame])
-    if unknown:
-        raise CamcalError(f"held-out frame(s) {', '.join(map(str, sorted(unknown)))} are not among the views")
-    _check_linked(names, [{f for f in views if f not in holdout} for views in by_frame])
+    names, by_frame, holdout = _checked_views(detections, board, holdout)
     known = None
     if intrinsics is not None:
         model, known = _known_lenses(names, by_frame, intrinsics, model)
@@ -851,6 +841,19 @@ def _calibrate_held_shape(board: Board, detections: Mapping[str, Sequence[Detect
                           f"{model} (one of: {', '.join(_COLMAP_MODELS)})")
     return _calibrate(board, names, by_frame, model, holdout, known=known, refine_known=refine_intrinsics,
                       shape=shape, **options)
+
+
+def _checked_views(detections: Mapping[str, Sequence[Detection]], board: Board,
+                   holdout: Collection[int]) -> tuple[list[str], list[dict[int, Detection]], set[int]]:
+    """The cameras' names, their views by frame and the held-out frames, checked: every held-out frame is a view
+    and the cameras are linked through the frames left for training (else one line)."""
+    names, by_frame = _check_detections(detections, board)
+    holdout = {int(f) for f in holdout}
+    unknown = holdout - set().union(*[set(views) for views in by_frame])
+    if unknown:
+        raise CamcalError(f"held-out frame(s) {', '.join(map(str, sorted(unknown)))} are not among the views")
+    _check_linked(names, [{f for f in views if f not in holdout} for views in by_frame])
+    return names, by_frame, holdout
 
 
 def _check_linked(names: list[str], frames: list[set[int]]) -> None:

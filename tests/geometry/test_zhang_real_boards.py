@@ -12,6 +12,7 @@ board (``+warp``) or the flat board.
 import json
 import math
 import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -22,6 +23,9 @@ from camcal.geometry import zhang
 from camcal.geometry.board import Board, Detection
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+from bench_lens_models import opencv_held_out_rms  # noqa: E402  (the bench's posing of held-out views, shared)
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "real_boards"
 SETS = ("udacity_gopro", "udacity_dashcam")
@@ -58,14 +62,7 @@ def release_object_heldout(board, train, held, size, flags: int) -> float:
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     _, K, dist, _, _, points = cv2.calibrateCameraRO(obj, img, size, board.columns - 1, None, None, flags=flags,
                                                      criteria=criteria)
-    X = points.reshape(-1, 3).astype(np.float64)
-    r = []
-    for d in held:
-        _, rvec, tvec = cv2.solvePnP(X[d.ids], d.corners_px, K, dist)
-        rvec, tvec = cv2.solvePnPRefineLM(X[d.ids], d.corners_px, K, dist, rvec, tvec, criteria)
-        r.append(cv2.projectPoints(X[d.ids], rvec, tvec, K, dist)[0].reshape(-1, 2) - d.corners_px)
-    r = np.concatenate(r)
-    return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+    return opencv_held_out_rms(points.reshape(-1, 3).astype(np.float64), held, K, dist)
 
 
 def opencv_heldout(board, train, held, size) -> dict[str, float]:
