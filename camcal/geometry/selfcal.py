@@ -145,6 +145,8 @@ class SelfCalibration:
     aspect_prior : bool
         Whether ``fx - fy`` had the square-pixel prior (the default priors),
         or the images alone decided it (``principal_point="refine"``).
+    given_aspect : tuple of str
+        The user's priors on ``fx - fy`` (``"left: fx - fy = 0 +- 0.5 px"``); they replace the default there.
     frame_influences : FrameInfluences or None
         Each frame's influence on the final fit, scene gauge included
         (:func:`camcal.geometry.bundle.deletion.frame_influences`): the
@@ -165,6 +167,7 @@ class SelfCalibration:
     jackknife_skipped: str = ""
     jackknife_method: str = ""
     aspect_prior: bool = True
+    given_aspect: tuple[str, ...] = ()
     frame_influences: FrameInfluences | None = None
 
     def lines(self) -> list[str]:
@@ -178,6 +181,9 @@ class SelfCalibration:
         rows += [f"prior on {label} not used: the chosen lens model has no such parameter" for label in self.unused_priors]
         aspect = (f"under a prior fx - fy = 0 +- {100 * ASPECT_PRIOR:g} % of f (square pixels)" if self.aspect_prior
                   else "by the images alone (asked)")
+        if self.given_aspect:
+            aspect = f"under the given prior {', '.join(self.given_aspect)}" + (
+                f", elsewhere {aspect}" if self.aspect_prior else "")
         rows.append(f"aspect: fx and fy refined apart {aspect}; skew: 0, not a parameter (no COLMAP camera model "
                     "has one; digital sensors' pixel rows and columns are orthogonal)")
         if self.jackknife_groups:
@@ -452,6 +458,8 @@ def self_calibrate(
         unused_priors=tuple(spec.label for spec in final.unused_priors), covariance_sigmas=covariance_sigmas, jackknife_sigmas=jackknife_sigmas,
         jackknife_groups=groups, jackknife_skipped=skipped, jackknife_method=spread.method if not skipped else "",
         aspect_prior=free_pp.default_priors, frame_influences=influences,
+        given_aspect=tuple(f"{spec.camera}: fx - fy = {spec.mean:g} +- {spec.sigma:g} px" for spec in options.priors
+                           if spec.name == "aspect"),
     )
     return final, report
 

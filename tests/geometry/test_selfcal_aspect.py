@@ -12,6 +12,7 @@ from test_selfcal import intrinsics, stereo_rig, tracks_state
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions
+from camcal.geometry.bundle.prior import PriorSpec
 from camcal.geometry.selfcal import as_lens_model, self_calibrate
 from camcal.model.camera import look_at
 from camcal.model.distortion import Distortion
@@ -135,6 +136,23 @@ def test_polynomial_lens_is_refined_as_opencv_without_tangential_terms():
         assert polynomial.distortion.model == "polynomial" and set(polynomial.distortion.params) == {"k1", "k2"}
         rays = np.random.default_rng(k).uniform([-0.6, -0.4, 1.0], [0.6, 0.4, 1.0], (50, 3))
         assert np.allclose(polynomial.project(rays), opencv.project(rays), rtol=0, atol=1e-9)
+
+
+def test_a_given_aspect_prior_replaces_the_default_and_is_said():
+    """``--prior left.aspect=D+-s``: on the left camera the given prior, not the square-pixel one, holds fx - fy
+    (a tight prior at the true difference puts it within 2 of its sigma of the truth), and the aspect line says
+    which prior held which camera."""
+    cameras = non_square(stereo_rig())
+    truth = cameras[0].K[0, 0] - cameras[0].K[1, 1]
+    options = BundleOptions(priors=(PriorSpec(cameras[0].name, "aspect", truth, 0.05),))
+    with contextlib.redirect_stderr(io.StringIO()):
+        result, report = self_calibrate(tracks_state(cameras, np.random.default_rng(5), n_frames=5, n_points=500),
+                                        options, ("division",), jackknife=None)
+    solved = intrinsics(result.state, 0).K
+    assert abs(solved[0, 0] - solved[1, 1] - truth) < 2 * 0.05
+    line = next(line for line in report.lines() if line.startswith("aspect:"))
+    assert f"under the given prior {cameras[0].name}: fx - fy = {truth:g} +- 0.05 px" in line
+    assert "elsewhere under a prior fx - fy = 0 +- 1 % of f" in line
 
 
 @pytest.mark.slow

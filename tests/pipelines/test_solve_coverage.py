@@ -77,7 +77,7 @@ XFAIL_REASON = (
     "frames' influences on intrinsics, rig pose and scene gauge together (deletion.frame_influences), shrunk toward 1 "
     "by the jackknife's own spread (uncertainty.shrunk_design_effect, Ledoit-Wolf), chosen on seeds 0-19: 97.7 % within "
     "2 sigma, median error/sigma 0.54 (one camera 92.9 % / 0.71, stereo 100 % / 0.47); then held-out seeds 24-47: "
-    "92.9 %, median 0.41 (one camera 95.2 % / 0.64, stereo 91.7 % / 0.35; per type from the study on the cached solves) The per-parameter design effect it "
+    "92.9 %, median 0.41 (one camera 95.2 % / 0.64, stereo 91.7 % / 0.35; per type from the study on the cached solves). The per-parameter design effect it "
     "replaced, same run: 98.4 % / 0.42 and 93.4 % / 0.39; the covariance alone 68.7 % / 1.23 and 72.2 % / 1.38. "
     "Tried on seeds 0-19 and not kept: the full jackknife covariance with the gauge (CR3, 98.5 % / 0.38), the "
     "Bell-McCaffrey CR2 sandwich (seeds 0-3: 49.5 % / 2.04, the covariance 50.8 % / 1.97: the residuals do not show "
