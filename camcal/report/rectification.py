@@ -31,15 +31,14 @@ from camcal.geometry.rectify import RectificationResult
 from camcal.geometry.rectify.sigma import PairSigma
 from camcal.geometry.uncertainty import SigmaSummary
 from camcal.report.sigma import plot_sigma_map
+from camcal.report.volume import PAGE_STYLE
 
 __all__ = ["write_report"]
 
 #: The maps of a pair, in page order: key (``sigma_<key>_A-B.png``), title.
 _KINDS = (("vertical", "vertical disparity sigma"), ("depth", "depth sigma"))
 
-_STYLE = """body{font-family:sans-serif;margin:2em;max-width:1300px} table{border-collapse:collapse}
-td,th{border:1px solid #bbb;padding:3px 8px} td.num{text-align:right;font-family:monospace}
-img{max-width:100%} figure{display:inline-block;margin:0 1em 1em 0;vertical-align:top}"""
+_STYLE = PAGE_STYLE + " figure{display:inline-block;margin:0 1em 1em 0;vertical-align:top}"
 
 
 def _number(value: float) -> str:

@@ -36,10 +36,14 @@ from camcal.geometry.zhang import CalibrationResult
 from camcal.report import RESIDUAL_LABEL
 from camcal.report.figures import pyplot, save_figure
 
-__all__ = ["FRUSTUM_SHARE", "layout_axes", "write_volume_report"]
+__all__ = ["FRUSTUM_SHARE", "PAGE_STYLE", "layout_axes", "write_volume_report"]
 
 #: Frustum depth as a share of the volume's size (the largest extent of camera centres and boards).
 FRUSTUM_SHARE = 0.12
+#: The stylesheet of the verbs' report pages (this one and :mod:`camcal.report.rectification`'s).
+PAGE_STYLE = """body{font-family:sans-serif;margin:2em;max-width:1300px} table{border-collapse:collapse}
+td,th{border:1px solid #bbb;padding:3px 8px} td.num{text-align:right;font-family:monospace}
+img{max-width:100%}"""
 
 
 def layout_axes(R: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -174,9 +178,7 @@ def write_volume_report(result: CalibrationResult, out_dir: str | os.PathLike,
                  f"scale runs from 0 to the map's worst value.</p>\n<p id=\"sigma\">{images}</p>\n")
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>camcal: {len(result.rig.cameras)}-camera calibration</title>
-<style>body{{font-family:sans-serif;margin:2em;max-width:1300px}} table{{border-collapse:collapse}}
-td,th{{border:1px solid #bbb;padding:3px 8px}} td.num{{text-align:right;font-family:monospace}}
-img{{max-width:100%}}</style></head><body>
+<style>{PAGE_STYLE}</style></head><body>
 <h1>{len(result.rig.cameras)}-camera calibration</h1>
 <p id="summary">{summary}</p>
 <h2>Camera layout</h2>
