@@ -816,7 +816,8 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
         if not spec:
             return flat, shape_ranking, ["board shape auto: flat (no surface beats the flat board held out)"]
     try:
-        shaped = _calibrate_shaped(board, names, by_frame, model, holdout, spec, **options)
+        shaped = _calibrate_shaped(board, names, by_frame, model, holdout, spec,
+                                   flat=None if model.endswith(SPLINE_SUFFIX) else flat, **options)
     except _FIT_ERRORS as error:
         return flat, shape_ranking, [f"board shape: the {spec} surface failed ({_one_line(error)}); flat kept"]
     problems = quality_problems(shaped)
@@ -1097,29 +1098,43 @@ def _calibrate_spline(board: Board, names: list[str], by_frame: list[dict], mode
     kept = {image for _, image in result.images}
     views = {f: d for f, d in by_frame[0].items() if f not in holdout and d.image in kept}
     fit = fit_spline_lens(board, views, camera.K, camera.distortion, MODELS[base])
-    norms = np.linalg.norm(fit.residuals_px, axis=1)
-    quality = {**camera.quality, "rms_px": float(np.sqrt(np.mean(norms**2))), "worst_px": float(norms.max()),
-               "n_observations": int(len(norms))}
-    quality.pop("heldout_rms_px", None)
-    camera = dataclasses.replace(camera, K=fit.K, distortion=fit.distortion, quality=quality)
-    heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
-    held = [{f: d for f, d in by_frame[0].items() if f in holdout}]
-    if holdout:
-        heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(board, Rig((camera,)), held)
-        camera = dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]})
     ny, nx = fit.distortion.correction.shape
-    rig = Rig((camera,), units=result.rig.units, provenance={**result.rig.provenance, "model": model})
+    return _refitted(board, result, dataclasses.replace(camera, K=fit.K, distortion=fit.distortion), fit.residuals_px,
+                     views, by_frame[0], holdout, model,
+                     (f"{model}: {base} with a {nx}x{ny} B-spline correction field (RMS "
+                      f"{fit.distortion.correction.rms_px():.3f} px over the image); its covariance is "
+                      f"{base}'s at its own fit",))
+
+
+def _refitted(board: Board, flat: CalibrationResult, camera: Camera, residuals: NDArray, views: Mapping[int, Detection],
+              all_views: Mapping[int, Detection], holdout: set[int], model: str, notes: tuple[str, ...],
+              shape: BoardShape | None = None) -> CalibrationResult:
+    """The one-camera calibration ``flat`` with its camera refitted after it (a correction field, a board surface):
+    the camera's training figures from ``residuals`` on ``views``, the held-out views of ``all_views`` posed again
+    (against ``shape``'s corners when the board is not flat), the rig's provenance naming ``model`` (and the
+    shape), and ``notes`` added."""
+    norms = np.linalg.norm(residuals, axis=1)
+    rms = float(np.sqrt(np.mean(norms**2)))
+    quality = {**camera.quality, "rms_px": rms, "worst_px": float(norms.max()), "n_observations": int(len(norms))}
+    quality.pop("heldout_rms_px", None)
+    camera = dataclasses.replace(camera, quality=quality)
+    heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
+    if holdout:
+        held = [{f: d for f, d in all_views.items() if f in holdout}]
+        heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(
+            board, Rig((camera,)), held, None if shape is None else shape.points(board))
+        camera = dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]})
+    provenance = {**flat.rig.provenance, "model": model}
+    if shape is not None:
+        provenance["board_shape"] = shape.to_dict()
     frames = sorted(views)
     return dataclasses.replace(
-        result, rig=rig, residuals_px=fit.residuals_px, points_px=np.concatenate([views[f].corners_px for f in frames]),
-        camera_of_point=np.zeros(len(norms), np.int64),
+        flat, rig=Rig((camera,), units=flat.rig.units, provenance=provenance), residuals_px=residuals,
+        points_px=np.concatenate([views[f].corners_px for f in frames]), camera_of_point=np.zeros(len(norms), np.int64),
         image_of_point=np.concatenate([np.full(len(views[f].ids), n) for n, f in enumerate(frames)]),
-        images=tuple((names[0], views[f].image) for f in frames), rms_px=float(np.sqrt(np.mean(norms**2))),
-        worst_px=float(norms.max()), model=model, heldout_rms_px=heldout_rms, heldout_images=heldout_images,
-        heldout_view_rms_px=per_view, **_heldout_fields(heldout),
-        notes=result.notes + (f"{model}: {base} with a {nx}x{ny} B-spline correction field (RMS "
-                              f"{fit.distortion.correction.rms_px():.3f} px over the image); its covariance is "
-                              f"{base}'s at its own fit",))
+        images=tuple((camera.name, views[f].image) for f in frames), rms_px=rms, worst_px=float(norms.max()),
+        model=model, heldout_rms_px=heldout_rms, heldout_images=heldout_images, heldout_view_rms_px=per_view,
+        board_shape=shape, **_heldout_fields(heldout), notes=flat.notes + notes)
 
 
 #: ``board_shape`` values: chosen by held-out error, flat, or a named shape.
@@ -1137,7 +1152,7 @@ def _fit_shape(board: Board, result: CalibrationResult, views: Mapping[int, Dete
     """``(camera, shape, training residuals, views kept)``: the board's surface fitted with the lens on the views
     ``result`` kept (started from its flat fit and board poses), then, for ``<model>+spline``, the correction
     field on top with the surface held."""
-    base = model[:-len(SPLINE_SUFFIX)] if model.endswith(SPLINE_SUFFIX) else model
+    base = model.removesuffix(SPLINE_SUFFIX)
     camera = result.rig.cameras[0]
     kept = {image for _, image in result.images}
     train = {f: d for f, d in views.items() if d.image in kept}
@@ -1153,40 +1168,20 @@ def _fit_shape(board: Board, result: CalibrationResult, views: Mapping[int, Dete
 
 
 def _calibrate_shaped(board: Board, names: list[str], by_frame: list[dict], model: str, holdout: set[int],
-                      spec: str, **options) -> CalibrationResult:
-    """``model`` on a board of shape ``spec`` (:mod:`camcal.geometry.board_shape`): the flat fit
-    (:func:`_calibrate` or :func:`_calibrate_spline`'s parametric part), then the surface, the lens and the poses
-    refined jointly (and the correction field on top, with the surface held); the held-out views posed against
-    the fitted surface. One camera. The covariance and the sigmas are the flat fit's."""
+                      spec: str, flat: CalibrationResult | None = None, **options) -> CalibrationResult:
+    """``model`` on a board of shape ``spec`` (:mod:`camcal.geometry.board_shape`): the flat fit of its
+    parametric part (:func:`_calibrate`; ``flat`` when it is already made), then the surface, the lens and the
+    poses refined jointly (and the correction field on top, with the surface held); the held-out views posed
+    against the fitted surface. One camera. The covariance and the sigmas are the flat fit's."""
     if len(names) > 1:
         raise CamcalError(f"a board surface is fitted with one camera at a time; got {len(names)} cameras")
-    base = model[:-len(SPLINE_SUFFIX)] if model.endswith(SPLINE_SUFFIX) else model
-    result = _calibrate(board, names, by_frame, base, holdout, **options)
+    result = flat if flat is not None else _calibrate(board, names, by_frame, model.removesuffix(SPLINE_SUFFIX),
+                                                      holdout, **options)
     training = {f: d for f, d in by_frame[0].items() if f not in holdout}
     camera, shape, residuals, views = _fit_shape(board, result, training, model, spec)
-    points = shape.points(board)
-    norms = np.linalg.norm(residuals, axis=1)
-    quality = {**camera.quality, "rms_px": float(np.sqrt(np.mean(norms**2))), "worst_px": float(norms.max()),
-               "n_observations": int(len(norms))}
-    quality.pop("heldout_rms_px", None)
-    camera = dataclasses.replace(camera, quality=quality)
-    heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
-    if holdout:
-        held = [{f: d for f, d in by_frame[0].items() if f in holdout}]
-        heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(board, Rig((camera,)), held, points)
-        camera = dataclasses.replace(camera, quality={**camera.quality, "heldout_rms_px": per_camera[camera.name]})
-    rig = Rig((camera,), units=result.rig.units,
-              provenance={**result.rig.provenance, "model": model, "board_shape": shape.to_dict()})
-    frames = sorted(views)
-    return dataclasses.replace(
-        result, rig=rig, residuals_px=residuals, points_px=np.concatenate([views[f].corners_px for f in frames]),
-        camera_of_point=np.zeros(len(norms), np.int64),
-        image_of_point=np.concatenate([np.full(len(views[f].ids), n) for n, f in enumerate(frames)]),
-        images=tuple((names[0], views[f].image) for f in frames), rms_px=float(np.sqrt(np.mean(norms**2))),
-        worst_px=float(norms.max()), model=model, heldout_rms_px=heldout_rms, heldout_images=heldout_images,
-        heldout_view_rms_px=per_view, board_shape=shape, **_heldout_fields(heldout),
-        notes=result.notes + (shape.describe(board) + f"; training RMS {result.rms_px:.4f} px on a flat board",
-                              f"{model} on board shape {spec}: its covariance is the flat fit's"))
+    return _refitted(board, result, camera, residuals, views, by_frame[0], holdout, model,
+                     (shape.describe(board) + f"; training RMS {result.rms_px:.4f} px on a flat board",
+                      f"{model} on board shape {spec}: its covariance is the flat fit's"), shape)
 
 
 def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int]],
@@ -1364,7 +1359,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
     heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
     if shape is not None:
         rig = Rig(rig.cameras, units=rig.units, provenance={**rig.provenance, "board_shape": shape.to_dict()})
-        notes.append(shape.describe(board).replace("fitted with the lens", "held"))
+        notes.append(f"{shape.describe(board)}; held, not fitted")
     if holdout:
         heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(
             board, rig, held, None if shape is None else points)
