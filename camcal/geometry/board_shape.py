@@ -136,10 +136,8 @@ class BoardShape:
 
     def displacements(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """``(dx, dy)`` (N, 2) in the board's plane at board points ``xy`` (N, 2), in the board's units."""
-        xy = np.asarray(xy, dtype=np.float64)
-        u = (xy[:, 0] - self.centre[0]) / self.half_size[0]
-        v = (xy[:, 1] - self.centre[1]) / self.half_size[1]
-        d = np.zeros((len(xy), 2))
+        u, v = _normalised(xy, self.centre, self.half_size)
+        d = np.zeros((len(u), 2))
         for (i, j), (a, b) in sorted(self.in_plane.items()):
             term = _legendre(i, u) * _legendre(j, v)
             d[:, 0] += a * term
@@ -148,10 +146,8 @@ class BoardShape:
 
     def heights(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
         """``z`` at board points ``xy`` (N, 2), in the board's units."""
-        xy = np.asarray(xy, dtype=np.float64)
-        u = (xy[:, 0] - self.centre[0]) / self.half_size[0]
-        v = (xy[:, 1] - self.centre[1]) / self.half_size[1]
-        z = np.zeros(len(xy))
+        u, v = _normalised(xy, self.centre, self.half_size)
+        z = np.zeros(len(u))
         for (i, j), w in sorted(self.coefficients.items()):
             z += w * _legendre(i, u) * _legendre(j, v)
         return z
@@ -216,14 +212,24 @@ def _frame(board: Board) -> tuple[tuple[float, float], tuple[float, float]]:
     return (float((low[0] + high[0]) / 2), float((low[1] + high[1]) / 2)), (float(half[0]), float(half[1]))
 
 
+def _normalised(xy: NDArray, centre: tuple[float, float], half: tuple[float, float]) -> tuple[NDArray, NDArray]:
+    """``u = (x - x_c) / h_x``, ``v = (y - y_c) / h_y`` of board points ``xy`` (N, 2)."""
+    xy = np.asarray(xy, dtype=np.float64)
+    return (xy[:, 0] - centre[0]) / half[0], (xy[:, 1] - centre[1]) / half[1]
+
+
+def _term_columns(board: Board, degree: int) -> tuple[NDArray[np.float64], list[tuple[int, int]]]:
+    """Every term ``P_i(u) P_j(v)`` of total degree up to ``degree`` at the board's corners (N, T_all), affine
+    ones first, and those terms."""
+    u, v = _normalised(board.object_points[:, :2], *_frame(board))
+    every = _terms(degree, board, lowest=0)
+    return np.column_stack([_legendre(i, u) * _legendre(j, v) for i, j in every]), every
+
+
 def _basis(board: Board, degree: int) -> tuple[NDArray[np.float64], NDArray[np.float64], list[tuple[int, int]]]:
     """The gauge-free basis over the board's corners (N, T), the map from its coefficients to every term's
     Legendre coefficient (``A``: (T_all, T)) and those terms (affine ones first)."""
-    centre, half = _frame(board)
-    xy = board.object_points[:, :2]
-    u, v = (xy[:, 0] - centre[0]) / half[0], (xy[:, 1] - centre[1]) / half[1]
-    every = _terms(degree, board, lowest=0)
-    columns = np.column_stack([_legendre(i, u) * _legendre(j, v) for i, j in every])
+    columns, every = _term_columns(board, degree)
     affine, raw = columns[:, :3], columns[:, 3:]
     # each free column minus its least-squares part in span{1, u, v} over the corners
     removal = np.linalg.lstsq(affine, raw, rcond=None)[0]  # (3, T)
@@ -235,11 +241,9 @@ def _in_plane_basis(board: Board, degree: int) -> tuple[NDArray[np.float64], NDA
     """The in-plane displacement basis over the corners, stacked ``(dx_1..dx_N, dy_1..dy_N)`` (2N, S), with the
     similarity motions (shift x, shift y, turn, scale) removed, orthonormal; the map from its coefficients to
     every term's ``(a_ij, b_ij)`` (``(2 T, S)``, a's then b's) and the terms."""
-    centre, half = _frame(board)
+    columns, every = _term_columns(board, degree)
+    centre, _ = _frame(board)
     xy = board.object_points[:, :2]
-    u, v = (xy[:, 0] - centre[0]) / half[0], (xy[:, 1] - centre[1]) / half[1]
-    every = _terms(degree, board, lowest=0)
-    columns = np.column_stack([_legendre(i, u) * _legendre(j, v) for i, j in every])
     zero = np.zeros_like(columns)
     M = np.block([[columns, zero], [zero, columns]])  # (2N, 2T)
     x, y = xy[:, 0] - centre[0], xy[:, 1] - centre[1]
