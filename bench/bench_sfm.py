@@ -276,6 +276,9 @@ def bench_strecha(scenes: tuple[str, ...] = STRECHA_SCENES) -> None:
             print(f"Strecha {scene} ours sigma (px): " + ", ".join(f"{key} {sigma.get(key, np.nan):.2f}" for key in entries)
                   + "; |error| / sigma: " + ", ".join(f"{key} {value:.2f}" for key, value in ratios.items())
                   + f" ({sum(value < 2 for value in ratios.values())} / 4 within 2 sigma); lens model {lens}")
+            if result.self_calibration is not None:
+                print(f"Strecha {scene} ours " + " | ".join(line for line in result.self_calibration.lines()
+                                                              if line.startswith("aspect")))
         print(f"Strecha {scene} our tracks with the laser-scanned poses held: {held}")
         mine, other = _rotation_errors(rotations, true_rotations), _rotation_errors(peer_rotations, true_rotations)
         print(f"Strecha {scene} relative rotation error (deg, {len(mine)} / {len(other)} pairs): mean ours "

@@ -201,7 +201,7 @@ class SelfCalibration:
         rows += [f"prior on {label} not used: the chosen lens model has no such parameter" for label in self.unused_priors]
         change = f"a {100 * ASPECT_PRIOR:g} % change of fx - fy"
         for camera in self.aspect_held:
-            rows.append(f"aspect: {camera}: fx/fy not determined: the cameras turn about nearly one axis (Sturm 1997): "
+            rows.append(f"aspect: {camera}: fx/fy not determined: the cameras turn about one axis or hardly at all (Sturm 1997): "
                         f"{change} moves the images by {self.aspect_visibility_px[camera]:.3g} px RMS once the scene "
                         f"re-adjusts, below the features' systematic error ({FEATURE_BIAS_PX:g} px); square pixels held, "
                         f"sigma of fx and fy widened by +-{50 * ASPECT_PRIOR:g} % of f")
