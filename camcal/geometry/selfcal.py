@@ -10,7 +10,13 @@ COLMAP twin of each camcal lens model (:data:`MODELS`,
 :mod:`camcal.model.colmap`), each with two focal lengths: the aspect ``fx / fy``
 is refined under a Gaussian prior (square pixels, ``fx - fy`` +-
 :data:`~camcal.geometry.bundle.prior.ASPECT_PRIOR` of ``f``), not held at 1
-(Strecha's real cameras: fx and fy 0.17 % apart). Skew is 0: no COLMAP
+(Strecha's real cameras: fx and fy 0.17 % apart), unless the motion does
+not determine it: where a change of ``fx - fy`` by the prior's sigma moves
+the images by less than a feature error shared by every image
+(:func:`aspect_visibility`, :data:`FEATURE_BIAS_PX`; Sturm 1997's critical
+motions: turning about one axis, or hardly at all), such an error could
+move it further than the prior allows, so square pixels are held and the
+sigmas of fx and fy carry the prior's spread. Skew is 0: no COLMAP
 camera model has it, and the pixel rows and columns of digital sensors are
 orthogonal (said in :meth:`SelfCalibration.lines`).
 
