@@ -210,8 +210,8 @@ class SelfCalibration:
         rows += [f"prior on {label} not used: the chosen lens model has no such parameter" for label in self.unused_priors]
         change = f"a {100 * ASPECT_PRIOR:g} % change of fx - fy"
         for camera in self.aspect_held:
-            rows.append(f"aspect: {camera}: fx/fy not determined: the cameras turn about one axis or hardly at all (Sturm 1997): "
-                        f"{change} moves the images by {self.aspect_visibility_px[camera]:.3g} px RMS once the scene "
+            rows.append(f"aspect: {camera}: fx/fy not determined: the cameras turn about one axis or hardly at all "
+                        f"(Sturm 1997): {change} moves the images by {self.aspect_visibility_px[camera]:.3g} px RMS once the scene "
                         f"re-adjusts, below the features' systematic error ({FEATURE_BIAS_PX:g} px); square pixels held, "
                         f"sigma of fx and fy widened by +-{50 * ASPECT_PRIOR:g} % of f")
         aspect = (f"under a prior fx - fy = 0 +- {100 * ASPECT_PRIOR:g} % of f (square pixels)" if self.aspect_prior
@@ -219,12 +219,13 @@ class SelfCalibration:
         if self.given_aspect:
             aspect = f"under the given prior {', '.join(self.given_aspect)}" + (
                 f", elsewhere {aspect}" if self.aspect_prior else "")
-        apart = {camera: v for camera, v in self.aspect_visibility_px.items() if camera not in self.aspect_held}
+        apart = {camera: v for camera, v in self.aspect_visibility_px.items()
+                 if camera not in self.aspect_held and np.isfinite(v)}
         if apart:
             aspect += f" ({change} moves the images by " + ", ".join(
                 f"{v:.3g} px RMS ({camera})" for camera, v in apart.items()) + ")"
-        first = ("aspect: fx and fy refined apart " + aspect if len(self.aspect_held) < len(self.lens_models)
-                 else "aspect: square pixels held on every camera")
+        first = (("aspect: on the other cameras " if self.aspect_held else "aspect: ") + "fx and fy refined apart " + aspect
+                 if len(self.aspect_held) < len(self.lens_models) else "aspect: square pixels held on every camera")
         rows.append(f"{first}; skew: 0, not a parameter (no COLMAP camera model "
                     "has one; digital sensors' pixel rows and columns are orthogonal)")
         if self.jackknife_groups:

@@ -344,3 +344,24 @@ def test_an_older_solve_rig_with_one_focal_length_still_loads_and_maps(tmp_path)
     (tmp_path / "old.rig.json").write_text(json.dumps(data))
     assert main(["sigma", str(tmp_path / "old.rig.json"), "--camera", "cam", "--out", str(tmp_path / "old.exr")]) == 0
     assert np.allclose(read_sigma_map(tmp_path / "old.exr"), projection_sigma_map(camera), rtol=1e-6, atol=0)
+
+
+def test_aspect_lines_name_the_held_camera_and_the_rest():
+    """One camera held, one apart: the held camera's line gives its figure and the rule, the other line says
+    that the others were refined apart, with their figure; a camera without a figure (NaN) gets none."""
+    from camcal.geometry.selfcal import SelfCalibration
+
+    def report(held, visibility):
+        return SelfCalibration(lens_models=dict.fromkeys(visibility, "division"),
+                               heldout_rms_px={name: {"division": 0.3} for name in visibility}, n_heldout_points=10,
+                               principal_point=(), aspect_visibility_px=visibility, aspect_held=held)
+
+    lines = [line for line in report(("left",), {"left": 0.0512, "right": 0.83, "mid": np.nan}).lines()
+             if line.startswith("aspect:")]
+    assert len(lines) == 2
+    assert lines[0].startswith("aspect: left: fx/fy not determined") and "0.0512 px RMS" in lines[0]
+    assert "below the features' systematic error (0.1 px); square pixels held" in lines[0]
+    assert lines[1].startswith("aspect: on the other cameras fx and fy refined apart under a prior")
+    assert "0.83 px RMS (right))" in lines[1] and "mid" not in lines[1] and "skew: 0" in lines[1]
+    lines = [line for line in report((), {"left": 0.5}).lines() if line.startswith("aspect:")]
+    assert lines == [line for line in lines if line.startswith("aspect: fx and fy refined apart")] and len(lines) == 1
