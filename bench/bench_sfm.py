@@ -36,16 +36,26 @@
    near-critical planar motion (Sturm 1997) cannot trade fy for a
    vertical stretch of the scene.
 
-   Measured (98ca6c9's solve, machine loaded 8-16; focal errors fx / fy %,
-   ours against plain pycolmap's one f): fountain -0.07 / -0.42 against
-   -0.06 / -0.23, Herz-Jesus -0.04 / -0.18 against -0.04 / -0.21, entry
-   +0.01 / -0.19 against +0.01 / -0.16, castle -0.03 / -0.45 against
-   -0.06 / -0.23; solve / plain time 0.56-0.65. With the laser-scanned
-   poses held our tracks give fy / fx 1.0007, 1.0016, 1.0026, 1.0017
-   (truth 1.0017); with the poses free camcal and pycolmap's own bundle
-   adjustment (PINHOLE or OPENCV, its tracks) both put fy below fx on
-   fountain and entry: the aspect is what near-planar motion leaves
-   to small systematic errors of the features, beyond the covariance.
+   Measured (strecha3's solve, one run, machine loaded 10-16; focal
+   errors fx / fy %, ours against plain pycolmap's one f; mean of |fx|,
+   |fy|): every scene's motion found near-critical for the aspect (a 1 %
+   change of fx - fy moves the images by 0.055 / 0.049 / 0.044 / 0.043 px
+   RMS, below the features' 0.1 px: square pixels held, fx and fy sigma
+   13.8-14.0 px, |fy error| / sigma 0.32-0.47). fountain -0.07 / -0.24
+   against -0.07 / -0.23 (mean 0.152 against 0.149), Herz-Jesus -0.03 /
+   -0.20 against -0.04 / -0.21 (0.110 against 0.126), entry +0.01 / -0.16
+   against +0.03 / -0.15 (0.085 both), castle -0.04 / -0.21 against -0.05 /
+   -0.22 (0.123 against 0.135); relative rotations 0.067 / 0.045 / 0.067 /
+   0.133 deg against 0.063 / 0.044 / 0.061 / 0.174; solve / plain time 0.62
+   over the four (0.45-1.64 per scene: the peer's own time varied 2-4x
+   under the load). Before the aspect was held (98ca6c9, fx and fy apart
+   under the 1 % prior) the means were 0.245 / 0.106 / 0.100 / 0.241 % and
+   fy's error 1.2-4.1 sigma. Not covered, as before: the principal point
+   (cx 2.4 / 0.0 / 5.5 / 2.5 sigma off; with the aspect apart, entry 5.1,
+   castle 2.7). With the laser-scanned poses held our tracks
+   give fy / fx 1.0007, 1.0016, 1.0026, 1.0017 (truth 1.0017): the aspect is
+   what near-planar motion leaves to small systematic errors of the
+   features, beyond the covariance.
 
 Prints ``name: ours X, peer Y, ratio Y/X``. ``--frames N`` renders fewer
 rig positions (default 12); ``--real-only`` runs only the real scenes,
@@ -276,6 +286,9 @@ def bench_strecha(scenes: tuple[str, ...] = STRECHA_SCENES) -> None:
             print(f"Strecha {scene} ours sigma (px): " + ", ".join(f"{key} {sigma.get(key, np.nan):.2f}" for key in entries)
                   + "; |error| / sigma: " + ", ".join(f"{key} {value:.2f}" for key, value in ratios.items())
                   + f" ({sum(value < 2 for value in ratios.values())} / 4 within 2 sigma); lens model {lens}")
+            if result.self_calibration is not None:
+                print(f"Strecha {scene} ours " + " | ".join(line for line in result.self_calibration.lines()
+                                                              if line.startswith("aspect")))
         print(f"Strecha {scene} our tracks with the laser-scanned poses held: {held}")
         mine, other = _rotation_errors(rotations, true_rotations), _rotation_errors(peer_rotations, true_rotations)
         print(f"Strecha {scene} relative rotation error (deg, {len(mine)} / {len(other)} pairs): mean ours "

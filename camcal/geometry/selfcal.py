@@ -10,7 +10,13 @@ COLMAP twin of each camcal lens model (:data:`MODELS`,
 :mod:`camcal.model.colmap`), each with two focal lengths: the aspect ``fx / fy``
 is refined under a Gaussian prior (square pixels, ``fx - fy`` +-
 :data:`~camcal.geometry.bundle.prior.ASPECT_PRIOR` of ``f``), not held at 1
-(Strecha's real cameras: fx and fy 0.17 % apart). Skew is 0: no COLMAP
+(Strecha's real cameras: fx and fy 0.17 % apart), unless the motion does
+not determine it: where a change of ``fx - fy`` by the prior's sigma moves
+the images by less than a feature error shared by every image
+(:func:`aspect_visibility`, :data:`FEATURE_BIAS_PX`; Sturm 1997's critical
+motions: turning about one axis, or hardly at all), such an error could
+move it further than the prior allows, so square pixels are held and the
+sigmas of fx and fy carry the prior's spread. Skew is 0: no COLMAP
 camera model has it, and the pixel rows and columns of digital sensors are
 orthogonal (said in :meth:`SelfCalibration.lines`).
 
@@ -32,7 +38,8 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
 from camcal.geometry.bundle.deletion import DeletionUnsupported, FrameInfluences, frame_influences
-from camcal.geometry.bundle.prior import ASPECT_PRIOR, PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, undetermined
+from camcal.geometry.bundle.prior import (ASPECT_PRIOR, PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, PriorSpec,
+                                         undetermined)
 from camcal.geometry.bundle.state import model_layout
 from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife
 from camcal.model.colmap import camera_from_colmap, camera_to_colmap
@@ -40,6 +47,8 @@ from camcal.model.distortion import Distortion, fit_distortion
 from camcal.model.rig import Camera
 
 __all__ = [
+    "ASPECT_HELD",
+    "FEATURE_BIAS_PX",
     "FIXED_PARAMS",
     "FOCAL_UNDETERMINED",
     "HELDOUT_FRACTION",
@@ -51,6 +60,7 @@ __all__ = [
     "PrincipalPointDecision",
     "SelfCalibration",
     "as_lens_model",
+    "aspect_visibility",
     "heldout_rms",
     "self_calibrate",
 ]
@@ -78,6 +88,16 @@ HELDOUT_FRACTION = 0.2
 #: relative sigma of a focal length above which the report says that the images barely determine it: no
 #: better than a lens's marked focal length (ISO 517 allows the marking +-5 % of the measured focal length).
 FOCAL_UNDETERMINED = 0.05
+#: systematic error of feature positions shared by every image (px): the part of a detector's or a lens model's
+#: misfit that does not average out over observations. DoG / SIFT keypoints are located to about a tenth of a
+#: pixel (Lowe, D. G. (2004). Distinctive Image Features from Scale-Invariant Keypoints. IJCV: a quadratic fit
+#: of the scale-space extremum). A property of features, not fitted to a data set: a change of ``fx - fy`` by
+#: the square-pixel prior's sigma that moves the images by less than this could be such an error
+#: (:func:`aspect_visibility`). Rendered features carry less (a rendered arc recovers fy / fx to 0.02 % with
+#: the aspect free, where holding it costs 0.09 %); real ones carry it (Strecha's scenes: fy 0.2-0.45 % off).
+FEATURE_BIAS_PX = 0.1
+#: sigma of ``(fx - fy) / f`` of the prior that holds square pixels where the motion does not determine the aspect.
+ASPECT_HELD = 1e-6
 
 
 @dataclass(frozen=True)
@@ -147,6 +167,13 @@ class SelfCalibration:
         or the images alone decided it (``principal_point="refine"``).
     given_aspect : tuple of str
         The user's priors on ``fx - fy`` (``"left: fx - fy = 0 +- 0.5 px"``); they replace the default there.
+    aspect_visibility_px : dict of str to float
+        Camera -> RMS image displacement of a change of ``fx - fy`` by the
+        square-pixel prior's sigma once every other parameter re-adjusts
+        (:func:`aspect_visibility`); empty where the default priors are off.
+    aspect_held : tuple of str
+        Cameras whose aspect the motion does not determine: square pixels
+        held, the sigmas of fx and fy widened by the prior (:func:`self_calibrate`).
     frame_influences : FrameInfluences or None
         Each frame's influence on the final fit, scene gauge included
         (:func:`camcal.geometry.bundle.deletion.frame_influences`): the
@@ -168,6 +195,8 @@ class SelfCalibration:
     jackknife_method: str = ""
     aspect_prior: bool = True
     given_aspect: tuple[str, ...] = ()
+    aspect_visibility_px: dict[str, float] = dataclasses.field(default_factory=dict)
+    aspect_held: tuple[str, ...] = ()
     frame_influences: FrameInfluences | None = None
 
     def lines(self) -> list[str]:
@@ -179,12 +208,25 @@ class SelfCalibration:
         rows += [f"{decision.camera}: {decision.reason}" for decision in self.principal_point]
         rows += [line for line in self.undetermined if not line.split(":", 1)[0].endswith((".cx", ".cy"))]
         rows += [f"prior on {label} not used: the chosen lens model has no such parameter" for label in self.unused_priors]
+        change = f"a {100 * ASPECT_PRIOR:g} % change of fx - fy"
+        for camera in self.aspect_held:
+            rows.append(f"aspect: {camera}: fx/fy not determined: the cameras turn about one axis or hardly at all "
+                        f"(Sturm 1997): {change} moves the images by {self.aspect_visibility_px[camera]:.3g} px RMS once the scene "
+                        f"re-adjusts, below the features' systematic error ({FEATURE_BIAS_PX:g} px); square pixels held, "
+                        f"sigma of fx and fy widened by +-{50 * ASPECT_PRIOR:g} % of f")
         aspect = (f"under a prior fx - fy = 0 +- {100 * ASPECT_PRIOR:g} % of f (square pixels)" if self.aspect_prior
                   else "by the images alone (asked)")
         if self.given_aspect:
             aspect = f"under the given prior {', '.join(self.given_aspect)}" + (
                 f", elsewhere {aspect}" if self.aspect_prior else "")
-        rows.append(f"aspect: fx and fy refined apart {aspect}; skew: 0, not a parameter (no COLMAP camera model "
+        apart = {camera: v for camera, v in self.aspect_visibility_px.items()
+                 if camera not in self.aspect_held and np.isfinite(v)}
+        if apart:
+            aspect += f" ({change} moves the images by " + ", ".join(
+                f"{v:.3g} px RMS ({camera})" for camera, v in apart.items()) + ")"
+        first = (("aspect: on the other cameras " if self.aspect_held else "aspect: ") + "fx and fy refined apart " + aspect
+                 if len(self.aspect_held) < len(self.lens_models) else "aspect: square pixels held on every camera")
+        rows.append(f"{first}; skew: 0, not a parameter (no COLMAP camera model "
                     "has one; digital sensors' pixel rows and columns are orthogonal)")
         if self.jackknife_groups:
             ratios = ", ".join(f"{key} {self.jackknife_sigmas[key] / value:.2g}" for key, value in
@@ -435,6 +477,17 @@ def self_calibrate(
     _say(progress, "bundle adjustment with the chosen lens models")
     final_options = _fixed(free_pp, chosen)
     final = bundle_adjust(_with_lenses(state, chosen), final_options)
+    visibility: dict[str, float] = {}
+    if free_pp.default_priors:
+        given = {spec.camera for spec in options.priors if spec.name == "aspect"}
+        visibility = {name: aspect_visibility(final, k) for k, name in enumerate(names) if name not in given}
+    held = tuple(name for name, v in visibility.items() if v < FEATURE_BIAS_PX)
+    if held:
+        _say(progress, f"bundle adjustment with square pixels held ({', '.join(held)}: the motion does not determine fx/fy)")
+        final_options = dataclasses.replace(final_options, priors=final_options.priors + tuple(
+            PriorSpec(name, "aspect", 0.0, ASPECT_HELD * _focal(final.state, names.index(name)), _HELD)
+            for name in held))
+        final = bundle_adjust(final.state, final_options)
     decisions = tuple(_principal_point_decision(final, k, principal_point) for k in range(len(names)))
     covariance_sigmas, jackknife_sigmas, groups, influences = dict(final.sigmas), {}, 0, None
     n_frames = len(np.unique(final.state.obs_frame))
@@ -451,17 +504,91 @@ def self_calibrate(
         # a singular covariance leaves keys only the jackknife has
         final = dataclasses.replace(final, sigmas={key: max(covariance_sigmas.get(key, 0.0), jackknife_sigmas.get(key, 0.0))
                                                    for key in {**covariance_sigmas, **jackknife_sigmas}})
+    if held:
+        final = _aspect_widened(final, held)
+    said = [i for i, prior in enumerate(final.priors) if prior.spec.source != _HELD]  # held: its own aspect line
     report = SelfCalibration(
         lens_models=chosen, heldout_rms_px=table, n_heldout_points=int(held_mask.sum()),
         principal_point=decisions,
-        undetermined=tuple(undetermined(final.priors, final.prior_posterior_sigmas) + _undetermined_focals(final)),
+        undetermined=tuple(undetermined(tuple(final.priors[i] for i in said),
+                                        tuple(final.prior_posterior_sigmas[i] for i in said)) + _undetermined_focals(final)),
         unused_priors=tuple(spec.label for spec in final.unused_priors), covariance_sigmas=covariance_sigmas, jackknife_sigmas=jackknife_sigmas,
         jackknife_groups=groups, jackknife_skipped=skipped, jackknife_method=spread.method if not skipped else "",
         aspect_prior=free_pp.default_priors, frame_influences=influences,
         given_aspect=tuple(f"{spec.camera}: fx - fy = {spec.mean:g} +- {spec.sigma:g} px" for spec in options.priors
                            if spec.name == "aspect"),
+        aspect_visibility_px=visibility, aspect_held=held,
     )
     return final, report
+
+
+#: the source of the prior that holds square pixels (:func:`self_calibrate`).
+_HELD = "square pixels held: the motion does not determine fx - fy"
+
+
+def _focal(state: BundleState, camera: int) -> float:
+    """Mean of a camera's COLMAP focal lengths (px)."""
+    names = state.param_names(camera)
+    return float(np.mean([state.params[camera][names.index(key)] for key in ("f", "fx", "fy") if key in names]))
+
+
+def aspect_visibility(result: BundleResult, camera: int) -> float:
+    """RMS image displacement (px) of a change of ``fx - fy`` by the square-pixel prior's sigma, the rest re-adjusted.
+
+    The images' own information on ``z = fx - fy``, every other parameter
+    (poses, points, the other intrinsics) marginalised, is the posterior's
+    minus the priors' on ``z``: ``1 / s_z^2 = 1 / (a^T C a) - sum 1 /
+    sigma_prior^2`` (a prior on ``z`` alone adds its precision to ``z``'s
+    marginal). It is ``sum_i |g_i|^2 / s^2`` with ``g_i`` the displacement of
+    observation ``i`` per pixel of ``z`` after the best compensation and
+    ``s`` the per-axis noise of the covariance (residuals over their degrees
+    of freedom), so ``dz sqrt(sum |g_i|^2 / N)`` is the RMS
+    displacement of a change ``dz``. Motion about one axis makes a stretch
+    of the scene along it trade against fy with no displacement at all
+    (Sturm, P. (1997). Critical Motion Sequences for Monocular
+    Self-Calibration and Uncalibrated Euclidean Reconstruction. CVPR); near
+    it, a feature error shared by every image of that size moves ``z`` by
+    ``dz`` (:data:`FEATURE_BIAS_PX`). NaN without a covariance or ``fx``, ``fy``.
+    """
+    state, name = result.state, result.state.camera_names[camera]
+    keys = (f"{name}.fx", f"{name}.fy")
+    if not all(key in result.covariance_names for key in keys):
+        return float("nan")
+    rows = [result.covariance_names.index(key) for key in keys]
+    a = np.array([1.0, -1.0])
+    posterior = float(a @ result.covariance[np.ix_(rows, rows)] @ a)
+    names = state.param_names(camera)
+    pair = {names.index("fx"): 1.0, names.index("fy"): -1.0}
+    prior_precision = sum(1.0 / prior.sigma ** 2 for prior in result.priors if prior.camera == camera and
+                          dict(zip(prior.indices, prior.coefficients)) in (pair, {i: -c for i, c in pair.items()}))
+    if not posterior > 0:
+        return float("nan")
+    precision = max(1.0 / posterior - prior_precision, 0.0)
+    n, dof = int(np.sum(state.obs_camera == camera)), result.n_residuals - result.n_parameters
+    if dof <= 0:
+        return float("nan")
+    noise2 = 2.0 * result.final_cost / dof  # the covariance's own per-axis noise (the priors' few rows included)
+    return float(ASPECT_PRIOR * _focal(state, camera) * np.sqrt(noise2 * precision / max(n, 1)))
+
+
+def _aspect_widened(final: BundleResult, held: tuple[str, ...]) -> BundleResult:
+    """Sigmas and covariance of fx and fy of the held cameras widened by the square-pixel prior.
+
+    With ``fx - fy`` held at 0 while the truth is ``d ~ N(0, (ASPECT_PRIOR f)^2)``,
+    ``fx = f + d / 2`` and ``fy = f - d / 2``: each gains ``(ASPECT_PRIOR f / 2)^2``
+    of variance and their covariance loses it (the mean focal is unchanged).
+    """
+    sigmas, covariance, names = dict(final.sigmas), final.covariance.copy(), final.covariance_names
+    for name in held:
+        w2 = (0.5 * ASPECT_PRIOR * _focal(final.state, final.state.camera_names.index(name))) ** 2
+        for key in ("fx", "fy"):
+            if f"{name}.{key}" in sigmas:
+                sigmas[f"{name}.{key}"] = float(np.sqrt(sigmas[f"{name}.{key}"] ** 2 + w2))
+        if f"{name}.fx" in names and f"{name}.fy" in names:
+            i, j = names.index(f"{name}.fx"), names.index(f"{name}.fy")
+            covariance[[i, j], [i, j]] += w2
+            covariance[[i, j], [j, i]] -= w2
+    return dataclasses.replace(final, sigmas=sigmas, covariance=covariance)
 
 
 
