@@ -591,7 +591,6 @@ def _aspect_widened(final: BundleResult, held: tuple[str, ...]) -> BundleResult:
     return dataclasses.replace(final, sigmas=sigmas, covariance=covariance)
 
 
-
 def _undetermined_focals(final: BundleResult) -> list[str]:
     """One line per focal length without a prior whose sigma is above :data:`FOCAL_UNDETERMINED` of it, or undefined."""
     state, lines = final.state, []
