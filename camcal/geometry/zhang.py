@@ -52,8 +52,12 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    2..d, every corner's height free, with or without the corners'
    in-plane displacement; the flat fit's K, lens and poses refined with
    it), each fold's held-out views posed against that fold's board, and a
-   shape is taken by the correction field's rule. A shape can be named,
-   or given and held (a rig seeing the same board again).
+   shape is taken by the correction field's rule. The lens model is then
+   ranked again on that surface (every model the surface is fitted with,
+   the same folds, the simplest within 1 % of the best), the shape chosen
+   again for a new lens, and the correction field scored on top of the
+   surface (taken by its rule). A shape can be named, or given and held
+   (a rig seeing the same board again).
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
@@ -694,7 +698,10 @@ def calibrate_board(
         every shape of :data:`~camcal.geometry.board_shape.AUTO_SHAPES` is scored on the model ranking's folds
         from the chosen model's fit in each fold, and taken only when it beats the flat board by more than
         :data:`AUTO_MARGIN` and one standard error of the paired per-view differences (the one with fewest
-        parameters within :data:`AUTO_MARGIN` of the best such); otherwise flat. The ranking is
+        parameters within :data:`AUTO_MARGIN` of the best such); otherwise flat. On the surface taken, every
+        lens model is scored again on the same folds and the simplest within :data:`AUTO_MARGIN` of the best is
+        taken (the shape chosen again for it when it is another lens), then the correction field on top of it
+        (:func:`_spline_chosen`'s rule). The ranking is
         :attr:`CalibrationResult.shape_ranking`; the surface, :attr:`CalibrationResult.board_shape`.
         A :class:`~camcal.geometry.board_shape.BoardShape` (e.g. a rig file's ``provenance.board_shape``) is
         held: the same board seen again, by any number of cameras, with any model (its corners are the
@@ -839,9 +846,11 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
                 chosen, spec = (chosen, respec) if respec else (model, spec)
             if not chosen.endswith(SPLINE_SUFFIX):
                 plain = next(s for s in ranked if s.model == f"{chosen}{_SHAPE_TAG}{spec}")
-                field = _score_shapes(board, training[0], chosen + SPLINE_SUFFIX, folds, fold_results[chosen],
-                                      corners, squared, (spec,))
-                ranked += field
+                field = [s for s in ranked if s.model == f"{chosen}{SPLINE_SUFFIX}{_SHAPE_TAG}{spec}"]
+                if not field:  # not scored yet (a field on the flat-ranked lens was)
+                    field = _score_shapes(board, training[0], chosen + SPLINE_SUFFIX, folds, fold_results[chosen],
+                                          corners, squared, (spec,))
+                    ranked += field
                 if _spline_chosen(field[0], plain, squared):
                     chosen += SPLINE_SUFFIX
         shape_ranking = tuple(sorted(ranked, key=lambda s: (s.rms_px is None, s.rms_px or 0.0)))
