@@ -16,7 +16,8 @@ the images by less than a feature error shared by every image
 (:func:`aspect_visibility`, :data:`FEATURE_BIAS_PX`; Sturm 1997's critical
 motions: turning about one axis, or hardly at all), such an error could
 move it further than the prior allows, so square pixels are held and the
-sigmas of fx and fy carry the prior's spread. Skew is 0: no COLMAP
+prior's spread of fx - fy is carried to every parameter that trades against
+it. Skew is 0: no COLMAP
 camera model has it, and the pixel rows and columns of digital sensors are
 orthogonal (said in :meth:`SelfCalibration.lines`).
 
@@ -173,7 +174,7 @@ class SelfCalibration:
         (:func:`aspect_visibility`); empty where the default priors are off.
     aspect_held : tuple of str
         Cameras whose aspect the motion does not determine: square pixels
-        held, the sigmas of fx and fy widened by the prior (:func:`self_calibrate`).
+        held, the prior's spread of fx - fy carried into the covariance (:func:`self_calibrate`).
     frame_influences : FrameInfluences or None
         Each frame's influence on the final fit, scene gauge included
         (:func:`camcal.geometry.bundle.deletion.frame_influences`): the
@@ -213,7 +214,8 @@ class SelfCalibration:
             rows.append(f"aspect: {camera}: fx/fy not determined: the cameras turn about one axis or hardly at all "
                         f"(Sturm 1997): {change} moves the images by {self.aspect_visibility_px[camera]:.3g} px RMS once the scene "
                         f"re-adjusts, below the features' systematic error ({FEATURE_BIAS_PX:g} px); square pixels held, "
-                        f"sigma of fx and fy widened by +-{50 * ASPECT_PRIOR:g} % of f")
+                        f"the aspect prior's +-{100 * ASPECT_PRIOR:g} % "
+                        "of f carried into the sigmas")
         aspect = (f"under a prior fx - fy = 0 +- {100 * ASPECT_PRIOR:g} % of f (square pixels)" if self.aspect_prior
                   else "by the images alone (asked)")
         if self.given_aspect:
@@ -484,10 +486,11 @@ def self_calibrate(
     held = tuple(name for name, v in visibility.items() if v < FEATURE_BIAS_PX)
     if held:
         _say(progress, f"bundle adjustment with square pixels held ({', '.join(held)}: the motion does not determine fx/fy)")
+        loose_options = final_options
         final_options = dataclasses.replace(final_options, priors=final_options.priors + tuple(
             PriorSpec(name, "aspect", 0.0, ASPECT_HELD * _focal(final.state, names.index(name)), _HELD)
             for name in held))
-        final = bundle_adjust(final.state, final_options)
+        final = _spread_with_aspect_free(bundle_adjust(final.state, final_options), loose_options, held)
     decisions = tuple(_principal_point_decision(final, k, principal_point) for k in range(len(names)))
     covariance_sigmas, jackknife_sigmas, groups, influences = dict(final.sigmas), {}, 0, None
     n_frames = len(np.unique(final.state.obs_frame))
@@ -504,8 +507,6 @@ def self_calibrate(
         # a singular covariance leaves keys only the jackknife has
         final = dataclasses.replace(final, sigmas={key: max(covariance_sigmas.get(key, 0.0), jackknife_sigmas.get(key, 0.0))
                                                    for key in {**covariance_sigmas, **jackknife_sigmas}})
-    if held:
-        final = _aspect_widened(final, held)
     said = [i for i, prior in enumerate(final.priors) if prior.spec.source != _HELD]  # held: its own aspect line
     report = SelfCalibration(
         lens_models=chosen, heldout_rms_px=table, n_heldout_points=int(held_mask.sum()),
@@ -571,24 +572,32 @@ def aspect_visibility(result: BundleResult, camera: int) -> float:
     return float(ASPECT_PRIOR * _focal(state, camera) * np.sqrt(noise2 * precision / max(n, 1)))
 
 
-def _aspect_widened(final: BundleResult, held: tuple[str, ...]) -> BundleResult:
-    """Sigmas and covariance of fx and fy of the held cameras widened by the square-pixel prior.
+def _spread_with_aspect_free(held: BundleResult, loose_options: BundleOptions, cameras: tuple[str, ...]) -> BundleResult:
+    """The held fit's covariance and sigmas widened by the square-pixel prior's spread of ``z = fx - fy``, carried
+    to every parameter that re-adjusts with it.
 
-    With ``fx - fy`` held at 0 while the truth is ``d ~ N(0, (ASPECT_PRIOR f)^2)``,
-    ``fx = f + d / 2`` and ``fy = f - d / 2``: each gains ``(ASPECT_PRIOR f / 2)^2``
-    of variance and their covariance loses it (the mean focal is unchanged).
+    Holding ``z`` at 0 guards the estimate against a feature error the motion
+    cannot tell from an aspect; ``z`` is then known only to the prior's
+    ``s = ASPECT_PRIOR f``. Each parameter moves with ``z`` by the regression
+    ``g = C a / (a^T C a)`` of the prior's fit (``C``: its covariance at the held
+    solution, Ceres with no iteration; ``a``: ``z``'s row), so the covariance
+    gains ``s^2 g g^T`` (fx, fy: ``g = +-1/2``, the mean focal unchanged; the
+    principal point along fy's weak direction too).
     """
-    sigmas, covariance, names = dict(final.sigmas), final.covariance.copy(), final.covariance_names
-    for name in held:
-        w2 = (0.5 * ASPECT_PRIOR * _focal(final.state, final.state.camera_names.index(name))) ** 2
-        for key in ("fx", "fy"):
-            if f"{name}.{key}" in sigmas:
-                sigmas[f"{name}.{key}"] = float(np.sqrt(sigmas[f"{name}.{key}"] ** 2 + w2))
-        if f"{name}.fx" in names and f"{name}.fy" in names:
-            i, j = names.index(f"{name}.fx"), names.index(f"{name}.fy")
-            covariance[[i, j], [i, j]] += w2
-            covariance[[i, j], [j, i]] -= w2
-    return dataclasses.replace(final, sigmas=sigmas, covariance=covariance)
+    loose = bundle_adjust(held.state, dataclasses.replace(loose_options, max_iterations=0))
+    names = held.covariance_names
+    if loose.covariance_names != names or loose.covariance is None or held.covariance is None:
+        raise CamcalError("the covariance of the fit with the aspect free does not match the held fit's")
+    covariance = held.covariance.copy()
+    for camera in cameras:
+        a = np.zeros(len(names))
+        a[names.index(f"{camera}.fx")], a[names.index(f"{camera}.fy")] = 1.0, -1.0
+        g = loose.covariance @ a / float(a @ loose.covariance @ a)
+        s = ASPECT_PRIOR * _focal(held.state, held.state.camera_names.index(camera))
+        covariance += s * s * np.outer(g, g)
+    variance = dict(zip(names, np.diag(covariance)))
+    sigmas = {key: float(np.sqrt(variance[key])) if key in variance else value for key, value in held.sigmas.items()}
+    return dataclasses.replace(held, covariance=covariance, sigmas=sigmas)
 
 
 def _undetermined_focals(final: BundleResult) -> list[str]:
