@@ -484,9 +484,9 @@ def self_calibrate(
         given = {spec.camera for spec in options.priors if spec.name == "aspect"}
         visibility = {name: aspect_visibility(final, k) for k, name in enumerate(names) if name not in given}
     held = tuple(name for name, v in visibility.items() if v < FEATURE_BIAS_PX)
+    loose_options = final_options
     if held:
         _say(progress, f"bundle adjustment with square pixels held ({', '.join(held)}: the motion does not determine fx/fy)")
-        loose_options = final_options
         final_options = dataclasses.replace(final_options, priors=final_options.priors + tuple(
             PriorSpec(name, "aspect", 0.0, ASPECT_HELD * _focal(final.state, names.index(name)), _HELD)
             for name in held))
@@ -498,7 +498,9 @@ def self_calibrate(
                f"the jackknife needs {MIN_FRAMES} frames, got {n_frames}" if n_frames < MIN_FRAMES else "")
     if not skipped:
         _say(progress, f"uncertainty: delete-one-frame jackknife ({min(n_frames, MAX_GROUPS)} groups of frames)")
-        spread = frame_jackknife(final, final_options, method=jackknife)
+        # held cameras: the replicates refit with the aspect under its prior (the hold moves the estimate, not
+        # its spread over the frames)
+        spread = frame_jackknife(final, loose_options, method=jackknife)
         jackknife_sigmas, groups = spread.widened_sigmas, spread.n_groups
         try:
             influences = frame_influences(final.state, final_options)
