@@ -276,7 +276,7 @@ def _board(args: argparse.Namespace) -> int:
         for score in result.model_ranking:
             print("  " + score.describe())
     if result.shape_ranking:
-        print("board shape auto: views held out in turn (the same folds)")
+        print("board shape auto: views held out in turn (the same folds; the lenses ranked again on the surface taken)")
         for score in result.shape_ranking:
             print("  " + score.describe())
     if result.dropped:

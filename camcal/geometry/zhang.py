@@ -52,8 +52,12 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    2..d, every corner's height free, with or without the corners'
    in-plane displacement; the flat fit's K, lens and poses refined with
    it), each fold's held-out views posed against that fold's board, and a
-   shape is taken by the correction field's rule. A shape can be named,
-   or given and held (a rig seeing the same board again).
+   shape is taken by the correction field's rule. The lens model is then
+   ranked again on that surface (every model the surface is fitted with,
+   the same folds, the simplest within 1 % of the best), the shape chosen
+   again for a new lens, and the correction field scored on top of the
+   surface (taken by its rule). A shape can be named, or given and held
+   (a rig seeing the same board again).
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
@@ -82,6 +86,7 @@ structure, covariance from the Jacobian).
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections import deque
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -693,7 +698,10 @@ def calibrate_board(
         every shape of :data:`~camcal.geometry.board_shape.AUTO_SHAPES` is scored on the model ranking's folds
         from the chosen model's fit in each fold, and taken only when it beats the flat board by more than
         :data:`AUTO_MARGIN` and one standard error of the paired per-view differences (the one with fewest
-        parameters within :data:`AUTO_MARGIN` of the best such); otherwise flat. The ranking is
+        parameters within :data:`AUTO_MARGIN` of the best such); otherwise flat. On the surface taken, every
+        lens model is scored again on the same folds and the simplest within :data:`AUTO_MARGIN` of the best is
+        taken (the shape chosen again for it when it is another lens), then the correction field on top of it
+        (:func:`_spline_chosen`'s rule). The ranking is
         :attr:`CalibrationResult.shape_ranking`; the surface, :attr:`CalibrationResult.board_shape`.
         A :class:`~camcal.geometry.board_shape.BoardShape` (e.g. a rig file's ``provenance.board_shape``) is
         held: the same board seen again, by any number of cameras, with any model (its corners are the
@@ -798,34 +806,89 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
                       corners: NDArray, fold_results: dict, training: list[dict], options: dict
                       ) -> tuple[CalibrationResult, tuple[ModelScore, ...], list[str]]:
     """``model="auto"``'s result on the board shape of ``board_shape`` (see :func:`calibrate_board`): the flat
-    result, or the model refitted on the surface chosen (or named); with the shapes' ranking and notes."""
+    result, or a model refitted on the surface chosen (or named); with the shapes' ranking and notes.
+
+    ``auto``: the shape is chosen for the flat-ranked ``model`` (:func:`_shape_choice`), then the lens model is
+    ranked again on that surface (:func:`_lens_on_shape`) and, when that changes it, the shape is chosen again
+    for the new lens (the flat board among the candidates); the pair taken is printed in the notes."""
     if board_shape == "flat":
         return flat, (), []
     base = model.removesuffix(SPLINE_SUFFIX)
     flat_score = next((s for s in scored if s.model == model), None)
     shape_ranking: tuple[ModelScore, ...] = ()
+    notes: list[str] = []
+    chosen = model
     if not spec:
         if (len(names) > 1 or flat_score is None or base not in fold_results or model == "opencv-thin-prism+spline"
                 or base == "opencv-thin-prism" or options["loss"] != "trivial"
                 or len(training[0]) < SPLINE_MIN_VIEWS):
             return flat, (), []
-        shapes = _score_shapes(board, training[0], model, fold_results["folds"], fold_results[base], corners,
-                               squared)
+        folds = fold_results["folds"]
+        shapes = _score_shapes(board, training[0], model, folds, fold_results[base], corners, squared)
         spec = _shape_choice(model, flat_score, shapes, squared)
-        shape_ranking = tuple(sorted([flat_score, *shapes], key=lambda s: (s.rms_px is None, s.rms_px or 0.0)))
+        ranked = [flat_score, *shapes]
+        if spec:
+            lenses = [s for lens in AUTO_MODELS if lens != model and lens in fold_results and lens in _SHAPE_LENSES
+                      for s in _score_shapes(board, training[0], lens, folds, fold_results[lens], corners, squared,
+                                             (spec,))]
+            ranked += lenses
+            chosen = _lens_on_shape(model, spec, [*shapes, *lenses], squared)
+            if chosen != model:
+                again = _score_shapes(board, training[0], chosen, folds, fold_results[chosen], corners, squared,
+                                      tuple(s for s in _shape_specs(board, AUTO_SHAPES) if s != spec))
+                ranked += [next(s for s in scored if s.model == chosen), *again]
+                lens_shapes = [*again, *(s for s in lenses if s.model == f"{chosen}{_SHAPE_TAG}{spec}")]
+                respec = _shape_choice(chosen, next(s for s in scored if s.model == chosen), lens_shapes, squared)
+                notes.append(f"board shape auto: {chosen} ranked first on the {spec} surface "
+                             f"({model} on the flat board); "
+                             + (f"its surface: {respec}" if respec else f"flat beats every surface for it, "
+                                f"{model} on {spec} kept"))
+                chosen, spec = (chosen, respec) if respec else (model, spec)
+            if not chosen.endswith(SPLINE_SUFFIX):
+                plain = next(s for s in ranked if s.model == f"{chosen}{_SHAPE_TAG}{spec}")
+                field = [s for s in ranked if s.model == f"{chosen}{SPLINE_SUFFIX}{_SHAPE_TAG}{spec}"]
+                if not field:  # not scored yet (a field on the flat-ranked lens was)
+                    field = _score_shapes(board, training[0], chosen + SPLINE_SUFFIX, folds, fold_results[chosen],
+                                          corners, squared, (spec,))
+                    ranked += field
+                if _spline_chosen(field[0], plain, squared):
+                    chosen += SPLINE_SUFFIX
+        shape_ranking = tuple(sorted(ranked, key=lambda s: (s.rms_px is None, s.rms_px or 0.0)))
         if not spec:
             return flat, shape_ranking, ["board shape auto: flat (no surface beats the flat board held out)"]
     try:
-        shaped = _calibrate_shaped(board, names, by_frame, model, holdout, spec,
-                                   flat=None if model.endswith(SPLINE_SUFFIX) else flat, **options)
+        shaped = _calibrate_shaped(board, names, by_frame, chosen, holdout, spec,
+                                   flat=flat if chosen == model and not model.endswith(SPLINE_SUFFIX) else None,
+                                   **options)
     except _FIT_ERRORS as error:
-        return flat, shape_ranking, [f"board shape: the {spec} surface failed ({_one_line(error)}); flat kept"]
+        return flat, shape_ranking, notes + [f"board shape: {chosen} on the {spec} surface failed "
+                                             f"({_one_line(error)}); flat kept"]
     problems = quality_problems(shaped)
+    radius = fold_radius_px(shaped.rig.cameras[0])
+    if radius is not None:
+        problems.append(f"the lens folds {radius:.0f} px from the principal point, inside the image")
     if problems:
-        return flat, shape_ranking, [f"board shape: the {spec} surface fails the quality gate "
-                                     f"({'; '.join(problems)}); flat kept"]
-    return shaped, shape_ranking, [f"board shape auto: {spec} chosen by held-out error"
-                                   if board_shape == "auto" else f"board shape: {spec}"]
+        return flat, shape_ranking, notes + [f"board shape: {chosen} on the {spec} surface fails the quality gate "
+                                             f"({'; '.join(problems)}); flat kept"]
+    return shaped, shape_ranking, notes + [f"board shape auto: {chosen} on {spec} chosen by held-out error"
+                                           if board_shape == "auto" else f"board shape: {spec}"]
+
+
+def _lens_on_shape(model: str, spec: str, scores: list[ModelScore], squared: dict) -> str:
+    """The lens model taken on the surface ``spec``: among the parametric models scored there
+    (``<lens>@board-<spec>``), the simplest (order of :data:`AUTO_MODELS`) within :data:`AUTO_MARGIN` of the
+    best, as on the flat board; ``model`` with a correction field stays when its score on ``spec`` beats the
+    best parametric one there by :func:`_spline_chosen`'s rule."""
+    on = {s.model.rsplit(_SHAPE_TAG, 1)[0]: s for s in scores
+          if s.rms_px is not None and s.model.endswith(f"{_SHAPE_TAG}{spec}")}
+    parametric = [s for lens, s in on.items() if not lens.endswith(SPLINE_SUFFIX)]
+    if not parametric:
+        return model
+    best = min(parametric, key=lambda s: s.rms_px)
+    if model.endswith(SPLINE_SUFFIX) and model in on and _spline_chosen(on[model], best, squared):
+        return model
+    limit = (1.0 + AUTO_MARGIN) * best.rms_px
+    return min((s.model.rsplit(_SHAPE_TAG, 1)[0] for s in parametric if s.rms_px <= limit), key=AUTO_MODELS.index)
 
 
 def _calibrate_held_shape(board: Board, detections: Mapping[str, Sequence[Detection]], model: str,
@@ -1139,6 +1202,8 @@ def _refitted(board: Board, flat: CalibrationResult, camera: Camera, residuals: 
 
 #: ``board_shape`` values: chosen by held-out error, flat, or a named shape.
 BOARD_SHAPES = ("auto", "flat") + SHAPE_SPECS
+#: The lens models a board surface is fitted with (opencv-thin-prism is OpenCV's fit: no surface path).
+_SHAPE_LENSES = tuple(m for m in AUTO_MODELS if m != "opencv-thin-prism")
 #: The name of a lens model fitted on a board shape in :attr:`CalibrationResult.shape_ranking`: ``<model>@board-<shape>``.
 _SHAPE_TAG = "@board-"
 
@@ -1185,13 +1250,17 @@ def _calibrate_shaped(board: Board, names: list[str], by_frame: list[dict], mode
 
 
 def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int]],
-                  results: list[CalibrationResult], corners: NDArray, squared: dict) -> list[ModelScore]:
-    """``<model>@board-<shape>`` for every shape of :data:`AUTO_SHAPES` the board holds, scored on the folds of :func:`_rank_models`
-    from each fold's flat fit (adds each one's per-view squared errors to ``squared``)."""
+                  results: list[CalibrationResult], corners: NDArray, squared: dict,
+                  specs: Sequence[str] | None = None) -> list[ModelScore]:
+    """``<model>@board-<shape>`` for every shape of ``specs`` (default: every shape of :data:`AUTO_SHAPES` the
+    board holds), scored on the folds of :func:`_rank_models` from each fold's flat fit (adds each one's per-view
+    squared errors to ``squared``)."""
     scores = []
-    for spec in _shape_specs(board, AUTO_SHAPES):
+    for spec in _shape_specs(board, AUTO_SHAPES) if specs is None else specs:
         name = f"{model}{_SHAPE_TAG}{spec}"
         n_params = 4 + len(MODELS[model.removesuffix(SPLINE_SUFFIX)]) + n_shape_params(board, spec)
+        if model.endswith(SPLINE_SUFFIX):
+            n_params += 2 * math.prod(grid_shape(next(iter(view_sets.values())).image_size))
         per_view, reason = [], ""
         for fold, result in zip(folds, results):
             train = {f: d for f, d in view_sets.items() if f not in fold}

@@ -157,12 +157,21 @@ def test_a_rig_on_the_same_board_holds_its_surface():
 @pytest.mark.slow
 def test_auto_bends_a_bent_board_and_keeps_a_flat_one_flat():
     """``model="auto"`` with ``board_shape="auto"``: the bent board (0.1 squares) gets a surface, chosen by the
-    folds, and better held out than flat; the flat board stays flat (no surface beats it held out)."""
+    folds, and better held out than flat, with the lens ranked again on that surface (the rendered polynomial
+    kept: the simplest within 1 % of the best there); the flat board stays flat (no surface beats it held out)."""
     held = set(range(0, 18, 6))
     bent = calibrate_board(BOARD, views(0.1, 18, 5), holdout=held)
     assert bent.board_shape is not None, [s.describe() for s in bent.shape_ranking]
     flat_score = next(s for s in bent.shape_ranking if "@board-" not in s.model)
     assert min(s.rms_px for s in bent.shape_ranking if "@board-" in s.model) < 0.8 * flat_score.rms_px
+    # the lens is ranked again on the surface taken: the rendered lens (polynomial) is the simplest within 1 %
+    spec = next(n for n in bent.notes if n.endswith("chosen by held-out error")).split(" on ")[-1].split()[0]
+    on_surface = {s.model.split("@board-")[0]: s.rms_px for s in bent.shape_ranking
+                  if s.model.endswith(f"@board-{spec}") and s.rms_px is not None}
+    assert {"division", "polynomial", "kannala-brandt", "opencv", "opencv-rational"} <= set(on_surface), on_surface
+    best = min(v for lens, v in on_surface.items() if "+spline" not in lens)
+    assert bent.model == "polynomial" and on_surface["polynomial"] <= 1.01 * best, (bent.model, on_surface)
+    assert bent.heldout_rms_px < 1.2 * math.sqrt(2) * SIGMA_PX, bent.heldout_rms_px
     flat = calibrate_board(BOARD, views(0.0, 18, 5), holdout=held)
     assert flat.board_shape is None and len(flat.shape_ranking) > 1, [s.describe() for s in flat.shape_ranking]
     assert any(note.startswith("board shape auto: flat") for note in flat.notes)
