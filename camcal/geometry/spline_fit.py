@@ -75,6 +75,8 @@ def pose_view(board: Board, K: NDArray, distortion: Distortion, detection: Detec
     OpenCV's ``solvePnP`` on the undistorted corners, then Levenberg-Marquardt over the six pose
     parameters of ``|project(K, d, R X + t) - x|^2`` with the lens's own projection. ``points``: the
     board's corners (N, 3) when the board is not flat (:meth:`camcal.geometry.board_shape.BoardShape.points`).
+    The residuals are NaN for a corner the lens cannot project at the pose found (the fit itself counts such a
+    corner as 1e6 px, so that it pushes the pose away).
     """
     X = np.asarray((board.object_points if points is None else points)[detection.ids], dtype=np.float64)
     ideal = distortion.undistort(detection.corners_px, K)
@@ -86,13 +88,13 @@ def pose_view(board: Board, K: NDArray, distortion: Distortion, detection: Detec
     if not ok:
         raise CamcalError(f"{detection.image}: PnP failed")
 
-    def residuals(pose: NDArray[np.float64]) -> NDArray[np.float64]:
-        projected = distortion.project_rays(X @ cv2.Rodrigues(pose[:3])[0].T + pose[3:], K)
-        return np.nan_to_num(projected - detection.corners_px, nan=1e6).ravel()
+    def offsets(pose: NDArray[np.float64]) -> NDArray[np.float64]:
+        return distortion.project_rays(X @ cv2.Rodrigues(pose[:3])[0].T + pose[3:], K) - detection.corners_px
 
-    solution = scipy.optimize.least_squares(residuals, np.concatenate([rvec.ravel(), tvec.ravel()]), method="lm",
+    solution = scipy.optimize.least_squares(lambda pose: np.nan_to_num(offsets(pose), nan=1e6).ravel(),
+                                            np.concatenate([rvec.ravel(), tvec.ravel()]), method="lm",
                                             x_scale="jac", xtol=1e-12, ftol=1e-12)
-    return solution.x[:3], solution.x[3:], solution.fun.reshape(-1, 2)
+    return solution.x[:3], solution.x[3:], offsets(solution.x)
 
 
 def _second_differences(ny: int, nx: int) -> scipy.sparse.csr_matrix:

@@ -133,3 +133,20 @@ def test_cli_fits_a_named_model_with_a_correction_field(tmp_path, capsys, monkey
     assert code == 2 and not two.exists()
     assert [line for line in printed.err.splitlines() if line.startswith("camcal: error:")] == [
         "camcal: error: model opencv+spline calibrates one camera at a time, without given intrinsics"], printed.err
+
+
+def test_a_posed_view_gives_nan_where_the_lens_cannot_project_a_corner():
+    """:func:`camcal.geometry.spline_fit.pose_view`: a corner that lies behind a pinhole camera at the pose found
+    has no image: its residual is NaN (it was the fit's 1e6 px placeholder, a finite score that ranked a broken
+    model among the others), the other corners' residuals are the real ones."""
+    from camcal.geometry.spline_fit import pose_view
+
+    pinhole = Camera("pin", SIZE, np.array([[560.0, 0, 639.0], [0, 561.0, 481.0], [0, 0, 1]]),
+                     Distortion("none", {}), np.eye(3), np.zeros(3))
+    board_in_camera = BOARD.object_points - BOARD.object_points.mean(axis=0) + [0.0, 0.0, 0.4]  # R = I
+    detection = Detection("square.png", SIZE, np.arange(BOARD.n_corners), pinhole.project(board_in_camera), "synthetic")
+    points = BOARD.object_points.copy()
+    points[0, 2] = -1.0  # 1 m towards the camera from a board 0.4 m away: behind it
+    _, _, residuals = pose_view(BOARD, pinhole.K, pinhole.distortion, detection, points)
+    assert np.all(np.isnan(residuals[0]))
+    assert np.all(np.isfinite(residuals[1:])) and np.sqrt(np.mean(np.sum(residuals[1:] ** 2, axis=1))) < 100.0
