@@ -51,8 +51,8 @@
    Within 2 sigma: fountain 2 / 4 (fx 4.4 sigma: -0.068 %, where plain
    pycolmap is -0.064 %; cx 2.4), Herz-Jesus 4 / 4, entry 4 / 4 (cx 1.7;
    5.5 sigma before the spread was carried), castle 3 / 4 (cx 2.5); these
-   sigmas before a held camera's jackknife refitted under the aspect's
-   prior (which can only widen them; not re-run).
+   sigmas are from before a held camera's jackknife was refitted under the
+   aspect's prior (not re-run).
    Before the aspect was held (98ca6c9, fx and fy apart under the 1 %
    prior) the means were 0.245 / 0.106 / 0.100 / 0.241 % and fy's error
    1.2-4.1 sigma. With the laser-scanned poses held our tracks
