@@ -42,17 +42,15 @@
    moves the images by 0.055 / 0.049 / 0.044 / 0.043 px RMS, below the
    features' 0.1 px: square pixels held, the prior's spread of fx - fy
    carried to every parameter that re-adjusts with it). fountain -0.07 /
-   -0.24 against -0.06 / -0.23 (mean 0.152 against 0.149), Herz-Jesus
+   -0.24 against -0.07 / -0.23 (mean 0.152 against 0.150), Herz-Jesus
    -0.03 / -0.20 against -0.04 / -0.21 (0.110 against 0.125), entry +0.01
    / -0.16 against +0.03 / -0.14 (0.085 both), castle -0.04 / -0.21
-   against -0.05 / -0.22 (0.123 against 0.136); relative rotations 0.067 /
-   0.045 / 0.067 / 0.133 deg against 0.063 / 0.044 / 0.060 / 0.172;
-   solve / plain time 0.85 / 0.68 / 0.61 / 0.66, 0.70 over the four.
-   Within 2 sigma: fountain 2 / 4 (fx 4.4 sigma: -0.068 %, where plain
-   pycolmap is -0.064 %; cx 2.4), Herz-Jesus 4 / 4, entry 4 / 4 (cx 1.7;
-   5.5 sigma before the spread was carried), castle 3 / 4 (cx 2.5); these
-   sigmas are from before a held camera's jackknife was refitted under the
-   aspect's prior (not re-run).
+   against -0.05 / -0.22 (0.123 against 0.132; 0.136 in the run before:
+   the peer's own spread); solve / plain time 0.81 / 0.62 / 0.49 / 0.57,
+   0.62 over the four. Within 2 sigma: fountain 2 / 4 (fx 4.2 sigma:
+   -0.068 %, where plain pycolmap is -0.065 %; cx 2.3), Herz-Jesus 4 / 4,
+   entry 4 / 4 (cx 1.7; 5.5 sigma before the spread was carried), castle
+   3 / 4 (cx 2.8).
    Before the aspect was held (98ca6c9, fx and fy apart under the 1 %
    prior) the means were 0.245 / 0.106 / 0.100 / 0.241 % and fy's error
    1.2-4.1 sigma. With the laser-scanned poses held our tracks
