@@ -40,7 +40,7 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
 from camcal.geometry.bundle.deletion import DeletionUnsupported, FrameInfluences, frame_influences
 from camcal.geometry.bundle.prior import (ASPECT_PRIOR, PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, PriorSpec,
-                                         undetermined)
+                                         mean_focal, undetermined)
 from camcal.geometry.bundle.state import model_layout
 from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife
 from camcal.model.colmap import camera_from_colmap, camera_to_colmap
@@ -488,7 +488,7 @@ def self_calibrate(
     if held:
         _say(progress, f"bundle adjustment with square pixels held ({', '.join(held)}: the motion does not determine fx/fy)")
         final_options = dataclasses.replace(final_options, priors=final_options.priors + tuple(
-            PriorSpec(name, "aspect", 0.0, ASPECT_HELD * _focal(final.state, names.index(name)), _HELD)
+            PriorSpec(name, "aspect", 0.0, ASPECT_HELD * mean_focal(final.state, names.index(name)), _HELD)
             for name in held))
         final = _spread_with_aspect_free(bundle_adjust(final.state, final_options), loose_options, held)
     decisions = tuple(_principal_point_decision(final, k, principal_point) for k in range(len(names)))
@@ -529,12 +529,6 @@ def self_calibrate(
 _HELD = "square pixels held: the motion does not determine fx - fy"
 
 
-def _focal(state: BundleState, camera: int) -> float:
-    """Mean of a camera's COLMAP focal lengths (px)."""
-    names = state.param_names(camera)
-    return float(np.mean([state.params[camera][names.index(key)] for key in ("f", "fx", "fy") if key in names]))
-
-
 def aspect_visibility(result: BundleResult, camera: int) -> float:
     """RMS image displacement (px) of a change of ``fx - fy`` by the square-pixel prior's sigma, the rest re-adjusted.
 
@@ -571,7 +565,7 @@ def aspect_visibility(result: BundleResult, camera: int) -> float:
     if dof <= 0:
         return float("nan")
     noise2 = 2.0 * result.final_cost / dof  # the covariance's own per-axis noise (the priors' few rows included)
-    return float(ASPECT_PRIOR * _focal(state, camera) * np.sqrt(noise2 * precision / max(n, 1)))
+    return float(ASPECT_PRIOR * mean_focal(state, camera) * np.sqrt(noise2 * precision / max(n, 1)))
 
 
 def _spread_with_aspect_free(held: BundleResult, loose_options: BundleOptions, cameras: tuple[str, ...]) -> BundleResult:
@@ -595,7 +589,7 @@ def _spread_with_aspect_free(held: BundleResult, loose_options: BundleOptions, c
         a = np.zeros(len(names))
         a[names.index(f"{camera}.fx")], a[names.index(f"{camera}.fy")] = 1.0, -1.0
         g = loose.covariance @ a / float(a @ loose.covariance @ a)
-        s = ASPECT_PRIOR * _focal(held.state, held.state.camera_names.index(camera))
+        s = ASPECT_PRIOR * mean_focal(held.state, held.state.camera_names.index(camera))
         covariance += s * s * np.outer(g, g)
     variance = dict(zip(names, np.diag(covariance)))
     sigmas = {key: float(np.sqrt(variance[key])) if key in variance else value for key, value in held.sigmas.items()}

@@ -66,6 +66,7 @@ __all__ = [
     "Prior",
     "PriorSpec",
     "default_specs",
+    "mean_focal",
     "parse_prior",
     "posterior_sigma",
     "prior_weights",
@@ -173,14 +174,19 @@ def _corner_radius(state: BundleState, camera: int, focal: float) -> float:
     return 0.5 * float(np.hypot(*state.image_sizes[camera])) / focal
 
 
+def mean_focal(state: BundleState, camera: int) -> float:
+    """Mean of camera ``camera``'s COLMAP focal lengths (``f``, or ``fx`` and ``fy``), px."""
+    names = state.param_names(camera)
+    return float(np.mean([state.params[camera][names.index(n)] for n in ("f", "fx", "fy") if n in names]))
+
+
 def default_specs(state: BundleState, camera: int, principal_point: bool = True) -> tuple[PriorSpec, ...]:
     """The default priors (module docstring) on camera ``camera``'s free intrinsics in its current model."""
     names = state.param_names(camera)
-    params = state.params[camera]
     name = state.camera_names[camera]
     width, height = state.image_sizes[camera]
     diagonal = float(np.hypot(width, height))
-    focal = float(np.mean([params[names.index(n)] for n in ("f", "fx", "fy") if n in names]))
+    focal = mean_focal(state, camera)
     r = _corner_radius(state, camera, focal)
     specs = []
     if principal_point:
