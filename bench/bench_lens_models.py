@@ -31,7 +31,10 @@ Two lines per set say what the held-out figure can reach with these corners (``f
   calibration (camcal's, OpenCV's, mrcal's ``--skip-calobject-warp-solve``) carries into its held-out figure.
 
 ``--floor`` adds the ``floor`` line (one more fit per set). ``--all-splits`` runs the same protocol on the 6 splits (views ``n % 6 == k`` held out, k = 0..5) and prints,
-per set, the ratio of each split and their mean (a split of 3 held-out views decides a ratio by one view).
+per set, the ratio of each split and their mean (a split of 3 held-out views decides a ratio by one view), and the
+6-fold cross-validation figure: each method (camcal's default, each peer's fit) fixed over the splits, its RMS over
+every view (each held out once), and camcal's ratio to the best such method (:func:`pooled_heldout`; the per-split
+"best peer" is the best of 11 fits chosen after seeing that split's held-out views, an oracle no single tool is).
 
 Last run (every 6th view held out, ``--floor``; README "Board shape" has the full table): camcal default / best
 peer (OpenCV ``calibrateCameraRO`` on every set) = car camera 0.935, GoPro 0.946, circular fisheye right 0.976,
@@ -284,8 +287,20 @@ def run(folder: Path, pattern: str, columns: int, rows: int, cache: Path | None,
     print(f"{label}: ours {ours:.4f} ({result.model}), best peer {peers[best][0]:.4f} ({best}), "
           f"ours / best {ours / peers[best][0]:.3f} (issue 27 asks <= 0.97)")
     return {"set": label, "ours": ours, "model": result.model, "best": best, "ratio": ours / peers[best][0],
+            "heldout": {"camcal default": ours, **{name: value[0] for name, value in peers.items()}},
+            "n_corners": sum(len(d.ids) for d in held),
             "training": result.rms_px, "seen": seen, "noise": noise, "noise_held": noise_held,
             "shape": "flat" if result.board_shape is None else shape_spec(board, result.board_shape)}
+
+
+def pooled_heldout(rows: list[dict]) -> dict[str, float]:
+    """Each method's held-out RMS over every split's held-out corners (k-fold cross-validation: each view held out
+    once), ``sqrt(sum_s n_s rms_s^2 / sum_s n_s)``; a method missing on a split (its fit failed) is left out, so
+    that no method is credited with fewer views than another."""
+    names = set.intersection(*(set(row["heldout"]) for row in rows))
+    n = np.array([row["n_corners"] for row in rows], dtype=np.float64)
+    return {name: float(np.sqrt(np.sum(n * np.array([row["heldout"][name] for row in rows]) ** 2) / n.sum()))
+            for name in sorted(names)}
 
 
 if __name__ == "__main__":
@@ -313,3 +328,8 @@ if __name__ == "__main__":
                   f"seen {row['seen']:.4f}, noise {row['noise']:.4f} (held-out views' own {row['noise_held']:.4f})")
         if len(rows) > 1:
             print(f"  {rows[0]['set']}: mean ratio over {len(rows)} splits {np.mean([r['ratio'] for r in rows]):.3f}")
+            pooled = pooled_heldout(rows)
+            best = min((name for name in pooled if name != "camcal default"), key=pooled.get)
+            print(f"  {rows[0]['set']}: every view held out once, each method fixed over the {len(rows)} splits: "
+                  f"camcal default {pooled['camcal default']:.4f} px, best peer {pooled[best]:.4f} ({best}), "
+                  f"ratio {pooled['camcal default'] / pooled[best]:.3f}")
