@@ -766,8 +766,7 @@ def calibrate_board(
     parametric = [score for score in scored if not score.model.endswith(SPLINE_SUFFIX)]
     order = [score.model for score in parametric] or ["polynomial"]
     if parametric:  # parsimony: the simplest model within AUTO_MARGIN of the best goes first
-        limit = (1.0 + AUTO_MARGIN) * parametric[0].rms_px
-        simplest = min((s.model for s in parametric if s.rms_px <= limit), key=AUTO_MODELS.index)
+        simplest = _simplest_within_margin(parametric)
         order.remove(simplest)
         order.insert(0, simplest)
         spline = next((s for s in scored if s.model.endswith(SPLINE_SUFFIX)), None)
@@ -813,14 +812,22 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
     for the new lens (the flat board among the candidates); the pair taken is printed in the notes."""
     if board_shape == "flat":
         return flat, (), []
+    picked = model
+    notes: list[str] = []
+    if not spec and model.removesuffix(SPLINE_SUFFIX) not in _SHAPE_LENSES:
+        # OpenCV's own fit has no surface path: the surface is chosen with the simplest lens that has one
+        capable = [s for s in scored if s.model in _SHAPE_LENSES]
+        if not capable:
+            return flat, (), []
+        model = _simplest_within_margin(capable)
+        notes.append(f"board shape auto: {picked} (ranked on the flat board) has no surface fit; the surface is "
+                     f"chosen with {model}, the simplest lens within {100 * AUTO_MARGIN:g} % of the best that has one")
     base = model.removesuffix(SPLINE_SUFFIX)
     flat_score = next((s for s in scored if s.model == model), None)
     shape_ranking: tuple[ModelScore, ...] = ()
-    notes: list[str] = []
     chosen = model
     if not spec:
-        if (len(names) > 1 or flat_score is None or base not in fold_results or model == "opencv-thin-prism+spline"
-                or base == "opencv-thin-prism" or options["loss"] != "trivial"
+        if (len(names) > 1 or flat_score is None or base not in fold_results or options["loss"] != "trivial"
                 or len(training[0]) < SPLINE_MIN_VIEWS):
             return flat, (), []
         folds = fold_results["folds"]
@@ -855,10 +862,10 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
                     chosen += SPLINE_SUFFIX
         shape_ranking = tuple(sorted(ranked, key=lambda s: (s.rms_px is None, s.rms_px or 0.0)))
         if not spec:
-            return flat, shape_ranking, ["board shape auto: flat (no surface beats the flat board held out)"]
+            return flat, shape_ranking, notes + ["board shape auto: flat (no surface beats the flat board held out)"]
     try:
         shaped = _calibrate_shaped(board, names, by_frame, chosen, holdout, spec,
-                                   flat=flat if chosen == model and not model.endswith(SPLINE_SUFFIX) else None,
+                                   flat=flat if chosen == picked and not picked.endswith(SPLINE_SUFFIX) else None,
                                    **options)
     except _FIT_ERRORS as error:
         return flat, shape_ranking, notes + [f"board shape: {chosen} on the {spec} surface failed "
@@ -872,6 +879,13 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
                                              f"({'; '.join(problems)}); flat kept"]
     return shaped, shape_ranking, notes + [f"board shape auto: {chosen} on {spec} chosen by held-out error"
                                            if board_shape == "auto" else f"board shape: {spec}"]
+
+
+def _simplest_within_margin(scores: list[ModelScore]) -> str:
+    """The simplest model (:data:`AUTO_MODELS`' order) whose cross-validated RMS is within :data:`AUTO_MARGIN` of
+    the best of ``scores`` (each scored, none with a correction field)."""
+    limit = (1.0 + AUTO_MARGIN) * min(s.rms_px for s in scores)
+    return min((s.model for s in scores if s.rms_px <= limit), key=AUTO_MODELS.index)
 
 
 def _lens_on_shape(model: str, spec: str, scores: list[ModelScore], squared: dict) -> str:

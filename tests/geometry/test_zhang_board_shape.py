@@ -175,3 +175,25 @@ def test_auto_bends_a_bent_board_and_keeps_a_flat_one_flat():
     flat = calibrate_board(BOARD, views(0.0, 18, 5), holdout=held)
     assert flat.board_shape is None and len(flat.shape_ranking) > 1, [s.describe() for s in flat.shape_ranking]
     assert any(note.startswith("board shape auto: flat") for note in flat.notes)
+
+
+def test_a_lens_opencv_fits_alone_still_gets_the_boards_surface():
+    """A strong thin-prism lens on a board bent by 0.015 squares: the flat ranking takes OpenCV's thin-prism fit,
+    which has no surface path; the surface is then chosen with the simplest lens within 1 % that has one and the
+    lens ranked again on it, where the flat board used to be kept (the ordinary stereo pair's right camera, 5 of
+    its 6 splits: 1.5-1.7 x calibrateCameraRO held out)."""
+    s1 = 0.02
+    prism = Camera("cam", SIZE, CAMERA.K, Distortion("opencv", {"k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "k3": 0.0,
+                                                               "s1": s1, "s2": -s1 / 2, "s3": -0.75 * s1, "s4": s1 / 2}),
+                   np.eye(3), np.zeros(3))
+    held = set(range(0, 18, 6))
+    detections = views(0.015, 18, 7, cameras=(prism,))
+    result = calibrate_board(BOARD, detections, holdout=held)
+    ranked = [s for s in result.model_ranking if s.rms_px is not None]
+    assert ranked[0].model.startswith("opencv-thin-prism"), [s.describe() for s in ranked]
+    assert any("opencv-thin-prism (ranked on the flat board) has no surface fit" in n for n in result.notes), result.notes
+    assert result.board_shape is not None and "thin-prism" in result.model, (result.model, result.notes)
+    assert result.heldout_rms_px < 1.2 * math.sqrt(2) * SIGMA_PX, result.heldout_rms_px
+    flat = calibrate_board(BOARD, detections, holdout=held, board_shape="flat")
+    assert flat.model == "opencv-thin-prism" and result.heldout_rms_px < 0.75 * flat.heldout_rms_px, \
+        (flat.model, flat.heldout_rms_px, result.heldout_rms_px)
