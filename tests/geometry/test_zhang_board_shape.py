@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection
 from camcal.geometry.board_shape import BoardShape
+from camcal.geometry import zhang
 from camcal.geometry.zhang import calibrate_board
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig
@@ -177,23 +178,23 @@ def test_auto_bends_a_bent_board_and_keeps_a_flat_one_flat():
     assert any(note.startswith("board shape auto: flat") for note in flat.notes)
 
 
-def test_a_lens_opencv_fits_alone_still_gets_the_boards_surface():
-    """A strong thin-prism lens on a board bent by 0.015 squares: the flat ranking takes OpenCV's thin-prism fit,
-    which has no surface path; the surface is then chosen with the simplest lens within 1 % that has one and the
-    lens ranked again on it, where the flat board used to be kept (the ordinary stereo pair's right camera, 5 of
-    its 6 splits: 1.5-1.7 x calibrateCameraRO held out)."""
-    s1 = 0.02
+def test_a_flat_pick_without_a_surface_path_still_gets_the_boards_surface(monkeypatch):
+    """A flat-ranked lens with no surface path (OpenCV's own thin-prism fit; here ``opencv`` taken off the surface
+    lenses, so that the flat pick is a robust one, not OpenCV's thin-prism fit, which lands in different minima) on a
+    bent board: the surface is chosen with the simplest lens within 1 % that has one and the lens ranked again on
+    it, where the flat board used to be kept (the ordinary stereo pair's right camera, 5 of its 6 splits: 1.5-1.7 x
+    calibrateCameraRO held out)."""
+    monkeypatch.setattr(zhang, "_SHAPE_LENSES", tuple(m for m in zhang._SHAPE_LENSES if m != "opencv"))
+    s1 = 0.01
     prism = Camera("cam", SIZE, CAMERA.K, Distortion("opencv", {"k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "k3": 0.0,
                                                                "s1": s1, "s2": -s1 / 2, "s3": -0.75 * s1, "s4": s1 / 2}),
                    np.eye(3), np.zeros(3))
-    held = set(range(0, 18, 6))
-    detections = views(0.015, 18, 7, cameras=(prism,))
+    held = {0, 6}
+    detections = views(0.02, 12, 7, cameras=(prism,))
     result = calibrate_board(BOARD, detections, holdout=held)
-    ranked = [s for s in result.model_ranking if s.rms_px is not None]
-    assert ranked[0].model.startswith("opencv-thin-prism"), [s.describe() for s in ranked]
-    assert any("opencv-thin-prism (ranked on the flat board) has no surface fit" in n for n in result.notes), result.notes
-    assert result.board_shape is not None and "thin-prism" in result.model, (result.model, result.notes)
+    assert any(n.startswith("board shape auto: opencv (ranked on the flat board) has no surface fit") for n in
+               result.notes), result.notes
+    assert result.board_shape is not None and result.model != "opencv", (result.model, result.notes)
     assert result.heldout_rms_px < 1.2 * math.sqrt(2) * SIGMA_PX, result.heldout_rms_px
-    flat = calibrate_board(BOARD, detections, holdout=held, board_shape="flat")
-    assert flat.model == "opencv-thin-prism" and result.heldout_rms_px < 0.75 * flat.heldout_rms_px, \
-        (flat.model, flat.heldout_rms_px, result.heldout_rms_px)
+    flat = calibrate_board(BOARD, detections, model="opencv", holdout=held, board_shape="flat")
+    assert result.heldout_rms_px < 0.75 * flat.heldout_rms_px, (flat.heldout_rms_px, result.heldout_rms_px)
