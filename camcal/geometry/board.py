@@ -73,6 +73,7 @@ highly reliable fiducial markers under occlusion. Pattern Recognition.
 
 from __future__ import annotations
 
+import contextlib
 import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -94,6 +95,7 @@ __all__ = [
     "parse_board",
     "detect_board",
     "frame_number",
+    "opencv_threads_off",
     "synchronised_label",
     "video_frame_label",
 ]
@@ -118,6 +120,20 @@ _DETECTOR_VERSION = "reduced-classic-reduced-sb-subpix-adaptive-xfit-v9"
 #: The detector's version and settings: a detection cached under others is not reused.
 DETECTOR_SETTINGS = f"{_DETECTOR_VERSION}|{_SB_FLAGS}|{_CLASSIC_FLAGS}|{_SUBPIX_CRITERIA}|{cv2.__version__}"
 
+
+
+@contextlib.contextmanager
+def opencv_threads_off(active: bool = True) -> Iterator[None]:
+    """OpenCV on one thread (restored after, also on errors): while camcal's own worker threads detect, and around
+    its calibrations, whose parallel sums otherwise differ in the last digits from run to run (an ill-conditioned
+    fit, OpenCV's thin prism, then lands in another minimum)."""
+    threads = cv2.getNumThreads()
+    if active:
+        cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
 
 @dataclass(frozen=True)
 class Board:

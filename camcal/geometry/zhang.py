@@ -86,6 +86,7 @@ structure, covariance from the Jacobian).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections import deque
 from collections.abc import Collection, Mapping, Sequence
@@ -97,7 +98,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
-from camcal.geometry.board import Board, Detection, frame_number
+from camcal.geometry.board import Board, Detection, frame_number, opencv_threads_off
 from camcal.geometry.board_shape import (AUTO_SHAPES, SHAPE_SPECS, BoardShape, fit_board_shape, max_degree,
                                         n_shape_params, parse_shape)
 from camcal.geometry.bundle import BoardObservations, BundleOptions, BundleState, bundle_adjust
@@ -619,6 +620,17 @@ def _camcal_covariance(covariance: NDArray, colmap_names: tuple[str, ...], names
 # -- the public entry point ------------------------------------------------------------
 
 
+def _one_opencv_thread(function):
+    """``function`` run with OpenCV on one thread (:func:`camcal.geometry.board.opencv_threads_off`): same input,
+    same output."""
+    @functools.wraps(function)
+    def wrapper(*args, **kwargs):
+        with opencv_threads_off():
+            return function(*args, **kwargs)
+    return wrapper
+
+
+@_one_opencv_thread
 def calibrate_board(
     board: Board,
     detections: Mapping[str, Sequence[Detection]],

@@ -14,12 +14,11 @@ file (:func:`synchronise_detections`).
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import hashlib
 import json
 import os
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -29,7 +28,7 @@ import numpy as np
 from camcal.base.atomic import atomic_path
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import (DETECTOR_SETTINGS, Board, Detection, DetectionReport, detect_board,
-                                   frame_number, synchronised_label, video_frame_label)
+                                   frame_number, opencv_threads_off, synchronised_label, video_frame_label)
 from camcal.io.frames import imread
 from camcal.io.headers import check_image_header
 from camcal.io.timestamps import Synchronisation, Timestamps, synchronise
@@ -89,18 +88,6 @@ def _write_json(path: Path, payload: dict) -> None:
             temporary.write_text(json.dumps(payload))
     except OSError:
         pass
-
-
-@contextlib.contextmanager
-def _opencv_threads_off(active: bool = True) -> Iterator[None]:
-    """OpenCV on one thread while camcal's own worker threads detect (restored after, also on errors)."""
-    threads = cv2.getNumThreads()
-    if active:
-        cv2.setNumThreads(1)
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(threads)
 
 
 def _detect_file(board: Board, path: str, content: bytes) -> tuple[tuple[int, int] | None, Detection | None]:
@@ -190,7 +177,7 @@ def detect_in_images(
 
     n_workers = min(max(1, workers), len(pending))
     if n_workers > 1:
-        with _opencv_threads_off(), ThreadPoolExecutor(max_workers=n_workers) as pool:
+        with opencv_threads_off(), ThreadPoolExecutor(max_workers=n_workers) as pool:
             futures = [(index, pool.submit(_detect_file, board, str(paths[index]), content))
                        for index, content in pending]
             for index, future in futures:
@@ -315,7 +302,7 @@ def detect_in_video(
         count = sum(1 for k in done if k % every == 0)
         report_progress()
         n_workers = max(1, workers)
-        with _opencv_threads_off(n_workers > 1), ThreadPoolExecutor(max_workers=n_workers) as pool:
+        with opencv_threads_off(n_workers > 1), ThreadPoolExecutor(max_workers=n_workers) as pool:
             in_flight: list = []
 
             def collect(n_left: int) -> None:

@@ -76,3 +76,23 @@ def test_rational_and_thin_prism_recover_the_lens(model, terms):
     assert result.rms_px < 1.2 * math.sqrt(2) * SIGMA_PX
     assert result.heldout_rms_px < 1.25 * math.sqrt(2) * SIGMA_PX
     assert abs(camera.K[0, 0] - lens.K[0, 0]) < 5 * camera.quality["sigma"]["fx"]
+
+
+def test_opencvs_thin_prism_fit_does_not_depend_on_the_callers_opencv_threads():
+    """Same input, same output: OpenCV's parallel sums differ in the last digits with its thread count, and an
+    ill-conditioned fit (thin prism) can then land in another minimum; calibrate_board runs OpenCV on one thread
+    and gives the caller's thread count back."""
+    import cv2  # noqa: PLC0415
+
+    detections = views(WIDE, WIDE_BOARD, 12, np.random.default_rng(5), distance=(0.35, 0.7), tilt=40.0)
+    before = cv2.getNumThreads()
+    try:
+        figures = []
+        for threads in (1, 2, 4):
+            cv2.setNumThreads(threads)
+            result = calibrate_board(WIDE_BOARD, detections, model="opencv-thin-prism")
+            assert cv2.getNumThreads() == threads
+            figures.append((result.rms_px, tuple(result.rig.cameras[0].K.ravel())))
+    finally:
+        cv2.setNumThreads(before)
+    assert figures[0] == figures[1] == figures[2], figures
