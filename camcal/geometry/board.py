@@ -121,7 +121,6 @@ _DETECTOR_VERSION = "reduced-classic-reduced-sb-subpix-adaptive-xfit-v9"
 DETECTOR_SETTINGS = f"{_DETECTOR_VERSION}|{_SB_FLAGS}|{_CLASSIC_FLAGS}|{_SUBPIX_CRITERIA}|{cv2.__version__}"
 
 
-
 @contextlib.contextmanager
 def opencv_threads_off(active: bool = True) -> Iterator[None]:
     """OpenCV on one thread (restored after, also on errors): while camcal's own worker threads detect, and around
@@ -134,6 +133,7 @@ def opencv_threads_off(active: bool = True) -> Iterator[None]:
         yield
     finally:
         cv2.setNumThreads(threads)
+
 
 @dataclass(frozen=True)
 class Board:
