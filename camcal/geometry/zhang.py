@@ -86,7 +86,6 @@ structure, covariance from the Jacobian).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from collections import deque
 from collections.abc import Collection, Mapping, Sequence
@@ -620,17 +619,7 @@ def _camcal_covariance(covariance: NDArray, colmap_names: tuple[str, ...], names
 # -- the public entry point ------------------------------------------------------------
 
 
-def _one_opencv_thread(function):
-    """``function`` run with OpenCV on one thread (:func:`camcal.geometry.board.opencv_threads_off`): same input,
-    same output."""
-    @functools.wraps(function)
-    def wrapper(*args, **kwargs):
-        with opencv_threads_off():
-            return function(*args, **kwargs)
-    return wrapper
-
-
-@_one_opencv_thread
+@opencv_threads_off()  # OpenCV's calibrations on one thread: same input, same output
 def calibrate_board(
     board: Board,
     detections: Mapping[str, Sequence[Detection]],
