@@ -582,7 +582,7 @@ def _spread_with_aspect_free(held: BundleResult, loose_options: BundleOptions, c
     """
     loose = bundle_adjust(held.state, dataclasses.replace(loose_options, max_iterations=0))
     names = held.covariance_names
-    if loose.covariance_names != names or loose.covariance is None or held.covariance is None:
+    if loose.covariance_names != names or not names:
         raise CamcalError("the covariance of the fit with the aspect free does not match the held fit's")
     covariance = held.covariance.copy()
     for camera in cameras:
