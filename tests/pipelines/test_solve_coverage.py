@@ -137,7 +137,7 @@ def test_solve_sigma_on_short_orbits_errs_wide_never_narrow(tmp_path):
     calibrated against a truth held at its prior's mean (drawn from the prior instead: 97.0 % / 0.43 on seeds
     24-47). (2) With 6-8 frames the delete-one-frame jackknife's design effect is unstable: one frame linking the
     others turns the scene gauge by 1.8 degrees when left out (seeds 29 and 47: design effect 140-210, where the
-    covariance alone gives a median of 0.84-1.5). With 18-24 frames neither happens (the must-show above)."""
+    covariance alone gives a median of 0.84-1.47). With 18-24 frames neither happens (the must-show above)."""
     inside, median = coverage(range(24, 48), tmp_path)
     print(f"solve, short orbits, seeds 24-47: {100 * inside:.1f} % within 2 sigma, median error/sigma {median:.2f}")
     assert inside >= 0.9
