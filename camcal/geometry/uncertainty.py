@@ -149,7 +149,13 @@ def covariance_from_colmap(cameras: Sequence[Camera], models: Sequence[str], par
         T[r:r + A.shape[0], source] = A
         r += A.shape[0]
     covariance = T @ matrix @ T.T
-    return ParameterCovariance(tuple(out_names), 0.5 * (covariance + covariance.T))
+    covariance = 0.5 * (covariance + covariance.T)
+    # T M T^T of a positive semi-definite M has a non-negative diagonal; where a row of T is orthogonal to M's
+    # range (a held camera's division aspect fx / fy when fx and fy move alike) rounding leaves -1e-22: zero
+    rounding = 64.0 * np.finfo(np.float64).eps * np.einsum("ij,jk,ik->i", np.abs(T), np.abs(matrix), np.abs(T))
+    diagonal = np.diag(covariance)
+    np.fill_diagonal(covariance, np.where((diagonal < 0) & (diagonal >= -rounding), 0.0, diagonal))
+    return ParameterCovariance(tuple(out_names), covariance)
 
 
 def _spread(rotations: NDArray[np.float64]) -> float:

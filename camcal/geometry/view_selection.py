@@ -33,7 +33,7 @@ import numpy as np
 import scipy.sparse
 from numpy.typing import NDArray
 
-from camcal.geometry.board import Board, Detection, frame_number
+from camcal.geometry.board import Board, Detection, frame_number, opencv_threads_off
 from camcal.model.rig import Camera
 
 __all__ = ["GRID", "MIN_CAMERA_VIEWS", "PAIR_FRAMES", "select_frames", "tilt_bin"]
@@ -63,6 +63,7 @@ def tilt_bin(R: NDArray[np.float64]) -> int:
     return 1 + 4 * int(tilt >= 35.0) + side
 
 
+@opencv_threads_off()  # same input, same output (calibrate_board's reason)
 def _focal_guess(board: Board, views: Sequence[Detection]) -> NDArray[np.float64]:
     """K with a focal length fitted to up to 30 views (centre fixed, no distortion); ``max(w, h)`` if that fails."""
     width, height = views[0].image_size
