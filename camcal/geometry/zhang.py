@@ -697,7 +697,8 @@ def calibrate_board(
         in-plane displacement too; fitted jointly with the lens and the poses), or ``auto`` (default): with
         ``model="auto"``, one camera, at least :data:`SPLINE_MIN_VIEWS` training views and the plain loss,
         every shape of :data:`~camcal.geometry.board_shape.AUTO_SHAPES` is scored on the model ranking's folds
-        from the chosen model's fit in each fold, and taken only when it beats the flat board by more than
+        from the chosen model's fit in each fold (a model with a correction field: it and its parametric lens on
+        every shape; the pair is taken by the same rule), and taken only when it beats the flat board by more than
         :data:`AUTO_MARGIN` and one standard error of the paired per-view differences (the one with fewest
         parameters within :data:`AUTO_MARGIN` of the best such); otherwise flat. On the surface taken, every
         lens model is scored again on the same folds and the simplest within :data:`AUTO_MARGIN` of the best is
@@ -808,7 +809,8 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
     """``model="auto"``'s result on the board shape of ``board_shape`` (see :func:`calibrate_board`): the flat
     result, or a model refitted on the surface chosen (or named); with the shapes' ranking and notes.
 
-    ``auto``: the shape is chosen for the flat-ranked ``model`` (:func:`_shape_choice`), then the lens model is
+    ``auto``: the shape is chosen for the flat-ranked ``model`` (:func:`_shape_choice`; with a correction field,
+    among its surfaces and its parametric lens's, against ``model`` on the flat board), then the lens model is
     ranked again on that surface (:func:`_lens_on_shape`) and, when that changes it, the shape is chosen again
     for the new lens (the flat board among the candidates); the pair taken is printed in the notes."""
     if board_shape == "flat":
@@ -833,20 +835,31 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
             return flat, (), []
         folds = fold_results["folds"]
         shapes = _score_shapes(board, training[0], model, folds, fold_results[base], corners, squared)
-        spec = _shape_choice(model, flat_score, shapes, squared)
+        if base != model:  # the field's parametric lens on every surface too: a surface may do the field's work
+            shapes += _score_shapes(board, training[0], base, folds, fold_results[base], corners, squared)
+        lens, spec = _shape_choice(flat_score, shapes, squared)
         ranked = [flat_score, *shapes]
+        if spec and lens != model:
+            notes.append(f"board shape auto: {lens} on the {spec} surface beats {model} on the flat board held out "
+                         f"(the surface chosen among {model}'s and {lens}'s)")
+            model = lens
         if spec:
+            done = {s.model for s in shapes}
             lenses = [s for lens in AUTO_MODELS if lens != model and lens in fold_results and lens in _SHAPE_LENSES
+                      and f"{lens}{_SHAPE_TAG}{spec}" not in done
                       for s in _score_shapes(board, training[0], lens, folds, fold_results[lens], corners, squared,
                                              (spec,))]
             ranked += lenses
             chosen = _lens_on_shape(model, spec, [*shapes, *lenses], squared)
             if chosen != model:
+                have = {s.model for s in ranked}
                 again = _score_shapes(board, training[0], chosen, folds, fold_results[chosen], corners, squared,
-                                      tuple(s for s in _shape_specs(board, AUTO_SHAPES) if s != spec))
-                ranked += [next(s for s in scored if s.model == chosen), *again]
-                lens_shapes = [*again, *(s for s in lenses if s.model == f"{chosen}{_SHAPE_TAG}{spec}")]
-                respec = _shape_choice(chosen, next(s for s in scored if s.model == chosen), lens_shapes, squared)
+                                      tuple(s for s in _shape_specs(board, AUTO_SHAPES)
+                                            if f"{chosen}{_SHAPE_TAG}{s}" not in have))
+                chosen_flat = next(s for s in scored if s.model == chosen)
+                ranked += [chosen_flat] * (chosen not in have) + again
+                lens_shapes = [s for s in ranked if s.model.startswith(f"{chosen}{_SHAPE_TAG}")]
+                respec = _shape_choice(chosen_flat, lens_shapes, squared)[1]
                 notes.append(f"board shape auto: {chosen} ranked first on the {spec} surface "
                              f"({model} on the flat board); "
                              + (f"its surface: {respec}" if respec else f"flat beats every surface for it, "
@@ -1297,16 +1310,18 @@ def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int
     return scores
 
 
-def _shape_choice(model: str, flat: ModelScore, shapes: list[ModelScore], squared: dict) -> str:
-    """The board shape taken (empty: flat): the one with fewest parameters within :data:`AUTO_MARGIN` of the best
-    among those better than the flat board by more than :data:`AUTO_MARGIN` and one standard error of the paired
-    per-view differences (:func:`_spline_chosen`'s rule)."""
+def _shape_choice(flat: ModelScore, shapes: list[ModelScore], squared: dict) -> tuple[str, str]:
+    """``(lens, shape)`` taken among ``shapes`` (``<lens>@board-<shape>``; ``("", "")``: the flat board, ``flat``):
+    the one with fewest parameters within :data:`AUTO_MARGIN` of the best among those better than ``flat`` by more
+    than :data:`AUTO_MARGIN` and one standard error of the paired per-view differences (:func:`_spline_chosen`'s
+    rule)."""
     better = [s for s in shapes if s.rms_px is not None and _spline_chosen(s, flat, squared)]
     if not better:
-        return ""
+        return "", ""
     best = min(s.rms_px for s in better)
     simplest = min((s for s in better if s.rms_px <= (1.0 + AUTO_MARGIN) * best), key=lambda s: s.n_params)
-    return simplest.model.rsplit(_SHAPE_TAG, 1)[1]
+    lens, spec = simplest.model.rsplit(_SHAPE_TAG, 1)
+    return lens, spec
 
 
 def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: str, holdout: set[int], units: str,

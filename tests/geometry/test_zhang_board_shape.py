@@ -198,3 +198,51 @@ def test_a_flat_pick_without_a_surface_path_still_gets_the_boards_surface(monkey
     assert result.heldout_rms_px < 1.2 * math.sqrt(2) * SIGMA_PX, result.heldout_rms_px
     flat = calibrate_board(BOARD, detections, model="opencv", holdout=held, board_shape="flat")
     assert result.heldout_rms_px < 0.75 * flat.heldout_rms_px, (flat.heldout_rms_px, result.heldout_rms_px)
+
+
+def test_a_flat_pick_with_a_field_has_the_surface_chosen_with_its_parametric_lens_too(monkeypatch):
+    """The flat ranking picks ``kannala-brandt+spline``; on the folds, its parametric lens on the ``free+plane``
+    board beats every pair with the field (the field did the board's work on the flat board). The surfaces are
+    scored for the parametric lens too, and the pair is taken by the same held-out rule: ``kannala-brandt`` on
+    ``free+plane``, where only the field's surfaces used to be scored and the field kept on its best one (the real
+    640x640 fisheye, split 5: 0.194 px held out with the field on a degree-4 surface, 0.096 px for the lens on
+    ``free+plane``). The scores are set by hand (a fake ``_score_shapes``): the test is the choice, not the fits."""
+    n_views, n_corners = 12, float(BOARD.n_corners)
+    corners = np.full(n_views, n_corners)
+    wobble = 1.0 + 0.05 * np.sin(np.arange(n_views))  # views differ, so the paired differences have a spread
+
+    def per_view(rms: float) -> np.ndarray:
+        return rms**2 * n_corners * wobble
+
+    table = {"kannala-brandt+spline": {"4": 0.20}, "kannala-brandt": {"free+plane": 0.15}}
+    field, lens = "kannala-brandt+spline", "kannala-brandt"
+    scored = [zhang.ModelScore(field, 0.30, 208), zhang.ModelScore(lens, 0.33, 8), zhang.ModelScore("division", 0.34, 5)]
+    squared = {s.model: per_view(s.rms_px) for s in scored}
+    scored_shapes = []
+
+    def fake_scores(board, views, model, folds, results, corners, squared, specs=None):
+        out = []
+        for spec in zhang._shape_specs(board, zhang.AUTO_SHAPES) if specs is None else specs:
+            name = f"{model}@board-{spec}"
+            rms = table.get(model, {}).get(spec, 0.25 if model.startswith(lens) else 0.30)
+            squared[name] = per_view(rms)
+            scored_shapes.append(name)
+            out.append(zhang.ModelScore(name, rms, 10))
+        return out
+
+    fitted = []
+    flat = type("Flat", (), {"rig": type("Rig", (), {"cameras": (None,)})()})()
+    monkeypatch.setattr(zhang, "_score_shapes", fake_scores)
+    monkeypatch.setattr(zhang, "_calibrate_shaped", lambda board, names, by_frame, model, holdout, spec, flat=None,
+                        **options: fitted.append((model, spec)) or flat_result)
+    monkeypatch.setattr(zhang, "quality_problems", lambda result: [])
+    monkeypatch.setattr(zhang, "fold_radius_px", lambda camera: None)
+    training = [{f: None for f in range(n_views)}]
+    folds = [set(range(k, n_views, 4)) for k in range(4)]
+    fold_results = {"folds": folds, lens: [None] * 4, "division": [None] * 4}
+    flat_result = flat
+    _, ranking, notes = zhang._with_board_shape(BOARD, ["cam"], training, field, set(), flat, "auto", "", scored,
+                                                squared, corners, fold_results, training, {"loss": "trivial"})
+    assert f"{lens}@board-free+plane" in scored_shapes, scored_shapes
+    assert fitted == [(lens, "free+plane")], (fitted, notes)
+    assert ranking[0].model == f"{lens}@board-free+plane", [s.describe() for s in ranking]

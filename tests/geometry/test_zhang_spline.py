@@ -150,3 +150,28 @@ def test_a_posed_view_gives_nan_where_the_lens_cannot_project_a_corner():
     _, _, residuals = pose_view(BOARD, pinhole.K, pinhole.distortion, detection, points)
     assert np.all(np.isnan(residuals[0]))
     assert np.all(np.isfinite(residuals[1:])) and np.sqrt(np.mean(np.sum(residuals[1:] ** 2, axis=1))) < 100.0
+
+
+def test_a_corner_outside_a_fisheye_lenss_image_is_measured_from_its_rim():
+    """:func:`camcal.geometry.spline_fit.pose_view`: a fisheye lens fitted on views that did not reach the image's
+    corners can turn over (``theta_d(theta)`` stops growing) before a held-out view's outermost corner: no ray
+    reaches that pixel. It was NaN, and one such corner ranked the whole model out of ``model="auto"`` (a real
+    640x640 fisheye: kannala-brandt, then the best lens on the board's surface). It is now the distance to the
+    lens's image rim: at least how far the corner lies outside it."""
+    from camcal.geometry.spline_fit import pose_view
+
+    K = np.array([[300.0, 0, 639.0], [0, 300.0, 479.0], [0, 0, 1]])
+    truth = Distortion("kannala-brandt", {"k1": 0.0, "k2": 0.0, "k3": 0.0, "k4": 0.0})  # equidistant: r = f theta
+    folding = Distortion("kannala-brandt", {"k1": 0.0, "k2": 0.0, "k3": 0.0, "k4": -0.02})  # turns over
+    theta_max = folding.max_angle_rad
+    rim_px = 300.0 * float(folding.theta_d(theta_max))
+    R = Rotation.from_euler("xyz", [0.0, 45.0, 0.0], degrees=True).as_matrix()
+    X = (BOARD.object_points - BOARD.object_points.mean(axis=0)) @ R.T + [0.15, 0.0, 0.2]  # its right edge far out
+    x = truth.project_rays(X, K)
+    radius = np.hypot(*(x - K[:2, 2]).T)
+    outside = radius > rim_px + 5.0
+    assert 0 < outside.sum() < BOARD.n_corners // 4, (theta_max, rim_px, radius.max())  # the case is the one meant
+    _, _, residuals = pose_view(BOARD, K, folding, Detection("rim.png", SIZE, np.arange(BOARD.n_corners), x, "synth"))
+    assert np.all(np.isfinite(residuals))
+    lengths = np.linalg.norm(residuals, axis=1)
+    assert np.all(lengths[outside] >= radius[outside] - rim_px - 1e-6)
