@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection
-from camcal.model.distortion import Distortion
+from camcal.model.distortion import Distortion, capped_rays
 from camcal.model.spline import SplineField
 
 __all__ = ["SplineFit", "fit_spline_lens", "grid_shape", "pose_view"]
@@ -49,6 +49,7 @@ DEFAULT_NX = 10
 DEFAULT_BENDING = 1.0
 DEFAULT_RIDGE = 1e-3
 _FD_STEP = 1e-7
+_OPTICAL_AXIS = np.array([0.0, 0.0, 1.0])
 
 
 @dataclass(frozen=True)
@@ -77,11 +78,12 @@ def pose_view(board: Board, K: NDArray, distortion: Distortion, detection: Detec
     board's corners (N, 3) when the board is not flat (:meth:`camcal.geometry.board_shape.BoardShape.points`).
     A fisheye lens (:attr:`~camcal.model.distortion.Distortion.is_fisheye`) images rays only up to its
     :attr:`~camcal.model.distortion.Distortion.max_angle_rad` (where its ``theta_d(theta)`` turns over), so its
-    image is a disc: a corner outside it is measured from the disc's rim, the projection of its ray's direction
-    at that angle (:func:`_rim_rays`), the nearest point the lens can image, so that a lens fitted on views that
-    did not reach as far out is scored by how far it misses, like any other model, and the pose sees a residual
-    that changes with it. Otherwise the residuals are NaN for a corner the lens cannot project at the pose found
-    (behind a pinhole camera; the fit itself counts such a corner as 1e6 px, so that it pushes the pose away).
+    image is a disc: a corner outside it is measured from the disc's rim, the projection of its ray turned back to
+    that angle (:func:`~camcal.model.distortion.capped_rays`), the nearest point the lens can image, so that a lens
+    fitted on views that did not reach as far out is scored by how far it misses, like any other model, and the
+    pose sees a residual that changes with it. Otherwise the residuals are NaN for a corner the lens cannot project
+    at the pose found (behind a pinhole camera; the fit itself counts such a corner as 1e6 px, so that it pushes
+    the pose away).
     """
     X = np.asarray((board.object_points if points is None else points)[detection.ids], dtype=np.float64)
     ideal = distortion.undistort(detection.corners_px, K)
@@ -95,30 +97,14 @@ def pose_view(board: Board, K: NDArray, distortion: Distortion, detection: Detec
 
     def offsets(pose: NDArray[np.float64]) -> NDArray[np.float64]:
         rays = X @ cv2.Rodrigues(pose[:3])[0].T + pose[3:]
-        if distortion.is_fisheye:
-            rays = _rim_rays(rays, distortion.max_angle_rad)
+        if distortion.is_fisheye:  # inside its range: the rim's projection is finite
+            rays = capped_rays(rays, _OPTICAL_AXIS, distortion.max_angle_rad * (1.0 - 1e-9))
         return distortion.project_rays(rays, K) - detection.corners_px
 
     solution = scipy.optimize.least_squares(lambda pose: np.nan_to_num(offsets(pose), nan=1e6).ravel(),
                                             np.concatenate([rvec.ravel(), tvec.ravel()]), method="lm",
                                             x_scale="jac", xtol=1e-12, ftol=1e-12)
     return solution.x[:3], solution.x[3:], offsets(solution.x)
-
-
-def _rim_rays(rays: NDArray[np.float64], max_angle_rad: float) -> NDArray[np.float64]:
-    """``rays`` (N, 3) with each one further than ``max_angle_rad`` from the optical axis (+z) turned back to that
-    angle about the axis through it (its azimuth kept; a ray on the axis's far side: the azimuth of +x)."""
-    rho = np.hypot(rays[:, 0], rays[:, 1])
-    outside = np.arctan2(rho, rays[:, 2]) > max_angle_rad
-    if not np.any(outside):
-        return rays
-    rim = rays.copy()
-    norm = np.linalg.norm(rays[outside], axis=1)
-    safe = np.where(rho[outside] > 0.0, rho[outside], 1.0)
-    direction = np.where((rho[outside] > 0.0)[:, None], rays[outside, :2] / safe[:, None], [1.0, 0.0])
-    angle = max_angle_rad * (1.0 - 1e-9)  # inside the range: its projection is finite
-    rim[outside] = norm[:, None] * np.column_stack([np.sin(angle) * direction, np.full(len(norm), np.cos(angle))])
-    return rim
 
 
 def _second_differences(ny: int, nx: int) -> scipy.sparse.csr_matrix:

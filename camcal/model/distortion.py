@@ -104,7 +104,8 @@ from numpy.typing import ArrayLike, NDArray
 from camcal.base.errors import CamcalError
 from camcal.model.spline import SplineField
 
-__all__ = ["FISHEYE_MODELS", "MODEL_PARAMS", "OPENCV_COEFFICIENTS", "Distortion", "DistortionFit", "fit_distortion", "frame_grid"]
+__all__ = ["FISHEYE_MODELS", "MODEL_PARAMS", "OPENCV_COEFFICIENTS", "Distortion", "DistortionFit", "capped_rays",
+           "fit_distortion", "frame_grid"]
 
 #: Parameter names of each model: (required, optional).
 MODEL_PARAMS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = MappingProxyType(
@@ -735,6 +736,21 @@ class Distortion:
             scale = 2.0 / (1.0 + np.sqrt(discriminant))
         scale = np.where(discriminant >= 0.0, scale, np.nan)
         return centre + offset * scale
+
+
+def capped_rays(rays: NDArray[np.float64], axis: NDArray[np.float64], half_angle: float | None) -> NDArray[np.float64]:
+    """Each ray (unit length out) turned towards the unit ``axis`` (in its plane) to at most ``half_angle`` from it:
+    a fisheye's rays brought within its :attr:`Distortion.max_angle_rad`, a rectified frame's within its cap."""
+    if half_angle is None:
+        return rays
+    rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    along = rays @ axis
+    across = rays - along[:, None] * axis[None, :]
+    norm = np.linalg.norm(across, axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        side = np.where(norm > 0.0, across / norm, 0.0)
+    theta = np.minimum(np.arccos(np.clip(along, -1.0, 1.0)), half_angle)[:, None]
+    return np.cos(theta) * axis[None, :] + np.sin(theta) * side
 
 
 def _pixels_to_normalised(points: NDArray[np.float64], K: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -40,6 +40,7 @@ from camcal.geometry.rectify.model import (
     vertical_disparity,
 )
 from camcal.geometry.undistort import FISHEYE_FOV_DEG
+from camcal.model.distortion import capped_rays
 from camcal.model.rig import Camera, Rectification, Rig, make_provenance
 
 __all__ = [
@@ -84,20 +85,6 @@ def _border_rays(camera: Camera, pixels: NDArray[np.float64], half_angle: float 
     azimuth = offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
     rays[lost] = np.column_stack([math.sin(reach) * azimuth, np.full(lost.sum(), math.cos(reach))])
     return rays
-
-
-def _capped(rays: NDArray[np.float64], axis: NDArray[np.float64], half_angle: float | None) -> NDArray[np.float64]:
-    """Each ray turned towards the unit ``axis`` (in its plane) to at most ``half_angle`` from it."""
-    if half_angle is None:
-        return rays
-    rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
-    along = rays @ axis
-    across = rays - along[:, None] * axis[None, :]
-    norm = np.linalg.norm(across, axis=1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        side = np.where(norm > 0.0, across / norm, 0.0)
-    theta = np.minimum(np.arccos(np.clip(along, -1.0, 1.0)), half_angle)[:, None]
-    return np.cos(theta) * axis[None, :] + np.sin(theta) * side
 
 
 def fov_half_angle(cameras: Sequence[Camera], max_fov_deg: float | None) -> float | None:
@@ -147,7 +134,7 @@ def _fit_frame(
         sides = {}
         for side, pixels in _border(camera.image_size).items():
             rays = _border_rays(camera, pixels, half_angle)
-            mapped = _capped(rays, axis, half_angle) @ camera.K.T @ frame.T
+            mapped = capped_rays(rays, axis, half_angle) @ camera.K.T @ frame.T
             if not np.all(in_front(mapped)):
                 raise CamcalError(
                     f"camera {camera.name!r} sees beyond the rectified image plane "
