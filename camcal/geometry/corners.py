@@ -49,7 +49,7 @@ _ERF_FLAT = 6.0
 _SAGITTA_PRIOR_PX = 0.5
 #: Largest sagitta of an edge at the window's rim, as a fraction of the window's radius, and in prior sigmas (the
 #: larger of the two bounds). A straight edge bent by a lens stays far below both (real fisheye, action-camera and
-#: car-camera boards: at most 0.83 px, 8 cameras, 13,000 corners; an edge of curvature radius R has r^2 / (2 R):
+#: car-camera boards: at most 0.83 px and 0.048 r, 9 cameras, 14,700 fits; an edge of curvature radius R has r^2 / (2 R):
 #: 0.15 r is R = 3.3 window radii; rendered boards, strong barrel lenses included: at most 0.13 r, in windows of a few
 #: px where the prior sets q); the X model fitted to another junction bends both edges to mimic it (the corner of a
 #: square on the board's margin, put on the grid by OpenCV's classic search on a real fisheye view: 6.6 px, 0.36 r).
