@@ -47,6 +47,14 @@ _SQRT2 = np.sqrt(2.0)
 _ERF_FLAT = 6.0
 #: Prior standard deviation of the edges' sagitta at the window's rim (px at the level).
 _SAGITTA_PRIOR_PX = 0.5
+#: Largest sagitta of an edge at the window's rim, as a fraction of the window's radius, and in prior sigmas (the
+#: larger of the two bounds). A straight edge bent by a lens stays far below both (real fisheye, action-camera and
+#: car-camera boards: at most 0.83 px and 0.048 r, 9 cameras, 14,700 fits; an edge of curvature radius R has r^2 / (2 R):
+#: 0.15 r is R = 3.3 window radii; rendered boards, strong barrel lenses included: at most 0.13 r, in windows of a few
+#: px where the prior sets q); the X model fitted to another junction bends both edges to mimic it (the corner of a
+#: square on the board's margin, put on the grid by OpenCV's classic search on a real fisheye view: 6.6 px, 0.36 r).
+_MAX_SAGITTA_FRACTION = 0.15
+_MAX_SAGITTA_PRIOR_SIGMAS = 4.0
 #: Fewest blur widths (Gaussian sigma) in the window's radius for the additive gradient to be fitted: on rendered
 #: boards without glare it cost 3-4 % of accuracy at 6.5, 17-30 % at 4.3-4.9, nothing at 9.8 and above.
 _GLARE_WINDOW_BLURS = 8.0
@@ -394,8 +402,10 @@ def refine_corners(
     edges are sharper than half a pixel of the level (on half the window:
     the same cost). A corner is rejected
     (``ok`` False) when the fit diverges, moves by more than a quarter of
-    the square, finds no contrast above its residual or the two edges
-    within 12 degrees of each other.
+    the square, finds no contrast above its residual, the two edges
+    within 12 degrees of each other, or an edge bent by more than 0.15 of
+    the window's radius and 4 sigmas of its prior (not an X-junction: the
+    corner of a square on the board's margin).
 
     Examples
     --------
@@ -445,7 +455,9 @@ def refine_corners(
         shift = np.hypot(*(refined - corners[idx]).T)
         angle = np.abs(np.mod(params[:, 2] - params[:, 3] + np.pi / 2, np.pi) - np.pi / 2)
         good = (converged & seen & np.isfinite(refined).all(axis=1) & (shift <= MAX_SHIFT_FRACTION * squares[idx])
-                & (np.abs(params[:, 6]) > 3 * res_rms) & (angle > np.radians(12)) & (params[:, 4] < radius))
+                & (np.abs(params[:, 6]) > 3 * res_rms) & (angle > np.radians(12)) & (params[:, 4] < radius)
+                & (np.max(np.abs(params[:, 9:11]), axis=1)
+                   <= np.maximum(_MAX_SAGITTA_FRACTION * radius, _MAX_SAGITTA_PRIOR_SIGMAS * _SAGITTA_PRIOR_PX)))
         write = good | ~ok[idx]
         idx, good = idx[write], good[write]
         out[idx] = np.where(good[:, None], refined[write], corners[idx])

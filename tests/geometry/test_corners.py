@@ -171,3 +171,23 @@ def test_blur_as_wide_as_the_window_does_not_trade_the_centre_for_a_gradient(squ
         bounds.append(corner_crb_px(view))
     ours = float(np.sqrt(np.mean(np.concatenate(errors))))
     assert ours < 12.0 * float(np.sqrt(np.nanmean(np.concatenate(bounds) ** 2)))
+
+
+def l_junction(noise_seed: int) -> np.ndarray:
+    """The corner of a dark square on a light margin, edges tilted like a board's (blur 0.8 px, noise 2 levels)."""
+    from scipy.special import erf
+
+    y, x = np.mgrid[0:61, 0:61].astype(float)
+    u1 = np.cos(np.radians(10)) * (x - 30.4) + np.sin(np.radians(10)) * (y - 29.7)
+    u2 = np.cos(np.radians(97)) * (x - 30.4) + np.sin(np.radians(97)) * (y - 29.7)
+    dark = 0.25 * (1 + erf(u1 / (np.sqrt(2) * 0.8))) * (1 + erf(u2 / (np.sqrt(2) * 0.8)))
+    return 185 - 150 * dark + np.random.default_rng(noise_seed).normal(0, 2, x.shape)
+
+
+@pytest.mark.parametrize("noise_seed", [0, 1, 2])
+def test_the_corner_of_a_square_on_the_boards_margin_is_not_an_x_junction(noise_seed):
+    """OpenCV's classic search put two corners of a real fisheye view on the board's margin, at squares' outer
+    corners (L-junctions); the X model bent both edges 6.6 px to fit them and kept them 33 px from the truth."""
+    result = refine_corners(l_junction(noise_seed), [[31.0, 29.0]], 28.0)
+    assert not result.ok[0]
+
