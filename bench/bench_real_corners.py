@@ -2,22 +2,31 @@
 
 Per set: every image where both camcal's ``detect_board`` (as ``calibrate board`` runs it) and
 ``cv2.findChessboardCornersSB`` (EXHAUSTIVE | ACCURACY) find the whole board; every 6th of those views
-held out. Rows:
+held out. Three detectors' corners: camcal's, SB's, and SB's refined by OpenCV's ``cornerSubPix`` (Forstner's
+gradient orthogonality, a third estimator: :func:`subpix_refined`). Pipelines, each trained on its own corners:
 
-- camcal default: ``calibrate_board`` (model auto, board shape auto) trained on camcal's corners;
-- camcal on SB's corners: the same call trained and held out on SB's corners (the corners' share of the gain);
-- OpenCV on SB's corners: ``calibrateCamera`` (default, rational, rational + thin prism), ``cv2.fisheye.calibrate``
-  (each held-out view posed by LM with the intrinsics held, ``zhang._posed_residuals``) and ``calibrateCameraRO``
-  (rational, + thin prism: the board's points refined; posed by ``solvePnP`` + ``solvePnPRefineLM`` against the
-  board it estimated), the best of them the peer.
+- camcal default: ``calibrate_board`` (model auto, board shape auto) on camcal's corners, each held-out view
+  posed against its board (flat or the fitted surface) with the intrinsics held;
+- OpenCV on SB's corners and on SB + cornerSubPix's: ``calibrateCamera`` (default, rational, rational + thin
+  prism), ``cv2.fisheye.calibrate`` (posed by LM with the intrinsics held, ``zhang._posed_residuals``) and
+  ``calibrateCameraRO`` (rational, + thin prism: the board's points refined; posed by ``solvePnP`` +
+  ``solvePnPRefineLM`` against the board it estimated);
+- mrcal on SB's corners: OPENCV8 and splined stereographic fits, flat and with its board warp
+  (``bench_lens_models.mrcal_models``, skipped with a line where Debian's mrcal is absent);
+- the same OpenCV and mrcal fits on camcal's corners (the models compared on the same corners, without the
+  corners' gain).
 
-Each pipeline trains on its own detector's corners, and every one is held out on the *same* evaluation corners,
-twice: on camcal's and on SB's (each held-out view's corners put in the fit's own labelling by nearest neighbour).
-Neither detector is the truth on real images: a pipeline whose corners carry a bias the other's do not is favoured
-on its own evaluation corners, so the ratio is printed for both (on rendered boards, camcal's corners are 0.26 x
-SB's error: ``bench_corners.py``). Also printed: RMS distance between the two detectors' corners.
+Every pipeline is held out on the *same* evaluation corners, three times: on each detector's (each held-out
+view's corners put in the fit's own labelling by nearest neighbour); the best of the peers' fits is the peer.
+No detector is the truth on real images: a pipeline whose corners carry an error the others' do not is favoured
+on its own corners, so the ratio is printed for all three (on rendered boards, where the truth is known,
+camcal's corners have 0.26 x SB's error: ``bench_corners.py``).
 
-Usage: python bench/bench_real_corners.py DIR PATTERN COLUMNS ROWS [DIR PATTERN COLUMNS ROWS ...]
+``--floor`` adds what these corners allow (``bench_lens_models.floor`` on camcal's corners: the held-out views'
+own noise for camcal's pick on a ``free+plane`` board fitted with them) beside 0.97 x the best peer fitted on
+the same corners.
+
+Usage: python bench/bench_real_corners.py [--floor] DIR PATTERN COLUMNS ROWS [DIR PATTERN COLUMNS ROWS ...]
 (default: the /work/data sets of issue 27).
 """
 
@@ -33,7 +42,7 @@ from camcal.geometry import zhang
 from camcal.geometry.board import Board, Detection, detect_board
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_lens_models import opencv_held_out_rms, opencv_models, posed_rms  # noqa: E402
+from bench_lens_models import floor, mrcal_models, mrcal_seed, opencv_held_out_rms, opencv_models, posed_rms  # noqa: E402
 
 SB_FLAGS = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
 DEFAULT_SETS = ["/work/data/udacity_gopro", "GOPR*.jpg", "8", "6",
@@ -43,9 +52,21 @@ DEFAULT_SETS = ["/work/data/udacity_gopro", "GOPR*.jpg", "8", "6",
                 "/work/data/sourishg_stereo", "left*.jpg", "9", "6"]
 
 
-def both_detections(folder: Path, pattern: str, board: Board):
-    """camcal's and SB's detections on the images where both find the board (the most common size only)."""
-    pairs, t_ours, t_sb = [], 0.0, 0.0
+def subpix_refined(gray: np.ndarray, corners: np.ndarray, board: Board) -> np.ndarray:
+    """OpenCV's own saddle-point refinement of SB's corners: ``cornerSubPix`` (Forstner's gradient orthogonality),
+    half-window 0.4 x the board's smallest square in the image, 2-11 px (11: OpenCV's tutorial window)."""
+    grid = corners.reshape(board.rows, board.columns, 2)
+    square = min(np.linalg.norm(np.diff(grid, axis=axis), axis=2).min() for axis in (0, 1))
+    half = int(np.clip(round(0.4 * square), 2, 11))
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
+    return cv2.cornerSubPix(gray, corners.astype(np.float32).reshape(-1, 1, 2), (half, half), (-1, -1),
+                            crit).reshape(-1, 2).astype(np.float64)
+
+
+def detections(folder: Path, pattern: str, board: Board):
+    """camcal's, SB's and SB + cornerSubPix's detections on the images where camcal and SB find the board (the
+    most common size only), and the seconds camcal and SB took."""
+    triples, t_ours, t_sb = [], 0.0, 0.0
     for path in sorted(folder.glob(pattern)):
         gray = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
         t = time.perf_counter()
@@ -57,13 +78,14 @@ def both_detections(folder: Path, pattern: str, board: Board):
         if ours is None or not found:
             print(f"  {path.name}: camcal {'found' if ours else 'missed'}, SB {'found' if found else 'missed'}")
             continue
-        sb = Detection(path.name, ours.image_size, np.arange(board.n_corners), corners.reshape(-1, 2).astype(np.float64), "sb")
-        pairs.append((ours, sb))
-    sizes = [o.image_size for o, _ in pairs]
+        corners = corners.reshape(-1, 2).astype(np.float64)
+        sb = Detection(path.name, ours.image_size, np.arange(board.n_corners), corners, "sb")
+        triples.append((ours, sb, dataclasses.replace(sb, corners_px=subpix_refined(gray, corners, board))))
+    sizes = [t[0].image_size for t in triples]
     size = max(set(sizes), key=sizes.count)
-    pairs = [p for p in pairs if p[0].image_size == size]
-    renamed = [tuple(dataclasses.replace(d, image=f"view{n:03d}.jpg") for d in p) for n, p in enumerate(pairs)]
-    return [p[0] for p in renamed], [p[1] for p in renamed], t_ours, t_sb
+    triples = [t for t in triples if t[0].image_size == size]
+    renamed = [[dataclasses.replace(d, image=f"view{n:03d}.jpg") for d in t] for n, t in enumerate(triples)]
+    return [t[0] for t in renamed], [t[1] for t in renamed], [t[2] for t in renamed], t_ours, t_sb
 
 
 def corner_distance(ours, sb) -> float:
@@ -100,51 +122,81 @@ def release_object_fits(board, train, size):
             print(f"  opencv {name}: failed ({str(error).strip().splitlines()[-1]})")
 
 
-def run(folder: Path, pattern: str, columns: int, rows: int) -> dict:
+def peer_fits(board, train, held_sets: dict, with_mrcal: bool) -> dict:
+    """Held-out RMS of OpenCV's fits (and mrcal's) of ``train`` on each of ``held_sets`` (views in the order of
+    ``train``'s detector): ``{(fit, evaluation corners): px}``."""
+    size = train[0].image_size
+    out, cameras = {}, {}
+    for name, camera in opencv_models(board, train, size):
+        cameras[name] = camera
+        for corners, held in held_sets.items():
+            try:
+                out[(f"opencv {name}", corners)] = posed_rms(board, camera, held)
+            except Exception as error:  # noqa: BLE001 - a peer's failure is a row, not a stop
+                print(f"  opencv {name}: held-out posing failed ({error})")
+    for name, K, dist, points in release_object_fits(board, train, size):
+        for corners, held in held_sets.items():
+            out[(f"opencv {name}", corners)] = opencv_held_out_rms(points, held, K, dist)
+    if with_mrcal and cameras:
+        seed = mrcal_seed(cameras, size)
+        for corners, held in held_sets.items():
+            for name, _, held_rms in mrcal_models(board, train, held, size, *seed):
+                out[(f"mrcal {name}", corners)] = held_rms
+    return out
+
+
+def run(folder: Path, pattern: str, columns: int, rows: int, with_mrcal: bool = True, with_floor: bool = False) -> dict:
     board = Board("chessboard", columns, rows, 1.0)
-    ours, sb, t_ours, t_sb = both_detections(folder, pattern, board)
+    ours, sb, subpix, t_ours, t_sb = detections(folder, pattern, board)
     holdout = set(range(0, len(ours), 6))
     label = f"{folder.name}/{pattern} ({ours[0].image_size[0]}x{ours[0].image_size[1]}, {len(ours)} views, "
     label += f"{len(holdout)} held out)"
-    print(f"{label}: camcal vs SB corners {corner_distance(ours, sb):.3f} px RMS apart; detection "
-          f"{t_ours:.1f} s vs SB {t_sb:.1f} s", flush=True)
-    held_ours = [d for n, d in enumerate(ours) if n in holdout]
-    held_sb = [d for n, d in enumerate(sb) if n in holdout]
-    # every pipeline trains on its own corners and is held out on each detector's corners (labels matched)
-    evaluation = {"camcal's": (held_ours, relabelled(held_ours, held_sb)), "SB's": (relabelled(held_sb, held_ours), held_sb)}
+    print(f"{label}: camcal's corners {corner_distance(ours, sb):.3f} px RMS from SB's, "
+          f"{corner_distance(ours, subpix):.3f} from SB + cornerSubPix's (SB's from those {corner_distance(sb, subpix):.3f}); "
+          f"detection {t_ours:.1f} s vs SB {t_sb:.1f} s", flush=True)
+    held = {"camcal's": [d for n, d in enumerate(ours) if n in holdout],
+            "SB's": [d for n, d in enumerate(sb) if n in holdout],
+            "cornerSubPix's": [d for n, d in enumerate(subpix) if n in holdout]}
+    in_order = {detector: {corners: relabelled(views, held[detector]) for corners, views in held.items()}
+                for detector in held}
     rows_out = {}
-    for corners, (in_ours_order, _) in evaluation.items():
-        mixed = [in_ours_order[sorted(holdout).index(n)] if n in holdout else d for n, d in enumerate(ours)]
-        result = zhang.calibrate_board(board, {"cam": mixed}, units="squares", holdout=holdout)
-        rows_out[("camcal default", corners)] = result.heldout_rms_px
-        print(f"  camcal default (auto -> {result.model}) on camcal's corners, held out on {corners} corners: "
-              f"{result.heldout_rms_px:.4f} px", flush=True)
-    sb_result = zhang.calibrate_board(board, {"cam": sb}, units="squares", holdout=holdout)
-    print(f"  camcal (auto -> {sb_result.model}) on SB's corners, held out on SB's corners: "
-          f"{sb_result.heldout_rms_px:.4f} px (the corners' share of the gain)")
-    train_sb = [d for n, d in enumerate(sb) if n not in holdout]
-    for name, camera in opencv_models(board, train_sb, sb[0].image_size):
-        for corners, (_, in_sb_order) in evaluation.items():
-            try:
-                rows_out[(f"opencv {name}", corners)] = posed_rms(board, camera, in_sb_order)
-            except Exception as error:  # noqa: BLE001 - a peer's failure is a row, not a stop
-                print(f"  opencv {name}: held-out posing failed ({error})")
-    for name, K, dist, points in release_object_fits(board, train_sb, sb[0].image_size):
-        for corners, (_, in_sb_order) in evaluation.items():
-            rows_out[(f"opencv {name}", corners)] = opencv_held_out_rms(points, in_sb_order, K, dist)
+    result = zhang.calibrate_board(board, {"cam": ours}, units="squares", holdout=holdout)
+    camera = result.rig.cameras[0]
+    points = None if result.board_shape is None else result.board_shape.points(board)
+    shape = "flat board" if result.board_shape is None else result.board_shape.describe(board)
+    for corners, views in in_order["camcal's"].items():
+        r = np.concatenate([zhang._posed_residuals(board, camera, d, points) for d in views])
+        rows_out[("camcal default", corners)] = float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+    own = rows_out[("camcal default", "camcal's")]
+    print(f"  camcal default on camcal's corners: {result.model}, {shape}; held out {own:.4f} px on its own corners "
+          f"(calibrate_board's figure {result.heldout_rms_px:.4f})")
+    trained_on = {"camcal's": (ours, "camcal's corners"), "SB's": (sb, "SB's corners"),
+                  "cornerSubPix's": (subpix, "SB + cornerSubPix's corners")}
+    for detector, (views, train_label) in trained_on.items():
+        train = [d for n, d in enumerate(views) if n not in holdout]
+        fits = peer_fits(board, train, in_order[detector], with_mrcal and detector != "cornerSubPix's")
+        rows_out.update({(f"{name} on {train_label}", corners): v for (name, corners), v in fits.items()})
     ratios = {}
-    for corners in evaluation:
+    for corners in held:
         peers = {k[0]: v for k, v in rows_out.items() if k[1] == corners and k[0] != "camcal default"}
         for name, value in peers.items():
-            print(f"  {name} on SB's corners, held out on {corners} corners: {value:.4f} px")
+            print(f"  {name}, held out on {corners} corners: {value:.4f} px")
         best = min(peers, key=peers.get)
-        ratios[corners] = rows_out[("camcal default", corners)] / peers[best]
-        print(f"  => held out on {corners} corners: camcal default {rows_out[('camcal default', corners)]:.4f}, "
-              f"best peer {peers[best]:.4f} ({best}), ratio {ratios[corners]:.3f}", flush=True)
+        ours_rms = rows_out[("camcal default", corners)]
+        ratios[corners] = ours_rms / peers[best]
+        print(f"  => held out on {corners} corners: camcal default {ours_rms:.4f}, best peer {peers[best]:.4f} "
+              f"({best}), ratio {ratios[corners]:.3f}", flush=True)
+    if with_floor:
+        _, _, noise_held = floor(board, ours, held["camcal's"], result.model)
+        same = min(v for k, v in rows_out.items() if k[1] == "camcal's" and k[0].endswith("on camcal's corners"))
+        print(f"  floor on camcal's corners: the held-out views' own noise {noise_held:.4f} px "
+              f"(bench_lens_models.floor, {result.model}); 0.97 x the best peer on the same corners {0.97 * same:.4f}")
     return {"set": label, **{f"ratio on {k} corners": v for k, v in ratios.items()}}
 
 
 if __name__ == "__main__":
-    args = sys.argv[1:] or DEFAULT_SETS
+    args = sys.argv[1:]
+    with_floor = "--floor" in args
+    args = [a for a in args if a != "--floor"] or DEFAULT_SETS
     for k in range(0, len(args), 4):
-        run(Path(args[k]), args[k + 1], int(args[k + 2]), int(args[k + 3]))
+        run(Path(args[k]), args[k + 1], int(args[k + 2]), int(args[k + 3]), with_floor=with_floor)
