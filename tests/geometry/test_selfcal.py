@@ -14,7 +14,7 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleState
 from camcal.geometry.bundle.prior import PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO
 from camcal.model.camera import rotation_angle_deg
-from camcal.geometry.selfcal import FOCAL_UNDETERMINED, self_calibrate
+from camcal.geometry.selfcal import FOCAL_UNDETERMINED, SelfCalibration, self_calibrate
 from camcal.model.colmap import camera_from_colmap
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
 
@@ -360,3 +360,15 @@ def test_solve_cli_bad_prior_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["camcal: error: prior 'left.f=1200': expected CAMERA.NAME=MEAN+-SIGMA, e.g. left.f=1200+-30"]
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("groups, says_wide", [(7, True), (11, True), (12, False), (20, False)])
+def test_a_jackknife_over_few_frames_says_its_sigmas_err_wide(groups, says_wide):
+    """Rendered orbits of 6-12 frames: median error 0.32-0.41 sigma (tests/pipelines/test_solve_coverage.py)."""
+    report = SelfCalibration({"cam": "division"}, {"cam": {"division": 0.3}}, 100, (),
+                             covariance_sigmas={"cam.f": 2.0}, jackknife_sigmas={"cam.f": 3.0},
+                             jackknife_groups=groups, jackknife_method="step")
+    wide = [line for line in report.lines() if "err wide" in line]
+    assert bool(wide) is says_wide
+    if says_wide:
+        assert wide[0].startswith(f"uncertainty: {groups} groups of frames, fewer than 12")
