@@ -26,7 +26,10 @@ camcal's corners have 0.26 x SB's error: ``bench_corners.py``).
 own noise for camcal's pick on a ``free+plane`` board fitted with them) beside 0.97 x the best peer fitted on
 the same corners.
 
-Usage: python bench/bench_real_corners.py [--floor] DIR PATTERN COLUMNS ROWS [DIR PATTERN COLUMNS ROWS ...]
+``--all-splits`` runs the 6 splits (views ``n % 6 == k`` held out) and prints, per evaluation corners, each
+pipeline fixed over the splits and scored on every view, each held out once (:func:`pooled`).
+
+Usage: python bench/bench_real_corners.py [--floor] [--all-splits] DIR PATTERN COLUMNS ROWS [DIR PATTERN COLUMNS ROWS ...]
 (default: the /work/data sets of issue 27).
 """
 
@@ -145,12 +148,13 @@ def peer_fits(board, train, held_sets: dict, with_mrcal: bool) -> dict:
     return out
 
 
-def run(folder: Path, pattern: str, columns: int, rows: int, with_mrcal: bool = True, with_floor: bool = False) -> dict:
+def run(folder: Path, pattern: str, columns: int, rows: int, with_mrcal: bool = True, with_floor: bool = False,
+        split: int = 0, found=None) -> dict:
     board = Board("chessboard", columns, rows, 1.0)
-    ours, sb, subpix, t_ours, t_sb = detections(folder, pattern, board)
-    holdout = set(range(0, len(ours), 6))
+    ours, sb, subpix, t_ours, t_sb = found or detections(folder, pattern, board)
+    holdout = {n for n in range(len(ours)) if n % 6 == split}
     label = f"{folder.name}/{pattern} ({ours[0].image_size[0]}x{ours[0].image_size[1]}, {len(ours)} views, "
-    label += f"{len(holdout)} held out)"
+    label += f"{len(holdout)} held out" + (f", split {split})" if split else ")")
     print(f"{label}: camcal's corners {corner_distance(ours, sb):.3f} px RMS from SB's, "
           f"{corner_distance(ours, subpix):.3f} from SB + cornerSubPix's (SB's from those {corner_distance(sb, subpix):.3f}); "
           f"detection {t_ours:.1f} s vs SB {t_sb:.1f} s", flush=True)
@@ -191,12 +195,37 @@ def run(folder: Path, pattern: str, columns: int, rows: int, with_mrcal: bool = 
         same = min(v for k, v in rows_out.items() if k[1] == "camcal's" and k[0].endswith("on camcal's corners"))
         print(f"  floor on camcal's corners: the held-out views' own noise {noise_held:.4f} px "
               f"(bench_lens_models.floor, {result.model}); 0.97 x the best peer on the same corners {0.97 * same:.4f}")
-    return {"set": label, **{f"ratio on {k} corners": v for k, v in ratios.items()}}
+    return {"set": label, "heldout": rows_out, "n_corners": sum(len(d.ids) for d in held["camcal's"]),
+            **{f"ratio on {k} corners": v for k, v in ratios.items()}}
+
+
+def pooled(runs: list[dict]) -> None:
+    """Each pipeline fixed over the 6 splits, its RMS over every view (each held out once), per evaluation corners:
+    camcal's default over the best such peer, of every training, of the peers trained on SB's corners (their own
+    pipeline), and of those trained on camcal's (the models on the same corners)."""
+    n = np.array([r["n_corners"] for r in runs], dtype=np.float64)
+    keys = set.intersection(*(set(r["heldout"]) for r in runs))
+    rms = {k: float(np.sqrt(np.sum([r["heldout"][k] ** 2 for r in runs] * n) / n.sum())) for k in keys}
+    for corners in ("camcal's", "SB's", "cornerSubPix's"):
+        ours = rms[("camcal default", corners)]
+        line = f"  every view held out once, on {corners} corners: camcal default {ours:.4f} px"
+        for which, test in (("any training", lambda name: True), ("on SB's corners", lambda name: name.endswith("on SB's corners")),
+                            ("on camcal's corners", lambda name: name.endswith("on camcal's corners"))):
+            peers = {k[0]: v for k, v in rms.items() if k[1] == corners and k[0] != "camcal default" and test(k[0])}
+            if peers:
+                best = min(peers, key=peers.get)
+                line += f"; best peer {which} {peers[best]:.4f} ({best}): ratio {ours / peers[best]:.3f}"
+        print(line, flush=True)
 
 
 if __name__ == "__main__":
     args = sys.argv[1:]
-    with_floor = "--floor" in args
-    args = [a for a in args if a != "--floor"] or DEFAULT_SETS
+    with_floor, all_splits = "--floor" in args, "--all-splits" in args
+    args = [a for a in args if a not in ("--floor", "--all-splits")] or DEFAULT_SETS
     for k in range(0, len(args), 4):
-        run(Path(args[k]), args[k + 1], int(args[k + 2]), int(args[k + 3]), with_floor=with_floor)
+        folder, pattern, columns, rows = Path(args[k]), args[k + 1], int(args[k + 2]), int(args[k + 3])
+        if not all_splits:
+            run(folder, pattern, columns, rows, with_floor=with_floor)
+            continue
+        found = detections(folder, pattern, Board("chessboard", columns, rows, 1.0))
+        pooled([run(folder, pattern, columns, rows, with_floor=with_floor, split=split, found=found) for split in range(6)])
