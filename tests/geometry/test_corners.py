@@ -190,4 +190,3 @@ def test_the_corner_of_a_square_on_the_boards_margin_is_not_an_x_junction(noise_
     corners (L-junctions); the X model bent both edges 6.6 px to fit them and kept them 33 px from the truth."""
     result = refine_corners(l_junction(noise_seed), [[31.0, 29.0]], 28.0)
     assert not result.ok[0]
-
