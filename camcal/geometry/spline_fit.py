@@ -95,10 +95,11 @@ def pose_view(board: Board, K: NDArray, distortion: Distortion, detection: Detec
     if not ok:
         raise CamcalError(f"{detection.image}: PnP failed")
 
+    # a fisheye's rays turned back inside its range (the rim's projection is finite); no cap otherwise
+    cap = distortion.max_angle_rad * (1.0 - 1e-9) if distortion.is_fisheye else None
+
     def offsets(pose: NDArray[np.float64]) -> NDArray[np.float64]:
-        rays = X @ cv2.Rodrigues(pose[:3])[0].T + pose[3:]
-        if distortion.is_fisheye:  # inside its range: the rim's projection is finite
-            rays = capped_rays(rays, _OPTICAL_AXIS, distortion.max_angle_rad * (1.0 - 1e-9))
+        rays = capped_rays(X @ cv2.Rodrigues(pose[:3])[0].T + pose[3:], _OPTICAL_AXIS, cap)
         return distortion.project_rays(rays, K) - detection.corners_px
 
     solution = scipy.optimize.least_squares(lambda pose: np.nan_to_num(offsets(pose), nan=1e6).ravel(),
