@@ -70,6 +70,8 @@ from camcal.model.rig import Camera
 
 MRCAL_PYTHON = "/usr/bin/python3"
 MRCAL_PEER = Path(__file__).with_name("mrcal_peer.py")
+#: OpenCV's stopping rule for the release-object fits (and the flat fit they are compared with)
+RO_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
 
 
 def sb_detections(folder: Path, pattern: str, board: Board, cache: Path | None = None) -> list[Detection]:
@@ -100,15 +102,30 @@ def sb_detections(folder: Path, pattern: str, board: Board, cache: Path | None =
     return views
 
 
-def posed_rms(board, camera, views) -> float:
-    r = np.concatenate([zhang._posed_residuals(board, camera, d) for d in views])
+def posed_rms(board, camera, views, points=None) -> float:
+    """RMS (px) of ``views`` each posed with ``camera``'s intrinsics held, against the flat board or ``points``."""
+    r = np.concatenate([zhang._posed_residuals(board, camera, d, points) for d in views])
     return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+
+
+def opencv_points(board, train) -> tuple[list, list]:
+    """OpenCV's object and image points of the views ``train``."""
+    return ([board.object_points[d.ids].astype(np.float32) for d in train],
+            [d.corners_px.astype(np.float32).reshape(-1, 1, 2) for d in train])
+
+
+def release_object_fit(board, train, size, flags: int):
+    """OpenCV's ``calibrateCameraRO`` (Strobl & Hirzinger 2011: the board's points refined with the camera) of
+    ``train``: training RMS, K, dist and the board's points (N, 3)."""
+    obj, img = opencv_points(board, train)
+    rms, K, dist, _, _, points = cv2.calibrateCameraRO(obj, img, size, board.columns - 1, None, None, flags=flags,
+                                                       criteria=RO_CRITERIA)
+    return rms, K, dist, points.reshape(-1, 3).astype(np.float64)
 
 
 def opencv_models(board, train, size):
     """(name, camera) of OpenCV's default, rational, rational + thin-prism and fisheye fits of ``train``."""
-    obj = [board.object_points[d.ids].astype(np.float32) for d in train]
-    img = [d.corners_px.astype(np.float32).reshape(-1, 1, 2) for d in train]
+    obj, img = opencv_points(board, train)
     for name, flags in (("default", 0), ("rational", cv2.CALIB_RATIONAL_MODEL),
                         ("rational+thin-prism", cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL)):
         try:
@@ -212,14 +229,10 @@ def board_shape(board, train, held, size, flags: int = cv2.CALIB_RATIONAL_MODEL)
     """OpenCV's fit (``flags``) with a flat board and with the board refined (``calibrateCameraRO``, Strobl &
     Hirzinger 2011): training RMS of each, held-out RMS of the release-object fit posed against its own board and
     the flat one."""
-    obj = [board.object_points[d.ids].astype(np.float32) for d in train]
-    img = [d.corners_px.astype(np.float32).reshape(-1, 1, 2) for d in train]
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    flat_rms = cv2.calibrateCamera(obj, img, size, None, None, flags=flags, criteria=crit)[0]
-    ro_rms, K, dist, _, _, points = cv2.calibrateCameraRO(obj, img, size, board.columns - 1, None, None,
-                                                          flags=flags, criteria=crit)
-
-    return (flat_rms, ro_rms, opencv_held_out_rms(points.reshape(-1, 3).astype(np.float64), held, K, dist),
+    obj, img = opencv_points(board, train)
+    flat_rms = cv2.calibrateCamera(obj, img, size, None, None, flags=flags, criteria=RO_CRITERIA)[0]
+    ro_rms, K, dist, points = release_object_fit(board, train, size, flags)
+    return (flat_rms, ro_rms, opencv_held_out_rms(points, held, K, dist),
             opencv_held_out_rms(board.object_points.astype(np.float64), held, K, dist))
 
 

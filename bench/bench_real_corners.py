@@ -45,7 +45,8 @@ from camcal.geometry import zhang
 from camcal.geometry.board import Board, Detection, detect_board
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bench_lens_models import floor, mrcal_models, mrcal_seed, opencv_held_out_rms, opencv_models, posed_rms  # noqa: E402
+from bench_lens_models import (floor, mrcal_models, mrcal_seed, opencv_held_out_rms, opencv_models,  # noqa: E402
+                               posed_rms, release_object_fit)
 
 SB_FLAGS = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
 DEFAULT_SETS = ["/work/data/udacity_gopro", "GOPR*.jpg", "8", "6",
@@ -112,15 +113,11 @@ def relabelled(views, like):
 
 def release_object_fits(board, train, size):
     """(name, K, dist, refined board points) of OpenCV's ``calibrateCameraRO`` (rational, + thin prism)."""
-    obj = [board.object_points[d.ids].astype(np.float32) for d in train]
-    img = [d.corners_px.astype(np.float32).reshape(-1, 1, 2) for d in train]
-    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     for name, flags in (("RO rational", cv2.CALIB_RATIONAL_MODEL),
                         ("RO rational+thin-prism", cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL)):
         try:
-            _, K, dist, _, _, points = cv2.calibrateCameraRO(obj, img, size, board.columns - 1, None, None,
-                                                             flags=flags, criteria=crit)
-            yield name, K, dist, points.reshape(-1, 3).astype(np.float64)
+            _, K, dist, points = release_object_fit(board, train, size, flags)
+            yield name, K, dist, points
         except cv2.error as error:
             print(f"  opencv {name}: failed ({str(error).strip().splitlines()[-1]})")
 
@@ -169,8 +166,7 @@ def run(folder: Path, pattern: str, columns: int, rows: int, with_mrcal: bool = 
     points = None if result.board_shape is None else result.board_shape.points(board)
     shape = "flat board" if result.board_shape is None else result.board_shape.describe(board)
     for corners, views in in_order["camcal's"].items():
-        r = np.concatenate([zhang._posed_residuals(board, camera, d, points) for d in views])
-        rows_out[("camcal default", corners)] = float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
+        rows_out[("camcal default", corners)] = posed_rms(board, camera, views, points)
     own = rows_out[("camcal default", "camcal's")]
     print(f"  camcal default on camcal's corners: {result.model}, {shape}; held out {own:.4f} px on its own corners "
           f"(calibrate_board's figure {result.heldout_rms_px:.4f})")
