@@ -5,12 +5,14 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import os
 import sys
 import traceback
 from collections.abc import Iterable, Sequence
 
 from camcal import __version__
 from camcal.base.errors import CamcalError
+from camcal.cli.options import CamcalParser, UsageError
 from camcal.cli.summary import EXIT_BAD_INPUT, EXIT_INTERNAL, VerbSummary
 
 __all__ = ["VERBS", "build_parser", "leaf_parsers", "main"]
@@ -42,7 +44,7 @@ def build_parser(verbs: Iterable[str] | None = None) -> argparse.ArgumentParser:
     registers has them without asking.
     """
     wanted = set(VERBS if verbs is None else verbs)
-    parser = argparse.ArgumentParser(
+    parser = CamcalParser(
         prog="camcal",
         description="Geometric and colour camera calibration for VFX pipelines.",
         epilog="Exit status: 0 done, 1 internal error (or a verb's own partial failure), 2 bad input.",
@@ -87,9 +89,28 @@ def _user_error(error: BaseException) -> str | None:
     return None
 
 
+def _quiet_opencv() -> None:
+    """No OpenCV log line below ERROR (its ``[ WARN:0@0.4] ... imread_`` would precede camcal's own message).
+
+    ``OPENCV_LOG_LEVEL`` is read at OpenCV's first log line (a user's own
+    setting is kept); when ``cv2`` is imported already, its level is set.
+    """
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+    cv2 = sys.modules.get("cv2")
+    if cv2 is not None and os.environ["OPENCV_LOG_LEVEL"] == "ERROR":
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the console script; returns the process exit code."""
+    """Entry point of the console script; returns the process exit code.
+
+    A malformed command line returns 2 after two lines on stderr,
+    ``camcal <verb>: error: <reason>`` and ``see 'camcal <verb> --help'``
+    (``--json``: the summary's ``error`` is the reason); ``--help`` and
+    ``--version`` exit through ``SystemExit(0)`` as argparse does.
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
+    _quiet_opencv()
     verb = next((a for a in argv if not a.startswith("-")), None)  # the top level has no option with a value
     parser = build_parser([verb] if verb in VERBS else [])
     debug = "--debug" in argv
@@ -99,20 +120,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     code = EXIT_BAD_INPUT
     error_line = None
     try:
-        try:
-            args = parser.parse_args(argv)
-        except SystemExit as exit_:  # --help, --version, or argparse's own usage error (exit 2)
-            if want_json and exit_.code not in (0, None):
-                print(summary.to_json(int(exit_.code), "malformed command line (see stderr)"), file=stdout)
-            raise
+        args = parser.parse_args(argv)
         debug, want_json = bool(getattr(args, "debug", False)), bool(getattr(args, "json", False))
         summary.verb = args._verb
+        summary.warnings.extend(getattr(args, "_deprecated", ()))
         args._summary = summary
         with contextlib.redirect_stdout(sys.stderr) if want_json else contextlib.nullcontext():
             code = int(args.func(args) or 0)
     except KeyboardInterrupt:
         error_line, code = "interrupted", 130
         print("camcal: interrupted", file=sys.stderr)
+    except UsageError as error:
+        prog = error.prog or f"camcal {summary.verb}"
+        summary.verb = prog.removeprefix("camcal").strip() or "camcal"
+        error_line, code = str(error), EXIT_BAD_INPUT
+        print(f"{prog}: error: {error}\nsee '{prog} --help'", file=sys.stderr)
     except Exception as error:  # noqa: BLE001 - the one place every error becomes one line
         user = _user_error(error)
         if debug:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import camera_option, handler, out_option, rig_argument, undistort_mode_options
+from camcal.cli.options import (after_parsing, camera_option, deprecated_option, handler, only_with, out_option,
+                                rig_argument, undistort_mode_options)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -14,19 +15,22 @@ def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal batch``."""
     rig_argument(parser)
     camera_option(parser)
-    parser.add_argument("--in", dest="in_pattern", required=True, metavar="PATTERN",
-                        help="input frames, e.g. 'plates/left.%%04d.exr'")
+    parser.add_argument("--images", dest="in_pattern", metavar="PATTERN",
+                        help="input frames, e.g. 'plates/left.%%04d.exr' (required)")
+    deprecated_option(parser, "--in", "--images", dest="in_pattern", metavar="PATTERN")
+    after_parsing(parser, _images_given)
     parser.add_argument("--frames", required=True, metavar="RANGE", help="e.g. 1001-1240, 1001-1240x2, 1,5,10-12")
     out_option(parser, "PATTERN", "output frames, e.g. 'out/left.%%04d.exr'")
     geometry = parser.add_mutually_exclusive_group()
     geometry.add_argument("--undistort", action="store_true", help="undistort (see `camcal undistort`)")
     geometry.add_argument("--rectify", action="store_true", help="rectify with the camera's rectification")
-    undistort_mode_options(parser, "how --undistort chooses the new camera (default: crop)")
+    undistort_mode_options(parser, "how --undistort chooses the new camera (default: crop)", "--undistort",
+                           lambda args: args.undistort)
     parser.add_argument("--colour", metavar="FIT.colour.json", help="apply a characterisation (camera RGB -> "
                         "--colour-space, through the OCIO processor of its exported transform)")
-    parser.add_argument("--colour-space", default="ACES2065-1",
-                        choices=("ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ"),
-                        help="output space of --colour (default: %(default)s; CIE XYZ is the fit's own XYZ)")
+    parser.add_argument("--colour-space", default=None, choices=("ACES2065-1", "ACEScg", "lin Rec.709", "CIE XYZ"),
+                        help="output space of --colour (default: ACES2065-1; CIE XYZ is the fit's own XYZ)")
+    only_with(parser, "--colour-space", "--colour", lambda args: args.colour is not None, default="ACES2065-1")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="use a running Dask scheduler")
     where.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per core)")
@@ -35,6 +39,12 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress line")
     handler(parser, _batch)
 
+
+
+def _images_given(parser, args: argparse.Namespace) -> None:
+    """``--images`` is required (an option rather than required=True, so the deprecated ``--in`` also counts)."""
+    if args.in_pattern is None:
+        parser.error("the following arguments are required: --images")
 
 def _batch(args: argparse.Namespace) -> int:
     """Process frames of a sequence, one Dask task per frame, on a local cluster (--workers) or an existing

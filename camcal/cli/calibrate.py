@@ -6,7 +6,7 @@ import argparse
 
 from camcal.base.errors import CamcalError
 from camcal.cli.options import (expand_glob, handler, image_size, image_size_option, loss_option, named_option,
-                                out_option, output_folder, parse_holdout, report_option, verb_group)
+                                only_with, out_option, output_folder, parse_holdout, report_option, verb_group)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -35,10 +35,10 @@ def register(parser: argparse.ArgumentParser) -> None:
         "black, two-sided = the back printed as the mirror image (cameras behind the board see it mirrored), "
         "legacy = OpenCV's legacy ChArUco pattern",
     )
-    named_option(board, "--camera", "NAME=GLOB|VIDEO", "a camera and its images, e.g. left='shots/left*.jpg' "
+    named_option(board, "--images", "NAME=GLOB|VIDEO", "a camera and its images, e.g. left='shots/left*.jpg' "
                  "right='shots/right*.jpg', or its video (cam0=cam_0.mp4; .mp4 .mov .avi .mkv, frame k of the "
                  "video is frame number k, from 0) (several entries or a repeated option; globs absolute or "
-                 "relative)", required=True)
+                 "relative)", required=True, dest="camera", old="--camera")
     board.add_argument("--every", type=int, default=1, metavar="N",
                        help="videos: detect every N-th frame (frames 0, N, 2N...; default 1); with --timestamps, the "
                        "first camera's, and the other cameras' frames matched to them")
@@ -102,6 +102,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                        "first camera (expected, from the views taken), drawn on a frame-sized preview PNG")
     board.add_argument("--suggest-preview", metavar="FILE.png",
                        help="where --suggest draws its shot list (default: OUT without .rig.json + .suggest.png)")
+    only_with(board, "--suggest-preview", "--suggest N", lambda args: args.suggest > 0)
     out_option(board, "FILE.rig.json")
     report_option(board, "write PNG plots: residuals, per-image RMS, coverage, projection sigma heat maps")
     handler(board, _board)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import every_option, handler, out_option, output_folder, report_option, verb_group
+from camcal.cli.options import (deprecated_option, every_option, handler, images_option, only_with, out_option,
+                                output_folder, report_option, verb_group)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -15,31 +16,46 @@ def register(parser: argparse.ArgumentParser) -> None:
     """``fit`` under ``camcal distortion``."""
     verbs = verb_group(parser, "distortion_verb")
     fit = verbs.add_parser("fit", help="plumb-line fit (Strand & Hayman, refined by Devernay & Faugeras)")
-    fit.add_argument("images", nargs="*", metavar="IMAGES|VIDEO", help="images of one camera, or its videos")
+    images_option(fit, "FILE|VIDEO", "images of one camera (repeatable), or its videos", required=False)
     every_option(fit)
     fit.add_argument("--lines", metavar="LINES.json", help="line points instead of images")
-    fit.add_argument("--pattern", metavar="COLSxROWS", help="chessboard inner corners, e.g. 9x6 (default: edges)")
-    fit.add_argument("--model", choices=("division", "polynomial"), default="division")
-    fit.add_argument("--fit-centre", action="store_true", help="fit the distortion centre too")
+    fit.add_argument("--board", dest="pattern", type=_chessboard, metavar="chessboard:COLSxROWS",
+                     help="lines through a chessboard's inner corners, e.g. chessboard:9x6 (a square size after it, "
+                     "as in calibrate board, is ignored; default: long straight edges in the images)")
+    deprecated_option(fit, "--pattern", "--board chessboard:COLSxROWS", dest="pattern", metavar="COLSxROWS")
+    only_with(fit, "--board", "images (--images)", lambda args: bool(args.images))
+    fit.add_argument("--model", choices=("division", "polynomial"), default="division",
+                     help="the lens model fitted: division (one parameter) or polynomial (default: %(default)s)")
+    fit.add_argument("--fit-centre", action="store_true", help="fit the distortion centre too (default: the image "
+                     "centre)")
     out_option(fit, "lens.json")
     report_option(fit, "write per-line figures to DIR/plumbline_report.json")
     handler(fit, _fit)
+
+
+def _chessboard(spec: str) -> str:
+    """``--board chessboard:COLSxROWS[:SQUARE...]`` as ``COLSxROWS`` (straight lines need no square size)."""
+    kind, _, rest = spec.partition(":")
+    if kind != "chessboard" or not rest:
+        raise argparse.ArgumentTypeError(f"expected chessboard:COLSxROWS (inner corners, e.g. chessboard:9x6), "
+                                         f"got {spec!r}")
+    return rest.split(":")[0]
 
 
 def _pattern(value: str) -> tuple[int, int]:
     try:
         cols, rows = (int(v) for v in value.lower().split("x"))
     except ValueError:
-        raise CamcalError(f"--pattern must look like 9x6 (inner corners), got {value!r}") from None
+        raise CamcalError(f"--board must look like chessboard:9x6 (inner corners), got {value!r}") from None
     if cols < 2 or rows < 2:
-        raise CamcalError(f"--pattern needs at least 2x2 inner corners, got {value!r}")
+        raise CamcalError(f"--board needs at least 2x2 inner corners, got {value!r}")
     return cols, rows
 
 
 def _fit(args: argparse.Namespace) -> int:
     """Fit a division or polynomial lens model so that straight lines become straight. Lines come from chessboard
-    rows/columns (--pattern), from long edges in IMAGES, or from LINES.json: {"image_size": [W, H], "lines":
-    [[[x, y], ...], ...]}. A video in IMAGES is streamed, one frame at a time (--every N: frames 0, N, 2N...).
+    rows/columns (--board), from long edges in the --images, or from LINES.json: {"image_size": [W, H], "lines":
+    [[[x, y], ...], ...]}. A video in --images is streamed, one frame at a time (--every N: frames 0, N, 2N...).
     """
     import cv2
 
@@ -54,7 +70,7 @@ def _fit(args: argparse.Namespace) -> int:
     from camcal.base.jsonfile import write_json
 
     if bool(args.images) == bool(args.lines):
-        raise CamcalError("give either IMAGES or --lines LINES.json (not both)")
+        raise CamcalError("give either --images or --lines LINES.json (not both)")
     if args.lines:
         lines = read_lines(args.lines)
         skipped: list[str] = []

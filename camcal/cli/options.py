@@ -2,7 +2,12 @@
 
 A verb module adds a shared option with the function named after it
 (``out_option(parser, "FILE.rig.json")``), so one option is spelled, typed
-and checked the same in every verb that has it.
+and checked the same in every verb that has it. Every parser is a
+:class:`CamcalParser`: a usage error is one line naming the verb plus a
+``--help`` hint (:class:`UsageError`), checks added with :func:`after_parsing`
+run once the verb's options are parsed (:func:`only_with`: a flag that has
+no effect without another is an error), and :func:`deprecated_option` keeps
+a former spelling working with a one-line note.
 """
 
 from __future__ import annotations
@@ -13,7 +18,8 @@ import glob
 import inspect
 import os
 import re
-from collections.abc import Iterator, Sequence
+import sys
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from camcal.base.atomic import atomic_dir
@@ -21,20 +27,31 @@ from camcal.base.errors import CamcalError
 from camcal.base.frame_ranges import parse_frames
 
 __all__ = [
+    "ADAPTATION",
+    "ADAPTATIONS",
     "LOSSES",
+    "OVERSCAN",
+    "CamcalParser",
     "NamedValues",
+    "UsageError",
+    "adaptation_option",
+    "after_parsing",
     "camera_label_option",
     "camera_option",
+    "deprecated_option",
     "distance_option",
     "every_option",
     "expand_glob",
     "handler",
+    "images_option",
     "image_size",
     "image_size_option",
     "loss_option",
     "max_fov_option",
     "name_value",
     "named_option",
+    "note_deprecated",
+    "only_with",
     "out_option",
     "output_folder",
     "parse_holdout",
@@ -47,6 +64,133 @@ __all__ = [
 
 #: Robust losses of the bundle adjustments (Ceres' names).
 LOSSES = ("trivial", "huber", "soft_l1", "cauchy")
+
+
+class UsageError(CamcalError):
+    """A malformed command line: ``str()`` is the reason, ``prog`` the verb's ``camcal ...`` (None: unknown).
+
+    :func:`camcal.cli.main` prints it as ``camcal <verb>: error: <reason>``
+    and ``see 'camcal <verb> --help'`` and exits 2; with ``--json`` the
+    summary's ``error`` holds the reason.
+    """
+
+    def __init__(self, reason: str, prog: str | None = None) -> None:
+        super().__init__(reason)
+        self.prog = prog
+
+
+class CamcalParser(argparse.ArgumentParser):
+    """argparse's parser, with a one-line :class:`UsageError` instead of the usage dump, and checks after parsing.
+
+    ``error`` raises :class:`UsageError` (argparse calls it for a missing or
+    malformed option); ``parse_known_args`` runs the checks
+    :func:`after_parsing` added on this parser, in order, on its namespace
+    (a verb's subparser parses into a namespace of its own, so a check sees
+    that verb's options). Sub-verbs' parsers are of the same class. With
+    ``loose_files`` set to an attribute name, the arguments left over that
+    are not options are put there (a list) instead of being unrecognised.
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.checks: list[Callable[[CamcalParser, argparse.Namespace], None]] = []
+        self.loose_files: str | None = None
+
+    def error(self, message: str):
+        raise UsageError(message, self.prog)
+
+    def parse_known_args(self, args=None, namespace=None):
+        namespace, extras = super().parse_known_args(args, namespace)
+        if self.loose_files is not None:  # (not beside an unknown option: "--bogus 3" is one mistake)
+            claimed = [] if any(arg.startswith("-") for arg in extras) else extras
+            setattr(namespace, self.loose_files, claimed)
+            extras = [] if claimed else extras
+        for check in self.checks:
+            check(self, namespace)
+        return namespace, extras
+
+    def parse_args(self, args=None, namespace=None):
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:  # named after the leaf verb, not the top-level parser that collects them
+            verb = getattr(namespace, "_verb", None)
+            raise UsageError(f"unrecognized arguments: {' '.join(extras)}", f"{self.prog} {verb}" if verb else self.prog)
+        return namespace
+
+
+def after_parsing(parser: argparse.ArgumentParser, check: Callable[[CamcalParser, argparse.Namespace], None]) -> None:
+    """Run ``check(parser, namespace)`` once ``parser`` has parsed its options (it may fill values or raise)."""
+    parser.checks.append(check)
+
+
+def _action(parser: argparse.ArgumentParser, option: str) -> argparse.Action:
+    return next(a for a in parser._actions if option in a.option_strings)
+
+
+def only_with(parser: argparse.ArgumentParser, option: str, needs: str, holds: Callable[[argparse.Namespace], bool],
+              default=None) -> None:
+    """``option`` has no effect unless ``needs`` holds: given without it, a usage error naming both.
+
+    ``option`` must be added with a default of ``None`` (or ``False`` for a
+    flag), so that giving it is seen; ``default`` is then filled in when it
+    is not given (state it in the option's help).
+    """
+    dest = _action(parser, option).dest
+
+    def check(parser: CamcalParser, namespace: argparse.Namespace) -> None:
+        value = getattr(namespace, dest)
+        if value is None or value is False:
+            if default is not None:
+                setattr(namespace, dest, default)
+        elif not holds(namespace):
+            parser.error(f"{option} has no effect without {needs}")
+
+    after_parsing(parser, check)
+
+
+def deprecated_option(parser: argparse.ArgumentParser, old: str, new: str, **kwargs) -> None:
+    """``old``, a former spelling of the option ``new``: still accepted, hidden from ``--help``.
+
+    ``kwargs`` are ``new``'s (same ``dest``, action and type). Each use
+    prints one line ``camcal <verb>: warning: OLD is deprecated, use NEW``
+    on stderr; :func:`camcal.cli.main` also lists it in the ``--json``
+    summary's warnings.
+    """
+    action = kwargs.pop("action", "store")
+    base = parser._registry_get("action", action, action)
+
+    class Deprecated(base):
+        def __call__(self, parser, namespace, values, option_string=None) -> None:
+            note_deprecated(parser, namespace, f"{option_string} is deprecated, use {new}")
+            super().__call__(parser, namespace, values, option_string)
+
+    parser.add_argument(old, action=Deprecated, help=argparse.SUPPRESS, **kwargs)
+
+
+def note_deprecated(parser: argparse.ArgumentParser, namespace: argparse.Namespace, note: str) -> None:
+    """Print ``camcal <verb>: warning: <note>`` once on stderr; :func:`camcal.cli.main` puts it in the summary."""
+    if note not in getattr(namespace, "_deprecated", ()):
+        print(f"{parser.prog}: warning: {note}", file=sys.stderr)
+        namespace._deprecated = [*getattr(namespace, "_deprecated", ()), note]
+
+
+def images_option(parser: argparse.ArgumentParser, metavar: str, help: str, required: bool = True) -> None:
+    """``--images FILE ...``: a one-camera verb's input files (repeatable; the former positional files still work).
+
+    Files given without ``--images`` are added to them with a deprecation
+    note; ``required``: a usage error when there are none.
+    """
+    parser.add_argument("--images", nargs="+", action="extend", default=[], metavar=metavar, help=help)
+    parser.loose_files = "_loose_files"
+
+    def merge(parser: CamcalParser, namespace: argparse.Namespace) -> None:
+        positional = namespace.__dict__.pop("_loose_files")
+        if positional:
+            note_deprecated(parser, namespace, "image files without --images are deprecated, use --images FILE ...")
+            namespace.images = [*namespace.images, *positional]
+        if required and not namespace.images:
+            parser.error("the following arguments are required: --images")
+
+    after_parsing(parser, merge)
 
 
 def handler(parser: argparse.ArgumentParser, run) -> None:
@@ -97,17 +241,33 @@ class NamedValues(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None) -> None:
         current = dict(getattr(namespace, self.dest, None) or {})
         form = self.metavar if isinstance(self.metavar, str) else "NAME=VALUE"
+        prog = getattr(parser, "prog", None)
         for entry in values:
-            name, value = name_value(entry, option_string, form)
+            try:
+                name, value = name_value(entry, option_string, form)
+            except CamcalError as error:
+                raise UsageError(str(error), prog) from None
             if name in current:
-                raise CamcalError(f"{option_string} {entry}: name {name!r} given twice")
+                raise UsageError(f"{option_string} {entry}: name {name!r} given twice", prog)
             current[name] = value
         setattr(namespace, self.dest, current)
 
 
-def named_option(parser, option: str, metavar: str, help: str, required: bool = False) -> None:
-    """A :class:`NamedValues` option such as ``--camera NAME=GLOB``."""
-    parser.add_argument(option, required=required, action=NamedValues, metavar=metavar, help=help)
+def named_option(parser, option: str, metavar: str, help: str, required: bool = False, dest: str | None = None,
+                 old: str | None = None) -> None:
+    """A :class:`NamedValues` option such as ``--images NAME=GLOB``; ``old``: its former spelling, deprecated."""
+    dest = dest or option.lstrip("-").replace("-", "_")
+    parser.add_argument(option, dest=dest, required=required and old is None, action=NamedValues, metavar=metavar,
+                        help=help)
+    if old is None:
+        return
+    deprecated_option(parser, old, option, dest=dest, action=NamedValues, metavar=metavar)
+    if required:
+        def given(parser: CamcalParser, namespace: argparse.Namespace) -> None:
+            if not getattr(namespace, dest):
+                parser.error(f"the following arguments are required: {option}")
+
+        after_parsing(parser, given)
 
 
 def expand_glob(option: str, name: str, pattern: str, root: str | os.PathLike | None = None,
@@ -137,12 +297,13 @@ def rig_argument(parser, help: str = "a *.rig.json file", metavar: str = "RIG", 
 
 def camera_option(parser) -> None:
     """``--camera NAME``: the one rig camera a verb works on."""
-    parser.add_argument("--camera", required=True, metavar="NAME")
+    parser.add_argument("--camera", required=True, metavar="NAME", help="the rig camera to use (its name in RIG)")
 
 
-def camera_label_option(parser) -> None:
-    """``--camera NAME``: the camera name a colour verb records in its file."""
-    parser.add_argument("--camera", default=None, help="camera name recorded in the file")
+def camera_label_option(parser, help: str = "camera name recorded in the file (default: none)") -> None:
+    """``--camera-name NAME``: the camera name a colour verb records in its file (``--camera``: deprecated)."""
+    parser.add_argument("--camera-name", dest="camera", default=None, metavar="NAME", help=help)
+    deprecated_option(parser, "--camera", "--camera-name", dest="camera", metavar="NAME")
 
 
 def out_option(parser, metavar: str, help: str | None = None) -> None:
@@ -186,10 +347,23 @@ def image_size(value: Sequence[int]) -> tuple[int, int]:
     return width, height
 
 
-def undistort_mode_options(parser, mode_help: str) -> None:
-    """``--mode crop|keep|overscan`` and ``--overscan``: the pinhole camera an undistortion makes."""
-    parser.add_argument("--mode", choices=("crop", "keep", "overscan"), default="crop", help=mode_help)
-    parser.add_argument("--overscan", type=float, default=1.1, help="canvas factor for --mode overscan")
+#: ``--overscan``'s default: the canvas of an undistorted plate, as a factor of the plate.
+OVERSCAN = 1.1
+
+
+def undistort_mode_options(parser, mode_help: str, needs: str | None = None,
+                           holds: Callable[[argparse.Namespace], bool] | None = None) -> None:
+    """``--mode crop|keep|overscan`` and ``--overscan`` (only with ``--mode overscan``): the pinhole camera an undistortion makes.
+
+    ``needs`` / ``holds``: ``--mode`` has no effect without ``needs`` (:func:`only_with`).
+    """
+    parser.add_argument("--mode", choices=("crop", "keep", "overscan"), default=None if needs else "crop",
+                        help=mode_help)
+    if needs:
+        only_with(parser, "--mode", needs, holds, default="crop")
+    parser.add_argument("--overscan", type=float, default=None, metavar="FACTOR",
+                        help=f"with --mode overscan: the canvas as a factor of the plate (default: {OVERSCAN})")
+    only_with(parser, "--overscan", "--mode overscan", lambda args: args.mode == "overscan", default=OVERSCAN)
 
 
 def distance_option(parser) -> None:
@@ -202,6 +376,7 @@ def sigma_options(parser, what: str) -> None:
     """``--sigma`` (a projection-sigma EXR beside the outputs) and its ``--distance``."""
     parser.add_argument("--sigma", action="store_true", help=f"also write {what}")
     distance_option(parser)
+    only_with(parser, "--distance", "--sigma", lambda args: args.sigma)
 
 
 def _positive_float(text: str) -> float:
@@ -212,6 +387,25 @@ def _positive_float(text: str) -> float:
     if not (value > 0 and value != float("inf")):
         raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
     return value
+
+
+#: Chromatic adaptation transforms (von Kries, colour-science's names) and the one default every verb uses:
+#: Bradford, as OpenColorIO's ACES configs and ICC profiles (ICC.1:2010, Annex E) adapt.
+ADAPTATIONS = ("Bradford", "CAT02")
+ADAPTATION = "Bradford"
+
+
+def adaptation_option(parser, what: str, needs: str, holds: Callable[[argparse.Namespace], bool],
+                      dest: str = "adaptation", old: str | None = None) -> None:
+    """``--adaptation Bradford|CAT02``: the chromatic adaptation ``what``, only with ``needs`` (:func:`only_with`).
+
+    ``old``: a former spelling, deprecated (:func:`deprecated_option`).
+    """
+    parser.add_argument("--adaptation", dest=dest, choices=ADAPTATIONS, default=None,
+                        help=f"chromatic adaptation {what}: {' or '.join(ADAPTATIONS)} (default: {ADAPTATION})")
+    if old is not None:
+        deprecated_option(parser, old, "--adaptation", dest=dest, choices=ADAPTATIONS)
+    only_with(parser, "--adaptation", needs, holds, default=ADAPTATION)
 
 
 def max_fov_option(parser, help: str) -> None:

@@ -19,9 +19,10 @@ UNCERTAINTY = {"jackknife": "step", "jackknife-refit": "refit", "covariance": No
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal solve``."""
     parser.add_argument("folders", nargs="+", metavar="IMAGES_DIR", help="image folder(s)")
-    named_option(parser, "--camera", "NAME=GLOB|VIDEO", "a camera's images, e.g. left='*_L.png' right='*_R.png', "
+    named_option(parser, "--images", "NAME=GLOB|VIDEO", "a camera's images, e.g. left='*_L.png' right='*_R.png', "
                  "or its video (left=left.mp4: every --every-th frame, streamed into OUT/images; the k-th frames "
-                 "kept pair up) (relative to IMAGES_DIR, or absolute; several entries or a repeated option)")
+                 "kept pair up) (relative to IMAGES_DIR, or absolute; several entries or a repeated option; "
+                 "default: one camera per folder)", dest="camera", old="--camera")
     every_option(parser)
     parser.add_argument("--rig", metavar="KNOWN.rig.json",
                         help="hold the cameras' relative poses at this calibration (and take its units)")

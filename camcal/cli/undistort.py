@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import (camera_option, every_option, handler, max_fov_option, out_option, rig_argument,
-                                sigma_options, undistort_mode_options)
+from camcal.cli.options import (camera_option, every_option, handler, images_option, max_fov_option, out_option,
+                                rig_argument, sigma_options, undistort_mode_options)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -16,8 +16,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal undistort``."""
     rig_argument(parser)
     camera_option(parser)
-    parser.add_argument("images", nargs="+", metavar="IMAGES|VIDEO",
-                        help="image files, or videos (frame k of clip.mp4 written as clip_00000k.png)")
+    images_option(parser, "FILE|VIDEO", "image files (repeatable), or videos (frame k of clip.mp4 written as "
+                  "clip_00000k.png)")
     every_option(parser)
     undistort_mode_options(parser, "crop: no black borders; keep: every source pixel kept (bigger canvas); "
                            "overscan: canvas --overscan times the plate (default: crop)")

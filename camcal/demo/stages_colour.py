@@ -52,7 +52,7 @@ def _colour_fit_argv(ctx: DemoContext, name: str, model: str, out: Path) -> list
     """``camcal colour fit`` of camera ``name``'s rendered chart, judged on its independent patches."""
     return ["colour", "fit", "--chart", str(ctx.need("chart_images", "colour fit")[name]),
             "--reference", "ISO 17321-1", "--illuminant", ctx.truth.illuminant, "--linearise", "none",
-            "--model", model, "--test-patches", str(_independent_csv(ctx, name)), "--camera", name, "--out", str(out)]
+            "--model", model, "--test-patches", str(_independent_csv(ctx, name)), "--camera-name", name, "--out", str(out)]
 
 
 def _independent_csv(ctx: DemoContext, name: str) -> Path:

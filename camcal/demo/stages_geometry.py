@@ -70,8 +70,8 @@ def stage_calibrate_board(ctx: DemoContext) -> StageResult:
     residual_plot = plot_residuals(ctx.path("plots", "board_residuals.png"), result.rig.cameras,
                                     result.camera_of_point, result.points_px,
                                     -result.residuals_px)  # zhang's residuals_px are projected - detected
-    command = (f"camcal calibrate board --board {truth.board_spec} --camera left='images/board/left/*.png' "
-               f"--camera right='images/board/right/*.png' --model division --out calibrate/board.rig.json "
+    command = (f"camcal calibrate board --board {truth.board_spec} --images left='images/board/left/*.png' "
+               f"right='images/board/right/*.png' --model division --out calibrate/board.rig.json "
                f"--report calibrate")
     body = (f"<pre>{html.escape(command)}</pre><pre>{html.escape(result.summary())}</pre>"
             f"{img_tag(ctx, residual_plot)}"
@@ -110,7 +110,7 @@ def stage_distortion_fit(ctx: DemoContext) -> StageResult:
     stage = "distortion fit"
     images = ctx.need("board_images", stage)["left"]
     lens = ctx.path("distortion", "left.lens.json")
-    argv = ["distortion", "fit", *images, "--pattern", "9x6", "--model", "division", "--fit-centre",
+    argv = ["distortion", "fit", "--images", *images, "--board", "chessboard:9x6", "--model", "division", "--fit-centre",
             "--out", str(lens), "--report", str(ctx.out_dir / "distortion")]
     run_cli(argv, stage)
     fitted = read_json(lens, "lens file")
@@ -135,7 +135,7 @@ def stage_distortion_fit(ctx: DemoContext) -> StageResult:
                ("ST-map undistort, left (EXR)", stmap_dir / "left_undistort.exr"),
                ("ST-map redistort, left (EXR)", stmap_dir / "left_redistort.exr"),
                ("projection sigma, left (EXR, with the redistort map)", stmap_dir / "left_sigma.exr"))
-    shown = ["distortion", "fit", str(Path(images[0]).parent / "*.png"), *argv[2 + len(images):]]
+    shown = ["distortion", "fit", "--images", str(Path(images[0]).parent / "*.png"), *argv[3 + len(images):]]
     body = (f"<pre>{html.escape(command_line(shown, ctx))}</pre>"
             f"<p>Plumb-line fit on the rows and columns of the left camera's chessboard views: lambda "
             f"{lam_r:.4e} (true {lam_t:.4e}), centre ({centre_r[0]:.2f}, {centre_r[1]:.2f}) px (true "

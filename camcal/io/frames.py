@@ -147,6 +147,8 @@ def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> NDArra
     """
     if Path(path).suffix.lower() == ".exr":
         return _imread_exr(Path(path), flags)
+    if not Path(path).is_file():  # before OpenCV, which would log its own warning line first
+        raise CamcalError(f"cannot read {path} (missing file)")
     check_image_header(Path(path))
     try:
         pixels = cv2.imread(str(path), flags)

@@ -96,21 +96,21 @@ CASES = [
     ("calibrate dlt binary", "calibrate dlt --points {in}/binary.csv --image-size 640 480 --out {out}/a.rig.json"),
     ("calibrate dlt non-finite", "calibrate dlt --points {in}/points_inf.csv --image-size 640 480 --out {out}/a.rig.json"),
     ("calibrate dlt wrong size", "calibrate dlt --points {in}/points.csv --image-size 0 480 --out {out}/a.rig.json"),
-    ("calibrate board no match", "calibrate board --board chessboard:9x6:1 --camera left={in}/nothing*.png --out {out}/a.rig.json"),
-    ("calibrate board wrong pattern", "calibrate board --board chessboard:9y6:1 --camera left={in}/plain.png --out {out}/a.rig.json"),
-    ("calibrate board absent board", "calibrate board --board chessboard:9x6:1 --camera left={in}/plain.png --out {out}/a.rig.json"),
-    ("calibrate board corrupt image", "calibrate board --board chessboard:9x6:1 --camera left={in}/garbage.png --out {out}/a.rig.json"),
-    ("calibrate board duplicate name", "calibrate board --board chessboard:9x6:1 --camera a={in}/plain.png a={in}/plain.png --out {out}/a.rig.json"),
-    ("calibrate board missing =", "calibrate board --board chessboard:9x6:1 --camera {in}/plain.png --out {out}/a.rig.json"),
+    ("calibrate board no match", "calibrate board --board chessboard:9x6:1 --images left={in}/nothing*.png --out {out}/a.rig.json"),
+    ("calibrate board wrong pattern", "calibrate board --board chessboard:9y6:1 --images left={in}/plain.png --out {out}/a.rig.json"),
+    ("calibrate board absent board", "calibrate board --board chessboard:9x6:1 --images left={in}/plain.png --out {out}/a.rig.json"),
+    ("calibrate board corrupt image", "calibrate board --board chessboard:9x6:1 --images left={in}/garbage.png --out {out}/a.rig.json"),
+    ("calibrate board duplicate name", "calibrate board --board chessboard:9x6:1 --images a={in}/plain.png a={in}/plain.png --out {out}/a.rig.json"),
+    ("calibrate board missing =", "calibrate board --board chessboard:9x6:1 --images {in}/plain.png --out {out}/a.rig.json"),
     ("distortion fit missing", "distortion fit {in}/missing.png --out {out}/lens.json"),
     ("distortion fit corrupt", "distortion fit {in}/garbage.png --out {out}/lens.json"),
-    ("distortion fit wrong pattern", "distortion fit {in}/plain.png --pattern 9by6 --out {out}/lens.json"),
+    ("distortion fit wrong pattern", "distortion fit --images {in}/plain.png --board chessboard:9by6 --out {out}/lens.json"),
     ("distortion fit absent lines", "distortion fit {in}/plain.png --out {out}/lens.json"),
     ("distortion fit malformed lines", "distortion fit --lines {in}/lines.json --out {out}/lens.json"),
-    ("undistort missing rig", "undistort {in}/missing.rig.json --camera left {in}/plain.png --out {out}/u"),
-    ("undistort wrong name", "undistort {in}/good.rig.json --camera centre {in}/plain.png --out {out}/u"),
-    ("undistort wrong size", "undistort {in}/good.rig.json --camera left {in}/small.png --out {out}/u"),
-    ("undistort corrupt image", "undistort {in}/good.rig.json --camera left {in}/garbage.png --out {out}/u"),
+    ("undistort missing rig", "undistort {in}/missing.rig.json --camera left --images {in}/plain.png --out {out}/u"),
+    ("undistort wrong name", "undistort {in}/good.rig.json --camera centre --images {in}/plain.png --out {out}/u"),
+    ("undistort wrong size", "undistort {in}/good.rig.json --camera left --images {in}/small.png --out {out}/u"),
+    ("undistort corrupt image", "undistort {in}/good.rig.json --camera left --images {in}/garbage.png --out {out}/u"),
     ("stmap wrong name", "stmap {in}/good.rig.json --camera centre --out {out}/s"),
     ("stmap corrupt rig", "stmap {in}/corrupt.json --camera left --out {out}/s"),
     ("rectify wrong name", "rectify {in}/good.rig.json --images centre={in}/plain.png --write {out}/w --out {out}/r.rig.json"),
@@ -119,8 +119,8 @@ CASES = [
     ("rectify non-finite alpha", "rectify {in}/good.rig.json --alpha nan --out {out}/r.rig.json"),
     ("rectify missing matches", "rectify {in}/good.rig.json --method hartley --matches {in}/missing.csv --out {out}/r.rig.json"),
     ("solve missing folder", "solve {in}/missing_dir --out {out}/s"),
-    ("solve no match", "solve {in} --camera left=nothing*.png --out {out}/s"),
-    ("solve unknown rig", "solve {in} --camera left=plain.png --rig {in}/corrupt.json --out {out}/s"),
+    ("solve no match", "solve {in} --images left=nothing*.png --out {out}/s"),
+    ("solve unknown rig", "solve {in} --images left=plain.png --rig {in}/corrupt.json --out {out}/s"),
     ("blender import missing", "blender import {in}/missing.rig.json --blend {out}/a.blend"),
     ("blender import corrupt", "blender import {in}/corrupt.json --blend {out}/a.blend"),
     ("colour fit absent chart", "colour fit --chart {in}/plain.png --out {out}/a.colour.json"),
@@ -155,9 +155,9 @@ CASES = [
     ("colour sensitivities corrupt chart", "colour sensitivities --chart D65={in}/garbage.png --out {out}/c.ssf.json"),
     ("colour sensitivities unknown illuminant", "colour sensitivities --chart D99={in}/plain.png --out {out}/c.ssf.json"),
     ("colour sensitivities missing =", "colour sensitivities --chart {in}/plain.png --out {out}/c.ssf.json"),
-    ("batch missing rig", "batch {in}/missing.rig.json --camera left --in {in}/f.%04d.png --frames 1-2 --out {out}/o.%04d.png"),
-    ("batch wrong frames", "batch {in}/good.rig.json --camera left --in {in}/f.%04d.png --frames 5-x --out {out}/o.%04d.png"),
-    ("batch wrong name", "batch {in}/good.rig.json --camera centre --in {in}/f.%04d.png --frames 1-2 --out {out}/o.%04d.png"),
+    ("batch missing rig", "batch {in}/missing.rig.json --camera left --images {in}/f.%04d.png --frames 1-2 --out {out}/o.%04d.png"),
+    ("batch wrong frames", "batch {in}/good.rig.json --camera left --images {in}/f.%04d.png --frames 5-x --out {out}/o.%04d.png"),
+    ("batch wrong name", "batch {in}/good.rig.json --camera centre --images {in}/f.%04d.png --frames 1-2 --out {out}/o.%04d.png"),
     ("demo unknown stage", "demo --stages render,teleport --out {out}/d"),
 ]
 
@@ -169,9 +169,14 @@ def test_bad_input_is_one_line_exit_2_nothing_written(case, argv, inputs, tmp_pa
     code = main(argv.format(**{"in": inputs, "out": out}).split())
     captured = capsys.readouterr()
     assert code == 2, (case, captured.err)
-    # progress lines may come first; the error is the one last line
-    messages = [line for line in captured.err.splitlines() if line.startswith("camcal:")]
-    assert len(messages) == 1 and captured.err.splitlines()[-1].startswith("camcal: error: "), captured.err
+    # progress lines may come first; the error is the one last line (a malformed command line: then the hint)
+    lines = captured.err.splitlines()
+    if lines[-1].startswith("see 'camcal "):
+        verb = lines[-1].removeprefix("see '").removesuffix(" --help'")
+        assert len(lines) == 2 and lines[0].startswith(f"{verb}: error: "), captured.err
+    else:
+        messages = [line for line in lines if line.startswith("camcal:")]
+        assert len(messages) == 1 and lines[-1].startswith("camcal: error: "), captured.err
     assert "Traceback" not in captured.err + captured.out
     assert list(out.iterdir()) == [], f"{case} wrote {list(out.iterdir())}"
 
@@ -246,9 +251,19 @@ def test_camcal_error_is_not_a_value_error():
     assert not issubclass(CamcalError, ValueError)
 
 
+def test_usage_error_is_one_line_and_a_hint(capsys):
+    assert main(["rectify", "--out", "r.rig.json"]) == 2  # RIG missing: argparse's usage error, without its dump
+    assert capsys.readouterr().err.splitlines() == [
+        "camcal rectify: error: the following arguments are required: RIG", "see 'camcal rectify --help'"]
+    assert main(["calibrate", "board", "--board", "chessboard:9x6:1", "--images", "a=x", "--out", "o", "--bogus"]) == 2
+    assert capsys.readouterr().err.splitlines() == [  # named after the verb, not the top-level parser
+        "camcal calibrate board: error: unrecognized arguments: --bogus", "see 'camcal calibrate board --help'"]
+
+
 def test_json_object_for_a_malformed_command_line(capsys):
-    with pytest.raises(SystemExit) as info:
-        main(["rectify", "--json"])  # RIG and --out missing: argparse's usage error
-    assert info.value.code == 2
-    summary = json.loads(capsys.readouterr().out)
-    assert summary["exit_code"] == 2 and summary["error"] == "malformed command line (see stderr)"
+    assert main(["rectify", "--json"]) == 2  # RIG and --out missing: argparse's usage error
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out)
+    assert summary["exit_code"] == 2 and summary["verb"] == "rectify"
+    assert summary["error"] == "the following arguments are required: RIG, --out"
+    assert captured.err.splitlines()[0] == f"camcal rectify: error: {summary['error']}"

@@ -29,7 +29,7 @@ def test_calibrate_board(real_pair_shots, tmp_path, capsys):
     folder = real_pair_shots
     out = tmp_path / "stereo.rig.json"
     code, summary, human = run_json(["calibrate", "board", "--board", "chessboard:9x6:1", "--units", "squares",
-                                     "--camera", f"left={folder}/left*.jpg", f"right={folder}/right*.jpg",
+                                     "--images", f"left={folder}/left*.jpg", f"right={folder}/right*.jpg",
                                      "--out", str(out)], capsys)
     assert code == 0 and summary["verb"] == "calibrate board" and "RMS reprojection error" in human
     rig = Rig.load(out)
@@ -46,7 +46,7 @@ def test_calibrate_board_suggest(real_pair_shots, tmp_path, capsys):
     folder = real_pair_shots
     out = tmp_path / "left.rig.json"
     code, summary, human = run_json(["calibrate", "board", "--board", "chessboard:9x6:1", "--units", "squares",
-                                     "--camera", f"left={folder}/left*.jpg", "--model", "polynomial",
+                                     "--images", f"left={folder}/left*.jpg", "--model", "polynomial",
                                      "--suggest", "2", "--out", str(out)], capsys)
     preview = tmp_path / "left.suggest.png"
     assert code == 0 and {"path": str(preview), "kind": "suggest"} in summary["files"] and "next views" in human
@@ -94,7 +94,7 @@ def test_colour_fit_then_export(patch_csvs, tmp_path, capsys):
     train, test = patch_csvs
     fit_path = tmp_path / "nikon.colour.json"
     code, summary, human = run_json(["colour", "fit", "--patches", str(train), "--test-patches", str(test),
-                                     "--illuminant", "D65", "--model", "matrix3x3", "--camera", "nikon",
+                                     "--illuminant", "D65", "--model", "matrix3x3", "--camera-name", "nikon",
                                      "--out", str(fit_path)], capsys)
     assert code == 0 and "CIEDE2000 independent" in human
     fit = load_fit(fit_path)

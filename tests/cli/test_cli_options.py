@@ -15,8 +15,8 @@ from camcal.synthetic import example_camera
 
 # every NAME=VALUE option: (verb argv before the option, option, the rest of a valid command line)
 NAMED_OPTIONS = [
-    (["calibrate", "board", "--board", "chessboard:9x6:1"], "--camera", ["--out", "x.rig.json"]),
-    (["solve", "DIR"], "--camera", ["--out", "o"]),
+    (["calibrate", "board", "--board", "chessboard:9x6:1"], "--images", ["--out", "x.rig.json"]),
+    (["solve", "DIR"], "--images", ["--out", "o"]),
     (["rectify", "R.rig.json"], "--images", ["--out", "r.rig.json"]),
     (["colour", "match"], "--images", ["--out", "m.colour.json"]),
     (["colour", "match"], "--fits", ["--out", "m.colour.json"]),
@@ -29,7 +29,7 @@ IDS = [" ".join(head[:2]) + " " + option for head, option, _ in NAMED_OPTIONS]
 @pytest.mark.parametrize("head, option, tail", NAMED_OPTIONS, ids=IDS)
 def test_repeated_and_multi_valued_mean_the_same(head, option, tail):
     parser = build_parser()
-    dest = option.lstrip("-").replace("-", "_")
+    dest = "camera" if head[0] in ("calibrate", "solve") else option.lstrip("-").replace("-", "_")  # dest kept
     repeated = parser.parse_args([*head, option, "left=/abs/L_*.png", option, "right=R/*.png", *tail])
     multi = parser.parse_args([*head, option, "left=/abs/L_*.png", "right=R/*.png", *tail])
     expected = {"left": "/abs/L_*.png", "right": "R/*.png"}
@@ -43,14 +43,17 @@ def test_duplicate_name_rejected_in_one_line(head, option, tail, spelling, capsy
     entries = [option, "left=a", option, "left=b"] if spelling == "repeated" else [option, "left=a", "left=b"]
     assert main([*head, *entries, *tail]) == 2
     err = capsys.readouterr().err
-    assert err == f"camcal: error: {option} left=b: name 'left' given twice\n"
+    verb = " ".join(word for word in head[:2] if word.isalpha() and word.islower())  # the verb, not its RIG or DIR
+    assert err == f"camcal {verb}: error: {option} left=b: name 'left' given twice\nsee 'camcal {verb} --help'\n"
 
 
 @pytest.mark.parametrize("head, option, tail", NAMED_OPTIONS, ids=IDS)
 def test_missing_equals_rejected_in_one_line(head, option, tail, capsys):
     assert main([*head, option, "left", *tail]) == 2
     err = capsys.readouterr().err
-    assert err.startswith(f"camcal: error: {option}: expected NAME=") and err.endswith(", got 'left'\n")
+    line, hint = err.splitlines()
+    assert line.startswith("camcal ") and f": error: {option}: expected NAME=" in line and line.endswith(", got 'left'")
+    assert hint.startswith("see 'camcal ") and hint.endswith(" --help'")
 
 
 @pytest.fixture
@@ -77,7 +80,7 @@ def test_globs_absolute_and_relative(frames, monkeypatch):
 
 @pytest.mark.parametrize("kind", ["absolute", "relative"])
 def test_solve_takes_absolute_and_relative_globs(frames, monkeypatch, tmp_path, kind):
-    """``solve DIR --camera left=/abs/L_*.png`` (a pathlib traceback before) reaches the solver."""
+    """``solve DIR --images left=/abs/L_*.png`` (a pathlib traceback before) reaches the solver."""
     seen = {}
 
     def fake_solve(images, out, **options):
@@ -86,7 +89,7 @@ def test_solve_takes_absolute_and_relative_globs(frames, monkeypatch, tmp_path, 
 
     monkeypatch.setattr(solve, "solve_sfm", fake_solve)
     left = str(frames / "L_*.png") if kind == "absolute" else "L_*.png"
-    code = main(["solve", str(frames), "--camera", f"left={left}", "right=R_*.png", "--out", str(tmp_path / "o")])
+    code = main(["solve", str(frames), "--images", f"left={left}", "right=R_*.png", "--out", str(tmp_path / "o")])
     assert code == 2 and seen == {"left": [frames / "L_01.png", frames / "L_02.png"], "right": [frames / "R_01.png"]}
 
 

@@ -56,21 +56,21 @@ def workspace(tmp_path):
 CASES = [
     ("solve one image", "solve {in}/one --out {out}/s"),
     ("solve nothing registered", "solve {in}/flat --features 100 --out {out}/s"),
-    ("calibrate board --report", "calibrate board --board chessboard:9x6:1 --camera left={in}/plain.png "
+    ("calibrate board --report", "calibrate board --board chessboard:9x6:1 --images left={in}/plain.png "
      "--out {out}/a.rig.json --report {out}/r --no-cache"),
-    ("calibrate board giant header", "calibrate board --board chessboard:9x6:1 --camera left={in}/giant.png "
+    ("calibrate board giant header", "calibrate board --board chessboard:9x6:1 --images left={in}/giant.png "
      "--out {out}/a.rig.json --no-cache"),
-    ("calibrate board --timestamps", "calibrate board --board chessboard:9x6:1 --camera left={in}/plain.png "
+    ("calibrate board --timestamps", "calibrate board --board chessboard:9x6:1 --images left={in}/plain.png "
      "--timestamps {in}/patches.csv --out {out}/a.rig.json --report {out}/r --no-cache"),
-    ("calibrate board video", "calibrate board --board chessboard:9x6:1 --camera left={in}/broken.mp4 "
+    ("calibrate board video", "calibrate board --board chessboard:9x6:1 --images left={in}/broken.mp4 "
      "--out {out}/a.rig.json --report {out}/r --no-cache"),
-    ("undistort video", "undistort {in}/good.rig.json --camera left {in}/broken.mp4 --out {out}/u"),
+    ("undistort video", "undistort {in}/good.rig.json --camera left --images {in}/broken.mp4 --out {out}/u"),
     ("rectify video --write", "rectify {in}/good.rig.json --images left={in}/broken.mp4 right={in}/plate.png "
      "--write {out}/w --out {out}/r.rig.json"),
     ("distortion fit video", "distortion fit {in}/broken.mp4 --out {out}/lens.json --report {out}/r"),
     ("calibrate dlt", "calibrate dlt --points {in}/patches.csv --image-size 640 480 --out {out}/a.rig.json"),
     ("distortion fit --report", "distortion fit --lines {in}/lines.json --out {out}/lens.json --report {out}/r"),
-    ("undistort", "undistort {in}/good.rig.json --camera left {in}/plate.png {in}/garbage.png --out {out}/u"),
+    ("undistort", "undistort {in}/good.rig.json --camera left --images {in}/plate.png {in}/garbage.png --out {out}/u"),
     ("stmap", "stmap {in}/good.rig.json --camera centre --out {out}/s"),
     ("rectify --write", "rectify {in}/good.rig.json --images left={in}/plate.png right={in}/garbage.png "
      "--write {out}/w --report {out}/r --out {out}/r.rig.json"),
@@ -85,7 +85,7 @@ CASES = [
     ("colour sensitivities --report", "colour sensitivities --patches D65={in}/patches.csv --out {out}/c.ssf.json "
      "--report {out}/r"),
     ("colour export --ocio", "colour export {in}/corrupt.json --ocio {out}/o"),
-    ("batch", "batch {in}/good.rig.json --camera centre --in {in}/f.%04d.png --frames 1-2 --out {out}/o.%04d.png"),
+    ("batch", "batch {in}/good.rig.json --camera centre --images {in}/f.%04d.png --frames 1-2 --out {out}/o.%04d.png"),
     ("demo", "demo --stages render,teleport --out {out}/d"),
 ]
 
@@ -106,7 +106,7 @@ def test_a_failed_run_leaves_nothing(case, argv, workspace, capsys):
 
 def test_a_giant_header_stops_calibrate_board_in_one_line(workspace, capsys):
     giant = workspace / "in" / "giant.png"
-    code = main(["calibrate", "board", "--board", "chessboard:9x6:1", "--camera", f"left={giant}",
+    code = main(["calibrate", "board", "--board", "chessboard:9x6:1", "--images", f"left={giant}",
                  "--out", str(workspace / "a.rig.json"), "--no-cache"])
     err = capsys.readouterr().err
     assert code == 2

@@ -242,7 +242,7 @@ def test_corrupt_frame_is_reported_by_number_and_the_others_are_written(tmp_path
     pattern = _sequence(tmp_path, "exr", FRAMES[:6])
     Path(pattern % 1003).write_bytes(Path(pattern % 1003).read_bytes()[:600])  # truncated
     out = str(tmp_path / "out" / "left.%04d.exr")
-    code = main(["batch", str(rig), "--camera", "left", "--in", pattern, "--frames", "1001-1006",
+    code = main(["batch", str(rig), "--camera", "left", "--images", pattern, "--frames", "1001-1006",
                  "--undistort", "--out", out, "--workers", "2", "--retries", "1", "--quiet", "--json"])
     captured = capsys.readouterr()
     printed = captured.err  # with --json the human summary goes to stderr, the JSON object to stdout
@@ -270,7 +270,7 @@ def test_killed_run_resumes_with_every_frame_once(tmp_path, capsys):
     pattern = _sequence(tmp_path, "exr", [f for f in FRAMES if f != blocked])
     os.mkfifo(pattern % blocked)  # a worker that opens it waits for a writer: the run cannot finish
     out_dir = tmp_path / "out"
-    command = ["batch", str(rig), "--camera", "left", "--in", pattern, "--frames", f"{FRAMES[0]}-{FRAMES[-1]}",
+    command = ["batch", str(rig), "--camera", "left", "--images", pattern, "--frames", f"{FRAMES[0]}-{FRAMES[-1]}",
                "--undistort", "--out", str(out_dir / "left.%04d.exr"), "--workers", "1", "--quiet"]
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     process = subprocess.Popen([sys.executable, "-m", "camcal", *command], cwd=tmp_path, env=env,
@@ -338,10 +338,10 @@ def test_help():
     {"rig": "missing.rig.json"},
     {"--frames": "1010-1001"},
     {"--camera": "centre"},
-    {"--in": "plates/left.exr"},
+    {"--images": "plates/left.exr"},
     {"--out": "out/left.exr"},
     {"--out": "out/left.%04d.png"},
-    {"--in": "elsewhere/left.%04d.exr"},
+    {"--images": "elsewhere/left.%04d.exr"},
     {"--rectify": None, "camera": "right"},
     {"--undistort": "drop"},
 ])
@@ -349,7 +349,7 @@ def test_bad_input_exits_2_and_writes_nothing(tmp_path, monkeypatch, capsys, cha
     monkeypatch.chdir(tmp_path)
     _rig(tmp_path)
     _sequence(tmp_path, "exr", FRAMES[:2])
-    args = {"rig": "set.rig.json", "--camera": "left", "--in": "plates/left.%04d.exr", "--frames": "1001-1002",
+    args = {"rig": "set.rig.json", "--camera": "left", "--images": "plates/left.%04d.exr", "--frames": "1001-1002",
             "--out": "out/left.%04d.exr", "--undistort": None}
     if "camera" in change:
         args["--camera"] = change.pop("camera")

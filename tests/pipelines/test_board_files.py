@@ -56,7 +56,7 @@ def test_cli_distortion_fit_reads_an_exr_board(tmp_path, capsys):
     lenses = {}
     for suffix in ("exr", "png"):
         out = tmp_path / f"lens_{suffix}.json"
-        assert main(["distortion", "fit", str(tmp_path / f"board.{suffix}"), "--pattern", "9x6", "--out", str(out)]) == 0
+        assert main(["distortion", "fit", "--images", str(tmp_path / f"board.{suffix}"), "--board", "chessboard:9x6", "--out", str(out)]) == 0
         lenses[suffix] = json.loads(out.read_text())
     assert "board found in 1 / 1 images" in capsys.readouterr().out
     # the EXR is read to the same 8-bit image as the PNG: the same fit, and the lens it was rendered with

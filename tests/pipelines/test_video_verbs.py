@@ -81,10 +81,10 @@ def test_undistort_a_video_as_its_frames(chessboard_videos, capsys):
 def test_distortion_fit_from_a_video_as_from_its_frames(chessboard_videos, capsys):
     folder, paths, seen = chessboard_videos
     out_video, out_images = folder / "lens_video.json", folder / "lens_images.json"
-    assert main(["distortion", "fit", str(paths[1]), "--pattern", "9x6", "--out", str(out_video)]) == 0
+    assert main(["distortion", "fit", "--images", str(paths[1]), "--board", "chessboard:9x6", "--out", str(out_video)]) == 0
     from_video = capsys.readouterr().out
     frames = sorted((folder / "grey" / "cam_1").glob("*.png"))
-    assert main(["distortion", "fit", *map(str, frames), "--pattern", "9x6", "--out", str(out_images)]) == 0
+    assert main(["distortion", "fit", "--images", *map(str, frames), "--board", "chessboard:9x6", "--out", str(out_images)]) == 0
     capsys.readouterr()
     video_lens, image_lens = json.loads(out_video.read_text()), json.loads(out_images.read_text())
     assert video_lens == image_lens

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import handler, output_folder
+from camcal.cli.options import adaptation_option, handler, only_with, output_folder
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -24,11 +24,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "illuminant its chart was shot under, a light file's name, or LIGHT= before the fit)")
     parser.add_argument("--base", default="ocio://studio-config-latest", metavar="CONFIG",
                         help="config to add the spaces to (default: %(default)s; see below)")
-    parser.add_argument("--cat", choices=("Bradford", "CAT02"), default="Bradford",
-                        help="adaptation from the fit's white to the ACES white (default: %(default)s)")
+    adaptation_option(parser, "from the fit's white to the ACES white", "--ocio", lambda args: args.ocio is not None,
+                      dest="cat", old="--cat")
     parser.add_argument("--icc", metavar="OUT.icc", help="write an ICC camera profile (one fit only)")
-    parser.add_argument("--icc-version", type=int, choices=(4, 2), default=4,
-                        help="ICC profile version: 4 (ICC.1:2010, default) or 2 (ICC.1:2001-04)")
+    parser.add_argument("--icc-version", type=int, choices=(4, 2), default=None,
+                        help="with --icc: the ICC profile version, 4 (ICC.1:2010, default) or 2 (ICC.1:2001-04)")
+    only_with(parser, "--icc-version", "--icc", lambda args: args.icc is not None, default=4)
     parser.add_argument("--max-bake-error", type=float, default=0.2, metavar="DE",
                         help="largest CIEDE2000 a baked LUT may add over the chart gamut and plausible surface "
                         "colours (default: %(default)s)")

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import camera_label_option, handler, out_option, output_folder, report_option
+from camcal.cli.options import (adaptation_option, camera_label_option, handler, out_option, output_folder,
+                                report_option)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -43,8 +44,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "white adapts the chart's data to it with CAT02)")
     parser.add_argument("--target-white", default=None, metavar="WHITE",
                         help="white of the output XYZ (default: the training white)")
-    parser.add_argument("--adaptation", choices=("CAT02", "Bradford"), default="CAT02",
-                        help="chromatic adaptation to the target white (default: %(default)s)")
+    adaptation_option(parser, "to the --target-white", "--target-white", lambda args: args.target_white is not None)
     parser.add_argument("--spectra", default=None, metavar="NAME",
                         help="the chart's spectral data (BabelColor Average, ColorChecker N Ohta, ISO 17321-1), "
                              "patch names matching: with --model auto, sensitivities are estimated from the chart, "

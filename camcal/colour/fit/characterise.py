@@ -126,7 +126,7 @@ def characterise(
     linearise: str | Linearisation = "none",
     test: PatchSet | None = None,
     target_white: str | None = None,
-    adaptation: str = "CAT02",
+    adaptation: str = "Bradford",
     camera: str | None = None,
     reference: str | None = None,
     source: str | None = None,
@@ -161,7 +161,8 @@ def characterise(
         Independent patches, same encoding and white as ``train``.
     target_white
         White of the output XYZ; ``None`` keeps ``white``. When it differs,
-        reference XYZ are adapted with ``adaptation`` (CAT02 or Bradford).
+        reference XYZ are adapted with ``adaptation`` (Bradford or CAT02;
+        Bradford by default, as the OCIO export and the command line).
     camera, reference, source
         Recorded in the file.
     loo

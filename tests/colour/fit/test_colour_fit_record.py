@@ -46,7 +46,7 @@ def test_apply_maps_white_near_one(fits, sim):
 
 def test_adapted_fit_records_target(fits):
     d = fits["lut"].to_dict()
-    assert d["target"]["white"] == "D50" and d["target"]["adaptation"] == "CAT02"
+    assert d["target"]["white"] == "D50" and d["target"]["adaptation"] == "Bradford"
     assert d["training"]["illuminant"] == "D65"
     assert d["linearisation"]["channels"][0]["kind"] == "lut1d"
 
