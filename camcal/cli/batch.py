@@ -37,7 +37,12 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="skip frames already complete and unchanged")
     parser.add_argument("--retries", type=int, default=2, metavar="N", help="retries of a failed frame (default: 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
-    handler(parser, _batch)
+    handler(parser, _batch, [
+        "camcal batch board.rig.json --camera left --images 'plates/left.%04d.exr' --frames "
+        "1001-1240 --out 'out/left.%04d.exr' --undistort",
+        "camcal batch board.rig.json --camera left --images 'plates/left.%04d.exr' --frames "
+        "1001-1240 --out 'out/left.%04d.exr' --colour left.colour.json --colour-space ACEScg --workers 4",
+    ])
 
 
 

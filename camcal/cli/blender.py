@@ -18,7 +18,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     imp.add_argument("--blend", required=True, metavar="OUT.blend", help="the .blend file to write")
     imp.add_argument("--up-axis", choices=("Z", "Y", "-Y"), default="Z",
                      help="the rig's world axis that points up in Blender (default: Z)")
-    imp.add_argument("--sensor-fit", choices=("AUTO", "HORIZONTAL", "VERTICAL"), default="AUTO")
+    imp.add_argument("--sensor-fit", choices=("AUTO", "HORIZONTAL", "VERTICAL"), default="AUTO",
+                     help="Blender's sensor fit of the cameras: the larger image side (AUTO), the width or the height "
+                     "(default: %(default)s)")
     imp.add_argument("--rectified", action="store_true", help="import the rectified cameras and plates")
     imp.add_argument("--no-plates", action="store_true", help="no camera background images")
     imp.add_argument("--plates", metavar="DIR", help="folder of <camera name>.<ext> plates")
@@ -27,7 +29,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     imp.add_argument("--no-distortion", action="store_true", help="no lens clips or distortion compositor")
     imp.add_argument("--overscan", type=float, default=1.1,
                      help="overscan of the render the distortion compositor uses (default: 1.1)")
-    handler(imp, _import)
+    handler(imp, _import, [
+        "camcal blender import board.rig.json --blend shot.blend",
+        "camcal blender import rectified.rig.json --blend rig.blend --rectified --up-axis Y",
+    ])
 
 
 def _import(args: argparse.Namespace) -> int:

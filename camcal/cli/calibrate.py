@@ -22,10 +22,12 @@ def register(parser: argparse.ArgumentParser) -> None:
     verbs = verb_group(parser, "calibrate_verb", "METHOD")
     dlt = verbs.add_parser("dlt", help="one camera from 3D-2D correspondences (normalised DLT + LM)")
     dlt.add_argument("--points", required=True, metavar="FILE.csv", help="correspondences X,Y,Z,u,v")
-    image_size_option(dlt, required=True)
+    image_size_option(dlt, "the image's width and height in pixels", required=True)
     dlt.add_argument("--name", default="camera", help="camera name in the rig (default: camera)")
-    out_option(dlt, "FILE.rig.json")
-    handler(dlt, _dlt)
+    out_option(dlt, "FILE.rig.json", "the rig file to write")
+    handler(dlt, _dlt, [
+        "camcal calibrate dlt --points survey.csv --image-size 1920 1080 --name A --out A.rig.json",
+    ])
     board = verbs.add_parser(
         "board", help="one camera or an N-camera rig from chessboard / ChArUco images (joint refinement)")
     board.add_argument(
@@ -99,13 +101,20 @@ def register(parser: argparse.ArgumentParser) -> None:
     board.add_argument("--units", default="m", help="unit of the square size, stored in the rig (default: m)")
     board.add_argument("--suggest", type=int, default=0, metavar="N",
                        help="propose the next N board poses that most lower the worst projection sigma of the "
-                       "first camera (expected, from the views taken), drawn on a frame-sized preview PNG")
+                       "first camera (expected, from the views taken), drawn on a frame-sized preview PNG (default: 0, none)")
     board.add_argument("--suggest-preview", metavar="FILE.png",
                        help="where --suggest draws its shot list (default: OUT without .rig.json + .suggest.png)")
     only_with(board, "--suggest-preview", "--suggest N", lambda args: args.suggest > 0)
-    out_option(board, "FILE.rig.json")
+    out_option(board, "FILE.rig.json", "the rig file to write")
     report_option(board, "write PNG plots: residuals, per-image RMS, coverage, projection sigma heat maps")
-    handler(board, _board)
+    handler(board, _board, [
+        "# a stereo pair: 9x6 inner corners, 40 mm squares",
+        "camcal calibrate board --board chessboard:9x6:0.04 --images left='shots/left*.jpg' "
+        "right='shots/right*.jpg' --out board.rig.json --report report",
+        "# one camera from a video (every 10th frame) and a ChArUco board",
+        "camcal calibrate board --board charuco:DICT_5X5_100:7x5:0.04:0.03 --images cam=take1.mp4 "
+        "--every 10 --out cam.rig.json",
+    ])
 
 
 def _dlt(args: argparse.Namespace) -> int:

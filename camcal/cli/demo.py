@@ -19,7 +19,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     parser.add_argument("--stages", metavar="A,B,...",
                         help="run only these stages (of: " + ", ".join(s.name for s in STAGES) + ")")
-    handler(parser, _demo)
+    handler(parser, _demo, [
+        "camcal demo",
+        "camcal demo --seed 1 --out demo_seed1",
+    ])
 
 
 def _demo(args: argparse.Namespace) -> int:

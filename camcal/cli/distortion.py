@@ -28,9 +28,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                      help="the lens model fitted: division (one parameter) or polynomial (default: %(default)s)")
     fit.add_argument("--fit-centre", action="store_true", help="fit the distortion centre too (default: the image "
                      "centre)")
-    out_option(fit, "lens.json")
+    out_option(fit, "lens.json", "the lens file to write (the fitted distortion and its straightness figures)")
     report_option(fit, "write per-line figures to DIR/plumbline_report.json")
-    handler(fit, _fit)
+    handler(fit, _fit, [
+        "camcal distortion fit --images 'shots/left*.png' --board chessboard:9x6 --fit-centre --out left.lens.json",
+        "camcal distortion fit --lines lines.json --model polynomial --out lens.json",
+    ])
 
 
 def _chessboard(spec: str) -> str:

@@ -32,6 +32,7 @@ __all__ = [
     "LOSSES",
     "OVERSCAN",
     "CamcalParser",
+    "HelpFormatter",
     "NamedValues",
     "UsageError",
     "adaptation_option",
@@ -79,6 +80,15 @@ class UsageError(CamcalError):
         self.prog = prog
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """argparse's, filling the description and epilog paragraph by paragraph; the ``examples:`` one line by line."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        fill = super()._fill_text
+        return "\n\n".join(paragraph if paragraph.startswith("examples:") else fill(paragraph, width, indent)
+                           for paragraph in text.split("\n\n"))
+
+
 class CamcalParser(argparse.ArgumentParser):
     """argparse's parser, with a one-line :class:`UsageError` instead of the usage dump, and checks after parsing.
 
@@ -92,6 +102,7 @@ class CamcalParser(argparse.ArgumentParser):
     """
 
     def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
         self.checks: list[Callable[[CamcalParser, argparse.Namespace], None]] = []
         self.loose_files: str | None = None
@@ -193,17 +204,20 @@ def images_option(parser: argparse.ArgumentParser, metavar: str, help: str, requ
     after_parsing(parser, merge)
 
 
-def handler(parser: argparse.ArgumentParser, run) -> None:
+def handler(parser: argparse.ArgumentParser, run, examples: Sequence[str]) -> None:
     """``run`` handles the verb (parsed namespace in, exit code out); its docstring is the verb's ``--help``.
 
     The docstring's first paragraph is printed before the options (the
     description), the rest after them (the epilog), so the help says what
-    the function that runs the verb does, in its words.
+    the function that runs the verb does, in its words. The help ends with
+    ``examples``: command lines (``camcal <verb> ...``, parsed by the help
+    lint test) and ``# comment`` lines above them.
     """
     description, _, epilog = inspect.cleandoc(run.__doc__ or "").partition("\n\n")
     parser.set_defaults(func=run)
     parser.description = description or None
-    parser.epilog = epilog or None
+    section = "examples:\n" + "\n".join(f"  {line}" for line in examples)
+    parser.epilog = f"{epilog}\n\n{section}" if epilog else section
 
 
 def verb_group(parser: argparse.ArgumentParser, dest: str, metavar: str = "VERB"):
@@ -306,7 +320,7 @@ def camera_label_option(parser, help: str = "camera name recorded in the file (d
     deprecated_option(parser, "--camera", "--camera-name", dest="camera", metavar="NAME")
 
 
-def out_option(parser, metavar: str, help: str | None = None) -> None:
+def out_option(parser, metavar: str, help: str) -> None:
     """``--out``: the file or folder a verb writes (required)."""
     parser.add_argument("--out", required=True, metavar=metavar, help=help)
 

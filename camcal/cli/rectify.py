@@ -15,7 +15,9 @@ __all__ = ["register"]
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal rectify``."""
     rig_argument(parser, "a calibrated *.rig.json")
-    parser.add_argument("--method", choices=("camera", "hartley"), default="camera")
+    parser.add_argument("--method", choices=("camera", "hartley"), default="camera",
+                        help="camera: rotate the calibrated cameras onto one plane; hartley: homographies from "
+                        "point matches alone (Hartley 1999) (default: %(default)s)")
     parser.add_argument("--refine", action="store_true", help="camera method: refine on matches (Nozick 2011)")
     named_option(parser, "--images", "NAME=GLOB|VIDEO", "images per camera, e.g. left='L/*.png' right='R/*.png', "
                  "or a video per camera (left=L.mp4: streamed, frame k written as L_00000k.png) (several entries or "
@@ -34,7 +36,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                   "disparity, rectified pixels) and with --distance A-B_depth_sigma.exr (the sigma of the depth at "
                   "that distance, rig units), pixel for pixel with A's rectified images, into the --write DIR (or "
                   "the --report DIR); --method camera only")
-    handler(parser, _rectify)
+    handler(parser, _rectify, [
+        "camcal rectify board.rig.json --images left='L/*.png' right='R/*.png' --write rectified "
+        "--out rectified.rig.json",
+        "camcal rectify board.rig.json --method hartley --matches matches.csv --out hartley.rig.json",
+        "camcal rectify board.rig.json --out rectified.rig.json --report rectified --sigma --distance 2",
+    ])
 
 
 def _rectify(args: argparse.Namespace) -> int:

@@ -17,7 +17,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     verbs = verb_group(parser, "rig_verb")
     show = verbs.add_parser("show", help="print a readable summary of a rig file")
     rig_argument(show, metavar="FILE")
-    handler(show, _show)
+    handler(show, _show, [
+        "camcal rig show board.rig.json",
+    ])
     export = verbs.add_parser("export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke)")
     rig_argument(export)
     export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
@@ -25,14 +27,22 @@ def register(parser: argparse.ArgumentParser) -> None:
     export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
     export.add_argument("--stmaps", action="store_true",
                         help="usd: also write each lens' ST-maps beside the stage and reference them from its camera")
-    handler(export, _export)
+    handler(export, _export, [
+        "camcal rig export board.rig.json --to opencv board.yaml",
+        "camcal rig export board.rig.json --to nuke board.nk --camera left",
+        "# a USD stage whose cameras reference their lens' ST-maps",
+        "camcal rig export solve/solve.rig.json --to usd solve.usda --stmaps",
+    ])
     imp = verbs.add_parser("import", help="read another tool's camera file as a rig")
     imp.add_argument("file", metavar="FILE", help="the other tool's file")
     imp.add_argument("--from", dest="fmt", required=True, choices=FORMATS, metavar="FORMAT",
                      help=f"one of: {', '.join(FORMATS)}")
     out_option(imp, "RIG.rig.json", "the rig file to write")
     image_size_option(imp, "usd: the image size of cameras that carry none (USD cameras not written by camcal)")
-    handler(imp, _import)
+    handler(imp, _import, [
+        "camcal rig import board.yaml --from opencv --out board.rig.json",
+        "camcal rig import shotcam.usda --from usd --image-size 1920 1080 --out shotcam.rig.json",
+    ])
 
 
 def _show(args: argparse.Namespace) -> int:

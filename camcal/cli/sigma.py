@@ -21,7 +21,10 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--heatmap", metavar="FILE.png",
                         help="also write the map as a heat map PNG, pixel for pixel (viridis from 0 to its worst "
                              "value): the Blender add-on shows it as the camera's background overlay")
-    handler(parser, _sigma)
+    handler(parser, _sigma, [
+        "camcal sigma board.rig.json --camera left --out left_sigma.exr --heatmap left_sigma.png",
+        "camcal sigma board.rig.json --camera left --distance 2 --out left_sigma_2m.exr",
+    ])
 
 
 def _sigma(args: argparse.Namespace) -> int:

@@ -37,7 +37,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "a model with one focal length then keeps fx = fy)")
     parser.add_argument("--principal-point", default="auto", choices=("auto", "refine", "centre"),
                         help="refine it under the sensor's prior, the image centre +- 2 %% of the diagonal (auto), "
-                        "by the images alone (refine), or hold it at the centre")
+                        "by the images alone (refine), or hold it at the centre (default: %(default)s)")
     parser.add_argument("--prior", action="append", default=[], metavar="CAMERA.NAME=MEAN+-SIGMA",
                         help="a Gaussian prior on an intrinsic (f, fx, fy, aspect, cx, cy, lambda, k1, k2, p1, p2; "
                         "camcal's units and pixel convention), e.g. left.f=1200+-30; repeatable. The rig's "
@@ -46,25 +46,35 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="sigmas: the larger of the covariance and a delete-one-frame jackknife (one "
                         "Gauss-Newton step per frame or group of frames, at most 20), which sees errors an image's "
                         "features share; the same with a full bundle adjustment per group (jackknife-refit, "
-                        "slower); or the covariance alone (too small on real features)")
-    parser.add_argument("--features", type=int, default=8192, metavar="N", help="SIFT features per image (8192)")
+                        "slower); or the covariance alone (too small on real features) (default: %(default)s)")
+    parser.add_argument("--features", type=int, default=8192, metavar="N",
+                        help="SIFT features per image (default: %(default)s)")
     parser.add_argument("--guided-matching", action="store_true",
                         help="match each verified pair again along its epipolar geometry (more, longer tracks; "
                         "10-20 times the matching time on the CPU)")
-    parser.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"))
-    parser.add_argument("--mapper", default="incremental", choices=("incremental", "global"))
-    loss_option(parser, "robust loss of camcal's bundle adjustment (scale 1 px)")
+    parser.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"),
+                        help="COLMAP's pair matching: every pair, or neighbours in file order (video, long "
+                        "sequences) (default: %(default)s)")
+    parser.add_argument("--mapper", default="incremental", choices=("incremental", "global"),
+                        help="COLMAP's incremental or global mapper (default: %(default)s)")
+    loss_option(parser, "robust loss of camcal's bundle adjustment (scale 1 px; default: %(default)s)")
     parser.add_argument("--no-refine", action="store_true", help="keep pycolmap's result, skip camcal's refinement")
     parser.add_argument("--compare-pycolmap", action="store_true",
                         help="also run plain pycolmap (SIMPLE_DIVISION, principal point refined) on the same images "
                         "into OUT/pycolmap and print its intrinsics beside camcal's")
     parser.add_argument("--seed", type=int, default=0,
                         help="seeds every random choice (COLMAP's RANSAC and mapper, the held-out points): the same "
-                        "images and options give the same rig; recorded in its provenance (0)")
+                        "images and options give the same rig; recorded in its provenance (default: %(default)s)")
     parser.add_argument("--verbose", action="store_true",
                         help="also show COLMAP's own log lines on stderr (always written to OUT/colmap.log)")
-    out_option(parser, "DIR")
-    handler(parser, _solve)
+    out_option(parser, "DIR", "the folder to write: solve.rig.json, points.ply, the COLMAP model and colmap.log")
+    handler(parser, _solve, [
+        "# one folder per camera",
+        "camcal solve images/left images/right --out solve",
+        "# two cameras' images in one folder, a fisheye lens, the relative pose of a board calibration",
+        "camcal solve shots --images left='*_L.jpg' right='*_R.jpg' --model kannala-brandt --rig "
+        "board.rig.json --out solve",
+    ])
 
 
 def _solve(args: argparse.Namespace) -> int:

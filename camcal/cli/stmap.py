@@ -16,12 +16,15 @@ def register(parser: argparse.ArgumentParser) -> None:
     rig_argument(parser)
     camera_option(parser)
     parser.add_argument("--overscan", type=float, default=1.1, help="undistorted canvas factor (default 1.1)")
-    out_option(parser, "DIR")
+    out_option(parser, "DIR", "the folder to write NAME_undistort.exr and NAME_redistort.exr into")
     sigma_options(parser, "NAME_sigma.exr (plate-sized, with the redistort map) and NAME_undistort_sigma.exr "
                   "(with the undistort map): the projection sigma in plate pixels")
     report_option(parser, "with --sigma, write DIR/sigma_NAME.png and DIR/undistort_sigma_NAME.png: the sigma maps "
                   "as heat maps with a colour bar")
-    handler(parser, _stmap)
+    handler(parser, _stmap, [
+        "camcal stmap board.rig.json --camera left --out stmaps",
+        "camcal stmap board.rig.json --camera left --overscan 1.2 --out stmaps --sigma --report stmaps/report",
+    ])
 
 
 def _stmap(args: argparse.Namespace) -> int:

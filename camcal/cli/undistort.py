@@ -23,10 +23,15 @@ def register(parser: argparse.ArgumentParser) -> None:
                            "overscan: canvas --overscan times the plate (default: crop)")
     max_fov_option(parser, "crop / keep: widest full angle about the axis the pinhole output holds "
                    "(default: 120 for a kannala-brandt fisheye, no cap for the other lenses)")
-    out_option(parser, "DIR")
+    out_option(parser, "DIR", "the folder to write the undistorted images and undistorted.rig.json into")
     sigma_options(parser, "DIR/sigma.exr, pixel for pixel with the undistorted images: the projection sigma "
                   "(plate pixels) of the plate pixel each one samples")
-    handler(parser, _undistort)
+    handler(parser, _undistort, [
+        "camcal undistort board.rig.json --camera left --images plates/left_0001.png "
+        "plates/left_0002.png --out undistorted",
+        "camcal undistort board.rig.json --camera left --images take1.mp4 --every 5 --mode overscan "
+        "--overscan 1.2 --out undistorted",
+    ])
 
 
 def _undistort(args: argparse.Namespace) -> int:

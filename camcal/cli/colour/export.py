@@ -33,7 +33,11 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-bake-error", type=float, default=0.2, metavar="DE",
                         help="largest CIEDE2000 a baked LUT may add over the chart gamut and plausible surface "
                         "colours (default: %(default)s)")
-    handler(parser, _export)
+    handler(parser, _export, [
+        "camcal colour export left.colour.json right.colour.json --ocio ocio_out",
+        "camcal colour export left.colour.json --icc left.icc",
+        "camcal colour export cam_d65.colour.json cam_a.colour.json --by-illuminant --ocio ocio_out",
+    ])
 
 
 def _export(args: argparse.Namespace) -> int:

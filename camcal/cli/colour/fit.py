@@ -26,7 +26,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "skin), top-right, bottom-right, bottom-left of the patch grid")
     parser.add_argument("--detector", choices=("auto", "segmentation", "cv2.mcc"), default="auto",
                         help="chart detection without --corners: camcal's segmentation, OpenCV's cv2.mcc, or auto "
-                             "(segmentation, then cv2.mcc); both on a normalised sRGB view of a raw file")
+                             "(segmentation, then cv2.mcc); both on a normalised sRGB view of a raw file (default: %(default)s)")
     parser.add_argument("--keep-clipped", action="store_true", help="keep patches flagged clipped")
     parser.add_argument("--model", default="auto",
                         help="auto | matrix3x3[:white-preserving] | polynomial:N | root-polynomial:D "
@@ -34,7 +34,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--objective", choices=("xyz", "de2000"), default=None,
                         help="least squares in XYZ or CIEDE2000 (default: xyz; auto tries both)")
     parser.add_argument("--regularisation", type=float, default=0.0, metavar="LAMBDA",
-                        help="ridge lambda on the non-linear terms of a named model (auto picks its own)")
+                        help="ridge lambda on the non-linear terms of a named model (auto picks its own; default: "
+                             "%(default)s)")
     parser.add_argument("--linearise", default=None, metavar="KIND",
                         help="none | gamma-offset | lut1d | named:FUNCTION (e.g. named:sRGB); "
                              "default: lut1d for --chart, none for --patches")
@@ -59,7 +60,15 @@ def register(parser: argparse.ArgumentParser) -> None:
     out_option(parser, "FIT.colour.json", "fit file to write")
     report_option(parser, "write per-patch tables and plots here")
     _register_for_illuminant(parser)
-    handler(parser, _fit)
+    handler(parser, _fit, [
+        "camcal colour fit --chart chart.png --illuminant D65 --camera-name left --out "
+        "left.colour.json --report colour_report",
+        "camcal colour fit --patches patches.csv --model root-polynomial:2 --target-white D65 "
+        "--adaptation CAT02 --out cam.colour.json",
+        "# a fit for tungsten light from a chart shot under D65 and the camera's sensitivities",
+        "camcal colour fit --chart chart_d65.dng --illuminant D65 --for-illuminant A --sensitivities "
+        "cam.ssf.json --out cam_a.colour.json",
+    ])
 
 
 def _register_for_illuminant(parser) -> None:

@@ -30,7 +30,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="robust fitting (default: lmeds-irls for images, none for charts)")
     out_option(parser, "MATCH.colour.json", "match file to write")
     report_option(parser, "difference images and Delta E maps (or chart plots)")
-    handler(parser, _match)
+    handler(parser, _match, [
+        "camcal colour match board.rig.json --images left=left.png right=right.png --out match.colour.json",
+        "camcal colour match --fits left=left.colour.json right=right.colour.json --patches "
+        "left=left.csv right=right.csv --out match.colour.json",
+    ])
 
 
 def _match(args: argparse.Namespace) -> int:

@@ -28,7 +28,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                                                          "relative RMS error and both mu-factors")
     out_option(parser, "CAMERA.ssf.json", "file to write (+ .ssf.csv)")
     report_option(parser, "plot with 95 %% bands (sensitivities.png)")
-    handler(parser, _sensitivities)
+    handler(parser, _sensitivities, [
+        "camcal colour sensitivities --chart D65=chart_d65.dng FL2=chart_fl2.dng --camera-name cam "
+        "--out cam.ssf.json",
+        "camcal colour sensitivities --measured cam_measured.csv --out cam.ssf.json",
+    ])
 
 
 def _sensitivities(args: argparse.Namespace) -> int:
