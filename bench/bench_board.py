@@ -79,7 +79,7 @@ def ours(out: Path, cache: Path | None) -> float:
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         code = main([
             "calibrate", "board", "--board", "chessboard:9x6:1", "--units", "squares", "--model", "opencv",
-            "--camera", f"left={DATA}/left*.jpg", "--camera", f"right={DATA}/right*.jpg", "--out", str(out), *caching,
+            "--images", f"left={DATA}/left*.jpg", "--images", f"right={DATA}/right*.jpg", "--out", str(out), *caching,
         ])
     if code:
         raise SystemExit(f"camcal calibrate board failed with exit code {code}")
@@ -109,7 +109,7 @@ def bench_time(repeats: int = 3) -> None:
           f"ratio {t_peer / t_warm:.2f}")
     with tempfile.TemporaryDirectory() as folder:
         command_ours = [sys.executable, "-m", "camcal", "calibrate", "board", "--board", "chessboard:9x6:1", "--units",
-                        "squares", "--model", "opencv", "--camera", f"left={DATA}/left*.jpg", "--camera",
+                        "squares", "--model", "opencv", "--images", f"left={DATA}/left*.jpg", "--images",
                         f"right={DATA}/right*.jpg", "--out", str(Path(folder) / "cli.rig.json"), "--no-cache"]
         command_peer = [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); import bench_board; "
                         "bench_board.opencv_pipeline()", str(Path(__file__).parent)]

@@ -75,9 +75,9 @@ def main() -> int:
         (root / "one" / "a.png").write_bytes(png_declaring(64, 64))
         cases = [
             ("calibrate board, PNG declaring 200000^2", ["calibrate", "board", "--board", "chessboard:9x6:0.025",
-                                                        "--camera", "c=png/*.png", "--out", "out1/r.rig.json"]),
+                                                        "--images", "c=png/*.png", "--out", "out1/r.rig.json"]),
             ("calibrate board, JPEG declaring 65500^2", ["calibrate", "board", "--board", "chessboard:9x6:0.025",
-                                                        "--camera", "c=jpg/*.jpg", "--out", "out2/r.rig.json"]),
+                                                        "--images", "c=jpg/*.jpg", "--out", "out2/r.rig.json"]),
             ("rig show, 100000 arrays deep", ["rig", "show", "deep.rig.json"]),
             ("stmap, a 10^9 x 10^9 image", ["stmap", "huge.rig.json", "--camera", "cam", "--out", "out3"]),
             ("stmap, fx = 1e308", ["stmap", "fx.rig.json", "--camera", "cam", "--out", "out4"]),

@@ -10,13 +10,22 @@ fast); the options several verbs share are written once in
 
 Errors, for every verb and every input:
 
+- a malformed command line (:class:`~camcal.cli.options.UsageError`: an
+  option missing or malformed, a flag given without the one it needs) prints
+  ``camcal <verb>: error: <reason>`` and ``see 'camcal <verb> --help'`` on
+  stderr and returns 2;
 - a user's mistake (:class:`~camcal.base.errors.CamcalError`, an ``OSError`` on a
   path the user gave, a file that does not decode) prints one line
-  ``camcal: error: ...`` on stderr and exits with code 2 (argparse does the
-  same for malformed command lines);
+  ``camcal: error: ...`` on stderr and exits with code 2;
 - an internal error (a bug in camcal) prints one line naming the verb and
   "run with --debug for the traceback" and exits with code 1;
 - ``--debug`` (before or after the verb) shows the full traceback instead.
+
+One option name means one thing in every verb (``--images`` the inputs,
+``--camera`` the rig camera a verb acts on, ``--camera-name`` the name a
+file records, ``--board`` the target, ``--adaptation`` the chromatic
+adaptation); former spellings still parse, with a one-line note
+(:func:`~camcal.cli.options.deprecated_option`).
 
 Options that name cameras take ``NAME=VALUE`` entries
 (:class:`~camcal.cli.options.NamedValues`): ``--images left=A right=B`` is
@@ -34,7 +43,8 @@ of the human summary (which then goes to stderr)::
      "files": [{"path": "out/rect.rig.json", "kind": "rig"}, ...],
      "warnings": [...]}
 
-and on an error ``{"...", "exit_code": 2, "error": "the one line"}``.
+and on an error ``{"...", "exit_code": 2, "error": "the one line"}`` (for a
+malformed command line, the reason without ``camcal <verb>: error:``).
 Handlers record figures and files on :func:`summary_of(args)
 <camcal.cli.summary.summary_of>` (:class:`~camcal.cli.summary.VerbSummary`).
 """

@@ -124,7 +124,8 @@ class CamcalParser(argparse.ArgumentParser):
         namespace, extras = self.parse_known_args(args, namespace)
         if extras:  # named after the leaf verb, not the top-level parser that collects them
             verb = getattr(namespace, "_verb", None)
-            raise UsageError(f"unrecognized arguments: {' '.join(extras)}", f"{self.prog} {verb}" if verb else self.prog)
+            prog = f"{self.prog} {verb}" if verb else self.prog
+            raise UsageError(f"unrecognized arguments: {' '.join(extras)}", prog)
         return namespace
 
 
@@ -367,7 +368,7 @@ OVERSCAN = 1.1
 
 def undistort_mode_options(parser, mode_help: str, needs: str | None = None,
                            holds: Callable[[argparse.Namespace], bool] | None = None) -> None:
-    """``--mode crop|keep|overscan`` and ``--overscan`` (only with ``--mode overscan``): the pinhole camera an undistortion makes.
+    """``--mode crop|keep|overscan`` and ``--overscan`` (only with ``--mode overscan``): the new pinhole camera.
 
     ``needs`` / ``holds``: ``--mode`` has no effect without ``needs`` (:func:`only_with`).
     """

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from camcal.base.errors import CamcalError
-from camcal.cli.options import (every_option, expand_glob, handler, max_fov_option, named_option, out_option,
-                                output_folder, report_option, rig_argument, sigma_options)
+from camcal.cli.options import (every_option, expand_glob, handler, max_fov_option, named_option, only_with,
+                                out_option, output_folder, report_option, rig_argument, sigma_options)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -19,6 +19,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="camera: rotate the calibrated cameras onto one plane; hartley: homographies from "
                         "point matches alone (Hartley 1999) (default: %(default)s)")
     parser.add_argument("--refine", action="store_true", help="camera method: refine on matches (Nozick 2011)")
+    only_with(parser, "--refine", "--method camera", lambda args: args.method == "camera")
     named_option(parser, "--images", "NAME=GLOB|VIDEO", "images per camera, e.g. left='L/*.png' right='R/*.png', "
                  "or a video per camera (left=L.mp4: streamed, frame k written as L_00000k.png) (several entries or "
                  "a repeated option; globs absolute or relative)")

@@ -78,6 +78,8 @@ NEEDS_ANOTHER = [
     (["calibrate", "board", "--board", "chessboard:9x6:1", "--images", "l=a.png", "--out", "o.rig.json",
       "--suggest-preview", "s.png"], "--suggest-preview has no effect without --suggest N"),
     (["stmap", "r.rig.json", "--camera", "c", "--out", "s", "--distance", "2"], "--distance has no effect without --sigma"),
+    (["rectify", "r.rig.json", "--method", "hartley", "--refine", "--matches", "m.csv", "--out", "r.rig.json"],
+     "--refine has no effect without --method camera"),
 ]
 
 

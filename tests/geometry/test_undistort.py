@@ -138,7 +138,7 @@ def rig_and_images(tmp_path):
 def test_cli_undistort_writes_images_and_rig(rig_and_images, tmp_path):
     cam, rig_path, paths = rig_and_images
     out = tmp_path / "out"
-    assert main(["undistort", str(rig_path), "--camera", "cam", *map(str, paths), "--mode", "keep", "--out", str(out)]) == 0
+    assert main(["undistort", str(rig_path), "--camera", "cam", "--images", *map(str, paths), "--mode", "keep", "--out", str(out)]) == 0
     new = Rig.load(out / "undistorted.rig.json").camera("cam")
     undistorter = make_undistorter(cam, "keep")
     assert np.array_equal(new.K, undistorter.view.K_new) and new.distortion.model == "none"
@@ -158,8 +158,8 @@ def test_cli_undistort_bad_input(rig_and_images, tmp_path, capsys):
     out = tmp_path / "out"
     bad = tmp_path / "small.png"
     cv2.imwrite(str(bad), np.zeros((10, 10), np.uint8))
-    assert main(["undistort", str(rig_path), "--camera", "cam", str(paths[0]), str(bad), "--out", str(out)]) == 2
+    assert main(["undistort", str(rig_path), "--camera", "cam", "--images", str(paths[0]), str(bad), "--out", str(out)]) == 2
     assert "small.png is 10x10 px" in capsys.readouterr().err
     assert not out.exists() or not any(out.iterdir())
-    assert main(["undistort", str(rig_path), "--camera", "nope", str(paths[0]), "--out", str(out)]) == 2
+    assert main(["undistort", str(rig_path), "--camera", "nope", "--images", str(paths[0]), "--out", str(out)]) == 2
     assert "no camera 'nope'" in capsys.readouterr().err

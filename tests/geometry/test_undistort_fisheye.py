@@ -125,7 +125,7 @@ def test_cli_undistorts_a_fisheye_plate_with_a_chosen_field_of_view(tmp_path, ca
     plate = tmp_path / "plate.png"
     cv2.imwrite(str(plate), procedural_texture(np.random.default_rng(8), 512)[:H, :W])
     out = tmp_path / "out"
-    assert main(["undistort", str(rig_path), "--camera", "fish", str(plate), "--mode", "crop",
+    assert main(["undistort", str(rig_path), "--camera", "fish", "--images", str(plate), "--mode", "crop",
                  "--max-fov", "100", "--out", str(out)]) == 0
     camera = Rig.load(out / "undistorted.rig.json").camera("fish")
     assert camera.distortion.model == "none"
@@ -135,6 +135,6 @@ def test_cli_undistorts_a_fisheye_plate_with_a_chosen_field_of_view(tmp_path, ca
     # out of range: one line, exit 2, nothing written
     capsys.readouterr()
     bad = tmp_path / "bad"
-    assert main(["undistort", str(rig_path), "--camera", "fish", str(plate), "--max-fov", "200", "--out", str(bad)]) == 2
+    assert main(["undistort", str(rig_path), "--camera", "fish", "--images", str(plate), "--max-fov", "200", "--out", str(bad)]) == 2
     assert "must be between 0 and 180 degrees, got 200" in capsys.readouterr().err
     assert not bad.exists()

@@ -262,7 +262,7 @@ def test_cli_calibrates_a_real_subset(real_pair_shots, tmp_path, capsys):
     out = tmp_path / "stereo.rig.json"
     code = main([
         "calibrate", "board", "--board", "chessboard:9x6:1", "--units", "squares",
-        "--camera", f"left={folder}/left*.jpg", "--camera", f"right={folder}/right*.jpg",
+        "--images", f"left={folder}/left*.jpg", "--images", f"right={folder}/right*.jpg",
         "--out", str(out), "--report", str(tmp_path / "report"),
     ])
     assert code == 0
@@ -279,23 +279,25 @@ def test_cli_calibrates_a_real_subset(real_pair_shots, tmp_path, capsys):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--board", "chessboard:9x6:1", "--camera", "left=/nonexistent/left*.jpg"], "no image matches"),
-        (["--board", "chessboard:9by6:1", "--camera", "left=x*.jpg"], "bad board size"),
-        (["--board", "chessboard:9x6:1", "--camera", "left"], "NAME=GLOB"),
+        (["--board", "chessboard:9x6:1", "--images", "left=/nonexistent/left*.jpg"], "no image matches"),
+        (["--board", "chessboard:9by6:1", "--images", "left=x*.jpg"], "bad board size"),
+        (["--board", "chessboard:9x6:1", "--images", "left"], "NAME=GLOB"),
     ],
 )
 def test_cli_bad_input_exit_2_no_output(tmp_path, capsys, args, message):
     out = tmp_path / "rig.rig.json"
     assert main(["calibrate", "board", *args, "--out", str(out)]) == 2
     error = capsys.readouterr().err
-    assert error.startswith("camcal: error:") and message in error and error.count("\n") == 1
+    usage = error.startswith("camcal calibrate board: error:")  # a malformed command line: the line and a hint
+    assert (usage or error.startswith("camcal: error:")) and message in error
+    assert error.count("\n") == (2 if usage else 1)
     assert not out.exists() and list(tmp_path.iterdir()) == []
 
 
 def test_cli_help(capsys):
     with pytest.raises(SystemExit) as info:
         main(["calibrate", "board", "--help"])
-    assert info.value.code == 0 and "--camera" in capsys.readouterr().out
+    assert info.value.code == 0 and "--images" in capsys.readouterr().out
 
 
 # -- symmetric boards, the quality gate, held-out views, model choice ------------------------------
@@ -395,8 +397,8 @@ def test_cli_quality_gate_refuses_with_one_line(shared_data, tmp_path, capsys, m
 
     monkeypatch.setattr(zhang, "calibrate_board", broken)
     folder = shared_data / "stereo_chessboard"
-    args = ["calibrate", "board", "--board", "chessboard:9x6:1", "--camera", f"left={folder}/left0[1-6].jpg",
-            "--camera", f"right={folder}/right0[1-6].jpg", "--no-cache"]
+    args = ["calibrate", "board", "--board", "chessboard:9x6:1", "--images", f"left={folder}/left0[1-6].jpg",
+            "--images", f"right={folder}/right0[1-6].jpg", "--no-cache"]
     out = tmp_path / "rig.rig.json"
     assert main([*args, "--out", str(out)]) == 2
     error = capsys.readouterr().err.split("images/s\n")[-1]  # after the detection progress lines
@@ -412,7 +414,7 @@ def test_cli_holdout_reports_heldout_rms(shared_data, tmp_path, capsys):
     out = tmp_path / "stereo.rig.json"
     code = main([
         "calibrate", "board", "--board", "chessboard:9x6:1", "--units", "squares", "--holdout", "8-9",
-        "--camera", f"left={folder}/left0*.jpg", "--camera", f"right={folder}/right0*.jpg", "--out", str(out),
+        "--images", f"left={folder}/left0*.jpg", "--images", f"right={folder}/right0*.jpg", "--out", str(out),
         "--cache", str(tmp_path / "cache"),
     ])
     assert code == 0
@@ -421,7 +423,7 @@ def test_cli_holdout_reports_heldout_rms(shared_data, tmp_path, capsys):
     rig = Rig.load(out)
     for camera in rig.cameras:
         assert camera.quality["n_views"] == 7 and 0 < camera.quality["heldout_rms_px"] < 0.5
-    assert main(["calibrate", "board", "--board", "chessboard:9x6:1", "--holdout", "x", "--camera",
+    assert main(["calibrate", "board", "--board", "chessboard:9x6:1", "--holdout", "x", "--images",
                  f"left={folder}/left0*.jpg", "--out", str(tmp_path / "bad.rig.json"), "--cache",
                  str(tmp_path / "cache")]) == 2
     assert "bad --holdout" in capsys.readouterr().err

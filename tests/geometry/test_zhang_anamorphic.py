@@ -78,7 +78,7 @@ def test_anamorphic_squeeze_recovered_through_calibrate_board(model, tmp_path, c
     for n, (R, t) in enumerate(board_poses(truth, 14, rng)):
         cv2.imwrite(str(tmp_path / f"ana_{n:03d}.png"), render(truth, rays, R, t, rng))
     out = tmp_path / "ana.rig.json"
-    code = main(["calibrate", "board", "--board", BOARD.spec(), "--camera", f"ana={tmp_path / 'ana_*.png'}",
+    code = main(["calibrate", "board", "--board", BOARD.spec(), "--images", f"ana={tmp_path / 'ana_*.png'}",
                  "--model", model, "--out", str(out)])
     printed = capsys.readouterr()
     assert code == 0, printed

@@ -120,7 +120,7 @@ def test_cli_calibrates_a_fisheye(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr("camcal.pipelines.board.detect_in_images", fake_detect)
     out = tmp_path / "fish.rig.json"
-    code = main(["calibrate", "board", "--board", BOARD.spec(), "--camera", f"fish={tmp_path / 'fish_*.png'}",
+    code = main(["calibrate", "board", "--board", BOARD.spec(), "--images", f"fish={tmp_path / 'fish_*.png'}",
                  "--model", "kannala-brandt", "--out", str(out)])
     printed = capsys.readouterr()
     assert code == 0, printed

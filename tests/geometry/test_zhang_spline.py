@@ -119,7 +119,7 @@ def test_cli_fits_a_named_model_with_a_correction_field(tmp_path, capsys, monkey
     monkeypatch.setattr("camcal.pipelines.board.detect_in_images",
                         lambda board, paths, progress=None, **options: DetectionReport(tuple(detections), ()))
     out = tmp_path / "wide.rig.json"
-    code = main(["calibrate", "board", "--board", "chessboard:9x6:0.04", "--camera", f"wide={tmp_path / 'view_*.png'}",
+    code = main(["calibrate", "board", "--board", "chessboard:9x6:0.04", "--images", f"wide={tmp_path / 'view_*.png'}",
                  "--model", "kannala-brandt" + SPLINE_SUFFIX, "--holdout", "0,6,12,18", "--out", str(out)])
     printed = capsys.readouterr()
     assert code == 0, printed
@@ -127,7 +127,7 @@ def test_cli_fits_a_named_model_with_a_correction_field(tmp_path, capsys, monkey
     assert lens.distortion.model == "kannala-brandt" and lens.distortion.has_correction
     assert lens.quality["heldout_rms_px"] < 1.2 * math.sqrt(2) * SIGMA_PX, printed.out
     two = tmp_path / "two.rig.json"
-    code = main(["calibrate", "board", "--board", "chessboard:9x6:0.04", "--camera", f"a={tmp_path / 'view_*.png'}",
+    code = main(["calibrate", "board", "--board", "chessboard:9x6:0.04", "--images", f"a={tmp_path / 'view_*.png'}",
                  f"b={tmp_path / 'view_*.png'}", "--model", "opencv" + SPLINE_SUFFIX, "--out", str(two)])
     printed = capsys.readouterr()
     assert code == 2 and not two.exists()

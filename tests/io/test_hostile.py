@@ -134,7 +134,7 @@ def test_a_forged_image_stops_undistort_with_nothing_written(tmp_path, capsys):
     plate.write_bytes(png_declaring(200_000, 200_000))
     out = tmp_path / "out"
     out.mkdir()
-    message = run(["undistort", rig, "--camera", "cam", plate, "--out", out / "u"], capsys)
+    message = run(["undistort", rig, "--camera", "cam", "--images", plate, "--out", out / "u"], capsys)
     assert str(plate) in message and "200000x200000" in message and "CAMCAL_MAX_IMAGE_PIXELS" in message
     assert list(out.iterdir()) == []
 

@@ -82,7 +82,7 @@ def test_stmap_sigma_lines_up_with_the_stmaps(rig_file, tmp_path, capsys):
 def test_undistort_sigma_has_the_undistorted_images_size(rig_file, tmp_path):
     imwrite(tmp_path / "cam_000.png", np.zeros((240, 320), np.uint8))
     out = tmp_path / "out"
-    assert main(["undistort", str(rig_file), "--camera", "cam", str(tmp_path / "cam_000.png"), "--out", str(out),
+    assert main(["undistort", str(rig_file), "--camera", "cam", "--images", str(tmp_path / "cam_000.png"), "--out", str(out),
                  "--sigma", "--mode", "keep"]) == 0
     image = read_sigma_map(out / "sigma.exr")
     undistorted = Rig.load(out / "undistorted.rig.json").cameras[0]

@@ -126,7 +126,7 @@ def test_batch_undistort_equals_camcal_undistort_bit_for_bit(tmp_path):
         result = process_frame(frame, job)
         assert Path(result.output).exists()
     inputs = [pattern % frame for frame in FRAMES[:3]]
-    assert main(["undistort", str(rig), "--camera", "left", *inputs, "--mode", "keep", "--out", str(tmp_path / "single")]) == 0
+    assert main(["undistort", str(rig), "--camera", "left", "--images", *inputs, "--mode", "keep", "--out", str(tmp_path / "single")]) == 0
     for frame in FRAMES[:3]:
         ours = cv2.imread(str(tmp_path / "batch" / f"left.{frame}.png"), cv2.IMREAD_UNCHANGED)
         peer = cv2.imread(str(tmp_path / "single" / f"left.{frame}.png"), cv2.IMREAD_UNCHANGED)

@@ -89,7 +89,7 @@ def test_calibrate_board_on_a_scheduler_with_max_views(videos, client, tmp_path,
     board, paths = videos
     volume = make_volume(6, 16, radius=0.85)
     Rig(tuple(volume.cameras[:3])).save(tmp_path / "intr.rig.json")
-    argv = ["calibrate", "board", "--board", SPEC, *[f"--camera={name}={path}" for name, path in paths.items()],
+    argv = ["calibrate", "board", "--board", SPEC, *[f"--images={name}={path}" for name, path in paths.items()],
             "--intrinsics", str(tmp_path / "intr.rig.json"), "--scheduler", client.scheduler.address,
             "--max-views", "8", "--no-cache", "--out", str(tmp_path / "rig.rig.json")]
     code = main(argv)
@@ -110,7 +110,7 @@ def test_bad_max_views_is_one_line_before_any_work(videos, tmp_path, capsys):
     from camcal.cli import main
 
     _, paths = videos
-    code = main(["calibrate", "board", "--board", SPEC, f"--camera=cam0={paths['cam0']}", "--max-views", "0",
+    code = main(["calibrate", "board", "--board", SPEC, f"--images=cam0={paths['cam0']}", "--max-views", "0",
                  "--out", str(tmp_path / "rig.rig.json")])
     err = capsys.readouterr().err
     assert code == 2 and err.strip() == "camcal: error: --max-views must be 1 or more, got 0"

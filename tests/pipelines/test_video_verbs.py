@@ -59,9 +59,9 @@ def test_undistort_a_video_as_its_frames(chessboard_videos, capsys):
     folder, paths, _ = chessboard_videos
     rig = str(folder / "rig.rig.json")
     out_video, out_images = folder / "u_video", folder / "u_images"
-    assert main(["undistort", rig, "--camera", "cam0", str(paths[0]), "--every", "3", "--out", str(out_video)]) == 0
+    assert main(["undistort", rig, "--camera", "cam0", "--images", str(paths[0]), "--every", "3", "--out", str(out_video)]) == 0
     frames = [folder / "png" / "cam_0" / frame_file_name(paths[0], k) for k in range(0, 12, 3)]
-    assert main(["undistort", rig, "--camera", "cam0", *map(str, frames), "--out", str(out_images)]) == 0
+    assert main(["undistort", rig, "--camera", "cam0", "--images", *map(str, frames), "--out", str(out_images)]) == 0
     assert "undistorted 4 frame(s)" in capsys.readouterr().out
     written = sorted(p.name for p in out_video.glob("*.png"))
     assert written == [p.name for p in frames]
@@ -73,8 +73,8 @@ def test_undistort_a_video_as_its_frames(chessboard_videos, capsys):
     # the provenance's time stamp is the one thing that varies between runs
     assert {**from_video.provenance, "created": None} == {**from_images.provenance, "created": None}
     # images and videos are not mixed; a bad --every is one line
-    assert main(["undistort", rig, "--camera", "cam0", str(paths[0]), str(frames[0]), "--out", str(folder / "x")]) == 2
-    assert main(["undistort", rig, "--camera", "cam0", str(paths[0]), "--every", "0", "--out", str(folder / "x")]) == 2
+    assert main(["undistort", rig, "--camera", "cam0", "--images", str(paths[0]), str(frames[0]), "--out", str(folder / "x")]) == 2
+    assert main(["undistort", rig, "--camera", "cam0", "--images", str(paths[0]), "--every", "0", "--out", str(folder / "x")]) == 2
     assert not (folder / "x").exists()
 
 
@@ -156,7 +156,7 @@ def test_solve_on_videos_as_on_their_frames(tmp_path, capsys):
         for frame in frames:
             writer.write(cv2.imread(str(frame)))
         writer.release()
-    assert main(["solve", str(tmp_path / "in"), "--camera", "left=left.mkv", "right=right.mkv", "--out",
+    assert main(["solve", str(tmp_path / "in"), "--images", "left=left.mkv", "right=right.mkv", "--out",
                  str(tmp_path / "video")]) == 0
     from_video = capsys.readouterr().out
     assert main(["solve", str(tmp_path / "in/left"), str(tmp_path / "in/right"), "--out", str(tmp_path / "png")]) == 0

@@ -24,7 +24,7 @@ def test_two_sided_chessboard_ring_from_videos(tmp_path, monkeypatch, capsys):
     paths, seen = write_videos(board, volume, tmp_path)
     Rig(tuple(volume.cameras)).save(tmp_path / "intr.rig.json")
     monkeypatch.chdir(tmp_path)
-    cameras = [f"--camera=cam{k}=cam_{k}.mp4" for k in range(len(paths))]
+    cameras = [f"--images=cam{k}=cam_{k}.mp4" for k in range(len(paths))]
     code = main(["calibrate", "board", "--board", SPEC, *cameras, "--intrinsics", "intr.rig.json",
                  "--holdout", "1-29x3", "--out", "rig.rig.json"])
     out = capsys.readouterr().out

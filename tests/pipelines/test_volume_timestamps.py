@@ -67,7 +67,7 @@ def rig_errors(rig, volume):
 
 
 def command(*extra):
-    cameras = [f"--camera=cam{k}=cam_{k}.mp4" for k in range(len(OFFSETS))]
+    cameras = [f"--images=cam{k}=cam_{k}.mp4" for k in range(len(OFFSETS))]
     return ["calibrate", "board", "--board", SPEC, *cameras, "--intrinsics", "intr.rig.json", "--out", "rig.rig.json",
             *extra]
 

@@ -41,7 +41,7 @@ def test_must_show_command_against_truth_and_calibrate_multiview(recording, monk
     folder, board, volume, paths, seen = recording
     assert all(any(seen[c.name, f] for c in volume.cameras) for f in range(N_FRAMES))
     monkeypatch.chdir(folder)
-    cameras = [f"--camera=cam{k}=cam_{k}.mp4" for k in range(N_CAMERAS)]
+    cameras = [f"--images=cam{k}=cam_{k}.mp4" for k in range(N_CAMERAS)]
     argv = ["calibrate", "board", "--board", SPEC, *cameras, "--intrinsics", "intr.rig.json",
             "--holdout", "1-47x2", "--out", "rig.rig.json"]
     code = main(argv)
@@ -147,7 +147,7 @@ def test_bad_input_unlinked_cameras_and_undecodable_video(recording, tmp_path, m
     monkeypatch.chdir(tmp_path)
     base = ["calibrate", "board", "--board", SPEC, "--intrinsics", str(folder / "intr.rig.json"),
             "--out", "rig.rig.json"]
-    err = run_bad(base + ["--camera", "cam0=a.avi", "--camera", "cam1=b.avi"], tmp_path, capsys)
+    err = run_bad(base + ["--images", "cam0=a.avi", "--images", "cam1=b.avi"], tmp_path, capsys)
     assert "not linked" in err and "cam0 | cam1" in err
-    err = run_bad(base + ["--camera", "cam0=a.avi", "--camera", "cam1=broken.mp4"], tmp_path, capsys)
+    err = run_bad(base + ["--images", "cam0=a.avi", "--images", "cam1=broken.mp4"], tmp_path, capsys)
     assert "broken.mp4" in err and "cannot be decoded" in err

@@ -131,7 +131,7 @@ def test_raw_charts_under_two_lights_to_one_config(tmp_path, capsys):
                                 layout=layout, stops_under=stops, full_well=2500.0, seed=6)
         fit_path = tmp_path / f"{light}.colour.json"
         assert main(["colour", "fit", "--chart", str(chart.path), "--reference", "babel", "--illuminant", light,
-                     "--model", "matrix3x3", "--camera", "D5100", "--out", str(fit_path)]) == 0
+                     "--model", "matrix3x3", "--camera-name", "D5100", "--out", str(fit_path)]) == 0
         assert "24 / 24 patches used" in capsys.readouterr().out
         fits.append((light, fit_path, patches_from_chart(chart.path, "babel", illuminant=light)))
     assert main(["colour", "export", *[str(p) for _, p, _ in fits], "--by-illuminant", "--ocio", str(tmp_path / "o"),

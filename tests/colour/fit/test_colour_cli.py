@@ -46,7 +46,7 @@ def test_fit_from_patch_csv_with_report(tmp_path, csvs, capsys, sim):
     out = tmp_path / "nikon.colour.json"
     code = main(["colour", "fit", "--patches", str(train), "--test-patches", str(test), "--illuminant", "D65",
                  "--model", "root-polynomial:2", "--objective", "de2000", "--out", str(out),
-                 "--report", str(tmp_path / "report"), "--camera", "nikon"])
+                 "--report", str(tmp_path / "report"), "--camera-name", "nikon"])
     text = capsys.readouterr().out
     assert code == 0
     assert "CIEDE2000 independent" in text and "leave-one-out" in text

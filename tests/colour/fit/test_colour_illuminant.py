@@ -95,7 +95,7 @@ def test_cli_fit_for_another_illuminant_and_export(tmp_path, capsys):
     write_patch_csv(tmp_path / "chart_d65.csv", chart)
     write_sensitivities(tmp_path / "nikon.ssf.json", true)
     base = ["colour", "fit", "--patches", str(tmp_path / "chart_d65.csv"), "--illuminant", "D65",
-            "--model", "matrix3x3", "--camera", "nikon"]
+            "--model", "matrix3x3", "--camera-name", "nikon"]
     assert main(base + ["--out", str(tmp_path / "nikon_d65.colour.json")]) == 0
     assert main(base + ["--for-illuminant", "A", "--sensitivities", str(tmp_path / "nikon.ssf.json"),
                         "--out", str(tmp_path / "nikon_a.colour.json")]) == 0

@@ -125,7 +125,7 @@ def _write_spectral_csv(path, capture):
 
 def test_cli_sensitivities_from_patch_csvs(tmp_path, capsys):
     true, captures = simulate("Nikon 5100 (NPL)", "BabelColor Average", FIVE_LIGHTS)
-    args = ["colour", "sensitivities", "--camera", "nikon", "--out", str(tmp_path / "nikon.ssf.json"),
+    args = ["colour", "sensitivities", "--camera-name", "nikon", "--out", str(tmp_path / "nikon.ssf.json"),
             "--report", str(tmp_path / "report")]
     for cap in captures:
         _write_spectral_csv(tmp_path / f"{cap.illuminant_name}.csv", cap)
