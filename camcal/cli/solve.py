@@ -78,7 +78,7 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def _solve(args: argparse.Namespace) -> int:
-    """One folder per camera (or one folder of per-camera sub-folders, or --camera NAME=GLOB inside one folder);
+    """One folder per camera (or one folder of per-camera sub-folders, or --images NAME=GLOB inside one folder);
     several cameras form a rig whose frames pair up by sorted order. Each camera's lens model is chosen by
     held-out residual; the principal point and the lens are refined under the sensor's Gaussian priors and the
     user's (--prior), and what the images do not determine is said with its sigma. Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
