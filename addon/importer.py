@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import bpy
 from mathutils import Matrix
 
-from . import mapping, plyfile, pngfile, rigfile
+from . import fisheye, mapping, plyfile, pngfile, rigfile
 from .rigfile import RigFileError
 
 __all__ = [
@@ -238,9 +238,9 @@ def _set_intrinsics(data, b):
 
 
 def _set_fisheye(data, cam, sensor_fit, result):
-    """A Kannala-Brandt lens: Cycles' panoramic fisheye-polynomial camera (mapping.blender_fisheye)."""
+    """A Kannala-Brandt lens: Cycles' panoramic fisheye-polynomial camera (fisheye.blender_fisheye)."""
     try:
-        f = mapping.blender_fisheye(cam.K, cam.size, cam.distortion.params, cam.sensor_width_mm, sensor_fit)
+        f = fisheye.blender_fisheye(cam.K, cam.size, cam.distortion.params, cam.sensor_width_mm, sensor_fit)
     except ValueError as error:
         raise RigFileError(f"camera {cam.name!r}: {error}") from None
     data.type = "PANO"
@@ -260,7 +260,7 @@ def _set_fisheye(data, cam, sensor_fit, result):
         f"the quartic matches the lens to {f.fit_max_px:.3g} px at worst, {f.fit_rms_px:.3g} px RMS over the frame"
     )
     if cam.distortion.model != "kannala-brandt":
-        offset = mapping.thin_prism_offset_px(cam.K, cam.size, cam.distortion.params)
+        offset = fisheye.thin_prism_offset_px(cam.K, cam.size, cam.distortion.params)
         data["camcal_fisheye_left_out_px"] = offset
         result.warnings.append(
             f"camera {cam.name!r}: inexact: Cycles' fisheye camera is radial; the lens's tangential and thin-prism "
