@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .mapping import blender_intrinsics
+from .mapping import blender_intrinsics, solve_linear
 
 __all__ = [
     "BlenderFisheye",
@@ -101,25 +101,6 @@ def kannala_brandt_theta(theta_d, ks, theta_max=None):
             return new
         theta = new
     return theta
-
-
-def _solve(A, b):
-    """Gaussian elimination with partial pivoting for a small dense system."""
-    n = len(b)
-    M = [list(A[i]) + [b[i]] for i in range(n)]
-    for col in range(n):
-        pivot = max(range(col, n), key=lambda r: abs(M[r][col]))
-        M[col], M[pivot] = M[pivot], M[col]
-        if M[col][col] == 0.0:
-            raise ValueError("singular fit")
-        for r in range(col + 1, n):
-            f = M[r][col] / M[col][col]
-            for c in range(col, n + 1):
-                M[r][c] -= f * M[col][c]
-    x = [0.0] * n
-    for r in range(n - 1, -1, -1):
-        x[r] = (M[r][n] - sum(M[r][c] * x[c] for c in range(r + 1, n))) / M[r][r]
-    return x
 
 
 @dataclass(frozen=True)
@@ -251,7 +232,7 @@ def blender_fisheye(K, image_size, params, sensor_width_mm=36.0, sensor_fit="AUT
                 rhs[i] += weight * row[i] * theta
                 for j in range(4):
                     A[i][j] += weight * row[i] * row[j]
-        c = _solve(A, rhs)
+        c = solve_linear(A, rhs)
         errors = pixel_errors(c)
         if best is None or max(errors) < max(best[1]):
             best = (c, errors)

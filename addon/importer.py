@@ -85,6 +85,7 @@ def import_rig(
     compositor=True,
     overscan=1.1,
     aux_directory=None,
+    lens_model=None,
 ):
     """Import a camcal rig file into a scene.
 
@@ -121,6 +122,10 @@ def import_rig(
         compositor distorts it with Movie Distortion.
     overscan : float
         Overscan factor of the render that the compositor distorts.
+    lens_model : {None, 'POLYNOMIAL', 'DIVISION', 'NUKE', 'BROWN'}
+        The tracking camera's distortion model; None takes the one that
+        holds each lens exactly (:func:`.mapping.blender_lens`); another is
+        fitted, with its residual among the warnings.
     aux_directory : str, optional
         Where blank lens frames are written (default: beside the saved
         .blend, else beside the rig file, else a temporary folder).
@@ -138,6 +143,8 @@ def import_rig(
     rig = rigfile.load_rig(path)
     if not overscan >= 1.0:
         raise RigFileError(f"overscan: must be >= 1, got {overscan}")
+    if lens_model is not None and lens_model not in mapping.BLENDER_MODELS:
+        raise RigFileError(f"lens_model: unknown {lens_model!r}, expected one of: {', '.join(mapping.BLENDER_MODELS)}")
     cams = [_effective_camera(c, use_rectified) for c in rig.cameras]
     cloud = None
     if import_points and rig.points is not None:  # read before creating anything
@@ -187,11 +194,11 @@ def import_rig(
         clip = None
         # a fisheye's lens is in its panoramic camera itself (see _set_fisheye), not in a MovieClip
         if distortion and cam.distortion.model != "none" and cam.distortion.model not in rigfile.FISHEYE_MODELS:
-            clip = _lens_clip(cam, obj, plate, result, path, aux_directory, scene)
+            clip = _lens_clip(cam, obj, plate, result, path, aux_directory, scene, lens_model)
             result.clips[cam.name] = clip
             if compositor:
                 result.distorted_scenes[cam.name] = _distortion_setup(
-                    scene, cam, obj, overscan, result, path, aux_directory
+                    scene, cam, obj, overscan, result, path, aux_directory, lens_model
                 )
         if plate is not None:
             _background(cam, obj, plate, clip)
@@ -463,8 +470,15 @@ def _set_lens(clip, lens, sensor_width_mm):
     tc.principal_point_pixels = lens.principal_point_pixels
 
 
-def _lens_clip(cam, obj, plate, result, rig_path, aux_directory, scene):
-    lens = mapping.blender_lens(cam.distortion, cam.K, cam.size)
+def _tracking_lens(cam, margins, lens_model):
+    try:
+        return mapping.blender_lens(cam.distortion, cam.K, cam.size, margins, lens_model)
+    except ValueError as error:
+        raise RigFileError(f"camera {cam.name!r}: {error}") from None
+
+
+def _lens_clip(cam, obj, plate, result, rig_path, aux_directory, scene, lens_model):
+    lens = _tracking_lens(cam, (0, 0), lens_model)
     if not lens.exact:
         result.warnings.append(f"camera {cam.name!r}: lens is approximate in Blender: {lens.note}")
     clip = None
@@ -483,6 +497,9 @@ def _lens_clip(cam, obj, plate, result, rig_path, aux_directory, scene):
         clip = _load_clip(f"{obj.name} lens", _blank_frame(obj.name, cam.size, rig_path, aux_directory))
     _set_lens(clip, lens, cam.sensor_width_mm)
     clip.frame_start = scene.frame_start
+    obj.data["camcal_blender_lens"] = json.dumps(
+        {"model": lens.distortion_model, "params": lens.params, "exact": lens.exact, "fit_max_px": lens.fit_max_px}
+    )
     obj.data["camcal_clip"] = clip.name
     return clip
 
@@ -563,7 +580,7 @@ def _copy_render_settings(src, dst):
         dst.cycles.samples = src.cycles.samples
 
 
-def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory):
+def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory, lens_model):
     """An overscan render scene and a scene whose compositor distorts it.
 
     ``<camera> overscan``: renders the main scene (as its background set)
@@ -597,7 +614,7 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     os_scene.render.use_compositing = False
     os_scene["camcal_overscan_margins"] = [mx, my]
 
-    lens = mapping.blender_lens(cam.distortion, cam.K, cam.size, (mx, my))
+    lens = _tracking_lens(cam, (mx, my), lens_model)
     clip = _load_clip(
         f"{obj.name} lens overscan", _blank_frame(f"{obj.name}_overscan", size_os, rig_path, aux_directory)
     )
@@ -617,7 +634,7 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     unscale.inputs["X"].default_value = size_os[0] / W
     unscale.inputs["Y"].default_value = size_os[0] / W
     md = _movie_distortion(tree, clip)
-    shift = distortion_shift(clip, cam, (mx, my), (W, H))
+    shift = distortion_shift(clip, lens, (mx, my), (W, H))
     translate = tree.nodes.new("CompositorNodeTranslate")
     translate.inputs["X"].default_value = shift[0]
     translate.inputs["Y"].default_value = shift[1]
@@ -632,7 +649,7 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     return dist_scene
 
 
-def distortion_shift(clip, cam, margins, size):
+def distortion_shift(clip, lens, margins, size):
     """The offset (Blender pixels, x right, y up) Movie Distortion adds, measured.
 
     Blender's Movie Distortion grows or shrinks its output by the distorted
@@ -640,7 +657,9 @@ def distortion_shift(clip, cam, margins, size):
     whole number of pixels that depends on the lens and the frame (1 px
     even at k = 0, from the bounds' rounding). This runs the node once on a
     coordinate ramp in a throw-away scene and compares the coordinates it
-    reads back with the lens model: the difference is the offset.
+    reads back with Blender's formula for ``lens`` (a
+    :class:`.mapping.BlenderLens` on the overscan frame,
+    :func:`.mapping.blender_distort`): the difference is the offset.
     """
     import numpy as np  # Blender's bundled numpy; only the bpy layer uses it
 
@@ -689,7 +708,7 @@ def distortion_shift(clip, cam, margins, size):
                 j, i = int(H * fy), int(W * fx)
                 qx, qy = float(out_px[j, i, 0]) * Wo, float(out_px[j, i, 1]) * Ho
                 # q is where Blender sampled the undistorted render (overscan frame, edges, y up).
-                d = _distort_blender(cam, (qx, qy), margins, (Wo, Ho))
+                d = mapping.to_blender_pixel(mapping.blender_distort(lens, mapping.from_blender_pixel((qx, qy), Ho)), Ho)
                 shifts.append((d[0] - (i + 0.5 + mx), d[1] - (j + 0.5 + my)))
         sx = sum(s[0] for s in shifts) / len(shifts)
         sy = sum(s[1] for s in shifts) / len(shifts)
@@ -705,14 +724,3 @@ def distortion_shift(clip, cam, margins, size):
     # The offset is a whole number of pixels; keep measured fractions only if large.
     rx, ry = round(sx), round(sy)
     return (float(rx) if abs(sx - rx) < 0.05 else sx, float(ry) if abs(sy - ry) < 0.05 else sy)
-
-
-def _distort_blender(cam, q, margins, size_os):
-    """Apply camcal's lens to a Blender tracking pixel of the overscan frame."""
-    mx, my = margins
-    Ho = size_os[1]
-    p = mapping.from_blender_pixel(q, Ho)
-    center = cam.distortion.center
-    center = (center[0] + mx, center[1] + my)
-    d = mapping.distort(cam.distortion, p, center, cam.K[0][0])
-    return mapping.to_blender_pixel(d, Ho)
