@@ -89,7 +89,8 @@ def test_redistort_stmap_inverts_the_undistort_stmap():
     maps = make_stmaps(cam, overscan=1.2)
     undistorted_size = maps.undistorted.image_size
     ux, uy = pixels_from_st(maps.undistort, SIZE)  # plate pixel of each undistorted pixel
-    rx, ry = pixels_from_st(maps.redistort, undistorted_size)  # undistorted pixel of each plate pixel
+    rx, ry = pixels_from_st(maps.redistort, SIZE)  # undistorted pixel of each plate pixel, in its format
+    rx, ry = rx + maps.border[0], ry + maps.border[1]  # in its data window
     # follow a plate pixel to the undistorted canvas and back through the undistort map
     back_x = bilinear(ux, rx, ry)
     back_y = bilinear(uy, rx, ry)
