@@ -708,7 +708,8 @@ def distortion_shift(clip, lens, margins, size):
                 j, i = int(H * fy), int(W * fx)
                 qx, qy = float(out_px[j, i, 0]) * Wo, float(out_px[j, i, 1]) * Ho
                 # q is where Blender sampled the undistorted render (overscan frame, edges, y up).
-                d = mapping.to_blender_pixel(mapping.blender_distort(lens, mapping.from_blender_pixel((qx, qy), Ho)), Ho)
+                ideal = mapping.from_blender_pixel((qx, qy), Ho)
+                d = mapping.to_blender_pixel(mapping.blender_distort(lens, ideal), Ho)
                 shifts.append((d[0] - (i + 0.5 + mx), d[1] - (j + 0.5 + my)))
         sx = sum(s[0] for s in shifts) / len(shifts)
         sy = sum(s[1] for s in shifts) / len(shifts)

@@ -630,7 +630,7 @@ def _weighted_least_squares(rows, targets, weights):
 
 
 def solve_linear(A, b):
-    """Solve the small dense system ``A x = b`` (Gaussian elimination with partial pivoting); ``ValueError`` if singular."""
+    """Solve the small dense system ``A x = b`` (Gaussian elimination, partial pivoting); ValueError if singular."""
     n = len(b)
     M = [list(A[i]) + [b[i]] for i in range(n)]
     for col in range(n):
@@ -651,7 +651,8 @@ def solve_linear(A, b):
 def _exact_params(model, target, p, size):
     """Blender's parameters holding camcal's lens exactly, or None when ``target`` cannot."""
     if model == "none":
-        return dict.fromkeys(_FIT_TERMS[target], 0.0) | ({"brown_p1": 0.0, "brown_p2": 0.0} if target == "BROWN" else {})
+        tangential = {"brown_p1": 0.0, "brown_p2": 0.0} if target == "BROWN" else {}
+        return dict.fromkeys(_FIT_TERMS[target], 0.0) | tangential
     if model == "division" and target == "NUKE":
         half = _nuke_half(size)
         return {"nuke_k1": p["lambda"] * half * half, "nuke_k2": 0.0}
@@ -731,7 +732,8 @@ def blender_lens(distortion, K, image_size, margins=(0, 0), model=None):
         if source == "opencv":
             raise ValueError(f"Blender's {target} model has no tangential terms: the opencv lens goes to BROWN")
         if p.get("aspect", 1.0) != 1.0:
-            raise ValueError(f"the division lens's aspect {p['aspect']:.6g} is not round: Blender's models are (use the ST-maps)")
+            raise ValueError(f"the division lens's aspect {p['aspect']:.6g} is not round: "
+                             "Blender's models are (use the ST-maps)")
         fitted, fit_max = _fit_radial(distortion, target, fx, _nuke_half((Wc, Hc)), _frame_radius(center, (W, H)))
         params = fitted | ({"brown_p1": 0.0, "brown_p2": 0.0} if target == "BROWN" else {})
         notes.append(f"Blender's {target} model fitted to the {source} lens: {fit_max:.3g} px at worst over the frame")

@@ -18,7 +18,7 @@ import time
 import cv2
 import numpy as np
 
-from camcal.geometry.stmap import _undistorted_grid, pixels_from_st, st_of_distorted_grid
+from camcal.geometry.stmap import undistorted_grid, pixels_from_st, st_of_distorted_grid
 from camcal.model.distortion import Distortion
 
 SIZE = (3840, 2160)
@@ -61,7 +61,7 @@ def main() -> None:
     plate = np.stack([u.ravel(), v.ravel()], axis=1).reshape(-1, 1, 2)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 1e-12)
     inverse = best_of({
-        "ours": lambda: _undistorted_grid(lens, K, SIZE),
+        "ours": lambda: undistorted_grid(lens, K, SIZE),
         "peer": lambda: cv2.undistortPoints(plate, K, coefficients, None, None, K, criteria),
     }, INVERSE_REPEATS)
     (ours, (x_u, y_u)), (peer, points) = inverse["ours"], inverse["peer"]

@@ -43,7 +43,8 @@ from camcal.model.distortion import Distortion
 from camcal.geometry.undistort import UndistortedView, Undistorter
 from camcal.model.rig import Camera
 
-__all__ = ["DEFAULT_OVERSCAN", "STMaps", "overscan_border", "st_from_pixels", "pixels_from_st", "st_of_distorted_grid", "make_stmaps"]
+__all__ = ["DEFAULT_OVERSCAN", "STMaps", "overscan_border", "st_from_pixels", "pixels_from_st", "st_of_distorted_grid",
+           "undistorted_grid", "make_stmaps"]
 
 #: The overscan factor when none is given.
 DEFAULT_OVERSCAN = 1.1
@@ -254,8 +255,9 @@ def _st_polynomial(distortion: Distortion, K: NDArray, xs: NDArray, ys: NDArray,
 
 def st_of_distorted_grid(distortion: Distortion, K: NDArray, xs: NDArray, ys: NDArray,
                          source_size: tuple[int, int]) -> NDArray[np.float32]:
-    """ST values (:func:`st_from_pixels`) of ``distort`` of the ideal pixel grid ``xs x ys``: shape (len(ys), len(xs), 3)
-    (a view of channel planes).
+    """ST values (:func:`st_from_pixels`) of ``distort`` of the ideal pixel grid ``xs x ys``.
+
+    Shape (len(ys), len(xs), 3), a view of channel planes.
 
     Polynomial lenses (``polynomial``, ``opencv`` without rational terms) as
     matrix products (:func:`_st_polynomial`); the others in float32 blocks
@@ -287,7 +289,7 @@ def st_of_distorted_grid(distortion: Distortion, K: NDArray, xs: NDArray, ys: ND
     return np.moveaxis(planes, 0, -1)
 
 
-def _undistorted_grid(distortion: Distortion, K: NDArray, size: tuple[int, int]) -> tuple[NDArray, NDArray]:
+def undistorted_grid(distortion: Distortion, K: NDArray, size: tuple[int, int]) -> tuple[NDArray, NDArray]:
     """``distortion.undistort`` of every pixel of a ``size`` frame (float64, blocks of rows on every core).
 
     The ``polynomial`` and ``opencv`` lenses by Newton's method on
@@ -317,7 +319,7 @@ def _undistorted_grid(distortion: Distortion, K: NDArray, size: tuple[int, int])
 
 
 def _newton_inverse(distortion: Distortion, K: NDArray, u: NDArray, v: NDArray) -> tuple[NDArray, NDArray]:
-    """The ideal pixels ``(x, y)`` whose :func:`_distort_arrays` is ``(u, v)`` (Newton, see :func:`_undistorted_grid`)."""
+    """The ideal pixels ``(x, y)`` whose :func:`_distort_arrays` is ``(u, v)`` (see :func:`undistorted_grid`)."""
     step = 1e-4
     x, y = u.copy(), v.copy()
     for _ in range(30):
@@ -397,7 +399,7 @@ def make_stmaps(camera: Camera, overscan: float | None = None,
     ``x_u``, the plate pixel ``distort(x_u)`` (the forward model, as OpenCV's
     ``initUndistortRectifyMap``; :func:`st_of_distorted_grid`). Redistort:
     for plate pixel ``x_d``, ``undistort(x_d)`` (the model's inverse to
-    1e-10 px; :func:`_undistorted_grid`). Pixels with no image (past a
+    1e-10 px; :func:`undistorted_grid`). Pixels with no image (past a
     lens's fold, a fisheye ray beyond its widest angle) sample pixel
     ``(-1, y)``, outside the format (R < 0).
     """
@@ -408,7 +410,7 @@ def make_stmaps(camera: Camera, overscan: float | None = None,
     K = camera.K
     undistort = st_of_distorted_grid(camera.distortion, K, np.arange(-bx, width + bx, dtype=np.float64),
                                      np.arange(-by, height + by, dtype=np.float64), camera.image_size)
-    x_u, y_u = _undistorted_grid(camera.distortion, K, camera.image_size)
+    x_u, y_u = undistorted_grid(camera.distortion, K, camera.image_size)
     x_u[~np.isfinite(x_u) | ~np.isfinite(y_u)] = -1.0  # no undistorted pixel: outside the format
     redistort = st_from_pixels(x_u, y_u, camera.image_size)
     K_new = K.copy()

@@ -22,11 +22,12 @@ from camcal.geometry.uncertainty import SigmaSummary, projection_sigma_map, summ
 from camcal.io.frames import imread, imwrite
 from camcal.model.rig import Rig, make_provenance
 
-__all__ = ["read_exr", "read_exr_window", "read_sigma_map", "write_exr", "write_sigma_map", "write_stmap_sigmas", "write_stmaps"]
+__all__ = ["read_exr", "read_exr_window", "read_sigma_map", "write_exr", "write_sigma_map", "write_stmap_sigmas",
+           "write_stmaps"]
 
 
 def write_exr(path: str | os.PathLike, rgb: NDArray, border: tuple[int, int] = (0, 0)) -> Path:
-    """Write a float32 RGB image as OpenEXR (FLOAT channels, ZIP, atomically), its data window beyond its display window.
+    """Write a float32 RGB image as OpenEXR (FLOAT, ZIP, atomically), its data window beyond its display window.
 
     Parameters
     ----------
