@@ -35,6 +35,7 @@ import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -49,7 +50,7 @@ __all__ = ["DEFAULT_OVERSCAN", "STMaps", "overscan_border", "st_from_pixels", "p
 #: The overscan factor when none is given.
 DEFAULT_OVERSCAN = 1.1
 #: Rows per block of the map computations (a block's arrays stay in the CPU's cache).
-_BLOCK_ROWS = 32
+_BLOCK_ROWS = 64
 
 
 def overscan_border(image_size: tuple[int, int], overscan: float | None = None,
@@ -229,8 +230,8 @@ def _st_polynomial(distortion: Distortion, K: NDArray, xs: NDArray, ys: NDArray,
     Chebyshev interpolant on ``(d + 1)^2`` nodes (exactly, up to rounding):
     ``S = P_v C P_u^T``, with ``C = V^-1 F V^-T`` from the lens evaluated at
     the nodes (``F``, by :meth:`Distortion.distort` itself) and ``P`` the
-    Chebyshev polynomials at each row and column: one float32 matrix
-    product per channel. It holds the displacement (the ST value minus
+    Chebyshev polynomials at each row and column: a float32 matrix
+    product per channel and block of rows (OpenCV's ``cv2.gemm``). It holds the displacement (the ST value minus
     that of the undistorted pixel), small enough for float32's rounding to
     stay far below a float32 ST value's; the undistorted pixel's ST is added after.
     """
@@ -245,12 +246,21 @@ def _st_polynomial(distortion: Distortion, K: NDArray, xs: NDArray, ys: NDArray,
     vander = chebyshev.chebvander(np.cos(np.pi * (np.arange(degree + 1) + 0.5) / (degree + 1)), degree)
     columns = chebyshev.chebvander(u_scaled, degree).T.astype(np.float32, order="C")
     rows = chebyshev.chebvander(v_scaled, degree)
+    channels = []
     for channel, scale, identity in ((0, 1.0 / width, ((xs + 0.5) / width)[None, :]),
                                      (1, -1.0 / height, (1.0 - (ys + 0.5) / height)[:, None])):
         values = scale * displacement[:, channel].reshape(degree + 1, degree + 1)
         coefficients = np.linalg.solve(vander, np.linalg.solve(vander, values.T).T)
-        np.matmul((rows @ coefficients).astype(np.float32), columns, out=planes[channel])
-        planes[channel] += identity.astype(np.float32)
+        channels.append(((rows @ coefficients).astype(np.float32), identity.astype(np.float32)))
+
+    def work(start: int, stop: int) -> None:
+        for channel, (row_terms, identity) in enumerate(channels):
+            block = planes[channel, start:stop]
+            # OpenCV's GEMM into the block in place: small products, one per block and core
+            cv2.gemm(row_terms[start:stop], columns, 1.0, None, 0.0, block)
+            block += identity if identity.shape[0] == 1 else identity[start:stop]
+
+    _blocks(len(ys), work)
 
 
 def st_of_distorted_grid(distortion: Distortion, K: NDArray, xs: NDArray, ys: NDArray,
@@ -265,8 +275,8 @@ def st_of_distorted_grid(distortion: Distortion, K: NDArray, xs: NDArray, ys: ND
     :meth:`Distortion.distort` itself; in blocks of rows on every core.
     """
     K = np.asarray(K, dtype=np.float64)
-    planes = np.empty((3, len(ys), len(xs)), dtype=np.float32)  # channel planes: each written contiguously
-    planes[2] = 0.0
+    # channel planes, each written contiguously; zeros from the allocator, so blue's pages are never touched here
+    planes = np.zeros((3, len(ys), len(xs)), dtype=np.float32)
     degree = _polynomial_degree(distortion)
     if degree is not None:
         _st_polynomial(distortion, K, xs, ys, degree, source_size, planes)
