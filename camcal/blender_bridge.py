@@ -7,6 +7,13 @@ and Blender's global state stays out of the calling process.
 
 The add-on lives in ``addon/`` beside the ``camcal`` package (a source
 checkout or editable install); ``CAMCAL_ADDON_DIR`` overrides the location.
+
+Blender's tracking camera holds camcal's ``polynomial``, ``opencv`` (``k1,
+k2, p1, p2, k3``) and round ``division`` lenses exactly (the add-on's
+``mapping.blender_lens``); before the import, every other lens but the
+fisheyes (Cycles' fisheye camera takes those) is replaced by its nearest
+lens of that kind (:func:`camcal.io.conversion.nearest_camera`) and the
+residual reported.
 """
 
 from __future__ import annotations
@@ -16,15 +23,20 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 from camcal import resources
 from camcal.base.errors import CamcalError
+from camcal.io.conversion import LensConversion, nearest_camera
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Rig
 
 __all__ = [
     "ADDON_PACKAGE",
     "addon_dir",
     "load_addon",
+    "blender_tracking_rig",
     "import_rig_to_blend",
     "extension_tool",
     "build_extension",
@@ -100,6 +112,46 @@ def load_addon(name: str = ADDON_PACKAGE):
     return module
 
 
+def _tracking_holds(distortion: Distortion) -> bool:
+    """Whether the add-on takes ``distortion`` as it is: a tracking-camera model holds it, or it is a fisheye."""
+    p = distortion.params
+    if distortion.model == "opencv":
+        return not any(p.get(name, 0.0) for name in ("k4", "k5", "k6", "s1", "s2", "s3", "s4"))
+    if distortion.model == "division":
+        return p.get("aspect", 1.0) == 1.0
+    return True
+
+
+#: The lens fitted where Blender's tracking camera does not hold one (see :func:`blender_tracking_rig`).
+_NEAREST = {"opencv": "opencv", "polynomial": "polynomial", "division": "division", "none": "polynomial",
+            "kannala-brandt": "kannala-brandt", "kannala-brandt-thin-prism": "kannala-brandt"}
+_BLENDER_NAMES = {"opencv": "Blender BROWN", "polynomial": "Blender POLYNOMIAL", "division": "Blender NUKE",
+                  "kannala-brandt": "Cycles fisheye"}
+
+
+def blender_tracking_rig(rig: Rig) -> tuple[Rig, tuple[LensConversion, ...]]:
+    """The rig with each lens Blender cannot hold replaced by the nearest one it can, and what that cost.
+
+    ``opencv`` with rational or thin-prism terms becomes the nearest
+    ``opencv`` lens of ``k1, k2, p1, p2, k3`` (Blender's BROWN), a
+    ``division`` lens with an aspect the nearest round one (NUKE), a lens
+    with a correction field the nearest of its own kind without it. Each
+    replaced camera's :class:`~camcal.io.conversion.LensConversion` gives
+    the largest pixel distance between the two lenses over the frame.
+    """
+    cameras, conversions = [], []
+    for camera in rig.cameras:
+        distortion = camera.distortion
+        if _tracking_holds(distortion) and not distortion.has_correction:
+            cameras.append(camera)
+            continue
+        fit = _NEAREST[distortion.model]
+        converted, conversion = nearest_camera(camera, _tracking_holds, fit, _BLENDER_NAMES[fit], skew=True)
+        cameras.append(converted)
+        conversions.append(conversion)
+    return Rig(tuple(cameras), rig.units, rig.frames, rig.points, rig.provenance), tuple(conversions)
+
+
 def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **options) -> dict:
     """Import a rig file into a new .blend file (written atomically).
 
@@ -118,7 +170,10 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
     Returns
     -------
     dict
-        A summary: rig name, camera objects, stereo mode, clips, warnings.
+        A summary: rig name, camera objects, stereo mode, clips, warnings;
+        ``conversions``: one line per lens replaced by its nearest fit
+        (:func:`blender_tracking_rig`), its residual in pixels (also first
+        among the warnings).
 
     Raises
     ------
@@ -132,19 +187,33 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
     if not blend.parent.is_dir():
         raise CamcalError(f"output folder does not exist: {blend.parent}")
     options.setdefault("aux_directory", str(blend.parent / f"{blend.stem}_lens"))
-    payload = json.dumps({"rig": str(rig), "blend": str(blend), "options": options})
+    tracking, conversions = blender_tracking_rig(Rig.load(rig))
+    fitted = None
+    if conversions:  # the refitted rig beside the original, so that its relative paths still hold
+        handle, name = tempfile.mkstemp(prefix=f".{rig.stem}.", suffix=".blender.rig.json", dir=rig.parent)
+        os.close(handle)
+        fitted = Path(name)
+        tracking.save(fitted)
+    payload = json.dumps({"rig": str(fitted or rig), "blend": str(blend), "options": options})
     env = dict(os.environ)
     env.setdefault("CAMCAL_ADDON_DIR", str(addon_dir()))
-    proc = subprocess.run(
-        [sys.executable, "-c", _SCRIPT, payload], capture_output=True, text=True, env=env
-    )
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", _SCRIPT, payload], capture_output=True, text=True, env=env
+        )
+    finally:
+        if fitted is not None:
+            fitted.unlink(missing_ok=True)
     if proc.returncode != 0:
         lines = [line for line in proc.stderr.strip().splitlines() if line.strip()]
         message = lines[-1] if lines else f"Blender import failed (exit code {proc.returncode})"
         raise CamcalError(message)
     for line in proc.stdout.splitlines():
         if line.startswith("CAMCAL_RESULT "):
-            return json.loads(line[len("CAMCAL_RESULT "):])
+            summary = json.loads(line[len("CAMCAL_RESULT "):])
+            summary["conversions"] = [conversion.describe() for conversion in conversions]
+            summary["warnings"] = summary["conversions"] + summary["warnings"]
+            return summary
     raise CamcalError("Blender import finished without a result")
 
 

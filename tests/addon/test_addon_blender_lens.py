@@ -148,3 +148,44 @@ def test_movie_distortion_in_blender_equals_camcal_within_0_01_px(bpy, addon, tm
     assert inside.mean() > 0.9 and moved > 3.0
     assert formula_error.max() < 0.01
     assert camcal_error.max() < 0.01
+
+
+RATIONAL = {"model": "opencv", "params": {"k1": -0.21, "k2": 0.04, "p1": 8e-4, "p2": -1.2e-3, "k3": -0.004,
+                                          "k4": 0.05, "k5": 0.012, "k6": 0.002, "s1": 1.1e-3, "s2": -4e-4}}
+
+
+def test_camcal_side_refit_of_the_lenses_blender_cannot_hold(addon, tmp_path):
+    """camcal replaces a lens no tracking model holds by its nearest opencv / division lens and reports the
+    residual; the add-on then holds the fitted lens exactly."""
+    from camcal.blender_bridge import blender_tracking_rig
+    from camcal.io.conversion import max_pixel_residual
+    from camcal.model.rig import Rig
+
+    size = (320, 240)
+    K = _K(size)
+    aspect = {"model": "division", "params": {"lambda": -3e-6, "aspect": 1.02}}
+    rig = Rig.load(write_rig(tmp_path / "mixed.rig.json", [
+        camera_dict("rational", size, K, distortion=RATIONAL), camera_dict("plain", size, K, distortion=OPENCV),
+        camera_dict("oval", size, K, distortion=aspect)]))
+    tracking, conversions = blender_tracking_rig(rig)
+    assert tracking.camera("plain") == rig.camera("plain")
+    assert [c.camera for c in conversions] == ["rational", "oval"]
+    for conversion in conversions:
+        source, fitted = rig.camera(conversion.camera), tracking.camera(conversion.camera)
+        assert not conversion.exact and conversion.max_px == max_pixel_residual(source, fitted)
+        assert 1e-4 < conversion.max_px < 1.0 and "max residual" in conversion.describe()
+        print(conversion.describe())
+        rig_lens = addon.rigfile.Distortion(fitted.distortion.model, dict(fitted.distortion.params),
+                                            fitted.distortion.center or (K[0, 2], K[1, 2]))
+        assert addon.mapping.blender_lens(rig_lens, fitted.K.tolist(), size).exact
+
+
+def test_cli_blender_import_reports_the_refit(tmp_path, capsys):
+    pytest.importorskip("bpy")
+    from camcal.cli import main
+
+    rig = write_rig(tmp_path / "r.rig.json", [camera_dict("cam", (320, 240), _K((320, 240)), distortion=RATIONAL)])
+    assert main(["blender", "import", str(rig), "--blend", str(tmp_path / "r.blend")]) == 0
+    captured = capsys.readouterr()
+    assert "camera 'cam': opencv -> Blender BROWN: nearest fit, max residual" in captured.out + captured.err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.blend", "r.rig.json", "r_lens"]
