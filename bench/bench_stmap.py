@@ -22,7 +22,7 @@ from camcal.geometry.stmap import undistorted_grid, pixels_from_st, st_of_distor
 from camcal.model.distortion import Distortion
 
 SIZE = (3840, 2160)
-REPEATS = 7
+REPEATS = 15
 INVERSE_REPEATS = 2
 PARAMS = {"k1": -0.15, "k2": 0.04, "p1": 0.0005, "p2": -0.0003, "k3": -0.004}
 K = np.array([[2900.0, 0.0, 1925.3], [0.0, 2900.0, 1076.8], [0.0, 0.0, 1.0]])
