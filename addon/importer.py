@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import bpy
 from mathutils import Matrix
 
-from . import fisheye, mapping, plyfile, pngfile, rigfile
+from . import fisheye, mapping, plyfile, pngfile, rigfile, tracking
 from .rigfile import RigFileError
 
 __all__ = [
@@ -124,7 +124,7 @@ def import_rig(
         Overscan factor of the render that the compositor distorts.
     lens_model : {None, 'POLYNOMIAL', 'DIVISION', 'NUKE', 'BROWN'}
         The tracking camera's distortion model; None takes the one that
-        holds each lens exactly (:func:`.mapping.blender_lens`); another is
+        holds each lens exactly (:func:`.tracking.blender_lens`); another is
         fitted, with its residual among the warnings.
     aux_directory : str, optional
         Where blank lens frames are written (default: beside the saved
@@ -143,8 +143,8 @@ def import_rig(
     rig = rigfile.load_rig(path)
     if not overscan >= 1.0:
         raise RigFileError(f"overscan: must be >= 1, got {overscan}")
-    if lens_model is not None and lens_model not in mapping.BLENDER_MODELS:
-        raise RigFileError(f"lens_model: unknown {lens_model!r}, expected one of: {', '.join(mapping.BLENDER_MODELS)}")
+    if lens_model is not None and lens_model not in tracking.BLENDER_MODELS:
+        raise RigFileError(f"lens_model: unknown {lens_model!r}, expected one of: {', '.join(tracking.BLENDER_MODELS)}")
     cams = [_effective_camera(c, use_rectified) for c in rig.cameras]
     cloud = None
     if import_points and rig.points is not None:  # read before creating anything
@@ -472,7 +472,7 @@ def _set_lens(clip, lens, sensor_width_mm):
 
 def _tracking_lens(cam, margins, lens_model):
     try:
-        return mapping.blender_lens(cam.distortion, cam.K, cam.size, margins, lens_model)
+        return tracking.blender_lens(cam.distortion, cam.K, cam.size, margins, lens_model)
     except ValueError as error:
         raise RigFileError(f"camera {cam.name!r}: {error}") from None
 
@@ -592,7 +592,7 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     output is the camera's own frame (``W x H``), centred.
     """
     W, H = cam.size
-    mx, my = mapping.overscan_margins(cam.size, overscan)
+    mx, my = tracking.overscan_margins(cam.size, overscan)
     size_os = (W + 2 * mx, H + 2 * my)
     K = cam.K
     K_os = ((K[0][0], K[0][1], K[0][2] + mx), (0.0, K[1][1], K[1][2] + my), (0.0, 0.0, 1.0))
@@ -658,8 +658,8 @@ def distortion_shift(clip, lens, margins, size):
     even at k = 0, from the bounds' rounding). This runs the node once on a
     coordinate ramp in a throw-away scene and compares the coordinates it
     reads back with Blender's formula for ``lens`` (a
-    :class:`.mapping.BlenderLens` on the overscan frame,
-    :func:`.mapping.blender_distort`): the difference is the offset.
+    :class:`.tracking.BlenderLens` on the overscan frame,
+    :func:`.tracking.blender_distort`): the difference is the offset.
     """
     import numpy as np  # Blender's bundled numpy; only the bpy layer uses it
 
@@ -708,8 +708,8 @@ def distortion_shift(clip, lens, margins, size):
                 j, i = int(H * fy), int(W * fx)
                 qx, qy = float(out_px[j, i, 0]) * Wo, float(out_px[j, i, 1]) * Ho
                 # q is where Blender sampled the undistorted render (overscan frame, edges, y up).
-                ideal = mapping.from_blender_pixel((qx, qy), Ho)
-                d = mapping.to_blender_pixel(mapping.blender_distort(lens, ideal), Ho)
+                ideal = tracking.from_blender_pixel((qx, qy), Ho)
+                d = tracking.to_blender_pixel(tracking.blender_distort(lens, ideal), Ho)
                 shifts.append((d[0] - (i + 0.5 + mx), d[1] - (j + 0.5 + my)))
         sx = sum(s[0] for s in shifts) / len(shifts)
         sy = sum(s[1] for s in shifts) / len(shifts)

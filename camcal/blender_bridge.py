@@ -10,7 +10,7 @@ checkout or editable install); ``CAMCAL_ADDON_DIR`` overrides the location.
 
 Blender's tracking camera holds camcal's ``polynomial``, ``opencv`` (``k1,
 k2, p1, p2, k3``) and round ``division`` lenses exactly (the add-on's
-``mapping.blender_lens``); before the import, every other lens but the
+``tracking.blender_lens``); before the import, every other lens but the
 fisheyes (Cycles' fisheye camera takes those) is replaced by its nearest
 lens of that kind (:func:`camcal.io.conversion.nearest_camera`) and the
 residual reported.

@@ -1,7 +1,7 @@
 """Blender's tracking-camera lens models against camcal's lenses.
 
-The fast tests check :func:`mapping.blender_distort` (Blender's formulas,
-libmv's ``distortion_models.h``) with the settings :func:`mapping.blender_lens`
+The fast tests check :func:`tracking.blender_distort` (Blender's formulas,
+libmv's ``distortion_models.h``) with the settings :func:`tracking.blender_lens`
 chooses against camcal's own ``Distortion.distort``. The bpy ones (a few
 seconds each) make Blender itself evaluate the lens: the add-on's distortion compositor (Movie
 Distortion on the overscan frame, then the Translate that cancels its offset)
@@ -42,7 +42,7 @@ def _lenses(addon, lens, model, size, margins=(0, 0)):
     camcal_lens = Distortion.from_dict(data)
     rig_lens = addon.rigfile.Distortion(lens["model"], dict(lens["params"]),
                                         tuple(centre) if centre else (K[0, 2], K[1, 2]))
-    return K, camcal_lens, data, addon.mapping.blender_lens(rig_lens, K.tolist(), size, margins, model)
+    return K, camcal_lens, data, addon.tracking.blender_lens(rig_lens, K.tolist(), size, margins, model)
 
 
 @pytest.mark.parametrize("name", list(CASES))
@@ -52,7 +52,7 @@ def test_blender_formulas_reproduce_camcal_lenses(addon, name, margins):
     K, camcal_lens, _, blender = _lenses(addon, lens, model, size, margins)
     points = np.random.default_rng(4).uniform([-0.5, -0.5], [size[0] - 0.5, size[1] - 0.5], (400, 2))
     ours = camcal_lens.distort(points, K)
-    theirs = np.array([addon.mapping.blender_distort(blender, p + margins) for p in points]) - margins
+    theirs = np.array([addon.tracking.blender_distort(blender, p + margins) for p in points]) - margins
     error = np.abs(ours - theirs).max()
     print(f"{lens['model']} -> {model}: exact {blender.exact}, fit {blender.fit_max_px:.2e} px, "
           f"formula vs camcal {error:.2e} px")
@@ -70,19 +70,19 @@ def test_brown_terms_and_refusals(addon):
     p = blender.params
     assert (p["brown_p1"], p["brown_p2"], p["brown_k4"]) == (-0.003, -0.002, 0.0)
     # an r^8 term moves a point at normalised radius r by k4 r^9 focal lengths along the radius
-    bumped = addon.mapping.BlenderLens(**{**blender.__dict__, "params": dict(p, brown_k1=0.0, brown_k2=0.0,
+    bumped = addon.tracking.BlenderLens(**{**blender.__dict__, "params": dict(p, brown_k1=0.0, brown_k2=0.0,
                                                                              brown_k3=0.0, brown_p1=0.0,
                                                                              brown_p2=0.0, brown_k4=0.01)})
     cx, cy = blender.principal_point_pixels
-    x0, y0 = addon.mapping.from_blender_pixel((cx + 130.0, cy), 180)
-    moved = addon.mapping.blender_distort(bumped, (x0, y0))[0] - x0
+    x0, y0 = addon.tracking.from_blender_pixel((cx + 130.0, cy), 180)
+    moved = addon.tracking.blender_distort(bumped, (x0, y0))[0] - x0
     assert moved == pytest.approx(0.01 * (130.0 / 260.0) ** 9 * 260.0, rel=1e-12)
     rig = addon.rigfile.Distortion
     with pytest.raises(ValueError, match="no tangential terms"):
-        addon.mapping.blender_lens(rig("opencv", dict(OPENCV["params"]), (126.3, 84.6)), _K((240, 180)).tolist(),
+        addon.tracking.blender_lens(rig("opencv", dict(OPENCV["params"]), (126.3, 84.6)), _K((240, 180)).tolist(),
                                    (240, 180), model="NUKE")
     with pytest.raises(ValueError, match="unknown Blender distortion model"):
-        addon.mapping.blender_lens(rig("polynomial", {"k1": 0.1, "k2": 0.0}, (126.3, 84.6)), _K((240, 180)).tolist(),
+        addon.tracking.blender_lens(rig("polynomial", {"k1": 0.1, "k2": 0.0}, (126.3, 84.6)), _K((240, 180)).tolist(),
                                    (240, 180), model="FISHEYE")
 
 
@@ -138,7 +138,7 @@ def test_movie_distortion_in_blender_equals_camcal_within_0_01_px(bpy, addon, tm
     inside[[0, -1], :] = inside[:, [0, -1]] = False
     ideal = sampled[inside]
     camcal_error = np.linalg.norm(camcal_lens.distort(ideal, K) - output[inside], axis=1)
-    formula = np.array([addon.mapping.blender_distort(blender, p) for p in ideal[::7]])
+    formula = np.array([addon.tracking.blender_distort(blender, p) for p in ideal[::7]])
     formula_error = np.linalg.norm(formula - output[inside][::7], axis=1)
     moved = np.linalg.norm(ideal - output[inside], axis=1).max()
     print(f"{lens['model']} lens as Blender's {model} ({W}x{H}, overscan {Wo}x{Ho}): Blender vs camcal "
@@ -177,7 +177,7 @@ def test_camcal_side_refit_of_the_lenses_blender_cannot_hold(addon, tmp_path):
         print(conversion.describe())
         rig_lens = addon.rigfile.Distortion(fitted.distortion.model, dict(fitted.distortion.params),
                                             fitted.distortion.center or (K[0, 2], K[1, 2]))
-        assert addon.mapping.blender_lens(rig_lens, fitted.K.tolist(), size).exact
+        assert addon.tracking.blender_lens(rig_lens, fitted.K.tolist(), size).exact
 
 
 def test_cli_blender_import_reports_the_refit(tmp_path, capsys):

@@ -216,7 +216,7 @@ def test_thin_prism_fisheye_radial_part_exact_and_the_rest_reported(addon, tmp_p
 
 
 def test_division_aspect_distorts_like_camcal(addon):
-    m = addon.mapping
+    m = addon.tracking
     lens = Distortion("division", {"lambda": -1.5e-7, "aspect": 2.0})
     Kd = np.array([[1400.0, 0.0, 641.3], [0.0, 700.0, 357.8], [0.0, 0.0, 1.0]])
     rng = np.random.default_rng(3)
