@@ -86,6 +86,7 @@ def import_rig(
     overscan=1.1,
     aux_directory=None,
     lens_model=None,
+    uv_maps=None,
 ):
     """Import a camcal rig file into a scene.
 
@@ -126,6 +127,12 @@ def import_rig(
         The tracking camera's distortion model; None takes the one that
         holds each lens exactly (:func:`.tracking.blender_lens`); another is
         fitted, with its residual among the warnings.
+    uv_maps : dict, optional
+        ``{camera name: EXR path}``: camcal's exact redistort map of the
+        camera on the overscan frame, as the UV of Blender's Map UV node
+        (``camcal.blender_bridge.write_blender_uv_maps``); that camera's
+        compositor re-distorts with it instead of Movie Distortion (its
+        clip keeps the tracking lens).
     aux_directory : str, optional
         Where blank lens frames are written (default: beside the saved
         .blend, else beside the rig file, else a temporary folder).
@@ -198,7 +205,7 @@ def import_rig(
             result.clips[cam.name] = clip
             if compositor:
                 result.distorted_scenes[cam.name] = _distortion_setup(
-                    scene, cam, obj, overscan, result, path, aux_directory, lens_model
+                    scene, cam, obj, overscan, result, path, aux_directory, lens_model, (uv_maps or {}).get(cam.name)
                 )
         if plate is not None:
             _background(cam, obj, plate, clip)
@@ -580,7 +587,7 @@ def _copy_render_settings(src, dst):
         dst.cycles.samples = src.cycles.samples
 
 
-def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory, lens_model):
+def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory, lens_model, uv_map=None):
     """An overscan render scene and a scene whose compositor distorts it.
 
     ``<camera> overscan``: renders the main scene (as its background set)
@@ -589,7 +596,10 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     render through Movie Distortion with a clip whose lens is expressed on
     the enlarged frame, then a Translate node that cancels the integer offset
     Blender's Movie Distortion adds when it grows or shrinks the image; the
-    output is the camera's own frame (``W x H``), centred.
+    output is the camera's own frame (``W x H``), centred. With ``uv_map``
+    (an EXR of the camera's frame whose R, G are the U, V of the overscan
+    render to sample) a Map UV node (bilinear) replaces Movie Distortion and
+    Translate: camcal's own lens, any model.
     """
     W, H = cam.size
     mx, my = tracking.overscan_margins(cam.size, overscan)
@@ -633,20 +643,40 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     unscale.inputs["Type"].default_value = "Relative"
     unscale.inputs["X"].default_value = size_os[0] / W
     unscale.inputs["Y"].default_value = size_os[0] / W
-    md = _movie_distortion(tree, clip)
-    shift = distortion_shift(clip, lens, (mx, my), (W, H))
-    translate = tree.nodes.new("CompositorNodeTranslate")
-    translate.inputs["X"].default_value = shift[0]
-    translate.inputs["Y"].default_value = shift[1]
     tree.links.new(layers.outputs["Image"], unscale.inputs["Image"])
-    tree.links.new(unscale.outputs["Image"], md.inputs["Image"])
-    tree.links.new(md.outputs["Image"], translate.inputs["Image"])
-    tree.links.new(translate.outputs["Image"], out.inputs[0])
-    for i, node in enumerate((layers, unscale, md, translate, out)):
+    if uv_map is not None:
+        chain = _map_uv(tree, uv_map, (W, H))
+        dist_scene["camcal_uv_map"] = uv_map
+    else:
+        md = _movie_distortion(tree, clip)
+        shift = distortion_shift(clip, lens, (mx, my), (W, H))
+        translate = tree.nodes.new("CompositorNodeTranslate")
+        translate.inputs["X"].default_value = shift[0]
+        translate.inputs["Y"].default_value = shift[1]
+        tree.links.new(md.outputs["Image"], translate.inputs["Image"])
+        chain = (md, translate)
+        dist_scene["camcal_distortion_shift_px"] = list(shift)
+    tree.links.new(unscale.outputs["Image"], chain[0].inputs["Image"])
+    tree.links.new(chain[-1].outputs["Image"], out.inputs[0])
+    for i, node in enumerate((layers, unscale, *chain, out)):
         node.location = (i * 250.0, 0.0)
-    dist_scene["camcal_distortion_shift_px"] = list(shift)
     obj.data["camcal_distorted_scene"] = dist_scene.name
     return dist_scene
+
+
+def _map_uv(tree, path, size):
+    """A Map UV node (bilinear) whose UV is the EXR at ``path`` (data, no colour transform); ``(node,)``."""
+    image = bpy.data.images.load(path, check_existing=True)
+    image.colorspace_settings.is_data = True
+    if tuple(image.size) != tuple(size):
+        raise RigFileError(f"UV map {path} is {tuple(image.size)}, the camera {tuple(size)}")
+    uv = tree.nodes.new("CompositorNodeImage")
+    uv.image = image
+    node = tree.nodes.new("CompositorNodeMapUV")
+    node.inputs["Interpolation"].default_value = "Bilinear"
+    tree.links.new(uv.outputs["Image"], node.inputs["UV"])
+    uv.location = (500.0, -250.0)
+    return (node,)
 
 
 def distortion_shift(clip, lens, margins, size):

@@ -11,13 +11,16 @@ checkout or editable install); ``CAMCAL_ADDON_DIR`` overrides the location.
 Blender's tracking camera holds camcal's ``polynomial``, ``opencv`` (``k1,
 k2, p1, p2, k3``) and round ``division`` lenses exactly (the add-on's
 ``tracking.blender_lens``); before the import, every other lens but the
-fisheyes (Cycles' fisheye camera takes those) is replaced by its nearest
-lens of that kind (:func:`camcal.io.conversion.nearest_camera`) and the
-residual reported.
+fisheyes (Cycles' fisheye camera takes those) is replaced in the MovieClip
+by its nearest lens of that kind (:func:`camcal.io.conversion.nearest_camera`,
+the residual reported), and its distortion compositor re-distorts with
+camcal's exact map through a Map UV node instead
+(:func:`write_blender_uv_maps`): the ST-map path.
 """
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import json
 import os
@@ -25,6 +28,8 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 from camcal import resources
 from camcal.base.errors import CamcalError
@@ -37,6 +42,7 @@ __all__ = [
     "addon_dir",
     "load_addon",
     "blender_tracking_rig",
+    "write_blender_uv_maps",
     "import_rig_to_blend",
     "extension_tool",
     "build_extension",
@@ -152,6 +158,41 @@ def blender_tracking_rig(rig: Rig) -> tuple[Rig, tuple[LensConversion, ...]]:
     return Rig(tuple(cameras), rig.units, rig.frames, rig.points, rig.provenance), tuple(conversions)
 
 
+def write_blender_uv_maps(rig: Rig, names: list[str], folder: str | os.PathLike, overscan: float) -> dict[str, str]:
+    """camcal's exact redistort maps of cameras, as the UV of Blender's Map UV node on the add-on's overscan frame.
+
+    For each camera named, ``<folder>/<camera>_blender_uv.exr``: for each
+    plate pixel, the pixel of the overscan render (the add-on's frame of
+    ``W + 2 mx`` by ``H + 2 my``, margins from its ``overscan_margins``) to
+    sample, ``U = (x + 0.5) / (W + 2 mx)``, ``V = 1 - (y + 0.5) / (H + 2 my)``
+    (:func:`camcal.geometry.stmap.st_from_pixels` on that frame; pixel (0, 0) at
+    the centre of the top-left pixel), ``x`` the lens's undistorted pixel
+    (:func:`camcal.geometry.stmap.undistorted_grid`) plus the margin; blue is
+    Map UV's mask (1, or 0 where the lens has no undistorted pixel), as in
+    Blender's UV render pass.
+
+    Returns
+    -------
+    dict
+        Camera name -> path, for the add-on's ``import_rig(uv_maps=...)``.
+    """
+    from camcal.geometry.stmap import st_from_pixels, undistorted_grid
+    from camcal.io.stmap import write_exr
+
+    margins = importlib.import_module(f"{load_addon().__name__}.tracking").overscan_margins  # pure: no bpy
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for name in names:
+        camera = rig.camera(name)
+        (width, height), (mx, my) = camera.image_size, margins(camera.image_size, overscan)
+        x, y = undistorted_grid(camera.distortion, camera.K, camera.image_size)
+        uv = st_from_pixels(x + mx, y + my, (width + 2 * mx, height + 2 * my))
+        uv[..., 2] = np.isfinite(x) & np.isfinite(y)  # Map UV's mask, as in Blender's UV pass
+        paths[name] = str(write_exr(folder / f"{name}_blender_uv.exr", uv))
+    return paths
+
+
 def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **options) -> dict:
     """Import a rig file into a new .blend file (written atomically).
 
@@ -187,7 +228,12 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
     if not blend.parent.is_dir():
         raise CamcalError(f"output folder does not exist: {blend.parent}")
     options.setdefault("aux_directory", str(blend.parent / f"{blend.stem}_lens"))
-    tracking, conversions = blender_tracking_rig(Rig.load(rig))
+    source = Rig.load(rig)
+    tracking, conversions = blender_tracking_rig(source)
+    exact_maps = [c.camera for c in conversions if not source.camera(c.camera).distortion.is_fisheye]
+    if exact_maps and options.get("distortion", True) and options.get("compositor", True):
+        options["uv_maps"] = write_blender_uv_maps(source, exact_maps, options["aux_directory"],
+                                                   options.get("overscan", 1.1))
     fitted = None
     if conversions:  # the refitted rig beside the original, so that its relative paths still hold
         handle, name = tempfile.mkstemp(prefix=f".{rig.stem}.", suffix=".blender.rig.json", dir=rig.parent)

@@ -10,6 +10,9 @@ holds the position of the undistorted pixel Blender sampled for it; camcal's
 lens applied to that position must give the output pixel back.
 """
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -189,3 +192,62 @@ def test_cli_blender_import_reports_the_refit(tmp_path, capsys):
     captured = capsys.readouterr()
     assert "camera 'cam': opencv -> Blender BROWN: nearest fit, max residual" in captured.out + captured.err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.blend", "r.rig.json", "r_lens"]
+    assert (tmp_path / "r_lens" / "cam_blender_uv.exr").is_file()
+    script = ("import bpy, sys; bpy.ops.wm.open_mainfile(filepath=sys.argv[1]); "
+              "t = [s for s in bpy.data.scenes if s.name.endswith(' distorted')][0].compositing_node_group; "
+              "print(sorted(n.bl_idname for n in t.nodes))")
+    proc = subprocess.run([sys.executable, "-c", script, str(tmp_path / "r.blend")], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert "CompositorNodeMapUV" in proc.stdout and "CompositorNodeMovieDistortion" not in proc.stdout
+
+
+def test_map_uv_path_in_blender_equals_camcal_within_0_01_px(bpy, addon, tmp_path):
+    """A lens no tracking model holds (OpenCV's rational and thin-prism terms): the compositor re-distorts with
+    camcal's own map through Map UV; a coordinate ramp in place of the overscan render comes out as camcal's lens."""
+    from camcal.blender_bridge import write_blender_uv_maps
+    from camcal.model.rig import Rig
+
+    size = (240, 180)
+    W, H = size
+    K = _K(size)
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = 1
+    rig_path = write_rig(tmp_path / "rational.rig.json", [camera_dict("cam", size, K, distortion=RATIONAL)])
+    uv_maps = write_blender_uv_maps(Rig.load(rig_path), ["cam"], tmp_path / "uv", overscan=1.1)
+    result = addon.import_rig(scene, str(rig_path), aux_directory=str(tmp_path / "lens"), uv_maps=uv_maps)
+    dist_scene = result.distorted_scenes["cam"]
+    mx, my = addon.tracking.overscan_margins(size, 1.1)
+    Wo, Ho = W + 2 * mx, H + 2 * my
+    tree = dist_scene.compositing_node_group
+    map_uv = next(node for node in tree.nodes if node.bl_idname == "CompositorNodeMapUV")
+    assert not [n for n in tree.nodes if n.bl_idname == "CompositorNodeMovieDistortion"]
+    for node in [n for n in tree.nodes if n.bl_idname in ("CompositorNodeRLayers", "CompositorNodeScale")]:
+        tree.nodes.remove(node)
+    ramp = tree.nodes.new("CompositorNodeImage")
+    ramp.image = _ramp(bpy, (Wo, Ho))
+    tree.links.new(ramp.outputs["Image"], map_uv.inputs["Image"])
+    dist_scene.render.image_settings.file_format = "OPEN_EXR"
+    dist_scene.render.image_settings.color_depth = "32"
+    dist_scene.render.filepath = str(tmp_path / "sampled.exr")
+    bpy.ops.render.render(write_still=True, scene=dist_scene.name)
+    image = bpy.data.images.load(dist_scene.render.filepath)
+    assert tuple(image.size) == size
+    pixels = np.empty(W * H * 4, dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    pixels = pixels.reshape(H, W, 4)[::-1].astype(np.float64)
+    sampled = np.stack([pixels[..., 0] * Wo - 0.5 - mx, Ho - pixels[..., 1] * Ho - 0.5 - my], axis=-1)
+    v, u = np.mgrid[0:H, 0:W]
+    output = np.stack([u, v], axis=-1).reshape(-1, 2).astype(np.float64)
+    lens = Distortion.from_dict(RATIONAL)
+    source = lens.undistort(output, K)  # where camcal's lens samples the render for each output pixel
+    # output pixels whose source lies in the overscan render, a pixel from its edge (Map UV clips beyond)
+    inside = ((source[:, 0] >= 0.5 - mx) & (source[:, 0] <= W + mx - 1.5)
+              & (source[:, 1] >= 0.5 - my) & (source[:, 1] <= H + my - 1.5))
+    sampled = sampled.reshape(-1, 2)[inside]
+    error = np.linalg.norm(lens.distort(sampled, K) - output[inside], axis=1)
+    moved = np.linalg.norm(source[inside] - output[inside], axis=1).max()
+    print(f"opencv rational + thin prism lens through Map UV: Blender vs camcal max {error.max():.4f} px over "
+          f"{inside.sum()} pixels; the lens moves pixels up to {moved:.1f} px")
+    assert inside.mean() > 0.98 and moved > 3.0
+    assert error.max() < 0.01
