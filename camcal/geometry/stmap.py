@@ -117,11 +117,11 @@ def pixels_from_st(st: NDArray, source_size: tuple[int, int]) -> tuple[NDArray[n
     return st[..., 0] * width - 0.5, (1.0 - st[..., 1]) * height - 0.5
 
 
-def _blocks(rows: int, work) -> None:
-    """Run ``work(start, stop)`` over blocks of rows, on every core (numpy releases the GIL)."""
-    starts = range(0, rows, _BLOCK_ROWS)
+def _blocks(rows: int, work, block_rows: int = _BLOCK_ROWS) -> None:
+    """Run ``work(start, stop)`` over blocks of ``block_rows`` rows, on every core (numpy and OpenCV release the GIL)."""
+    starts = range(0, rows, block_rows)
     with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        for future in [pool.submit(work, start, min(start + _BLOCK_ROWS, rows)) for start in starts]:
+        for future in [pool.submit(work, start, min(start + block_rows, rows)) for start in starts]:
             future.result()
 
 
@@ -230,10 +230,12 @@ def _st_polynomial(distortion: Distortion, K: NDArray, xs: NDArray, ys: NDArray,
     Chebyshev interpolant on ``(d + 1)^2`` nodes (exactly, up to rounding):
     ``S = P_v C P_u^T``, with ``C = V^-1 F V^-T`` from the lens evaluated at
     the nodes (``F``, by :meth:`Distortion.distort` itself) and ``P`` the
-    Chebyshev polynomials at each row and column: a float32 matrix
-    product per channel and block of rows (OpenCV's ``cv2.gemm``). It holds the displacement (the ST value minus
-    that of the undistorted pixel), small enough for float32's rounding to
-    stay far below a float32 ST value's; the undistorted pixel's ST is added after.
+    Chebyshev polynomials at each row and column, ``C`` cut to its
+    numerical rank (``U S V^T``, singular values above 1e-12 of the
+    largest: the lens's structure leaves about 5 of 8); the undistorted
+    pixel's own ST value (a function of the column for R, of the row for G)
+    joins as one more rank-one term. A float32 matrix product per channel
+    and block of rows (OpenCV's ``cv2.gemm``), on every core.
     """
     from numpy.polynomial import chebyshev
 
@@ -244,23 +246,32 @@ def _st_polynomial(distortion: Distortion, K: NDArray, xs: NDArray, ys: NDArray,
     displacement = distortion.distort(nodes, K) - nodes
     width, height = source_size
     vander = chebyshev.chebvander(np.cos(np.pi * (np.arange(degree + 1) + 0.5) / (degree + 1)), degree)
-    columns = chebyshev.chebvander(u_scaled, degree).T.astype(np.float32, order="C")
+    columns = chebyshev.chebvander(u_scaled, degree).T
     rows = chebyshev.chebvander(v_scaled, degree)
-    channels = []
-    for channel, scale, identity in ((0, 1.0 / width, ((xs + 0.5) / width)[None, :]),
-                                     (1, -1.0 / height, (1.0 - (ys + 0.5) / height)[:, None])):
+    factors = []
+    for channel, scale in ((0, 1.0 / width), (1, -1.0 / height)):
         values = scale * displacement[:, channel].reshape(degree + 1, degree + 1)
         coefficients = np.linalg.solve(vander, np.linalg.solve(vander, values.T).T)
-        channels.append(((rows @ coefficients).astype(np.float32), identity.astype(np.float32)))
+        # the lens's structure leaves the coefficients of low rank (about 5 of 8): keep what is not rounding
+        left, singular, right = np.linalg.svd(coefficients)
+        rank = int(np.sum(singular > 1e-12 * max(singular[0], 1e-300)))
+        row_terms, column_terms = rows @ (left[:, :rank] * singular[:rank]), right[:rank] @ columns
+        # the undistorted pixel's ST as one more rank-one term: a function of the column (R) or the row (G)
+        if channel == 0:
+            identity = ((xs + 0.5) / width)[None, :]
+            row_terms, column_terms = np.c_[row_terms, np.ones(len(ys))], np.r_[column_terms, identity]
+        else:
+            identity = (1.0 - (ys + 0.5) / height)[:, None]
+            row_terms, column_terms = np.c_[row_terms, identity], np.r_[column_terms, np.ones((1, len(xs)))]
+        factors.append((row_terms.astype(np.float32), column_terms.astype(np.float32, order="C")))
 
     def work(start: int, stop: int) -> None:
-        for channel, (row_terms, identity) in enumerate(channels):
-            block = planes[channel, start:stop]
-            # OpenCV's GEMM into the block in place: small products, one per block and core
-            cv2.gemm(row_terms[start:stop], columns, 1.0, None, 0.0, block)
-            block += identity if identity.shape[0] == 1 else identity[start:stop]
+        for channel, (row_terms, column_terms) in enumerate(factors):
+            # OpenCV's GEMM into the block in place
+            cv2.gemm(row_terms[start:stop], column_terms, 1.0, None, 0.0, planes[channel, start:stop])
 
-    _blocks(len(ys), work)
+    # a few large blocks per core: each product streams its rows, and fewer calls cost less
+    _blocks(len(ys), work, max(_BLOCK_ROWS, -(-len(ys) // (4 * (os.cpu_count() or 1)))))
 
 
 def st_of_distorted_grid(distortion: Distortion, K: NDArray, xs: NDArray, ys: NDArray,
