@@ -8,7 +8,9 @@ fisheye):
 1. The start lens: the 3DE coefficients whose model function (LDPK's
    ``undistort``) best maps a grid of distorted pixels over the image to
    where the calibrated lens undistorts them (closed form on both sides,
-   ``least_squares`` from the identity).
+   ``least_squares`` from the identity; rays within 75 degrees of the
+   axis, each weighed by ``1 / (1 + tan^2 theta)`` so that an error counts
+   as the angle it makes, not as the pinhole pixels it spans at the rim).
 2. One joint refinement of ``fx, fy, cx, cy``, the fitted coefficients and
    every view's board pose, minimising the reprojection error in DISTORTED
    pixels ``sum rho(|distort(K (R X + t)) - x|^2)`` (camcal's
@@ -57,6 +59,8 @@ FITTED_PARAMS: Mapping[str, tuple[str, ...]] = MappingProxyType({
 _LOSSES = {"trivial": "linear", "huber": "huber", "soft_l1": "soft_l1", "cauchy": "cauchy"}
 #: What a corner the lens cannot image (NaN) costs in the refinement, in pixels.
 _LOST_PX = 1e3
+#: The start lens is fitted on the pixels whose ray is within this tangent of the axis (75 degrees).
+_MAX_START_TAN = 3.7
 
 
 @dataclass(frozen=True)
@@ -91,14 +95,17 @@ def _start_lens(model: str, start: Distortion, K: NDArray[np.float64], image_siz
     """The 3DE lens whose model function undistorts a grid over the image as ``start`` does (step 1)."""
     grid = frame_grid(image_size, max(image_size) / 48.0)
     ideal = start.undistort(grid, K)
-    keep = np.all(np.isfinite(ideal), axis=1)
+    normalised = np.linalg.norm((ideal - K[:2, 2]) / np.diag(K)[:2], axis=1)
+    keep = np.all(np.isfinite(ideal), axis=1) & (normalised < _MAX_START_TAN)
     grid, ideal = grid[keep], ideal[keep]
+    # pinhole pixels grow as tan(theta): weigh by d(theta)/d(tan theta) so that the rim does not outweigh the rest
+    weight = 1.0 / (1.0 + normalised[keep] ** 2)[:, None]
     names = FITTED_PARAMS[model]
     filmback = dict(zip(FILMBACK_KEYS, (float(image_size[0]), float(image_size[1]))))
 
     def residuals(vector: NDArray[np.float64]) -> NDArray[np.float64]:
         lens = Distortion(model, {**filmback, **dict(zip(names, vector))})
-        return np.nan_to_num(lens.undistort(grid, K) - ideal, nan=_LOST_PX).ravel()
+        return np.nan_to_num(weight * (lens.undistort(grid, K) - ideal), nan=_LOST_PX).ravel()
 
     solution = scipy.optimize.least_squares(residuals, np.zeros(len(names)), method="lm", x_scale="jac")
     return Distortion(model, {**filmback, **dict(zip(names, solution.x))})

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.model import tde4
+from camcal.model.distortion import Distortion
 
 HERE = Path(__file__).resolve().parent
 DRIVER_SOURCE = HERE / "ldpk_driver.cpp"
@@ -97,10 +98,11 @@ def pixels_from_unit(points_unit: np.ndarray, image_size: tuple[int, int]) -> np
 
 
 def camcal_unit(case: Case) -> np.ndarray:
-    """camcal's answer to ``case`` in LDPK unit coordinates."""
+    """camcal's answer to ``case`` (its :class:`~camcal.model.distortion.Distortion`) in LDPK unit coordinates."""
     width, height = case.image_size
-    function = tde4.undistort_pixels if case.direction == "undistort" else tde4.distort_pixels
-    out = function(case.model, case.params, pixels_from_unit(case.points_unit, case.image_size), case.K)
+    lens = Distortion(case.model, case.params)
+    function = lens.undistort if case.direction == "undistort" else lens.distort
+    out = function(pixels_from_unit(case.points_unit, case.image_size), case.K)
     return np.column_stack([(out[:, 0] + 0.5) / width, 1.0 - (out[:, 1] + 0.5) / height])
 
 
