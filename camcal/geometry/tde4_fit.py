@@ -46,7 +46,7 @@ from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion, frame_grid
 from camcal.model.tde4 import FILMBACK_KEYS, TDE4_MODELS
 
-__all__ = ["FITTED_PARAMS", "Tde4Fit", "fit_tde4_lens"]
+__all__ = ["FITTED_PARAMS", "Tde4Fit", "fit_tde4_lens", "nearest_tde4_lens"]
 
 #: The coefficients a board calibration fits for each 3DE model (the others held at LDPK's defaults).
 FITTED_PARAMS: Mapping[str, tuple[str, ...]] = MappingProxyType({
@@ -91,10 +91,27 @@ class Tde4Fit:
     parameter_names: tuple[str, ...]
 
 
-def _start_lens(model: str, start: Distortion, K: NDArray[np.float64], image_size: tuple[int, int]) -> Distortion:
-    """The 3DE lens whose model function undistorts a grid over the image as ``start`` does (step 1)."""
+def nearest_tde4_lens(source: Distortion, K: NDArray[np.float64], image_size: tuple[int, int],
+                      model: str) -> Distortion:
+    """The 3DE lens of ``model`` (its :data:`FITTED_PARAMS`, the rest at LDPK's defaults) that undistorts a grid of
+    pixels over the image as ``source`` does, with the same ``K`` (step 1 of the module docstring).
+
+    The fit is in the undistorting direction, both sides closed form, on the pixels whose ray ``source`` puts
+    within 75 degrees of the axis, each error weighed by ``1 / (1 + tan^2 theta)`` (the angle it makes).
+
+    Examples
+    --------
+    >>> K = np.array([[1000.0, 0, 639.5], [0, 1000.0, 359.5], [0, 0, 1]])
+    >>> lens = nearest_tde4_lens(Distortion("polynomial", {"k1": -0.05, "k2": 0.0}), K, (1280, 720),
+    ...                          "3de4-radial-deg4")
+    >>> bool(lens.params["c2"] > 0.0)  # barrel in camcal's direction: its undistortion pushes points outward
+    True
+    """
+    if model not in TDE4_MODELS:
+        raise CamcalError(f"not a 3DE model: {model!r}, expected one of: {', '.join(TDE4_MODELS)}")
+    K = np.asarray(K, dtype=np.float64)
     grid = frame_grid(image_size, max(image_size) / 48.0)
-    ideal = start.undistort(grid, K)
+    ideal = source.undistort(grid, K)
     normalised = np.linalg.norm((ideal - K[:2, 2]) / np.diag(K)[:2], axis=1)
     keep = np.all(np.isfinite(ideal), axis=1) & (normalised < _MAX_START_TAN)
     grid, ideal = grid[keep], ideal[keep]
@@ -148,7 +165,7 @@ def fit_tde4_lens(object_points: NDArray[np.float64], views: Sequence[tuple[NDAr
         raise CamcalError(f"{len(views)} views but {len(poses)} poses")
     K = np.asarray(K, dtype=np.float64)
     names = FITTED_PARAMS[model]
-    lens = _start_lens(model, start, K, image_size)
+    lens = nearest_tde4_lens(start, K, image_size, model)
     held = {key: value for key, value in lens.params.items() if key not in names}
     n_lens = 4 + len(names)
     points = [np.asarray(object_points, dtype=np.float64)[ids] for ids, _ in views]
