@@ -19,7 +19,7 @@ Conventions (LDPK's own)
   the other way): LDPK's ``undistort`` is the closed-form model function
   :func:`undistort_dn`, its ``distort`` the inverse :func:`distort_dn`
   (Newton iterations with the analytic Jacobian, to 1e-14 in normalised
-  units, NaN where they find no orientation-preserving root).
+  units, NaN where they find no root on the lens's side of its fold).
 - Points are in "diagonally normalised" coordinates (``dn``): centred on
   the lens centre, divided by the film back's half-diagonal
   ``r_fb = sqrt(w_fb^2 + h_fb^2) / 2``, y UP (3DE's and Nuke's unit
