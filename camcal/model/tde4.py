@@ -122,7 +122,7 @@ from numpy.typing import ArrayLike, NDArray
 from camcal.base.errors import CamcalError
 
 __all__ = ["BUILTIN_PARAMETERS", "FILMBACK_KEYS", "LDPK_MODEL_NAMES", "LDPK_PARAMETERS", "TDE4_MODELS", "LdpkCamera",
-           "LdpkParameter", "check_params", "coefficients", "distort_dn", "distort_pixels", "dn_from_pixels",
+           "LdpkParameter", "check_filmback", "check_params", "coefficients", "distort_dn", "distort_pixels", "dn_from_pixels",
            "dn_radius", "is_identity", "pixels_from_dn", "undistort_dn", "undistort_pixels"]
 
 
@@ -224,6 +224,19 @@ def check_params(model: str, params: Mapping[str, float]) -> None:
             raise CamcalError(f"{model} parameter {key!r} must be positive, got {values[key]!r}")
     if model == "3de4-radial-deg4" and not values["cylindric_bending"] > -1.0:
         raise CamcalError(f"{model} parameter 'cylindric_bending' must be above -1, got {values['cylindric_bending']!r}")
+
+
+def check_filmback(model: str, params: Mapping[str, float], image_size: tuple[int, int]) -> None:
+    """Raise :class:`CamcalError` unless a lens of ``model`` is normalised on an image of ``image_size`` pixels.
+
+    The coefficients hold only on the film back they were defined on: a
+    camera with another image size (a crop, a proxy) needs them
+    reparametrised, not copied.
+    """
+    filmback = tuple(params.get(key) for key in FILMBACK_KEYS)
+    if filmback != tuple(float(n) for n in image_size):
+        raise CamcalError(f"a {model} lens on a {image_size[0]}x{image_size[1]} image must have that film back "
+                          f"(filmback_width_px, filmback_height_px), got {filmback[0]!r} x {filmback[1]!r}")
 
 
 def is_identity(model: str, params: Mapping[str, float]) -> bool:
@@ -352,6 +365,11 @@ def _radial_even_jacobian(xy: Points, terms: tuple[float, ...]) -> NDArray[np.fl
     return jac
 
 
+def _largest(points: Points) -> NDArray[np.float64]:
+    """``max(|x|, |y|)`` per point (NaN stays NaN)."""
+    return np.maximum(np.abs(points[:, 0]), np.abs(points[:, 1]))
+
+
 def _newton(function: Callable[[Points], Points], jacobian: Callable[[Points], NDArray[np.float64]],
             target: Points) -> Points:
     """Solve ``function(p) = target`` per point by Newton iterations from ``p = target``.
@@ -365,26 +383,27 @@ def _newton(function: Callable[[Points], Points], jacobian: Callable[[Points], N
     land on the opposite side of the centre.
     """
     estimate = target.copy()
-    tolerance = _NEWTON_TOL * (1.0 + np.max(np.abs(target), axis=1))
-    todo = np.flatnonzero(np.all(np.isfinite(target), axis=1))
+    index = np.arange(len(target))  # the points still iterating; all of them while most are
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         for _ in range(_NEWTON_MAX_ITER):
-            if not len(todo):
+            current, goal = (estimate, target) if len(index) == len(target) else (estimate[index], target[index])
+            residual = function(current) - goal
+            moving = _largest(residual) > _NEWTON_TOL * (1.0 + _largest(goal))  # NaN: not moving (lost)
+            if not moving.any():
                 break
-            residual = function(estimate[todo]) - target[todo]
-            moving = ~(np.max(np.abs(residual), axis=1) <= tolerance[todo])
-            todo, residual = todo[moving], residual[moving]
-            jac = jacobian(estimate[todo])
+            if 2 * np.count_nonzero(moving) < len(index):  # gather the few still moving
+                index, current, residual = index[moving], current[moving], residual[moving]
+            jac = jacobian(current)
             det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
             # the 2x2 inverse written out: step = J^-1 residual
-            step_x = (jac[:, 1, 1] * residual[:, 0] - jac[:, 0, 1] * residual[:, 1]) / det
-            step_y = (jac[:, 0, 0] * residual[:, 1] - jac[:, 1, 0] * residual[:, 0]) / det
-            estimate[todo, 0] -= step_x
-            estimate[todo, 1] -= step_y
-            lost = ~np.all(np.isfinite(estimate[todo]), axis=1)
-            estimate[todo[lost]] = np.nan
-            todo = todo[~lost]
-        final = np.max(np.abs(function(estimate) - target), axis=1)
+            current = current - np.stack([jac[:, 1, 1] * residual[:, 0] - jac[:, 0, 1] * residual[:, 1],
+                                          jac[:, 0, 0] * residual[:, 1] - jac[:, 1, 0] * residual[:, 0]],
+                                         axis=1) / det[:, None]
+            if len(index) == len(target):
+                estimate = current
+            else:
+                estimate[index] = current
+        final = _largest(function(estimate) - target)
         jac = jacobian(estimate)
         det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
     estimate[~((final <= _ROOT_TOL) & (det > 0.0) & (jac[:, 0, 0] + jac[:, 1, 1] > 0.0))] = np.nan
@@ -392,6 +411,12 @@ def _newton(function: Callable[[Points], Points], jacobian: Callable[[Points], N
 
 
 # -- the models in diagonally normalised coordinates --------------------------------------------------
+
+
+def _apply(matrix: NDArray[np.float64], points: Points) -> Points:
+    """``matrix @ p`` for each row ``p`` (written out: numpy's matmul of (N, 2) by a 2x2 is slow)."""
+    x, y = points[:, 0], points[:, 1]
+    return np.stack([matrix[0, 0] * x + matrix[0, 1] * y, matrix[1, 0] * x + matrix[1, 1] * y], axis=1)
 
 
 def _rotation(degrees: float) -> NDArray[np.float64]:
@@ -475,10 +500,10 @@ def undistort_dn(model: str, params: Mapping[str, float], p_dn: ArrayLike, pixel
     if model == "3de-classic":
         return _even_quartic(p, *_classic_terms(c))
     if model == "3de4-radial-deg4":
-        return _radial_decentred(p, c) @ _cylindric_matrix(c).T
+        return _apply(_cylindric_matrix(c), _radial_decentred(p, c))
     if model == "3de4-anamorphic-deg4":
         after, before = _anamorphic_frames(c, pixel_aspect)
-        return _even_quartic(p @ np.linalg.inv(before).T, *_anamorphic_terms(c)) @ after.T
+        return _apply(after, _even_quartic(_apply(np.linalg.inv(before), p), *_anamorphic_terms(c)))
     terms = (c["c2"], c["c4"], c["c6"], c["c8"])
     return _radial_even(_plain_from_equisolid(p, focal_dn), terms)
 
@@ -506,14 +531,14 @@ def distort_dn(model: str, params: Mapping[str, float], q_dn: ArrayLike, pixel_a
         ax, ay = _classic_terms(c)
         return _newton(lambda p: _even_quartic(p, ax, ay), lambda p: _even_quartic_jacobian(p, ax, ay), q)
     if model == "3de4-radial-deg4":
-        bent = q @ np.linalg.inv(_cylindric_matrix(c)).T
+        bent = _apply(np.linalg.inv(_cylindric_matrix(c)), q)
         return _newton(lambda p: _radial_decentred(p, c), lambda p: _radial_decentred_jacobian(p, c), bent)
     if model == "3de4-anamorphic-deg4":
         after, before = _anamorphic_frames(c, pixel_aspect)
         ax, ay = _anamorphic_terms(c)
         inner = _newton(lambda p: _even_quartic(p, ax, ay), lambda p: _even_quartic_jacobian(p, ax, ay),
-                        q @ np.linalg.inv(after).T)
-        return inner @ before.T
+                        _apply(np.linalg.inv(after), q))
+        return _apply(before, inner)
     terms = (c["c2"], c["c4"], c["c6"], c["c8"])
     plain = _newton(lambda p: _radial_even(p, terms), lambda p: _radial_even_jacobian(p, terms), q)
     return _equisolid_from_plain(plain, focal_dn)

@@ -9,7 +9,10 @@ import pytest
 
 import ldpk_reference as reference
 from camcal.base.errors import CamcalError
+from camcal.geometry.remap import build_maps
 from camcal.model import tde4
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera, Rig
 
 #: camcal against the LDPK, diagonally normalised units (the film back's half-diagonal).
 LDPK_TOLERANCE_DN = 1e-9
@@ -99,19 +102,6 @@ def test_ldpk_documentation_example():
     assert np.allclose(K, [[2000.0, 0.0, 799.5], [0.0, 2000.0, 449.5], [0.0, 0.0, 1.0]])
 
 
-@pytest.mark.parametrize("model", tde4.TDE4_MODELS)
-def test_round_trips_over_the_frame(model):
-    params = {**LENSES[model], **FILMBACK}
-    K = camera_matrix(model)
-    grid = frame()
-    undistorted = tde4.undistort_pixels(model, params, grid, K)
-    assert np.all(np.isfinite(undistorted))
-    assert np.abs(tde4.distort_pixels(model, params, undistorted, K) - grid).max() < 1e-9
-    distorted = tde4.distort_pixels(model, params, grid, K)
-    assert np.all(np.isfinite(distorted))
-    assert np.abs(tde4.undistort_pixels(model, params, distorted, K) - grid).max() < 1e-9
-
-
 @pytest.mark.parametrize("model", ["3de-classic", "3de4-radial-deg4", "3de4-anamorphic-deg4"])
 def test_polynomial_jacobians_match_central_differences(model):
     """The Newton inverse's analytic Jacobians (private) against central differences of their functions."""
@@ -191,3 +181,70 @@ def test_identity():
     # the anamorphic lens rotation without coefficients still moves points when the pixel aspect is not 1
     rotated = tde4.undistort_dn("3de4-anamorphic-deg4", {"lens_rotation_deg": 2.0}, [[0.5, 0.3]], pixel_aspect=2.0)
     assert np.abs(rotated - [[0.5, 0.3]]).max() > 1e-3
+
+
+# -- as camcal lens models: Distortion, the rig file, remap ---------------------------------------
+
+
+def lens(model: str) -> Distortion:
+    return Distortion(model, {**LENSES[model], **FILMBACK})
+
+
+@pytest.mark.parametrize("model", tde4.TDE4_MODELS)
+def test_distortion_round_trips_in_pixels(model):
+    distortion, K, grid = lens(model), camera_matrix(model), frame()
+    assert not distortion.is_identity and not distortion.is_fisheye
+    distorted = distortion.distort(grid, K)
+    assert np.all(np.isfinite(distorted))
+    assert np.abs(distortion.undistort(distorted, K) - grid).max() < 1e-9
+    undistorted = distortion.undistort(grid, K)
+    assert np.abs(distortion.distort(undistorted, K) - grid).max() < 1e-9
+    # LDPK's direction: the coefficients undistort, so camcal's undistort is the model function itself
+    params = dict(distortion.params)
+    expected = tde4.pixels_from_dn(tde4.undistort_dn(model, params, tde4.dn_from_pixels(grid, K, params),
+                                                     K[1, 1] / K[0, 0], 1.0 / tde4.dn_radius(K, params)), K, params)
+    assert np.array_equal(undistorted, expected)
+
+
+def test_distortion_defaults_and_identity():
+    identity = Distortion("3de4-radial-deg4", FILMBACK)
+    assert identity.is_identity
+    grid = frame(101.0)
+    assert np.allclose(identity.distort(grid, K_FISHEYE), grid, atol=1e-12)
+    assert Distortion("3de4-anamorphic-deg4", {**FILMBACK, "squeeze_x": 1.0}).is_identity
+    with pytest.raises(CamcalError, match="has no parameter"):
+        Distortion("3de4-radial-deg4", {**FILMBACK, "k1": 0.1})
+    with pytest.raises(CamcalError, match="needs parameter"):
+        Distortion("3de4-fisheye-deg8", {"c2": 0.1})
+    with pytest.raises(CamcalError, match="'squeeze_x' must be positive"):
+        Distortion("3de4-anamorphic-deg4", {**FILMBACK, "squeeze_x": -1.0})
+
+
+def make_camera(model: str, name: str, image_size=(W, H)) -> Camera:
+    return Camera(name, image_size, camera_matrix(model), lens(model), np.eye(3), [0.1 * len(name), 0.0, 0.0])
+
+
+def test_rig_file_round_trip(tmp_path):
+    rig = Rig(tuple(make_camera(model, model) for model in tde4.TDE4_MODELS), units="m")
+    loaded = Rig.load(rig.save(tmp_path / "tde4.rig.json"))
+    assert loaded == rig
+    points = np.array([[0.3, -0.2, 3.0], [-1.0, 0.5, 4.0], [0.0, 0.0, 2.0]])
+    for before, after in zip(rig.cameras, loaded.cameras):
+        assert after.distortion.model == before.distortion.model
+        assert dict(after.distortion.params) == dict(before.distortion.params)
+        assert np.array_equal(after.project(points), before.project(points))
+
+
+def test_camera_refuses_a_lens_on_another_film_back():
+    with pytest.raises(CamcalError, match="on a 960x540 image must have that film back"):
+        make_camera("3de4-radial-deg4", "half", image_size=(960, 540))
+
+
+def test_remap_samples_the_lens():
+    """``build_maps`` (undistortion) samples the distorted image where the 3DE lens puts each ideal pixel."""
+    camera = make_camera("3de4-anamorphic-deg4", "anamorphic")
+    quarter = np.diag([0.25, 0.25, 1.0])  # a quarter-size output: output pixel x_o samples the ideal pixel 4 x_o
+    maps = build_maps(camera, quarter, (W // 4, H // 4))
+    rows, cols = np.array([0, 50, 134, 269]), np.array([0, 175, 375, 479])
+    expected = camera.distortion.distort(4.0 * np.column_stack([cols, rows]).astype(np.float64), camera.K)
+    assert np.abs(np.column_stack([maps.map_x[rows, cols], maps.map_y[rows, cols]]) - expected).max() < 1e-3
