@@ -25,8 +25,9 @@ import scipy.optimize
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
-from camcal.model.distortion import MODEL_PARAMS, Distortion, fit_distortion, frame_grid
+from camcal.model.distortion import FISHEYE_MODELS, MODEL_PARAMS, Distortion, fit_distortion, frame_grid
 from camcal.model.rig import Camera, Rig
+from camcal.model.tde4 import FILMBACK_KEYS, LDPK_PARAMETERS, TDE4_MODELS
 
 __all__ = [
     "DEFAULT_OVERSCAN",
@@ -53,8 +54,8 @@ _REFIT_SAMPLES = 96
 #: Overscan border of the residual figures: the frame scaled by this factor about its centre.
 DEFAULT_OVERSCAN = 1.25
 
-#: 3DEqualizer's lens distortion families (LDPK), as camcal names them.
-TDE_FAMILIES = ("3de-classic", "3de4-radial-deg4", "3de4-anamorphic-deg4", "3de4-fisheye-deg8")
+#: 3DEqualizer's lens distortion families (LDPK), as camcal names them (:mod:`camcal.model.tde4`).
+TDE_FAMILIES = TDE4_MODELS
 
 #: Lens family -> the camcal models it holds exactly. A family holds itself; ``none`` is any rectilinear
 #: family with its coefficients at zero (3DE's squeezes at one); a wider family holds a narrower one with
@@ -305,6 +306,9 @@ _FIT_PARAMS: Mapping[str, tuple[str, ...]] = MappingProxyType({
 #: 3DE parameters a refit leaves at their LDPK default.
 _TDE_FIXED = ("anamorphic_squeeze", "cylindric_direction_deg", "cylindric_bending", "lens_rotation_deg", "squeeze_x",
               "squeeze_y")
+#: Families whose refit fits the focal length too (``K`` scaled about the principal point): 3DE's fisheye is
+#: equisolid with the camera's focal length, which a wide lens' pinhole focal length does not make it.
+_FOCAL_FITTED = ("3de4-fisheye-deg8",)
 #: A ray the refit of a rectilinear family uses is at least this far in front of the camera (cos of its angle).
 _MIN_DEPTH = 0.05
 
@@ -314,8 +318,6 @@ def _family_parameters(family: str, image_size: tuple[int, int]) -> tuple[dict[s
     the ones a refit holds fixed (3DE's film back, squeezes, rotations and cylindric bending: ``K`` carries the
     pixel aspect)."""
     if family in TDE_FAMILIES:
-        from camcal.model.tde4 import FILMBACK_KEYS, LDPK_PARAMETERS
-
         neutral = {p.key: p.default for p in LDPK_PARAMETERS[family]}
         fixed = {key: neutral.pop(key) for key in _TDE_FIXED if key in neutral}
         return neutral, {**fixed, **dict(zip(FILMBACK_KEYS, (float(v) for v in image_size)))}
@@ -443,9 +445,16 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
     overscan border together), ``ray`` the source camera's ray of ``x``:
     distances in the distorted image, where the plate is. It starts from
     the family's neutral lens (the identity, or the equidistant fisheye)
-    and runs ``scipy.optimize.least_squares`` (Levenberg-Marquardt).
-    A rectilinear family is fitted on the rays at least 3 degrees in
-    front of the image plane.
+    and runs ``scipy.optimize.least_squares`` (Levenberg-Marquardt); 3DE's
+    fisheye (equisolid on the camera's focal length) fits the focal length
+    as well, from the shortest that images every pixel. The
+    3DE families, defined distorted -> undistorted, are fitted in that
+    direction (closed form) with each pixel's undistorted distance mapped
+    back to distorted pixels by the source lens' local stretch
+    (first order); the figures returned are measured, not estimated.
+    A family that images rays in front of the camera only (all but the
+    Kannala-Brandt ones) is fitted on the rays at least 3 degrees in front
+    of the image plane.
     """
     K = camera.K.copy()
     if family in TDE_FAMILIES:
@@ -457,7 +466,7 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
     grid, _ = _dense_grid(camera.image_size, overscan)
     rays = camera.distortion.rays_from_pixels(grid, camera.K)
     usable = np.all(np.isfinite(rays), axis=1)
-    if family not in _FISHEYE_FAMILIES:
+    if family not in FISHEYE_MODELS:  # the others image rays in front of the camera only
         usable &= rays[:, 2] > _MIN_DEPTH * np.linalg.norm(rays, axis=1)
     if np.count_nonzero(usable) < 10:
         raise CamcalError(f"camera {camera.name!r}: too few rays of the frame for a {family} lens")
@@ -468,16 +477,69 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
     def lens(vector: NDArray[np.float64]) -> Distortion:
         return Distortion(family, {**fixed, **dict(zip(names, (float(v) for v in vector)))})
 
-    def residuals(vector: NDArray[np.float64]) -> NDArray[np.float64]:
+    def distorting(vector: NDArray[np.float64]) -> NDArray[np.float64]:
         # a ray beyond the candidate's range: a large finite penalty
         return np.nan_to_num(lens(vector).project_rays(rays, K) - grid, nan=1e6).ravel()
 
     start = np.array([neutral[name] for name in names])
-    if names:
-        start = scipy.optimize.least_squares(residuals, start, x_scale="jac", method="lm", xtol=1e-15,
-                                             ftol=1e-15).x
-    converted = replace(camera, K=K, distortion=lens(start))
+    if family in _FOCAL_FITTED:
+        start = np.append(start, 0.0)
+    if family in TDE_FAMILIES:  # defined distorted -> undistorted: fitted in that direction, in closed form
+        residuals = _undistorting_residuals(lens, camera, grid, rays, K, family in _FOCAL_FITTED)
+    else:
+        residuals = distorting
+    if family in _FOCAL_FITTED:  # from a focal length long enough for the equisolid image to hold every pixel
+        while np.any(np.abs(residuals(start)) >= 1e6) and start[-1] < 2.0:
+            start[-1] += 0.05
+    if len(start):
+        start = scipy.optimize.least_squares(residuals, start, x_scale="jac", method="lm", xtol=1e-15, ftol=1e-15).x
+    if family in _FOCAL_FITTED:
+        K = _scaled(K, start[-1])
+    converted = replace(camera, K=K, distortion=lens(start[:len(names)]))
     return converted, residual_figures(camera, converted, overscan)
+
+
+def _scaled(K: NDArray[np.float64], log_scale: float) -> NDArray[np.float64]:
+    """``K`` with its focal lengths (and skew) times ``exp(log_scale)``, the principal point kept."""
+    scaled = K.copy()
+    scaled[:2, :2] *= np.exp(log_scale)
+    return scaled
+
+
+def _undistorting_residuals(lens: Callable[[NDArray[np.float64]], Distortion], camera: Camera,
+                            grid: NDArray[np.float64], rays: NDArray[np.float64], K: NDArray[np.float64],
+                            focal: bool) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+    """Residuals of a lens defined distorted -> undistorted, in distorted pixels to first order.
+
+    ``J^-1 (target.undistort(x) - u(x))``, ``u(x)`` the pinhole pixel (in
+    ``K``) of the source's ray of ``x`` and ``J = du/dx`` its local stretch
+    (central differences, 0.25 px): the distorted-image distance the
+    undistorted one stands for, without inverting the candidate lens at
+    every step. With ``focal``, the vector's last entry scales ``K``'s focal
+    lengths by its exponential (``u - c`` and ``J`` scale with it).
+    """
+    def pinhole(points: NDArray[np.float64]) -> NDArray[np.float64]:
+        directions = camera.distortion.rays_from_pixels(points, camera.K) @ K.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return directions[:, :2] / directions[:, 2:]
+
+    ideal = (rays @ K.T)[:, :2] / (rays @ K.T)[:, 2:]
+    step = 0.25
+    stretch = np.stack([(pinhole(grid + [step, 0.0]) - pinhole(grid - [step, 0.0])) / (2 * step),
+                        (pinhole(grid + [0.0, step]) - pinhole(grid - [0.0, step])) / (2 * step)], axis=2)
+    keep = np.isfinite(stretch).all(axis=(1, 2)) & np.isfinite(ideal).all(axis=1)
+    keep[keep] = np.abs(np.linalg.det(stretch[keep])) > 1e-9
+    grid, ideal, inverse = grid[keep], ideal[keep], np.linalg.inv(stretch[keep])
+
+    centre = K[:2, 2]
+
+    def residuals(vector: NDArray[np.float64]) -> NDArray[np.float64]:
+        scale = np.exp(vector[-1]) if focal else 1.0
+        coefficients = vector[:-1] if focal else vector
+        difference = lens(coefficients).undistort(grid, _scaled(K, np.log(scale))) - (centre + scale * (ideal - centre))
+        return np.nan_to_num(np.einsum("nij,nj->ni", inverse, difference) / scale, nan=1e6).ravel()
+
+    return residuals
 
 
 def exactness_table() -> str:

@@ -11,6 +11,7 @@ kalibr      :mod:`camcal.io.kalibr`              camchain.yaml
 colmap      :mod:`camcal.io.colmap_text`         cameras.txt, images.txt, points3D.txt
 usd         :mod:`camcal.io.usd`                 .usda / .usdc / .usd (usd-core)
 nuke        :mod:`camcal.io.nuke`                .nk (Camera3, LensDistortion, LDPK, STMap)
+3de         :mod:`camcal.io.tde`                 3DEqualizer lens file (.txt)
 ==========  ===================================  =====================================
 
 The format may be left out (None) where the file name says it
@@ -56,6 +57,7 @@ _MODULES: Mapping[str, str] = MappingProxyType({
     "colmap": "camcal.io.colmap_text",
     "usd": "camcal.io.usd",
     "nuke": "camcal.io.nuke",
+    "3de": "camcal.io.tde",
 })
 
 #: The formats ``camcal rig export / import`` know.
@@ -63,7 +65,7 @@ FORMATS: tuple[str, ...] = tuple(_MODULES)
 
 #: File suffixes that name one format (``.yaml`` is OpenCV's or Kalibr's; COLMAP's model is a directory).
 _SUFFIXES: Mapping[str, str] = MappingProxyType({
-    ".nk": "nuke", ".usda": "usd", ".usdc": "usd", ".usd": "usd",
+    ".nk": "nuke", ".usda": "usd", ".usdc": "usd", ".usd": "usd", ".txt": "3de",
 })
 
 
