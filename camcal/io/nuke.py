@@ -358,9 +358,9 @@ def _lens_from_lens_distortion(body: str, image_size: tuple[int, int] | None,
     params = {p.key: p.default for p in LDPK_PARAMETERS[model]}
     for key, knob in _LD_KNOBS[model].items():
         name, position = (knob, 0) if isinstance(knob, str) else knob
-        text = _knob_text(body, name)
-        if text is not None:
-            params[key] = _float(text.strip("{}").split()[position], f"{where} {name}")
+        values = (_knob_text(body, name) or "").strip("{}").split()
+        if len(values) > position:
+            params[key] = _float(values[position], f"{where} {name}")
     return builtin.camera_matrix(image_size), _tde_lens(model, params, image_size), image_size
 
 
