@@ -306,6 +306,9 @@ _FIT_PARAMS: Mapping[str, tuple[str, ...]] = MappingProxyType({
 #: 3DE parameters a refit leaves at their LDPK default.
 _TDE_FIXED = ("anamorphic_squeeze", "cylindric_direction_deg", "cylindric_bending", "lens_rotation_deg", "squeeze_x",
               "squeeze_y")
+#: Weight of the overscan border's pixels in a refit (the image's weigh 1): the plate comes first, the border is
+#: kept from running away.
+_BORDER_WEIGHT = 0.1
 #: Families whose refit fits the focal length too (``K`` scaled about the principal point): 3DE's fisheye is
 #: equisolid with the camera's focal length, which a wide lens' pinhole focal length does not make it.
 _FOCAL_FITTED = ("3de4-fisheye-deg8",)
@@ -364,7 +367,8 @@ def _dense_grid(image_size: tuple[int, int], overscan: float) -> tuple[NDArray[n
     """Distorted pixels on a grid over the frame scaled by ``overscan`` about its centre, and which are inside it.
 
     The grid has :data:`_REFIT_SAMPLES` samples across the longer side and
-    holds the image's edges (pixel centres ``0`` and ``W - 1``).
+    holds the image's edge pixels (centres ``0`` and ``W - 1``) and the
+    scaled frame's edges (``(W - 1) / 2 +- overscan W / 2``).
     """
     if not np.isfinite(overscan) or overscan < 1.0:
         raise CamcalError(f"overscan must be a number >= 1, got {overscan}")
@@ -372,9 +376,10 @@ def _dense_grid(image_size: tuple[int, int], overscan: float) -> tuple[NDArray[n
     step = max(width, height) / _REFIT_SAMPLES
     axes = []
     for size in (width, height):
-        margin = (overscan - 1.0) * size / 2
-        inside = np.append(np.arange(0.0, size - 1, step), size - 1.0)
-        outside = np.arange(step, margin + 1e-9, step) if margin > 0 else np.zeros(0)
+        # the frame's edges (pixel centres -1/2 and size - 1/2 away from them) scaled about its centre
+        margin = (overscan - 1.0) * size / 2 + 0.5 if overscan > 1.0 else 0.0
+        inside = np.linspace(0.0, size - 1.0, int(np.ceil((size - 1) / step)) + 1)
+        outside = np.linspace(0.0, margin, int(np.ceil(margin / step)) + 1)[1:]  # evenly, the edge included
         axes.append(np.unique(np.concatenate([-outside[::-1], inside, size - 1.0 + outside])))
     points = np.stack(np.meshgrid(*axes), axis=-1).reshape(-1, 2)
     inside = (points[:, 0] >= 0) & (points[:, 0] <= width - 1) & (points[:, 1] >= 0) & (points[:, 1] <= height - 1)
@@ -440,10 +445,12 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
 
     Notes
     -----
-    The refit minimises ``sum |target(ray(x)) - x|^2`` over the distorted
-    pixels ``x`` of the dense grid of :func:`residual_figures` (image and
-    overscan border together), ``ray`` the source camera's ray of ``x``:
-    distances in the distorted image, where the plate is. It starts from
+    The refit minimises ``sum w |target(ray(x)) - x|^2`` over the distorted
+    pixels ``x`` of the dense grid of :func:`residual_figures`, ``ray`` the
+    source camera's ray of ``x``: distances in the distorted image, where
+    the plate is, with ``w = 1`` inside the image and ``w = 0.1^2`` over
+    the overscan border (the plate first; the border kept from running
+    away, its figures printed). It starts from
     the family's neutral lens (the identity, or the equidistant fisheye)
     and runs ``scipy.optimize.least_squares`` (Levenberg-Marquardt); 3DE's
     fisheye (equisolid on the camera's focal length) fits the focal length
@@ -463,7 +470,7 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
     if exact is not None and K[0, 1] == camera.K[0, 1]:
         converted = replace(camera, distortion=exact)
         return converted, replace(residual_figures(camera, converted, overscan), exact=True)
-    grid, _ = _dense_grid(camera.image_size, overscan)
+    grid, inside = _dense_grid(camera.image_size, overscan)
     rays = camera.distortion.rays_from_pixels(grid, camera.K)
     usable = np.all(np.isfinite(rays), axis=1)
     if family not in FISHEYE_MODELS:  # the others image rays in front of the camera only
@@ -471,6 +478,7 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
     if np.count_nonzero(usable) < 10:
         raise CamcalError(f"camera {camera.name!r}: too few rays of the frame for a {family} lens")
     grid, rays = grid[usable], rays[usable]
+    weights = np.where(inside[usable], 1.0, _BORDER_WEIGHT)[:, None]
     neutral, fixed = _family_parameters(family, camera.image_size)
     names = tuple(neutral)
 
@@ -479,13 +487,13 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
 
     def distorting(vector: NDArray[np.float64]) -> NDArray[np.float64]:
         # a ray beyond the candidate's range: a large finite penalty
-        return np.nan_to_num(lens(vector).project_rays(rays, K) - grid, nan=1e6).ravel()
+        return np.nan_to_num(weights * (lens(vector).project_rays(rays, K) - grid), nan=1e6).ravel()
 
     start = np.array([neutral[name] for name in names])
     if family in _FOCAL_FITTED:
         start = np.append(start, 0.0)
     if family in TDE_FAMILIES:  # defined distorted -> undistorted: fitted in that direction, in closed form
-        residuals = _undistorting_residuals(lens, camera, grid, rays, K, family in _FOCAL_FITTED)
+        residuals = _undistorting_residuals(lens, camera, grid, rays, weights, K, family in _FOCAL_FITTED)
     else:
         residuals = distorting
     if family in _FOCAL_FITTED:  # from a focal length long enough for the equisolid image to hold every pixel
@@ -507,8 +515,8 @@ def _scaled(K: NDArray[np.float64], log_scale: float) -> NDArray[np.float64]:
 
 
 def _undistorting_residuals(lens: Callable[[NDArray[np.float64]], Distortion], camera: Camera,
-                            grid: NDArray[np.float64], rays: NDArray[np.float64], K: NDArray[np.float64],
-                            focal: bool) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+                            grid: NDArray[np.float64], rays: NDArray[np.float64], weights: NDArray[np.float64],
+                            K: NDArray[np.float64], focal: bool) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
     """Residuals of a lens defined distorted -> undistorted, in distorted pixels to first order.
 
     ``J^-1 (target.undistort(x) - u(x))``, ``u(x)`` the pinhole pixel (in
@@ -529,7 +537,7 @@ def _undistorting_residuals(lens: Callable[[NDArray[np.float64]], Distortion], c
                         (pinhole(grid + [0.0, step]) - pinhole(grid - [0.0, step])) / (2 * step)], axis=2)
     keep = np.isfinite(stretch).all(axis=(1, 2)) & np.isfinite(ideal).all(axis=1)
     keep[keep] = np.abs(np.linalg.det(stretch[keep])) > 1e-9
-    grid, ideal, inverse = grid[keep], ideal[keep], np.linalg.inv(stretch[keep])
+    grid, ideal, inverse = grid[keep], ideal[keep], np.linalg.inv(stretch[keep]) * weights[keep][:, :, None]
 
     centre = K[:2, 2]
 

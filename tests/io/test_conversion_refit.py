@@ -17,14 +17,23 @@ from interchange_rigs import division_rig, fisheye_rig, stereo_rig
 
 
 def random_pixels(camera, overscan, n=20000, seed=5):
-    """Uniform random distorted pixels inside the image, and in the border of the frame scaled by ``overscan``."""
+    """Random distorted pixels inside the image and in the border of the frame scaled by ``overscan``: uniform, and
+    as many again on the edges of both (where a lens' residual peaks), corners included."""
     rng = np.random.default_rng(seed)
     width, height = camera.image_size
     centre = np.array([(width - 1) / 2, (height - 1) / 2])
+    edges = []
+    for half in (np.array([(width - 1) / 2, (height - 1) / 2]), np.array([width, height]) / 2 * overscan):
+        t = rng.uniform(-1, 1, n // 4)
+        edges += [np.column_stack([t, np.full_like(t, side)]) * half for side in (-1, 1)]
+        edges += [np.column_stack([np.full_like(t, side), t]) * half for side in (-1, 1)]
+        edges.append(np.array([[-1, -1], [-1, 1], [1, -1], [1, 1]]) * half)
     half = np.array([width / 2 * overscan, height / 2 * overscan])
-    points = centre + rng.uniform(-1, 1, (n, 2)) * half
-    inside = (points[:, 0] >= 0) & (points[:, 0] <= width - 1) & (points[:, 1] >= 0) & (points[:, 1] <= height - 1)
-    return points, inside
+    points = centre + np.concatenate([rng.uniform(-1, 1, (n, 2)) * half, *edges])
+    inside = (points[:, 0] >= -1e-9) & (points[:, 0] <= width - 1 + 1e-9) & (points[:, 1] >= -1e-9) & (
+        points[:, 1] <= height - 1 + 1e-9)
+    uniform = np.arange(len(points)) < n  # the RMS is over these
+    return points, inside, uniform
 
 
 def independent_distances(source, target, points):
@@ -44,18 +53,20 @@ def independent_distances(source, target, points):
 def test_refit_figures_are_the_true_residual(source, family):
     converted, refit = refit_camera(source, family)
     assert not refit.exact and converted.distortion.model == family
-    points, inside = random_pixels(source, refit.overscan)
+    points, inside, uniform = random_pixels(source, refit.overscan)
     distances = independent_distances(source, converted, points)
     ok = np.isfinite(distances)
     inner, border = distances[inside & ok], distances[~inside & ok]
+    inner_rms = np.sqrt(np.mean(distances[inside & ok & uniform] ** 2))
+    border_rms = np.sqrt(np.mean(distances[~inside & ok & uniform] ** 2))
     print(f"{source.distortion.model} -> {family}: printed {refit.describe()}; random pixels: inside max "
-          f"{inner.max():.4g} RMS {np.sqrt(np.mean(inner**2)):.4g}, border max {border.max():.4g} "
-          f"RMS {np.sqrt(np.mean(border**2)):.4g}")
-    # the grid's max is a max over a 13 px grid: the random pixels' max is at most a little above it
+          f"{inner.max():.4g} RMS {inner_rms:.4g}, border max {border.max():.4g} RMS {border_rms:.4g}")
+    # the printed figures are over a 13 px grid, these over random pixels: the maxima to a few per cent, the RMS
+    # (the grid samples the thin border band less evenly) to 10 %
     assert refit.max_px == pytest.approx(inner.max(), rel=0.05)
-    assert refit.rms_px == pytest.approx(np.sqrt(np.mean(inner**2)), rel=0.05)
     assert refit.border_max_px == pytest.approx(border.max(), rel=0.05)
-    assert refit.border_rms_px == pytest.approx(np.sqrt(np.mean(border**2)), rel=0.05)
+    assert refit.rms_px == pytest.approx(inner_rms, rel=0.1)
+    assert refit.border_rms_px == pytest.approx(border_rms, rel=0.1)
     assert refit.border_max_px > refit.max_px  # extrapolating past the image costs more
 
 
@@ -71,7 +82,7 @@ def test_refit_is_exact_where_the_family_holds_the_lens(source, family):
     print(f"{source.distortion.model} -> {family}: {refit.describe()}")
     assert refit.exact and converted.distortion.model == family
     assert refit.max_px < 1e-6 and refit.border_max_px < 1e-6
-    points, inside = random_pixels(source, refit.overscan, n=2000)
+    points, inside, _ = random_pixels(source, refit.overscan, n=2000)
     assert np.nanmax(independent_distances(source, converted, points[inside])) < 1e-6
 
 
