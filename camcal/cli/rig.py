@@ -35,8 +35,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     imp.add_argument("--from", dest="fmt", choices=FORMATS, metavar="FORMAT",
                      help=f"one of: {', '.join(FORMATS)} (default: from FILE's suffix, .nk .usd* .txt)")
     out_option(imp, "RIG.rig.json", "the rig file to write")
-    image_size_option(imp, "usd, 3de: the image size of cameras that carry none (USD cameras, 3DE lens files not "
-                           "written by camcal)")
+    image_size_option(imp, "usd, 3de, nuke: the image size of cameras that carry none (USD cameras, 3DE lens "
+                           "files and LDPK nodes not written by camcal)")
     handler(imp, _import)
 
 

@@ -137,9 +137,9 @@ def import_rig(path: str | os.PathLike, fmt: str | None, *, image_size: tuple[in
     fmt : str or None
         One of :data:`FORMATS`; None: from ``path``'s name (:func:`format_of`).
     image_size : (int, int), optional
-        ``usd`` and ``3de`` only: width and height in pixels of the cameras
-        that carry none (plain USD cameras, lens files 3DEqualizer wrote;
-        the other formats hold the image size).
+        ``usd``, ``3de`` and ``nuke`` only: width and height in pixels of
+        the cameras that carry none (plain USD cameras, lens files and LDPK
+        nodes 3DEqualizer wrote; the other formats hold the image size).
 
     Raises
     ------
@@ -152,8 +152,8 @@ def import_rig(path: str | os.PathLike, fmt: str | None, *, image_size: tuple[in
     path = Path(path)
     extra = {}
     if image_size is not None:
-        if fmt not in ("usd", "3de"):
-            raise CamcalError(f"an image size applies to usd and 3de only ({fmt} files hold their own)")
+        if fmt not in ("usd", "3de", "nuke"):
+            raise CamcalError(f"an image size applies to usd, 3de and nuke only ({fmt} files hold their own)")
         width, height = image_size
         if not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in (width, height)):
             raise CamcalError(f"the image size must be two positive integers, got {width} {height}")

@@ -57,8 +57,8 @@ Reading takes each Camera3's lens from its camcal knobs; a Camera3 without
 them (Nuke's own) from the LDPK node ``<node>_ldpk`` or LensDistortion node
 ``<node>_lens`` (the only one, with one camera); a script with lens nodes and
 no Camera3 gives one camera per lens node (LDPK nodes first), at the origin.
-Image sizes come from the camcal knobs, the LensDistortion node's format or
-the Root's ``format``. No key per frame: a camcal camera has one lens.
+Image sizes come from the camcal knobs, the LensDistortion node's format,
+the Root's ``format`` or the ``image_size`` given to :func:`load`. No key per frame: a camcal camera has one lens.
 
 No Nuke was available to check these files: the conventions above are the
 ones Foundry documents for Camera3, STMap and LensDistortion (knob names)
@@ -463,13 +463,17 @@ def _vector(text: str | None, where: str) -> tuple[np.ndarray | dict[int, np.nda
     return keyed, True
 
 
-def load(path: Path) -> ImportResult:
-    """Read the Camera3 nodes of a script and their lens nodes (see the module docstring)."""
+def load(path: Path, *, image_size: tuple[int, int] | None = None) -> ImportResult:
+    """Read the Camera3 nodes of a script and their lens nodes (see the module docstring).
+
+    ``image_size`` stands in for a Root format where the script has none
+    (an LDPK node 3DEqualizer exported on its own).
+    """
     check_file_size(path, FILE_BYTES, "Nuke script")
     text = path.read_text(errors="replace")
     bodies = [body for _, body in _blocks(text)]
     lens_nodes = _lens_nodes_of(text)
-    root_size = _root_size(text)
+    root_size = _root_size(text) or image_size
     if not bodies:
         return _lens_only(lens_nodes, root_size)
     cameras, conversions, animated = [], [], []

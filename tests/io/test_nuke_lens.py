@@ -211,3 +211,15 @@ def test_bad_lens_nodes_are_one_line(tmp_path, text, message):
     with pytest.raises(CamcalError, match=message) as info:
         import_rig(path, "nuke")
     assert "\n" not in str(info.value)
+
+
+def test_an_ldpk_node_alone_takes_the_image_size_given(tmp_path):
+    """3DEqualizer's own export writes the LDPK node alone: no Root, no camera, no image size in the script."""
+    camera = tde_camera("3de4-anamorphic-deg4", pixel_aspect=2.0)
+    export_rig(Rig((camera,)), "nuke", tmp_path / "shot.nk")
+    [ldpk] = nodes((tmp_path / "shot.nk").read_text(), "LD_3DE4_Anamorphic_Standard_Degree_4")
+    (tmp_path / "ld.nk").write_text("LD_3DE4_Anamorphic_Standard_Degree_4 {\n" + ldpk + "}\n")
+    with pytest.raises(CamcalError, match="no image size"):
+        import_rig(tmp_path / "ld.nk", "nuke")
+    [back] = import_rig(tmp_path / "ld.nk", "nuke", image_size=SIZE).rig.cameras
+    assert max_pixel_residual(camera, back) < 1e-9
