@@ -314,13 +314,13 @@ def _lens_nodes(camera: Camera, node: str, haperture_mm: float, index: int) -> l
              f" centre {{{_number(builtin.lens_center_offset_x_cm / half_diagonal)} "
              f"{_number(builtin.lens_center_offset_y_cm / half_diagonal)}}}",
              *(f" {k} {v[0] if len(v) == 1 else '{' + ' '.join(v) + '}'}" for k, v in knobs.items()),
-             f" name {node}_lens", f" xpos {index * 150 + 250}", " ypos 200", "}"]
+             f" name {node}_lens", f" xpos {index * 150}", " ypos 500", "}"]
     lines += [f"{ldpk_node_class(lens.model)} {{", " inputs 0", " direction undistort",
               *(f" {name} {_number(value)}" for name, value in builtin.builtin_parameters().items()),
               " field_of_view_xa_unit 0", " field_of_view_ya_unit 0", " field_of_view_xb_unit 1",
               " field_of_view_yb_unit 1",
               *(f" {_nukify(p.ldpk_name)} {_number(values[p.key])}" for p in LDPK_PARAMETERS[lens.model]),
-              f" name {node}_ldpk", f" xpos {index * 150 + 250}", " ypos 300", "}"]
+              f" name {node}_ldpk", f" xpos {index * 150}", " ypos 600", "}"]
     return lines
 
 
