@@ -162,8 +162,10 @@ class LensConversion:
 
     def describe(self) -> str:
         """One line for the command's summary (with the lens refit's figures when there was one)."""
-        text = f"camera {self.camera!r}: {self.source} -> {self.target}: " + (
-            "exact" if self.exact else f"{self.loss}, max residual {self.max_px:.3g} px")
+        head = f"camera {self.camera!r}: {self.source} -> {self.target}: "
+        if self.refit is not None and self.max_px == self.refit.max_px:  # the conversion is the refit
+            return head + ("exact" if self.exact else f"{self.loss}, {self.refit.describe()}")
+        text = head + ("exact" if self.exact else f"{self.loss}, max residual {self.max_px:.3g} px")
         if self.refit is not None:
             text += f"; {self.refit.family}: " + ("exact" if self.refit.exact else self.refit.describe())
         return text
