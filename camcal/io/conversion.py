@@ -25,7 +25,7 @@ import scipy.optimize
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
-from camcal.model.distortion import FISHEYE_MODELS, MODEL_PARAMS, Distortion, fit_distortion, frame_grid
+from camcal.model.distortion import FISHEYE_MODELS, MODEL_PARAMS, Distortion, frame_grid
 from camcal.model.rig import Camera, Rig
 from camcal.model.tde4 import FILMBACK_KEYS, LDPK_PARAMETERS, TDE4_MODELS
 
@@ -127,7 +127,7 @@ class Refit:
     def describe(self) -> str:
         """``max / RMS`` inside the image and over the border, in one line."""
         lost = f", {self.n_lost} grid pixels not imaged" if self.n_lost else ""
-        return (f"residual max {self.max_px:.3g} px, RMS {self.rms_px:.3g} px inside the image; "
+        return (f"max residual {self.max_px:.3g} px, RMS {self.rms_px:.3g} px inside the image; "
                 f"max {self.border_max_px:.3g} px, RMS {self.border_rms_px:.3g} px over the "
                 f"{self.overscan:g} overscan border{lost}")
 
@@ -258,18 +258,22 @@ def nearest_camera(
     holds : callable
         True when the format holds a distortion exactly.
     fit_model : str
-        The camcal model to fit when it does not (``opencv``,
-        ``polynomial``; see :func:`~camcal.model.distortion.fit_distortion`).
+        The lens family to refit to when it does not (``opencv``,
+        ``kannala-brandt``, ...; :func:`refit_camera`).
     target_name : str
         The format's name for its model (reported).
     skew : bool
         Whether the format holds ``K[0, 1]``; when not, it is set to 0.
     with_k3 : bool, optional
-        Passed to :func:`~camcal.model.distortion.fit_distortion`.
+        ``False`` holds ``k3`` at zero (Kalibr's radtan is ``k1 k2 p1 p2``);
+        the default fits it for ``opencv`` and not for ``polynomial``.
 
     Returns
     -------
     (Camera, LensConversion)
+        The conversion's ``max_px`` is :func:`max_pixel_residual`'s (a 16 px
+        grid over the image), its ``refit`` the refit's figures, when there
+        was one.
     """
     has_skew = camera.K[0, 1] != 0.0
     if not camera.distortion.has_correction and holds(camera.distortion) and (skew or not has_skew):
@@ -277,12 +281,14 @@ def nearest_camera(
     K = camera.K.copy()
     if not skew:
         K[0, 1] = 0.0
-    distortion = camera.distortion
-    if distortion.has_correction or not holds(distortion):  # no format holds a correction field: its nearest fit
-        distortion = fit_distortion(distortion, camera.K, camera.image_size, fit_model, with_k3=with_k3).distortion
-    converted = replace(camera, K=K, distortion=distortion)
+    refit = None
+    if camera.distortion.has_correction or not holds(camera.distortion):  # no format holds a correction field
+        fixed = {"k3": 0.0} if with_k3 is False or (with_k3 is None and fit_model == "polynomial") else None
+        converted, refit = refit_camera(camera, fit_model, K=K, fixed=fixed)
+    else:
+        converted = replace(camera, K=K)
     residual = max_pixel_residual(camera, converted)
-    return converted, LensConversion(camera.name, _describe_model(camera), target_name, False, residual)
+    return converted, LensConversion(camera.name, _describe_model(camera), target_name, False, residual, refit=refit)
 
 
 def select_cameras(rig: Rig, names: Sequence[str] | None) -> tuple[Camera, ...]:
@@ -425,7 +431,8 @@ def residual_figures(source: Camera, target: Camera, overscan: float = DEFAULT_O
     return Refit(target.distortion.model, False, max_px, rms_px, border_max, border_rms, float(overscan), n_lost)
 
 
-def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERSCAN) -> tuple[Camera, Refit]:
+def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERSCAN, K: NDArray[np.float64] | None = None,
+                 fixed: Mapping[str, float] | None = None) -> tuple[Camera, Refit]:
     """``camera`` with its lens in ``family``: exact where the family holds it, else a dense-grid refit.
 
     Parameters
@@ -437,6 +444,11 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
     overscan : float
         The residual figures (and the fit) cover the frame scaled by this
         factor about its centre.
+    K : ndarray, shape (3, 3), optional
+        The refitted camera's matrix (default ``camera.K``, without skew for
+        the 3DE families); the fit takes it into account.
+    fixed : mapping, optional
+        Parameters of the family held at these values (``{"k3": 0.0}``).
 
     Returns
     -------
@@ -465,11 +477,13 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
     Kannala-Brandt ones) is fitted on the rays at least 3 degrees in front
     of the image plane.
     """
-    K = camera.K.copy()
+    K = np.array(camera.K if K is None else K, dtype=np.float64)
     if family in TDE_FAMILIES:
         K[0, 1] = 0.0
+    fixed = dict(fixed or {})
     exact = exact_distortion(camera.distortion, family, camera.image_size)
-    if exact is not None and K[0, 1] == camera.K[0, 1]:
+    if (exact is not None and np.array_equal(K, camera.K)
+            and all(exact.params.get(name, 0.0) == value for name, value in fixed.items())):
         converted = replace(camera, distortion=exact)
         return converted, replace(residual_figures(camera, converted, overscan), exact=True)
     grid, inside = _dense_grid(camera.image_size, overscan)
@@ -481,11 +495,12 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
         raise CamcalError(f"camera {camera.name!r}: too few rays of the frame for a {family} lens")
     grid, rays = grid[usable], rays[usable]
     weights = np.where(inside[usable], 1.0, _BORDER_WEIGHT)[:, None]
-    neutral, fixed = _family_parameters(family, camera.image_size)
-    names = tuple(neutral)
+    neutral, held = _family_parameters(family, camera.image_size)
+    held.update(fixed)
+    names = tuple(name for name in neutral if name not in held)
 
     def lens(vector: NDArray[np.float64]) -> Distortion:
-        return Distortion(family, {**fixed, **dict(zip(names, (float(v) for v in vector)))})
+        return Distortion(family, {**held, **dict(zip(names, (float(v) for v in vector)))})
 
     def distorting(vector: NDArray[np.float64]) -> NDArray[np.float64]:
         # a ray beyond the candidate's range: a large finite penalty

@@ -18,13 +18,13 @@ The format may be left out (None) where the file name says it
 (:func:`format_of`: ``.nk``, ``.usda`` / ``.usdc`` / ``.usd``, ``.txt``).
 
 Each format holds a subset of camcal's camera model. When a camera's lens
-(or skew) has no exact counterpart, the exporter fits the nearest model the
-format holds (:func:`camcal.model.distortion.fit_distortion`, or for the
-3DEqualizer families :func:`camcal.io.conversion.refit_camera`) and
-reports the pixel distance between where the camcal camera and the
-exported one put the same rays (:func:`camcal.io.conversion.max_pixel_residual`,
-over a 16 px grid of the whole frame, or the refit's max and RMS inside the
-image and over the overscan border); conversions without loss say so. Which
+(or skew) has no exact counterpart, the exporter refits the nearest model
+the format holds, every format through the one core
+:func:`camcal.io.conversion.refit_camera`, and reports the pixel distance
+between where the camcal camera and the exported one put the same rays
+(:func:`camcal.io.conversion.max_pixel_residual`, over a 16 px grid of the
+whole frame, and the refit's max and RMS inside the image and over a 1.25
+overscan border); conversions without loss say so. Which
 camcal model each format holds exactly is the one table
 :func:`camcal.io.conversion.exactness_table`.
 

@@ -77,7 +77,7 @@ def test_a_refitted_lens_reads_back_to_the_residual_printed(rig, family, tmp_pat
     rig_path = Rig(rig.cameras[:1]).save(tmp_path / "cam.rig.json")
     assert main(["rig", "export", str(rig_path), str(tmp_path / "lens.txt")]) == 0
     printed = capsys.readouterr().out
-    assert "residual max" in printed and "overscan border" in printed
+    assert "max residual" in printed and "overscan border" in printed
     result = export_rig(Rig(rig.cameras[:1]), "3de", tmp_path / "lens2.txt")
     [conversion] = result.conversions
     refit = conversion.refit
