@@ -172,9 +172,9 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None) -> ImportResu
                                   f"lens' focal length {focal:g} cm; camcal holds one lens per camera")
             params[keys[parameter]] = at_focal
     size = image_size
-    for _, rest in lines:
+    for number, rest in lines:
         if rest.startswith(_SIZE_LINE) and size is None:
-            width, height = _floats(rest[len(_SIZE_LINE):], 2, 0, "the image size")
+            width, height = _floats(rest[len(_SIZE_LINE):], 2, number, "the image size")
             size = (int(width), int(height))
     if size is None:
         raise CamcalError("the lens file holds no image size (3DE lens files have none): give it (--image-size)")
