@@ -232,8 +232,8 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
             ]
     notes = []
     if any(abs(c.K[1, 1] / c.K[0, 0] - 1.0) > 1e-9 for c in chosen):
-        notes.append("LensDistortion nodes take the pixel aspect from their distortionScalingFormat; the LDPK nodes "
-                     "carry it as tde4_pixel_aspect")
+        notes.append("non-square pixels: the LensDistortion node holds the pixel aspect in its distortionScalingFormat "
+                     "only (not checked in Nuke); the LDPK node (tde4_pixel_aspect) and the ST-maps hold the lens")
     if rig.points is not None:
         notes.append("sparse points are not written to Nuke (export USD for a point cloud)")
     if written:
