@@ -27,6 +27,7 @@ import numpy as np
 from camcal.base.errors import CamcalError
 from camcal.colour.bake.transforms import apply_cpu, cpu_processor, matrix_transform, ocio_module
 from camcal.colour.chart.linearise import Linearisation
+from camcal.colour.export.ocio_versions import at_profile_version
 
 __all__ = [
     "STUDIO_CONFIG",
@@ -232,12 +233,16 @@ class ConfigSpec:
     works on a copy); :func:`camcal.io.ocio.load_base_config` loads
     ``"camcal"`` (``ocio_configs/camcal_base.ocio``), an ``ocio://`` built-in
     (:data:`STUDIO_CONFIG`, the ACES studio config) or a ``.ocio`` file.
+    ``profile_version``: ``(major, minor)`` the config is written at, at
+    most (:func:`camcal.colour.export.ocio_versions.at_profile_version`);
+    ``None`` keeps the base's.
     """
 
     base: Any
     colour_spaces: tuple[ColourSpaceSpec, ...] = ()
     looks: tuple[LookSpec, ...] = ()
     name: str | None = None
+    profile_version: tuple[int, int] | None = None
 
     @property
     def files(self) -> dict:
@@ -274,17 +279,19 @@ def add_look(config, look: LookSpec) -> None:
 def build_ocio_config(spec: ConfigSpec):
     """Build and validate the config a :class:`ConfigSpec` describes.
 
-    The base is copied, its search paths are made absolute (a file base's
-    own LUTs stay reachable from the new config's folder) and ``luts`` is
-    appended, the colour spaces and looks are added and ``config.validate()``
-    runs; its errors propagate (as :class:`CamcalError`).
+    The base is copied (at ``spec.profile_version`` when it is newer), its
+    search paths are made absolute (a file base's own LUTs stay reachable
+    from the new config's folder) and ``luts`` is appended, the colour
+    spaces and looks are added and ``config.validate()`` runs; its errors
+    propagate (as :class:`CamcalError`).
 
     Returns
     -------
     PyOpenColorIO.Config
     """
     ocio = ocio_module()
-    config = copy.deepcopy(spec.base)
+    config = copy.deepcopy(spec.base) if spec.profile_version is None else at_profile_version(
+        spec.base, spec.profile_version)
     if spec.name:
         config.setName(spec.name)
     # the base's own LUT folders, made absolute (the new config lives elsewhere), then luts/

@@ -1,4 +1,10 @@
-"""Shared pieces of the colour export tests: fits of the simulated camera."""
+"""Shared pieces of the colour export tests: fits of the simulated camera, Blender reading a config."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
 
 import numpy as np
 
@@ -23,3 +29,48 @@ def make_fit(sim, model, linearise="gamma-offset", target_white=None, camera="ni
 def code_grid(n=9):
     g = np.linspace(0.0, 1.0, n)
     return np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+BLENDER_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import numpy as np
+    import bpy
+    args = json.loads(sys.argv[1])
+    items = bpy.types.ColorManagedInputColorspaceSettings.bl_rna.properties["name"].enum_items
+    print("CAMCAL_LISTED " + json.dumps([i.identifier for i in items]))
+    codes = np.asarray(args["codes"], dtype=np.float32)
+    H, W = codes.shape[:2]
+    image = bpy.data.images.new("codes", W, H, alpha=True, float_buffer=True)
+    image.colorspace_settings.name = "Raw"
+    pixels = np.ones((H, W, 4), np.float32)
+    pixels[..., :3] = codes
+    image.pixels.foreach_set(pixels.ravel())
+    image.filepath_raw = args["exr"]
+    image.file_format = "OPEN_EXR"
+    image.save()
+    plate = bpy.data.images.load(args["exr"])
+    plate.colorspace_settings.name = args["space"]
+    plate.reload()
+    out = np.empty(H * W * 4, np.float32)
+    plate.pixels.foreach_get(out)
+    print("CAMCAL_PIXELS " + json.dumps(out.reshape(H, W, 4)[..., :3].tolist()))
+    """
+)
+
+
+def blender_reads(config_path, space, codes, folder):
+    """Blender (bpy in a subprocess, ``$OCIO`` = the config) lists its input spaces and reads ``codes`` as ``space``.
+
+    ``codes`` ``(H, W, 3)`` are saved as an EXR in Blender's ``Raw`` space and
+    loaded back as ``space``; returns (the input space names Blender lists,
+    the loaded pixels ``(H * W, 3)`` in Blender's scene-linear space).
+    """
+    args = {"codes": np.asarray(codes).tolist(), "exr": str(folder / "codes.exr"), "space": space}
+    env = dict(os.environ, OCIO=str(config_path))
+    proc = subprocess.run([sys.executable, "-c", BLENDER_SCRIPT, json.dumps(args)], capture_output=True, text=True,
+                          env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    lines = {line.split(" ", 1)[0]: json.loads(line.split(" ", 1)[1]) for line in proc.stdout.splitlines()
+             if line.startswith("CAMCAL_")}
+    return lines["CAMCAL_LISTED"], np.asarray(lines["CAMCAL_PIXELS"]).reshape(-1, 3)
