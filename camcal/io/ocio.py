@@ -111,8 +111,14 @@ def export_ocio(
     lut_sizes: Sequence[int] = LUT_SIZES,
     matches: Sequence = (),
     ocio_version: str = DEFAULT_PROFILE_VERSION,
+    family: str | None = None,
+    home: str | os.PathLike | None = None,
 ) -> OCIOExport:
     """Write ``directory/config.ocio`` (+ ``luts/*.clf``): ``base`` plus one space per camera.
+
+    A base ``.ocio`` file in the folder the config goes to is extended in
+    place: written back under its own name, its roles, spaces, search paths
+    and everything else kept.
 
     Parameters
     ----------
@@ -120,7 +126,7 @@ def export_ocio(
         ``(camera name, fit)`` pairs; names must be unique.
     directory
         Output folder.
-    base, cat, max_delta_E, lut_sizes
+    base, cat, max_delta_E, lut_sizes, family
         See :class:`ConfigSpec` and :func:`colour_space_from_fit`.
     matches
         Camera matches (kind ``match``), each written as a Look
@@ -131,6 +137,9 @@ def export_ocio(
         :mod:`camcal.colour.export.ocio_versions`). A base made for a newer
         version is written at this one when it uses nothing newer, else
         refused with the reason; an older base keeps its version.
+    home
+        The folder the config ends up in when ``directory`` is a staging
+        folder renamed there afterwards (default: ``directory``).
 
     Returns
     -------
@@ -147,8 +156,11 @@ def export_ocio(
     base_name = builtin_base_for_version(str(base), version)
     config = load_base_config(base_name)
     spec, reports = config_spec_from_fits(fits, config, cat=cat, max_delta_E=max_delta_E, lut_sizes=lut_sizes,
-                                          matches=matches)
-    spec = dataclasses.replace(spec, profile_version=version)
-    path = write_ocio_config(spec, directory)
+                                          matches=matches, family=family)
+    home = Path(home if home is not None else directory)
+    spec = dataclasses.replace(spec, profile_version=version, home=str(home))
+    in_place = (base_name != CAMCAL_BASE and Path(base_name).is_file()
+                and Path(base_name).resolve().parent == home.resolve())
+    path = write_ocio_config(spec, directory, Path(base_name).name if in_place else "config.ocio")
     written = min(profile_version_of(config), version)
     return OCIOExport(path, base_name, reports, f"{written[0]}.{written[1]}")

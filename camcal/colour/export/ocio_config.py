@@ -199,6 +199,9 @@ class ColourSpaceSpec:
         ``luts/``, which the config's search path holds).
     categories
         OCIO categories (``file-io`` lists it for reading images).
+    aliases
+        Other names OCIO finds the space by (short, as the ACES configs'
+        ``arri_logc3_ei800``).
     """
 
     name: str
@@ -208,6 +211,7 @@ class ColourSpaceSpec:
     encoding: str = "scene-linear"
     files: dict = field(default_factory=dict)
     categories: tuple[str, ...] = ("file-io",)
+    aliases: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -235,7 +239,10 @@ class ConfigSpec:
     (:data:`STUDIO_CONFIG`, the ACES studio config) or a ``.ocio`` file.
     ``profile_version``: ``(major, minor)`` the config is written at, at
     most (:func:`camcal.colour.export.ocio_versions.at_profile_version`);
-    ``None`` keeps the base's.
+    ``None`` keeps the base's. ``home``: the folder the config is written
+    to; a base that lives there (a studio's config extended in place) keeps
+    its search paths as they are, any other base's relative ones are made
+    absolute.
     """
 
     base: Any
@@ -243,6 +250,7 @@ class ConfigSpec:
     looks: tuple[LookSpec, ...] = ()
     name: str | None = None
     profile_version: tuple[int, int] | None = None
+    home: str | None = None
 
     @property
     def files(self) -> dict:
@@ -280,8 +288,9 @@ def build_ocio_config(spec: ConfigSpec):
     """Build and validate the config a :class:`ConfigSpec` describes.
 
     The base is copied (at ``spec.profile_version`` when it is newer), its
-    search paths are made absolute (a file base's own LUTs stay reachable
-    from the new config's folder) and ``luts`` is appended, the colour
+    search paths are made absolute unless it is extended in place (a file
+    base's own LUTs stay reachable from the new config's folder) and
+    ``luts`` is appended, the colour
     spaces and looks are added and ``config.validate()`` runs; its errors
     propagate (as :class:`CamcalError`).
 
@@ -294,18 +303,21 @@ def build_ocio_config(spec: ConfigSpec):
         spec.base, spec.profile_version)
     if spec.name:
         config.setName(spec.name)
-    # the base's own LUT folders, made absolute (the new config lives elsewhere), then luts/
+    # the base's own LUT folders, made absolute when the new config lives elsewhere, then luts/
     working = config.getWorkingDir()
-    paths = [p if os.path.isabs(p) or not working else os.path.join(working, p) for p in config.getSearchPaths()]
-    config.clearSearchPaths()
-    for path in paths + ([LUT_DIR] if spec.files and LUT_DIR not in paths else []):
-        config.addSearchPath(path)
+    if not (working and spec.home and os.path.realpath(working) == os.path.realpath(spec.home)):
+        paths = [p if os.path.isabs(p) or not working else os.path.join(working, p) for p in config.getSearchPaths()]
+        config.clearSearchPaths()
+        for path in paths:
+            config.addSearchPath(path)
+    if spec.files and LUT_DIR not in config.getSearchPaths():
+        config.addSearchPath(LUT_DIR)
     for space in spec.colour_spaces:
         if config.getColorSpace(space.name) is not None:
             raise CamcalError(f"colour space {space.name!r} already exists in the base config")
         cs = ocio.ColorSpace(referenceSpace=ocio.REFERENCE_SPACE_SCENE, name=space.name, family=space.family,
                              encoding=space.encoding, description=space.description,
-                             categories=list(space.categories))
+                             categories=list(space.categories), aliases=list(space.aliases))
         cs.setTransform(ocio.GroupTransform(list(space.to_reference)), ocio.COLORSPACE_DIR_TO_REFERENCE)
         config.addColorSpace(cs)
     for look in spec.looks:

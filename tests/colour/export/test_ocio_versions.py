@@ -9,11 +9,6 @@ back to XYZ by colour-science (Bradford, as the export adapts).
 """
 
 import copy
-import json
-import os
-import subprocess
-import sys
-import textwrap
 
 import numpy as np
 import pytest
@@ -24,67 +19,17 @@ import colour  # noqa: E402
 from camcal.base.errors import CamcalError  # noqa: E402
 from camcal.colour.difference import delta_E  # noqa: E402
 from camcal.io.ocio import export_ocio  # noqa: E402
-from colour_export_helpers import blender_reads, codes_of, make_fit  # noqa: E402
-from ocio_releases import RELEASES, installed  # noqa: E402
+from colour_export_helpers import (  # noqa: E402
+    ACES_to_XYZ,
+    blender_reads,
+    codes_of,
+    load_in_release,
+    make_fit,
+    releases,
+)
+from ocio_releases import RELEASES  # noqa: E402
 
 SPACES = {"camcal nikon": "matrix3x3", "camcal nikon rp": "root-polynomial:2"}
-LOADER = textwrap.dedent(
-    """
-    import json, sys
-    import PyOpenColorIO as ocio
-    args = json.loads(sys.argv[1])
-    out = {"release": ocio.__version__}
-    try:
-        config = ocio.Config.CreateFromFile(args["config"])
-        config.validate()
-    except Exception as error:
-        out["error"] = str(error)
-        print(json.dumps(out))
-        sys.exit(0)
-    out["profile"] = [config.getMajorVersion(), config.getMinorVersion()]
-    aces = config.getRoleColorSpace("aces_interchange")
-    flat = [value for rgb in args["codes"] for value in rgb]
-    out["spaces"] = {}
-    for name in args["spaces"]:
-        space = config.getColorSpace(name)
-        cpu = config.getProcessor(name, aces).getDefaultCPUProcessor()
-        out["spaces"][name] = {"family": space.getFamily(), "aces": cpu.applyRGB(list(flat))}
-    print(json.dumps(out))
-    """
-)
-
-
-def _releases():
-    """``{"2.3": (interpreter, folder), ...}`` for every side-by-side release, or skip / fail when one is missing."""
-    found = installed()
-    missing = [minor for minor in RELEASES if minor not in found]
-    if missing:
-        reason = (f"OpenColorIO {', '.join(missing)} not installed side by side in {sys.prefix}/ocio "
-                  f"(make test installs them: tests/colour/export/ocio_releases.py install)")
-        if os.environ.get("CAMCAL_REQUIRE_OCIO_VERSIONS") == "1":
-            pytest.fail(reason)
-        pytest.skip(reason)
-    return found
-
-
-def _load(minor, config_path, codes, spaces=tuple(SPACES)):
-    """Run :data:`LOADER` with OpenColorIO ``minor`` (``"2.6"``: this venv's own)."""
-    if minor == "2.6":
-        python, env = sys.executable, dict(os.environ)
-    else:
-        python, folder = _releases()[minor]
-        env = dict(os.environ, PYTHONPATH=str(folder), PYTHONNOUSERSITE="1")
-    args = {"config": str(config_path), "codes": np.asarray(codes).tolist(), "spaces": list(spaces)}
-    proc = subprocess.run([python, "-c", LOADER, json.dumps(args)], capture_output=True, text=True, env=env,
-                          timeout=120)
-    assert proc.returncode == 0, proc.stderr
-    return json.loads(proc.stdout.splitlines()[-1])
-
-
-def _ACES_to_XYZ(ACES, white_XYZ):
-    """ACES2065-1 to XYZ under ``white_XYZ`` (colour-science, Bradford)."""
-    return colour.RGB_to_XYZ(ACES, colour.RGB_COLOURSPACES["ACES2065-1"], colour.XYZ_to_xy(white_XYZ),
-                             chromatic_adaptation_transform="Bradford")
 
 
 @pytest.fixture(scope="module")
@@ -108,14 +53,14 @@ def test_default_export_is_profile_2_3_of_the_aces_studio_config(exported):
 @pytest.mark.parametrize("minor", [*RELEASES, "2.6"])
 def test_each_release_loads_and_converts_as_the_fit(exported, minor):
     result, fits, codes = exported
-    loaded = _load(minor, result.config_path, codes)
+    loaded = load_in_release(minor, result.config_path, codes, SPACES)
     assert "error" not in loaded, loaded.get("error")
     assert loaded["release"] == (RELEASES[minor] if minor in RELEASES else ocio.__version__)
     assert loaded["profile"] == [2, 3]
     for name, fit in fits.items():
         space = loaded["spaces"][f"camcal {name}"]
         assert space["family"] == "Input/camcal"
-        XYZ = _ACES_to_XYZ(np.asarray(space["aces"]).reshape(-1, 3), fit.target_white_XYZ)
+        XYZ = ACES_to_XYZ(np.asarray(space["aces"]).reshape(-1, 3), fit.target_white_XYZ)
         dE = delta_E(XYZ, fit.apply_codes(codes), fit.target_white_XYZ)
         print(f"OpenColorIO {loaded['release']}, {name}: CIEDE2000 mean {dE.mean():.4f}, max {dE.max():.4f}")
         assert dE.max() <= 0.1, (name, minor, dE.max())
@@ -123,12 +68,12 @@ def test_each_release_loads_and_converts_as_the_fit(exported, minor):
 
 def test_a_newer_profile_is_refused_by_the_older_release(tmp_path, sim):
     """The harness can fail: the same fit at profile 2.5 (the ACES 2 studio config) loads in 2.5, not in 2.4."""
-    _releases()
+    releases()
     result = export_ocio([("nikon", make_fit(sim, "matrix3x3"))], tmp_path / "cfg", ocio_version="2.5")
     assert result.base == "ocio://studio-config-v4.0.0_aces-v2.0_ocio-v2.5"
     codes = codes_of(sim.RGB_train)
-    assert "error" not in _load("2.5", result.config_path, codes, ["camcal nikon"])
-    refused = _load("2.4", result.config_path, codes, ["camcal nikon"])
+    assert "error" not in load_in_release("2.5", result.config_path, codes, ["camcal nikon"])
+    refused = load_in_release("2.4", result.config_path, codes, ["camcal nikon"])
     assert "not able to load that config version" in refused["error"]
 
 
@@ -148,7 +93,7 @@ def test_a_newer_base_without_newer_features_is_written_at_the_chosen_version(tm
     (tmp_path / "studio.ocio").write_text(newer.serialize())
     result = export_ocio([("nikon", make_fit(sim, "matrix3x3"))], tmp_path / "cfg", base=str(tmp_path / "studio.ocio"))
     assert result.profile_version == "2.3"
-    loaded = _load("2.3", result.config_path, codes_of(sim.RGB_train), ["camcal nikon"])
+    loaded = load_in_release("2.3", result.config_path, codes_of(sim.RGB_train), ["camcal nikon"])
     assert "error" not in loaded and loaded["profile"] == [2, 3]
 
 
