@@ -315,6 +315,10 @@ def build_ocio_config(spec: ConfigSpec):
     for space in spec.colour_spaces:
         if config.getColorSpace(space.name) is not None:
             raise CamcalError(f"colour space {space.name!r} already exists in the base config")
+        taken = [alias for alias in space.aliases if config.getColorSpace(alias) is not None]
+        if taken:
+            raise CamcalError(f"alias {taken[0]!r} of colour space {space.name!r} already names a space in the "
+                              f"config (rename the camera)")
         cs = ocio.ColorSpace(referenceSpace=ocio.REFERENCE_SPACE_SCENE, name=space.name, family=space.family,
                              encoding=space.encoding, description=space.description,
                              categories=list(space.categories), aliases=list(space.aliases))

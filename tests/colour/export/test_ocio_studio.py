@@ -17,6 +17,7 @@ import pytest
 
 ocio = pytest.importorskip("PyOpenColorIO")
 
+from camcal.base.errors import CamcalError  # noqa: E402
 from camcal.colour.difference import delta_E  # noqa: E402
 from camcal.colour.export.ocio_fit import maker_family, space_encoding  # noqa: E402
 from camcal.io.ocio import export_ocio  # noqa: E402
@@ -106,3 +107,31 @@ def test_camera_space_named_as_studios_name_them(tmp_path, sim):
         assert part in description, part
     log = make_fit(sim, "matrix3x3", linearise="named:S-Log3")  # a camera log curve: the studio configs' "log"
     assert space_encoding(log) == "log" and maker_family(log) == "Input/camcal"
+
+
+def test_cli_extends_a_studio_config_in_place(tmp_path, sim, capsys):
+    from camcal.cli import main
+    from camcal.io.colourfile import save_colour_file
+
+    path = _studio_config(tmp_path / "show")
+    fit = save_colour_file(make_fit(sim, "matrix3x3", camera="witness"), tmp_path / "witness.colour.json")
+    code = main(["colour", "export", str(fit), "--ocio", str(tmp_path / "show"), "--base", str(path),
+                 "--family", "Input/Studio"])
+    assert code == 0
+    assert f"wrote {path} (OCIO profile 2.3, base {path}" in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "show").iterdir()) == ["studio.ocio", "studio_luts"]
+    config = ocio.Config.CreateFromFile(str(path))
+    config.validate()
+    assert config.getColorSpace("camcal witness").getFamily() == "Input/Studio"
+    assert config.getColorSpace("Studio Plate") is not None and list(config.getSearchPaths()) == ["studio_luts"]
+    # a second run finds its space there already: one error, the file as it was
+    before = path.read_text()
+    assert main(["colour", "export", str(fit), "--ocio", str(tmp_path / "show"), "--base", str(path)]) == 2
+    assert "'camcal witness' already exists" in capsys.readouterr().err and path.read_text() == before
+
+
+def test_two_cameras_with_one_alias_is_one_error(tmp_path, sim):
+    fit = make_fit(sim, "matrix3x3")
+    with pytest.raises(CamcalError, match="alias 'camcal_a_cam' of colour space 'camcal a cam' already names"):
+        export_ocio([("a-cam", fit), ("a cam", fit)], tmp_path / "cfg", base="camcal")
+    assert not (tmp_path / "cfg").exists()
