@@ -290,9 +290,9 @@ def build_ocio_config(spec: ConfigSpec):
     The base is copied (at ``spec.profile_version`` when it is newer), its
     search paths are made absolute unless it is extended in place (a file
     base's own LUTs stay reachable from the new config's folder) and
-    ``luts`` is appended, the colour
-    spaces and looks are added and ``config.validate()`` runs; its errors
-    propagate (as :class:`CamcalError`).
+    ``luts`` is appended, the colour spaces and looks are added and
+    ``config.validate()`` runs; its errors propagate (as
+    :class:`CamcalError`).
 
     Returns
     -------

@@ -8,7 +8,6 @@ is written at the profile version of the oldest release it is meant for:
 profile    hosts linking that OpenColorIO release (or a newer one)
 =========  ===============================================================
 2.3        Blender 4.2 LTS (OCIO 2.3.2), VFX Reference Platform CY2024
-           (Nuke 16, ...)
 2.4        Blender 5.0, VFX Reference Platform CY2025
 2.5        Blender 5.2 (OCIO 2.5.0), VFX Reference Platform CY2026
 2.6        OpenColorIO 2.6
@@ -60,9 +59,6 @@ PROFILE_VERSIONS = ("2.1", "2.2", "2.3", "2.4", "2.5", "2.6")
 
 #: Loads in Blender 4.2-5.2 and the VFX Reference Platform CY2024-CY2026 hosts.
 DEFAULT_PROFILE_VERSION = "2.3"
-
-_ALIASES = {"default": "cg-config"}
-
 
 def parse_profile_version(text: str | tuple[int, int]) -> tuple[int, int]:
     """``"2.3"`` as ``(2, 3)``, checked against :data:`PROFILE_VERSIONS` and the running OpenColorIO.
