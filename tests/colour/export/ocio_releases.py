@@ -6,7 +6,8 @@ puts each release of :data:`RELEASES` into ``DIR/<major.minor>`` with pip's
 and writes ``DIR/<major.minor>/interpreter``, the Python that imports it.
 OpenColorIO 2.3 has no wheel for Python 3.13, so it is installed for the
 newest of Python 3.12 / 3.11 / 3.10 found on the machine (PATH, pyenv,
-/usr/bin). A release already installed is left as it is.
+/usr/bin); without one it is left out with a warning (its test then skips,
+or fails in CI). A release already installed is left as it is.
 
 The test (``test_ocio_versions.py`` beside this file) finds them with :func:`installed`.
 """
@@ -90,8 +91,9 @@ def install(root: Path) -> None:
                 break
             shutil.rmtree(folder, ignore_errors=True)
         else:
-            raise SystemExit(f"OpenColorIO {release}: no wheel for Python {here} nor an interpreter of "
-                             f"{', '.join(FALLBACK_PYTHONS)} with one; install Python 3.12")
+            # not fatal here: the test names the missing release (and fails under CAMCAL_REQUIRE_OCIO_VERSIONS=1)
+            print(f"camcal: OpenColorIO {release} not installed: no wheel for Python {here} and no Python "
+                  f"{' / '.join(FALLBACK_PYTHONS)} with one found (install Python 3.12)", file=sys.stderr)
 
 
 if __name__ == "__main__":
