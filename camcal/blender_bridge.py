@@ -12,7 +12,7 @@ Blender's tracking camera holds camcal's ``polynomial``, ``opencv`` (``k1,
 k2, p1, p2, k3``) and round ``division`` lenses exactly (the add-on's
 ``tracking.blender_lens``); before the import, every other lens but the
 fisheyes (Cycles' fisheye camera takes those) is replaced in the MovieClip
-by its nearest lens of that kind (:func:`camcal.io.conversion.nearest_camera`,
+by its nearest lens of that kind (:func:`camcal.io.conversion.refit_camera`,
 the residual reported), and its distortion compositor re-distorts with
 camcal's exact map through a Map UV node instead
 (:func:`write_blender_uv_maps`): the ST-map path.
@@ -33,7 +33,7 @@ import numpy as np
 
 from camcal import resources
 from camcal.base.errors import CamcalError
-from camcal.io.conversion import LensConversion, nearest_camera
+from camcal.io.conversion import LensConversion, max_pixel_residual, refit_camera
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Rig
 
@@ -125,25 +125,34 @@ def _tracking_holds(distortion: Distortion) -> bool:
         return not any(p.get(name, 0.0) for name in ("k4", "k5", "k6", "s1", "s2", "s3", "s4"))
     if distortion.model == "division":
         return p.get("aspect", 1.0) == 1.0
-    return True
+    return distortion.model in ("none", "polynomial") or distortion.is_fisheye
 
 
 #: The lens fitted where Blender's tracking camera does not hold one (see :func:`blender_tracking_rig`).
 _NEAREST = {"opencv": "opencv", "polynomial": "polynomial", "division": "division", "none": "polynomial",
-            "kannala-brandt": "kannala-brandt", "kannala-brandt-thin-prism": "kannala-brandt"}
+            "kannala-brandt": "kannala-brandt", "kannala-brandt-thin-prism": "kannala-brandt",
+            "3de-classic": "opencv", "3de4-radial-deg4": "opencv", "3de4-anamorphic-deg4": "opencv",
+            "3de4-fisheye-deg8": "kannala-brandt"}
+#: What a refit to each family holds, for Blender: BROWN has no rational or thin-prism terms, NUKE is round.
+_HELD = {"opencv": dict.fromkeys(("k4", "k5", "k6", "s1", "s2", "s3", "s4"), 0.0), "division": {"aspect": 1.0}}
 _BLENDER_NAMES = {"opencv": "Blender BROWN", "polynomial": "Blender POLYNOMIAL", "division": "Blender NUKE",
                   "kannala-brandt": "Cycles fisheye"}
 
 
-def blender_tracking_rig(rig: Rig) -> tuple[Rig, tuple[LensConversion, ...]]:
+def blender_tracking_rig(rig: Rig, overscan: float = 1.1) -> tuple[Rig, tuple[LensConversion, ...]]:
     """The rig with each lens Blender cannot hold replaced by the nearest one it can, and what that cost.
 
-    ``opencv`` with rational or thin-prism terms becomes the nearest
-    ``opencv`` lens of ``k1, k2, p1, p2, k3`` (Blender's BROWN), a
-    ``division`` lens with an aspect the nearest round one (NUKE), a lens
-    with a correction field the nearest of its own kind without it. Each
-    replaced camera's :class:`~camcal.io.conversion.LensConversion` gives
-    the largest pixel distance between the two lenses over the frame.
+    ``opencv`` with rational or thin-prism terms and 3DE's lenses become
+    the nearest ``opencv`` lens of ``k1, k2, p1, p2, k3`` (Blender's BROWN;
+    3DE4 Radial Fisheye the nearest ``kannala-brandt``, for Cycles' fisheye
+    camera), a ``division`` lens with an aspect the nearest round one
+    (NUKE), a lens with a correction field the nearest of its own kind
+    without it (:func:`camcal.io.conversion.refit_camera`). Each replaced
+    camera's :class:`~camcal.io.conversion.LensConversion` gives the largest
+    pixel distance between the two lenses over the frame and the refit's
+    figures (inside the image and over the border of ``overscan``, the
+    factor the add-on's distortion compositor renders with, which the fit
+    covers as well).
     """
     cameras, conversions = [], []
     for camera in rig.cameras:
@@ -152,9 +161,10 @@ def blender_tracking_rig(rig: Rig) -> tuple[Rig, tuple[LensConversion, ...]]:
             cameras.append(camera)
             continue
         fit = _NEAREST[distortion.model]
-        converted, conversion = nearest_camera(camera, _tracking_holds, fit, _BLENDER_NAMES[fit], skew=True)
+        converted, refit = refit_camera(camera, fit, overscan=overscan, fixed=_HELD.get(fit))
         cameras.append(converted)
-        conversions.append(conversion)
+        conversions.append(LensConversion(camera.name, distortion.model, _BLENDER_NAMES[fit], False,
+                                          max_pixel_residual(camera, converted), refit=refit))
     return Rig(tuple(cameras), rig.units, rig.frames, rig.points, rig.provenance), tuple(conversions)
 
 
@@ -229,8 +239,8 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
         raise CamcalError(f"output folder does not exist: {blend.parent}")
     options.setdefault("aux_directory", str(blend.parent / f"{blend.stem}_lens"))
     source = Rig.load(rig)
-    tracking, conversions = blender_tracking_rig(source)
-    exact_maps = [c.camera for c in conversions if not source.camera(c.camera).distortion.is_fisheye]
+    tracking, conversions = blender_tracking_rig(source, options.get("overscan", 1.1))
+    exact_maps = [c.camera for c in conversions if not tracking.camera(c.camera).distortion.is_fisheye]
     if exact_maps and options.get("distortion", True) and options.get("compositor", True):
         options["uv_maps"] = write_blender_uv_maps(source, exact_maps, options["aux_directory"],
                                                    options.get("overscan", 1.1))

@@ -40,13 +40,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
-from camcal.model.distortion import Distortion
+from camcal.model.distortion import FISHEYE_MODELS, Distortion
 from camcal.geometry.undistort import UndistortedView, Undistorter
 from camcal.model.rig import Camera
 
 __all__ = ["DEFAULT_OVERSCAN", "STMaps", "overscan_border", "st_from_pixels", "pixels_from_st", "st_of_distorted_grid",
            "undistorted_grid", "make_stmaps"]
 
+#: The models :func:`_distort_arrays` evaluates on a grid; the others (3DE's) go through ``Distortion.distort``.
+_VECTORISED_MODELS = ("none", "polynomial", "opencv", "division", *FISHEYE_MODELS)
 #: The overscan factor when none is given.
 DEFAULT_OVERSCAN = 1.1
 #: Rows per block of the map computations (a block's arrays stay in the CPU's cache).
@@ -281,9 +283,10 @@ def st_of_distorted_grid(distortion: Distortion, K: NDArray, xs: NDArray, ys: ND
     Shape (len(ys), len(xs), 3), a view of channel planes.
 
     Polynomial lenses (``polynomial``, ``opencv`` without rational terms) as
-    matrix products (:func:`_st_polynomial`); the others in float32 blocks
-    (:func:`_distort_arrays`), a lens with a correction field through
-    :meth:`Distortion.distort` itself; in blocks of rows on every core.
+    matrix products (:func:`_st_polynomial`); the other OpenCV, division and
+    fisheye lenses in float32 blocks (:func:`_distort_arrays`); 3DE's lenses
+    and a lens with a correction field through :meth:`Distortion.distort`
+    itself; in blocks of rows on every core.
     """
     K = np.asarray(K, dtype=np.float64)
     # channel planes, each written contiguously; zeros from the allocator, so blue's pages are never touched here
@@ -294,9 +297,10 @@ def st_of_distorted_grid(distortion: Distortion, K: NDArray, xs: NDArray, ys: ND
         return np.moveaxis(planes, 0, -1)
     xs32, ys32 = np.asarray(xs, dtype=np.float32), np.asarray(ys, dtype=np.float32)
     width, height = source_size
+    generic = distortion.correction is not None or distortion.model not in _VECTORISED_MODELS
 
     def work(start: int, stop: int) -> None:
-        if distortion.correction is not None:
+        if generic:
             u, v = np.meshgrid(np.asarray(xs, dtype=np.float64), np.asarray(ys[start:stop], dtype=np.float64))
             points = distortion.distort(np.stack([u.ravel(), v.ravel()], axis=1), K)
             X, Y = (points[:, i].reshape(u.shape) for i in (0, 1))

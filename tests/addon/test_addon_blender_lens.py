@@ -167,17 +167,20 @@ def test_camcal_side_refit_of_the_lenses_blender_cannot_hold(addon, tmp_path):
     size = (320, 240)
     K = _K(size)
     aspect = {"model": "division", "params": {"lambda": -3e-6, "aspect": 1.02}}
+    tde = {"model": "3de4-radial-deg4", "params": {"c2": -0.04, "u2": 0.004, "c4": 0.006,
+                                                   "filmback_width_px": float(size[0]),
+                                                   "filmback_height_px": float(size[1])}}
     rig = Rig.load(write_rig(tmp_path / "mixed.rig.json", [
         camera_dict("rational", size, K, distortion=RATIONAL), camera_dict("plain", size, K, distortion=OPENCV),
-        camera_dict("oval", size, K, distortion=aspect)]))
+        camera_dict("oval", size, K, distortion=aspect), camera_dict("tde", size, K, distortion=tde)]))
     tracking, conversions = blender_tracking_rig(rig)
     assert tracking.camera("plain") == rig.camera("plain")
-    assert [c.camera for c in conversions] == ["rational", "oval"]
+    assert [c.camera for c in conversions] == ["rational", "oval", "tde"]
     for conversion in conversions:
         source, fitted = rig.camera(conversion.camera), tracking.camera(conversion.camera)
+        print(conversion.describe())
         assert not conversion.exact and conversion.max_px == max_pixel_residual(source, fitted)
         assert 1e-4 < conversion.max_px < 1.0 and "max residual" in conversion.describe()
-        print(conversion.describe())
         rig_lens = addon.rigfile.Distortion(fitted.distortion.model, dict(fitted.distortion.params),
                                             fitted.distortion.center or (K[0, 2], K[1, 2]))
         assert addon.tracking.blender_lens(rig_lens, fitted.K.tolist(), size).exact

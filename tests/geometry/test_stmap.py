@@ -176,15 +176,19 @@ def test_undistort_with_1_25_overscan_then_redistort_is_the_identity(name):
     assert error.max() < 0.01
 
 
-@pytest.mark.parametrize("name", list(ROUND_TRIP_LENSES) + ["polynomial", "opencv-rational", "none"])
+@pytest.mark.parametrize("name", list(ROUND_TRIP_LENSES) + ["polynomial", "opencv-rational", "none", "3de4-radial"])
 def test_vectorised_maps_equal_the_lens_model(name):
-    """The fast grid paths equal camcal's own Distortion.distort / undistort on every pixel (the first in float32)."""
+    """The fast grid paths equal camcal's own Distortion.distort / undistort on every pixel (the first in float32);
+    3DE's lenses take the generic path."""
     from camcal.geometry.stmap import undistorted_grid, st_of_distorted_grid
 
     lenses = {"polynomial": Distortion("polynomial", {"k1": -0.2, "k2": 0.05, "k3": -0.01}),
               "opencv-rational": Distortion("opencv", {"k1": -0.2, "k2": 0.05, "p1": 1e-3, "p2": -2e-3, "k3": 0.0,
                                                        "k4": 0.1, "s1": 2e-3, "s4": -1e-3}),
-              "none": Distortion.none()}
+              "none": Distortion.none(),
+              "3de4-radial": Distortion("3de4-radial-deg4", {"c2": -0.05, "u2": 0.01, "c4": 0.01,
+                                                            "filmback_width_px": float(SIZE[0]),
+                                                            "filmback_height_px": float(SIZE[1])})}
     cam = lens_camera(name) if name in ROUND_TRIP_LENSES else example_camera(
         image_size=SIZE, fx=300.0, fy=297.0, principal_point=(161.3, 118.2), distortion=lenses[name])
     xs, ys = np.arange(-40.0, SIZE[0] + 40), np.arange(-30.0, SIZE[1] + 30)
