@@ -33,6 +33,7 @@ __all__ = [
     "DEFAULT_OVERSCAN",
     "EXACT_FAMILIES",
     "FORMAT_FAMILIES",
+    "LENSFUN_FAMILIES",
     "TDE_FAMILIES",
     "LensConversion",
     "ExportResult",
@@ -82,6 +83,15 @@ FORMAT_FAMILIES: Mapping[str, tuple[str, ...]] = MappingProxyType({
     "usd": ("opencv", "division", "kannala-brandt", "kannala-brandt-thin-prism", *TDE_FAMILIES),
     "nuke": ("3de4-radial-deg4", "3de-classic", "3de4-anamorphic-deg4", "3de4-fisheye-deg8"),
     "3de": ("3de4-radial-deg4", "3de-classic", "3de4-anamorphic-deg4", "3de4-fisheye-deg8"),
+    "lensfun": ("polynomial",),
+})
+
+#: Lensfun's distortion models -> the camcal polynomial terms each holds (about the principal point, with
+#: square pixels): ``poly3`` is ``k1`` alone, ``poly5`` ``k1 k2``; :mod:`camcal.io.lensfun` refits the others
+#: (:func:`refit_camera` with the remaining terms held at zero) and maps the result to Lensfun's normalisation.
+LENSFUN_FAMILIES: Mapping[str, tuple[str, ...]] = MappingProxyType({
+    "poly3": ("k1",),
+    "poly5": ("k1", "k2"),
 })
 
 #: What the table of :func:`exactness_table` cannot say in one word per cell.
@@ -90,6 +100,7 @@ _FORMAT_NOTES = (
     "colmap: no pinhole thin prism; a division lens centred on the principal point",
     "usd: camcal's own lens attributes, read back by camcal",
     "nuke: LensDistortion (3DEqualizer preset) and LDPK nodes; its ST-maps hold every lens exactly",
+    "lensfun: poly3 (k1) or poly5 (k1 k2) with square pixels; a polynomial k3 or non-square pixels are refit",
 )
 
 

@@ -58,6 +58,7 @@ _MODULES: Mapping[str, str] = MappingProxyType({
     "usd": "camcal.io.usd",
     "nuke": "camcal.io.nuke",
     "3de": "camcal.io.tde",
+    "lensfun": "camcal.io.lensfun",
 })
 
 #: The formats ``camcal rig export / import`` know.

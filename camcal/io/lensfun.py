@@ -1,0 +1,389 @@
+"""Lensfun lens database XML: camcal cameras as Lensfun lens entries, and back.
+
+Lensfun (the lens correction library darktable, RawTherapee, Hugin and
+GIMP read) keeps lenses in XML files of ``<lens>`` entries; camcal writes
+one entry per camera::
+
+    <lensdatabase version="1">
+      <lens>
+        <maker>camcal</maker>
+        <model>cam0</model>
+        <mount>Generic</mount>
+        <center x="..." y="..."/>
+        <cropfactor>1.047</cropfactor>
+        <aspect-ratio>1.778</aspect-ratio>
+        <calibration>
+          <distortion model="poly3" focal="35.2" k1="-0.0123"/>
+        </calibration>
+      </lens>
+      <!-- camcal image_size 1920 1080 -->
+    </lensdatabase>
+
+Lensfun's models (``lfLens::GetDistortionModelDesc``, lens.cpp) map the
+undistorted radius ``Ru`` to the distorted ``Rd`` in its normalised
+coordinates::
+
+    poly3   Rd = Ru (1 - k1 + k1 Ru^2)
+    poly5   Rd = Ru (1 + k1 Ru^2 + k2 Ru^4)
+    ptlens  Rd = Ru (a Ru^3 + b Ru^2 + c Ru + 1 - a - b - c)
+
+The normalisation (``lfModifier::lfModifier``, modifier.cpp, Lensfun 0.3.4
+and later): pixel coordinates are pixel indices (the top-left pixel's centre
+is ``(0, 0)``, as in camcal), the origin is the image centre
+``((W - 1) / 2, (H - 1) / 2)`` moved by the lens' ``<center>`` (in the same
+units), and the unit ``s = (min(W, H) - 1) / 2`` pixels, half the shorter
+side measured between the extreme pixel centres, when the image's crop
+factor and aspect ratio ``(max(W, H) - 1) / (min(W, H) - 1)`` are the
+calibration's (else Lensfun rescales through the sensor diagonal). The
+undistorted image is a pinhole image with focal length ``F`` pixels;
+Lensfun's own relation (the unit of its geometry conversions) is
+``F = focal_mm * s / m``, ``m = 21.633 / sqrt(aspect^2 + 1) / cropfactor``
+the unit in millimetres, so the ``focal`` written is ``F``'s, in mm.
+For ``poly3`` that is Hugin's focal length (``F (1 - k1)`` is the lens'
+pinhole focal length at the centre, ``get_hugin_focal_correction``).
+
+A camcal ``polynomial`` lens ``x_d = x_u (1 + k1 r^2 + k2 r^4)`` about the
+principal point with square pixels (focal ``f`` pixels) is exactly:
+
+* ``poly5``: ``F = f``, ``k1' = k1 s^2 / f^2``, ``k2' = k2 s^4 / f^4``;
+* ``poly3`` (``k2 = 0``): ``k1' / (1 - k1')^3 = k1 s^2 / f^2``, ``F = f / (1 - k1')``.
+
+Any other camcal lens (opencv, division, fisheye, a polynomial ``k3``,
+non-square pixels or skew) is refitted to both through
+:func:`camcal.io.conversion.refit_camera` (``k2`` and ``k3``, or ``k3``,
+held at zero; the principal point kept and written as ``<center>``;
+``fx`` and ``fy`` replaced by their geometric mean), and the one with the
+smaller RMS residual inside the image written (``poly3`` unless ``poly5``
+is better by more than 0.01 px); both residuals are printed. ``ptlens``
+has odd powers of the radius no camcal lens has: it is read (with
+``a = c = 0`` it is ``poly3`` with ``k1 = b``), never written.
+
+The crop factor is the full-frame diagonal (43.27 mm) over the sensor's
+(``sensor_width_mm``, 36 mm without one, or ``crop_factor``). A Lensfun
+file holds no image size: camcal writes it in a comment
+(``<!-- camcal image_size W H -->``) that :func:`load` reads.
+
+References
+----------
+Lensfun, libs/lensfun/lens.cpp (``GetDistortionModelDesc``), modifier.cpp
+(the coordinate systems, ``lfModifier::lfModifier``), database.cpp (the
+elements read), https://lensfun.github.io/manual/latest/ (database format).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import xml.etree.ElementTree as ElementTree
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import scipy.optimize
+
+from camcal.base.atomic import atomic_write_text
+from camcal.base.errors import CamcalError
+from camcal.base.limits import FILE_BYTES, check_file_size
+from camcal.io.conversion import (
+    LENSFUN_FAMILIES,
+    ExportResult,
+    ImportResult,
+    LensConversion,
+    Refit,
+    refit_camera,
+    select_cameras,
+)
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera, Rig
+
+__all__ = ["DEFAULT_SENSOR_WIDTH_MM", "LensfunLens", "crop_factor", "export", "lensfun_lens", "load"]
+
+#: Sensor width of cameras without ``sensor_width_mm``.
+DEFAULT_SENSOR_WIDTH_MM = 36.0
+#: Full frame's diagonal in mm, the crop factor's reference.
+_FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
+#: ``poly5`` is written instead of ``poly3`` only when its RMS residual is smaller by more than this (px).
+_POLY5_GAIN_PX = 0.01
+_SIZE_COMMENT = re.compile(r"^\s*camcal image_size\s+(\d+)\s+(\d+)\s*$")
+
+
+class LensfunLens:
+    """One Lensfun distortion entry and the normalisation it lives in.
+
+    Attributes
+    ----------
+    model : str
+        ``poly3`` or ``poly5`` (``ptlens`` when read).
+    terms : dict of str to float
+        ``k1`` (``k2``; ``a b c``).
+    focal_mm : float
+        The entry's ``focal``: the undistorted image's focal length.
+    crop : float
+    aspect : float
+        ``(max(W, H) - 1) / (min(W, H) - 1)``.
+    center : (float, float)
+        The lens centre's offset from the image centre in normalised units.
+    """
+
+    def __init__(self, model: str, terms: Mapping[str, float], focal_mm: float, crop: float, aspect: float,
+                 center: tuple[float, float]) -> None:
+        self.model, self.terms, self.focal_mm = model, dict(terms), float(focal_mm)
+        self.crop, self.aspect, self.center = float(crop), float(aspect), (float(center[0]), float(center[1]))
+
+    def unit_mm(self) -> float:
+        """Lensfun's ``NormalizedInMillimeters``: the normalised unit in mm."""
+        return _FULL_FRAME_DIAGONAL_MM / 2.0 / math.sqrt(self.aspect**2 + 1.0) / self.crop
+
+
+def _unit_px(image_size: tuple[int, int]) -> float:
+    return (min(image_size) - 1) / 2.0
+
+
+def _aspect(image_size: tuple[int, int]) -> float:
+    width, height = (max(image_size) - 1, min(image_size) - 1)
+    if height < 1:
+        raise CamcalError(f"a Lensfun lens needs an image of at least 2x2 pixels, got {image_size}")
+    return width / height
+
+
+def crop_factor(camera: Camera, sensor_width_mm: float | None = None) -> float:
+    """Full frame's diagonal over the sensor's (``sensor_width_mm`` or the camera's, else 36 mm wide)."""
+    width_mm = sensor_width_mm or camera.sensor_width_mm or DEFAULT_SENSOR_WIDTH_MM
+    width, height = camera.image_size
+    return _FULL_FRAME_DIAGONAL_MM / (width_mm * math.hypot(width, height) / width)
+
+
+def _square_matrix(camera: Camera) -> np.ndarray:
+    """``camera.K`` with square pixels (the geometric mean of ``fx`` and ``fy``) and no skew."""
+    K = np.array(camera.K, dtype=np.float64)
+    focal = math.sqrt(K[0, 0] * K[1, 1])
+    K[0, 0] = K[1, 1] = focal
+    K[0, 1] = 0.0
+    return K
+
+
+def lensfun_lens(polynomial: Camera, model: str, crop: float) -> LensfunLens:
+    """A camcal camera with a ``polynomial`` lens, square pixels and no skew, as a Lensfun entry (exact).
+
+    Raises
+    ------
+    CamcalError
+        The lens has terms the model does not hold, or barrel distortion
+        beyond ``poly3``'s range (``k1 s^2 / f^2 < -4 / 27``).
+    """
+    K, params = polynomial.K, polynomial.distortion.params
+    held = LENSFUN_FAMILIES[model]
+    if polynomial.distortion.model not in ("none", "polynomial") or K[0, 0] != K[1, 1] or K[0, 1] != 0.0 or any(
+            params.get(name, 0.0) != 0.0 for name in ("k1", "k2", "k3") if name not in held):
+        raise CamcalError(f"camera {polynomial.name!r}: Lensfun {model} holds a polynomial lens with "
+                          f"{' '.join(held)} and square pixels only")
+    focal, unit = K[0, 0], _unit_px(polynomial.image_size)
+    k1, k2 = params.get("k1", 0.0) * unit**2 / focal**2, params.get("k2", 0.0) * unit**4 / focal**4
+    if model == "poly5":
+        terms, undistorted_focal = {"k1": k1, "k2": k2}, focal
+    else:  # k1' / (1 - k1')^3 = k1 s^2 / f^2, increasing for k1' > -1/2, where it is -4/27
+        if k1 <= -4.0 / 27.0:
+            raise CamcalError(f"camera {polynomial.name!r}: its barrel distortion is beyond Lensfun poly3's range")
+        k1 = 0.0 if k1 == 0.0 else scipy.optimize.brentq(lambda t: t / (1.0 - t) ** 3 - k1, -0.5, 1.0 - 1e-12,
+                                                         xtol=1e-15, rtol=1e-15)
+        terms, undistorted_focal = {"k1": k1}, focal / (1.0 - k1)
+    width, height = polynomial.image_size
+    centre = (K[0, 2] - (width - 1) / 2.0) / unit, (K[1, 2] - (height - 1) / 2.0) / unit
+    lens = LensfunLens(model, terms, 0.0, crop, _aspect(polynomial.image_size), centre)
+    lens.focal_mm = undistorted_focal * lens.unit_mm() / unit
+    return lens
+
+
+def camera_of(lens: LensfunLens, image_size: tuple[int, int], name: str) -> Camera:
+    """The camcal camera (``polynomial`` lens) a Lensfun entry describes at ``image_size`` (exact).
+
+    ``ptlens`` needs ``a = c = 0`` (it is then ``poly3`` with ``k1 = b``).
+    """
+    unit = _unit_px(image_size)
+    undistorted_focal = lens.focal_mm * unit / lens.unit_mm()
+    terms = lens.terms
+    if lens.model == "ptlens":
+        if terms.get("a", 0.0) or terms.get("c", 0.0):
+            raise CamcalError(f"lens {name!r}: a ptlens lens with a or c non-zero has no camcal model "
+                              "(odd powers of the radius)")
+        terms = {"k1": terms.get("b", 0.0)}
+    k1 = terms.get("k1", 0.0)
+    if lens.model == "poly5":
+        focal, params = undistorted_focal, {"k1": k1 * undistorted_focal**2 / unit**2,
+                                            "k2": terms.get("k2", 0.0) * undistorted_focal**4 / unit**4, "k3": 0.0}
+    else:
+        focal = undistorted_focal * (1.0 - k1)
+        params = {"k1": k1 * undistorted_focal**2 / (unit**2 * (1.0 - k1)), "k2": 0.0, "k3": 0.0}
+    width, height = image_size
+    K = np.array([[focal, 0.0, (width - 1) / 2.0 + lens.center[0] * unit],
+                  [0.0, focal, (height - 1) / 2.0 + lens.center[1] * unit], [0.0, 0.0, 1.0]])
+    sensor_width_mm = _FULL_FRAME_DIAGONAL_MM / lens.crop * width / math.hypot(width, height)
+    return Camera(name, image_size, K, Distortion("polynomial", params), np.eye(3), np.zeros(3),
+                  sensor_width_mm=sensor_width_mm)
+
+
+def _best_fit(camera: Camera, crop: float) -> tuple[LensfunLens, Refit, dict[str, Refit]]:
+    """The Lensfun model of smaller residual (``poly3`` unless ``poly5`` gains > 0.01 px RMS) and both refits."""
+    K = _square_matrix(camera)
+    fitted: dict[str, tuple[LensfunLens, Refit]] = {}
+    for model, held in LENSFUN_FAMILIES.items():
+        fixed = {name: 0.0 for name in ("k1", "k2", "k3") if name not in held}
+        converted, refit = refit_camera(camera, "polynomial", K=K, fixed=fixed)
+        try:
+            fitted[model] = lensfun_lens(converted, model, crop), refit
+        except CamcalError:
+            continue  # beyond poly3's range: poly5 is left
+    if not fitted:
+        raise CamcalError(f"camera {camera.name!r}: no Lensfun model holds its lens")
+    model = "poly3" if "poly3" in fitted and (
+        "poly5" not in fitted or fitted["poly3"][1].rms_px <= fitted["poly5"][1].rms_px + _POLY5_GAIN_PX) else "poly5"
+    return fitted[model][0], fitted[model][1], {name: refit for name, (_, refit) in fitted.items()}
+
+
+def _number(value: float) -> str:
+    return f"{value:.9g}"
+
+
+def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_path: Path | None = None,
+           maker: str = "camcal", mount: str = "Generic", sensor_width_mm: float | None = None) -> ExportResult:
+    """Write each camera's lens as a Lensfun ``<lens>`` entry (see the module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+    out : Path
+        The ``.xml`` file.
+    cameras : sequence of str, optional
+    rig_path : Path, optional
+        Unused (a Lensfun file holds no points).
+    maker, mount : str
+        The entries' ``<maker>`` and ``<mount>`` (``<model>`` is the camera's name).
+    sensor_width_mm : float, optional
+        Sensor width for the crop factor, instead of the cameras'.
+
+    Returns
+    -------
+    ExportResult
+        One conversion per camera with the written model's residual (max
+        and RMS inside the image and over the overscan border); the notes
+        give both models' RMS.
+    """
+    if out.suffix.lower() != ".xml":
+        raise CamcalError(f"a Lensfun database file must end in .xml, got {out.name!r}")
+    chosen = select_cameras(rig, cameras)
+    root = ElementTree.Element("lensdatabase", version="1")
+    conversions, notes = [], []
+    sizes = {camera.image_size for camera in chosen}
+    if len(sizes) != 1:
+        raise CamcalError("a Lensfun file from camcal holds cameras of one image size; export them one by one "
+                          f"(--camera): sizes {sorted(sizes)}")
+    for camera in chosen:
+        lens, refit, refits = _best_fit(camera, crop_factor(camera, sensor_width_mm))
+        entry = ElementTree.SubElement(root, "lens")
+        for tag, text in (("maker", maker), ("model", camera.name), ("mount", mount)):
+            ElementTree.SubElement(entry, tag).text = text
+        if lens.center != (0.0, 0.0):
+            ElementTree.SubElement(entry, "center", x=_number(lens.center[0]), y=_number(lens.center[1]))
+        ElementTree.SubElement(entry, "cropfactor").text = _number(lens.crop)
+        ElementTree.SubElement(entry, "aspect-ratio").text = _number(lens.aspect)
+        calibration = ElementTree.SubElement(entry, "calibration")
+        ElementTree.SubElement(calibration, "distortion", model=lens.model, focal=_number(lens.focal_mm),
+                               **{name: _number(value) for name, value in lens.terms.items()})
+        source = f"{camera.distortion.model}{' with skew' if camera.K[0, 1] else ''}"
+        conversions.append(LensConversion(camera.name, source, f"Lensfun {lens.model}", refit.exact, refit.max_px,
+                                          "refit", refit))
+        notes.append(f"camera {camera.name!r}: RMS residual inside the image " + ", ".join(
+            f"{name} {'exact' if fit.exact else f'{fit.rms_px:.3g} px'}" for name, fit in refits.items())
+            + f"; {lens.model} written")
+    width, height = sizes.pop()
+    root.append(ElementTree.Comment(f" camcal image_size {width} {height} "))
+    ElementTree.indent(root)
+    atomic_write_text(out, '<?xml version="1.0" encoding="utf-8"?>\n' + ElementTree.tostring(root, "unicode") + "\n")
+    notes.append("a Lensfun lens holds no pose: the cameras' positions and orientations are not written")
+    return ExportResult((out,), tuple(conversions), tuple(notes))
+
+
+def _float(element: ElementTree.Element, name: str, what: str) -> float:
+    text = element.get(name) if name in element.attrib else element.text
+    try:
+        value = float(text if text is not None else "")
+    except ValueError:
+        raise CamcalError(f"{what} must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise CamcalError(f"{what} is not finite")
+    return value
+
+
+def load(path: Path, *, image_size: tuple[int, int] | None = None, focal_mm: float | None = None) -> ImportResult:
+    """Read a Lensfun database file's lenses as cameras (one per ``<lens>``, at one focal length).
+
+    Parameters
+    ----------
+    path : Path
+    image_size : (int, int), optional
+        Default: the size camcal wrote in the file's comment.
+    focal_mm : float, optional
+        The ``<distortion>`` entry of this ``focal`` (default: the lens'
+        only one).
+
+    Raises
+    ------
+    CamcalError
+        Not a Lensfun file, no image size, no distortion entry at the
+        focal length (or several and none chosen), an unknown model, or a
+        ``ptlens`` lens with odd terms.
+    """
+    check_file_size(path, FILE_BYTES, "Lensfun file")
+    try:
+        root = ElementTree.fromstring(path.read_text(errors="replace"))  # the comments are dropped
+        comments = re.findall(r"<!--(.*?)-->", path.read_text(errors="replace"), flags=re.S)
+    except ElementTree.ParseError as error:
+        raise CamcalError(f"not XML: {error}") from None
+    if root.tag != "lensdatabase":
+        raise CamcalError(f"not a Lensfun database: its root element is <{root.tag}>, not <lensdatabase>")
+    for comment in comments:
+        match = _SIZE_COMMENT.match(comment)
+        if match and image_size is None:
+            image_size = (int(match.group(1)), int(match.group(2)))
+    if image_size is None:
+        raise CamcalError("the Lensfun file holds no image size (Lensfun lenses have none): give it")
+    cameras, conversions = [], []
+    for entry in root.findall("lens"):
+        name = (entry.findtext("model") or "lens").strip()
+        crop_element, aspect_element = entry.find("cropfactor"), entry.find("aspect-ratio")
+        if crop_element is None:
+            raise CamcalError(f"lens {name!r} has no <cropfactor>")
+        crop = _float(crop_element, "", f"lens {name!r}: <cropfactor>")
+        aspect = 1.5  # Lensfun's default
+        if aspect_element is not None and aspect_element.text and ":" in aspect_element.text:
+            numerator, denominator = aspect_element.text.split(":", 1)
+            aspect = float(numerator) / float(denominator)
+        elif aspect_element is not None:
+            aspect = _float(aspect_element, "", f"lens {name!r}: <aspect-ratio>")
+        center_element = entry.find("center")
+        center = (0.0, 0.0) if center_element is None else (
+            _float(center_element, "x", f"lens {name!r}: <center x>"),
+            _float(center_element, "y", f"lens {name!r}: <center y>"))
+        entries = entry.findall("calibration/distortion")
+        if focal_mm is not None:
+            entries = [e for e in entries if _float(e, "focal", f"lens {name!r}: focal") == focal_mm]
+        if len(entries) != 1:
+            at = f" at {focal_mm:g} mm" if focal_mm is not None else ""
+            raise CamcalError(f"lens {name!r} has {len(entries)} distortion entries{at}; camcal reads one "
+                              "(name the focal length)")
+        [distortion] = entries
+        model = distortion.get("model")
+        names = {"poly3": ("k1",), "poly5": ("k1", "k2"), "ptlens": ("a", "b", "c")}
+        if model not in names:
+            raise CamcalError(f"lens {name!r}: unknown distortion model {model!r}, expected one of: "
+                              + ", ".join(names))
+        terms = {term: _float(distortion, term, f"lens {name!r}: {term}") if term in distortion.attrib else 0.0
+                 for term in names[model]}
+        lens = LensfunLens(model, terms, _float(distortion, "focal", f"lens {name!r}: focal"), crop, aspect, center)
+        camera = camera_of(lens, image_size, name)
+        cameras.append(camera)
+        conversions.append(LensConversion(name, f"Lensfun {model}", "polynomial", True))
+    if not cameras:
+        raise CamcalError("the Lensfun file holds no <lens>")
+    return ImportResult(Rig(tuple(cameras), units="unknown"), tuple(conversions),
+                        ("a Lensfun lens holds no pose: the cameras are at the origin",))
