@@ -152,3 +152,19 @@ def test_bad_input_one_line_nothing_written(tmp_path):
                       '<!-- camcal image_size 640 480 --></lensdatabase>')
     with pytest.raises(CamcalError, match="odd powers"):
         import_rig(ptlens, "lensfun")
+
+
+def test_the_cli_exports_and_reads_back_a_lensfun_file(tmp_path, capsys):
+    from camcal.cli import main
+
+    camera = _camera((640, 480), 500.0, "opencv", {"k1": -0.2, "k2": 0.04, "p1": 0.0, "p2": 0.0, "k3": 0.0})
+    rig_path = Rig((camera,)).save(tmp_path / "in.rig.json")
+    out = tmp_path / "lens.xml"
+    assert main(["rig", "export", str(rig_path), str(out), "--to", "lensfun"]) == 0
+    printed = capsys.readouterr().out
+    assert "Lensfun poly5" in printed and "RMS" in printed and f"wrote {out}" in printed
+    assert main(["rig", "import", str(out), "--from", "lensfun", "--out", str(tmp_path / "back.rig.json")]) == 0
+    back = Rig.load(tmp_path / "back.rig.json").cameras[0]
+    # the opencv k1 k2 lens is a polynomial k1 k2 one: poly5 holds it, and it comes back
+    assert back.distortion.params["k1"] == pytest.approx(-0.2, rel=1e-6)
+    assert back.distortion.params["k2"] == pytest.approx(0.04, rel=1e-6)
