@@ -42,21 +42,18 @@ the unit in millimetres, so the ``focal`` written is ``F``'s, in mm.
 For ``poly3`` that is Hugin's focal length (``F (1 - k1)`` is the lens'
 pinhole focal length at the centre, ``get_hugin_focal_correction``).
 
-A camcal ``polynomial`` lens ``x_d = x_u (1 + k1 r^2 + k2 r^4)`` about the
-principal point with square pixels (focal ``f`` pixels) is exactly:
-
-* ``poly5``: ``F = f``, ``k1' = k1 s^2 / f^2``, ``k2' = k2 s^4 / f^4``;
-* ``poly3`` (``k2 = 0``): ``k1' / (1 - k1')^3 = k1 s^2 / f^2``, ``F = f / (1 - k1')``.
-
-Any other camcal lens (opencv, division, fisheye, a polynomial ``k3``,
-non-square pixels or skew) is refitted to both through
-:func:`camcal.io.conversion.refit_camera` (``k2`` and ``k3``, or ``k3``,
-held at zero; the principal point kept and written as ``<center>``;
-``fx`` and ``fy`` replaced by their geometric mean), and the one with the
-smaller RMS residual inside the image written (``poly3`` unless ``poly5``
-is better by more than 0.01 px); both residuals are printed. ``ptlens``
-has odd powers of the radius no camcal lens has: it is read (with
-``a = c = 0`` it is ``poly3`` with ``k1 = b``), never written.
+A camcal ``polynomial`` lens about the principal point with square pixels
+is ``poly5`` exactly (``k3 = 0``), and ``poly3`` (``k2 = k3 = 0``; formulas
+in :func:`fit_lens`). Every other lens (opencv, division, fisheye, a
+polynomial ``k3``, non-square pixels or skew) is refitted to each model
+through :func:`camcal.io.conversion.refit_projection` (the core of
+:func:`~camcal.io.conversion.refit_camera`: its dense grid, weights and
+Levenberg-Marquardt, ``F`` and the terms fitted, the principal point kept
+and written as ``<center>``). The model written is the simplest (``poly3``,
+``poly5``, ``ptlens``) within 0.01 px RMS of the best; every model's
+residual inside the image is printed. ``ptlens`` has odd powers of the
+radius no camcal lens has: read back, it needs ``a = c = 0`` (``poly3``
+with ``k1 = b``).
 
 The crop factor is the full-frame diagonal (43.27 mm) over the sensor's
 (``sensor_width_mm``, 36 mm without one, or ``crop_factor``). A Lensfun
@@ -75,35 +72,39 @@ from __future__ import annotations
 import math
 import re
 import xml.etree.ElementTree as ElementTree
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 import scipy.optimize
+from numpy.typing import NDArray
 
 from camcal.base.atomic import atomic_write_text
 from camcal.base.errors import CamcalError
 from camcal.base.limits import FILE_BYTES, check_file_size
 from camcal.io.conversion import (
-    LENSFUN_FAMILIES,
     ExportResult,
     ImportResult,
     LensConversion,
     Refit,
-    refit_camera,
+    projection_figures,
+    refit_projection,
     select_cameras,
 )
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig
 
-__all__ = ["DEFAULT_SENSOR_WIDTH_MM", "LensfunLens", "crop_factor", "export", "lensfun_lens", "load"]
+__all__ = ["DEFAULT_SENSOR_WIDTH_MM", "MODEL_TERMS", "LensfunLens", "camera_of", "crop_factor", "export", "fit_lens", "load",
+           "radius_ratio"]
 
 #: Sensor width of cameras without ``sensor_width_mm``.
 DEFAULT_SENSOR_WIDTH_MM = 36.0
 #: Full frame's diagonal in mm, the crop factor's reference.
 _FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
-#: ``poly5`` is written instead of ``poly3`` only when its RMS residual is smaller by more than this (px).
-_POLY5_GAIN_PX = 0.01
+#: A model with more terms is written only when its RMS residual is smaller by more than this (px).
+_SIMPLER_WITHIN_PX = 0.01
 _SIZE_COMMENT = re.compile(r"^\s*camcal image_size\s+(\d+)\s+(\d+)\s*$")
 
 
@@ -153,45 +154,104 @@ def crop_factor(camera: Camera, sensor_width_mm: float | None = None) -> float:
     return _FULL_FRAME_DIAGONAL_MM / (width_mm * math.hypot(width, height) / width)
 
 
-def _square_matrix(camera: Camera) -> np.ndarray:
-    """``camera.K`` with square pixels (the geometric mean of ``fx`` and ``fy``) and no skew."""
-    K = np.array(camera.K, dtype=np.float64)
-    focal = math.sqrt(K[0, 0] * K[1, 1])
-    K[0, 0] = K[1, 1] = focal
-    K[0, 1] = 0.0
-    return K
+#: Lensfun's distortion models and their terms, in the order a simpler one is preferred.
+MODEL_TERMS: Mapping[str, tuple[str, ...]] = MappingProxyType({
+    "poly3": ("k1",),
+    "poly5": ("k1", "k2"),
+    "ptlens": ("a", "b", "c"),
+})
 
 
-def lensfun_lens(polynomial: Camera, model: str, crop: float) -> LensfunLens:
-    """A camcal camera with a ``polynomial`` lens, square pixels and no skew, as a Lensfun entry (exact).
+def radius_ratio(model: str, terms: Sequence[float], ru: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Lensfun's ``Rd / Ru`` at the undistorted normalised radius ``ru`` (lens.cpp's model descriptions)."""
+    if model == "poly3":
+        [k1] = terms
+        return 1.0 - k1 + k1 * ru**2
+    if model == "poly5":
+        k1, k2 = terms
+        return 1.0 + k1 * ru**2 + k2 * ru**4
+    a, b, c = terms
+    return a * ru**3 + b * ru**2 + c * ru + 1.0 - a - b - c
 
-    Raises
-    ------
-    CamcalError
-        The lens has terms the model does not hold, or barrel distortion
-        beyond ``poly3``'s range (``k1 s^2 / f^2 < -4 / 27``).
+
+def _projector(model: str, centre: NDArray[np.float64],
+               unit: float) -> Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]:
+    """``project(vector, rays)``: distorted pixels of a Lensfun lens, ``vector`` its undistorted focal ``F``
+    (pixels) and terms, about the lens centre ``centre`` (pixels), ``unit`` pixels to the normalised unit."""
+    def project(vector: NDArray[np.float64], rays: NDArray[np.float64]) -> NDArray[np.float64]:
+        depth = rays[:, 2:3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            offset = vector[0] * np.where(depth > 0.0, rays[:, :2] / depth, np.nan)
+        ratio = radius_ratio(model, vector[1:], np.linalg.norm(offset, axis=1) / unit)
+        return centre + offset * ratio[:, None]
+
+    return project
+
+
+def _exact_lens(camera: Camera, model: str, crop: float) -> LensfunLens | None:
+    """The Lensfun lens of ``model`` that is ``camera``'s polynomial lens exactly, or None when there is none.
+
+    Square pixels, no skew and ``x_d = x_u (1 + k1 r^2 + k2 r^4)``: ``poly5``
+    with ``F = f``, ``k1' = k1 s^2 / f^2``, ``k2' = k2 s^4 / f^4``; ``poly3``
+    (``k2 = 0``) with ``k1' / (1 - k1')^3 = k1 s^2 / f^2`` and
+    ``F = f / (1 - k1')`` (increasing in ``k1' > -1/2``, where it is ``-4/27``).
     """
-    K, params = polynomial.K, polynomial.distortion.params
-    held = LENSFUN_FAMILIES[model]
-    if polynomial.distortion.model not in ("none", "polynomial") or K[0, 0] != K[1, 1] or K[0, 1] != 0.0 or any(
-            params.get(name, 0.0) != 0.0 for name in ("k1", "k2", "k3") if name not in held):
-        raise CamcalError(f"camera {polynomial.name!r}: Lensfun {model} holds a polynomial lens with "
-                          f"{' '.join(held)} and square pixels only")
-    focal, unit = K[0, 0], _unit_px(polynomial.image_size)
+    K, lens = camera.K, camera.distortion
+    params = lens.params
+    if (lens.has_correction or lens.model not in ("none", "polynomial") or K[0, 0] != K[1, 1] or K[0, 1] != 0.0
+            or model == "ptlens" or params.get("k3", 0.0) != 0.0 or (model == "poly3" and params.get("k2", 0.0))):
+        return None
+    focal, unit = K[0, 0], _unit_px(camera.image_size)
     k1, k2 = params.get("k1", 0.0) * unit**2 / focal**2, params.get("k2", 0.0) * unit**4 / focal**4
     if model == "poly5":
         terms, undistorted_focal = {"k1": k1, "k2": k2}, focal
-    else:  # k1' / (1 - k1')^3 = k1 s^2 / f^2, increasing for k1' > -1/2, where it is -4/27
+    else:
         if k1 <= -4.0 / 27.0:
-            raise CamcalError(f"camera {polynomial.name!r}: its barrel distortion is beyond Lensfun poly3's range")
+            return None
         k1 = 0.0 if k1 == 0.0 else scipy.optimize.brentq(lambda t: t / (1.0 - t) ** 3 - k1, -0.5, 1.0 - 1e-12,
                                                          xtol=1e-15, rtol=1e-15)
         terms, undistorted_focal = {"k1": k1}, focal / (1.0 - k1)
-    width, height = polynomial.image_size
-    centre = (K[0, 2] - (width - 1) / 2.0) / unit, (K[1, 2] - (height - 1) / 2.0) / unit
-    lens = LensfunLens(model, terms, 0.0, crop, _aspect(polynomial.image_size), centre)
+    return _lens(camera, model, terms, undistorted_focal, crop)
+
+
+def _lens(camera: Camera, model: str, terms: Mapping[str, float], undistorted_focal: float,
+          crop: float) -> LensfunLens:
+    """A Lensfun entry about ``camera``'s principal point with undistorted focal ``undistorted_focal`` pixels."""
+    width, height = camera.image_size
+    unit = _unit_px(camera.image_size)
+    centre = (camera.K[0, 2] - (width - 1) / 2.0) / unit, (camera.K[1, 2] - (height - 1) / 2.0) / unit
+    lens = LensfunLens(model, terms, 0.0, crop, _aspect(camera.image_size), centre)
     lens.focal_mm = undistorted_focal * lens.unit_mm() / unit
     return lens
+
+
+def fit_lens(camera: Camera, model: str, crop: float) -> tuple[LensfunLens, Refit]:
+    """``camera``'s lens in a Lensfun model: exact where the model holds it, else refitted.
+
+    The refit (:func:`camcal.io.conversion.refit_projection`, the core of
+    :func:`~camcal.io.conversion.refit_camera`) fits the undistorted focal
+    length ``F`` and the model's terms about the principal point (the lens
+    centre Lensfun holds); non-square pixels and skew, which Lensfun has
+    not, are part of the residual.
+    """
+    unit = _unit_px(camera.image_size)
+    project = _projector(model, camera.K[:2, 2].astype(np.float64), unit)
+    exact = _exact_lens(camera, model, crop)
+    if exact is not None:
+        vector = np.array([exact.focal_mm * unit / exact.unit_mm(), *exact.terms.values()])
+        refit = projection_figures(camera, lambda rays: project(vector, rays), model)
+        return exact, replace(refit, exact=True)
+    start = [math.sqrt(camera.K[0, 0] * camera.K[1, 1]), *[0.0] * len(MODEL_TERMS[model])]
+    vector, refit = refit_projection(camera, model, project, start)
+    return _lens(camera, model, dict(zip(MODEL_TERMS[model], (float(v) for v in vector[1:]))), vector[0], crop), refit
+
+
+def _best_fit(camera: Camera, crop: float) -> tuple[LensfunLens, Refit, dict[str, Refit]]:
+    """The simplest Lensfun model within 0.01 px RMS of the best one, and every model's refit."""
+    fitted = {model: fit_lens(camera, model, crop) for model in MODEL_TERMS}
+    best = min(refit.rms_px for _, refit in fitted.values())
+    model = next(name for name, (_, refit) in fitted.items() if refit.rms_px <= best + _SIMPLER_WITHIN_PX)
+    return fitted[model][0], fitted[model][1], {name: refit for name, (_, refit) in fitted.items()}
 
 
 def camera_of(lens: LensfunLens, image_size: tuple[int, int], name: str) -> Camera:
@@ -220,24 +280,6 @@ def camera_of(lens: LensfunLens, image_size: tuple[int, int], name: str) -> Came
     sensor_width_mm = _FULL_FRAME_DIAGONAL_MM / lens.crop * width / math.hypot(width, height)
     return Camera(name, image_size, K, Distortion("polynomial", params), np.eye(3), np.zeros(3),
                   sensor_width_mm=sensor_width_mm)
-
-
-def _best_fit(camera: Camera, crop: float) -> tuple[LensfunLens, Refit, dict[str, Refit]]:
-    """The Lensfun model of smaller residual (``poly3`` unless ``poly5`` gains > 0.01 px RMS) and both refits."""
-    K = _square_matrix(camera)
-    fitted: dict[str, tuple[LensfunLens, Refit]] = {}
-    for model, held in LENSFUN_FAMILIES.items():
-        fixed = {name: 0.0 for name in ("k1", "k2", "k3") if name not in held}
-        converted, refit = refit_camera(camera, "polynomial", K=K, fixed=fixed)
-        try:
-            fitted[model] = lensfun_lens(converted, model, crop), refit
-        except CamcalError:
-            continue  # beyond poly3's range: poly5 is left
-    if not fitted:
-        raise CamcalError(f"camera {camera.name!r}: no Lensfun model holds its lens")
-    model = "poly3" if "poly3" in fitted and (
-        "poly5" not in fitted or fitted["poly3"][1].rms_px <= fitted["poly5"][1].rms_px + _POLY5_GAIN_PX) else "poly5"
-    return fitted[model][0], fitted[model][1], {name: refit for name, (_, refit) in fitted.items()}
 
 
 def _number(value: float) -> str:
@@ -373,12 +415,11 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None, focal_mm: flo
                               "(name the focal length)")
         [distortion] = entries
         model = distortion.get("model")
-        names = {"poly3": ("k1",), "poly5": ("k1", "k2"), "ptlens": ("a", "b", "c")}
-        if model not in names:
+        if model not in MODEL_TERMS:
             raise CamcalError(f"lens {name!r}: unknown distortion model {model!r}, expected one of: "
-                              + ", ".join(names))
+                              + ", ".join(MODEL_TERMS))
         terms = {term: _float(distortion, term, f"lens {name!r}: {term}") if term in distortion.attrib else 0.0
-                 for term in names[model]}
+                 for term in MODEL_TERMS[model]}
         lens = LensfunLens(model, terms, _float(distortion, "focal", f"lens {name!r}: focal"), crop, aspect, center)
         camera = camera_of(lens, image_size, name)
         cameras.append(camera)

@@ -113,7 +113,7 @@ def test_a_lens_lensfun_does_not_hold_has_the_residual_the_export_printed(tmp_pa
     out, result = _export(tmp_path, camera)
     [conversion] = result.conversions
     assert not conversion.exact
-    assert "RMS" in conversion.describe() and conversion.target.startswith("Lensfun poly")
+    assert "RMS" in conversion.describe() and conversion.target.startswith("Lensfun ")
     view = _LensfunView(out, size)
     width, height = size
     grid = np.stack(np.meshgrid(np.linspace(0, width - 1, 41), np.linspace(0, height - 1, 31)), -1).reshape(-1, 2)
@@ -121,7 +121,7 @@ def test_a_lens_lensfun_does_not_hold_has_the_residual_the_export_printed(tmp_pa
     undistorted = view.centre + view.F * rays[:, :2] / rays[:, 2:]
     distance = np.linalg.norm(view.distorted(undistorted) - grid, axis=1)
     rms, largest = float(np.sqrt(np.mean(distance**2))), float(distance.max())
-    assert rms > 0.01  # a real residual, measured in Lensfun
+    assert rms > 0.005  # a real residual, measured in Lensfun
     assert rms == pytest.approx(conversion.refit.rms_px, rel=0.1, abs=0.005)
     assert largest == pytest.approx(conversion.refit.max_px, rel=0.1, abs=0.005)
 
