@@ -427,11 +427,8 @@ def residual_figures(source: Camera, target: Camera, overscan: float = DEFAULT_O
 
 def projection_figures(source: Camera, project: Callable[[NDArray[np.float64]], NDArray[np.float64]], family: str,
                        overscan: float = DEFAULT_OVERSCAN) -> Refit:
-    """:func:`residual_figures` of a lens given as its projection ``project(rays) -> distorted pixels``.
-
-    For a family camcal has no lens model of (Lensfun's ``ptlens``,
-    :mod:`camcal.io.lensfun`); ``project`` returns NaN where it images no ray.
-    """
+    """:func:`residual_figures` of a lens given as its projection ``project(rays) -> distorted pixels`` (NaN where
+    it images no ray), for a family camcal has no lens model of."""
     grid, inside = _dense_grid(source.image_size, overscan)
     rays = source.distortion.rays_from_pixels(grid, source.K)
     seen = np.all(np.isfinite(rays), axis=1)
@@ -534,29 +531,9 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
 def refit_projection(camera: Camera, family: str,
                      project: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
                      start: Sequence[float], *, overscan: float = DEFAULT_OVERSCAN) -> tuple[NDArray[np.float64], Refit]:
-    """:func:`refit_camera` for a rectilinear family camcal has no lens model of, given as its projection.
-
-    Parameters
-    ----------
-    camera : Camera
-    family : str
-        The family's name (reported).
-    project : callable
-        ``project(vector, rays) -> distorted pixels`` (N, 2) of the family's
-        lens with parameters ``vector``.
-    start : sequence of float
-        The parameters the fit starts from (the family's neutral lens).
-    overscan : float
-
-    Returns
-    -------
-    (ndarray, Refit)
-        The fitted parameters and their figures (:func:`projection_figures`).
-
-    Notes
-    -----
-    The same fit as :func:`refit_camera`'s (its dense grid, weights and
-    Levenberg-Marquardt) in the distorted image.
+    """:func:`refit_camera`'s fit (its grid, weights and Levenberg-Marquardt) for a rectilinear family camcal
+    has no lens model of (Lensfun's, :mod:`camcal.io.lensfun`), given as ``project(vector, rays) -> distorted
+    pixels``; from ``start``, it returns the fitted vector and its :func:`projection_figures`.
     """
     grid, rays, weights = _fitting_grid(camera, family, overscan, False)
 

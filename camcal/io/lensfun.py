@@ -42,9 +42,11 @@ the unit in millimetres, so the ``focal`` written is ``F``'s, in mm.
 For ``poly3`` that is Hugin's focal length (``F (1 - k1)`` is the lens'
 pinhole focal length at the centre, ``get_hugin_focal_correction``).
 
-A camcal ``polynomial`` lens about the principal point with square pixels
-is ``poly5`` exactly (``k3 = 0``), and ``poly3`` (``k2 = k3 = 0``; formulas
-in :func:`fit_lens`). Every other lens (opencv, division, fisheye, a
+A camcal ``polynomial`` lens ``x_d = x_u (1 + k1 r^2 + k2 r^4)`` (focal
+``f`` pixels, square pixels) is exactly ``poly5`` with ``F = f``,
+``k1' = k1 s^2 / f^2``, ``k2' = k2 s^4 / f^4``, and with ``k2 = 0``
+``poly3`` with ``k1' / (1 - k1')^3 = k1 s^2 / f^2``, ``F = f / (1 - k1')``
+(for ``k1 s^2 / f^2 > -4/27``). Every other lens (opencv, division, fisheye, a
 polynomial ``k3``, non-square pixels or skew) is refitted to each model
 through :func:`camcal.io.conversion.refit_projection` (the core of
 :func:`~camcal.io.conversion.refit_camera`: its dense grid, weights and
@@ -55,8 +57,14 @@ residual inside the image is printed. ``ptlens`` has odd powers of the
 radius no camcal lens has: read back, it needs ``a = c = 0`` (``poly3``
 with ``k1 = b``).
 
+Checked against Lensfun 0.3.4 (lensfunpy 1.18.0). Lensfun 0.3.95 and later
+keep the corrected image's focal length: they scale it by ``d = 1 - a - b - c``
+(``1 - k1`` for ``poly3``), the same lens with a corrected image of focal
+``F d``.
+
 The crop factor is the full-frame diagonal (43.27 mm) over the sensor's
-(``sensor_width_mm``, 36 mm without one, or ``crop_factor``). A Lensfun
+(the camera's ``sensor_width_mm``, 36 mm without one, or the
+``sensor_width_mm`` given to :func:`export`). A Lensfun
 file holds no image size: camcal writes it in a comment
 (``<!-- camcal image_size W H -->``) that :func:`load` reads.
 
@@ -96,8 +104,8 @@ from camcal.io.conversion import (
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig
 
-__all__ = ["DEFAULT_SENSOR_WIDTH_MM", "MODEL_TERMS", "LensfunLens", "camera_of", "crop_factor", "export", "fit_lens", "load",
-           "radius_ratio"]
+__all__ = ["DEFAULT_SENSOR_WIDTH_MM", "MODEL_TERMS", "LensfunLens", "camera_of", "crop_factor", "export", "fit_lens",
+           "load", "radius_ratio"]
 
 #: Sensor width of cameras without ``sensor_width_mm``.
 DEFAULT_SENSOR_WIDTH_MM = 36.0
@@ -114,7 +122,7 @@ class LensfunLens:
     Attributes
     ----------
     model : str
-        ``poly3`` or ``poly5`` (``ptlens`` when read).
+        ``poly3``, ``poly5`` or ``ptlens``.
     terms : dict of str to float
         ``k1`` (``k2``; ``a b c``).
     focal_mm : float
@@ -308,7 +316,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     ExportResult
         One conversion per camera with the written model's residual (max
         and RMS inside the image and over the overscan border); the notes
-        give both models' RMS.
+        give every model's RMS.
     """
     if out.suffix.lower() != ".xml":
         raise CamcalError(f"a Lensfun database file must end in .xml, got {out.name!r}")
