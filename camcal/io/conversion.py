@@ -93,7 +93,7 @@ _FORMAT_NOTES = (
     "colmap: no pinhole thin prism; a division lens centred on the principal point",
     "usd: camcal's own lens attributes, read back by camcal",
     "nuke: LensDistortion (3DEqualizer preset) and LDPK nodes; its ST-maps hold every lens exactly",
-    "lensfun: poly3 (k1) or poly5 (k1 k2) with square pixels; a polynomial k3 or non-square pixels are refit",
+    "lensfun: poly3 / poly5 / ptlens, square pixels: polynomial k1 k2 exact, any other lens refit to the best",
 )
 
 
@@ -530,7 +530,8 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
 
 def refit_projection(camera: Camera, family: str,
                      project: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
-                     start: Sequence[float], *, overscan: float = DEFAULT_OVERSCAN) -> tuple[NDArray[np.float64], Refit]:
+                     start: Sequence[float], *,
+                     overscan: float = DEFAULT_OVERSCAN) -> tuple[NDArray[np.float64], Refit]:
     """:func:`refit_camera`'s fit (its grid, weights and Levenberg-Marquardt) for a rectilinear family camcal
     has no lens model of (Lensfun's, :mod:`camcal.io.lensfun`), given as ``project(vector, rays) -> distorted
     pixels``; from ``start``, it returns the fitted vector and its :func:`projection_figures`.

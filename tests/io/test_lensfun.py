@@ -59,7 +59,8 @@ class _LensfunView:
         self.F = self.focal_mm * unit / LensfunLens(self.model, {}, self.focal_mm, self.lens.crop_factor, aspect,
                                                     (0.0, 0.0)).unit_mm()
         width, height = size
-        self.centre = np.array([(width - 1) / 2 + self.lens.center_x * unit, (height - 1) / 2 + self.lens.center_y * unit])
+        self.centre = np.array([(width - 1) / 2 + self.lens.center_x * unit,
+                                (height - 1) / 2 + self.lens.center_y * unit])
 
     def distorted(self, undistorted: np.ndarray) -> np.ndarray:
         """Lensfun's source pixel of each undistorted pixel (one call per point: its plain kernel)."""
