@@ -405,11 +405,16 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None, focal_mm: flo
             raise CamcalError(f"lens {name!r} has no <cropfactor>")
         crop = _float(crop_element, "", f"lens {name!r}: <cropfactor>")
         aspect = 1.5  # Lensfun's default
-        if aspect_element is not None and aspect_element.text and ":" in aspect_element.text:
-            numerator, denominator = aspect_element.text.split(":", 1)
-            aspect = float(numerator) / float(denominator)
-        elif aspect_element is not None:
-            aspect = _float(aspect_element, "", f"lens {name!r}: <aspect-ratio>")
+        if aspect_element is not None:
+            text = (aspect_element.text or "").strip()
+            numerator, _, denominator = text.partition(":")
+            try:
+                aspect = float(numerator) / float(denominator or 1.0)
+            except (ValueError, ZeroDivisionError):
+                raise CamcalError(f"lens {name!r}: <aspect-ratio> must be a number or W:H, got {text!r}") from None
+        if not (crop > 0.0 and math.isfinite(aspect) and aspect >= 1.0):
+            raise CamcalError(f"lens {name!r}: the crop factor must be > 0 and the aspect ratio >= 1, got {crop:g} "
+                              f"and {aspect:g}")
         center_element = entry.find("center")
         center = (0.0, 0.0) if center_element is None else (
             _float(center_element, "x", f"lens {name!r}: <center x>"),
@@ -428,7 +433,10 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None, focal_mm: flo
                               + ", ".join(MODEL_TERMS))
         terms = {term: _float(distortion, term, f"lens {name!r}: {term}") if term in distortion.attrib else 0.0
                  for term in MODEL_TERMS[model]}
-        lens = LensfunLens(model, terms, _float(distortion, "focal", f"lens {name!r}: focal"), crop, aspect, center)
+        focal = _float(distortion, "focal", f"lens {name!r}: focal")
+        if focal <= 0.0 or (model == "poly3" and terms["k1"] >= 1.0) or (model == "ptlens" and terms["b"] >= 1.0):
+            raise CamcalError(f"lens {name!r}: a {model} lens needs focal > 0 (and k1, b < 1), got focal {focal:g}")
+        lens = LensfunLens(model, terms, focal, crop, aspect, center)
         camera = camera_of(lens, image_size, name)
         cameras.append(camera)
         conversions.append(LensConversion(name, f"Lensfun {model}", "polynomial", True))

@@ -169,3 +169,22 @@ def test_the_cli_exports_and_reads_back_a_lensfun_file(tmp_path, capsys):
     # the opencv k1 k2 lens is a polynomial k1 k2 one: poly5 holds it, and it comes back
     assert back.distortion.params["k1"] == pytest.approx(-0.2, rel=1e-6)
     assert back.distortion.params["k2"] == pytest.approx(0.04, rel=1e-6)
+
+
+@pytest.mark.parametrize(("lens", "message"), [
+    ("<model>x</model><calibration/>", "no <cropfactor>"),
+    ("<model>x</model><cropfactor>0</cropfactor>", "crop factor must be > 0"),
+    ("<model>x</model><cropfactor>1</cropfactor><aspect-ratio>3:0</aspect-ratio>", "aspect-ratio"),
+    ("<model>x</model><cropfactor>1</cropfactor><calibration><distortion model='poly3' focal='-3' k1='0.1'/>"
+     "</calibration>", "focal > 0"),
+    ("<model>x</model><cropfactor>1</cropfactor><calibration><distortion model='acm' focal='3' k1='0.1'/>"
+     "</calibration>", "unknown distortion model"),
+    ("<model>x</model><cropfactor>1</cropfactor><calibration><distortion model='poly5' focal='3' k1='nan'/>"
+     "</calibration>", "not finite"),
+])
+def test_a_bad_lens_entry_is_one_line(tmp_path, lens, message):
+    path = tmp_path / "bad.xml"
+    path.write_text(f"<lensdatabase><lens>{lens}</lens><!-- camcal image_size 640 480 --></lensdatabase>")
+    with pytest.raises(CamcalError, match=message) as info:
+        import_rig(path, "lensfun")
+    assert "\n" not in str(info.value)
