@@ -104,8 +104,8 @@ from camcal.io.conversion import (
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig
 
-__all__ = ["DEFAULT_SENSOR_WIDTH_MM", "MODEL_TERMS", "LensfunLens", "camera_of", "crop_factor", "export", "fit_lens",
-           "load", "radius_ratio"]
+__all__ = ["DEFAULT_SENSOR_WIDTH_MM", "MODEL_TERMS", "LensfunLens", "camera_of", "crop_factor", "export",
+           "export_states", "fit_lens", "load", "radius_ratio"]
 
 #: Sensor width of cameras without ``sensor_width_mm``.
 DEFAULT_SENSOR_WIDTH_MM = 36.0
@@ -126,18 +126,33 @@ class LensfunLens:
     terms : dict of str to float
         ``k1`` (``k2``; ``a b c``).
     focal_mm : float
-        The entry's ``focal``: the undistorted image's focal length.
+        The entry's ``focal`` (the lens state's nominal focal length).
     crop : float
     aspect : float
         ``(max(W, H) - 1) / (min(W, H) - 1)``.
     center : (float, float)
         The lens centre's offset from the image centre in normalised units.
+    real_focal_mm : float, optional
+        ``<real-focal-length real-focal>``: the lens' pinhole focal length
+        at the centre, ``F d`` with ``d = Rd / Ru`` at ``Ru = 0``
+        (Lensfun's default without it: ``focal_mm d``).
     """
 
     def __init__(self, model: str, terms: Mapping[str, float], focal_mm: float, crop: float, aspect: float,
-                 center: tuple[float, float]) -> None:
+                 center: tuple[float, float], real_focal_mm: float | None = None) -> None:
         self.model, self.terms, self.focal_mm = model, dict(terms), float(focal_mm)
         self.crop, self.aspect, self.center = float(crop), float(aspect), (float(center[0]), float(center[1]))
+        self.real_focal_mm = real_focal_mm
+
+    def centre_scale(self) -> float:
+        """``d = Rd / Ru`` at the centre (``1 - k1``, ``1``, ``1 - a - b - c``)."""
+        return float(radius_ratio(self.model, [self.terms.get(t, 0.0) for t in MODEL_TERMS[self.model]],
+                                  np.zeros(1))[0])
+
+    def undistorted_focal_px(self, image_size: tuple[int, int]) -> float:
+        """``F``: the undistorted image's focal length in pixels at ``image_size`` (modifier.cpp's units)."""
+        undistorted_mm = self.focal_mm if self.real_focal_mm is None else self.real_focal_mm / self.centre_scale()
+        return undistorted_mm * _unit_px(image_size) / self.unit_mm()
 
     def unit_mm(self) -> float:
         """Lensfun's ``NormalizedInMillimeters``: the normalised unit in mm."""
@@ -222,41 +237,52 @@ def _exact_lens(camera: Camera, model: str, crop: float) -> LensfunLens | None:
     return _lens(camera, model, terms, undistorted_focal, crop)
 
 
-def _lens(camera: Camera, model: str, terms: Mapping[str, float], undistorted_focal: float,
-          crop: float) -> LensfunLens:
-    """A Lensfun entry about ``camera``'s principal point with undistorted focal ``undistorted_focal`` pixels."""
+def _lens(camera: Camera, model: str, terms: Mapping[str, float], undistorted_focal: float, crop: float,
+          nominal_mm: float | None = None, centre_px: NDArray[np.float64] | None = None) -> LensfunLens:
+    """A Lensfun entry about ``centre_px`` (default the principal point) with undistorted focal
+    ``undistorted_focal`` pixels, keyed by ``nominal_mm`` (default the camera's focal length in mm)."""
     width, height = camera.image_size
     unit = _unit_px(camera.image_size)
-    centre = (camera.K[0, 2] - (width - 1) / 2.0) / unit, (camera.K[1, 2] - (height - 1) / 2.0) / unit
+    centre_px = camera.K[:2, 2] if centre_px is None else centre_px
+    centre = (centre_px[0] - (width - 1) / 2.0) / unit, (centre_px[1] - (height - 1) / 2.0) / unit
     lens = LensfunLens(model, terms, 0.0, crop, _aspect(camera.image_size), centre)
-    lens.focal_mm = undistorted_focal * lens.unit_mm() / unit
+    lens.focal_mm = math.sqrt(camera.K[0, 0] * camera.K[1, 1]) * lens.unit_mm() / unit if nominal_mm is None \
+        else nominal_mm
+    lens.real_focal_mm = undistorted_focal * lens.unit_mm() / unit * lens.centre_scale()
     return lens
 
 
-def fit_lens(camera: Camera, model: str, crop: float) -> tuple[LensfunLens, Refit]:
+def fit_lens(camera: Camera, model: str, crop: float, *, nominal_mm: float | None = None,
+             centre_px: NDArray[np.float64] | None = None) -> tuple[LensfunLens, Refit]:
     """``camera``'s lens in a Lensfun model: exact where the model holds it, else refitted.
 
     The refit (:func:`camcal.io.conversion.refit_projection`, the core of
     :func:`~camcal.io.conversion.refit_camera`) fits the undistorted focal
-    length ``F`` and the model's terms about the principal point (the lens
-    centre Lensfun holds); non-square pixels and skew, which Lensfun has
-    not, are part of the residual.
+    length ``F`` and the model's terms about ``centre_px`` (default the
+    principal point; Lensfun holds one lens centre); non-square pixels and
+    skew, which Lensfun has not, are part of the residual. ``nominal_mm``
+    is the entry's ``focal`` (default the camera's focal length in mm).
     """
     unit = _unit_px(camera.image_size)
-    project = _projector(model, camera.K[:2, 2].astype(np.float64), unit)
-    exact = _exact_lens(camera, model, crop)
+    centre = np.array(camera.K[:2, 2] if centre_px is None else centre_px, dtype=np.float64)
+    project = _projector(model, centre, unit)
+    exact = _exact_lens(camera, model, crop) if np.array_equal(centre, camera.K[:2, 2]) else None
     if exact is not None:
-        vector = np.array([exact.focal_mm * unit / exact.unit_mm(), *exact.terms.values()])
+        vector = np.array([exact.undistorted_focal_px(camera.image_size), *exact.terms.values()])
         refit = projection_figures(camera, lambda rays: project(vector, rays), model)
-        return exact, replace(refit, exact=True)
+        lens = _lens(camera, model, exact.terms, vector[0], crop, nominal_mm)
+        return lens, replace(refit, exact=True)
     start = [math.sqrt(camera.K[0, 0] * camera.K[1, 1]), *[0.0] * len(MODEL_TERMS[model])]
     vector, refit = refit_projection(camera, model, project, start)
-    return _lens(camera, model, dict(zip(MODEL_TERMS[model], (float(v) for v in vector[1:]))), vector[0], crop), refit
+    terms = dict(zip(MODEL_TERMS[model], (float(v) for v in vector[1:])))
+    return _lens(camera, model, terms, vector[0], crop, nominal_mm, centre), refit
 
 
-def _best_fit(camera: Camera, crop: float) -> tuple[LensfunLens, Refit, dict[str, Refit]]:
+def _best_fit(camera: Camera, crop: float, nominal_mm: float | None = None,
+              centre_px: NDArray[np.float64] | None = None) -> tuple[LensfunLens, Refit, dict[str, Refit]]:
     """The simplest Lensfun model within 0.01 px RMS of the best one, and every model's refit."""
-    fitted = {model: fit_lens(camera, model, crop) for model in MODEL_TERMS}
+    fitted = {model: fit_lens(camera, model, crop, nominal_mm=nominal_mm, centre_px=centre_px)
+              for model in MODEL_TERMS}
     best = min(refit.rms_px for _, refit in fitted.values())
     model = next(name for name, (_, refit) in fitted.items() if refit.rms_px <= best + _SIMPLER_WITHIN_PX)
     return fitted[model][0], fitted[model][1], {name: refit for name, (_, refit) in fitted.items()}
@@ -268,7 +294,7 @@ def camera_of(lens: LensfunLens, image_size: tuple[int, int], name: str) -> Came
     ``ptlens`` needs ``a = c = 0`` (it is then ``poly3`` with ``k1 = b``).
     """
     unit = _unit_px(image_size)
-    undistorted_focal = lens.focal_mm * unit / lens.unit_mm()
+    undistorted_focal = lens.undistorted_focal_px(image_size)
     terms = lens.terms
     if lens.model == "ptlens":
         if terms.get("a", 0.0) or terms.get("c", 0.0):
@@ -294,9 +320,50 @@ def _number(value: float) -> str:
     return f"{value:.9g}"
 
 
+def _lens_element(root: ElementTree.Element, name: str, maker: str, mount: str,
+                  lenses: Sequence[LensfunLens]) -> None:
+    """One ``<lens>``: the first lens' centre, crop factor and aspect ratio, every lens' distortion entry."""
+    entry = ElementTree.SubElement(root, "lens")
+    for tag, text in (("maker", maker), ("model", name), ("mount", mount)):
+        ElementTree.SubElement(entry, tag).text = text
+    first = lenses[0]
+    if first.center != (0.0, 0.0):
+        ElementTree.SubElement(entry, "center", x=_number(first.center[0]), y=_number(first.center[1]))
+    ElementTree.SubElement(entry, "cropfactor").text = _number(first.crop)
+    ElementTree.SubElement(entry, "aspect-ratio").text = _number(first.aspect)
+    calibration = ElementTree.SubElement(entry, "calibration")
+    for lens in lenses:
+        ElementTree.SubElement(calibration, "distortion", model=lens.model, focal=_number(lens.focal_mm),
+                               **{term: _number(value) for term, value in lens.terms.items()})
+    for lens in lenses:
+        ElementTree.SubElement(calibration, "real-focal-length", focal=_number(lens.focal_mm),
+                               **{"real-focal": _number(lens.real_focal_mm)})
+
+
+def _conversion(camera: Camera, lens: LensfunLens, refit: Refit, refits: Mapping[str, Refit],
+                state: str = "") -> tuple[LensConversion, str]:
+    source = f"{camera.distortion.model}{' with skew' if camera.K[0, 1] else ''}"
+    note = (f"camera {camera.name!r}{state}: RMS residual inside the image " + ", ".join(
+        f"{name} {'exact' if fit.exact else f'{fit.rms_px:.3g} px'}" for name, fit in refits.items())
+        + f"; {lens.model} written")
+    return LensConversion(camera.name, source, f"Lensfun {lens.model}", refit.exact, refit.max_px, "refit",
+                          refit), note
+
+
+def _write(root: ElementTree.Element, out: Path, image_size: tuple[int, int]) -> None:
+    root.append(ElementTree.Comment(f" camcal image_size {image_size[0]} {image_size[1]} "))
+    ElementTree.indent(root)
+    atomic_write_text(out, '<?xml version="1.0" encoding="utf-8"?>\n' + ElementTree.tostring(root, "unicode") + "\n")
+
+
+def _check_out(out: Path) -> None:
+    if out.suffix.lower() != ".xml":
+        raise CamcalError(f"a Lensfun database file must end in .xml, got {out.name!r}")
+
+
 def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_path: Path | None = None,
            maker: str = "camcal", mount: str = "Generic", sensor_width_mm: float | None = None) -> ExportResult:
-    """Write each camera's lens as a Lensfun ``<lens>`` entry (see the module docstring).
+    """Write each camera's lens as a Lensfun ``<lens>`` entry at its focal length (see the module docstring).
 
     Parameters
     ----------
@@ -318,38 +385,75 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
         and RMS inside the image and over the overscan border); the notes
         give every model's RMS.
     """
-    if out.suffix.lower() != ".xml":
-        raise CamcalError(f"a Lensfun database file must end in .xml, got {out.name!r}")
+    _check_out(out)
     chosen = select_cameras(rig, cameras)
-    root = ElementTree.Element("lensdatabase", version="1")
-    conversions, notes = [], []
     sizes = {camera.image_size for camera in chosen}
     if len(sizes) != 1:
         raise CamcalError("a Lensfun file from camcal holds cameras of one image size; export them one by one "
                           f"(--camera): sizes {sorted(sizes)}")
+    root = ElementTree.Element("lensdatabase", version="1")
+    conversions, notes = [], []
     for camera in chosen:
         lens, refit, refits = _best_fit(camera, crop_factor(camera, sensor_width_mm))
-        entry = ElementTree.SubElement(root, "lens")
-        for tag, text in (("maker", maker), ("model", camera.name), ("mount", mount)):
-            ElementTree.SubElement(entry, tag).text = text
-        if lens.center != (0.0, 0.0):
-            ElementTree.SubElement(entry, "center", x=_number(lens.center[0]), y=_number(lens.center[1]))
-        ElementTree.SubElement(entry, "cropfactor").text = _number(lens.crop)
-        ElementTree.SubElement(entry, "aspect-ratio").text = _number(lens.aspect)
-        calibration = ElementTree.SubElement(entry, "calibration")
-        ElementTree.SubElement(calibration, "distortion", model=lens.model, focal=_number(lens.focal_mm),
-                               **{name: _number(value) for name, value in lens.terms.items()})
-        source = f"{camera.distortion.model}{' with skew' if camera.K[0, 1] else ''}"
-        conversions.append(LensConversion(camera.name, source, f"Lensfun {lens.model}", refit.exact, refit.max_px,
-                                          "refit", refit))
-        notes.append(f"camera {camera.name!r}: RMS residual inside the image " + ", ".join(
-            f"{name} {'exact' if fit.exact else f'{fit.rms_px:.3g} px'}" for name, fit in refits.items())
-            + f"; {lens.model} written")
-    width, height = sizes.pop()
-    root.append(ElementTree.Comment(f" camcal image_size {width} {height} "))
-    ElementTree.indent(root)
-    atomic_write_text(out, '<?xml version="1.0" encoding="utf-8"?>\n' + ElementTree.tostring(root, "unicode") + "\n")
+        _lens_element(root, camera.name, maker, mount, [lens])
+        conversion, note = _conversion(camera, lens, refit, refits)
+        conversions.append(conversion)
+        notes.append(note)
+    _write(root, out, sizes.pop())
     notes.append("a Lensfun lens holds no pose: the cameras' positions and orientations are not written")
+    return ExportResult((out,), tuple(conversions), tuple(notes))
+
+
+def export_states(states: Sequence[tuple[float, Camera]], out: Path, *, name: str, maker: str = "camcal",
+                  mount: str = "Generic", sensor_width_mm: float | None = None) -> ExportResult:
+    """Write one lens at several focal lengths (a zoom's states) as one Lensfun ``<lens>``.
+
+    Parameters
+    ----------
+    states : sequence of (float, Camera)
+        Each state's nominal focal length in mm (the entries' ``focal``,
+        which Lensfun interpolates between) and the camera calibrated at
+        it; one image size.
+    out : Path
+    name : str
+        The lens' ``<model>``.
+    maker, mount : str
+    sensor_width_mm : float, optional
+
+    Returns
+    -------
+    ExportResult
+        One conversion per state. Lensfun holds one distortion model and one
+        lens centre per lens: the simplest model within 0.01 px of the best
+        worst-state RMS, about the states' mean principal point (its drift
+        is part of the residual).
+    """
+    _check_out(out)
+    focals = [focal for focal, _ in states]
+    if not states or len(set(focals)) != len(focals) or not all(math.isfinite(f) and f > 0 for f in focals):
+        raise CamcalError(f"a Lensfun lens needs states of distinct positive focal lengths, got {focals}")
+    sizes = {camera.image_size for _, camera in states}
+    if len(sizes) != 1:
+        raise CamcalError(f"the lens states have different image sizes: {sorted(sizes)}")
+    centre = np.mean([camera.K[:2, 2] for _, camera in states], axis=0)
+    states = sorted(states, key=lambda state: state[0])
+    fitted = [{model: fit_lens(camera, model, crop_factor(camera, sensor_width_mm), nominal_mm=focal, centre_px=centre)
+               for model in MODEL_TERMS} for focal, camera in states]
+    # Lensfun reads one distortion model per lens (lfLens::InterpolateDistortion): the simplest within 0.01 px of
+    # the best worst-state RMS
+    worst = {model: max(state[model][1].rms_px for state in fitted) for model in MODEL_TERMS}
+    model = next(name for name in MODEL_TERMS if worst[name] <= min(worst.values()) + _SIMPLER_WITHIN_PX)
+    lenses, conversions, notes = [], [], []
+    for (focal, camera), state in zip(states, fitted):
+        lens, refit = state[model]
+        lenses.append(lens)
+        conversion, note = _conversion(camera, lens, refit, {name: fit for name, (_, fit) in state.items()},
+                                       f" at {focal:g} mm")
+        conversions.append(conversion)
+        notes.append(note)
+    root = ElementTree.Element("lensdatabase", version="1")
+    _lens_element(root, name, maker, mount, lenses)
+    _write(root, out, sizes.pop())
     return ExportResult((out,), tuple(conversions), tuple(notes))
 
 
@@ -434,9 +538,12 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None, focal_mm: flo
         terms = {term: _float(distortion, term, f"lens {name!r}: {term}") if term in distortion.attrib else 0.0
                  for term in MODEL_TERMS[model]}
         focal = _float(distortion, "focal", f"lens {name!r}: focal")
-        if focal <= 0.0 or (model == "poly3" and terms["k1"] >= 1.0) or (model == "ptlens" and terms["b"] >= 1.0):
-            raise CamcalError(f"lens {name!r}: a {model} lens needs focal > 0 (and k1, b < 1), got focal {focal:g}")
-        lens = LensfunLens(model, terms, focal, crop, aspect, center)
+        real = [_float(e, "real-focal", f"lens {name!r}: real-focal") for e in entry.findall(
+            "calibration/real-focal-length") if _float(e, "focal", f"lens {name!r}: focal") == focal]
+        lens = LensfunLens(model, terms, focal, crop, aspect, center, real[0] if real else None)
+        if focal <= 0.0 or lens.centre_scale() <= 0.0 or (real and real[0] <= 0.0):
+            raise CamcalError(f"lens {name!r}: a {model} lens needs focal lengths > 0 and Rd / Ru > 0 at the centre, "
+                              f"got focal {focal:g}, Rd / Ru {lens.centre_scale():g}")
         camera = camera_of(lens, image_size, name)
         cameras.append(camera)
         conversions.append(LensConversion(name, f"Lensfun {model}", "polynomial", True))

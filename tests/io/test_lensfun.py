@@ -51,13 +51,16 @@ class _LensfunView:
         distortion = entry.find("calibration/distortion")
         self.model = distortion.get("model")
         self.focal_mm = float(distortion.get("focal"))
+        [real] = [float(e.get("real-focal")) for e in entry.findall("calibration/real-focal-length")
+                  if float(e.get("focal")) == self.focal_mm]
         self.modifier = lensfunpy.Modifier(self.lens, self.lens.crop_factor, *size)
         self.modifier.initialize(self.focal_mm, 8.0, 1000.0, scale=1.0, flags=lensfunpy.ModifyFlags.DISTORTION)
         aspect = float(entry.findtext("aspect-ratio"))
         unit = (min(size) - 1) / 2
         # Lensfun's geometry unit: F = focal_mm * s / NormalizedInMillimeters (modifier.cpp)
-        self.F = self.focal_mm * unit / LensfunLens(self.model, {}, self.focal_mm, self.lens.crop_factor, aspect,
-                                                    (0.0, 0.0)).unit_mm()
+        terms = {name: float(value) for name, value in distortion.attrib.items() if name not in ("model", "focal")}
+        self.F = LensfunLens(self.model, terms, self.focal_mm, self.lens.crop_factor, aspect, (0.0, 0.0),
+                             real).undistorted_focal_px(size)
         width, height = size
         self.centre = np.array([(width - 1) / 2 + self.lens.center_x * unit,
                                 (height - 1) / 2 + self.lens.center_y * unit])
@@ -136,6 +139,7 @@ def test_crop_factor_and_focal_follow_the_sensor(tmp_path):
     # no distortion: the focal written is the camera's, 1400 px of 36 mm / 1920 px (Lensfun's mm: its image's)
     focal = float(entry.find("calibration/distortion").get("focal"))
     assert focal == pytest.approx(1400 * 36 / 1920, rel=2e-3)
+    assert float(entry.find("calibration/real-focal-length").get("real-focal")) == pytest.approx(focal, rel=1e-9)
 
 
 def test_bad_input_one_line_nothing_written(tmp_path):
@@ -176,7 +180,7 @@ def test_the_cli_exports_and_reads_back_a_lensfun_file(tmp_path, capsys):
     ("<model>x</model><cropfactor>0</cropfactor>", "crop factor must be > 0"),
     ("<model>x</model><cropfactor>1</cropfactor><aspect-ratio>3:0</aspect-ratio>", "aspect-ratio"),
     ("<model>x</model><cropfactor>1</cropfactor><calibration><distortion model='poly3' focal='-3' k1='0.1'/>"
-     "</calibration>", "focal > 0"),
+     "</calibration>", "focal lengths > 0"),
     ("<model>x</model><cropfactor>1</cropfactor><calibration><distortion model='acm' focal='3' k1='0.1'/>"
      "</calibration>", "unknown distortion model"),
     ("<model>x</model><cropfactor>1</cropfactor><calibration><distortion model='poly5' focal='3' k1='nan'/>"
@@ -188,3 +192,56 @@ def test_a_bad_lens_entry_is_one_line(tmp_path, lens, message):
     with pytest.raises(CamcalError, match=message) as info:
         import_rig(path, "lensfun")
     assert "\n" not in str(info.value)
+
+
+def _measured(view: _LensfunView, camera: Camera, columns: int = 41, rows: int = 31) -> tuple[float, float]:
+    """Max and RMS distance between Lensfun's and camcal's distorted pixels over a grid of the image."""
+    width, height = camera.image_size
+    grid = np.stack(np.meshgrid(np.linspace(0, width - 1, columns), np.linspace(0, height - 1, rows)),
+                    -1).reshape(-1, 2)
+    rays = camera.distortion.rays_from_pixels(grid, camera.K)
+    distance = np.linalg.norm(view.distorted(view.centre + view.F * rays[:, :2] / rays[:, 2:]) - grid, axis=1)
+    return float(distance.max()), float(np.sqrt(np.mean(distance**2)))
+
+
+def _state_view(path: Path, size: tuple[int, int], focal_mm: float) -> _LensfunView:
+    """The view of one focal length of a lens with several: ``F`` from that entry, Lensfun's lens with all."""
+    tree = ElementTree.parse(path)
+    calibration = tree.getroot().find("lens/calibration")
+    for element in list(calibration):
+        if float(element.get("focal")) != focal_mm:
+            calibration.remove(element)
+    single = path.with_name(f"state_{focal_mm:g}.xml")
+    tree.write(single)
+    view = _LensfunView(single, size)
+    database = lensfunpy.Database(paths=[str(path)], load_common=False, load_bundled=False)
+    [view.lens] = database.lenses
+    view.modifier = lensfunpy.Modifier(view.lens, view.lens.crop_factor, *size)
+    view.modifier.initialize(focal_mm, 8.0, 1000.0, scale=1.0, flags=lensfunpy.ModifyFlags.DISTORTION)
+    return view
+
+
+def test_a_zoom_lens_writes_one_entry_per_focal_length_each_matching_in_lensfun(tmp_path):
+    from camcal.io.lensfun import export_states
+
+    size = (960, 640)
+    states = [(24.0, _camera(size, 700.0, "polynomial", {"k1": -0.15, "k2": 0.0}, centre_offset=(6.0, -4.0))),
+              (35.0, _camera(size, 1020.0, "polynomial", {"k1": -0.05, "k2": 0.02}, centre_offset=(6.0, -4.0))),
+              (50.0, _camera(size, 1460.0, "polynomial", {"k1": 0.04, "k2": 0.0}, centre_offset=(6.0, -4.0)))]
+    out = tmp_path / "zoom.xml"
+    result = export_states(states, out, name="Zoom 24-50")
+    assert [c.exact for c in result.conversions] == [True, True, True]
+    entries = ElementTree.parse(out).getroot().findall("lens/calibration/distortion")
+    assert [float(e.get("focal")) for e in entries] == [24.0, 35.0, 50.0]
+    for focal, camera in states:
+        largest, rms = _measured(_state_view(out, size, focal), camera)
+        assert rms < 0.05 and largest < 0.05, (focal, largest, rms)
+    # a drifting principal point: Lensfun holds one centre, the drift is the residual printed, measured in Lensfun
+    drifting = [(24.0, states[0][1]), (50.0, _camera(size, 1460.0, "polynomial", {"k1": 0.04, "k2": 0.0},
+                                                     centre_offset=(-6.0, 8.0)))]
+    result = export_states(drifting, out, name="Zoom 24-50")
+    for (focal, camera), conversion in zip(drifting, result.conversions):
+        assert not conversion.exact
+        largest, rms = _measured(_state_view(out, size, focal), camera)
+        assert rms == pytest.approx(conversion.refit.rms_px, rel=0.1, abs=0.005)
+        assert rms > 1.0  # 12 px by 6 px between the two principal points
