@@ -2,7 +2,8 @@
 
 Lensfun (the lens correction library darktable, RawTherapee, Hugin and
 GIMP read) keeps lenses in XML files of ``<lens>`` entries; camcal writes
-one entry per camera::
+one entry per camera (:func:`export`), or one lens at several focal lengths
+(:func:`export_states`)::
 
     <lensdatabase version="1">
       <lens>
@@ -14,6 +15,7 @@ one entry per camera::
         <aspect-ratio>1.778</aspect-ratio>
         <calibration>
           <distortion model="poly3" focal="35.2" k1="-0.0123"/>
+          <real-focal-length focal="35.2" real-focal="35.2"/>
         </calibration>
       </lens>
       <!-- camcal image_size 1920 1080 -->
@@ -35,12 +37,14 @@ units), and the unit ``s = (min(W, H) - 1) / 2`` pixels, half the shorter
 side measured between the extreme pixel centres, when the image's crop
 factor and aspect ratio ``(max(W, H) - 1) / (min(W, H) - 1)`` are the
 calibration's (else Lensfun rescales through the sensor diagonal). The
-undistorted image is a pinhole image with focal length ``F`` pixels;
-Lensfun's own relation (the unit of its geometry conversions) is
-``F = focal_mm * s / m``, ``m = 21.633 / sqrt(aspect^2 + 1) / cropfactor``
-the unit in millimetres, so the ``focal`` written is ``F``'s, in mm.
-For ``poly3`` that is Hugin's focal length (``F (1 - k1)`` is the lens'
-pinhole focal length at the centre, ``get_hugin_focal_correction``).
+undistorted image is a pinhole image with focal length ``F`` pixels; in
+Lensfun's units (those of its geometry conversions) ``F = F_mm s / m``,
+``m = 21.633 / sqrt(aspect^2 + 1) / cropfactor`` the unit in millimetres,
+and ``F_mm d`` is the lens' real focal length, ``d = Rd / Ru`` at the
+centre (``1 - k1``, ``1``, ``1 - a - b - c``; Hugin's focal length
+correction, ``get_hugin_focal_correction``). camcal writes the camera's
+focal length in mm as ``focal`` (or the lens state's, :func:`export_states`)
+and ``F_mm d`` as ``<real-focal-length real-focal>``.
 
 A camcal ``polynomial`` lens ``x_d = x_u (1 + k1 r^2 + k2 r^4)`` (focal
 ``f`` pixels, square pixels) is exactly ``poly5`` with ``F = f``,
@@ -528,8 +532,8 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None, focal_mm: flo
             entries = [e for e in entries if _float(e, "focal", f"lens {name!r}: focal") == focal_mm]
         if len(entries) != 1:
             at = f" at {focal_mm:g} mm" if focal_mm is not None else ""
-            raise CamcalError(f"lens {name!r} has {len(entries)} distortion entries{at}; camcal reads one "
-                              "(name the focal length)")
+            raise CamcalError(f"lens {name!r} has {len(entries)} distortion entries{at}; camcal reads a lens at "
+                              "one focal length")
         [distortion] = entries
         model = distortion.get("model")
         if model not in MODEL_TERMS:
