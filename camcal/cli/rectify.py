@@ -43,7 +43,7 @@ def _rectify(args: argparse.Namespace) -> int:
     (Hartley 1999). Matches come from --matches (CSV camera_a,u_a,v_a,camera_b,u_b,v_b) or from SIFT on the
     first image of each --images sequence (of a video: its frame 0).
     """
-    from camcal.api.rectify import rectify
+    from camcal.api.rectification import rectify
 
     result = rectify(args.rig, method=args.method, refine=args.refine, images=args.images, every=args.every,
                      matches=args.matches, alpha=args.alpha, max_fov_deg=args.max_fov, out=args.out, write=args.write,

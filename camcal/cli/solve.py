@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.api.solve import UNCERTAINTY
+from camcal.api.reconstruction import UNCERTAINTY
 from camcal.cli.options import every_option, handler, loss_option, named_option, out_option
 from camcal.cli.summary import summary_of
 
@@ -67,7 +67,7 @@ def _solve(args: argparse.Namespace) -> int:
     held-out residual; the principal point and the lens are refined under the sensor's Gaussian priors and the
     user's (--prior), and what the images do not determine is said with its sigma. Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
     """
-    from camcal.api.solve import solve
+    from camcal.api.reconstruction import solve
 
     result = solve(args.folders, args.out, images=args.camera, every=args.every, rig=args.rig, model=args.model,
                    camera_model=args.camera_model, principal_point=args.principal_point, priors=args.prior,

@@ -32,7 +32,7 @@ def _undistort(args: argparse.Namespace) -> int:
     """Undistort images with one remap per image; writes them under their own names and DIR/undistorted.rig.json
     with the new K and distortion none. Videos are streamed, one frame at a time (--every N: frames 0, N, 2N...).
     """
-    from camcal.api.undistort import undistort
+    from camcal.api.undistortion import undistort
 
     result = undistort(args.rig, args.camera, args.images, args.out, every=args.every, mode=args.mode,
                        overscan=args.overscan, max_fov_deg=args.max_fov, sigma=args.sigma, distance=args.distance)
