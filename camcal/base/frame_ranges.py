@@ -48,6 +48,8 @@ def parse_holdout(text: str, frames: list[int]) -> set[int]:
     :func:`parse_frames`) or a fraction of the frames (``0.2``, evenly spaced)."""
     text = text.strip()
     if re.fullmatch(r"0?\.\d+", text):
+        if not frames:
+            return set()
         fraction = float(text)
         count = max(1, round(fraction * len(frames)))
         step = len(frames) / count
