@@ -176,7 +176,8 @@ def test_solve_api_and_cli_refuse_the_same_input(tmp_path, capsys):
     """The fast sibling of the solve comparison: its checks before pycolmap runs, through both."""
     (tmp_path / "in").mkdir()
     for api_call, argv in [
-        (lambda: camcal.solve(tmp_path / "nope", tmp_path / "o"), ["solve", tmp_path / "nope", "--out", tmp_path / "o"]),
+        (lambda: camcal.solve(tmp_path / "nope", tmp_path / "o"),
+         ["solve", tmp_path / "nope", "--out", tmp_path / "o"]),
         (lambda: camcal.solve(tmp_path / "in", tmp_path / "o", features=50),
          ["solve", tmp_path / "in", "--features", "50", "--out", tmp_path / "o"]),
     ]:

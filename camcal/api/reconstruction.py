@@ -231,7 +231,8 @@ def solve(
         raise CamcalError(f"unknown uncertainty {uncertainty!r}, expected one of: {', '.join(UNCERTAINTY)}")
     if images:
         if len(folders) != 1:
-            raise CamcalError(f"--camera NAME=GLOB selects images inside one folder: give exactly one, got {len(folders)}")
+            raise CamcalError("--camera NAME=GLOB selects images inside one folder: give exactly one, "
+                              f"got {len(folders)}")
         if not folders[0].is_dir():
             raise CamcalError(f"image folder not found: {folders[0]}")
         found = {name: [Path(f) for f in expand_glob("--camera", name, pattern, root=folders[0])]
