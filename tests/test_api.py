@@ -102,6 +102,7 @@ def test_calibrate_board_api_and_cli_write_the_same_rig(shots, corners, tmp_path
     assert result.lines()[-1] in out and result.passed and result.heldout_rms_px is not None
     right = result.rig.camera("right")
     assert result.rms_px < 0.2 and abs(np.linalg.norm(right.c) - 0.1) < 1e-3
+    assert result.quality["right"]["rms_px"] == right.quality["rms_px"] < 0.2
     np.testing.assert_allclose(right.K, K, atol=2.0)
     assert result.save(tmp_path / "again.rig.json").read_text() == (tmp_path / "api.rig.json").read_text()
 

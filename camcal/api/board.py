@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from camcal.geometry.suggest import SuggestedView
     from camcal.geometry.zhang import CalibrationResult
     from camcal.io.timestamps import Synchronisation, Timestamps
+    from camcal.model.quality import Quality
     from camcal.model.rig import Rig
 
 __all__ = ["BoardCalibration", "CameraInputs", "calibrate_board"]
@@ -69,6 +70,11 @@ class BoardCalibration:
     def rig(self) -> Rig:
         """The calibrated cameras (the first is the reference: ``R = I``, ``c = 0``)."""
         return self.calibration.rig
+
+    @property
+    def quality(self) -> dict[str, Quality]:
+        """Each camera's fit quality by name (:class:`camcal.model.quality.Quality`: ``rms_px``, ``sigma``...)."""
+        return {camera.name: camera.quality for camera in self.rig.cameras}
 
     @property
     def rms_px(self) -> float:

@@ -14,6 +14,7 @@ from camcal.base.errors import CamcalError
 
 if TYPE_CHECKING:
     from camcal.geometry.bundle import PriorSpec
+    from camcal.model.quality import Quality
     from camcal.model.rig import Camera, Rig
     from camcal.pipelines.solve import PycolmapPeer, SfmResult
 
@@ -46,6 +47,11 @@ class Solve:
     def rig(self) -> Rig:
         """The solved rig (``out/solve.rig.json``)."""
         return self.sfm.rig
+
+    @property
+    def quality(self) -> dict[str, Quality]:
+        """Each camera's fit quality by name (:class:`camcal.model.quality.Quality`: ``rms_px``, ``sigma``...)."""
+        return {camera.name: camera.quality for camera in self.rig.cameras}
 
     @property
     def rms_px(self) -> float:
