@@ -20,6 +20,8 @@ function                what it does                                        resu
                         (``camcal rig export``)
 :func:`import_rig`      another tool's camera file as a rig                 :class:`RigImport`
                         (``camcal rig import``)
+:func:`fit_colour`      camera RGB to CIE XYZ from a chart photo or         :class:`ColourFit`
+                        patches (``camcal colour fit``)
 ======================  ==================================================  ======================
 
 and the data model: :class:`Rig`, :class:`Camera`, and :class:`CamcalError`,
@@ -60,6 +62,8 @@ _EXPORTS: dict[str, str] = {
     "export_rig": "camcal.api.rig",
     "import_rig": "camcal.api.rig",
     "RigImport": "camcal.api.rig",
+    "fit_colour": "camcal.api.colour",
+    "ColourFit": "camcal.api.colour",
     "Rig": "camcal.model.rig",
     "Camera": "camcal.model.rig",
     "CamcalError": "camcal.base.errors",
@@ -69,6 +73,7 @@ __all__ = ["__version__", *_EXPORTS]
 
 if TYPE_CHECKING:  # for type checkers and editors; at run time the names load on first use
     from camcal.api.board import BoardCalibration, calibrate_board
+    from camcal.api.colour import ColourFit, fit_colour
     from camcal.api.reconstruction import Solve, solve
     from camcal.api.rectification import Rectification, rectify
     from camcal.api.rig import RigImport, export_rig, import_rig, load_rig

@@ -1,6 +1,6 @@
-"""The public Python API (``camcal.calibrate_board``, ``solve``, ``rectify``, ``undistort``, rig files) against the
-command line on the same inputs: the same rig file byte for byte (its creation time aside), the same error line;
-and ``import camcal`` loads no heavy dependency."""
+"""The public Python API (``camcal.calibrate_board``, ``solve``, ``rectify``, ``undistort``, rig files,
+``fit_colour``) against the command line on the same inputs: the same file byte for byte (its creation time
+aside), the same error line; and ``import camcal`` loads no heavy dependency."""
 
 import json
 import re
@@ -251,11 +251,32 @@ def test_the_quality_gate_refuses_in_the_api_as_in_the_command(shots, corners, t
     same_file(tmp_path / "api.rig.json", tmp_path / "cli.rig.json")
 
 
+def test_colour_fit_api_and_cli_write_the_same_file(sim, tmp_path, capsys):
+    from camcal.colour.chart.patches import PatchSet
+    from camcal.io.patches import write_patch_csv
+
+    train, test = tmp_path / "train.csv", tmp_path / "test.csv"
+    write_patch_csv(train, PatchSet(sim.names_train, sim.RGB_train, sim.XYZ_train))
+    write_patch_csv(test, PatchSet(sim.names_test, sim.RGB_test, sim.XYZ_test))
+    result = camcal.fit_colour(train, test_patches=test, illuminant="D65", model="matrix3x3", camera="nikon",
+                               out=tmp_path / "api.colour.json")
+    code, out, _ = cli(["colour", "fit", "--patches", train, "--test-patches", test, "--illuminant", "D65",
+                        "--model", "matrix3x3", "--camera", "nikon", "--out", tmp_path / "cli.colour.json"], capsys)
+    assert code == 0 and result.lines()[0] in out
+    same_file(tmp_path / "api.colour.json", tmp_path / "cli.colour.json")
+    # the simulated camera is linear: a 3x3 matrix fits its held-out colours closely
+    assert result.figures()["delta_E2000"]["test"]["n"] == len(sim.names_test)
+    assert result.outcome.result.stats_test.mean < 3.0
+    assert_same_error(lambda: camcal.fit_colour(train, detector="cv2.mcc"),
+                      ["colour", "fit", "--patches", train, "--detector", "cv2.mcc", "--out", tmp_path / "x.json"],
+                      capsys)
+
+
 def test_import_camcal_loads_no_heavy_dependency():
     """``import camcal`` (and naming the API) imports none of the heavy libraries; using a function does."""
     code = ("import sys, camcal\n"
             "names = [getattr(camcal, name) for name in camcal.__all__ if name in ('load_rig', 'export_rig', "
-            "'import_rig', 'calibrate_board', 'solve', 'rectify', 'undistort')]\n"
+            "'import_rig', 'calibrate_board', 'solve', 'rectify', 'undistort', 'fit_colour')]\n"
             f"print([m for m in {HEAVY!r} if m in sys.modules])\n"
             "import camcal.api.board, camcal.geometry.zhang\n"
             f"print([m for m in {HEAVY!r} if m in sys.modules])\n")
