@@ -139,21 +139,27 @@ def test_rectify_api_and_cli_write_the_same_rig(stereo_rig, shots, tmp_path, cap
     assert np.abs(rows[0] - rows[1]).max() < 1.0
 
 
-@pytest.mark.parametrize("fmt, name", [("opencv", "pair.xml"), ("nuke", "pair.nk"), ("colmap", "model")])
-def test_rig_export_and_import_through_the_api_and_the_cli(stereo_rig, tmp_path, capsys, fmt, name):
-    """Both write to the same place in turn (a .nk names its ST-maps by their paths): the same bytes."""
-    exported = camcal.export_rig(camcal.load_rig(stereo_rig), tmp_path / name)  # the format from the name
+@pytest.mark.parametrize("fmt, name, named", [("opencv", "pair.xml", True), ("nuke", "pair.nk", False),
+                                               ("colmap", "model", True)])
+def test_rig_export_and_import_through_the_api_and_the_cli(stereo_rig, tmp_path, capsys, fmt, name, named):
+    """Both write to the same place in turn (a .nk names its ST-maps by their paths): the same bytes. A .nk says
+    its format; the others are named."""
+    to = fmt if named else None
+    exported = camcal.export_rig(camcal.load_rig(stereo_rig), tmp_path / name, to)
     by_api = {path: path.read_bytes() for path in exported.paths}
     for path in exported.paths:
         path.unlink()
     code, _, _ = cli(["rig", "export", stereo_rig, "--to", fmt, tmp_path / name], capsys)
     assert code == 0 and by_api and all(path.read_bytes() == data for path, data in by_api.items())
-    imported = camcal.import_rig(tmp_path / name)
+    imported = camcal.import_rig(tmp_path / name, to)
     imported.save(tmp_path / "api.rig.json")
     code, _, _ = cli(["rig", "import", tmp_path / name, "--from", fmt, "--out", tmp_path / "cli.rig.json"], capsys)
     assert code == 0
     same_file(tmp_path / "api.rig.json", tmp_path / "cli.rig.json")
     original = camcal.load_rig(stereo_rig)
+    with pytest.raises(camcal.CamcalError, match="yaml"):  # OpenCV's or Kalibr's: the name does not say
+        camcal.export_rig(stereo_rig, tmp_path / "pair.yaml")
+    assert not (tmp_path / "pair.yaml").exists()
     for camera in imported.rig.cameras:  # Nuke holds one focal length: fy = fx, 5e-5 from the calibrated fy
         np.testing.assert_allclose(camera.K, original.camera(camera.name).K, rtol=1e-4 if fmt == "nuke" else 1e-9)
 
