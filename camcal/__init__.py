@@ -16,7 +16,7 @@ function                what it does                                        resu
 :func:`undistort`       undistorted images of a rig camera and its pinhole  :class:`Undistortion`
                         rig (``camcal undistort``)
 :func:`load_rig`        read and validate a ``*.rig.json``                  :class:`Rig`
-:func:`export_rig`      a rig for OpenCV, Kalibr, COLMAP, USD or Nuke       ``ExportResult``
+:func:`export_rig`      a rig for OpenCV, Kalibr, COLMAP, USD, Nuke, 3DE    ``ExportResult``
                         (``camcal rig export``)
 :func:`import_rig`      another tool's camera file as a rig                 :class:`RigImport`
                         (``camcal rig import``)

@@ -1,10 +1,10 @@
 """Rig files: ``camcal.load_rig``, ``camcal.export_rig`` and ``camcal.import_rig``, as ``rig show | export | import``.
 
 The format of another tool's file is taken from its name when that is
-unambiguous (:func:`format_of`): ``.nk`` is Nuke's, ``.usda`` / ``.usdc`` /
-``.usd`` USD, ``.xml`` OpenCV's FileStorage, a folder (or a name without a
-suffix) COLMAP's text model; a ``.yaml`` is OpenCV's or Kalibr's, so it
-needs the format named.
+unambiguous (:func:`camcal.io.interchange.format_of`: ``.nk`` Nuke, ``.usda`` /
+``.usdc`` / ``.usd`` USD, ``.txt`` a 3DEqualizer lens file); a ``.yaml`` is
+OpenCV's or Kalibr's and a COLMAP model is a folder, so those need the format
+named.
 """
 
 from __future__ import annotations
@@ -15,16 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from camcal.base.errors import CamcalError
 
 if TYPE_CHECKING:
     from camcal.io.conversion import ExportResult, ImportResult, LensConversion
     from camcal.model.rig import Rig
 
-__all__ = ["RigImport", "export_rig", "format_of", "import_rig", "load_rig"]
-
-#: File suffix -> the interchange format (:data:`camcal.io.interchange.FORMATS`) it always is.
-SUFFIX_FORMATS = {".nk": "nuke", ".usda": "usd", ".usdc": "usd", ".usd": "usd", ".xml": "opencv"}
+__all__ = ["RigImport", "export_rig", "import_rig", "load_rig"]
 
 
 def load_rig(path: str | os.PathLike) -> Rig:
@@ -40,32 +36,6 @@ def load_rig(path: str | os.PathLike) -> Rig:
     return Rig.load(path)
 
 
-def format_of(path: str | os.PathLike, given: str | None = None, option: str = "--to") -> str:
-    """The interchange format of ``path``: ``given``, else the one its name says (:data:`SUFFIX_FORMATS`).
-
-    A folder, or a name without a suffix, is ``colmap`` (a text model is a folder).
-
-    Raises
-    ------
-    CamcalError
-        A name that says no format, or says two (``.yaml``: ``opencv`` or ``kalibr``), without ``given``.
-    """
-    if given is not None:
-        return given
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix in SUFFIX_FORMATS:
-        return SUFFIX_FORMATS[suffix]
-    if path.is_dir() or not suffix:
-        return "colmap"
-    if suffix in (".yaml", ".yml"):
-        raise CamcalError(f"{path}: a {suffix} file is opencv or kalibr: give {option} opencv or {option} kalibr")
-    from camcal.io.interchange import FORMATS
-
-    raise CamcalError(f"{path}: no format is known by the suffix {suffix!r}: give {option} (one of: "
-                      f"{', '.join(FORMATS)})")
-
-
 def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | None = None, *,
                cameras: Sequence[str] | None = None, stmaps: bool = False) -> ExportResult:
     """Write a rig for another tool (``camcal rig export``).
@@ -73,7 +43,8 @@ def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | 
     opencv: ``.yaml`` / ``.yml`` / ``.xml`` FileStorage (one camera or a stereo
     pair); kalibr: ``camchain.yaml``; colmap: a folder with ``cameras.txt``,
     ``images.txt``, ``points3D.txt``; usd: ``.usda`` / ``.usdc`` / ``.usd``;
-    nuke: ``.nk``. A lens or skew the format cannot hold is fitted with the
+    nuke: ``.nk``; 3de: a 3DEqualizer lens file (``.txt``, one camera). A lens or skew the format cannot hold is
+    fitted with the
     nearest model it holds and the largest pixel residual is reported
     (:attr:`ExportResult.conversions <camcal.io.conversion.ExportResult>`).
 
@@ -84,7 +55,8 @@ def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | 
     path : path
         The file (a folder for colmap) to write.
     to : str, optional
-        The format (:data:`camcal.io.interchange.FORMATS`); default: from ``path``'s name (:func:`format_of`).
+        The format (:data:`camcal.io.interchange.FORMATS`); default: from ``path``'s name
+        (:func:`camcal.io.interchange.format_of`).
     cameras : sequence of str, optional
         Export only these cameras.
     stmaps : bool
@@ -105,7 +77,7 @@ def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | 
 
     rig_path = None if isinstance(rig, Rig) else rig
     loaded = rig if isinstance(rig, Rig) else Rig.load(rig)
-    return export_as(loaded, format_of(path, to, "--to"), path, cameras=cameras, rig_path=rig_path, stmaps=stmaps)
+    return export_as(loaded, to, path, cameras=cameras, rig_path=rig_path, stmaps=stmaps)
 
 
 @dataclass(frozen=True)
@@ -160,9 +132,9 @@ def import_rig(path: str | os.PathLike, from_: str | None = None, *,
     path : path
         The file (a folder for colmap).
     from_ : str, optional
-        Its format; default: from its name (:func:`format_of`).
+        Its format; default: from its name (:func:`camcal.io.interchange.format_of`).
     image_size : (int, int), optional
-        usd: width and height in pixels of cameras that carry none.
+        usd, 3de, nuke: width and height in pixels of cameras that carry none.
 
     Returns
     -------
@@ -177,10 +149,10 @@ def import_rig(path: str | os.PathLike, from_: str | None = None, *,
     """
     import dataclasses
 
-    from camcal.io.interchange import import_rig as import_as
+    from camcal.io.interchange import format_of, import_rig as import_as
     from camcal.model.rig import make_provenance
 
-    fmt = format_of(path, from_, "--from")
+    fmt = format_of(path, from_)
     result = import_as(path, fmt, image_size=image_size)
     rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=fmt, source=str(path)))
     return RigImport(rig, fmt, result)

@@ -12,26 +12,31 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """``show``, ``export`` and ``import`` under ``camcal rig``."""
+    from camcal.io.conversion import exactness_table
     from camcal.io.interchange import FORMATS
 
     verbs = verb_group(parser, "rig_verb")
     show = verbs.add_parser("show", help="print a readable summary of a rig file")
     rig_argument(show, metavar="FILE")
     handler(show, _show)
-    export = verbs.add_parser("export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke)")
+    export = verbs.add_parser("export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke, 3DE)",
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
     rig_argument(export)
-    export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
+    export.add_argument("--to", choices=FORMATS, metavar="FORMAT",
+                        help=f"one of: {', '.join(FORMATS)} (default: from OUT's suffix, .nk .usd* .txt)")
     export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
     export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
     export.add_argument("--stmaps", action="store_true",
                         help="usd: also write each lens' ST-maps beside the stage and reference them from its camera")
     handler(export, _export)
+    export.epilog = "\n\n".join(filter(None, [export.epilog, "Which lens each format holds exactly:", exactness_table()]))
     imp = verbs.add_parser("import", help="read another tool's camera file as a rig")
     imp.add_argument("file", metavar="FILE", help="the other tool's file")
-    imp.add_argument("--from", dest="fmt", required=True, choices=FORMATS, metavar="FORMAT",
-                     help=f"one of: {', '.join(FORMATS)}")
+    imp.add_argument("--from", dest="fmt", choices=FORMATS, metavar="FORMAT",
+                     help=f"one of: {', '.join(FORMATS)} (default: from FILE's suffix, .nk .usd* .txt)")
     out_option(imp, "RIG.rig.json", "the rig file to write")
-    image_size_option(imp, "usd: the image size of cameras that carry none (USD cameras not written by camcal)")
+    image_size_option(imp, "usd, 3de, nuke: the image size of cameras that carry none (USD cameras, 3DE lens "
+                           "files and LDPK nodes not written by camcal)")
     handler(imp, _import)
 
 
@@ -57,14 +62,16 @@ def _print_conversions(args: argparse.Namespace, conversions, notes) -> None:
 def _export(args: argparse.Namespace) -> int:
     """Write RIG as FORMAT. opencv: .yaml/.yml/.xml FileStorage (one camera or a stereo pair); kalibr:
     camchain.yaml; colmap: a directory with cameras.txt, images.txt, points3D.txt; usd: .usda/.usdc/.usd;
-    nuke: .nk. A lens or skew the format cannot hold is fitted with the nearest model it holds and the max
-    pixel residual is printed; exact conversions say so.
+    nuke: .nk; 3de: a 3DEqualizer lens file (.txt, one camera). A lens or skew the format cannot hold is
+    fitted with the nearest model it holds and its pixel residual is printed (for the 3DEqualizer models:
+    max and RMS inside the image and over a 1.25 overscan border); exact conversions say so.
     """
     from pathlib import Path
 
-    from camcal.api.rig import export_rig, format_of
+    from camcal.api.rig import export_rig
+    from camcal.io.interchange import format_of
 
-    fmt = format_of(args.out, args.to, "--to")
+    fmt = format_of(args.out, args.to)
     result = export_rig(args.rig, args.out, fmt, cameras=args.camera, stmaps=args.stmaps)
     _print_conversions(args, result.conversions, result.notes)
     for path in result.paths:
