@@ -18,6 +18,7 @@ $(STAMP): pyproject.toml | python
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e ".[blender,test]"
+	$(PY) tests/colour/export/ocio_releases.py install $(VENV)/ocio
 	touch $(STAMP)
 
 test: $(STAMP)

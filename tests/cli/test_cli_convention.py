@@ -10,6 +10,7 @@ import sys
 
 import pytest
 
+from camcal.api.colour import fit_colour
 from camcal.cli import build_parser, main
 from camcal.cli.app import leaf_parsers
 from camcal.colour.fit.characterise import characterise
@@ -111,6 +112,7 @@ def test_one_adaptation_default_in_the_library_and_every_verb():
     assert set(defaults) == {"colour fit", "colour export"}
     assert all(text.endswith("(default: Bradford)") for text in defaults.values())
     assert inspect.signature(characterise).parameters["adaptation"].default == "Bradford"
+    assert inspect.signature(fit_colour).parameters["adaptation"].default == "Bradford"
 
 
 def test_no_opencv_log_line_before_the_error(tmp_path):
