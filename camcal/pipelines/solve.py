@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.base.atomic import atomic_dir, final_path
+from camcal.base.atomic import atomic_dir, final_path, remove_stale_temporaries
 from camcal.base.errors import CamcalError
 from camcal.base.native_log import native_output_to
 from camcal.geometry.bundle import (
@@ -232,7 +232,8 @@ def solve_sfm(
         model), ``solve.rig.json`` and ``points.ply``; built under a temporary
         name and renamed at the end, removed on any error
         (:func:`camcal.base.atomic.atomic_dir`; an earlier run's ``images/``
-        and ``sparse/`` in it are replaced as a whole).
+        and ``sparse/`` in it are replaced as a whole, and the staging folder
+        a killed run left beside it is removed first).
     camera_model : str
         COLMAP model for every camera: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL,
         RADIAL, OPENCV, SIMPLE_DIVISION... (one with a camcal counterpart).
@@ -318,6 +319,7 @@ def solve_sfm(
                                           ", ".join(map(str, value)) or "no file") for name, value in folders.items())
         raise CamcalError(f"need at least 2 images, got {n_images} ({where})")
     target = Path(out_dir)
+    remove_stale_temporaries([target])  # the staging folder of a killed earlier run
     with atomic_dir(target, replace=_OWNED + (COLMAP_LOG,)) as staging:
         with native_output_to(staging / COLMAP_LOG, echo=verbose):
             result = _solve_in(pycolmap, images, folders, staging, camera_model, matcher, mapper, seed, num_threads,
@@ -460,6 +462,7 @@ def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, c
 
     images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
               for name, value in folders.items()}
+    remove_stale_temporaries([out_dir])
     with atomic_dir(out_dir, replace=_OWNED + (COLMAP_LOG,)) as staging:
         with native_output_to(staging / COLMAP_LOG, echo=verbose):
             return _plain_in(pycolmap, images, folders, staging, camera_model, seed, every)
