@@ -23,6 +23,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                  "or its video (left=left.mp4: every --every-th frame, streamed into OUT/images; the k-th frames "
                  "kept pair up) (relative to IMAGES_DIR, or absolute; several entries or a repeated option)")
     every_option(parser)
+    parser.add_argument("--frames", metavar="RANGE", help="plates given as IMAGES_DIR or --camera with a frame "
+                        "placeholder (left.%%04d.exr, left.####.dpx): these frames (1001-1100, 1001-1100x2; all on disk "
+                        "by default), every one must exist")
     parser.add_argument("--rig", metavar="KNOWN.rig.json",
                         help="hold the cameras' relative poses at this calibration (and take its units)")
     parser.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none", "kannala-brandt"),
@@ -78,6 +81,7 @@ def _solve(args: argparse.Namespace) -> int:
     from camcal.geometry.selfcal import LENS_MODELS, MAPPING_MODELS
     from camcal.pipelines.solve import COLMAP_LOG, collect_images, solve_pycolmap_plain, solve_sfm
     from camcal.model.rig import Rig
+    from camcal.io.sequence import is_sequence_pattern, sequence_paths
 
     folders = [Path(folder) for folder in args.folders]
     if args.camera:
@@ -85,10 +89,11 @@ def _solve(args: argparse.Namespace) -> int:
             raise CamcalError(f"--camera NAME=GLOB selects images inside one folder: give exactly one, got {len(folders)}")
         if not folders[0].is_dir():
             raise CamcalError(f"image folder not found: {folders[0]}")
-        images = {name: [Path(f) for f in expand_glob("--camera", name, pattern, root=folders[0])]
+        images = {name: sequence_paths(folders[0] / pattern, args.frames) if is_sequence_pattern(pattern)
+                  else [Path(f) for f in expand_glob("--camera", name, pattern, root=folders[0])]
                   for name, pattern in args.camera.items()}
     else:
-        images = collect_images(folders)
+        images = collect_images(folders, frames=args.frames)
     known_rig = Rig.load(args.rig) if args.rig else None
     if args.features < 100:
         raise CamcalError(f"--features must be at least 100, got {args.features}")

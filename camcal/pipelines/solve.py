@@ -52,12 +52,14 @@ from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sp
 from camcal.model.colmap import camera_from_colmap
 from camcal.io.frames import imwrite
 from camcal.io.ply import write_points_ply
+from camcal.io.sequence import camera_of, feature_image, is_sequence_pattern, read_image, sequence_paths
 from camcal.io.video import is_video, iter_frames, video_info
 from camcal.model.rig import Camera, Rig
 
 __all__ = [
     "COLMAP_LOG",
     "UPSAMPLE_BELOW_PX",
+    "DECODED_SUFFIXES",
     "IMAGE_SUFFIXES",
     "MAPPERS",
     "MATCHERS",
@@ -68,7 +70,10 @@ __all__ = [
     "solve_sfm",
 ]
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
+#: Suffixes COLMAP reads itself (linked into the work folder) and those of plates it does not (EXR, DPX,
+#: Cineon: read with OpenImageIO and staged as 8-bit PNG, :func:`camcal.io.sequence.feature_image`).
+DECODED_SUFFIXES = (".exr", ".dpx", ".cin")
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp") + DECODED_SUFFIXES
 MATCHERS = ("exhaustive", "sequential")
 MAPPERS = ("incremental", "global")
 #: the file in the output folder that receives COLMAP's, glog's and Ceres' own lines.
@@ -127,24 +132,39 @@ def _list_images(folder: Path, pattern: str = "*") -> list[Path]:
     return images
 
 
-def collect_images(folders: list[Path], camera_globs: dict[str, str] | None = None) -> dict[str, list[Path]]:
-    """Images per camera: one folder per camera (named after it), or globs in one folder.
+def collect_images(folders: list[Path], camera_globs: dict[str, str] | None = None,
+                   frames: str | None = None) -> dict[str, list[Path]]:
+    """Images per camera: one folder per camera (named after it), or globs in one folder, or plates.
 
     Parameters
     ----------
     folders : list of Path
         Image folders. Without ``camera_globs`` each is one camera; a single
         folder holding only sub-folders of images is a rig, one camera per
-        sub-folder.
+        sub-folder. An entry (or a glob) with a frame placeholder
+        (``plates/left.%04d.exr``, ``left.####.dpx``) is a plate: the
+        frames of ``frames`` (or all on disk), every one checked to exist
+        (:func:`camcal.io.sequence.sequence_paths`); its camera is named by
+        the file name before the placeholder.
     camera_globs : dict of str to str, optional
         Camera name -> glob relative to the (single) folder, e.g.
         ``{"left": "*_L.png", "right": "*_R.png"}``; frames pair up by sorted order.
+    frames : str, optional
+        The frame range of plates (``1001-1100``, ``1001-1100x2``).
     """
     folders = [Path(folder) for folder in folders]
     if camera_globs:
         if len(folders) != 1:
             raise CamcalError("--camera NAME=GLOB selects images inside one folder: give exactly one")
-        return {name: _list_images(folders[0], pattern) for name, pattern in camera_globs.items()}
+        return {name: sequence_paths(folders[0] / pattern, frames) if is_sequence_pattern(pattern)
+                else _list_images(folders[0], pattern) for name, pattern in camera_globs.items()}
+    if any(is_sequence_pattern(folder) for folder in folders):
+        if not all(is_sequence_pattern(folder) for folder in folders):
+            raise CamcalError("give plates (a frame placeholder like %04d or ####) or image folders, not both")
+        plates = {camera_of(folder): sequence_paths(folder, frames) for folder in folders}
+        if len(plates) != len(folders):
+            raise CamcalError("plates must have distinct names before their frame numbers (they name the cameras)")
+        return plates
     if len(folders) == 1 and folders[0].is_dir():
         subfolders = sorted(p for p in folders[0].iterdir() if p.is_dir())
         if subfolders and not any(p.suffix.lower() in IMAGE_SUFFIXES for p in folders[0].iterdir() if p.is_file()):
@@ -170,7 +190,9 @@ def _stage_images(images: dict[str, list[Path]], staging: Path, every: int = 1) 
     of every camera is linked under the same name ``<k>.<suffix>``. A
     camera given as one video has its every ``every``-th frame decoded
     (streamed, :func:`camcal.io.video.iter_frames`) and written there as
-    ``<k>.png`` instead: the k-th kept frame of every video pairs up.
+    ``<k>.png`` instead: the k-th kept frame of every video pairs up. A
+    plate frame COLMAP cannot read (:data:`DECODED_SUFFIXES`) is decoded
+    and staged as ``<k>.png`` the same way, one at a time.
 
     Returns
     -------
@@ -190,8 +212,12 @@ def _stage_images(images: dict[str, list[Path]], staging: Path, every: int = 1) 
                 staged[f"{camera}/{name}"] = imwrite(staging / camera / name, image)
             continue
         for index, path in enumerate(paths):
-            name = f"{index:06d}{path.suffix.lower()}"
-            os.symlink(path.resolve(), staging / camera / name)
+            if path.suffix.lower() in DECODED_SUFFIXES:  # one frame decoded at a time
+                name = f"{index:06d}.png"
+                imwrite(staging / camera / name, feature_image(read_image(path), bgr=True))
+            else:
+                name = f"{index:06d}{path.suffix.lower()}"
+                os.symlink(path.resolve(), staging / camera / name)
             staged[f"{camera}/{name}"] = path
     return staged
 

@@ -49,7 +49,7 @@ def _sequence(tmp: Path, frames=FRAMES) -> str:
         rng = np.random.default_rng(frame)
         rgb = rng.random((SIZE[1], SIZE[0], 3)).astype(np.float16)
         with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION},
-                          {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2]}) as exr:
+                          {name: np.ascontiguousarray(rgb[..., i]) for i, name in enumerate("RGB")}) as exr:
             exr.write(pattern % frame)
     return pattern
 
