@@ -132,7 +132,7 @@ def sequence_paths(pattern: str | os.PathLike, frames: str | Sequence[int] | Non
     if not numbers:
         raise CamcalError(f"no frames asked of sequence {pattern}")
     paths = [Path(printf % frame) for frame in numbers]
-    missing = [frame for frame, path in zip(numbers, paths) if not path.is_file()]
+    missing = [frame for frame, path in zip(numbers, paths) if not path.exists()]
     if missing:
         runs = _runs(missing)
         listed = ", ".join(runs[:_MAX_LISTED]) + (f" and {len(runs) - _MAX_LISTED} more runs" if len(runs) > _MAX_LISTED else "")

@@ -81,6 +81,7 @@ from camcal.geometry.remap import RemapMaps, build_maps
 from camcal.geometry.undistort import MODES, make_undistorter
 from camcal.io.colourfile import load_fit
 from camcal.io.frames import ImageFrame, frame_format, read_frame, write_frame
+from camcal.io.sequence import printf_pattern, sequence_paths
 from camcal.model.rig import Camera, Rig
 from camcal.pipelines.distributed import dask_client
 
@@ -222,8 +223,8 @@ def make_job(
     camera : str
         Name of the camera whose plates these are.
     in_pattern, out_pattern : str
-        File patterns with one ``%d`` / ``%04d``; same image format (the
-        outputs keep the inputs' bit depth).
+        File patterns with one ``%d`` / ``%04d`` (or ``####``: one ``#`` per
+        digit); same image format (the outputs keep the inputs' bit depth).
     geometry : {"undistort", "rectify"} or None
         ``rectify`` needs the camera's ``rectification`` (``camcal rectify``).
     colour : path or ColourFit, optional
@@ -259,6 +260,8 @@ def make_job(
     if geometry is None and colour is None:
         raise CamcalError("nothing to do: give --undistort, --rectify and/or --colour")
     fit = colour if isinstance(colour, ColourFit) or colour is None else load_fit(colour)
+    in_pattern, out_pattern = (printf_pattern(pattern) if "#" in Path(pattern).name else pattern
+                               for pattern in (in_pattern, out_pattern))
     _check_pattern(in_pattern, "input")
     _check_pattern(out_pattern, "output")
     if frame_format(in_pattern) != frame_format(out_pattern):
@@ -572,8 +575,8 @@ def run_batch(
     Raises
     ------
     CamcalError
-        No frames, none of the input frames exists, or the
-        scheduler cannot be reached (nothing is written then).
+        No frames, input frames missing (named, by runs of frame numbers),
+        or the scheduler cannot be reached (nothing is written then).
     """
     frames = tuple(int(frame) for frame in frames)
     if not frames:
@@ -583,9 +586,8 @@ def run_batch(
     skipped = completed_frames(job, frames) if resume else ()
     done = set(skipped)
     todo = [frame for frame in frames if frame not in done]
-    if not skipped and not any(job.input_path(frame).exists() for frame in frames):
-        raise CamcalError(f"none of the {len(frames)} input frame(s) exists: {job.input_path(frames[0])} ... "
-                          f"{job.input_path(frames[-1])}")
+    if todo:
+        sequence_paths(job.in_pattern, todo)  # every input there, else the missing frames named, nothing written
     start = time.perf_counter()
     written: list[FrameResult] = []
     failed: list[FrameFailure] = []

@@ -337,6 +337,7 @@ def test_help():
 @pytest.mark.parametrize("change", [
     {"rig": "missing.rig.json"},
     {"--frames": "1010-1001"},
+    {"--frames": "1001-1003"},  # 1003 missing: named, nothing written
     {"--camera": "centre"},
     {"--in": "plates/left.exr"},
     {"--out": "out/left.exr"},

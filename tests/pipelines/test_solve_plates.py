@@ -1,0 +1,92 @@
+"""``solve`` on plates (an EXR and a DPX sequence) gives the rig it gives on the same pixels as PNG folders."""
+
+import json
+
+import cv2
+import numpy as np
+import OpenEXR
+import pytest
+
+oiio = pytest.importorskip("OpenImageIO")
+colour = pytest.importorskip("colour")
+
+from camcal.cli import main  # noqa: E402
+from camcal.pipelines.solve import collect_images, solve_sfm  # noqa: E402
+from camcal.synthetic import render_stereo_sequence  # noqa: E402
+
+FIRST = 1001
+
+
+def _numbers(value, key=""):
+    if isinstance(value, dict):
+        for name, item in value.items():
+            yield from _numbers(item, f"{key}.{name}")
+    elif isinstance(value, list):
+        for index, item in enumerate(value):
+            yield from _numbers(item, f"{key}[{index}]")
+    elif isinstance(value, (int, float)) and not isinstance(value, bool):
+        yield key, value
+
+
+def _to_plates(folder, plates):
+    """left: scene-linear float EXR (the sRGB decoding of the 8-bit codes); right: 16-bit DPX (codes x 257)."""
+    plates.mkdir()
+    for index, png in enumerate(sorted((folder / "left").iterdir())):
+        codes = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        linear = np.ascontiguousarray(colour.models.eotf_sRGB(codes / 255.0).astype(np.float32))
+        with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION}, {"Y": linear}) as exr:
+            exr.write(str(plates / f"left.{FIRST + index:04d}.exr"))
+    for index, png in enumerate(sorted((folder / "right").iterdir())):
+        codes = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        path = str(plates / f"right.{FIRST + index:04d}.dpx")
+        out = oiio.ImageOutput.create(path)
+        assert out.open(path, oiio.ImageSpec(codes.shape[1], codes.shape[0], 1, "uint16"))
+        assert out.write_image((codes.astype(np.uint16) * 257)[:, :, None])
+        out.close()
+
+
+@pytest.mark.slow
+def test_plates_solve_to_the_rig_of_the_same_pixels_as_png(tmp_path):
+    """Two solves; the fast sibling below solves a plate through the command line."""
+    width = 256
+    focal, height = 500.0 * width / 640, width * 3 // 4
+    render_stereo_sequence(tmp_path / "in", n_frames=5, image_size=(width, height),
+                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
+    _to_plates(tmp_path / "in", tmp_path / "plates")
+    last = f"{FIRST}-{FIRST + 4}"
+    plates = collect_images([tmp_path / "plates" / "left.%04d.exr", tmp_path / "plates" / "right.####.dpx"], frames=last)
+    assert list(plates) == ["left", "right"] and [p.name for p in plates["right"]][-1] == f"right.{FIRST + 4}.dpx"
+    solve_sfm(plates, tmp_path / "from_plates", max_num_features=512)
+    solve_sfm({"left": tmp_path / "in/left", "right": tmp_path / "in/right"}, tmp_path / "from_png",
+              max_num_features=512)
+    staged = sorted((tmp_path / "from_plates" / "images" / "left").iterdir())
+    assert [p.suffix for p in staged] == [".png"] * 5  # decoded, not linked
+    for staged_png, png in zip(staged, sorted((tmp_path / "in" / "left").iterdir())):
+        np.testing.assert_array_equal(cv2.imread(str(staged_png), cv2.IMREAD_UNCHANGED),
+                                      cv2.imread(str(png), cv2.IMREAD_UNCHANGED))
+    a = dict(_numbers(json.loads((tmp_path / "from_plates/solve.rig.json").read_text())))
+    b = dict(_numbers(json.loads((tmp_path / "from_png/solve.rig.json").read_text())))
+    assert set(a) == set(b) and any(".K" in key or "fx" in key for key in a)
+    for key in a:
+        assert abs(a[key] - b[key]) <= 1e-9 * max(1.0, abs(a[key]), abs(b[key])), (key, a[key], b[key])
+    frames = json.loads((tmp_path / "from_plates/solve.rig.json").read_text())["frames"]
+    assert any("left.1001.exr" in json.dumps(frame) for frame in frames)  # the rig points at the plate's files
+
+
+def test_solve_cli_takes_a_plate_by_camera_and_frame_range(tmp_path, monkeypatch, capsys):
+    """--camera NAME=PATTERN with --frames: the frames outside the range are not used, the staged frames hold
+    the pixels the EXR's linear values encode."""
+    monkeypatch.chdir(tmp_path)
+    width = 256
+    focal, height = 500.0 * width / 640, width * 3 // 4
+    render_stereo_sequence(tmp_path / "in", n_frames=4, image_size=(width, height),
+                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
+    _to_plates(tmp_path / "in", tmp_path / "plates")
+    code = main(["solve", "plates", "--camera", "left=left.####.exr", "--frames", f"{FIRST}-{FIRST + 2}",
+                 "--features", "512", "--no-refine", "--out", "out"])
+    assert code == 0, capsys.readouterr().err
+    assert "registered 3 / 3 images" in capsys.readouterr().out
+    staged = sorted((tmp_path / "out" / "images" / "left").iterdir())
+    for staged_png, png in zip(staged, sorted((tmp_path / "in" / "left").iterdir())[:3], strict=True):
+        np.testing.assert_array_equal(cv2.imread(str(staged_png), cv2.IMREAD_UNCHANGED),
+                                      cv2.imread(str(png), cv2.IMREAD_UNCHANGED))
