@@ -26,6 +26,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", metavar="RANGE", help="plates given as IMAGES_DIR or --camera with a frame "
                         "placeholder (left.%%04d.exr, left.####.dpx): these frames (1001-1100, 1001-1100x2; all on disk "
                         "by default), every one must exist")
+    named_option(parser, "--mask", "NAME=PATTERN", "a camera's matte sequence (left=mattes/left.%%04d.exr, the same "
+                 "--frames; alpha, else the first channel): no feature is taken where it is white (moving actors, the sky)")
     parser.add_argument("--rig", metavar="KNOWN.rig.json",
                         help="hold the cameras' relative poses at this calibration (and take its units)")
     parser.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none", "kannala-brandt"),
@@ -109,6 +111,7 @@ def _solve(args: argparse.Namespace) -> int:
                        lens_models=lens_models, principal_point=args.principal_point, max_num_features=args.features,
                        jackknife=UNCERTAINTY[args.uncertainty], priors=tuple(parse_prior(text) for text in args.prior),
                        verbose=args.verbose, guided_matching=args.guided_matching, every=args.every,
+                       masks={name: sequence_paths(pattern, args.frames) for name, pattern in (args.mask or {}).items()},
                        progress=lambda message: print(f"camcal solve: {message}", file=sys.stderr, flush=True))
     print(f"registered {result.n_registered} / {result.n_images} images"
           + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else ""))

@@ -48,6 +48,7 @@ __all__ = [
     "PLATE_SUFFIXES",
     "camera_of",
     "feature_image",
+    "feature_mask",
     "is_sequence_pattern",
     "iter_sequence",
     "printf_pattern",
@@ -207,6 +208,19 @@ def feature_image(pixels: NDArray, bgr: bool = False) -> NDArray[np.uint8]:
         values = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1.0 / 2.4) - 0.055)
     out = np.rint(np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8)
     return out[:, :, 0] if out.shape[2] == 1 else (out[:, :, ::-1] if bgr else out)
+
+
+def feature_mask(matte: NDArray) -> NDArray[np.uint8]:
+    """COLMAP's feature mask of a matte frame: 0 (no features) where the matte is at least half on, else 255.
+
+    A matte is white on what must not be tracked (moving actors, the sky),
+    as a roto or garbage matte is drawn; its alpha channel is used when it
+    has one (2 or 4 channels), else its first channel. Integer values are
+    read as fractions of their type's maximum.
+    """
+    channel = matte[:, :, -1] if matte.shape[2] in (2, 4) else matte[:, :, 0]
+    scale = float(np.iinfo(channel.dtype).max) if np.issubdtype(channel.dtype, np.integer) else 1.0
+    return np.where(np.nan_to_num(channel.astype(np.float32)) >= 0.5 * scale, 0, 255).astype(np.uint8)
 
 
 def camera_of(pattern: str | os.PathLike) -> str:

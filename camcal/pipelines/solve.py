@@ -52,7 +52,10 @@ from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sp
 from camcal.model.colmap import camera_from_colmap
 from camcal.io.frames import imwrite
 from camcal.io.ply import write_points_ply
-from camcal.io.sequence import camera_of, feature_image, is_sequence_pattern, read_image, sequence_paths
+from camcal.io.headers import declared_size
+from camcal.io.sequence import (
+    camera_of, feature_image, feature_mask, is_sequence_pattern, read_image, sequence_paths,
+)
 from camcal.io.video import is_video, iter_frames, video_info
 from camcal.model.rig import Camera, Rig
 
@@ -79,7 +82,7 @@ MAPPERS = ("incremental", "global")
 #: the file in the output folder that receives COLMAP's, glog's and Ceres' own lines.
 COLMAP_LOG = "colmap.log"
 #: What a solve writes in its folder as a whole: an earlier run's are replaced, not merged into.
-_OWNED = ("images", "sparse", "database.db")
+_OWNED = ("images", "masks", "sparse", "database.db")
 
 
 @dataclass(frozen=True)
@@ -222,6 +225,25 @@ def _stage_images(images: dict[str, list[Path]], staging: Path, every: int = 1) 
     return staged
 
 
+def _stage_masks(masks: dict[str, list[Path]], staged: dict[str, Path], image_dir: Path, mask_dir: Path) -> Path:
+    """Each matte as COLMAP's mask of its image, ``mask_dir/<camera>/<k>.<suffix>.png``; one matte read at a time."""
+    for camera, mattes in masks.items():
+        names = [name for name in staged if name.split("/")[0] == camera]
+        if not names:
+            raise CamcalError(f"masks given for {camera!r}, which is not a camera of this solve")
+        if len(mattes) != len(names):
+            raise CamcalError(f"camera {camera!r} has {len(names)} images but {len(mattes)} mattes")
+        (mask_dir / camera).mkdir(parents=True)
+        for name, matte in zip(names, mattes):
+            mask = feature_mask(read_image(matte))
+            size = declared_size(image_dir / name)
+            if size is not None and size != (mask.shape[1], mask.shape[0]):
+                raise CamcalError(f"matte {matte} is {mask.shape[1]}x{mask.shape[0]} px but its image "
+                                  f"{staged[name]} is {size[0]}x{size[1]}")
+            imwrite(mask_dir / f"{name}.png", mask)
+    return mask_dir
+
+
 def solve_sfm(
     folders: dict[str, Path | list[Path]],
     out_dir: Path,
@@ -242,6 +264,7 @@ def solve_sfm(
     verbose: bool = False,
     guided_matching: bool = False,
     every: int = 1,
+    masks: dict[str, list[Path]] | None = None,
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -312,6 +335,11 @@ def solve_sfm(
         Match each verified pair again along its epipolar geometry (more,
         longer tracks); on the CPU it costs 10-20 times the matching itself
         (345 s against 21 s for 12 images of 640 x 480 with 8192 features).
+    masks : dict of str to list of Path, optional
+        Camera name -> one matte file per image (a matte sequence,
+        :func:`camcal.io.sequence.sequence_paths`), white where no feature
+        may be taken (moving actors, the sky): staged as COLMAP's feature
+        masks in ``out_dir/masks`` (:func:`camcal.io.sequence.feature_mask`).
 
     Returns
     -------
@@ -350,13 +378,14 @@ def solve_sfm(
         with native_output_to(staging / COLMAP_LOG, echo=verbose):
             result = _solve_in(pycolmap, images, folders, staging, camera_model, matcher, mapper, seed, num_threads,
                                refine, known_rig, loss, lens_models, principal_point, max_num_features, progress,
-                               jackknife, guided_matching, priors, every)
+                               jackknife, guided_matching, priors, every, masks or {})
     return dataclasses.replace(result, reconstruction_dir=final_path(result.reconstruction_dir, staging, target))
 
 
 def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, mapper, seed, num_threads, refine,
               known_rig, loss, lens_models, principal_point, max_num_features, progress, jackknife,
-              guided_matching: bool, priors: tuple[PriorSpec, ...], every: int = 1) -> SfmResult:
+              guided_matching: bool, priors: tuple[PriorSpec, ...], every: int = 1,
+              masks: dict[str, list[Path]] | None = None) -> SfmResult:
     """:func:`solve_sfm`'s work inside its (temporary) output folder, COLMAP's output captured."""
     image_dir = out_dir / "images"
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
@@ -367,6 +396,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
 
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
+    if masks:
+        reader.mask_path = _stage_masks(masks, staged, image_dir, out_dir / "masks")
     firsts: dict[str, Path] = {}
     for name in image_names:
         firsts.setdefault(name.split("/")[0], image_dir / name)

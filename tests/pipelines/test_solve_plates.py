@@ -90,3 +90,58 @@ def test_solve_cli_takes_a_plate_by_camera_and_frame_range(tmp_path, monkeypatch
     for staged_png, png in zip(staged, sorted((tmp_path / "in" / "left").iterdir())[:3], strict=True):
         np.testing.assert_array_equal(cv2.imread(str(staged_png), cv2.IMREAD_UNCHANGED),
                                       cv2.imread(str(png), cv2.IMREAD_UNCHANGED))
+
+
+def _keypoint_x(database_path):
+    import pycolmap
+
+    database = pycolmap.Database.open(database_path)
+    try:
+        return {image.name: database.read_keypoints(image.image_id)[:, 0] for image in database.read_all_images()}
+    finally:
+        database.close()
+
+
+def test_mattes_keep_features_out_of_their_white_part(tmp_path, monkeypatch, capsys):
+    """A matte sequence white over the left 40 % of the frames: no feature is taken there, while the same
+    solve without it has features across the whole width."""
+    monkeypatch.chdir(tmp_path)
+    width = 256
+    focal, height = 500.0 * width / 640, width * 3 // 4
+    render_stereo_sequence(tmp_path / "in", n_frames=4, image_size=(width, height),
+                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
+    _to_plates(tmp_path / "in", tmp_path / "plates")
+    (tmp_path / "mattes").mkdir()
+    edge = int(0.4 * width)
+    for frame in range(FIRST, FIRST + 4):
+        matte = np.zeros((height, width, 4), np.float32)
+        matte[:, :edge, 3] = 1.0  # alpha on: an actor over the left part
+        with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION},
+                          {name: np.ascontiguousarray(matte[..., i]) for i, name in enumerate("RGBA")}) as exr:
+            exr.write(str(tmp_path / "mattes" / f"left.{frame}.exr"))
+    command = ["solve", "plates/left.####.exr", "--frames", f"{FIRST}-{FIRST + 3}", "--features", "512", "--no-refine"]
+    for out, mask in (("masked", ["--mask", "left=mattes/left.####.exr"]), ("unmasked", [])):
+        assert main(command + mask + ["--out", out]) == 0, capsys.readouterr().err
+    masked, unmasked = _keypoint_x(tmp_path / "masked" / "database.db"), _keypoint_x(tmp_path / "unmasked" / "database.db")
+    assert len(masked) == len(unmasked) == 4
+    for name, x in masked.items():  # COLMAP's keypoints: x = 0 at the left edge of the first pixel column
+        assert len(x) > 50 and x.min() >= edge, (name, x.min())
+        assert unmasked[name].min() < 0.5 * edge, (name, unmasked[name].min())
+
+
+@pytest.mark.parametrize("problem", ["count", "size"])
+def test_mattes_that_do_not_fit_the_images_are_one_error_and_nothing_is_written(tmp_path, problem):
+    from camcal.base.errors import CamcalError
+
+    render_stereo_sequence(tmp_path / "in", n_frames=3, image_size=(96, 72),
+                           K=((75.0, 0.0, 47.5), (0.0, 75.0, 35.5), (0.0, 0.0, 1.0)))
+    images = sorted((tmp_path / "in" / "left").iterdir())
+    mattes = []
+    for index in range(2 if problem == "count" else 3):
+        mattes.append(tmp_path / f"matte.{index}.png")
+        cv2.imwrite(str(mattes[-1]), np.zeros((72, 96 if problem == "count" else 95), np.uint8))
+    message = "has 3 images but 2 mattes" if problem == "count" else r"is 95x72 px but its image .* is 96x72"
+    with pytest.raises(CamcalError, match=message):
+        solve_sfm({"left": images}, tmp_path / "out", masks={"left": mattes})
+    assert not (tmp_path / "out").exists() and sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["in"] + [p.name for p in mattes])
