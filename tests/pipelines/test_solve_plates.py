@@ -1,6 +1,12 @@
 """``solve`` on plates (an EXR and a DPX sequence) gives the rig it gives on the same pixels as PNG folders."""
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -10,11 +16,13 @@ import pytest
 oiio = pytest.importorskip("OpenImageIO")
 colour = pytest.importorskip("colour")
 
+from camcal.base.atomic import TEMPORARY_TAG  # noqa: E402
 from camcal.cli import main  # noqa: E402
 from camcal.pipelines.solve import collect_images, solve_sfm  # noqa: E402
 from camcal.synthetic import render_stereo_sequence  # noqa: E402
 
 FIRST = 1001
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _numbers(value, key=""):
@@ -140,8 +148,43 @@ def test_mattes_that_do_not_fit_the_images_are_one_error_and_nothing_is_written(
     for index in range(2 if problem == "count" else 3):
         mattes.append(tmp_path / f"matte.{index}.png")
         cv2.imwrite(str(mattes[-1]), np.zeros((72, 96 if problem == "count" else 95), np.uint8))
+    stale = tmp_path / f".out.{TEMPORARY_TAG}.k1ll3d00"  # what a killed solve left: its staging folder
+    (stale / "images").mkdir(parents=True)
+    (stale / "database.db").write_bytes(b"partial")
+    (tmp_path / ".out.notes").write_text("not camcal's")
     message = "has 3 images but 2 mattes" if problem == "count" else r"is 95x72 px but its image .* is 96x72"
     with pytest.raises(CamcalError, match=message):
         solve_sfm({"left": images}, tmp_path / "out", masks={"left": mattes})
     assert not (tmp_path / "out").exists() and sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        ["in"] + [p.name for p in mattes])
+        ["in", ".out.notes"] + [p.name for p in mattes])
+
+
+@pytest.mark.slow
+def test_solve_killed_mid_run_then_rerun_leaves_the_uninterrupted_result(tmp_path):
+    """SIGKILL during feature extraction leaves the staging folder; the rerun removes it and writes what an
+    uninterrupted run writes (the slow sibling of the stale-folder check above)."""
+    width = 256
+    focal, height = 500.0 * width / 640, width * 3 // 4
+    render_stereo_sequence(tmp_path / "in", n_frames=5, image_size=(width, height),
+                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
+    _to_plates(tmp_path / "in", tmp_path / "plates")
+    command = [sys.executable, "-m", "camcal", "solve", "plates/left.####.exr", "--features", "512",
+               "--out", "out"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    process = subprocess.Popen(command, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                               start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not list(tmp_path.glob(f".out.{TEMPORARY_TAG}.*/images/left/*.png")):
+            assert process.poll() is None, "the solve ended before it was killed"
+            time.sleep(0.01)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait(timeout=30)
+    assert not (tmp_path / "out").exists() and len(list(tmp_path.glob(f".out.{TEMPORARY_TAG}.*"))) == 1
+    subprocess.run(command, cwd=tmp_path, env=env, check=True, capture_output=True)
+    subprocess.run(command[:-1] + ["uninterrupted"], cwd=tmp_path, env=env, check=True, capture_output=True)
+    assert not [p for p in tmp_path.iterdir() if TEMPORARY_TAG in p.name]
+    a = dict(_numbers(json.loads((tmp_path / "out/solve.rig.json").read_text())))
+    b = dict(_numbers(json.loads((tmp_path / "uninterrupted/solve.rig.json").read_text())))
+    assert set(a) == set(b) and all(abs(a[k] - b[k]) <= 1e-9 * max(1.0, abs(a[k]), abs(b[k])) for k in a)
