@@ -19,7 +19,7 @@ Pixels
 Read with OpenImageIO (the optional ``plates`` extra), the VFX industry's
 image library: EXR, DPX, Cineon, TIFF, PNG, JPEG and the other formats it
 has plugins for (OpenCV reads neither DPX nor Cineon). Frames are read one
-at a time (:func:`iter_sequence`): a plate is never held in memory whole.
+at a time (:func:`read_image` per file): a plate is never held in memory whole.
 :func:`read_image` returns the file's pixels in R, G, B[, A] order, in the
 file's own type (uint8, uint16 for 10/12/16-bit DPX and TIFF code values
 in the low bits scaled by OpenImageIO to the full 16-bit range, float32
@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -45,20 +45,16 @@ from camcal.base.frame_ranges import parse_frames
 from camcal.base.limits import check_image_size
 
 __all__ = [
-    "PLATE_SUFFIXES",
     "camera_of",
     "feature_image",
     "feature_mask",
     "is_sequence_pattern",
-    "iter_sequence",
     "printf_pattern",
     "read_image",
     "sequence_frames",
     "sequence_paths",
 ]
 
-#: Suffixes read through OpenImageIO for plates (COLMAP's own reader takes the 8-bit ones directly).
-PLATE_SUFFIXES = (".exr", ".dpx", ".cin", ".tif", ".tiff", ".png", ".jpg", ".jpeg")
 _PRINTF = re.compile(r"%(0\d+)?d")
 _HASHES = re.compile(r"#+")
 _MAX_LISTED = 20
@@ -174,12 +170,8 @@ def read_image(path: str | os.PathLike) -> NDArray:
         spec = image.spec()
         check_image_size(spec.width, spec.height, f"{path}: the header declares")
         base = spec.format.basetype
-        if base in (oiio.UINT8,):
-            kind = "uint8"
-        elif base in (oiio.UINT16, oiio.UINT32, oiio.INT16, oiio.INT32, oiio.INT8):
-            kind = "uint16"
-        else:
-            kind = "float"
+        kind = ("uint8" if base == oiio.UINT8 else
+                "float" if base in (oiio.HALF, oiio.FLOAT, oiio.DOUBLE) else "uint16")  # 10/12/16/32-bit integers
         pixels = image.read_image(0, 0, 0, spec.nchannels, kind)
         error = image.geterror()
     finally:
@@ -230,9 +222,3 @@ def camera_of(pattern: str | os.PathLike) -> str:
     match = _PRINTF.search(name) or _HASHES.search(name)
     stem = name[:match.start()].rstrip("._- ") if match else Path(name).stem
     return stem or Path(pattern).resolve().parent.name
-
-
-def iter_sequence(paths: Sequence[str | os.PathLike]) -> Iterator[tuple[Path, NDArray]]:
-    """``(path, pixels)`` for each file in turn (:func:`read_image`); one frame in memory at a time."""
-    for path in paths:
-        yield Path(path), read_image(path)

@@ -13,7 +13,7 @@ oiio = pytest.importorskip("OpenImageIO")
 from camcal.base.errors import CamcalError  # noqa: E402
 from camcal.cli import main  # noqa: E402
 from camcal.io.sequence import (  # noqa: E402
-    camera_of, feature_image, iter_sequence, printf_pattern, read_image, sequence_frames, sequence_paths,
+    camera_of, feature_image, printf_pattern, read_image, sequence_frames, sequence_paths,
 )
 
 SIZE = (24, 16)
@@ -45,9 +45,8 @@ def test_exr_sequence_reads_back_the_half_values_written_in_rgb_order(tmp_path):
         _write_exr(tmp_path / f"plate.{frame:04d}.exr", _rgb(frame))
     paths = sequence_paths(tmp_path / "plate.####.exr", "1001-1003")
     assert paths == sequence_paths(tmp_path / "plate.%04d.exr")  # all on disk, same files
-    frames = iter_sequence(paths)
-    assert not isinstance(frames, (list, tuple))  # a generator: one frame read at a time
-    for frame, (path, pixels) in zip(range(1001, 1004), frames):
+    for frame, path in zip(range(1001, 1004), paths, strict=True):
+        pixels = read_image(path)
         assert path.name == f"plate.{frame}.exr" and pixels.dtype == np.float32
         np.testing.assert_array_equal(pixels, _rgb(frame).astype(np.float16).astype(np.float32))
 
