@@ -38,7 +38,7 @@ from pathlib import Path
 from camcal.base.errors import CamcalError
 
 __all__ = ["TEMPORARY_TAG", "atomic_dir", "atomic_path", "atomic_write_text", "final_path",
-           "is_temporary_of", "remove_stale_temporaries"]
+           "is_temporary_of", "output_folder", "remove_stale_temporaries"]
 
 #: The word every temporary name carries: ``.NAME.camcal-tmp.XXXXXXXX[SUFFIX]``.
 TEMPORARY_TAG = "camcal-tmp"
@@ -130,6 +130,26 @@ def atomic_dir(target: str | os.PathLike, replace: Iterable[str] = ()) -> Iterat
         _remove_empty(created)
         raise
     shutil.rmtree(staging, ignore_errors=True)  # what a merge into an existing folder left: empty folders
+
+
+@contextlib.contextmanager
+def output_folder(path: str | os.PathLike | None) -> Iterator[Path | None]:
+    """The folder an output folder names (``--report DIR``, ``--write DIR``), or None when it is not given.
+
+    The verb writes into the yielded temporary folder beside ``path``; it is
+    renamed to ``path`` when the verb's block ends and removed on any error
+    (:func:`atomic_dir`: an existing folder keeps its
+    other files, files of the same names are replaced at the end). Paths
+    written inside it map to their final place with
+    :func:`final_path`.
+    """
+    if path is None:
+        yield None
+        return
+    with atomic_dir(path) as staging:
+        yield staging
+
+
 
 
 def final_path(path: str | os.PathLike, staging: Path, target: str | os.PathLike) -> Path:

@@ -41,22 +41,22 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def _show(args: argparse.Namespace) -> int:
-    from camcal.model.rig import Rig
+    from camcal.api.rig import load_rig
 
-    rig = Rig.load(args.rig)
+    rig = load_rig(args.rig)
     print(rig.summary())
     summary_of(args).figures(rig=rig.to_dict())
     return 0
 
 
-def _print_conversions(args: argparse.Namespace, result) -> None:
+def _print_conversions(args: argparse.Namespace, conversions, notes) -> None:
     import dataclasses
 
-    for conversion in result.conversions:
+    for conversion in conversions:
         print(conversion.describe())
-    for note in result.notes:
+    for note in notes:
         print(f"note: {note}")
-    summary_of(args).figures(conversions=[dataclasses.asdict(c) for c in result.conversions], notes=list(result.notes))
+    summary_of(args).figures(conversions=[dataclasses.asdict(c) for c in conversions], notes=list(notes))
 
 
 def _export(args: argparse.Namespace) -> int:
@@ -68,13 +68,12 @@ def _export(args: argparse.Namespace) -> int:
     """
     from pathlib import Path
 
-    from camcal.io.interchange import export_rig, format_of
-    from camcal.model.rig import Rig
+    from camcal.api.rig import export_rig
+    from camcal.io.interchange import format_of
 
     fmt = format_of(args.out, args.to)
-    result = export_rig(Rig.load(args.rig), fmt, args.out, cameras=args.camera, rig_path=args.rig,
-                        stmaps=args.stmaps)
-    _print_conversions(args, result)
+    result = export_rig(args.rig, args.out, fmt, cameras=args.camera, stmaps=args.stmaps)
+    _print_conversions(args, result.conversions, result.notes)
     for path in result.paths:
         summary_of(args).wrote(path, fmt if path == Path(args.out) or path.parent == Path(args.out) else "stmap")
     return 0
@@ -82,22 +81,15 @@ def _export(args: argparse.Namespace) -> int:
 
 def _import(args: argparse.Namespace) -> int:
     """Read FILE (a directory for colmap) written by FORMAT's tool and write a camcal rig."""
-    import dataclasses
-    from pathlib import Path
+    from camcal.api.rig import import_rig
 
-    from camcal.io.interchange import format_of, import_rig
-    from camcal.io.ply import write_points_ply
-    from camcal.model.rig import make_provenance
-
-    fmt = format_of(args.file, args.fmt)
-    result = import_rig(args.file, fmt, image_size=None if args.image_size is None else image_size(args.image_size))
-    rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=fmt, source=str(args.file)))
-    _print_conversions(args, result)
+    imported = import_rig(args.file, args.fmt,
+                          image_size=None if args.image_size is None else image_size(args.image_size))
+    _print_conversions(args, imported.conversions, imported.notes)
     out = summary_of(args)
-    if result.points_xyz is not None:
-        points = Path(args.out).with_name(Path(args.out).name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
-        out.wrote(write_points_ply(points, result.points_xyz, result.points_rgb), "points")
-        rig = dataclasses.replace(rig, points=points.name)
-    out.figures(n_cameras=len(rig.cameras), n_frames=len(rig.frames))
-    out.wrote(rig.save(args.out), "rig")
+    files = imported.save(args.out)
+    for path, kind in files[:-1]:
+        out.wrote(path, kind)
+    out.figures(n_cameras=len(imported.rig.cameras), n_frames=len(imported.rig.frames))
+    out.wrote(files[-1][0], "rig")
     return 0

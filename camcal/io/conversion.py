@@ -43,7 +43,9 @@ __all__ = [
     "max_pixel_residual",
     "nearest_camera",
     "nearest_family",
+    "projection_figures",
     "refit_camera",
+    "refit_projection",
     "residual_figures",
     "select_cameras",
 ]
@@ -82,6 +84,7 @@ FORMAT_FAMILIES: Mapping[str, tuple[str, ...]] = MappingProxyType({
     "usd": ("opencv", "division", "kannala-brandt", "kannala-brandt-thin-prism", *TDE_FAMILIES),
     "nuke": ("3de4-radial-deg4", "3de-classic", "3de4-anamorphic-deg4", "3de4-fisheye-deg8"),
     "3de": ("3de4-radial-deg4", "3de-classic", "3de4-anamorphic-deg4", "3de4-fisheye-deg8"),
+    "lensfun": ("polynomial",),
 })
 
 #: What the table of :func:`exactness_table` cannot say in one word per cell.
@@ -90,6 +93,7 @@ _FORMAT_NOTES = (
     "colmap: no pinhole thin prism; a division lens centred on the principal point",
     "usd: camcal's own lens attributes, read back by camcal",
     "nuke: LensDistortion (3DEqualizer preset) and LDPK nodes; its ST-maps hold every lens exactly",
+    "lensfun: poly3 / poly5 / ptlens, square pixels: polynomial k1 k2 exact, any other lens refit to the best",
 )
 
 
@@ -417,18 +421,26 @@ def residual_figures(source: Camera, target: Camera, overscan: float = DEFAULT_O
     Refit
         With ``family = target.distortion.model`` and ``exact = False``.
     """
+    return projection_figures(source, lambda rays: target.distortion.project_rays(rays, target.K),
+                              target.distortion.model, overscan)
+
+
+def projection_figures(source: Camera, project: Callable[[NDArray[np.float64]], NDArray[np.float64]], family: str,
+                       overscan: float = DEFAULT_OVERSCAN) -> Refit:
+    """:func:`residual_figures` of a lens given as its projection ``project(rays) -> distorted pixels`` (NaN where
+    it images no ray), for a family camcal has no lens model of."""
     grid, inside = _dense_grid(source.image_size, overscan)
     rays = source.distortion.rays_from_pixels(grid, source.K)
     seen = np.all(np.isfinite(rays), axis=1)
-    projected = target.distortion.project_rays(rays[seen], target.K)
+    projected = project(rays[seen])
     distances = np.linalg.norm(projected - grid[seen], axis=1)
     n_lost = int(np.count_nonzero(~np.isfinite(distances)))
     max_px, rms_px = _figures(distances[inside[seen]])
     if not np.isfinite(max_px):
         raise CamcalError(f"camera {source.name!r}: no pixel of the image has its ray imaged by the "
-                          f"{target.distortion.model} lens")
+                          f"{family} lens")
     border_max, border_rms = _figures(distances[~inside[seen]])
-    return Refit(target.distortion.model, False, max_px, rms_px, border_max, border_rms, float(overscan), n_lost)
+    return Refit(family, False, max_px, rms_px, border_max, border_rms, float(overscan), n_lost)
 
 
 def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERSCAN, K: NDArray[np.float64] | None = None,
@@ -486,15 +498,7 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
             and all(exact.params.get(name, 0.0) == value for name, value in fixed.items())):
         converted = replace(camera, distortion=exact)
         return converted, replace(residual_figures(camera, converted, overscan), exact=True)
-    grid, inside = _dense_grid(camera.image_size, overscan)
-    rays = camera.distortion.rays_from_pixels(grid, camera.K)
-    usable = np.all(np.isfinite(rays), axis=1)
-    if family not in FISHEYE_MODELS:  # the others image rays in front of the camera only
-        usable &= rays[:, 2] > _MIN_DEPTH * np.linalg.norm(rays, axis=1)
-    if np.count_nonzero(usable) < 10:
-        raise CamcalError(f"camera {camera.name!r}: too few rays of the frame for a {family} lens")
-    grid, rays = grid[usable], rays[usable]
-    weights = np.where(inside[usable], 1.0, _BORDER_WEIGHT)[:, None]
+    grid, rays, weights = _fitting_grid(camera, family, overscan, family in FISHEYE_MODELS)
     neutral, held = _family_parameters(family, camera.image_size)
     held.update(fixed)
     names = tuple(name for name in neutral if name not in held)
@@ -517,11 +521,47 @@ def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERS
         while np.any(np.abs(residuals(start)) >= 1e6) and start[-1] < 2.0:
             start[-1] += 0.05
     if len(start):
-        start = scipy.optimize.least_squares(residuals, start, x_scale="jac", method="lm", xtol=1e-15, ftol=1e-15).x
+        start = _least_squares(residuals, start)
     if family in _FOCAL_FITTED:
         K = _scaled(K, start[-1])
     converted = replace(camera, K=K, distortion=lens(start[:len(names)]))
     return converted, residual_figures(camera, converted, overscan)
+
+
+def refit_projection(camera: Camera, family: str,
+                     project: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
+                     start: Sequence[float], *,
+                     overscan: float = DEFAULT_OVERSCAN) -> tuple[NDArray[np.float64], Refit]:
+    """:func:`refit_camera`'s fit (its grid, weights and Levenberg-Marquardt) for a rectilinear family camcal
+    has no lens model of (Lensfun's, :mod:`camcal.io.lensfun`), given as ``project(vector, rays) -> distorted
+    pixels``; from ``start``, it returns the fitted vector and its :func:`projection_figures`.
+    """
+    grid, rays, weights = _fitting_grid(camera, family, overscan, False)
+
+    def residuals(vector: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.nan_to_num(weights * (project(vector, rays) - grid), nan=1e6).ravel()
+
+    vector = _least_squares(residuals, np.asarray(start, dtype=np.float64))
+    return vector, projection_figures(camera, lambda rays: project(vector, rays), family, overscan)
+
+
+def _fitting_grid(camera: Camera, family: str, overscan: float,
+                  fisheye: bool) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The refit's distorted pixels, their rays (at least 3 degrees in front of the image plane unless
+    ``fisheye``) and weights (1 inside the image, :data:`_BORDER_WEIGHT` over the border)."""
+    grid, inside = _dense_grid(camera.image_size, overscan)
+    rays = camera.distortion.rays_from_pixels(grid, camera.K)
+    usable = np.all(np.isfinite(rays), axis=1)
+    if not fisheye:  # the others image rays in front of the camera only
+        usable &= rays[:, 2] > _MIN_DEPTH * np.linalg.norm(rays, axis=1)
+    if np.count_nonzero(usable) < 10:
+        raise CamcalError(f"camera {camera.name!r}: too few rays of the frame for a {family} lens")
+    return grid[usable], rays[usable], np.where(inside[usable], 1.0, _BORDER_WEIGHT)[:, None]
+
+
+def _least_squares(residuals: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+                   start: NDArray[np.float64]) -> NDArray[np.float64]:
+    return scipy.optimize.least_squares(residuals, start, x_scale="jac", method="lm", xtol=1e-15, ftol=1e-15).x
 
 
 def _scaled(K: NDArray[np.float64], log_scale: float) -> NDArray[np.float64]:

@@ -12,6 +12,7 @@ colmap      :mod:`camcal.io.colmap_text`         cameras.txt, images.txt, points
 usd         :mod:`camcal.io.usd`                 .usda / .usdc / .usd (usd-core)
 nuke        :mod:`camcal.io.nuke`                .nk (Camera3, LensDistortion, LDPK, STMap)
 3de         :mod:`camcal.io.tde`                 3DEqualizer lens file (.txt)
+lensfun     :mod:`camcal.io.lensfun`             Lensfun lens database (.xml, named with --to / --from)
 ==========  ===================================  =====================================
 
 The format may be left out (None) where the file name says it
@@ -58,6 +59,7 @@ _MODULES: Mapping[str, str] = MappingProxyType({
     "usd": "camcal.io.usd",
     "nuke": "camcal.io.nuke",
     "3de": "camcal.io.tde",
+    "lensfun": "camcal.io.lensfun",
 })
 
 #: The formats ``camcal rig export / import`` know.
