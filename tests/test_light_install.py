@@ -1,4 +1,4 @@
-"""The light install: ``pip install camcal`` with no extra shows, exports and imports rigs, undistorts and writes ST-maps.
+"""The light install: ``pip install camcal`` alone shows, exports and imports rigs, undistorts and writes ST-maps.
 
 The slow test builds a fresh virtual environment with ``pip install .`` only
 (the lock file as constraints) and runs the command line there; ``camcal solve``

@@ -287,8 +287,8 @@ def test_a_flat_pick_without_a_surface_path_has_the_surface_chosen_with_the_simp
     monkeypatch.setattr(zhang, "fold_radius_px", lambda camera: None)
     training = [{f: None for f in range(n_views)}]
     fold_results = {"folds": [set(range(k, n_views, 4)) for k in range(4)], "polynomial": [None] * 4}
-    _, ranking, notes = zhang._with_board_shape(BOARD, ["cam"], training, "opencv-thin-prism", set(), flat_result, "auto",
-                                                "", scored, squared, corners=np.full(n_views, n_corners),
+    _, ranking, notes = zhang._with_board_shape(BOARD, ["cam"], training, "opencv-thin-prism", set(), flat_result,
+                                                "auto", "", scored, squared, corners=np.full(n_views, n_corners),
                                                 fold_results=fold_results, training=training,
                                                 options={"loss": "trivial"})
     assert notes[0].startswith("board shape auto: opencv-thin-prism (ranked on the flat board) has no surface fit; "
