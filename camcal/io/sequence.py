@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.base.frame_ranges import parse_frames
 from camcal.base.limits import check_image_size
 
@@ -159,10 +160,7 @@ def read_image(path: str | os.PathLike) -> NDArray:
         past :data:`camcal.base.limits.IMAGE_PIXELS` (checked on the
         header, before decoding).
     """
-    try:
-        import OpenImageIO as oiio  # noqa: PLC0415 - optional dependency, only here
-    except ImportError:
-        raise CamcalError("reading plates needs OpenImageIO: pip install 'camcal[plates]'") from None
+    oiio = require("OpenImageIO")
     image = oiio.ImageInput.open(os.fspath(path))
     if image is None:
         raise CamcalError(f"cannot read {path} ({oiio.geterror().strip() or 'not an image OpenImageIO reads'})")

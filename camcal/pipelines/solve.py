@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from camcal.base.atomic import atomic_dir, final_path, remove_stale_temporaries
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.base.native_log import native_output_to
 from camcal.geometry.bundle import (
     BundleOptions,
@@ -345,7 +346,7 @@ def solve_sfm(
     -------
     SfmResult
     """
-    import pycolmap  # noqa: PLC0415 - optional heavy dependency, only here
+    pycolmap = require("pycolmap")
 
     if not folders:
         raise CamcalError("need at least one image folder")
@@ -515,7 +516,7 @@ def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, c
     ``out_dir``; COLMAP's lines go to ``out_dir/colmap.log`` (and stderr
     with ``verbose``).
     """
-    import pycolmap  # noqa: PLC0415
+    pycolmap = require("pycolmap")
 
     images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
               for name, value in folders.items()}
