@@ -1,23 +1,25 @@
 # camcal: every target creates .venv (Python 3.13, the VFX Reference Platform
-# CY2026 interpreter) on first use and installs the package with all its extras.
+# CY2026 interpreter) on first use and installs the package with all its extras,
+# at the exact versions of the lock file (pyproject.toml holds the ranges).
 # Another interpreter: make test PYTHON=/path/to/python3.13
 PYTHON ?= $(shell for p in python3.13 $$HOME/.pyenv/versions/3.13*/bin/python3.13 /usr/local/bin/python3.13 /usr/bin/python3.13; do \
 	$$p -c 'import sys; sys.exit(sys.version_info[:2] != (3, 13))' 2>/dev/null && { echo $$p; break; }; done)
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+LOCK   := requirements/lock-py313.txt
 
 .PHONY: test test-all fuzz demo bench addon clean python
 
 python:
 	@test -n "$(PYTHON)" || { echo "camcal: Python 3.13 not found (tried python3.13, ~/.pyenv/versions/3.13*/bin, /usr/local/bin, /usr/bin); install it or run make PYTHON=/path/to/python3.13" >&2; exit 2; }
 
-$(STAMP): pyproject.toml | python
+$(STAMP): pyproject.toml $(LOCK) | python
 	@if [ -x $(PY) ] && ! $(PY) -c 'import sys; sys.exit(sys.version_info[:2] != (3, 13))'; then \
 		echo "camcal: .venv is not Python 3.13; recreating it"; rm -rf $(VENV); fi
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[blender,test]"
+	$(PY) -m pip install --quiet -c $(LOCK) -e ".[all,blender,test]"
 	$(PY) tests/colour/export/ocio_releases.py install $(VENV)/ocio
 	touch $(STAMP)
 

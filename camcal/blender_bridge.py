@@ -33,6 +33,7 @@ import numpy as np
 
 from camcal import resources
 from camcal.base.errors import CamcalError
+from camcal.base.extras import check_installed
 from camcal.io.conversion import LensConversion, max_pixel_residual, refit_camera
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Rig
@@ -231,6 +232,7 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
     CamcalError
         A bad rig file or options (the add-on's one-line message), or no bpy.
     """
+    check_installed("bpy")
     rig = Path(rig).resolve()
     blend = Path(blend).resolve()
     if not rig.is_file():
@@ -275,9 +277,8 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
 
 def extension_tool() -> Path:
     """Blender's extension command-line tool (``blender_ext.py``) shipped in the bpy wheel."""
+    check_installed("bpy")
     spec = importlib.util.find_spec("bpy")
-    if spec is None or spec.origin is None:
-        raise CamcalError("the bpy module is not installed; install camcal[blender]")
     tools = sorted(Path(spec.origin).parent.glob("*/scripts/addons_core/bl_pkg/cli/blender_ext.py"))
     if not tools:
         raise CamcalError(f"blender_ext.py not found in the bpy package at {Path(spec.origin).parent}")

@@ -41,7 +41,8 @@ def test_wheel_in_a_fresh_venv_imports_into_blender_and_exports_ocio(tmp_path, s
     venv = tmp_path / "venv"
     _run([sys.executable, "-m", "venv", venv], cwd=tmp_path)
     python = venv / "bin" / "python"
-    _run([python, "-m", "pip", "install", "-q", f"{wheel}[blender]"], cwd=tmp_path)
+    _run([python, "-m", "pip", "install", "-q", "-c", ROOT / "requirements" / "lock-py313.txt", f"{wheel}[all,blender]"],
+         cwd=tmp_path)
     camcal = venv / "bin" / "camcal"
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CAMCAL_ADDON_DIR", "CAMCAL_OCIO_CONFIGS")}
     # the installed package, not this checkout

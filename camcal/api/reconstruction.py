@@ -151,6 +151,8 @@ def solve(
     *,
     images: Mapping[str, str] | None = None,
     every: int = 1,
+    frames: str | None = None,
+    masks: Mapping[str, str] | None = None,
     rig: str | os.PathLike | Rig | None = None,
     model: str | None = None,
     camera_model: str | None = None,
@@ -188,6 +190,14 @@ def solve(
         ``{"left": "*_L.png", "right": "*_R.png"}``.
     every : int
         Videos: every N-th frame, streamed into ``out/images``.
+    frames : str, optional
+        Plates (a folder or an ``images`` entry with a frame placeholder,
+        ``left.%04d.exr`` / ``left.####.dpx``): these frames, e.g.
+        ``"1001-1100"`` (default: every frame on disk); a missing one is
+        named before anything is written (:func:`camcal.io.sequence.sequence_paths`).
+    masks : mapping of str to str, optional
+        Camera -> its matte sequence (same ``frames``), white where no
+        feature may be taken (moving actors, the sky).
     rig : path or Rig, optional
         Hold the cameras' relative poses at this calibration (and take its units).
     model : str, optional
@@ -227,6 +237,7 @@ def solve(
         Bad input (one line naming it); a failed solve leaves nothing behind in ``out``.
     """
     from camcal.base.globs import expand_glob
+    from camcal.io.sequence import is_sequence_pattern, sequence_paths
     from camcal.geometry.bundle import parse_prior
     from camcal.geometry.selfcal import LENS_MODELS, MAPPING_MODELS
     from camcal.model.rig import Rig
@@ -241,10 +252,12 @@ def solve(
                               f"got {len(folders)}")
         if not folders[0].is_dir():
             raise CamcalError(f"image folder not found: {folders[0]}")
-        found = {name: [Path(f) for f in expand_glob("--images", name, pattern, root=folders[0])]
+        found = {name: sequence_paths(folders[0] / pattern, frames) if is_sequence_pattern(pattern)
+                 else [Path(f) for f in expand_glob("--images", name, pattern, root=folders[0])]
                  for name, pattern in images.items()}
     else:
-        found = collect_images(folders)
+        found = collect_images(folders, frames=frames)
+    mattes = {name: sequence_paths(pattern, frames) for name, pattern in (masks or {}).items()}
     known_rig = rig if isinstance(rig, Rig) or rig is None else Rig.load(rig)
     if features < 100:
         raise CamcalError(f"--features must be at least 100, got {features}")
@@ -261,7 +274,7 @@ def solve(
                        refine=refine, known_rig=known_rig, loss=loss, lens_models=lens_models,
                        principal_point=principal_point, max_num_features=features, jackknife=UNCERTAINTY[uncertainty],
                        priors=tuple(parse_prior(p) if isinstance(p, str) else p for p in priors), verbose=verbose,
-                       guided_matching=guided_matching, every=every, progress=say)
+                       guided_matching=guided_matching, every=every, masks=mattes, progress=say)
     peer = (solve_pycolmap_plain(found, out / "pycolmap", seed=seed, verbose=verbose, every=every)
             if compare_pycolmap else None)
     return Solve(result, out, peer)

@@ -12,6 +12,7 @@ from collections.abc import Iterable, Sequence
 
 from camcal import __version__
 from camcal.base.errors import CamcalError
+from camcal.base.extras import missing_extra
 from camcal.cli.options import CamcalParser, UsageError
 from camcal.cli.summary import EXIT_BAD_INPUT, EXIT_INTERNAL, VerbSummary
 
@@ -77,8 +78,11 @@ def leaf_parsers(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
         yield from leaf_parsers(sub, path + (name,))
 
 
-def _user_error(error: BaseException) -> str | None:
-    """The one line for a user's mistake, or None for an internal error."""
+def _user_error(error: BaseException, verb: str) -> str | None:
+    """The one line for a user's mistake (or a missing extra), or None for an internal error."""
+    missing = missing_extra(error)
+    if missing is not None:
+        return missing.line(f"camcal {verb}")
     if isinstance(error, CamcalError):
         return str(error)
     if isinstance(error, OSError) and error.filename is not None:
@@ -136,7 +140,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         error_line, code = str(error), EXIT_BAD_INPUT
         print(f"{prog}: error: {error}\nsee '{prog} --help'", file=sys.stderr)
     except Exception as error:  # noqa: BLE001 - the one place every error becomes one line
-        user = _user_error(error)
+        user = _user_error(error, summary.verb)
         if debug:
             traceback.print_exc()
         if user is not None:

@@ -19,6 +19,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                  "kept pair up) (relative to IMAGES_DIR, or absolute; several entries or a repeated option; "
                  "default: one camera per folder)", dest="camera", old="--camera")
     every_option(parser)
+    parser.add_argument("--frames", metavar="RANGE", help="plates given as IMAGES_DIR or --images with a frame "
+                        "placeholder (left.%%04d.exr, left.####.dpx): these frames (1001-1100, 1001-1100x2; all on disk "
+                        "by default), every one must exist")
+    named_option(parser, "--mask", "NAME=PATTERN", "a camera's matte sequence (left=mattes/left.%%04d.exr, the same "
+                 "--frames; alpha, else the first channel): no feature is taken where it is white (moving actors, the sky)")
     parser.add_argument("--rig", metavar="KNOWN.rig.json",
                         help="hold the cameras' relative poses at this calibration (and take its units)")
     parser.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none", "kannala-brandt"),
@@ -80,7 +85,8 @@ def _solve(args: argparse.Namespace) -> int:
     """
     from camcal.api.reconstruction import solve
 
-    result = solve(args.folders, args.out, images=args.camera, every=args.every, rig=args.rig, model=args.model,
+    result = solve(args.folders, args.out, images=args.camera, every=args.every, frames=args.frames, masks=args.mask,
+                   rig=args.rig, model=args.model,
                    camera_model=args.camera_model, principal_point=args.principal_point, priors=args.prior,
                    uncertainty=args.uncertainty, features=args.features, guided_matching=args.guided_matching,
                    matcher=args.matcher, mapper=args.mapper, loss=args.loss, refine=not args.no_refine,

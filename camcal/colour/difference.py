@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 
 __all__ = ["DELTA_E_METHODS", "XYZ_to_Lab", "delta_E", "DeltaEStats"]
 
@@ -44,7 +45,7 @@ def XYZ_to_Lab(XYZ: Any, white_XYZ: Any) -> np.ndarray:
     >>> [round(float(v), 6) + 0 for v in XYZ_to_Lab([0.9505, 1.0, 1.089], [0.9505, 1.0, 1.089])]
     [100.0, 0.0, 0.0]
     """
-    import colour
+    colour = require("colour")
 
     white = np.asarray(white_XYZ, dtype=np.float64)
     return colour.XYZ_to_Lab(np.asarray(XYZ, dtype=np.float64), colour.XYZ_to_xy(white))
@@ -85,7 +86,7 @@ def delta_E(
     >>> float(delta_E([0.2, 0.2, 0.2], [0.2, 0.2, 0.2], w))
     0.0
     """
-    import colour
+    colour = require("colour")
 
     if method not in DELTA_E_METHODS:
         raise CamcalError(

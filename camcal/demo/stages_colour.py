@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from camcal.base.extras import require
 from camcal.demo.core import (
     COLOUR_EXPORTS_SECTION, DemoContext, DemoRow, ReportSection, StageResult, command_line, run_cli,
 )
@@ -35,6 +36,7 @@ _COLOUR_SCIENCE = (
 
 def _colour_science_best(train, test, white) -> tuple[float, str]:
     """colour-science's best ``matrix_colour_correction`` on the independent set (oracle pick)."""
+    require("colour")
     from colour.characterisation import apply_matrix_colour_correction, matrix_colour_correction  # noqa: PLC0415
 
     from camcal.colour.difference import delta_E  # noqa: PLC0415
@@ -185,7 +187,7 @@ _OCIO_XYZ_D65 = "CIE XYZ-D65 - Scene-referred"
 
 def _ocio_apply(processor, RGB: NDArray) -> NDArray[np.float64]:
     """OCIO's CPU processor without its fast approximations (lossless optimisation)."""
-    import PyOpenColorIO as ocio  # noqa: PLC0415
+    ocio = require("PyOpenColorIO")
 
     from camcal.colour.bake.transforms import apply_cpu  # noqa: PLC0415
 
@@ -193,7 +195,7 @@ def _ocio_apply(processor, RGB: NDArray) -> NDArray[np.float64]:
 
 
 def stage_colour_export(ctx: DemoContext) -> StageResult:
-    import PyOpenColorIO as ocio  # noqa: PLC0415
+    ocio = require("PyOpenColorIO")
 
     from camcal.colour.difference import delta_E  # noqa: PLC0415
     from camcal.colour.export.icc import D50_XYZ  # noqa: PLC0415

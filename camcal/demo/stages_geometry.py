@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from camcal.base.extras import require
 from camcal.demo.core import DemoContext, DemoRow, ReportSection, StageResult, command_line, run_cli
 from camcal.demo.report import img_tag, plot_epipolar, plot_residuals
 from camcal.demo.truth import board_corners
@@ -227,7 +228,7 @@ def stage_rectify(ctx: DemoContext) -> StageResult:
 def _sfm_residuals(model_dir: Path, camera_names: list[str]) -> tuple[NDArray, NDArray, NDArray]:
     """Camera index, observed pixel and residual (observed - projected) of every observation of the
     refined COLMAP model ``solve`` wrote (image names are ``camera/file``)."""
-    import pycolmap  # noqa: PLC0415
+    pycolmap = require("pycolmap")
 
     reconstruction = pycolmap.Reconstruction(str(model_dir))
     cameras, points, residuals = [], [], []

@@ -6,6 +6,7 @@ import html
 
 import numpy as np
 
+from camcal.base.extras import require
 from camcal.demo.core import DemoContext, DemoRow, ReportSection, StageResult, command_line, run_cli
 from camcal.model.rig import Rig
 
@@ -24,6 +25,7 @@ def stage_rig_export(ctx: DemoContext) -> StageResult:
     pinhole projection (USD has no lens), bounded by 1e-3 px.
     """
     import cv2  # noqa: PLC0415
+    require("pxr")
     from pxr import Usd, UsdGeom  # noqa: PLC0415
 
     from camcal.io.conversion import max_pixel_residual  # noqa: PLC0415

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.geometry.bundle import BundleResult
 from camcal.geometry.selfcal import SelfCalibration, as_lens_model
 from camcal.geometry.uncertainty import (covariance_from_colmap, projection_covariance, projection_sigma,
@@ -97,7 +98,7 @@ def reject_outliers(reconstruction, n_sigma: float = 4.0) -> str:
     str
         What was dropped, with the threshold, for the user.
     """
-    import pycolmap  # noqa: PLC0415 - heavy dependency, only in geometry
+    pycolmap = require("pycolmap")
 
     errors = []
     for image in reconstruction.images.values():
@@ -201,7 +202,7 @@ def sparse_model(reconstruction, camera_names: list[str], originals: dict[str, s
 
 def _sensor(camera_id: int):
     """The pycolmap sensor id of a camera."""
-    import pycolmap  # noqa: PLC0415
+    pycolmap = require("pycolmap")
 
     return pycolmap.sensor_t(pycolmap.SensorType.CAMERA, camera_id)
 

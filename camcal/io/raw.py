@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 
 __all__ = ["RAW_SUFFIXES", "DEMOSAIC_METHODS", "RawMetadata", "RawMosaic", "RawImage", "is_raw",
            "read_raw_mosaic", "read_raw", "raw_metadata"]
@@ -117,7 +118,7 @@ def _tiff_make_model(path: Path) -> tuple[str, str]:
 
 
 def _open(path: Path):
-    import rawpy
+    rawpy = require("rawpy")
 
     if not path.is_file():
         raise CamcalError(f"raw file not found: {path}")
@@ -129,7 +130,7 @@ def _open(path: Path):
 
 def read_raw_mosaic(path: str | os.PathLike) -> RawMosaic:
     """The visible photosites normalised by their black and white levels (exact, see the module docstring)."""
-    import rawpy
+    rawpy = require("rawpy")
 
     path = Path(path)
     with _open(path) as raw:

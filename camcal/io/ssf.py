@@ -17,6 +17,7 @@ import numpy as np
 from camcal.base.atomic import atomic_write_text
 from camcal.base.errors import CamcalError
 from camcal.base.clock import utc_timestamp
+from camcal.base.extras import require
 from camcal.base.jsonfile import read_json, write_json
 from camcal.colour.spectral.captures import Capture
 from camcal.colour.spectral.data import resample_spectral
@@ -44,7 +45,7 @@ def read_illuminant_spd(spec: str, wavelengths: Any) -> np.ndarray:
     wavelengths
         ``(W,)`` nm.
     """
-    import colour
+    colour = require("colour")
 
     wavelengths = np.asarray(wavelengths, dtype=np.float64)
     if spec in colour.SDS_ILLUMINANTS:

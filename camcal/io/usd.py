@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.model.distortion import Distortion
 from camcal.base.atomic import atomic_path
 from camcal.base.jsonfile import parse_json
@@ -107,6 +108,7 @@ def _K_from_usd(values: dict[str, float], image_size: tuple[int, int]) -> NDArra
 
 
 def _matrix(R: NDArray[np.float64], c: NDArray[np.float64]):
+    require("pxr")
     from pxr import Gf
 
     M = np.eye(4)
@@ -133,6 +135,7 @@ def export(
     ``camcal.stmap_undistort`` / ``camcal.stmap_redistort`` hold their paths
     relative to the stage.
     """
+    require("pxr")
     from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
     from camcal.io.stmap import write_stmaps
@@ -266,6 +269,7 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
         A camera without an image size when ``image_size`` is None, and the
         file errors of :func:`camcal.io.interchange.import_rig`.
     """
+    require("pxr")
     from pxr import Sdf, Tf, Usd, UsdGeom
 
     check_file_size(path, FILE_BYTES, "USD file")

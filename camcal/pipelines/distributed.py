@@ -34,6 +34,7 @@ from typing import Any
 import cv2
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.geometry.board import Board, Detection, DetectionReport, detect_board, video_frame_label
 from camcal.io.video import iter_frames, video_info
 from camcal.pipelines.board import read_video_cache, video_cache_file, video_report, write_video_cache
@@ -62,6 +63,7 @@ def dask_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
     CamcalError
         The scheduler cannot be reached, or ``workers < 1``.
     """
+    require("distributed")
     from distributed import Client, LocalCluster
 
     if scheduler is not None:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.base.atomic import atomic_path
+from camcal.base.extras import require
 from camcal.colour.difference import delta_E
 from camcal.colour.match.routes import MatchResult, target_space
 from camcal.io.frames import imwrite
@@ -24,7 +25,7 @@ __all__ = [
 
 def _display(RGB: np.ndarray, peak: float) -> np.ndarray:
     """8-bit BGR for viewing: linear RGB / peak, sRGB encoded, NaN black."""
-    import colour
+    colour = require("colour")
 
     encoded = colour.cctf_encoding(np.clip(np.nan_to_num(RGB / peak), 0, 1), function="sRGB")
     return np.round(255 * encoded[..., ::-1]).astype(np.uint8)
@@ -32,7 +33,7 @@ def _display(RGB: np.ndarray, peak: float) -> np.ndarray:
 
 def _heat(values: np.ndarray, vmax: float) -> np.ndarray:
     """8-bit BGR colour map of a ``(H, W)`` map in [0, vmax] (NaN black)."""
-    import matplotlib
+    matplotlib = require("matplotlib")
 
     rgba = matplotlib.colormaps["inferno"](np.clip(np.nan_to_num(values, nan=0.0) / vmax, 0, 1))
     rgba[~np.isfinite(values)] = (0, 0, 0, 1)

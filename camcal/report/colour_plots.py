@@ -13,15 +13,17 @@ from typing import Any
 import numpy as np
 
 from camcal.base.atomic import atomic_path
+from camcal.base.extras import require
 from camcal.colour.difference import DeltaEStats, XYZ_to_Lab, delta_E
 from camcal.colour.spectral.sensitivities import Sensitivities
+from camcal.report.figures import pyplot
 
 __all__ = ["plot_report", "plot_sensitivities"]
 
 
 def _XYZ_to_display(XYZ: np.ndarray, white_XYZ: Any) -> np.ndarray:
     """sRGB (0-1, clipped) of XYZ for swatches, adapted to D65 with CAT02."""
-    import colour
+    colour = require("colour")
 
     white_D65 = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
     XYZ_D65 = colour.chromatic_adaptation(
@@ -55,10 +57,7 @@ def plot_report(
     list of Path
         The files written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -141,10 +140,7 @@ def plot_sensitivities(
     ``truth`` is resampled on the grid and scaled by the common factor of
     :func:`camcal.colour.spectral.sensitivities.relative_rms_error`. Written with matplotlib's Agg backend.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     path = Path(path)
     wl = sens.wavelengths

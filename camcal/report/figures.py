@@ -6,18 +6,15 @@ from pathlib import Path
 from typing import Any
 
 from camcal.base.atomic import atomic_path
+from camcal.base.extras import require
 
 __all__ = ["pyplot", "save_figure"]
 
 
 def pyplot() -> Any:
     """``matplotlib.pyplot`` on the Agg backend (no display needed), imported on first use."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    return plt
+    require("matplotlib").use("Agg")
+    return require("matplotlib.pyplot")
 
 
 def save_figure(fig: Any, path: Path) -> Path:

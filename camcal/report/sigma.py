@@ -17,8 +17,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.atomic import atomic_path
+from camcal.base.extras import require
 from camcal.geometry.uncertainty import projection_sigma_map
 from camcal.model.rig import Camera
+from camcal.report.figures import pyplot
 
 __all__ = ["heatmap_image", "plot_sigma_map", "write_heatmap_png", "write_sigma_heatmaps"]
 
@@ -37,10 +39,7 @@ def plot_sigma_map(sigma: NDArray, path: str | os.PathLike, title: str, unit: st
     unit : str
         Of the values (the colour bar's label).
     """
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    plt = pyplot()
 
     values = np.asarray(sigma, dtype=np.float64)
     finite = values[np.isfinite(values)]
@@ -71,7 +70,7 @@ def plot_sigma_map(sigma: NDArray, path: str | os.PathLike, title: str, unit: st
 def heatmap_image(sigma: NDArray, vmax: float | None = None) -> NDArray[np.uint8]:
     """The map as a (H, W, 3) RGB heat map, pixel for pixel: viridis from 0 to ``vmax`` (default: its largest
     value), NaN pixels black. For overlays (the Blender add-on's camera background)."""
-    import matplotlib  # noqa: PLC0415
+    matplotlib = require("matplotlib")
 
     values = np.asarray(sigma, dtype=np.float64)
     finite = values[np.isfinite(values)]

@@ -83,6 +83,7 @@ def planar_poses(rng, n_frames=10, tilt_deg=2.0):
     return poses
 
 
+@pytest.mark.slow
 def test_planar_motion_widens_the_sigma_of_the_aspect_and_still_covers():
     """Planar motion is nearly critical for the aspect (Sturm, P. (1997). Critical Motion Sequences for Monocular
     Self-Calibration and Uncalibrated Euclidean Reconstruction. CVPR): stretching the scene along the common
@@ -93,7 +94,9 @@ def test_planar_motion_widens_the_sigma_of_the_aspect_and_still_covers():
     Measured before square pixels were held on such motion: on the arc fy errors +0.48 to +0.67 and -1.2 px
     against sigmas 0.39-1.1 px, sigma(fx - fy) 0.37-0.66 px against 0.03 px on the orbit (12-19 times). Now the
     arc holds them (a 1 % change of fx - fy moves its images by 0.04-0.08 px, the orbit's by 0.9-1.1 px): fx and
-    fy each 0.5 % off, within their sigma of 0.5 % of f (the prior's), sigma(fx - fy) 1 % of f."""
+    fy each 0.5 % off, within their sigma of 0.5 % of f (the prior's), sigma(fx - fy) 1 % of f.
+    Slow (six self-calibrations); in `make test`, :func:`test_planar_motion_holds_square_pixels_and_says_why` runs
+    the arc and :func:`test_non_square_pixels_are_recovered_within_their_sigmas` the coverage of fx and fy."""
     rows, misses = [], []
     for seed in range(3):
         sigma = {}

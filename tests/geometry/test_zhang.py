@@ -366,8 +366,13 @@ def test_heldout_views_measured_by_pnp():
         calibrate_board(BOARD, detections, holdout={999})
 
 
+@pytest.mark.slow
 def test_model_auto_chooses_by_heldout_rms():
-    """A strong division lens: auto ranks every model by held-out RMS and keeps the division model."""
+    """A strong division lens: auto ranks every model by held-out RMS and keeps the division model.
+
+    Slow (16 views, every model, the correction fields and the board surfaces ranked); in `make test`,
+    :func:`test_model_auto_chooses_the_true_lens_on_few_views_of_a_flat_board` makes the same choice.
+    """
     truth = [dataclass_replace(c, distortion=Distortion("division", {"lambda": -6e-7})) for c in true_rig(1, "division")]
     detections = board_views(truth, 16, np.random.default_rng(8))
     result = calibrate_board(BOARD, detections)  # auto is the default
@@ -380,6 +385,18 @@ def test_model_auto_chooses_by_heldout_rms():
     assert [s.model for s in result.model_ranking][0] == min(scores, key=scores.get)
     assert result.model == "division" and result.rig.cameras[0].distortion.model == "division"
     assert all("\n" not in score.describe() for score in result.model_ranking)
+
+
+def test_model_auto_chooses_the_true_lens_on_few_views_of_a_flat_board():
+    """The fast sibling of :func:`test_model_auto_chooses_by_heldout_rms`: the same strong division lens, 7 views,
+    the board held flat: every model ranked by held-out RMS, the best first, and the division model kept."""
+    truth = [dataclass_replace(c, distortion=Distortion("division", {"lambda": -6e-7})) for c in true_rig(1, "division")]
+    result = calibrate_board(BOARD, board_views(truth, 7, np.random.default_rng(8)), board_shape="flat")
+    scores = result.model_heldout_rms_px
+    assert set(AUTO_MODELS) <= {score.model for score in result.model_ranking}
+    assert all((score.rms_px is None) == bool(score.reason) for score in result.model_ranking)
+    assert [s.model for s in result.model_ranking][0] == min(scores, key=scores.get)
+    assert result.model == "division" and result.rig.cameras[0].distortion.model == "division"
 
 
 def test_cli_quality_gate_refuses_with_one_line(shared_data, tmp_path, capsys, monkeypatch):

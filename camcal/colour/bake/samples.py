@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.bake.transforms import LUT_SIZES, BakedTransform, transform_from_callable
 from camcal.colour.chart.reference import DEFAULT_CHART, reference_chart
 from camcal.colour.spectral.data import adapt_XYZ, illuminant_white_XYZ
@@ -160,7 +161,7 @@ def plausible_surface_XYZ(white_XYZ: Any, illuminant: str | None = None) -> np.n
     - CIE 13.3-1995: Method of measuring and specifying colour rendering
       properties of light sources (test colour samples).
     """
-    import colour
+    colour = require("colour")
     from colour.quality.datasets import SDS_TCS
 
     white = np.asarray(white_XYZ, dtype=np.float64)

@@ -9,8 +9,8 @@ CIEDE2000 bake error is measured over sample points
 (:mod:`camcal.colour.bake.samples` says where). The OCIO export, the ICC
 export and ``--model auto``'s exportability check share it.
 
-PyOpenColorIO is imported only through :func:`ocio_module` (lazily, with a
-clear error).
+PyOpenColorIO is imported only through :func:`ocio_module` (lazily, with the
+one line naming the extra when it is missing).
 
 References
 ----------
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.difference import DeltaEStats, delta_E
 
 __all__ = [
@@ -52,12 +53,8 @@ SAMPLE_MARGIN = 0.5
 
 
 def ocio_module():
-    """The ``PyOpenColorIO`` module (a clear error when it is missing)."""
-    try:
-        import PyOpenColorIO as ocio
-    except ImportError as error:  # pragma: no cover - opencolorio is a dependency
-        raise CamcalError(f"OpenColorIO's Python module is not available ({error}); pip install opencolorio") from None
-    return ocio
+    """The ``PyOpenColorIO`` module (the one line naming the ``colour`` extra when it is missing)."""
+    return require("PyOpenColorIO")
 
 
 # The shaper and the baking of a callable.

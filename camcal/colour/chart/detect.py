@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.chart.patches import PatchSet
 from camcal.colour.chart.reference import ReferenceChart
 
@@ -290,7 +291,7 @@ def snr_weights(snr: Any) -> np.ndarray:
 
 def reference_linear_RGB(chart: ReferenceChart) -> np.ndarray:
     """The chart's linear sRGB (its XYZ through the sRGB matrix; for orienting a detection)."""
-    import colour
+    colour = require("colour")
 
     return np.asarray(colour.XYZ_to_RGB(chart.XYZ, "sRGB", colour.XYZ_to_xy(chart.white_XYZ)), dtype=np.float64)
 

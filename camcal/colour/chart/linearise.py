@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 
 __all__ = [
     "CURVE_KINDS",
@@ -70,7 +71,7 @@ def named_function(name: str) -> str:
     >>> named_function("rec709")
     'ITU-R BT.709'
     """
-    import colour
+    colour = require("colour")
 
     key = str(name).strip()
     if key.lower() in NAMED_ALIASES:
@@ -118,7 +119,7 @@ class ChannelCurve:
         if self.kind == "gamma-offset":
             return p["gain"] * np.maximum(V - p["offset"], 0.0) ** p["gamma"]
         if self.kind == "named":
-            import colour
+            colour = require("colour")
 
             decode = colour.CCTF_DECODINGS[p["function"]]
             return p["scale"] * np.asarray(decode(V), dtype=np.float64)

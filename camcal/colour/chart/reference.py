@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.difference import XYZ_to_Lab
 from camcal.colour.spectral.data import adapt_XYZ, illuminant_white_XYZ, reflectance_XYZ
 
@@ -89,7 +90,7 @@ def reference_chart(name: str = DEFAULT_CHART, illuminant: str = "D50") -> Refer
     -------
     ReferenceChart
     """
-    import colour
+    colour = require("colour")
 
 
     key = CHART_ALIASES.get(str(name).lower(), name)

@@ -72,6 +72,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.bake.transforms import LUT_SIZES, BakedTransform, LogShaper
 from camcal.colour.chart.linearise import ChannelCurve
 from camcal.colour.difference import DeltaEStats, delta_E
@@ -386,7 +387,7 @@ def check_icc(data: bytes) -> ICCInfo:
 
 
 def _bradford_to_D50(white_XYZ: Any) -> np.ndarray:
-    import colour
+    colour = require("colour")
 
     return colour.adaptation.matrix_chromatic_adaptation_VonKries(
         np.asarray(white_XYZ, dtype=np.float64), np.asarray(D50_XYZ), transform="Bradford")

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.bake.transforms import apply_cpu, cpu_processor, matrix_transform, ocio_module
 from camcal.colour.chart.linearise import Linearisation
 from camcal.colour.export.ocio_versions import at_profile_version
@@ -169,7 +170,7 @@ def XYZ_to_reference_matrix(config, white_XYZ: Any, cat: str = "Bradford") -> np
         ``(3, 3)``: ``M_ref = A_ref @ M_AP0 @ CAT(white -> ACES white)`` with
         ``M_AP0`` the ACES2065-1 ``XYZ -> RGB`` matrix (colour-science).
     """
-    import colour
+    colour = require("colour")
 
     if cat not in CATS:
         raise CamcalError(f"unknown adaptation {cat!r}, expected one of: {', '.join(CATS)}")

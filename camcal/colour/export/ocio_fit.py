@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.bake.samples import bake_model, model_chart_samples, model_samples
 from camcal.colour.bake.transforms import (
     LUT_SIZES,
@@ -321,7 +322,7 @@ def look_from_match(match, config, *, max_delta_E: float = 0.2,
     over a cube of linear RGB from 1/64 to 1, the error measured with the
     outputs read as linear Rec. 709 / D65 (camera A's RGB has no XYZ here).
     """
-    import colour  # noqa: PLC0415
+    colour = require("colour")
 
     ocio = ocio_module()
     process_space = config.getRoleColorSpace(ocio.ROLE_DATA) if config.hasRole(ocio.ROLE_DATA) else None
@@ -479,7 +480,7 @@ def output_matrix(white_XYZ: Any, space: str, cat: str = "Bradford") -> np.ndarr
     >>> output_matrix([0.95047, 1.0, 1.08883], "CIE XYZ").tolist()[0]
     [1.0, 0.0, 0.0]
     """
-    import colour
+    colour = require("colour")
 
     if space not in OUTPUT_SPACES:
         raise CamcalError(f"unknown output space {space!r}, expected one of: {', '.join(OUTPUT_SPACES)}")

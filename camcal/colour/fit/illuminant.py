@@ -61,6 +61,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.chart.patches import PatchSet
 from camcal.colour.difference import DeltaEStats, delta_E
 from camcal.colour.fit.characterise import Characterisation, characterise, neutral_indices, white_from_name
@@ -120,7 +121,7 @@ def spectral_patches(sens: Sensitivities, illuminant: str, reflectances: str, cu
 
 def cat_matrix(white_source: Any, white_target: Any, transform: str) -> np.ndarray:
     """Von Kries adaptation matrix (CAT02 or Bradford) from one white to another, colour-science."""
-    import colour
+    colour = require("colour")
 
     if transform not in CAT_TRANSFORMS:
         raise CamcalError(f"unknown adaptation {transform!r}, expected one of: {', '.join(CAT_TRANSFORMS)}")

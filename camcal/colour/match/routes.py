@@ -102,6 +102,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.chart.linearise import ChannelCurve, Linearisation, named_function
 from camcal.colour.difference import DeltaEStats, delta_E
 from camcal.colour.fit.record import ColourFit
@@ -134,7 +135,7 @@ def rec709_XYZ(RGB: Any) -> np.ndarray:
     The Delta E space of a match when the target camera has no
     characterisation (see :data:`REC709_SPACE`).
     """
-    import colour
+    colour = require("colour")
 
     return np.asarray(RGB, dtype=np.float64) @ colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ.T
 
@@ -142,7 +143,7 @@ def rec709_XYZ(RGB: Any) -> np.ndarray:
 def target_space(fit_target: ColourFit | None):
     """``(to_XYZ, white_XYZ, description)`` for Delta E of target-camera RGB."""
     if fit_target is None:
-        import colour
+        colour = require("colour")
 
         white = colour.xy_to_XYZ(colour.RGB_COLOURSPACES["sRGB"].whitepoint)
         return rec709_XYZ, np.asarray(white, dtype=np.float64), REC709_SPACE

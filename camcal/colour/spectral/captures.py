@@ -23,6 +23,7 @@ import numpy as np
 
 from camcal.base.errors import CamcalError
 from camcal.base.clock import utc_timestamp
+from camcal.base.extras import require
 from camcal.colour.spectral.data import resample_spectral
 from camcal.colour.spectral.estimate import estimate_sensitivities
 from camcal.colour.spectral.sensitivities import DEFAULT_WAVELENGTHS, Sensitivities
@@ -84,7 +85,7 @@ def chart_reflectances(names: Sequence[str], reflectances: str, wavelengths: Any
     ``reflectances`` is colour-science's spectral data set (one of
     :data:`CHART_SPECTRA`).
     """
-    import colour
+    colour = require("colour")
 
     check_chart_spectra(reflectances)
     wavelengths = np.asarray(wavelengths, dtype=np.float64)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 
 __all__ = [
     "CAMERAS",
@@ -43,7 +44,7 @@ CMFS_NAME = "CIE 1931 2 Degree Standard Observer"
 
 def spectral_shape(wavelengths: Any) -> Any:
     """The ``colour.SpectralShape`` of a regular 1-D wavelength grid (nm); raises on any other grid."""
-    import colour
+    colour = require("colour")
 
     wavelengths = np.asarray(wavelengths, dtype=np.float64)
     steps = np.diff(wavelengths)
@@ -90,7 +91,7 @@ def reflectance_XYZ(reflectances: Any, illuminant: Any,
     1931 2 degree observer: colour-science's ``msds_to_XYZ`` / ``sd_to_XYZ``
     (method ``"Integration"``, ASTM E308 without its tables) divided by 100.
     """
-    import colour
+    colour = require("colour")
     from colour.colorimetry import sds_and_msds_to_msds
 
     grid = colour.SpectralShape(*shape)
@@ -130,7 +131,7 @@ def camera_sensitivities(name: str, wavelengths: Any = None) -> tuple[np.ndarray
         ``(W,)`` nm and ``(W, 3)`` R, G, B (each scaled to peak 1 by the
         data set).
     """
-    import colour
+    colour = require("colour")
 
     if name not in colour.MSDS_CAMERA_SENSITIVITIES:
         raise CamcalError(f"unknown camera {name!r}, expected one of: {', '.join(CAMERAS)}")
@@ -168,7 +169,7 @@ def reflectance_set(name: str, wavelengths: Any) -> tuple[list[str], np.ndarray]
     names, reflectances
         Patch names and ``(N, W)`` reflectances.
     """
-    import colour
+    colour = require("colour")
 
     wavelengths = np.asarray(wavelengths, dtype=np.float64)
     if name == "rawtoaces 190":
@@ -201,7 +202,7 @@ def reflectance_set(name: str, wavelengths: Any) -> tuple[list[str], np.ndarray]
 @functools.cache
 def _munsell_reflectances(held_out: bool) -> tuple[tuple[str, ...], np.ndarray, np.ndarray]:
     """Names, grid and reflectances of one of the two disjoint Munsell sets (cached)."""
-    import colour
+    colour = require("colour")
     from colour.notation.datasets import MUNSELL_COLOURS_REAL
 
     order = np.random.default_rng(0).permutation(len(MUNSELL_COLOURS_REAL))
@@ -225,7 +226,7 @@ def illuminant_white_XYZ(name: str) -> np.ndarray:
     >>> illuminant_white_XYZ("D65").round(4).tolist()
     [0.9505, 1.0, 1.0891]
     """
-    import colour
+    colour = require("colour")
 
     table = colour.CCS_ILLUMINANTS[CMFS_NAME]
     if name not in table:
@@ -251,7 +252,7 @@ def adapt_XYZ(XYZ: Any, white_source: Any, white_target: Any, transform: str = "
     numpy.ndarray
         ``(..., 3)`` corresponding colours under ``white_target``.
     """
-    import colour
+    colour = require("colour")
 
     if transform not in CAT_TRANSFORMS:
         raise CamcalError(f"unknown adaptation {transform!r}, expected one of: CAT02, Bradford")

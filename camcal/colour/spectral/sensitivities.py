@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.spectral.data import CMFS_NAME, resample_spectral, spectral_shape
 from camcal.colour.spectral.estimate import mu_factor
 from camcal.colour.spectral.simulate import SimulatedCamera
@@ -77,7 +78,7 @@ SOURCES = ("estimated", "measured")
 
 def cmfs_on(wavelengths: Any) -> np.ndarray:
     """CIE 1931 2 degree colour matching functions on ``wavelengths``, ``(W, 3)``."""
-    import colour
+    colour = require("colour")
 
     return resample_spectral(colour.MSDS_CMFS[CMFS_NAME], np.asarray(wavelengths, dtype=np.float64))
 
@@ -94,7 +95,7 @@ def illuminant_spd(name: str, wavelengths: Any) -> np.ndarray:
     wavelengths
         ``(W,)`` nm.
     """
-    import colour
+    colour = require("colour")
 
     wavelengths = np.asarray(wavelengths, dtype=np.float64)
     if name not in colour.SDS_ILLUMINANTS:

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.colour.spectral.data import CMFS_NAME, camera_sensitivities, reflectance_XYZ, resample_spectral, spectral_shape
 
 __all__ = ["SimulatedCamera"]
@@ -49,7 +50,7 @@ class SimulatedCamera:
     @classmethod
     def from_colour(cls, camera: str = "Nikon 5100 (NPL)", illuminant: str = "D65") -> SimulatedCamera:
         """One of colour-science's measured cameras under a CIE illuminant."""
-        import colour
+        colour = require("colour")
 
         wavelengths, sens = camera_sensitivities(camera)
         if illuminant not in colour.SDS_ILLUMINANTS:

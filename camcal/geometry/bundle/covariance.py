@@ -23,6 +23,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from camcal.base.extras import require
+
 __all__ = ["MIN_POINT_SINGULAR_RATIO", "ceres_covariance", "is_free_block", "marginal_covariance"]
 
 #: A free 3D point whose Jacobian has ``sigma_min < MIN_POINT_SINGULAR_RATIO x sigma_max`` (its depth
@@ -56,7 +58,7 @@ def ceres_covariance(problem, blocks: list[NDArray[np.float64]], num_threads: in
     num_threads : int
         Ceres' threads.
     """
-    import pyceres  # noqa: PLC0415
+    pyceres = require("pyceres")
 
     options = pyceres.CovarianceOptions()
     options.algorithm_type = pyceres.CovarianceAlgorithmType.SPARSE_QR
@@ -208,7 +210,7 @@ def _jacobian(problem, reconstruction, blocks: list[NDArray[np.float64]], num_th
     Returns the matrix, the columns of ``blocks`` and the columns before the
     points (:func:`marginal_covariance`).
     """
-    import pyceres  # noqa: PLC0415 - the Ceres problem behind pycolmap's adjuster
+    pyceres = require("pyceres")
     import scipy.sparse  # noqa: PLC0415
 
     candidates = [camera.params for camera in reconstruction.cameras.values()]

@@ -66,6 +66,7 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.geometry.bundle.covariance import is_free_block
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import BundleOptions, BundleState, model_layout
@@ -224,7 +225,7 @@ class _System:
 
 def _system(state: BundleState, options: BundleOptions, colmap, problem) -> _System:
     """The problem's Jacobian and residuals at ``state`` (Ceres' own, the loss applied), rows assigned to frames."""
-    import pyceres  # noqa: PLC0415
+    pyceres = require("pyceres")
     import scipy.sparse  # noqa: PLC0415
 
     if state.board is not None or not options.refine_points3D:

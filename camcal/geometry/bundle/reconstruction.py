@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.geometry.bundle.state import BundleState
 from camcal.model.camera import pixels_from_colmap
 
@@ -22,7 +23,7 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
     the rig's reference sensor becomes camera 0. Pixels move from COLMAP's
     convention (pixel centre 0.5) to camcal's (0).
     """
-    import pycolmap  # noqa: PLC0415 - heavy dependency, only here
+    pycolmap = require("pycolmap")
 
     if reconstruction.num_rigs() != 1:
         raise CamcalError(f"expected one rig in the reconstruction, got {reconstruction.num_rigs()}")
@@ -68,7 +69,7 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
 
 def state_to_reconstruction(state: BundleState, reconstruction) -> None:
     """Write a refined state back into the pycolmap ``Reconstruction`` it came from (in place)."""
-    import pycolmap  # noqa: PLC0415
+    pycolmap = require("pycolmap")
 
     rig = next(iter(reconstruction.rigs.values()))
     camera_ids = [rig.ref_sensor_id.id] + sorted(cid for cid in reconstruction.cameras if cid != rig.ref_sensor_id.id)

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.geometry.bundle.covariance import is_free_block, marginal_covariance
 from camcal.geometry.bundle.prior import Prior, posterior_sigma, prior_weights, resolve_priors
 from camcal.geometry.bundle.state import BundleOptions, BundleResult, BundleState, model_layout, residuals
@@ -76,7 +77,7 @@ def _rigid(pycolmap, R: NDArray, t: NDArray):
 
 def _to_colmap(state: BundleState) -> _Colmap:
     """A pycolmap ``Reconstruction`` holding the state: one rig, a frame per state frame, constant board corners."""
-    import pycolmap  # noqa: PLC0415
+    pycolmap = require("pycolmap")
 
     reconstruction = pycolmap.Reconstruction()
     camera_ids = list(range(1, len(state.camera_names) + 1))
@@ -150,7 +151,7 @@ def _to_colmap(state: BundleState) -> _Colmap:
 
 def _from_colmap(state: BundleState, colmap: _Colmap) -> BundleState:
     """The state with the refined values of its reconstruction."""
-    import pycolmap  # noqa: PLC0415
+    pycolmap = require("pycolmap")
 
     reconstruction = colmap.reconstruction
     rig = reconstruction.rig(1)
@@ -227,8 +228,8 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
         Unknown parameter names, or a gauge that cannot be fixed (fewer than
         two frames and nothing else that sets the scale).
     """
-    import pycolmap  # noqa: PLC0415
-    import pyceres  # noqa: PLC0415 - the Ceres problem behind pycolmap's adjuster
+    pycolmap = require("pycolmap")
+    pyceres = require("pyceres")
 
     colmap = _to_colmap(state)
     reconstruction = colmap.reconstruction
@@ -334,7 +335,7 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
 
 def _pyceres_solver_options(colmap_options):
     """pycolmap's Ceres solver options (its own pyceres binding) as pyceres' ``SolverOptions``, field by field."""
-    import pyceres  # noqa: PLC0415
+    pyceres = require("pyceres")
 
     converted = pyceres.SolverOptions()
     for key, value in colmap_options.todict().items():
@@ -347,7 +348,7 @@ def _pyceres_solver_options(colmap_options):
 
 def _iteration_callback(progress: Callable[[int, int], None], total: int):
     """A pyceres ``IterationCallback`` that reports ``progress(iteration, total)`` and lets Ceres go on."""
-    import pyceres  # noqa: PLC0415
+    pyceres = require("pyceres")
 
     class IterationProgress(pyceres.IterationCallback):
         def __call__(self, summary) -> object:
@@ -379,7 +380,7 @@ def _image_sigma2(colmap: _Colmap, summary, costs: list) -> float:
 
 def _prior_cost(prior: Prior, weight: float, size: int):
     """A pyceres cost ``w (a . x - mean)`` on one camera's parameter block of ``size`` parameters."""
-    import pyceres  # noqa: PLC0415
+    pyceres = require("pyceres")
 
     class PriorCost(pyceres.CostFunction):
         def __init__(self) -> None:

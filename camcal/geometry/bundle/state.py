@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import require
 from camcal.geometry.bundle.prior import Prior, PriorSpec, undetermined
 from camcal.model.colmap import camera_from_colmap
 from camcal.model.camera import chordal_mean_rotation
@@ -55,7 +56,7 @@ LOSSES = ("trivial", "huber", "soft_l1", "cauchy")
 @functools.lru_cache(maxsize=None)
 def model_layout(model: str) -> tuple[tuple[str, ...], tuple[int, ...], tuple[int, ...], tuple[int, ...]]:
     """COLMAP's parameter names and the indices of focal, principal point and extra parameters."""
-    import pycolmap  # noqa: PLC0415 - heavy dependency, only here and in sfm.py
+    pycolmap = require("pycolmap")
 
     model_id = getattr(pycolmap.CameraModelId, model, None)
     if model_id is None or model in ("INVALID",):
