@@ -65,7 +65,7 @@ def _light_commands(tmp_path: Path, rig: Path, plate: Path) -> list[list[str]]:
         ["rig", "export", str(rig), "--to", "colmap", str(out / "colmap")],
         ["rig", "import", str(out / "left.yaml"), "--from", "opencv", "--out", str(out / "imported.rig.json")],
         ["rig", "import", str(out / "camchain.yaml"), "--from", "kalibr", "--out", str(out / "kalibr.rig.json")],
-        ["undistort", str(rig), "--camera", "left", str(plate), "--out", str(out / "undistorted")],
+        ["undistort", str(rig), "--camera", "left", "--images", str(plate), "--out", str(out / "undistorted")],
         ["stmap", str(rig), "--camera", "left", "--out", str(out / "stmaps")],
     ]
 

@@ -123,7 +123,7 @@ def test_worker_killed_mid_write_then_client_killed_then_rerun(tmp_path):
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as dask:
         dask.register_plugin(_StallOnce({f"left.{frame}.exr": str(path) for frame, path in markers.items()}))
-        command = ["batch", str(rig), "--camera", "left", "--in", pattern, "--frames", f"{FRAMES[0]}-{FRAMES[-1]}",
+        command = ["batch", str(rig), "--camera", "left", "--images", pattern, "--frames", f"{FRAMES[0]}-{FRAMES[-1]}",
                    "--undistort", "--out", str(out_dir / "left.%04d.exr"), "--scheduler", cluster.scheduler_address,
                    "--quiet"]
         env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))

@@ -90,7 +90,7 @@ def test_solve_cli_takes_a_plate_by_camera_and_frame_range(tmp_path, monkeypatch
     render_stereo_sequence(tmp_path / "in", n_frames=4, image_size=(width, height),
                            K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
     _to_plates(tmp_path / "in", tmp_path / "plates")
-    code = main(["solve", "plates", "--camera", "left=left.####.exr", "--frames", f"{FIRST}-{FIRST + 2}",
+    code = main(["solve", "plates", "--images", "left=left.####.exr", "--frames", f"{FIRST}-{FIRST + 2}",
                  "--features", "512", "--no-refine", "--out", "out"])
     assert code == 0, capsys.readouterr().err
     assert "registered 3 / 3 images" in capsys.readouterr().out
