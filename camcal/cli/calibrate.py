@@ -14,6 +14,8 @@ __all__ = ["register"]
 #: here so that ``--help`` does not import the solver; tests/cli check the two agree).
 _BOARD_MODELS = ("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational", "opencv-thin-prism",
                  "kannala-brandt-thin-prism")
+#: 3DEqualizer's LDPK models (camcal.model.tde4.TDE4_MODELS), fitted directly; no correction field.
+_TDE4_MODELS = ("3de-classic", "3de4-radial-deg4", "3de4-anamorphic-deg4", "3de4-fisheye-deg8")
 
 
 def register(parser: argparse.ArgumentParser) -> None:
@@ -57,13 +59,14 @@ def register(parser: argparse.ArgumentParser) -> None:
     board.add_argument("--refine-intrinsics", action="store_true",
                        help="with --intrinsics: start from them and refine them")
     board.add_argument("--model", default="auto", choices=_BOARD_MODELS + tuple(m + "+spline" for m in _BOARD_MODELS)
-                       + ("auto",), metavar="MODEL",
+                       + _TDE4_MODELS + ("auto",), metavar="MODEL",
                        help="lens model: " + ", ".join(_BOARD_MODELS) + ", any of them with a correction field "
                        "(MODEL+spline, e.g. kannala-brandt+spline: a smooth B-spline displacement over the image "
                        "after the model, one camera, without --intrinsics), or auto; kannala-brandt is OpenCV's "
                        "fisheye model, opencv-rational and opencv-thin-prism its 8- and 12-coefficient models, "
                        "kannala-brandt-thin-prism COLMAP's RAD_TAN_THIN_PRISM_FISHEYE (six radial terms, "
-                       "tangential, thin prism); division estimates fx and fy (its aspect = fx / fy); auto "
+                       "tangential, thin prism); " + ", ".join(_TDE4_MODELS) + " are 3DEqualizer's LDPK models "
+                       "(one camera, fitted in their own distorted-to-undistorted direction); division estimates fx and fy (its aspect = fx / fy); auto "
                        "(default) ranks every model by views held out in turn and keeps the simplest within 1 %% "
                        "of the best")
     board.add_argument("--board-shape", default="auto", metavar="SHAPE",

@@ -99,10 +99,12 @@ def test_undistortion_maps_and_exports_carry_the_field():
 
 def test_cli_board_models_are_the_solvers():
     """``calibrate board --model`` offers every model of the solver, each with a correction field, and auto."""
-    from camcal.cli.calibrate import _BOARD_MODELS
+    from camcal.cli.calibrate import _BOARD_MODELS, _TDE4_MODELS
     from camcal.geometry.zhang import MODELS
+    from camcal.model.tde4 import TDE4_MODELS
 
     assert _BOARD_MODELS == tuple(MODELS)
+    assert _TDE4_MODELS == TDE4_MODELS
 
 
 def test_cli_fits_a_named_model_with_a_correction_field(tmp_path, capsys, monkeypatch):
