@@ -71,7 +71,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
         converted, conversion = nearest_camera(camera, holds, "opencv", "COLMAP")
         model = camera_to_colmap(converted)
         conversions.append(LensConversion(conversion.camera, conversion.source, f"COLMAP {model.model}",
-                                          conversion.exact, conversion.max_px))
+                                          conversion.exact, conversion.max_px, refit=conversion.refit))
         camera_lines.append(" ".join([str(camera_id), model.model, str(model.width), str(model.height),
                                       *map(_number, model.params)]))
         colmap_ids[camera.name] = camera_id

@@ -75,8 +75,8 @@ def camera_to_colmap(camera: Camera) -> ColmapCamera:
     Raises
     ------
     CamcalError
-        Skew, or a division model off the principal point or whose
-        ``aspect`` is not ``fx / fy``.
+        Skew, a lens model COLMAP lacks (3DE's), or a division model off
+        the principal point or whose ``aspect`` is not ``fx / fy``.
 
     Notes
     -----
@@ -114,7 +114,9 @@ def camera_to_colmap(camera: Camera) -> ColmapCamera:
     if model == "kannala-brandt-thin-prism":
         extra = tuple(p[name] for name in ("k1", "k2", "k3", "k4", "k5", "k6", "p2", "p1", "s1", "s2", "s3", "s4"))
         return ColmapCamera("RAD_TAN_THIN_PRISM_FISHEYE", width, height, (fx, fy, cx, cy) + extra)
-    # division
+    if model != "division":
+        raise CamcalError(f"camera {camera.name!r}: COLMAP has no model like camcal's {model!r} (rig export takes "
+                          "its nearest COLMAP model and prints what it loses)")
     centre = camera.distortion.center
     if centre is not None and tuple(centre) != (camera.K[0, 2], camera.K[1, 2]):
         raise CamcalError(

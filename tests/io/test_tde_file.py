@@ -144,3 +144,13 @@ def test_the_command_refuses_a_bad_file_with_exit_2(tmp_path, capsys):
     assert main(["rig", "import", str(path), "--image-size", "1920", "1080", "--out", str(tmp_path / "x.rig.json")]) == 2
     assert "unknown 3DE lens model 'Brown'" in capsys.readouterr().err
     assert not (tmp_path / "x.rig.json").exists()
+
+
+def test_a_3de_lens_goes_to_colmap_as_its_nearest_model(tmp_path):
+    """COLMAP has no 3DE model: the export refits the nearest one and prints its residual instead of failing."""
+    camera = tde_camera("3de4-radial-deg4")
+    result = export_rig(Rig((camera,)), "colmap", tmp_path / "sparse")
+    [conversion] = result.conversions
+    assert not conversion.exact
+    back = import_rig(tmp_path / "sparse", "colmap").rig
+    assert max_pixel_residual(camera, back.cameras[0]) <= conversion.refit.max_px * 1.05 + 1e-6
