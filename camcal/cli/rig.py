@@ -17,6 +17,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     verbs = verb_group(parser, "rig_verb")
     show = verbs.add_parser("show", help="print a readable summary of a rig file")
     rig_argument(show, metavar="FILE")
+    show.add_argument("--validate", action="store_true",
+                      help="also check FILE against the rig file's JSON Schema (docs/rig.schema.json) and say so")
     handler(show, _show)
     export = verbs.add_parser("export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke)")
     rig_argument(export)
@@ -37,8 +39,11 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def _show(args: argparse.Namespace) -> int:
     from camcal.model.rig import Rig
+    from camcal.model.rig_schema import RIG_SCHEMA_ID, load_validated
 
-    rig = Rig.load(args.rig)
+    rig = load_validated(args.rig) if args.validate else Rig.load(args.rig)
+    if args.validate:
+        print(f"{args.rig}: valid (conforms to {RIG_SCHEMA_ID} and loads)")
     print(rig.summary())
     summary_of(args).figures(rig=rig.to_dict())
     return 0
