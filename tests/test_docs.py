@@ -187,7 +187,7 @@ def test_readme_slow_blocks_run(quick_start, tmp_path):
     for block in _runnable(ROOT / "README.md", ("slow",)):
         run_block(block, work, env)
     fit = json.loads((work / "cam.colour.json").read_text())
-    assert fit["evaluation"]["loo"]["mean"] < 2.0
+    assert fit["evaluation"]["loo"]["mean"] < 1.0  # 0.51 on this capture: the chart read, not a lucky pass
     assert (work / "ocio" / "config.ocio").is_file() and (work / "cam.icc").stat().st_size > 0
     assert (work / "cam.blend").is_file()
 
