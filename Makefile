@@ -17,7 +17,8 @@ $(STAMP): pyproject.toml | python
 		echo "camcal: .venv is not Python 3.13; recreating it"; rm -rf $(VENV); fi
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[blender,test]"
+	$(PY) -m pip install --quiet -e ".[blender,plates,test]"
+	$(PY) tests/colour/export/ocio_releases.py install $(VENV)/ocio
 	touch $(STAMP)
 
 test: $(STAMP)

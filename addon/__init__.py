@@ -1,8 +1,8 @@
 """camcal rig importer: Blender extension (4.2+) that imports camcal rig files.
 
-Layout: pure-Python modules that need neither bpy nor numpy
-(:mod:`.rigfile`, :mod:`.mapping`, :mod:`.plyfile`, :mod:`.pngfile`) and a
-thin bpy layer (:mod:`.importer`, :mod:`.operators`, :mod:`.panel`). This file
+Layout: pure-Python modules that need neither bpy nor numpy (:mod:`.rigfile`,
+:mod:`.mapping`, :mod:`.tracking`, :mod:`.fisheye`, :mod:`.plyfile`,
+:mod:`.pngfile`) and a thin bpy layer (:mod:`.importer`, :mod:`.operators`, :mod:`.panel`). This file
 imports no bpy at module level, so the pure modules load without Blender.
 
 From a script (``blender -b --python-expr`` or ``import bpy``)::

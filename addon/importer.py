@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import bpy
 from mathutils import Matrix
 
-from . import mapping, plyfile, pngfile, rigfile
+from . import fisheye, mapping, plyfile, pngfile, rigfile, tracking
 from .rigfile import RigFileError
 
 __all__ = [
@@ -85,6 +85,8 @@ def import_rig(
     compositor=True,
     overscan=1.1,
     aux_directory=None,
+    lens_model=None,
+    uv_maps=None,
 ):
     """Import a camcal rig file into a scene.
 
@@ -121,6 +123,16 @@ def import_rig(
         compositor distorts it with Movie Distortion.
     overscan : float
         Overscan factor of the render that the compositor distorts.
+    lens_model : {None, 'POLYNOMIAL', 'DIVISION', 'NUKE', 'BROWN'}
+        The tracking camera's distortion model; None takes the one that
+        holds each lens exactly (:func:`.tracking.blender_lens`); another is
+        fitted, with its residual among the warnings.
+    uv_maps : dict, optional
+        ``{camera name: EXR path}``: camcal's exact redistort map of the
+        camera on the overscan frame, as the UV of Blender's Map UV node
+        (``camcal.blender_bridge.write_blender_uv_maps``); that camera's
+        compositor re-distorts with it instead of Movie Distortion (its
+        clip keeps the tracking lens).
     aux_directory : str, optional
         Where blank lens frames are written (default: beside the saved
         .blend, else beside the rig file, else a temporary folder).
@@ -138,6 +150,8 @@ def import_rig(
     rig = rigfile.load_rig(path)
     if not overscan >= 1.0:
         raise RigFileError(f"overscan: must be >= 1, got {overscan}")
+    if lens_model is not None and lens_model not in tracking.BLENDER_MODELS:
+        raise RigFileError(f"lens_model: unknown {lens_model!r}, expected one of: {', '.join(tracking.BLENDER_MODELS)}")
     cams = [_effective_camera(c, use_rectified) for c in rig.cameras]
     cloud = None
     if import_points and rig.points is not None:  # read before creating anything
@@ -187,11 +201,11 @@ def import_rig(
         clip = None
         # a fisheye's lens is in its panoramic camera itself (see _set_fisheye), not in a MovieClip
         if distortion and cam.distortion.model != "none" and cam.distortion.model not in rigfile.FISHEYE_MODELS:
-            clip = _lens_clip(cam, obj, plate, result, path, aux_directory, scene)
+            clip = _lens_clip(cam, obj, plate, result, path, aux_directory, scene, lens_model)
             result.clips[cam.name] = clip
             if compositor:
                 result.distorted_scenes[cam.name] = _distortion_setup(
-                    scene, cam, obj, overscan, result, path, aux_directory
+                    scene, cam, obj, overscan, result, path, aux_directory, lens_model, (uv_maps or {}).get(cam.name)
                 )
         if plate is not None:
             _background(cam, obj, plate, clip)
@@ -238,9 +252,9 @@ def _set_intrinsics(data, b):
 
 
 def _set_fisheye(data, cam, sensor_fit, result):
-    """A Kannala-Brandt lens: Cycles' panoramic fisheye-polynomial camera (mapping.blender_fisheye)."""
+    """A Kannala-Brandt lens: Cycles' panoramic fisheye-polynomial camera (fisheye.blender_fisheye)."""
     try:
-        f = mapping.blender_fisheye(cam.K, cam.size, cam.distortion.params, cam.sensor_width_mm, sensor_fit)
+        f = fisheye.blender_fisheye(cam.K, cam.size, cam.distortion.params, cam.sensor_width_mm, sensor_fit)
     except ValueError as error:
         raise RigFileError(f"camera {cam.name!r}: {error}") from None
     data.type = "PANO"
@@ -260,7 +274,7 @@ def _set_fisheye(data, cam, sensor_fit, result):
         f"the quartic matches the lens to {f.fit_max_px:.3g} px at worst, {f.fit_rms_px:.3g} px RMS over the frame"
     )
     if cam.distortion.model != "kannala-brandt":
-        offset = mapping.thin_prism_offset_px(cam.K, cam.size, cam.distortion.params)
+        offset = fisheye.thin_prism_offset_px(cam.K, cam.size, cam.distortion.params)
         data["camcal_fisheye_left_out_px"] = offset
         result.warnings.append(
             f"camera {cam.name!r}: inexact: Cycles' fisheye camera is radial; the lens's tangential and thin-prism "
@@ -463,8 +477,15 @@ def _set_lens(clip, lens, sensor_width_mm):
     tc.principal_point_pixels = lens.principal_point_pixels
 
 
-def _lens_clip(cam, obj, plate, result, rig_path, aux_directory, scene):
-    lens = mapping.blender_lens(cam.distortion, cam.K, cam.size)
+def _tracking_lens(cam, margins, lens_model):
+    try:
+        return tracking.blender_lens(cam.distortion, cam.K, cam.size, margins, lens_model)
+    except ValueError as error:
+        raise RigFileError(f"camera {cam.name!r}: {error}") from None
+
+
+def _lens_clip(cam, obj, plate, result, rig_path, aux_directory, scene, lens_model):
+    lens = _tracking_lens(cam, (0, 0), lens_model)
     if not lens.exact:
         result.warnings.append(f"camera {cam.name!r}: lens is approximate in Blender: {lens.note}")
     clip = None
@@ -483,6 +504,9 @@ def _lens_clip(cam, obj, plate, result, rig_path, aux_directory, scene):
         clip = _load_clip(f"{obj.name} lens", _blank_frame(obj.name, cam.size, rig_path, aux_directory))
     _set_lens(clip, lens, cam.sensor_width_mm)
     clip.frame_start = scene.frame_start
+    obj.data["camcal_blender_lens"] = json.dumps(
+        {"model": lens.distortion_model, "params": lens.params, "exact": lens.exact, "fit_max_px": lens.fit_max_px}
+    )
     obj.data["camcal_clip"] = clip.name
     return clip
 
@@ -563,7 +587,7 @@ def _copy_render_settings(src, dst):
         dst.cycles.samples = src.cycles.samples
 
 
-def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory):
+def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory, lens_model, uv_map=None):
     """An overscan render scene and a scene whose compositor distorts it.
 
     ``<camera> overscan``: renders the main scene (as its background set)
@@ -572,10 +596,13 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     render through Movie Distortion with a clip whose lens is expressed on
     the enlarged frame, then a Translate node that cancels the integer offset
     Blender's Movie Distortion adds when it grows or shrinks the image; the
-    output is the camera's own frame (``W x H``), centred.
+    output is the camera's own frame (``W x H``), centred. With ``uv_map``
+    (an EXR of the camera's frame whose R, G are the U, V of the overscan
+    render to sample) a Map UV node (bilinear) replaces Movie Distortion and
+    Translate: camcal's own lens, any model.
     """
     W, H = cam.size
-    mx, my = mapping.overscan_margins(cam.size, overscan)
+    mx, my = tracking.overscan_margins(cam.size, overscan)
     size_os = (W + 2 * mx, H + 2 * my)
     K = cam.K
     K_os = ((K[0][0], K[0][1], K[0][2] + mx), (0.0, K[1][1], K[1][2] + my), (0.0, 0.0, 1.0))
@@ -597,7 +624,7 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     os_scene.render.use_compositing = False
     os_scene["camcal_overscan_margins"] = [mx, my]
 
-    lens = mapping.blender_lens(cam.distortion, cam.K, cam.size, (mx, my))
+    lens = _tracking_lens(cam, (mx, my), lens_model)
     clip = _load_clip(
         f"{obj.name} lens overscan", _blank_frame(f"{obj.name}_overscan", size_os, rig_path, aux_directory)
     )
@@ -616,23 +643,43 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     unscale.inputs["Type"].default_value = "Relative"
     unscale.inputs["X"].default_value = size_os[0] / W
     unscale.inputs["Y"].default_value = size_os[0] / W
-    md = _movie_distortion(tree, clip)
-    shift = distortion_shift(clip, cam, (mx, my), (W, H))
-    translate = tree.nodes.new("CompositorNodeTranslate")
-    translate.inputs["X"].default_value = shift[0]
-    translate.inputs["Y"].default_value = shift[1]
     tree.links.new(layers.outputs["Image"], unscale.inputs["Image"])
-    tree.links.new(unscale.outputs["Image"], md.inputs["Image"])
-    tree.links.new(md.outputs["Image"], translate.inputs["Image"])
-    tree.links.new(translate.outputs["Image"], out.inputs[0])
-    for i, node in enumerate((layers, unscale, md, translate, out)):
+    if uv_map is not None:
+        chain = _map_uv(tree, uv_map, (W, H))
+        dist_scene["camcal_uv_map"] = uv_map
+    else:
+        md = _movie_distortion(tree, clip)
+        shift = distortion_shift(clip, lens, (mx, my), (W, H))
+        translate = tree.nodes.new("CompositorNodeTranslate")
+        translate.inputs["X"].default_value = shift[0]
+        translate.inputs["Y"].default_value = shift[1]
+        tree.links.new(md.outputs["Image"], translate.inputs["Image"])
+        chain = (md, translate)
+        dist_scene["camcal_distortion_shift_px"] = list(shift)
+    tree.links.new(unscale.outputs["Image"], chain[0].inputs["Image"])
+    tree.links.new(chain[-1].outputs["Image"], out.inputs[0])
+    for i, node in enumerate((layers, unscale, *chain, out)):
         node.location = (i * 250.0, 0.0)
-    dist_scene["camcal_distortion_shift_px"] = list(shift)
     obj.data["camcal_distorted_scene"] = dist_scene.name
     return dist_scene
 
 
-def distortion_shift(clip, cam, margins, size):
+def _map_uv(tree, path, size):
+    """A Map UV node (bilinear) whose UV is the EXR at ``path`` (data, no colour transform); ``(node,)``."""
+    image = bpy.data.images.load(path, check_existing=True)
+    image.colorspace_settings.is_data = True
+    if tuple(image.size) != tuple(size):
+        raise RigFileError(f"UV map {path} is {tuple(image.size)}, the camera {tuple(size)}")
+    uv = tree.nodes.new("CompositorNodeImage")
+    uv.image = image
+    node = tree.nodes.new("CompositorNodeMapUV")
+    node.inputs["Interpolation"].default_value = "Bilinear"
+    tree.links.new(uv.outputs["Image"], node.inputs["UV"])
+    uv.location = (500.0, -250.0)
+    return (node,)
+
+
+def distortion_shift(clip, lens, margins, size):
     """The offset (Blender pixels, x right, y up) Movie Distortion adds, measured.
 
     Blender's Movie Distortion grows or shrinks its output by the distorted
@@ -640,7 +687,9 @@ def distortion_shift(clip, cam, margins, size):
     whole number of pixels that depends on the lens and the frame (1 px
     even at k = 0, from the bounds' rounding). This runs the node once on a
     coordinate ramp in a throw-away scene and compares the coordinates it
-    reads back with the lens model: the difference is the offset.
+    reads back with Blender's formula for ``lens`` (a
+    :class:`.tracking.BlenderLens` on the overscan frame,
+    :func:`.tracking.blender_distort`): the difference is the offset.
     """
     import numpy as np  # Blender's bundled numpy; only the bpy layer uses it
 
@@ -689,7 +738,8 @@ def distortion_shift(clip, cam, margins, size):
                 j, i = int(H * fy), int(W * fx)
                 qx, qy = float(out_px[j, i, 0]) * Wo, float(out_px[j, i, 1]) * Ho
                 # q is where Blender sampled the undistorted render (overscan frame, edges, y up).
-                d = _distort_blender(cam, (qx, qy), margins, (Wo, Ho))
+                ideal = tracking.from_blender_pixel((qx, qy), Ho)
+                d = tracking.to_blender_pixel(tracking.blender_distort(lens, ideal), Ho)
                 shifts.append((d[0] - (i + 0.5 + mx), d[1] - (j + 0.5 + my)))
         sx = sum(s[0] for s in shifts) / len(shifts)
         sy = sum(s[1] for s in shifts) / len(shifts)
@@ -705,14 +755,3 @@ def distortion_shift(clip, cam, margins, size):
     # The offset is a whole number of pixels; keep measured fractions only if large.
     rx, ry = round(sx), round(sy)
     return (float(rx) if abs(sx - rx) < 0.05 else sx, float(ry) if abs(sy - ry) < 0.05 else sy)
-
-
-def _distort_blender(cam, q, margins, size_os):
-    """Apply camcal's lens to a Blender tracking pixel of the overscan frame."""
-    mx, my = margins
-    Ho = size_os[1]
-    p = mapping.from_blender_pixel(q, Ho)
-    center = cam.distortion.center
-    center = (center[0] + mx, center[1] + my)
-    d = mapping.distort(cam.distortion, p, center, cam.K[0][0])
-    return mapping.to_blender_pixel(d, Ho)

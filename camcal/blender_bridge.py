@@ -7,24 +7,42 @@ and Blender's global state stays out of the calling process.
 
 The add-on lives in ``addon/`` beside the ``camcal`` package (a source
 checkout or editable install); ``CAMCAL_ADDON_DIR`` overrides the location.
+
+Blender's tracking camera holds camcal's ``polynomial``, ``opencv`` (``k1,
+k2, p1, p2, k3``) and round ``division`` lenses exactly (the add-on's
+``tracking.blender_lens``); before the import, every other lens but the
+fisheyes (Cycles' fisheye camera takes those) is replaced in the MovieClip
+by its nearest lens of that kind (:func:`camcal.io.conversion.refit_camera`,
+the residual reported), and its distortion compositor re-distorts with
+camcal's exact map through a Map UV node instead
+(:func:`write_blender_uv_maps`): the ST-map path.
 """
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
+
+import numpy as np
 
 from camcal import resources
 from camcal.base.errors import CamcalError
+from camcal.io.conversion import LensConversion, max_pixel_residual, refit_camera
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Rig
 
 __all__ = [
     "ADDON_PACKAGE",
     "addon_dir",
     "load_addon",
+    "blender_tracking_rig",
+    "write_blender_uv_maps",
     "import_rig_to_blend",
     "extension_tool",
     "build_extension",
@@ -100,6 +118,91 @@ def load_addon(name: str = ADDON_PACKAGE):
     return module
 
 
+def _tracking_holds(distortion: Distortion) -> bool:
+    """Whether the add-on takes ``distortion`` as it is: a tracking-camera model holds it, or it is a fisheye."""
+    p = distortion.params
+    if distortion.model == "opencv":
+        return not any(p.get(name, 0.0) for name in ("k4", "k5", "k6", "s1", "s2", "s3", "s4"))
+    if distortion.model == "division":
+        return p.get("aspect", 1.0) == 1.0
+    return distortion.model in ("none", "polynomial") or distortion.is_fisheye
+
+
+#: The lens fitted where Blender's tracking camera does not hold one (see :func:`blender_tracking_rig`).
+_NEAREST = {"opencv": "opencv", "polynomial": "polynomial", "division": "division", "none": "polynomial",
+            "kannala-brandt": "kannala-brandt", "kannala-brandt-thin-prism": "kannala-brandt",
+            "3de-classic": "opencv", "3de4-radial-deg4": "opencv", "3de4-anamorphic-deg4": "opencv",
+            "3de4-fisheye-deg8": "kannala-brandt"}
+#: What a refit to each family holds, for Blender: BROWN has no rational or thin-prism terms, NUKE is round.
+_HELD = {"opencv": dict.fromkeys(("k4", "k5", "k6", "s1", "s2", "s3", "s4"), 0.0), "division": {"aspect": 1.0}}
+_BLENDER_NAMES = {"opencv": "Blender BROWN", "polynomial": "Blender POLYNOMIAL", "division": "Blender NUKE",
+                  "kannala-brandt": "Cycles fisheye"}
+
+
+def blender_tracking_rig(rig: Rig, overscan: float = 1.1) -> tuple[Rig, tuple[LensConversion, ...]]:
+    """The rig with each lens Blender cannot hold replaced by the nearest one it can, and what that cost.
+
+    ``opencv`` with rational or thin-prism terms and 3DE's lenses become
+    the nearest ``opencv`` lens of ``k1, k2, p1, p2, k3`` (Blender's BROWN;
+    3DE4 Radial Fisheye the nearest ``kannala-brandt``, for Cycles' fisheye
+    camera), a ``division`` lens with an aspect the nearest round one
+    (NUKE), a lens with a correction field the nearest of its own kind
+    without it (:func:`camcal.io.conversion.refit_camera`). Each replaced
+    camera's :class:`~camcal.io.conversion.LensConversion` gives the largest
+    pixel distance between the two lenses over the frame and the refit's
+    figures (inside the image and over the border of ``overscan``, the
+    factor the add-on's distortion compositor renders with, which the fit
+    covers as well).
+    """
+    cameras, conversions = [], []
+    for camera in rig.cameras:
+        distortion = camera.distortion
+        if _tracking_holds(distortion) and not distortion.has_correction:
+            cameras.append(camera)
+            continue
+        fit = _NEAREST[distortion.model]
+        converted, refit = refit_camera(camera, fit, overscan=overscan, fixed=_HELD.get(fit))
+        cameras.append(converted)
+        conversions.append(LensConversion(camera.name, distortion.model, _BLENDER_NAMES[fit], False,
+                                          max_pixel_residual(camera, converted), refit=refit))
+    return Rig(tuple(cameras), rig.units, rig.frames, rig.points, rig.provenance), tuple(conversions)
+
+
+def write_blender_uv_maps(rig: Rig, names: list[str], folder: str | os.PathLike, overscan: float) -> dict[str, str]:
+    """camcal's exact redistort maps of cameras, as the UV of Blender's Map UV node on the add-on's overscan frame.
+
+    For each camera named, ``<folder>/<camera>_blender_uv.exr``: for each
+    plate pixel, the pixel of the overscan render (the add-on's frame of
+    ``W + 2 mx`` by ``H + 2 my``, margins from its ``overscan_margins``) to
+    sample, ``U = (x + 0.5) / (W + 2 mx)``, ``V = 1 - (y + 0.5) / (H + 2 my)``
+    (:func:`camcal.geometry.stmap.st_from_pixels` on that frame; pixel (0, 0) at
+    the centre of the top-left pixel), ``x`` the lens's undistorted pixel
+    (:func:`camcal.geometry.stmap.undistorted_grid`) plus the margin; blue is
+    Map UV's mask (1, or 0 where the lens has no undistorted pixel), as in
+    Blender's UV render pass.
+
+    Returns
+    -------
+    dict
+        Camera name -> path, for the add-on's ``import_rig(uv_maps=...)``.
+    """
+    from camcal.geometry.stmap import st_from_pixels, undistorted_grid
+    from camcal.io.stmap import write_exr
+
+    margins = importlib.import_module(f"{load_addon().__name__}.tracking").overscan_margins  # pure: no bpy
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for name in names:
+        camera = rig.camera(name)
+        (width, height), (mx, my) = camera.image_size, margins(camera.image_size, overscan)
+        x, y = undistorted_grid(camera.distortion, camera.K, camera.image_size)
+        uv = st_from_pixels(x + mx, y + my, (width + 2 * mx, height + 2 * my))
+        uv[..., 2] = np.isfinite(x) & np.isfinite(y)  # Map UV's mask, as in Blender's UV pass
+        paths[name] = str(write_exr(folder / f"{name}_blender_uv.exr", uv))
+    return paths
+
+
 def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **options) -> dict:
     """Import a rig file into a new .blend file (written atomically).
 
@@ -118,7 +221,10 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
     Returns
     -------
     dict
-        A summary: rig name, camera objects, stereo mode, clips, warnings.
+        A summary: rig name, camera objects, stereo mode, clips, warnings;
+        ``conversions``: one line per lens replaced by its nearest fit
+        (:func:`blender_tracking_rig`), its residual in pixels (also first
+        among the warnings).
 
     Raises
     ------
@@ -132,19 +238,38 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
     if not blend.parent.is_dir():
         raise CamcalError(f"output folder does not exist: {blend.parent}")
     options.setdefault("aux_directory", str(blend.parent / f"{blend.stem}_lens"))
-    payload = json.dumps({"rig": str(rig), "blend": str(blend), "options": options})
+    source = Rig.load(rig)
+    tracking, conversions = blender_tracking_rig(source, options.get("overscan", 1.1))
+    exact_maps = [c.camera for c in conversions if not tracking.camera(c.camera).distortion.is_fisheye]
+    if exact_maps and options.get("distortion", True) and options.get("compositor", True):
+        options["uv_maps"] = write_blender_uv_maps(source, exact_maps, options["aux_directory"],
+                                                   options.get("overscan", 1.1))
+    fitted = None
+    if conversions:  # the refitted rig beside the original, so that its relative paths still hold
+        handle, name = tempfile.mkstemp(prefix=f".{rig.stem}.", suffix=".blender.rig.json", dir=rig.parent)
+        os.close(handle)
+        fitted = Path(name)
+        tracking.save(fitted)
+    payload = json.dumps({"rig": str(fitted or rig), "blend": str(blend), "options": options})
     env = dict(os.environ)
     env.setdefault("CAMCAL_ADDON_DIR", str(addon_dir()))
-    proc = subprocess.run(
-        [sys.executable, "-c", _SCRIPT, payload], capture_output=True, text=True, env=env
-    )
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-c", _SCRIPT, payload], capture_output=True, text=True, env=env
+        )
+    finally:
+        if fitted is not None:
+            fitted.unlink(missing_ok=True)
     if proc.returncode != 0:
         lines = [line for line in proc.stderr.strip().splitlines() if line.strip()]
         message = lines[-1] if lines else f"Blender import failed (exit code {proc.returncode})"
         raise CamcalError(message)
     for line in proc.stdout.splitlines():
         if line.startswith("CAMCAL_RESULT "):
-            return json.loads(line[len("CAMCAL_RESULT "):])
+            summary = json.loads(line[len("CAMCAL_RESULT "):])
+            summary["conversions"] = [conversion.describe() for conversion in conversions]
+            summary["warnings"] = summary["conversions"] + summary["warnings"]
+            return summary
     raise CamcalError("Blender import finished without a result")
 
 

@@ -157,8 +157,11 @@ def test_readme_quick_start_recovers_the_board_sets_camera(quick_start):
     # the undistorted image, ST-maps, exports and the Python snippet's rig were all written
     assert (folder / "undistorted" / "board01.png").is_file()
     assert any((folder / "stmaps").iterdir())
+    # the README's Python calls give the command's camera (same defaults, same inputs)
     python_rig = Rig.load(folder / "cam_python.rig.json").camera("cam")
-    assert python_rig.K[0, 0] == pytest.approx(FOCAL_PX, rel=3e-3)
+    np.testing.assert_allclose(python_rig.K, camera.K, rtol=1e-9)
+    assert python_rig.distortion.model == camera.distortion.model
+    assert (folder / "undistorted_python" / "board01.png").is_file() and (folder / "cam_python.nk").is_file()
 
 
 @pytest.mark.parametrize("path", [p for p in DOCUMENTS[1:] if _runnable(p, ("fast",))], ids=lambda p: p.name)

@@ -12,14 +12,24 @@ by the rest of the pipeline.
 ``colour export --ocio``, ``rig export --to colmap``, ``demo``). When the
 folder already exists, the run's files are moved into it at the end, each by
 one rename (a file of the same name is replaced, the folder's other files are
-kept); a failed run changes nothing in it. A process killed outright (no
-``finally`` runs) leaves its ``.NAME.*.tmp`` folder beside the target.
+kept); a failed run changes nothing in it.
+
+Temporary names
+---------------
+Every temporary file or folder is ``.NAME.camcal-tmp.XXXXXXXX[SUFFIX]``
+beside its target ``NAME`` (``XXXXXXXX``: ``tempfile``'s eight random
+characters; a file keeps the target's suffix so writers that choose a
+format by extension work). On every error the temporary is removed; only a
+process killed outright (no ``finally`` runs: SIGKILL, power loss) leaves
+it behind. Long jobs call :func:`remove_stale_temporaries` for the outputs
+they are about to write, which removes exactly these names and nothing else.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Iterable, Iterator
@@ -27,7 +37,13 @@ from pathlib import Path
 
 from camcal.base.errors import CamcalError
 
-__all__ = ["atomic_dir", "atomic_path", "atomic_write_text", "final_path"]
+__all__ = ["TEMPORARY_TAG", "atomic_dir", "atomic_path", "atomic_write_text", "final_path",
+           "is_temporary_of", "output_folder", "remove_stale_temporaries"]
+
+#: The word every temporary name carries: ``.NAME.camcal-tmp.XXXXXXXX[SUFFIX]``.
+TEMPORARY_TAG = "camcal-tmp"
+# .NAME.camcal-tmp. then tempfile's random part (8 characters of [a-z0-9_]), then the suffix
+_TEMPORARY = re.compile(r"\.(.+)\." + re.escape(TEMPORARY_TAG) + r"\.[a-z0-9_]{8}(?:\..*)?", re.DOTALL)
 
 # Read once at import (os.umask can only be read by setting it, which is not thread-safe).
 _UMASK = os.umask(0o022)
@@ -49,7 +65,7 @@ def atomic_path(target: str | os.PathLike, suffix: str | None = None) -> Iterato
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(
-        prefix=f".{target.name}.", suffix=target.suffix if suffix is None else suffix, dir=target.parent
+        prefix=_prefix(target), suffix=target.suffix if suffix is None else suffix, dir=target.parent
     )
     os.close(fd)
     tmp = Path(tmp_name)
@@ -98,7 +114,7 @@ def atomic_dir(target: str | os.PathLike, replace: Iterable[str] = ()) -> Iterat
         raise CamcalError(f"{target}: exists and is not a folder")
     created = _make_parents(target.parent)
     try:
-        staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+        staging = Path(tempfile.mkdtemp(prefix=_prefix(target), dir=target.parent))
     except BaseException:
         _remove_empty(created)
         raise
@@ -116,6 +132,26 @@ def atomic_dir(target: str | os.PathLike, replace: Iterable[str] = ()) -> Iterat
     shutil.rmtree(staging, ignore_errors=True)  # what a merge into an existing folder left: empty folders
 
 
+@contextlib.contextmanager
+def output_folder(path: str | os.PathLike | None) -> Iterator[Path | None]:
+    """The folder an output folder names (``--report DIR``, ``--write DIR``), or None when it is not given.
+
+    The verb writes into the yielded temporary folder beside ``path``; it is
+    renamed to ``path`` when the verb's block ends and removed on any error
+    (:func:`atomic_dir`: an existing folder keeps its
+    other files, files of the same names are replaced at the end). Paths
+    written inside it map to their final place with
+    :func:`final_path`.
+    """
+    if path is None:
+        yield None
+        return
+    with atomic_dir(path) as staging:
+        yield staging
+
+
+
+
 def final_path(path: str | os.PathLike, staging: Path, target: str | os.PathLike) -> Path:
     """Where ``path``, written inside :func:`atomic_dir`'s ``staging`` folder, is once the run succeeded.
 
@@ -123,6 +159,62 @@ def final_path(path: str | os.PathLike, staging: Path, target: str | os.PathLike
     """
     path = Path(path)
     return Path(target) / path.relative_to(staging) if path.is_relative_to(staging) else path
+
+
+def _prefix(target: Path) -> str:
+    return f".{target.name}.{TEMPORARY_TAG}."
+
+
+def is_temporary_of(path: str | os.PathLike, target: str | os.PathLike) -> bool:
+    """Whether ``path`` is a temporary name :func:`atomic_path` or :func:`atomic_dir` gives ``target``.
+
+    Examples
+    --------
+    >>> is_temporary_of("out/.o.0032.png.camcal-tmp.0jfiou1u.png", "out/o.0032.png")
+    True
+    >>> is_temporary_of("out/.o.0032.png.0jfiou1u.png", "out/o.0032.png")  # not camcal's
+    False
+    """
+    path, target = Path(path), Path(target)
+    match = _TEMPORARY.fullmatch(path.name)
+    return (match is not None and match.group(1) == target.name
+            and os.path.normpath(path.parent) == os.path.normpath(target.parent))
+
+
+def remove_stale_temporaries(targets: Iterable[str | os.PathLike]) -> tuple[Path, ...]:
+    """Remove the temporary files and folders killed writers of ``targets`` left beside them.
+
+    Only names of camcal's own pattern for one of ``targets`` are touched
+    (:func:`is_temporary_of`); the targets themselves and every other file
+    stay. Each folder is listed once. Call it only for outputs no other
+    process is writing at the same time (a job, on start or resume, for the
+    outputs it is about to write).
+
+    Returns
+    -------
+    tuple of Path
+        What was removed, sorted.
+    """
+    names_by_folder: dict[str, set[str]] = {}
+    for target in targets:
+        target = Path(target)
+        names_by_folder.setdefault(os.path.normpath(target.parent), set()).add(target.name)
+    removed = []
+    for folder, names in names_by_folder.items():
+        try:
+            entries = list(os.scandir(folder))
+        except (FileNotFoundError, NotADirectoryError):
+            continue
+        for entry in entries:
+            match = _TEMPORARY.fullmatch(entry.name)
+            if match is None or match.group(1) not in names:
+                continue
+            if entry.is_dir(follow_symlinks=False):
+                shutil.rmtree(entry.path, ignore_errors=True)
+            else:
+                Path(entry.path).unlink(missing_ok=True)
+            removed.append(Path(entry.path))
+    return tuple(sorted(removed))
 
 
 def _make_parents(folder: Path) -> list[Path]:

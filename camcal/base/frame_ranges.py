@@ -1,4 +1,4 @@
-"""Frame ranges: ``1001-1240``, ``1001-1240x2`` or ``1,5,10-12`` as sorted frame numbers."""
+"""Frame ranges: ``1001-1240``, ``1001-1240x2`` or ``1,5,10-12`` as sorted frame numbers; held-out frames."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import re
 
 from camcal.base.errors import CamcalError
 
-__all__ = ["MAX_FRAMES", "parse_frames"]
+__all__ = ["MAX_FRAMES", "parse_frames", "parse_holdout"]
 
 #: The most frames one list may name.
 MAX_FRAMES = 10_000_000
@@ -41,3 +41,21 @@ def parse_frames(text: str) -> tuple[int, ...]:
             raise CamcalError(f"frame range {text!r} has more than {MAX_FRAMES} frames")
         frames.update(range(start, end + 1, step))
     return tuple(sorted(frames))
+
+
+def parse_holdout(text: str, frames: list[int]) -> set[int]:
+    """``--holdout``: frame numbers and ranges (``21-25,3``, as
+    :func:`parse_frames`) or a fraction of the frames (``0.2``, evenly spaced)."""
+    text = text.strip()
+    if re.fullmatch(r"0?\.\d+", text):
+        if not frames:
+            return set()
+        fraction = float(text)
+        count = max(1, round(fraction * len(frames)))
+        step = len(frames) / count
+        return {frames[min(len(frames) - 1, int((k + 0.5) * step))] for k in range(count)}
+    try:
+        return set(parse_frames(text))
+    except CamcalError as error:
+        raise CamcalError(f"bad --holdout {text!r} ({error}): expected frame numbers and ranges (21-25,3) "
+                          "or a fraction (0.2)") from None

@@ -8,17 +8,13 @@ and checked the same in every verb that has it.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import glob
 import inspect
-import os
-import re
-from collections.abc import Iterator, Sequence
-from pathlib import Path
+from collections.abc import Sequence
 
-from camcal.base.atomic import atomic_dir
+from camcal.base.atomic import output_folder
 from camcal.base.errors import CamcalError
-from camcal.base.frame_ranges import parse_frames
+from camcal.base.frame_ranges import parse_holdout
+from camcal.base.globs import expand_glob
 
 __all__ = [
     "LOSSES",
@@ -110,23 +106,6 @@ def named_option(parser, option: str, metavar: str, help: str, required: bool = 
     parser.add_argument(option, required=required, action=NamedValues, metavar=metavar, help=help)
 
 
-def expand_glob(option: str, name: str, pattern: str, root: str | os.PathLike | None = None,
-                what: str = "image") -> list[str]:
-    """The files a glob matches, sorted; absolute or relative (to ``root``, else the cwd).
-
-    Raises
-    ------
-    CamcalError
-        ``"--images left=L/*.png: no image matches"`` when nothing matches.
-    """
-    full = os.path.join(os.fspath(root), os.path.expanduser(pattern)) if root else os.path.expanduser(pattern)
-    files = sorted(path for path in glob.glob(full) if os.path.isfile(path))
-    if not files:
-        where = f" (in {root})" if root and not os.path.isabs(pattern) else ""
-        raise CamcalError(f"{option} {name}={pattern}: no {what} matches{where}")
-    return files
-
-
 # -- rigs, cameras, files written --------------------------------------------------------
 
 
@@ -153,24 +132,6 @@ def out_option(parser, metavar: str, help: str | None = None) -> None:
 def report_option(parser, help: str) -> None:
     """``--report DIR``: figures and plots beside the result."""
     parser.add_argument("--report", metavar="DIR", help=help)
-
-
-@contextlib.contextmanager
-def output_folder(path: str | None) -> Iterator[Path | None]:
-    """The folder a folder option names (``--report DIR``, ``--write DIR``), or None when it is not given.
-
-    The verb writes into the yielded temporary folder beside ``path``; it is
-    renamed to ``path`` when the verb's block ends and removed on any error
-    (:func:`camcal.base.atomic.atomic_dir`: an existing folder keeps its
-    other files, files of the same names are replaced at the end). Paths
-    written inside it map to their final place with
-    :func:`camcal.base.atomic.final_path`.
-    """
-    if path is None:
-        yield None
-        return
-    with atomic_dir(path) as staging:
-        yield staging
 
 
 def image_size_option(parser, help: str | None = None, required: bool = False) -> None:
@@ -228,22 +189,3 @@ def every_option(parser) -> None:
 def loss_option(parser, help: str) -> None:
     """``--loss``: the robust loss of a bundle adjustment (:data:`LOSSES`)."""
     parser.add_argument("--loss", default="trivial", choices=LOSSES, help=help)
-
-
-# -- frame lists -----------------------------------------------------------------------------
-
-
-def parse_holdout(text: str, frames: list[int]) -> set[int]:
-    """``--holdout``: frame numbers and ranges (``21-25,3``, as
-    :func:`camcal.base.frame_ranges.parse_frames`) or a fraction of the frames (``0.2``, evenly spaced)."""
-    text = text.strip()
-    if re.fullmatch(r"0?\.\d+", text):
-        fraction = float(text)
-        count = max(1, round(fraction * len(frames)))
-        step = len(frames) / count
-        return {frames[min(len(frames) - 1, int((k + 0.5) * step))] for k in range(count)}
-    try:
-        return set(parse_frames(text))
-    except CamcalError as error:
-        raise CamcalError(f"bad --holdout {text!r} ({error}): expected frame numbers and ranges (21-25,3) "
-                          "or a fraction (0.2)") from None

@@ -12,6 +12,7 @@ __all__ = ["register"]
 
 def register(parser: argparse.ArgumentParser) -> None:
     """``show``, ``export`` and ``import`` under ``camcal rig``."""
+    from camcal.io.conversion import exactness_table
     from camcal.io.interchange import FORMATS
 
     verbs = verb_group(parser, "rig_verb")
@@ -20,28 +21,32 @@ def register(parser: argparse.ArgumentParser) -> None:
     show.add_argument("--validate", action="store_true",
                       help="also check FILE against the rig file's JSON Schema (docs/rig.schema.json) and say so")
     handler(show, _show)
-    export = verbs.add_parser("export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke)")
+    export = verbs.add_parser("export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke, 3DE)",
+                              formatter_class=argparse.RawDescriptionHelpFormatter)
     rig_argument(export)
-    export.add_argument("--to", required=True, choices=FORMATS, metavar="FORMAT", help=f"one of: {', '.join(FORMATS)}")
+    export.add_argument("--to", choices=FORMATS, metavar="FORMAT",
+                        help=f"one of: {', '.join(FORMATS)} (default: from OUT's suffix, .nk .usd* .txt)")
     export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
     export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
     export.add_argument("--stmaps", action="store_true",
                         help="usd: also write each lens' ST-maps beside the stage and reference them from its camera")
     handler(export, _export)
+    export.epilog = "\n\n".join(filter(None, [export.epilog, "Which lens each format holds exactly:", exactness_table()]))
     imp = verbs.add_parser("import", help="read another tool's camera file as a rig")
     imp.add_argument("file", metavar="FILE", help="the other tool's file")
-    imp.add_argument("--from", dest="fmt", required=True, choices=FORMATS, metavar="FORMAT",
-                     help=f"one of: {', '.join(FORMATS)}")
+    imp.add_argument("--from", dest="fmt", choices=FORMATS, metavar="FORMAT",
+                     help=f"one of: {', '.join(FORMATS)} (default: from FILE's suffix, .nk .usd* .txt)")
     out_option(imp, "RIG.rig.json", "the rig file to write")
-    image_size_option(imp, "usd: the image size of cameras that carry none (USD cameras not written by camcal)")
+    image_size_option(imp, "usd, 3de, nuke: the image size of cameras that carry none (USD cameras, 3DE lens "
+                           "files and LDPK nodes not written by camcal)")
     handler(imp, _import)
 
 
 def _show(args: argparse.Namespace) -> int:
-    from camcal.model.rig import Rig
+    from camcal.api.rig import load_rig
     from camcal.model.rig_schema import RIG_SCHEMA_ID, load_validated
 
-    rig = load_validated(args.rig) if args.validate else Rig.load(args.rig)
+    rig = load_validated(args.rig) if args.validate else load_rig(args.rig)
     if args.validate:
         print(f"{args.rig}: valid (conforms to {RIG_SCHEMA_ID} and loads)")
     print(rig.summary())
@@ -49,53 +54,47 @@ def _show(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_conversions(args: argparse.Namespace, result) -> None:
+def _print_conversions(args: argparse.Namespace, conversions, notes) -> None:
     import dataclasses
 
-    for conversion in result.conversions:
+    for conversion in conversions:
         print(conversion.describe())
-    for note in result.notes:
+    for note in notes:
         print(f"note: {note}")
-    summary_of(args).figures(conversions=[dataclasses.asdict(c) for c in result.conversions], notes=list(result.notes))
+    summary_of(args).figures(conversions=[dataclasses.asdict(c) for c in conversions], notes=list(notes))
 
 
 def _export(args: argparse.Namespace) -> int:
     """Write RIG as FORMAT. opencv: .yaml/.yml/.xml FileStorage (one camera or a stereo pair); kalibr:
     camchain.yaml; colmap: a directory with cameras.txt, images.txt, points3D.txt; usd: .usda/.usdc/.usd;
-    nuke: .nk. A lens or skew the format cannot hold is fitted with the nearest model it holds and the max
-    pixel residual is printed; exact conversions say so.
+    nuke: .nk; 3de: a 3DEqualizer lens file (.txt, one camera). A lens or skew the format cannot hold is
+    fitted with the nearest model it holds and its pixel residual is printed (for the 3DEqualizer models:
+    max and RMS inside the image and over a 1.25 overscan border); exact conversions say so.
     """
     from pathlib import Path
 
-    from camcal.io.interchange import export_rig
-    from camcal.model.rig import Rig
+    from camcal.api.rig import export_rig
+    from camcal.io.interchange import format_of
 
-    result = export_rig(Rig.load(args.rig), args.to, args.out, cameras=args.camera, rig_path=args.rig,
-                        stmaps=args.stmaps)
-    _print_conversions(args, result)
+    fmt = format_of(args.out, args.to)
+    result = export_rig(args.rig, args.out, fmt, cameras=args.camera, stmaps=args.stmaps)
+    _print_conversions(args, result.conversions, result.notes)
     for path in result.paths:
-        summary_of(args).wrote(path, args.to if path == Path(args.out) or path.parent == Path(args.out) else "stmap")
+        summary_of(args).wrote(path, fmt if path == Path(args.out) or path.parent == Path(args.out) else "stmap")
     return 0
 
 
 def _import(args: argparse.Namespace) -> int:
     """Read FILE (a directory for colmap) written by FORMAT's tool and write a camcal rig."""
-    import dataclasses
-    from pathlib import Path
+    from camcal.api.rig import import_rig
 
-    from camcal.io.interchange import import_rig
-    from camcal.io.ply import write_points_ply
-    from camcal.model.rig import make_provenance
-
-    result = import_rig(args.file, args.fmt,
-                        image_size=None if args.image_size is None else image_size(args.image_size))
-    rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=args.fmt, source=str(args.file)))
-    _print_conversions(args, result)
+    imported = import_rig(args.file, args.fmt,
+                          image_size=None if args.image_size is None else image_size(args.image_size))
+    _print_conversions(args, imported.conversions, imported.notes)
     out = summary_of(args)
-    if result.points_xyz is not None:
-        points = Path(args.out).with_name(Path(args.out).name.removesuffix(".json").removesuffix(".rig") + ".points.ply")
-        out.wrote(write_points_ply(points, result.points_xyz, result.points_rgb), "points")
-        rig = dataclasses.replace(rig, points=points.name)
-    out.figures(n_cameras=len(rig.cameras), n_frames=len(rig.frames))
-    out.wrote(rig.save(args.out), "rig")
+    files = imported.save(args.out)
+    for path, kind in files[:-1]:
+        out.wrote(path, kind)
+    out.figures(n_cameras=len(imported.rig.cameras), n_frames=len(imported.rig.frames))
+    out.wrote(files[-1][0], "rig")
     return 0

@@ -15,7 +15,12 @@ def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal stmap``."""
     rig_argument(parser)
     camera_option(parser)
-    parser.add_argument("--overscan", type=float, default=1.1, help="undistorted canvas factor (default 1.1)")
+    size = parser.add_mutually_exclusive_group()
+    size.add_argument("--overscan", type=float, metavar="FACTOR",
+                      help="overscan of the undistorted image as a factor of the plate (default 1.1): a border of "
+                           "round((FACTOR - 1) W / 2) x round((FACTOR - 1) H / 2) pixels on each side")
+    size.add_argument("--border", type=int, nargs="+", metavar="PX",
+                      help="overscan as a border in pixels on each side: one number, or X Y")
     out_option(parser, "DIR")
     sigma_options(parser, "NAME_sigma.exr (plate-sized, with the redistort map) and NAME_undistort_sigma.exr "
                   "(with the undistort map): the projection sigma in plate pixels")
@@ -25,25 +30,36 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 
 def _stmap(args: argparse.Namespace) -> int:
-    """Write NAME_undistort.exr and NAME_redistort.exr (R = (x + 0.5) / W, G = 1 - (y + 0.5) / H of the pixel to
-    sample) and the undistorted rig.
+    """Write NAME_undistort.exr and NAME_redistort.exr, 32-bit float: R = (x + 0.5) / W, G = 1 - (y + 0.5) / H of
+    the pixel to sample, (x, y) with pixel (0, 0) at the centre of the top-left pixel and W x H the plate's size
+    (the format of both images; values outside 0..1 reach into the overscan border). The undistort map's border is
+    the EXR's data window beyond its plate-sized display window (Nuke's bounding box). Also the undistorted rig.
     """
     from camcal.base.atomic import final_path
     from camcal.cli.options import output_folder
+    from camcal.geometry.stmap import DEFAULT_OVERSCAN, overscan_border
     from camcal.io.stmap import read_sigma_map, write_stmap_sigmas, write_stmaps
     from camcal.model.rig import Rig
 
     if args.report and not args.sigma:
         raise CamcalError("--report draws the sigma maps: give --sigma too")
+    if args.border is not None and len(args.border) > 2:
+        raise CamcalError(f"--border takes one number or two (X Y), got {len(args.border)}")
+    border = None if args.border is None else (args.border * 2)[:2]
     rig = Rig.load(args.rig)
-    paths = write_stmaps(rig, args.camera, args.out, args.overscan)
-    print(f"ST-maps of {args.camera!r} with overscan {args.overscan:g}")
+    camera = rig.camera(args.camera)
+    factor = DEFAULT_OVERSCAN if border is None and args.overscan is None else args.overscan
+    bx, by = overscan_border(camera.image_size, factor, border)
+    paths = write_stmaps(rig, args.camera, args.out, border=(bx, by))
+    width, height = camera.image_size
+    print(f"ST-maps of {args.camera!r}: format {width}x{height}, overscan border {bx}x{by} px "
+          f"(undistorted data window {width + 2 * bx}x{height + 2 * by})")
     out = summary_of(args)
-    out.figures(camera=args.camera, overscan=args.overscan)
+    out.figures(camera=args.camera, overscan=args.overscan, border=[bx, by])
     for path in paths:
         out.wrote(path, "stmap" if str(path).endswith(".exr") else "rig")
     if args.sigma:
-        sigmas = write_stmap_sigmas(rig, args.camera, args.out, args.overscan, args.distance)
+        sigmas = write_stmap_sigmas(rig, args.camera, args.out, distance=args.distance, border=(bx, by))
         (_, plate), (_, undistorted) = sigmas
         print(f"plate: {plate.describe()}")
         print(f"undistorted canvas: {undistorted.describe()}")

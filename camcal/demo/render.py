@@ -51,10 +51,13 @@ def _shot(camera: Camera, quads: Sequence[str], out: Path) -> dict:
 def _redistort_maps(camera: Camera) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
     """Plate pixel -> overscan render pixel (camcal's exact redistort mapping)."""
     from camcal.geometry.stmap import make_stmaps, pixels_from_st  # noqa: PLC0415
+    from camcal.geometry.undistort import undistorted_view  # noqa: PLC0415
 
     maps = make_stmaps(camera, OVERSCAN)
-    x, y = pixels_from_st(maps.redistort, maps.undistorted.image_size)
-    return x.astype(np.float32), y.astype(np.float32)
+    x, y = pixels_from_st(maps.redistort, maps.plate_size)  # in the undistorted image's format, the plate's
+    # the render's canvas holds that format at the overscan view's offset
+    dx, dy = undistorted_view(camera, "overscan", OVERSCAN).K_new[:2, 2] - camera.K[:2, 2]
+    return (x + dx).astype(np.float32), (y + dy).astype(np.float32)
 
 
 def _write_plate(render: Path, maps, out: Path, bits: int) -> Path:

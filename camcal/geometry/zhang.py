@@ -105,12 +105,15 @@ from camcal.geometry.bundle import residuals as board_residuals
 from camcal.geometry.bundle.solve import GAUGE_NAMES
 from camcal.geometry.labelling import resolve_labellings
 from camcal.geometry.spline_fit import fit_spline_lens, grid_shape, pose_view
+from camcal.geometry.tde4_fit import FITTED_PARAMS as TDE4_FITTED_PARAMS
+from camcal.geometry.tde4_fit import fit_tde4_lens
 from camcal.geometry.uncertainty import GAUGE, POSE, projection_sigma, sigma_grid
 from camcal.geometry.view_jackknife import design_effect, view_jackknife
 from camcal.model.camera import chordal_mean_rotation, rotation_angle_deg
 from camcal.model.distortion import Distortion
-from camcal.model.quality import ParameterCovariance
+from camcal.model.quality import ParameterCovariance, Quality
 from camcal.model.rig import Camera, Rig, make_provenance
+from camcal.model.tde4 import LDPK_PARAMETERS, TDE4_MODELS
 
 __all__ = ["MODELS", "AUTO_MODELS", "AUTO_MARGIN", "BOARD_SHAPES", "MIN_IMAGES", "SPLINE_MIN_VIEWS", "SPLINE_SUFFIX",
            "ModelScore", "CalibrationResult", "calibrate_board", "quality_problems", "fold_radius_px"]
@@ -729,10 +732,15 @@ def calibrate_board(
     the board pose ``T_i`` of every view ``i``; then
     ``Sigma = sigma^2 (J^T J)^-1``, ``sigma^2 = 2 cost / (2M - n)``.
     """
+    if model in TDE4_MODELS:
+        return _calibrate_tde4(board, detections, model, holdout, intrinsics, board_shape, units=units,
+                               outlier_factor=outlier_factor, min_outlier_px=min_outlier_px, loss=loss,
+                               loss_scale=loss_scale)
     splined = model.endswith(SPLINE_SUFFIX) and model[:-len(SPLINE_SUFFIX)] in MODELS
     if model != "auto" and model not in MODELS and not splined:
         raise CamcalError(f"unknown distortion model {model!r}, expected one of: {', '.join(MODELS)}, auto "
-                          f"(or a model with a correction field, '<model>{SPLINE_SUFFIX}')")
+                          f"(or a model with a correction field, '<model>{SPLINE_SUFFIX}'), or 3DE's "
+                          f"{', '.join(TDE4_MODELS)}")
     if isinstance(board_shape, BoardShape):
         return _calibrate_held_shape(board, detections, model, holdout, intrinsics, refine_intrinsics, board_shape,
                                      units=units, outlier_factor=outlier_factor, min_outlier_px=min_outlier_px,
@@ -1489,6 +1497,48 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         board_shape=shape,
         **_heldout_fields(heldout),
     )
+
+
+def _calibrate_tde4(board: Board, detections: Mapping[str, Sequence[Detection]], model: str, holdout: Collection[int],
+                    intrinsics: Mapping[str, Camera] | None, board_shape: str | BoardShape,
+                    **options) -> CalibrationResult:
+    """3DE's models (:mod:`camcal.model.tde4`), one camera on a flat board: the ``opencv`` calibration
+    (``kannala-brandt`` for the fisheye; its outliers dropped) refined into the 3DE lens, K and poses by
+    :func:`camcal.geometry.tde4_fit.fit_tde4_lens`; held-out views measured as for every model."""
+    if len(detections) != 1 or intrinsics is not None or board_shape not in ("auto", "flat"):
+        raise CamcalError(f"model {model} calibrates one camera on a flat board, without given intrinsics")
+    names, by_frame, holdout = _checked_views(detections, board, holdout)
+    start_model = "kannala-brandt" if model == "3de4-fisheye-deg8" else "opencv"
+    start = _calibrate(board, names, by_frame, start_model, holdout, **options)
+    camera = start.rig.cameras[0]
+    views = [by_frame[0][f] for f, _, _ in start.board_poses]
+    fit = fit_tde4_lens(board.object_points, [(view.ids, view.corners_px) for view in views], camera.K,
+                        camera.distortion, [(R, t) for _, R, t in start.board_poses], model, camera.image_size,
+                        options["loss"], options["loss_scale"])
+    norms = np.linalg.norm(fit.residuals_px, axis=1)
+    sigma = dict(zip(fit.parameter_names, (float(s) for s in np.sqrt(np.diag(fit.covariance)))))
+    quality = Quality(rms_px=float(np.sqrt(np.mean(norms**2))), worst_px=float(norms.max()), n_views=len(views),
+                      n_observations=len(norms), n_outliers=len(start.outliers), sigma=sigma)
+    rig = Rig((dataclasses.replace(camera, K=fit.K, distortion=fit.distortion, quality=quality),),
+              units=start.rig.units, provenance=start.rig.provenance)
+    heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
+    if holdout:
+        held = [{f: d for f, d in by_frame[0].items() if f in holdout}]
+        heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(board, rig, held)
+        rig = Rig((dataclasses.replace(rig.cameras[0], quality={**rig.cameras[0].quality, "heldout_rms_px": heldout_rms}),),
+                  units=rig.units, provenance=rig.provenance)
+    held_params = [f"{p.key} {p.default:g}" for p in LDPK_PARAMETERS[model] if p.key not in TDE4_FITTED_PARAMS[model]]
+    return dataclasses.replace(
+        start, rig=rig, residuals_px=fit.residuals_px, points_px=np.concatenate([view.corners_px for view in views]),
+        camera_of_point=np.zeros(len(norms), np.int64),
+        image_of_point=np.concatenate([np.full(len(view.ids), n) for n, view in enumerate(views)]),
+        rms_px=quality.rms_px, worst_px=quality.worst_px, covariance=fit.covariance,
+        parameter_names=tuple(f"{camera.name}.{label}" for label in fit.parameter_names), model=model,
+        heldout_rms_px=heldout_rms, heldout_images=heldout_images, heldout_view_rms_px=per_view,
+        notes=start.notes + (f"{model}: started from the {start_model} fit (its outlier images dropped); held at "
+                             f"LDPK's defaults: {', '.join(held_params)} (the pixel aspect is fy / fx)",),
+        board_poses=tuple((f, R, t) for (f, _, _), (R, t) in zip(start.board_poses, fit.poses)),
+        **_heldout_fields(heldout))
 
 
 def _heldout_fields(heldout: list) -> dict:

@@ -3,11 +3,14 @@
 :func:`export_ocio` writes ``config.ocio`` (and ``luts/*.clf``) for colour
 fits and matches: :func:`load_base_config`, then
 :func:`camcal.colour.export.ocio_fit.config_spec_from_fits` (the pure
-description), then :func:`write_ocio_config`.
+description), then :func:`write_ocio_config`, at the OCIO profile version
+the target hosts load (:mod:`camcal.colour.export.ocio_versions`; 2.3 by
+default: Blender 4.2 and later, the VFX Reference Platform CY2024 and later).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -19,6 +22,12 @@ from camcal.base.errors import CamcalError
 from camcal.colour.bake.transforms import LUT_SIZES, ocio_module
 from camcal.colour.export.ocio_config import CAMCAL_BASE, STUDIO_CONFIG, ConfigSpec, build_ocio_config
 from camcal.colour.export.ocio_fit import SpaceExport, config_spec_from_fits
+from camcal.colour.export.ocio_versions import (
+    DEFAULT_PROFILE_VERSION,
+    builtin_base_for_version,
+    parse_profile_version,
+    profile_version_of,
+)
 from camcal.colour.fit.record import ColourFit
 
 __all__ = ["base_config_path", "load_base_config", "write_ocio_config", "OCIOExport", "export_ocio"]
@@ -84,11 +93,12 @@ def write_ocio_config(spec: ConfigSpec, directory: str | os.PathLike, filename: 
 
 @dataclass(frozen=True)
 class OCIOExport:
-    """The written config and its camera spaces."""
+    """The written config, the base it extends (a built-in alias resolved), its profile version, its spaces."""
 
     config_path: Path
     base: str
     spaces: tuple[SpaceExport, ...]
+    profile_version: str
 
 
 def export_ocio(
@@ -100,8 +110,15 @@ def export_ocio(
     max_delta_E: float = 0.2,
     lut_sizes: Sequence[int] = LUT_SIZES,
     matches: Sequence = (),
+    ocio_version: str = DEFAULT_PROFILE_VERSION,
+    family: str | None = None,
+    home: str | os.PathLike | None = None,
 ) -> OCIOExport:
     """Write ``directory/config.ocio`` (+ ``luts/*.clf``): ``base`` plus one space per camera.
+
+    A base ``.ocio`` file in the folder the config goes to is extended in
+    place: written back under its own name, its roles, spaces, search paths
+    and everything else kept.
 
     Parameters
     ----------
@@ -109,19 +126,41 @@ def export_ocio(
         ``(camera name, fit)`` pairs; names must be unique.
     directory
         Output folder.
-    base, cat, max_delta_E, lut_sizes
+    base, cat, max_delta_E, lut_sizes, family
         See :class:`ConfigSpec` and :func:`colour_space_from_fit`.
     matches
         Camera matches (kind ``match``), each written as a Look
         (:func:`look_from_match`).
+    ocio_version
+        The OCIO profile version written, at most (``"2.3"``: OpenColorIO
+        2.3 and later load the config; see
+        :mod:`camcal.colour.export.ocio_versions`). A base made for a newer
+        version is written at this one when it uses nothing newer, else
+        refused with the reason; an older base keeps its version.
+    home
+        The folder the config ends up in when ``directory`` is a staging
+        folder renamed there afterwards (default: ``directory``).
 
     Returns
     -------
     OCIOExport
         ``spaces`` lists the colour spaces, then the Looks.
+
+    Raises
+    ------
+    CamcalError
+        Unknown version, a base that cannot be written at it, or any error
+        of :func:`config_spec_from_fits`; nothing is written then.
     """
-    config = load_base_config(base)
+    version = parse_profile_version(ocio_version)
+    base_name = builtin_base_for_version(str(base), version)
+    config = load_base_config(base_name)
     spec, reports = config_spec_from_fits(fits, config, cat=cat, max_delta_E=max_delta_E, lut_sizes=lut_sizes,
-                                          matches=matches)
-    path = write_ocio_config(spec, directory)
-    return OCIOExport(path, str(base), reports)
+                                          matches=matches, family=family)
+    home = Path(home if home is not None else directory)
+    spec = dataclasses.replace(spec, profile_version=version, home=str(home))
+    in_place = (base_name != CAMCAL_BASE and Path(base_name).is_file()
+                and Path(base_name).resolve().parent == home.resolve())
+    path = write_ocio_config(spec, directory, Path(base_name).name if in_place else "config.ocio")
+    written = min(profile_version_of(config), version)
+    return OCIOExport(path, base_name, reports, f"{written[0]}.{written[1]}")

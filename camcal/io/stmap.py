@@ -1,8 +1,9 @@
 """ST-map files: the undistort and redistort maps of a camera as 32-bit float OpenEXR, its undistorted rig,
 and the projection-sigma maps beside them (one channel, pixel for pixel with a map).
 
-Written with the OpenEXR bindings (:func:`camcal.io.frames.imwrite`): the
-OpenCV 5 wheels have no EXR codec. The maps are
+Written with the OpenEXR bindings (the OpenCV 5 wheels have no EXR codec):
+32-bit float R, G, B; the undistort map's overscan border as the EXR's data
+window beyond its display window (Nuke's bounding box beyond its format). The maps are
 :func:`camcal.geometry.stmap.make_stmaps`'s.
 """
 
@@ -14,45 +15,114 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.base.atomic import atomic_dir, final_path
+from camcal.base.atomic import atomic_dir, atomic_path, final_path
+from camcal.base.errors import CamcalError
 from camcal.geometry.stmap import make_stmaps, pixels_from_st
 from camcal.geometry.uncertainty import SigmaSummary, projection_sigma_map, summarise_sigma
 from camcal.io.frames import imread, imwrite
 from camcal.model.rig import Rig, make_provenance
 
-__all__ = ["read_exr", "read_sigma_map", "write_exr", "write_sigma_map", "write_stmap_sigmas", "write_stmaps"]
+__all__ = ["read_exr", "read_exr_window", "read_sigma_map", "write_exr", "write_sigma_map", "write_stmap_sigmas",
+           "write_stmaps"]
 
 
-def write_exr(path: str | os.PathLike, rgb: NDArray) -> Path:
-    """Write a float32 RGB image as OpenEXR (FLOAT channels, atomically)."""
-    return imwrite(path, np.asarray(rgb, dtype=np.float32)[..., ::-1])
+def write_exr(path: str | os.PathLike, rgb: NDArray, border: tuple[int, int] = (0, 0)) -> Path:
+    """Write a float32 RGB image as OpenEXR (FLOAT, ZIP, atomically), its data window beyond its display window.
+
+    Parameters
+    ----------
+    path : path
+    rgb : ndarray, shape (H + 2 by, W + 2 bx, 3)
+        The pixels of the whole data window, top row first.
+    border : (int, int)
+        ``(bx, by)``: the display window (the image's format, what Nuke
+        calls its format) is the ``W x H`` box inside the border, from
+        ``(0, 0)``; the data window (Nuke's bounding box) runs from
+        ``(-bx, -by)`` to ``(W + bx - 1, H + by - 1)``, the EXR convention
+        for overscan.
+
+    Returns
+    -------
+    Path
+    """
+    import OpenEXR
+
+    pixels = np.asarray(rgb, dtype=np.float32)
+    bx, by = (int(v) for v in border)
+    height, width = pixels.shape[0] - 2 * by, pixels.shape[1] - 2 * bx
+    if pixels.ndim != 3 or pixels.shape[2] != 3 or width < 1 or height < 1 or bx < 0 or by < 0:
+        raise CamcalError(f"cannot write {path}: expected (H, W, 3) pixels with a border inside them, "
+                          f"got {pixels.shape} and border {border}")
+    header = {
+        "compression": OpenEXR.ZIP_COMPRESSION,
+        "dataWindow": (np.array([-bx, -by], np.int32), np.array([width + bx - 1, height + by - 1], np.int32)),
+        "displayWindow": (np.array([0, 0], np.int32), np.array([width - 1, height - 1], np.int32)),
+    }
+    planes = {name: np.ascontiguousarray(pixels[..., i]) for i, name in enumerate("RGB")}
+    with atomic_path(path) as tmp:
+        try:
+            with OpenEXR.File(header, planes) as exr:
+                exr.write(str(tmp))
+        except (RuntimeError, ValueError, TypeError) as error:
+            raise CamcalError(f"cannot write EXR {path}: {error}") from None
+    return Path(path)
+
+
+def read_exr_window(path: str | os.PathLike) -> tuple[NDArray[np.float32], tuple[int, int]]:
+    """Read an RGB EXR written by :func:`write_exr`: its data window's pixels and its border ``(bx, by)``.
+
+    The display window must start at ``(0, 0)`` and lie inside the data
+    window, the same distance from each pair of sides.
+    """
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as exr:
+            header = dict(exr.header())  # the bindings clear theirs when the file closes
+            planes = {name: channel.pixels.copy() for name, channel in exr.channels().items()}
+    except (RuntimeError, ValueError, OSError) as error:
+        raise CamcalError(f"cannot read EXR {path}: {error}") from None
+    if not {"R", "G", "B"} <= set(planes):
+        raise CamcalError(f"{path}: expected R, G and B channels, got {', '.join(sorted(planes))}")
+    (low, high), (display_low, display_high) = (
+        [np.asarray(corner).tolist() for corner in header[key]] for key in ("dataWindow", "displayWindow")
+    )
+    bx, by = -low[0], -low[1]
+    if display_low != [0, 0] or bx < 0 or by < 0 or [high[0] - display_high[0], high[1] - display_high[1]] != [bx, by]:
+        raise CamcalError(f"{path}: data window {low}-{high} is not the display window {display_low}-{display_high} "
+                          "with the same border on each side")
+    return np.stack([planes[name].astype(np.float32) for name in "RGB"], axis=2), (bx, by)
 
 
 def read_exr(path: str | os.PathLike) -> NDArray[np.float32]:
-    """Read an EXR written by :func:`write_exr`, as RGB float32."""
-    return imread(path)[..., ::-1].copy()
+    """The RGB pixels of an EXR's data window (:func:`read_exr_window` without the border)."""
+    return read_exr_window(path)[0]
 
 
-def write_stmaps(rig: Rig, camera_name: str, out_dir: str | os.PathLike, overscan: float = 1.1) -> list[Path]:
+def write_stmaps(rig: Rig, camera_name: str, out_dir: str | os.PathLike, overscan: float | None = None,
+                 border: int | tuple[int, int] | None = None) -> list[Path]:
     """Write ``<camera>_undistort.exr``, ``<camera>_redistort.exr`` and the undistorted rig into ``out_dir``.
 
     The folder is built under a temporary name and renamed at the end
-    (:func:`camcal.base.atomic.atomic_dir`).
+    (:func:`camcal.base.atomic.atomic_dir`). The overscan is a factor or a
+    border in pixels (:func:`camcal.geometry.stmap.make_stmaps`).
 
     Returns
     -------
     list of Path
-        The two maps and ``<camera>_undistorted.rig.json`` (the rig with the
-        camera replaced by its undistorted camera: ``K_new`` on the
-        overscan canvas, distortion none).
+        The two maps (the undistort map with its border as the EXR's data
+        window beyond the plate-sized display window) and
+        ``<camera>_undistorted.rig.json`` (the rig with the camera replaced
+        by its undistorted camera: the whole data window, ``K`` with the
+        principal point moved by the border, distortion none).
     """
     camera = rig.camera(camera_name)
-    maps = make_stmaps(camera, overscan)
+    maps = make_stmaps(camera, overscan, border)
     cameras = tuple(maps.undistorted if c.name == camera_name else c for c in rig.cameras)
-    provenance = make_provenance("stmap", source_camera=camera_name, overscan=overscan)
+    provenance = make_provenance("stmap", source_camera=camera_name, overscan=overscan, border=list(maps.border))
     with atomic_dir(out_dir) as staging:
         paths = [
-            write_exr(staging / f"{camera_name}_undistort.exr", maps.undistort),
+            write_exr(staging / f"{camera_name}_undistort.exr", maps.undistort, maps.border),
             write_exr(staging / f"{camera_name}_redistort.exr", maps.redistort),
             Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(staging / f"{camera_name}_undistorted.rig.json"),
         ]
@@ -70,8 +140,9 @@ def read_sigma_map(path: str | os.PathLike) -> NDArray[np.float32]:
     return image if image.ndim == 2 else image[..., 0]
 
 
-def write_stmap_sigmas(rig: Rig, camera_name: str, out_dir: str | os.PathLike, overscan: float = 1.1,
-                       distance: float | None = None) -> list[tuple[Path, SigmaSummary]]:
+def write_stmap_sigmas(rig: Rig, camera_name: str, out_dir: str | os.PathLike, overscan: float | None = None,
+                       distance: float | None = None,
+                       border: int | tuple[int, int] | None = None) -> list[tuple[Path, SigmaSummary]]:
     """Write the projection-sigma maps beside :func:`write_stmaps`'s maps.
 
     ``<camera>_sigma.exr`` is plate-sized: pixel for pixel with the plate
@@ -81,7 +152,7 @@ def write_stmap_sigmas(rig: Rig, camera_name: str, out_dir: str | os.PathLike, o
     Both in pixels of the plate (:mod:`camcal.geometry.uncertainty`).
     """
     camera = rig.camera(camera_name)
-    maps = make_stmaps(camera, overscan)
+    maps = make_stmaps(camera, overscan, border)
     x, y = pixels_from_st(maps.undistort, maps.plate_size)
     width, height = maps.plate_size
     source = np.stack([x, y], axis=-1)

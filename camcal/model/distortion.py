@@ -56,6 +56,17 @@ Models
     s1..s4`` (its ``p0`` plays OpenCV's ``p2``). The inverse undoes the
     tangential and prism terms by Newton iterations (their 2x2 Jacobian),
     then the radial part on the angle as for ``kannala-brandt``.
+``3de-classic``, ``3de4-radial-deg4``, ``3de4-anamorphic-deg4``, ``3de4-fisheye-deg8``
+    3DEqualizer's standard models as the Lens Distortion Plugin Kit
+    defines them ("3DE Classic LD Model", "3DE4 Radial - Standard, Degree
+    4", "3DE4 Anamorphic - Standard, Degree 4", "3DE4 Radial - Fisheye,
+    Degree 8"): formulas, parameters and LDPK's names in
+    :mod:`camcal.model.tde4`. Their coefficients map distorted to
+    undistorted points in diagonally normalised coordinates of the film
+    back, which the lens carries in pixels (``filmback_width_px``,
+    ``filmback_height_px``, the camera's image size); the pixel aspect is
+    ``fy / fx`` and the lens centre the principal point. :meth:`undistort`
+    is LDPK's closed-form model function, :meth:`distort` its Newton inverse.
 
 
 The division model inverts in closed form; the polynomial models invert by
@@ -102,6 +113,7 @@ import scipy.optimize
 from numpy.typing import ArrayLike, NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.model import tde4
 from camcal.model.spline import SplineField
 
 __all__ = ["FISHEYE_MODELS", "MODEL_PARAMS", "OPENCV_COEFFICIENTS", "Distortion", "DistortionFit", "capped_rays",
@@ -116,6 +128,8 @@ MODEL_PARAMS: Mapping[str, tuple[tuple[str, ...], tuple[str, ...]]] = MappingPro
         "division": (("lambda",), ("aspect",)),
         "kannala-brandt": (("k1", "k2", "k3", "k4"), ()),
         "kannala-brandt-thin-prism": (("k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2", "s1", "s2", "s3", "s4"), ()),
+        # 3DE's models: the film back required, each coefficient optional (LDPK's default)
+        **{model: (tde4.FILMBACK_KEYS, tuple(p.key for p in tde4.LDPK_PARAMETERS[model])) for model in tde4.TDE4_MODELS},
     }
 )
 
@@ -149,8 +163,10 @@ class Distortion:
     Parameters
     ----------
     model : str
-        One of ``none``, ``polynomial``, ``opencv``, ``division``,
-        ``kannala-brandt``.
+        One of :data:`MODEL_PARAMS`: ``none``, ``polynomial``, ``opencv``,
+        ``division``, ``kannala-brandt``, ``kannala-brandt-thin-prism`` and
+        3DE's ``3de-classic``, ``3de4-radial-deg4``,
+        ``3de4-anamorphic-deg4``, ``3de4-fisheye-deg8``.
     params : Mapping[str, float]
         The model's parameters (see the module docstring), exactly the
         required names plus any optional ones.
@@ -208,6 +224,8 @@ class Distortion:
             params[name] = float(value)
         if params.get("aspect", 1.0) <= 0.0:
             raise CamcalError(f"division 'aspect' must be positive, got {params['aspect']!r}")
+        if self.model in tde4.TDE4_MODELS:
+            tde4.check_params(self.model, params)
         object.__setattr__(self, "params", MappingProxyType(params))
         if self.center is not None:
             if self.model != "division":
@@ -238,6 +256,8 @@ class Distortion:
             return False
         if self.model == "division":
             return self.params["lambda"] == 0.0
+        if self.model in tde4.TDE4_MODELS:
+            return tde4.is_identity(self.model, self.params)
         return self.model not in FISHEYE_MODELS and all(value == 0.0 for value in self.params.values())
 
     # -- OpenCV's distortion vector ------------------------------------------------
@@ -374,6 +394,8 @@ class Distortion:
             distorted = points.copy()
         elif self.model == "division":
             distorted = self._division_distort(points, self._centre(K), self.params.get("aspect", 1.0))
+        elif self.model in tde4.TDE4_MODELS:
+            distorted = tde4.distort_pixels(self.model, self.params, points, K)
         else:
             distorted = _normalised_to_pixels(self.distort_normalised(_pixels_to_normalised(points, K)), K)
         return distorted if self.correction is None else self.correction.apply(distorted)
@@ -402,6 +424,8 @@ class Distortion:
             points = self.correction.remove(points)
         if self.model == "none":
             return points.copy()
+        if self.model in tde4.TDE4_MODELS:
+            return tde4.undistort_pixels(self.model, self.params, points, K)
         if self.is_fisheye:
             xy_d = self._undo_tangential_prism(_pixels_to_normalised(points, K), K)
             theta_d = np.hypot(xy_d[:, 0], xy_d[:, 1])

@@ -53,6 +53,7 @@ from camcal.base.errors import CamcalError
 from camcal.base.limits import check_image_size
 from camcal.model.camera import compose_P, project_pinhole, rotation_angle_deg
 from camcal.model.distortion import Distortion
+from camcal.model.tde4 import TDE4_MODELS, check_filmback
 from camcal.base.atomic import atomic_write_text
 from camcal.base.jsonfile import dumps, read_json
 from camcal.model.quality import Quality
@@ -263,6 +264,8 @@ class Camera(_DictEquality):
         object.__setattr__(self, "K", K)
         if not isinstance(self.distortion, Distortion):
             raise CamcalError(f"distortion must be a Distortion, got {type(self.distortion).__name__}")
+        if self.distortion.model in TDE4_MODELS:
+            check_filmback(self.distortion.model, self.distortion.params, self.image_size)
         R = _matrix(self.R, (3, 3), "R")
         _check_rotation(R, "R")
         object.__setattr__(self, "R", R)

@@ -15,7 +15,9 @@ The remap maps (:func:`camcal.geometry.remap.build_maps`, the same ones
 ``camcal undistort`` and ``camcal rectify`` use) and the colour step are
 built once per worker process, on its first frame of a job, and cached by
 the job's key (:attr:`BatchJob.key`, a SHA-256 of everything that changes
-the pixels). The job is scattered to the workers once.
+the pixels). The job travels in the task graph, held by the scheduler (a
+few kilobytes per frame), not scattered to the workers: data scattered to
+a worker is lost with it, and a broadcast fails when a worker dies during it.
 
 Pixels
 ------
@@ -38,8 +40,14 @@ record ``<out dir>/.camcal-batch/<file name>.json`` gives the job key, the
 frame, the file's size and modification time, the run and the worker.
 With ``resume=True`` a frame is skipped when its output exists and its
 record names this job with the file's present size and modification time
-(so a file rewritten or replaced since is redone); interrupted frames
-left only temporary files, which are removed before the frame is redone.
+(so a file rewritten or replaced since is redone). A write interrupted by
+a killed worker or client leaves no partial output, only its temporary
+file (``.NAME.camcal-tmp.XXXXXXXX.SUFFIX``, :mod:`camcal.base.atomic`);
+every run removes those of the frames it is about to write (and of their
+records) when it starts, and again when it ends or fails, once its cluster
+is closed (a worker killed during the run leaves its own). Only camcal's
+temporary names for this run's outputs are touched; one run at a time
+writes a given output folder.
 A frame that still fails after its retries is reported by number in the
 :class:`BatchReport`; the others are written.
 """
@@ -47,7 +55,6 @@ A frame that still fails after its retries is reported by number in the
 from __future__ import annotations
 
 import contextlib
-import glob
 import hashlib
 import json
 import os
@@ -64,6 +71,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from camcal.base.atomic import remove_stale_temporaries
 from camcal.base.errors import CamcalError
 from camcal.base.jsonfile import read_json, write_json
 from camcal.base.progress import Progress
@@ -73,6 +81,7 @@ from camcal.geometry.remap import RemapMaps, build_maps
 from camcal.geometry.undistort import MODES, make_undistorter
 from camcal.io.colourfile import load_fit
 from camcal.io.frames import ImageFrame, frame_format, read_frame, write_frame
+from camcal.io.sequence import printf_pattern, sequence_paths
 from camcal.model.rig import Camera, Rig
 from camcal.pipelines.distributed import dask_client
 
@@ -214,8 +223,8 @@ def make_job(
     camera : str
         Name of the camera whose plates these are.
     in_pattern, out_pattern : str
-        File patterns with one ``%d`` / ``%04d``; same image format (the
-        outputs keep the inputs' bit depth).
+        File patterns with one ``%d`` / ``%04d`` (or ``####``: one ``#`` per
+        digit); same image format (the outputs keep the inputs' bit depth).
     geometry : {"undistort", "rectify"} or None
         ``rectify`` needs the camera's ``rectification`` (``camcal rectify``).
     colour : path or ColourFit, optional
@@ -251,6 +260,8 @@ def make_job(
     if geometry is None and colour is None:
         raise CamcalError("nothing to do: give --undistort, --rectify and/or --colour")
     fit = colour if isinstance(colour, ColourFit) or colour is None else load_fit(colour)
+    in_pattern, out_pattern = (printf_pattern(pattern) if "#" in Path(pattern).name else pattern
+                               for pattern in (in_pattern, out_pattern))
     _check_pattern(in_pattern, "input")
     _check_pattern(out_pattern, "output")
     if frame_format(in_pattern) != frame_format(out_pattern):
@@ -465,10 +476,10 @@ def completed_frames(job: BatchJob, frames: Sequence[int]) -> tuple[int, ...]:
     return tuple(frame for frame in frames if _is_complete(job, frame))
 
 
-def _remove_stale_temporaries(output: Path) -> None:
-    """Temporary files :func:`camcal.base.atomic.atomic_path` left for ``output`` when a run was killed."""
-    for stale in output.parent.glob(f".{glob.escape(output.name)}.*"):
-        stale.unlink(missing_ok=True)
+def _remove_stale_temporaries(job: BatchJob, frames: Sequence[int]) -> None:
+    """Temporary files killed writers left for these frames' outputs and records (camcal's own names only)."""
+    outputs = [job.output_path(frame) for frame in frames]
+    remove_stale_temporaries(outputs + [record_path(output) for output in outputs])
 
 
 # -- the run --------------------------------------------------------------------------
@@ -564,8 +575,8 @@ def run_batch(
     Raises
     ------
     CamcalError
-        No frames, none of the input frames exists, or the
-        scheduler cannot be reached (nothing is written then).
+        No frames, input frames missing (named, by runs of frame numbers),
+        or the scheduler cannot be reached (nothing is written then).
     """
     frames = tuple(int(frame) for frame in frames)
     if not frames:
@@ -575,39 +586,18 @@ def run_batch(
     skipped = completed_frames(job, frames) if resume else ()
     done = set(skipped)
     todo = [frame for frame in frames if frame not in done]
-    if not skipped and not any(job.input_path(frame).exists() for frame in frames):
-        raise CamcalError(f"none of the {len(frames)} input frame(s) exists: {job.input_path(frames[0])} ... "
-                          f"{job.input_path(frames[-1])}")
+    if todo:
+        sequence_paths(job.in_pattern, todo)  # every input there, else the missing frames named, nothing written
     start = time.perf_counter()
     written: list[FrameResult] = []
     failed: list[FrameFailure] = []
     n_workers = 0
     if todo:
-        if resume:
-            for frame in todo:
-                _remove_stale_temporaries(job.output_path(frame))
-        run = uuid.uuid4().hex
-        bar = Progress(len(todo), label="batch", unit="frames", enabled=progress)
-        owned = contextlib.nullcontext(client) if client is not None else dask_client(workers, scheduler)
-        with owned as dask:
-            from distributed import as_completed
-
-            n_workers = len(dask.scheduler_info(n_workers=-1)["workers"])
-            [shared_job] = dask.scatter([job], broadcast=True, hash=False)
-            futures = dask.map(process_frame, todo, job=shared_job, run=run, retries=retries, pure=False)
-            frame_of = {future.key: frame for future, frame in zip(futures, todo)}
-            for future in as_completed(futures):
-                if future.status == "finished":
-                    written.append(future.result())
-                    bar.advance()
-                else:
-                    error = future.exception()
-                    message = str(error) if isinstance(error, CamcalError) else f"{type(error).__name__}: {error}"
-                    frame = frame_of[future.key]
-                    failed.append(FrameFailure(frame, message if message.startswith("frame ") else f"frame {frame}: {message}"))
-                    bar.advance(failed=True)
-                future.release()
-        bar.close()
+        _remove_stale_temporaries(job, todo)
+        try:
+            n_workers = _run(job, todo, written, failed, workers, scheduler, client, retries, progress)
+        finally:  # after the cluster: what workers killed during this run (or with it) left
+            _remove_stale_temporaries(job, todo)
     return BatchReport(
         frames=frames,
         written=tuple(sorted(written, key=lambda r: r.frame)),
@@ -616,3 +606,30 @@ def run_batch(
         seconds=time.perf_counter() - start,
         n_workers=n_workers,
     )
+
+
+def _run(job: BatchJob, todo: list[int], written: list[FrameResult], failed: list[FrameFailure],
+         workers: int | None, scheduler: str | None, client: Any, retries: int, progress: bool) -> int:
+    """Send ``todo`` to Dask, collect results into ``written`` and ``failed``; the number of workers."""
+    run = uuid.uuid4().hex
+    bar = Progress(len(todo), label="batch", unit="frames", enabled=progress)
+    owned = contextlib.nullcontext(client) if client is not None else dask_client(workers, scheduler)
+    with owned as dask:
+        from distributed import as_completed
+
+        n_workers = len(dask.scheduler_info(n_workers=-1)["workers"])
+        futures = dask.map(process_frame, todo, job=job, run=run, retries=retries, pure=False)
+        frame_of = {future.key: frame for future, frame in zip(futures, todo)}
+        for future in as_completed(futures):
+            if future.status == "finished":
+                written.append(future.result())
+                bar.advance()
+            else:
+                error = future.exception()
+                message = str(error) if isinstance(error, CamcalError) else f"{type(error).__name__}: {error}"
+                frame = frame_of[future.key]
+                failed.append(FrameFailure(frame, message if message.startswith("frame ") else f"frame {frame}: {message}"))
+                bar.advance(failed=True)
+            future.release()
+    bar.close()
+    return n_workers

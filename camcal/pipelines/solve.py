@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.base.atomic import atomic_dir, final_path
+from camcal.base.atomic import atomic_dir, final_path, remove_stale_temporaries
 from camcal.base.errors import CamcalError
 from camcal.base.native_log import native_output_to
 from camcal.geometry.bundle import (
@@ -52,12 +52,17 @@ from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sp
 from camcal.model.colmap import camera_from_colmap
 from camcal.io.frames import imwrite
 from camcal.io.ply import write_points_ply
+from camcal.io.headers import declared_size
+from camcal.io.sequence import (
+    camera_of, feature_image, feature_mask, is_sequence_pattern, read_image, sequence_paths,
+)
 from camcal.io.video import is_video, iter_frames, video_info
 from camcal.model.rig import Camera, Rig
 
 __all__ = [
     "COLMAP_LOG",
     "UPSAMPLE_BELOW_PX",
+    "DECODED_SUFFIXES",
     "IMAGE_SUFFIXES",
     "MAPPERS",
     "MATCHERS",
@@ -68,13 +73,16 @@ __all__ = [
     "solve_sfm",
 ]
 
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp")
+#: Suffixes COLMAP reads itself (linked into the work folder) and those of plates it does not (EXR, DPX,
+#: Cineon: read with OpenImageIO and staged as 8-bit PNG, :func:`camcal.io.sequence.feature_image`).
+DECODED_SUFFIXES = (".exr", ".dpx", ".cin")
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp") + DECODED_SUFFIXES
 MATCHERS = ("exhaustive", "sequential")
 MAPPERS = ("incremental", "global")
 #: the file in the output folder that receives COLMAP's, glog's and Ceres' own lines.
 COLMAP_LOG = "colmap.log"
 #: What a solve writes in its folder as a whole: an earlier run's are replaced, not merged into.
-_OWNED = ("images", "sparse", "database.db")
+_OWNED = ("images", "masks", "sparse", "database.db")
 
 
 @dataclass(frozen=True)
@@ -127,24 +135,39 @@ def _list_images(folder: Path, pattern: str = "*") -> list[Path]:
     return images
 
 
-def collect_images(folders: list[Path], camera_globs: dict[str, str] | None = None) -> dict[str, list[Path]]:
-    """Images per camera: one folder per camera (named after it), or globs in one folder.
+def collect_images(folders: list[Path], camera_globs: dict[str, str] | None = None,
+                   frames: str | None = None) -> dict[str, list[Path]]:
+    """Images per camera: one folder per camera (named after it), or globs in one folder, or plates.
 
     Parameters
     ----------
     folders : list of Path
         Image folders. Without ``camera_globs`` each is one camera; a single
         folder holding only sub-folders of images is a rig, one camera per
-        sub-folder.
+        sub-folder. An entry (or a glob) with a frame placeholder
+        (``plates/left.%04d.exr``, ``left.####.dpx``) is a plate: the
+        frames of ``frames`` (or all on disk), every one checked to exist
+        (:func:`camcal.io.sequence.sequence_paths`); its camera is named by
+        the file name before the placeholder.
     camera_globs : dict of str to str, optional
         Camera name -> glob relative to the (single) folder, e.g.
         ``{"left": "*_L.png", "right": "*_R.png"}``; frames pair up by sorted order.
+    frames : str, optional
+        The frame range of plates (``1001-1100``, ``1001-1100x2``).
     """
     folders = [Path(folder) for folder in folders]
     if camera_globs:
         if len(folders) != 1:
             raise CamcalError("--camera NAME=GLOB selects images inside one folder: give exactly one")
-        return {name: _list_images(folders[0], pattern) for name, pattern in camera_globs.items()}
+        return {name: sequence_paths(folders[0] / pattern, frames) if is_sequence_pattern(pattern)
+                else _list_images(folders[0], pattern) for name, pattern in camera_globs.items()}
+    if any(is_sequence_pattern(folder) for folder in folders):
+        if not all(is_sequence_pattern(folder) for folder in folders):
+            raise CamcalError("give plates (a frame placeholder like %04d or ####) or image folders, not both")
+        plates = {camera_of(folder): sequence_paths(folder, frames) for folder in folders}
+        if len(plates) != len(folders):
+            raise CamcalError("plates must have distinct names before their frame numbers (they name the cameras)")
+        return plates
     if len(folders) == 1 and folders[0].is_dir():
         subfolders = sorted(p for p in folders[0].iterdir() if p.is_dir())
         if subfolders and not any(p.suffix.lower() in IMAGE_SUFFIXES for p in folders[0].iterdir() if p.is_file()):
@@ -170,7 +193,9 @@ def _stage_images(images: dict[str, list[Path]], staging: Path, every: int = 1) 
     of every camera is linked under the same name ``<k>.<suffix>``. A
     camera given as one video has its every ``every``-th frame decoded
     (streamed, :func:`camcal.io.video.iter_frames`) and written there as
-    ``<k>.png`` instead: the k-th kept frame of every video pairs up.
+    ``<k>.png`` instead: the k-th kept frame of every video pairs up. A
+    plate frame COLMAP cannot read (:data:`DECODED_SUFFIXES`) is decoded
+    and staged as ``<k>.png`` the same way, one at a time.
 
     Returns
     -------
@@ -190,10 +215,33 @@ def _stage_images(images: dict[str, list[Path]], staging: Path, every: int = 1) 
                 staged[f"{camera}/{name}"] = imwrite(staging / camera / name, image)
             continue
         for index, path in enumerate(paths):
-            name = f"{index:06d}{path.suffix.lower()}"
-            os.symlink(path.resolve(), staging / camera / name)
+            if path.suffix.lower() in DECODED_SUFFIXES:  # one frame decoded at a time
+                name = f"{index:06d}.png"
+                imwrite(staging / camera / name, feature_image(read_image(path), bgr=True))
+            else:
+                name = f"{index:06d}{path.suffix.lower()}"
+                os.symlink(path.resolve(), staging / camera / name)
             staged[f"{camera}/{name}"] = path
     return staged
+
+
+def _stage_masks(masks: dict[str, list[Path]], staged: dict[str, Path], image_dir: Path, mask_dir: Path) -> Path:
+    """Each matte as COLMAP's mask of its image, ``mask_dir/<camera>/<k>.<suffix>.png``; one matte read at a time."""
+    for camera, mattes in masks.items():
+        names = [name for name in staged if name.split("/")[0] == camera]
+        if not names:
+            raise CamcalError(f"masks given for {camera!r}, which is not a camera of this solve")
+        if len(mattes) != len(names):
+            raise CamcalError(f"camera {camera!r} has {len(names)} images but {len(mattes)} mattes")
+        (mask_dir / camera).mkdir(parents=True)
+        for name, matte in zip(names, mattes):
+            mask = feature_mask(read_image(matte))
+            size = declared_size(image_dir / name)
+            if size is not None and size != (mask.shape[1], mask.shape[0]):
+                raise CamcalError(f"matte {matte} is {mask.shape[1]}x{mask.shape[0]} px but its image "
+                                  f"{staged[name]} is {size[0]}x{size[1]}")
+            imwrite(mask_dir / f"{name}.png", mask)
+    return mask_dir
 
 
 def solve_sfm(
@@ -216,6 +264,7 @@ def solve_sfm(
     verbose: bool = False,
     guided_matching: bool = False,
     every: int = 1,
+    masks: dict[str, list[Path]] | None = None,
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -232,7 +281,8 @@ def solve_sfm(
         model), ``solve.rig.json`` and ``points.ply``; built under a temporary
         name and renamed at the end, removed on any error
         (:func:`camcal.base.atomic.atomic_dir`; an earlier run's ``images/``
-        and ``sparse/`` in it are replaced as a whole).
+        and ``sparse/`` in it are replaced as a whole, and the staging folder
+        a killed run left beside it is removed first).
     camera_model : str
         COLMAP model for every camera: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL,
         RADIAL, OPENCV, SIMPLE_DIVISION... (one with a camcal counterpart).
@@ -285,6 +335,11 @@ def solve_sfm(
         Match each verified pair again along its epipolar geometry (more,
         longer tracks); on the CPU it costs 10-20 times the matching itself
         (345 s against 21 s for 12 images of 640 x 480 with 8192 features).
+    masks : dict of str to list of Path, optional
+        Camera name -> one matte file per image (a matte sequence,
+        :func:`camcal.io.sequence.sequence_paths`), white where no feature
+        may be taken (moving actors, the sky): staged as COLMAP's feature
+        masks in ``out_dir/masks`` (:func:`camcal.io.sequence.feature_mask`).
 
     Returns
     -------
@@ -318,17 +373,19 @@ def solve_sfm(
                                           ", ".join(map(str, value)) or "no file") for name, value in folders.items())
         raise CamcalError(f"need at least 2 images, got {n_images} ({where})")
     target = Path(out_dir)
+    remove_stale_temporaries([target])  # the staging folder of a killed earlier run
     with atomic_dir(target, replace=_OWNED + (COLMAP_LOG,)) as staging:
         with native_output_to(staging / COLMAP_LOG, echo=verbose):
             result = _solve_in(pycolmap, images, folders, staging, camera_model, matcher, mapper, seed, num_threads,
                                refine, known_rig, loss, lens_models, principal_point, max_num_features, progress,
-                               jackknife, guided_matching, priors, every)
+                               jackknife, guided_matching, priors, every, masks or {})
     return dataclasses.replace(result, reconstruction_dir=final_path(result.reconstruction_dir, staging, target))
 
 
 def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, mapper, seed, num_threads, refine,
               known_rig, loss, lens_models, principal_point, max_num_features, progress, jackknife,
-              guided_matching: bool, priors: tuple[PriorSpec, ...], every: int = 1) -> SfmResult:
+              guided_matching: bool, priors: tuple[PriorSpec, ...], every: int = 1,
+              masks: dict[str, list[Path]] | None = None) -> SfmResult:
     """:func:`solve_sfm`'s work inside its (temporary) output folder, COLMAP's output captured."""
     image_dir = out_dir / "images"
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
@@ -339,6 +396,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
 
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera_model
+    if masks:
+        reader.mask_path = _stage_masks(masks, staged, image_dir, out_dir / "masks")
     firsts: dict[str, Path] = {}
     for name in image_names:
         firsts.setdefault(name.split("/")[0], image_dir / name)
@@ -460,6 +519,7 @@ def solve_pycolmap_plain(folders: dict[str, Path | list[Path]], out_dir: Path, c
 
     images = {name: _list_images(Path(value)) if isinstance(value, (str, os.PathLike)) else [Path(p) for p in value]
               for name, value in folders.items()}
+    remove_stale_temporaries([out_dir])
     with atomic_dir(out_dir, replace=_OWNED + (COLMAP_LOG,)) as staging:
         with native_output_to(staging / COLMAP_LOG, echo=verbose):
             return _plain_in(pycolmap, images, folders, staging, camera_model, seed, every)

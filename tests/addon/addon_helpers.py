@@ -29,7 +29,7 @@ ADDON_DIR = Path(__file__).resolve().parents[2] / "addon"
 def addon():
     """The add-on package with its pure modules imported (usable without bpy)."""
     package = load_addon()
-    for name in ("rigfile", "mapping", "plyfile", "pngfile"):
+    for name in ("rigfile", "mapping", "tracking", "fisheye", "plyfile", "pngfile"):
         importlib.import_module(f"{package.__name__}.{name}")
     return package
 

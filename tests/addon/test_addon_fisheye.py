@@ -1,6 +1,6 @@
 """A kannala-brandt camera in Blender: Cycles' fisheye-polynomial camera, checked by projection.
 
-The pure part (addon.mapping.blender_fisheye, fisheye_polynomial_ray: Cycles'
+The pure part (addon.fisheye.blender_fisheye, fisheye_polynomial_ray: Cycles'
 formula) is compared with camcal's projection on every pixel of the frame;
 a slow test renders emissive spheres with Cycles and compares their
 centroids with the centroids camcal predicts (the area centroid of each
@@ -25,10 +25,10 @@ PARAMS = {"k1": 0.021, "k2": -0.0042, "k3": 0.0013, "k4": -0.00021}
 
 def formula_error_px(addon, K, size, params, step=2.0):
     """Largest distance between a pixel and camcal's projection of the ray Cycles traces through it."""
-    f = addon.mapping.blender_fisheye(K.tolist(), size, params)
+    f = addon.fisheye.blender_fisheye(K.tolist(), size, params)
     u, v = np.meshgrid(np.arange(0.0, size[0], step), np.arange(0.0, size[1], step))
     pixels = np.column_stack([u.ravel(), v.ravel()])
-    rays = np.array([addon.mapping.fisheye_polynomial_ray(f, p) for p in pixels], dtype=float)
+    rays = np.array([addon.fisheye.fisheye_polynomial_ray(f, p) for p in pixels], dtype=float)
     back = Distortion("kannala-brandt", params).project_rays(rays, K)
     return f, float(np.max(np.linalg.norm(back - pixels, axis=1)))
 
@@ -79,7 +79,7 @@ def test_importer_builds_a_fisheye_polynomial_camera(bpy, addon, tmp_path):
                      [camera_dict("fish", SIZE, K, distortion={"model": "kannala-brandt", "params": PARAMS})])
     result = addon.import_rig(bpy.context.scene, str(path))
     data = result.cameras["fish"].data
-    f = addon.mapping.blender_fisheye(K.tolist(), SIZE, PARAMS)
+    f = addon.fisheye.blender_fisheye(K.tolist(), SIZE, PARAMS)
     assert data.type == "PANO" and data.panorama_type == "FISHEYE_LENS_POLYNOMIAL"
     for n in range(5):
         assert getattr(data, f"fisheye_polynomial_k{n}") == pytest.approx(f.polynomial[n], rel=1e-6, abs=1e-12)
@@ -151,7 +151,7 @@ def test_cycles_render_of_the_fisheye_matches_camcal(bpy, addon, tmp_path, case)
         measured.append(((w * xs).sum() / w.sum(), (w * ys).sum() / w.sum()))
     error = np.hypot(*(np.array(measured) - expected).T)
     angles = np.degrees(np.arccos(rays[:, 2]))
-    f = addon.mapping.blender_fisheye(K_case.tolist(), size, params)
+    f = addon.fisheye.blender_fisheye(K_case.tolist(), size, params)
     print(f"Cycles fisheye render vs camcal ({case}): centroid error max {error.max():.4f} px, "
           f"mean {error.mean():.4f} px, median {np.median(error):.4f} px over {len(error)} spheres up to "
           f"{angles.max():.0f} deg off axis; quartic fit residual max {f.fit_max_px:.4f} px")
@@ -183,7 +183,7 @@ def test_cli_blender_import_writes_the_fisheye_camera(addon, tmp_path, capsys):
     proc = subprocess.run([sys.executable, "-c", script, str(out)], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     kind, panorama, k1, shift_x = proc.stdout.split()[-4:]
-    f = addon.mapping.blender_fisheye(K.tolist(), SIZE, PARAMS)
+    f = addon.fisheye.blender_fisheye(K.tolist(), SIZE, PARAMS)
     assert (kind, panorama) == ("PANO", "FISHEYE_LENS_POLYNOMIAL")
     assert float(k1) == pytest.approx(f.polynomial[1], rel=1e-6)
     assert float(shift_x) == pytest.approx(f.shift_x, abs=1e-7)
@@ -196,7 +196,7 @@ PARAMS_TP = PARAMS | {"k5": 2e-5, "k6": -1e-6, "p1": 4e-4, "p2": -3e-4, "s1": 5e
 def test_thin_prism_fisheye_radial_part_exact_and_the_rest_reported(addon, tmp_path):
     """kannala-brandt-thin-prism: Cycles gets the six-term radial part (fitted as for kannala-brandt), the
     tangential and thin-prism terms are left out and their size over the frame is what the mapping reports."""
-    m = addon.mapping
+    m = addon.fisheye
     radial = {k: PARAMS_TP[k] for k in ("k1", "k2", "k3", "k4", "k5", "k6")}
     radial |= dict.fromkeys(("p1", "p2", "s1", "s2", "s3", "s4"), 0.0)
     f = m.blender_fisheye(K.tolist(), SIZE, PARAMS_TP)
@@ -216,7 +216,7 @@ def test_thin_prism_fisheye_radial_part_exact_and_the_rest_reported(addon, tmp_p
 
 
 def test_division_aspect_distorts_like_camcal(addon):
-    m = addon.mapping
+    m = addon.tracking
     lens = Distortion("division", {"lambda": -1.5e-7, "aspect": 2.0})
     Kd = np.array([[1400.0, 0.0, 641.3], [0.0, 700.0, 357.8], [0.0, 0.0, 1.0]])
     rng = np.random.default_rng(3)

@@ -1,4 +1,4 @@
-"""The intrinsics / axes / lens mapping to Blender, checked without Blender.
+"""The intrinsics / axes / lens mapping to Blender (mapping.py, tracking.py), checked without Blender.
 
 ``_blender_project`` re-implements Blender's camera projection
 (``BKE_camera_params_compute_viewplane``) from its settings, so the mapping
@@ -100,7 +100,7 @@ def test_axes_and_camera_matrix(addon):
 @settings(max_examples=100, deadline=None)
 @given(lam=st.floats(-4e-7, 4e-7), x=st.floats(0, 1919), y=st.floats(0, 1079))
 def test_division_round_trip(addon, lam, x, y):
-    m = addon.mapping
+    m = addon.tracking
     c = (950.3, 548.1)
     # Distorted pixels over the frame: undistort, then distort back.
     u = m.division_undistort((x, y), c, lam)
@@ -111,7 +111,7 @@ def test_division_round_trip(addon, lam, x, y):
 @settings(max_examples=100, deadline=None)
 @given(k1=st.floats(-0.2, 0.2), k2=st.floats(-0.05, 0.05), x=st.floats(0, 1919), y=st.floats(0, 1079))
 def test_polynomial_round_trip(addon, k1, k2, x, y):
-    m = addon.mapping
+    m = addon.tracking
     c, f = (950.3, 548.1), 1500.0
     d = m.polynomial_distort((x, y), c, f, [k1, k2])
     u = m.polynomial_undistort(d, c, f, [k1, k2])
@@ -119,7 +119,7 @@ def test_polynomial_round_trip(addon, k1, k2, x, y):
 
 
 def test_lens_mapping(addon):
-    m, Distortion = addon.mapping, addon.rigfile.Distortion
+    m, Distortion = addon.tracking, addon.rigfile.Distortion
     K = [[1000, 0, 950], [0, 1000, 530], [0, 0, 1]]
     lens = m.blender_lens(Distortion("division", {"lambda": -1.2e-7}, (959.5, 539.5)), K, (1920, 1080))
     assert lens.distortion_model == "NUKE"
@@ -145,7 +145,7 @@ def test_opencv_rational_thin_prism_lens_in_blender(addon):
     """The pure-Python OpenCV model equals camcal's (rational and thin prism); BROWN says what it leaves out."""
     from camcal.model.distortion import Distortion as CamcalDistortion
 
-    m, Distortion = addon.mapping, addon.rigfile.Distortion
+    m, Distortion = addon.tracking, addon.rigfile.Distortion
     params = {"k1": -0.21, "k2": 0.04, "p1": 8e-4, "p2": -1.2e-3, "k3": -0.004, "k4": 0.05, "k5": 0.012,
               "k6": 0.002, "s1": 1.1e-3, "s2": -4e-4, "s3": 1.6e-3, "s4": 2e-4}
     K = np.array([[1000.0, 0, 950.0], [0, 1000.0, 530.0], [0, 0, 1]])
@@ -158,7 +158,7 @@ def test_opencv_rational_thin_prism_lens_in_blender(addon):
 
 
 def test_pixel_conventions_and_margins(addon):
-    m = addon.mapping
+    m = addon.tracking
     assert m.to_blender_pixel((0.0, 0.0), 1080) == (0.5, 1079.5)
     assert m.from_blender_pixel(m.to_blender_pixel((12.25, 7.5), 100), 100) == (12.25, 7.5)
     assert m.overscan_margins((240, 180), 1.1) == (12, 9)

@@ -81,3 +81,35 @@ def test_atomic_dir_refuses_a_file(tmp_path):
     with pytest.raises(CamcalError, match="not a folder"):
         with atomic_dir(tmp_path / "out"):
             pass
+
+
+# -- temporary names and stale temporaries ------------------------------------------------
+
+
+from camcal.base.atomic import (  # noqa: E402
+    TEMPORARY_TAG, atomic_path, is_temporary_of, remove_stale_temporaries,
+)
+
+
+def test_temporaries_carry_camcal_tag_and_are_recognised(tmp_path):
+    target = tmp_path / "o.0032.png"
+    with atomic_path(target) as tmp:
+        assert f".{TEMPORARY_TAG}." in tmp.name and tmp.suffix == ".png" and is_temporary_of(tmp, target)
+        assert not is_temporary_of(tmp, tmp_path / "o.0033.png")
+        assert not is_temporary_of(tmp_path / "sub" / tmp.name, target)
+    with atomic_dir(tmp_path / "solved") as staging:
+        assert is_temporary_of(staging, tmp_path / "solved")
+
+
+def test_remove_stale_temporaries_touches_only_the_targets_own(tmp_path):
+    targets = [tmp_path / "o.0032.png", tmp_path / "solved"]
+    stale = [tmp_path / f".o.0032.png.{TEMPORARY_TAG}.0jfiou1u.png", tmp_path / f".solved.{TEMPORARY_TAG}.a_b9z0x1"]
+    kept = [tmp_path / "o.0032.png", tmp_path / ".o.0032.png.0jfiou1u.png", tmp_path / f".o.0033.png.{TEMPORARY_TAG}.0jfiou1u.png",
+            tmp_path / f".o.0032.png.{TEMPORARY_TAG}.short.png", tmp_path / "notes.txt"]
+    stale[0].write_bytes(b"half")
+    stale[1].mkdir()
+    (stale[1] / "database.db").write_bytes(b"x")
+    for path in kept:
+        path.write_bytes(b"k")
+    assert remove_stale_temporaries(targets + [tmp_path / "missing" / "x.png"]) == tuple(sorted(stale))
+    assert sorted(tmp_path.iterdir()) == sorted(kept)

@@ -8,7 +8,7 @@ import pytest
 MODULES = ["difference", "fit.evaluate", "fit.terms", "fit.models", "fit.fitting", "spectral.data",
            "spectral.simulate", "spectral.estimate", "chart.linearise", "chart.reference", "chart.detect",
            "fit.record", "fit.select", "chart.patches", "fit.characterise", "spectral.sensitivities",
-           "spectral.captures", "fit.illuminant"]
+           "spectral.captures", "fit.illuminant", "export.ocio_versions", "export.ocio_fit"]
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -96,7 +96,8 @@ def test_stmaps_undistort_and_redistort_are_inverse(camera):
     maps = make_stmaps(camera, overscan=1.5)
     width_u, height_u = maps.undistorted.image_size
     # redistort: plate pixel -> undistorted pixel; undistort: undistorted pixel -> plate pixel
-    x_u, y_u = pixels_from_st(maps.redistort, maps.undistorted.image_size)
+    x_u, y_u = pixels_from_st(maps.redistort, camera.image_size)  # in the undistorted image's format (the plate's)
+    x_u, y_u = x_u + maps.border[0], y_u + maps.border[1]  # in its data window, the canvas
     x_p, y_p = pixels_from_st(maps.undistort, camera.image_size)
     u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
     on_canvas = (x_u >= 0) & (x_u <= width_u - 1) & (y_u >= 0) & (y_u <= height_u - 1)

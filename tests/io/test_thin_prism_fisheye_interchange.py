@@ -20,7 +20,8 @@ THIN_PRISM = Distortion("kannala-brandt-thin-prism", {
 EXACT = {"colmap"}
 #: where the lens read back is the nearest Kannala-Brandt lens the file holds
 NEAREST_FISHEYE = {"opencv", "kalibr"}
-OUT = {"opencv": "cam.yaml", "kalibr": "camchain.yaml", "colmap": "sparse", "usd": "rig.usda", "nuke": "rig.nk"}
+OUT = {"opencv": "cam.yaml", "kalibr": "camchain.yaml", "colmap": "sparse", "usd": "rig.usda", "nuke": "rig.nk",
+       "3de": "lens.txt"}
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
@@ -28,16 +29,18 @@ def test_export_is_exact_or_a_reported_nearest_fit(fmt, tmp_path):
     rig = fisheye_rig(rectified=False)
     rig = Rig(tuple(dataclasses.replace(c, distortion=THIN_PRISM) for c in rig.cameras), units=rig.units,
               provenance=rig.provenance)
-    if fmt == "opencv":
+    if fmt in ("opencv", "3de"):  # one camera (or a stereo pair) per file, one lens per 3DE file
         rig = Rig(rig.cameras[:1], units=rig.units, provenance=rig.provenance)
     result = export_rig(rig, fmt, tmp_path / OUT[fmt])
     for conversion in result.conversions:
         print(conversion.describe())
         assert conversion.exact == (fmt in EXACT)
         assert conversion.max_px == 0.0 if conversion.exact else conversion.max_px > 0.0
+        if fmt in ("nuke", "3de"):  # the 3DE lens: a refit to 3DE's fisheye, its residual printed
+            assert conversion.refit.family == "3de4-fisheye-deg8" and not conversion.refit.exact
         assert conversion.camera in conversion.describe()
     if fmt not in EXACT | NEAREST_FISHEYE:
-        return  # usd and nuke: their own tests read them back
+        return  # usd, nuke and 3de: their own tests read them back
     back = import_rig(tmp_path / OUT[fmt], fmt)
     for camera, conversion in zip(rig.cameras, result.conversions):
         read = back.rig.cameras[rig.cameras.index(camera)]

@@ -276,7 +276,7 @@ def test_plain_usd_camera_needs_and_takes_an_image_size(tmp_path, vertical_apert
     observed = np.abs(gf_pixels(stage, None, Usd.TimeCode.Default(), X, (1920, 1080), "/World/shotcam") - pixels).max()
     print(f"plain USD camera (aperture 36 x {vertical_aperture}): Gf.Camera vs imported camcal camera {observed:.1e} px")
     assert observed < 1e-6
-    with pytest.raises(CamcalError, match="applies to usd only"):
+    with pytest.raises(CamcalError, match="applies to usd, 3de and nuke only"):
         import_rig(path, "opencv", image_size=(1920, 1080))
 
 

@@ -293,7 +293,7 @@ def test_killed_run_resumes_with_every_frame_once(tmp_path, capsys):
     runs = {json.loads(record_path(out_dir / name).read_text())["run"] for name in before}
     assert len(runs) == 1
     # a temporary file of an interrupted write, as a kill during a write leaves
-    stale = out_dir / f".left.{blocked}.exr.abc123.exr"
+    stale = out_dir / f".left.{blocked}.exr.camcal-tmp.abc12345.exr"
     stale.write_bytes(b"partial")
 
     os.unlink(pattern % blocked)
@@ -337,6 +337,7 @@ def test_help():
 @pytest.mark.parametrize("change", [
     {"rig": "missing.rig.json"},
     {"--frames": "1010-1001"},
+    {"--frames": "1001-1003"},  # 1003 missing: named, nothing written
     {"--camera": "centre"},
     {"--in": "plates/left.exr"},
     {"--out": "out/left.exr"},

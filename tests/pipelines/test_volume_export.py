@@ -38,7 +38,9 @@ def relative(camera, ref):
 
 
 SUFFIX = {"opencv": "yaml", "kalibr": "yaml", "usd": "usda", "nuke": "nk"}
-RIG_FORMATS = [fmt for fmt in FORMATS if fmt != "opencv"]  # OpenCV's file holds one camera or a stereo pair
+# OpenCV's file holds one camera or a stereo pair, a 3DE lens file one lens (tests/io/test_tde_file.py), a Lensfun
+# file lenses without poses (tests/io/test_lensfun.py)
+RIG_FORMATS = [fmt for fmt in FORMATS if fmt not in ("opencv", "3de", "lensfun")]
 
 
 def read_back(fmt, out):

@@ -24,6 +24,13 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "illuminant its chart was shot under, a light file's name, or LIGHT= before the fit)")
     parser.add_argument("--base", default="ocio://studio-config-latest", metavar="CONFIG",
                         help="config to add the spaces to (default: %(default)s; see below)")
+    parser.add_argument("--ocio-version", metavar="X.Y",
+                        help="OCIO profile version to write, the oldest OpenColorIO that must load the config: 2.1 "
+                             "to 2.6 (default: 2.3, loaded by Blender 4.2 and later and the VFX Reference Platform "
+                             "CY2024 and later; 2.5: Blender 5.2, CY2026)")
+    parser.add_argument("--family", metavar="FAMILY",
+                        help="family of the camera spaces, e.g. a studio's own 'Input/Witness' (default: Input/<maker> "
+                             "from the raw capture, else Input/camcal)")
     parser.add_argument("--cat", choices=("Bradford", "CAT02"), default="Bradford",
                         help="adaptation from the fit's white to the ACES white (default: %(default)s)")
     parser.add_argument("--icc", metavar="OUT.icc", help="write an ICC camera profile (one fit only)")
@@ -44,9 +51,13 @@ def _export(args: argparse.Namespace) -> int:
     --by-illuminant: a camera's fits for several lights (D65, A, a measured light) as one config, one space per
     light, 'camcal <camera> (<light>)'.
 
+    A studio's config given as --base in the --ocio folder is extended in place (same file, its roles, spaces
+    and search paths kept).
+
     --base: 'camcal' (camcal's small ACES config, ocio_configs/camcal_base.ocio), an ocio:// built-in
-    (default: ocio://studio-config-latest, which needs OCIO 2.6; Blender 5.0 links OCIO 2.4: use 'camcal' or
-    ocio://studio-config-v2.2.0_aces-v1.3_ocio-v2.4 there) or a .ocio file with an aces_interchange role.
+    (default: ocio://studio-config-latest, the newest ACES studio config made for --ocio-version) or a .ocio
+    file with an aces_interchange role; a base newer than --ocio-version is written at it when it uses
+    nothing newer.
     """
     import dataclasses
     from pathlib import Path
@@ -58,6 +69,9 @@ def _export(args: argparse.Namespace) -> int:
         raise CamcalError("nothing to write: give --ocio OUTDIR and/or --icc OUT.icc")
     if args.camera_name and len(args.fits) > 1 and not args.by_illuminant:
         raise CamcalError(f"--camera-name needs exactly one fit (or --by-illuminant), got {len(args.fits)}")
+    for option, value in (("--ocio-version", args.ocio_version), ("--family", args.family)):
+        if value and not args.ocio:
+            raise CamcalError(f"{option} applies to the OCIO config: give --ocio OUTDIR")
     if args.by_illuminant and not args.ocio:
         raise CamcalError("--by-illuminant names OCIO colour spaces: give --ocio OUTDIR")
     if args.icc and len(args.fits) > 1:
@@ -100,13 +114,15 @@ def _export(args: argparse.Namespace) -> int:
         from camcal.base.atomic import final_path
 
         with output_folder(args.ocio) as ocio_dir:
+            version = {"ocio_version": args.ocio_version} if args.ocio_version else {}
             result = export_ocio(fits, ocio_dir, base=args.base, cat=args.cat, max_delta_E=args.max_bake_error,
-                                 matches=matches)
+                                 matches=matches, family=args.family, home=args.ocio, **version)
         result = dataclasses.replace(result, config_path=final_path(result.config_path, ocio_dir, args.ocio))
         for space in result.spaces:
             print(space.summary())
-        print(f"wrote {result.config_path} (base {result.base}, {len(fits)} camera space(s), {len(matches)} match Look(s))")
-        out.figures(base=result.base, n_matches=len(matches), spaces=[{
+        print(f"wrote {result.config_path} (OCIO profile {result.profile_version}, base {result.base}, "
+              f"{len(fits)} camera space(s), {len(matches)} match Look(s))")
+        out.figures(base=result.base, ocio_profile_version=result.profile_version, n_matches=len(matches), spaces=[{
             "name": space.name, "camera": space.camera, "model": space.model, "kind": space.kind,
             "lut_size": space.lut_size, "clf": space.clf, "linearisation_error": space.linearisation_error,
             "bake_error_delta_E2000": None if space.bake_error is None else dataclasses.asdict(space.bake_error),

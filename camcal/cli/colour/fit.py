@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.base.errors import CamcalError
-from camcal.cli.options import camera_label_option, handler, out_option, output_folder, report_option
+from camcal.cli.options import camera_label_option, handler, out_option, report_option
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -83,16 +82,6 @@ def _register_for_illuminant(parser) -> None:
                             "the curves themselves)")
 
 
-def _parse_corners(text: str):
-    try:
-        values = [float(v) for v in text.replace(" ", ",").split(",") if v]
-    except ValueError:
-        raise CamcalError(f"--corners: expected 8 numbers, got {text!r}") from None
-    if len(values) != 8:
-        raise CamcalError(f"--corners: expected 8 numbers, got {len(values)}")
-    return [values[i : i + 2] for i in range(0, 8, 2)]
-
-
 def _fit(args: argparse.Namespace) -> int:
     """Fit camera RGB to CIE XYZ (perfect white Y = 1) and judge it by CIEDE2000 on the training patches, by
     leave-one-out and on an independent patch set. Writes a versioned *.colour.json.
@@ -101,110 +90,23 @@ def _fit(args: argparse.Namespace) -> int:
     1), optional first column name. --model auto picks model, objective and regularisation by leave-one-out
     CIEDE2000 and says why.
     """
-    import dataclasses
+    from camcal.api.colour import fit_colour
 
-    from camcal.colour.fit.characterise import characterise
-    from camcal.io.colourfile import save_colour_file
-    from camcal.io.patches import read_patch_csv
-    from camcal.pipelines.colour import patches_from_chart
-    from camcal.io.raw import is_raw
-    from camcal.base.atomic import final_path
-    from camcal.report.characterisation import write_report
-
-    reference = None
-    if args.chart:
-        corners = _parse_corners(args.corners) if args.corners else None
-        found = patches_from_chart(args.chart, args.reference, corners=corners,
-                                   keep_clipped=args.keep_clipped, illuminant=args.illuminant,
-                                   detector=args.detector)
-        train = found.patches
-        reference = found.reference.name
-        clipped = "saturated" if is_raw(args.chart) else "clipped"
-        excluded = f" (dropped {clipped}: {', '.join(found.excluded)})" if found.excluded else ""
-        print(f"chart found by {found.detection.method}: {len(train)} / "
-              f"{len(found.reference.patch_names)} patches used{excluded}")
-        if found.too_dark:
-            print(f"too dark: {len(found.too_dark)} patch(es) measured and weighted down by their signal-to-noise "
-                  f"ratio (kept): {', '.join(found.too_dark)}")
-        noisy = [n for n, flag in zip(found.reference.patch_names, found.samples.noisy) if flag]
-        if noisy:
-            print(f"flagged noisy (kept): {', '.join(noisy)}")
-        linearise = args.linearise or ("none" if args.for_illuminant or is_raw(args.chart) else "lut1d")
-        white = args.illuminant
-    else:
-        if args.corners:
-            raise CamcalError("--corners applies to --chart only")
-        if args.detector != "auto":
-            raise CamcalError("--detector applies to --chart only")
-        train = read_patch_csv(args.patches)
-        print(f"read {len(train)} patches from {args.patches}")
-        linearise = args.linearise or "none"
-        white = args.illuminant
-    if args.for_illuminant:
-        return _fit_for_illuminant(args, train, reference, linearise)
-    if args.sensitivities:
-        raise CamcalError("--sensitivities is used with --for-illuminant B")
-    test = read_patch_csv(args.test_patches) if args.test_patches else None
-    outcome = characterise(
-        train, white=white, model=args.model, objective=args.objective,
-        regularisation=args.regularisation, linearise=linearise,
-        test=test, target_white=args.target_white, adaptation=args.adaptation,
-        camera=args.camera, reference=reference, source=args.chart or args.patches,
-        spectra=args.spectra,
-    )
-    print(outcome.summary())
-    fit = _with_capture(args, outcome.fit)
+    result = fit_colour(
+        args.patches, chart=args.chart, reference=args.reference, corners=args.corners, detector=args.detector,
+        keep_clipped=args.keep_clipped, model=args.model, objective=args.objective,
+        regularisation=args.regularisation, linearise=args.linearise, illuminant=args.illuminant,
+        target_white=args.target_white, adaptation=args.adaptation, spectra=args.spectra,
+        test_patches=args.test_patches, camera=args.camera, for_illuminant=args.for_illuminant,
+        sensitivities=args.sensitivities, training_reflectances=args.training_reflectances,
+        validation_reflectances=args.validation_reflectances, plausible_cameras=args.plausible_cameras,
+        out=args.out, report=args.report, log=print)
+    for line in result.lines():
+        print(line)
     out = summary_of(args)
-    stats = {name: None if value is None else dataclasses.asdict(value) for name, value in (
-        ("train", outcome.result.stats_train), ("loo", outcome.result.stats_loo), ("test", outcome.result.stats_test))}
-    out.figures(model=outcome.result.model.label, linearisation=outcome.fit.linearisation.label,
-                selection=None if outcome.selection is None else outcome.selection.reason,
-                n_train=len(train), delta_E2000=stats,
-                **({"n_too_dark": len(found.too_dark), "n_dropped": len(found.excluded)} if args.chart else {}))
-    with output_folder(args.report) as report_dir:
-        reports = [] if report_dir is None else write_report(outcome, report_dir, title=args.camera or "")
-        out.wrote(save_colour_file(fit, args.out), "colour fit")
-    if args.report:
-        out.report([final_path(path, report_dir, args.report) for path in reports], args.report)
+    out.figures(**result.figures())
+    out.wrote(next(path for path, kind in result.files if kind == "colour fit"), "colour fit")
+    reports = [path for path, kind in result.files if kind == "report"]
+    if reports:
+        out.report(reports, args.report)
     return 0
-
-
-def _fit_for_illuminant(args: argparse.Namespace, train, reference, linearise: str) -> int:
-    from camcal.colour.fit.illuminant import characterise_for_illuminant
-    from camcal.io.colourfile import save_colour_file
-    from camcal.io.ssf import load_sensitivities
-
-    if not args.sensitivities:
-        raise CamcalError("--for-illuminant needs --sensitivities SSF (from 'camcal colour sensitivities')")
-    if linearise != "none":
-        raise CamcalError(f"--for-illuminant needs linear camera RGB (--linearise none, raw input), got {linearise!r}")
-    if args.test_patches or args.target_white:
-        raise CamcalError("--for-illuminant judges on validation reflectances under B: drop --test-patches / --target-white")
-    if args.plausible_cameras < 0:
-        raise CamcalError(f"--plausible-cameras must be >= 0, got {args.plausible_cameras}")
-    sens = load_sensitivities(args.sensitivities)
-    camera = f"{args.camera} ({args.for_illuminant})" if args.camera else None
-    outcome = characterise_for_illuminant(
-        train, sens, illuminant=args.illuminant, for_illuminant=args.for_illuminant, model=args.model,
-        training_set=args.training_reflectances, validation_set=args.validation_reflectances,
-        n_cameras=args.plausible_cameras, camera=camera, reference=reference,
-        source=args.chart or args.patches)
-    print(outcome.summary())
-    fit = _with_capture(args, outcome.fit)
-    out = summary_of(args)
-    out.figures(for_illuminant=args.for_illuminant, route=outcome.picked, model=fit.model.label,
-                n_train=len(train), reason=outcome.reason, validation_reflectances=args.validation_reflectances,
-                delta_E2000_validation={score.route: score.to_dict() for score in outcome.scores})
-    out.wrote(save_colour_file(fit, args.out), "colour fit")
-    return 0
-
-
-def _with_capture(args: argparse.Namespace, fit):
-    """The fit with the raw capture's metadata when ``--chart`` is a raw file."""
-    import dataclasses
-
-    from camcal.io.raw import is_raw, raw_metadata
-
-    if args.chart and is_raw(args.chart):
-        fit = dataclasses.replace(fit, capture=raw_metadata(args.chart).to_dict())
-    return fit

@@ -27,6 +27,7 @@ import numpy as np
 from camcal.base.errors import CamcalError
 from camcal.colour.bake.transforms import apply_cpu, cpu_processor, matrix_transform, ocio_module
 from camcal.colour.chart.linearise import Linearisation
+from camcal.colour.export.ocio_versions import at_profile_version
 
 __all__ = [
     "STUDIO_CONFIG",
@@ -198,6 +199,9 @@ class ColourSpaceSpec:
         ``luts/``, which the config's search path holds).
     categories
         OCIO categories (``file-io`` lists it for reading images).
+    aliases
+        Other names OCIO finds the space by (short, as the ACES configs'
+        ``arri_logc3_ei800``).
     """
 
     name: str
@@ -207,6 +211,7 @@ class ColourSpaceSpec:
     encoding: str = "scene-linear"
     files: dict = field(default_factory=dict)
     categories: tuple[str, ...] = ("file-io",)
+    aliases: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -232,12 +237,20 @@ class ConfigSpec:
     works on a copy); :func:`camcal.io.ocio.load_base_config` loads
     ``"camcal"`` (``ocio_configs/camcal_base.ocio``), an ``ocio://`` built-in
     (:data:`STUDIO_CONFIG`, the ACES studio config) or a ``.ocio`` file.
+    ``profile_version``: ``(major, minor)`` the config is written at, at
+    most (:func:`camcal.colour.export.ocio_versions.at_profile_version`);
+    ``None`` keeps the base's. ``home``: the folder the config is written
+    to; a base that lives there (a studio's config extended in place) keeps
+    its search paths as they are, any other base's relative ones are made
+    absolute.
     """
 
     base: Any
     colour_spaces: tuple[ColourSpaceSpec, ...] = ()
     looks: tuple[LookSpec, ...] = ()
     name: str | None = None
+    profile_version: tuple[int, int] | None = None
+    home: str | None = None
 
     @property
     def files(self) -> dict:
@@ -274,31 +287,41 @@ def add_look(config, look: LookSpec) -> None:
 def build_ocio_config(spec: ConfigSpec):
     """Build and validate the config a :class:`ConfigSpec` describes.
 
-    The base is copied, its search paths are made absolute (a file base's
-    own LUTs stay reachable from the new config's folder) and ``luts`` is
-    appended, the colour spaces and looks are added and ``config.validate()``
-    runs; its errors propagate (as :class:`CamcalError`).
+    The base is copied (at ``spec.profile_version`` when it is newer), its
+    search paths are made absolute unless it is extended in place (a file
+    base's own LUTs stay reachable from the new config's folder) and
+    ``luts`` is appended, the colour spaces and looks are added and
+    ``config.validate()`` runs; its errors propagate (as
+    :class:`CamcalError`).
 
     Returns
     -------
     PyOpenColorIO.Config
     """
     ocio = ocio_module()
-    config = copy.deepcopy(spec.base)
+    config = copy.deepcopy(spec.base) if spec.profile_version is None else at_profile_version(
+        spec.base, spec.profile_version)
     if spec.name:
         config.setName(spec.name)
-    # the base's own LUT folders, made absolute (the new config lives elsewhere), then luts/
+    # the base's own LUT folders, made absolute when the new config lives elsewhere, then luts/
     working = config.getWorkingDir()
-    paths = [p if os.path.isabs(p) or not working else os.path.join(working, p) for p in config.getSearchPaths()]
-    config.clearSearchPaths()
-    for path in paths + ([LUT_DIR] if spec.files and LUT_DIR not in paths else []):
-        config.addSearchPath(path)
+    if not (working and spec.home and os.path.realpath(working) == os.path.realpath(spec.home)):
+        paths = [p if os.path.isabs(p) or not working else os.path.join(working, p) for p in config.getSearchPaths()]
+        config.clearSearchPaths()
+        for path in paths:
+            config.addSearchPath(path)
+    if spec.files and LUT_DIR not in config.getSearchPaths():
+        config.addSearchPath(LUT_DIR)
     for space in spec.colour_spaces:
         if config.getColorSpace(space.name) is not None:
             raise CamcalError(f"colour space {space.name!r} already exists in the base config")
+        taken = [alias for alias in space.aliases if config.getColorSpace(alias) is not None]
+        if taken:
+            raise CamcalError(f"alias {taken[0]!r} of colour space {space.name!r} already names a space in the "
+                              f"config (rename the camera)")
         cs = ocio.ColorSpace(referenceSpace=ocio.REFERENCE_SPACE_SCENE, name=space.name, family=space.family,
                              encoding=space.encoding, description=space.description,
-                             categories=list(space.categories))
+                             categories=list(space.categories), aliases=list(space.aliases))
         cs.setTransform(ocio.GroupTransform(list(space.to_reference)), ocio.COLORSPACE_DIR_TO_REFERENCE)
         config.addColorSpace(cs)
     for look in spec.looks:

@@ -1,10 +1,16 @@
 """Colour fits in OpenColorIO: input colour spaces, match Looks, the fast image processor.
 
 A characterisation (``*.colour.json``) becomes one input colour space of an
-OCIO config, named ``camcal <camera>`` in the family ``Input/camcal``
-(the name the Blender add-on looks for), encoding ``scene-linear``, its
-description carrying the fit's held-out CIEDE2000. Its transform to the
-config's scene reference is, in order:
+OCIO config, named as the ACES studio configs name camera spaces:
+``camcal <camera>`` (the name the Blender add-on looks for), family
+``Input/<maker>`` (the raw capture's make, :func:`maker_family`) or
+``Input/camcal`` or one given, a short alias ``camcal_<camera>``
+(:func:`space_alias`), category
+``file-io``, encoding ``log`` for a log curve and ``scene-linear`` otherwise
+(:func:`space_encoding`) and a description naming
+the chart, the light it was shot under and the one it is for, the model
+and its held-out CIEDE2000. Its transform to the config's scene reference
+is, in order:
 
 1. the linearisation (code values in [0, 1] to linear camera RGB):
    ``gamma-offset`` curves exactly as ``MatrixTransform`` (offset),
@@ -44,6 +50,7 @@ a measured light's file name without its suffix, or a label given for it.
 from __future__ import annotations
 
 import posixpath
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import PurePath
@@ -77,6 +84,9 @@ from camcal.colour.export.ocio_config import (
 from camcal.colour.fit.record import ColourFit
 
 __all__ = [
+    "maker_family",
+    "space_encoding",
+    "space_alias",
     "chart_gamut_samples",
     "bake_samples",
     "bake_fit",
@@ -92,6 +102,60 @@ __all__ = [
     "FitProcessor",
     "fit_processor",
 ]
+
+
+_CORPORATE = {"corporation", "corp", "corp.", "co.", "co", "ltd", "ltd.", "inc", "inc.", "imaging", "company",
+              "digital", "gmbh", "ag"}
+
+
+def maker_family(fit: ColourFit) -> str:
+    """``Input/<maker>`` from the fit's raw capture (EXIF Make), else ``Input/camcal``.
+
+    The make is shortened as the ACES studio configs name vendors: corporate
+    words dropped, an all-capitals word of more than three letters
+    capitalised (``NIKON CORPORATION`` -> ``Nikon``, ``SONY`` -> ``Sony``,
+    ``RED`` stays).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> maker_family(SimpleNamespace(capture={"make": "NIKON CORPORATION"}))
+    'Input/Nikon'
+    >>> maker_family(SimpleNamespace(capture=None))
+    'Input/camcal'
+    """
+    make = str((getattr(fit, "capture", None) or {}).get("make") or "")
+    words = [w for w in make.replace(",", " ").split() if w.lower() not in _CORPORATE]
+    words = [w.capitalize() if w.isupper() and len(w) > 3 else w for w in words]
+    return f"Input/{' '.join(words)}" if words else FAMILY
+
+
+def space_encoding(fit: ColourFit) -> str:
+    """OCIO encoding of a camera space: ``log`` for a named log curve, else ``scene-linear``.
+
+    A camera's input space is scene-referred whatever its curve: the ACES
+    configs' viewing rules offer their ACES views to ``scene-linear`` and
+    ``log`` spaces, and video views to the others (``sdr-video``), so a
+    camera with a log curve (``ARRI LogC3``, ``S-Log3``, ``ACEScct``...) is
+    ``log`` as the studio configs' camera spaces are, and every other one
+    (linear raw data, a camera's own tone curve) ``scene-linear``.
+    """
+    channels = fit.linearisation.channels
+    if all(c.kind == "named" and ("log" in c.params["function"].lower() or "cct" in c.params["function"].lower())
+           for c in channels):
+        return "log"
+    return "scene-linear"
+
+
+def space_alias(name: str) -> str:
+    """The short alias of a space name: lower case, ``_`` between words.
+
+    Examples
+    --------
+    >>> space_alias("camcal A7S-left (D65)")
+    'camcal_a7s_left_d65'
+    """
+    return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
 
 
 def chart_gamut_samples(fit: ColourFit, n: int = 21) -> np.ndarray:
@@ -183,6 +247,7 @@ def colour_space_from_fit(
     cat: str = "Bradford",
     max_delta_E: float = 0.2,
     lut_sizes: Sequence[int] = LUT_SIZES,
+    family: str | None = None,
 ) -> tuple[ColourSpaceSpec, SpaceExport]:
     """The input colour space of a characterisation, for ``config``'s reference.
 
@@ -196,6 +261,9 @@ def colour_space_from_fit(
         The base config (its ``aces_interchange`` role places ACES2065-1).
     cat, max_delta_E, lut_sizes
         See :func:`XYZ_to_reference_matrix` and :func:`transform_from_callable`.
+    family
+        The space's family (a studio's own, e.g. ``Input/Witness cameras``);
+        default :func:`maker_family`.
 
     Returns
     -------
@@ -221,10 +289,18 @@ def colour_space_from_fit(
                                     f"({fit.target_white}, white Y = 1)")
         steps = [*lin, ocio.FileTransform(posixpath.basename(clf), interpolation=ocio.INTERP_TETRAHEDRAL),
                  matrix_transform(to_ref)]
-    description = (f"camcal characterisation of camera {camera}: {model.label}, linearisation "
+    capture = fit.capture or {}
+    body = " ".join(str(capture[key]) for key in ("make", "model") if capture.get(key))
+    chart = f"the {fit.reference} chart" if fit.reference else "a chart"
+    light = f"shot under {fit.training_illuminant}"
+    if fit.illuminant_change:
+        light += f", for {fit.illuminant_change['for_illuminant']}"
+    description = (f"Convert camera {camera}{f' ({body})' if body else ''} to the scene reference: camcal "
+                   f"characterisation from {chart} {light}; {model.label}, linearisation "
                    f"{fit.linearisation.label}; {_held_out(fit.evaluation)}; XYZ ({fit.target_white}) "
                    f"to the reference with {cat}; model {how}.")
-    spec = ColourSpaceSpec(name, FAMILY, description, tuple(steps), files=files)
+    spec = ColourSpaceSpec(name, family or maker_family(fit), description, tuple(steps), files=files,
+                           encoding=space_encoding(fit), aliases=(space_alias(name),))
     report = SpaceExport(name, camera, model.label, baked.kind, baked.lut_size, baked.bake_error, lin_error, clf)
     return spec, report
 
@@ -285,6 +361,7 @@ def config_spec_from_fits(
     max_delta_E: float = 0.2,
     lut_sizes: Sequence[int] = LUT_SIZES,
     matches: Sequence = (),
+    family: str | None = None,
 ) -> tuple[ConfigSpec, tuple[SpaceExport, ...]]:
     """Describe a config: ``base`` plus one input colour space per camera and one Look per match.
 
@@ -294,7 +371,7 @@ def config_spec_from_fits(
         ``(camera name, fit)`` pairs; names must be unique.
     base
         The base ``PyOpenColorIO.Config`` (:func:`camcal.io.ocio.load_base_config`).
-    cat, max_delta_E, lut_sizes
+    cat, max_delta_E, lut_sizes, family
         See :func:`colour_space_from_fit`.
     matches
         Camera matches (kind ``match``), each a Look (:func:`look_from_match`).
@@ -311,7 +388,7 @@ def config_spec_from_fits(
     specs, reports = [], []
     for camera, fit in fits:
         spec, report = colour_space_from_fit(fit, camera, base, cat=cat, max_delta_E=max_delta_E,
-                                             lut_sizes=lut_sizes)
+                                             lut_sizes=lut_sizes, family=family)
         specs.append(spec)
         reports.append(report)
     looks = []

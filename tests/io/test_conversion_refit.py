@@ -1,0 +1,132 @@
+"""The conversion core: a dense-grid refit of any camcal camera to a lens family, its residual figures checked
+against an independent evaluation (random pixels, through distort / undistort instead of rays), exact where the
+family holds the lens, and the one table of what goes exactly where."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from camcal.base.errors import CamcalError
+from camcal.cli import main
+from camcal.io.conversion import EXACT_FAMILIES, FORMAT_FAMILIES, exactness_table, refit_camera
+from camcal.io.interchange import format_of
+from camcal.model.distortion import Distortion
+
+from interchange_rigs import division_rig, fisheye_rig, stereo_rig
+
+
+def random_pixels(camera, overscan, n=20000, seed=5):
+    """Random distorted pixels inside the image and in the border of the frame scaled by ``overscan``: uniform, and
+    as many again on the edges of both (where a lens' residual peaks), corners included."""
+    rng = np.random.default_rng(seed)
+    width, height = camera.image_size
+    centre = np.array([(width - 1) / 2, (height - 1) / 2])
+    edges = []
+    for half in (np.array([(width - 1) / 2, (height - 1) / 2]), np.array([width, height]) / 2 * overscan):
+        t = rng.uniform(-1, 1, n // 4)
+        edges += [np.column_stack([t, np.full_like(t, side)]) * half for side in (-1, 1)]
+        edges += [np.column_stack([np.full_like(t, side), t]) * half for side in (-1, 1)]
+        edges.append(np.array([[-1, -1], [-1, 1], [1, -1], [1, 1]]) * half)
+    half = np.array([width / 2 * overscan, height / 2 * overscan])
+    points = centre + np.concatenate([rng.uniform(-1, 1, (n, 2)) * half, *edges])
+    inside = (points[:, 0] >= -1e-9) & (points[:, 0] <= width - 1 + 1e-9) & (points[:, 1] >= -1e-9) & (
+        points[:, 1] <= height - 1 + 1e-9)
+    uniform = np.arange(len(points)) < n  # the RMS is over these
+    return points, inside, uniform
+
+
+def independent_distances(source, target, points):
+    """|target(ray) - x| for distorted pixels x, through the pinhole pixels (undistort, K, distort)."""
+    ideal = source.distortion.undistort(points, source.K)
+    rays = np.column_stack([ideal, np.ones(len(ideal))]) @ np.linalg.inv(source.K).T
+    mapped = rays @ target.K.T
+    projected = target.distortion.distort(mapped[:, :2] / mapped[:, 2:], target.K)
+    return np.linalg.norm(projected - points, axis=1)
+
+
+@pytest.mark.parametrize("source, family", [
+    (stereo_rig(rectified=False).cameras[0], "division"),
+    (stereo_rig(rectified=False).cameras[0], "polynomial"),
+    (division_rig().cameras[0], "opencv"),
+])
+def test_refit_figures_are_the_true_residual(source, family):
+    converted, refit = refit_camera(source, family)
+    assert not refit.exact and converted.distortion.model == family
+    points, inside, uniform = random_pixels(source, refit.overscan)
+    distances = independent_distances(source, converted, points)
+    ok = np.isfinite(distances)
+    inner, border = distances[inside & ok], distances[~inside & ok]
+    inner_rms = np.sqrt(np.mean(distances[inside & ok & uniform] ** 2))
+    border_rms = np.sqrt(np.mean(distances[~inside & ok & uniform] ** 2))
+    print(f"{source.distortion.model} -> {family}: printed {refit.describe()}; random pixels: inside max "
+          f"{inner.max():.4g} RMS {inner_rms:.4g}, border max {border.max():.4g} RMS {border_rms:.4g}")
+    # the printed figures are over a 13 px grid, these over random pixels: the maxima to a few per cent, the RMS
+    # (the grid samples the thin border band less evenly) to 10 %
+    assert refit.max_px == pytest.approx(inner.max(), rel=0.05)
+    assert refit.border_max_px == pytest.approx(border.max(), rel=0.05)
+    assert refit.rms_px == pytest.approx(inner_rms, rel=0.1)
+    assert refit.border_rms_px == pytest.approx(border_rms, rel=0.1)
+    assert refit.border_max_px > refit.max_px  # extrapolating past the image costs more
+
+
+@pytest.mark.parametrize("source, family", [
+    (stereo_rig(rectified=False).cameras[0], "opencv"),
+    (dataclasses.replace(stereo_rig(rectified=False).cameras[0],
+                         distortion=Distortion("polynomial", {"k1": -0.1, "k2": 0.02, "k3": 0.001})), "opencv"),
+    (fisheye_rig(rectified=False).cameras[0], "kannala-brandt-thin-prism"),
+    (dataclasses.replace(division_rig().cameras[0], distortion=Distortion.none()), "polynomial"),
+])
+def test_refit_is_exact_where_the_family_holds_the_lens(source, family):
+    converted, refit = refit_camera(source, family)
+    print(f"{source.distortion.model} -> {family}: {refit.describe()}")
+    assert refit.exact and converted.distortion.model == family
+    assert refit.max_px < 1e-6 and refit.border_max_px < 1e-6
+    points, inside, _ = random_pixels(source, refit.overscan, n=2000)
+    assert np.nanmax(independent_distances(source, converted, points[inside])) < 1e-6
+
+
+def test_a_fisheye_refit_to_a_rectilinear_family_counts_what_it_loses():
+    """Rays beyond 90 degrees have no pinhole image: the refit says how many grid pixels it cannot image."""
+    source = fisheye_rig(rectified=False).cameras[0]
+    _, refit = refit_camera(source, "opencv")
+    assert refit.n_lost > 0 and "not imaged" in refit.describe()
+
+
+def test_the_exactness_table_is_the_families_table():
+    table = exactness_table().splitlines()
+    header, rows = table[0].split(), {line.split()[0]: line.split()[1:] for line in table[1:11]}
+    formats = header[2:]
+    assert formats == list(FORMAT_FAMILIES)
+    for model, cells in rows.items():
+        for fmt, cell in zip(formats, cells):
+            held = any(model in EXACT_FAMILIES[family] for family in FORMAT_FAMILIES[fmt])
+            assert cell == ("exact" if held else "refit"), (model, fmt)
+    assert rows["opencv"][formats.index("opencv")] == "exact" and rows["opencv"][formats.index("3de")] == "refit"
+
+
+def test_rig_export_help_prints_the_table(capsys):
+    with pytest.raises(SystemExit):
+        main(["rig", "export", "--help"])
+    out = capsys.readouterr().out
+    assert exactness_table().splitlines()[1] in out and "3de4-anamorphic-deg4" in out
+
+
+def test_refit_rejects_a_bad_overscan_and_an_unknown_family():
+    camera = stereo_rig(rectified=False).cameras[0]
+    with pytest.raises(CamcalError, match="overscan must be a number >= 1"):
+        refit_camera(camera, "division", overscan=0.5)
+    with pytest.raises(CamcalError, match="unknown lens family 'brown'"):
+        refit_camera(camera, "brown")
+
+
+@pytest.mark.parametrize("name, fmt", [("shot.nk", "nuke"), ("a.usda", "usd"), ("a.USDC", "usd"), ("a.usd", "usd"),
+                                       ("lens.txt", "3de")])
+def test_the_format_is_read_from_the_file_name(name, fmt):
+    assert format_of(name) == fmt
+    assert format_of(name, "opencv") == "opencv"
+
+
+def test_an_ambiguous_file_name_asks_for_the_format():
+    with pytest.raises(CamcalError, match="cannot tell the format of 'cam.yaml'"):
+        format_of("cam.yaml")
