@@ -17,6 +17,8 @@ from camcal.model.rig_schema import RIG_SCHEMA, rig_schema_json, validate_rig_di
 from camcal.model.spline import SplineField
 
 ROOT = Path(__file__).resolve().parents[2]
+#: Lens models whose parameters take any number (the 3DE models need a film back: their own tests cover them).
+CORE_MODELS = ("none", "polynomial", "opencv", "division", "kannala-brandt", "kannala-brandt-thin-prism")
 SIZE = (640, 480)
 
 
@@ -33,7 +35,7 @@ def full_rig() -> Rig:
     """A rig with every optional part the file holds: each lens model, a correction field, rectification,
     quality with sigmas and covariance, frames with images, points and a board shape in the provenance."""
     cameras = []
-    for index, model in enumerate(MODEL_PARAMS):
+    for index, model in enumerate(CORE_MODELS):
         required, optional = MODEL_PARAMS[model]
         params = {name: 1e-3 * (k + 1) for k, name in enumerate(required + optional)}
         if model == "division":
@@ -160,6 +162,13 @@ def test_validator_refuses_keywords_it_does_not_implement():
         schema_errors(1, {"$ref": "#/$defs/missing"})
 
 
+def test_schema_holds_every_lens_model():
+    branches = RIG_SCHEMA["$defs"]["distortion"]["oneOf"]
+    assert [b["properties"]["model"]["const"] for b in branches] == list(MODEL_PARAMS)
+    for branch, (required, optional) in zip(branches, MODEL_PARAMS.values()):
+        assert set(branch["properties"]["params"]["properties"]) == set(required + optional)
+
+
 def test_rig_schema_uses_only_supported_keywords():
     """Validating every part runs every keyword of the schema through the validator without refusal."""
     assert RIG_SCHEMA["$schema"].endswith("2020-12/schema")
@@ -183,3 +192,11 @@ def test_rig_show_validate(tmp_path, capsys):
     assert "valid" not in captured.out
     # without --validate the loader's first complaint is what the user sees, as before
     assert main(["rig", "show", str(bad)]) == 2
+
+
+@pytest.mark.parametrize("model", [m for m in MODEL_PARAMS if m not in CORE_MODELS])
+def test_film_back_lenses_conform(model):
+    """The 3DE lens models (parameters plus the film back in pixels) written by camcal pass the schema."""
+    params = {"filmback_width_px": float(SIZE[0]), "filmback_height_px": float(SIZE[1])}
+    camera = Camera("cam", SIZE, _K(), Distortion(model, params), np.eye(3), [0.0, 0.0, 0.0])
+    assert validate_rig_dict(Rig((camera,)).to_dict()) == []
