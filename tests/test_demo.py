@@ -4,7 +4,7 @@ The fast tests run :data:`camcal.demo.QUICK` once (Blender renders, real
 calibrations, no structure from motion) and check its rows against the
 files the verbs wrote and against the truth; the HTML report is opened in
 headless Chromium (screenshot + DOM). The full ``make demo`` run is the
-``slow`` test: every row within its issue's tolerance.
+``slow`` test: every row within its tolerance.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import pytest
 from camcal.cli import main
 from camcal.demo import COLOUR_EXPORTS_SECTION, QUICK, STAGES, make_truth, reference_XYZ, run_demo
 from camcal.model.rig import Rig
+from user_text import internal_references
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 # .ci/run installs Chromium and sets this: there the browser tests must run, not skip
@@ -158,6 +159,14 @@ def test_quick_run_report_shows_the_rectified_pairs_sigma_maps(quick):
     assert (out / "rectify" / "images" / "left-right_depth_sigma.exr").exists()
 
 
+def test_quick_run_names_its_tolerance_sources_without_internal_references(quick):
+    """The terminal table and report.html name each tolerance's source (a test, a peer, a probability)."""
+    out, report = quick
+    assert all(row.source.strip() for row in report.rows)
+    for text in (report.table(), (out / "report.html").read_text()):
+        assert internal_references(text, allowed_prefixes=(str(out.resolve()), str(out))) == []
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (.ci/run installs it)")
 def test_report_opens_in_chromium(quick, tmp_path):
     out, report = quick
@@ -203,6 +212,9 @@ def test_full_demo_every_row_within_tolerance(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path / "demo_out")]) == 0, capsys.readouterr().err
     out = capsys.readouterr().out
     assert "all " in out and "within tolerance" in out
+    run_dir = tmp_path / "demo_out"
+    page = (run_dir / "report.html").read_text()
+    assert internal_references(out + page, allowed_prefixes=(str(run_dir.resolve()), str(run_dir))) == []
     stages = {line.split()[0] for line in out.splitlines() if line.startswith(("calibrate", "solve", "rectify"))}
     assert {"calibrate", "solve", "rectify"} <= stages
     assert (tmp_path / "demo_out" / "blender" / "sfm.blend").is_file()

@@ -18,8 +18,11 @@ def register(parser: argparse.ArgumentParser) -> None:
     verbs = verb_group(parser, "rig_verb")
     show = verbs.add_parser("show", help="print a readable summary of a rig file")
     rig_argument(show, metavar="FILE")
+    show.add_argument("--validate", action="store_true",
+                      help="also check FILE against the rig file's JSON Schema (docs/rig.schema.json) and say so")
     handler(show, _show, [
         "camcal rig show board.rig.json",
+        "camcal rig show board.rig.json --validate",
     ])
     export = verbs.add_parser("export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke, 3DE)")
     rig_argument(export)
@@ -50,8 +53,11 @@ def register(parser: argparse.ArgumentParser) -> None:
 
 def _show(args: argparse.Namespace) -> int:
     from camcal.api.rig import load_rig
+    from camcal.model.rig_schema import RIG_SCHEMA_ID, load_validated
 
-    rig = load_rig(args.rig)
+    rig = load_validated(args.rig) if args.validate else load_rig(args.rig)
+    if args.validate:
+        print(f"{args.rig}: valid (conforms to {RIG_SCHEMA_ID} and loads)")
     print(rig.summary())
     summary_of(args).figures(rig=rig.to_dict())
     return 0

@@ -9,7 +9,8 @@ coloured scene for colour matching - and runs camcal's verbs on those
 images: ``calibrate board``, ``distortion fit``, ``stmap``, ``rectify``,
 ``solve``, ``colour fit``, ``colour match``, ``colour export`` and
 ``blender import``. Each stage compares what it recovered with the truth,
-against the tolerance its issue set, and adds sections to
+against a tolerance named by its source (the bound a test of the same
+step asserts, a peer's figure on the same data, a probability), and adds sections to
 ``DIR/report.html``.
 
 Stages are an ordered list (:data:`STAGES`): a name and a function

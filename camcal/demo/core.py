@@ -104,7 +104,7 @@ class DemoConfig:
 #: What ``make demo`` runs.
 FULL = DemoConfig()
 #: A small real run for the fast tests: 6 board views, 8 samples, no SfM. Its renders are
-#: noisier and its views fewer than the tolerances of the issues assume: the calibration rows
+#: noisier and its views fewer than the tolerances of the synthetic tests assume: the calibration rows
 #: of a QUICK run may miss them (the tests check those that hold; ``make demo`` runs FULL).
 QUICK = DemoConfig(n_board_views=6, samples=8,
                    stages=("render", "calibrate board", "rig export", "distortion fit", "rectify", "colour fit",

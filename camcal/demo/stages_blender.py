@@ -43,7 +43,7 @@ def stage_blender_import(ctx: DemoContext) -> StageResult:
     for camera in rig.cameras:
         pinhole = dataclasses.replace(camera, distortion=Distortion.none())
         err = float(np.max(np.linalg.norm(np.asarray(projected[camera.name]) - pinhole.project(X), axis=1)))
-        rows.append(DemoRow(stage, f"{camera.name}: Blender projection vs rig (worst)", 0.0, err, err, 1e-3, "px", "issue 9"))
+        rows.append(DemoRow(stage, f"{camera.name}: Blender projection vs rig (worst)", 0.0, err, err, 1e-3, "px", "Blender projection test (tests/addon/test_addon_importer.py)"))
     body = ("".join(f"<pre>{html.escape(command_line(a, ctx))}</pre>" for a in commands)
             + "<p>The .blend files hold the rig's cameras (exact intrinsics as lens, shift and pixel aspect), "
               "the lens as a MovieClip with a Movie Distortion compositor, and for the SfM rig the keyframed "

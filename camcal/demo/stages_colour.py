@@ -22,7 +22,15 @@ __all__ = [
 ]
 
 
-#: colour-science's methods compared with ``colour fit`` (issue 12: the best is an oracle
+# Where each row's tolerance comes from, as the demo prints it.
+_RENDER_NOISE = "sensor noise of the colour fit tests (0.2 %)"
+_PEER_COLOUR_SCIENCE = "colour-science's best method on the same patches"
+_MATCH_TEST = "colour match test (tests/pipelines/test_colour_match_stereo.py)"
+_OWN_ERRORS_SUM = "the sum of both cameras' own errors"
+_EXPORT_TEST = "colour export tests (tests/colour/export/)"
+
+
+#: colour-science's methods compared with ``colour fit`` (the best is an oracle
 #: pick, on the independent set itself).
 _COLOUR_SCIENCE = (
     [("Cheung 2004", {"terms": t}) for t in (3, 5, 7, 8, 10, 11, 14, 16, 17, 19, 20, 22)]
@@ -89,12 +97,12 @@ def stage_colour_fit(ctx: DemoContext) -> StageResult:
         kept = [found.reference.patch_names.index(n) for n in found.patches.names]
         relative = np.abs(found.patches.RGB / chart_rgb[kept] - 1.0)
         rows.append(DemoRow(stage, f"{name} chart RGB vs simulated sensor (worst)", 0.0, 100 * float(relative.max()),
-                            100 * float(relative.max()), 0.2, "%", "issue 12 noise"))
+                            100 * float(relative.max()), 0.2, "%", _RENDER_NOISE))
         test = read_patch_csv(test_csv)
         peer, label = _colour_science_best(found.patches, test, found.reference.white_XYZ)
         ours = float(load_fit(fit_path).evaluation["test"]["mean"])
         rows.append(DemoRow(stage, f"{name} independent mean dE2000 (vs colour-science)", 0.0, ours, ours, peer,
-                            "dE00", "issue 12"))
+                            "dE00", _PEER_COLOUR_SCIENCE))
         outputs.append((f"{name} colour fit ({name}.colour.json)", fit_path))
         summary = (report_dir / "summary.txt").read_text()
         body += (f"<h3>{html.escape(name)}: {html.escape(truth.sensors[name])} under {truth.illuminant}</h3>"
@@ -144,7 +152,7 @@ def stage_colour_match(ctx: DemoContext) -> StageResult:
     right_rgb = albedos["right"][1]
     dE = delta_E(left_fit.apply(match.apply(right_rgb)), left_fit.apply(right_rgb @ N.T), left_fit.target_white_XYZ)
     rows.append(DemoRow(stage, "match (image route) vs true N, mean dE00", 0.0, float(dE.mean()),
-                        float(dE.mean()), 0.5, "dE00", "issue 8"))
+                        float(dE.mean()), 0.5, "dE00", _MATCH_TEST))
     outputs.append(("camera match right -> left, image route (match_right_to_left.colour.json)", image_match))
     ctx.artifacts["colour_match"] = image_match
     # chart route: both characterisations on the same chart, judged on the independent set
@@ -160,7 +168,7 @@ def stage_colour_match(ctx: DemoContext) -> StageResult:
     own = sum(float(load_fit(fits[n]).evaluation["test"]["mean"]) for n in ("left", "right"))
     after = float(chart.evaluation["test"]["mean"])
     rows.append(DemoRow(stage, "match (chart route) camera-to-camera dE00", 0.0, after, after, own,
-                        "dE00", "issue 8: < sum of own errors"))
+                        "dE00", _OWN_ERRORS_SUM))
     outputs.append(("camera match right -> left, chart route (match_chart.colour.json)", chart_match))
     before = chart.evaluation["before"]["mean"]
     pictures = [report_dir / f for f in ("target.png", "source_before.png", "source_after.png",
@@ -174,7 +182,7 @@ def stage_colour_match(ctx: DemoContext) -> StageResult:
             + "".join(img_tag(ctx, p, width=320) for p in pictures if p.is_file())
             + f"<pre>{html.escape(command_line(chart_argv, ctx))}</pre><pre>{html.escape(chart.summary())}</pre>"
             f"<p>Chart route: both cameras to XYZ through their characterisations; camera-to-camera CIEDE2000 on "
-            f"the independent set {before:.2f} before, {after:.2f} after the match (issue 8 asks for less than "
+            f"the independent set {before:.2f} before, {after:.2f} after the match (the tolerance is "
             f"the sum of the two cameras' own errors, {own:.2f}).</p>")
     return StageResult(tuple(rows), tuple(outputs), (ReportSection("Colour match between the cameras", body, "colour-match"),))
 
@@ -232,10 +240,10 @@ def stage_colour_export(ctx: DemoContext) -> StageResult:
         what = f"{name} OCIO space vs fit"
         if fit.model.kind == "matrix3x3":
             err = float(np.abs(got - truth).max())
-            rows.append(DemoRow(stage, what + ", worst |XYZ|", 0.0, err, err, 1e-5, "Y=1", "issue 7"))
+            rows.append(DemoRow(stage, what + ", worst |XYZ|", 0.0, err, err, 1e-5, "Y=1", _EXPORT_TEST))
         else:
             err = float(delta_E(got, truth, D65).max())
-            rows.append(DemoRow(stage, what + ", worst dE00", 0.0, err, err, 0.2, "dE00", "issue 7"))
+            rows.append(DemoRow(stage, what + ", worst dE00", 0.0, err, err, 0.2, "dE00", _EXPORT_TEST))
         icc = ctx.path("icc", f"{name}.icc")
         icc_argv = ["colour", "export", str(path), "--icc", str(icc)]
         run_cli(icc_argv, stage)
@@ -247,7 +255,7 @@ def stage_colour_export(ctx: DemoContext) -> StageResult:
             keep = D50[:, 1] > 0.01  # CIEDE2000 of near-black says nothing
             err = float(delta_E(lcms_to_XYZ(lcms, icc.read_bytes(), codes)[keep], D50[keep], D50_XYZ).max())
         rows.append(DemoRow(stage, f"{name} ICC (LittleCMS) vs fit, worst dE00", 0.0, err, err, 0.2,
-                            "dE00", "issue 7"))
+                            "dE00", _EXPORT_TEST))
     if match_path:
         match = load_match(match_path)
         look = look_name(match.source, match.target)
@@ -256,7 +264,7 @@ def stage_colour_export(ctx: DemoContext) -> StageResult:
         got = _ocio_apply(config.getProcessor(ocio.LookTransform(src=data, dst=data, looks=look)), rgb)
         err = float(np.abs(got - match.apply(rgb)).max())
         rows.append(DemoRow(stage, "match Look vs match file, worst |RGB|", 0.0, err, err, 1e-5, "RGB",
-                            "issue 7"))
+                            _EXPORT_TEST))
     clfs = sorted(ocio_dir.rglob("*.clf"))
     outputs += [(f"baked transform ({p.name})", p) for p in clfs]
     spaces = [colour_space_name(name) for name in fits]

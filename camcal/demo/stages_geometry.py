@@ -26,6 +26,15 @@ __all__ = [
 ]
 
 
+# Where each row's tolerance comes from, as the demo prints it: the bound the synthetic test of the
+# same step asserts at the noise it names, or a probability.
+_RIG_TEST = "synthetic rig test (tests/geometry/test_zhang.py), 0.1 px noise"
+_PLUMB_LINE_TEST = "plumb-line test (tests/geometry/test_plumbline.py), 0.2 px noise"
+_GAUSSIAN_TAIL = "2-D Gaussian, exceeded with probability 0.27 %"
+_RECTIFY_TEST = "rectification test (tests/geometry/test_rectify.py), 0.2 px noise"
+_SOLVE_TEST = "synthetic solve test (tests/pipelines/test_solve.py)"
+
+
 # -- stage: calibrate board ----------------------------------------------------------------
 
 
@@ -51,21 +60,21 @@ def stage_calibrate_board(ctx: DemoContext) -> StageResult:
         true = truth.rig.camera(camera.name)
         for i, name in ((0, "fx"), (1, "fy")):
             t_, r_ = true.K[i, i], camera.K[i, i]
-            rows.append(DemoRow(stage, f"{camera.name} {name} error", t_, r_, 100 * (r_ - t_) / t_, 0.1, "%", "issue 3"))
+            rows.append(DemoRow(stage, f"{camera.name} {name} error", t_, r_, 100 * (r_ - t_) / t_, 0.1, "%", _RIG_TEST))
         for i, name in ((0, "cx"), (1, "cy")):
             t_, r_ = true.K[i, 2], camera.K[i, 2]
-            rows.append(DemoRow(stage, f"{camera.name} {name}", t_, r_, r_ - t_, 0.3, "px", "issue 3"))
+            rows.append(DemoRow(stage, f"{camera.name} {name}", t_, r_, r_ - t_, 0.3, "px", _RIG_TEST))
         t_, r_ = true.distortion.params["lambda"], camera.distortion.params["lambda"]
-        rows.append(DemoRow(stage, f"{camera.name} division lambda", t_, r_, 100 * (r_ - t_) / t_, 2.0, "%", "issue 4"))
+        rows.append(DemoRow(stage, f"{camera.name} division lambda", t_, r_, 100 * (r_ - t_) / t_, 2.0, "%", _PLUMB_LINE_TEST))
     left_t, right_t = truth.rig.camera("left"), truth.rig.camera("right")
     left_r, right_r = result.rig.camera("left"), result.rig.camera("right")
     baseline_t = float(np.linalg.norm(right_t.c - left_t.c))
     baseline_r = float(np.linalg.norm(right_r.c - left_r.c))
     rows.append(DemoRow(stage, "baseline length error", baseline_t, baseline_r,
-                        100 * (baseline_r - baseline_t) / baseline_t, 0.1, "%", "issue 3"))
+                        100 * (baseline_r - baseline_t) / baseline_t, 0.1, "%", _RIG_TEST))
     relative_t, relative_r = right_t.R @ left_t.R.T, right_r.R @ left_r.R.T
     rows.append(DemoRow(stage, "relative rotation error", 0.0, rotation_angle_deg(relative_r @ relative_t.T),
-                        rotation_angle_deg(relative_r @ relative_t.T), 0.02, "deg", "issue 3"))
+                        rotation_angle_deg(relative_r @ relative_t.T), 0.02, "deg", _RIG_TEST))
     sigma_row, sigma_text = _sigma_row(stage, board, detections["left"], result.rig.camera("left"), truth)
     rows.append(sigma_row)
     residual_plot = plot_residuals(ctx.path("plots", "board_residuals.png"), result.rig.cameras,
@@ -99,7 +108,7 @@ def _sigma_row(stage: str, board, detections, camera, truth) -> tuple[DemoRow, s
             f"calibration is one draw of its error: a 2-D Gaussian error exceeds {TOLERANCE_SIGMA:.2f} sigma with "
             f"probability 0.27 %, the row's tolerance.")
     return DemoRow(stage, "left projection error / sigma, RMS over the frame", error, sigma, ratio, TOLERANCE_SIGMA,
-                   "sigma", "issue 30"), text
+                   "sigma", _GAUSSIAN_TAIL), text
 
 
 # -- stage: distortion fit (+ ST-maps) ----------------------------------------------------
@@ -121,11 +130,11 @@ def stage_distortion_fit(ctx: DemoContext) -> StageResult:
     centre_t = true.K[:2, 2]
     centre_r = np.asarray(distortion.center if distortion.center is not None else centre_t)
     rows = [
-        DemoRow(stage, "left division lambda (plumb-line)", lam_t, lam_r, 100 * (lam_r - lam_t) / lam_t, 2.0, "%", "issue 4"),
+        DemoRow(stage, "left division lambda (plumb-line)", lam_t, lam_r, 100 * (lam_r - lam_t) / lam_t, 2.0, "%", _PLUMB_LINE_TEST),
         DemoRow(stage, "left distortion centre (plumb-line)", 0.0, float(np.linalg.norm(centre_r - centre_t)),
-                float(np.linalg.norm(centre_r - centre_t)), 3.0, "px", "issue 4"),
+                float(np.linalg.norm(centre_r - centre_t)), 3.0, "px", _PLUMB_LINE_TEST),
         DemoRow(stage, "left straightness after correction", 0.0, float(fitted["straightness_rms_px"]),
-                float(fitted["straightness_rms_px"]), 0.15, "px", "issue 4"),
+                float(fitted["straightness_rms_px"]), 0.15, "px", _PLUMB_LINE_TEST),
     ]
     board_rig = ctx.need("board_rig", stage)
     stmap_dir = ctx.out_dir / "stmap"
@@ -192,16 +201,16 @@ def stage_rectify(ctx: DemoContext) -> StageResult:
     found = [detect_board(board, cv2.imread(str(written_dir / n / Path(chosen[n][0]).name), cv2.IMREAD_GRAYSCALE), n)
              for n in ("left", "right")]
     rows = [DemoRow(stage, "vertical disparity RMS, true corners", 0.0, truth_disparity.rms_px,
-                    truth_disparity.rms_px, 0.3, "px", "issue 6")]
+                    truth_disparity.rms_px, 0.3, "px", _RECTIFY_TEST)]
     if all(d is not None for d in found):
         ids_l, ids_r = list(found[0].ids), list(found[1].ids)
         common = [i for i in ids_l if i in ids_r]
         dy = np.array([found[0].corners_px[ids_l.index(i), 1] - found[1].corners_px[ids_r.index(i), 1] for i in common])
         rms = float(np.sqrt(np.mean(dy**2)))
-        rows.append(DemoRow(stage, "vertical disparity RMS, detected in written pair", 0.0, rms, rms, 0.3, "px", "issue 6"))
+        rows.append(DemoRow(stage, "vertical disparity RMS, detected in written pair", 0.0, rms, rms, 0.3, "px", _RECTIFY_TEST))
     else:
         rows.append(DemoRow(stage, "vertical disparity RMS, detected in written pair", 0.0, float("nan"),
-                            float("nan"), 0.3, "px", "issue 6"))
+                            float("nan"), 0.3, "px", _RECTIFY_TEST))
     figures = [plot_epipolar(ctx.path("plots", f"rectified_{Path(chosen['left'][i]).stem}.png"),
                               written_dir / "left" / Path(chosen["left"][i]).name,
                               written_dir / "right" / Path(chosen["right"][i]).name)
@@ -259,10 +268,10 @@ def stage_solve(ctx: DemoContext) -> StageResult:
     n_images = 2 * len(truth.rig.frames)
     solved = {(name, frame.index): rig.camera_at_frame(name, frame.index) for frame in rig.frames for name in frame.images}
     registered = len(solved)
-    rows = [DemoRow(stage, "images registered", n_images, registered, n_images - registered, 0, "images", "issue 5")]
+    rows = [DemoRow(stage, "images registered", n_images, registered, n_images - registered, 0, "images", _SOLVE_TEST)]
     for camera in rig.cameras:
         f_t, f_r = truth.rig.camera(camera.name).K[0, 0], camera.K[0, 0]
-        rows.append(DemoRow(stage, f"{camera.name} focal error", f_t, f_r, 100 * (f_r - f_t) / f_t, 0.5, "%", "issue 5"))
+        rows.append(DemoRow(stage, f"{camera.name} focal error", f_t, f_r, 100 * (f_r - f_t) / f_t, 0.5, "%", _SOLVE_TEST))
     # frames are numbered in order of the registered frames: match them by image name
     index_of = {frame.index: int(Path(next(iter(frame.images.values()))).stem) for frame in rig.frames}
     keys = sorted(solved)
@@ -271,13 +280,13 @@ def stage_solve(ctx: DemoContext) -> StageResult:
     centre_err = max(float(np.linalg.norm(s * R_align @ solved[k].c + t - true_cams[k].c)) for k in keys)
     rot_err = max(rotation_angle_deg(true_cams[k].R @ (solved[k].R @ R_align.T).T) for k in keys)
     size = truth.room_extent_m
-    rows.append(DemoRow(stage, "worst camera rotation error", 0.0, rot_err, rot_err, 0.1, "deg", "issue 5"))
+    rows.append(DemoRow(stage, "worst camera rotation error", 0.0, rot_err, rot_err, 0.1, "deg", _SOLVE_TEST))
     rows.append(DemoRow(stage, "worst camera centre error (% of scene)", 0.0, 100 * centre_err / size,
-                        100 * centre_err / size, 0.5, "%", "issue 5"))
+                        100 * centre_err / size, 0.5, "%", _SOLVE_TEST))
     right_t, right_r = truth.rig.camera("right"), rig.camera("right")
     d_t, d_r = right_t.c / np.linalg.norm(right_t.c), right_r.c / np.linalg.norm(right_r.c)
     angle = float(np.degrees(np.arccos(np.clip(d_t @ d_r, -1.0, 1.0))))
-    rows.append(DemoRow(stage, "baseline direction error (rig constraint)", 0.0, angle, angle, 0.1, "deg", "issue 5"))
+    rows.append(DemoRow(stage, "baseline direction error (rig constraint)", 0.0, angle, angle, 0.1, "deg", _SOLVE_TEST))
     quality = ", ".join(f"{c.name} {c.quality['rms_px']:.3f} px" for c in rig.cameras)
     residual_plot = plot_residuals(ctx.path("plots", "solve_residuals.png"), rig.cameras,
                                     *_sfm_residuals(out / "sparse" / "best", [c.name for c in rig.cameras]),

@@ -12,7 +12,7 @@ from camcal.model.rig import Rig
 
 __all__ = ["stage_rig_export"]
 
-_USD_TOLERANCE_PX = 1e-3  # issue 20: USD camera projection vs camcal
+_USD_TOLERANCE_PX = 1e-3  # USD camera projection vs camcal, as the USD export tests hold it
 
 
 def stage_rig_export(ctx: DemoContext) -> StageResult:
@@ -61,7 +61,7 @@ def stage_rig_export(ctx: DemoContext) -> StageResult:
         cv_pixels, _ = cv2.projectPoints(in_first, cv2.Rodrigues(R)[0], T, K, D)
         observed = float(np.abs(cv_pixels.reshape(-1, 2) - pixels).max())
         rows.append(DemoRow(stage, f"{camera.name} OpenCV YAML: cv2.projectPoints vs camcal (max)", printed[camera.name],
-                            observed, observed, printed[camera.name] * 1.05 + 1e-9, "px", "issue 20 (printed residual)"))
+                            observed, observed, printed[camera.name] * 1.05 + 1e-9, "px", "the residual the export printed"))
         frustum = UsdGeom.Camera(usd_stage.GetPrimAtPath(f"/rig/{camera.name}")).GetCamera(Usd.TimeCode.Default()).frustum
         M = np.array(frustum.ComputeViewMatrix()) @ np.array(frustum.ComputeProjectionMatrix())
         clip = np.column_stack([X * [1.0, -1.0, -1.0], np.ones(len(X))]) @ M
@@ -69,7 +69,7 @@ def stage_rig_export(ctx: DemoContext) -> StageResult:
         usd_pixels = np.column_stack([(ndc[:, 0] + 1) / 2 * width - 0.5, (1 - ndc[:, 1]) / 2 * height - 0.5])
         usd_error = float(np.abs(usd_pixels - ideal).max())
         rows.append(DemoRow(stage, f"{camera.name} USD: Gf.Camera vs camcal pinhole (max)", 0.0, usd_error, usd_error,
-                            _USD_TOLERANCE_PX, "px", "issue 20"))
+                            _USD_TOLERANCE_PX, "px", "USD export test (tests/io/test_usd_interchange.py)"))
     body = "".join(f"<pre>{html.escape(c)}</pre>" for c in commands) + (
         "<p>OpenCV holds no division lens: the YAML carries the nearest OpenCV lens and the export printed its "
         "residual; USD cameras hold no lens (kept in customData, ST-maps apply it in comp).</p>")

@@ -6,7 +6,7 @@ in real or rendered images are not like that: one image's errors share its
 viewing angle, blur and sampling, and a lens model that is slightly wrong
 errs the same way on every image. The intrinsics then move more from scene
 to scene than the observation count suggests, and the covariance sigma is
-too small for the error (issue 18: 2-5 sigma on rendered rigs).
+too small for the error (2-5 sigma on rendered rigs).
 
 The jackknife solves the refinement ``n`` times, each time without one
 frame's observations (both cameras of a rig position; with more than

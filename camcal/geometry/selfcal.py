@@ -451,7 +451,7 @@ def self_calibrate(
     section 6) the posterior's, the priors' information included; where the
     posterior sigma stays near the prior's the report says that the images do
     not determine the value. A principal point held at the centre instead
-    moves its offset into the focal length and the lens (issue 28: 4-9 %
+    moves its offset into the focal length and the lens (4-9 %
     focal errors on lateral slides). Uncertainty: features located
     in images share errors within an image (viewing angle, blur, sampling),
     which the covariance, built for independent noise, does not see; on
