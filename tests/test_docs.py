@@ -121,6 +121,7 @@ def run_block(block: Block, folder: Path, env: dict[str, str]) -> None:
         command = [sys.executable, str(script)]
     run = subprocess.run(command, cwd=folder, env=env, capture_output=True, text=True, timeout=1800)
     assert run.returncode == 0, f"{block.where} failed ({run.returncode}):\n{block.text}\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"
+    assert "is deprecated, use" not in run.stderr, f"{block.where} uses a former option spelling:\n{run.stderr}"
 
 
 def _runnable(path: Path, kinds: tuple[str, ...]) -> list[Block]:
