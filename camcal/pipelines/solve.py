@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import shutil
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,7 +50,8 @@ from camcal.geometry.bundle import (
 )
 from camcal.geometry.jackknife import METHODS as JACKKNIFE_METHODS
 from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, self_calibrate
-from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sparse_model
+from camcal.geometry.sfm import (camera_name, check_every_camera_registered, reject_outliers, relative_poses,
+                                 sparse_model)
 from camcal.model.colmap import camera_from_colmap
 from camcal.io.frames import imwrite
 from camcal.io.ply import write_points_ply
@@ -431,6 +433,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
             ]
         )
         first_pass = max(models.values(), key=lambda r: r.num_reg_images())
+        per_camera = Counter(staged_name.split("/")[0] for staged_name in staged)
+        check_every_camera_registered(first_pass, {name: per_camera[name] for name in folders})
         db = pycolmap.Database.open(database)
         try:
             pycolmap.apply_rig_config([rig_config], db, first_pass)
