@@ -228,6 +228,27 @@ def _stage_images(images: dict[str, list[Path]], staging: Path, every: int = 1) 
     return staged
 
 
+def _check_one_size_per_camera(staged: dict[str, Path], image_dir: Path) -> None:
+    """Refuse a camera whose staged images differ in size (a plate with a frame of another size), naming both files.
+
+    COLMAP gives each camera one size (its folder, ``CameraMode.PER_FOLDER``)
+    and skips an image of another size, which would leave the camera short
+    of frames or unregistered with no word why. Sizes are read from the
+    staged files' headers (:func:`camcal.io.headers.declared_size`).
+    """
+    first: dict[str, tuple[str, tuple[int, int]]] = {}
+    for name in staged:
+        size = declared_size(image_dir / name)
+        if size is None:
+            continue
+        camera = name.split("/")[0]
+        first_name, first_size = first.setdefault(camera, (name, size))
+        if size != first_size:
+            raise CamcalError(f"camera {camera!r}: {staged[name]} is {size[0]}x{size[1]} but "
+                              f"{staged[first_name]} is {first_size[0]}x{first_size[1]}: a camera's images must all "
+                              "have one size")
+
+
 def _stage_masks(masks: dict[str, list[Path]], staged: dict[str, Path], image_dir: Path, mask_dir: Path) -> Path:
     """Each matte as COLMAP's mask of its image, ``mask_dir/<camera>/<k>.<suffix>.png``; one matte read at a time."""
     for camera, mattes in masks.items():
@@ -394,6 +415,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
     free_pp = dict(refine_principal_point=principal_point != "centre", default_priors=principal_point == "auto")
     staged = _stage_images(images, image_dir, every)
+    _check_one_size_per_camera(staged, image_dir)
     image_names = list(staged)
     database = out_dir / "database.db"
 

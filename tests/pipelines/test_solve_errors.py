@@ -6,7 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
+import camcal
 from camcal.base.errors import CamcalError
+from camcal.cli import build_parser, main
 from camcal.geometry.sfm import check_every_camera_registered
 from camcal.pipelines.solve import solve_sfm
 from camcal.synthetic import render_stereo_sequence
@@ -49,3 +51,68 @@ def test_a_rig_whose_second_camera_sees_only_noise_stops_before_the_rig_with_not
         solve_sfm({"left": tmp_path / "in" / "left", "right": tmp_path / "in" / "right"}, tmp_path / "out",
                   max_num_features=512)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in"]
+
+
+def test_frames_go_with_a_plate_given_as_folder_or_images_entry():
+    parser = build_parser()
+    by_folder = parser.parse_args(["solve", "plates/left.%04d.exr", "plates/right.####.dpx", "--frames", "1-3",
+                                   "--out", "s"])
+    by_images = parser.parse_args(["solve", "plates", "--images", "left=left.%04d.exr", "right=right.%04d.exr",
+                                   "--frames", "1-3", "--out", "s"])
+    assert by_folder.frames == by_images.frames == "1-3"
+
+
+def test_api_refuses_frames_without_a_plate(tmp_path):
+    (tmp_path / "left").mkdir()
+    with pytest.raises(CamcalError, match="frames '1-3' given, but no folder or images entry is a plate"):
+        camcal.solve([tmp_path / "left"], tmp_path / "out", frames="1-3")
+    with pytest.raises(CamcalError, match="frames '1-3' given, but no folder or images entry is a plate"):
+        camcal.solve(tmp_path, tmp_path / "out", images={"left": "*_L.png"}, frames="1-3")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["left"]
+
+
+def _write(path, size, rng):
+    assert cv2.imwrite(str(path), rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8))
+
+
+BROKEN_MOVIE = b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 8
+
+
+def _empty_folder(root, rng):
+    (root / "empty").mkdir()
+    return ["empty"], "no images (.jpg", "empty"
+
+
+def _empty_glob(root, rng):
+    (root / "flat").mkdir()
+    for name in ("a_L.png", "b_L.png"):
+        _write(root / "flat" / name, (64, 48), rng)
+    return ["flat", "--images", "left=*_L.png", "right=*_R.png"], "--images right=*_R.png: no image matches", "flat"
+
+
+def _broken_movie(root, rng):
+    (root / "flat").mkdir()
+    (root / "flat" / "left.mp4").write_bytes(BROKEN_MOVIE)
+    (root / "flat" / "right.mp4").write_bytes(BROKEN_MOVIE)
+    return ["flat", "--images", "left=left.mp4", "right=right.mp4"], "left.mp4: cannot be decoded as a video", "flat"
+
+
+def _plate_of_two_sizes(root, rng):
+    (root / "plates").mkdir()
+    for camera in ("left", "right"):
+        for frame in range(1001, 1005):
+            _write(root / "plates" / f"{camera}.{frame:04d}.png",
+                   (160, 100) if (camera, frame) == ("right", 1003) else (160, 120), rng)
+    return (["plates/left.%04d.png", "plates/right.%04d.png", "--features", "200"],
+            "camera 'right': plates/right.1003.png is 160x100 but plates/right.1001.png is 160x120", "plates")
+
+
+@pytest.mark.parametrize("make", [_empty_folder, _empty_glob, _broken_movie, _plate_of_two_sizes],
+                         ids=lambda make: make.__name__.strip("_"))
+def test_bad_images_are_one_line_exit_2_and_nothing_written(make, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    argv, reason, given = make(tmp_path, np.random.default_rng(0))
+    assert main(["solve", *argv, "--out", "out"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("camcal solve: ")]
+    assert len(errors) == 1 and errors[0].startswith("camcal: error: ") and reason in errors[0], errors
+    assert sorted(p.name for p in tmp_path.iterdir()) == [given]
