@@ -194,7 +194,8 @@ def solve(
         Plates (a folder or an ``images`` entry with a frame placeholder,
         ``left.%04d.exr`` / ``left.####.dpx``): these frames, e.g.
         ``"1001-1100"`` (default: every frame on disk); a missing one is
-        named before anything is written (:func:`camcal.io.sequence.sequence_paths`).
+        named before anything is written (:func:`camcal.io.sequence.sequence_paths`);
+        given without a plate, an error.
     masks : mapping of str to str, optional
         Camera -> its matte sequence (same ``frames``), white where no
         feature may be taken (moving actors, the sky).
@@ -246,6 +247,9 @@ def solve(
     folders = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(folder) for folder in folders]
     if uncertainty not in UNCERTAINTY:
         raise CamcalError(f"unknown uncertainty {uncertainty!r}, expected one of: {', '.join(UNCERTAINTY)}")
+    if frames is not None and not any(map(is_sequence_pattern, [*folders, *(images or {}).values()])):
+        raise CamcalError(f"frames {frames!r} given, but no folder or images entry is a plate with a frame "
+                          "placeholder (left.%04d.exr, left.####.dpx)")
     if images:
         if len(folders) != 1:
             raise CamcalError("--images NAME=GLOB selects images inside one folder: give exactly one, "

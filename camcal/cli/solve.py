@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.api.reconstruction import UNCERTAINTY
-from camcal.cli.options import every_option, handler, loss_option, named_option, out_option
+from camcal.cli.options import every_option, handler, loss_option, named_option, only_with, out_option
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -22,6 +22,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", metavar="RANGE", help="plates given as IMAGES_DIR or --images with a frame "
                         "placeholder (left.%%04d.exr, left.####.dpx): these frames (1001-1100, 1001-1100x2; all on disk "
                         "by default), every one must exist")
+    only_with(parser, "--frames", "a frame placeholder in IMAGES_DIR or --images (left.%04d.exr)", _plates_given)
     named_option(parser, "--mask", "NAME=PATTERN", "a camera's matte sequence (left=mattes/left.%%04d.exr, the same "
                  "--frames; alpha, else the first channel): no feature is taken where it is white (moving actors, the sky)")
     parser.add_argument("--rig", metavar="KNOWN.rig.json",
@@ -75,6 +76,13 @@ def register(parser: argparse.ArgumentParser) -> None:
         "camcal solve shots --images left='*_L.jpg' right='*_R.jpg' --model kannala-brandt --rig "
         "board.rig.json --out solve",
     ])
+
+
+def _plates_given(args: argparse.Namespace) -> bool:
+    """Whether an image folder or an --images entry is a plate (has a frame placeholder)."""
+    from camcal.io.sequence import is_sequence_pattern
+
+    return any(map(is_sequence_pattern, [*args.folders, *(args.camera or {}).values()]))
 
 
 def _solve(args: argparse.Namespace) -> int:

@@ -17,6 +17,7 @@ CVPR.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +38,7 @@ __all__ = [
     "MIN_TRIANGULATION_ANGLE_DEG",
     "SparseModel",
     "camera_name",
+    "check_every_camera_registered",
     "reject_outliers",
     "relative_poses",
     "sparse_model",
@@ -213,6 +215,40 @@ def camera_name(reconstruction, camera_id: int) -> str:
         if image.camera_id == camera_id:
             return image.name.split("/", 1)[0]
     raise CamcalError(f"COLMAP camera {camera_id} has no registered image")
+
+
+def check_every_camera_registered(reconstruction, image_counts: Mapping[str, int]) -> None:
+    """Refuse a reconstruction in which a camera of a rig has no registered image.
+
+    COLMAP takes each camera's pose in the rig (``sensor_from_rig``) from an
+    unconstrained first pass; a camera none of whose images that pass
+    registered stops ``apply_rig_config`` with an internal error. This names
+    the camera instead.
+
+    Parameters
+    ----------
+    reconstruction : pycolmap.Reconstruction
+        The first pass (anything whose ``images`` values have ``name``,
+        ``camera/<file>``, and ``has_pose``).
+    image_counts : mapping of str to int
+        Camera name -> how many of its images went into the pass.
+
+    Raises
+    ------
+    CamcalError
+        Naming every camera with no registered image, and what to try.
+    """
+    registered = {name: 0 for name in image_counts}
+    for image in reconstruction.images.values():
+        camera = image.name.split("/", 1)[0]
+        if image.has_pose and camera in registered:
+            registered[camera] += 1
+    missing = [name for name, count in registered.items() if count == 0]
+    if missing:
+        which = ", ".join(f"{name!r} (0 of {image_counts[name]} images)" for name in missing)
+        raise CamcalError(f"structure from motion registered no image of camera {which}, so the cameras cannot "
+                          "form a rig: give its images more overlap with the other cameras' views, mask what moves "
+                          "(--mask), name a fisheye lens (--model kannala-brandt), or solve that camera alone")
 
 
 def _reprojection_rms(reconstruction, rig: Rig, camera_of_sensor: dict[int, str], frame_of_image: dict[str, int]):

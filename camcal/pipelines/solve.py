@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import shutil
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,7 +50,8 @@ from camcal.geometry.bundle import (
 )
 from camcal.geometry.jackknife import METHODS as JACKKNIFE_METHODS
 from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, self_calibrate
-from camcal.geometry.sfm import camera_name, reject_outliers, relative_poses, sparse_model
+from camcal.geometry.sfm import (camera_name, check_every_camera_registered, reject_outliers, relative_poses,
+                                 sparse_model)
 from camcal.model.colmap import camera_from_colmap
 from camcal.io.frames import imwrite
 from camcal.io.ply import write_points_ply
@@ -226,6 +228,27 @@ def _stage_images(images: dict[str, list[Path]], staging: Path, every: int = 1) 
     return staged
 
 
+def _check_one_size_per_camera(staged: dict[str, Path], image_dir: Path) -> None:
+    """Refuse a camera whose staged images differ in size (a plate with a frame of another size), naming both files.
+
+    COLMAP gives each camera one size (its folder, ``CameraMode.PER_FOLDER``)
+    and skips an image of another size, which would leave the camera short
+    of frames or unregistered with no word why. Sizes are read from the
+    staged files' headers (:func:`camcal.io.headers.declared_size`).
+    """
+    first: dict[str, tuple[str, tuple[int, int]]] = {}
+    for name in staged:
+        size = declared_size(image_dir / name)
+        if size is None:
+            continue
+        camera = name.split("/")[0]
+        first_name, first_size = first.setdefault(camera, (name, size))
+        if size != first_size:
+            raise CamcalError(f"camera {camera!r}: {staged[name]} is {size[0]}x{size[1]} but "
+                              f"{staged[first_name]} is {first_size[0]}x{first_size[1]}: a camera's images must all "
+                              "have one size")
+
+
 def _stage_masks(masks: dict[str, list[Path]], staged: dict[str, Path], image_dir: Path, mask_dir: Path) -> Path:
     """Each matte as COLMAP's mask of its image, ``mask_dir/<camera>/<k>.<suffix>.png``; one matte read at a time."""
     for camera, mattes in masks.items():
@@ -392,6 +415,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
     free_pp = dict(refine_principal_point=principal_point != "centre", default_priors=principal_point == "auto")
     staged = _stage_images(images, image_dir, every)
+    _check_one_size_per_camera(staged, image_dir)
     image_names = list(staged)
     database = out_dir / "database.db"
 
@@ -431,6 +455,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
             ]
         )
         first_pass = max(models.values(), key=lambda r: r.num_reg_images())
+        per_camera = Counter(staged_name.split("/")[0] for staged_name in staged)
+        check_every_camera_registered(first_pass, {name: per_camera[name] for name in folders})
         db = pycolmap.Database.open(database)
         try:
             pycolmap.apply_rig_config([rig_config], db, first_pass)

@@ -81,6 +81,10 @@ NEEDS_ANOTHER = [
     (["stmap", "r.rig.json", "--camera", "c", "--out", "s", "--distance", "2"], "--distance has no effect without --sigma"),
     (["rectify", "r.rig.json", "--method", "hartley", "--refine", "--matches", "m.csv", "--out", "r.rig.json"],
      "--refine has no effect without --method camera"),
+    (["solve", "images/left", "images/right", "--frames", "1-3", "--out", "s"],
+     "--frames has no effect without a frame placeholder in IMAGES_DIR or --images (left.%04d.exr)"),
+    (["solve", "shots/", "--images", "left=*_L.png", "right=*_R.png", "--frames", "1-3", "--out", "s"],
+     "--frames has no effect without a frame placeholder in IMAGES_DIR or --images (left.%04d.exr)"),
 ]
 
 
