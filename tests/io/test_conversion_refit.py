@@ -147,7 +147,8 @@ def radial_fold(distortion, samples=200001):
     p = distortion.params
     r = np.linspace(0.0, 5.0, samples)
     r2 = r * r
-    radial = r * (1 + r2 * (p["k1"] + r2 * (p["k2"] + r2 * p["k3"]))) / (1 + r2 * (p["k4"] + r2 * (p["k5"] + r2 * p["k6"])))
+    numerator = 1 + r2 * (p["k1"] + r2 * (p["k2"] + r2 * p["k3"]))
+    radial = r * numerator / (1 + r2 * (p["k4"] + r2 * (p["k5"] + r2 * p["k6"])))
     return r[np.argmax(np.diff(radial) <= 0)]
 
 
