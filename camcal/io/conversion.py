@@ -117,6 +117,10 @@ class Refit:
     n_lost : int
         Grid pixels whose ray the source images but the refitted lens does
         not (beyond a rectilinear lens' 90 degrees, or its range).
+    border_usable : float
+        Share of the border's grid pixels the source images one-to-one
+        (a ray, inside the source lens' fold): the border figures and the
+        fit cover these only.
     """
 
     family: str
@@ -127,13 +131,16 @@ class Refit:
     border_rms_px: float
     overscan: float
     n_lost: int = 0
+    border_usable: float = 1.0
 
     def describe(self) -> str:
         """``max / RMS`` inside the image and over the border, in one line."""
         lost = f", {self.n_lost} grid pixels not imaged" if self.n_lost else ""
+        usable = (f" ({100 * self.border_usable:.0f} % of it inside the source lens' fold)"
+                  if self.border_usable < 1.0 else "")
         return (f"max residual {self.max_px:.3g} px, RMS {self.rms_px:.3g} px inside the image; "
                 f"max {self.border_max_px:.3g} px, RMS {self.border_rms_px:.3g} px over the "
-                f"{self.overscan:g} overscan border{lost}")
+                f"{self.overscan:g} overscan border{usable}{lost}")
 
 
 @dataclass(frozen=True)
@@ -430,7 +437,7 @@ def projection_figures(source: Camera, project: Callable[[NDArray[np.float64]], 
     """:func:`residual_figures` of a lens given as its projection ``project(rays) -> distorted pixels`` (NaN where
     it images no ray), for a family camcal has no lens model of."""
     grid, inside = _dense_grid(source.image_size, overscan)
-    rays = source.distortion.rays_from_pixels(grid, source.K)
+    rays = _source_rays(source, grid, inside)
     seen = np.all(np.isfinite(rays), axis=1)
     projected = project(rays[seen])
     distances = np.linalg.norm(projected - grid[seen], axis=1)
@@ -440,7 +447,55 @@ def projection_figures(source: Camera, project: Callable[[NDArray[np.float64]], 
         raise CamcalError(f"camera {source.name!r}: no pixel of the image has its ray imaged by the "
                           f"{family} lens")
     border_max, border_rms = _figures(distances[~inside[seen]])
-    return Refit(family, False, max_px, rms_px, border_max, border_rms, float(overscan), n_lost)
+    usable = float(np.mean(seen[~inside])) if np.any(~inside) else 1.0
+    return Refit(family, False, max_px, rms_px, border_max, border_rms, float(overscan), n_lost, usable)
+
+
+#: Steps along the great circle from the optical axis to a border pixel's ray on which the source lens' image must
+#: move steadily away from its centre (:func:`_source_rays`).
+_FOLD_STEPS = 32
+#: A border pixel's ray must project back onto it within this distance (the source's inverse converged).
+_ROUND_TRIP_PX = 1e-3
+
+
+def _source_rays(camera: Camera, grid: NDArray[np.float64], inside: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """The source camera's rays of the grid's pixels, NaN for a border pixel beyond the lens' fold.
+
+    A lens with a polynomial or rational radial function turns over at
+    some angle (its distorted radius stops growing): past that the pixels
+    of the overscan border are imaged twice, and their ray (Newton's
+    inverse) lies on the folded branch, where no lens of another family
+    follows, so that fitting them drags the fit inside the image away.
+    A border pixel's ray ``v`` (angle ``theta`` from the axis, azimuth
+    ``phi``) is kept when the distance from the image of the axis to the
+    source's image of the rays ``(sin(t theta) cos(phi), sin(t theta)
+    sin(phi), cos(t theta))``, ``t = 1/32 ... 1``, grows strictly: the
+    mapping is one-to-one from the axis out to ``v`` (the monotone radial
+    distortion condition; cf. Kannala & Brandt 2006 on the turning point
+    of their polynomial), and when the source projects ``v`` back onto
+    the pixel (its inverse converged). Pixels inside the image keep their
+    ray.
+    """
+    rays = camera.distortion.rays_from_pixels(grid, camera.K)
+    border = ~inside & np.all(np.isfinite(rays), axis=1)
+    if not np.any(border):
+        return rays
+    ray = rays[border]
+    theta = np.arctan2(np.hypot(ray[:, 0], ray[:, 1]), ray[:, 2])
+    phi = np.arctan2(ray[:, 1], ray[:, 0])
+    angles = theta[:, None] * np.linspace(0.0, 1.0, _FOLD_STEPS + 1)[None, 1:]
+    path = np.stack([np.sin(angles) * np.cos(phi)[:, None], np.sin(angles) * np.sin(phi)[:, None], np.cos(angles)],
+                    axis=-1).reshape(-1, 3)
+    centre = camera.distortion.project_rays(np.array([[0.0, 0.0, 1.0]]), camera.K)[0]
+    images = camera.distortion.project_rays(path, camera.K).reshape(len(ray), _FOLD_STEPS, 2)
+    with np.errstate(invalid="ignore"):
+        radius = np.linalg.norm(images - centre, axis=2)
+        monotone = np.all(np.diff(radius, axis=1) > 0.0, axis=1) & np.all(np.isfinite(radius), axis=1)
+        # and the ray is the pixel's (the inverse converged): its image is the pixel
+        monotone &= np.linalg.norm(images[:, -1] - grid[border], axis=1) < _ROUND_TRIP_PX
+    folded = np.flatnonzero(border)[~monotone]
+    rays[folded] = np.nan
+    return rays
 
 
 def refit_camera(camera: Camera, family: str, *, overscan: float = DEFAULT_OVERSCAN, K: NDArray[np.float64] | None = None,
@@ -550,7 +605,7 @@ def _fitting_grid(camera: Camera, family: str, overscan: float,
     """The refit's distorted pixels, their rays (at least 3 degrees in front of the image plane unless
     ``fisheye``) and weights (1 inside the image, :data:`_BORDER_WEIGHT` over the border)."""
     grid, inside = _dense_grid(camera.image_size, overscan)
-    rays = camera.distortion.rays_from_pixels(grid, camera.K)
+    rays = _source_rays(camera, grid, inside)
     usable = np.all(np.isfinite(rays), axis=1)
     if not fisheye:  # the others image rays in front of the camera only
         usable &= rays[:, 2] > _MIN_DEPTH * np.linalg.norm(rays, axis=1)

@@ -12,6 +12,7 @@ from camcal.cli import main
 from camcal.io.conversion import EXACT_FAMILIES, FORMAT_FAMILIES, exactness_table, refit_camera
 from camcal.io.interchange import format_of
 from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera
 
 from interchange_rigs import division_rig, fisheye_rig, stereo_rig
 
@@ -130,3 +131,57 @@ def test_the_format_is_read_from_the_file_name(name, fmt):
 def test_an_ambiguous_file_name_asks_for_the_format():
     with pytest.raises(CamcalError, match="cannot tell the format of 'cam.yaml'"):
         format_of("cam.yaml")
+
+
+#: A wide OpenCV rational lens (k1..k6 and thin prism) at 320x240, f = 260 px: its radial function turns over at
+#: about 54 degrees, inside the 1.25 overscan border.
+WIDE_RATIONAL = Distortion("opencv", {"k1": -0.21, "k2": 0.04, "p1": 8e-4, "p2": -1.2e-3, "k3": -0.004, "k4": 0.05,
+                                      "k5": 0.012, "k6": 0.002, "s1": 1.1e-3, "s2": -4e-4})
+WIDE_K = np.array([[260.0, 0.0, 166.3], [0.0, 260.0, 114.6], [0.0, 0.0, 1.0]])
+BROWN_ONLY = dict.fromkeys(("k4", "k5", "k6", "s1", "s2", "s3", "s4"), 0.0)
+
+
+def radial_fold(distortion, samples=200001):
+    """The normalised undistorted radius at which the lens' radial function r (1 + k1 r^2 + ...) / (1 + k4 r^2 +
+    ...) stops growing (the tangential and prism terms, 1e-3 here, left out)."""
+    p = distortion.params
+    r = np.linspace(0.0, 5.0, samples)
+    r2 = r * r
+    numerator = 1 + r2 * (p["k1"] + r2 * (p["k2"] + r2 * p["k3"]))
+    radial = r * numerator / (1 + r2 * (p["k4"] + r2 * (p["k5"] + r2 * p["k6"])))
+    return r[np.argmax(np.diff(radial) <= 0)]
+
+
+def test_a_wide_rational_lens_refit_is_no_worse_inside_the_image_than_the_image_only_fit():
+    """The rational lens folds in the 1.25 overscan border: the border beyond the fold leaves the fit (it dragged
+    the fit to 38.8 px max inside the image), and the figures say how much of the border was usable."""
+    from camcal.model.distortion import fit_distortion
+
+    source = Camera("wide", (320, 240), WIDE_K, WIDE_RATIONAL, np.eye(3), np.zeros(3))
+    image_only = fit_distortion(WIDE_RATIONAL, WIDE_K, source.image_size, "opencv")
+    converted, refit = refit_camera(source, "opencv", fixed=BROWN_ONLY)
+    print(f"image only: max {image_only.max_px:.4g} px, RMS {image_only.rms_px:.4g} px; refit: {refit.describe()}")
+    assert refit.overscan == 1.25 and converted.distortion.model == "opencv"
+    assert refit.rms_px <= 1.05 * image_only.rms_px and refit.max_px <= 1.05 * image_only.max_px
+    # independently: random pixels whose ray lies inside the radial function's fold
+    points, inside, uniform = random_pixels(source, refit.overscan)
+    ideal = WIDE_RATIONAL.undistort(points, WIDE_K)
+    radius = np.linalg.norm((ideal - WIDE_K[:2, 2]) / 260.0, axis=1)
+    back = WIDE_RATIONAL.distort(ideal, WIDE_K)
+    usable = (radius < radial_fold(WIDE_RATIONAL)) & (np.linalg.norm(back - points, axis=1) < 1e-3)
+    assert np.all(usable[inside])
+    distances = independent_distances(source, converted, points)
+    border = ~inside & usable
+    border_rms = np.sqrt(np.mean(distances[border & uniform] ** 2))
+    inner_rms = np.sqrt(np.mean(distances[inside & uniform] ** 2))
+    print(f"random pixels: inside max {distances[inside].max():.4g} RMS {inner_rms:.4g}, border max "
+          f"{distances[border].max():.4g} RMS {border_rms:.4g}, {border[uniform].sum() / (~inside[uniform]).sum():.3f}"
+          " of the border usable")
+    assert refit.max_px == pytest.approx(distances[inside].max(), rel=0.05)
+    assert refit.rms_px == pytest.approx(inner_rms, rel=0.1)
+    # the border max sits at the fold, where the residual climbs fast: the 3.3 px grid stops short of it by up to
+    # a grid step, the random pixels do not
+    assert refit.border_max_px == pytest.approx(distances[border].max(), rel=0.1)
+    assert refit.border_rms_px == pytest.approx(border_rms, rel=0.1)
+    assert refit.border_usable == pytest.approx(border[uniform].sum() / (~inside[uniform]).sum(), abs=0.02)
+    assert 0.5 < refit.border_usable < 1.0 and "inside the source lens' fold" in refit.describe()
