@@ -1123,7 +1123,7 @@ def _rank_models(board: Board, names: list[str], training: list[dict], options: 
         per_view, results, reason = [], [], ""
         for fold in folds:
             try:
-                result = _calibrate(board, names, training, candidate, fold, **options)
+                result = _calibrate(board, names, training, candidate, fold, scoring=True, **options)
             except _FIT_ERRORS as error:
                 reason = _one_line(error)
                 break
@@ -1335,8 +1335,12 @@ def _shape_choice(flat: ModelScore, shapes: list[ModelScore], squared: dict) -> 
 def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: str, holdout: set[int], units: str,
                outlier_factor: float, min_outlier_px: float, loss: str, loss_scale: float,
                known: Mapping[str, NDArray] | None = None, refine_known: bool = False,
-               shape: BoardShape | None = None) -> CalibrationResult:
+               shape: BoardShape | None = None, scoring: bool = False) -> CalibrationResult:
     """One model, the views of ``holdout`` left out of the fit and then measured.
+
+    ``scoring``: the fit only, for its held-out residuals (:func:`_rank_models`' folds): no covariance,
+    no jackknife, no sigmas (the result's ``covariance`` is empty; its lens, poses, residuals and held-out
+    figures are the full fit's).
 
     ``known``: camera name -> COLMAP parameters of a calibrated lens (:func:`_known_lenses`), held unless
     ``refine_known``; the start poses are then PnP with those lenses. ``shape``: a board surface held (its
@@ -1409,7 +1413,8 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         view_start[f] = (R_j.T @ R_b, R_j.T @ (t_b - t_j))
     options = BundleOptions(refine_principal_point=True, refine_points3D=False, loss=loss, loss_scale=loss_scale,
                             fixed_params={name: fixed for name in names},
-                            constant_intrinsics=tuple(names) if known is not None and not refine_known else ())
+                            constant_intrinsics=tuple(names) if known is not None and not refine_known else (),
+                            compute_sigmas=not scoring)
     if known is not None:
         notes.append("intrinsics " + ("refined from the given start" if refine_known else "held (extrinsics only)"))
     image_sizes = tuple(next(iter(views.values())).image_size for views in by_frame)
@@ -1457,10 +1462,13 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
             break
         outliers.extend(new)
 
-    if solution.covariance.size == 0:
+    if scoring:
+        covariance, labels, jackknife = None, (), None
+    elif solution.covariance.size == 0:
         raise CamcalError("the calibration is degenerate (singular normal equations): vary the board poses more")
-    covariance, labels = _camcal_covariance(solution.covariance, solution.covariance_names, names, model, params)
-    jackknife = _view_jackknife(labels, names, model, params, refined, observations) if loss == "trivial" else None
+    else:
+        covariance, labels = _camcal_covariance(solution.covariance, solution.covariance_names, names, model, params)
+        jackknife = _view_jackknife(labels, names, model, params, refined, observations) if loss == "trivial" else None
     rig = _build_rig(names, image_sizes, params, cam_poses, observations.camera, image_of_point, residuals,
                      covariance, labels, board, model, units, jackknife)
     heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
@@ -1484,7 +1492,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         rms_px=float(np.sqrt(np.mean(norms**2))),
         worst_px=float(norms.max()),
         outliers=tuple((names[j], by_frame[j][f].image) for j, f in sorted(outliers)),
-        covariance=covariance,
+        covariance=np.zeros((0, 0)) if covariance is None else covariance,
         parameter_names=labels,
         model=model,
         heldout_rms_px=heldout_rms,
@@ -1767,13 +1775,20 @@ def _with_projection_sigma(camera: Camera, covariance: NDArray, labels: tuple[st
 
 def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_point, residuals, covariance, labels,
                board, model, units, jackknife=None) -> Rig:
-    sigma_by_label = dict(zip(labels, np.sqrt(np.clip(np.diag(covariance), 0.0, None))))
+    """The rig of a fit; ``covariance`` None (a scoring fit, :func:`_calibrate`): no sigmas."""
+    sigma_by_label = {} if covariance is None else dict(zip(labels, np.sqrt(np.clip(np.diag(covariance), 0.0, None))))
     cameras = []
     for j, name in enumerate(names):
         K, distortion = _camcal_lens(model, params[j])
         R, t = cam_poses[j]
         mine = camera_of_point == j
         norms = np.linalg.norm(residuals[mine], axis=1)
+        if covariance is None:
+            cameras.append(Camera(name, image_sizes[j], K, distortion, R if j else np.eye(3), -R.T @ t if j else np.zeros(3),
+                                  quality={"rms_px": float(np.sqrt(np.mean(norms**2))), "worst_px": float(norms.max()),
+                                           "n_views": int(len(np.unique(image_of_point[mine]))),
+                                           "n_observations": int(mine.sum())}))
+            continue
         sigmas = {label: float(sigma_by_label[f"{name}.{label}"]) for label in _INTRINSICS + MODELS[model]}
         if j > 0:
             o = labels.index(f"{name}.rx")
