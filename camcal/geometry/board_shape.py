@@ -337,17 +337,25 @@ def fit_board_shape(board: Board, views: Mapping[int, Detection], K: NDArray, di
         lens = Distortion(base.model, values, base.center)
         return Kp, lens, p[n_lens:n_lens + 6 * n_views].reshape(n_views, 6), p[n_lens + 6 * n_views:]
 
-    def project(p: NDArray[np.float64]) -> NDArray[np.float64]:
+    B_stack, Bx_stack, By_stack = np.concatenate(B), np.concatenate(Bx), np.concatenate(By)
+
+    def in_camera(p: NDArray[np.float64]):
+        """``(K, lens, every corner in its camera's frame, each corner's view rotation)``."""
         Kp, lens, pose, w = unpack(p)
-        cam = []
+        cam, rotations = [], []
         for Xv, Bv, Bxv, Byv, pv in zip(flat, B, Bx, By, pose):
             X = Xv.copy()
             X[:, 2] = Bv @ w[:n_z]
             if in_plane:
                 X[:, 0] += Bxv @ w[n_z:]
                 X[:, 1] += Byv @ w[n_z:]
-            cam.append(X @ cv2.Rodrigues(pv[:3])[0].T + pv[3:])
-        return lens.project_rays(np.concatenate(cam), Kp)
+            rotations.append(cv2.Rodrigues(pv[:3])[0])
+            cam.append(X @ rotations[-1].T + pv[3:])
+        return Kp, lens, np.concatenate(cam), np.stack(rotations)[view_of]
+
+    def project(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        Kp, lens, X, _ = in_camera(p)
+        return lens.project_rays(X, Kp)
 
     def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
         return np.nan_to_num(project(p) - x, nan=1e6, posinf=1e6, neginf=-1e6).ravel()
@@ -356,10 +364,26 @@ def fit_board_shape(board: Board, views: Mapping[int, Detection], K: NDArray, di
         q0 = project(p)
         J = np.zeros((2 * len(x), len(p)))
         steps = _FD_STEP * np.maximum(1.0, np.abs(p))
-        for k in [*range(n_lens), *range(n_lens + 6 * n_views, len(p))]:  # lens and surface: one column each
+        for k in range(n_lens):  # the lens: one column each
             dp = p.copy()
             dp[k] += steps[k]
             J[:, k] = np.nan_to_num((project(dp) - q0) / steps[k]).ravel()
+        # the surface by the chain rule: d q / d w = (d q / d X_cam) R (d X_board / d w), where d q / d X_cam
+        # (2 x 3 per corner, each corner's projection depending on its own point only) is three forward
+        # differences of every corner at once instead of one per surface term
+        Kp, lens, X, R = in_camera(p)
+        G = np.empty((len(x), 2, 3))
+        for axis in range(3):
+            step = _FD_STEP * np.maximum(1.0, np.abs(X[:, axis]))
+            dX = X.copy()
+            dX[:, axis] += step
+            G[:, :, axis] = np.nan_to_num((lens.project_rays(dX, Kp) - q0) / step[:, None])
+        M = G @ R  # d q / d X_board
+        surface = slice(n_lens + 6 * n_views, len(p))
+        J_surface = np.concatenate([M[:, :, 2, None] * B_stack[:, None, :],
+                                    M[:, :, 0, None] * Bx_stack[:, None, :] + M[:, :, 1, None] * By_stack[:, None, :]],
+                                   axis=2)  # (corners, 2, terms)
+        J[:, surface] = J_surface.reshape(2 * len(x), n_terms)
         rows = np.arange(len(x))
         for k in range(6):  # the k-th pose parameter of every view at once
             dp = p.copy()
