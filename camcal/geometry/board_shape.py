@@ -22,8 +22,10 @@ Strobl & Hirzinger's refinement (``3N - 7`` parameters).
 
 :func:`fit_board_shape` refines jointly the intrinsics ``fx, fy, cx, cy``, the lens's distortion parameters,
 every view's board pose and the surface's coefficients, minimising ``sum |project(K, d, R X(w) + t) - x|^2``
-by Levenberg-Marquardt (the Jacobian from forward differences: one column per lens and surface parameter, the
-six pose columns of every view perturbed at once, a view's corners depending on its own pose only), started
+by Levenberg-Marquardt (the Jacobian from forward differences: one column per lens parameter, the six pose
+columns of every view perturbed at once, a view's corners depending on its own pose only, and the surface's
+columns by the chain rule through each corner's point in the camera, whose three differences are taken for
+every corner at once), started
 from a flat calibration. Which degree (or flat) a calibration keeps is decided by held-out error in
 :mod:`camcal.geometry.zhang`.
 
@@ -37,6 +39,7 @@ Kogan, D. mrcal (2019-): ``calobject_warp``, a parabolic board deflection along 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -226,6 +229,7 @@ def _term_columns(board: Board, degree: int) -> tuple[NDArray[np.float64], list[
     return np.column_stack([_legendre(i, u) * _legendre(j, v) for i, j in every]), every
 
 
+@functools.lru_cache(maxsize=32)
 def _basis(board: Board, degree: int) -> tuple[NDArray[np.float64], NDArray[np.float64], list[tuple[int, int]]]:
     """The gauge-free basis over the board's corners (N, T), the map from its coefficients to every term's
     Legendre coefficient (``A``: (T_all, T)) and those terms (affine ones first)."""
@@ -234,9 +238,10 @@ def _basis(board: Board, degree: int) -> tuple[NDArray[np.float64], NDArray[np.f
     # each free column minus its least-squares part in span{1, u, v} over the corners
     removal = np.linalg.lstsq(affine, raw, rcond=None)[0]  # (3, T)
     A = np.vstack([-removal, np.eye(raw.shape[1])])
-    return columns @ A, A, every
+    return _read_only(columns @ A), _read_only(A), every
 
 
+@functools.lru_cache(maxsize=32)
 def _in_plane_basis(board: Board, degree: int) -> tuple[NDArray[np.float64], NDArray[np.float64], list]:
     """The in-plane displacement basis over the corners, stacked ``(dx_1..dx_N, dy_1..dy_N)`` (2N, S), with the
     similarity motions (shift x, shift y, turn, scale) removed, orthonormal; the map from its coefficients to
@@ -252,7 +257,13 @@ def _in_plane_basis(board: Board, degree: int) -> tuple[NDArray[np.float64], NDA
     free = M - G @ np.linalg.lstsq(G, M, rcond=None)[0]
     U, sv, _ = np.linalg.svd(free, full_matrices=False)
     Q = U[:, sv > 1e-9 * sv[0]]
-    return Q, np.linalg.lstsq(M, Q, rcond=None)[0], every
+    return _read_only(Q), _read_only(np.linalg.lstsq(M, Q, rcond=None)[0]), every
+
+
+def _read_only(array: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``array`` made read-only (the bases are cached per board and degree, and shared)."""
+    array.setflags(write=False)
+    return array
 
 
 @dataclass(frozen=True)
