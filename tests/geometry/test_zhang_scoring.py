@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from camcal.geometry.board import Board
-from camcal.geometry.zhang import _calibrate
+from camcal.geometry.zhang import _calibrate, _rank_models
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera
 from tests.geometry.test_zhang_models import views
@@ -31,3 +31,19 @@ def test_scoring_fold_fit_gives_the_full_fits_heldout_errors(model):
     rays = np.stack(np.meshgrid(np.linspace(-0.6, 0.6, 9), np.linspace(-0.45, 0.45, 7), [1.0]), axis=-1).reshape(-1, 3)
     np.testing.assert_allclose(scoring.rig.cameras[0].project(rays), full.rig.cameras[0].project(rays), atol=1e-6)
     assert scoring.covariance.size == 0 and "worst_projection_sigma_px" not in scoring.rig.cameras[0].quality.to_dict()
+
+
+def test_ranking_with_shared_opencv_starts_scores_as_each_model_alone():
+    """The ranking shares OpenCV's model-free starts (the pinhole check, ``cv2.fisheye``'s) among the models of a
+    fold: every model's held-out errors equal its fold fits made on their own. (The rational and thin-prism fits
+    of ten views are ill-conditioned: two runs of the same fit differ by up to 1e-4 there, so they are left out; the others agree to 1e-6.)"""
+    detections = views(CAMERA, BOARD, 10, np.random.default_rng(9), distance=(0.5, 0.8))["cam"]
+    training = [dict(enumerate(detections))]
+    fold_results: dict = {}
+    ranking, squared, corners = _rank_models(BOARD, ["cam"], training, OPTIONS, fold_results)
+    compared = ("none", "division", "polynomial", "kannala-brandt", "opencv", "kannala-brandt-thin-prism")
+    assert all(s.rms_px is not None for s in ranking if s.model in compared)
+    for model in compared:
+        alone = np.concatenate([_calibrate(BOARD, ["cam"], training, model, fold, scoring=True,
+                                           **OPTIONS).heldout_view_rms_px for fold in fold_results["folds"]])
+        np.testing.assert_allclose(squared[model], np.square(alone) * corners, rtol=1e-6, atol=0, err_msg=model)
