@@ -12,7 +12,8 @@ dense synthetic 24x17 board seen 21 times by an industrial lens (OpenCV rational
 fisheye (Kannala-Brandt, 185-degree class lens) seen 20 times; synthetic corners carry 0.1 px Gaussian noise
 (seeded).
 
-Usage: python bench/bench_auto_cost.py [--cache DIR] [--quick]   (``--quick``: synthetic sets only)
+Usage: python bench/bench_auto_cost.py [--cache DIR] [--quick] [--only TEXT]   (``--quick``: synthetic sets only;
+``--only``: the sets whose name holds TEXT)
 """
 
 import sys
@@ -101,8 +102,10 @@ def run(name: str, board: Board, views: list[Detection]) -> None:
 def main() -> None:
     args = sys.argv[1:]
     cache = Path(args[args.index("--cache") + 1]) if "--cache" in args else None
+    only = args[args.index("--only") + 1] if "--only" in args else ""
     for name, board, views in data_sets(cache, "--quick" in args):
-        run(name, board, views)
+        if only in name:
+            run(name, board, views)
 
 
 if __name__ == "__main__":

@@ -330,9 +330,9 @@ def fit_board_shape(board: Board, views: Mapping[int, Detection], K: NDArray, di
             kept[f] = d if front.all() else dataclasses.replace(d, ids=d.ids[front], corners_px=d.corners_px[front])
     frames = sorted(kept)
     ids = [kept[f].ids for f in frames]
-    flat = [np.asarray(board.object_points[i], dtype=np.float64) for i in ids]
-    B = [B_all[i] for i in ids]
-    Bx, By = [Qx[i] for i in ids], [Qy[i] for i in ids]
+    corner = np.concatenate(ids)  # each observation's corner id, views in order
+    flat_stack = np.asarray(board.object_points[corner], dtype=np.float64)
+    B_stack, Bx_stack, By_stack = B_all[corner], Qx[corner], Qy[corner]
     x = np.concatenate([kept[f].corners_px for f in frames])
     view_of = np.repeat(np.arange(len(frames)), [len(i) for i in ids])
     n_lens = 4 + len(refine)
@@ -348,21 +348,16 @@ def fit_board_shape(board: Board, views: Mapping[int, Detection], K: NDArray, di
         lens = Distortion(base.model, values, base.center)
         return Kp, lens, p[n_lens:n_lens + 6 * n_views].reshape(n_views, 6), p[n_lens + 6 * n_views:]
 
-    B_stack, Bx_stack, By_stack = np.concatenate(B), np.concatenate(Bx), np.concatenate(By)
-
     def in_camera(p: NDArray[np.float64]):
         """``(K, lens, every corner in its camera's frame, each corner's view rotation)``."""
         Kp, lens, pose, w = unpack(p)
-        cam, rotations = [], []
-        for Xv, Bv, Bxv, Byv, pv in zip(flat, B, Bx, By, pose):
-            X = Xv.copy()
-            X[:, 2] = Bv @ w[:n_z]
-            if in_plane:
-                X[:, 0] += Bxv @ w[n_z:]
-                X[:, 1] += Byv @ w[n_z:]
-            rotations.append(cv2.Rodrigues(pv[:3])[0])
-            cam.append(X @ rotations[-1].T + pv[3:])
-        return Kp, lens, np.concatenate(cam), np.stack(rotations)[view_of]
+        X = flat_stack.copy()
+        X[:, 2] = B_stack @ w[:n_z]
+        if in_plane:
+            X[:, 0] += Bx_stack @ w[n_z:]
+            X[:, 1] += By_stack @ w[n_z:]
+        R = np.stack([cv2.Rodrigues(pv[:3])[0] for pv in pose])[view_of]
+        return Kp, lens, np.einsum("nij,nj->ni", R, X) + pose[view_of, 3:], R
 
     def project(p: NDArray[np.float64]) -> NDArray[np.float64]:
         Kp, lens, X, _ = in_camera(p)
