@@ -1102,7 +1102,10 @@ def _rank_models(board: Board, names: list[str], training: list[dict], options: 
     The training frames are split into ``k = min(4, n)`` folds (every k-th
     frame); each model is fitted k times, each time without one fold, whose
     views are then posed by PnP with the fitted intrinsics held
-    (:func:`_heldout_rms`). The score is the RMS over all held-out corners
+    (:func:`_heldout_rms`); the fold fits are scoring fits (no covariance,
+    jackknife or sigmas: :func:`_calibrate`'s ``scoring``) and the models
+    of a fold share OpenCV's model-free starts (:func:`_opencv_start`'s
+    ``shared``). The score is the RMS over all held-out corners
     of all folds, ``sqrt(sum_folds sum |r|^2 / N)``. A model that fails in
     any fold (the fit refused or diverged, a held-out view not posable,
     a non-finite error) is ranked out with the reason, never raised.
