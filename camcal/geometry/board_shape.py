@@ -22,8 +22,10 @@ Strobl & Hirzinger's refinement (``3N - 7`` parameters).
 
 :func:`fit_board_shape` refines jointly the intrinsics ``fx, fy, cx, cy``, the lens's distortion parameters,
 every view's board pose and the surface's coefficients, minimising ``sum |project(K, d, R X(w) + t) - x|^2``
-by Levenberg-Marquardt (the Jacobian from forward differences: one column per lens and surface parameter, the
-six pose columns of every view perturbed at once, a view's corners depending on its own pose only), started
+by Levenberg-Marquardt (the Jacobian from forward differences: one column per lens parameter, the six pose
+columns of every view perturbed at once, a view's corners depending on its own pose only, and the surface's
+columns by the chain rule through each corner's point in the camera, whose three differences are taken for
+every corner at once), started
 from a flat calibration. Which degree (or flat) a calibration keeps is decided by held-out error in
 :mod:`camcal.geometry.zhang`.
 
@@ -37,6 +39,7 @@ Kogan, D. mrcal (2019-): ``calobject_warp``, a parabolic board deflection along 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -226,6 +229,7 @@ def _term_columns(board: Board, degree: int) -> tuple[NDArray[np.float64], list[
     return np.column_stack([_legendre(i, u) * _legendre(j, v) for i, j in every]), every
 
 
+@functools.lru_cache(maxsize=32)
 def _basis(board: Board, degree: int) -> tuple[NDArray[np.float64], NDArray[np.float64], list[tuple[int, int]]]:
     """The gauge-free basis over the board's corners (N, T), the map from its coefficients to every term's
     Legendre coefficient (``A``: (T_all, T)) and those terms (affine ones first)."""
@@ -234,9 +238,10 @@ def _basis(board: Board, degree: int) -> tuple[NDArray[np.float64], NDArray[np.f
     # each free column minus its least-squares part in span{1, u, v} over the corners
     removal = np.linalg.lstsq(affine, raw, rcond=None)[0]  # (3, T)
     A = np.vstack([-removal, np.eye(raw.shape[1])])
-    return columns @ A, A, every
+    return _read_only(columns @ A), _read_only(A), every
 
 
+@functools.lru_cache(maxsize=32)
 def _in_plane_basis(board: Board, degree: int) -> tuple[NDArray[np.float64], NDArray[np.float64], list]:
     """The in-plane displacement basis over the corners, stacked ``(dx_1..dx_N, dy_1..dy_N)`` (2N, S), with the
     similarity motions (shift x, shift y, turn, scale) removed, orthonormal; the map from its coefficients to
@@ -252,7 +257,13 @@ def _in_plane_basis(board: Board, degree: int) -> tuple[NDArray[np.float64], NDA
     free = M - G @ np.linalg.lstsq(G, M, rcond=None)[0]
     U, sv, _ = np.linalg.svd(free, full_matrices=False)
     Q = U[:, sv > 1e-9 * sv[0]]
-    return Q, np.linalg.lstsq(M, Q, rcond=None)[0], every
+    return _read_only(Q), _read_only(np.linalg.lstsq(M, Q, rcond=None)[0]), every
+
+
+def _read_only(array: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``array`` made read-only (the bases are cached per board and degree, and shared)."""
+    array.setflags(write=False)
+    return array
 
 
 @dataclass(frozen=True)
@@ -319,9 +330,9 @@ def fit_board_shape(board: Board, views: Mapping[int, Detection], K: NDArray, di
             kept[f] = d if front.all() else dataclasses.replace(d, ids=d.ids[front], corners_px=d.corners_px[front])
     frames = sorted(kept)
     ids = [kept[f].ids for f in frames]
-    flat = [np.asarray(board.object_points[i], dtype=np.float64) for i in ids]
-    B = [B_all[i] for i in ids]
-    Bx, By = [Qx[i] for i in ids], [Qy[i] for i in ids]
+    corner = np.concatenate(ids)  # each observation's corner id, views in order
+    flat_stack = np.asarray(board.object_points[corner], dtype=np.float64)
+    B_stack, Bx_stack, By_stack = B_all[corner], Qx[corner], Qy[corner]
     x = np.concatenate([kept[f].corners_px for f in frames])
     view_of = np.repeat(np.arange(len(frames)), [len(i) for i in ids])
     n_lens = 4 + len(refine)
@@ -337,17 +348,20 @@ def fit_board_shape(board: Board, views: Mapping[int, Detection], K: NDArray, di
         lens = Distortion(base.model, values, base.center)
         return Kp, lens, p[n_lens:n_lens + 6 * n_views].reshape(n_views, 6), p[n_lens + 6 * n_views:]
 
-    def project(p: NDArray[np.float64]) -> NDArray[np.float64]:
+    def in_camera(p: NDArray[np.float64]):
+        """``(K, lens, every corner in its camera's frame, each corner's view rotation)``."""
         Kp, lens, pose, w = unpack(p)
-        cam = []
-        for Xv, Bv, Bxv, Byv, pv in zip(flat, B, Bx, By, pose):
-            X = Xv.copy()
-            X[:, 2] = Bv @ w[:n_z]
-            if in_plane:
-                X[:, 0] += Bxv @ w[n_z:]
-                X[:, 1] += Byv @ w[n_z:]
-            cam.append(X @ cv2.Rodrigues(pv[:3])[0].T + pv[3:])
-        return lens.project_rays(np.concatenate(cam), Kp)
+        X = flat_stack.copy()
+        X[:, 2] = B_stack @ w[:n_z]
+        if in_plane:
+            X[:, 0] += Bx_stack @ w[n_z:]
+            X[:, 1] += By_stack @ w[n_z:]
+        R = np.stack([cv2.Rodrigues(pv[:3])[0] for pv in pose])[view_of]
+        return Kp, lens, np.einsum("nij,nj->ni", R, X) + pose[view_of, 3:], R
+
+    def project(p: NDArray[np.float64]) -> NDArray[np.float64]:
+        Kp, lens, X, _ = in_camera(p)
+        return lens.project_rays(X, Kp)
 
     def residuals(p: NDArray[np.float64]) -> NDArray[np.float64]:
         return np.nan_to_num(project(p) - x, nan=1e6, posinf=1e6, neginf=-1e6).ravel()
@@ -356,10 +370,26 @@ def fit_board_shape(board: Board, views: Mapping[int, Detection], K: NDArray, di
         q0 = project(p)
         J = np.zeros((2 * len(x), len(p)))
         steps = _FD_STEP * np.maximum(1.0, np.abs(p))
-        for k in [*range(n_lens), *range(n_lens + 6 * n_views, len(p))]:  # lens and surface: one column each
+        for k in range(n_lens):  # the lens: one column each
             dp = p.copy()
             dp[k] += steps[k]
             J[:, k] = np.nan_to_num((project(dp) - q0) / steps[k]).ravel()
+        # the surface by the chain rule: d q / d w = (d q / d X_cam) R (d X_board / d w), where d q / d X_cam
+        # (2 x 3 per corner, each corner's projection depending on its own point only) is three forward
+        # differences of every corner at once instead of one per surface term
+        Kp, lens, X, R = in_camera(p)
+        G = np.empty((len(x), 2, 3))
+        for axis in range(3):
+            step = _FD_STEP * np.maximum(1.0, np.abs(X[:, axis]))
+            dX = X.copy()
+            dX[:, axis] += step
+            G[:, :, axis] = np.nan_to_num((lens.project_rays(dX, Kp) - q0) / step[:, None])
+        M = G @ R  # d q / d X_board
+        surface = slice(n_lens + 6 * n_views, len(p))
+        J_surface = np.concatenate([M[:, :, 2, None] * B_stack[:, None, :],
+                                    M[:, :, 0, None] * Bx_stack[:, None, :] + M[:, :, 1, None] * By_stack[:, None, :]],
+                                   axis=2)  # (corners, 2, terms)
+        J[:, surface] = J_surface.reshape(2 * len(x), n_terms)
         rows = np.arange(len(x))
         for k in range(6):  # the k-th pose parameter of every view at once
             dp = p.copy()

@@ -398,8 +398,11 @@ def _frame_number_or_none(name: str) -> int | None:
         return None
 
 
-def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name: str):
+def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name: str, shared: dict | None = None):
     """OpenCV's calibrateCamera: K, distortion vector and cam_from_board per view.
+
+    ``shared``: the fits that do not depend on the model (the pinhole check below, ``cv2.fisheye``'s start),
+    by camera and views, made once for every model fitted to the same views (:func:`_rank_models`' folds).
 
     With few views OpenCV's own start can diverge (a focal length ten times
     off). The start is therefore checked against a plain pinhole fit
@@ -411,8 +414,13 @@ def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name
     (zero distortion) is the start.
     """
     keys = sorted(views)
+    shared = {} if shared is None else shared
     if model in _FISHEYE:
-        return _opencv_fisheye_start(board, views, keys, name)
+        key = (name, "fisheye", tuple(keys))
+        if key not in shared:
+            shared[key] = _opencv_fisheye_start(board, views, keys, name)
+        K, dist, poses = shared[key]
+        return K.copy(), dist.copy(), dict(poses)
     object_points = [board.object_points[views[k].ids].astype(np.float32) for k in keys]
     image_points = [views[k].corners_px.astype(np.float32).reshape(-1, 1, 2) for k in keys]
     size = views[keys[0]].image_size
@@ -425,7 +433,10 @@ def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name
         values = np.concatenate([K.ravel(), dist.ravel(), np.ravel(rvecs), np.ravel(tvecs)])
         return ((rms, K, dist, rvecs, tvecs) if np.all(np.isfinite(values)) and np.isfinite(rms) else None), ""
 
-    plain, reason = fit(_OPENCV_FLAGS["none"] | cv2.CALIB_FIX_PRINCIPAL_POINT)
+    key = (name, "pinhole", tuple(keys))
+    if key not in shared:
+        shared[key] = fit(_OPENCV_FLAGS["none"] | cv2.CALIB_FIX_PRINCIPAL_POINT)
+    plain, reason = shared[key]
     if plain is None:
         raise CamcalError(f"camera {name!r}: OpenCV calibrateCamera failed ({reason or 'non-finite result'})")
 
@@ -439,8 +450,8 @@ def _opencv_start(board: Board, views: Mapping[int, Detection], model: str, name
     if not sound(chosen):
         chosen = plain
     _, K, dist, rvecs, tvecs = chosen
-    poses = {k: (cv2.Rodrigues(r)[0], t.ravel()) for k, r, t in zip(keys, rvecs, tvecs)}
-    return K, dist.ravel(), poses
+    poses = {k: (cv2.Rodrigues(r)[0], t.ravel().copy()) for k, r, t in zip(keys, rvecs, tvecs)}
+    return K.copy(), dist.ravel().copy(), poses
 
 
 def _poses_in_front(board: Board, views: Mapping[int, Detection], K: NDArray, dist: NDArray,
@@ -842,9 +853,10 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
                 or len(training[0]) < SPLINE_MIN_VIEWS):
             return flat, (), []
         folds = fold_results["folds"]
-        shapes = _score_shapes(board, training[0], model, folds, fold_results[base], corners, squared)
+        fits = fold_results.setdefault("shape_fits", {})
+        shapes = _score_shapes(board, training[0], model, folds, fold_results[base], corners, squared, fits=fits)
         if base != model:  # the field's parametric lens on every surface too: a surface may do the field's work
-            shapes += _score_shapes(board, training[0], base, folds, fold_results[base], corners, squared)
+            shapes += _score_shapes(board, training[0], base, folds, fold_results[base], corners, squared, fits=fits)
         lens, spec = _shape_choice(flat_score, shapes, squared)
         ranked = [flat_score, *shapes]
         if spec and lens != model:
@@ -856,14 +868,14 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
             lenses = [s for lens in AUTO_MODELS if lens != model and lens in fold_results and lens in _SHAPE_LENSES
                       and f"{lens}{_SHAPE_TAG}{spec}" not in done
                       for s in _score_shapes(board, training[0], lens, folds, fold_results[lens], corners, squared,
-                                             (spec,))]
+                                             (spec,), fits)]
             ranked += lenses
             chosen = _lens_on_shape(model, spec, [*shapes, *lenses], squared)
             if chosen != model:
                 have = {s.model for s in ranked}
                 again = _score_shapes(board, training[0], chosen, folds, fold_results[chosen], corners, squared,
                                       tuple(s for s in _shape_specs(board, AUTO_SHAPES)
-                                            if f"{chosen}{_SHAPE_TAG}{s}" not in have))
+                                            if f"{chosen}{_SHAPE_TAG}{s}" not in have), fits)
                 chosen_flat = next(s for s in scored if s.model == chosen)
                 ranked += [chosen_flat] * (chosen not in have) + again
                 lens_shapes = [s for s in ranked if s.model.startswith(f"{chosen}{_SHAPE_TAG}")]
@@ -878,7 +890,7 @@ def _with_board_shape(board: Board, names: list[str], by_frame: list[dict], mode
                 field = [s for s in ranked if s.model == f"{chosen}{SPLINE_SUFFIX}{_SHAPE_TAG}{spec}"]
                 if not field:  # not scored yet (a field on the flat-ranked lens was)
                     field = _score_shapes(board, training[0], chosen + SPLINE_SUFFIX, folds, fold_results[chosen],
-                                          corners, squared, (spec,))
+                                          corners, squared, (spec,), fits)
                     ranked += field
                 if _spline_chosen(field[0], plain, squared):
                     chosen += SPLINE_SUFFIX
@@ -1090,7 +1102,10 @@ def _rank_models(board: Board, names: list[str], training: list[dict], options: 
     The training frames are split into ``k = min(4, n)`` folds (every k-th
     frame); each model is fitted k times, each time without one fold, whose
     views are then posed by PnP with the fitted intrinsics held
-    (:func:`_heldout_rms`). The score is the RMS over all held-out corners
+    (:func:`_heldout_rms`); the fold fits are scoring fits (no covariance,
+    jackknife or sigmas: :func:`_calibrate`'s ``scoring``) and the models
+    of a fold share OpenCV's model-free starts (:func:`_opencv_start`'s
+    ``shared``). The score is the RMS over all held-out corners
     of all folds, ``sqrt(sum_folds sum |r|^2 / N)``. A model that fails in
     any fold (the fit refused or diverged, a held-out view not posable,
     a non-finite error) is ranked out with the reason, never raised.
@@ -1119,11 +1134,12 @@ def _rank_models(board: Board, names: list[str], training: list[dict], options: 
     scores, squared = [], {}
     fold_results = {} if fold_results is None else fold_results
     fold_results["folds"] = folds
+    shared: dict = {}  # the OpenCV starts every model of a fold shares
     for candidate in AUTO_MODELS:
         per_view, results, reason = [], [], ""
         for fold in folds:
             try:
-                result = _calibrate(board, names, training, candidate, fold, **options)
+                result = _calibrate(board, names, training, candidate, fold, scoring=True, shared=shared, **options)
             except _FIT_ERRORS as error:
                 reason = _one_line(error)
                 break
@@ -1249,18 +1265,25 @@ def _shape_specs(board: Board, names: Sequence[str] = SHAPE_SPECS) -> tuple[str,
     return tuple(s for s in names if parse_shape(board, s)[0] <= max_degree(board))
 
 
-def _fit_shape(board: Board, result: CalibrationResult, views: Mapping[int, Detection], model: str, spec: str):
+def _fit_shape(board: Board, result: CalibrationResult, views: Mapping[int, Detection], model: str, spec: str,
+               fits: dict | None = None):
     """``(camera, shape, training residuals, views kept)``: the board's surface fitted with the lens on the views
     ``result`` kept (started from its flat fit and board poses), then, for ``<model>+spline``, the correction
-    field on top with the surface held."""
+    field on top with the surface held. ``fits``: the surface fits already made, by flat fit and shape (the
+    surface under ``<model>+spline`` is ``<model>``'s on it: made once)."""
     base = model.removesuffix(SPLINE_SUFFIX)
     camera = result.rig.cameras[0]
     kept = {image for _, image in result.images}
     train = {f: d for f, d in views.items() if d.image in kept}
     poses = {f: (R, t) for f, R, t in result.board_poses}
     degree, in_plane = parse_shape(board, spec)
-    fit = fit_board_shape(board, train, camera.K, camera.distortion.without_correction(), MODELS[base], poses, degree,
-                          in_plane)
+    key = (id(result), base, spec, tuple(sorted(train)))
+    fit = None if fits is None else fits.get(key)
+    if fit is None:
+        fit = fit_board_shape(board, train, camera.K, camera.distortion.without_correction(), MODELS[base], poses,
+                              degree, in_plane)
+        if fits is not None:
+            fits[key] = fit
     K, distortion, residuals = fit.K, fit.distortion, fit.residuals_px
     if base != model:
         splined = fit_spline_lens(board, fit.views, K, distortion, MODELS[base], points=fit.shape.points(board))
@@ -1287,10 +1310,10 @@ def _calibrate_shaped(board: Board, names: list[str], by_frame: list[dict], mode
 
 def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int]],
                   results: list[CalibrationResult], corners: NDArray, squared: dict,
-                  specs: Sequence[str] | None = None) -> list[ModelScore]:
+                  specs: Sequence[str] | None = None, fits: dict | None = None) -> list[ModelScore]:
     """``<model>@board-<shape>`` for every shape of ``specs`` (default: every shape of :data:`AUTO_SHAPES` the
     board holds), scored on the folds of :func:`_rank_models` from each fold's flat fit (adds each one's per-view
-    squared errors to ``squared``)."""
+    squared errors to ``squared``; ``fits``: :func:`_fit_shape`'s)."""
     scores = []
     for spec in _shape_specs(board, AUTO_SHAPES) if specs is None else specs:
         name = f"{model}{_SHAPE_TAG}{spec}"
@@ -1301,7 +1324,7 @@ def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int
         for fold, result in zip(folds, results):
             train = {f: d for f, d in view_sets.items() if f not in fold}
             try:
-                camera, shape, _, _ = _fit_shape(board, result, train, model, spec)
+                camera, shape, _, _ = _fit_shape(board, result, train, model, spec, fits)
                 points = shape.points(board)
                 per_view.extend(float(np.sum(r * r)) for r in
                                 (_posed_residuals(board, camera, view_sets[f], points) for f in sorted(fold)
@@ -1335,8 +1358,13 @@ def _shape_choice(flat: ModelScore, shapes: list[ModelScore], squared: dict) -> 
 def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: str, holdout: set[int], units: str,
                outlier_factor: float, min_outlier_px: float, loss: str, loss_scale: float,
                known: Mapping[str, NDArray] | None = None, refine_known: bool = False,
-               shape: BoardShape | None = None) -> CalibrationResult:
+               shape: BoardShape | None = None, scoring: bool = False, shared: dict | None = None
+               ) -> CalibrationResult:
     """One model, the views of ``holdout`` left out of the fit and then measured.
+
+    ``scoring``: the fit only, for its held-out residuals (:func:`_rank_models`' folds): no covariance,
+    no jackknife, no sigmas (the result's ``covariance`` is empty; its lens, poses, residuals and held-out
+    figures are the full fit's). ``shared``: :func:`_opencv_start`'s.
 
     ``known``: camera name -> COLMAP parameters of a calibrated lens (:func:`_known_lenses`), held unless
     ``refine_known``; the start poses are then PnP with those lenses. ``shape``: a board surface held (its
@@ -1351,7 +1379,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
             raise CamcalError(f"camera {name!r}: {len(views)} images left for the fit after holding out "
                               f"{len(holdout)} frames, need at least {MIN_IMAGES}")
     if model == "opencv-thin-prism":
-        result = _calibrate_opencv(board, names, by_frame, model, units, outlier_factor, min_outlier_px)
+        result = _calibrate_opencv(board, names, by_frame, model, units, outlier_factor, min_outlier_px, shared)
         if not holdout:
             return result
         heldout_rms, per_camera, heldout_images, heldout, per_view = _heldout_rms(board, result.rig, held)
@@ -1368,7 +1396,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
             K, lens = _camcal_lens(model, params[-1])
             starts.append(_known_start(board, views, K, lens, points))
             continue
-        K, dist, poses = _opencv_start(board, views, model, name)
+        K, dist, poses = _opencv_start(board, views, model, name, shared)
         if model not in _FISHEYE:
             poses = _poses_in_front(board, views, K, dist, poses)
         starts.append(poses)
@@ -1409,7 +1437,8 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         view_start[f] = (R_j.T @ R_b, R_j.T @ (t_b - t_j))
     options = BundleOptions(refine_principal_point=True, refine_points3D=False, loss=loss, loss_scale=loss_scale,
                             fixed_params={name: fixed for name in names},
-                            constant_intrinsics=tuple(names) if known is not None and not refine_known else ())
+                            constant_intrinsics=tuple(names) if known is not None and not refine_known else (),
+                            compute_sigmas=not scoring)
     if known is not None:
         notes.append("intrinsics " + ("refined from the given start" if refine_known else "held (extrinsics only)"))
     image_sizes = tuple(next(iter(views.values())).image_size for views in by_frame)
@@ -1457,10 +1486,13 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
             break
         outliers.extend(new)
 
-    if solution.covariance.size == 0:
+    if scoring:
+        covariance, labels, jackknife = None, (), None
+    elif solution.covariance.size == 0:
         raise CamcalError("the calibration is degenerate (singular normal equations): vary the board poses more")
-    covariance, labels = _camcal_covariance(solution.covariance, solution.covariance_names, names, model, params)
-    jackknife = _view_jackknife(labels, names, model, params, refined, observations) if loss == "trivial" else None
+    else:
+        covariance, labels = _camcal_covariance(solution.covariance, solution.covariance_names, names, model, params)
+        jackknife = _view_jackknife(labels, names, model, params, refined, observations) if loss == "trivial" else None
     rig = _build_rig(names, image_sizes, params, cam_poses, observations.camera, image_of_point, residuals,
                      covariance, labels, board, model, units, jackknife)
     heldout_rms, heldout_images, heldout, per_view = None, (), [], ()
@@ -1484,7 +1516,7 @@ def _calibrate(board: Board, names: list[str], by_frame_all: list[dict], model: 
         rms_px=float(np.sqrt(np.mean(norms**2))),
         worst_px=float(norms.max()),
         outliers=tuple((names[j], by_frame[j][f].image) for j, f in sorted(outliers)),
-        covariance=covariance,
+        covariance=np.zeros((0, 0)) if covariance is None else covariance,
         parameter_names=labels,
         model=model,
         heldout_rms_px=heldout_rms,
@@ -1563,7 +1595,7 @@ def _view_jackknife(labels: tuple[str, ...], names: list[str], model: str, param
 
 
 def _calibrate_opencv(board: Board, names: list[str], by_frame: list[dict], model: str, units: str,
-                      outlier_factor: float, min_outlier_px: float) -> CalibrationResult:
+                      outlier_factor: float, min_outlier_px: float, shared: dict | None = None) -> CalibrationResult:
     """One camera fitted by OpenCV's ``calibrateCameraExtended`` alone (a model the Ceres engine lacks).
 
     COLMAP has no pinhole camera with thin-prism terms, so ``opencv-thin-prism``
@@ -1586,7 +1618,7 @@ def _calibrate_opencv(board: Board, names: list[str], by_frame: list[dict], mode
             raise CamcalError(f"camera {name!r}: only {len(kept)} images left after dropping outliers, need {MIN_IMAGES}")
         object_points = [board.object_points[views[f].ids].astype(np.float32) for f in kept]
         image_points = [views[f].corners_px.astype(np.float32).reshape(-1, 1, 2) for f in kept]
-        K, dist, _ = _opencv_start(board, {f: views[f] for f in kept}, model, name)
+        K, dist, _ = _opencv_start(board, {f: views[f] for f in kept}, model, name, shared)
         try:
             _, K, dist, rvecs, tvecs, std_intrinsics, _, _ = cv2.calibrateCameraExtended(
                 object_points, image_points, size, K, dist, criteria=criteria,
@@ -1767,13 +1799,20 @@ def _with_projection_sigma(camera: Camera, covariance: NDArray, labels: tuple[st
 
 def _build_rig(names, image_sizes, params, cam_poses, camera_of_point, image_of_point, residuals, covariance, labels,
                board, model, units, jackknife=None) -> Rig:
-    sigma_by_label = dict(zip(labels, np.sqrt(np.clip(np.diag(covariance), 0.0, None))))
+    """The rig of a fit; ``covariance`` None (a scoring fit, :func:`_calibrate`): no sigmas."""
+    sigma_by_label = {} if covariance is None else dict(zip(labels, np.sqrt(np.clip(np.diag(covariance), 0.0, None))))
     cameras = []
     for j, name in enumerate(names):
         K, distortion = _camcal_lens(model, params[j])
         R, t = cam_poses[j]
         mine = camera_of_point == j
         norms = np.linalg.norm(residuals[mine], axis=1)
+        if covariance is None:
+            cameras.append(Camera(name, image_sizes[j], K, distortion, R if j else np.eye(3), -R.T @ t if j else np.zeros(3),
+                                  quality={"rms_px": float(np.sqrt(np.mean(norms**2))), "worst_px": float(norms.max()),
+                                           "n_views": int(len(np.unique(image_of_point[mine]))),
+                                           "n_observations": int(mine.sum())}))
+            continue
         sigmas = {label: float(sigma_by_label[f"{name}.{label}"]) for label in _INTRINSICS + MODELS[model]}
         if j > 0:
             o = labels.index(f"{name}.rx")
