@@ -369,7 +369,7 @@ def export_colour(
     camera: str | None = None,
     by_illuminant: bool = False,
     base: str = "ocio://studio-config-latest",
-    ocio_version: str = "2.3",
+    ocio_version: str | None = None,
     family: str | None = None,
     adaptation: str = "Bradford",
     icc_version: int = 4,
@@ -400,8 +400,9 @@ def export_colour(
     base : str
         The config the spaces are added to: ``"camcal"``, an ``ocio://`` built-in or a ``.ocio`` file with an
         ``aces_interchange`` role.
-    ocio_version : str
-        The OCIO profile version written, the oldest OpenColorIO that must load the config (2.1 to 2.6).
+    ocio_version : str, optional
+        The OCIO profile version written, the oldest OpenColorIO that must load the config (2.1 to 2.6; default
+        2.3, :data:`camcal.colour.export.ocio_versions.DEFAULT_PROFILE_VERSION`, as the command's).
     family : str, optional
         The family of the camera spaces (default: ``Input/<maker>`` of a raw capture, else ``Input/camcal``).
     adaptation : {"Bradford", "CAT02"}
@@ -430,8 +431,8 @@ def export_colour(
         raise CamcalError("nothing to write: give --ocio OUTDIR and/or --icc OUT.icc")
     if camera and len(fits) > 1 and not by_illuminant:
         raise CamcalError(f"--camera-name needs exactly one fit (or --by-illuminant), got {len(fits)}")
-    for option, given in (("--ocio-version", ocio_version != "2.3"), ("--family", family)):
-        if given and not ocio:
+    for option, value in (("--ocio-version", ocio_version), ("--family", family)):
+        if value and not ocio:
             raise CamcalError(f"{option} applies to the OCIO config: give --ocio OUTDIR")
     if by_illuminant and not ocio:
         raise CamcalError("--by-illuminant names OCIO colour spaces: give --ocio OUTDIR")
@@ -471,9 +472,10 @@ def export_colour(
     if ocio:
         from camcal.io.ocio import export_ocio
 
+        version = {"ocio_version": ocio_version} if ocio_version else {}
         with output_folder(ocio) as ocio_dir:
             exported = export_ocio(spaces, ocio_dir, base=base, cat=adaptation, max_delta_E=max_bake_error,
-                                   matches=matches, family=family, home=ocio, ocio_version=ocio_version)
+                                   matches=matches, family=family, home=ocio, **version)
         exported = dataclasses.replace(exported, config_path=final_path(exported.config_path, ocio_dir, ocio))
         files.append((exported.config_path, "ocio config"))
         files += [(Path(ocio) / space.clf, "clf") for space in exported.spaces if space.clf]

@@ -67,8 +67,8 @@ def _export(args: argparse.Namespace) -> int:
 
     result = export_colour(
         args.fits, ocio=args.ocio, icc=args.icc, camera=args.camera_name, by_illuminant=args.by_illuminant,
-        base=args.base, family=args.family, adaptation=args.cat, icc_version=args.icc_version,
-        max_bake_error=args.max_bake_error, **({"ocio_version": args.ocio_version} if args.ocio_version else {}))
+        base=args.base, ocio_version=args.ocio_version, family=args.family, adaptation=args.cat,
+        icc_version=args.icc_version, max_bake_error=args.max_bake_error)
     for line in result.lines():
         print(line)
     out = summary_of(args)
