@@ -22,6 +22,8 @@ function                what it does                                        resu
                         (``camcal rig import``)
 :func:`fit_colour`      camera RGB to CIE XYZ from a chart photo or         :class:`ColourFit`
                         patches (``camcal colour fit``)
+:func:`export_colour`   colour fits as OCIO colour spaces (config + CLF)    :class:`ColourExport`
+                        and ICC camera profiles (``camcal colour export``)
 ======================  ==================================================  ======================
 
 and the data model: :class:`Rig`, :class:`Camera`, and :class:`CamcalError`,
@@ -64,6 +66,8 @@ _EXPORTS: dict[str, str] = {
     "RigImport": "camcal.api.rig",
     "fit_colour": "camcal.api.colour",
     "ColourFit": "camcal.api.colour",
+    "export_colour": "camcal.api.colour",
+    "ColourExport": "camcal.api.colour",
     "Rig": "camcal.model.rig",
     "Camera": "camcal.model.rig",
     "CamcalError": "camcal.base.errors",
@@ -73,7 +77,7 @@ __all__ = ["__version__", *_EXPORTS]
 
 if TYPE_CHECKING:  # for type checkers and editors; at run time the names load on first use
     from camcal.api.board import BoardCalibration, calibrate_board
-    from camcal.api.colour import ColourFit, fit_colour
+    from camcal.api.colour import ColourExport, ColourFit, export_colour, fit_colour
     from camcal.api.reconstruction import Solve, solve
     from camcal.api.rectification import Rectification, rectify
     from camcal.api.rig import RigImport, export_rig, import_rig, load_rig

@@ -1,5 +1,5 @@
 """The public Python API (``camcal.calibrate_board``, ``solve``, ``rectify``, ``undistort``, rig files,
-``fit_colour``) against the command line on the same inputs: the same file byte for byte (its creation time
+``fit_colour``, ``export_colour``) against the command line on the same inputs: the same file byte for byte (its creation time
 aside), the same error line; and ``import camcal`` loads no heavy dependency."""
 
 import json
@@ -278,11 +278,88 @@ def test_colour_fit_api_and_cli_write_the_same_file(sim, tmp_path, capsys):
                       capsys)
 
 
+@pytest.fixture(scope="module")
+def train_csv(sim, tmp_path_factory) -> Path:
+    from camcal.colour.chart.patches import PatchSet
+    from camcal.io.patches import write_patch_csv
+
+    path = tmp_path_factory.mktemp("colour") / "train.csv"
+    write_patch_csv(path, PatchSet(sim.names_train, sim.RGB_train, sim.XYZ_train))
+    return path
+
+
+def without_creation_time(icc: bytes) -> bytes:
+    """An ICC profile's bytes but its header's creation time (ICC.1:2010 7.2.1, bytes 24-35) and the profile ID
+    computed over it (7.2.18, bytes 84-99)."""
+    return icc[:24] + bytes(12) + icc[36:84] + bytes(16) + icc[100:]
+
+
+@pytest.mark.parametrize("model, options", [
+    ("matrix3x3", {}),
+    ("matrix3x3", {"ocio_version": "2.5", "family": "Input/Witness", "icc_version": 2, "adaptation": "CAT02"}),
+    pytest.param("root-polynomial:2", {}, marks=pytest.mark.slow),  # baked: a CLF and ICC CLUTs, 30 s a run
+])
+def test_colour_export_api_and_cli_write_the_same_files(train_csv, tmp_path, capsys, model, options):
+    """The OCIO config, its CLFs and the ICC profile, byte for byte; the figures are the profile's own."""
+    from camcal.colour.export.icc import check_icc
+    from camcal.colour.export.ocio_config import STUDIO_CONFIG
+
+    fit = tmp_path / "nikon.colour.json"
+    camcal.fit_colour(train_csv, illuminant="D65", model=model, camera="nikon", out=fit)
+    result = camcal.export_colour([fit], ocio=tmp_path / "api", icc=tmp_path / "api.icc", base="camcal", **options)
+    flags = {"ocio_version": "--ocio-version", "family": "--family", "icc_version": "--icc-version",
+             "adaptation": "--adaptation"}
+    code, out, _ = cli(["colour", "export", fit, "--ocio", tmp_path / "cli", "--icc", tmp_path / "cli.icc",
+                        "--base", "camcal", *(arg for key, value in options.items() for arg in (flags[key], value))],
+                       capsys)
+    assert code == 0 and out.splitlines() == [line.replace(str(tmp_path / "api"), str(tmp_path / "cli"))
+                                             for line in result.lines()]
+    written = sorted(path.relative_to(tmp_path / "api") for path in (tmp_path / "api").rglob("*") if path.is_file())
+    assert written == sorted(path.relative_to(tmp_path / "cli") for path in (tmp_path / "cli").rglob("*")
+                             if path.is_file())
+    assert [path for path, kind in result.files if kind != "icc"] == [tmp_path / "api" / name for name in written]
+    for name in written:
+        same_file(tmp_path / "api" / name, tmp_path / "cli" / name)
+    data = (tmp_path / "api.icc").read_bytes()
+    assert data == result.icc.data and without_creation_time(data) == without_creation_time(
+        (tmp_path / "cli.icc").read_bytes())
+    check_icc(data)
+    # the header says the version asked for (ICC.1 7.2.4: byte 8 the major version)
+    assert data[8] == options.get("icc_version", 4) == result.figures()["icc"]["version"]
+    figures = result.figures()
+    config = (tmp_path / "api" / "config.ocio").read_text()
+    # camcal's base is a 2.1 config: an older base than ocio_version keeps its version
+    assert figures["ocio_profile_version"] == "2.1" and config.startswith("ocio_profile_version: 2.1")
+    [space] = figures["spaces"]
+    assert space["camera"] == "nikon" and (space["clf"] is None) == (model == "matrix3x3")
+    if "family" in options:
+        assert f"family: {options['family']}" in config
+    # the signature's default base is the command's
+    import inspect
+
+    assert inspect.signature(camcal.export_colour).parameters["base"].default == STUDIO_CONFIG
+
+
+def test_colour_export_api_and_cli_refuse_the_same_input(train_csv, tmp_path, capsys):
+    fit = tmp_path / "nikon.colour.json"
+    camcal.fit_colour(train_csv, illuminant="D65", model="matrix3x3", camera="nikon", out=fit)
+    message = assert_same_error(lambda: camcal.export_colour([fit, fit], icc=tmp_path / "x.icc"),
+                                ["colour", "export", fit, fit, "--icc", tmp_path / "x.icc"], capsys)
+    assert message == "--icc writes one profile: give one fit, got 2"
+    for option, value in (("family", "Input/Witness"), ("ocio_version", "2.3")):
+        assert_same_error(lambda: camcal.export_colour([fit], icc=tmp_path / "x.icc", **{option: value}),
+                          ["colour", "export", fit, "--icc", tmp_path / "x.icc", f"--{option.replace('_', '-')}", value],
+                          capsys)
+    assert_same_error(lambda: camcal.export_colour([fit], ocio=tmp_path / "o", max_bake_error=0.0),
+                      ["colour", "export", fit, "--ocio", tmp_path / "o", "--max-bake-error", "0"], capsys)
+    assert not (tmp_path / "x.icc").exists() and not (tmp_path / "o").exists()
+
+
 def test_import_camcal_loads_no_heavy_dependency():
     """``import camcal`` (and naming the API) imports none of the heavy libraries; using a function does."""
     code = ("import sys, camcal\n"
             "names = [getattr(camcal, name) for name in camcal.__all__ if name in ('load_rig', 'export_rig', "
-            "'import_rig', 'calibrate_board', 'solve', 'rectify', 'undistort', 'fit_colour')]\n"
+            "'import_rig', 'calibrate_board', 'solve', 'rectify', 'undistort', 'fit_colour', 'export_colour')]\n"
             f"print([m for m in {HEAVY!r} if m in sys.modules])\n"
             "import camcal.api.board, camcal.geometry.zhang\n"
             f"print([m for m in {HEAVY!r} if m in sys.modules])\n")

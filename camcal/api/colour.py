@@ -1,8 +1,10 @@
-"""``camcal.fit_colour``: camera RGB to CIE XYZ from a chart photo or patches, as ``colour fit``.
+"""``camcal.fit_colour`` and ``camcal.export_colour``: ``colour fit`` and ``colour export``.
 
-(:mod:`camcal.colour` is the pure maths the fit runs on; this module reads the
-chart or the patch files, runs the fit with the command's defaults and checks,
-and writes the ``*.colour.json`` and the report.)
+``fit_colour``: camera RGB to CIE XYZ from a chart photo or patches;
+``export_colour``: fits as OCIO colour spaces (config + CLF) and ICC camera
+profiles. (:mod:`camcal.colour` is the pure maths they run on; this module
+reads the chart, the patch or fit files, runs the steps with the command's
+defaults and checks, and writes the files.)
 """
 
 from __future__ import annotations
@@ -17,10 +19,12 @@ from camcal.base.errors import CamcalError
 
 if TYPE_CHECKING:
     from camcal.colour.chart.patches import PatchSet
+    from camcal.colour.export.icc import ICCProfile
     from camcal.colour.fit.characterise import Characterisation
+    from camcal.io.ocio import OCIOExport
     from camcal.pipelines.colour import ChartPatches
 
-__all__ = ["ColourFit", "fit_colour"]
+__all__ = ["ColourExport", "ColourFit", "export_colour", "fit_colour"]
 
 #: The reference chart of ``chart`` by default (colour-science's name).
 DEFAULT_REFERENCE = "ColorChecker24 - After November 2014"
@@ -293,3 +297,192 @@ def _write(fit, outcome, report: str | os.PathLike | None, camera: str | None,
             reports = write_report(outcome, report_dir, title=camera or "")
         files = [] if out is None else [(save_colour_file(fit, out), "colour fit")]
     return tuple(files) + tuple((final_path(path, report_dir, report), "report") for path in reports)
+
+
+@dataclass(frozen=True)
+class ColourExport:
+    """What :func:`export_colour` wrote.
+
+    Attributes
+    ----------
+    ocio : OCIOExport or None
+        With ``ocio``: the config written (``config_path`` in its final folder), the base it extends (a built-in
+        alias resolved), its OCIO profile version and each camera space (model, kind, LUT size, CLF, bake error).
+    icc : ICCProfile or None
+        With ``icc``: the profile written (version, kind, CLUT sizes and bake errors).
+    icc_path : Path or None
+        Where the ICC profile was written.
+    n_spaces, n_matches : int
+        Camera spaces (one per characterisation) and match Looks (one per camera match) in the config.
+    files : tuple of (Path, str)
+        ``(path, kind)`` of the files written: ``ocio config``, each ``clf``, ``icc``.
+    """
+
+    ocio: OCIOExport | None
+    icc: ICCProfile | None
+    icc_path: Path | None
+    n_spaces: int
+    n_matches: int
+    files: tuple[tuple[Path, str], ...] = ()
+
+    def lines(self) -> list[str]:
+        """The lines ``colour export`` prints: each space, the config written, the ICC profile written."""
+        lines = []
+        if self.ocio is not None:
+            lines += [space.summary() for space in self.ocio.spaces]
+            lines.append(f"wrote {self.ocio.config_path} (OCIO profile {self.ocio.profile_version}, base "
+                         f"{self.ocio.base}, {self.n_spaces} camera space(s), {self.n_matches} match Look(s))")
+        if self.icc is not None:
+            lines.append(f"wrote {self.icc_path} (ICC v{self.icc.version}, {self.icc.summary()})")
+        return lines
+
+    def figures(self) -> dict[str, Any]:
+        """The figures of ``colour export --json``."""
+        import dataclasses
+
+        def stats(value):
+            return None if value is None else dataclasses.asdict(value)
+
+        figures: dict[str, Any] = {}
+        if self.ocio is not None:
+            figures.update(base=self.ocio.base, ocio_profile_version=self.ocio.profile_version,
+                           n_matches=self.n_matches, spaces=[{
+                               "name": space.name, "camera": space.camera, "model": space.model,
+                               "kind": space.kind, "lut_size": space.lut_size, "clf": space.clf,
+                               "linearisation_error": space.linearisation_error,
+                               "bake_error_delta_E2000": stats(space.bake_error),
+                           } for space in self.ocio.spaces])
+        if self.icc is not None:
+            icc = self.icc
+            figures.update(icc={"version": icc.version, "kind": icc.kind, "bake_error_delta_E2000":
+                                None if icc.kind == "matrix-trc" else stats(icc.bake_error),
+                                "float_clut_size": icc.float_clut_size,
+                                "float_bake_error_delta_E2000": stats(icc.float_bake_error)})
+        return figures
+
+
+def export_colour(
+    fits: Sequence[str | os.PathLike],
+    *,
+    ocio: str | os.PathLike | None = None,
+    icc: str | os.PathLike | None = None,
+    camera: str | None = None,
+    by_illuminant: bool = False,
+    base: str = "ocio://studio-config-latest",
+    ocio_version: str | None = None,
+    family: str | None = None,
+    adaptation: str = "Bradford",
+    icc_version: int = 4,
+    max_bake_error: float = 0.2,
+) -> ColourExport:
+    """Export characterisations (``*.colour.json``) as OCIO input colour spaces and/or an ICC camera profile
+    (``camcal colour export``).
+
+    Each fit becomes the space ``camcal <camera>`` (family ``Input/<maker>`` of a raw capture, else
+    ``Input/camcal``) of an OpenColorIO config; a camera match becomes a Look. Matrix fits are exact; other models
+    are baked (log-chromaticity shaper + 3D LUT; ICC v4: float D2B0/D2B1 plus a 16-bit A2B0) with the bake error
+    checked, in CIEDE2000 (Sharma et al. 2005), over the chart gamut and plausible surface colours.
+
+    Parameters
+    ----------
+    fits : sequence of path
+        ``*.colour.json`` files (characterisations, and camera matches for the config); with ``by_illuminant``
+        an entry ``"LIGHT=FIT.colour.json"`` names the light.
+    ocio : path, optional
+        The folder of ``config.ocio`` and ``luts/*.clf`` (written together: all or none). A studio's config given
+        as ``base`` in this folder is extended in place.
+    icc : path, optional
+        The ICC camera profile to write (one fit only).
+    camera : str, optional
+        The camera name (one fit, or with ``by_illuminant``); default: the fit's camera, else the file name.
+    by_illuminant : bool
+        One space per fit, ``camcal <camera> (<light>)``: a camera's fits for several lights in one config.
+    base : str
+        The config the spaces are added to: ``"camcal"``, an ``ocio://`` built-in or a ``.ocio`` file with an
+        ``aces_interchange`` role.
+    ocio_version : str, optional
+        The OCIO profile version written, the oldest OpenColorIO that must load the config (2.1 to 2.6; default
+        2.3, :data:`camcal.colour.export.ocio_versions.DEFAULT_PROFILE_VERSION`, as the command's).
+    family : str, optional
+        The family of the camera spaces (default: ``Input/<maker>`` of a raw capture, else ``Input/camcal``).
+    adaptation : {"Bradford", "CAT02"}
+        The chromatic adaptation from the fit's white to the ACES white.
+    icc_version : {4, 2}
+        The ICC profile version (ICC.1:2010 or ICC.1:2001-04).
+    max_bake_error : float
+        The largest CIEDE2000 a baked LUT may add.
+
+    Returns
+    -------
+    ColourExport
+
+    Raises
+    ------
+    CamcalError
+        Bad input (one line naming it, the command's option); nothing is written then.
+    """
+    import dataclasses
+
+    from camcal.base.atomic import final_path, output_folder
+    from camcal.colour.fit.record import ColourFit as FitRecord
+    from camcal.io.colourfile import load_colour_file
+
+    if not ocio and not icc:
+        raise CamcalError("nothing to write: give --ocio OUTDIR and/or --icc OUT.icc")
+    if camera and len(fits) > 1 and not by_illuminant:
+        raise CamcalError(f"--camera-name needs exactly one fit (or --by-illuminant), got {len(fits)}")
+    for option, value in (("--ocio-version", ocio_version), ("--family", family)):
+        if value and not ocio:
+            raise CamcalError(f"{option} applies to the OCIO config: give --ocio OUTDIR")
+    if by_illuminant and not ocio:
+        raise CamcalError("--by-illuminant names OCIO colour spaces: give --ocio OUTDIR")
+    if icc and len(fits) > 1:
+        raise CamcalError(f"--icc writes one profile: give one fit, got {len(fits)}")
+    if not (max_bake_error > 0):
+        raise CamcalError(f"--max-bake-error must be > 0, got {max_bake_error}")
+    named, matches = [], []
+    for entry in fits:
+        path, light, text = entry, None, os.fspath(entry)
+        if by_illuminant and "=" in text and not Path(entry).is_file():
+            light, path = text.split("=", 1)
+            if not light.strip():
+                raise CamcalError(f"empty light name in {text!r} (expected LIGHT=FIT.colour.json)")
+        fit = load_colour_file(path)
+        if not isinstance(fit, FitRecord):
+            if light is not None:
+                raise CamcalError(f"{path} is a camera match, not a characterisation: it has no light to name")
+            matches.append(fit)
+            continue
+        name = camera or fit.camera or Path(path).name.removesuffix(".json").removesuffix(".colour")
+        named.append((name, fit, light))
+    if by_illuminant:
+        from camcal.colour.export.ocio_fit import names_by_illuminant
+
+        spaces = names_by_illuminant(named)
+    else:
+        spaces = [(name, fit) for name, fit, _ in named]
+    if icc and not spaces:
+        raise CamcalError("--icc needs a characterisation (kind characterisation); a camera match has no ICC profile")
+    profile = None
+    if icc:
+        from camcal.colour.export.icc import icc_profile_from_fit
+
+        profile = icc_profile_from_fit(spaces[0][1], spaces[0][0], version=icc_version, max_delta_E=max_bake_error)
+    exported, files = None, []
+    if ocio:
+        from camcal.io.ocio import export_ocio
+
+        version = {"ocio_version": ocio_version} if ocio_version else {}
+        with output_folder(ocio) as ocio_dir:
+            exported = export_ocio(spaces, ocio_dir, base=base, cat=adaptation, max_delta_E=max_bake_error,
+                                   matches=matches, family=family, home=ocio, **version)
+        exported = dataclasses.replace(exported, config_path=final_path(exported.config_path, ocio_dir, ocio))
+        files.append((exported.config_path, "ocio config"))
+        files += [(Path(ocio) / space.clf, "clf") for space in exported.spaces if space.clf]
+    icc_path = None
+    if profile is not None:
+        from camcal.io.icc import write_icc
+
+        icc_path = write_icc(profile, icc)
+        files.append((icc_path, "icc"))
+    return ColourExport(exported, profile, icc_path, len(spaces), len(matches), tuple(files))

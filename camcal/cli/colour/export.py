@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.base.errors import CamcalError
-from camcal.cli.options import adaptation_option, handler, only_with, output_folder
+from camcal.cli.options import adaptation_option, handler, only_with
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -64,84 +63,16 @@ def _export(args: argparse.Namespace) -> int:
     file with an aces_interchange role; a base newer than --ocio-version is written at it when it uses
     nothing newer.
     """
-    import dataclasses
-    from pathlib import Path
+    from camcal.api.colour import export_colour
 
-    from camcal.colour.fit.record import ColourFit
-    from camcal.io.colourfile import load_colour_file
-
-    if not args.ocio and not args.icc:
-        raise CamcalError("nothing to write: give --ocio OUTDIR and/or --icc OUT.icc")
-    if args.camera_name and len(args.fits) > 1 and not args.by_illuminant:
-        raise CamcalError(f"--camera-name needs exactly one fit (or --by-illuminant), got {len(args.fits)}")
-    for option, value in (("--ocio-version", args.ocio_version), ("--family", args.family)):
-        if value and not args.ocio:
-            raise CamcalError(f"{option} applies to the OCIO config: give --ocio OUTDIR")
-    if args.by_illuminant and not args.ocio:
-        raise CamcalError("--by-illuminant names OCIO colour spaces: give --ocio OUTDIR")
-    if args.icc and len(args.fits) > 1:
-        raise CamcalError(f"--icc writes one profile: give one fit, got {len(args.fits)}")
-    if not (args.max_bake_error > 0):
-        raise CamcalError(f"--max-bake-error must be > 0, got {args.max_bake_error}")
+    result = export_colour(
+        args.fits, ocio=args.ocio, icc=args.icc, camera=args.camera_name, by_illuminant=args.by_illuminant,
+        base=args.base, ocio_version=args.ocio_version, family=args.family, adaptation=args.cat,
+        icc_version=args.icc_version, max_bake_error=args.max_bake_error)
+    for line in result.lines():
+        print(line)
     out = summary_of(args)
-    fits, matches, lights = [], [], []
-    for entry in args.fits:
-        path, light = entry, None
-        if args.by_illuminant and "=" in entry and not Path(entry).is_file():
-            light, path = entry.split("=", 1)
-            if not light.strip():
-                raise CamcalError(f"empty light name in {entry!r} (expected LIGHT=FIT.colour.json)")
-        fit = load_colour_file(path)
-        if not isinstance(fit, ColourFit):
-            if light is not None:
-                raise CamcalError(f"{path} is a camera match, not a characterisation: it has no light to name")
-            matches.append(fit)
-            continue
-        name = args.camera_name or fit.camera or Path(path).name.removesuffix(".json").removesuffix(".colour")
-        fits.append((name, fit))
-        lights.append(light)
-    if args.by_illuminant:
-        from camcal.colour.export.ocio_fit import names_by_illuminant
-
-        fits = names_by_illuminant([(name, fit, light) for (name, fit), light in zip(fits, lights)])
-    if args.icc and not fits:
-        raise CamcalError("--icc needs a characterisation (kind characterisation); a camera match has no ICC profile")
-    profile = None
-    if args.icc:
-        from camcal.colour.export.icc import icc_profile_from_fit
-        from camcal.io.icc import write_icc
-
-        profile = icc_profile_from_fit(fits[0][1], fits[0][0], version=args.icc_version,
-                                       max_delta_E=args.max_bake_error)
-    if args.ocio:
-        from camcal.io.ocio import export_ocio
-
-        from camcal.base.atomic import final_path
-
-        with output_folder(args.ocio) as ocio_dir:
-            version = {"ocio_version": args.ocio_version} if args.ocio_version else {}
-            result = export_ocio(fits, ocio_dir, base=args.base, cat=args.cat, max_delta_E=args.max_bake_error,
-                                 matches=matches, family=args.family, home=args.ocio, **version)
-        result = dataclasses.replace(result, config_path=final_path(result.config_path, ocio_dir, args.ocio))
-        for space in result.spaces:
-            print(space.summary())
-        print(f"wrote {result.config_path} (OCIO profile {result.profile_version}, base {result.base}, "
-              f"{len(fits)} camera space(s), {len(matches)} match Look(s))")
-        out.figures(base=result.base, ocio_profile_version=result.profile_version, n_matches=len(matches), spaces=[{
-            "name": space.name, "camera": space.camera, "model": space.model, "kind": space.kind,
-            "lut_size": space.lut_size, "clf": space.clf, "linearisation_error": space.linearisation_error,
-            "bake_error_delta_E2000": None if space.bake_error is None else dataclasses.asdict(space.bake_error),
-        } for space in result.spaces])
-        out.wrote(result.config_path, "ocio config", say=False)
-        for space in result.spaces:
-            if space.clf:
-                out.wrote(Path(args.ocio) / space.clf, "clf", say=False)
-    if profile is not None:
-        write_icc(profile, args.icc)
-        print(f"wrote {args.icc} (ICC v{profile.version}, {profile.summary()})")
-        out.figures(icc={"version": profile.version, "kind": profile.kind, "bake_error_delta_E2000":
-                         None if profile.kind == "matrix-trc" else dataclasses.asdict(profile.bake_error),
-                         "float_clut_size": profile.float_clut_size, "float_bake_error_delta_E2000":
-                         None if profile.float_bake_error is None else dataclasses.asdict(profile.float_bake_error)})
-        out.wrote(args.icc, "icc", say=False)
+    out.figures(**result.figures())
+    for path, kind in result.files:
+        out.wrote(path, kind, say=False)
     return 0
