@@ -21,7 +21,7 @@ EXACT = {"colmap"}
 #: where the lens read back is the nearest Kannala-Brandt lens the file holds
 NEAREST_FISHEYE = {"opencv", "kalibr"}
 OUT = {"opencv": "cam.yaml", "kalibr": "camchain.yaml", "colmap": "sparse", "usd": "rig.usda", "nuke": "rig.nk",
-       "3de": "lens.txt"}
+       "3de": "lens.txt", "lensfun": "lens.xml"}
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
@@ -40,7 +40,7 @@ def test_export_is_exact_or_a_reported_nearest_fit(fmt, tmp_path):
             assert conversion.refit.family == "3de4-fisheye-deg8" and not conversion.refit.exact
         assert conversion.camera in conversion.describe()
     if fmt not in EXACT | NEAREST_FISHEYE:
-        return  # usd, nuke and 3de: their own tests read them back
+        return  # usd, nuke, 3de and lensfun: their own tests read them back
     back = import_rig(tmp_path / OUT[fmt], fmt)
     for camera, conversion in zip(rig.cameras, result.conversions):
         read = back.rig.cameras[rig.cameras.index(camera)]
