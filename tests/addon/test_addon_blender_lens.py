@@ -102,6 +102,30 @@ def _ramp(bpy, size):
     return image
 
 
+def _sampled_positions(bpy, dist_scene, node, size, margins, tmp_path):
+    """Render ``dist_scene``'s compositor with a coordinate ramp of the overscan frame fed into ``node`` in place of
+    the render: for each output pixel, where Blender sampled, as a camcal pixel of the camera's frame (H, W, 2)."""
+    (W, H), (mx, my) = size, margins
+    Wo, Ho = W + 2 * mx, H + 2 * my
+    tree = dist_scene.compositing_node_group
+    for other in [n for n in tree.nodes if n.bl_idname in ("CompositorNodeRLayers", "CompositorNodeScale")]:
+        tree.nodes.remove(other)
+    ramp = tree.nodes.new("CompositorNodeImage")
+    ramp.image = _ramp(bpy, (Wo, Ho))
+    tree.links.new(ramp.outputs["Image"], node.inputs["Image"])
+    dist_scene.render.image_settings.file_format = "OPEN_EXR"
+    dist_scene.render.image_settings.color_depth = "32"
+    dist_scene.render.filepath = str(tmp_path / "sampled.exr")
+    bpy.ops.render.render(write_still=True, scene=dist_scene.name)
+    image = bpy.data.images.load(dist_scene.render.filepath)
+    assert tuple(image.size) == size
+    pixels = np.empty(W * H * 4, dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    pixels = pixels.reshape(H, W, 4)[::-1].astype(np.float64)  # rows top-down: camcal's y
+    # Blender's sampling position (overscan frame, edges, y up) -> camcal pixel of the camera's frame
+    return np.stack([pixels[..., 0] * Wo - 0.5 - mx, Ho - pixels[..., 1] * Ho - 0.5 - my], axis=-1)
+
+
 @pytest.mark.parametrize("name", list(CASES))
 def test_movie_distortion_in_blender_equals_camcal_within_0_01_px(bpy, addon, tmp_path, name):
     lens, model, size = CASES[name]
@@ -118,21 +142,7 @@ def test_movie_distortion_in_blender_equals_camcal_within_0_01_px(bpy, addon, tm
     tree = dist_scene.compositing_node_group
     md = next(node for node in tree.nodes if node.bl_idname == "CompositorNodeMovieDistortion")
     assert md.clip.tracking.camera.distortion_model == model
-    for node in [n for n in tree.nodes if n.bl_idname in ("CompositorNodeRLayers", "CompositorNodeScale")]:
-        tree.nodes.remove(node)
-    ramp = tree.nodes.new("CompositorNodeImage")
-    ramp.image = _ramp(bpy, (Wo, Ho))
-    tree.links.new(ramp.outputs["Image"], md.inputs["Image"])
-    dist_scene.render.image_settings.file_format = "OPEN_EXR"
-    dist_scene.render.image_settings.color_depth = "32"
-    dist_scene.render.filepath = str(tmp_path / "sampled.exr")
-    bpy.ops.render.render(write_still=True, scene=dist_scene.name)
-    image = bpy.data.images.load(dist_scene.render.filepath)
-    pixels = np.empty(W * H * 4, dtype=np.float32)
-    image.pixels.foreach_get(pixels)
-    pixels = pixels.reshape(H, W, 4)[::-1].astype(np.float64)  # rows top-down: camcal's y
-    # Blender's sampling position (overscan frame, edges, y up) -> camcal pixel of the camera's frame
-    sampled = np.stack([pixels[..., 0] * Wo - 0.5 - mx, Ho - pixels[..., 1] * Ho - 0.5 - my], axis=-1)
+    sampled = _sampled_positions(bpy, dist_scene, md, size, (mx, my), tmp_path)
     v, u = np.mgrid[0:H, 0:W]
     output = np.stack([u, v], axis=-1).astype(np.float64)
     # pixels whose sample lies in the ramp (bilinear reads of a ramp are exact there, clamped beyond)
@@ -221,25 +231,10 @@ def test_map_uv_path_in_blender_equals_camcal_within_0_01_px(bpy, addon, tmp_pat
     result = addon.import_rig(scene, str(rig_path), aux_directory=str(tmp_path / "lens"), uv_maps=uv_maps)
     dist_scene = result.distorted_scenes["cam"]
     mx, my = addon.tracking.overscan_margins(size, 1.1)
-    Wo, Ho = W + 2 * mx, H + 2 * my
     tree = dist_scene.compositing_node_group
     map_uv = next(node for node in tree.nodes if node.bl_idname == "CompositorNodeMapUV")
     assert not [n for n in tree.nodes if n.bl_idname == "CompositorNodeMovieDistortion"]
-    for node in [n for n in tree.nodes if n.bl_idname in ("CompositorNodeRLayers", "CompositorNodeScale")]:
-        tree.nodes.remove(node)
-    ramp = tree.nodes.new("CompositorNodeImage")
-    ramp.image = _ramp(bpy, (Wo, Ho))
-    tree.links.new(ramp.outputs["Image"], map_uv.inputs["Image"])
-    dist_scene.render.image_settings.file_format = "OPEN_EXR"
-    dist_scene.render.image_settings.color_depth = "32"
-    dist_scene.render.filepath = str(tmp_path / "sampled.exr")
-    bpy.ops.render.render(write_still=True, scene=dist_scene.name)
-    image = bpy.data.images.load(dist_scene.render.filepath)
-    assert tuple(image.size) == size
-    pixels = np.empty(W * H * 4, dtype=np.float32)
-    image.pixels.foreach_get(pixels)
-    pixels = pixels.reshape(H, W, 4)[::-1].astype(np.float64)
-    sampled = np.stack([pixels[..., 0] * Wo - 0.5 - mx, Ho - pixels[..., 1] * Ho - 0.5 - my], axis=-1)
+    sampled = _sampled_positions(bpy, dist_scene, map_uv, size, (mx, my), tmp_path)
     v, u = np.mgrid[0:H, 0:W]
     output = np.stack([u, v], axis=-1).reshape(-1, 2).astype(np.float64)
     lens = Distortion.from_dict(RATIONAL)
