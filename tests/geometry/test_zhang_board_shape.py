@@ -268,7 +268,7 @@ def test_a_flat_pick_without_a_surface_path_has_the_surface_chosen_with_the_simp
     squared = {s.model: per_view(s.rms_px) for s in scored}
     scored_for = []
 
-    def fake_scores(board, views, model, folds, results, corners, squared, specs=None):
+    def fake_scores(board, views, model, folds, results, corners, squared, specs=None, fits=None):
         out = []
         for spec in zhang._shape_specs(board, zhang.AUTO_SHAPES) if specs is None else specs:
             name = f"{model}@board-{spec}"
