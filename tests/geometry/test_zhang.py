@@ -415,7 +415,7 @@ def test_cli_quality_gate_refuses_with_one_line(shared_data, tmp_path, capsys, m
     monkeypatch.setattr(zhang, "calibrate_board", broken)
     folder = shared_data / "stereo_chessboard"
     args = ["calibrate", "board", "--board", "chessboard:9x6:1", "--images", f"left={folder}/left0[1-6].jpg",
-            "--images", f"right={folder}/right0[1-6].jpg", "--no-cache"]
+            "--images", f"right={folder}/right0[1-6].jpg", "--no-cache", "--model", "opencv"]  # the gate, not auto
     out = tmp_path / "rig.rig.json"
     assert main([*args, "--out", str(out)]) == 2
     error = capsys.readouterr().err.split("images/s\n")[-1]  # after the detection progress lines
@@ -432,7 +432,7 @@ def test_cli_holdout_reports_heldout_rms(shared_data, tmp_path, capsys):
     code = main([
         "calibrate", "board", "--board", "chessboard:9x6:1", "--units", "squares", "--holdout", "8-9",
         "--images", f"left={folder}/left0*.jpg", "--images", f"right={folder}/right0*.jpg", "--out", str(out),
-        "--cache", str(tmp_path / "cache"),
+        "--cache", str(tmp_path / "cache"), "--model", "opencv",  # hold-out reporting; auto is tested on its own
     ])
     assert code == 0
     printed = capsys.readouterr().out
