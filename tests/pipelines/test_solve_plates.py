@@ -53,14 +53,20 @@ def _to_plates(folder, plates):
         out.close()
 
 
+def _rendered_plates(tmp_path, n_frames):
+    """A rendered stereo sequence (256 px wide, PNG under ``in/``) and its plates (``plates/``): (width, height)."""
+    width = 256
+    focal, height = 500.0 * width / 640, width * 3 // 4
+    render_stereo_sequence(tmp_path / "in", n_frames=n_frames, image_size=(width, height),
+                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
+    _to_plates(tmp_path / "in", tmp_path / "plates")
+    return width, height
+
+
 @pytest.mark.slow
 def test_plates_solve_to_the_rig_of_the_same_pixels_as_png(tmp_path):
     """Two solves; the fast sibling below solves a plate through the command line."""
-    width = 256
-    focal, height = 500.0 * width / 640, width * 3 // 4
-    render_stereo_sequence(tmp_path / "in", n_frames=5, image_size=(width, height),
-                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
-    _to_plates(tmp_path / "in", tmp_path / "plates")
+    _rendered_plates(tmp_path, 5)
     last = f"{FIRST}-{FIRST + 4}"
     plates = collect_images([tmp_path / "plates" / "left.%04d.exr", tmp_path / "plates" / "right.####.dpx"], frames=last)
     assert list(plates) == ["left", "right"] and [p.name for p in plates["right"]][-1] == f"right.{FIRST + 4}.dpx"
@@ -82,14 +88,10 @@ def test_plates_solve_to_the_rig_of_the_same_pixels_as_png(tmp_path):
 
 
 def test_solve_cli_takes_a_plate_by_camera_and_frame_range(tmp_path, monkeypatch, capsys):
-    """--camera NAME=PATTERN with --frames: the frames outside the range are not used, the staged frames hold
+    """--images NAME=PATTERN with --frames: the frames outside the range are not used, the staged frames hold
     the pixels the EXR's linear values encode."""
     monkeypatch.chdir(tmp_path)
-    width = 256
-    focal, height = 500.0 * width / 640, width * 3 // 4
-    render_stereo_sequence(tmp_path / "in", n_frames=4, image_size=(width, height),
-                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
-    _to_plates(tmp_path / "in", tmp_path / "plates")
+    _rendered_plates(tmp_path, 4)
     code = main(["solve", "plates", "--images", "left=left.####.exr", "--frames", f"{FIRST}-{FIRST + 2}",
                  "--features", "512", "--no-refine", "--out", "out"])
     assert code == 0, capsys.readouterr().err
@@ -114,11 +116,7 @@ def test_mattes_keep_features_out_of_their_white_part(tmp_path, monkeypatch, cap
     """A matte sequence white over the left 40 % of the frames: no feature is taken there, while the same
     solve without it has features across the whole width."""
     monkeypatch.chdir(tmp_path)
-    width = 256
-    focal, height = 500.0 * width / 640, width * 3 // 4
-    render_stereo_sequence(tmp_path / "in", n_frames=4, image_size=(width, height),
-                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
-    _to_plates(tmp_path / "in", tmp_path / "plates")
+    width, height = _rendered_plates(tmp_path, 4)
     (tmp_path / "mattes").mkdir()
     edge = int(0.4 * width)
     for frame in range(FIRST, FIRST + 4):
@@ -163,11 +161,7 @@ def test_mattes_that_do_not_fit_the_images_are_one_error_and_nothing_is_written(
 def test_solve_killed_mid_run_then_rerun_leaves_the_uninterrupted_result(tmp_path):
     """SIGKILL during feature extraction leaves the staging folder; the rerun removes it and writes what an
     uninterrupted run writes (the slow sibling of the stale-folder check above)."""
-    width = 256
-    focal, height = 500.0 * width / 640, width * 3 // 4
-    render_stereo_sequence(tmp_path / "in", n_frames=5, image_size=(width, height),
-                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
-    _to_plates(tmp_path / "in", tmp_path / "plates")
+    _rendered_plates(tmp_path, 5)
     command = [sys.executable, "-m", "camcal", "solve", "plates/left.####.exr", "--features", "512",
                "--out", "out"]
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
