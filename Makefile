@@ -9,7 +9,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 LOCK   := requirements/lock-py313.txt
 
-.PHONY: test test-all fuzz demo bench addon clean python
+.PHONY: test test-all test-lowest test-newest fuzz demo bench addon clean python
 
 python:
 	@test -n "$(PYTHON)" || { echo "camcal: Python 3.13 not found (tried python3.13, ~/.pyenv/versions/3.13*/bin, /usr/local/bin, /usr/bin); install it or run make PYTHON=/path/to/python3.13" >&2; exit 2; }
@@ -29,6 +29,26 @@ test: $(STAMP)
 test-all: $(STAMP)
 	$(PY) -m pytest -q
 
+# The fast suite at the lowest and at the newest versions pyproject.toml allows, each in its own venv
+# (.venv-lowest: requirements/lowest-py313.txt as constraints, written by requirements/lowest.py;
+# .venv-newest: no constraints, upgraded to the newest releases on every run).
+# A subset: make test-lowest TESTS="tests/io tests/model"
+TESTS ?=
+define versions_venv
+	@test -x $(1)/bin/python || $(PYTHON) -m venv $(1)
+	$(1)/bin/python -m pip install --quiet --upgrade pip
+	$(1)/bin/python -m pip install --quiet $(2) -e ".[all,blender,test]"
+	$(1)/bin/python tests/colour/export/ocio_releases.py install $(1)/ocio
+	@$(1)/bin/python -m pip list --format=freeze > $(1)/versions.txt
+	$(1)/bin/python -m pytest -m "not slow" -q -p no:cacheprovider $(TESTS)
+endef
+
+test-lowest: python
+	$(call versions_venv,.venv-lowest,-c requirements/lowest-py313.txt)
+
+test-newest: python
+	$(call versions_venv,.venv-newest,--upgrade --upgrade-strategy eager)
+
 # Every reader against mutated and random files, minutes (make test runs the quick profile);
 # more examples per reader: make fuzz CAMCAL_FUZZ_EXAMPLES=10000
 CAMCAL_FUZZ_EXAMPLES ?= 1500
@@ -47,4 +67,4 @@ addon: $(STAMP)
 	$(PY) -m camcal.blender_bridge dist
 
 clean:
-	rm -rf $(VENV) demo_out build dist *.egg-info
+	rm -rf $(VENV) .venv-lowest .venv-newest demo_out build dist *.egg-info

@@ -2,9 +2,9 @@
 
 Fenced ``sh`` and ``python`` blocks run as a user would type them: the shell
 ones with ``bash -e`` (``camcal`` on the PATH), the Python ones as scripts, in
-order, in a folder holding a small board set rendered here with known
-intrinsics (:func:`write_board_set`). An HTML comment on the line before a
-block says how it runs:
+order, in a folder holding the small board set shipped in tests/data/boards
+(seven views :func:`write_board_set` renders through a known camera). An HTML
+comment on the line before a block says how it runs:
 
 - none: a fast test runs it (the README's quick start among them);
 - ``<!-- docs-test: slow -->``: a slow test (colour fits, Blender), after the fast blocks;
@@ -39,7 +39,8 @@ RUNNABLE = {"sh": "shell", "bash": "shell", "python": "python"}
 NOT_RUN = {"json", "text"}  # data and help output, shown not run
 MARKER = re.compile(r"<!-- docs-test: (?P<kind>\w+)(?P<reason>.*?)-->")
 
-#: The board set's camera: what the quick start must recover.
+#: The board set the quick start runs on (what `write_board_set` writes) and its camera: what it must recover.
+BOARD_SET = ROOT / "tests" / "data" / "boards"
 BOARD = (9, 6, 0.03)  # inner corners, square size (m): `chessboard:9x6:0.03`
 FOCAL_PX, CENTRE_PX, IMAGE_SIZE, LAMBDA = 700.0, (322.0, 236.0), (640, 480), -4e-7
 #: (tilt, tilt axis, roll) in degrees of each view: tilts about varied axes determine the principal point.
@@ -111,14 +112,14 @@ def _environment(bin_dir: Path) -> dict[str, str]:
     return env
 
 
-def run_block(block: Block, folder: Path, env: dict[str, str]) -> None:
-    """Run one block in ``folder``; a failure names the block and shows its output."""
+def run_block(block: Block, folder: Path, env: dict[str, str], python: str | Path = sys.executable) -> None:
+    """Run one block in ``folder`` (Python blocks with ``python``); a failure names the block and shows its output."""
     if RUNNABLE[block.language] == "shell":
         command = ["bash", "-e", "-o", "pipefail", "-c", block.text]
     else:
         script = folder / f"snippet_{block.path.stem}_{block.line}.py"
         script.write_text(block.text)
-        command = [sys.executable, str(script)]
+        command = [str(python), str(script)]
     run = subprocess.run(command, cwd=folder, env=env, capture_output=True, text=True, timeout=1800)
     assert run.returncode == 0, f"{block.where} failed ({run.returncode}):\n{block.text}\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"
     assert "is deprecated, use" not in run.stderr, f"{block.where} uses a former option spelling:\n{run.stderr}"
@@ -128,13 +129,18 @@ def _runnable(path: Path, kinds: tuple[str, ...]) -> list[Block]:
     return [b for b in ALL_BLOCKS if b.path == path and b.kind in kinds and b.language in RUNNABLE]
 
 
+def quick_start_blocks() -> list[Block]:
+    """The README's blocks a fast test runs, in order: the quick start, on the board set in ``boards/``."""
+    return _runnable(ROOT / "README.md", ("fast",))
+
+
 @pytest.fixture(scope="module")
 def quick_start(tmp_path_factory) -> tuple[Path, dict[str, str]]:
     """A folder with the board set where the README's fast blocks (the quick start) have run."""
     folder = tmp_path_factory.mktemp("quick_start")
-    write_board_set(folder / "boards")
+    shutil.copytree(BOARD_SET, folder / "boards")
     env = _environment(tmp_path_factory.mktemp("bin"))
-    for block in _runnable(ROOT / "README.md", ("fast",)):
+    for block in quick_start_blocks():
         run_block(block, folder, env)
     return folder, env
 
@@ -143,8 +149,12 @@ def quick_start(tmp_path_factory) -> tuple[Path, dict[str, str]]:
 
 
 def test_readme_quick_start_recovers_the_board_sets_camera(quick_start):
-    """The README's quick start as written, on the rendered board set: the camera it renders comes back."""
-    folder, _ = quick_start
+    """The README's quick start as written, on the shipped board set: the camera it renders comes back."""
+    check_quick_start_outputs(quick_start[0])
+
+
+def check_quick_start_outputs(folder: Path) -> None:
+    """What the README's quick start wrote in ``folder``: the board set's camera, every file it names."""
     camera = Rig.load(folder / "cam.rig.json").camera("cam")
     assert camera.K[0, 0] == pytest.approx(FOCAL_PX, rel=3e-3) and camera.K[1, 1] == pytest.approx(FOCAL_PX, rel=3e-3)
     assert np.hypot(*(camera.K[:2, 2] - CENTRE_PX)) < 1.0

@@ -1,8 +1,9 @@
 """The light install: ``pip install camcal`` alone shows, exports and imports rigs, undistorts and writes ST-maps.
 
 The slow test builds a fresh virtual environment with ``pip install .`` only
-(the lock file as constraints) and runs the command line there; ``camcal solve``
-must then say in one line which extra it needs. Its fast sibling runs the same
+(the lock file as constraints) and runs the command line there; the heavy verbs
+(``solve``, ``colour fit``, ``rig export --to usd``, ``batch``, ``blender import``)
+must then say in one line which extra they need. Its fast sibling runs the same
 commands in this environment with every optional module hidden
 (``sys.modules[name] = None`` for each module of :data:`camcal.base.extras.EXTRAS`).
 Both check the outputs against OpenCV's own reading of the exported file and
@@ -10,7 +11,6 @@ against camcal's undistortion and ST-maps computed here, with every extra.
 """
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -26,21 +26,27 @@ from camcal.io.stmap import read_exr
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Rig
 from camcal.synthetic import example_camera
+from fresh_venv import make_venv, run
 
 ROOT = Path(__file__).resolve().parents[1]
 LOCK = ROOT / "requirements" / "lock-py313.txt"
 OPENCV_LENS = (-0.21, 0.05, 1.0e-3, -5.0e-4, 0.0)  # k3 = 0: Kalibr's radtan holds it exactly
 #: distributions that only the extras install
 HEAVY = {"pycolmap", "pyceres", "colour-science", "opencolorio", "rawpy", "matplotlib", "dask", "distributed",
-         "usd-core", "bpy"}
+         "usd-core", "openimageio", "bpy"}
 
-# Runs several `camcal` command lines in one process with every optional module hidden; prints their exit codes.
+# Runs several `camcal` command lines in one process with every optional module hidden; prints the exit code and
+# the standard error of each.
 _WITHOUT_EXTRAS = """
-import json, sys
+import contextlib, io, json, sys
 for name in json.loads(sys.argv[1]):
     sys.modules[name] = None
 from camcal.cli import main
-print("EXIT_CODES", json.dumps([main(argv) for argv in json.loads(sys.argv[2])]))
+results = []
+for argv in json.loads(sys.argv[2]):
+    with contextlib.redirect_stderr(io.StringIO()) as stderr:
+        results.append((main(argv), stderr.getvalue()))
+print("RESULTS", json.dumps(results))
 """
 
 
@@ -70,6 +76,34 @@ def _light_commands(tmp_path: Path, rig: Path, plate: Path) -> list[list[str]]:
     ]
 
 
+def _heavy_commands(tmp_path: Path, rig: Path) -> list[tuple[list[str], str]]:
+    """Heavy verbs on valid inputs, each with the extra it needs (nothing written without it)."""
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for index in range(2):
+        cv2.imwrite(str(shots / f"{index:02d}.png"), np.full((48, 64), 40 * index, dtype=np.uint8))
+    heavy = tmp_path / "heavy"
+    return [
+        (["solve", str(shots), "--out", str(heavy / "solve")], "calibrate"),
+        (["colour", "fit", "--chart", str(shots / "00.png"), "--reference", "babel", "--illuminant", "D65",
+          "--camera-name", "cam", "--out", str(heavy / "cam.colour.json")], "colour"),
+        (["rig", "export", str(rig), "--to", "usd", str(heavy / "one.usda")], "usd"),
+        (["batch", str(rig), "--camera", "left", "--images", str(shots / "%02d.png"), "--frames", "0-1",
+          "--out", str(heavy / "%02d.png"), "--undistort"], "dask"),
+        (["blender", "import", str(rig), "--blend", str(heavy / "one.blend")], "blender"),
+    ]
+
+
+def _check_missing_extra(argv: list[str], extra: str, code: int, stderr: str, tmp_path: Path) -> None:
+    """Exit 2, one line naming the verb and its extra, nothing written."""
+    verb = " ".join(argv[:2]) if argv[0] in ("colour", "rig", "blender") else argv[0]
+    assert code == 2, f"camcal {' '.join(argv)}: exit {code}\n{stderr}"
+    assert stderr.splitlines() == [f"camcal: error: camcal {verb} needs the '{extra}' extra "
+                                   f"({next(m for m, e in EXTRAS.items() if e == extra and m in stderr)} is not "
+                                   f"installed): pip install 'camcal[{extra}]'"], stderr
+    assert not (tmp_path / "heavy").exists()
+
+
 def _check_outputs(tmp_path: Path, rig: Path, plate: Path) -> None:
     out = tmp_path / "out"
     camera = Rig.load(rig).camera("left")
@@ -95,45 +129,34 @@ def _check_outputs(tmp_path: Path, rig: Path, plate: Path) -> None:
 def test_light_verbs_run_with_every_optional_module_missing(tmp_path):
     rig, plate = _inputs(tmp_path)
     commands = _light_commands(tmp_path, rig, plate)
-    result = subprocess.run([sys.executable, "-c", _WITHOUT_EXTRAS, json.dumps(sorted(EXTRAS)), json.dumps(commands)],
+    heavy = _heavy_commands(tmp_path, rig)
+    argvs = commands + [argv for argv, _ in heavy]
+    result = subprocess.run([sys.executable, "-c", _WITHOUT_EXTRAS, json.dumps(sorted(EXTRAS)), json.dumps(argvs)],
                             capture_output=True, text=True, cwd=tmp_path)
-    codes = [line for line in result.stdout.splitlines() if line.startswith("EXIT_CODES ")]
-    assert result.returncode == 0 and codes, result.stderr
-    assert json.loads(codes[-1].split(" ", 1)[1]) == [0] * len(commands), result.stderr
+    lines = [line for line in result.stdout.splitlines() if line.startswith("RESULTS ")]
+    assert result.returncode == 0 and lines, result.stderr
+    results = json.loads(lines[-1].split(" ", 1)[1])
+    for argv, (code, stderr) in zip(commands, results):
+        assert code == 0, f"camcal {' '.join(argv)}: exit {code}\n{stderr}"
     assert "camera 'left': 160x120 px" in result.stdout
     _check_outputs(tmp_path, rig, plate)
-
-
-def _run(argv: list, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([str(a) for a in argv], cwd=cwd, capture_output=True, text=True, env=env)
+    for (argv, extra), (code, stderr) in zip(heavy, results[len(commands):]):
+        _check_missing_extra(argv, extra, code, stderr, tmp_path)
 
 
 @pytest.mark.slow
 def test_pip_install_without_extras_in_a_fresh_venv(tmp_path):
-    venv = tmp_path / "venv"
-    assert _run([sys.executable, "-m", "venv", venv], tmp_path).returncode == 0
-    python, camcal = venv / "bin" / "python", venv / "bin" / "camcal"
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CAMCAL_ADDON_DIR", "CAMCAL_OCIO_CONFIGS")}
-    install = _run([python, "-m", "pip", "install", "-q", "-c", LOCK, ROOT], tmp_path, env)
-    assert install.returncode == 0, install.stderr
-    listed = _run([python, "-m", "pip", "list", "--format=json"], tmp_path, env)
-    installed = {entry["name"].lower().replace("_", "-") for entry in json.loads(listed.stdout)}
+    venv = make_venv(tmp_path / "venv")
+    venv.pip_install("-c", LOCK, ROOT, cwd=tmp_path)
+    installed = venv.installed()
     assert "camcal" in installed and not installed & HEAVY, installed & HEAVY
-    where = _run([python, "-c", "import camcal; print(camcal.__file__)"], tmp_path, env)
-    assert str(venv) in where.stdout, where.stdout + where.stderr
+    assert str(venv.path) in venv.camcal_location()
 
     rig, plate = _inputs(tmp_path)
     for argv in _light_commands(tmp_path, rig, plate):
-        result = _run([camcal, *argv], tmp_path, env)
-        assert result.returncode == 0, f"camcal {' '.join(argv)}\n{result.stdout}\n{result.stderr}"
+        run([venv.camcal, *argv], tmp_path, venv.env, check=True)
     _check_outputs(tmp_path, rig, plate)
 
-    folder = tmp_path / "shots"
-    folder.mkdir()
-    for index in range(2):
-        cv2.imwrite(str(folder / f"{index:02d}.png"), np.full((48, 64), 40 * index, dtype=np.uint8))
-    solve = _run([camcal, "solve", folder, "--out", tmp_path / "solve"], tmp_path, env)
-    assert solve.returncode == 2
-    assert solve.stderr.splitlines() == ["camcal: error: camcal solve needs the 'calibrate' extra "
-                                         "(pycolmap is not installed): pip install 'camcal[calibrate]'"]
-    assert not (tmp_path / "solve").exists()
+    for argv, extra in _heavy_commands(tmp_path, rig):
+        result = run([venv.camcal, *argv], tmp_path, venv.env)
+        _check_missing_extra(argv, extra, result.returncode, result.stderr, tmp_path)

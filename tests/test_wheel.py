@@ -4,8 +4,6 @@ Slow (a wheel build and a venv with every dependency from pip's configured
 index); the fast check below covers the resource lookup in this install.
 """
 
-import os
-import subprocess
 import sys
 import zipfile
 from pathlib import Path
@@ -15,6 +13,7 @@ import pytest
 from camcal.resources import addon_dir, ocio_configs_dir
 from camcal.model.rig import Rig
 from camcal.synthetic import example_camera
+from fresh_venv import make_venv, run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -24,35 +23,25 @@ def test_resources_found_with_importlib():
     assert (ocio_configs_dir() / "camcal_base.ocio").is_file()
 
 
-def _run(argv, cwd, env=None):
-    result = subprocess.run([str(a) for a in argv], cwd=cwd, capture_output=True, text=True, env=env)
-    assert result.returncode == 0, f"{' '.join(map(str, argv))}\n{result.stdout}\n{result.stderr}"
-    return result
-
-
 @pytest.mark.slow
 def test_wheel_in_a_fresh_venv_imports_into_blender_and_exports_ocio(tmp_path, sim):
     dist = tmp_path / "dist"
-    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, ROOT], cwd=tmp_path)
+    run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, ROOT], cwd=tmp_path, check=True)
     [wheel] = dist.glob("camcal-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     assert "camcal/resources/addon/blender_manifest.toml" in names
     assert "camcal/resources/ocio_configs/camcal_base.ocio" in names
-    venv = tmp_path / "venv"
-    _run([sys.executable, "-m", "venv", venv], cwd=tmp_path)
-    python = venv / "bin" / "python"
-    _run([python, "-m", "pip", "install", "-q", "-c", ROOT / "requirements" / "lock-py313.txt", f"{wheel}[all,blender]"],
-         cwd=tmp_path)
-    camcal = venv / "bin" / "camcal"
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "CAMCAL_ADDON_DIR", "CAMCAL_OCIO_CONFIGS")}
+    venv = make_venv(tmp_path / "venv")
+    venv.pip_install("-c", ROOT / "requirements" / "lock-py313.txt", f"{wheel}[all,blender]", cwd=tmp_path)
+    camcal, env = venv.camcal, venv.env
     # the installed package, not this checkout
-    where = _run([python, "-c", "import camcal, camcal.resources as r; print(camcal.__file__); print(r.addon_dir())"],
-                 cwd=tmp_path, env=env).stdout.split()
-    assert all(str(venv) in line for line in where), where
+    where = run([venv.python, "-c", "import camcal, camcal.resources as r; print(camcal.__file__); print(r.addon_dir())"],
+                cwd=tmp_path, env=env, check=True).stdout.split()
+    assert all(str(venv.path) in line for line in where), where
 
     rig = Rig((example_camera("left", image_size=(320, 240), fx=300, fy=300, principal_point=(159.5, 119.5)),))
     rig_path = rig.save(tmp_path / "one.rig.json")
-    _run([camcal, "blender", "import", rig_path, "--blend", tmp_path / "one.blend"], cwd=tmp_path, env=env)
+    run([camcal, "blender", "import", rig_path, "--blend", tmp_path / "one.blend"], cwd=tmp_path, env=env, check=True)
     assert (tmp_path / "one.blend").stat().st_size > 0
 
     from camcal.colour.fit.characterise import characterise
@@ -62,5 +51,6 @@ def test_wheel_in_a_fresh_venv_imports_into_blender_and_exports_ocio(tmp_path, s
     fit = characterise(PatchSet(sim.names_train, sim.RGB_train, sim.XYZ_train), white="D65", model="matrix3x3",
                        loo=False).fit
     fit_path = save_colour_file(fit, tmp_path / "cam.colour.json")
-    _run([camcal, "colour", "export", fit_path, "--ocio", tmp_path / "ocio", "--base", "camcal"], cwd=tmp_path, env=env)
+    run([camcal, "colour", "export", fit_path, "--ocio", tmp_path / "ocio", "--base", "camcal"], cwd=tmp_path, env=env,
+        check=True)
     assert "camcal" in (tmp_path / "ocio" / "config.ocio").read_text()
