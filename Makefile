@@ -40,7 +40,7 @@ define versions_venv
 	$(1)/bin/python -m pip install --quiet $(2) -e ".[all,blender,test]"
 	$(1)/bin/python tests/colour/export/ocio_releases.py install $(1)/ocio
 	@$(1)/bin/python -m pip list --format=freeze > $(1)/versions.txt
-	$(1)/bin/python -m pytest -m "not slow" -q -p no:cacheprovider $(TESTS)
+	$(1)/bin/python -m pytest -m "not slow" -q -p no:cacheprovider --continue-on-collection-errors $(TESTS)
 endef
 
 test-lowest: python

@@ -29,7 +29,6 @@ EXTRAS = ("all", "blender", "test")
 #: name -> (lowest version installable on CPython 3.13, why it is above pyproject's bound)
 PY313_FLOORS: dict[str, tuple[str, str]] = {
     "numpy": ("2.2.0", "bpy 5.1.1 requires numpy>=2.2 (1.26 has no Python 3.13 wheels)"),
-    "scipy": ("1.14.1", "the first release with Python 3.13 wheels"),
     "opencv-contrib-python-headless": ("4.11.0.86", "the first 4.11 release"),
     "openexr": ("3.4.0", "3.3 has no Python 3.13 wheels"),
     "pyyaml": ("6.0.2", "the first release with Python 3.13 wheels"),

@@ -10,6 +10,9 @@ the descriptors themselves (``os.dup2`` onto a pipe) for the duration of a
 asked, on to the real stderr. Python's own ``sys.stdout`` / ``sys.stderr``
 are pointed at the real descriptors meanwhile, so the caller's lines
 (progress, messages) still reach the terminal and stay out of the log.
+
+OpenCV's own log lines are not captured but turned down, with
+:func:`set_opencv_log_level`.
 """
 
 from __future__ import annotations
@@ -21,8 +24,9 @@ import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
+from types import ModuleType
 
-__all__ = ["native_output_to"]
+__all__ = ["OPENCV_LOG_ERROR", "OPENCV_LOG_SILENT", "native_output_to", "set_opencv_log_level"]
 
 _CHUNK = 65536
 
@@ -126,3 +130,28 @@ def native_output_to(log_path: str | os.PathLike, echo: bool = False, fds: tuple
             os.close(saved[fd])
         os.close(read_end)
         log.close()
+
+
+#: OpenCV's log levels (``cv::utils::logging::LogLevel``), the same numbers in OpenCV 4 and 5
+OPENCV_LOG_SILENT, OPENCV_LOG_ERROR = 0, 2
+
+
+def set_opencv_log_level(cv2: ModuleType, level: int) -> int:
+    """Set OpenCV's log level; returns the level it had.
+
+    OpenCV 5 keeps the setter in ``cv2.utils.logging``; OpenCV 4 has it as
+    ``cv2.setLogLevel`` / ``cv2.getLogLevel``. The levels are the same
+    numbers in both (:data:`OPENCV_LOG_SILENT`, :data:`OPENCV_LOG_ERROR`).
+
+    Parameters
+    ----------
+    cv2
+        The imported ``cv2`` module (passed in: this module does not import OpenCV).
+    level
+        The new level.
+    """
+    logging = getattr(cv2.utils, "logging", None)
+    api = logging if hasattr(logging, "setLogLevel") else cv2
+    previous = int(api.getLogLevel())
+    api.setLogLevel(level)
+    return previous

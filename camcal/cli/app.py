@@ -13,6 +13,7 @@ from collections.abc import Iterable, Sequence
 from camcal import __version__
 from camcal.base.errors import CamcalError
 from camcal.base.extras import missing_extra
+from camcal.base.native_log import OPENCV_LOG_ERROR, set_opencv_log_level
 from camcal.cli.options import CamcalParser, UsageError
 from camcal.cli.summary import EXIT_BAD_INPUT, EXIT_INTERNAL, VerbSummary
 
@@ -102,7 +103,7 @@ def _quiet_opencv() -> None:
     os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
     cv2 = sys.modules.get("cv2")
     if cv2 is not None and os.environ["OPENCV_LOG_LEVEL"] == "ERROR":
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+        set_opencv_log_level(cv2, OPENCV_LOG_ERROR)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

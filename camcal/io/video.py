@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from camcal.base.errors import CamcalError  # noqa: E402
+from camcal.base.native_log import OPENCV_LOG_SILENT, set_opencv_log_level  # noqa: E402
 
 __all__ = ["VIDEO_SUFFIXES", "VideoInfo", "first_frame", "frame_file_name", "is_video", "iter_frames", "video_info"]
 
@@ -69,12 +70,11 @@ def _capture(path: str | os.PathLike) -> Iterator[cv2.VideoCapture]:
         raise CamcalError(f"{path.name}: this OpenCV build has no FFmpeg video backend to decode it")
     if not path.is_file():
         raise CamcalError(f"{path}: no such video file")
-    level = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # OpenCV's own "can't open" warning
+    level = set_opencv_log_level(cv2, OPENCV_LOG_SILENT)  # OpenCV's own "can't open" warning
     try:
         capture = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
     finally:
-        cv2.utils.logging.setLogLevel(level)
+        set_opencv_log_level(cv2, level)
     try:
         if not capture.isOpened():
             raise CamcalError(f"{path.name}: cannot be decoded as a video (FFmpeg cannot open it)")

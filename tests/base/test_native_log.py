@@ -38,3 +38,22 @@ def test_echo_copies_native_lines_to_stderr(tmp_path):
     run = _run(tmp_path, echo=True)
     assert "from C on fd 2" in run.stderr and "from C on fd 1" in run.stderr
     assert "camcal: a line of our own" in run.stderr and "from C" not in run.stdout
+
+
+def test_opencv_log_level_is_set_through_either_opencv_api():
+    """OpenCV 5's cv2.utils.logging, or OpenCV 4's cv2.setLogLevel: the level set, the previous one returned."""
+    from types import SimpleNamespace
+
+    import cv2
+
+    from camcal.base.native_log import OPENCV_LOG_ERROR, OPENCV_LOG_SILENT, set_opencv_log_level
+
+    before = set_opencv_log_level(cv2, OPENCV_LOG_SILENT)
+    try:
+        assert set_opencv_log_level(cv2, OPENCV_LOG_ERROR) == OPENCV_LOG_SILENT
+    finally:
+        assert set_opencv_log_level(cv2, before) == OPENCV_LOG_ERROR
+
+    levels = [3]  # OpenCV 4's shape: no cv2.utils.logging, the setter at the top
+    opencv4 = SimpleNamespace(utils=SimpleNamespace(), getLogLevel=lambda: levels[-1], setLogLevel=levels.append)
+    assert set_opencv_log_level(opencv4, OPENCV_LOG_ERROR) == 3 and levels == [3, 2]
