@@ -26,12 +26,11 @@ from camcal.base.errors import CamcalError
 from camcal.base.extras import require
 from camcal.colour.bake.transforms import LUT_SIZES, BakedTransform, transform_from_callable
 from camcal.colour.chart.reference import DEFAULT_CHART, reference_chart
-from camcal.colour.spectral.data import adapt_XYZ, illuminant_white_XYZ
+from camcal.colour.spectral.data import adapt_XYZ, cie_1995_test_colour_samples, illuminant_white_XYZ
 
 __all__ = [
     "invert_model",
     "model_chart_samples",
-    "SURFACE_REFLECTANCES",
     "POINTER_LIGHTNESS",
     "POINTER_STEP",
     "MIN_CHANNEL_RATIO",
@@ -126,7 +125,6 @@ def model_chart_samples(model, white_XYZ: Any, reference: str | None, n: int = 2
     return _hull_samples(patches, n)
 
 
-SURFACE_REFLECTANCES = "CIE 1995"
 #: CIELAB lightness levels and a*, b* step of the Pointer's-gamut grid of plausible surface colours.
 POINTER_LIGHTNESS = (15.0, 30.0, 45.0, 60.0, 75.0, 90.0)
 POINTER_STEP = 10.0
@@ -162,14 +160,12 @@ def plausible_surface_XYZ(white_XYZ: Any, illuminant: str | None = None) -> np.n
       properties of light sources (test colour samples).
     """
     colour = require("colour")
-    from colour.quality.datasets import SDS_TCS
-
     white = np.asarray(white_XYZ, dtype=np.float64)
     name = illuminant if illuminant in colour.SDS_ILLUMINANTS else "D65"
     shape = colour.SpectralShape(380, 780, 5)
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape).values
     light = colour.SDS_ILLUMINANTS[name].copy().align(shape).values
-    R = np.array([sd.copy().align(shape).values for sd in SDS_TCS[SURFACE_REFLECTANCES].values()])
+    R = np.array([sd.copy().align(shape).values for sd in cie_1995_test_colour_samples().values()])
     XYZ = (R * light) @ cmfs / (light @ cmfs[:, 1])
     source_white = light @ cmfs / (light @ cmfs[:, 1])
     if not np.allclose(source_white, white, atol=1e-4):

@@ -30,6 +30,7 @@ __all__ = [
     "reflectance_set",
     "illuminant_white_XYZ",
     "adapt_XYZ",
+    "cie_1995_test_colour_samples",
 ]
 
 CAMERAS = ("Nikon 5100 (NPL)", "Sigma SDMerill (NPL)")
@@ -187,9 +188,9 @@ def reflectance_set(name: str, wavelengths: Any) -> tuple[list[str], np.ndarray]
         msds = load_TCS_CIE2017(colour.SpectralShape(380, 780, 5))
         return [str(label) for label in msds.labels], resample_spectral(msds, wavelengths).T
     if name in ("CIE 1995 TCS", "NIST CQS 9.0"):
-        from colour.quality.datasets import SDS_TCS, SDS_VS
+        from colour.quality.datasets import SDS_VS
 
-        sds = SDS_TCS["CIE 1995"] if name == "CIE 1995 TCS" else SDS_VS["NIST CQS 9.0"]
+        sds = cie_1995_test_colour_samples() if name == "CIE 1995 TCS" else SDS_VS["NIST CQS 9.0"]
         return list(sds.keys()), np.array([resample_spectral(sd, wavelengths) for sd in sds.values()])
     if name not in colour.SDS_COLOURCHECKERS:
         raise CamcalError(
@@ -266,3 +267,14 @@ def adapt_XYZ(XYZ: Any, white_source: Any, white_target: Any, transform: str = "
         ),
         dtype=np.float64,
     )
+
+
+def cie_1995_test_colour_samples() -> Any:
+    """The 14 test colour samples of CIE 13.3-1995 (``TCS01`` ... ``TCS14``), name -> spectral distribution.
+
+    colour-science 0.4.7 files them under ``SDS_TCS["CIE 1995"]`` beside the
+    CIE 2024 set; 0.4.6 holds them alone, at the top of ``SDS_TCS``.
+    """
+    from colour.quality.datasets import SDS_TCS
+
+    return SDS_TCS["CIE 1995"] if "CIE 1995" in SDS_TCS else SDS_TCS
