@@ -35,7 +35,7 @@ test-all: $(STAMP)
 # A subset: make test-lowest TESTS="tests/io tests/model"
 TESTS ?=
 define versions_venv
-	@test -x $(1)/bin/python || $(PYTHON) -m venv $(1)
+	@$(1)/bin/python -m pip --version >/dev/null 2>&1 || { rm -rf $(1) && $(PYTHON) -m venv $(1); }
 	$(1)/bin/python -m pip install --quiet --upgrade pip
 	$(1)/bin/python -m pip install --quiet $(2) -e ".[all,blender,test]"
 	$(1)/bin/python tests/colour/export/ocio_releases.py install $(1)/ocio
