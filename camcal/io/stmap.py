@@ -9,7 +9,6 @@ window beyond its display window (Nuke's bounding box beyond its format). The ma
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from pathlib import Path
 
@@ -18,10 +17,11 @@ from numpy.typing import NDArray
 
 from camcal.base.atomic import atomic_dir, atomic_path, final_path
 from camcal.base.errors import CamcalError
-from camcal.geometry.stmap import make_stmaps, pixels_from_st
+from camcal.geometry.stmap import make_stmaps, pixels_from_st, stmap_view
 from camcal.geometry.uncertainty import SigmaSummary, projection_sigma_map, summarise_sigma
+from camcal.geometry.undistort import undistorted_rig
 from camcal.io.frames import imread, imwrite
-from camcal.model.rig import Lens, Rig, make_provenance
+from camcal.model.rig import Rig, make_provenance
 
 __all__ = ["read_exr", "read_exr_window", "read_sigma_map", "stmap_frame_name", "write_exr", "write_sigma_map",
            "write_stmap_frames", "write_stmap_sigmas", "write_stmaps"]
@@ -153,10 +153,9 @@ def write_stmap_frames(rig: Rig, camera_name: str, out_dir: str | os.PathLike, o
     (list of Path, list of Path, Path)
         The undistort maps and the redistort maps in frame order, and the undistorted rig.
     """
-    camera = rig.camera(camera_name)
     if not rig.frames:
         raise CamcalError(f"the rig has no frames: write the ST-maps of {camera_name!r} with write_stmaps")
-    base, lenses, undistort_paths, redistort_paths = None, {}, [], []
+    undistort_paths, redistort_paths = [], []
     with atomic_dir(out_dir) as staging:
         for frame in rig.frames:
             maps = make_stmaps(rig.camera_at_frame(camera_name, frame.index), overscan, border)
@@ -164,17 +163,9 @@ def write_stmap_frames(rig: Rig, camera_name: str, out_dir: str | os.PathLike, o
                                              maps.undistort, maps.border))
             redistort_paths.append(write_exr(staging / stmap_frame_name(camera_name, "redistort", frame.index),
                                              maps.redistort))
-            state = frame.lenses.get(camera_name)
-            if state is not None:
-                lenses[frame.index] = Lens(maps.undistorted.K, maps.undistorted.distortion, state.focal_mm,
-                                           state.focus_m)
-            elif base is None:  # the camera's own lens at this frame: its undistorted camera, posed as the rig's
-                base = dataclasses.replace(maps.undistorted, R=camera.R, c=camera.c)
-        if base is None:
-            base = make_stmaps(camera, overscan, border).undistorted
         provenance = make_provenance("stmap", source_camera=camera_name, overscan=overscan, border=list(maps.border))
-        rig_path = rig.with_camera(base, lenses, provenance=provenance).save(
-            staging / f"{camera_name}_undistorted.rig.json")
+        undistorted = undistorted_rig(rig, camera_name, lambda camera: stmap_view(camera, overscan, border), provenance)
+        rig_path = undistorted.save(staging / f"{camera_name}_undistorted.rig.json")
     return ([final_path(path, staging, out_dir) for path in undistort_paths],
             [final_path(path, staging, out_dir) for path in redistort_paths], final_path(rig_path, staging, out_dir))
 
