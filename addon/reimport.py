@@ -56,8 +56,7 @@ def _collection_of(scene, root):
 def _owned(root, collection):
     """Every datablock an import made for the rig of ``root``."""
     ids = set()
-    objects = set(collection.all_objects) if collection is not None else {root}
-    objects |= {child for obj in list(objects) for child in obj.children_recursive}
+    objects = set(collection.all_objects) if collection is not None else {root}  # the user's children stay
     for obj in list(objects):
         data = obj.data
         if obj.type != "CAMERA" or data is None or "camcal_image_size" not in data:
