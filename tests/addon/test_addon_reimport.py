@@ -108,3 +108,18 @@ def test_blender_import_needs_a_blend_and_names_a_bad_one(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("camcal: error: cannot open") and "text.blend" in err[0]
     assert (tmp_path / "text.blend").read_text() == "not a blend file"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["shot.rig.json", "text.blend"]
+
+
+def test_the_import_operator_replaces_in_place(bpy, addon, tmp_path):
+    addon.register()
+    try:
+        path = str(_rig(tmp_path / "op.rig.json"))
+        assert bpy.ops.import_scene.camcal_rig(filepath=path) == {"FINISHED"}
+        counts = _counts(bpy)
+        _rig(tmp_path / "op.rig.json", shift=1.0)
+        assert bpy.ops.import_scene.camcal_rig(filepath=path) == {"FINISHED"}
+        assert _counts(bpy) == counts and bpy.data.objects["op"]["camcal_rig_path"] == path
+        assert bpy.ops.import_scene.camcal_rig(filepath=path, replace_previous=False) == {"FINISHED"}
+        assert _counts(bpy)[0] == 2 * counts[0] and sorted(c.name for c in bpy.data.collections) == ["op", "op.001"]
+    finally:
+        addon.unregister()

@@ -218,6 +218,59 @@ def test_operator_solves_the_clip_and_imports_the_camera(registered, addon, fake
     assert clip.tracking.camera.k1 == pytest.approx(-0.02) and bpy.data.movieclips[:] == [clip]
 
 
+def _modal_stand_in(bpy, clip, job):
+    """The operator's modal methods on a stand-in instance: background Blender has no event loop to drive them
+    (there ``invoke`` runs ``execute``), so the test sends the events; the timer and progress are Blender's."""
+    operator = bpy.types.CAMCAL_OT_solve_clip
+
+    class StandIn:
+        modal, cancel, _status, _end_ui, _finish = (operator.modal, operator.cancel, operator._status,
+                                                    operator._end_ui, operator._finish)
+        up_axis, compositor, _clip_name, _frame_start = "Z", False, clip.name, clip.frame_start
+
+        def __init__(self):
+            self.reports, self._job = [], job
+            self._timer = bpy.context.window_manager.event_timer_add(0.25, window=bpy.context.window)
+            bpy.context.window_manager.progress_begin(0, 100)
+
+        def report(self, kinds, message):
+            self.reports.append((set(kinds), message))
+
+    return StandIn()
+
+
+@pytest.mark.parametrize("mode", ["hang", "solve"])
+def test_modal_operator_polls_on_timer_and_cancels_on_esc(registered, addon, fake_camcal, tmp_path, monkeypatch,
+                                                          mode):
+    import importlib
+    from types import SimpleNamespace
+
+    bpy = registered
+    job_module = importlib.import_module(f"{addon.__name__}.solvejob")
+    monkeypatch.setenv("FAKE_CAMCAL_MODE", mode)
+    fake_camcal()
+    plates = _plates(tmp_path / "plates")
+    before = sorted(os.listdir(plates))
+    clip = bpy.data.movieclips.load(str(plates / f"plate.{FIRST}.png"))
+    source = job_module.ClipSource(str(plates / f"plate.{FIRST}.png"), "SEQUENCE", FIRST, 3, "plate")
+    out = plates / "camcal_solve" / "plate"
+    job = job_module.SolveJob(job_module.solve_command(shutil.which("camcal"), source, str(out)), str(out))
+    job.start()
+    operator = _modal_stand_in(bpy, clip, job)
+    timer, esc = SimpleNamespace(type="TIMER", value="NOTHING"), SimpleNamespace(type="ESC", value="PRESS")
+    assert operator.modal(bpy.context, SimpleNamespace(type="MOUSEMOVE", value="NOTHING")) == {"PASS_THROUGH"}
+    if mode == "hang":
+        _wait_for(lambda: job.last_line == "matching (sequential)")
+        assert operator.modal(bpy.context, timer) == {"PASS_THROUGH"} and job.returncode is None
+        assert operator.modal(bpy.context, esc) == {"CANCELLED"}
+        assert job.returncode is not None and sorted(os.listdir(plates)) == before and not bpy.data.objects
+        assert operator.reports == [({"INFO"}, "camcal solve cancelled: nothing was written")]
+        return
+    _wait_for(lambda: job.process.poll() is not None)
+    assert operator.modal(bpy.context, timer) == {"FINISHED"}
+    assert bpy.context.scene.camera.name == "solve_plate" and operator.reports[-1][0] == {"INFO"}
+
+
 def test_a_failed_solve_is_camcal_error_line_and_imports_nothing(registered, fake_camcal, tmp_path, monkeypatch):
     bpy = registered
     monkeypatch.setenv("FAKE_CAMCAL_MODE", "fail")
