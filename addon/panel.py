@@ -46,8 +46,8 @@ class VIEW3D_PT_camcal(bpy.types.Panel):
         clip = scene.active_clip
         row = layout.row()
         row.enabled = clip is not None
-        op = row.operator("camcal.solve_clip", text=f"Solve {clip.name}" if clip else "Solve Movie Clip (no active clip)",
-                          icon="TRACKING")
+        text = f"Solve {clip.name}" if clip else "Solve Movie Clip (no active clip)"
+        op = row.operator("camcal.solve_clip", text=text, icon="TRACKING")
         op.clip = clip.name if clip else ""
         roots = [o for o in scene.objects if "camcal_rig_path" in o]
         if not roots:

@@ -199,7 +199,8 @@ def test_operator_solves_the_clip_and_imports_the_camera(registered, addon, fake
         reference = truth.K @ (truth.R @ (Xk - truth.c[:, None]))
         np.testing.assert_allclose(blender_project(bpy, obj, scene, Xk.T), (reference[:2] / reference[2]).T, atol=1e-3)
     # the clip carries the solved lens (as the add-on maps camcal's lens) and is the camera's background
-    lens = addon.tracking.blender_lens(addon.rigfile.Distortion("polynomial", {"k1": -0.08, "k2": 0.0}), K, SIZE, (0, 0))
+    lens = addon.tracking.blender_lens(addon.rigfile.Distortion("polynomial", {"k1": -0.08, "k2": 0.0}), K, SIZE,
+                                       (0, 0))
     tc = clip.tracking.camera
     assert tc.distortion_model == lens.distortion_model == "POLYNOMIAL"
     assert tc.focal_length_pixels == pytest.approx(60.0) and tc.k1 == pytest.approx(lens.params["k1"])
@@ -216,6 +217,28 @@ def test_operator_solves_the_clip_and_imports_the_camera(registered, addon, fake
     scene.frame_set(11)
     np.testing.assert_allclose(scene.camera.matrix_world.translation, known.camera_at_frame("plate", 1).c, atol=1e-5)
     assert clip.tracking.camera.k1 == pytest.approx(-0.02) and bpy.data.movieclips[:] == [clip]
+
+
+def test_a_movie_clip_is_solved_whole_at_its_frame_rate(registered, fake_camcal, tmp_path):
+    import cv2
+
+    bpy = registered
+    known = fake_camcal()
+    (tmp_path / "shot").mkdir()
+    movie = cv2.VideoWriter(str(tmp_path / "shot" / "take 2.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, SIZE)
+    for index in range(3):
+        movie.write(np.full((SIZE[1], SIZE[0], 3), 40 * index + 60, np.uint8))
+    movie.release()
+    clip = bpy.data.movieclips.load(str(tmp_path / "shot" / "take 2.avi"))
+    clip.frame_start, clip.frame_offset = 101, 1  # the clip's second frame shows on frame 101
+    assert bpy.ops.camcal.solve_clip(clip=clip.name, compositor=False) == {"FINISHED"}
+    argv = json.loads((tmp_path / "argv.json").read_text())
+    assert argv[:4] == ["solve", str(tmp_path / "shot"), "--images", "take_2=take 2.avi"] and "--frames" not in argv
+    scene = bpy.context.scene
+    assert (scene.render.fps, scene.render.fps_base) == (25, 1.0) and (scene.frame_start, scene.frame_end) == (100, 102)
+    scene.frame_set(101)  # the clip's frame 1, the rig's frame index 1
+    np.testing.assert_allclose(scene.camera.matrix_world.translation, known.camera_at_frame("plate", 1).c, atol=1e-6)
+    assert (tmp_path / "shot" / "camcal_solve" / "take_2" / "solve.rig.json").is_file()
 
 
 def _modal_stand_in(bpy, clip, job):
@@ -347,7 +370,8 @@ def test_operator_solves_a_rendered_plate_to_the_true_cameras(registered, tmp_pa
     before = sorted(os.listdir(tmp_path / "plates"))
     source = job_module.ClipSource(str(tmp_path / "plates" / f"plate.{FIRST}.png"), "SEQUENCE", FIRST, n_frames, "p")
     out = tmp_path / "plates" / "cancelled"
-    job = job_module.SolveJob(job_module.solve_command(shutil.which("camcal"), source, str(out), features=1024), str(out))
+    command = job_module.solve_command(shutil.which("camcal"), source, str(out), features=1024)
+    job = job_module.SolveJob(command, str(out))
     job.start()
     _wait_for(lambda: job.fraction > 0, timeout_s=120)
     job.cancel()
