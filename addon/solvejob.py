@@ -188,7 +188,11 @@ class SolveJob:
         """Start camcal (its own process group, so that cancel reaches everything it starts)."""
         parent = os.path.dirname(self.out)
         self._made_parent = not os.path.isdir(parent)
-        os.makedirs(parent, exist_ok=True)
+        try:
+            os.makedirs(parent, exist_ok=True)
+        except OSError as error:
+            raise SolveError(f"cannot make the solve folder {parent}: {error.strerror or error} "
+                             "(choose another output folder)") from None
         self._out_existed = os.path.exists(self.out)
         self._before = set(os.listdir(parent))
         group = ({"creationflags": subprocess.CREATE_NEW_PROCESS_GROUP} if sys.platform == "win32"

@@ -303,6 +303,9 @@ def test_a_failed_solve_is_camcal_error_line_and_imports_nothing(registered, fak
         bpy.ops.camcal.solve_clip()
     assert not bpy.data.objects and sorted(os.listdir(tmp_path / "plates")) == [
         f"plate.{FIRST + k}.png" for k in range(3)]
+    (tmp_path / "a file").write_text("")
+    with pytest.raises(RuntimeError, match="cannot make the solve folder .*a file"):
+        bpy.ops.camcal.solve_clip(output_directory=str(tmp_path / "a file" / "solves"))
     monkeypatch.setenv("PATH", str(tmp_path / "nowhere"))
     with pytest.raises(RuntimeError, match="camcal was not found on the PATH"):
         bpy.ops.camcal.solve_clip()
