@@ -82,8 +82,12 @@ except (RigFileError, OSError, ValueError) as error:
     sys.exit(2)
 out = args["blend"]
 tmp = os.path.join(os.path.dirname(out), "." + os.path.basename(out) + ".tmp.blend")
-bpy.ops.wm.save_as_mainfile(filepath=tmp, check_existing=False, copy=True)
-os.replace(tmp, out)
+try:
+    bpy.ops.wm.save_as_mainfile(filepath=tmp, check_existing=False, copy=True)
+    os.replace(tmp, out)
+finally:
+    if os.path.exists(tmp):
+        os.unlink(tmp)
 summary = {
     "rig": result.rig.name,
     "collection": result.collection.name,
