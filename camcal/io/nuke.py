@@ -292,6 +292,13 @@ def _root_size(text: str) -> tuple[int, int] | None:
     return (int(parse_number(fmt[0], "Root format")), int(parse_number(fmt[1], "Root format"))) if len(fmt) >= 2 else None
 
 
+def _K_at(focal, haperture, win, frame: int | None, size: tuple[int, int], where: str) -> np.ndarray:
+    """``K`` of a Camera3's (keyed or constant) ``focal``, ``haperture`` and ``win_translate`` at ``frame``."""
+    return _K_from_nuke(float(value_at(focal, frame, f"{where} focal")[0]),
+                        float(value_at(haperture, frame, f"{where} haperture")[0]),
+                        value_at(win, frame, f"{where} win_translate"), size)
+
+
 def _parse_lens(tokens: Sequence[str], where: str) -> tuple[dict[str, float], tuple[float, ...] | None, dict[str, float]]:
     """``k=v`` tokens of ``lens_params`` / ``lens_keys``: the parameters, the centre, the lens state."""
     params, centre, state = {}, None, {}
@@ -371,23 +378,15 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None) -> ImportResu
         try:
             distortion = Distortion(model, params, centre)
             keyed_lenses = _keyed_lenses(keys_text, model, where) if keys_text else {}
-            lens_keys = sorted({f for knob in (focal, haperture, win) if isinstance(knob, dict) for f in knob}
-                               | set(keyed_lenses) | {f for f in node_lens if f is not None})
+            frames = sorted({f for knob in (focal, haperture, win) if isinstance(knob, dict) for f in knob}
+                            | set(keyed_lenses) | {f for f in node_lens if f is not None})
             per_frame = {}
-            for f in lens_keys:
-                lens, state = keyed_lenses.get(f, (None, {}))
-                if lens is None:
-                    lens = node_lens[f][1] if f in node_lens else distortion
-                K = _K_from_nuke(float(value_at(focal, f, f"{where} focal")[0]),
-                                 float(value_at(haperture, f, f"{where} haperture")[0]),
-                                 value_at(win, f, f"{where} win_translate"), size)
-                per_frame[f] = (K, lens, state)
+            for f in frames:  # the lens from camcal's knob, else the lens node's keys, else the camera's lens
+                lens, state = keyed_lenses.get(f, (node_lens[f][1] if f in node_lens else distortion, {}))
+                per_frame[f] = (_K_at(focal, haperture, win, f, size, where), lens, state)
             lenses.append(per_frame or None)
-            K = _K_from_nuke(float(value_at(focal, lens_keys[0] if lens_keys else None, where)[0]),
-                             float(value_at(haperture, lens_keys[0] if lens_keys else None, where)[0]),
-                             value_at(win, lens_keys[0] if lens_keys else None, where), size)
-            if per_frame:
-                K, distortion = per_frame[lens_keys[0]][:2]
+            K, distortion = per_frame[frames[0]][:2] if per_frame else (
+                _K_at(focal, haperture, win, None, size, where), distortion)
             if isinstance(translate, dict) or isinstance(rotate, dict):
                 keys = sorted(translate if isinstance(translate, dict) else rotate)
                 poses = {f: _pose_order(value_at(translate, f, f"{where} translate"),

@@ -96,6 +96,8 @@ def keyed_knob(text: str | None, n: int, where: str,
                 raise CamcalError(f"{where}: a key without a frame")
             keyed.setdefault(frame, {})[axis] = parse_number(token, where)
             frame += 1
+    if not keyed:
+        raise CamcalError(f"{where}: an animated knob with no key")
     out = {}
     for frame, values in keyed.items():
         row = {**constants, **values}

@@ -10,6 +10,7 @@ import re
 import numpy as np
 import pytest
 
+from camcal.base.errors import CamcalError
 from camcal.geometry.stmap import make_stmaps
 from camcal.io.conversion import max_pixel_residual
 from camcal.io.interchange import export_rig, import_rig
@@ -139,3 +140,29 @@ def test_a_refitted_zoom_reads_back_to_the_worst_residual_printed(tmp_path):
     print(f"printed {conversion.refit.describe()}; read back per frame {', '.join(f'{r:.3g}' for r in residuals)} px")
     assert max(residuals) == pytest.approx(conversion.refit.max_px, rel=0.05)
     assert len(set(np.round(residuals, 12))) == 3  # each frame refitted on its own lens
+
+
+def test_nukes_own_zoom_camera_reads_as_a_lens_per_frame(tmp_path):
+    """A Camera3 written by Nuke (no camcal knobs): focal keyed, pose fixed; the image size from the Root format."""
+    script = tmp_path / "zoom.nk"
+    script.write_text('Root {\n format "640 360 0 0 640 360 1 HD"\n}\nCamera3 {\n focal {{curve x12 35 50}}\n'
+                      ' haperture 36\n win_translate {0.1 {curve x12 0 0.05}}\n name Camera1\n}\n')
+    rig = import_rig(script, "nuke").rig
+    assert [f.index for f in rig.frames] == [12, 13]
+    for frame, focal, win_y in ((12, 35.0, 0.0), (13, 50.0, 0.05)):
+        K = rig.camera_at_frame("Camera1", frame).K
+        assert K[0, 0] == pytest.approx(focal * 640 / 36) and K[0, 2] == pytest.approx(0.1 * 320 + 319.5)
+        assert K[1, 2] == pytest.approx(179.5 - win_y * 320)
+
+
+@pytest.mark.parametrize("knobs, message", [
+    (' focal {{curve x1 35 x2 50}}\n lens_keys "k1=0.1"\n', "before the first frame"),
+    (' focal {{curve x1 35 x2 50}} \n rotate {{curve x1 0 x3 1} 0 0}\n', "keyed on different frames|key the lens"),
+    (' focal {{curve}}\n', "focal: an animated knob with no key"),
+])
+def test_bad_keys_are_one_line(tmp_path, knobs, message):
+    script = tmp_path / "bad.nk"
+    script.write_text('Root {\n format "640 360 0 0 640 360 1 HD"\n}\nCamera3 {\n' + knobs + ' name cam\n}\n')
+    with pytest.raises(CamcalError, match=message) as info:
+        import_rig(script, "nuke")
+    assert "\n" not in str(info.value)
