@@ -56,3 +56,11 @@ def test_a_static_camera_with_a_sampled_lens_reads_as_frames_at_the_origin(tmp_p
     assert [f.index for f in back.frames] == [10, 11]
     for index, focal in ((10, 35.0), (11, 50.0)):
         assert back.camera_at_frame("cam", index).K[0, 0] == focal * 600 / 36.0
+
+
+def test_formats_with_one_lens_per_camera_say_the_zoom_is_not_written(tmp_path):
+    camera = Camera("cam", SIZE, K(1010.0, 1008.0, 652.3, 351.7), BROWN, np.eye(3), np.zeros(3))
+    rig = zoom_rig(camera, scale_lens=brown_per_zoom)
+    notes = export_rig(rig, "opencv", tmp_path / "cam.yaml").notes
+    assert any("per-frame lenses of cam are not written" in note for note in notes)
+    assert not any("per-frame" in note for note in export_rig(rig, "usd", tmp_path / "cam.usda").notes)
