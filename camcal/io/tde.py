@@ -113,8 +113,10 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     converted, refit = refit_camera(camera, family)
     builtin = LdpkCamera.from_camera_matrix(converted.K, camera.image_size,
                                             (camera.sensor_width_mm or DEFAULT_FILMBACK_WIDTH_MM) / 10.0)
-    states = _lens_states(rig, camera, family) if rig.lens_frames(camera.name) else []
-    mode = _dynamic_mode(camera.name, states)
+    mode = _dynamic_mode(camera.name, [(frame.index, frame.lenses[camera.name].focal_mm,
+                                        frame.lenses[camera.name].focus_m)
+                                       for frame in rig.frames if camera.name in frame.lenses])
+    states = _lens_states(rig, camera, family) if mode not in _STATIC else []
     lines = [camera.name,
              " ".join(_number(v) for v in (builtin.filmback_width_cm, builtin.filmback_height_cm,
                                            builtin.focal_length_cm,
@@ -177,8 +179,8 @@ def _lens_states(rig: Rig, camera: Camera, family: str) -> list[tuple[int, float
     return out
 
 
-def _dynamic_mode(name: str, states: Sequence[tuple]) -> str:
-    """3DE's dynamic distortion mode of the lens states: over what changes among them."""
+def _dynamic_mode(name: str, states: Sequence[tuple[int, float | None, float | None]]) -> str:
+    """3DE's dynamic distortion mode of the lens states ``(frame, focal_mm, focus_m)``: over what changes among them."""
     if not states:
         return _STATIC[0]
     varying = [len({state[axis] for state in states}) > 1 for axis in (1, 2)]
