@@ -172,7 +172,10 @@ def animate_lenses(rig, cams, result, frame_start, lens_model, overscan):
         if cam.distortion.model in rigfile.FISHEYE_MODELS:
             result.warnings.append(f"camera {cam.name!r}: Cycles' fisheye polynomial is the camera's own lens "
                                    "(the per-frame fisheye lenses are not keyed)")
-        if dist_scene is not None:
+        if dist_scene is not None and "camcal_uv_map" in dist_scene:
+            result.warnings.append(f"camera {cam.name!r}: the compositor re-distorts with the camera's own lens "
+                                   "(its exact UV map is of one lens); render the zoom's frames through its ST-maps")
+        elif dist_scene is not None:
             result.warnings.append(f"camera {cam.name!r}: the compositor's Movie Distortion offset is measured on "
                                    "the camera's own lens")
         obj.data["camcal_lens_frames"] = len(rig.lens_frames(cam.name))

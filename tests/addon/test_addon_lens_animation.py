@@ -126,3 +126,30 @@ def test_the_overscan_render_camera_and_its_clip_follow_the_zoom(bpy, addon, tmp
         blender = np.array([addon.tracking.blender_distort(lens, tuple(p)) for p in ideal])
         assert np.abs(blender - camera.distortion.distort(ideal - [mx, my], camera.K) - [mx, my]).max() < 1e-3
     assert any("Movie Distortion offset" in w for w in result.warnings)
+
+
+def test_a_zoom_blender_cannot_hold_is_refitted_frame_by_frame(addon):
+    """camcal's side of ``camcal blender import``: each frame's 3DE lens becomes its nearest BROWN lens."""
+    from camcal.blender_bridge import blender_tracking_rig
+    from camcal.io.conversion import max_pixel_residual
+
+    size = (160, 120)
+    K = np.array([[150.0, 0.0, 80.2], [0.0, 150.0, 59.7], [0.0, 0.0, 1.0]])
+    filmback = {"filmback_width_px": 160.0, "filmback_height_px": 120.0}
+    camera = Camera("cam", size, K, Distortion("3de4-radial-deg4", {"c2": -0.04, "c4": 0.006, **filmback}),
+                    np.eye(3), np.zeros(3))
+    frames = [Frame(index, np.eye(3), np.zeros(3), lenses={} if index == 0 else {"cam": Lens(
+        K * [[1 + 0.2 * index], [1 + 0.2 * index], [1]],
+        Distortion("3de4-radial-deg4", {"c2": -0.04 / (1 + index), "c4": 0.006, **filmback}), focal_mm=20.0 + index)})
+        for index in range(3)]
+    rig = Rig((camera,), frames=tuple(frames))
+    tracking, [conversion] = blender_tracking_rig(rig)
+    residuals = []
+    for frame in rig.frames:
+        fitted = tracking.camera_at_frame("cam", frame.index)
+        assert fitted.distortion.model == "opencv"
+        residuals.append(max_pixel_residual(rig.camera_at_frame("cam", frame.index), fitted))
+        lens = addon.rigfile.Distortion("opencv", dict(fitted.distortion.params), (fitted.K[0, 2], fitted.K[1, 2]))
+        assert addon.tracking.blender_lens(lens, fitted.K.tolist(), size).exact
+    assert tracking.frames[2].lenses["cam"].focal_mm == 22.0
+    assert conversion.max_px == max(residuals) and 1e-5 < conversion.max_px < 1.0
