@@ -118,6 +118,9 @@ def write_stmaps(rig: Rig, camera_name: str, out_dir: str | os.PathLike, oversca
         principal point moved by the border, distortion none).
     """
     camera = rig.camera(camera_name)
+    if rig.lens_frames(camera_name):
+        raise CamcalError(f"camera {camera_name!r}'s lens changes over the rig's frames: its ST-maps are a pair per "
+                          "frame (write_stmap_frames)")
     maps = make_stmaps(camera, overscan, border)
     cameras = tuple(maps.undistorted if c.name == camera_name else c for c in rig.cameras)
     provenance = make_provenance("stmap", source_camera=camera_name, overscan=overscan, border=list(maps.border))

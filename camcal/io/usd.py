@@ -144,12 +144,14 @@ def export(
     The maps go to ``<stage>_stmaps/<camera>_undistort.exr`` / ``_redistort.exr``
     (:func:`camcal.io.stmap.write_stmaps`) and the camera's customData
     ``camcal.stmap_undistort`` / ``camcal.stmap_redistort`` hold their paths
-    relative to the stage.
+    relative to the stage; a camera whose lens changes per frame gets a pair
+    per frame (:func:`camcal.io.stmap.write_stmap_frames`), its paths with
+    ``%04d`` for the frame number.
     """
     require("pxr")
     from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
-    from camcal.io.stmap import write_stmaps
+    from camcal.io.stmap import write_stmap_frames, write_stmaps
 
     if out.suffix.lower() not in SUFFIXES:
         raise CamcalError(f"a USD file must end in {', '.join(SUFFIXES)}, got {out.name!r}")
@@ -199,7 +201,13 @@ def export(
         else:
             op.Set(_matrix(camera.R, camera.c))
         custom = {} if camera.sensor_width_mm is None else {"sensor_width_mm": camera.sensor_width_mm}
-        if stmaps and not camera.distortion.is_identity:
+        if stmaps and lens_keys:  # a pair of maps per frame: the paths with %04d for the frame number
+            undistort_maps, redistort_maps, _ = write_stmap_frames(rig, camera.name, out.with_name(out.stem + "_stmaps"))
+            written += [*undistort_maps, *redistort_maps]
+            for key, path in (("stmap_undistort", undistort_maps[0]), ("stmap_redistort", redistort_maps[0])):
+                sequence = path.with_name(path.name.replace(f".{rig.frames[0].index:04d}.", ".%04d."))
+                custom[key] = Sdf.AssetPath(str(sequence.relative_to(out.parent)))
+        elif stmaps and not camera.distortion.is_identity:
             undistort, redistort, _ = write_stmaps(rig, camera.name, out.with_name(out.stem + "_stmaps"))
             written += [undistort, redistort]
             custom["stmap_undistort"] = Sdf.AssetPath(str(undistort.relative_to(out.parent)))

@@ -64,3 +64,14 @@ def test_formats_with_one_lens_per_camera_say_the_zoom_is_not_written(tmp_path):
     notes = export_rig(rig, "opencv", tmp_path / "cam.yaml").notes
     assert any("per-frame lenses of cam are not written" in note for note in notes)
     assert not any("per-frame" in note for note in export_rig(rig, "usd", tmp_path / "cam.usda").notes)
+
+
+def test_a_zooms_st_maps_are_referenced_as_a_sequence(tmp_path):
+    camera = Camera("cam", (96, 64), K(90.0, 90.0, 47.5, 31.5), BROWN, np.eye(3), np.zeros(3))
+    rig = zoom_rig(camera, scale_lens=brown_per_zoom)
+    result = export_rig(rig, "usd", tmp_path / "zoom.usda", stmaps=True)
+    assert sorted(p.name for p in result.paths if p.suffix == ".exr") == sorted(
+        f"cam_{kind}.{index:04d}.exr" for kind in ("undistort", "redistort") for index in (1001, 1002, 1003))
+    stage = Usd.Stage.Open(str(tmp_path / "zoom.usda"))
+    prim = stage.GetPrimAtPath("/rig/cam")
+    assert prim.GetCustomDataByKey("camcal:stmap_undistort").path == "zoom_stmaps/cam_undistort.%04d.exr"
