@@ -168,7 +168,7 @@ def _lens_text(distortion: Distortion) -> tuple[str, str]:
     return params, centre
 
 
-def _lens_keys(rig: Rig, name: str, frames: Sequence[int]) -> str:
+def _lens_keys(rig: Rig, name: str) -> str:
     """The camcal knob ``lens_keys``: ``x<frame> k=v ... [center=x,y] [focal_mm=v] [focus_m=v]`` per frame."""
     tokens = []
     for frame in rig.frames:
@@ -241,7 +241,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
             " addUserKnob {1 lens_model}", f' lens_model "{camera.distortion.model}"',
             " addUserKnob {1 lens_params}", f' lens_params "{params}"',
             " addUserKnob {1 lens_center}", f' lens_center "{centre}"',
-            *([" addUserKnob {1 lens_keys}", f' lens_keys "{_lens_keys(rig, camera.name, lens_frames)}"']
+            *([" addUserKnob {1 lens_keys}", f' lens_keys "{_lens_keys(rig, camera.name)}"']
               if lens_frames else []),
             "}",
         ]
