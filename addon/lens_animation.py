@@ -87,10 +87,12 @@ def ensure_handler():
 
 
 def register():
+    """Register the frame-change handler (with the add-on, so that a saved .blend's zoom plays back when reopened)."""
     ensure_handler()
 
 
 def unregister():
+    """Remove this module's frame-change handler."""
     handlers = bpy.app.handlers.frame_change_pre
     for handler in [h for h in handlers if getattr(h, "__module__", "") == __name__]:
         handlers.remove(handler)
