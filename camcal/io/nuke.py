@@ -62,8 +62,8 @@ the Root's ``format`` or the ``image_size`` given to :func:`load`.
 
 Per-frame lenses (a zoom, a rack focus: :attr:`camcal.model.rig.Frame.lenses`):
 a camera whose lens changes over the rig's frames gets one key per frame on
-the Camera3's ``focal`` and ``win_translate`` (``haperture``, the sensor,
-stays), on every lens knob of its LensDistortion and LDPK nodes (each
+the Camera3's ``focal``, ``haperture`` (the sensor width: the same on every
+frame) and ``win_translate``, on every lens knob of its LensDistortion and LDPK nodes (each
 frame's lens refitted on its own where the family does not hold it; the
 worst frame's residual printed; :mod:`camcal.io.nuke_lens`) and a camcal
 knob ``lens_keys`` (``x<frame> k=v ... [center=x,y] [focal_mm=v]
@@ -230,7 +230,9 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
             "Camera3 {", " inputs 0", " rot_order XYZ",
             f" translate {animated_knob(translate, frames)}", f" rotate {animated_knob(rotate, frames)}",
             f" focal {animated_knob([i['focal'] for i in intrinsics] if lens_frames else first['focal'], lens_frames)}",
-            f" haperture {number(first['haperture'])}", f" vaperture {number(first['vaperture'])}",
+            " haperture " + animated_knob([i["haperture"] for i in intrinsics] if lens_frames else first["haperture"],
+                                          lens_frames),
+            f" vaperture {number(first['vaperture'])}",
             " win_translate " + animated_knob([i["win_translate"] for i in intrinsics] if lens_frames
                                               else first["win_translate"], lens_frames),
             f" name {node}", f" xpos {index * 150}", " ypos 0",

@@ -59,7 +59,8 @@ def test_camera3_and_lens_nodes_are_keyed_per_frame(zoom):
     rig, result, folder = zoom
     text = (folder / "zoom.nk").read_text()
     [camera3], [ld], [ldpk] = camera_nodes(text), nodes(text, "LensDistortion2"), nodes(text, "LD_3DE4_Radial\\w+")
-    assert "{curve x1001 " in re.search(r"^ focal (.+)$", camera3, flags=re.M).group(1)
+    for name in ("focal", "haperture", "win_translate"):
+        assert "{curve x1001 " in re.search(rf"^ {name} (.+)$", camera3, flags=re.M).group(1)
     [conversion] = result.conversions
     assert conversion.refit.exact and "keyed on 3 frames" in conversion.target
     pixels = random_pixels()
