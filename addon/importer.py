@@ -703,6 +703,7 @@ def distortion_shift(clip, lens, margins, size):
     ramp.update()
     probe = bpy.data.scenes.new("camcal shift probe")
     folder = tempfile.mkdtemp(prefix="camcal_shift_")
+    cam_obj = None
     try:
         probe.render.engine = "CYCLES"
         probe.cycles.samples = 1
@@ -744,6 +745,10 @@ def distortion_shift(clip, lens, margins, size):
         bpy.data.scenes.remove(probe)
         if tree is not None:
             bpy.data.node_groups.remove(tree)
+        if cam_obj is not None:
+            camera_data = cam_obj.data
+            bpy.data.objects.remove(cam_obj)
+            bpy.data.cameras.remove(camera_data)
         bpy.data.images.remove(ramp)
         for name in os.listdir(folder):
             os.unlink(os.path.join(folder, name))
