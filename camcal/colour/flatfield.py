@@ -1,0 +1,659 @@
+"""Flat field and vignetting: the per-channel gain of a lens over the frame, fitted from a grey card or from
+neutral patches seen at several places, applied (divided out) and its inverse.
+
+The model (per channel ``c``, pixel ``(x, y)``, pixel (0, 0) at the centre of
+the top-left pixel)::
+
+    G_c(x, y) = V_c(r) * S_c(x, y)
+    V_c(r)    = 1 + k1_c r^2 + k2_c r^4 + k3_c r^6
+    r         = |(x, y) - centre| / R,   R = hypot((W - 1) / 2, (H - 1) / 2)
+    S_c       = exp(P_c(u, v)),  (u, v) = ((x, y) - centre) / R
+
+``V`` is Lensfun's ``pa`` vignetting model (Pablo d'Angelo's polynomial, as
+Hugin fits it) with Lensfun's radius: 1 at the half diagonal of the image
+measured between the extreme pixel centres, about the optical centre
+(Lensfun 0.3.4, mod-color.cpp: "for vignetting it uses 1.0 = half diagonal
+length"; checked against lensfunpy in the tests). ``S`` is an optional smooth
+non-radial term, ``P_c`` a 2D polynomial of total degree 1 to
+``smooth_degree`` with no constant, so that ``G_c = 1`` at the optical centre
+in every channel: a flat field corrects falloff and colour shading, never
+the white balance at the centre. A linear image is corrected by dividing it
+by ``G`` (:func:`correct_flat_field`); :func:`apply_vignetting` multiplies.
+
+The fit (:func:`fit_flat_field`) works on samples: block medians of grey-card
+images (:func:`samples_from_images`) or the values of neutral patches at
+their positions (:func:`samples_from_patches`). Each sample is
+``A_{s,c} rho_{p,c} G_c(x, y)``: ``A`` the exposure and light of shot ``s``
+(each image is a shot), ``rho`` the reflectance of patch ``p`` relative to
+the first patch. The radial part and the centre come from a robust
+Levenberg-Marquardt fit of ``log`` values weighted by each sample's noise
+(soft-L1 loss, then samples beyond 6 sigma and 2 % rejected and the inliers
+refitted), the smooth part from linear least squares on what the radial part
+leaves (done second: a tilt and a shifted centre describe the same data to
+first order, so the two are not fitted together). The gain's uncertainty is
+propagated from the fits' covariance (it covers the samples' noise, not a
+model that does not hold the lens; the residual says that).
+
+References
+----------
+Lensfun, libs/lensfun/mod-color.cpp (``ModifyColor_DeVignetting_PA``) and
+https://lensfun.github.io/manual/latest/group__Lens.html (``lfVignettingModel``).
+Goldman, D. B. (2010). Vignette and exposure calibration and compensation.
+IEEE TPAMI 32(12), 2276-2288 (the polynomial in r^2 about the optical centre).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.optimize
+from numpy.typing import NDArray
+
+from camcal.base.errors import CamcalError
+from camcal.base.fields import integer_field, keys_field, matrix_field, number_field, string_field, vector_field
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "FlatField", "FlatFieldSamples", "RadialTerms", "apply_vignetting",
+           "common_radial_terms", "correct_flat_field", "fit_flat_field", "half_diagonal", "samples_from_images",
+           "samples_from_patches"]
+
+#: The ``format`` and ``version`` a flat-field file carries.
+FORMAT = "camcal flat field"
+FORMAT_VERSION = 1
+#: Blocks across the longer side when images are reduced to samples.
+BLOCKS_ACROSS = 48
+#: A block is used when at least this fraction of its pixels is valid.
+MIN_VALID_FRACTION = 0.5
+#: A block is one surface when this fraction of its pixels is within 4 sigma of its median.
+ONE_SURFACE = 0.97
+#: A card is too dark when its level is below this many times its pixel noise.
+MIN_SIGNAL_TO_NOISE = 20.0
+#: Samples must reach this normalised radius: below it the corners are extrapolated too far.
+MIN_REACH = 0.5
+#: Samples farther than this many sigma (and this relative difference) from the radial fit are rejected.
+REJECT_SIGMA = 6.0
+REJECT_FLOOR = 0.02
+_CHANNELS = 3
+
+
+def half_diagonal(image_size: tuple[int, int]) -> float:
+    """Lensfun's vignetting unit: ``hypot((W - 1) / 2, (H - 1) / 2)`` pixels."""
+    width, height = image_size
+    return math.hypot((width - 1) / 2.0, (height - 1) / 2.0)
+
+
+def _monomials(degree: int) -> list[tuple[int, int]]:
+    """Exponents ``(i, j)`` of ``u^i v^j`` with ``1 <= i + j <= degree``."""
+    return [(total - j, j) for total in range(1, degree + 1) for j in range(total + 1)]
+
+
+def _smooth_basis(u: NDArray, v: NDArray, degree: int) -> NDArray:
+    if not degree:
+        return np.zeros(np.shape(u) + (0,))
+    return np.stack([u**i * v**j for i, j in _monomials(degree)], axis=-1)
+
+
+def _radial(r2: NDArray, k: NDArray) -> NDArray:
+    """``V = 1 + k1 r^2 + k2 r^4 + k3 r^6`` (``k`` ``(3,)`` or ``(C, 3)`` against ``r2`` ``(..., 1)``)."""
+    k = np.asarray(k)
+    return 1.0 + r2 * (k[..., 0] + r2 * (k[..., 1] + r2 * k[..., 2]))
+
+
+def _gain(u: NDArray, v: NDArray, k: NDArray, smooth: NDArray, degree: int) -> NDArray:
+    gain = _radial((u * u + v * v)[..., None], k)
+    if degree:
+        gain = gain * np.exp(_smooth_basis(u, v, degree) @ np.asarray(smooth).T)
+    return gain
+
+
+@dataclass(frozen=True)
+class FlatField:
+    """A fitted flat field (see the module docstring for the model).
+
+    Attributes
+    ----------
+    image_size : (int, int)
+        ``(W, H)`` of the images it was fitted on.
+    centre : (2,) ndarray
+        The optical centre in pixels.
+    k : (3, 3) ndarray
+        ``k1 k2 k3`` of ``V`` per channel (rows R, G, B).
+    smooth_degree : int
+        Degree of the non-radial term (0: none).
+    smooth : (3, n) ndarray
+        Its coefficients per channel, for ``u^i v^j`` ordered by total degree, then by ``j``.
+    residual_rms : (3,) ndarray
+        RMS of the inlier samples' relative residuals per channel (0.01 is 1 %).
+    gain_sigma_max : (3,) ndarray
+        Largest standard deviation of ``G_c`` over the frame (relative), from the samples' noise.
+    n_samples, n_rejected : int
+        Samples used and rejected as outliers (background, dust, a patch read wrong).
+    source : str
+        ``grey card`` or ``neutral patches``.
+    """
+
+    image_size: tuple[int, int]
+    centre: NDArray[np.float64]
+    k: NDArray[np.float64]
+    smooth_degree: int = 0
+    smooth: NDArray[np.float64] = field(default_factory=lambda: np.zeros((_CHANNELS, 0)))
+    residual_rms: NDArray[np.float64] = field(default_factory=lambda: np.zeros(_CHANNELS))
+    gain_sigma_max: NDArray[np.float64] = field(default_factory=lambda: np.zeros(_CHANNELS))
+    n_samples: int = 0
+    n_rejected: int = 0
+    source: str = "grey card"
+
+    def _scaled(self, image_size: tuple[int, int]) -> tuple[NDArray, float]:
+        """The centre and unit for an image of ``image_size`` (the same frame at another resolution)."""
+        width, height = self.image_size
+        if tuple(image_size) == (width, height):
+            return np.asarray(self.centre, dtype=np.float64), half_diagonal(self.image_size)
+        if abs(image_size[0] * height / (image_size[1] * width) - 1.0) > 0.01:
+            raise CamcalError(f"the flat field is for {width}x{height} images; an image of {image_size[0]}x"
+                              f"{image_size[1]} has another aspect ratio")
+        scale = np.array([image_size[0] / width, image_size[1] / height])
+        return (np.asarray(self.centre) + 0.5) * scale - 0.5, half_diagonal(image_size)
+
+    def gain_at(self, xy: NDArray, image_size: tuple[int, int] | None = None) -> NDArray[np.float64]:
+        """``G`` at pixels ``xy`` ``(N, 2)`` of an image of ``image_size`` (default: the fit's): ``(N, 3)``."""
+        centre, unit = self._scaled(image_size or self.image_size)
+        d = (np.asarray(xy, dtype=np.float64) - centre) / unit
+        return _gain(d[:, 0], d[:, 1], self.k, self.smooth, self.smooth_degree)
+
+    def gain(self, image_size: tuple[int, int] | None = None) -> NDArray[np.float32]:
+        """The gain image ``(H, W, 3)`` float32 (1 at the optical centre)."""
+        width, height = image_size or self.image_size
+        centre, unit = self._scaled((width, height))
+        u = np.broadcast_to(((np.arange(width) - centre[0]) / unit)[None, :], (height, width))
+        v = np.broadcast_to(((np.arange(height) - centre[1]) / unit)[:, None], (height, width))
+        return _gain(u, v, self.k, self.smooth, self.smooth_degree).astype(np.float32)
+
+    def summary(self) -> str:
+        """One line: source, centre, the darkest corner, residual and the gain's uncertainty."""
+        width, height = self.image_size
+        corners = np.array([[0, 0], [width - 1, 0], [0, height - 1], [width - 1, height - 1]], dtype=np.float64)
+        low = self.gain_at(corners).min(axis=0)
+        return (f"flat field from {self.source}: {self.n_samples} samples ({self.n_rejected} rejected), optical "
+                f"centre {self.centre[0]:.1f}, {self.centre[1]:.1f} px, darkest corner R G B "
+                f"{' '.join(f'{value:.3f}' for value in low)}; residual RMS "
+                f"{100 * float(np.max(self.residual_rms)):.2f} %, gain sigma <= "
+                f"{100 * float(np.max(self.gain_sigma_max)):.2f} %")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The file's content (``format``, ``version``, the model and its quality)."""
+        return {
+            "format": FORMAT, "version": FORMAT_VERSION, "source": self.source,
+            "image_size": [int(self.image_size[0]), int(self.image_size[1])],
+            "model": {"radial": "pa", "radius_unit": "half diagonal", "centre_px": [float(c) for c in self.centre],
+                      "k": [[float(v) for v in row] for row in self.k], "smooth_degree": int(self.smooth_degree),
+                      "smooth": [[float(v) for v in row] for row in self.smooth]},
+            "channels": ["R", "G", "B"],
+            "residual_rms": [float(v) for v in self.residual_rms],
+            "gain_sigma_max": [float(v) for v in self.gain_sigma_max],
+            "n_samples": int(self.n_samples), "n_rejected": int(self.n_rejected),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Any) -> FlatField:
+        """A flat field from :meth:`to_dict`'s content, every field checked (unknown keys refused)."""
+        keys_field(data, "flat field", ("format", "version", "image_size", "model"),
+                   ("source", "channels", "residual_rms", "gain_sigma_max", "n_samples", "n_rejected"))
+        if data["format"] != FORMAT:
+            raise CamcalError(f"flat field: format {data['format']!r} is not {FORMAT!r}")
+        version = integer_field(data["version"], "version", 1)
+        if version > FORMAT_VERSION:
+            raise CamcalError(f"flat field: version {version} is newer than this camcal reads ({FORMAT_VERSION})")
+        size = vector_field(data["image_size"], "image_size", 2)
+        if not all(float(s).is_integer() and 2 <= s <= 1e6 for s in size):
+            raise CamcalError(f"image_size: expected two integers from 2 to 1e6, got {data['image_size']!r}")
+        model = keys_field(data["model"], "model", ("radial", "centre_px", "k"),
+                           ("radius_unit", "smooth_degree", "smooth"))
+        string_field(model["radial"], "model.radial", ("pa",))
+        string_field(model.get("radius_unit", "half diagonal"), "model.radius_unit", ("half diagonal",))
+        degree = integer_field(model.get("smooth_degree", 0), "model.smooth_degree", 0)
+        if degree > 4:
+            raise CamcalError(f"model.smooth_degree: expected 0 to 4, got {degree}")
+        n_smooth = len(_monomials(degree))
+        smooth = (np.array(matrix_field(model.get("smooth"), "model.smooth", _CHANNELS, n_smooth)) if n_smooth
+                  else np.zeros((_CHANNELS, 0)))
+        if "channels" in data and data["channels"] != ["R", "G", "B"]:
+            raise CamcalError(f"channels: expected ['R', 'G', 'B'], got {data['channels']!r}")
+
+        def triple(key: str) -> NDArray:
+            if key not in data:
+                return np.zeros(_CHANNELS)
+            return np.array([number_field(v, f"{key}[{i}]", 0.0)
+                             for i, v in enumerate(vector_field(data[key], key, _CHANNELS))])
+
+        flat = cls((int(size[0]), int(size[1])), np.array(vector_field(model["centre_px"], "model.centre_px", 2)),
+                   np.array(matrix_field(model["k"], "model.k", _CHANNELS, 3)), degree, smooth,
+                   triple("residual_rms"), triple("gain_sigma_max"),
+                   integer_field(data.get("n_samples", 0), "n_samples"),
+                   integer_field(data.get("n_rejected", 0), "n_rejected"),
+                   string_field(data.get("source", "grey card"), "source"))
+        low = float(_frame_gain(flat).min())
+        if not low > 0.0:
+            raise CamcalError(f"flat field: its gain falls to {low:.3g} inside the frame (must stay > 0)")
+        return flat
+
+
+def _frame_points(image_size: tuple[int, int], n: int = 33) -> NDArray:
+    """An ``n`` x ``n`` grid of pixel positions over the frame, corners included: ``(n * n, 2)``."""
+    width, height = image_size
+    gx, gy = np.meshgrid(np.linspace(0, width - 1, n), np.linspace(0, height - 1, n))
+    return np.column_stack([gx.ravel(), gy.ravel()])
+
+
+def _frame_gain(flat: FlatField) -> NDArray:
+    return flat.gain_at(_frame_points(flat.image_size))
+
+
+def correct_flat_field(image: NDArray, flat: FlatField) -> NDArray:
+    """A linear ``(H, W, 3)`` image divided by the flat field's gain (the falloff removed); a new array."""
+    image = np.asarray(image)
+    _check_image(image, "image")
+    return image / flat.gain((image.shape[1], image.shape[0])).astype(np.result_type(image.dtype, np.float32))
+
+
+def apply_vignetting(image: NDArray, flat: FlatField) -> NDArray:
+    """The inverse of :func:`correct_flat_field`: a linear ``(H, W, 3)`` image multiplied by the gain."""
+    image = np.asarray(image)
+    _check_image(image, "image")
+    return image * flat.gain((image.shape[1], image.shape[0])).astype(np.result_type(image.dtype, np.float32))
+
+
+def _check_image(image: NDArray, what: str) -> None:
+    if image.ndim != 3 or image.shape[2] != _CHANNELS or min(image.shape[:2]) < 2:
+        raise CamcalError(f"{what}: expected an (H, W, 3) RGB image, got shape {image.shape}")
+
+
+@dataclass(frozen=True)
+class FlatFieldSamples:
+    """What a flat field is fitted to: linear RGB at pixel positions, with their shot and patch.
+
+    Attributes
+    ----------
+    xy : (N, 2) ndarray
+        Pixel positions.
+    RGB : (N, 3) ndarray
+        Linear values (> 0).
+    shot, patch : (N,) int ndarray
+        The shot (image) and the neutral patch of each sample (0-based, each from 0 without gaps; a grey
+        card is patch 0).
+    sigma : (N, 3) ndarray
+        Standard deviation of ``log RGB`` (the sample's relative noise).
+    image_size : (int, int)
+    """
+
+    xy: NDArray[np.float64]
+    RGB: NDArray[np.float64]
+    shot: NDArray[np.int64]
+    patch: NDArray[np.int64]
+    sigma: NDArray[np.float64]
+    image_size: tuple[int, int]
+
+    def subset(self, keep: NDArray) -> FlatFieldSamples:
+        """The samples where ``keep`` is true."""
+        return FlatFieldSamples(self.xy[keep], self.RGB[keep], self.shot[keep], self.patch[keep], self.sigma[keep],
+                                self.image_size)
+
+
+def samples_from_images(images: list[NDArray], masks: list[NDArray | None] | None = None, *,
+                        clip: float | None = None, names: list[str] | None = None) -> FlatFieldSamples:
+    """Grey-card images as samples: the median of each block of pixels (``BLOCKS_ACROSS`` across).
+
+    Parameters
+    ----------
+    images : list of (H, W, 3) ndarray
+        Linear RGB of a grey card, one size; each image is a shot (its exposure is fitted).
+    masks : list of (H, W) bool ndarray or None, optional
+        The card's pixels per image (None: every pixel; blocks that are not card are rejected by the fit).
+    clip : float, optional
+        Pixels with a channel at or above this value are left out (clipped).
+    names : list of str, optional
+        The images' names for the messages.
+
+    Returns
+    -------
+    FlatFieldSamples
+        One sample per block with at least ``MIN_VALID_FRACTION`` of its pixels valid, but blocks whose
+        spread is four times the typical block's (the card's edge, texture).
+
+    Raises
+    ------
+    CamcalError
+        Images of different sizes, not RGB, or a card too dark (its level not positive or below
+        ``MIN_SIGNAL_TO_NOISE`` times its pixel noise).
+    """
+    if not images:
+        raise CamcalError("no grey-card image given")
+    names = names or [f"image {i + 1}" for i in range(len(images))]
+    masks = masks or [None] * len(images)
+    if len(masks) != len(images):
+        raise CamcalError(f"got {len(masks)} masks for {len(images)} images")
+    height, width = np.asarray(images[0]).shape[:2]
+    for image, name in zip(images, names):
+        image = np.asarray(image)
+        _check_image(image, name)
+        if image.shape[:2] != (height, width):
+            raise CamcalError(f"the grey-card images differ in size: {names[0]} is {width}x{height} px, {name} is "
+                              f"{image.shape[1]}x{image.shape[0]} px")
+    block = max(2, math.ceil(max(width, height) / BLOCKS_ACROSS))
+    nx, ny = width // block, height // block
+    x0, y0 = (width - nx * block) // 2, (height - ny * block) // 2
+    inside = (slice(y0, y0 + ny * block), slice(x0, x0 + nx * block))
+    grid_y, grid_x = np.mgrid[inside].astype(np.float64)
+
+    def blocks(array: NDArray) -> NDArray:
+        """``(ny * block, nx * block[, C])`` -> ``(ny * nx, block * block, C)``."""
+        array = array.reshape(array.shape[:2] + (-1,))
+        c = array.shape[2]
+        return array.reshape(ny, block, nx, block, c).transpose(0, 2, 1, 3, 4).reshape(ny * nx, block * block, c)
+
+    xy_all, RGB_all, shot_all, sigma_all = [], [], [], []
+    for index, (image, mask, name) in enumerate(zip(images, masks, names)):
+        crop = np.asarray(image, dtype=np.float64)[inside]
+        valid = np.all(np.isfinite(crop), axis=2)
+        if clip is not None:
+            valid &= np.all(crop < clip, axis=2)
+        if mask is not None:
+            mask = np.asarray(mask, dtype=bool)
+            if mask.shape != (height, width):
+                raise CamcalError(f"the mask of {name} is {mask.shape[1]}x{mask.shape[0]} px, the image "
+                                  f"{width}x{height} px")
+            valid &= mask[inside]
+        n_valid = blocks(valid)[:, :, 0].sum(axis=1)
+        used = n_valid >= MIN_VALID_FRACTION * block * block
+        if not np.any(used):
+            raise CamcalError(f"{name}: no valid pixels (all clipped, masked or not finite)")
+        pixels = blocks(np.where(valid[..., None], crop, np.nan))[used]
+        n_valid = n_valid[used]
+        level = np.nanmedian(pixels, axis=1)
+        noise = 1.4826 * np.nanmedian(np.abs(pixels - level[:, None, :]), axis=1)
+        card_level, card_noise = np.median(level, axis=0), np.median(noise, axis=0)
+        if not (np.all(card_level > 0.0) and np.all(card_level >= MIN_SIGNAL_TO_NOISE * card_noise)):
+            raise CamcalError(
+                f"{name} is too dark for a flat field: the card's median level R G B "
+                f"{' '.join(f'{v:.3g}' for v in card_level)} against pixel noise "
+                f"{' '.join(f'{v:.3g}' for v in card_noise)} (needs > 0 and {MIN_SIGNAL_TO_NOISE:g} times the "
+                "noise); expose the card 1 to 2 stops below clipping")
+        relative = noise / np.maximum(level, 1e-12)
+        # one surface: the block's spread is the card's and its pixels lie within 4 sigma of its median (a block
+        # over the card's edge holds another surface, which moves its median though not its MAD)
+        near = np.all(np.abs(pixels - level[:, None, :]) <= 4.0 * noise[:, None, :], axis=2).sum(axis=1)
+        smooth = (np.all(level > 0.0, axis=1) & np.all(relative <= 4.0 * np.median(relative, axis=0) + 1e-6, axis=1)
+                  & (near >= ONE_SURFACE * n_valid))
+        weights = blocks(valid)[used][:, :, 0]
+        bx = (blocks(grid_x)[used][:, :, 0] * weights).sum(axis=1) / n_valid
+        by = (blocks(grid_y)[used][:, :, 0] * weights).sum(axis=1) / n_valid
+        xy_all.append(np.column_stack([bx, by])[smooth])
+        RGB_all.append(level[smooth])
+        shot_all.append(np.full(int(smooth.sum()), index, dtype=np.int64))
+        # the median's standard deviation, relative (1.2533 sigma / sqrt(n)), floored for noiseless renders
+        sigma_all.append(np.maximum(1.2533 * relative[smooth] / np.sqrt(n_valid[smooth, None]), 1e-5))
+    shots = np.concatenate(shot_all)
+    return FlatFieldSamples(np.concatenate(xy_all), np.concatenate(RGB_all), shots, np.zeros_like(shots),
+                            np.concatenate(sigma_all), (int(width), int(height)))
+
+
+def samples_from_patches(xy: NDArray, RGB: NDArray, patch: NDArray, image_size: tuple[int, int], *,
+                         shot: NDArray | None = None, sigma: NDArray | float = 0.002) -> FlatFieldSamples:
+    """Neutral patches seen at several places in the frame as samples.
+
+    Parameters
+    ----------
+    xy : (N, 2) ndarray
+        Each patch's centre in pixels.
+    RGB : (N, 3) ndarray
+        Its linear value (mean over the patch).
+    patch : (N,) ndarray of int or str
+        Which neutral patch (the same patch at several places is what ties the falloff together).
+    image_size : (int, int)
+    shot : (N,) ndarray, optional
+        The photo each sample comes from (default: one exposure for all).
+    sigma : float or (N, 3) ndarray
+        Relative noise of each value (default 0.2 %).
+
+    Returns
+    -------
+    FlatFieldSamples
+    """
+    xy, RGB = np.asarray(xy, dtype=np.float64), np.asarray(RGB, dtype=np.float64)
+    if xy.ndim != 2 or xy.shape[1] != 2 or RGB.shape != (len(xy), _CHANNELS):
+        raise CamcalError(f"patches: expected (N, 2) positions and (N, 3) values, got {xy.shape} and {RGB.shape}")
+    if len(xy) == 0 or not (np.all(np.isfinite(xy)) and np.all(np.isfinite(RGB))):
+        raise CamcalError("patches: positions and values must be given and finite")
+    if np.any(RGB <= 0.0):
+        raise CamcalError(f"patches: {int(np.sum(np.any(RGB <= 0, axis=1)))} patch value(s) are <= 0 (a flat "
+                          "field needs linear values above black)")
+    _, patch_index = np.unique(np.asarray(patch), return_inverse=True)
+    _, shot_index = np.unique(np.zeros(len(xy), dtype=np.int64) if shot is None else np.asarray(shot),
+                              return_inverse=True)
+    sigma = np.broadcast_to(np.asarray(sigma, dtype=np.float64), RGB.shape).copy()
+    return FlatFieldSamples(xy, RGB, shot_index.astype(np.int64), patch_index.astype(np.int64), sigma,
+                            (int(image_size[0]), int(image_size[1])))
+
+
+def fit_flat_field(samples: FlatFieldSamples, *, smooth_degree: int = 0, fit_centre: bool = True,
+                   source: str = "grey card") -> FlatField:
+    """Fit the flat field to samples (see the module docstring).
+
+    Parameters
+    ----------
+    samples : FlatFieldSamples
+    smooth_degree : int
+        Degree of the non-radial term (0 to 4; 0: radial only).
+    fit_centre : bool
+        Fit the optical centre (else the image centre).
+    source : str
+        What the samples are, for the record.
+
+    Returns
+    -------
+    FlatField
+
+    Raises
+    ------
+    CamcalError
+        Too few samples for the model, samples that do not reach ``MIN_REACH`` of the half diagonal, or a
+        fitted gain that falls near 0 in the frame.
+    """
+    if not 0 <= smooth_degree <= 4:
+        raise CamcalError(f"the smooth degree must be 0 to 4, got {smooth_degree}")
+    width, height = samples.image_size
+    unit = half_diagonal(samples.image_size)
+    image_centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
+    n_shots, n_patches = int(samples.shot.max()) + 1, int(samples.patch.max()) + 1
+    n_smooth = len(_monomials(smooth_degree))
+    n_params = 2 * fit_centre + 3 * _CHANNELS + _CHANNELS * (n_shots + n_patches - 1 + n_smooth)
+    if len(samples.xy) * _CHANNELS < 3 * n_params:
+        raise CamcalError(f"too few samples for a flat field: {len(samples.xy)} positions for {n_params} "
+                          "parameters (3 values per parameter needed)")
+    reach = float(np.max(np.hypot(*(samples.xy - image_centre).T)) / unit)
+    if reach < MIN_REACH:
+        raise CamcalError(f"the samples reach {reach:.2f} of the half diagonal from the centre, less than "
+                          f"{MIN_REACH}: the corners would be extrapolated; fill more of the frame")
+    log_values = np.log(samples.RGB)
+    inliers = np.ones(len(samples.xy), dtype=bool)
+    counts = (n_shots, n_patches)
+    x = _initial(samples, log_values, fit_centre, image_centre)
+    x = _radial_fit(samples, log_values, x, counts, fit_centre, image_centre, unit, robust=True).x
+    residual = _residuals(x, samples, log_values, counts, fit_centre, image_centre, unit)
+    scale = max(1.0, 1.4826 * float(np.median(np.abs(residual / samples.sigma))))
+    inliers = ~np.any(np.abs(residual) > np.maximum(REJECT_SIGMA * scale * samples.sigma, REJECT_FLOOR), axis=1)
+    if inliers.sum() * _CHANNELS < 3 * n_params:
+        raise CamcalError(f"too few samples agree with a smooth falloff: {int(inliers.sum())} of {len(inliers)} "
+                          "(is the card uniform and evenly lit?)")
+    for what, index, count in (("image", samples.shot, n_shots), ("patch", samples.patch, n_patches)):
+        lost = sorted(set(range(count)) - set(index[inliers].tolist()))
+        if lost:
+            raise CamcalError(f"no sample of {what} {lost[0] + 1} agrees with the others' smooth falloff")
+    result = _radial_fit(samples.subset(inliers), log_values[inliers], x, counts, fit_centre, image_centre, unit)
+    x = result.x
+    residual = _residuals(x, samples, log_values, counts, fit_centre, image_centre, unit)
+    centre, k, _ = _unpack(x, fit_centre, image_centre, n_shots, n_patches)
+    covariance = _covariance(result, int(inliers.sum()) * _CHANNELS)
+    smooth, smooth_covariances, model = np.zeros((_CHANNELS, n_smooth)), None, log_values - residual
+    if smooth_degree:
+        smooth, smooth_covariances, model = _smooth_fit(samples, log_values, inliers, (samples.xy - centre) / unit,
+                                                        k, smooth_degree, n_shots, n_patches)
+    flat = FlatField((int(width), int(height)), centre, k, smooth_degree, smooth)
+    low = float(_frame_gain(flat).min())
+    if not low > 0.05:
+        raise CamcalError(f"the fitted falloff reaches {low:.3g} inside the frame: the samples do not hold a "
+                          "lens's vignetting (fill more of the frame, or lower the smooth degree)")
+    relative = np.expm1(log_values - model)[inliers]
+    sigma = _gain_sigma(flat, covariance, fit_centre, smooth_covariances)
+    return FlatField(flat.image_size, centre, k, smooth_degree, smooth, np.sqrt(np.mean(relative**2, axis=0)),
+                     sigma, int(inliers.sum()), int((~inliers).sum()), source)
+
+
+def _unpack(x: NDArray, fit_centre: bool, image_centre: NDArray, n_shots: int, n_patches: int):
+    """``x`` -> centre, ``k`` ``(3, 3)`` and the log amplitudes ``(shots (S, 3), patches (P, 3))``."""
+    i = 2 if fit_centre else 0
+    centre = x[:2] if fit_centre else image_centre
+    k = x[i : i + 9].reshape(_CHANNELS, 3)
+    i += 9
+    log_shot = x[i : i + _CHANNELS * n_shots].reshape(n_shots, _CHANNELS)
+    log_patch = np.vstack([np.zeros((1, _CHANNELS)), x[i + _CHANNELS * n_shots :].reshape(n_patches - 1, _CHANNELS)])
+    return centre, k, (log_shot, log_patch)
+
+
+def _initial(samples: FlatFieldSamples, log_values: NDArray, fit_centre: bool, image_centre: NDArray) -> NDArray:
+    """Start: the image centre, no falloff, each patch at its median ratio to the first, each shot at its median."""
+    n_shots, n_patches = int(samples.shot.max()) + 1, int(samples.patch.max()) + 1
+    log_patch = np.array([np.median(log_values[samples.patch == p], axis=0) for p in range(n_patches)])
+    log_patch = log_patch - log_patch[0]
+    log_shot = np.array([np.median((log_values - log_patch[samples.patch])[samples.shot == s], axis=0)
+                         for s in range(n_shots)])
+    parts = ([image_centre] if fit_centre else []) + [np.zeros(9), log_shot.ravel(), log_patch[1:].ravel()]
+    return np.concatenate(parts)
+
+
+def _residuals(x: NDArray, samples: FlatFieldSamples, log_values: NDArray, counts: tuple[int, int],
+               fit_centre: bool, image_centre: NDArray, unit: float) -> NDArray:
+    """``log value - log model`` ``(N, 3)``; ``counts``: shots and patches."""
+    centre, k, (log_shot, log_patch) = _unpack(x, fit_centre, image_centre, *counts)
+    r2 = np.sum(((samples.xy - centre) / unit) ** 2, axis=1)[:, None]
+    V = np.maximum(_radial(r2, k), 1e-6)
+    return log_values - log_shot[samples.shot] - log_patch[samples.patch] - np.log(V)
+
+
+def _radial_fit(samples: FlatFieldSamples, log_values: NDArray, x0: NDArray, counts: tuple[int, int],
+                fit_centre: bool, image_centre: NDArray, unit: float, robust: bool = False):
+    """The radial model's least squares (Levenberg-Marquardt), residuals in units of each sample's sigma.
+
+    ``robust``: iteratively reweighted with Cauchy weights ``1 / (1 + (z / f)^2)``, ``f`` three times the
+    residuals' robust scale (at least 3 sigma), until the parameters settle (at most 12 rounds).
+    """
+    def weighted(x: NDArray) -> NDArray:
+        return (_residuals(x, samples, log_values, counts, fit_centre, image_centre, unit) / samples.sigma).ravel()
+
+    if not robust:
+        return scipy.optimize.least_squares(weighted, x0, method="lm", x_scale="jac")
+    x = x0
+    for _ in range(12):
+        z = weighted(x)
+        f_scale = max(3.0, 1.4826 * float(np.median(np.abs(z))))
+        root_weight = 1.0 / np.sqrt(1.0 + (z / f_scale) ** 2)
+        result = scipy.optimize.least_squares(lambda p: weighted(p) * root_weight, x, method="lm", x_scale="jac")
+        step, x = np.max(np.abs(result.x - x)[2 * fit_centre :]), result.x
+        if step < 1e-5:
+            break
+    return result
+
+
+def _covariance(result, n_values: int) -> NDArray:
+    """``s^2 (J^T J)^-1`` of the final (plain least squares) fit, ``s^2`` from its residual."""
+    J = result.jac
+    s2 = 2.0 * result.cost / max(n_values - J.shape[1], 1)
+    return np.linalg.pinv(J.T @ J) * s2
+
+
+def _smooth_fit(samples: FlatFieldSamples, log_values: NDArray, inliers: NDArray, d: NDArray, k: NDArray,
+                degree: int, n_shots: int, n_patches: int):
+    """The non-radial term and the amplitudes again, by weighted linear least squares on ``log(value / V)``.
+
+    Returns the coefficients ``(3, n)``, their covariance per channel and the model's log values ``(N, 3)``.
+    """
+    basis = _smooth_basis(d[:, 0], d[:, 1], degree)
+    log_V = np.log(np.maximum(_radial(np.sum(d**2, axis=1)[:, None], k), 1e-6))
+    design = np.hstack([np.eye(n_shots)[samples.shot], np.eye(n_patches)[samples.patch][:, 1:], basis])
+    n = basis.shape[1]
+    coefficients, covariances, model = np.zeros((_CHANNELS, n)), [], np.zeros_like(log_values)
+    for c in range(_CHANNELS):
+        w = 1.0 / samples.sigma[inliers, c]
+        A, b = design[inliers] * w[:, None], (log_values - log_V)[inliers, c] * w
+        solution, *_ = np.linalg.lstsq(A, b, rcond=None)
+        residual = b - A @ solution
+        s2 = float(residual @ residual) / max(len(b) - A.shape[1], 1)
+        covariances.append((np.linalg.pinv(A.T @ A) * s2)[-n:, -n:])
+        coefficients[c] = solution[-n:]
+        model[:, c] = design @ solution + log_V[:, c]
+    return coefficients, covariances, model
+
+
+def _gain_sigma(flat: FlatField, covariance: NDArray, fit_centre: bool, smooth_covariances) -> NDArray:
+    """The largest standard deviation of ``G_c`` (relative) over a 17 x 17 grid of the frame, per channel.
+
+    First order: ``var log G = g^T C g`` with ``g`` the gradient of ``log V`` in the centre and ``k`` (and of
+    ``P`` in its coefficients).
+    """
+    xy = _frame_points(flat.image_size, 17)
+    unit = half_diagonal(flat.image_size)
+    d = (xy - flat.centre) / unit
+    r2 = np.sum(d**2, axis=1)
+    sigma = np.zeros(_CHANNELS)
+    for c in range(_CHANNELS):
+        k = flat.k[c]
+        V = _radial(r2, k)
+        dV_dr2 = k[0] + 2 * k[1] * r2 + 3 * k[2] * r2**2
+        start = 2 * fit_centre + 3 * c
+        columns, indices = [np.column_stack([r2, r2**2, r2**3]) / V[:, None]], list(range(start, start + 3))
+        if fit_centre:
+            columns.insert(0, (dV_dr2 / V)[:, None] * (-2.0 * d / unit))
+            indices = [0, 1] + indices
+        g = np.hstack(columns)
+        variance = np.einsum("ni,ij,nj->n", g, covariance[np.ix_(indices, indices)], g)
+        if smooth_covariances is not None:
+            basis = _smooth_basis(d[:, 0], d[:, 1], flat.smooth_degree)
+            variance = variance + np.einsum("ni,ij,nj->n", basis, smooth_covariances[c], basis)
+        sigma[c] = float(np.sqrt(np.max(np.maximum(variance, 0.0))))
+    return sigma
+
+
+@dataclass(frozen=True)
+class RadialTerms:
+    """One ``pa`` term set for every channel (what Lensfun's vignetting entry holds).
+
+    Attributes
+    ----------
+    k : (3,) ndarray
+        ``k1 k2 k3`` fitted to the mean of the channels' ``V_c``.
+    centre : (2,) ndarray
+        The optical centre in pixels.
+    max_deviation : float
+        Largest ``|G_c / V - 1|`` over the frame: the colour shading and non-radial falloff it does not hold.
+    """
+
+    k: NDArray[np.float64]
+    centre: NDArray[np.float64]
+    max_deviation: float
+
+
+def common_radial_terms(flat: FlatField) -> RadialTerms:
+    """The ``pa`` terms of the channels' mean falloff (least squares over the frame's radii) and what they miss.
+
+    Lensfun's ``pa`` vignetting multiplies every channel by one factor; a
+    flat field with colour shading or a non-radial term holds more than it.
+    """
+    unit = half_diagonal(flat.image_size)
+    xy = _frame_points(flat.image_size)
+    r2_frame = np.sum(((xy - flat.centre) / unit) ** 2, axis=1)
+    r2 = np.linspace(0.0, float(np.sqrt(r2_frame.max())), 257) ** 2
+    mean = np.mean(_radial(r2[:, None], flat.k), axis=1)
+    k, *_ = np.linalg.lstsq(np.column_stack([r2, r2**2, r2**3]), mean - 1.0, rcond=None)
+    deviation = float(np.max(np.abs(flat.gain_at(xy) / _radial(r2_frame, k)[:, None] - 1.0)))
+    return RadialTerms(k, np.asarray(flat.centre, dtype=np.float64), deviation)
