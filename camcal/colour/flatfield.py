@@ -23,16 +23,16 @@ by ``G`` (:func:`correct_flat_field`); :func:`apply_vignetting` multiplies.
 The fit (:func:`fit_flat_field`) works on samples: block medians of grey-card
 images (:func:`samples_from_images`) or the values of neutral patches at
 their positions (:func:`samples_from_patches`). Each sample is
-``A_{s,c} rho_{p,c} G_c(x, y)``: ``A`` the exposure and light of shot ``s``
-(each image is a shot), ``rho`` the reflectance of patch ``p`` relative to
-the first patch. The radial part and the centre come from a robust
-Levenberg-Marquardt fit of ``log`` values weighted by each sample's noise
-(soft-L1 loss, then samples beyond 6 sigma and 2 % rejected and the inliers
-refitted), the smooth part from linear least squares on what the radial part
-leaves (done second: a tilt and a shifted centre describe the same data to
-first order, so the two are not fitted together). The gain's uncertainty is
-propagated from the fits' covariance (it covers the samples' noise, not a
-model that does not hold the lens; the residual says that).
+``A_s rho_{p,c} G_c(x, y)``: ``A`` the exposure of shot ``s`` (each image is
+a shot; one factor for all channels: the same light), ``rho`` the value of
+patch ``p`` at the centre of the first shot. Everything is fitted together by Levenberg-Marquardt on
+``log`` values weighted by each sample's noise: first iteratively reweighted
+(Cauchy weights), then the samples beyond 6 sigma and 2 % are rejected and
+the inliers refitted. (A tilt in ``S`` and a shifted centre describe nearly
+the same data: with a smooth term the centre is loosely determined, the gain
+is not.) The gain's uncertainty is propagated from the fit's covariance (it
+covers the samples' noise, not a model that does not hold the lens; the
+residual says that).
 
 References
 ----------
@@ -45,7 +45,7 @@ IEEE TPAMI 32(12), 2276-2288 (the polynomial in r^2 about the optical centre).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -154,7 +154,8 @@ class FlatField:
             raise CamcalError(f"the flat field is for {width}x{height} images; an image of {image_size[0]}x"
                               f"{image_size[1]} has another aspect ratio")
         scale = np.array([image_size[0] / width, image_size[1] / height])
-        return (np.asarray(self.centre) + 0.5) * scale - 0.5, half_diagonal(image_size)
+        # the same physical radius: the fit's unit scaled with the image (pixel centres at integers)
+        return (np.asarray(self.centre) + 0.5) * scale - 0.5, half_diagonal(self.image_size) * math.sqrt(scale.prod())
 
     def gain_at(self, xy: NDArray, image_size: tuple[int, int] | None = None) -> NDArray[np.float64]:
         """``G`` at pixels ``xy`` ``(N, 2)`` of an image of ``image_size`` (default: the fit's): ``(N, 3)``."""
@@ -318,8 +319,9 @@ def samples_from_images(images: list[NDArray], masks: list[NDArray | None] | Non
     Returns
     -------
     FlatFieldSamples
-        One sample per block with at least ``MIN_VALID_FRACTION`` of its pixels valid, but blocks whose
-        spread is four times the typical block's (the card's edge, texture).
+        One sample per block with at least ``MIN_VALID_FRACTION`` of its pixels valid: the mean of its pixels
+        within 4 sigma of its median; blocks whose spread is four times the typical block's, or with fewer
+        than ``ONE_SURFACE`` of their pixels within 4 sigma (the card's edge, texture), are left out.
 
     Raises
     ------
@@ -382,17 +384,22 @@ def samples_from_images(images: list[NDArray], masks: list[NDArray | None] | Non
         relative = noise / np.maximum(level, 1e-12)
         # one surface: the block's spread is the card's and its pixels lie within 4 sigma of its median (a block
         # over the card's edge holds another surface, which moves its median though not its MAD)
-        near = np.all(np.abs(pixels - level[:, None, :]) <= 4.0 * noise[:, None, :], axis=2).sum(axis=1)
+        near = np.all(np.abs(pixels - level[:, None, :]) <= 4.0 * noise[:, None, :], axis=2)
+        n_near = near.sum(axis=1)
         smooth = (np.all(level > 0.0, axis=1) & np.all(relative <= 4.0 * np.median(relative, axis=0) + 1e-6, axis=1)
-                  & (near >= ONE_SURFACE * n_valid))
+                  & (n_near >= ONE_SURFACE * n_valid))
+        # the block's value: the mean of its pixels within 4 sigma of its median (a sigma-clipped mean, more
+        # efficient than the median on shot noise)
+        level = np.where(smooth[:, None], np.nansum(np.where(near[..., None], pixels, 0.0), axis=1)
+                         / np.maximum(n_near, 1)[:, None], level)
         weights = blocks(valid)[used][:, :, 0]
         bx = (blocks(grid_x)[used][:, :, 0] * weights).sum(axis=1) / n_valid
         by = (blocks(grid_y)[used][:, :, 0] * weights).sum(axis=1) / n_valid
         xy_all.append(np.column_stack([bx, by])[smooth])
         RGB_all.append(level[smooth])
         shot_all.append(np.full(int(smooth.sum()), index, dtype=np.int64))
-        # the median's standard deviation, relative (1.2533 sigma / sqrt(n)), floored for noiseless renders
-        sigma_all.append(np.maximum(1.2533 * relative[smooth] / np.sqrt(n_valid[smooth, None]), 1e-5))
+        # the mean's standard deviation, relative (sigma / sqrt(n)), floored for noiseless renders
+        sigma_all.append(np.maximum(relative[smooth] / np.sqrt(n_near[smooth, None]), 1e-5))
     shots = np.concatenate(shot_all)
     return FlatFieldSamples(np.concatenate(xy_all), np.concatenate(RGB_all), shots, np.zeros_like(shots),
                             np.concatenate(sigma_all), (int(width), int(height)))
@@ -463,93 +470,114 @@ def fit_flat_field(samples: FlatFieldSamples, *, smooth_degree: int = 0, fit_cen
     if not 0 <= smooth_degree <= 4:
         raise CamcalError(f"the smooth degree must be 0 to 4, got {smooth_degree}")
     width, height = samples.image_size
-    unit = half_diagonal(samples.image_size)
-    image_centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
-    n_shots, n_patches = int(samples.shot.max()) + 1, int(samples.patch.max()) + 1
-    n_smooth = len(_monomials(smooth_degree))
-    n_params = 2 * fit_centre + 3 * _CHANNELS + _CHANNELS * (n_shots + n_patches - 1 + n_smooth)
-    if len(samples.xy) * _CHANNELS < 3 * n_params:
-        raise CamcalError(f"too few samples for a flat field: {len(samples.xy)} positions for {n_params} "
+    layout = _Layout(fit_centre, np.array([(width - 1) / 2.0, (height - 1) / 2.0]), half_diagonal(samples.image_size),
+                     int(samples.shot.max()) + 1, int(samples.patch.max()) + 1, smooth_degree)
+    if len(samples.xy) * _CHANNELS < 3 * layout.n_params:
+        raise CamcalError(f"too few samples for a flat field: {len(samples.xy)} positions for {layout.n_params} "
                           "parameters (3 values per parameter needed)")
-    reach = float(np.max(np.hypot(*(samples.xy - image_centre).T)) / unit)
+    reach = float(np.max(np.hypot(*(samples.xy - layout.image_centre).T)) / layout.unit)
     if reach < MIN_REACH:
         raise CamcalError(f"the samples reach {reach:.2f} of the half diagonal from the centre, less than "
                           f"{MIN_REACH}: the corners would be extrapolated; fill more of the frame")
     log_values = np.log(samples.RGB)
-    inliers = np.ones(len(samples.xy), dtype=bool)
-    counts = (n_shots, n_patches)
-    x = _initial(samples, log_values, fit_centre, image_centre)
-    x = _radial_fit(samples, log_values, x, counts, fit_centre, image_centre, unit, robust=True).x
-    residual = _residuals(x, samples, log_values, counts, fit_centre, image_centre, unit)
+    x = _fit(samples, log_values, _initial(samples, log_values, layout), layout, robust=True).x
+    residual = layout.residuals(x, samples, log_values)
     scale = max(1.0, 1.4826 * float(np.median(np.abs(residual / samples.sigma))))
     inliers = ~np.any(np.abs(residual) > np.maximum(REJECT_SIGMA * scale * samples.sigma, REJECT_FLOOR), axis=1)
-    if inliers.sum() * _CHANNELS < 3 * n_params:
+    if inliers.sum() * _CHANNELS < 3 * layout.n_params:
         raise CamcalError(f"too few samples agree with a smooth falloff: {int(inliers.sum())} of {len(inliers)} "
                           "(is the card uniform and evenly lit?)")
-    for what, index, count in (("image", samples.shot, n_shots), ("patch", samples.patch, n_patches)):
+    for what, index, count in (("image", samples.shot, layout.n_shots), ("patch", samples.patch, layout.n_patches)):
         lost = sorted(set(range(count)) - set(index[inliers].tolist()))
         if lost:
             raise CamcalError(f"no sample of {what} {lost[0] + 1} agrees with the others' smooth falloff")
-    result = _radial_fit(samples.subset(inliers), log_values[inliers], x, counts, fit_centre, image_centre, unit)
-    x = result.x
-    residual = _residuals(x, samples, log_values, counts, fit_centre, image_centre, unit)
-    centre, k, _ = _unpack(x, fit_centre, image_centre, n_shots, n_patches)
-    covariance = _covariance(result, int(inliers.sum()) * _CHANNELS)
-    smooth, smooth_covariances, model = np.zeros((_CHANNELS, n_smooth)), None, log_values - residual
-    if smooth_degree:
-        smooth, smooth_covariances, model = _smooth_fit(samples, log_values, inliers, (samples.xy - centre) / unit,
-                                                        k, smooth_degree, n_shots, n_patches)
-    flat = FlatField((int(width), int(height)), centre, k, smooth_degree, smooth)
+    result = _fit(samples.subset(inliers), log_values[inliers], x, layout)
+    residual = layout.residuals(result.x, samples, log_values)
+    flat = layout.flat(result.x, samples.image_size)
     low = float(_frame_gain(flat).min())
     if not low > 0.05:
         raise CamcalError(f"the fitted falloff reaches {low:.3g} inside the frame: the samples do not hold a "
                           "lens's vignetting (fill more of the frame, or lower the smooth degree)")
-    relative = np.expm1(log_values - model)[inliers]
-    sigma = _gain_sigma(flat, covariance, fit_centre, smooth_covariances)
-    return FlatField(flat.image_size, centre, k, smooth_degree, smooth, np.sqrt(np.mean(relative**2, axis=0)),
-                     sigma, int(inliers.sum()), int((~inliers).sum()), source)
+    relative = np.expm1(residual[inliers])
+    return replace(flat, residual_rms=np.sqrt(np.mean(relative**2, axis=0)),
+                   gain_sigma_max=_gain_sigma(result, int(inliers.sum()) * _CHANNELS, layout, samples.image_size),
+                   n_samples=int(inliers.sum()), n_rejected=int((~inliers).sum()), source=source)
 
 
-def _unpack(x: NDArray, fit_centre: bool, image_centre: NDArray, n_shots: int, n_patches: int):
-    """``x`` -> centre, ``k`` ``(3, 3)`` and the log amplitudes ``(shots (S, 3), patches (P, 3))``."""
-    i = 2 if fit_centre else 0
-    centre = x[:2] if fit_centre else image_centre
-    k = x[i : i + 9].reshape(_CHANNELS, 3)
-    i += 9
-    log_shot = x[i : i + _CHANNELS * n_shots].reshape(n_shots, _CHANNELS)
-    log_patch = np.vstack([np.zeros((1, _CHANNELS)), x[i + _CHANNELS * n_shots :].reshape(n_patches - 1, _CHANNELS)])
-    return centre, k, (log_shot, log_patch)
+@dataclass(frozen=True)
+class _Layout:
+    """Where each parameter sits in the fit's vector ``x``: the centre (when fitted), ``k`` ``(3, 3)``, the log
+    exposure of each shot but the first ``(S - 1,)``, the log value of each patch ``(P, 3)``, the smooth term
+    ``(3, n)``."""
+
+    fit_centre: bool
+    image_centre: NDArray
+    unit: float
+    n_shots: int
+    n_patches: int
+    degree: int
+
+    @property
+    def n_smooth(self) -> int:
+        return len(_monomials(self.degree))
+
+    @property
+    def n_params(self) -> int:
+        return 2 * self.fit_centre + self.n_shots - 1 + _CHANNELS * (3 + self.n_patches + self.n_smooth)
+
+    def unpack(self, x: NDArray):
+        """``x`` -> centre, ``k`` ``(3, 3)``, log exposures ``(S, 1)``, log patch values ``(P, 3)``, smooth
+        ``(3, n)``."""
+        i = 2 if self.fit_centre else 0
+        centre = x[:2] if self.fit_centre else self.image_centre
+        k = x[i : i + 9].reshape(_CHANNELS, 3)
+        i += 9
+        log_shot = np.concatenate([[0.0], x[i : i + self.n_shots - 1]])[:, None]
+        i += self.n_shots - 1
+        log_patch = x[i : i + _CHANNELS * self.n_patches].reshape(self.n_patches, _CHANNELS)
+        i += _CHANNELS * self.n_patches
+        smooth = x[i:].reshape(_CHANNELS, self.n_smooth)
+        return centre, k, log_shot, log_patch, smooth
+
+    def log_gain(self, x: NDArray, xy: NDArray) -> NDArray:
+        """``log G`` at ``xy`` ``(N, 2)``: ``(N, 3)``."""
+        centre, k, _, _, smooth = self.unpack(x)
+        d = (xy - centre) / self.unit
+        log_G = np.log(np.maximum(_radial(np.sum(d**2, axis=1)[:, None], k), 1e-6))
+        if self.degree:
+            log_G = log_G + _smooth_basis(d[:, 0], d[:, 1], self.degree) @ smooth.T
+        return log_G
+
+    def residuals(self, x: NDArray, samples: FlatFieldSamples, log_values: NDArray) -> NDArray:
+        """``log value - log model`` ``(N, 3)``."""
+        _, _, log_shot, log_patch, _ = self.unpack(x)
+        return log_values - log_shot[samples.shot] - log_patch[samples.patch] - self.log_gain(x, samples.xy)
+
+    def flat(self, x: NDArray, image_size: tuple[int, int]) -> FlatField:
+        centre, k, _, _, smooth = self.unpack(x)
+        return FlatField((int(image_size[0]), int(image_size[1])), np.array(centre, dtype=np.float64),
+                         np.array(k), self.degree, np.array(smooth))
 
 
-def _initial(samples: FlatFieldSamples, log_values: NDArray, fit_centre: bool, image_centre: NDArray) -> NDArray:
-    """Start: the image centre, no falloff, each patch at its median ratio to the first, each shot at its median."""
-    n_shots, n_patches = int(samples.shot.max()) + 1, int(samples.patch.max()) + 1
-    log_patch = np.array([np.median(log_values[samples.patch == p], axis=0) for p in range(n_patches)])
-    log_patch = log_patch - log_patch[0]
-    log_shot = np.array([np.median((log_values - log_patch[samples.patch])[samples.shot == s], axis=0)
-                         for s in range(n_shots)])
-    parts = ([image_centre] if fit_centre else []) + [np.zeros(9), log_shot.ravel(), log_patch[1:].ravel()]
+def _initial(samples: FlatFieldSamples, log_values: NDArray, layout: _Layout) -> NDArray:
+    """Start: the image centre, no falloff, each patch at its median, each shot at its median ratio to the first."""
+    log_patch = np.array([np.median(log_values[samples.patch == p], axis=0) for p in range(layout.n_patches)])
+    log_shot = np.array([np.median((log_values - log_patch[samples.patch])[samples.shot == s])
+                         for s in range(layout.n_shots)])
+    parts = [layout.image_centre] if layout.fit_centre else []
+    parts += [np.zeros(9), log_shot[1:] - log_shot[0], log_patch.ravel() + log_shot[0],
+              np.zeros(_CHANNELS * layout.n_smooth)]
     return np.concatenate(parts)
 
 
-def _residuals(x: NDArray, samples: FlatFieldSamples, log_values: NDArray, counts: tuple[int, int],
-               fit_centre: bool, image_centre: NDArray, unit: float) -> NDArray:
-    """``log value - log model`` ``(N, 3)``; ``counts``: shots and patches."""
-    centre, k, (log_shot, log_patch) = _unpack(x, fit_centre, image_centre, *counts)
-    r2 = np.sum(((samples.xy - centre) / unit) ** 2, axis=1)[:, None]
-    V = np.maximum(_radial(r2, k), 1e-6)
-    return log_values - log_shot[samples.shot] - log_patch[samples.patch] - np.log(V)
+def _fit(samples: FlatFieldSamples, log_values: NDArray, x0: NDArray, layout: _Layout, robust: bool = False):
+    """The model's least squares (Levenberg-Marquardt), residuals in units of each sample's sigma.
 
-
-def _radial_fit(samples: FlatFieldSamples, log_values: NDArray, x0: NDArray, counts: tuple[int, int],
-                fit_centre: bool, image_centre: NDArray, unit: float, robust: bool = False):
-    """The radial model's least squares (Levenberg-Marquardt), residuals in units of each sample's sigma.
-
-    ``robust``: iteratively reweighted with Cauchy weights ``1 / (1 + (z / f)^2)``, ``f`` three times the
-    residuals' robust scale (at least 3 sigma), until the parameters settle (at most 12 rounds).
+    ``robust``: iteratively reweighted with Cauchy weights ``1 / (1 + (z / f)^2)``, ``f`` the residuals' robust
+    scale (at least 3 sigma), until the parameters settle (at most 12 rounds).
     """
     def weighted(x: NDArray) -> NDArray:
-        return (_residuals(x, samples, log_values, counts, fit_centre, image_centre, unit) / samples.sigma).ravel()
+        return (layout.residuals(x, samples, log_values) / samples.sigma).ravel()
 
     if not robust:
         return scipy.optimize.least_squares(weighted, x0, method="lm", x_scale="jac")
@@ -559,69 +587,27 @@ def _radial_fit(samples: FlatFieldSamples, log_values: NDArray, x0: NDArray, cou
         f_scale = max(3.0, 1.4826 * float(np.median(np.abs(z))))
         root_weight = 1.0 / np.sqrt(1.0 + (z / f_scale) ** 2)
         result = scipy.optimize.least_squares(lambda p: weighted(p) * root_weight, x, method="lm", x_scale="jac")
-        step, x = np.max(np.abs(result.x - x)[2 * fit_centre :]), result.x
+        step, x = np.max(np.abs(result.x - x)[2 * layout.fit_centre :]), result.x
         if step < 1e-5:
             break
     return result
 
 
-def _covariance(result, n_values: int) -> NDArray:
-    """``s^2 (J^T J)^-1`` of the final (plain least squares) fit, ``s^2`` from its residual."""
-    J = result.jac
-    s2 = 2.0 * result.cost / max(n_values - J.shape[1], 1)
-    return np.linalg.pinv(J.T @ J) * s2
-
-
-def _smooth_fit(samples: FlatFieldSamples, log_values: NDArray, inliers: NDArray, d: NDArray, k: NDArray,
-                degree: int, n_shots: int, n_patches: int):
-    """The non-radial term and the amplitudes again, by weighted linear least squares on ``log(value / V)``.
-
-    Returns the coefficients ``(3, n)``, their covariance per channel and the model's log values ``(N, 3)``.
-    """
-    basis = _smooth_basis(d[:, 0], d[:, 1], degree)
-    log_V = np.log(np.maximum(_radial(np.sum(d**2, axis=1)[:, None], k), 1e-6))
-    design = np.hstack([np.eye(n_shots)[samples.shot], np.eye(n_patches)[samples.patch][:, 1:], basis])
-    n = basis.shape[1]
-    coefficients, covariances, model = np.zeros((_CHANNELS, n)), [], np.zeros_like(log_values)
-    for c in range(_CHANNELS):
-        w = 1.0 / samples.sigma[inliers, c]
-        A, b = design[inliers] * w[:, None], (log_values - log_V)[inliers, c] * w
-        solution, *_ = np.linalg.lstsq(A, b, rcond=None)
-        residual = b - A @ solution
-        s2 = float(residual @ residual) / max(len(b) - A.shape[1], 1)
-        covariances.append((np.linalg.pinv(A.T @ A) * s2)[-n:, -n:])
-        coefficients[c] = solution[-n:]
-        model[:, c] = design @ solution + log_V[:, c]
-    return coefficients, covariances, model
-
-
-def _gain_sigma(flat: FlatField, covariance: NDArray, fit_centre: bool, smooth_covariances) -> NDArray:
+def _gain_sigma(result, n_values: int, layout: _Layout, image_size: tuple[int, int]) -> NDArray:
     """The largest standard deviation of ``G_c`` (relative) over a 17 x 17 grid of the frame, per channel.
 
-    First order: ``var log G = g^T C g`` with ``g`` the gradient of ``log V`` in the centre and ``k`` (and of
-    ``P`` in its coefficients).
+    First order: ``var log G = g^T C g``, ``g`` the gradient of ``log G`` in the parameters (central
+    differences), ``C = s^2 (J^T J)^-1`` of the final fit with ``s^2`` from its residual.
     """
-    xy = _frame_points(flat.image_size, 17)
-    unit = half_diagonal(flat.image_size)
-    d = (xy - flat.centre) / unit
-    r2 = np.sum(d**2, axis=1)
-    sigma = np.zeros(_CHANNELS)
-    for c in range(_CHANNELS):
-        k = flat.k[c]
-        V = _radial(r2, k)
-        dV_dr2 = k[0] + 2 * k[1] * r2 + 3 * k[2] * r2**2
-        start = 2 * fit_centre + 3 * c
-        columns, indices = [np.column_stack([r2, r2**2, r2**3]) / V[:, None]], list(range(start, start + 3))
-        if fit_centre:
-            columns.insert(0, (dV_dr2 / V)[:, None] * (-2.0 * d / unit))
-            indices = [0, 1] + indices
-        g = np.hstack(columns)
-        variance = np.einsum("ni,ij,nj->n", g, covariance[np.ix_(indices, indices)], g)
-        if smooth_covariances is not None:
-            basis = _smooth_basis(d[:, 0], d[:, 1], flat.smooth_degree)
-            variance = variance + np.einsum("ni,ij,nj->n", basis, smooth_covariances[c], basis)
-        sigma[c] = float(np.sqrt(np.max(np.maximum(variance, 0.0))))
-    return sigma
+    J = result.jac
+    covariance = np.linalg.pinv(J.T @ J) * (2.0 * result.cost / max(n_values - J.shape[1], 1))
+    xy = _frame_points(image_size, 17)
+    steps = 1e-6 * np.maximum(np.abs(result.x), 1.0)
+    g = np.stack([(layout.log_gain(result.x + np.eye(len(steps))[i] * steps[i], xy)
+                   - layout.log_gain(result.x - np.eye(len(steps))[i] * steps[i], xy)) / (2 * steps[i])
+                  for i in range(len(steps))], axis=-1)  # (M, 3, n_params)
+    variance = np.einsum("mci,ij,mcj->mc", g, covariance, g)
+    return np.sqrt(np.max(np.maximum(variance, 0.0), axis=0))
 
 
 @dataclass(frozen=True)
