@@ -50,8 +50,8 @@ def register(parser: argparse.ArgumentParser) -> None:
         "--aperture 4 --distance-m 2",
         "# the chart's neutral patches photographed at several places in the frame",
         "camcal colour flatfield --patches neutrals.csv --image-size 6000 4000 --out flat.json",
-        "# then: divide the chart photo by the flat field before the colour fit",
-        "camcal colour fit --chart chart.dng --flat-field flat.json --out cam.colour.json",
+        "# the card's pixels given, and a smooth term for falloff that is not radial",
+        "camcal colour flatfield --images grey1.tif grey2.tif --mask card.png --smooth-degree 2 --out flat.json",
     ])
 
 
