@@ -7,6 +7,8 @@ vignetting entry.
   image (PNG, JPEG, 8-bit TIFF) is almost always display-encoded (sRGB or
   Rec. 709 transfer), where dividing by a falloff is wrong: it is refused
   unless ``linear=True`` says it holds linear values.
+- :func:`read_neutral_patches`: a CSV ``x,y,R,G,B,patch[,shot]`` of a
+  chart's neutral patches seen at several places in the frame.
 - :func:`save_flat_field` / :func:`load_flat_field`: the model as JSON
   (:meth:`camcal.colour.flatfield.FlatField.to_dict`), validated on load.
 - :func:`write_gain_exr`: the gain ``G`` per pixel as a 32-bit float RGB
@@ -29,6 +31,8 @@ Lensfun database format: https://lensfun.github.io/manual/latest/elem_calibratio
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 import os
 import xml.etree.ElementTree as ElementTree
@@ -41,11 +45,13 @@ from numpy.typing import NDArray
 from camcal.base.atomic import atomic_write_text
 from camcal.base.errors import CamcalError
 from camcal.base.jsonfile import read_json, write_json
+from camcal.base.limits import FILE_BYTES, check_file_size
 from camcal.colour.flatfield import FlatField, RadialTerms, common_radial_terms
 from camcal.io.lensfun import DEFAULT_SENSOR_WIDTH_MM
+from camcal.io.points_csv import finite_numbers
 
-__all__ = ["LinearImage", "load_flat_field", "read_linear_image", "save_flat_field", "write_gain_exr",
-           "write_lensfun_vignetting"]
+__all__ = ["LinearImage", "NeutralPatches", "load_flat_field", "read_linear_image", "read_neutral_patches",
+           "save_flat_field", "write_gain_exr", "write_lensfun_vignetting"]
 
 #: Full frame's diagonal in mm (the crop factor's reference).
 _FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
@@ -87,6 +93,53 @@ def read_linear_image(path: str | os.PathLike, *, linear: bool = False) -> Linea
     if RGB.dtype.kind in "ui":
         return LinearImage(RGB.astype(np.float64) / float(np.iinfo(RGB.dtype).max), _CLIP)
     return LinearImage(RGB.astype(np.float64), None)
+
+
+@dataclass(frozen=True)
+class NeutralPatches:
+    """A neutral-patch CSV's rows: centres ``(N, 2)`` in pixels, linear values ``(N, 3)``, patch and shot names."""
+
+    xy: NDArray[np.float64]
+    RGB: NDArray[np.float64]
+    patch: tuple[str, ...]
+    shot: tuple[str, ...] | None
+
+
+def read_neutral_patches(path: str | os.PathLike) -> NeutralPatches:
+    """Read a CSV ``x,y,R,G,B,patch[,shot]``: each row a neutral patch's centre (pixel (0, 0) the centre of the
+    top-left pixel), its linear value, which patch it is and (optional) which photo; ``#`` lines are comments.
+
+    Raises
+    ------
+    CamcalError
+        Naming the file and line of the first problem.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CamcalError(f"patch file not found: {path}")
+    check_file_size(path, FILE_BYTES, "patch file")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise CamcalError(f"{path}: not UTF-8 text (byte {error.start})") from None
+    rows = [(number, [cell.strip() for cell in row]) for number, row in enumerate(csv.reader(io.StringIO(text)), 1)
+            if row and any(cell.strip() for cell in row) and not row[0].lstrip().startswith("#")]
+    header = rows[0][1] if rows else []
+    if header not in (["x", "y", "R", "G", "B", "patch"], ["x", "y", "R", "G", "B", "patch", "shot"]):
+        shown = ",".join(header)
+        raise CamcalError(f"{path}: the header must be x,y,R,G,B,patch[,shot], got "
+                          f"{(shown if shown.isprintable() else repr(shown))[:200] or 'nothing'}")
+    numbers, patch, shot = [], [], []
+    for number, cells in rows[1:]:
+        if len(cells) != len(header):
+            raise CamcalError(f"{path}:{number}: expected {len(header)} columns, got {len(cells)}")
+        numbers.append(finite_numbers(cells[:5], f"{path}:{number}"))
+        patch.append(cells[5])
+        shot.append(cells[6] if len(cells) == 7 else "")
+    if not numbers:
+        raise CamcalError(f"{path}: no patches after the header")
+    array = np.array(numbers)
+    return NeutralPatches(array[:, :2], array[:, 2:], tuple(patch), tuple(shot) if len(header) == 7 else None)
 
 
 def save_flat_field(flat: FlatField, path: str | os.PathLike) -> Path:

@@ -9,7 +9,6 @@
 
 from __future__ import annotations
 
-import csv
 import glob
 import os
 from collections.abc import Sequence
@@ -18,9 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from camcal.base.errors import CamcalError
-from camcal.base.limits import FILE_BYTES, check_file_size
 from camcal.colour.flatfield import FlatField, fit_flat_field, samples_from_images, samples_from_patches
-from camcal.io.flatfield import read_linear_image
+from camcal.io.flatfield import read_linear_image, read_neutral_patches
 
 __all__ = ["expand_images", "flat_field_from_image_files", "flat_field_from_patch_file"]
 
@@ -81,23 +79,7 @@ def flat_field_from_patch_file(path: str | os.PathLike, image_size: tuple[int, i
     ``x, y``: the patch's centre in pixels (pixel (0, 0) the centre of the top-left pixel); ``R, G, B``: its
     linear value; ``patch``: which neutral patch (a name); ``shot``: which photo (optional).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise CamcalError(f"patch file not found: {path}")
-    check_file_size(path, FILE_BYTES, "patch file")
-    with open(path, newline="", encoding="utf-8") as stream:
-        rows = list(csv.reader(line for line in stream if line.strip() and not line.lstrip().startswith("#")))
-    header = [name.strip() for name in rows[0]] if rows else []
-    if header[:6] != ["x", "y", "R", "G", "B", "patch"] or len(header) > 7 or header[6:] not in ([], ["shot"]):
-        raise CamcalError(f"{path}: the header must be x,y,R,G,B,patch[,shot], got {','.join(header) or 'nothing'}")
-    body = rows[1:]
-    try:
-        numbers = np.array([[float(v) for v in row[:5]] for row in body], dtype=np.float64).reshape(-1, 5)
-    except ValueError as error:
-        raise CamcalError(f"{path}: {error}") from None
-    if any(len(row) != len(header) for row in body):
-        raise CamcalError(f"{path}: every row needs {len(header)} values")
-    shot = [row[6] for row in body] if len(header) == 7 else None
-    samples = samples_from_patches(numbers[:, :2], numbers[:, 2:], [row[5].strip() for row in body], image_size,
-                                   shot=shot)
+    patches = read_neutral_patches(path)
+    samples = samples_from_patches(patches.xy, patches.RGB, np.array(patches.patch), image_size,
+                                   shot=None if patches.shot is None else np.array(patches.shot))
     return fit_flat_field(samples, smooth_degree=smooth_degree, fit_centre=fit_centre, source="neutral patches")

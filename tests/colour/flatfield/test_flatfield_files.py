@@ -150,6 +150,7 @@ def bad_inputs(grey: Path, tmp_path: Path) -> list[tuple[list, str]]:
     write_exr(tmp_path / "small.exr", card[::2, ::2])
     write_exr(tmp_path / "dark.exr", np.zeros_like(card))
     cv2.imwrite(str(tmp_path / "grey8.png"), np.round(np.clip(card[:, :, ::-1], 0, 1) * 255).astype(np.uint8))
+    (tmp_path / "bad.csv").write_text("x,y,R,G,B\n1,2,0.5,0.5,0.5\n")
     return [
         (["--images", grey / "grey0.exr", tmp_path / "small.exr"], "the grey-card images differ in size"),
         (["--images", tmp_path / "dark.exr"], "is too dark for a flat field"),
@@ -158,6 +159,8 @@ def bad_inputs(grey: Path, tmp_path: Path) -> list[tuple[list, str]]:
          "--lensfun needs the lens state: --aperture, --distance-m"),
         (["--images", f"{tmp_path}/nothing*.exr"], "no image matches"),
         (["--patches", tmp_path / "p.csv"], "--patches needs --image-size W H"),
+        (["--patches", tmp_path / "bad.csv", "--image-size", "960", "640"],
+         "the header must be x,y,R,G,B,patch[,shot], got x,y,R,G,B"),
         (["--images", grey / "grey0.exr", "--smooth-degree", "5"], "--smooth-degree must be 0 to 4, got 5"),
     ]
 
