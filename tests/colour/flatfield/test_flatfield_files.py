@@ -215,3 +215,27 @@ def test_neutral_patches_from_a_csv(tmp_path, capsys):
     assert code == 0 and "from neutral patches: 96 samples" in out
     flat = load_flat_field(tmp_path / "flat.json")
     assert np.max(np.abs(flat.gain() / truth.gain() - 1)) < 0.01
+
+
+def test_a_raw_grey_card(tmp_path, capsys):
+    """A 14-bit DNG of the card (RGGB, black 512): read as linear camera RGB at half size, saturated photosites
+    (a glint on the card) left out; the flat field within 0.5 % over the frame."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "io"))
+    from dng_writer import write_cfa_dng
+
+    black, white = 512, 16383
+    scene = render_grey_card(15)
+    RGB = scene.image.copy()
+    RGB[300:330, 400:430] = 3.0  # a glint on the card: clipped photosites
+    cells = np.empty((SIZE[1] * 2, SIZE[0] * 2))
+    cells[0::2, 0::2], cells[0::2, 1::2], cells[1::2, 0::2], cells[1::2, 1::2] = (RGB[:, :, 0], RGB[:, :, 1],
+                                                                                  RGB[:, :, 1], RGB[:, :, 2])
+    photosites = np.clip(np.round(black + cells * 0.8 * (white - black)), 0, white).astype(np.uint16)
+    write_cfa_dng(tmp_path / "grey.dng", photosites, black=(black,) * 4, white=white)
+    code, out, _ = cli(["colour", "flatfield", "--images", tmp_path / "grey.dng", "--out", tmp_path / "flat.json"],
+                       capsys)
+    assert code == 0
+    flat = load_flat_field(tmp_path / "flat.json")
+    assert flat.image_size == SIZE and np.max(np.abs(flat.gain() / scene.gain - 1)) < 0.005
