@@ -65,7 +65,7 @@ FORMAT = "camcal flat field"
 FORMAT_VERSION = 1
 #: Samples must reach this normalised radius: below it the corners are extrapolated too far.
 MIN_REACH = 0.5
-#: Samples farther than this many sigma (and this relative difference) from the radial fit are rejected.
+#: Samples farther than this many sigma (and this relative difference) from the robust fit are rejected.
 REJECT_SIGMA = 6.0
 REJECT_FLOOR = 0.02
 _CHANNELS = 3
@@ -151,7 +151,15 @@ class FlatField:
         return (np.asarray(self.centre) + 0.5) * scale - 0.5, half_diagonal(self.image_size) * math.sqrt(scale.prod())
 
     def gain_at(self, xy: NDArray, image_size: tuple[int, int] | None = None) -> NDArray[np.float64]:
-        """``G`` at pixels ``xy`` ``(N, 2)`` of an image of ``image_size`` (default: the fit's): ``(N, 3)``."""
+        """``G`` at pixels ``xy`` ``(N, 2)`` of an image of ``image_size`` (default: the fit's): ``(N, 3)``.
+
+        Examples
+        --------
+        >>> flat = FlatField((641, 481), np.array([320.0, 240.0]), np.tile([-0.3, 0.0, 0.0], (3, 1)))
+        >>> flat.gain_at(np.array([[320.0, 240.0], [0.0, 0.0]])).round(3)  # the centre, a corner (r = 1)
+        array([[1. , 1. , 1. ],
+               [0.7, 0.7, 0.7]])
+        """
         centre, unit = self._scaled(image_size or self.image_size)
         d = (np.asarray(xy, dtype=np.float64) - centre) / unit
         return _gain(d[:, 0], d[:, 1], self.k, self.smooth, self.smooth_degree)
@@ -313,8 +321,9 @@ def fit_flat_field(samples: FlatFieldSamples, *, smooth_degree: int = 0, fit_cen
     result = _fit(samples.subset(inliers), log_values[inliers], x, layout)
     residual = layout.residuals(result.x, samples, log_values)
     flat = layout.flat(result.x, samples.image_size)
-    low = float(_frame_gain(flat).min())
-    if not low > 0.05:
+    gain = _frame_gain(flat)
+    low = float(gain.min()) if np.all(np.isfinite(gain)) else 0.0
+    if not (low > 0.05 and gain.max() < 1e3):
         raise CamcalError(f"the fitted falloff reaches {low:.3g} inside the frame: the samples do not hold a "
                           "lens's vignetting (fill more of the frame, or lower the smooth degree)")
     relative = np.expm1(residual[inliers])

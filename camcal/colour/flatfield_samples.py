@@ -144,7 +144,13 @@ def samples_from_images(images: list[NDArray], masks: list[NDArray | None] | Non
         pixels = blocks(np.where(valid[..., None], crop, np.nan))[used]
         n_valid = n_valid[used]
         level = np.nanmedian(pixels, axis=1)
-        noise = 1.4826 * np.nanmedian(np.abs(pixels - level[:, None, :]), axis=1)
+        # the code step (quantisation: an 8-bit card may sit on one or two code values, MAD 0), then the noise:
+        # 1.4826 MAD, at least the step's own (step / sqrt(12))
+        with np.errstate(invalid="ignore"):
+            steps = np.diff(np.sort(pixels, axis=1), axis=1)
+        step = np.min(np.where(steps > 0, steps, np.inf), axis=1)
+        step = np.where(np.isfinite(step), step, 0.0)
+        noise = np.maximum(1.4826 * np.nanmedian(np.abs(pixels - level[:, None, :]), axis=1), step / math.sqrt(12))
         card_level, card_noise = np.median(level, axis=0), np.median(noise, axis=0)
         if not (np.all(card_level > 0.0) and np.all(card_level >= MIN_SIGNAL_TO_NOISE * card_noise)):
             raise CamcalError(
@@ -155,7 +161,7 @@ def samples_from_images(images: list[NDArray], masks: list[NDArray | None] | Non
         relative = noise / np.maximum(level, 1e-12)
         # one surface: the block's spread is the card's and its pixels lie within 4 sigma of its median (a block
         # over the card's edge holds another surface, which moves its median though not its MAD)
-        near = np.all(np.abs(pixels - level[:, None, :]) <= 4.0 * noise[:, None, :], axis=2)
+        near = np.all(np.abs(pixels - level[:, None, :]) <= np.maximum(4.0 * noise, step)[:, None, :], axis=2)
         n_near = near.sum(axis=1)
         smooth = (np.all(level > 0.0, axis=1) & np.all(relative <= 4.0 * np.median(relative, axis=0) + 1e-6, axis=1)
                   & (n_near >= ONE_SURFACE * n_valid))
