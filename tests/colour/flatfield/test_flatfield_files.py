@@ -239,3 +239,24 @@ def test_a_raw_grey_card(tmp_path, capsys):
     assert code == 0
     flat = load_flat_field(tmp_path / "flat.json")
     assert flat.image_size == SIZE and np.max(np.abs(flat.gain() / scene.gain - 1)) < 0.005
+
+
+def test_the_api_has_the_commands_defaults_and_loads_light():
+    """``camcal.fit_flat_field``'s defaults are the command's; naming it imports none of the heavy libraries."""
+    import inspect
+    import subprocess
+    import sys
+
+    from camcal.cli import build_parser
+    from camcal.cli.app import leaf_parsers
+
+    [leaf] = [leaf for path, leaf in leaf_parsers(build_parser()) if path == ("colour", "flatfield")]
+    defaults = {action.dest: action.default for action in leaf._actions}
+    parameters = inspect.signature(camcal.fit_flat_field).parameters
+    for name in ("smooth_degree", "lens_name", "linear", "mask", "gain_exr", "lensfun", "sensor_width_mm"):
+        assert parameters[name].default == defaults[name], name
+    assert parameters["fit_centre"].default is (not defaults["fixed_centre"])
+    code = ("import sys, camcal\ncamcal.fit_flat_field, camcal.FlatFieldFit\n"
+            "print([m for m in ('cv2', 'scipy', 'OpenEXR', 'colour') if m in sys.modules])")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert run.stdout.strip() == "[]"
