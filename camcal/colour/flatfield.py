@@ -65,6 +65,8 @@ FORMAT = "camcal flat field"
 FORMAT_VERSION = 1
 #: Samples must reach this normalised radius: below it the corners are extrapolated too far.
 MIN_REACH = 0.5
+#: The first robust fit uses the samples within this radius (half diagonals) of the image centre.
+MIDDLE = 0.6
 #: Samples farther than this many sigma (and this relative difference) from the robust fit are rejected.
 REJECT_SIGMA = 6.0
 REJECT_FLOOR = 0.02
@@ -307,7 +309,14 @@ def fit_flat_field(samples: FlatFieldSamples, *, smooth_degree: int = 0, fit_cen
         raise CamcalError(f"the samples reach {reach:.2f} of the half diagonal from the centre, less than "
                           f"{MIN_REACH}: the corners would be extrapolated; fill more of the frame")
     log_values = np.log(samples.RGB)
-    x = _fit(samples, log_values, _initial(samples, log_values, layout), layout, robust=True).x
+    x = _initial(samples, log_values, layout)
+    # first the middle of the frame (a card is there; what surrounds it is at the edges, where a free falloff
+    # could bend to it), then everything from there
+    middle = np.hypot(*(samples.xy - layout.image_centre).T) / layout.unit < MIDDLE
+    if middle.sum() * _CHANNELS >= 3 * layout.n_params and np.all(np.isin(np.arange(layout.n_shots),
+                                                                           samples.shot[middle])):
+        x = _fit(samples.subset(middle), log_values[middle], x, layout, robust=True).x
+    x = _fit(samples, log_values, x, layout, robust=True).x
     residual = layout.residuals(x, samples, log_values)
     scale = max(1.0, 1.4826 * float(np.median(np.abs(residual / samples.sigma))))
     inliers = ~np.any(np.abs(residual) > np.maximum(REJECT_SIGMA * scale * samples.sigma, REJECT_FLOOR), axis=1)
@@ -437,8 +446,8 @@ def _initial(samples: FlatFieldSamples, log_values: NDArray, layout: _Layout) ->
 def _fit(samples: FlatFieldSamples, log_values: NDArray, x0: NDArray, layout: _Layout, robust: bool = False):
     """The model's least squares (Levenberg-Marquardt), residuals in units of each sample's sigma.
 
-    ``robust``: iteratively reweighted with Cauchy weights ``1 / (1 + (z / f)^2)``, ``f`` the residuals' robust
-    scale (at least 3 sigma), until no residual moves by 0.01 sigma (at most 12 rounds of at most 25
+    ``robust``: iteratively reweighted with Cauchy weights ``1 / (1 + (z / f)^2)`` per sample, ``z`` its largest
+    residual over the channels, ``f`` their robust scale (at least 3 sigma), until no residual moves by 0.01 sigma (at most 12 rounds of at most 25
     evaluations: the weights need the model's values, which settle early, not its parameters, which with a
     smooth term trade the centre against the tilt along a flat valley; the plain fit that follows converges).
     """
@@ -454,8 +463,11 @@ def _fit(samples: FlatFieldSamples, log_values: NDArray, x0: NDArray, layout: _L
         return scipy.optimize.least_squares(weighted, x0, jac=jacobian, method="lm", x_scale="jac")
     z = weighted(x0)
     for _ in range(12):
-        f_scale = max(3.0, 1.4826 * float(np.median(np.abs(z))))
-        root_weight = 1.0 / np.sqrt(1.0 + (z / f_scale) ** 2)
+        # one weight per sample, from its worst channel: a surface that matches the card in one channel only
+        # (a grey wall beside a warm card) is not the card in any
+        worst = np.max(np.abs(z.reshape(-1, _CHANNELS)), axis=1)
+        f_scale = max(3.0, 1.4826 * float(np.median(worst)))
+        root_weight = np.repeat(1.0 / np.sqrt(1.0 + (worst / f_scale) ** 2), _CHANNELS)
         result = scipy.optimize.least_squares(lambda p: weighted(p) * root_weight, x0, method="lm", x_scale="jac",
                                               jac=lambda p: jacobian(p) * root_weight[:, None], max_nfev=25)
         x0, previous, z = result.x, z, weighted(result.x)

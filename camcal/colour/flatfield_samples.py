@@ -91,14 +91,15 @@ def samples_from_images(images: list[NDArray], masks: list[NDArray | None] | Non
     -------
     FlatFieldSamples
         One sample per block with at least ``MIN_VALID_FRACTION`` of its pixels valid: the mean of its pixels
-        within 4 sigma of its median; blocks whose spread is four times the typical block's, or with fewer
-        than ``ONE_SURFACE`` of their pixels within 4 sigma (the card's edge, texture), are left out.
+        within 4 sigma of its median; blocks whose relative spread is four times that of the quietest
+        quarter of the blocks (the card's, when it fills a quarter of the frame or more), or with fewer than
+        ``ONE_SURFACE`` of their pixels within 4 sigma (the card's edge, texture), are left out.
 
     Raises
     ------
     CamcalError
-        Images of different sizes, not RGB, or a card too dark (its level not positive or below
-        ``MIN_SIGNAL_TO_NOISE`` times its pixel noise).
+        Images of different sizes, not RGB, or a card too dark: in the quietest tenth of the blocks, a level
+        not positive or below ``MIN_SIGNAL_TO_NOISE`` times the pixel noise.
     """
     if not images:
         raise CamcalError("no grey-card image given")
@@ -151,7 +152,9 @@ def samples_from_images(images: list[NDArray], masks: list[NDArray | None] | Non
         step = np.min(np.where(steps > 0, steps, np.inf), axis=1)
         step = np.where(np.isfinite(step), step, 0.0)
         noise = np.maximum(1.4826 * np.nanmedian(np.abs(pixels - level[:, None, :]), axis=1), step / math.sqrt(12))
-        card_level, card_noise = np.median(level, axis=0), np.median(noise, axis=0)
+        # the card: the quietest blocks (a tenth of them), whatever surrounds it
+        quiet = np.argsort(np.max(noise / np.maximum(level, 1e-12), axis=1))[: max(1, len(level) // 10)]
+        card_level, card_noise = np.median(level[quiet], axis=0), np.median(noise[quiet], axis=0)
         if not (np.all(card_level > 0.0) and np.all(card_level >= MIN_SIGNAL_TO_NOISE * card_noise)):
             raise CamcalError(
                 f"{name} is too dark for a flat field: the card's median level R G B "
@@ -163,7 +166,8 @@ def samples_from_images(images: list[NDArray], masks: list[NDArray | None] | Non
         # over the card's edge holds another surface, which moves its median though not its MAD)
         near = np.all(np.abs(pixels - level[:, None, :]) <= np.maximum(4.0 * noise, step)[:, None, :], axis=2)
         n_near = near.sum(axis=1)
-        smooth = (np.all(level > 0.0, axis=1) & np.all(relative <= 4.0 * np.median(relative, axis=0) + 1e-6, axis=1)
+        typical = np.percentile(relative, 25, axis=0)  # the card's, when it covers a quarter of the frame or more
+        smooth = (np.all(level > 0.0, axis=1) & np.all(relative <= 4.0 * typical + 1e-6, axis=1)
                   & (n_near >= ONE_SURFACE * n_valid))
         # the block's value: the mean of its pixels within 4 sigma of its median (a sigma-clipped mean, more
         # efficient than the median on shot noise)

@@ -163,3 +163,14 @@ def test_the_reported_gain_sigma_matches_the_scatter_over_noisy_renders():
         sigmas.append(flat.gain_sigma_max)
     ratio = np.std(errors, axis=0) / np.mean(sigmas, axis=0)
     assert np.all((ratio > 0.4) & (ratio < 2.0)), ratio
+
+
+def test_a_wall_that_matches_the_card_in_one_channel_is_not_the_card():
+    """A neutral wall around a warm card: equal in green, brighter in red and blue, at the edges of the frame
+    where a free falloff could bend to it. The middle of the frame is fitted first; the wall is rejected."""
+    scene = render_grey_card(16)
+    rng = np.random.default_rng(16)
+    wall = rng.poisson(0.40 * scene.gain * 20000) / 20000
+    samples = samples_from_images([np.where(scene.card[..., None], scene.image, wall)])
+    flat = fit_flat_field(samples)
+    assert frame_error(flat, scene.gain) < 0.005 and flat.n_rejected > 150
