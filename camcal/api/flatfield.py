@@ -125,7 +125,8 @@ def fit_flat_field(
         The gain per pixel as a float RGB EXR (divide a linear image by it).
     lensfun : path, optional
         A Lensfun database file (``.xml``) with the ``pa`` vignetting entry; needs ``focal_mm``, ``aperture``
-        and ``distance_m``.
+        and ``distance_m``. An existing file with one ``<lens>`` (``rig export --to lensfun``'s, or an earlier
+        lens state's) gets the entry added, fitted about its centre.
     focal_mm, aperture, distance_m : float, optional
         The lens state of the grey cards (Lensfun's entry is for one).
     lens_name : str
@@ -166,6 +167,10 @@ def fit_flat_field(
                                  (lensfun, ".xml", "--lensfun")):
         if path is not None and Path(path).suffix.lower() != suffix:
             raise CamcalError(f"{option} must end in {suffix}, got {Path(path).name!r}")
+    if lensfun is not None:
+        from camcal.io.flatfield import check_lensfun_file
+
+        check_lensfun_file(lensfun)
     read: tuple[Path, ...] = ()
     if images is not None:
         flat, files = flat_field_from_image_files(images, mask=mask, linear=linear, smooth_degree=smooth_degree,

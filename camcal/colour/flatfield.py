@@ -512,17 +512,18 @@ class RadialTerms:
     max_deviation: float
 
 
-def common_radial_terms(flat: FlatField) -> RadialTerms:
-    """The ``pa`` terms of the channels' mean falloff (least squares over the frame's radii) and what they miss.
+def common_radial_terms(flat: FlatField, centre: NDArray | None = None) -> RadialTerms:
+    """The ``pa`` terms of the channels' mean gain (least squares over a 33 x 33 grid of the frame) about
+    ``centre`` (default: the flat field's optical centre), and what they miss.
 
-    Lensfun's ``pa`` vignetting multiplies every channel by one factor; a
-    flat field with colour shading or a non-radial term holds more than it.
+    Lensfun's ``pa`` vignetting multiplies every channel by one factor about
+    the lens' one centre (its distortion's too); a flat field with colour
+    shading, a non-radial term or another centre holds more than it.
     """
-    unit = half_diagonal(flat.image_size)
+    centre = np.asarray(flat.centre if centre is None else centre, dtype=np.float64)
     xy = _frame_points(flat.image_size)
-    r2_frame = np.sum(((xy - flat.centre) / unit) ** 2, axis=1)
-    r2 = np.linspace(0.0, float(np.sqrt(r2_frame.max())), 257) ** 2
-    mean = np.mean(_radial(r2[:, None], flat.k), axis=1)
-    k, *_ = np.linalg.lstsq(np.column_stack([r2, r2**2, r2**3]), mean - 1.0, rcond=None)
-    deviation = float(np.max(np.abs(flat.gain_at(xy) / _radial(r2_frame, k)[:, None] - 1.0)))
-    return RadialTerms(k, np.asarray(flat.centre, dtype=np.float64), deviation)
+    r2 = np.sum(((xy - centre) / half_diagonal(flat.image_size)) ** 2, axis=1)
+    gain = flat.gain_at(xy)
+    k, *_ = np.linalg.lstsq(np.column_stack([r2, r2**2, r2**3]), gain.mean(axis=1) - 1.0, rcond=None)
+    deviation = float(np.max(np.abs(gain / _radial(r2, k)[:, None] - 1.0)))
+    return RadialTerms(k, centre, deviation)

@@ -17,7 +17,9 @@ vignetting entry.
 - :func:`write_lensfun_vignetting`: a Lensfun database file with one
   ``<lens>`` holding ``<vignetting model="pa" focal aperture distance k1 k2
   k3/>`` (the channels' common falloff, :func:`~camcal.colour.flatfield.common_radial_terms`)
-  and the optical centre as ``<center>``: Lensfun's unit there is half the
+  and the optical centre as ``<center>``, or that entry added to an existing
+  file's one lens (per lens state; fitted about the lens' centre, which
+  Lensfun shares between distortion and vignetting): Lensfun's unit there is half the
   shorter side, ``(min(W, H) - 1) / 2`` pixels, its origin the image centre,
   y down (Lensfun 0.3.4 modifier.cpp; checked with lensfunpy in the tests).
   Lensfun's ``pa`` radius is 1 at the half diagonal (mod-color.cpp), as
@@ -50,7 +52,7 @@ from camcal.colour.flatfield import FlatField, RadialTerms, common_radial_terms
 from camcal.io.lensfun import DEFAULT_SENSOR_WIDTH_MM
 from camcal.io.points_csv import finite_numbers
 
-__all__ = ["LinearImage", "NeutralPatches", "load_flat_field", "read_linear_image", "read_neutral_patches",
+__all__ = ["LinearImage", "NeutralPatches", "check_lensfun_file", "load_flat_field", "read_linear_image", "read_neutral_patches",
            "save_flat_field", "write_gain_exr", "write_lensfun_vignetting"]
 
 #: Full frame's diagonal in mm (the crop factor's reference).
@@ -176,7 +178,12 @@ def _number(value: float) -> str:
 def write_lensfun_vignetting(flat: FlatField, path: str | os.PathLike, *, focal_mm: float, aperture: float,
                              distance_m: float, model: str = "camcal flat field", maker: str = "camcal",
                              mount: str = "Generic", sensor_width_mm: float | None = None) -> RadialTerms:
-    """Write a Lensfun database file with the flat field's ``pa`` vignetting entry, atomically.
+    """Write the flat field's ``pa`` vignetting entry into a Lensfun database file, atomically.
+
+    A new file holds one ``<lens>`` with the optical centre as its ``<center>``. An existing file holding one
+    ``<lens>`` (``rig export --to lensfun``'s, or this function's for another lens state) gets the entry added
+    to it, an entry of the same focal length, aperture and distance replaced: Lensfun has one centre per lens
+    for distortion and vignetting, so the terms are fitted about the file's ``<center>``.
 
     Parameters
     ----------
@@ -186,14 +193,20 @@ def write_lensfun_vignetting(flat: FlatField, path: str | os.PathLike, *, focal_
     focal_mm, aperture, distance_m : float
         The lens state the flat field was shot at (Lensfun interpolates between entries).
     model, maker, mount : str
-        The ``<lens>``'s names.
+        A new file's ``<lens>`` names.
     sensor_width_mm : float, optional
-        For the crop factor (full frame's diagonal over the sensor's; default 36 mm wide).
+        A new file's crop factor (full frame's diagonal over the sensor's; default 36 mm wide).
 
     Returns
     -------
     RadialTerms
         The terms written and the largest deviation from the per-channel flat field they leave.
+
+    Raises
+    ------
+    CamcalError
+        A lens state not > 0, or an existing file that is not a Lensfun file with one ``<lens>`` of the flat
+        field's aspect ratio.
     """
     path = Path(path)
     if path.suffix.lower() != ".xml":
@@ -201,24 +214,83 @@ def write_lensfun_vignetting(flat: FlatField, path: str | os.PathLike, *, focal_
     for name, value in (("focal length", focal_mm), ("aperture", aperture), ("focus distance", distance_m)):
         if not (math.isfinite(value) and value > 0):
             raise CamcalError(f"the Lensfun vignetting entry needs a {name} > 0, got {value}")
-    terms = common_radial_terms(flat)
     width, height = flat.image_size
     unit = (min(width, height) - 1) / 2.0
-    offset = (terms.centre - np.array([(width - 1) / 2.0, (height - 1) / 2.0])) / unit
-    sensor_width = sensor_width_mm or DEFAULT_SENSOR_WIDTH_MM
-    crop = _FULL_FRAME_DIAGONAL_MM / (sensor_width * math.hypot(width, height) / width)
-    root = ElementTree.Element("lensdatabase", version="1")
-    entry = ElementTree.SubElement(root, "lens")
-    for tag, text in (("maker", maker), ("model", model), ("mount", mount)):
-        ElementTree.SubElement(entry, tag).text = text
-    ElementTree.SubElement(entry, "center", x=_number(offset[0]), y=_number(offset[1]))
-    ElementTree.SubElement(entry, "cropfactor").text = _number(crop)
-    ElementTree.SubElement(entry, "aspect-ratio").text = _number((max(width, height) - 1) / (min(width, height) - 1))
-    calibration = ElementTree.SubElement(entry, "calibration")
+    image_centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
+    aspect = (max(width, height) - 1) / (min(width, height) - 1)
+    if path.exists():
+        root, entry, offset = _existing_lens(path, aspect)
+        terms = common_radial_terms(flat, image_centre + offset * unit)
+        calibration = entry.find("calibration")
+        if calibration is None:
+            calibration = ElementTree.SubElement(entry, "calibration")
+        state = [_number(focal_mm), _number(aperture), _number(distance_m)]
+        for old in calibration.findall("vignetting"):
+            if [old.get(name) for name in ("focal", "aperture", "distance")] == state:
+                calibration.remove(old)
+    else:
+        terms = common_radial_terms(flat)
+        offset = (terms.centre - image_centre) / unit
+        crop = _FULL_FRAME_DIAGONAL_MM / ((sensor_width_mm or DEFAULT_SENSOR_WIDTH_MM) * math.hypot(width, height)
+                                          / width)
+        root = ElementTree.Element("lensdatabase", version="1")
+        entry = ElementTree.SubElement(root, "lens")
+        for tag, text in (("maker", maker), ("model", model), ("mount", mount)):
+            ElementTree.SubElement(entry, tag).text = text
+        ElementTree.SubElement(entry, "center", x=_number(offset[0]), y=_number(offset[1]))
+        ElementTree.SubElement(entry, "cropfactor").text = _number(crop)
+        ElementTree.SubElement(entry, "aspect-ratio").text = _number(aspect)
+        calibration = ElementTree.SubElement(entry, "calibration")
+        root.append(ElementTree.Comment(f" camcal image_size {width} {height} "))
     ElementTree.SubElement(calibration, "vignetting", model="pa", focal=_number(focal_mm),
                            aperture=_number(aperture), distance=_number(distance_m),
                            k1=_number(terms.k[0]), k2=_number(terms.k[1]), k3=_number(terms.k[2]))
-    root.append(ElementTree.Comment(f" camcal image_size {width} {height} "))
     ElementTree.indent(root)
     atomic_write_text(path, '<?xml version="1.0" encoding="utf-8"?>\n' + ElementTree.tostring(root, "unicode") + "\n")
     return terms
+
+
+def check_lensfun_file(path: str | os.PathLike) -> None:
+    """Refuse, before any fit, a ``.xml`` that exists and is not a Lensfun file with one ``<lens>``."""
+    path = Path(path)
+    if path.suffix.lower() != ".xml":
+        raise CamcalError(f"a Lensfun database file must end in .xml, got {path.name!r}")
+    if path.exists():
+        _existing_lens(path, None)
+
+
+def _existing_lens(path: Path, aspect: float | None) -> tuple[ElementTree.Element, ElementTree.Element, NDArray]:
+    """An existing Lensfun file's root (comments kept), its one ``<lens>`` and that lens' ``<center>``; its
+    aspect ratio checked against ``aspect`` (None: not checked)."""
+    check_file_size(path, FILE_BYTES, "Lensfun file")
+    try:
+        text = path.read_text(encoding="utf-8")
+        root = ElementTree.fromstring(text, ElementTree.XMLParser(target=ElementTree.TreeBuilder(insert_comments=True)))
+    except (UnicodeDecodeError, ElementTree.ParseError) as error:
+        raise CamcalError(f"{path}: not a Lensfun file ({str(error).splitlines()[0]})") from None
+    lenses = root.findall("lens") if root.tag == "lensdatabase" else []
+    if root.tag != "lensdatabase" or len(lenses) != 1:
+        raise CamcalError(f"{path}: camcal adds vignetting to a Lensfun file with one <lens>, this one has "
+                          f"{len(lenses)}; give a new file")
+    [entry] = lenses
+
+    def number(text: str | None, what: str) -> float:
+        numerator, _, denominator = (text or "").partition(":")  # an aspect ratio may be W:H
+        try:
+            value = float(numerator) / float(denominator or 1.0)
+        except (ValueError, ZeroDivisionError):
+            value = math.nan
+        if not math.isfinite(value):
+            raise CamcalError(f"{path}: the lens' {what} must be a number, got {text!r}")
+        return value
+
+    center = entry.find("center")
+    offset = np.zeros(2) if center is None else np.array([number(center.get(axis, "0"), f"<center {axis}>")
+                                                          for axis in ("x", "y")])
+    element = entry.find("aspect-ratio")
+    if element is not None:
+        theirs = number(element.text, "<aspect-ratio>")
+        if aspect is not None and abs(theirs / aspect - 1.0) > 0.01:
+            raise CamcalError(f"{path}: its lens is for images of aspect ratio {theirs:.4g}, the flat field's are "
+                              f"{aspect:.4g}")
+    return root, entry, offset

@@ -36,7 +36,9 @@ def register(parser: argparse.ArgumentParser) -> None:
     lens = parser.add_argument_group(
         "Lensfun", "a Lensfun database file with the vignetting entry (model pa, one falloff for every channel) "
                    "for the lens state the grey cards were shot at")
-    lens.add_argument("--lensfun", metavar="LENS.xml", help="the Lensfun file to write")
+    lens.add_argument("--lensfun", metavar="LENS.xml",
+                      help="the Lensfun file to write; an existing one with one lens (rig export --to lensfun's, or "
+                           "this command's for another lens state) gets the entry added, fitted about its centre")
     lens.add_argument("--focal-mm", type=float, metavar="F", help="focal length in mm")
     lens.add_argument("--aperture", type=float, metavar="N", help="f-number")
     lens.add_argument("--distance-m", type=float, metavar="D", help="focus distance in metres")

@@ -4,6 +4,7 @@ entry corrected by Lensfun itself (lensfunpy), ``colour fit --flat-field``, and 
 from __future__ import annotations
 
 import json
+import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import cv2
@@ -65,14 +66,14 @@ def test_the_command_and_the_api_write_the_same_files(grey, tmp_path, capsys):
     assert figures["lensfun"]["k"] == result.figures()["lensfun"]["k"]
 
 
-def lensfun_corrected(path: Path, image: np.ndarray) -> np.ndarray:
+def lensfun_corrected(path: Path, image: np.ndarray, focal_mm: float = 35.0) -> np.ndarray:
     """Lensfun's own vignetting correction of ``image`` with the entry in ``path`` (the lens state written)."""
     lensfunpy = pytest.importorskip("lensfunpy")
     database = lensfunpy.Database(paths=[str(path)], load_common=False, load_bundled=False)
     [lens] = database.lenses
     height, width = image.shape[:2]
     modifier = lensfunpy.Modifier(lens, lens.crop_factor, width, height)
-    modifier.initialize(35.0, 4.0, 2.0, pixel_format=np.float32, flags=lensfunpy.ModifyFlags.VIGNETTING)
+    modifier.initialize(focal_mm, 4.0, 2.0, pixel_format=np.float32, flags=lensfunpy.ModifyFlags.VIGNETTING)
     corrected = np.array(image, dtype=np.float32, order="C")  # a copy: Lensfun corrects in place
     assert modifier.apply_color_modification(corrected)
     return corrected
@@ -151,6 +152,7 @@ def bad_inputs(grey: Path, tmp_path: Path) -> list[tuple[list, str]]:
     write_exr(tmp_path / "dark.exr", np.zeros_like(card))
     cv2.imwrite(str(tmp_path / "grey8.png"), np.round(np.clip(card[:, :, ::-1], 0, 1) * 255).astype(np.uint8))
     (tmp_path / "bad.csv").write_text("x,y,R,G,B\n1,2,0.5,0.5,0.5\n")
+    (tmp_path / "two.xml").write_text("<lensdatabase><lens/><lens/></lensdatabase>")
     return [
         (["--images", grey / "grey0.exr", tmp_path / "small.exr"], "the grey-card images differ in size"),
         (["--images", tmp_path / "dark.exr"], "is too dark for a flat field"),
@@ -158,6 +160,8 @@ def bad_inputs(grey: Path, tmp_path: Path) -> list[tuple[list, str]]:
         (["--images", grey / "grey0.exr", "--lensfun", tmp_path / "o" / "lens.xml", "--focal-mm", "35"],
          "--lensfun needs the lens state: --aperture, --distance-m"),
         (["--images", f"{tmp_path}/nothing*.exr"], "no image matches"),
+        (["--images", grey / "grey0.exr", "--lensfun", tmp_path / "two.xml", *LENS_STATE],
+         "a Lensfun file with one <lens>, this one has 2"),
         (["--patches", tmp_path / "p.csv"], "--patches needs --image-size W H"),
         (["--patches", tmp_path / "bad.csv", "--image-size", "960", "640"],
          "the header must be x,y,R,G,B,patch[,shot], got x,y,R,G,B"),
@@ -260,3 +264,33 @@ def test_the_api_has_the_commands_defaults_and_loads_light():
             "print([m for m in ('cv2', 'scipy', 'OpenEXR', 'colour') if m in sys.modules])")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert run.stdout.strip() == "[]"
+
+
+def test_vignetting_added_to_a_lens_profile_per_lens_state(tmp_path, capsys):
+    """A lens exported to Lensfun (its distortion about the principal point) gets a vignetting entry per lens
+    state: the terms are fitted about the lens' one centre, a state given again is replaced, the distortion
+    is kept, and Lensfun's correction differs from camcal's by the deviation the command printed."""
+    from camcal.io.interchange import export_rig, import_rig
+    from camcal.model.distortion import Distortion
+    from camcal.model.rig import Camera, Rig
+
+    width, height = SIZE
+    K = np.array([[800.0, 0.0, (width - 1) / 2 + 12], [0.0, 800.0, (height - 1) / 2 - 7], [0.0, 0.0, 1.0]])
+    camera = Camera("lens", SIZE, K, Distortion("polynomial", {"k1": -0.1, "k2": 0.01}), np.eye(3), np.zeros(3))
+    lens = tmp_path / "lens.xml"
+    export_rig(Rig((camera,)), "lensfun", lens)
+    scene = render_grey_card(17, k=np.tile(K_TRUE[1], (3, 1)))
+    write_exr(tmp_path / "grey.exr", scene.image)
+    base = ["colour", "flatfield", "--images", tmp_path / "grey.exr", "--out", tmp_path / "flat.json", "--lensfun",
+            lens, "--focal-mm", "30", "--distance-m", "2"]
+    for aperture in ("4", "8", "8"):
+        code, out, _ = cli([*base, "--aperture", aperture], capsys)
+        assert code == 0
+    deviation = float(out.split("within ")[1].split(" %")[0]) / 100
+    entries = ElementTree.parse(lens).getroot().findall("lens/calibration/vignetting")
+    assert sorted(entry.get("aperture") for entry in entries) == ["4", "8"]
+    np.testing.assert_allclose(import_rig(lens, "lensfun").rig.cameras[0].K, K, atol=1e-6)  # the distortion kept
+    by_lensfun = lensfun_corrected(lens, scene.gain, focal_mm=30.0)
+    by_camcal = correct_flat_field(scene.gain, load_flat_field(tmp_path / "flat.json"))
+    difference = float(np.max(np.abs(by_lensfun / by_camcal - 1)))
+    assert 0.003 < difference and difference == pytest.approx(deviation, abs=0.001)
