@@ -29,7 +29,7 @@ def expand_images(images: Sequence[str | os.PathLike] | str | os.PathLike) -> li
     files: list[Path] = []
     for entry in entries:
         text = os.path.expanduser(os.fspath(entry))
-        if glob.has_magic(text):
+        if glob.has_magic(text) and not os.path.isfile(text):  # a file named shot[1].exr is that file
             matches = sorted(Path(path) for path in glob.glob(text) if os.path.isfile(path))
             if not matches:
                 raise CamcalError(f"--images {text}: no image matches")
