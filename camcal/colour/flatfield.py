@@ -158,9 +158,8 @@ class FlatField:
         Examples
         --------
         >>> flat = FlatField((641, 481), np.array([320.0, 240.0]), np.tile([-0.3, 0.0, 0.0], (3, 1)))
-        >>> flat.gain_at(np.array([[320.0, 240.0], [0.0, 0.0]])).round(3)  # the centre, a corner (r = 1)
-        array([[1. , 1. , 1. ],
-               [0.7, 0.7, 0.7]])
+        >>> flat.gain_at(np.array([[320.0, 240.0], [0.0, 0.0]])).round(3).tolist()  # the centre, a corner (r = 1)
+        [[1.0, 1.0, 1.0], [0.7, 0.7, 0.7]]
         """
         centre, unit = self._scaled(image_size or self.image_size)
         d = (np.asarray(xy, dtype=np.float64) - centre) / unit
