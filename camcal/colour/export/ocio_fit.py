@@ -102,6 +102,7 @@ __all__ = [
     "output_matrix",
     "FitProcessor",
     "fit_processor",
+    "fit_transforms",
 ]
 
 
@@ -557,12 +558,28 @@ def fit_processor(fit: ColourFit, space: str = "CIE XYZ", *, cat: str = "Bradfor
     FitProcessor
     """
     ocio = ocio_module()
-    out = output_matrix(fit.target_white_XYZ, space, cat)
-    lin, _ = linearisation_transforms(fit.linearisation)
-    baked = bake_fit(fit, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
-    if baked.kind == "matrix":
-        steps = [*lin, matrix_transform(out @ baked.matrix)]
-    else:
-        steps = [*lin, *list(baked.transform), matrix_transform(out)]
+    steps, baked, _ = fit_transforms(fit, space, cat=cat, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
     cpu = cpu_processor(ocio.GroupTransform(steps))
     return FitProcessor(space, baked.kind, baked.bake_error, cpu)
+
+
+def fit_transforms(fit: ColourFit, space: str = "CIE XYZ", *, cat: str = "Bradford", max_delta_E: float = 0.2,
+                   lut_sizes: Sequence[int] = LUT_SIZES) -> tuple[list, BakedTransform, float]:
+    """The OCIO transforms of a characterisation from code values to ``space``, inline (no file).
+
+    The linearisation (:func:`linearisation_transforms`), the model (an exact
+    matrix, merged with the output matrix, or the baked Lut3D of
+    :func:`bake_fit`), then :func:`output_matrix`.
+
+    Returns
+    -------
+    transforms, baked, linearisation_error
+        The list of OCIO transforms, the baked model and the largest relative
+        error of a sampled linearisation (0 when exact).
+    """
+    out = output_matrix(fit.target_white_XYZ, space, cat)
+    lin, lin_error = linearisation_transforms(fit.linearisation)
+    baked = bake_fit(fit, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+    if baked.kind == "matrix":
+        return [*lin, matrix_transform(out @ baked.matrix)], baked, lin_error
+    return [*lin, *list(baked.transform), matrix_transform(out)], baked, lin_error
