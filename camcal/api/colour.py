@@ -438,7 +438,8 @@ def export_colour(
     amf : path, optional
         An ACES Metadata File 2.0 naming that CLF as the input transform (needs ``clf``).
     dctl : path, optional
-        The same transform as a DaVinci Resolve DCTL (a matrix fit).
+        The same transform as a DaVinci Resolve DCTL, the curves and the model's terms inlined (matrix, polynomial
+        and root-polynomial fits).
     aces_space : {"ACES2065-1", "ACEScg"}
         The space the CLF and DCTL convert to (an AMF needs ACES2065-1).
     applied : bool

@@ -42,8 +42,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "ACES2065-1 pulls); default: not applied, the AMF is the recipe")
     only_with(parser, "--applied", "--amf", lambda args: args.amf is not None)
     parser.add_argument("--dctl", metavar="OUT.dctl",
-                        help="write the same transform as a DaVinci Resolve DCTL, its matrix and curves inlined "
-                             "(a matrix fit; listed as an ACES Input Transform when it converts to ACES2065-1)")
+                        help="write the same transform as a DaVinci Resolve DCTL, its curves and model inlined "
+                             "(matrix, polynomial and root-polynomial fits; listed as an ACES Input Transform when it "
+                             "converts to ACES2065-1)")
     parser.add_argument("--aces-space", choices=("ACES2065-1", "ACEScg"), default=None,
                         help="with --clf / --dctl: the space the input transform converts to (default: ACES2065-1; "
                              "an AMF's input transform is to ACES2065-1)")
