@@ -292,3 +292,22 @@ def test_cli_refuses_bad_input_and_writes_nothing(fit_file, tmp_path, capsys, ar
 def test_cli_flags_without_their_output_are_usage_errors(fit_file, tmp_path, capsys, args, message):
     assert main(["colour", "export", str(fit_file), *(a.format(tmp=tmp_path) for a in args)]) == 2
     assert message in capsys.readouterr().err and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("version, written", [("2.5", True), ("2.3", False)])
+def test_ocio_space_has_a_colour_interop_id_where_the_profile_has_the_field(fits, tmp_path, version, written):
+    """From profile 2.5 on, the camera space carries a namespaced Color Interop Forum ID (also an alias, as OCIO
+    requires and the ACES studio configs do); a 2.3 config, which has no such field, is written without it."""
+    from camcal.io.ocio import export_ocio
+
+    result = export_ocio([("nikon (D65)", fits["matrix gamma-offset"])], tmp_path / "cfg", ocio_version=version)
+    config = ocio.Config.CreateFromFile(str(result.config_path))
+    config.validate()
+    space = config.getColorSpace("camcal nikon (D65)")
+    assert ("interop_id:" in result.config_path.read_text()) == written
+    if written:
+        assert space.getInteropID() == "camcal:nikon_d65_scene"
+        assert config.getColorSpace("camcal:nikon_d65_scene").getName() == space.getName()
+    else:
+        assert config.getColorSpace("camcal:nikon_d65_scene") is None
+    assert list(space.getAliases())[0] == "camcal_nikon_d65"
