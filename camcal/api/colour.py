@@ -370,7 +370,7 @@ class ColourExport:
             transform = self.aces.transform
             figures.update(aces={"transform_id": transform.transform_id, "user_name": transform.user_name,
                                  "space": transform.space, "kind": transform.kind,
-                                 "lut_size": transform.baked.lut_size,
+                                 "lut_size": None if transform.baked is None else transform.baked.lut_size,
                                  "bake_error_delta_E2000": stats(transform.bake_error),
                                  "linearisation_error": transform.linearisation_error,
                                  "amf_applied": self.aces.applied if self.aces.amf is not None else None})

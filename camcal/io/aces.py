@@ -79,7 +79,8 @@ def build_aces(
     fit, camera
         The characterisation and the camera's name.
     clf, amf, dctl
-        The files to write; ``amf`` names the ``clf`` (both needed).
+        The files to write; ``amf`` names the ``clf`` (both needed). The
+        model is baked only for a CLF (a DCTL holds the model's own terms).
     space, cat, max_delta_E, lut_sizes
         See :func:`camcal.colour.export.aces.input_transform`.
     applied
@@ -106,10 +107,11 @@ def build_aces(
     targets = [Path(path).resolve() for path in (clf, amf, dctl) if path is not None]
     if len(set(targets)) != len(targets):
         raise CamcalError("--clf, --amf and --dctl must name different files")
-    transform = input_transform(fit, camera, space=space, cat=cat, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+    transform = input_transform(fit, camera, space=space, cat=cat, max_delta_E=max_delta_E, lut_sizes=lut_sizes,
+                                bake=clf is not None)
     texts: dict[Path, bytes] = {}
-    clf_data = clf_text(transform, f"camcal {__version__}").encode("utf-8")
     if clf is not None:
+        clf_data = clf_text(transform, f"camcal {__version__}").encode("utf-8")
         texts[Path(clf)] = clf_data
     if amf is not None:
         from camcal.colour.export.amf import amf_text

@@ -45,6 +45,7 @@ from camcal.base.errors import CamcalError
 from camcal.colour.bake.transforms import CLF_FORMAT, LUT_SIZES, BakedTransform, ocio_module
 from camcal.colour.chart.linearise import Linearisation
 from camcal.colour.difference import DeltaEStats
+from camcal.colour.export.ocio_config import linearisation_transforms
 from camcal.colour.export.ocio_fit import fit_transforms, illuminant_label, maker_family, output_matrix
 from camcal.colour.fit.record import ColourFit
 
@@ -122,14 +123,15 @@ class InputTransform:
     camera, space
         The camera name and the ACES space (``ACES2065-1`` or ``ACEScg``).
     steps
-        The OCIO transforms from code values to ``space``, in order.
+        The OCIO transforms from code values to ``space``, in order (empty
+        when the model was not baked: a DCTL needs only the model).
     linearisation
         The fit's per-channel curves (code values to linear camera RGB).
     model
         The fit's model (linear camera RGB to XYZ under its target white).
     baked
-        The model: ``kind`` ``"matrix"`` (exact) or ``"lut3d"`` (baked, with
-        its ``bake_error``).
+        The model as OCIO transforms: ``kind`` ``"matrix"`` (exact) or
+        ``"lut3d"`` (baked, with its ``bake_error``); ``None`` when not baked.
     output
         ``(3, 3)``: the fit's XYZ (target white) to ``space``.
     linearisation_error
@@ -147,7 +149,7 @@ class InputTransform:
     steps: tuple
     linearisation: Linearisation
     model: Any
-    baked: BakedTransform
+    baked: BakedTransform | None
     output: np.ndarray
     linearisation_error: float
     description: str
@@ -155,24 +157,28 @@ class InputTransform:
 
     @property
     def kind(self) -> str:
-        """``"matrix"`` (exact) or ``"lut3d"`` (baked)."""
-        return self.baked.kind
+        """``"matrix"`` (exact), ``"lut3d"`` (baked) or ``"not baked"``."""
+        return self.baked.kind if self.baked is not None else "not baked"
 
     @property
     def bake_error(self) -> DeltaEStats | None:
         """CIEDE2000 of the baked model over the chart gamut and plausible surfaces (``None``: exact)."""
-        return self.baked.bake_error
+        return self.baked.bake_error if self.baked is not None else None
 
     def apply(self, codes: Any) -> np.ndarray:
         """Code values ``(N, 3)`` to ``space`` through OCIO's CPU processor of :attr:`steps` (float32 maths)."""
         from camcal.colour.bake.transforms import apply_cpu, cpu_processor
 
+        if self.baked is None:
+            raise CamcalError("this input transform was built without its OCIO transforms (bake=False)")
         return apply_cpu(cpu_processor(ocio_module().GroupTransform(list(self.steps))), codes)
 
     def summary(self) -> str:
         """One line: the ID, the target, the model and how exact it is."""
         if self.kind == "matrix":
             how = "exact matrix"
+        elif self.baked is None:
+            how = f"{self.model.label}, not baked"
         else:
             how = (f"{self.baked.lut_size}^3 Lut3D, bake error CIEDE2000 mean {self.bake_error.mean:.3f}, max "
                    f"{self.bake_error.max:.3f}")
@@ -207,6 +213,7 @@ def input_transform(
     cat: str = "Bradford",
     max_delta_E: float = 0.2,
     lut_sizes: Sequence[int] = LUT_SIZES,
+    bake: bool = True,
 ) -> InputTransform:
     """A characterisation as an ACES input transform: code values to ``space``.
 
@@ -223,6 +230,9 @@ def input_transform(
         (``"Bradford"``, as OCIO's ACES configs, or ``"CAT02"``).
     max_delta_E, lut_sizes
         The bake of a non-matrix model (:func:`camcal.colour.export.ocio_fit.bake_fit`).
+    bake
+        Build the OCIO transforms (what a CLF holds); ``False``: the model
+        only (what a DCTL holds), nothing baked.
 
     Returns
     -------
@@ -237,12 +247,19 @@ def input_transform(
     """
     if space not in ACES_SPACES:
         raise CamcalError(f"unknown ACES space {space!r}, expected one of: {', '.join(ACES_SPACES)}")
-    steps, baked, lin_error = fit_transforms(fit, space, cat=cat, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+    if bake:
+        steps, baked, lin_error = fit_transforms(fit, space, cat=cat, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+    else:
+        steps, baked, lin_error = [], None, linearisation_transforms(fit.linearisation)[1]
     light = illuminant_label(fit)
     chart = f"the {fit.reference} chart" if fit.reference else "a chart"
     shot = f"shot under {fit.training_illuminant}" + (f", for {light}" if fit.illuminant_change else "")
-    how = "an exact matrix" if baked.kind == "matrix" else (
-        f"a {baked.lut_size}^3 Lut3D (bake error CIEDE2000 max {baked.bake_error.max:.3f})")
+    if baked is None:
+        how = "its own terms"
+    elif baked.kind == "matrix":
+        how = "an exact matrix"
+    else:
+        how = f"a {baked.lut_size}^3 Lut3D (bake error CIEDE2000 max {baked.bake_error.max:.3f})"
     description = (f"Input transform of camera {camera}: camera code values (normalised to 0-1) to {space}. camcal "
                    f"characterisation from {chart} {shot}; model {fit.model.label} as {how}, linearisation "
                    f"{fit.linearisation.label}; XYZ ({fit.target_white}) to {space} with {cat}.")
@@ -262,6 +279,8 @@ def clf_text(transform: InputTransform, app_release: str = "") -> str:
     ``ACEStransformID``, ``ACESuserName`` and then the camera, chart, light
     and fit (:attr:`InputTransform.metadata`).
     """
+    if transform.baked is None:
+        raise CamcalError("a CLF holds the OCIO transforms: build the input transform with bake=True")
     ocio = ocio_module()
     group = ocio.GroupTransform(list(transform.steps))
     metadata = group.getFormatMetadata()
