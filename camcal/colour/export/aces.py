@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from camcal.base.errors import CamcalError
-from camcal.colour.bake.transforms import CLF_FORMAT, LUT_SIZES, BakedTransform, ocio_module
+from camcal.colour.bake.transforms import CLF_FORMAT, LUT_SIZES, BakedTransform, apply_cpu, cpu_processor, ocio_module
 from camcal.colour.chart.linearise import Linearisation
 from camcal.colour.difference import DeltaEStats
 from camcal.colour.export.ocio_config import linearisation_transforms
@@ -167,8 +167,6 @@ class InputTransform:
 
     def apply(self, codes: Any) -> np.ndarray:
         """Code values ``(N, 3)`` to ``space`` through OCIO's CPU processor of :attr:`steps` (float32 maths)."""
-        from camcal.colour.bake.transforms import apply_cpu, cpu_processor
-
         if self.baked is None:
             raise CamcalError("this input transform was built without its OCIO transforms (bake=False)")
         return apply_cpu(cpu_processor(ocio_module().GroupTransform(list(self.steps))), codes)
@@ -178,7 +176,7 @@ class InputTransform:
         if self.kind == "matrix":
             how = "exact matrix"
         elif self.baked is None:
-            how = f"{self.model.label}, not baked"
+            how = f"{self.model.label} inlined, not baked"
         else:
             how = (f"{self.baked.lut_size}^3 Lut3D, bake error CIEDE2000 mean {self.bake_error.mean:.3f}, max "
                    f"{self.bake_error.max:.3f}")
