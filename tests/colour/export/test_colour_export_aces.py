@@ -318,3 +318,23 @@ def test_ocio_space_has_a_colour_interop_id_where_the_profile_has_the_field(fits
     else:
         assert config.getColorSpace("camcal:nikon_d65_scene") is None
     assert list(space.getAliases())[0] == "camcal_nikon_d65"
+
+
+def test_real_chart_photo_hand_off(shared_data, tmp_path):
+    """A real sRGB JPEG of a ColorChecker (no one on the project made it): fitted, exported as CLF, AMF and DCTL;
+    the CLF read back by OCIO and the DCTL's arithmetic, on the chart's own measured patches, equal the fit."""
+    import camcal
+
+    photo = shared_data / "colorchecker_photo" / "img-colorchecker.jpg"
+    fitted = camcal.fit_colour(chart=photo, model="matrix3x3", camera="photo", out=tmp_path / "photo.colour.json")
+    codes = fitted.chart.patches.RGB
+    outputs = {kind: tmp_path / "aces" / f"photo.{kind}" for kind in ("clf", "amf", "dctl")}
+    result = camcal.export_colour([tmp_path / "photo.colour.json"], **outputs)
+    processor = ocio.Config.CreateRaw().getProcessor(ocio.FileTransform(str(outputs["clf"])))
+    pixels = np.ascontiguousarray(codes, dtype=np.float32)
+    processor.getDefaultCPUProcessor().applyRGB(pixels)
+    assert delta_E_aces(fitted.fit, pixels.astype(np.float64), codes).max() < 0.1
+    program = dctl_check.parse(outputs["dctl"].read_text())
+    assert delta_E_aces(fitted.fit, dctl_check.evaluate(program, codes), codes).max() < 0.1
+    assert read_amf(outputs["amf"])[2].text == "photo.clf"
+    assert result.aces.transform.transform_id.endswith(":Input.camcal.photo_D50_to_ACES.a2.v1")
