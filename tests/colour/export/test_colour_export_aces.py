@@ -320,17 +320,20 @@ def test_ocio_space_has_a_colour_interop_id_where_the_profile_has_the_field(fits
     assert list(space.getAliases())[0] == "camcal_nikon_d65"
 
 
-def test_real_chart_photo_hand_off(shared_data, tmp_path):
+@pytest.mark.parametrize("model", ["matrix3x3", "root-polynomial:2"])
+def test_real_chart_photo_hand_off(shared_data, tmp_path, model):
     """A real sRGB JPEG of a ColorChecker (no one on the project made it): fitted, exported as CLF, AMF and DCTL;
-    the CLF read back by OCIO and the DCTL's arithmetic, on the chart's own measured patches, equal the fit."""
+    the CLF read back by OCIO (exact matrix, or the baked Lut3D) and the DCTL's arithmetic, on the chart's own
+    measured patches, saturated ones included, equal the fit."""
     import camcal
 
     photo = shared_data / "colorchecker_photo" / "img-colorchecker.jpg"
-    fitted = camcal.fit_colour(chart=photo, model="matrix3x3", camera="photo", out=tmp_path / "photo.colour.json")
+    fitted = camcal.fit_colour(chart=photo, model=model, camera="photo", out=tmp_path / "photo.colour.json")
     codes = fitted.chart.patches.RGB
     outputs = {kind: tmp_path / "aces" / f"photo.{kind}" for kind in ("clf", "amf", "dctl")}
     result = camcal.export_colour([tmp_path / "photo.colour.json"], **outputs)
-    processor = ocio.Config.CreateRaw().getProcessor(ocio.FileTransform(str(outputs["clf"])))
+    processor = ocio.Config.CreateRaw().getProcessor(
+        ocio.FileTransform(str(outputs["clf"]), interpolation=ocio.INTERP_TETRAHEDRAL))
     pixels = np.ascontiguousarray(codes, dtype=np.float32)
     processor.getDefaultCPUProcessor().applyRGB(pixels)
     assert delta_E_aces(fitted.fit, pixels.astype(np.float64), codes).max() < 0.1
