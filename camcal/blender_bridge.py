@@ -37,7 +37,7 @@ from camcal.base.errors import CamcalError
 from camcal.base.extras import check_installed
 from camcal.io.conversion import LensConversion, max_pixel_residual, refit_camera
 from camcal.model.distortion import Distortion
-from camcal.model.rig import Rig
+from camcal.model.rig import Lens, Rig
 
 __all__ = [
     "ADDON_PACKAGE",
@@ -169,20 +169,29 @@ def blender_tracking_rig(rig: Rig, overscan: float = 1.1) -> tuple[Rig, tuple[Le
     pixel distance between the two lenses over the frame and the refit's
     figures (inside the image and over the border of ``overscan``, the
     factor the add-on's distortion compositor renders with, which the fit
-    covers as well).
+    covers as well). A camera whose lens changes over the frames has each
+    frame's lens refitted the same way; its conversion gives the worst
+    frame's figures.
     """
-    cameras, conversions = [], []
+    out, conversions = rig, []
     for camera in rig.cameras:
         distortion = camera.distortion
         if _tracking_holds(distortion) and not distortion.has_correction:
-            cameras.append(camera)
             continue
         fit = _NEAREST[distortion.model]
         converted, refit = refit_camera(camera, fit, overscan=overscan, fixed=_HELD.get(fit))
-        cameras.append(converted)
-        conversions.append(LensConversion(camera.name, distortion.model, _BLENDER_NAMES[fit], False,
-                                          max_pixel_residual(camera, converted), refit=refit))
-    return Rig(tuple(cameras), rig.units, rig.frames, rig.points, rig.provenance), tuple(conversions)
+        worst, lenses = (max_pixel_residual(camera, converted), refit), {}
+        for frame in rig.frames:  # a zoom: each frame's lens refitted the same way
+            state = frame.lenses.get(camera.name)
+            if state is not None:
+                at = rig.camera_at_frame(camera.name, frame.index)
+                at_converted, at_refit = refit_camera(at, fit, overscan=overscan, fixed=_HELD.get(fit))
+                lenses[frame.index] = Lens(at_converted.K, at_converted.distortion, state.focal_mm, state.focus_m)
+                worst = max(worst, (max_pixel_residual(at, at_converted), at_refit), key=lambda pair: pair[0])
+        out = out.with_camera(converted, lenses)
+        conversions.append(LensConversion(camera.name, distortion.model, _BLENDER_NAMES[fit], False, worst[0],
+                                          refit=worst[1]))
+    return out, tuple(conversions)
 
 
 def write_blender_uv_maps(rig: Rig, names: list[str], folder: str | os.PathLike, overscan: float) -> dict[str, str]:

@@ -115,6 +115,7 @@ def fit_colour(
     training_reflectances: str = "rawtoaces 190",
     validation_reflectances: str = "Munsell validation",
     plausible_cameras: int = 0,
+    flat_field: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
     report: str | os.PathLike | None = None,
     log: Callable[[str], None] | None = None,
@@ -166,6 +167,9 @@ def fit_colour(
         The camera name recorded in the file.
     for_illuminant, sensitivities, training_reflectances, validation_reflectances, plausible_cameras
         The fit for another light (see ``camcal colour fit --help``).
+    flat_field : path, optional
+        A flat field (``colour flatfield``'s JSON) the chart photo is divided by before sampling; the photo must
+        be linear (raw, or with ``linearise="none"``).
     out : path, optional
         The ``*.colour.json`` to write (with ``report``, together: all or none).
     report : path, optional
@@ -194,8 +198,16 @@ def fit_colour(
         from camcal.pipelines.colour import patches_from_chart
 
         grid = _parse_corners(corners) if isinstance(corners, str) else corners
+        flat = None
+        if flat_field is not None:
+            from camcal.io.flatfield import load_flat_field
+
+            if not is_raw(chart) and linearise != "none":
+                raise CamcalError("--flat-field divides linear values: the chart must be a raw file, or linear "
+                                  "with --linearise none")
+            flat = load_flat_field(flat_field)
         found = patches_from_chart(chart, reference, corners=grid, keep_clipped=keep_clipped,
-                                   illuminant=illuminant, detector=detector)
+                                   illuminant=illuminant, detector=detector, flat_field=flat)
         train = found.patches
         clipped = "saturated" if is_raw(chart) else "clipped"
         excluded = f" (dropped {clipped}: {', '.join(found.excluded)})" if found.excluded else ""
@@ -211,6 +223,8 @@ def fit_colour(
     else:
         if corners:
             raise CamcalError("--corners applies to --chart only")
+        if flat_field is not None:
+            raise CamcalError("--flat-field applies to --chart only")
         if detector != "auto":
             raise CamcalError("--detector applies to --chart only")
         train = patches if isinstance(patches, PatchSet) else read_patch_csv(patches)
