@@ -1,0 +1,119 @@
+"""COLMAP's stages of a solve, each seeded and in a fixed order: extraction, image numbering, verification, mapping.
+
+What makes the same images give the same reconstruction, run after run
+(:func:`number_by_name`, :func:`verification_options`, :func:`map_images`,
+:func:`matching_options`).
+
+References
+----------
+Schoenberger, J. L. & Frahm, J.-M. (2016). Structure-from-Motion Revisited.
+CVPR.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = [
+    "COLMAP_LOG",
+    "MAPPERS",
+    "MATCHERS",
+    "OWNED",
+    "UPSAMPLE_BELOW_PX",
+    "extraction_options",
+    "map_images",
+    "number_by_name",
+    "verification_options",
+]
+
+MATCHERS = ("exhaustive", "sequential")
+MAPPERS = ("incremental", "global")
+#: the file in the output folder that receives COLMAP's, glog's and Ceres' own lines.
+COLMAP_LOG = "colmap.log"
+#: What a solve writes in its folder as a whole: an earlier run's are replaced, not merged into.
+OWNED = ("images", "masks", "sparse", "database.db")
+#: images of at least this many pixels are not upsampled before SIFT (:func:`extraction_options`).
+UPSAMPLE_BELOW_PX = 4_000_000
+
+
+def extraction_options(pycolmap, paths: list[Path], max_num_features: int, num_threads: int):
+    """SIFT options sized to the images (``paths``: one of each camera's): no upsampled octave from 4 Mpx up.
+
+    COLMAP's SIFT starts at octave -1 (the image upsampled twice) and, past
+    ``max_num_features``, keeps the larger-scale features: on a 6 Mpx
+    photograph the octaves from 0 up already give more than 8192 features,
+    so the upsampled octave (4 times the pixels of the image, most of the
+    extraction time) is computed only to be dropped.
+    """
+    import cv2  # noqa: PLC0415
+
+    options = pycolmap.FeatureExtractionOptions()
+    options.num_threads = num_threads
+    options.sift.max_num_features = max_num_features
+    sizes = [image.shape[0] * image.shape[1] for image in (cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+                                                             for path in paths) if image is not None]
+    if sizes and max(sizes) >= UPSAMPLE_BELOW_PX:
+        options.sift.first_octave = 0
+    return options
+
+
+def number_by_name(pycolmap, database: Path) -> None:
+    """Renumber the images (and their frames) of a freshly extracted ``database`` in the order of their names.
+
+    COLMAP's extraction threads write each image as they finish it, so the
+    ids -- the order the matcher and the mapper take images and pairs in --
+    changed from run to run, and with them the reconstruction (in its 7th
+    digit on a rendered stereo sequence). Cameras and rigs keep their ids
+    (the reader, on one thread, creates them in name order); pose priors
+    (EXIF GPS) follow their image.
+    """
+    ordered = database.with_name(database.stem + ".ordered.db")
+    old, new = pycolmap.Database.open(database), pycolmap.Database.open(ordered)
+    try:
+        for camera in old.read_all_cameras():
+            new.write_camera(camera, use_camera_id=True)
+        for rig in old.read_all_rigs():
+            new.write_rig(rig, use_rig_id=True)
+        frame_of = {}
+        for frame in old.read_all_frames():
+            (data_id,) = frame.data_ids  # extraction makes one frame per image; the rig config comes later
+            frame_of[data_id.id] = (frame.rig_id, data_id.sensor_id)
+        priors = {prior.corr_data_id.id: prior for prior in old.read_all_pose_priors()}
+        for image in sorted(old.read_all_images(), key=lambda image: image.name):
+            image_id = new.write_image(pycolmap.Image(name=image.name, camera_id=image.camera_id))
+            if image.image_id in priors:
+                prior = priors[image.image_id]
+                prior.corr_data_id = pycolmap.data_t(prior.corr_data_id.sensor_id, image_id)
+                new.write_pose_prior(prior)
+            new.write_keypoints(image_id, old.read_keypoints(image.image_id))
+            new.write_descriptors(image_id, old.read_descriptors(image.image_id))
+            rig_id, sensor_id = frame_of[image.image_id]
+            frame = pycolmap.Frame()
+            frame.rig_id = rig_id
+            frame.add_data_id(pycolmap.data_t(sensor_id, image_id))
+            new.write_frame(frame)
+    finally:
+        old.close()
+        new.close()
+    ordered.replace(database)
+
+
+def verification_options(pycolmap, seed: int):
+    """Geometric verification options with a seeded RANSAC (COLMAP's default seed -1 draws from the clock)."""
+    options = pycolmap.TwoViewGeometryOptions()
+    options.ransac.random_seed = seed
+    return options
+
+
+def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, seed: int) -> dict:
+    """COLMAP's mapping, seeded and on one thread (multi-threaded Ceres sums in the order threads finish)."""
+    pycolmap.set_random_seed(seed)
+    if mapper == "incremental":
+        options = pycolmap.IncrementalPipelineOptions()
+        options.random_seed = seed
+        options.num_threads = 1
+        return pycolmap.incremental_mapping(database, image_dir, sparse, options=options)
+    options = pycolmap.GlobalPipelineOptions()
+    options.random_seed = seed
+    options.num_threads = 1
+    return pycolmap.global_mapping(database, image_dir, sparse, options=options)
