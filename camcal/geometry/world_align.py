@@ -222,17 +222,18 @@ def _rotation_to(up: NDArray[np.float64], heading: NDArray[np.float64]) -> NDArr
     return np.stack([x, y, z])  # rows: the old coordinates of the new axes
 
 
-def world_from_constraints(up: ArrayLike, heading: ArrayLike, origin: ArrayLike | None = None,
+def world_from_constraints(up: ArrayLike | None, heading: ArrayLike, origin: ArrayLike | None = None,
                            scale: tuple[ArrayLike, ArrayLike, float] | None = None) -> Similarity:
     """The similarity ``X_new = s R X + t`` that puts a reconstruction in the set's world.
 
     Parameters
     ----------
-    up : array_like, shape (3,)
-        The world's up, in the reconstruction's coordinates: becomes ``+z``.
+    up : array_like, shape (3,), or None
+        The world's up, in the reconstruction's coordinates: becomes ``+z``;
+        None keeps the reconstruction's axes (``R = I``).
     heading : array_like, shape (3,)
         A direction (e.g. the first camera's viewing axis ``R[2]``) whose
-        projection on the ground becomes ``+y``.
+        projection on the ground becomes ``+y`` (unused without ``up``).
     origin : array_like, shape (3,), optional
         The point that becomes ``(0, 0, 0)``; default: the reconstruction's origin stays.
     scale : (A, B, distance), optional
@@ -249,7 +250,8 @@ def world_from_constraints(up: ArrayLike, heading: ArrayLike, origin: ArrayLike 
     >>> S.s, S.apply([[1, 1, 1]]).tolist()
     (0.5, [[0.0, 0.0, 0.0]])
     """
-    R = _rotation_to(np.asarray(up, dtype=np.float64).reshape(3), np.asarray(heading, dtype=np.float64).reshape(3))
+    R = np.eye(3) if up is None else _rotation_to(np.asarray(up, dtype=np.float64).reshape(3),
+                                                  np.asarray(heading, dtype=np.float64).reshape(3))
     s = 1.0
     if scale is not None:
         A, B, distance = scale

@@ -14,7 +14,11 @@ refines the seed: intrinsics shared per camera, one rig pose for all frames,
 optionally held at a known calibration (``known_rig``, e.g. from
 ``calibrate board``, which also gives the reconstruction its units), a robust
 loss, the lens models chosen and the uncertainty of the intrinsics and the
-rig pose (:func:`camcal.geometry.selfcal.self_calibrate`).
+rig pose (:func:`camcal.geometry.selfcal.self_calibrate`); or, with a lens
+from a grid calibration, that lens held or refined under its sigmas
+(:mod:`camcal.pipelines.solve_lens`). Images the mapper cannot register are
+named by frame number (or refused, ``require_all``); the world can be set
+after the solve: up, origin, scale and units (:mod:`camcal.pipelines.solve_world`).
 
 References
 ----------
@@ -26,11 +30,14 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import shutil
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from camcal.base.atomic import atomic_dir, final_path, remove_stale_temporaries
 from camcal.base.errors import CamcalError
@@ -46,9 +53,11 @@ from camcal.geometry.bundle import (
     state_to_reconstruction,
 )
 from camcal.geometry.jackknife import METHODS as JACKKNIFE_METHODS
-from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, self_calibrate
+from camcal.geometry.bundle.state import model_layout
+from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, as_lens_model, self_calibrate
 from camcal.geometry.sfm import (camera_name, check_every_camera_registered, reject_outliers, relative_poses,
                                  sparse_model)
+from camcal.base.frame_ranges import frame_runs
 from camcal.io.ply import write_points_ply
 from camcal.io.video import video_info
 from camcal.model.rig import Rig
@@ -56,7 +65,9 @@ from camcal.pipelines.solve_colmap import (COLMAP_LOG, MAPPERS, MATCHERS, OWNED,
                                            number_by_name, verification_options)
 from camcal.pipelines.solve_inputs import (check_one_size_per_camera, collect_images, list_images, stage_images,
                                            stage_masks, video_of)
+from camcal.pipelines.solve_lens import GridLens, drift_lines, grid_lens, hold_in_database, lens_priors
 from camcal.pipelines.solve_plain import PycolmapPeer, solve_pycolmap_plain
+from camcal.pipelines.solve_world import WorldSpec, align_world
 
 __all__ = [
     "COLMAP_LOG",
@@ -79,7 +90,7 @@ class SfmResult:
     n_images, n_registered : int
         Images given, images with a pose.
     unregistered : tuple of str
-        Images without a pose (``camera/file``).
+        Images without a pose (``camera/file``, COLMAP's staged names).
     n_points : int
         Sparse 3D points.
     rms_px : float
@@ -95,6 +106,10 @@ class SfmResult:
     self_calibration : SelfCalibration or None
         The lens models chosen (held-out RMS of each) and the principal point
         decisions, None when not refined or with one fixed COLMAP model.
+    notes : tuple of str
+        What the solve says beside its figures: the frames not registered
+        (by number), the lens taken from the grid and how far it moved, the
+        world set.
     """
 
     rig: Rig
@@ -107,6 +122,7 @@ class SfmResult:
     reconstruction_dir: Path
     bundle: BundleResult | None = None
     self_calibration: SelfCalibration | None = None
+    notes: tuple[str, ...] = ()
 
 
 def solve_sfm(
@@ -130,6 +146,11 @@ def solve_sfm(
     guided_matching: bool = False,
     every: int = 1,
     masks: dict[str, list[Path]] | None = None,
+    intrinsics: Rig | None = None,
+    intrinsics_mode: str = "fixed",
+    intrinsics_source: str = "the grid",
+    world: WorldSpec | None = None,
+    require_all: bool = False,
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -205,6 +226,21 @@ def solve_sfm(
         :func:`camcal.io.sequence.sequence_paths`), white where no feature
         may be taken (moving actors, the sky): staged as COLMAP's feature
         masks in ``out_dir/masks`` (:func:`camcal.io.sequence.feature_mask`).
+    intrinsics : Rig, optional
+        A grid calibration (``calibrate board``) whose lens each camera takes
+        (by name; one camera each: the one), at the plate's size
+        (:func:`camcal.pipelines.solve_lens.grid_lens`): the lens-model choice
+        is skipped.
+    intrinsics_mode : {"fixed", "prior"}
+        Hold that lens, or refine it under a Gaussian prior of the grid's sigmas.
+    intrinsics_source : str
+        The grid's name in messages (its file).
+    world : WorldSpec, optional
+        Up, origin, scale and units to set after the solve
+        (:func:`camcal.pipelines.solve_world.world_spec`).
+    require_all : bool
+        An image that cannot be registered is an error (nothing is written)
+        instead of a line naming it.
 
     Returns
     -------
@@ -243,20 +279,32 @@ def solve_sfm(
         with native_output_to(staging / COLMAP_LOG, echo=verbose):
             result = _solve_in(pycolmap, images, folders, staging, camera_model, matcher, mapper, seed, num_threads,
                                refine, known_rig, loss, lens_models, principal_point, max_num_features, progress,
-                               jackknife, guided_matching, priors, every, masks or {})
+                               jackknife, guided_matching, priors, every, masks or {},
+                               intrinsics=None if intrinsics is None else (intrinsics, intrinsics_mode,
+                                                                           intrinsics_source),
+                               world=world, require_all=require_all)
     return dataclasses.replace(result, reconstruction_dir=final_path(result.reconstruction_dir, staging, target))
 
 
 def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, mapper, seed, num_threads, refine,
               known_rig, loss, lens_models, principal_point, max_num_features, progress, jackknife,
               guided_matching: bool, priors: tuple[PriorSpec, ...], every: int = 1,
-              masks: dict[str, list[Path]] | None = None) -> SfmResult:
+              masks: dict[str, list[Path]] | None = None, intrinsics: tuple[Rig, str, str] | None = None,
+              world: WorldSpec | None = None, require_all: bool = False) -> SfmResult:
     """:func:`solve_sfm`'s work inside its (temporary) output folder, COLMAP's output captured."""
     image_dir = out_dir / "images"
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
     free_pp = dict(refine_principal_point=principal_point != "centre", default_priors=principal_point == "auto")
     staged = stage_images(images, image_dir, every)
-    check_one_size_per_camera(staged, image_dir)
+    sizes = check_one_size_per_camera(staged, image_dir)
+    lens = None
+    if intrinsics is not None:
+        unknown = [name for name in folders if name not in sizes]
+        if unknown:
+            raise CamcalError(f"cannot read the image size of camera {unknown[0]!r} to fit the grid's lens to it")
+        lens = grid_lens(intrinsics[0], {name: sizes[name] for name in folders}, intrinsics[1], intrinsics[2])
+        for line in lens.lines:
+            _say(progress, line)
     image_names = list(staged)
     database = out_dir / "database.db"
 
@@ -275,6 +323,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
     )
     number_by_name(pycolmap, database)
+    if lens is not None:
+        hold_in_database(pycolmap, database, lens)
     _say(progress, f"matching ({matcher})")
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = num_threads
@@ -285,7 +335,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     sparse = out_dir / "sparse"
     sparse.mkdir()
     _say(progress, f"mapping ({mapper})")
-    models = map_images(pycolmap, database, image_dir, sparse, mapper, seed)
+    models = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None)
     if len(folders) > 1 and models:
         # COLMAP needs sensor_from_rig to start a rig-constrained mapping: take it
         # from an unconstrained first pass, then map again with the rig.
@@ -306,10 +356,15 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         shutil.rmtree(sparse)
         sparse.mkdir()
         _say(progress, f"mapping ({mapper}) with the rig constraint")
-        models = map_images(pycolmap, database, image_dir, sparse, mapper, seed)
+        models = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None)
     if not models:
-        raise CamcalError("structure from motion registered no images: too little texture or overlap?")
+        raise CamcalError(_why_nothing_registered(pycolmap, database, len(staged)))
     reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
+    registered = {image.name for image in reconstruction.images.values() if image.has_pose}
+    missing = _unregistered_line([name for name in staged if name not in registered], staged)
+    if missing and require_all:
+        raise CamcalError(f"{missing} (--require-all)")
+    notes = [missing] if missing else []
     bundle = calibration = None
     if refine:
         _say(progress, "bundle adjustment (camcal)")
@@ -317,7 +372,9 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         state = state_from_reconstruction(reconstruction, names)
         if known_rig is not None:
             state = hold_rig(state, relative_poses(known_rig, state.camera_names[0]))
-        if lens_models is None:
+        if lens is not None:
+            bundle = _refine_with_lens(reconstruction, names, state, options, lens, progress)
+        elif lens_models is None:
             pp_options = dataclasses.replace(options, **free_pp)
             bundle = bundle_adjust(state, pp_options)
         else:
@@ -336,28 +393,124 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         for name, model in zip(bundle.state.camera_names, bundle.state.models):
             reconstruction.cameras[camera_ids[name]].model = getattr(pycolmap.CameraModelId, model)
         state_to_reconstruction(bundle.state, reconstruction)
+    units = known_rig.units if known_rig is not None else "arbitrary"
+    if world is not None and world.active:
+        _say(progress, "setting the world")
+        for line in _set_world(pycolmap, reconstruction, list(folders), world, seed):
+            _say(progress, line)
+            notes.append(line)
+        units = world.units or units
     model_dir = sparse / "best"
     model_dir.mkdir(exist_ok=True)
     reconstruction.write(model_dir)
     originals = {name: Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
                  for name, path in staged.items()}
-    units = known_rig.units if known_rig is not None else "arbitrary"
-    return _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle, calibration, seed)
+    result = _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle, calibration,
+                        seed, lens)
+    if lens is not None and lens.mode == "prior":
+        notes += drift_lines(lens, {camera.name: camera for camera in result.rig.cameras})
+    return dataclasses.replace(result, notes=tuple(([*lens.lines] if lens is not None else []) + notes))
+
+
+def _refine_with_lens(reconstruction, names: dict[int, str], state, options: BundleOptions, lens: GridLens,
+                      progress: Callable[[str], None] | None) -> BundleResult:
+    """camcal's bundle adjustment with the grid's lens: held, outliers dropped, then held again or refined under
+    the grid's sigmas (every other intrinsic held, no default prior: the grid measured the lens)."""
+    held = dataclasses.replace(options, constant_intrinsics=tuple(state.camera_names))
+    _say(progress, "bundle adjustment (camcal) with the grid's lens held, then outlier rejection")
+    pre = bundle_adjust(state, held)
+    state_to_reconstruction(pre.state, reconstruction)
+    _say(progress, reject_outliers(reconstruction))
+    state = state_from_reconstruction(reconstruction, names)
+    if lens.mode == "fixed":
+        return bundle_adjust(state, held)
+    _say(progress, "bundle adjustment (camcal) with the grid's lens under its sigmas")
+    fixed = {}
+    for index, name in enumerate(state.camera_names):
+        colmap_names = model_layout(state.models[index])[0]
+        known = set(lens.sigmas.get(name, {}))
+        fixed[name] = tuple(param for param in colmap_names if _camcal_names(param, state.models[index]) - known)
+    return bundle_adjust(state, dataclasses.replace(options, refine_principal_point=True, default_priors=False,
+                                                    priors=options.priors + lens_priors(lens), fixed_params=fixed))
+
+
+def _camcal_names(colmap_name: str, model: str) -> set[str]:
+    """The camcal intrinsics a COLMAP parameter carries (``f`` is ``fx`` and ``fy``; a division ``k`` is ``lambda``)."""
+    if colmap_name == "f":
+        return {"fx", "fy"}
+    if colmap_name == "k":
+        return {"lambda"} if model in ("SIMPLE_DIVISION", "DIVISION") else {"k1"}
+    return {colmap_name}
+
+
+def _why_nothing_registered(pycolmap, database: Path, n_images: int) -> str:
+    """One line on why the mapper registered nothing: no verified pair, or pairs without parallax."""
+    db = pycolmap.Database.open(database)
+    try:
+        pairs = [geometry for _, geometry in zip(*db.read_two_view_geometries())
+                 if len(geometry.inlier_matches) >= 15]
+    finally:
+        db.close()
+    if not pairs:
+        return (f"structure from motion registered none of the {n_images} images: no two of them share enough "
+                "features (too little texture or overlap?)")
+    rotation_only = (pycolmap.TwoViewGeometryConfiguration.PANORAMIC,
+                     pycolmap.TwoViewGeometryConfiguration.PLANAR_OR_PANORAMIC)
+    if all(geometry.config in rotation_only for geometry in pairs):
+        return (f"structure from motion registered none of the {n_images} images: too little parallax: the camera "
+                f"turns or barely moves between them (all {len(pairs)} matched pairs fit a rotation alone), so depth "
+                "cannot be triangulated; a nodal pan needs a camera that moves, or frames further apart")
+    return (f"structure from motion registered none of the {n_images} images although {len(pairs)} pairs match: "
+            "no pair gave a stable start (too little parallax or too few matches?)")
+
+
+def _unregistered_line(names: list[str], staged: dict[str, Path]) -> str:
+    """One line naming, per camera, the frames (by number: the last number in each file's name) not registered."""
+    if not names:
+        return ""
+    per_camera: dict[str, list] = {}
+    for name in names:
+        digits = re.findall(r"\d+", staged[name].stem)
+        per_camera.setdefault(name.split("/")[0], []).append(int(digits[-1]) if digits else staged[name].name)
+    totals = Counter(name.split("/")[0] for name in staged)
+    parts = []
+    for camera, frames in per_camera.items():
+        numbers = sorted(f for f in frames if isinstance(f, int))
+        listed = frame_runs(numbers) + sorted(f for f in frames if not isinstance(f, int))
+        parts.append(f"{camera} frames {', '.join(listed)} ({len(frames)} of {totals[camera]})")
+    return "not registered: " + "; ".join(parts)
+
+
+def _set_world(pycolmap, reconstruction, camera_names: list[str], world: WorldSpec, seed: int) -> list[str]:
+    """Move the reconstruction into the world ``world`` asks for (points, frames and the rig's baselines)."""
+    xyz = np.array([point.xyz for point in reconstruction.points3D.values()]).reshape(-1, 3)
+    poses = sorted((camera_names.index(image.name.split("/")[0]), image.name, image.cam_from_world())
+                   for image in reconstruction.images.values() if image.has_pose)
+    rotations = np.array([pose.rotation.matrix() for _, _, pose in poses])
+    centres = np.array([-pose.rotation.matrix().T @ pose.translation for _, _, pose in poses])
+    similarity, lines = align_world(xyz, rotations, centres, world, seed)
+    reconstruction.transform(pycolmap.Sim3d(similarity.s, pycolmap.Rotation3d(similarity.R), similarity.t))
+    return lines
 
 
 
 def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir: Path,
                originals: dict[str, str], units: str, bundle: BundleResult | None,
-               calibration: SelfCalibration | None, seed: int) -> SfmResult:
+               calibration: SelfCalibration | None, seed: int, lens: GridLens | None = None) -> SfmResult:
     """Convert a pycolmap reconstruction with one rig into camcal's Rig; write its points and the rig.
 
     ``originals`` maps every staged image name (COLMAP's) to the user's
     image, relative to ``out_dir``: the frames point at those. The rig's
-    provenance records the seed.
+    provenance records the seed. A lens held from the grid is written as the
+    grid has it (its model and terms); refined under its prior, under the
+    grid's model name.
     """
     points_path = out_dir / "points.ply"
     model = sparse_model(reconstruction, camera_names, originals, units, bundle, calibration, points_path.name)
     rig = dataclasses.replace(model.rig, provenance={**model.rig.provenance, "seed": seed})
+    if lens is not None:
+        rig = dataclasses.replace(rig, cameras=tuple(_as_grid_lens(camera, lens) for camera in rig.cameras),
+                                  provenance={**rig.provenance, "intrinsics": list(lens.lines)})
     write_points_ply(points_path, model.xyz, model.colours, model.track_lengths)
     rig.save(out_dir / "solve.rig.json")
     return SfmResult(
@@ -372,6 +525,14 @@ def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir
         bundle=bundle,
         self_calibration=calibration,
     )
+
+
+def _as_grid_lens(camera, lens: GridLens):
+    """A solved camera with the grid's lens: held, exactly the grid's; refined, under the grid's model name."""
+    grid = lens.cameras[camera.name]
+    if lens.mode == "fixed":
+        return dataclasses.replace(camera, K=grid.K, distortion=grid.distortion)
+    return as_lens_model(camera, grid.distortion.model)
 
 
 def _say(progress: Callable[[str], None] | None, message: str) -> None:

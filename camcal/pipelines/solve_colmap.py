@@ -105,15 +105,26 @@ def verification_options(pycolmap, seed: int):
     return options
 
 
-def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, seed: int) -> dict:
-    """COLMAP's mapping, seeded and on one thread (multi-threaded Ceres sums in the order threads finish)."""
+def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, seed: int,
+               hold_intrinsics: bool = False) -> dict:
+    """COLMAP's mapping, seeded and on one thread (multi-threaded Ceres sums in the order threads finish).
+
+    ``hold_intrinsics``: the mapper's bundle adjustments keep the cameras' intrinsics as the database has them
+    (a lens known from a grid, :mod:`camcal.pipelines.solve_lens`).
+    """
     pycolmap.set_random_seed(seed)
     if mapper == "incremental":
         options = pycolmap.IncrementalPipelineOptions()
         options.random_seed = seed
         options.num_threads = 1
+        if hold_intrinsics:
+            options.ba_refine_focal_length = options.ba_refine_extra_params = False
+            options.ba_refine_principal_point = False
         return pycolmap.incremental_mapping(database, image_dir, sparse, options=options)
     options = pycolmap.GlobalPipelineOptions()
     options.random_seed = seed
     options.num_threads = 1
+    if hold_intrinsics:
+        adjustment = options.mapper.bundle_adjustment
+        adjustment.refine_focal_length = adjustment.refine_extra_params = adjustment.refine_principal_point = False
     return pycolmap.global_mapping(database, image_dir, sparse, options=options)

@@ -137,8 +137,9 @@ def stage_images(images: dict[str, list[Path]], staging: Path, every: int = 1) -
     return staged
 
 
-def check_one_size_per_camera(staged: dict[str, Path], image_dir: Path) -> None:
-    """Refuse a camera whose staged images differ in size (a plate with a frame of another size), naming both files.
+def check_one_size_per_camera(staged: dict[str, Path], image_dir: Path) -> dict[str, tuple[int, int]]:
+    """Each camera's one image size; a camera whose staged images differ in size (a plate with a frame of another
+    size) is refused, naming both files.
 
     COLMAP gives each camera one size (its folder, ``CameraMode.PER_FOLDER``)
     and skips an image of another size, which would leave the camera short
@@ -156,6 +157,7 @@ def check_one_size_per_camera(staged: dict[str, Path], image_dir: Path) -> None:
             raise CamcalError(f"camera {camera!r}: {staged[name]} is {size[0]}x{size[1]} but "
                               f"{staged[first_name]} is {first_size[0]}x{first_size[1]}: a camera's images must all "
                               "have one size")
+    return {camera: size for camera, (_, size) in first.items()}
 
 
 def stage_masks(masks: dict[str, list[Path]], staged: dict[str, Path], image_dir: Path, mask_dir: Path) -> Path:
