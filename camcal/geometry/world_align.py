@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from camcal.base.errors import CamcalError
 
 __all__ = [
+    "MAX_GROUND_TILT_DEG",
     "GroundPlane",
     "Similarity",
     "ground_plane_RANSAC",
@@ -45,6 +46,11 @@ __all__ = [
     "point_under",
     "world_from_constraints",
 ]
+
+#: the ground's normal may lean this far from the cameras' up (degrees): half way between the floor (0 deg
+#: from a level camera's up) and a wall (90 deg), so a camera pitched by less than that still finds the floor.
+MAX_GROUND_TILT_DEG = 45.0
+
 
 @dataclass(frozen=True)
 class Similarity:
@@ -129,7 +135,8 @@ def _plane_through(points: NDArray[np.float64]) -> tuple[NDArray[np.float64], fl
 
 
 def ground_plane_RANSAC(points: ArrayLike, threshold: float | None = None, iterations: int = 500, seed: int = 0,
-                        cameras: ArrayLike | None = None) -> GroundPlane:
+                        cameras: ArrayLike | None = None, up_hint: ArrayLike | None = None,
+                        max_tilt_deg: float = MAX_GROUND_TILT_DEG) -> GroundPlane:
     """The dominant plane of a point cloud (Fischler & Bolles 1981), refitted to its inliers.
 
     Parameters
@@ -147,6 +154,12 @@ def ground_plane_RANSAC(points: ArrayLike, threshold: float | None = None, itera
     cameras : array_like, shape (M, 3), optional
         Camera centres: the normal is turned towards their majority (the
         cameras stand above the ground).
+    up_hint : array_like, shape (3,), optional
+        A rough up (e.g. :func:`mean_camera_up`): only planes whose normal is
+        within ``max_tilt_deg`` of it count, so that a wall with more points
+        than the floor is not taken for the ground.
+    max_tilt_deg : float
+        That tolerance (degrees).
 
     Returns
     -------
@@ -157,7 +170,10 @@ def ground_plane_RANSAC(points: ArrayLike, threshold: float | None = None, itera
     Of all triples, the plane with the most points within ``threshold``
     wins (the first in draw order on a tie); its inliers are then fitted by
     least squares (total least squares: the normal is the smallest right
-    singular vector of the centred inliers), and the inliers re-counted.
+    singular vector of the centred inliers), the threshold narrowed to
+    ``4 sigma`` of the inliers' distances (sigma from their median absolute
+    deviation, 1.4826 MAD) when that is narrower, and the plane fitted again
+    to the inliers that leaves.
     """
     X = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     X = X[np.all(np.isfinite(X), axis=1)]
@@ -167,6 +183,8 @@ def ground_plane_RANSAC(points: ArrayLike, threshold: float | None = None, itera
         threshold = 0.01 * float(np.median(np.linalg.norm(X - np.median(X, axis=0), axis=1)))
     if not threshold > 0:
         raise CamcalError(f"the ground plane's inlier threshold must be positive, got {threshold!r}")
+    hint = None if up_hint is None else _unit(up_hint, "the up hint")
+    min_cos = float(np.cos(np.radians(max_tilt_deg)))
     rng = np.random.default_rng(seed)
     best_count, best = -1, None
     for _ in range(int(iterations)):
@@ -176,13 +194,21 @@ def ground_plane_RANSAC(points: ArrayLike, threshold: float | None = None, itera
         if norm < 1e-12:
             continue
         normal /= norm
+        if hint is not None and abs(normal @ hint) < min_cos:
+            continue
         count = int(np.count_nonzero(np.abs((X - a) @ normal) < threshold))
         if count > best_count:
             best_count, best = count, (normal, float(normal @ a))
     if best is None:
-        raise CamcalError("the points are collinear: no ground plane")
+        within = "" if hint is None else f" within {max_tilt_deg:g} deg of level"
+        raise CamcalError(f"no plane{within} through the points (collinear, or no ground seen)")
     inliers = np.abs(X @ best[0] - best[1]) < threshold
     normal, offset = _plane_through(X[inliers])
+    distance = np.abs(X @ normal - offset)
+    spread = 4.0 * 1.4826 * float(np.median(distance[distance < threshold]))
+    if 0 < spread < threshold:
+        threshold = spread
+        normal, offset = _plane_through(X[distance < threshold])
     inliers = np.abs(X @ normal - offset) < threshold
     if cameras is not None:
         side = np.asarray(cameras, dtype=np.float64).reshape(-1, 3) @ normal - offset

@@ -144,7 +144,7 @@ def align_world(xyz: NDArray[np.float64], rotations: NDArray[np.float64], centre
     lines = []
     plane = None
     if spec.up == "ground" or spec.origin == "ground":
-        plane = ground_plane_RANSAC(xyz, cameras=centres, seed=seed)
+        plane = ground_plane_RANSAC(xyz, cameras=centres, seed=seed, up_hint=mean_camera_up(rotations))
         lines.append(f"ground plane: {int(plane.inliers.sum())} of {len(xyz)} points within {plane.threshold:.3g} "
                      "(RANSAC)")
     up = None

@@ -81,5 +81,19 @@ def test_constraints_that_fix_nothing_are_one_clear_error():
         world_from_constraints([0, 0, 1], [0, 1, 0], None, ([1, 2, 3], [1, 2, 4], -1.0))
     with pytest.raises(CamcalError, match="at least 3 points"):
         ground_plane_RANSAC(np.zeros((2, 3)))
-    with pytest.raises(CamcalError, match="collinear"):
+    with pytest.raises(CamcalError, match="no plane"):
         ground_plane_RANSAC(np.outer(np.arange(10.0), [1, 2, 3]))
+
+
+def test_a_wall_with_more_points_than_the_floor_is_not_the_ground_given_the_cameras_up():
+    rng = np.random.default_rng(6)
+    floor = np.column_stack([rng.uniform(0, 8, (200, 2)), np.zeros(200)])
+    wall = np.column_stack([rng.uniform(0, 8, 500), np.zeros(500), rng.uniform(0, 3, 500)])  # the wall y = 0
+    X = np.concatenate([floor, wall])
+    cameras = np.array([[4.0, 5.0, 1.6], [5.0, 6.0, 1.5]])
+    assert abs(ground_plane_RANSAC(X, cameras=cameras).normal[1]) > 0.999  # the most points: the wall
+    pitched = mean_camera_up([look_at(c, [4.0, 0.0, 0.4]) for c in cameras])  # cameras looking down at the wall
+    assert 0.9 < pitched[2] < 0.99  # the hint leans towards the wall, far less than 45 deg
+    plane = ground_plane_RANSAC(X, cameras=cameras, up_hint=pitched)
+    np.testing.assert_allclose(plane.normal, [0.0, 0.0, 1.0], atol=1e-4)  # a wall point at the foot may pull
+    assert plane.inliers[:200].all() and plane.inliers.sum() < 260  # the floor, and the wall's foot within reach
