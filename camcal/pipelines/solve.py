@@ -332,6 +332,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
     match(database, matching_options=matching, verification_options=verification_options(pycolmap, seed),
           device=pycolmap.Device.cpu)
+    _check_parallax(pycolmap, database, len(staged))
     sparse = out_dir / "sparse"
     sparse.mkdir()
     _say(progress, f"mapping ({mapper})")
@@ -443,23 +444,45 @@ def _camcal_names(colmap_name: str, model: str) -> set[str]:
     return {colmap_name}
 
 
-def _why_nothing_registered(pycolmap, database: Path, n_images: int) -> str:
-    """One line on why the mapper registered nothing: no verified pair, or pairs without parallax."""
+#: a pair of images counts as matched with at least this many verified matches.
+_MIN_PAIR_MATCHES = 15
+
+
+def _verified_pairs(pycolmap, database: Path) -> list:
+    """The two-view geometries of the pairs with at least :data:`_MIN_PAIR_MATCHES` verified matches."""
     db = pycolmap.Database.open(database)
     try:
-        pairs = [geometry for _, geometry in zip(*db.read_two_view_geometries())
-                 if len(geometry.inlier_matches) >= 15]
+        return [geometry for geometry in db.read_two_view_geometries()[1]
+                if len(geometry.inlier_matches) >= _MIN_PAIR_MATCHES]
     finally:
         db.close()
+
+
+def _check_parallax(pycolmap, database: Path, n_images: int) -> None:
+    """Refuse a plate none of whose matched pairs has parallax (a nodal pan, a locked-off camera).
+
+    COLMAP's verification calls a pair ``PANORAMIC`` or ``PLANAR_OR_PANORAMIC``
+    when a homography explains its matches and its relative pose, if any,
+    triangulates under too small an angle: a rotation alone. If every
+    matched pair is such, depth cannot be triangulated, and the mapper's
+    result (when it makes one) has a focal length and points made up of noise.
+    """
+    pairs = _verified_pairs(pycolmap, database)
+    rotation_only = (pycolmap.TwoViewGeometryConfiguration.PANORAMIC,
+                     pycolmap.TwoViewGeometryConfiguration.PLANAR_OR_PANORAMIC)
+    if pairs and all(geometry.config in rotation_only for geometry in pairs):
+        raise CamcalError(f"too little parallax in the {n_images} images: the camera turns or barely moves between "
+                          f"them (all {len(pairs)} matched pairs fit a rotation alone), so depth cannot be "
+                          "triangulated: structure from motion needs a camera that moves (a nodal pan cannot be "
+                          "solved), or frames further apart")
+
+
+def _why_nothing_registered(pycolmap, database: Path, n_images: int) -> str:
+    """One line on why the mapper registered nothing: no matched pair, or no pair that starts a model."""
+    pairs = _verified_pairs(pycolmap, database)
     if not pairs:
         return (f"structure from motion registered none of the {n_images} images: no two of them share enough "
                 "features (too little texture or overlap?)")
-    rotation_only = (pycolmap.TwoViewGeometryConfiguration.PANORAMIC,
-                     pycolmap.TwoViewGeometryConfiguration.PLANAR_OR_PANORAMIC)
-    if all(geometry.config in rotation_only for geometry in pairs):
-        return (f"structure from motion registered none of the {n_images} images: too little parallax: the camera "
-                f"turns or barely moves between them (all {len(pairs)} matched pairs fit a rotation alone), so depth "
-                "cannot be triangulated; a nodal pan needs a camera that moves, or frames further apart")
     return (f"structure from motion registered none of the {n_images} images although {len(pairs)} pairs match: "
             "no pair gave a stable start (too little parallax or too few matches?)")
 
