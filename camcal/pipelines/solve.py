@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import re
 import shutil
 from collections import Counter
 from collections.abc import Callable
@@ -57,17 +56,16 @@ from camcal.geometry.bundle.state import model_layout
 from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, as_lens_model, self_calibrate
 from camcal.geometry.sfm import (camera_name, check_every_camera_registered, reject_outliers, relative_poses,
                                  sparse_model)
-from camcal.base.frame_ranges import frame_runs
 from camcal.io.ply import write_points_ply
 from camcal.io.video import video_info
 from camcal.model.rig import Rig
-from camcal.pipelines.solve_colmap import (COLMAP_LOG, MAPPERS, MATCHERS, OWNED, extraction_options, map_images,
-                                           number_by_name, verification_options)
+from camcal.pipelines.solve_colmap import (COLMAP_LOG, MAPPERS, MATCHERS, OWNED, check_parallax, extraction_options,
+                                           map_images, number_by_name, verification_options, why_nothing_registered)
 from camcal.pipelines.solve_inputs import (check_one_size_per_camera, collect_images, list_images, stage_images,
-                                           stage_masks, video_of)
+                                           stage_masks, unregistered_line, video_of)
 from camcal.pipelines.solve_lens import GridLens, drift_lines, grid_lens, hold_in_database, lens_priors
 from camcal.pipelines.solve_plain import PycolmapPeer, solve_pycolmap_plain
-from camcal.pipelines.solve_world import WorldSpec, align_world
+from camcal.pipelines.solve_world import WorldSpec, align_world, scaled_translations
 
 __all__ = [
     "COLMAP_LOG",
@@ -332,7 +330,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
     match(database, matching_options=matching, verification_options=verification_options(pycolmap, seed),
           device=pycolmap.Device.cpu)
-    _check_parallax(pycolmap, database, len(staged))
+    check_parallax(pycolmap, database, len(staged))
     sparse = out_dir / "sparse"
     sparse.mkdir()
     _say(progress, f"mapping ({mapper})")
@@ -359,10 +357,10 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         _say(progress, f"mapping ({mapper}) with the rig constraint")
         models = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None)
     if not models:
-        raise CamcalError(_why_nothing_registered(pycolmap, database, len(staged)))
+        raise CamcalError(why_nothing_registered(pycolmap, database, len(staged)))
     reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
     registered = {image.name for image in reconstruction.images.values() if image.has_pose}
-    missing = _unregistered_line([name for name in staged if name not in registered], staged)
+    missing = unregistered_line([name for name in staged if name not in registered], staged)
     if missing and require_all:
         raise CamcalError(f"{missing} (--require-all)")
     notes = [missing] if missing else []
@@ -395,9 +393,11 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
             reconstruction.cameras[camera_ids[name]].model = getattr(pycolmap.CameraModelId, model)
         state_to_reconstruction(bundle.state, reconstruction)
     units = known_rig.units if known_rig is not None else "arbitrary"
+    world_scale = 1.0
     if world is not None and world.active:
         _say(progress, "setting the world")
-        for line in _set_world(pycolmap, reconstruction, list(folders), world, seed):
+        world_scale, lines = _set_world(pycolmap, reconstruction, list(folders), world, seed)
+        for line in lines:
             _say(progress, line)
             notes.append(line)
         units = world.units or units
@@ -407,7 +407,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     originals = {name: Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
                  for name, path in staged.items()}
     result = _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle, calibration,
-                        seed, lens)
+                        seed, lens, world_scale)
     if lens is not None and lens.mode == "prior":
         notes += drift_lines(lens, {camera.name: camera for camera in result.rig.cameras})
     return dataclasses.replace(result, notes=tuple(([*lens.lines] if lens is not None else []) + notes))
@@ -444,68 +444,9 @@ def _camcal_names(colmap_name: str, model: str) -> set[str]:
     return {colmap_name}
 
 
-#: a pair of images counts as matched with at least this many verified matches.
-_MIN_PAIR_MATCHES = 15
-
-
-def _verified_pairs(pycolmap, database: Path) -> list:
-    """The two-view geometries of the pairs with at least :data:`_MIN_PAIR_MATCHES` verified matches."""
-    db = pycolmap.Database.open(database)
-    try:
-        return [geometry for geometry in db.read_two_view_geometries()[1]
-                if len(geometry.inlier_matches) >= _MIN_PAIR_MATCHES]
-    finally:
-        db.close()
-
-
-def _check_parallax(pycolmap, database: Path, n_images: int) -> None:
-    """Refuse a plate none of whose matched pairs has parallax (a nodal pan, a locked-off camera).
-
-    COLMAP's verification calls a pair ``PANORAMIC`` or ``PLANAR_OR_PANORAMIC``
-    when a homography explains its matches and its relative pose, if any,
-    triangulates under too small an angle: a rotation alone. If every
-    matched pair is such, depth cannot be triangulated, and the mapper's
-    result (when it makes one) has a focal length and points made up of noise.
-    """
-    pairs = _verified_pairs(pycolmap, database)
-    rotation_only = (pycolmap.TwoViewGeometryConfiguration.PANORAMIC,
-                     pycolmap.TwoViewGeometryConfiguration.PLANAR_OR_PANORAMIC)
-    if pairs and all(geometry.config in rotation_only for geometry in pairs):
-        raise CamcalError(f"too little parallax in the {n_images} images: the camera turns or barely moves between "
-                          f"them (all {len(pairs)} matched pairs fit a rotation alone), so depth cannot be "
-                          "triangulated: structure from motion needs a camera that moves (a nodal pan cannot be "
-                          "solved), or frames further apart")
-
-
-def _why_nothing_registered(pycolmap, database: Path, n_images: int) -> str:
-    """One line on why the mapper registered nothing: no matched pair, or no pair that starts a model."""
-    pairs = _verified_pairs(pycolmap, database)
-    if not pairs:
-        return (f"structure from motion registered none of the {n_images} images: no two of them share enough "
-                "features (too little texture or overlap?)")
-    return (f"structure from motion registered none of the {n_images} images although {len(pairs)} pairs match: "
-            "no pair gave a stable start (too little parallax or too few matches?)")
-
-
-def _unregistered_line(names: list[str], staged: dict[str, Path]) -> str:
-    """One line naming, per camera, the frames (by number: the last number in each file's name) not registered."""
-    if not names:
-        return ""
-    per_camera: dict[str, list] = {}
-    for name in names:
-        digits = re.findall(r"\d+", staged[name].stem)
-        per_camera.setdefault(name.split("/")[0], []).append(int(digits[-1]) if digits else staged[name].name)
-    totals = Counter(name.split("/")[0] for name in staged)
-    parts = []
-    for camera, frames in per_camera.items():
-        numbers = sorted(f for f in frames if isinstance(f, int))
-        listed = frame_runs(numbers) + sorted(f for f in frames if not isinstance(f, int))
-        parts.append(f"{camera} frames {', '.join(listed)} ({len(frames)} of {totals[camera]})")
-    return "not registered: " + "; ".join(parts)
-
-
-def _set_world(pycolmap, reconstruction, camera_names: list[str], world: WorldSpec, seed: int) -> list[str]:
-    """Move the reconstruction into the world ``world`` asks for (points, frames and the rig's baselines)."""
+def _set_world(pycolmap, reconstruction, camera_names: list[str], world: WorldSpec, seed: int) -> tuple[float, list[str]]:
+    """Move the reconstruction into the world ``world`` asks for (points, frames and the rig's baselines); the
+    scale and what was done."""
     xyz = np.array([point.xyz for point in reconstruction.points3D.values()]).reshape(-1, 3)
     poses = sorted((camera_names.index(image.name.split("/")[0]), image.name, image.cam_from_world())
                    for image in reconstruction.images.values() if image.has_pose)
@@ -513,24 +454,27 @@ def _set_world(pycolmap, reconstruction, camera_names: list[str], world: WorldSp
     centres = np.array([-pose.rotation.matrix().T @ pose.translation for _, _, pose in poses])
     similarity, lines = align_world(xyz, rotations, centres, world, seed)
     reconstruction.transform(pycolmap.Sim3d(similarity.s, pycolmap.Rotation3d(similarity.R), similarity.t))
-    return lines
+    return similarity.s, lines
 
 
 
 def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir: Path,
                originals: dict[str, str], units: str, bundle: BundleResult | None,
-               calibration: SelfCalibration | None, seed: int, lens: GridLens | None = None) -> SfmResult:
+               calibration: SelfCalibration | None, seed: int, lens: GridLens | None = None,
+               world_scale: float = 1.0) -> SfmResult:
     """Convert a pycolmap reconstruction with one rig into camcal's Rig; write its points and the rig.
 
     ``originals`` maps every staged image name (COLMAP's) to the user's
     image, relative to ``out_dir``: the frames point at those. The rig's
     provenance records the seed. A lens held from the grid is written as the
     grid has it (its model and terms); refined under its prior, under the
-    grid's model name.
+    grid's model name. ``world_scale``: the world was scaled after the bundle
+    adjustment, and the covariance of translations is scaled with it.
     """
     points_path = out_dir / "points.ply"
     model = sparse_model(reconstruction, camera_names, originals, units, bundle, calibration, points_path.name)
-    rig = dataclasses.replace(model.rig, provenance={**model.rig.provenance, "seed": seed})
+    rig = dataclasses.replace(scaled_translations(model.rig, world_scale),
+                              provenance={**model.rig.provenance, "seed": seed})
     if lens is not None:
         rig = dataclasses.replace(rig, cameras=tuple(_as_grid_lens(camera, lens) for camera in rig.cameras),
                                   provenance={**rig.provenance, "intrinsics": list(lens.lines)})

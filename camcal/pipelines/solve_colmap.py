@@ -1,8 +1,9 @@
 """COLMAP's stages of a solve, each seeded and in a fixed order: extraction, image numbering, verification, mapping.
 
 What makes the same images give the same reconstruction, run after run
-(:func:`number_by_name`, :func:`verification_options`, :func:`map_images`,
-:func:`matching_options`).
+(:func:`number_by_name`, :func:`verification_options`, :func:`map_images`),
+and what the database says when the images cannot make one
+(:func:`check_parallax`, :func:`why_nothing_registered`).
 
 References
 ----------
@@ -14,16 +15,20 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from camcal.base.errors import CamcalError
+
 __all__ = [
     "COLMAP_LOG",
     "MAPPERS",
     "MATCHERS",
     "OWNED",
     "UPSAMPLE_BELOW_PX",
+    "check_parallax",
     "extraction_options",
     "map_images",
     "number_by_name",
     "verification_options",
+    "why_nothing_registered",
 ]
 
 MATCHERS = ("exhaustive", "sequential")
@@ -128,3 +133,46 @@ def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: 
         adjustment = options.mapper.bundle_adjustment
         adjustment.refine_focal_length = adjustment.refine_extra_params = adjustment.refine_principal_point = False
     return pycolmap.global_mapping(database, image_dir, sparse, options=options)
+
+
+#: a pair of images counts as matched with at least this many verified matches.
+_MIN_PAIR_MATCHES = 15
+
+
+def _verified_pairs(pycolmap, database: Path) -> list:
+    """The two-view geometries of the pairs with at least :data:`_MIN_PAIR_MATCHES` verified matches."""
+    db = pycolmap.Database.open(database)
+    try:
+        return [geometry for geometry in db.read_two_view_geometries()[1]
+                if len(geometry.inlier_matches) >= _MIN_PAIR_MATCHES]
+    finally:
+        db.close()
+
+
+def check_parallax(pycolmap, database: Path, n_images: int) -> None:
+    """Refuse a plate none of whose matched pairs has parallax (a nodal pan, a locked-off camera).
+
+    COLMAP's verification calls a pair ``PANORAMIC`` or ``PLANAR_OR_PANORAMIC``
+    when a homography explains its matches and its relative pose, if any,
+    triangulates under too small an angle: a rotation alone. If every
+    matched pair is such, depth cannot be triangulated, and the mapper's
+    result (when it makes one) has a focal length and points made up of noise.
+    """
+    pairs = _verified_pairs(pycolmap, database)
+    rotation_only = (pycolmap.TwoViewGeometryConfiguration.PANORAMIC,
+                     pycolmap.TwoViewGeometryConfiguration.PLANAR_OR_PANORAMIC)
+    if pairs and all(geometry.config in rotation_only for geometry in pairs):
+        raise CamcalError(f"too little parallax in the {n_images} images: the camera turns or barely moves between "
+                          f"them (all {len(pairs)} matched pairs fit a rotation alone), so depth cannot be "
+                          "triangulated: structure from motion needs a camera that moves (a nodal pan cannot be "
+                          "solved), or frames further apart")
+
+
+def why_nothing_registered(pycolmap, database: Path, n_images: int) -> str:
+    """One line on why the mapper registered nothing: no matched pair, or no pair that starts a model."""
+    pairs = _verified_pairs(pycolmap, database)
+    if not pairs:
+        return (f"structure from motion registered none of the {n_images} images: no two of them share enough "
+                "features (too little texture or overlap?)")
+    return (f"structure from motion registered none of the {n_images} images although {len(pairs)} pairs match: "
+            "no pair gave a stable start (too little parallax or too few matches?)")

@@ -9,10 +9,13 @@ feature masks beside them.
 from __future__ import annotations
 
 import os
+import re
 import shutil
+from collections import Counter
 from pathlib import Path
 
 from camcal.base.errors import CamcalError
+from camcal.base.frame_ranges import frame_runs
 from camcal.io.frames import imwrite
 from camcal.io.headers import declared_size
 from camcal.io.sequence import (
@@ -28,6 +31,7 @@ __all__ = [
     "list_images",
     "stage_images",
     "stage_masks",
+    "unregistered_line",
     "video_of",
 ]
 
@@ -178,3 +182,19 @@ def stage_masks(masks: dict[str, list[Path]], staged: dict[str, Path], image_dir
             imwrite(mask_dir / f"{name}.png", mask)
     return mask_dir
 
+
+def unregistered_line(names: list[str], staged: dict[str, Path]) -> str:
+    """One line naming, per camera, the frames (by number: the last number in each file's name) not registered."""
+    if not names:
+        return ""
+    per_camera: dict[str, list] = {}
+    for name in names:
+        digits = re.findall(r"\d+", staged[name].stem)
+        per_camera.setdefault(name.split("/")[0], []).append(int(digits[-1]) if digits else staged[name].name)
+    totals = Counter(name.split("/")[0] for name in staged)
+    parts = []
+    for camera, frames in per_camera.items():
+        numbers = sorted(f for f in frames if isinstance(f, int))
+        listed = frame_runs(numbers) + sorted(f for f in frames if not isinstance(f, int))
+        parts.append(f"{camera} frames {', '.join(listed)} ({len(frames)} of {totals[camera]})")
+    return "not registered: " + "; ".join(parts)

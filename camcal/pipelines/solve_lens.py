@@ -25,8 +25,6 @@ import dataclasses
 from dataclasses import dataclass
 from fractions import Fraction
 
-import numpy as np
-
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import PriorSpec
 from camcal.model.colmap import camera_to_colmap

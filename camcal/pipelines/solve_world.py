@@ -15,6 +15,7 @@ world.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass
 
@@ -24,8 +25,10 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.geometry.world_align import (Similarity, ground_plane_RANSAC, mean_camera_up, point_under,
                                          world_from_constraints)
+from camcal.model.quality import ParameterCovariance
+from camcal.model.rig import Rig
 
-__all__ = ["UP_SOURCES", "WorldSpec", "align_world", "world_spec"]
+__all__ = ["UP_SOURCES", "WorldSpec", "align_world", "scaled_translations", "world_spec"]
 
 #: where ``--up`` comes from: the ground plane of the sparse points, or the cameras' mean up.
 UP_SOURCES = ("ground", "cameras")
@@ -176,3 +179,21 @@ def _named(point: int | NDArray[np.float64]) -> str:
     if isinstance(point, int):
         return f"point {point}"
     return "(" + ", ".join(f"{v:g}" for v in point) + ")"
+
+
+def scaled_translations(rig: Rig, s: float) -> Rig:
+    """The rig's fit quality after its world was scaled by ``s``: the covariance rows of translations
+    (``tx``, ``ty``, ``tz``, any camera's) scale by ``s`` (the poses themselves were moved with the model)."""
+    if s == 1.0:
+        return rig
+    cameras = []
+    for camera in rig.cameras:
+        covariance = camera.quality.covariance if camera.quality else None
+        if covariance is None:
+            cameras.append(camera)
+            continue
+        factor = [s if name.rsplit(".", 1)[-1].removeprefix("gauge_") in ("tx", "ty", "tz") else 1.0
+                  for name in covariance.names]
+        scaled = ParameterCovariance(covariance.names, covariance.array * np.outer(factor, factor))
+        cameras.append(dataclasses.replace(camera, quality=dataclasses.replace(camera.quality, covariance=scaled)))
+    return dataclasses.replace(rig, cameras=tuple(cameras))

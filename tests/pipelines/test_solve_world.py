@@ -9,12 +9,14 @@ from camcal.base.errors import CamcalError
 from camcal.cli import main
 from camcal.io.ply import read_points_ply
 from camcal.model.camera import chordal_mean_rotation
-from camcal.model.rig import Rig
+from camcal.model.distortion import Distortion
+from camcal.model.rig import Camera, Rig
 from camcal.pipelines.solve_world import world_spec
 from camcal.synthetic import render_stereo_sequence
 
 WIDTH, HEIGHT = 256, 192
 FOCAL = 500.0 * WIDTH / 640
+K = ((FOCAL, 0.0, (WIDTH - 1) / 2), (0.0, FOCAL, (HEIGHT - 1) / 2), (0.0, 0.0, 1.0))
 
 
 def test_the_world_of_a_rendered_plate_is_set_on_its_floor_with_the_scale_given(tmp_path, capsys):
@@ -22,7 +24,7 @@ def test_the_world_of_a_rendered_plate_is_set_on_its_floor_with_the_scale_given(
     solve's noise), the floor's points lie at z = 0, the first camera stands over the origin looking down +y, and
     the two points given are the distance given apart, in the units given."""
     truth = render_stereo_sequence(tmp_path / "in", n_frames=4, image_size=(WIDTH, HEIGHT),
-                                   K=((FOCAL, 0.0, (WIDTH - 1) / 2), (0.0, FOCAL, (HEIGHT - 1) / 2), (0.0, 0.0, 1.0)))
+                                   K=K)
     code = main(["solve", str(tmp_path / "in" / "left"), "--features", "512", "--model", "polynomial",
                  "--uncertainty", "covariance",
                  "--up", "ground", "--origin", "ground", "--scale", "0,1=2.5", "--units", "ft",
@@ -69,7 +71,7 @@ def test_world_options_are_read_as_points_rows_or_coordinates():
 
 def test_the_cli_refuses_units_without_scale_and_a_point_the_solve_does_not_have(tmp_path, capsys):
     render_stereo_sequence(tmp_path / "in", n_frames=3, image_size=(WIDTH, HEIGHT),
-                           K=((FOCAL, 0.0, (WIDTH - 1) / 2), (0.0, FOCAL, (HEIGHT - 1) / 2), (0.0, 0.0, 1.0)))
+                           K=K)
     assert main(["solve", str(tmp_path / "in" / "left"), "--units", "m", "--out", str(tmp_path / "out")]) == 2
     assert "--units has no effect without --scale" in capsys.readouterr().err
     code = main(["solve", str(tmp_path / "in" / "left"), "--features", "512", "--no-refine",
@@ -77,3 +79,25 @@ def test_the_cli_refuses_units_without_scale_and_a_point_the_solve_does_not_have
     err = capsys.readouterr().err
     assert code == 2 and "--origin: point 99999 does not exist: the solve has" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_api_and_the_cli_refuse_the_same_world_and_lens_options(tmp_path, capsys):
+    """camcal.solve takes the command's new options under the same names and says the same line, before any work."""
+    import camcal
+    from tests.test_api import assert_same_error
+
+    render_stereo_sequence(tmp_path / "in", n_frames=2, image_size=(WIDTH, HEIGHT),
+                           K=K)
+    folder, out = tmp_path / "in" / "left", tmp_path / "o"
+    Rig((Camera("cam", (WIDTH, HEIGHT), np.array(K), Distortion.none(), np.eye(3), np.zeros(3)),)).save(
+        tmp_path / "grid.rig.json")
+    for api_call, argv in [
+        (lambda: camcal.solve(folder, out, scale="3,4"), ["solve", folder, "--scale", "3,4", "--out", out]),
+        (lambda: camcal.solve(folder, out, origin="a:b:c"), ["solve", folder, "--origin=a:b:c", "--out", out]),
+        (lambda: camcal.solve(folder, out, intrinsics=tmp_path / "grid.rig.json", model="division"),
+         ["solve", folder, "--intrinsics", tmp_path / "grid.rig.json", "--model", "division", "--out", out]),
+        (lambda: camcal.solve(folder, out, intrinsics=tmp_path / "grid.rig.json", intrinsics_mode="prior"),
+         ["solve", folder, "--intrinsics", tmp_path / "grid.rig.json", "--intrinsics-mode", "prior", "--out", out]),
+    ]:
+        assert_same_error(api_call, argv, capsys)
+    assert not out.exists()
