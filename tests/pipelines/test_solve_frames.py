@@ -40,18 +40,32 @@ def _masked(path):
     return json.dumps(data, sort_keys=True)
 
 
-def test_the_same_plate_and_command_twice_give_the_same_cameras_bit_for_bit(tmp_path):
-    """Two processes (Python's string hashing seeded apart, COLMAP's threads scheduled apart), the default
-    self-calibration and its jackknife: the rig files equal byte for byte once the creation time is masked, the
-    points too."""
+def _solve_twice(tmp_path, options):
+    """The same plate solved by two processes (Python's string hashing seeded apart, COLMAP's threads scheduled
+    apart): the two rig files with their creation time masked, and the two point files."""
     _plate(tmp_path / "plate", 4)
     for out, hash_seed in (("a", "1"), ("b", "2")):
         env = dict(os.environ, PYTHONHASHSEED=hash_seed,
                    PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
         subprocess.run([sys.executable, "-m", "camcal", "solve", "plate/plate.%04d.png", "--matcher", "sequential",
-                        "--features", "512", "--out", out], cwd=tmp_path, env=env, check=True, capture_output=True)
-    assert _masked(tmp_path / "a" / "solve.rig.json") == _masked(tmp_path / "b" / "solve.rig.json")
-    assert (tmp_path / "a" / "points.ply").read_bytes() == (tmp_path / "b" / "points.ply").read_bytes()
+                        "--features", "512", *options, "--out", out], cwd=tmp_path, env=env, check=True,
+                       capture_output=True)
+    return ([_masked(tmp_path / out / "solve.rig.json") for out in "ab"],
+            [(tmp_path / out / "points.ply").read_bytes() for out in "ab"])
+
+
+def test_the_same_plate_and_command_twice_give_the_same_cameras_bit_for_bit(tmp_path):
+    """One lens model, the covariance's sigmas: the rig files equal byte for byte once the creation time is
+    masked, the points too (the slow sibling runs the default lens choice and jackknife)."""
+    rigs, points = _solve_twice(tmp_path, ["--model", "polynomial", "--uncertainty", "covariance"])
+    assert rigs[0] == rigs[1] and points[0] == points[1]
+
+
+@pytest.mark.slow
+def test_the_default_solve_twice_gives_the_same_cameras_bit_for_bit(tmp_path):
+    """The lens model chosen on held-out points, the delete-one-frame jackknife: still the same bytes."""
+    rigs, points = _solve_twice(tmp_path, [])
+    assert rigs[0] == rigs[1] and points[0] == points[1]
 
 
 def test_frames_that_cannot_be_registered_are_named_by_number_and_refused_with_require_all(tmp_path, capsys):
