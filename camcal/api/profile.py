@@ -154,6 +154,22 @@ def _covariance_from_sigma(camera: Camera, where: str) -> Callable:
     return covariance
 
 
+def _check_alike(label: str, camera: Camera, earlier: list, sizes: Mapping[str, tuple[int, int]]) -> None:
+    """A state's camera has the image size and the lens model (and its parameters) of the first state's."""
+    if not earlier:
+        return
+    first, first_model = earlier[0]
+    size, first_size = camera.image_size, sizes[first.label]
+    if size != first_size:
+        raise CamcalError(f"--state: {label} has images of {size[0]}x{size[1]} px, {first.label} "
+                          f"{first_size[0]}x{first_size[1]} px (one camera format per profile)")
+    names = list(camera.distortion.params)
+    if camera.distortion.model != first_model or names != list(first.params)[4:]:
+        raise CamcalError(f"--state: {label} has a {camera.distortion.model} lens ({', '.join(names)}), "
+                          f"{first.label} a {first_model} lens ({', '.join(list(first.params)[4:])}) (one lens "
+                          "model per profile)")
+
+
 def calibrate_profile(
     states: Mapping[str, CameraInputs | Rig | BoardCalibration],
     board: str | Board,
@@ -243,6 +259,7 @@ def calibrate_profile(
                 raise CamcalError(f"--state {label}: {where} was calibrated on board {given_board}, not "
                                   f"{board.spec()} (every state on one board)")
             camera = rig.cameras[0]
+            _check_alike(label, camera, lens_states, sizes)
             state = _state_from_camera(label, focal, focus, camera, _covariance_from_sigma(camera, where),
                                        int(camera.quality.n_views or 0), float(camera.quality.rms_px or 0.0))
             say(f"{label}: read {where}")
@@ -261,6 +278,7 @@ def calibrate_profile(
                 notes.append(f"model auto: ranked on {label} (the shortest focal length), {chosen_model} fitted "
                              "at every state")
             camera = calibration.rig.cameras[0]
+            _check_alike(label, camera, lens_states, sizes)
             calibrations[label] = calibration
             kept = sum(1 for name, _ in calibration.calibration.images if name == camera.name)
             state = _state_from_camera(label, focal, focus, camera, _covariance_from_fit(calibration, camera), kept,
@@ -268,16 +286,6 @@ def calibrate_profile(
         sizes[label] = camera.image_size
         lens_states.append((state, camera.distortion.model))
     first_label = order[0]
-    for (state, lens_model) in lens_states[1:]:
-        first, first_model = lens_states[0]
-        if sizes[state.label] != sizes[first_label]:
-            raise CamcalError(f"--state: {state.label} has images of {sizes[state.label][0]}x{sizes[state.label][1]}"
-                              f" px, {first_label} {sizes[first_label][0]}x{sizes[first_label][1]} px (one camera "
-                              "format per profile)")
-        if lens_model != first_model or list(state.params) != list(first.params):
-            raise CamcalError(f"--state: {state.label} has a {lens_model} lens ({', '.join(state.params)}), "
-                              f"{first_label} a {first_model} lens ({', '.join(first.params)}) (one lens model per "
-                              "profile)")
     parameters = tuple(lens_states[0][0].params)
     only = [state for state, _ in lens_states]
     fitted = fit_profile(only, parameters)

@@ -78,7 +78,7 @@ def _candidates(n_states: int, n_focals: int, n_focuses: int) -> list[tuple[tupl
         for b in range(min(_MAX_FOCUS_DEGREE, n_focuses - 1) + 1):
             for total in (max(a, b), a + b):
                 terms = tuple((i, j) for i in range(a + 1) for j in range(b + 1) if i + j <= total)
-                if len(terms) <= max(1, n_states // 2):
+                if len(terms) <= max(2, n_states // 2):
                     found.append(terms)
     return sorted(set(found), key=lambda terms: (len(terms), terms))
 
