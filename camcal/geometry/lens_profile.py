@@ -49,6 +49,9 @@ __all__ = ["DISAGREE_Z", "ProfileFit", "StateSuggestion", "camera_at", "fit_prof
 #: A state disagrees with every smooth profile when, for some parameter, each candidate surface fitted
 #: without it misses it by more than this many of its sigmas.
 DISAGREE_Z = 5.0
+#: ... and by more than this many times the median state's miss (sigmas too small for every state are not one
+#: state's fault).
+_STANDS_OUT = 3.0
 _MAX_FOCAL_DEGREE = 3
 _MAX_FOCUS_DEGREE = 2
 #: A surface with fewer terms is kept when its score is within this factor of the best (or of 1).
@@ -162,8 +165,10 @@ def fit_profile(states: Sequence[LensState], parameters: Sequence[str]) -> Profi
             scale = math.sqrt(max(1.0, float(np.mean(z**2))))
             loso = float(np.sqrt(np.mean(residual**2)))
             misses = np.min(np.abs(np.array([z for _, _, z in scored])), axis=0)
+            typical = float(np.median(misses))
             for state, miss in zip(states, misses):
-                if miss > DISAGREE_Z and miss > worst_miss.get(state.label, (0.0, ""))[0]:
+                # a state stands out: far beyond its sigma and beyond the other states' misses
+                if miss > max(DISAGREE_Z, _STANDS_OUT * typical) and miss > worst_miss.get(state.label, (0.0, ""))[0]:
                     worst_miss[state.label] = (float(miss), name)
         G = _smoother(_design(terms, u, v), 1.0 / variance)
         surfaces[name] = Surface(tuple(terms), G @ y, scale, loso)
@@ -285,7 +290,8 @@ class StateSuggestion:
     Attributes
     ----------
     focal_mm, focus_m : float
-        Where the profile's worst projection sigma over the image is largest (``focus_m`` may be inf).
+        Where the profile's worst projection sigma over the image, weighted by the distance to the states shot,
+        is largest (``focus_m`` may be inf).
     worst_sigma_px : float
         That sigma.
     calibrated_worst_sigma_px : float
@@ -303,7 +309,12 @@ def suggest_state(profile: LensProfile, focal_steps: int = 13, focus_steps: int 
 
     A grid of ``focal_steps`` focal lengths and ``focus_steps`` vergences
     (``1 / focus``, so toward infinity) over the calibrated ranges; at each,
-    the largest :func:`projection_sigma_px` over a coarse grid of the image.
+    the largest :func:`projection_sigma_px` over a coarse grid of the image,
+    times ``1 + d / spacing`` (``d`` the distance to the nearest state shot
+    and ``spacing`` the states' mean nearest-neighbour distance, in the
+    surfaces' coordinates): a polynomial's propagated sigma is largest at
+    the ends of the range, where states were shot already, while what a
+    low-order surface misses between states grows with the gap.
     """
     points = frame_grid(profile.image_size, max(profile.image_size) / 6.0)
     (f_low, f_high), (v_low, v_high) = profile.focal_range, profile.vergence_range
@@ -313,7 +324,16 @@ def suggest_state(profile: LensProfile, focal_steps: int = 13, focus_steps: int 
     def worst(focal: float, focus: float) -> float:
         return float(np.max(projection_sigma_px(profile, focal, focus, points)))
 
+    u_states, v_states = profile.coordinates(np.array([s.focal_mm for s in profile.states]),
+                                             np.array([s.focus_m for s in profile.states]))
+    gaps = [np.hypot(u_states - u, v_states - v) for u, v in zip(u_states, v_states)]
+    spacing = float(np.mean([np.min(gap[gap > 0]) for gap in gaps if np.any(gap > 0)]))
+
+    def score(item: tuple[float, float, float]) -> float:
+        u, v = profile.coordinates(item[1], item[2])
+        return item[0] * (1.0 + float(np.min(np.hypot(u_states - u, v_states - v))) / spacing)
+
     best = max(((worst(f, 1.0 / v if v > 0 else math.inf), f, 1.0 / v if v > 0 else math.inf)
-                for f in focals for v in vergences), key=lambda item: item[0])
+                for f in focals for v in vergences), key=score)
     calibrated = max(worst(s.focal_mm, s.focus_m) for s in profile.states)
     return StateSuggestion(float(best[1]), float(best[2]), best[0], calibrated)

@@ -136,3 +136,49 @@ def test_the_profile_predicts_held_out_zoom_states_of_a_real_lens():
 @pytest.mark.parametrize("seed", [1000, 2000, 5000])
 def test_the_profile_predicts_held_out_states_over_other_noise_draws(seed):
     _assert_held_out_states_predicted(check_profile(TRAINING, HELD_OUT, n_views=4, seed=seed))
+
+
+PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2")
+
+
+def _synthetic_states(focals_focuses, shift: dict[int, float] | None = None, seed: int = 3) -> list:
+    """States of a smooth lens (fx linear in focal, breathing 3 % per dioptre; k1 quadratic in focal), each with
+    its sigma and Gaussian noise of that sigma; ``shift``: state index -> k1 moved by that many sigmas."""
+    from camcal.model.lens_profile import LensState
+
+    rng = np.random.default_rng(seed)
+    sigma = np.array([2.0, 2.0, 0.5, 0.5, 0.002, 0.01])
+    states = []
+    for index, (focal, focus) in enumerate(focals_focuses):
+        truth = np.array([40.0 * focal * (1 + 0.03 / focus), 40.0 * focal * (1 + 0.03 / focus), 600.0, 400.0,
+                          -0.1 + 1e-5 * (focal - 100.0) ** 2, 0.0])
+        values = truth + rng.normal(0.0, sigma)
+        values[4] += (shift or {}).get(index, 0.0) * sigma[4]
+        states.append(LensState(format_state(focal, focus), focal, focus,
+                                dict(zip(PARAMETERS, values)), np.diag(sigma**2), 6, 0.2))
+    return states
+
+
+def test_a_state_that_no_smooth_profile_predicts_is_named():
+    from camcal.geometry.lens_profile import fit_profile
+
+    grid = [(f, d) for f in (50, 80, 110, 140, 170) for d in (1.0, math.inf)]
+    parameters = PARAMETERS
+    assert fit_profile(_synthetic_states(grid), parameters).disagreeing == {}
+    fitted = fit_profile(_synthetic_states(grid, {4: 40.0}), parameters)
+    assert list(fitted.disagreeing) == ["110mm@1m"]
+    assert fitted.disagreeing["110mm@1m"].startswith("k1 ")
+
+
+def test_the_next_state_suggested_is_where_the_profile_knows_least():
+    from camcal.geometry.lens_profile import fit_profile
+    from camcal.model.lens_profile import LensProfile
+
+    # focused at 2 m, shot densely from 50 to 110 mm and at 170 mm: the gap is where to shoot next
+    grid = [(f, 2.0) for f in (50, 60, 70, 80, 90, 100, 110, 170)]
+    states = _synthetic_states(grid)
+    parameters = PARAMETERS
+    fitted = fit_profile(states, parameters)
+    profile = LensProfile("polynomial", (1200, 800), BOARD.spec(), parameters, tuple(states), fitted.surfaces)
+    suggestion = suggest_state(profile)
+    assert 110 < suggestion.focal_mm < 170
