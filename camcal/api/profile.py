@@ -26,7 +26,10 @@ if TYPE_CHECKING:
     from camcal.model.lens_profile import LensProfile, LensState
     from camcal.model.rig import Camera, Rig
 
-__all__ = ["DEFAULT_PROFILE_MODEL", "ProfileCalibration", "calibrate_profile"]
+__all__ = ["DEFAULT_PROFILE_MODEL", "PROFILE_FORMATS", "ProfileCalibration", "calibrate_profile", "export_profile"]
+
+#: The formats a lens profile exports to (``camcal rig export PROFILE OUT --to FORMAT``).
+PROFILE_FORMATS = ("lensfun",)
 
 #: The lens model of ``calibrate profile`` without ``--model`` (``auto`` ranks the models once, on one state).
 DEFAULT_PROFILE_MODEL = "polynomial"
@@ -294,3 +297,51 @@ def calibrate_profile(
     suggestion = suggest_state(profile) if suggest else None
     files = () if out is None else ((profile.save(out), "profile"),)
     return ProfileCalibration(profile, calibrations, fitted.disagreeing, suggestion, tuple(notes), files)
+
+
+def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.PathLike, to: str | None = None, *,
+                   name: str | None = None) -> Any:
+    """Write a lens profile for another tool (``camcal rig export lens.profile.json lens.xml --to lensfun``).
+
+    lensfun: one ``<lens>`` with a ``<distortion>`` per focal length calibrated, each the profile's camera at
+    that focal length focused at the farthest focus calibrated (Lensfun's lenses do not change with focus), in
+    the one Lensfun model (``poly3``, ``poly5``, ``ptlens``) that fits every focal length best, its residual
+    in the result's notes (:func:`camcal.io.lensfun.export_states`).
+
+    Parameters
+    ----------
+    profile : path or LensProfile
+    path : path
+        The ``.xml`` to write.
+    to : str, optional
+        One of :data:`PROFILE_FORMATS` (default: lensfun).
+    name : str, optional
+        The lens' ``<model>`` (default: the profile file's name without ``.profile.json``).
+
+    Returns
+    -------
+    ExportResult
+    """
+    from dataclasses import replace
+
+    from camcal.geometry.lens_profile import camera_at
+    from camcal.io.lensfun import export_states
+    from camcal.model.lens_profile import LensProfile
+
+    fmt = to or "lensfun"
+    if fmt not in PROFILE_FORMATS:
+        raise CamcalError(f"a lens profile exports to {', '.join(PROFILE_FORMATS)}, not {fmt!r} (export a camera at "
+                          "one lens state with camcal lens first)")
+    if not isinstance(profile, LensProfile):
+        stem = Path(profile).name.removesuffix(".json").removesuffix(".profile")
+        profile = LensProfile.load(profile)
+    else:
+        stem = "lens"
+    far = profile.focus_range[1]
+    focals = sorted({state.focal_mm for state in profile.states})
+    result = export_states([(focal, camera_at(profile, focal, far, f"{focal:g}mm")) for focal in focals], Path(path),
+                           name=name or stem)
+    focus = "inf" if math.isinf(far) else f"{far:g} m"
+    notes = (*result.notes, f"each focal length at the farthest focus calibrated ({focus}): Lensfun's lenses do not "
+             "change with focus")
+    return replace(result, notes=notes)
