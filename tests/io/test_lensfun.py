@@ -307,3 +307,38 @@ def test_a_drifting_principal_point_is_the_lensfun_residual_printed(tmp_path):
     with pytest.raises(CamcalError, match="a lens profile exports to lensfun, not 'nuke'"):
         export_rig(path, tmp_path / "zoom.nk", "nuke")
     assert not (tmp_path / "zoom.nk").exists()
+
+
+def test_a_fisheye_is_lensfuns_fisheye_type_and_corrects_like_camcal(tmp_path):
+    size = (960, 640)
+    camera = _camera(size, 300.0, "kannala-brandt", {"k1": 0.02, "k2": -0.005, "k3": 0.0, "k4": 0.0},
+                     centre_offset=(3.0, -2.0))
+    out, result = _export(tmp_path, camera)
+    assert ElementTree.parse(out).getroot().findtext("lens/type") == "fisheye"
+    assert result.conversions[0].exact
+    view = _LensfunView(out, size)
+    assert view.lens.type == lensfunpy.LensType.FISHEYE
+    # Lensfun's undistorted image of a fisheye is the equidistant one: a ray at theta from the axis at F theta
+    undistorted = np.stack(np.meshgrid(np.linspace(0, size[0] - 1, 25), np.linspace(0, size[1] - 1, 17)),
+                           -1).reshape(-1, 2)
+    offset = (undistorted - view.centre) / view.F
+    theta = np.linalg.norm(offset, axis=1)
+    rays = np.column_stack([offset * (np.sin(theta) / np.where(theta > 0, theta, 1.0))[:, None], np.cos(theta)])
+    distance = np.linalg.norm(view.distorted(undistorted) - camera.distortion.project_rays(rays, camera.K), axis=1)
+    assert distance.max() < 0.05, distance.max()
+    # read back: the same Kannala-Brandt lens
+    [back] = import_rig(out, "lensfun").rig.cameras
+    assert back.distortion.model == "kannala-brandt"
+    np.testing.assert_allclose(back.K, camera.K, rtol=1e-7)  # 9 significant digits in the file
+    for name, value in camera.distortion.params.items():
+        assert back.distortion.params[name] == pytest.approx(value, rel=1e-7, abs=1e-12)
+
+
+def test_a_wide_rectilinear_lens_has_finite_border_residuals(tmp_path):
+    # a division lens imaging rays near 90 degrees at the overscan border: the pinhole lens Lensfun writes does
+    # not image those rays (counted as lost), the others' residuals are pixels, not 1e11
+    camera = _camera((960, 640), 350.0, "division", {"lambda": -2e-6})
+    _, result = _export(tmp_path, camera)
+    refit = result.conversions[0].refit
+    assert refit.n_lost > 0
+    assert refit.border_max_px < math.hypot(960, 640)
