@@ -10,8 +10,11 @@ toward infinity). The degrees (focal up to 3, vergence up to 2, every product
 of their powers or a total degree at most the larger) are chosen per parameter by leaving one state out
 in turn: the fit without state ``k`` predicts it, and the surfaces are
 scored by the weighted prediction error ``mean ((y_k - yhat_k) / sigma_k)^2``
-(the weighted PRESS statistic; Allen 1974, *Technometrics* 16(1)); the
-fewest terms within 10 % of the best score (or of 1, the noise level) win.
+(the weighted PRESS statistic; Allen 1974, *Technometrics* 16(1)), summed
+over the parameters that share their terms (:func:`_groups`: ``fx`` with
+``fy``, the lens coefficients together; surfaces of different terms for two
+parameters a board ties together would break the tie between states); the
+best score wins.
 The chosen surface's standardised residuals ``z_k = (y_k - yhat_k) /
 sqrt(sigma_k^2 + var(yhat_k))`` give its ``scale`` and the states no
 surface predicts. A joint factor on every sigma follows from the states'
@@ -54,8 +57,6 @@ DISAGREE_Z = 5.0
 _STANDS_OUT = 3.0
 _MAX_FOCAL_DEGREE = 3
 _MAX_FOCUS_DEGREE = 2
-#: A surface with fewer terms is kept when its score is within this factor of the best (or of 1).
-_SIMPLER_WITHIN = 1.0
 
 
 @dataclass(frozen=True)
@@ -120,6 +121,14 @@ def _leave_one_out(terms, u, v, y, variance) -> tuple[NDArray[np.float64], NDArr
     return residual, z
 
 
+def _groups(parameters: Sequence[str]) -> list[tuple[str, ...]]:
+    """The parameters that share one surface's terms: ``fx fy`` (a board fixes their ratio far better than
+    either), ``cx``, ``cy``, and the lens model's together (its coefficients trade off against each other)."""
+    groups = [tuple(name for name in ("fx", "fy") if name in parameters), ("cx",), ("cy",),
+              tuple(name for name in parameters if name not in INTRINSIC_NAMES)]
+    return [group for group in groups if group]
+
+
 def fit_profile(states: Sequence[LensState], parameters: Sequence[str]) -> ProfileFit:
     """Fit one surface per parameter to the states (see the module docstring).
 
@@ -147,31 +156,41 @@ def fit_profile(states: Sequence[LensState], parameters: Sequence[str]) -> Profi
                              (vergences.min(), vergences.max()))
     candidates = _candidates(len(states), len(set(focals)), len(set(vergences)))
     surfaces, worst_miss = {}, {}
-    for column, name in enumerate(parameters):
-        y = np.array([s.params[name] for s in states])
-        variance = _variances(states, column)
-        scored = [(terms, *out) for terms in candidates
-                  if (out := _leave_one_out(terms, u, v, y, variance)) is not None]
+    for group in _groups(parameters):
+        columns = [parameters.index(name) for name in group]
+        ys = {name: np.array([s.params[name] for s in states]) for name in group}
+        variances = {name: _variances(states, column) for name, column in zip(group, columns)}
+        scored = []  # (terms, {name: (residual, z)}) of the candidates every parameter of the group can hold out
+        for terms in candidates:
+            outs = {name: _leave_one_out(terms, u, v, ys[name], variances[name]) for name in group}
+            if all(out is not None for out in outs.values()):
+                scored.append((terms, outs))
         if len(states) == 2 or not scored:
             # two states: no state to hold out; the line through them (or their weighted mean)
             terms = ((0, 0), (1, 0)) if len(set(focals)) == 2 else ((0, 0), (0, 1)) if len(set(vergences)) == 2 \
                 else ((0, 0),)
-            scale, loso = 1.0, None
+            chosen = None
         else:
-            scores = [float(np.mean(residual**2 / variance)) for _, residual, _ in scored]
-            limit = _SIMPLER_WITHIN * min(scores)
-            choice = next(i for i, score in enumerate(scores) if score <= limit)
-            terms, residual, z = scored[choice]
-            scale = math.sqrt(max(1.0, float(np.mean(z**2))))
-            loso = float(np.sqrt(np.mean(residual**2)))
-            misses = np.min(np.abs(np.array([z for _, _, z in scored])), axis=0)
-            typical = float(np.median(misses))
-            for state, miss in zip(states, misses):
-                # a state stands out: far beyond its sigma and beyond the other states' misses
-                if miss > max(DISAGREE_Z, _STANDS_OUT * typical) and miss > worst_miss.get(state.label, (0.0, ""))[0]:
-                    worst_miss[state.label] = (float(miss), name)
-        G = _smoother(_design(terms, u, v), 1.0 / variance)
-        surfaces[name] = Surface(tuple(terms), G @ y, scale, loso)
+            # the group's weighted PRESS: the sum of its parameters'
+            scores = [sum(float(np.mean(outs[name][0] ** 2 / variances[name])) for name in group)
+                      for _, outs in scored]
+            terms, chosen = scored[int(np.argmin(scores))]  # the first (fewest terms) of equal scores
+        for name in group:
+            if chosen is None:
+                scale, loso = 1.0, None
+            else:
+                residual, z = chosen[name]
+                scale = math.sqrt(max(1.0, float(np.mean(z**2))))
+                loso = float(np.sqrt(np.mean(residual**2)))
+                misses = np.min(np.abs(np.array([outs[name][1] for _, outs in scored])), axis=0)
+                typical = float(np.median(misses))
+                for state, miss in zip(states, misses):
+                    # a state stands out: far beyond its sigma and beyond the other states' misses
+                    if miss > max(DISAGREE_Z, _STANDS_OUT * typical) and \
+                            miss > worst_miss.get(state.label, (0.0, ""))[0]:
+                        worst_miss[state.label] = (float(miss), name)
+            G = _smoother(_design(terms, u, v), 1.0 / variances[name])
+            surfaces[name] = Surface(tuple(terms), G @ ys[name], scale, loso)
     joint = _joint_scale(states, parameters, surfaces, u, v)
     surfaces = {name: Surface(s.terms, s.coefficients, max(s.scale, joint), s.loso_rms) for name, s in surfaces.items()}
     disagreeing = {label: f"{name} {miss:.3g} sigma" for label, (miss, name) in worst_miss.items()}
