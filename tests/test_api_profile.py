@@ -202,11 +202,13 @@ def test_bad_lens_input_is_one_line_and_nothing_written(profile_file, tmp_path, 
     # asked for, the extrapolation is made and said
     code, printed, _ = cli(["lens", profile_file, "--focal", 80, "--focus", 2, "--extrapolate", "--out", out], capsys)
     assert code == 0 and "extrapolated beyond the calibrated range" in printed
-    # the encoders map through the calibrated ranges: 0 is the shortest focal length and the nearest focus
-    wide = camcal.lens_rig(profile_file, 0.0, 0.0, encoders=True).states[0]
+    # the encoders map through the calibrated ranges as OpenTrackIO's run: zoom 0 wide, focus 0 at infinity
+    wide = camcal.lens_rig(profile_file, 0.0, 1.0, encoders=True).states[0]
     assert wide[1:] == (24.0, 1.2)
-    far = camcal.lens_rig(profile_file, 1.0, 1.0, encoders=True).states[0]
+    far = camcal.lens_rig(profile_file, 1.0, 0.0, encoders=True).states[0]
     assert far[1] == 50.0 and math.isinf(far[2])
+    middle = camcal.lens_rig(profile_file, 0.5, 0.5, encoders=True).states[0]
+    assert middle[1] == 37.0 and middle[2] == pytest.approx(2.4)  # half of 1 / 1.2 m dioptres
 
 
 def test_the_profile_file_is_validated(profile_file, tmp_path):

@@ -19,17 +19,18 @@ def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal lens``."""
     parser.add_argument("profile", metavar="PROFILE", help="a *.profile.json (camcal calibrate profile)")
     parser.add_argument("--focal", type=float, metavar="MM",
-                        help="the focal length in mm (with --encoders: the zoom encoder, 0-1)")
+                        help="the focal length in mm (with --encoders: the zoom encoder, 0-1, wide to tele)")
     parser.add_argument("--focus", type=_focus, metavar="M",
-                        help="the focus distance in m, or inf (with --encoders: the focus encoder, 0-1, near to far)")
+                        help="the focus distance in m, or inf (with --encoders: the focus encoder, 0-1, far to near)")
     parser.add_argument("--metadata", metavar="FILE.csv",
                         help="instead of --focal/--focus: each frame's lens state, a CSV with the header "
                         "frame,focal_mm,focus_m (or frame,focal,focus with --encoders); the rig gets a lens per "
                         "frame")
     parser.add_argument("--encoders", action="store_true",
-                        help="the values are lens encoder readings from 0 to 1, mapped through the profile's "
-                        "calibrated ranges (focal linearly, focus linearly in 1 / distance from the nearest focus "
-                        "to the farthest)")
+                        help="the values are lens encoder readings from 0 to 1 as OpenTrackIO normalises them, "
+                        "mapped through the profile's calibrated ranges: zoom from the shortest focal length (0) "
+                        "to the longest (1), linearly; focus from the farthest (0) to the nearest (1), linearly in "
+                        "1 / distance")
     parser.add_argument("--extrapolate", action="store_true",
                         help="allow lens states outside the calibrated range (default: refused); the output says "
                         "which")

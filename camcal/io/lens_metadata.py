@@ -6,7 +6,7 @@ Two forms, by their header::
     12,32.5,2.4
     13,32.6,inf
 
-    frame,focal,focus               encoder values from 0 to 1 (``--encoders``)
+    frame,focal,focus               encoders 0-1 (``--encoders``; OpenTrackIO's: zoom 0 wide, focus 0 far)
     12,0.41,0.72
 
 Frames are whole numbers from 0, each once, with none missing between the

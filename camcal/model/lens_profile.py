@@ -317,15 +317,14 @@ class LensProfile:
                       ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Lens states ``(focal_mm, focus_m)`` of encoder values from 0 to 1 over the calibrated ranges.
 
-        The focal encoder maps linearly from the shortest focal length (0) to
-        the longest (1); the focus encoder linearly in vergence ``1 / focus``
-        from the nearest focus (0) to the farthest (1, infinity when
-        calibrated there), as OpenTrackIO's normalised encoders run from near
-        to far.
+        OpenTrackIO's normalised encoders: zoom from the shortest focal length
+        (0) to the longest (1), linearly; focus from the farthest focus (0,
+        infinity when calibrated there) to the nearest (1), linearly in the
+        vergence ``1 / focus``.
         """
         (f_low, f_high), (v_low, v_high) = self.focal_range, self.vergence_range
         focal_mm = f_low + np.asarray(focal, dtype=np.float64) * (f_high - f_low)
-        vergence = v_high + np.asarray(focus, dtype=np.float64) * (v_low - v_high)
+        vergence = v_low + np.asarray(focus, dtype=np.float64) * (v_high - v_low)
         with np.errstate(divide="ignore"):
             return focal_mm, np.where(vergence > 0, 1.0 / np.where(vergence > 0, vergence, 1.0), np.inf)
 
