@@ -158,7 +158,11 @@ def _covariance_from_sigma(camera: Camera, where: str) -> Callable:
 
 
 def _check_alike(label: str, camera: Camera, earlier: list, sizes: Mapping[str, tuple[int, int]]) -> None:
-    """A state's camera has the image size and the lens model (and its parameters) of the first state's."""
+    """A state's camera has the image size and the lens model (and its parameters) of the first state's, and no
+    correction field (a profile interpolates parameters, not fields)."""
+    if camera.distortion.has_correction:
+        raise CamcalError(f"--state {label}: its lens has a correction field ({camera.distortion.model}+spline), which "
+                          "a profile cannot interpolate: name a --model without +spline")
     if not earlier:
         return
     first, first_model = earlier[0]
