@@ -157,7 +157,7 @@ def test_bad_profile_input_is_one_line_and_nothing_written(grids, corners, profi
     for states, message in cases:
         text = assert_same_error(lambda: camcal.calibrate_profile(states, BOARD, cache=corners, progress=False,
                                                                   out=out),
-                                 [*base, *(a for label, glob in states.items() for a in ("--state", f"{label}={glob}"))],
+                                 [*base, *(a for label, g in states.items() for a in ("--state", f"{label}={g}"))],
                                  capsys, tmp_path)
         assert message in text, text
     # a state calibrated on another board, and one with another lens model

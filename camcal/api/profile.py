@@ -197,8 +197,9 @@ def calibrate_profile(
     ----------
     states : mapping of str to (glob, video, image files, rig file, Rig or BoardCalibration)
         Lens state -> its board images (as :func:`camcal.calibrate_board` takes them), or a one-camera
-        ``*.rig.json`` or :func:`camcal.calibrate_board` result calibrated at it, e.g. ``{"24mm@1.2m": "grids/24_1.2/*.jpg", "35mm@inf":
-        "grids/35_inf/*.jpg"}`` (:func:`camcal.model.lens_profile.parse_state`: ``FOCALmm@FOCUSm``, ``@inf``).
+        ``*.rig.json`` or :func:`camcal.calibrate_board` result calibrated at it, e.g.
+        ``{"24mm@1.2m": "grids/24_1.2/*.jpg", "35mm@inf": "grids/35_inf/*.jpg"}``
+        (:func:`camcal.model.lens_profile.parse_state`: ``FOCALmm@FOCUSm``, ``@inf``).
     board : str or Board
         The board every state's images show (as :func:`camcal.calibrate_board`).
     model : str
