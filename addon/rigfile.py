@@ -146,6 +146,18 @@ class Rig:
         known = ", ".join(c.name for c in self.cameras)
         raise KeyError(f"no camera {name!r} in the rig (cameras: {known})")
 
+    def lens_frames(self, name):
+        """The frames with a lens of camera ``name`` (a zoom, a refocus), in the file's order."""
+        return tuple(frame for frame in self.frames if name in frame.lenses)
+
+    def lens_at(self, name, frame):
+        """``(K, distortion)`` of camera ``name`` at a :class:`RigFrame`: the frame's lens, else the camera's own."""
+        lens = frame.lenses.get(name)
+        if lens is not None:
+            return lens.K, lens.distortion
+        camera = self.camera(name)
+        return camera.K, camera.distortion
+
 
 def load_rig(path):
     """Read and check a rig file.

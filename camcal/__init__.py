@@ -24,6 +24,8 @@ function                what it does                                        resu
                         patches (``camcal colour fit``)
 :func:`export_colour`   colour fits as OCIO colour spaces (config + CLF)    :class:`ColourExport`
                         and ICC camera profiles (``camcal colour export``)
+:func:`fit_flat_field`  a lens's flat field and vignetting from grey cards   :class:`FlatFieldFit`
+                        (``camcal colour flatfield``)
 ======================  ==================================================  ======================
 
 for a zoom or a refocused lens :func:`calibrate_profile` (a lens profile over
@@ -76,6 +78,8 @@ _EXPORTS: dict[str, str] = {
     "ColourFit": "camcal.api.colour",
     "export_colour": "camcal.api.colour",
     "ColourExport": "camcal.api.colour",
+    "fit_flat_field": "camcal.api.flatfield",
+    "FlatFieldFit": "camcal.api.flatfield",
     "Rig": "camcal.model.rig",
     "Camera": "camcal.model.rig",
     "CamcalError": "camcal.base.errors",
@@ -88,6 +92,7 @@ if TYPE_CHECKING:  # for type checkers and editors; at run time the names load o
     from camcal.api.lens import LensRig, lens_rig
     from camcal.api.profile import ProfileCalibration, calibrate_profile
     from camcal.api.colour import ColourExport, ColourFit, export_colour, fit_colour
+    from camcal.api.flatfield import FlatFieldFit, fit_flat_field
     from camcal.api.reconstruction import Solve, solve
     from camcal.api.rectification import Rectification, rectify
     from camcal.api.rig import RigImport, export_rig, import_rig, load_rig

@@ -358,6 +358,38 @@ class Rig(DictEquality):
                 return dataclasses.replace(camera, R=camera.R @ frame.R, c=frame.c + frame.R.T @ camera.c, **intrinsics)
         raise CamcalError(f"no frame {index} in the rig")
 
+    def lens_frames(self, name: str) -> tuple[int, ...]:
+        """The indices of the frames with a lens of camera ``name`` (:attr:`Frame.lenses`), in the rig's order."""
+        self.camera(name)
+        return tuple(frame.index for frame in self.frames if name in frame.lenses)
+
+    def with_camera(self, camera: Camera, lenses: Mapping[int, Lens] | None = None, **changes: Any) -> Rig:
+        """This rig with ``camera`` in place of the camera of its name, and that camera's per-frame lenses replaced.
+
+        Parameters
+        ----------
+        camera : Camera
+            Replaces the rig's camera of the same name (e.g. its undistorted camera).
+        lenses : mapping of int to Lens, optional
+            Frame index -> the camera's lens there; frames absent get none
+            (the camera's own). ``None``: no frame keeps a lens of it.
+        **changes
+            Other fields of the new rig (``provenance=...``).
+        """
+        self.camera(camera.name)
+        lenses = dict(lenses or {})
+        unknown = sorted(set(lenses) - {frame.index for frame in self.frames})
+        if unknown:
+            raise CamcalError(f"no frame {unknown[0]} in the rig")
+        frames = []
+        for frame in self.frames:
+            frame_lenses = {name: lens for name, lens in frame.lenses.items() if name != camera.name}
+            if frame.index in lenses:
+                frame_lenses[camera.name] = lenses[frame.index]
+            frames.append(dataclasses.replace(frame, lenses=frame_lenses))
+        cameras = tuple(camera if c.name == camera.name else c for c in self.cameras)
+        return dataclasses.replace(self, cameras=cameras, frames=tuple(frames), **changes)
+
     def summary(self) -> str:
         """A readable multi-line description (what ``camcal rig show`` prints)."""
         lens_frames = sum(1 for frame in self.frames if frame.lenses)

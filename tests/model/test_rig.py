@@ -1,5 +1,6 @@
 """The rig file: round trip, validation messages, atomic save, projection."""
 
+import dataclasses
 import json
 import os
 
@@ -202,3 +203,19 @@ def test_inputs_are_copied_not_aliased():
     assert camera.K[0, 0] != 5.0
     with pytest.raises(ValueError):
         camera.K[0, 0] = 1.0
+
+
+def test_with_camera_replaces_a_camera_and_its_frame_lenses():
+    rig = stereo_rig()
+    assert rig.lens_frames("left") == (1002,) and rig.lens_frames("right") == ()
+    left = dataclasses.replace(rig.camera("left"), distortion=Distortion("division", {"lambda": 0.0}))
+    wider = Lens(ZOOMED.K, Distortion("division", {"lambda": 0.0}), focal_mm=20.0)
+    new = rig.with_camera(left, {1001: wider}, units="cm")
+    assert new.units == "cm" and new.camera("left") == left and new.camera("right") == rig.camera("right")
+    assert new.lens_frames("left") == (1001,) and new.frames[0].lenses["left"] == wider
+    assert [f.images for f in new.frames] == [f.images for f in rig.frames]
+    assert rig.with_camera(rig.camera("left")).lens_frames("left") == ()
+    with pytest.raises(CamcalError, match="no frame 7"):
+        rig.with_camera(left, {7: wider})
+    with pytest.raises(CamcalError, match="distortion model 'polynomial', the camera has 'division'"):
+        rig.with_camera(left, {1001: Lens(ZOOMED.K, Distortion("polynomial", {"k1": 0.1, "k2": 0.0}))})
