@@ -223,3 +223,22 @@ def test_the_profile_file_is_validated(profile_file, tmp_path):
     bad.write_text(json.dumps(data))
     with pytest.raises(camcal.CamcalError, match="one surface per parameter"):
         LensProfile.load(bad)
+
+
+def test_a_profile_exports_as_a_lens_table_over_its_encoders(profile_file, tmp_path, capsys):
+    out = tmp_path / "lens.json"
+    code, printed, _ = cli(["rig", "export", profile_file, out, "--to", "lens-table"], capsys)
+    assert code == 0 and "samples (5 zoom x 3 focus encoder values)" in printed
+    table = json.loads(out.read_text())
+    assert table["encoderRanges"]["zoom"]["0"] == 24.0 and table["encoderRanges"]["focus"]["0"] == "inf"
+    assert len(table["samples"]) == 15
+    for sample in table["samples"]:
+        encoders, distance = sample["lens"]["encoders"], sample["lens"]["focusDistance"]
+        focus_m = math.inf if distance == "inf" else distance
+        # the sample is the profile's camera at the state its encoders stand for
+        state = camcal.lens_rig(profile_file, encoders["zoom"], encoders["focus"], encoders=True).states[0]
+        assert state[1] == pytest.approx(sample["focalLength_mm"]) and state[2] == pytest.approx(focus_m)
+        camera = camcal.lens_rig(profile_file, sample["focalLength_mm"], focus_m).rig.cameras[0]
+        np.testing.assert_allclose(sample["K"], camera.K, rtol=1e-12)
+    assert table["samples"][0]["lens"]["encoders"] == {"zoom": 0.0, "focus": 0.0}
+    assert table["samples"][0]["focalLength_mm"] == 24.0 and table["samples"][0]["lens"]["focusDistance"] == "inf"

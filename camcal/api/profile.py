@@ -29,7 +29,10 @@ if TYPE_CHECKING:
 __all__ = ["DEFAULT_PROFILE_MODEL", "PROFILE_FORMATS", "ProfileCalibration", "calibrate_profile", "export_profile"]
 
 #: The formats a lens profile exports to (``camcal rig export PROFILE OUT --to FORMAT``).
-PROFILE_FORMATS = ("lensfun",)
+PROFILE_FORMATS = ("lensfun", "lens-table")
+#: A lens table's encoder grid: at most this many zoom and focus steps (each at most one per state calibrated
+#: between them, with a step between each two).
+_TABLE_STEPS = (9, 5)
 
 #: The lens model of ``calibrate profile`` without ``--model`` (``auto`` ranks the models once, on one state).
 DEFAULT_PROFILE_MODEL = "polynomial"
@@ -306,8 +309,10 @@ def calibrate_profile(
 
 def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.PathLike, to: str | None = None, *,
                    name: str | None = None) -> Any:
-    """Write a lens profile for another tool (``camcal rig export lens.profile.json lens.xml --to lensfun``).
+    """Write a lens profile for another tool (``camcal rig export lens.profile.json lens.xml --to lensfun``, or
+    ``lens.json --to lens-table``).
 
+    lens-table: the profile sampled on a grid of OpenTrackIO's normalised encoders (:mod:`camcal.io.lens_table`).
     lensfun: one ``<lens>`` with a ``<distortion>`` per focal length calibrated, each the profile's camera at
     that focal length focused at the farthest focus calibrated (Lensfun's lenses do not change with focus), in
     the one Lensfun model (``poly3``, ``poly5``, ``ptlens``) that fits every focal length best, its residual
@@ -317,7 +322,7 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
     ----------
     profile : path or LensProfile
     path : path
-        The ``.xml`` to write.
+        The ``.xml`` (lensfun) or ``.json`` (lens-table) to write.
     to : str, optional
         One of :data:`PROFILE_FORMATS` (default: lensfun).
     name : str, optional
@@ -342,6 +347,8 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
         profile = LensProfile.load(profile)
     else:
         stem = "lens"
+    if fmt == "lens-table":
+        return _export_table(profile, Path(path), name or stem)
     far = profile.focus_range[1]
     focals = sorted({state.focal_mm for state in profile.states})
     result = export_states([(focal, camera_at(profile, focal, far, f"{focal:g}mm")) for focal in focals], Path(path),
@@ -350,3 +357,24 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
     notes = (*result.notes, f"each focal length at the farthest focus calibrated ({focus}): Lensfun's lenses do not "
              "change with focus")
     return replace(result, notes=notes)
+
+
+def _export_table(profile: LensProfile, path: Path, name: str) -> Any:
+    """The lens table (:mod:`camcal.io.lens_table`) on a grid of OpenTrackIO encoders over the calibrated range."""
+    from camcal.geometry.lens_profile import camera_at
+    from camcal.io.conversion import ExportResult
+    from camcal.io.lens_table import write_lens_table
+
+    counts = [min(limit, 2 * len({key(s) for s in profile.states}) - 1)
+              for limit, key in zip(_TABLE_STEPS, (lambda s: s.focal_mm, lambda s: s.focus_m))]
+    zooms, focuses = (np.linspace(0.0, 1.0, n) for n in counts)
+    samples = []
+    for zoom in zooms:
+        for focus in focuses:
+            focal_mm, focus_m = (float(v) for v in profile.from_encoders(zoom, focus))
+            samples.append((float(zoom), float(focus), focal_mm, focus_m, camera_at(profile, focal_mm, focus_m)))
+    write_lens_table(path, samples, name=name, image_size=profile.image_size, focal_range=profile.focal_range,
+                     focus_range=profile.focus_range)
+    worst = max(camera.quality.worst_projection_sigma_px for *_, camera in samples)
+    return ExportResult((path,), (), (f"{len(samples)} samples ({counts[0]} zoom x {counts[1]} focus encoder "
+                                      f"values); worst projection sigma {worst:.3g} px",))

@@ -80,6 +80,8 @@ def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | 
         from camcal.api.profile import export_profile
 
         return export_profile(rig, path, to)
+    if to == "lens-table":
+        raise CamcalError("--to lens-table exports a lens profile (*.profile.json, camcal calibrate profile), not a rig")
     rig_path = None if isinstance(rig, Rig) else rig
     loaded = rig if isinstance(rig, Rig) else Rig.load(rig)
     return export_as(loaded, to, path, cameras=cameras, rig_path=rig_path, stmaps=stmaps)
