@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 import camcal
 from camcal.cli import main
+from camcal.model.distortion import Distortion
 from camcal.model.lens_profile import LensProfile
 
 COLUMNS, ROWS = 6, 4
@@ -242,3 +243,13 @@ def test_a_profile_exports_as_a_lens_table_over_its_encoders(profile_file, tmp_p
         np.testing.assert_allclose(sample["K"], camera.K, rtol=1e-12)
     assert table["samples"][0]["lens"]["encoders"] == {"zoom": 0.0, "focus": 0.0}
     assert table["samples"][0]["focalLength_mm"] == 24.0 and table["samples"][0]["lens"]["focusDistance"] == "inf"
+
+
+def test_a_rig_is_not_a_lens_table(tmp_path, capsys):
+    rig = tmp_path / "cam.rig.json"
+    camcal.Rig((camcal.Camera("cam", SIZE, K_of(400.0, (0.0, 0.0)), Distortion.none(), np.eye(3), np.zeros(3)),
+                )).save(rig)
+    out = tmp_path / "out.json"
+    text = assert_same_error(lambda: camcal.export_rig(rig, out, "lens-table"),
+                             ["rig", "export", rig, out, "--to", "lens-table"], capsys, tmp_path)
+    assert "exports a lens profile" in text

@@ -81,6 +81,8 @@ def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | 
 
         return export_profile(rig, path, to)
     if to == "lens-table":
+        from camcal.base.errors import CamcalError
+
         raise CamcalError("--to lens-table exports a lens profile (*.profile.json, camcal calibrate profile), not a rig")
     rig_path = None if isinstance(rig, Rig) else rig
     loaded = rig if isinstance(rig, Rig) else Rig.load(rig)
