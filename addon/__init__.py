@@ -2,7 +2,8 @@
 
 Layout: pure-Python modules that need neither bpy nor numpy (:mod:`.rigfile`,
 :mod:`.mapping`, :mod:`.tracking`, :mod:`.fisheye`, :mod:`.plyfile`,
-:mod:`.pngfile`) and a thin bpy layer (:mod:`.importer`, :mod:`.operators`, :mod:`.panel`). This file
+:mod:`.pngfile`, :mod:`.solvejob`) and a thin bpy layer (:mod:`.importer`, :mod:`.lens_animation`,
+:mod:`.reimport`, :mod:`.operators`, :mod:`.solve_clip`, :mod:`.panel`). This file
 imports no bpy at module level, so the pure modules load without Blender.
 
 From a script (``blender -b --python-expr`` or ``import bpy``)::
@@ -25,14 +26,18 @@ def __getattr__(name):
 
 
 def register():
-    from . import operators, panel
+    from . import lens_animation, operators, panel, solve_clip
 
     operators.register()
+    solve_clip.register()
     panel.register()
+    lens_animation.register()
 
 
 def unregister():
-    from . import operators, panel
+    from . import lens_animation, operators, panel, solve_clip
 
+    lens_animation.unregister()
     panel.unregister()
+    solve_clip.unregister()
     operators.unregister()

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import bpy
 from mathutils import Matrix
 
-from . import fisheye, mapping, plyfile, pngfile, rigfile, tracking
+from . import fisheye, lens_animation, mapping, plyfile, pngfile, rigfile, tracking
 from .rigfile import RigFileError
 
 __all__ = [
@@ -209,6 +209,10 @@ def import_rig(
                 )
         if plate is not None:
             _background(cam, obj, plate, clip)
+    if use_rectified and any(frame.lenses for frame in rig.frames):
+        result.warnings.append("the rig has per-frame lenses; the rectified cameras (one K_rect) do not take them")
+    elif not use_rectified:
+        lens_animation.animate_lenses(rig, cams, result, frame_start, lens_model, overscan)
 
     if cloud is not None:
         result.points = _point_cloud(rig, cloud, base, collection, root)
@@ -466,15 +470,7 @@ def _load_clip(name, filepath):
 
 
 def _set_lens(clip, lens, sensor_width_mm):
-    tc = clip.tracking.camera
-    tc.sensor_width = sensor_width_mm
-    tc.pixel_aspect = 1.0
-    tc.units = "PIXELS"
-    tc.focal_length_pixels = lens.focal_length_pixels
-    tc.distortion_model = lens.distortion_model
-    for key, value in lens.params.items():
-        setattr(tc, key, value)
-    tc.principal_point_pixels = lens.principal_point_pixels
+    lens_animation.set_tracking_camera(clip, lens_animation.tracking_key(lens, sensor_width_mm))
 
 
 def _tracking_lens(cam, margins, lens_model):
@@ -707,6 +703,7 @@ def distortion_shift(clip, lens, margins, size):
     ramp.update()
     probe = bpy.data.scenes.new("camcal shift probe")
     folder = tempfile.mkdtemp(prefix="camcal_shift_")
+    cam_obj = None
     try:
         probe.render.engine = "CYCLES"
         probe.cycles.samples = 1
@@ -748,6 +745,10 @@ def distortion_shift(clip, lens, margins, size):
         bpy.data.scenes.remove(probe)
         if tree is not None:
             bpy.data.node_groups.remove(tree)
+        if cam_obj is not None:
+            camera_data = cam_obj.data
+            bpy.data.objects.remove(cam_obj)
+            bpy.data.cameras.remove(camera_data)
         bpy.data.images.remove(ramp)
         for name in os.listdir(folder):
             os.unlink(os.path.join(folder, name))

@@ -4,10 +4,10 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy_extras.io_utils import ImportHelper
 
-from . import importer, overlay
+from . import importer, overlay, reimport
 from .rigfile import RigFileError
 
-__all__ = ["register", "unregister", "classes"]
+__all__ = ["register", "unregister", "classes", "preferences", "UP_AXIS_ITEMS"]
 
 UP_AXIS_ITEMS = (
     ("Z", "Z up", "The rig's world z axis points up"),
@@ -30,11 +30,24 @@ class CamcalRigPreferences(bpy.types.AddonPreferences):
         "(default: beside the saved .blend, else beside the rig file)",
     )
 
+    camcal_executable: StringProperty(
+        name="camcal executable", subtype="FILE_PATH", default="",
+        description="The camcal command that solves Movie Clips (default: camcal on the PATH)",
+    )
+    solve_directory: StringProperty(
+        name="Solve folder", subtype="DIR_PATH", default="",
+        description="Where Movie Clip solves are written, one folder per clip "
+        "(default: camcal_solve beside the saved .blend, else beside the clip)",
+    )
+
     def draw(self, context):
         self.layout.prop(self, "lens_directory")
+        self.layout.prop(self, "camcal_executable")
+        self.layout.prop(self, "solve_directory")
 
 
-def _preferences(context):
+def preferences(context):
+    """The add-on's preferences (None when it is loaded without being enabled, as in tests)."""
     addon = context.preferences.addons.get(__package__)
     return addon.preferences if addon is not None else None
 
@@ -67,10 +80,12 @@ class IMPORT_SCENE_OT_camcal_rig(bpy.types.Operator, ImportHelper):
     compositor: BoolProperty(name="Distortion compositor", default=True,
                              description="Scenes that distort the render with Movie Distortion")
     overscan: FloatProperty(name="Overscan", default=1.1, min=1.0, max=2.0)
+    replace_previous: BoolProperty(name="Replace earlier import", default=True,
+                                   description="Replace this rig's earlier import in the scene, in place")
 
     def execute(self, context):
         try:
-            result = importer.import_rig(
+            result, replaced = reimport.import_in_place(
                 context,
                 self.filepath,
                 up_axis=self.up_axis,
@@ -83,14 +98,16 @@ class IMPORT_SCENE_OT_camcal_rig(bpy.types.Operator, ImportHelper):
                 distortion=self.distortion,
                 compositor=self.compositor,
                 overscan=self.overscan,
-                aux_directory=bpy.path.abspath(getattr(_preferences(context), "lens_directory", "")) or None,
+                aux_directory=bpy.path.abspath(getattr(preferences(context), "lens_directory", "")) or None,
+                replace=self.replace_previous,
             )
         except (RigFileError, OSError, ValueError) as error:
             self.report({"ERROR"}, str(error))
             return {"CANCELLED"}
         for warning in result.warnings:
             self.report({"WARNING"}, warning)
-        self.report({"INFO"}, f"imported rig {result.rig.name!r}: {len(result.cameras)} camera(s)")
+        self.report({"INFO"}, f"{'re-imported' if replaced else 'imported'} rig {result.rig.name!r}: "
+                    f"{len(result.cameras)} camera(s)")
         return {"FINISHED"}
 
 

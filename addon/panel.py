@@ -43,6 +43,12 @@ class VIEW3D_PT_camcal(bpy.types.Panel):
         layout = self.layout
         scene = context.scene
         layout.operator("import_scene.camcal_rig", text="Import rig...", icon="IMPORT")
+        clip = scene.active_clip
+        row = layout.row()
+        row.enabled = clip is not None
+        text = f"Solve {clip.name}" if clip else "Solve Movie Clip (no active clip)"
+        op = row.operator("camcal.solve_clip", text=text, icon="TRACKING")
+        op.clip = clip.name if clip else ""
         roots = [o for o in scene.objects if "camcal_rig_path" in o]
         if not roots:
             layout.label(text="No camcal rig in this scene")

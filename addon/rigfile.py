@@ -11,12 +11,15 @@ camera, ``c`` is the camera centre in world coordinates; camera axes x
 right, y down, z forward; pixel (0, 0) is the centre of the top-left pixel.
 
 Frames (``camcal.rig``): ``frames`` holds the rig's pose per frame,
-``{"index", "R", "c", "images"?}`` with ``R, c`` the ``rig_from_world``
+``{"index", "R", "c", "images"?, "lenses"?}`` with ``R, c`` the ``rig_from_world``
 pose; the cameras' own ``R, c`` are then relative to the rig
 (``cam_from_rig``), so a camera's world pose at a frame is
 ``R_world = R_cam R_frame``, ``c_world = c_frame + R_frame^T c_cam``.
-``images`` maps camera names to plate paths. Paths (plates, ``points``: a
-sibling PLY or null) are relative to the rig file.
+``images`` maps camera names to plate paths. ``lenses`` maps camera names
+to that camera's lens at the frame (a zoom, a refocus: ``K``, ``distortion``
+of the camera's model, ``focal_mm`` / ``focus_m`` recorded); cameras absent
+keep their own. Paths (plates, ``points``: a sibling PLY or null) are
+relative to the rig file.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ __all__ = [
     "Rectification",
     "RigCamera",
     "RigFrame",
+    "RigLens",
     "Rig",
     "load_rig",
     "parse_rig",
@@ -102,13 +106,24 @@ class RigCamera:
 
 
 @dataclass(frozen=True)
+class RigLens:
+    """A camera's lens at one frame: ``K`` (tuple of rows), its distortion, the lens state (mm, m or None)."""
+
+    K: tuple
+    distortion: Distortion
+    focal_mm: float | None = None
+    focus_m: float | None = None
+
+
+@dataclass(frozen=True)
 class RigFrame:
-    """One frame: its index, the rig's pose ``rig_from_world`` (R, c), plates by camera."""
+    """One frame: its index, the rig's pose ``rig_from_world`` (R, c), plates and lenses by camera."""
 
     index: int
     R: tuple
     c: tuple
     images: dict
+    lenses: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -130,6 +145,18 @@ class Rig:
                 return cam
         known = ", ".join(c.name for c in self.cameras)
         raise KeyError(f"no camera {name!r} in the rig (cameras: {known})")
+
+    def lens_frames(self, name):
+        """The frames with a lens of camera ``name`` (a zoom, a refocus), in the file's order."""
+        return tuple(frame for frame in self.frames if name in frame.lenses)
+
+    def lens_at(self, name, frame):
+        """``(K, distortion)`` of camera ``name`` at a :class:`RigFrame`: the frame's lens, else the camera's own."""
+        lens = frame.lenses.get(name)
+        if lens is not None:
+            return lens.K, lens.distortion
+        camera = self.camera(name)
+        return camera.K, camera.distortion
 
 
 def load_rig(path):
@@ -190,7 +217,8 @@ def parse_rig(data, path="<memory>"):
     frames_data = data.get("frames") or []
     if not isinstance(frames_data, list):
         raise RigFileError(f"frames: expected a list, got {type(frames_data).__name__}")
-    frames = tuple(_parse_frame(f, f"frames[{i}]", set(names), base) for i, f in enumerate(frames_data))
+    by_name = {cam.name: cam for cam in cameras}
+    frames = tuple(_parse_frame(f, f"frames[{i}]", by_name, base) for i, f in enumerate(frames_data))
     indices = [f.index for f in frames]
     for index in indices:
         if indices.count(index) > 1:
@@ -236,13 +264,7 @@ def _parse_camera(data, where):
         raise RigFileError(f"{where}.image_size: expected [width, height] integers, got {size!r}")
     if size[0] <= 0 or size[1] <= 0:
         raise RigFileError(f"{where}.image_size: must be positive, got {size!r}")
-    K = _matrix(data, "K", 3, 3, where)
-    if K[1][0] != 0 or K[2][0] != 0 or K[2][1] != 0 or K[2][2] != 1:
-        raise RigFileError(
-            f"{where}.K: expected upper-triangular with K[2][2] = 1, got rows {K[1]!r}, {K[2]!r}"
-        )
-    if K[0][0] <= 0 or K[1][1] <= 0:
-        raise RigFileError(f"{where}.K: focal lengths must be positive, got fx={K[0][0]}, fy={K[1][1]}")
+    K = _intrinsics(data, where)
     R = _rotation(data, "R", where)
     c = _vector(data, "c", 3, where)
     sensor = data.get("sensor_width_mm", 36.0)
@@ -331,7 +353,44 @@ def _parse_frame(data, where, names, base):
         if not isinstance(entry, str) or not entry:
             raise RigFileError(f"{where}.images.{cam}: expected a path, got {entry!r}")
         images[cam] = os.path.normpath(os.path.join(base, entry))
-    return RigFrame(index=index, R=R, c=c, images=images)
+    lenses_data = data.get("lenses") or {}
+    if not isinstance(lenses_data, dict):
+        raise RigFileError(f"{where}.lenses: expected an object {{camera: lens}}")
+    lenses = {cam: _parse_lens(entry, f"{where}.lenses.{cam}", cam, names) for cam, entry in lenses_data.items()}
+    return RigFrame(index=index, R=R, c=c, images=images, lenses=lenses)
+
+
+def _parse_lens(data, where, name, cameras):
+    if name not in cameras:
+        raise RigFileError(f"{where}: unknown camera {name!r}")
+    if not isinstance(data, dict):
+        raise RigFileError(f"{where}: expected an object, got {type(data).__name__}")
+    K = _intrinsics(data, where)
+    if "distortion" not in data:
+        raise RigFileError(f"{where}: missing key 'distortion'")
+    distortion = _parse_distortion(data["distortion"], f"{where}.distortion", K)
+    if distortion.model != cameras[name].distortion.model:
+        raise RigFileError(f"{where}.distortion.model: {distortion.model!r}, but the camera's lens is "
+                           f"{cameras[name].distortion.model!r} (one model over a camera's frames)")
+    state = {}
+    for key in ("focal_mm", "focus_m"):
+        value = data.get(key)
+        if value is not None and (not _is_number(value) or not value > 0):
+            raise RigFileError(f"{where}.{key}: expected a positive number, got {value!r}")
+        state[key] = None if value is None else float(value)
+    return RigLens(K=K, distortion=distortion, **state)
+
+
+def _intrinsics(data, where):
+    """``data["K"]``: upper triangular, ``K[2][2] = 1``, positive focal lengths."""
+    K = _matrix(data, "K", 3, 3, where)
+    if K[1][0] != 0 or K[2][0] != 0 or K[2][1] != 0 or K[2][2] != 1:
+        raise RigFileError(
+            f"{where}.K: expected upper-triangular with K[2][2] = 1, got rows {K[1]!r}, {K[2]!r}"
+        )
+    if K[0][0] <= 0 or K[1][1] <= 0:
+        raise RigFileError(f"{where}.K: focal lengths must be positive, got fx={K[0][0]}, fy={K[1][1]}")
+    return K
 
 
 def _require(data, key, kind, where):

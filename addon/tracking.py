@@ -16,6 +16,7 @@ from .mapping import solve_linear
 
 __all__ = [
     "BLENDER_MODELS",
+    "ROUND_ASPECT",
     "EXACT_MODELS",
     "BlenderLens",
     "blender_lens",
@@ -30,6 +31,9 @@ __all__ = [
     "to_blender_pixel",
     "from_blender_pixel",
 ]
+
+#: A division lens whose aspect is this close to 1 is round (a solve that held square pixels writes 1 + 1e-11).
+ROUND_ASPECT = 1e-9
 
 
 def to_blender_pixel(point, height):
@@ -423,13 +427,13 @@ def blender_lens(distortion, K, image_size, margins=(0, 0), model=None):
     if params is None:
         if source == "opencv":
             raise ValueError(f"Blender's {target} model has no tangential terms: the opencv lens goes to BROWN")
-        if p.get("aspect", 1.0) != 1.0:
+        if abs(p.get("aspect", 1.0) - 1.0) > ROUND_ASPECT:
             raise ValueError(f"the division lens's aspect {p['aspect']:.6g} is not round: "
                              "Blender's models are (use the ST-maps)")
         fitted, fit_max = _fit_radial(distortion, target, fx, _nuke_half((Wc, Hc)), _frame_radius(center, (W, H)))
         params = fitted | ({"brown_p1": 0.0, "brown_p2": 0.0} if target == "BROWN" else {})
         notes.append(f"Blender's {target} model fitted to the {source} lens: {fit_max:.3g} px at worst over the frame")
-    if source == "division" and p.get("aspect", 1.0) != 1.0:
+    if source == "division" and abs(p.get("aspect", 1.0) - 1.0) > ROUND_ASPECT:
         # camcal's radius is in x pixels with y scaled by the aspect; Blender's NUKE radius is in pixels
         notes.append(f"Blender's NUKE model is round in pixels; this lens's radius scales y by its "
                      f"aspect {p['aspect']:.6g} (use the ST-maps)")

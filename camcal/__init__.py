@@ -24,9 +24,15 @@ function                what it does                                        resu
                         patches (``camcal colour fit``)
 :func:`export_colour`   colour fits as OCIO colour spaces (config + CLF)    :class:`ColourExport`
                         and ICC camera profiles (``camcal colour export``)
+:func:`fit_flat_field`  a lens's flat field and vignetting from grey cards   :class:`FlatFieldFit`
+                        (``camcal colour flatfield``)
 ======================  ==================================================  ======================
 
-and the data model: :class:`Rig`, :class:`Camera`, and :class:`CamcalError`,
+for a zoom or a refocused lens :func:`calibrate_profile` (a lens profile over
+focal length and focus distance, ``camcal calibrate profile``, giving a
+:class:`ProfileCalibration`) and :func:`lens_rig` (a camera at a lens state
+of a profile, or per frame from lens metadata, ``camcal lens``, giving a
+:class:`LensRig`); and the data model: :class:`Rig`, :class:`Camera`, and :class:`CamcalError`,
 the one exception a user's mistake raises (its message is the line the
 command prints). Every name in :data:`__all__` is public; the modules behind
 them are not (their names may change between versions).
@@ -54,6 +60,10 @@ __version__ = "0.1.0"
 _EXPORTS: dict[str, str] = {
     "calibrate_board": "camcal.api.board",
     "BoardCalibration": "camcal.api.board",
+    "calibrate_profile": "camcal.api.profile",
+    "ProfileCalibration": "camcal.api.profile",
+    "lens_rig": "camcal.api.lens",
+    "LensRig": "camcal.api.lens",
     "solve": "camcal.api.reconstruction",
     "Solve": "camcal.api.reconstruction",
     "rectify": "camcal.api.rectification",
@@ -68,6 +78,8 @@ _EXPORTS: dict[str, str] = {
     "ColourFit": "camcal.api.colour",
     "export_colour": "camcal.api.colour",
     "ColourExport": "camcal.api.colour",
+    "fit_flat_field": "camcal.api.flatfield",
+    "FlatFieldFit": "camcal.api.flatfield",
     "Rig": "camcal.model.rig",
     "Camera": "camcal.model.rig",
     "CamcalError": "camcal.base.errors",
@@ -77,7 +89,10 @@ __all__ = ["__version__", *_EXPORTS]
 
 if TYPE_CHECKING:  # for type checkers and editors; at run time the names load on first use
     from camcal.api.board import BoardCalibration, calibrate_board
+    from camcal.api.lens import LensRig, lens_rig
+    from camcal.api.profile import ProfileCalibration, calibrate_profile
     from camcal.api.colour import ColourExport, ColourFit, export_colour, fit_colour
+    from camcal.api.flatfield import FlatFieldFit, fit_flat_field
     from camcal.api.reconstruction import Solve, solve
     from camcal.api.rectification import Rectification, rectify
     from camcal.api.rig import RigImport, export_rig, import_rig, load_rig

@@ -1,7 +1,8 @@
 """Running the Blender add-on's importer from camcal, without importing bpy here.
 
-``camcal blender import RIG --blend OUT.blend`` runs the add-on's
-``import_rig`` in a subprocess of the same Python interpreter, which has
+``camcal blender import RIG --blend OUT.blend`` (or ``--into SCENE.blend``,
+an existing file; a second import of the same rig replaces the first in
+place) runs the add-on's ``import_rig`` in a subprocess of the same Python interpreter, which has
 the ``bpy`` module (the ``blender`` extra): camcal itself never imports bpy,
 and Blender's global state stays out of the calling process.
 
@@ -36,7 +37,7 @@ from camcal.base.errors import CamcalError
 from camcal.base.extras import check_installed
 from camcal.io.conversion import LensConversion, max_pixel_residual, refit_camera
 from camcal.model.distortion import Distortion
-from camcal.model.rig import Rig
+from camcal.model.rig import Lens, Rig
 
 __all__ = [
     "ADDON_PACKAGE",
@@ -63,19 +64,35 @@ except ImportError as error:
 from camcal.blender_bridge import load_addon
 addon = load_addon()
 from camcal_rig.rigfile import RigFileError
-bpy.ops.wm.read_factory_settings(use_empty=True)
+from camcal_rig.reimport import import_in_place
+if args["into"]:
+    try:
+        bpy.ops.wm.open_mainfile(filepath=args["into"], load_ui=False)
+    except RuntimeError as error:
+        print(f"cannot open {args['into']}: {str(error).strip().splitlines()[-1]}", file=sys.stderr)
+        sys.exit(2)
+else:
+    bpy.ops.wm.read_factory_settings(use_empty=True)
 scene = bpy.context.scene
 try:
-    result = addon.import_rig(scene, args["rig"], **args["options"])
+    result, replaced = import_in_place(scene, args["rig"], source=args["source"], replace=args["replace"],
+                                       **args["options"])
 except (RigFileError, OSError, ValueError) as error:
     print(str(error), file=sys.stderr)
     sys.exit(2)
 out = args["blend"]
 tmp = os.path.join(os.path.dirname(out), "." + os.path.basename(out) + ".tmp.blend")
-bpy.ops.wm.save_as_mainfile(filepath=tmp, check_existing=False, copy=True)
-os.replace(tmp, out)
+try:
+    bpy.ops.wm.save_as_mainfile(filepath=tmp, check_existing=False, copy=True)
+    os.replace(tmp, out)
+finally:
+    if os.path.exists(tmp):
+        os.unlink(tmp)
 summary = {
     "rig": result.rig.name,
+    "collection": result.collection.name,
+    "replaced": replaced,
+    "scene": scene.name,
     "cameras": {name: obj.name for name, obj in result.cameras.items()},
     "stereo_mode": result.stereo_mode,
     "clips": sorted(result.clips),
@@ -85,7 +102,6 @@ summary = {
 }
 print("CAMCAL_RESULT " + json.dumps(summary))
 """
-
 
 def addon_dir() -> Path:
     """The folder of the Blender add-on (:func:`camcal.resources.addon_dir`; ``CAMCAL_ADDON_DIR`` overrides it)."""
@@ -125,7 +141,7 @@ def _tracking_holds(distortion: Distortion) -> bool:
     if distortion.model == "opencv":
         return not any(p.get(name, 0.0) for name in ("k4", "k5", "k6", "s1", "s2", "s3", "s4"))
     if distortion.model == "division":
-        return p.get("aspect", 1.0) == 1.0
+        return abs(p.get("aspect", 1.0) - 1.0) <= 1e-9  # the add-on's tracking.ROUND_ASPECT
     return distortion.model in ("none", "polynomial") or distortion.is_fisheye
 
 
@@ -153,20 +169,29 @@ def blender_tracking_rig(rig: Rig, overscan: float = 1.1) -> tuple[Rig, tuple[Le
     pixel distance between the two lenses over the frame and the refit's
     figures (inside the image and over the border of ``overscan``, the
     factor the add-on's distortion compositor renders with, which the fit
-    covers as well).
+    covers as well). A camera whose lens changes over the frames has each
+    frame's lens refitted the same way; its conversion gives the worst
+    frame's figures.
     """
-    cameras, conversions = [], []
+    out, conversions = rig, []
     for camera in rig.cameras:
         distortion = camera.distortion
         if _tracking_holds(distortion) and not distortion.has_correction:
-            cameras.append(camera)
             continue
         fit = _NEAREST[distortion.model]
         converted, refit = refit_camera(camera, fit, overscan=overscan, fixed=_HELD.get(fit))
-        cameras.append(converted)
-        conversions.append(LensConversion(camera.name, distortion.model, _BLENDER_NAMES[fit], False,
-                                          max_pixel_residual(camera, converted), refit=refit))
-    return Rig(tuple(cameras), rig.units, rig.frames, rig.points, rig.provenance), tuple(conversions)
+        worst, lenses = (max_pixel_residual(camera, converted), refit), {}
+        for frame in rig.frames:  # a zoom: each frame's lens refitted the same way
+            state = frame.lenses.get(camera.name)
+            if state is not None:
+                at = rig.camera_at_frame(camera.name, frame.index)
+                at_converted, at_refit = refit_camera(at, fit, overscan=overscan, fixed=_HELD.get(fit))
+                lenses[frame.index] = Lens(at_converted.K, at_converted.distortion, state.focal_mm, state.focus_m)
+                worst = max(worst, (max_pixel_residual(at, at_converted), at_refit), key=lambda pair: pair[0])
+        out = out.with_camera(converted, lenses)
+        conversions.append(LensConversion(camera.name, distortion.model, _BLENDER_NAMES[fit], False, worst[0],
+                                          refit=worst[1]))
+    return out, tuple(conversions)
 
 
 def write_blender_uv_maps(rig: Rig, names: list[str], folder: str | os.PathLike, overscan: float) -> dict[str, str]:
@@ -204,15 +229,24 @@ def write_blender_uv_maps(rig: Rig, names: list[str], folder: str | os.PathLike,
     return paths
 
 
-def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **options) -> dict:
-    """Import a rig file into a new .blend file (written atomically).
+def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike | None = None, *,
+                        into: str | os.PathLike | None = None, replace: bool = True, **options) -> dict:
+    """Import a rig file into a new .blend file, or into an existing one (written atomically).
 
     Parameters
     ----------
     rig : path
         The ``*.rig.json`` file.
-    blend : path
-        The .blend file to write.
+    blend : path, optional
+        The .blend file to write (default: ``into``, updated in place).
+    into : path, optional
+        An existing .blend file to add the rig to (its active scene);
+        default: a new, empty file.
+    replace : bool
+        An earlier import of the same rig file in the scene is replaced in
+        place (the add-on's ``reimport.import_in_place``: same collection
+        name and parent collections, the user's objects parented to the rig
+        kept on it) instead of adding a second collection.
     **options
         Keyword options of the add-on's ``import_rig`` (``up_axis``,
         ``sensor_fit``, ``use_rectified``, ``import_plates``,
@@ -222,21 +256,27 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
     Returns
     -------
     dict
-        A summary: rig name, camera objects, stereo mode, clips, warnings;
-        ``conversions``: one line per lens replaced by its nearest fit
-        (:func:`blender_tracking_rig`), its residual in pixels (also first
-        among the warnings).
+        A summary: rig name, its ``collection``, whether it ``replaced`` an
+        earlier import, the ``scene``, camera objects, stereo mode, clips,
+        warnings; ``conversions``: one line per lens replaced by its nearest
+        fit (:func:`blender_tracking_rig`), its residual in pixels (also
+        first among the warnings).
 
     Raises
     ------
     CamcalError
-        A bad rig file or options (the add-on's one-line message), or no bpy.
+        A bad rig file, .blend file or options (one line naming it), or no bpy.
     """
     check_installed("bpy")
+    if blend is None and into is None:
+        raise CamcalError("give the .blend file to write, or an existing one to import into")
     rig = Path(rig).resolve()
-    blend = Path(blend).resolve()
+    into = Path(into).resolve() if into is not None else None
+    blend = Path(blend).resolve() if blend is not None else into
     if not rig.is_file():
         raise CamcalError(f"rig file not found: {rig}")
+    if into is not None and not into.is_file():
+        raise CamcalError(f".blend file to import into not found: {into}")
     if not blend.parent.is_dir():
         raise CamcalError(f"output folder does not exist: {blend.parent}")
     options.setdefault("aux_directory", str(blend.parent / f"{blend.stem}_lens"))
@@ -252,7 +292,13 @@ def import_rig_to_blend(rig: str | os.PathLike, blend: str | os.PathLike, **opti
         os.close(handle)
         fitted = Path(name)
         tracking.save(fitted)
-    payload = json.dumps({"rig": str(fitted or rig), "blend": str(blend), "options": options})
+        # the add-on names the collection and objects after the rig's "name", else its file: keep the original's
+        stand_in = json.loads(fitted.read_text(encoding="utf-8"))
+        stand_in["name"] = next((rig.name[:-len(end)] for end in (".rig.json", ".json") if rig.name.endswith(end)),
+                                rig.name)
+        fitted.write_text(json.dumps(stand_in), encoding="utf-8")
+    payload = json.dumps({"rig": str(fitted or rig), "source": str(rig), "blend": str(blend),
+                          "into": str(into) if into is not None else None, "replace": replace, "options": options})
     env = dict(os.environ)
     env.setdefault("CAMCAL_ADDON_DIR", str(addon_dir()))
     try:

@@ -355,6 +355,31 @@ def test_colour_export_api_and_cli_refuse_the_same_input(train_csv, tmp_path, ca
     assert not (tmp_path / "x.icc").exists() and not (tmp_path / "o").exists()
 
 
+def test_colour_export_aces_api_and_cli_write_the_same_files(train_csv, tmp_path, capsys):
+    """CLF, DCTL byte for byte; the AMF but for its time (the clock's, to the second), its UUIDs equal."""
+    fit = tmp_path / "nikon.colour.json"
+    camcal.fit_colour(train_csv, illuminant="D65", model="matrix3x3", linearise="gamma-offset", camera="nikon",
+                      out=fit)
+    outputs = {side: {kind: tmp_path / side / f"nikon.{kind}" for kind in ("clf", "amf", "dctl")}
+               for side in ("api", "cli")}
+    result = camcal.export_colour([fit], applied=True, **outputs["api"])
+    code, out, _ = cli(["colour", "export", fit, "--applied",
+                        *(arg for kind, path in outputs["cli"].items() for arg in (f"--{kind}", path))], capsys)
+    assert code == 0 and out.splitlines() == [line.replace(str(tmp_path / "api"), str(tmp_path / "cli"))
+                                             for line in result.lines()]
+    times = re.compile(rb"<aces:(creation|modification)DateTime>[^<]*<")
+    for kind in ("clf", "amf", "dctl"):
+        api, cli_file = (outputs[side][kind].read_bytes() for side in ("api", "cli"))
+        assert times.sub(b"", api) == times.sub(b"", cli_file), kind
+    assert [kind for _, kind in result.files] == ["aces clf", "amf", "dctl"]
+    aces = result.figures()["aces"]
+    assert aces["kind"] == "matrix" and aces["amf_applied"] is True and aces["space"] == "ACES2065-1"
+    assert aces["transform_id"] == "urn:ampas:aces:transformId:v2.0:Input.camcal.nikon_D65_to_ACES.a2.v1"
+    assert_same_error(lambda: camcal.export_colour([fit], amf=tmp_path / "x.amf"),
+                      ["colour", "export", fit, "--amf", tmp_path / "x.amf"], capsys)
+    assert not (tmp_path / "x.amf").exists()
+
+
 def test_import_camcal_loads_no_heavy_dependency():
     """``import camcal`` (and naming the API) imports none of the heavy libraries; using a function does."""
     code = ("import sys, camcal\n"

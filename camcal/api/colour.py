@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from camcal.colour.chart.patches import PatchSet
     from camcal.colour.export.icc import ICCProfile
     from camcal.colour.fit.characterise import Characterisation
+    from camcal.io.aces import ACESExport
     from camcal.io.ocio import OCIOExport
     from camcal.pipelines.colour import ChartPatches
 
@@ -114,6 +115,7 @@ def fit_colour(
     training_reflectances: str = "rawtoaces 190",
     validation_reflectances: str = "Munsell validation",
     plausible_cameras: int = 0,
+    flat_field: str | os.PathLike | None = None,
     out: str | os.PathLike | None = None,
     report: str | os.PathLike | None = None,
     log: Callable[[str], None] | None = None,
@@ -165,6 +167,9 @@ def fit_colour(
         The camera name recorded in the file.
     for_illuminant, sensitivities, training_reflectances, validation_reflectances, plausible_cameras
         The fit for another light (see ``camcal colour fit --help``).
+    flat_field : path, optional
+        A flat field (``colour flatfield``'s JSON) the chart photo is divided by before sampling; the photo must
+        be linear (raw, or with ``linearise="none"``).
     out : path, optional
         The ``*.colour.json`` to write (with ``report``, together: all or none).
     report : path, optional
@@ -193,8 +198,16 @@ def fit_colour(
         from camcal.pipelines.colour import patches_from_chart
 
         grid = _parse_corners(corners) if isinstance(corners, str) else corners
+        flat = None
+        if flat_field is not None:
+            from camcal.io.flatfield import load_flat_field
+
+            if not is_raw(chart) and linearise != "none":
+                raise CamcalError("--flat-field divides linear values: the chart must be a raw file, or linear "
+                                  "with --linearise none")
+            flat = load_flat_field(flat_field)
         found = patches_from_chart(chart, reference, corners=grid, keep_clipped=keep_clipped,
-                                   illuminant=illuminant, detector=detector)
+                                   illuminant=illuminant, detector=detector, flat_field=flat)
         train = found.patches
         clipped = "saturated" if is_raw(chart) else "clipped"
         excluded = f" (dropped {clipped}: {', '.join(found.excluded)})" if found.excluded else ""
@@ -210,6 +223,8 @@ def fit_colour(
     else:
         if corners:
             raise CamcalError("--corners applies to --chart only")
+        if flat_field is not None:
+            raise CamcalError("--flat-field applies to --chart only")
         if detector != "auto":
             raise CamcalError("--detector applies to --chart only")
         train = patches if isinstance(patches, PatchSet) else read_patch_csv(patches)
@@ -315,7 +330,11 @@ class ColourExport:
     n_spaces, n_matches : int
         Camera spaces (one per characterisation) and match Looks (one per camera match) in the config.
     files : tuple of (Path, str)
-        ``(path, kind)`` of the files written: ``ocio config``, each ``clf``, ``icc``.
+        ``(path, kind)`` of the files written: ``ocio config``, each ``clf``, ``icc``, then the ACES hand-off's
+        ``aces clf``, ``amf``, ``dctl``.
+    aces : ACESExport or None
+        With ``clf``, ``amf`` or ``dctl``: the camera's ACES input transform (its transform ID, model, bake error)
+        and the files written.
     """
 
     ocio: OCIOExport | None
@@ -324,6 +343,7 @@ class ColourExport:
     n_spaces: int
     n_matches: int
     files: tuple[tuple[Path, str], ...] = ()
+    aces: ACESExport | None = None
 
     def lines(self) -> list[str]:
         """The lines ``colour export`` prints: each space, the config written, the ICC profile written."""
@@ -334,6 +354,8 @@ class ColourExport:
                          f"{self.ocio.base}, {self.n_spaces} camera space(s), {self.n_matches} match Look(s))")
         if self.icc is not None:
             lines.append(f"wrote {self.icc_path} (ICC v{self.icc.version}, {self.icc.summary()})")
+        if self.aces is not None:
+            lines += self.aces.lines()
         return lines
 
     def figures(self) -> dict[str, Any]:
@@ -358,6 +380,14 @@ class ColourExport:
                                 None if icc.kind == "matrix-trc" else stats(icc.bake_error),
                                 "float_clut_size": icc.float_clut_size,
                                 "float_bake_error_delta_E2000": stats(icc.float_bake_error)})
+        if self.aces is not None:
+            transform = self.aces.transform
+            figures.update(aces={"transform_id": transform.transform_id, "user_name": transform.user_name,
+                                 "space": transform.space, "kind": transform.kind,
+                                 "lut_size": None if transform.baked is None else transform.baked.lut_size,
+                                 "bake_error_delta_E2000": stats(transform.bake_error),
+                                 "linearisation_error": transform.linearisation_error,
+                                 "amf_applied": self.aces.applied if self.aces.amf is not None else None})
         return figures
 
 
@@ -374,9 +404,14 @@ def export_colour(
     adaptation: str = "Bradford",
     icc_version: int = 4,
     max_bake_error: float = 0.2,
+    clf: str | os.PathLike | None = None,
+    amf: str | os.PathLike | None = None,
+    dctl: str | os.PathLike | None = None,
+    aces_space: str = "ACES2065-1",
+    applied: bool = False,
 ) -> ColourExport:
-    """Export characterisations (``*.colour.json``) as OCIO input colour spaces and/or an ICC camera profile
-    (``camcal colour export``).
+    """Export characterisations (``*.colour.json``) as OCIO input colour spaces, an ICC camera profile and/or the
+    camera's ACES input transform as CLF, AMF and DCTL (``camcal colour export``).
 
     Each fit becomes the space ``camcal <camera>`` (family ``Input/<maker>`` of a raw capture, else
     ``Input/camcal``) of an OpenColorIO config; a camera match becomes a Look. Matrix fits are exact; other models
@@ -411,6 +446,18 @@ def export_colour(
         The ICC profile version (ICC.1:2010 or ICC.1:2001-04).
     max_bake_error : float
         The largest CIEDE2000 a baked LUT may add.
+    clf : path, optional
+        The camera's ACES input transform as a CLF (SMPTE ST 2136-1) with its ACES transform ID and the camera,
+        chart, light and fit in its ``Info`` (one fit only; :mod:`camcal.colour.export.aces`).
+    amf : path, optional
+        An ACES Metadata File 2.0 naming that CLF as the input transform (needs ``clf``).
+    dctl : path, optional
+        The same transform as a DaVinci Resolve DCTL, the curves and the model's terms inlined (matrix, polynomial
+        and root-polynomial fits).
+    aces_space : {"ACES2065-1", "ACEScg"}
+        The space the CLF and DCTL convert to (an AMF needs ACES2065-1).
+    applied : bool
+        The AMF's ``applied``: the images it goes with already hold the input transform.
 
     Returns
     -------
@@ -427,8 +474,10 @@ def export_colour(
     from camcal.colour.fit.record import ColourFit as FitRecord
     from camcal.io.colourfile import load_colour_file
 
-    if not ocio and not icc:
-        raise CamcalError("nothing to write: give --ocio OUTDIR and/or --icc OUT.icc")
+    aces = clf is not None or amf is not None or dctl is not None
+    if not ocio and not icc and not aces:
+        raise CamcalError("nothing to write: give --ocio OUTDIR, --icc OUT.icc, --clf OUT.clf, --amf OUT.amf or "
+                          "--dctl OUT.dctl")
     if camera and len(fits) > 1 and not by_illuminant:
         raise CamcalError(f"--camera-name needs exactly one fit (or --by-illuminant), got {len(fits)}")
     for option, value in (("--ocio-version", ocio_version), ("--family", family)):
@@ -438,6 +487,12 @@ def export_colour(
         raise CamcalError("--by-illuminant names OCIO colour spaces: give --ocio OUTDIR")
     if icc and len(fits) > 1:
         raise CamcalError(f"--icc writes one profile: give one fit, got {len(fits)}")
+    if aces and len(fits) > 1:
+        raise CamcalError(f"--clf, --amf and --dctl write one camera's input transform: give one fit, got {len(fits)}")
+    if (aces_space != "ACES2065-1" or applied) and not aces:
+        raise CamcalError("--aces-space and --applied apply to --clf, --amf and --dctl")
+    if applied and amf is None:
+        raise CamcalError("--applied is the AMF's: give --amf OUT.amf")
     if not (max_bake_error > 0):
         raise CamcalError(f"--max-bake-error must be > 0, got {max_bake_error}")
     named, matches = [], []
@@ -463,6 +518,15 @@ def export_colour(
         spaces = [(name, fit) for name, fit, _ in named]
     if icc and not spaces:
         raise CamcalError("--icc needs a characterisation (kind characterisation); a camera match has no ICC profile")
+    if aces and not spaces:
+        raise CamcalError("--clf, --amf and --dctl need a characterisation (kind characterisation); a camera match "
+                          "has no input transform")
+    handoff = None
+    if aces:
+        from camcal.io.aces import build_aces
+
+        handoff = build_aces(spaces[0][1], spaces[0][0], clf=clf, amf=amf, dctl=dctl, space=aces_space,
+                              cat=adaptation, max_delta_E=max_bake_error, applied=applied)
     profile = None
     if icc:
         from camcal.colour.export.icc import icc_profile_from_fit
@@ -485,4 +549,8 @@ def export_colour(
 
         icc_path = write_icc(profile, icc)
         files.append((icc_path, "icc"))
-    return ColourExport(exported, profile, icc_path, len(spaces), len(matches), tuple(files))
+    if handoff is not None:
+        handoff.write()
+        files += [(path, kind) for path, kind in ((handoff.clf, "aces clf"), (handoff.amf, "amf"),
+                                                  (handoff.dctl, "dctl")) if path is not None]
+    return ColourExport(exported, profile, icc_path, len(spaces), len(matches), tuple(files), handoff)

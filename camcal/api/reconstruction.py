@@ -75,8 +75,7 @@ class Solve:
         from camcal.pipelines.solve import COLMAP_LOG
 
         result = self.sfm
-        lines = [f"registered {result.n_registered} / {result.n_images} images"
-                 + (f" (not registered: {', '.join(result.unregistered)})" if result.unregistered else "")]
+        lines = [f"registered {result.n_registered} / {result.n_images} images", *result.notes]
         per_camera = ", ".join(f"{name} {rms:.3f} px" for name, rms in result.per_camera_rms_px.items())
         lines.append(f"RMS reprojection error: {result.rms_px:.3f} px ({per_camera}); {result.n_points} points")
         if result.bundle is not None:
@@ -102,7 +101,7 @@ class Solve:
         """The figures of ``solve --json``."""
         result = self.sfm
         figures = dict(n_images=result.n_images, n_registered=result.n_registered,
-                       unregistered=list(result.unregistered), rms_px=result.rms_px,
+                       unregistered=list(result.unregistered), notes=list(result.notes), rms_px=result.rms_px,
                        per_camera_rms_px=dict(result.per_camera_rms_px), n_points=result.n_points,
                        bundle=None if result.bundle is None else result.bundle.summary(),
                        cameras={camera.name: dict(camera.quality) for camera in result.rig.cameras})
@@ -166,6 +165,13 @@ def solve(
     loss: str = "trivial",
     refine: bool = True,
     compare_pycolmap: bool = False,
+    intrinsics: str | os.PathLike | Rig | None = None,
+    intrinsics_mode: str = "fixed",
+    require_all: bool = False,
+    up: str | None = None,
+    origin: str | None = None,
+    scale: str | None = None,
+    units: str | None = None,
     seed: int = 0,
     verbose: bool = False,
     progress: bool | Callable[[str], None] = True,
@@ -221,6 +227,24 @@ def solve(
         False keeps pycolmap's result.
     compare_pycolmap : bool
         Also run plain pycolmap on the same images into ``out/pycolmap``.
+    intrinsics : path or Rig, optional
+        A grid calibration (``calibrate board``): each camera takes its lens (by name; one camera each: the
+        one), at the plate's size (the same aspect at another size scales ``K``, said; another aspect is an
+        error naming both sizes); the lens-model choice is skipped.
+    intrinsics_mode : {"fixed", "prior"}
+        Hold that lens, or refine it under a Gaussian prior of the grid's sigmas (the move is said in sigmas).
+    require_all : bool
+        An image that cannot be registered is an error (nothing written) instead of a line naming its frame.
+    up : {"ground", "cameras"}, optional
+        After the solve, turn the world so that +z is up: the normal of the ground plane (RANSAC on the
+        sparse points) or the cameras' mean up; the first camera then looks down +y.
+    origin : str, optional
+        The point that becomes the origin: ``"ground"`` (the ground under the first camera), a point's row in
+        ``points.ply`` (``"12"``) or coordinates in the solve's world (``"0.5:-1.2:3"``).
+    scale : str, optional
+        ``"A,B=DIST"``: two points (rows or coordinates) and their known distance, e.g. ``"12,40=1.5"``.
+    units : str, optional
+        The unit of that distance, recorded in the rig (default ``"m"`` with ``scale``).
     seed : int
         Seeds every random choice: the same images and options give the same rig.
     verbose : bool
@@ -243,6 +267,8 @@ def solve(
     from camcal.geometry.selfcal import LENS_MODELS, MAPPING_MODELS
     from camcal.model.rig import Rig
     from camcal.pipelines.solve import collect_images, solve_pycolmap_plain, solve_sfm
+    from camcal.pipelines.solve_lens import LENS_MODES
+    from camcal.pipelines.solve_world import world_spec
 
     folders = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(folder) for folder in folders]
     if uncertainty not in UNCERTAINTY:
@@ -263,6 +289,12 @@ def solve(
         found = collect_images(folders, frames=frames)
     mattes = {name: sequence_paths(pattern, frames) for name, pattern in (masks or {}).items()}
     known_rig = rig if isinstance(rig, Rig) or rig is None else Rig.load(rig)
+    if intrinsics_mode not in LENS_MODES:
+        raise CamcalError(f"unknown intrinsics mode {intrinsics_mode!r}, expected one of: {', '.join(LENS_MODES)}")
+    grid = intrinsics if isinstance(intrinsics, Rig) or intrinsics is None else Rig.load(intrinsics)
+    if grid is not None and (model is not None or camera_model is not None):
+        raise CamcalError("--intrinsics gives the lens: --model and --camera-model choose one, give one or the other")
+    world = world_spec(up, origin, scale, units)
     if features < 100:
         raise CamcalError(f"--features must be at least 100, got {features}")
     # auto (or nothing): choose among LENS_MODELS; a named model: only it; camera_model alone: keep it
@@ -278,7 +310,10 @@ def solve(
                        refine=refine, known_rig=known_rig, loss=loss, lens_models=lens_models,
                        principal_point=principal_point, max_num_features=features, jackknife=UNCERTAINTY[uncertainty],
                        priors=tuple(parse_prior(p) if isinstance(p, str) else p for p in priors), verbose=verbose,
-                       guided_matching=guided_matching, every=every, masks=mattes, progress=say)
+                       guided_matching=guided_matching, every=every, masks=mattes, progress=say, intrinsics=grid,
+                       intrinsics_mode=intrinsics_mode,
+                       intrinsics_source=str(intrinsics) if grid is not None and not isinstance(intrinsics, Rig)
+                       else "the grid", world=world, require_all=require_all)
     peer = (solve_pycolmap_plain(found, out / "pycolmap", seed=seed, verbose=verbose, every=every)
             if compare_pycolmap else None)
     return Solve(result, out, peer)

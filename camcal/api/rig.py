@@ -51,7 +51,8 @@ def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | 
     Parameters
     ----------
     rig : Rig or path
-        The rig, or its ``*.rig.json`` (whose sparse-points PLY is found beside it).
+        The rig, or its ``*.rig.json`` (whose sparse-points PLY is found beside it), or a lens profile
+        ``*.profile.json`` (:func:`camcal.api.profile.export_profile`: lensfun).
     path : path
         The file (a folder for colmap) to write.
     to : str, optional
@@ -75,6 +76,14 @@ def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | 
     from camcal.io.interchange import export_rig as export_as
     from camcal.model.rig import Rig
 
+    if not isinstance(rig, Rig) and os.fspath(rig).endswith(".profile.json"):
+        from camcal.api.profile import export_profile
+
+        return export_profile(rig, path, to)
+    if to == "lens-table":
+        from camcal.base.errors import CamcalError
+
+        raise CamcalError("--to lens-table exports a lens profile (*.profile.json, camcal calibrate profile), not a rig")
     rig_path = None if isinstance(rig, Rig) else rig
     loaded = rig if isinstance(rig, Rig) else Rig.load(rig)
     return export_as(loaded, to, path, cameras=cameras, rig_path=rig_path, stmaps=stmaps)

@@ -93,6 +93,10 @@ def undistort(
     ``clip_00000k.png``) and ``out/undistorted.rig.json`` with the new K and
     distortion none, in a folder built under a temporary name and renamed at
     the end (:mod:`camcal.pipelines.undistort`).
+    A camera whose lens changes over the rig's frames (a zoom) undistorts
+    each image with its frame's lens: the frame whose ``images`` names it,
+    else the frame number in its name (``plate.1001.exr``;
+    :func:`camcal.pipelines.undistort.image_frame`).
 
     Parameters
     ----------
@@ -126,7 +130,8 @@ def undistort(
     Raises
     ------
     CamcalError
-        No such camera, images of another size, images and videos mixed, ``every < 1`` (nothing written).
+        No such camera, images of another size, images and videos mixed, ``every < 1``, a per-frame lens and an
+        image of no frame (nothing written).
     """
     from camcal.io.video import is_video
     from camcal.model.rig import Rig
@@ -140,11 +145,15 @@ def undistort(
     videos = [path for path in images if is_video(path)]
     if videos and len(videos) != len(images):
         raise CamcalError("give images or videos, not both (undistort them in two runs)")
+    rig_dir = None if isinstance(rig, Rig) else Path(rig).parent
     rig = rig if isinstance(rig, Rig) else Rig.load(rig)
+    if sigma and rig.lens_frames(camera):
+        raise CamcalError(f"camera {camera!r}'s lens changes over the rig's frames: the projection sigma is of one "
+                          "lens (undistort without sigma)")
     if videos:
         rig_path, written = undistort_videos(rig, camera, videos, out, every, mode, overscan, max_fov_deg)
     else:
-        rig_path, written = undistort_images(rig, camera, images, out, mode, overscan, max_fov_deg)
+        rig_path, written = undistort_images(rig, camera, images, out, mode, overscan, max_fov_deg, rig_dir)
     undistorted = Rig.load(rig_path)
     summary, sigma_path = None, None
     if sigma:

@@ -1,4 +1,4 @@
-"""Frame ranges: ``1001-1240``, ``1001-1240x2`` or ``1,5,10-12`` as sorted frame numbers; held-out frames."""
+"""Frame ranges: ``1001-1240``, ``1001-1240x2`` or ``1,5,10-12`` as sorted frame numbers and back; held-out frames."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import re
 
 from camcal.base.errors import CamcalError
 
-__all__ = ["MAX_FRAMES", "parse_frames", "parse_holdout"]
+__all__ = ["MAX_FRAMES", "frame_runs", "parse_frames", "parse_holdout"]
 
 #: The most frames one list may name.
 MAX_FRAMES = 10_000_000
@@ -59,3 +59,20 @@ def parse_holdout(text: str, frames: list[int]) -> set[int]:
     except CamcalError as error:
         raise CamcalError(f"bad --holdout {text!r} ({error}): expected frame numbers and ranges (21-25,3) "
                           "or a fraction (0.2)") from None
+
+
+def frame_runs(frames: list[int]) -> list[str]:
+    """Sorted frame numbers as runs, for messages.
+
+    Examples
+    --------
+    >>> frame_runs([1, 2, 3, 7])
+    ['1-3', '7']
+    """
+    runs: list[list[int]] = []
+    for frame in frames:
+        if runs and frame == runs[-1][1] + 1:
+            runs[-1][1] = frame
+        else:
+            runs.append([frame, frame])
+    return [str(a) if a == b else f"{a}-{b}" for a, b in runs]

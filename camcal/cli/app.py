@@ -24,6 +24,7 @@ __all__ = ["VERBS", "build_parser", "leaf_parsers", "main"]
 VERBS: dict[str, tuple[str, str]] = {
     "rig": ("rig", "inspect rig files; export them to and import them from other tools"),
     "calibrate": ("calibrate", "calibrate cameras from targets or correspondences"),
+    "lens": ("lens", "a camera at any focal length and focus distance of a lens profile, or per frame"),
     "distortion": ("distortion", "lens distortion from straight lines"),
     "undistort": ("undistort", "undistort images of a rig camera"),
     "stmap": ("stmap", "undistort/redistort ST-maps (EXR) for comp packages"),

@@ -1,4 +1,5 @@
-"""``camcal calibrate dlt | board``: one camera from 3D-2D points, or a rig from board images."""
+"""``camcal calibrate dlt | board | profile``: one camera from 3D-2D points, a rig from board images, or a lens
+profile from board images at several lens states."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ _TDE4_MODELS = ("3de-classic", "3de4-radial-deg4", "3de4-anamorphic-deg4", "3de4
 
 
 def register(parser: argparse.ArgumentParser) -> None:
-    """``dlt`` and ``board`` under ``camcal calibrate``."""
+    """``dlt``, ``board`` and ``profile`` under ``camcal calibrate``."""
     verbs = verb_group(parser, "calibrate_verb", "METHOD")
     dlt = verbs.add_parser("dlt", help="one camera from 3D-2D correspondences (normalised DLT + LM)")
     dlt.add_argument("--points", required=True, metavar="FILE.csv", help="correspondences X,Y,Z,u,v")
@@ -117,6 +118,43 @@ def register(parser: argparse.ArgumentParser) -> None:
         "camcal calibrate board --board charuco:DICT_5X5_100:7x5:0.04:0.03 --images cam=take1.mp4 "
         "--every 10 --out cam.rig.json",
     ])
+    _register_profile(verbs)
+
+
+def _register_profile(verbs) -> None:
+    """``calibrate profile``: its options."""
+    profile = verbs.add_parser("profile", help="a lens profile over focal length and focus distance from board "
+                               "images at several lens states (zoom, focus)")
+    profile.add_argument("--board", required=True, metavar="SPEC",
+                         help="the board every state's images show (as calibrate board: chessboard:WxH:SQUARE or "
+                         "charuco:...)")
+    named_option(profile, "--state", "FOCALmm@FOCUSm=GLOB|RIG", "a lens state and its board images, e.g. "
+                 "24mm@1.2m='grids/24_1.2/*.jpg' (focus in m, cm or mm, or inf; repeated or several entries), or "
+                 "a one-camera rig calibrated at that state (24mm@1.2m=cal24.rig.json); at least 2 states",
+                 required=True)
+    profile.add_argument("--model", default="polynomial", metavar="MODEL",
+                         choices=_BOARD_MODELS + _TDE4_MODELS + ("auto",),
+                         help="the one lens model of every state, one of calibrate board's (default: polynomial, "
+                         "k1 k2; auto ranks the models by views held out once, on the state of the shortest focal "
+                         "length, and fits the winner at every state: ranking at every state is too slow)")
+    profile.add_argument("--holdout", metavar="FRAMES",
+                         help="each state's frames left out of its fit and reported as held-out RMS (as calibrate "
+                         "board)")
+    profile.add_argument("--suggest", action="store_true",
+                         help="print the lens state to shoot next: where the profile's worst projection sigma over "
+                         "the focal x focus range is largest")
+    profile.add_argument("--cache", metavar="DIR", help="corner cache directory (default: $XDG_CACHE_HOME/camcal/"
+                         "corners)")
+    profile.add_argument("--no-cache", action="store_true", help="detect again, do not read or write the cache")
+    profile.add_argument("--force", action="store_true",
+                         help="keep a state whose calibration fails calibrate board's quality gate")
+    out_option(profile, "FILE.profile.json", "the lens profile to write")
+    handler(profile, _profile, [
+        "# a zoom at three focal lengths, focused at 1.2 m, and at infinity",
+        "camcal calibrate profile --board chessboard:9x6:0.03 --state 24mm@1.2m='grids/24_1.2/*.jpg' "
+        "--state 35mm@1.2m='grids/35_1.2/*.jpg' --state 70mm@1.2m='grids/70_1.2/*.jpg' "
+        "--state 35mm@inf='grids/35_inf/*.jpg' --out lens.profile.json --suggest",
+    ])
 
 
 def _dlt(args: argparse.Namespace) -> int:
@@ -174,3 +212,26 @@ def _board(args: argparse.Namespace) -> int:
     for path, kind in result.files:
         out.wrote(args.out if kind == "rig" else path, kind)
     return 3 if result.quality_problems else 0
+
+
+def _profile(args: argparse.Namespace) -> int:
+    """Calibrate the lens at each state (focal length and focus distance) from its board images, as calibrate
+    board does, with one lens model for all; then fit each parameter (fx, fy, cx, cy and the lens model's) as a
+    low-order polynomial surface over the focal length and 1 / focus distance (so focus is sampled toward
+    infinity), its degrees chosen by leaving one state out in turn, its sigma propagated from each state's
+    calibration and widened where the held-out states miss by more. States that every smooth surface misses by
+    more than 5 sigma are named. The profile file holds every state and every surface; camcal lens makes a camera
+    at any state from it.
+    """
+    from camcal.api.profile import calibrate_profile
+
+    result = calibrate_profile(args.state, args.board, model=args.model, holdout=args.holdout,
+                               cache=False if args.no_cache else (args.cache or True), force=args.force,
+                               suggest=args.suggest, out=args.out, log=print)
+    for line in result.lines():
+        print(line)
+    out = summary_of(args)
+    out.figures(**result.figures())
+    for path, kind in result.files:
+        out.wrote(path, kind)
+    return 0

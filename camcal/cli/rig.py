@@ -25,9 +25,10 @@ def register(parser: argparse.ArgumentParser) -> None:
         "camcal rig show board.rig.json --validate",
     ])
     export = verbs.add_parser("export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke, 3DE)")
-    rig_argument(export)
-    export.add_argument("--to", choices=FORMATS, metavar="FORMAT",
-                        help=f"one of: {', '.join(FORMATS)} (default: from OUT's suffix, .nk .usd* .txt)")
+    rig_argument(export, help="a *.rig.json file, or a lens profile *.profile.json (to lensfun or lens-table)")
+    export.add_argument("--to", choices=FORMATS + ("lens-table",), metavar="FORMAT",
+                        help=f"one of: {', '.join(FORMATS)}, lens-table (a lens profile sampled over its "
+                        "encoders, JSON) (default: from OUT's suffix, .nk .usd* .txt)")
     export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
     export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
     export.add_argument("--stmaps", action="store_true",
@@ -37,6 +38,8 @@ def register(parser: argparse.ArgumentParser) -> None:
         "camcal rig export board.rig.json board.nk --camera left",
         "# a USD stage whose cameras reference their lens' ST-maps",
         "camcal rig export solve/solve.rig.json solve.usda --stmaps",
+        "# a lens profile as a Lensfun lens, one entry per focal length calibrated",
+        "camcal rig export lens.profile.json lens.xml --to lensfun",
     ], notes=["Which lens each format holds exactly:\n" + exactness_table()])
     imp = verbs.add_parser("import", help="read another tool's camera file as a rig")
     imp.add_argument("file", metavar="FILE", help="the other tool's file")

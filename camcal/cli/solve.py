@@ -27,6 +27,15 @@ def register(parser: argparse.ArgumentParser) -> None:
                  "--frames; alpha, else the first channel): no feature is taken where it is white (moving actors, the sky)")
     parser.add_argument("--rig", metavar="KNOWN.rig.json",
                         help="hold the cameras' relative poses at this calibration (and take its units)")
+    parser.add_argument("--intrinsics", metavar="GRID.rig.json",
+                        help="take each camera's lens from this grid calibration (calibrate board; by camera name, or "
+                        "its one camera for a one-camera solve) instead of choosing one: a plate of the grid's size "
+                        "takes it as is, one of the same aspect at another size takes K scaled (said); another "
+                        "aspect or a crop is an error naming both sizes")
+    parser.add_argument("--intrinsics-mode", choices=("fixed", "prior"),
+                        help="hold the grid's lens (fixed) or refine it under a Gaussian prior of the grid's sigmas "
+                        "(prior; the move is said in sigmas) (default: fixed)")
+    only_with(parser, "--intrinsics-mode", "--intrinsics", lambda args: args.intrinsics is not None, default="fixed")
     parser.add_argument("--model", choices=("auto", "division", "polynomial", "opencv", "none", "kannala-brandt"),
                         help="camcal lens model (refined as COLMAP DIVISION / OPENCV with p1 = p2 = 0 / OPENCV / "
                         "PINHOLE / OPENCV_FISHEYE: fx and fy apart, under the square-pixel prior fx - fy +- 1 %% "
@@ -58,6 +67,23 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "sequences) (default: %(default)s)")
     parser.add_argument("--mapper", default="incremental", choices=("incremental", "global"),
                         help="COLMAP's incremental or global mapper (default: %(default)s)")
+    parser.add_argument("--require-all", action="store_true",
+                        help="an image that cannot be registered is an error (nothing written); by default each is "
+                        "named by its frame number in one line and the solve goes on")
+    parser.add_argument("--up", choices=("ground", "cameras"),
+                        help="after the solve, turn the world so that +z is up: the normal of the ground plane "
+                        "(RANSAC on the sparse points) or the cameras' mean up; the first camera then looks down +y "
+                        "(default: the solve's own axes)")
+    parser.add_argument("--origin", metavar="POINT",
+                        help="the point that becomes the origin: ground (the ground plane under the first camera), "
+                        "a point's row in points.ply (12) or coordinates in the solve's world (--origin=0.5:-1.2:3) "
+                        "(default: the solve's own origin)")
+    parser.add_argument("--scale", metavar="A,B=DIST",
+                        help="two points (rows of points.ply or x:y:z coordinates) and their known distance, e.g. "
+                        "12,40=1.5: the world is scaled to it (default: the solve's own scale, units arbitrary)")
+    parser.add_argument("--units", metavar="NAME",
+                        help="the unit of --scale's distance, recorded in the rig (default: m)")
+    only_with(parser, "--units", "--scale", lambda args: args.scale is not None)
     loss_option(parser, "robust loss of camcal's bundle adjustment (scale 1 px; default: %(default)s)")
     parser.add_argument("--no-refine", action="store_true", help="keep pycolmap's result, skip camcal's refinement")
     parser.add_argument("--compare-pycolmap", action="store_true",
@@ -75,6 +101,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         "# two cameras' images in one folder, a fisheye lens, the relative pose of a board calibration",
         "camcal solve shots --images left='*_L.jpg' right='*_R.jpg' --model kannala-brandt --rig "
         "board.rig.json --out solve",
+        "# a plate with the lens of the day's grid held, every frame required, the world set on the ground",
+        "camcal solve plates/shot.%04d.exr --frames 1001-1240 --matcher sequential --intrinsics grid.rig.json "
+        "--require-all --up ground --origin ground --scale 12,40=1.5 --out solve",
     ])
 
 
@@ -89,7 +118,9 @@ def _solve(args: argparse.Namespace) -> int:
     """One folder per camera (or one folder of per-camera sub-folders, or --images NAME=GLOB inside one folder);
     several cameras form a rig whose frames pair up by sorted order. Each camera's lens model is chosen by
     held-out residual; the principal point and the lens are refined under the sensor's Gaussian priors and the
-    user's (--prior), and what the images do not determine is said with its sigma. Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
+    user's (--prior), and what the images do not determine is said with its sigma; or the lens of a grid
+    calibration is held (--intrinsics). Frames that cannot be registered are named by number. The world can be set
+    after the solve (--up, --origin, --scale). Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
     """
     from camcal.api.reconstruction import solve
 
@@ -98,7 +129,9 @@ def _solve(args: argparse.Namespace) -> int:
                    camera_model=args.camera_model, principal_point=args.principal_point, priors=args.prior,
                    uncertainty=args.uncertainty, features=args.features, guided_matching=args.guided_matching,
                    matcher=args.matcher, mapper=args.mapper, loss=args.loss, refine=not args.no_refine,
-                   compare_pycolmap=args.compare_pycolmap, seed=args.seed, verbose=args.verbose)
+                   compare_pycolmap=args.compare_pycolmap, intrinsics=args.intrinsics,
+                   intrinsics_mode=args.intrinsics_mode, require_all=args.require_all, up=args.up, origin=args.origin,
+                   scale=args.scale, units=args.units, seed=args.seed, verbose=args.verbose)
     for line in result.lines():
         print(line)
     out = summary_of(args)

@@ -21,7 +21,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                            "round((FACTOR - 1) W / 2) x round((FACTOR - 1) H / 2) pixels on each side")
     size.add_argument("--border", type=int, nargs="+", metavar="PX",
                       help="overscan as a border in pixels on each side: one number, or X Y")
-    out_option(parser, "DIR", "the folder to write NAME_undistort.exr and NAME_redistort.exr into")
+    out_option(parser, "DIR", "the folder to write NAME_undistort.exr and NAME_redistort.exr into (a camera whose "
+               "lens changes per frame: NAME_undistort.%%04d.exr ..., a pair per frame)")
     sigma_options(parser, "NAME_sigma.exr (plate-sized, with the redistort map) and NAME_undistort_sigma.exr "
                   "(with the undistort map): the projection sigma in plate pixels")
     report_option(parser, "with --sigma, write DIR/sigma_NAME.png and DIR/undistort_sigma_NAME.png: the sigma maps "
@@ -37,11 +38,13 @@ def _stmap(args: argparse.Namespace) -> int:
     the pixel to sample, (x, y) with pixel (0, 0) at the centre of the top-left pixel and W x H the plate's size
     (the format of both images; values outside 0..1 reach into the overscan border). The undistort map's border is
     the EXR's data window beyond its plate-sized display window (Nuke's bounding box). Also the undistorted rig.
+    A camera whose lens changes over the rig's frames (a zoom) gets a pair per frame, NAME_undistort.%04d.exr and
+    NAME_redistort.%04d.exr, each of its frame's lens.
     """
     from camcal.base.atomic import final_path
     from camcal.cli.options import output_folder
     from camcal.geometry.stmap import DEFAULT_OVERSCAN, overscan_border
-    from camcal.io.stmap import read_sigma_map, write_stmap_sigmas, write_stmaps
+    from camcal.io.stmap import read_sigma_map, write_stmap_frames, write_stmap_sigmas, write_stmaps
     from camcal.model.rig import Rig
 
     if args.report and not args.sigma:
@@ -53,10 +56,18 @@ def _stmap(args: argparse.Namespace) -> int:
     camera = rig.camera(args.camera)
     factor = DEFAULT_OVERSCAN if border is None and args.overscan is None else args.overscan
     bx, by = overscan_border(camera.image_size, factor, border)
-    paths = write_stmaps(rig, args.camera, args.out, border=(bx, by))
+    per_frame = bool(rig.lens_frames(args.camera))
+    if per_frame and args.sigma:
+        raise CamcalError(f"camera {args.camera!r}'s lens changes over the rig's frames: --sigma maps one lens")
+    if per_frame:
+        undistort, redistort, rig_path = write_stmap_frames(rig, args.camera, args.out, border=(bx, by))
+        paths = [*undistort, *redistort, rig_path]
+    else:
+        paths = write_stmaps(rig, args.camera, args.out, border=(bx, by))
     width, height = camera.image_size
     print(f"ST-maps of {args.camera!r}: format {width}x{height}, overscan border {bx}x{by} px "
-          f"(undistorted data window {width + 2 * bx}x{height + 2 * by})")
+          f"(undistorted data window {width + 2 * bx}x{height + 2 * by})"
+          + (f", one pair per frame for its {len(rig.frames)} frames (per-frame lens)" if per_frame else ""))
     out = summary_of(args)
     out.figures(camera=args.camera, overscan=args.overscan, border=[bx, by])
     for path in paths:

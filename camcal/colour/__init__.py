@@ -14,6 +14,9 @@ Sub-packages, bottom up (each imports only those before it):
 - :mod:`~camcal.colour.match`: camera-to-camera matching and its record;
 - :mod:`~camcal.colour.export`: OCIO colour spaces and Looks, ICC profiles.
 
+Beside them, :mod:`~camcal.colour.flatfield` (with :mod:`~camcal.colour.flatfield_samples`): a lens's flat field
+and vignetting from grey cards or neutral patches, applied before a fit.
+
 The files (``*.colour.json``, ``*.ssf.json``, patch CSVs, OCIO configs, ICC
 profiles, chart images) are read and written by :mod:`camcal.io`; the steps
 from paths to files are in :mod:`camcal.pipelines.colour`::

@@ -44,7 +44,7 @@ from camcal.model.distortion import FISHEYE_MODELS, Distortion
 from camcal.geometry.undistort import UndistortedView, Undistorter
 from camcal.model.rig import Camera
 
-__all__ = ["DEFAULT_OVERSCAN", "STMaps", "overscan_border", "st_from_pixels", "pixels_from_st", "st_of_distorted_grid",
+__all__ = ["DEFAULT_OVERSCAN", "STMaps", "stmap_view", "overscan_border", "st_from_pixels", "pixels_from_st", "st_of_distorted_grid",
            "undistorted_grid", "make_stmaps"]
 
 #: The models :func:`_distort_arrays` evaluates on a grid; the others (3DE's) go through ``Distortion.distort``.
@@ -397,6 +397,21 @@ class STMaps:
     undistorted: Camera
 
 
+def stmap_view(camera: Camera, overscan: float | None = None,
+               border: int | tuple[int, int] | None = None) -> UndistortedView:
+    """The undistorted image of :func:`make_stmaps`: the plate's ``K`` shifted by the overscan border, the bigger canvas.
+
+    ``overscan`` and ``border`` as :func:`make_stmaps` (by default
+    :data:`DEFAULT_OVERSCAN`).
+    """
+    if overscan is None and border is None:
+        overscan = DEFAULT_OVERSCAN
+    bx, by = overscan_border(camera.image_size, overscan, border)
+    K_new = camera.K.copy()
+    K_new[:2, 2] += (bx, by)
+    return UndistortedView(K_new, (camera.image_size[0] + 2 * bx, camera.image_size[1] + 2 * by))
+
+
 def make_stmaps(camera: Camera, overscan: float | None = None,
                 border: int | tuple[int, int] | None = None) -> STMaps:
     """Build the undistort and redistort ST-maps of ``camera``.
@@ -428,18 +443,14 @@ def make_stmaps(camera: Camera, overscan: float | None = None,
     lens's fold, a fisheye ray beyond its widest angle) sample pixel
     ``(-1, y)``, outside the format (R < 0).
     """
-    if overscan is None and border is None:
-        overscan = DEFAULT_OVERSCAN
-    bx, by = overscan_border(camera.image_size, overscan, border)
+    view = stmap_view(camera, overscan, border)
     width, height = camera.image_size
+    bx, by = (view.image_size[0] - width) // 2, (view.image_size[1] - height) // 2
     K = camera.K
     undistort = st_of_distorted_grid(camera.distortion, K, np.arange(-bx, width + bx, dtype=np.float64),
                                      np.arange(-by, height + by, dtype=np.float64), camera.image_size)
     x_u, y_u = undistorted_grid(camera.distortion, K, camera.image_size)
     x_u[~np.isfinite(x_u) | ~np.isfinite(y_u)] = -1.0  # no undistorted pixel: outside the format
     redistort = st_from_pixels(x_u, y_u, camera.image_size)
-    K_new = K.copy()
-    K_new[:2, 2] += (bx, by)
-    view = UndistortedView(K_new, (width + 2 * bx, height + 2 * by))
     undistorted = Undistorter(camera, view, maps=None).undistorted_camera()
     return STMaps(undistort, redistort, camera.image_size, (bx, by), undistorted)

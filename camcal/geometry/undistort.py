@@ -30,7 +30,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -39,9 +41,10 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion
 from camcal.geometry.remap import RemapMaps, build_maps, undistort_homography
-from camcal.model.rig import Camera, Rectification
+from camcal.model.rig import Camera, Lens, Rectification, Rig
 
-__all__ = ["MODES", "FISHEYE_FOV_DEG", "UndistortedView", "Undistorter", "undistorted_view", "make_undistorter"]
+__all__ = ["MODES", "FISHEYE_FOV_DEG", "UndistortedView", "Undistorter", "undistorted_view", "make_undistorter",
+           "undistorted_rig"]
 
 #: How K_new is chosen (see the module docstring).
 MODES = ("crop", "keep", "overscan")
@@ -227,3 +230,49 @@ def make_undistorter(
     view = undistorted_view(camera, mode, overscan, max_fov_deg)
     maps = build_maps(camera, undistort_homography(camera, view.K_new), view.image_size)
     return Undistorter(camera, view, maps)
+
+
+def undistorted_rig(rig: Rig, camera_name: str, view: Callable[[Camera], UndistortedView],
+                    provenance: Mapping[str, Any]) -> Rig:
+    """The rig with camera ``camera_name`` undistorted: its own lens and, frame by frame, each per-frame lens.
+
+    Parameters
+    ----------
+    rig : Rig
+    camera_name : str
+    view : callable
+        The undistorted view of a camera (e.g. :func:`undistorted_view`
+        with the run's mode), applied to the camera and to the camera with
+        each frame's lens (:meth:`camcal.model.rig.Rig.camera_at_frame`).
+    provenance : mapping
+        The new rig's provenance.
+
+    Returns
+    -------
+    Rig
+        The camera replaced by :meth:`Undistorter.undistorted_camera` of its
+        view; each frame with a lens of it gets that lens's undistorted
+        ``K_new`` (distortion none, the lens state kept).
+
+    Raises
+    ------
+    CamcalError
+        A frame's view has another image size than the camera's (``keep``
+        sizes the canvas by the lens): one rig camera has one image size.
+    """
+    camera = rig.camera(camera_name)
+    base_view = view(camera)
+    lenses = {}
+    for frame in rig.frames:
+        state = frame.lenses.get(camera_name)
+        if state is None:
+            continue
+        frame_view = view(rig.camera_at_frame(camera_name, frame.index))
+        if frame_view.image_size != base_view.image_size:
+            size, base = frame_view.image_size, base_view.image_size
+            raise CamcalError(f"frame {frame.index}'s lens undistorts to {size[0]}x{size[1]} px, camera "
+                              f"{camera_name!r}'s own to {base[0]}x{base[1]}: a per-frame lens needs a fixed "
+                              "output size (use the crop or overscan mode)")
+        lenses[frame.index] = Lens(frame_view.K_new, Distortion.none(), state.focal_mm, state.focus_m)
+    base = Undistorter(camera, base_view, maps=None).undistorted_camera()
+    return rig.with_camera(base, lenses, provenance=provenance)

@@ -36,6 +36,7 @@ A new format is one module with ``load`` and ``export`` (importing
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import os
 from collections.abc import Mapping, Sequence
@@ -64,6 +65,8 @@ _MODULES: Mapping[str, str] = MappingProxyType({
 
 #: The formats ``camcal rig export / import`` know.
 FORMATS: tuple[str, ...] = tuple(_MODULES)
+#: The formats that key a camera's lens per frame (a rig's ``frames[i].lenses``); the others hold its own lens.
+_PER_FRAME_LENS_FORMATS = ("nuke", "usd", "3de")
 
 #: File suffixes that name one format (``.yaml`` is OpenCV's or Kalibr's; COLMAP's model is a directory).
 _SUFFIXES: Mapping[str, str] = MappingProxyType({
@@ -126,8 +129,15 @@ def export_rig(
     if stmaps and fmt != "usd":
         raise CamcalError(f"stmaps applies to usd only (nuke always writes them), not {fmt}")
     extra = {"stmaps": True} if stmaps else {}
-    return module.export(rig, Path(out), cameras=cameras, rig_path=None if rig_path is None else Path(rig_path),
-                         **extra)
+    result = module.export(rig, Path(out), cameras=cameras, rig_path=None if rig_path is None else Path(rig_path),
+                           **extra)
+    zooming = [name for name in (cameras or [c.name for c in rig.cameras]) if rig.lens_frames(name)] \
+        if isinstance(rig, Rig) else []
+    if zooming and fmt not in _PER_FRAME_LENS_FORMATS:
+        result = dataclasses.replace(result, notes=(*result.notes, (
+            f"{fmt} holds one lens per camera: the per-frame lenses of {', '.join(zooming)} are not written (their "
+            f"own lens is); {', '.join(_PER_FRAME_LENS_FORMATS)} key them per frame")))
+    return result
 
 
 def import_rig(path: str | os.PathLike, fmt: str | None, *, image_size: tuple[int, int] | None = None) -> ImportResult:

@@ -50,7 +50,11 @@ A camcal ``polynomial`` lens ``x_d = x_u (1 + k1 r^2 + k2 r^4)`` (focal
 ``f`` pixels, square pixels) is exactly ``poly5`` with ``F = f``,
 ``k1' = k1 s^2 / f^2``, ``k2' = k2 s^4 / f^4``, and with ``k2 = 0``
 ``poly3`` with ``k1' / (1 - k1')^3 = k1 s^2 / f^2``, ``F = f / (1 - k1')``
-(for ``k1 s^2 / f^2 > -4/27``). Every other lens (opencv, division, fisheye, a
+(for ``k1 s^2 / f^2 > -4/27``). A Kannala-Brandt (fisheye) lens is written
+as Lensfun's ``<type>fisheye</type>`` (equidistant: its undistorted image
+puts a ray at ``F theta`` from the centre), where the same formulas hold
+with the ray's angle ``theta`` for ``tan theta``: ``k1..k4`` with ``k3 = k4
+= 0`` is exactly ``poly5``. Every other lens (opencv, division, a fisheye with k3 or k4, a
 polynomial ``k3``, non-square pixels or skew) is refitted to each model
 through :func:`camcal.io.conversion.refit_projection` (the core of
 :func:`~camcal.io.conversion.refit_camera`: its dense grid, weights and
@@ -117,6 +121,8 @@ DEFAULT_SENSOR_WIDTH_MM = 36.0
 _FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 #: A model with more terms is written only when its RMS residual is smaller by more than this (px).
 _SIMPLER_WITHIN_PX = 0.01
+#: Lensfun's ``<type>`` camcal reads: the pinhole and the equidistant fisheye.
+_LENS_TYPES = ("rectilinear", "fisheye")
 _SIZE_COMMENT = re.compile(r"^\s*camcal image_size\s+(\d+)\s+(\d+)\s*$")
 
 
@@ -140,13 +146,17 @@ class LensfunLens:
         ``<real-focal-length real-focal>``: the lens' pinhole focal length
         at the centre, ``F d`` with ``d = Rd / Ru`` at ``Ru = 0``
         (Lensfun's default without it: ``focal_mm d``).
+    lens_type : str
+        ``<type>``: ``rectilinear`` (Lensfun's default) or ``fisheye`` (equidistant).
     """
 
     def __init__(self, model: str, terms: Mapping[str, float], focal_mm: float, crop: float, aspect: float,
-                 center: tuple[float, float], real_focal_mm: float | None = None) -> None:
+                 center: tuple[float, float], real_focal_mm: float | None = None,
+                 lens_type: str = "rectilinear") -> None:
         self.model, self.terms, self.focal_mm = model, dict(terms), float(focal_mm)
         self.crop, self.aspect, self.center = float(crop), float(aspect), (float(center[0]), float(center[1]))
         self.real_focal_mm = real_focal_mm
+        self.lens_type = lens_type
 
     def centre_scale(self) -> float:
         """``d = Rd / Ru`` at the centre (``1 - k1``, ``1``, ``1 - a - b - c``)."""
@@ -201,14 +211,26 @@ def radius_ratio(model: str, terms: Sequence[float], ru: NDArray[np.float64]) ->
     return a * ru**3 + b * ru**2 + c * ru + 1.0 - a - b - c
 
 
-def _projector(model: str, centre: NDArray[np.float64],
-               unit: float) -> Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]:
+#: A rectilinear lens images the rays at least this far (radians) in front of its image plane; the others are not
+#: imaged (counted as lost), instead of residuals of 1e16 pixels near 90 degrees.
+_MIN_ELEVATION_RAD = math.radians(3.0)
+
+
+def _projector(model: str, centre: NDArray[np.float64], unit: float, fisheye: bool = False
+               ) -> Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]:
     """``project(vector, rays)``: distorted pixels of a Lensfun lens, ``vector`` its undistorted focal ``F``
-    (pixels) and terms, about the lens centre ``centre`` (pixels), ``unit`` pixels to the normalised unit."""
+    (pixels) and terms, about the lens centre ``centre`` (pixels), ``unit`` pixels to the normalised unit;
+    ``fisheye``: the equidistant undistorted image (``F theta``), else the pinhole one (``F tan theta``, NaN
+    for rays within 3 degrees of the image plane or behind it)."""
     def project(vector: NDArray[np.float64], rays: NDArray[np.float64]) -> NDArray[np.float64]:
-        depth = rays[:, 2:3]
+        rho = np.hypot(rays[:, 0], rays[:, 1])
+        depth = rays[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
-            offset = vector[0] * np.where(depth > 0.0, rays[:, :2] / depth, np.nan)
+            if fisheye:
+                scale = np.where(rho > 0.0, np.arctan2(rho, depth) / rho, 1.0 / np.where(depth > 0, depth, np.nan))
+            else:
+                scale = np.where(depth > np.sin(_MIN_ELEVATION_RAD) * np.hypot(rho, depth), 1.0 / depth, np.nan)
+            offset = vector[0] * rays[:, :2] * scale[:, None]
         ratio = radius_ratio(model, vector[1:], np.linalg.norm(offset, axis=1) / unit)
         return centre + offset * ratio[:, None]
 
@@ -225,8 +247,10 @@ def _exact_lens(camera: Camera, model: str, crop: float) -> LensfunLens | None:
     """
     K, lens = camera.K, camera.distortion
     params = lens.params
-    if (lens.has_correction or lens.model not in ("none", "polynomial") or K[0, 0] != K[1, 1] or K[0, 1] != 0.0
-            or model == "ptlens" or params.get("k3", 0.0) != 0.0 or (model == "poly3" and params.get("k2", 0.0))):
+    higher = ("k3", "k4") if lens.is_fisheye else ("k3",)
+    if (lens.has_correction or lens.model not in ("none", "polynomial", "kannala-brandt") or K[0, 0] != K[1, 1]
+            or K[0, 1] != 0.0 or model == "ptlens" or any(params.get(name, 0.0) != 0.0 for name in higher)
+            or (model == "poly3" and params.get("k2", 0.0))):
         return None
     focal, unit = K[0, 0], _unit_px(camera.image_size)
     k1, k2 = params.get("k1", 0.0) * unit**2 / focal**2, params.get("k2", 0.0) * unit**4 / focal**4
@@ -244,12 +268,14 @@ def _exact_lens(camera: Camera, model: str, crop: float) -> LensfunLens | None:
 def _lens(camera: Camera, model: str, terms: Mapping[str, float], undistorted_focal: float, crop: float,
           nominal_mm: float | None = None, centre_px: NDArray[np.float64] | None = None) -> LensfunLens:
     """A Lensfun entry about ``centre_px`` (default the principal point) with undistorted focal
-    ``undistorted_focal`` pixels, keyed by ``nominal_mm`` (default the camera's focal length in mm)."""
+    ``undistorted_focal`` pixels, keyed by ``nominal_mm`` (default the camera's focal length in mm); a fisheye
+    camera's is Lensfun's equidistant fisheye type."""
     width, height = camera.image_size
     unit = _unit_px(camera.image_size)
     centre_px = camera.K[:2, 2] if centre_px is None else centre_px
     centre = (centre_px[0] - (width - 1) / 2.0) / unit, (centre_px[1] - (height - 1) / 2.0) / unit
-    lens = LensfunLens(model, terms, 0.0, crop, _aspect(camera.image_size), centre)
+    lens = LensfunLens(model, terms, 0.0, crop, _aspect(camera.image_size), centre,
+                       lens_type="fisheye" if camera.distortion.is_fisheye else "rectilinear")
     lens.focal_mm = math.sqrt(camera.K[0, 0] * camera.K[1, 1]) * lens.unit_mm() / unit if nominal_mm is None \
         else nominal_mm
     lens.real_focal_mm = undistorted_focal * lens.unit_mm() / unit * lens.centre_scale()
@@ -258,7 +284,8 @@ def _lens(camera: Camera, model: str, terms: Mapping[str, float], undistorted_fo
 
 def fit_lens(camera: Camera, model: str, crop: float, *, nominal_mm: float | None = None,
              centre_px: NDArray[np.float64] | None = None) -> tuple[LensfunLens, Refit]:
-    """``camera``'s lens in a Lensfun model: exact where the model holds it, else refitted.
+    """``camera``'s lens in a Lensfun model: exact where the model holds it, else refitted (a fisheye camera
+    in Lensfun's equidistant fisheye type).
 
     The refit (:func:`camcal.io.conversion.refit_projection`, the core of
     :func:`~camcal.io.conversion.refit_camera`) fits the undistorted focal
@@ -269,7 +296,7 @@ def fit_lens(camera: Camera, model: str, crop: float, *, nominal_mm: float | Non
     """
     unit = _unit_px(camera.image_size)
     centre = np.array(camera.K[:2, 2] if centre_px is None else centre_px, dtype=np.float64)
-    project = _projector(model, centre, unit)
+    project = _projector(model, centre, unit, camera.distortion.is_fisheye)
     exact = _exact_lens(camera, model, crop) if np.array_equal(centre, camera.K[:2, 2]) else None
     if exact is not None:
         vector = np.array([exact.undistorted_focal_px(camera.image_size), *exact.terms.values()])
@@ -293,7 +320,8 @@ def _best_fit(camera: Camera, crop: float, nominal_mm: float | None = None,
 
 
 def camera_of(lens: LensfunLens, image_size: tuple[int, int], name: str) -> Camera:
-    """The camcal camera (``polynomial`` lens) a Lensfun entry describes at ``image_size`` (exact).
+    """The camcal camera a Lensfun entry describes at ``image_size`` (exact): a ``polynomial`` lens, or for
+    Lensfun's fisheye type a ``kannala-brandt`` one (``k3 = k4 = 0``).
 
     ``ptlens`` needs ``a = c = 0`` (it is then ``poly3`` with ``k1 = b``).
     """
@@ -316,8 +344,9 @@ def camera_of(lens: LensfunLens, image_size: tuple[int, int], name: str) -> Came
     K = np.array([[focal, 0.0, (width - 1) / 2.0 + lens.center[0] * unit],
                   [0.0, focal, (height - 1) / 2.0 + lens.center[1] * unit], [0.0, 0.0, 1.0]])
     sensor_width_mm = _FULL_FRAME_DIAGONAL_MM / lens.crop * width / math.hypot(width, height)
-    return Camera(name, image_size, K, Distortion("polynomial", params), np.eye(3), np.zeros(3),
-                  sensor_width_mm=sensor_width_mm)
+    distortion = Distortion("kannala-brandt", {**params, "k3": 0.0, "k4": 0.0}) if lens.lens_type == "fisheye" \
+        else Distortion("polynomial", params)
+    return Camera(name, image_size, K, distortion, np.eye(3), np.zeros(3), sensor_width_mm=sensor_width_mm)
 
 
 def _number(value: float) -> str:
@@ -331,6 +360,8 @@ def _lens_element(root: ElementTree.Element, name: str, maker: str, mount: str,
     for tag, text in (("maker", maker), ("model", name), ("mount", mount)):
         ElementTree.SubElement(entry, tag).text = text
     first = lenses[0]
+    if first.lens_type != "rectilinear":
+        ElementTree.SubElement(entry, "type").text = first.lens_type
     if first.center != (0.0, 0.0):
         ElementTree.SubElement(entry, "center", x=_number(first.center[0]), y=_number(first.center[1]))
     ElementTree.SubElement(entry, "cropfactor").text = _number(first.crop)
@@ -544,13 +575,17 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None, focal_mm: flo
         focal = _float(distortion, "focal", f"lens {name!r}: focal")
         real = [_float(e, "real-focal", f"lens {name!r}: real-focal") for e in entry.findall(
             "calibration/real-focal-length") if _float(e, "focal", f"lens {name!r}: focal") == focal]
-        lens = LensfunLens(model, terms, focal, crop, aspect, center, real[0] if real else None)
+        lens_type = (entry.findtext("type") or "rectilinear").strip()
+        if lens_type not in _LENS_TYPES:
+            raise CamcalError(f"lens {name!r}: camcal reads Lensfun's {' and '.join(_LENS_TYPES)} lenses, not "
+                              f"{lens_type!r}")
+        lens = LensfunLens(model, terms, focal, crop, aspect, center, real[0] if real else None, lens_type)
         if focal <= 0.0 or lens.centre_scale() <= 0.0 or (real and real[0] <= 0.0):
             raise CamcalError(f"lens {name!r}: a {model} lens needs focal lengths > 0 and Rd / Ru > 0 at the centre, "
                               f"got focal {focal:g}, Rd / Ru {lens.centre_scale():g}")
         camera = camera_of(lens, image_size, name)
         cameras.append(camera)
-        conversions.append(LensConversion(name, f"Lensfun {model}", "polynomial", True))
+        conversions.append(LensConversion(name, f"Lensfun {model}", camera.distortion.model, True))
     if not cameras:
         raise CamcalError("the Lensfun file holds no <lens>")
     return ImportResult(Rig(tuple(cameras), units="unknown"), tuple(conversions),

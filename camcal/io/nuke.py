@@ -58,7 +58,21 @@ them (Nuke's own) from the LDPK node ``<node>_ldpk`` or LensDistortion node
 ``<node>_lens`` (the only one, with one camera); a script with lens nodes and
 no Camera3 gives one camera per lens node (LDPK nodes first), at the origin.
 Image sizes come from the camcal knobs, the LensDistortion node's format,
-the Root's ``format`` or the ``image_size`` given to :func:`load`. No key per frame: a camcal camera has one lens.
+the Root's ``format`` or the ``image_size`` given to :func:`load`.
+
+Per-frame lenses (a zoom, a rack focus: :attr:`camcal.model.rig.Frame.lenses`):
+a camera whose lens changes over the rig's frames gets one key per frame on
+the Camera3's ``focal``, ``haperture`` (the sensor width: the same on every
+frame) and ``win_translate``, on every lens knob of its LensDistortion and LDPK nodes (each
+frame's lens refitted on its own where the family does not hold it; the
+worst frame's residual printed; :mod:`camcal.io.nuke_lens`) and a camcal
+knob ``lens_keys`` (``x<frame> k=v ... [center=x,y] [focal_mm=v]
+[focus_m=v]`` per frame, the lens exactly); its ST-maps are a pair per
+frame, ``<camera>_undistort.%04d.exr`` / ``<camera>_redistort.%04d.exr``
+read as sequences (``first`` / ``last``) by the chain's Read nodes
+(:func:`camcal.io.stmap.write_stmap_frames`). Reading gives the frames a
+lens where the keyed focal length, film back offset or lens (``lens_keys``,
+or the paired lens node's keys) differ from the first frame's.
 
 No Nuke was available to check these files: the conventions above are the
 ones Foundry documents for Camera3, STMap and LensDistortion (knob names)
@@ -76,11 +90,9 @@ and "Export Nuke LensDistortion Node" scripts; Lens Distortion Plugin Kit 2.0.
 
 from __future__ import annotations
 
-import math
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from types import MappingProxyType
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -99,8 +111,10 @@ from camcal.io.conversion import (
     refit_camera,
     select_cameras,
 )
-from camcal.model.rig import Camera, Frame, Rig
-from camcal.model.tde4 import BUILTIN_PARAMETERS, FILMBACK_KEYS, LDPK_MODEL_NAMES, LDPK_PARAMETERS, LdpkCamera
+from camcal.io.nuke_knobs import animated_knob, blocks, keyed_knob, knob_text, number, parse_number, value_at
+from camcal.io.nuke_lens import format_knob, ldpk_node_class, lens_nodes, lens_nodes_of, node_lenses
+from camcal.model.rig import Camera, Frame, Lens, Rig
+from camcal.model.tde4 import LDPK_MODEL_NAMES
 
 __all__ = ["DEFAULT_HAPERTURE_MM", "ldpk_node_class", "nuke_intrinsics", "export", "load"]
 
@@ -136,28 +150,42 @@ def _transform(R: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return _D @ c, Rotation.from_matrix(_D @ R.T @ _D).as_euler("xyz", degrees=True)
 
 
-def _number(value: float) -> str:
-    return repr(float(value))
-
-
-def _knob(values: np.ndarray, frames: list[int] | None) -> str:
-    """A 3-vector knob, constant or animated with one key per frame."""
-    if frames is None:
-        return "{" + " ".join(_number(v) for v in values) + "}"
-    curves = []
-    for axis in range(3):
-        keys = " ".join(f"x{frame} {_number(values[i][axis])}" for i, frame in enumerate(frames))
-        curves.append("{curve " + keys + "}")
-    return "{" + " ".join(curves) + "}"
-
-
 def _node_name(name: str) -> str:
     return re.sub(r"\W", "_", name) if re.match(r"[A-Za-z_]", name) else "cam_" + re.sub(r"\W", "_", name)
 
 
+def _square(camera: Camera) -> Camera:
+    """The camera as Camera3 holds it: one focal scale (``fx``), no skew; the lens kept for the ST-maps."""
+    K = camera.K.copy()
+    K[0, 1], K[1, 1] = 0.0, K[0, 0]
+    return Camera(camera.name, camera.image_size, K, camera.distortion, camera.R, camera.c, camera.sensor_width_mm)
+
+
+def _lens_text(distortion: Distortion) -> tuple[str, str]:
+    """The camcal knobs ``lens_params`` and ``lens_center`` of a lens."""
+    params = " ".join(f"{k}={number(v)}" for k, v in distortion.params.items())
+    centre = "" if distortion.center is None else f"{number(distortion.center[0])} {number(distortion.center[1])}"
+    return params, centre
+
+
+def _lens_keys(rig: Rig, name: str) -> str:
+    """The camcal knob ``lens_keys``: ``x<frame> k=v ... [center=x,y] [focal_mm=v] [focus_m=v]`` per frame."""
+    tokens = []
+    for frame in rig.frames:
+        lens = rig.camera_at_frame(name, frame.index).distortion
+        params, centre = _lens_text(lens)
+        state = frame.lenses.get(name)
+        tokens += [f"x{frame.index}", params] + ([f"center={centre.replace(' ', ',')}"] if centre else [])
+        for key in ("focal_mm", "focus_m"):
+            value = None if state is None else getattr(state, key)
+            if value is not None:
+                tokens.append(f"{key}={number(value)}")
+    return " ".join(token for token in tokens if token)
+
+
 def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_path: Path | None = None) -> ExportResult:
     """Write the script (and the ST-maps of cameras with a lens) (see the module docstring)."""
-    from camcal.io.stmap import write_stmaps
+    from camcal.io.stmap import stmap_frame_name, write_stmap_frames, write_stmaps
 
     if out.suffix.lower() != ".nk":
         raise CamcalError(f"a Nuke script must end in .nk, got {out.name!r}")
@@ -168,65 +196,78 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
         raise CamcalError(f"camera names {', '.join(c.name for c in chosen)} give repeated Nuke node names")
     lines = ["#! nuke script written by camcal", "version 15.1 v1", "Root {", " inputs 0",
              f" first_frame {frames[0] if frames else 1}", f" last_frame {frames[-1] if frames else 1}",
-             f" format {_format_knob(chosen[0])}", "}"]
-    conversions, written = [], []
+             f" format {format_knob(chosen[0])}", "}"]
+    conversions, written, mapped = [], [], 0
     map_dir = out.with_name(out.stem + "_stmaps")
     for index, (camera, node) in enumerate(zip(chosen, names)):
-        # one focal scale and no skew; the lens goes through the ST-maps, exactly
-        K = camera.K.copy()
-        K[0, 1], K[1, 1] = 0.0, K[0, 0]
-        converted = Camera(camera.name, camera.image_size, K, camera.distortion, camera.R, camera.c,
-                           camera.sensor_width_mm)
-        exact = np.array_equal(K, camera.K)
+        # per-frame lenses: every lens knob keyed on every frame, each frame's lens refitted on its own
+        lens_frames = frames if rig.lens_frames(camera.name) else None
+        states = [rig.camera_at_frame(camera.name, f) for f in lens_frames] if lens_frames else [camera]
+        squared = [_square(state) for state in states]
+        exact = all(np.array_equal(a.K, b.K) for a, b in zip(squared, states))
         source = f"{camera.distortion.model}{' with skew' if camera.K[0, 1] else ''}" + (
             "" if camera.K[1, 1] == camera.K[0, 0] else ", fx != fy")
         family = nearest_family(camera.distortion, FORMAT_FAMILIES["nuke"])
-        lens_camera, refit = refit_camera(camera, family)
-        conversion = LensConversion(camera.name, source, f"Nuke Camera3 (+ ST-maps for the lens), lens nodes "
-                                    f"{LDPK_MODEL_NAMES[family]}", exact,
-                                    0.0 if exact else max_pixel_residual(camera, converted, lens=False),
-                                    "one focal scale, no skew", refit)
-        conversions.append(conversion)
+        refits = [refit_camera(state, family) for state in states]
+        worst = max((refit for _, refit in refits), key=lambda refit: refit.max_px)
+        keyed = f", keyed on {len(states)} frames (the worst frame's figures)" if lens_frames else ""
+        conversions.append(LensConversion(
+            camera.name, source, f"Nuke Camera3 (+ ST-maps for the lens), lens nodes {LDPK_MODEL_NAMES[family]}{keyed}",
+            exact, 0.0 if exact else max(max_pixel_residual(a, b, lens=False) for a, b in zip(states, squared)),
+            "one focal scale, no skew", worst))
         if frames:
             posed = [rig.camera_at_frame(camera.name, f) for f in frames]
             poses = [_transform(p.R, p.c) for p in posed]
             translate, rotate = np.array([p[0] for p in poses]), np.array([p[1] for p in poses])
         else:
             translate, rotate = _transform(camera.R, camera.c)
-        intr = nuke_intrinsics(converted)
-        lines += _lens_nodes(lens_camera, node, intr["haperture"], index)
+        intrinsics = [nuke_intrinsics(state) for state in squared]
+        first = intrinsics[0]
+        lines += lens_nodes([lens for lens, _ in refits], lens_frames, node, first["haperture"], index)
         width, height = camera.image_size
-        lens = camera.distortion
+        params, centre = _lens_text(camera.distortion)
         lines += [
             "Camera3 {", " inputs 0", " rot_order XYZ",
-            f" translate {_knob(translate, frames)}", f" rotate {_knob(rotate, frames)}",
-            f" focal {_number(intr['focal'])}", f" haperture {_number(intr['haperture'])}",
-            f" vaperture {_number(intr['vaperture'])}",
-            f" win_translate {{{_number(intr['win_translate'][0])} {_number(intr['win_translate'][1])}}}",
+            f" translate {animated_knob(translate, frames)}", f" rotate {animated_knob(rotate, frames)}",
+            f" focal {animated_knob([i['focal'] for i in intrinsics] if lens_frames else first['focal'], lens_frames)}",
+            " haperture " + animated_knob([i["haperture"] for i in intrinsics] if lens_frames else first["haperture"],
+                                          lens_frames),
+            f" vaperture {number(first['vaperture'])}",
+            " win_translate " + animated_knob([i["win_translate"] for i in intrinsics] if lens_frames
+                                              else first["win_translate"], lens_frames),
             f" name {node}", f" xpos {index * 150}", " ypos 0",
             " addUserKnob {20 camcal l camcal}",
             " addUserKnob {1 camera_name}", f' camera_name "{camera.name}"',
             " addUserKnob {3 image_width}", f" image_width {width}",
             " addUserKnob {3 image_height}", f" image_height {height}",
-            " addUserKnob {1 lens_model}", f' lens_model "{lens.model}"',
-            " addUserKnob {1 lens_params}",
-            ' lens_params "' + " ".join(f"{k}={_number(v)}" for k, v in lens.params.items()) + '"',
-            " addUserKnob {1 lens_center}",
-            ' lens_center "' + ("" if lens.center is None else f"{_number(lens.center[0])} {_number(lens.center[1])}") + '"',
+            " addUserKnob {1 lens_model}", f' lens_model "{camera.distortion.model}"',
+            " addUserKnob {1 lens_params}", f' lens_params "{params}"',
+            " addUserKnob {1 lens_center}", f' lens_center "{centre}"',
+            *([" addUserKnob {1 lens_keys}", f' lens_keys "{_lens_keys(rig, camera.name)}"']
+              if lens_frames else []),
             "}",
         ]
-        if not lens.is_identity:
-            undistort, redistort, _ = write_stmaps(rig, camera.name, map_dir)
-            written += [undistort, redistort]
+        if not all(state.distortion.is_identity for state in states):
+            mapped += 1
+            if lens_frames:
+                undistort_maps, redistort_maps, _ = write_stmap_frames(rig, camera.name, map_dir)
+                written += [*undistort_maps, *redistort_maps]
+                undistort = map_dir.resolve() / stmap_frame_name(camera.name, "undistort", 0).replace(".0000.", ".%04d.")
+                redistort = map_dir.resolve() / stmap_frame_name(camera.name, "redistort", 0).replace(".0000.", ".%04d.")
+                sequence = [f" first {lens_frames[0]}", f" last {lens_frames[-1]}"]
+            else:
+                undistort, redistort, _ = write_stmaps(rig, camera.name, map_dir)
+                written += [undistort, redistort]
+                sequence = []
             lines += [
                 "Read {", " inputs 0", f' file "{node}_plate.####.exr"', f" name {node}_plate",
                 f" xpos {index * 150}", " ypos 100", "}",
-                "Read {", " inputs 0", f' file "{undistort.resolve()}"', " raw true", f" name {node}_undistort_map",
-                f" xpos {index * 150 + 100}", " ypos 100", "}",
+                "Read {", " inputs 0", f' file "{undistort.resolve()}"', *sequence, " raw true",
+                f" name {node}_undistort_map", f" xpos {index * 150 + 100}", " ypos 100", "}",
                 "STMap {", " inputs 2", " channels rgba", " uv rgb", f" name {node}_undistort",
                 f" xpos {index * 150}", " ypos 200", "}",
-                "Read {", " inputs 0", f' file "{redistort.resolve()}"', " raw true", f" name {node}_redistort_map",
-                f" xpos {index * 150 + 100}", " ypos 300", "}",
+                "Read {", " inputs 0", f' file "{redistort.resolve()}"', *sequence, " raw true",
+                f" name {node}_redistort_map", f" xpos {index * 150 + 100}", " ypos 300", "}",
                 "STMap {", " inputs 2", " channels rgba", " uv rgb", f" name {node}_redistort",
                 f" xpos {index * 150}", " ypos 400", "}",
             ]
@@ -237,230 +278,57 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     if rig.points is not None:
         notes.append("sparse points are not written to Nuke (export USD for a point cloud)")
     if written:
-        notes.append(f"ST-maps of {len(written) // 2} camera(s) written to {map_dir}; the plate Read nodes "
-                     "name a placeholder file to replace")
+        notes.append(f"ST-maps of {mapped} camera(s) written to {map_dir} (a pair per frame where the lens changes); "
+                     "the plate Read nodes name a placeholder file to replace")
     atomic_write_text(out, "\n".join(lines) + "\n")
     return ExportResult((out, *written), tuple(conversions), tuple(notes))
-
-
-# -- the lens nodes: Nuke's LensDistortion (3DEqualizer preset) and the LDPK node of the same model ---------
-
-#: LensDistortion's knob of each 3DE parameter (3DEqualizer's own Nuke export names them so): a knob name, or a
-#: (knob, index) pair for the two-value ``anamorphicScale``.
-_LD_KNOBS: Mapping[str, Mapping[str, str | tuple[str, int]]] = MappingProxyType({
-    "3de-classic": {"distortion": "distortionNumerator0", "quartic_distortion": "distortionNumerator1",
-                    "curvature_x": "distortionNumeratorX00", "curvature_y": "distortionNumeratorY00",
-                    "anamorphic_squeeze": "anamorphicSqueeze"},
-    "3de4-radial-deg4": {"c2": "distortionNumerator0", "c4": "distortionNumerator1",
-                         "u2": "distortionNumeratorT0", "u4": "distortionNumeratorT1",
-                         "v2": "distortionNumeratorU0", "v4": "distortionNumeratorU1",
-                         "cylindric_direction_deg": "beamSplitterDirection", "cylindric_bending": "beamSplitterBending"},
-    "3de4-anamorphic-deg4": {
-        **{f"c{axis}{term}": f"distortionNumerator{axis.upper()}{index}"
-           for axis in "xy" for term, index in (("02", "00"), ("22", "10"), ("04", "01"), ("24", "11"), ("44", "20"))},
-        "lens_rotation_deg": "anamorphicTwist", "squeeze_x": ("anamorphicScale", 0), "squeeze_y": ("anamorphicScale", 1)},
-    "3de4-fisheye-deg8": {"c2": "distortionNumerator0", "c4": "distortionNumerator1", "c6": "distortionNumerator2",
-                          "c8": "distortionNumerator3"},
-})
-
-#: LensDistortion's set-up knobs of each model's preset, besides the preset itself.
-_LD_SETUP: Mapping[str, tuple[tuple[str, str], ...]] = MappingProxyType({
-    "3de-classic": (("distortionOrder", "{2 0}"),),
-    "3de4-radial-deg4": (("lens", '"Beam Splitter"'), ("distortionModelType", '"Radial-Tangential/R-T Uncoupled"'),
-                         ("distortionOrder", "{2 0}")),
-    "3de4-anamorphic-deg4": (("lens", "Anamorphic"), ("distortionModelType", '"Radial Asymmetric"'),
-                             ("distortionOrder", "{2 0}")),
-    "3de4-fisheye-deg8": (("projection", '"Fisheye/Fisheye Equisolid"'), ("distortionOrder", "{4 0}")),
-})
-
-
-def _nukify(name: str) -> str:
-    """A 3DE name as the LDPK node names it: runs of ``+,:; _-`` to one underscore, a leading digit escaped."""
-    text = re.sub(r"[+,:; _-]+", "_", name.strip())
-    return "_" + text if text[:1].isdigit() else text
-
-
-def ldpk_node_class(model: str) -> str:
-    """The LDPK node of a 3DE model, e.g. ``LD_3DE4_Anamorphic_Standard_Degree_4``."""
-    return "LD" + _nukify(LDPK_MODEL_NAMES[model])
-
-
-def _ldpk_camera(camera: Camera, haperture_mm: float) -> LdpkCamera:
-    return LdpkCamera.from_camera_matrix(camera.K, camera.image_size, haperture_mm / 10.0)
-
-
-def _format_knob(camera: Camera) -> str:
-    width, height = camera.image_size
-    aspect = camera.K[1, 1] / camera.K[0, 0]
-    return f'"{width} {height} 0 0 {width} {height} {_number(aspect)} {width}x{height}"'
-
-
-def _lens_nodes(camera: Camera, node: str, haperture_mm: float, index: int) -> list[str]:
-    """The LensDistortion and LDPK nodes of ``camera``, whose lens is one of the 3DE models (see the module docstring)."""
-    lens = camera.distortion
-    builtin = _ldpk_camera(camera, haperture_mm)
-    values = {p.key: lens.params.get(p.key, p.default) for p in LDPK_PARAMETERS[lens.model]}
-    half_diagonal = 0.5 * math.hypot(builtin.filmback_width_cm, builtin.filmback_height_cm)
-    knobs: dict[str, list[str]] = {}
-    for key, knob in _LD_KNOBS[lens.model].items():
-        name, position = (knob, None) if isinstance(knob, str) else knob
-        knobs.setdefault(name, []).append(_number(values[key]))
-    lines = ["LensDistortion2 {", " inputs 0", f' distortionModelPreset "3DEqualizer/{LDPK_MODEL_NAMES[lens.model]}"',
-             *(f" {k} {v}" for k, v in _LD_SETUP[lens.model]), " distortionDomain Rectilinear",
-             " normalisationType Diagonal", " distortionScalingType Format",
-             f" distortionScalingFormat {_format_knob(camera)}", " output Undistort",
-             f" focal {_number(builtin.focal_length_cm * 10.0)}",
-             f" sensorSize {{{_number(builtin.filmback_width_cm * 10.0)} {_number(builtin.filmback_height_cm * 10.0)}}}",
-             f" centre {{{_number(builtin.lens_center_offset_x_cm / half_diagonal)} "
-             f"{_number(builtin.lens_center_offset_y_cm / half_diagonal)}}}",
-             *(f" {k} {v[0] if len(v) == 1 else '{' + ' '.join(v) + '}'}" for k, v in knobs.items()),
-             f" name {node}_lens", f" xpos {index * 150}", " ypos 500", "}"]
-    lines += [f"{ldpk_node_class(lens.model)} {{", " inputs 0", " direction undistort",
-              *(f" {name} {_number(value)}" for name, value in builtin.builtin_parameters().items()),
-              " field_of_view_xa_unit 0", " field_of_view_ya_unit 0", " field_of_view_xb_unit 1",
-              " field_of_view_yb_unit 1",
-              *(f" {_nukify(p.ldpk_name)} {_number(values[p.key])}" for p in LDPK_PARAMETERS[lens.model]),
-              f" name {node}_ldpk", f" xpos {index * 150}", " ypos 600", "}"]
-    return lines
-
-
-def _lens_from_ldpk(body: str, model: str, image_size: tuple[int, int], where: str) -> tuple[np.ndarray, Distortion]:
-    """``K`` and the lens of an LDPK node (built-in ``tde4_*`` knobs in cm, the model's knobs by their 3DE names)."""
-    builtin = LdpkCamera(*(_float(_required(body, name, where), f"{where} {name}") for name in BUILTIN_PARAMETERS))
-    params = {p.key: _float(_knob_text(body, _nukify(p.ldpk_name)) or repr(p.default), f"{where} {p.ldpk_name}")
-              for p in LDPK_PARAMETERS[model]}
-    return builtin.camera_matrix(image_size), _tde_lens(model, params, image_size)
-
-
-def _lens_from_lens_distortion(body: str, image_size: tuple[int, int] | None,
-                               where: str) -> tuple[np.ndarray, Distortion, tuple[int, int]]:
-    """``K``, the lens and the image size of a LensDistortion node with a 3DEqualizer preset."""
-    preset = (_knob_text(body, "distortionModelPreset") or "").strip('"')
-    names = {f"3DEqualizer/{name}": model for model, name in LDPK_MODEL_NAMES.items()}
-    if preset not in names:
-        raise CamcalError(f"{where}: model preset {preset!r} is not one of 3DEqualizer's: {', '.join(names)}")
-    model = names[preset]
-    fmt = (_knob_text(body, "distortionScalingFormat") or "").strip('"').split()
-    pixel_aspect = 1.0
-    if len(fmt) >= 7:
-        image_size = (int(_float(fmt[0], where)), int(_float(fmt[1], where)))
-        pixel_aspect = _float(fmt[6], f"{where} distortionScalingFormat")
-    if image_size is None:
-        raise CamcalError(f"{where}: no distortionScalingFormat and no image size to normalise the lens on")
-    focal = _float(_required(body, "focal", where), f"{where} focal")
-    sensor = [_float(v, f"{where} sensorSize") for v in _required(body, "sensorSize", where).strip("{}").split()]
-    centre = [_float(v, f"{where} centre") for v in (_knob_text(body, "centre") or "{0 0}").strip("{}").split()]
-    if len(sensor) != 2 or len(centre) != 2:
-        raise CamcalError(f"{where}: sensorSize and centre hold two numbers each")
-    half_diagonal = 0.5 * math.hypot(*sensor)
-    builtin = LdpkCamera(focal, sensor[0], sensor[1], centre[0] * half_diagonal, centre[1] * half_diagonal,
-                         pixel_aspect)
-    params = {p.key: p.default for p in LDPK_PARAMETERS[model]}
-    for key, knob in _LD_KNOBS[model].items():
-        name, position = (knob, 0) if isinstance(knob, str) else knob
-        values = (_knob_text(body, name) or "").strip("{}").split()
-        if len(values) > position:
-            params[key] = _float(values[position], f"{where} {name}")
-    return builtin.camera_matrix(image_size), _tde_lens(model, params, image_size), image_size
-
-
-def _tde_lens(model: str, params: dict[str, float], image_size: tuple[int, int]) -> Distortion:
-    return Distortion(model, {**params, FILMBACK_KEYS[0]: float(image_size[0]), FILMBACK_KEYS[1]: float(image_size[1])})
-
-
-def _required(body: str, name: str, where: str) -> str:
-    text = _knob_text(body, name)
-    if text is None:
-        raise CamcalError(f"{where} has no {name} knob")
-    return text
 
 
 # -- reading: the Camera3 nodes (camcal's and Nuke's own, static or keyed) ----------------
 
 
-def _blocks(text: str, classes: str = r"Camera[23]?") -> list[tuple[str, str]]:
-    """``(class, body)`` of the nodes whose class matches ``classes`` (a regular expression)."""
-    bodies = []
-    for match in re.finditer(rf"^({classes}) \{{", text, flags=re.M):
-        depth, position = 1, match.end()
-        while depth and position < len(text):
-            depth += {"{": 1, "}": -1}.get(text[position], 0)
-            position += 1
-        if depth:
-            raise CamcalError(f"unbalanced braces in a {match.group(1)} node")
-        bodies.append((match.group(1), text[match.end():position - 1]))
-    return bodies
-
-
-def _lens_nodes_of(text: str) -> dict[str, tuple[str, str]]:
-    """Node name -> (class, body) of the LensDistortion nodes with a 3DEqualizer preset and the LDPK nodes."""
-    ldpk = {ldpk_node_class(model): model for model in LDPK_MODEL_NAMES}
-    found = {}
-    for cls, body in _blocks(text, "|".join([*ldpk, "LensDistortion2?"])):
-        if cls.startswith("LensDistortion") and "3DEqualizer/" not in (_knob_text(body, "distortionModelPreset") or ""):
-            continue
-        found[(_knob_text(body, "name") or f"{cls}{len(found) + 1}").strip('"')] = (cls, body)
-    return found
-
-
 def _root_size(text: str) -> tuple[int, int] | None:
     """The image size of the Root's format knob, if it has one."""
-    root = _blocks(text, "Root")
-    fmt = (_knob_text(root[0][1], "format") or "").strip('"').split() if root else []
-    return (int(_float(fmt[0], "Root format")), int(_float(fmt[1], "Root format"))) if len(fmt) >= 2 else None
+    root = blocks(text, "Root")
+    fmt = (knob_text(root[0][1], "format") or "").strip('"').split() if root else []
+    return (int(parse_number(fmt[0], "Root format")), int(parse_number(fmt[1], "Root format"))) if len(fmt) >= 2 else None
 
 
-def _node_lens(cls: str, body: str, image_size: tuple[int, int] | None,
-               where: str) -> tuple[np.ndarray, Distortion, tuple[int, int]]:
-    """``K``, lens and image size of a lens node (LDPK first-class knobs, or LensDistortion's)."""
-    models = {ldpk_node_class(model): model for model in LDPK_MODEL_NAMES}
-    if cls in models:
-        if image_size is None:
-            raise CamcalError(f"{where}: no image size (no camcal knobs, no Root format) to normalise the lens on")
-        K, lens = _lens_from_ldpk(body, models[cls], image_size, where)
-        return K, lens, image_size
-    return _lens_from_lens_distortion(body, image_size, where)
+def _K_at(focal, haperture, win, frame: int | None, size: tuple[int, int], where: str) -> np.ndarray:
+    """``K`` of a Camera3's (keyed or constant) ``focal``, ``haperture`` and ``win_translate`` at ``frame``."""
+    return _K_from_nuke(float(value_at(focal, frame, f"{where} focal")[0]),
+                        float(value_at(haperture, frame, f"{where} haperture")[0]),
+                        value_at(win, frame, f"{where} win_translate"), size)
 
 
-def _knob_text(body: str, name: str) -> str | None:
-    match = re.search(rf"^\s*{name} (.+)$", body, flags=re.M)
-    return None if match is None else match.group(1).strip()
+def _parse_lens(tokens: Sequence[str], where: str) -> tuple[dict[str, float], tuple[float, ...] | None, dict[str, float]]:
+    """``k=v`` tokens of ``lens_params`` / ``lens_keys``: the parameters, the centre, the lens state."""
+    params, centre, state = {}, None, {}
+    for item in tokens:
+        key, _, value = item.partition("=")
+        if key == "center":
+            centre = tuple(parse_number(v, f"{where} center") for v in value.split(","))
+        elif key in ("focal_mm", "focus_m"):
+            state[key] = parse_number(value, f"{where} {key}")
+        else:
+            params[key] = parse_number(value, where)
+    return params, centre, state
 
 
-def _float(text: str, where: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise CamcalError(f"{where}: {text!r} is not a number") from None
-    if not np.isfinite(value):
-        raise CamcalError(f"{where} is not finite")
-    return value
-
-
-def _vector(text: str | None, where: str) -> tuple[np.ndarray | dict[int, np.ndarray], bool]:
-    """A 3-vector knob: constant, or {curve x<f> v ...} per axis -> (values per frame, animated)."""
-    if text is None:
-        return np.zeros(3), False
-    if "curve" not in text:
-        values = text.strip("{}").split()
-        if len(values) != 3:
-            raise CamcalError(f"{where} must hold 3 numbers")
-        return np.array([_float(v, where) for v in values]), False
-    curves = re.findall(r"\{curve ([^{}]*)\}", text)
-    if len(curves) != 3:
-        raise CamcalError(f"{where}: expected a curve per axis")
-    keyed: dict[int, np.ndarray] = {}
-    for axis, curve in enumerate(curves):
-        frame = None
-        for token in curve.split():
-            if token.startswith("x"):
-                frame = int(_float(token[1:], where))
-                continue
-            if frame is None:
-                raise CamcalError(f"{where}: a key without a frame")
-            keyed.setdefault(frame, np.zeros(3))[axis] = _float(token, where)
-            frame += 1
-    return keyed, True
+def _keyed_lenses(text: str, model: str, where: str) -> dict[int, tuple[Distortion, dict[str, float]]]:
+    """The camcal knob ``lens_keys``: frame -> (the lens, its state)."""
+    out, frame, tokens = {}, None, []
+    for token in [*text.strip('"').split(), "x"]:
+        if token.startswith("x") and "=" not in token:
+            if frame is not None:
+                params, centre, state = _parse_lens(tokens, f"{where} lens_keys")
+                out[frame] = (Distortion(model, params, centre), state)
+            frame, tokens = (int(parse_number(token[1:], f"{where} lens_keys")) if token != "x" else None), []
+        elif frame is None:
+            raise CamcalError(f"{where} lens_keys: {token!r} before the first frame (x<frame>)")
+        else:
+            tokens.append(token)
+    return out
 
 
 def load(path: Path, *, image_size: tuple[int, int] | None = None) -> ImportResult:
@@ -471,51 +339,60 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None) -> ImportResu
     """
     check_file_size(path, FILE_BYTES, "Nuke script")
     text = path.read_text(errors="replace")
-    bodies = [body for _, body in _blocks(text)]
-    lens_nodes = _lens_nodes_of(text)
+    bodies = [body for _, body in blocks(text, r"Camera[23]?")]
+    lens_node_bodies = lens_nodes_of(text)
     root_size = _root_size(text) or image_size
     if not bodies:
-        return _lens_only(lens_nodes, root_size)
-    cameras, conversions, animated = [], [], []
+        return _lens_only(lens_node_bodies, root_size)
+    cameras, conversions, animated, lenses = [], [], [], []
     for body in bodies:
-        node = _knob_text(body, "name") or f"Camera{len(cameras) + 1}"
+        node = knob_text(body, "name") or f"Camera{len(cameras) + 1}"
         where = f"camera node {node}"
-        width, height = _knob_text(body, "image_width"), _knob_text(body, "image_height")
+        width, height = knob_text(body, "image_width"), knob_text(body, "image_height")
         if (width is None or height is None) and root_size is None:
             raise CamcalError(f"{where} has no image_width / image_height knobs (Nuke cameras hold no image size)")
-        size = root_size if width is None or height is None else (int(_float(width, where)), int(_float(height, where)))
-        focal = _float(_knob_text(body, "focal") or "50", f"{where} focal")
-        haperture = _float(_knob_text(body, "haperture") or "24.576", f"{where} haperture")
-        if focal <= 0 or haperture <= 0:
-            raise CamcalError(f"{where}: focal and haperture must be positive")
-        win = (_knob_text(body, "win_translate") or "{0 0}").strip("{}").split()
-        K = _K_from_nuke(focal, haperture, [_float(v, f"{where} win_translate") for v in win], size)
-        model = (_knob_text(body, "lens_model") or '"none"').strip('"')
-        params = {}
-        for item in (_knob_text(body, "lens_params") or '""').strip('"').split():
-            key, _, value = item.partition("=")
-            params[key] = _float(value, f"{where} lens_params")
-        centre_text = (_knob_text(body, "lens_center") or '""').strip('"').split()
-        centre = tuple(_float(v, f"{where} lens_center") for v in centre_text) or None
-        order = (_knob_text(body, "rot_order") or "ZXY").lower()
+        size = root_size if width is None or height is None else (int(parse_number(width, where)),
+                                                                 int(parse_number(height, where)))
+        focal = keyed_knob(knob_text(body, "focal"), 1, f"{where} focal", 50.0)
+        haperture = keyed_knob(knob_text(body, "haperture"), 1, f"{where} haperture", 24.576)
+        win = keyed_knob(knob_text(body, "win_translate"), 2, f"{where} win_translate", (0.0, 0.0))
+        model = (knob_text(body, "lens_model") or '"none"').strip('"')
+        params, centre, _ = _parse_lens((knob_text(body, "lens_params") or '""').strip('"').split(),
+                                        f"{where} lens_params")
+        centre_text = (knob_text(body, "lens_center") or '""').strip('"').split()
+        centre = tuple(parse_number(v, f"{where} lens_center") for v in centre_text) or None
+        keys_text = knob_text(body, "lens_keys")
+        order = (knob_text(body, "rot_order") or "ZXY").lower()
         if sorted(order) != ["x", "y", "z"]:
             raise CamcalError(f"{where}: unknown rot_order {order!r}")
-        translate, moving_t = _vector(_knob_text(body, "translate"), f"{where} translate")
-        rotate, moving_r = _vector(_knob_text(body, "rotate"), f"{where} rotate")
-        name = (_knob_text(body, "camera_name") or node).strip('"')
+        translate = keyed_knob(knob_text(body, "translate"), 3, f"{where} translate", (0.0, 0.0, 0.0))
+        rotate = keyed_knob(knob_text(body, "rotate"), 3, f"{where} rotate", (0.0, 0.0, 0.0))
+        name = (knob_text(body, "camera_name") or node).strip('"')
         source = "Nuke Camera3"
-        paired = [n for n in (f"{node}_ldpk", f"{node}_lens") if n in lens_nodes] or (
-            list(lens_nodes)[:1] if len(bodies) == 1 else [])
-        if _knob_text(body, "lens_model") is None and paired:
-            cls, lens_body = lens_nodes[paired[0]]
-            _, lens, _ = _node_lens(cls, lens_body, size, f"lens node {paired[0]}")
+        paired = [n for n in (f"{node}_ldpk", f"{node}_lens") if n in lens_node_bodies] or (
+            list(lens_node_bodies)[:1] if len(bodies) == 1 else [])
+        node_lens: dict = {}
+        if knob_text(body, "lens_model") is None and paired:
+            cls, lens_body = lens_node_bodies[paired[0]]
+            node_lens, _ = node_lenses(cls, lens_body, size, f"lens node {paired[0]}")
+            lens = next(iter(node_lens.values()))[1]
             model, params, centre, source = lens.model, dict(lens.params), None, f"Nuke {cls}"
         try:
             distortion = Distortion(model, params, centre)
-            if moving_t or moving_r:
-                keys = sorted(translate if moving_t else rotate)
-                poses = {f: _pose_order((translate[f] if moving_t else translate), (rotate[f] if moving_r else rotate),
-                                        order) for f in keys}
+            keyed_lenses = _keyed_lenses(keys_text, model, where) if keys_text else {}
+            frames = sorted({f for knob in (focal, haperture, win) if isinstance(knob, dict) for f in knob}
+                            | set(keyed_lenses) | {f for f in node_lens if f is not None})
+            per_frame = {}
+            for f in frames:  # the lens from camcal's knob, else the lens node's keys, else the camera's lens
+                lens, state = keyed_lenses.get(f, (node_lens[f][1] if f in node_lens else distortion, {}))
+                per_frame[f] = (_K_at(focal, haperture, win, f, size, where), lens, state)
+            lenses.append(per_frame or None)
+            K, distortion = per_frame[frames[0]][:2] if per_frame else (
+                _K_at(focal, haperture, win, None, size, where), distortion)
+            if isinstance(translate, dict) or isinstance(rotate, dict):
+                keys = sorted(translate if isinstance(translate, dict) else rotate)
+                poses = {f: _pose_order(value_at(translate, f, f"{where} translate"),
+                                        value_at(rotate, f, f"{where} rotate"), order) for f in keys}
                 animated.append(poses)
                 R, c = poses[keys[0]]
             else:
@@ -525,26 +402,33 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None) -> ImportResu
         except CamcalError as error:
             raise CamcalError(f"{where}: {error}") from None
         conversions.append(LensConversion(name, source, distortion.model, True))
-    if all(a is None for a in animated):
+    if all(a is None for a in animated) and all(lens is None for lens in lenses):
         return ImportResult(Rig(tuple(cameras), units="unknown"), tuple(conversions))
-    return ImportResult(_moving(cameras, animated), tuple(conversions), ("frames from the keyed cameras",))
+    notes = ["frames from the keyed cameras"] + (
+        [f"per-frame lenses of {sum(lens is not None for lens in lenses)} camera(s) from their keyed focal length, "
+         "film back offset and lens"] if any(lens is not None for lens in lenses) else [])
+    return ImportResult(_moving(cameras, animated, lenses), tuple(conversions), tuple(notes))
 
 
-def _lens_only(lens_nodes: dict[str, tuple[str, str]], root_size: tuple[int, int] | None) -> ImportResult:
+def _lens_only(lens_node_bodies: dict[str, tuple[str, str]], root_size: tuple[int, int] | None) -> ImportResult:
     """A rig of the lens nodes alone (a script with no camera): one camera per lens, at the origin."""
-    if not lens_nodes:
+    if not lens_node_bodies:
         raise CamcalError("no Camera3 node and no LensDistortion (3DEqualizer preset) or LDPK node in the script")
-    chosen = {n: v for n, v in lens_nodes.items() if v[0].startswith("LD")} or lens_nodes
-    cameras, conversions = [], []
+    chosen = {n: v for n, v in lens_node_bodies.items() if v[0].startswith("LD")} or lens_node_bodies
+    cameras, conversions, lenses = [], [], []
     for name, (cls, body) in chosen.items():
-        K, lens, size = _node_lens(cls, body, root_size, f"lens node {name}")
+        keyed, size = node_lenses(cls, body, root_size, f"lens node {name}")
+        K, lens = next(iter(keyed.values()))
         try:
             cameras.append(Camera(name, size, K, lens, np.eye(3), np.zeros(3)))
         except CamcalError as error:
             raise CamcalError(f"lens node {name}: {error}") from None
+        lenses.append({f: (K_f, lens_f, {}) for f, (K_f, lens_f) in keyed.items()} if None not in keyed else None)
         conversions.append(LensConversion(name, f"Nuke {cls}", lens.model, True))
-    return ImportResult(Rig(tuple(cameras), units="unknown"), tuple(conversions),
-                        ("no Camera3 node: one camera per lens node, at the origin",))
+    notes = ("no Camera3 node: one camera per lens node, at the origin",)
+    if all(lens is None for lens in lenses):
+        return ImportResult(Rig(tuple(cameras), units="unknown"), tuple(conversions), notes)
+    return ImportResult(_moving(cameras, [None] * len(cameras), lenses), tuple(conversions), notes)
 
 
 def _pose_order(translate: np.ndarray, rotate: np.ndarray, order: str) -> tuple[np.ndarray, np.ndarray]:
@@ -552,18 +436,32 @@ def _pose_order(translate: np.ndarray, rotate: np.ndarray, order: str) -> tuple[
     return _D @ M.T @ _D, _D @ translate
 
 
-def _moving(cameras: list[Camera], animated: list) -> Rig:
-    """A moving rig: the first camera's keys give the frames, every camera keeps its pose relative to it."""
+def _moving(cameras: list[Camera], animated: list, lenses: list) -> Rig:
+    """A moving rig: the frames of the keyed poses (the first camera's) or, with none, of the keyed lenses.
+
+    Every camera keeps its pose relative to the first camera's at the first
+    frame; a camera whose lens is keyed gets its lens at each frame
+    (:attr:`camcal.model.rig.Frame.lenses`) where it differs from its first
+    frame's, which is the camera's own.
+    """
     reference = animated[0]
-    if reference is None or any(a is not None and sorted(a) != sorted(reference) for a in animated):
+    if any(a is not None for a in animated) and (
+            reference is None or any(a is not None and sorted(a) != sorted(reference) for a in animated)):
         raise CamcalError("the cameras are keyed on different frames")
-    frames, rig_cameras = [], []
-    first = sorted(reference)[0]
-    for index in sorted(reference):
-        R, c = reference[index]
-        frames.append(Frame(index, R, c))
-    R0, c0 = reference[first]
-    for camera, poses in zip(cameras, animated):
-        R, c = poses[first] if poses is not None else (camera.R, camera.c)
+    indices = sorted(reference) if reference is not None else sorted({f for keyed in lenses if keyed for f in keyed})
+    for camera, keyed in zip(cameras, lenses):
+        if keyed is not None and sorted(keyed) != indices:
+            raise CamcalError(f"camera {camera.name!r}: its lens is keyed on {len(keyed)} frames, the shot has "
+                              f"{len(indices)} (key the lens and the camera on the same frames)")
+    first = indices[0]
+    poses = reference or {index: (np.eye(3), np.zeros(3)) for index in indices}
+    R0, c0 = poses[first]
+    rig_cameras, frame_lenses = [], {index: {} for index in indices}
+    for camera, posed, keyed in zip(cameras, animated, lenses):
+        R, c = posed[first] if posed is not None else (camera.R, camera.c)
         rig_cameras.append(Camera(camera.name, camera.image_size, camera.K, camera.distortion, R @ R0.T, R0 @ (c - c0)))
-    return Rig(tuple(rig_cameras), units="unknown", frames=tuple(frames))
+        for index, (K, lens, state) in (keyed or {}).items():
+            if not (np.array_equal(K, camera.K) and lens == camera.distortion and not state):
+                frame_lenses[index][camera.name] = Lens(K, lens, state.get("focal_mm"), state.get("focus_m"))
+    frames = tuple(Frame(index, *poses[index], lenses=frame_lenses[index]) for index in indices)
+    return Rig(tuple(rig_cameras), units="unknown", frames=frames)

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
-from camcal.base.frame_ranges import parse_frames
+from camcal.base.frame_ranges import frame_runs, parse_frames
 from camcal.base.limits import check_image_size
 
 __all__ = [
@@ -132,22 +132,11 @@ def sequence_paths(pattern: str | os.PathLike, frames: str | Sequence[int] | Non
     paths = [Path(printf % frame) for frame in numbers]
     missing = [frame for frame, path in zip(numbers, paths) if not path.exists()]
     if missing:
-        runs = _runs(missing)
+        runs = frame_runs(missing)
         listed = ", ".join(runs[:_MAX_LISTED]) + (f" and {len(runs) - _MAX_LISTED} more runs" if len(runs) > _MAX_LISTED else "")
         raise CamcalError(f"sequence {pattern}: {len(missing)} of {len(numbers)} frames missing "
                           f"({numbers[0]}-{numbers[-1]}): {listed}")
     return paths
-
-
-def _runs(frames: list[int]) -> list[str]:
-    """``[1, 2, 3, 7]`` -> ``["1-3", "7"]``."""
-    runs: list[list[int]] = []
-    for frame in frames:
-        if runs and frame == runs[-1][1] + 1:
-            runs[-1][1] = frame
-        else:
-            runs.append([frame, frame])
-    return [str(a) if a == b else f"{a}-{b}" for a, b in runs]
 
 
 def read_image(path: str | os.PathLike) -> NDArray:

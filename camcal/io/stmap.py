@@ -17,13 +17,14 @@ from numpy.typing import NDArray
 
 from camcal.base.atomic import atomic_dir, atomic_path, final_path
 from camcal.base.errors import CamcalError
-from camcal.geometry.stmap import make_stmaps, pixels_from_st
+from camcal.geometry.stmap import make_stmaps, pixels_from_st, stmap_view
 from camcal.geometry.uncertainty import SigmaSummary, projection_sigma_map, summarise_sigma
+from camcal.geometry.undistort import undistorted_rig
 from camcal.io.frames import imread, imwrite
 from camcal.model.rig import Rig, make_provenance
 
-__all__ = ["read_exr", "read_exr_window", "read_sigma_map", "write_exr", "write_sigma_map", "write_stmap_sigmas",
-           "write_stmaps"]
+__all__ = ["read_exr", "read_exr_window", "read_sigma_map", "stmap_frame_name", "write_exr", "write_sigma_map",
+           "write_stmap_frames", "write_stmap_sigmas", "write_stmaps"]
 
 
 def write_exr(path: str | os.PathLike, rgb: NDArray, border: tuple[int, int] = (0, 0)) -> Path:
@@ -117,6 +118,9 @@ def write_stmaps(rig: Rig, camera_name: str, out_dir: str | os.PathLike, oversca
         principal point moved by the border, distortion none).
     """
     camera = rig.camera(camera_name)
+    if rig.lens_frames(camera_name):
+        raise CamcalError(f"camera {camera_name!r}'s lens changes over the rig's frames: its ST-maps are a pair per "
+                          "frame (write_stmap_frames)")
     maps = make_stmaps(camera, overscan, border)
     cameras = tuple(maps.undistorted if c.name == camera_name else c for c in rig.cameras)
     provenance = make_provenance("stmap", source_camera=camera_name, overscan=overscan, border=list(maps.border))
@@ -127,6 +131,46 @@ def write_stmaps(rig: Rig, camera_name: str, out_dir: str | os.PathLike, oversca
             Rig(cameras, rig.units, rig.frames, rig.points, provenance).save(staging / f"{camera_name}_undistorted.rig.json"),
         ]
     return [final_path(path, staging, out_dir) for path in paths]
+
+
+def stmap_frame_name(camera_name: str, kind: str, frame: int) -> str:
+    """``<camera>_<kind>.%04d.exr`` at ``frame``: the file of one frame of a per-frame map sequence."""
+    return f"{camera_name}_{kind}.{frame:04d}.exr"
+
+
+def write_stmap_frames(rig: Rig, camera_name: str, out_dir: str | os.PathLike, overscan: float | None = None,
+                       border: int | tuple[int, int] | None = None) -> tuple[list[Path], list[Path], Path]:
+    """The ST-maps of a camera whose lens changes over the rig's frames: one pair per frame, and the undistorted rig.
+
+    Each frame's maps are :func:`write_stmaps`' maps of the camera with
+    that frame's lens (:meth:`camcal.model.rig.Rig.camera_at_frame`), named
+    ``<camera>_undistort.%04d.exr`` and ``<camera>_redistort.%04d.exr``
+    with the frame number (:func:`stmap_frame_name`). The overscan border
+    depends on the image size only, so every frame's undistorted image has
+    the same size; ``<camera>_undistorted.rig.json`` holds the undistorted
+    camera of each frame's lens as that frame's lens (distortion none,
+    the lens state kept). The folder is written atomically.
+
+    Returns
+    -------
+    (list of Path, list of Path, Path)
+        The undistort maps and the redistort maps in frame order, and the undistorted rig.
+    """
+    if not rig.frames:
+        raise CamcalError(f"the rig has no frames: write the ST-maps of {camera_name!r} with write_stmaps")
+    undistort_paths, redistort_paths = [], []
+    with atomic_dir(out_dir) as staging:
+        for frame in rig.frames:
+            maps = make_stmaps(rig.camera_at_frame(camera_name, frame.index), overscan, border)
+            undistort_paths.append(write_exr(staging / stmap_frame_name(camera_name, "undistort", frame.index),
+                                             maps.undistort, maps.border))
+            redistort_paths.append(write_exr(staging / stmap_frame_name(camera_name, "redistort", frame.index),
+                                             maps.redistort))
+        provenance = make_provenance("stmap", source_camera=camera_name, overscan=overscan, border=list(maps.border))
+        undistorted = undistorted_rig(rig, camera_name, lambda camera: stmap_view(camera, overscan, border), provenance)
+        rig_path = undistorted.save(staging / f"{camera_name}_undistorted.rig.json")
+    return ([final_path(path, staging, out_dir) for path in undistort_paths],
+            [final_path(path, staging, out_dir) for path in redistort_paths], final_path(rig_path, staging, out_dir))
 
 
 def write_sigma_map(path: str | os.PathLike, sigma: NDArray) -> Path:

@@ -30,7 +30,13 @@ model: the camcal lens (and ``K``, image size, camera-from-rig pose) is
 kept in the camera's ``customData`` under ``camcal:*`` keys; renderers
 ignore it, comp needs camcal's ST-maps (written and referenced there with
 ``stmaps=True``, ``camcal rig export --stmaps``). A moving rig writes one time
-sample of the transform per frame (time code = frame number).
+sample of the transform per frame (time code = frame number). A camera whose
+lens changes over the frames (a zoom: :attr:`camcal.model.rig.Frame.lenses`)
+gets a time sample per frame of ``focalLength``, both apertures and both
+offsets as well (the default values are its own lens), and each frame's
+exact ``K``, lens and lens state in ``customData`` ``camcal:lens_keys``;
+reading gives the frames a lens where the samples differ from the first
+frame's.
 
 Reading: a camera camcal wrote gets its image size, exact ``K``, lens and
 rig pose back from ``customData``. A plain USD camera (written by another
@@ -67,7 +73,7 @@ from camcal.io.conversion import (
     select_cameras,
 )
 from camcal.io.ply import read_points_ply
-from camcal.model.rig import Camera, Frame, Rig
+from camcal.model.rig import Camera, Frame, Lens, Rig
 
 __all__ = ["SUFFIXES", "METERS_PER_UNIT", "DEFAULT_APERTURE_MM", "usd_intrinsics", "export", "load"]
 
@@ -78,6 +84,11 @@ METERS_PER_UNIT = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 DEFAULT_APERTURE_MM = 36.0
 
 _D = np.diag([1.0, -1.0, -1.0])
+#: The camera attributes that carry its intrinsics (sampled per frame where the lens changes).
+_INTRINSICS = ("focalLength", "horizontalAperture", "verticalAperture", "horizontalApertureOffset",
+               "verticalApertureOffset")
+#: A per-frame lens's state kept in ``camcal:lens_keys``.
+_LENS_STATE = ("focal_mm", "focus_m")
 #: Below this, a projection difference is rounding, not a conversion.
 _EXACT_PX = 1e-9
 
@@ -133,12 +144,14 @@ def export(
     The maps go to ``<stage>_stmaps/<camera>_undistort.exr`` / ``_redistort.exr``
     (:func:`camcal.io.stmap.write_stmaps`) and the camera's customData
     ``camcal.stmap_undistort`` / ``camcal.stmap_redistort`` hold their paths
-    relative to the stage.
+    relative to the stage; a camera whose lens changes per frame gets a pair
+    per frame (:func:`camcal.io.stmap.write_stmap_frames`), its paths with
+    ``%04d`` for the frame number.
     """
     require("pxr")
     from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
-    from camcal.io.stmap import write_stmaps
+    from camcal.io.stmap import write_stmap_frames, write_stmaps
 
     if out.suffix.lower() not in SUFFIXES:
         raise CamcalError(f"a USD file must end in {', '.join(SUFFIXES)}, got {out.name!r}")
@@ -165,6 +178,20 @@ def export(
         usd_camera = UsdGeom.Camera.Define(stage, f"/rig/{name}")
         for attribute, value in usd_intrinsics(converted).items():
             usd_camera.GetPrim().GetAttribute(attribute).Set(float(value))
+        lens_keys = {}
+        if rig.lens_frames(camera.name):  # a zoom: the intrinsics sampled per frame, each frame's lens in customData
+            for frame in rig.frames:
+                at = rig.camera_at_frame(camera.name, frame.index)
+                at_converted, at_conversion = nearest_camera(at, lambda d: True, "opencv", "UsdGeom.Camera (pinhole)")
+                at_conversion = _float_attributes(at, at_converted, at_conversion)
+                if at_conversion.max_px > conversions[-1].max_px:
+                    conversions[-1] = at_conversion
+                for attribute, value in usd_intrinsics(at_converted).items():
+                    usd_camera.GetPrim().GetAttribute(attribute).Set(float(value), Usd.TimeCode(frame.index))
+                state = frame.lenses.get(camera.name)
+                lens_keys[str(frame.index)] = {
+                    "K": at_converted.K.tolist(), "distortion": at_converted.distortion.to_dict(),
+                    **({} if state is None else {k: v for k, v in state.to_dict().items() if k in _LENS_STATE})}
         usd_camera.CreateProjectionAttr(UsdGeom.Tokens.perspective)
         op = usd_camera.AddTransformOp()
         if rig.frames:
@@ -174,7 +201,13 @@ def export(
         else:
             op.Set(_matrix(camera.R, camera.c))
         custom = {} if camera.sensor_width_mm is None else {"sensor_width_mm": camera.sensor_width_mm}
-        if stmaps and not camera.distortion.is_identity:
+        if stmaps and lens_keys:  # a pair of maps per frame: the paths with %04d for the frame number
+            undistort_maps, redistort_maps, _ = write_stmap_frames(rig, camera.name, out.with_name(out.stem + "_stmaps"))
+            written += [*undistort_maps, *redistort_maps]
+            for key, path in (("stmap_undistort", undistort_maps[0]), ("stmap_redistort", redistort_maps[0])):
+                sequence = path.with_name(path.name.replace(f".{rig.frames[0].index:04d}.", ".%04d."))
+                custom[key] = Sdf.AssetPath(str(sequence.relative_to(out.parent)))
+        elif stmaps and not camera.distortion.is_identity:
             undistort, redistort, _ = write_stmaps(rig, camera.name, out.with_name(out.stem + "_stmaps"))
             written += [undistort, redistort]
             custom["stmap_undistort"] = Sdf.AssetPath(str(undistort.relative_to(out.parent)))
@@ -186,6 +219,7 @@ def export(
             "K": json.dumps(converted.K.tolist()),
             "distortion": json.dumps(converted.distortion.to_dict()),
             "cam_from_rig": json.dumps({"R": camera.R.tolist(), "c": camera.c.tolist()}),
+            **({"lens_keys": json.dumps(lens_keys)} if lens_keys else {}),
         }})
     if any(not camera.distortion.is_identity for camera in select_cameras(rig, cameras)):
         maps = ("its ST-maps are written beside the stage and referenced there" if stmaps
@@ -281,7 +315,7 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
         stage = Usd.Stage.Open(layer)
     except Tf.ErrorException as error:
         raise CamcalError(f"not a USD file ({_reason(error)})") from None
-    cameras, conversions, world_poses, prims, notes = [], [], [], [], []
+    cameras, conversions, world_poses, prims, notes, lenses = [], [], [], [], [], []
     times = None
     try:
         for prim in stage.Traverse():
@@ -292,13 +326,7 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
             if size is None and image_size is None:
                 raise CamcalError(f"{where} has no image size (no camcal customData; USD cameras hold none): "
                                   "give it with --image-size W H")
-            values = {name: prim.GetAttribute(name).Get() for name in
-                      ("focalLength", "horizontalAperture", "verticalAperture",
-                       "horizontalApertureOffset", "verticalApertureOffset")}
-            if any(v is None or not np.isfinite(v) for v in values.values()):
-                raise CamcalError(f"{where}: focal length or apertures missing or not finite")
-            if values["focalLength"] <= 0 or values["horizontalAperture"] <= 0 or values["verticalAperture"] <= 0:
-                raise CamcalError(f"{where}: focal length and apertures must be positive")
+            values = _intrinsic_values(prim, Usd.TimeCode.Default(), where)
             if size is None:
                 size = image_size
                 aperture_aspect = values["horizontalAperture"] / values["verticalAperture"]
@@ -307,16 +335,13 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
                                  f"{size[0] / size[1]:.4g}: read as non-square pixels (fx / fy "
                                  f"{size[0] / size[1] / aperture_aspect:.4g}, the Gf.Camera frustum's mapping); a "
                                  "renderer that fits the aperture to the image sees square pixels and a wider view")
-            K = _K_from_usd(values, size)
-            exact_K = _custom(prim, "camcal:K", where)
-            if exact_K is not None:
-                exact_K = np.asarray(exact_K, dtype=np.float64)
-                written = _float32(usd_intrinsics(Camera(prim.GetName(), size, exact_K, Distortion.none(), np.eye(3),
-                                                         np.zeros(3), prim.GetCustomDataByKey("camcal:sensor_width_mm"))))
-                if written == _float32(values):  # the camera was not edited since camcal wrote it: its exact K
-                    K = exact_K
+            K = _exact_K(prim, values, size, _custom(prim, "camcal:K", where))
             lens = _custom(prim, "camcal:distortion", where)
             distortion = Distortion.none() if lens is None else Distortion.from_dict(lens)
+            keyed = _keyed_lenses(prim, size, distortion, where, Usd)
+            lenses.append(keyed or None)
+            if keyed:
+                K, distortion = keyed[min(keyed)][:2]
             name = prim.GetCustomDataByKey("camcal:name") or prim.GetName()
             xformable = UsdGeom.Xformable(prim)
             samples = xformable.GetTimeSamples()
@@ -343,14 +368,64 @@ def load(path: Path, image_size: tuple[int, int] | None = None) -> ImportResult:
     if units is None:
         meters = UsdGeom.GetStageMetersPerUnit(stage)
         units = next((u for u, m in METERS_PER_UNIT.items() if m == meters), "m")
-    if not times:
+    if not times and not any(lenses):
         return ImportResult(Rig(tuple(cameras), units=units), tuple(conversions), tuple(notes))
-    return ImportResult(_moving_rig(prims, cameras, world_poses, times, units), tuple(conversions),
-                        (*notes, f"{len(times)} frames from the cameras' time samples"))
+    rig = _moving_rig(prims, cameras, world_poses, times, units, lenses)
+    keyed = sum(1 for keys in lenses if keys)
+    return ImportResult(rig, tuple(conversions), (*notes, f"{len(rig.frames)} frames from the cameras' time samples",
+                                                  *([f"per-frame lenses of {keyed} camera(s)"] if keyed else [])))
 
 
-def _moving_rig(prims, cameras, world_poses, times, units) -> Rig:
-    """Frames from the first camera's world poses and each camera's pose in the rig (customData)."""
+def _intrinsic_values(prim, time, where: str) -> dict[str, float]:
+    """The camera's focal length, apertures and offsets at ``time``, checked."""
+    values = {name: prim.GetAttribute(name).Get(time) for name in _INTRINSICS}
+    if any(v is None or not np.isfinite(v) for v in values.values()):
+        raise CamcalError(f"{where}: focal length or apertures missing or not finite")
+    if values["focalLength"] <= 0 or values["horizontalAperture"] <= 0 or values["verticalAperture"] <= 0:
+        raise CamcalError(f"{where}: focal length and apertures must be positive")
+    return values
+
+
+def _exact_K(prim, values: dict[str, float], size: tuple[int, int], exact_K) -> NDArray[np.float64]:
+    """``K`` of the attributes' values, or camcal's exact ``K`` where the attributes are still what camcal wrote."""
+    if exact_K is not None:
+        exact_K = np.asarray(exact_K, dtype=np.float64)
+        written = _float32(usd_intrinsics(Camera(prim.GetName(), size, exact_K, Distortion.none(), np.eye(3),
+                                                 np.zeros(3), prim.GetCustomDataByKey("camcal:sensor_width_mm"))))
+        if written == _float32(values):  # the camera was not edited since camcal wrote it: its exact K
+            return exact_K
+    return _K_from_usd(values, size)
+
+
+def _keyed_lenses(prim, size: tuple[int, int], distortion: Distortion, where: str,
+                  Usd) -> dict[int, tuple[NDArray[np.float64], Distortion, dict[str, float]]]:
+    """Frame -> (``K``, lens, lens state) of a camera whose intrinsics have time samples (empty: none)."""
+    times = sorted({t for name in _INTRINSICS for t in prim.GetAttribute(name).GetTimeSamples()})
+    keys = _custom(prim, "camcal:lens_keys", where) or {}
+    if not isinstance(keys, dict):
+        raise CamcalError(f"{where}: customData camcal:lens_keys is not camcal's JSON object")
+    out = {}
+    for time in times:
+        frame = int(round(time))
+        entry = keys.get(str(frame)) or {}
+        K = _exact_K(prim, _intrinsic_values(prim, Usd.TimeCode(time), f"{where} at {time:g}"), size, entry.get("K"))
+        lens = distortion if "distortion" not in entry else Distortion.from_dict(entry["distortion"])
+        out[frame] = (K, lens, {key: entry[key] for key in _LENS_STATE if key in entry})
+    return out
+
+
+def _moving_rig(prims, cameras, world_poses, times, units, lenses) -> Rig:
+    """Frames from the first camera's world poses (or its intrinsics' samples), the cameras' per-frame lenses.
+
+    Each camera keeps its pose in the rig (customData ``camcal:cam_from_rig``;
+    a camera that does not move keeps its world pose, under frames at the
+    origin); a frame gets a camera's lens where it differs from the camera's
+    own (its first frame's).
+    """
+    if not times:
+        indices = sorted({frame for keys in lenses if keys for frame in keys})
+        frames = [Frame(index, np.eye(3), np.zeros(3)) for index in indices]
+        return _with_lenses(Rig(tuple(cameras), units=units, frames=tuple(frames)), lenses)
     rig_cameras = []
     for prim, camera in zip(prims, cameras):
         relative = _custom(prim, "camcal:cam_from_rig", camera.name)
@@ -366,4 +441,19 @@ def _moving_rig(prims, cameras, world_poses, times, units) -> Rig:
         U, _, Vt = np.linalg.svd(R_frame)
         R_frame = U @ Vt
         frames.append(Frame(int(round(time)), R_frame, c_world - R_frame.T @ reference.c))
-    return Rig(tuple(rig_cameras), units=units, frames=tuple(frames))
+    return _with_lenses(Rig(tuple(rig_cameras), units=units, frames=tuple(frames)), lenses)
+
+
+def _with_lenses(rig: Rig, lenses) -> Rig:
+    """``rig`` with each camera's keyed lenses on its frames (every frame must have one)."""
+    indices = [frame.index for frame in rig.frames]
+    for camera, keyed in zip(rig.cameras, lenses):
+        if not keyed:
+            continue
+        if sorted(keyed) != indices:
+            raise CamcalError(f"camera {camera.name!r}: its intrinsics are sampled on {len(keyed)} frames, the shot "
+                              f"has {len(indices)} (sample the lens and the transform on the same frames)")
+        rig = rig.with_camera(camera, {
+            frame: Lens(K, lens, state.get("focal_mm"), state.get("focus_m")) for frame, (K, lens, state) in keyed.items()
+            if not (np.array_equal(K, camera.K) and lens == camera.distortion and not state)})
+    return rig

@@ -5,7 +5,7 @@ The rig file is the one hand-off between camcal's parts (DESIGN.md)::
     {"format": "camcal.rig", "version": 1, "units": "m",
      "cameras": [{"name", "image_size", "K", "distortion", "R", "c",
                   "sensor_width_mm"?, "rectification"?, "quality"?}, ...],
-     "frames": [{"index", "R", "c", "images"?}, ...],
+     "frames": [{"index", "R", "c", "images"?, "lenses"?}, ...],
      "points": null | "points.ply",
      "provenance": {"tool", "method", "created", ...}}   (optional: "unknown")
 
@@ -24,6 +24,10 @@ Conventions
   is ``R_world = R_cam R_frame``, ``c_world = c_frame + R_frame^T c_cam``
   (:meth:`Rig.camera_at_frame`). With no frames, cameras' poses are world
   poses.
+- ``frames[i].lenses`` (a zoom, a refocus) gives a camera's lens at that
+  frame (``K``, ``distortion`` of the camera's model, the lens state
+  ``focal_mm`` / ``focus_m``); cameras absent keep their own
+  (:mod:`camcal.model.rig_frames`).
 - ``points`` names a sibling PLY of sparse points, relative to the rig file.
 - Angles in files are radians (rotation matrices here); lengths in ``units``.
 
@@ -39,7 +43,7 @@ import dataclasses
 import datetime as _dt
 import math
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -50,9 +54,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from camcal import __version__
 from camcal.base.errors import CamcalError
-from camcal.base.limits import check_image_size
 from camcal.model.camera import compose_P, project_pinhole, rotation_angle_deg
 from camcal.model.distortion import Distortion
+from camcal.model.rig_fields import DictEquality, as_matrix, check_K, check_keys, check_plausible, check_rotation, \
+    image_size_field
+from camcal.model.rig_frames import Frame, Lens
 from camcal.model.tde4 import TDE4_MODELS, check_filmback
 from camcal.base.atomic import atomic_write_text
 from camcal.base.jsonfile import dumps, read_json
@@ -65,6 +71,7 @@ __all__ = [
     "Camera",
     "Rectification",
     "Frame",
+    "Lens",
     "Rig",
     "make_provenance",
 ]
@@ -74,111 +81,11 @@ RIG_VERSION = 1
 #: What a rig file without ``provenance`` (or without one of its keys) gets on load.
 UNKNOWN_PROVENANCE = "unknown"
 
-_ORTHONORMAL_TOL = 1e-6
-#: Focal lengths (and skew) are plausible within this factor of the larger image side, either way.
-_FOCAL_RANGE = 1000.0
-#: Principal points are plausible up to this many image sizes beyond the image's edges (generous: a diverged
-#: calibration, written with ``--force`` past the quality gate, has had one 2.5 widths off the image).
-_PP_MARGIN = 10.0
-
-
-# -- field validation helpers ---------------------------------------------------
-
-
-def _matrix(value: Any, shape: tuple[int, ...], name: str) -> NDArray[np.float64]:
-    """A read-only float64 copy of ``value`` with the given shape, all finite."""
-    try:
-        array = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise CamcalError(f"{name} must be a {'x'.join(map(str, shape))} array of numbers") from None
-    if array.shape != shape:
-        raise CamcalError(f"{name} must have shape {'x'.join(map(str, shape))}, got {'x'.join(map(str, array.shape)) or 'a scalar'}")
-    if not np.all(np.isfinite(array)):
-        raise CamcalError(f"{name} contains NaN or infinite values")
-    array.setflags(write=False)
-    return array
-
-
-def _check_K(K: NDArray[np.float64], name: str) -> None:
-    if K[1, 0] != 0.0 or K[2, 0] != 0.0 or K[2, 1] != 0.0:
-        raise CamcalError(f"{name} must be upper triangular ([[fx, s, cx], [0, fy, cy], [0, 0, 1]])")
-    if K[2, 2] != 1.0:
-        raise CamcalError(f"{name}[2][2] must be 1, got {float(K[2, 2])!r}")  # numpy 2 reprs np.float64(x)
-    if K[0, 0] <= 0.0 or K[1, 1] <= 0.0:
-        raise CamcalError(f"{name} must have positive fx and fy, got fx={float(K[0, 0])!r}, fy={float(K[1, 1])!r}")
-
-
-def _check_plausible(K: NDArray[np.float64], image_size: tuple[int, int], name: str) -> None:
-    """A focal length and skew within a generous multiple of the image, a principal point near it."""
-    width, height = image_size
-    largest = max(width, height)
-    low, high = largest / _FOCAL_RANGE, largest * _FOCAL_RANGE
-    for label, value in (("fx", K[0, 0]), ("fy", K[1, 1])):
-        if not low <= value <= high:
-            raise CamcalError(f"{name}: {label} = {float(value)!r} is not a plausible focal length for a "
-                              f"{width}x{height} image (expected {low:.6g} <= {label} <= {high:.6g})")
-    if abs(K[0, 1]) > high:
-        raise CamcalError(f"{name}: skew = {float(K[0, 1])!r} is not plausible for a {width}x{height} image "
-                          f"(expected |skew| <= {high:.6g})")
-    for label, value, side in (("cx", K[0, 2], width), ("cy", K[1, 2], height)):
-        if not -_PP_MARGIN * side <= value <= (1 + _PP_MARGIN) * side:
-            raise CamcalError(f"{name}: {label} = {float(value)!r} is not a plausible principal point for a "
-                              f"{width}x{height} image (expected {-_PP_MARGIN * side:.6g} <= {label} <= "
-                              f"{(1 + _PP_MARGIN) * side:.6g})")
-
-
-def _check_rotation(R: NDArray[np.float64], name: str) -> None:
-    error = np.abs(R.T @ R - np.eye(3)).max()
-    if error > _ORTHONORMAL_TOL:
-        raise CamcalError(f"{name} is not orthonormal (max |R^T R - I| = {error:.3g})")
-    if np.linalg.det(R) < 0:
-        raise CamcalError(f"{name} has determinant -1 (a reflection, not a rotation)")
-
-
-def _image_size(value: Any, name: str) -> tuple[int, int]:
-    """``[width, height]``, two positive integers within the pixel cap (:data:`camcal.base.limits.IMAGE_PIXELS`)."""
-    if (
-        not isinstance(value, (list, tuple))
-        or len(value) != 2
-        or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v > 0 for v in value)
-    ):
-        raise CamcalError(f"{name} must be [width, height] as two positive integers, got {value!r:.80}")
-    width, height = int(value[0]), int(value[1])
-    check_image_size(width, height, f"{name} declares")
-    return width, height
-
-
-def _check_keys(data: Any, name: str, required: Iterable[str], optional: Iterable[str] = ()) -> None:
-    if not isinstance(data, Mapping):
-        raise CamcalError(f"{name} must be an object, got {type(data).__name__}")
-    required = tuple(required)
-    for key in required:
-        if key not in data:
-            raise CamcalError(f"{name} is missing key '{key}'")
-    unknown = sorted(set(data) - set(required) - set(optional))
-    if unknown:
-        raise CamcalError(f"{name} has unknown key(s): {', '.join(map(str, unknown))}")
-
-
-class _DictEquality:
-    """Equality through the file form: two objects are equal when their files are."""
-
-    def to_dict(self) -> dict:  # pragma: no cover - every subclass defines it
-        raise NotImplementedError
-
-    def __eq__(self, other: object) -> bool:
-        if type(other) is not type(self):
-            return NotImplemented
-        return self.to_dict() == other.to_dict()  # type: ignore[attr-defined]
-
-    __hash__ = None  # type: ignore[assignment]
-
-
 # -- data model -------------------------------------------------------------------
 
 
 @dataclass(frozen=True, eq=False)
-class Rectification(_DictEquality):
+class Rectification(DictEquality):
     """A camera's rectifying homography.
 
     Parameters
@@ -196,13 +103,13 @@ class Rectification(_DictEquality):
     image_size: tuple[int, int]
 
     def __post_init__(self) -> None:
-        H = _matrix(self.H, (3, 3), "rectification.H")
+        H = as_matrix(self.H, (3, 3), "rectification.H")
         if abs(np.linalg.det(H)) <= 1e-12 * np.abs(H).max() ** 3:
             raise CamcalError("rectification.H is singular")
-        K_rect = _matrix(self.K_rect, (3, 3), "rectification.K_rect")
-        _check_K(K_rect, "rectification.K_rect")
-        image_size = _image_size(self.image_size, "rectification.image_size")
-        _check_plausible(K_rect, image_size, "rectification.K_rect")
+        K_rect = as_matrix(self.K_rect, (3, 3), "rectification.K_rect")
+        check_K(K_rect, "rectification.K_rect")
+        image_size = image_size_field(self.image_size, "rectification.image_size")
+        check_plausible(K_rect, image_size, "rectification.K_rect")
         object.__setattr__(self, "H", H)
         object.__setattr__(self, "K_rect", K_rect)
         object.__setattr__(self, "image_size", image_size)
@@ -212,12 +119,12 @@ class Rectification(_DictEquality):
 
     @classmethod
     def from_dict(cls, data: Mapping) -> Rectification:
-        _check_keys(data, "rectification", ("H", "K_rect", "image_size"))
+        check_keys(data, "rectification", ("H", "K_rect", "image_size"))
         return cls(data["H"], data["K_rect"], data["image_size"])
 
 
 @dataclass(frozen=True, eq=False)
-class Camera(_DictEquality):
+class Camera(DictEquality):
     """One calibrated camera.
 
     Parameters
@@ -257,19 +164,19 @@ class Camera(_DictEquality):
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
             raise CamcalError(f"camera name must be a non-empty string, got {self.name!r}")
-        object.__setattr__(self, "image_size", _image_size(self.image_size, "image_size"))
-        K = _matrix(self.K, (3, 3), "K")
-        _check_K(K, "K")
-        _check_plausible(K, self.image_size, "K")
+        object.__setattr__(self, "image_size", image_size_field(self.image_size, "image_size"))
+        K = as_matrix(self.K, (3, 3), "K")
+        check_K(K, "K")
+        check_plausible(K, self.image_size, "K")
         object.__setattr__(self, "K", K)
         if not isinstance(self.distortion, Distortion):
             raise CamcalError(f"distortion must be a Distortion, got {type(self.distortion).__name__}")
         if self.distortion.model in TDE4_MODELS:
             check_filmback(self.distortion.model, self.distortion.params, self.image_size)
-        R = _matrix(self.R, (3, 3), "R")
-        _check_rotation(R, "R")
+        R = as_matrix(self.R, (3, 3), "R")
+        check_rotation(R, "R")
         object.__setattr__(self, "R", R)
-        object.__setattr__(self, "c", _matrix(self.c, (3,), "c"))
+        object.__setattr__(self, "c", as_matrix(self.c, (3,), "c"))
         if self.sensor_width_mm is not None:
             width = self.sensor_width_mm
             if isinstance(width, bool) or not isinstance(width, (int, float)) or not math.isfinite(width) or width <= 0:
@@ -333,7 +240,7 @@ class Camera(_DictEquality):
     @classmethod
     def from_dict(cls, data: Mapping) -> Camera:
         """Inverse of :meth:`to_dict`; unknown keys are rejected."""
-        _check_keys(
+        check_keys(
             data,
             "camera",
             ("name", "image_size", "K", "distortion", "R", "c"),
@@ -353,53 +260,6 @@ class Camera(_DictEquality):
         )
 
 
-@dataclass(frozen=True, eq=False)
-class Frame(_DictEquality):
-    """The rig's pose at one frame of a sequence (``rig_from_world``).
-
-    Parameters
-    ----------
-    index : int
-        Frame number.
-    R : array_like, shape (3, 3)
-        Rotation world -> rig.
-    c : array_like, shape (3,)
-        Rig origin in world coordinates.
-    images : mapping of str to str
-        Camera name -> image path (relative to the rig file).
-    """
-
-    index: int
-    R: NDArray[np.float64]
-    c: NDArray[np.float64]
-    images: Mapping[str, str] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if isinstance(self.index, bool) or not isinstance(self.index, (int, np.integer)):
-            raise CamcalError(f"frame index must be an integer, got {self.index!r}")
-        object.__setattr__(self, "index", int(self.index))
-        R = _matrix(self.R, (3, 3), "R")
-        _check_rotation(R, "R")
-        object.__setattr__(self, "R", R)
-        object.__setattr__(self, "c", _matrix(self.c, (3,), "c"))
-        if not isinstance(self.images, Mapping) or not all(
-            isinstance(k, str) and isinstance(v, str) for k, v in self.images.items()
-        ):
-            raise CamcalError("frame images must map camera names to path strings")
-        object.__setattr__(self, "images", MappingProxyType(dict(self.images)))
-
-    def to_dict(self) -> dict:
-        out: dict = {"index": self.index, "R": self.R.tolist(), "c": self.c.tolist()}
-        if self.images:
-            out["images"] = dict(self.images)
-        return out
-
-    @classmethod
-    def from_dict(cls, data: Mapping) -> Frame:
-        _check_keys(data, "frame", ("index", "R", "c"), ("images",))
-        return cls(data["index"], data["R"], data["c"], data.get("images") or {})
-
-
 def make_provenance(method: str, **details: Any) -> dict:
     """Provenance for a new rig: tool and version, method, UTC creation time."""
     return {
@@ -411,7 +271,7 @@ def make_provenance(method: str, **details: Any) -> dict:
 
 
 @dataclass(frozen=True, eq=False)
-class Rig(_DictEquality):
+class Rig(DictEquality):
     """A set of cameras in one coordinate frame, optionally moving over frames.
 
     Parameters
@@ -457,6 +317,11 @@ class Rig(_DictEquality):
             unknown = sorted(set(frame.images) - set(names))
             if unknown:
                 raise CamcalError(f"frame {frame.index} has images of unknown camera(s): {', '.join(unknown)}")
+            for name, lens in frame.lenses.items():
+                if name not in names:
+                    raise CamcalError(f"frame {frame.index} has a lens for unknown camera {name!r}; "
+                                      f"the rig has: {', '.join(names)}")
+                _check_frame_lens(cameras[names.index(name)], lens, f"frame {frame.index} lens of {name!r}")
         object.__setattr__(self, "frames", frames)
         if self.points is not None and (not isinstance(self.points, str) or not self.points):
             raise CamcalError(f"points must be null or a file name, got {self.points!r}")
@@ -475,7 +340,10 @@ class Rig(_DictEquality):
         raise CamcalError(f"no camera {name!r} in the rig; it has: {', '.join(c.name for c in self.cameras)}")
 
     def camera_at_frame(self, name: str, index: int) -> Camera:
-        """Camera ``name`` posed in the world at frame ``index``.
+        """Camera ``name`` posed in the world at frame ``index``, with its lens there.
+
+        Where the frame has a lens for the camera (:attr:`Frame.lenses`), the
+        camera takes that lens's ``K`` and distortion; otherwise its own.
 
         Notes
         -----
@@ -485,14 +353,50 @@ class Rig(_DictEquality):
         camera = self.camera(name)
         for frame in self.frames:
             if frame.index == index:
-                return dataclasses.replace(camera, R=camera.R @ frame.R, c=frame.c + frame.R.T @ camera.c)
+                lens = frame.lenses.get(name)
+                intrinsics = {} if lens is None else {"K": lens.K, "distortion": lens.distortion}
+                return dataclasses.replace(camera, R=camera.R @ frame.R, c=frame.c + frame.R.T @ camera.c, **intrinsics)
         raise CamcalError(f"no frame {index} in the rig")
+
+    def lens_frames(self, name: str) -> tuple[int, ...]:
+        """The indices of the frames with a lens of camera ``name`` (:attr:`Frame.lenses`), in the rig's order."""
+        self.camera(name)
+        return tuple(frame.index for frame in self.frames if name in frame.lenses)
+
+    def with_camera(self, camera: Camera, lenses: Mapping[int, Lens] | None = None, **changes: Any) -> Rig:
+        """This rig with ``camera`` in place of the camera of its name, and that camera's per-frame lenses replaced.
+
+        Parameters
+        ----------
+        camera : Camera
+            Replaces the rig's camera of the same name (e.g. its undistorted camera).
+        lenses : mapping of int to Lens, optional
+            Frame index -> the camera's lens there; frames absent get none
+            (the camera's own). ``None``: no frame keeps a lens of it.
+        **changes
+            Other fields of the new rig (``provenance=...``).
+        """
+        self.camera(camera.name)
+        lenses = dict(lenses or {})
+        unknown = sorted(set(lenses) - {frame.index for frame in self.frames})
+        if unknown:
+            raise CamcalError(f"no frame {unknown[0]} in the rig")
+        frames = []
+        for frame in self.frames:
+            frame_lenses = {name: lens for name, lens in frame.lenses.items() if name != camera.name}
+            if frame.index in lenses:
+                frame_lenses[camera.name] = lenses[frame.index]
+            frames.append(dataclasses.replace(frame, lenses=frame_lenses))
+        cameras = tuple(camera if c.name == camera.name else c for c in self.cameras)
+        return dataclasses.replace(self, cameras=cameras, frames=tuple(frames), **changes)
 
     def summary(self) -> str:
         """A readable multi-line description (what ``camcal rig show`` prints)."""
+        lens_frames = sum(1 for frame in self.frames if frame.lenses)
         lines = [
             f"rig: {len(self.cameras)} camera(s), units {self.units}, "
-            f"{len(self.frames)} frame(s), points: {self.points or 'none'}",
+            f"{len(self.frames)} frame(s){f' (per-frame lens on {lens_frames} frames)' if lens_frames else ''}, "
+            f"points: {self.points or 'none'}",
             f"made by {self.provenance.get('tool')} ({self.provenance.get('method')}) "
             f"on {self.provenance.get('created')}",
         ]
@@ -546,7 +450,7 @@ class Rig(_DictEquality):
     @classmethod
     def from_dict(cls, data: Any) -> Rig:
         """Validate a rig file's JSON object; errors name the bad field."""
-        _check_keys(
+        check_keys(
             data, "rig", ("format", "version", "cameras"), ("units", "frames", "points", "provenance")
         )
         if data["format"] != RIG_FORMAT:
@@ -606,6 +510,19 @@ class Rig(_DictEquality):
         path = Path(path)
         atomic_write_text(path, self.to_json())
         return path
+
+
+def _check_frame_lens(camera: Camera, lens: Lens, name: str) -> None:
+    """A frame's lens fits its camera: the same distortion model, a plausible K (and 3DE film back) on its image."""
+    if lens.distortion.model != camera.distortion.model:
+        raise CamcalError(f"{name} has distortion model {lens.distortion.model!r}, the camera has "
+                          f"{camera.distortion.model!r}; a camera keeps one lens model over its frames")
+    try:
+        check_plausible(lens.K, camera.image_size, "K")
+        if lens.distortion.model in TDE4_MODELS:
+            check_filmback(lens.distortion.model, lens.distortion.params, camera.image_size)
+    except CamcalError as error:
+        raise CamcalError(f"{name}: {error}") from None
 
 
 def _plain(value: Any) -> Any:

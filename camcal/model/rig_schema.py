@@ -11,7 +11,8 @@ The schema says what a file's structure must be: keys, types, array shapes,
 the lens model's parameters, ``K``'s zeros and one. What JSON Schema cannot
 say, :meth:`camcal.model.rig.Rig.from_dict` checks on load: ``R`` orthonormal
 with determinant +1, a plausible focal length and principal point, camera
-names unique, frames naming cameras of the rig, image sizes within the pixel
+names unique, frames naming cameras of the rig (their lenses of the camera's
+distortion model, with a plausible K on its image), image sizes within the pixel
 cap, a covariance symmetric with one row per name.
 """
 
@@ -165,8 +166,24 @@ def _build() -> dict:
                 "c": {"$ref": "#/$defs/centre"},
                 "images": {"type": "object", "additionalProperties": {"type": "string"},
                            "description": "Camera name -> the image it took at this frame."},
+                "lenses": {"type": "object", "additionalProperties": {"$ref": "#/$defs/lens"},
+                           "description": "Camera name -> its lens at this frame (a zoom, a refocus); "
+                                          "cameras absent keep their own."},
             },
             "required": ["index", "R", "c"],
+            "additionalProperties": False,
+        },
+        "lens": {
+            "type": "object",
+            "description": ("A camera's lens at one frame: K and distortion (the camera's model) in pixels of the "
+                            "camera's image; focal_mm and focus_m record the lens state, no mapping uses them."),
+            "properties": {
+                "K": {"$ref": "#/$defs/K"},
+                "distortion": {"$ref": "#/$defs/distortion"},
+                "focal_mm": {"type": "number", "exclusiveMinimum": 0, "description": "Focal length setting in mm."},
+                "focus_m": {"type": "number", "exclusiveMinimum": 0, "description": "Focus distance in m."},
+            },
+            "required": ["K", "distortion"],
             "additionalProperties": False,
         },
         "board_shape": {

@@ -164,6 +164,11 @@ class BatchJob:
         Frame file patterns with one ``%d`` / ``%04d`` placeholder.
     colour_space : str
         Output space of the colour step (:data:`COLOUR_SPACES`).
+    lenses : mapping of int to mapping
+        A camera whose lens changes over the rig's frames (a zoom): frame
+        number -> ``{"K", "distortion"}`` of every rig frame
+        (:meth:`camcal.model.rig.Rig.camera_at_frame`); each frame is
+        remapped with its own lens. Empty: one lens for every frame.
     key : str
         SHA-256 (hex) of everything that changes the output pixels (camera,
         geometry, mode, overscan, colour and its space); keys the per-worker
@@ -178,6 +183,7 @@ class BatchJob:
     in_pattern: str
     out_pattern: str
     colour_space: str = "ACES2065-1"
+    lenses: Mapping[int, Mapping[str, Any]] = field(default_factory=dict)
     key: str = field(init=False)
 
     def __post_init__(self) -> None:
@@ -191,8 +197,15 @@ class BatchJob:
             content["colour_space"] = self.colour_space
         if self.geometry == "undistort":
             content.update(mode=self.mode, overscan=self.overscan)
+        if self.lenses:
+            content["lenses"] = {str(frame): lens for frame, lens in self.lenses.items()}
         text = json.dumps(content, sort_keys=True, separators=(",", ":"))
         object.__setattr__(self, "key", hashlib.sha256(text.encode()).hexdigest())
+
+    def camera_at(self, frame: int | None) -> Mapping[str, Any]:
+        """The camera (file form) of ``frame``: with that frame's lens where :attr:`lenses` has one."""
+        lens = self.lenses.get(frame) if frame is not None else None
+        return self.camera if lens is None else {**self.camera, "K": lens["K"], "distortion": lens["distortion"]}
 
     def input_path(self, frame: int) -> Path:
         """The input file of ``frame``."""
@@ -243,8 +256,9 @@ def make_job(
     ------
     CamcalError
         Missing or invalid rig or fit, unknown camera, a pattern without a
-        frame placeholder, input and output of different formats, or
-        outputs that would overwrite the inputs.
+        frame placeholder, input and output of different formats, outputs
+        that would overwrite the inputs, or ``rectify`` of a camera whose
+        lens changes per frame.
     """
     rig = rig if isinstance(rig, Rig) else Rig.load(rig)
     source = rig.camera(camera)
@@ -252,6 +266,13 @@ def make_job(
         raise CamcalError(f"unknown geometric step {geometry!r}, expected one of: {', '.join(GEOMETRY)}")
     if geometry == "rectify" and source.rectification is None:
         raise CamcalError(f"camera {camera!r} has no rectification; run `camcal rectify` on the rig first")
+    lenses = {}
+    if rig.lens_frames(camera) and geometry is not None:  # a zoom: each frame remapped with its lens
+        if geometry == "rectify":
+            raise CamcalError(f"camera {camera!r}'s lens changes over the rig's frames; its rectification holds one lens")
+        for frame in rig.frames:
+            at = rig.camera_at_frame(camera, frame.index)
+            lenses[frame.index] = {"K": at.K.tolist(), "distortion": at.distortion.to_dict()}
     if geometry == "undistort":
         if mode not in MODES:
             raise CamcalError(f"unknown undistortion mode {mode!r}, expected one of: {', '.join(MODES)}")
@@ -275,6 +296,7 @@ def make_job(
         camera=source.to_dict(), geometry=geometry, mode=mode, overscan=float(overscan),
         colour=None if fit is None else fit.to_dict(), in_pattern=in_pattern, out_pattern=out_pattern,
         colour_space=colour_space,
+        lenses=lenses,
     )
 
 
@@ -321,6 +343,8 @@ class FrameProcessor:
     Parameters
     ----------
     job : BatchJob
+    frame : int, optional
+        The frame whose lens the maps are of (:meth:`BatchJob.camera_at`).
 
     Attributes
     ----------
@@ -333,8 +357,8 @@ class FrameProcessor:
         Unique per construction (tests count constructions with it).
     """
 
-    def __init__(self, job: BatchJob) -> None:
-        self.camera = Camera.from_dict(job.camera)
+    def __init__(self, job: BatchJob, frame: int | None = None) -> None:
+        self.camera = Camera.from_dict(job.camera_at(frame))
         self.maps: RemapMaps | None = None
         if job.geometry == "undistort":
             self.maps = make_undistorter(self.camera, job.mode, job.overscan).maps
@@ -374,14 +398,16 @@ _PROCESSORS: dict[str, FrameProcessor] = {}
 _PROCESSORS_LOCK = threading.Lock()
 
 
-def _processor(job: BatchJob) -> FrameProcessor:
-    """The cached processor of ``job`` in this process (built on first use, thread-safe)."""
+def _processor(job: BatchJob, frame: int) -> FrameProcessor:
+    """The cached processor of ``job`` (of ``frame``'s lens, with per-frame lenses) in this process, thread-safe."""
+    lens = job.lenses.get(frame)
+    key = job.key if lens is None else job.key + json.dumps(lens, sort_keys=True)
     with _PROCESSORS_LOCK:
-        processor = _PROCESSORS.get(job.key)
+        processor = _PROCESSORS.get(key)
         if processor is None:
             while len(_PROCESSORS) >= _CACHE_SIZE:
                 _PROCESSORS.pop(next(iter(_PROCESSORS)))
-            processor = _PROCESSORS[job.key] = FrameProcessor(job)
+            processor = _PROCESSORS[key] = FrameProcessor(job, frame)
         return processor
 
 
@@ -445,7 +471,7 @@ def process_frame(frame: int, job: BatchJob, run: str = "") -> FrameResult:
     start = time.perf_counter()
     target = job.output_path(frame)
     try:
-        processor = _processor(job)
+        processor = _processor(job, frame)
         written = write_frame(target, processor.apply(read_frame(job.input_path(frame))))
     except CamcalError as error:
         raise CamcalError(f"frame {frame}: {error}") from None
@@ -583,6 +609,10 @@ def run_batch(
         raise CamcalError("no frames to process")
     if retries < 0:
         raise CamcalError(f"retries must be >= 0, got {retries}")
+    outside = [frame for frame in frames if job.lenses and frame not in job.lenses]
+    if outside:
+        raise CamcalError(f"frame(s) {', '.join(map(str, outside[:10]))} are not in the rig, whose lens changes per "
+                          "frame: no lens for them")
     skipped = completed_frames(job, frames) if resume else ()
     done = set(skipped)
     todo = [frame for frame in frames if frame not in done]

@@ -27,6 +27,7 @@ from camcal.colour.chart.detect import ChartPatches, patches_from_image
 from camcal.colour.chart.linearise import Linearisation
 from camcal.colour.chart.reference import DEFAULT_CHART, reference_chart
 from camcal.colour.fit.record import ColourFit
+from camcal.colour.flatfield import FlatField, correct_flat_field
 from camcal.colour.match.models import LUT_SMOOTHING
 from camcal.colour.match.routes import MatchResult, encoding_linearisation, match_charts, match_correspondences
 from camcal.colour.spectral.captures import Capture, chart_reflectances, check_chart_spectra
@@ -50,6 +51,7 @@ def patches_from_chart(
     keep_clipped: bool = False,
     illuminant: str = "D50",
     detector: str = "auto",
+    flat_field: FlatField | None = None,
 ) -> ChartPatches:
     """Detect, sample and pair a chart photo's patches with reference XYZ.
 
@@ -73,6 +75,9 @@ def patches_from_chart(
         they were measured under another, see ``reference_chart``).
     detector
         ``auto``, ``segmentation`` or ``cv2.mcc`` (:func:`camcal.colour.chart.detect.detect_chart`).
+    flat_field
+        A lens's flat field the photo is divided by before sampling
+        (:func:`camcal.colour.flatfield.correct_flat_field`; the photo must be linear).
 
     Returns
     -------
@@ -83,9 +88,12 @@ def patches_from_chart(
     chart = reference_chart(reference, illuminant)
     if is_raw(image_path):
         raw = read_raw(image_path)
-        return patches_from_image(raw.RGB, chart, corners=corners, keep_clipped=keep_clipped,
+        RGB = raw.RGB if flat_field is None else correct_flat_field(raw.RGB, flat_field)
+        return patches_from_image(RGB, chart, corners=corners, keep_clipped=keep_clipped,
                                   saturated=raw.saturated, linear=True, detector=detector)
     image = read_image(image_path)
+    if flat_field is not None:
+        image = correct_flat_field(image, flat_field)
     return patches_from_image(image, chart, corners=corners, keep_clipped=keep_clipped, detector=detector)
 
 

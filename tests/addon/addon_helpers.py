@@ -69,11 +69,13 @@ def camera_dict(name, size, K, R=None, c=(0.0, 0.0, 0.0), distortion=None, **ext
     return cam
 
 
-def frame(index, R=None, c=(0.0, 0.0, 0.0), images=None):
-    """One frame of a rig file: the rig's pose ``rig_from_world`` and its plates."""
+def frame(index, R=None, c=(0.0, 0.0, 0.0), images=None, lenses=None):
+    """One frame of a rig file: the rig's pose ``rig_from_world``, its plates and per-frame lenses."""
     out = {"index": index, "R": (np.eye(3) if R is None else np.asarray(R)).tolist(), "c": [float(v) for v in c]}
     if images:
         out["images"] = images
+    if lenses:
+        out["lenses"] = lenses
     return out
 
 

@@ -180,6 +180,7 @@ def test_plates_points_and_lens_clip(bpy, addon, tmp_path):
     assert (dist.render.resolution_x, dist.render.resolution_y) == (320, 240)
     shift = list(dist["camcal_distortion_shift_px"])
     assert all(float(v).is_integer() and abs(v) <= 4 for v in shift)
+    assert not [o.name for o in bpy.data.objects if "shift probe" in o.name]  # the measuring camera is removed
     # Points: a mesh of vertices with colours, under the rig root.
     mesh = result.points.data
     assert len(mesh.vertices) == 3 and result.points.parent == result.root

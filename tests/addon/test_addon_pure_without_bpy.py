@@ -19,7 +19,7 @@ def test_pure_modules_need_no_bpy_or_numpy():
         mod = importlib.util.module_from_spec(spec)
         sys.modules['camcal_rig'] = mod
         spec.loader.exec_module(mod)
-        from camcal_rig import fisheye, mapping, rigfile, plyfile, pngfile, overlay, tracking
+        from camcal_rig import fisheye, mapping, rigfile, plyfile, pngfile, overlay, tracking, solvejob
         b = mapping.blender_intrinsics([[1000, 0, 959.5], [0, 1000, 539.5], [0, 0, 1]], (1920, 1080))
         assert abs(b.lens - 18.75) < 1e-12
         assert 'camcal' not in sys.modules

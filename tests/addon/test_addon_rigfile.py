@@ -76,6 +76,15 @@ def test_double_precision_survives(addon, tmp_path):
         (lambda r: r.update(frames=[frame(0), frame(0)]), "duplicate frame index 0"),
         (lambda r: r.update(frames=[frame(0, R=np.diag([1, 1, -1.0]))]), r"\(index 0\)\.R: a reflection"),
         (lambda r: r.update(points=5), "points: expected a PLY path or null"),
+        (lambda r: r.update(frames=[frame(0, lenses={"b": {"K": [[120, 0, 50], [0, 120, 40], [0, 0, 1]], "distortion": {"model": "none"}}})]), r"\(index 0\)\.lenses\.b: unknown camera 'b'"),
+        (lambda r: r.update(frames=[frame(0, lenses={"a": {"K": [[120, 0, 50], [0, 120, 40], [0, 0, 1]],
+                                                              "distortion": {"model": "division", "params": {"lambda": 0.1}}}})]),
+         r"lenses\.a\.distortion\.model: 'division', but the camera's lens is 'none'"),
+        (lambda r: r.update(frames=[frame(0, lenses={"a": {"K": [[120, 0, 50], [0, 120, 40], [0, 0, 1]]}})]),
+         r"lenses\.a: missing key 'distortion'"),
+        (lambda r: r.update(frames=[frame(0, lenses={"a": {**{"K": [[120, 0, 50], [0, 120, 40], [0, 0, 1]], "distortion": {"model": "none"}}, "focal_mm": -3}})]), r"lenses\.a\.focal_mm: expected a positive"),
+        (lambda r: r.update(frames=[frame(0, lenses={"a": {**{"K": [[120, 0, 50], [0, 120, 40], [0, 0, 1]], "distortion": {"model": "none"}}, "K": [[0, 0, 50], [0, 120, 40], [0, 0, 1]]}})]),
+         r"lenses\.a\.K: focal lengths must be positive"),
     ],
 )
 def test_bad_fields_are_named(addon, tmp_path, mutate, message):
@@ -95,3 +104,22 @@ def test_unreadable_and_malformed_files(addon, tmp_path):
     bad.write_text("{not json")
     with pytest.raises(addon.rigfile.RigFileError, match="not valid JSON"):
         addon.rigfile.load_rig(bad)
+
+
+def test_per_frame_lenses_read_as_camcal_writes_them(addon, tmp_path):
+    """A rig camcal saves with a lens on some frames reads back in the add-on to the last bit."""
+    from camcal.model.distortion import Distortion
+    from camcal.model.rig import Camera, Frame, Lens, Rig
+
+    camera = Camera("a", (1280, 720), K, Distortion("division", {"lambda": -1e-7}), np.eye(3), [0.0, 0.0, 0.0])
+    zoomed = Lens([[1012.25, 0.0, 641.0], [0.0, 1000.5, 356.0], [0.0, 0.0, 1.0]],
+                  Distortion("division", {"lambda": -0.5e-7}), focal_mm=35.0)
+    frames = (Frame(1, np.eye(3), [0.0, 0.0, 0.0]), Frame(2, np.eye(3), [0.0, 0.0, 0.1], lenses={"a": zoomed}))
+    path = Rig((camera,), frames=frames).save(tmp_path / "zoom.rig.json")
+    rig = addon.rigfile.load_rig(path)
+    assert rig.frames[0].lenses == {}
+    lens = rig.frames[1].lenses["a"]
+    assert lens.K == tuple(map(tuple, zoomed.K.tolist()))
+    assert lens.distortion.model == "division" and lens.distortion.params == {"lambda": -0.5e-7}
+    assert lens.distortion.center == (641.0, 356.0)  # the frame's principal point, not the camera's
+    assert lens.focal_mm == 35.0 and lens.focus_m is None

@@ -29,11 +29,13 @@ def scene(seed, n_views=8):
     return camera, [posed(camera, d, R, t) for d, (R, t) in zip(detections, poses)]
 
 
-def test_suggested_view_beats_a_random_one():
+@pytest.mark.parametrize("n_scenes", [pytest.param(20, marks=pytest.mark.slow), 5])
+def test_suggested_view_beats_a_random_one(n_scenes):
     """Must-show: over 20 seeded scenes of 8 views (synthetic corners, 0.1 px noise), the suggested view lowers
-    the expected worst projection sigma more than a random extra view of the same board in >= 80 % of them."""
+    the expected worst projection sigma more than a random extra view of the same board in >= 80 % of them
+    (the fast run: the first 5 scenes, the same rule)."""
     wins, gains = 0, []
-    for seed in range(200, 220):
+    for seed in range(200, 200 + n_scenes):
         camera, poses = scene(seed)
         rng = np.random.default_rng(seed)
         suggested = suggest_views(camera, BOARD.object_points, poses)[0]
@@ -44,9 +46,9 @@ def test_suggested_view_beats_a_random_one():
         wins += suggested.worst_sigma_px < random
         gains.append(((now - suggested.worst_sigma_px) / now, (now - random) / now))
     gains = np.array(gains)
-    print(f"suggested beats random in {wins}/20 scenes; worst sigma lowered by {100 * np.median(gains[:, 0]):.0f} % "
+    print(f"suggested beats random in {wins}/{n_scenes} scenes; worst sigma lowered by {100 * np.median(gains[:, 0]):.0f} % "
           f"(suggested) vs {100 * np.median(gains[:, 1]):.0f} % (random), medians")
-    assert wins >= 16
+    assert wins >= 0.8 * n_scenes
 
 
 def test_shot_list_lowers_the_sigma_step_by_step():

@@ -85,3 +85,32 @@ def relative_projection_error(rig: Rig, back: Rig) -> float:
         X_b = (X - ref_a.c) @ ref_a.R.T @ ref_b.R + ref_b.c  # rig a's world -> rig b's world
         worst = max(worst, float(np.abs(a.project(X) - b.project(X_b)).max()))
     return worst
+
+
+def zoom_rig(camera: Camera, zooms=(1.0, 1.18, 1.35), scale_lens=None, first_frame=1001, drift=(2.0, -1.0),
+             state=lambda i, zoom: (24.0 * zoom, 2.0 + i)) -> Rig:
+    """``camera`` over ``len(zooms)`` frames of a dolly, zoomed by each factor: one frame per zoom.
+
+    Frame ``first_frame + i`` has a lens (:class:`camcal.model.rig.Lens`) with
+    ``fx, fy`` times ``zooms[i]``, the principal point moved by ``i drift``
+    px, and the distortion ``scale_lens(distortion, zoom)`` (default: the
+    camera's own); its lens state ``(focal_mm, focus_m)`` is ``state(i,
+    zoom)`` (default ``24 zoom``, ``2 + i``). The first frame, at zoom 1,
+    keeps the camera's own lens (no lens entry) when ``zooms[0] == 1``.
+    """
+    from camcal.model.rig import Lens
+
+    frames = []
+    for i, zoom in enumerate(zooms):
+        centre = np.array([0.3 * i, -2.0 + 0.1 * i, 1.2])
+        K_frame = camera.K.copy()
+        K_frame[0, 0] *= zoom
+        K_frame[1, 1] *= zoom
+        K_frame[0, 2] += drift[0] * i
+        K_frame[1, 2] += drift[1] * i
+        distortion = camera.distortion if scale_lens is None else scale_lens(camera.distortion, zoom)
+        focal_mm, focus_m = state(i, zoom)
+        lenses = {} if zoom == 1.0 and i == 0 else {
+            camera.name: Lens(K_frame, distortion, focal_mm=focal_mm, focus_m=focus_m)}
+        frames.append(Frame(first_frame + i, look_at(centre, [0.0, 4.0, 1.0]), centre, lenses=lenses))
+    return Rig((camera,), units="m", frames=tuple(frames), provenance=make_provenance("test"))

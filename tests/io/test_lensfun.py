@@ -245,3 +245,100 @@ def test_a_zoom_lens_writes_one_entry_per_focal_length_each_matching_in_lensfun(
         largest, rms = _measured(_state_view(out, size, focal), camera)
         assert rms == pytest.approx(conversion.refit.rms_px, rel=0.1, abs=0.005)
         assert rms > 1.0  # 12 px by 6 px between the two principal points
+
+
+def _profile_file(tmp_path: Path, size: tuple[int, int], drift_px: float) -> Path:
+    """A lens profile of a zoom from 24 to 70 mm (fx = fy, k1 and k2 changing with focal length, breathing with
+    focus), its principal point drifting ``drift_px`` over the range, written as ``zoom.profile.json``."""
+    from camcal.geometry.lens_profile import fit_profile
+    from camcal.model.lens_profile import LensProfile, LensState, format_state
+
+    parameters = ("fx", "fy", "cx", "cy", "k1", "k2")
+    sigma = np.array([1.0, 1.0, 0.3, 0.3, 0.002, 0.01])
+    states = []
+    for focal in (24.0, 40.0, 70.0):
+        for focus in (1.0, math.inf):
+            fx = 20.0 * focal * (1.0 + 0.02 / focus)
+            drift = drift_px * (focal - 24.0) / 46.0
+            values = [fx, fx, (size[0] - 1) / 2 + drift, (size[1] - 1) / 2 - drift / 2,
+                      -0.2 + 0.004 * focal, 0.05 - 0.0005 * focal]
+            states.append(LensState(format_state(focal, focus), focal, focus, dict(zip(parameters, values)),
+                                    np.diag(sigma**2), 8, 0.2))
+    fitted = fit_profile(states, parameters)
+    profile = LensProfile("polynomial", size, "chessboard:9x6:0.03", parameters, tuple(states), fitted.surfaces)
+    return profile.save(tmp_path / "zoom.profile.json")
+
+
+def test_a_lens_profile_exports_to_lensfun_matching_it_at_each_focal_length(tmp_path, capsys):
+    from camcal.cli import main
+    from camcal.geometry.lens_profile import camera_at
+    from camcal.model.lens_profile import LensProfile
+
+    size = (480, 320)
+    path = _profile_file(tmp_path, size, drift_px=0.0)
+    out = tmp_path / "zoom.xml"
+    assert main(["rig", "export", str(path), str(out), "--to", "lensfun"]) == 0
+    printed = capsys.readouterr().out
+    assert "at 24 mm" in printed and "poly5 exact" in printed and "farthest focus calibrated (inf)" in printed
+    entries = ElementTree.parse(out).getroot().findall("lens/calibration/distortion")
+    assert [float(e.get("focal")) for e in entries] == [24.0, 40.0, 70.0]
+    profile = LensProfile.load(path)
+    for focal in (24.0, 40.0, 70.0):
+        camera = camera_at(profile, focal, math.inf)
+        largest, rms = _measured(_state_view(out, size, focal), camera)
+        assert rms < 0.05 and largest < 0.05, (focal, largest, rms)
+
+
+def test_a_drifting_principal_point_is_the_lensfun_residual_printed(tmp_path):
+    from camcal.api.rig import export_rig
+    from camcal.geometry.lens_profile import camera_at
+    from camcal.model.lens_profile import LensProfile
+
+    size = (480, 320)
+    path = _profile_file(tmp_path, size, drift_px=10.0)
+    out = tmp_path / "zoom.xml"
+    result = export_rig(path, out, "lensfun")
+    profile = LensProfile.load(path)
+    for focal, conversion in zip((24.0, 40.0, 70.0), result.conversions):
+        camera = camera_at(profile, focal, math.inf)
+        largest, rms = _measured(_state_view(out, size, focal), camera)
+        assert rms == pytest.approx(conversion.refit.rms_px, rel=0.1, abs=0.005)
+    assert max(c.refit.rms_px for c in result.conversions) > 1.0  # 5 px from the mean centre at 24 mm
+    with pytest.raises(CamcalError, match="a lens profile exports to lensfun, lens-table, not 'nuke'"):
+        export_rig(path, tmp_path / "zoom.nk", "nuke")
+    assert not (tmp_path / "zoom.nk").exists()
+
+
+def test_a_fisheye_is_lensfuns_fisheye_type_and_corrects_like_camcal(tmp_path):
+    size = (960, 640)
+    camera = _camera(size, 300.0, "kannala-brandt", {"k1": 0.02, "k2": -0.005, "k3": 0.0, "k4": 0.0},
+                     centre_offset=(3.0, -2.0))
+    out, result = _export(tmp_path, camera)
+    assert ElementTree.parse(out).getroot().findtext("lens/type") == "fisheye"
+    assert result.conversions[0].exact
+    view = _LensfunView(out, size)
+    assert view.lens.type == lensfunpy.LensType.FISHEYE
+    # Lensfun's undistorted image of a fisheye is the equidistant one: a ray at theta from the axis at F theta
+    undistorted = np.stack(np.meshgrid(np.linspace(0, size[0] - 1, 25), np.linspace(0, size[1] - 1, 17)),
+                           -1).reshape(-1, 2)
+    offset = (undistorted - view.centre) / view.F
+    theta = np.linalg.norm(offset, axis=1)
+    rays = np.column_stack([offset * (np.sin(theta) / np.where(theta > 0, theta, 1.0))[:, None], np.cos(theta)])
+    distance = np.linalg.norm(view.distorted(undistorted) - camera.distortion.project_rays(rays, camera.K), axis=1)
+    assert distance.max() < 0.05, distance.max()
+    # read back: the same Kannala-Brandt lens
+    [back] = import_rig(out, "lensfun").rig.cameras
+    assert back.distortion.model == "kannala-brandt"
+    np.testing.assert_allclose(back.K, camera.K, rtol=1e-7)  # 9 significant digits in the file
+    for name, value in camera.distortion.params.items():
+        assert back.distortion.params[name] == pytest.approx(value, rel=1e-7, abs=1e-12)
+
+
+def test_a_wide_rectilinear_lens_has_finite_border_residuals(tmp_path):
+    # a division lens imaging rays near 90 degrees at the overscan border: the pinhole lens Lensfun writes does
+    # not image those rays (counted as lost), the others' residuals are pixels, not 1e11
+    camera = _camera((960, 640), 350.0, "division", {"lambda": -2e-6})
+    _, result = _export(tmp_path, camera)
+    refit = result.conversions[0].refit
+    assert refit.n_lost > 0
+    assert refit.border_max_px < math.hypot(960, 640)

@@ -1,5 +1,6 @@
 """The rig file: round trip, validation messages, atomic save, projection."""
 
+import dataclasses
 import json
 import os
 
@@ -9,8 +10,13 @@ import pytest
 from camcal.base.errors import CamcalError
 from camcal.model.camera import look_at
 from camcal.model.distortion import Distortion
-from camcal.model.rig import Camera, Frame, Rectification, Rig, make_provenance
+from camcal.model.rig import Camera, Frame, Lens, Rectification, Rig, make_provenance
 from camcal.synthetic import example_camera, points_in_view
+
+
+#: The left camera's lens at frame 1002: zoomed in, the principal point drifted, less barrel distortion.
+ZOOMED = Lens([[1800.0, 0.0, 962.25], [0.0, 1800.0, 537.5], [0.0, 0.0, 1.0]],
+              Distortion("division", {"lambda": -0.6e-7}, center=(962.25, 537.5)), focal_mm=42.5, focus_m=3.0)
 
 
 def stereo_rig() -> Rig:
@@ -28,7 +34,8 @@ def stereo_rig() -> Rig:
     )
     frames = (
         Frame(1001, np.eye(3), [0.0, 0.0, 0.0], {"left": "left/1001.jpg", "right": "right/1001.jpg"}),
-        Frame(1002, look_at([0, 0, 0], [0.3, 1.0, 0.0], up=[0, 0, -1]).T @ look_at([0, 0, 0], [0, 1.0, 0], up=[0, 0, -1]), [0.1, 0.2, 0.0]),
+        Frame(1002, look_at([0, 0, 0], [0.3, 1.0, 0.0], up=[0, 0, -1]).T @ look_at([0, 0, 0], [0, 1.0, 0], up=[0, 0, -1]), [0.1, 0.2, 0.0],
+              lenses={"left": ZOOMED}),
     )
     return Rig((left, right), units="m", frames=frames, points="points.ply", provenance=make_provenance("test", seed=3))
 
@@ -76,6 +83,36 @@ def test_camera_at_frame_composes_rig_pose():
         rig.camera_at_frame("right", 7)
 
 
+def test_camera_at_frame_takes_the_frames_lens():
+    rig = stereo_rig()
+    left = rig.camera("left")
+    X_world = np.random.default_rng(3).normal(scale=0.3, size=(20, 3)) + [0, 6, 0]
+    for index, lens in ((1001, None), (1002, ZOOMED)):
+        frame = next(f for f in rig.frames if f.index == index)
+        at_frame = rig.camera_at_frame("left", index)
+        K, distortion = (left.K, left.distortion) if lens is None else (lens.K, lens.distortion)
+        # the truth, composed by hand: world -> rig -> camera, pinhole with the frame's K, then its distortion
+        X_camera = ((X_world - frame.c) @ frame.R.T - left.c) @ left.R.T
+        ideal = X_camera[:, :2] / X_camera[:, 2:] * [K[0, 0], K[1, 1]] + K[:2, 2]
+        assert np.allclose(at_frame.project(X_world), distortion.distort(ideal, K), atol=1e-9)
+    assert np.array_equal(rig.camera_at_frame("left", 1002).K, ZOOMED.K)
+    assert rig.camera_at_frame("left", 1002).distortion == ZOOMED.distortion
+    assert np.array_equal(rig.camera_at_frame("right", 1002).K, rig.camera("right").K)  # no lens for it: its own
+
+
+def test_lens_state_is_optional_and_round_trips():
+    bare = Lens(ZOOMED.K, ZOOMED.distortion)
+    assert bare.to_dict().keys() == {"K", "distortion"}
+    assert Lens.from_dict(ZOOMED.to_dict()) == ZOOMED and Lens.from_dict(bare.to_dict()) == bare
+    assert ZOOMED.to_dict()["focal_mm"] == 42.5 and ZOOMED.to_dict()["focus_m"] == 3.0
+
+
+def test_rig_show_counts_frames_with_a_lens():
+    assert "2 frame(s) (per-frame lens on 1 frames)" in stereo_rig().summary()
+    static = Rig((example_camera("x"),))
+    assert "per-frame lens" not in static.summary()
+
+
 def edit(data, path, value):
     """Set (or with value=KeyError, delete) a nested key of a rig dict."""
     target = data
@@ -107,6 +144,15 @@ BAD = [
     (("frames", 0, "images", "middle"), "m.jpg", "unknown camera"),
     (("frames", 1, "index"), 1001, "frame indices must be unique"),
     (("cameras",), [], "at least one camera"),
+    (("frames", 1, "lenses", "middle"), ZOOMED.to_dict(), "frame 1002 has a lens for unknown camera 'middle'"),
+    (("frames", 1, "lenses", "left", "distortion"), {"model": "polynomial", "params": {"k1": 0.1, "k2": 0.0}},
+     "frame 1002 lens of 'left' has distortion model 'polynomial', the camera has 'division'"),
+    (("frames", 1, "lenses", "left", "K"), [[1e7, 0, 960], [0, 1e7, 540], [0, 0, 1]],
+     "frame 1002 lens of 'left': K: fx = 10000000.0 is not a plausible focal length"),
+    (("frames", 1, "lenses", "left", "K"), [[1800, 0, 960], [0, 0, 540], [0, 0, 1]], r"frames\[1\]: lenses\['left'\]: K must have positive"),
+    (("frames", 1, "lenses", "left", "focal_mm"), -35.0, "focal_mm must be a positive number"),
+    (("frames", 1, "lenses", "left", "zoom"), 2.0, "lens has unknown key"),
+    (("frames", 1, "lenses"), [1], "lenses must be an object"),
 ]
 
 
@@ -157,3 +203,19 @@ def test_inputs_are_copied_not_aliased():
     assert camera.K[0, 0] != 5.0
     with pytest.raises(ValueError):
         camera.K[0, 0] = 1.0
+
+
+def test_with_camera_replaces_a_camera_and_its_frame_lenses():
+    rig = stereo_rig()
+    assert rig.lens_frames("left") == (1002,) and rig.lens_frames("right") == ()
+    left = dataclasses.replace(rig.camera("left"), distortion=Distortion("division", {"lambda": 0.0}))
+    wider = Lens(ZOOMED.K, Distortion("division", {"lambda": 0.0}), focal_mm=20.0)
+    new = rig.with_camera(left, {1001: wider}, units="cm")
+    assert new.units == "cm" and new.camera("left") == left and new.camera("right") == rig.camera("right")
+    assert new.lens_frames("left") == (1001,) and new.frames[0].lenses["left"] == wider
+    assert [f.images for f in new.frames] == [f.images for f in rig.frames]
+    assert rig.with_camera(rig.camera("left")).lens_frames("left") == ()
+    with pytest.raises(CamcalError, match="no frame 7"):
+        rig.with_camera(left, {7: wider})
+    with pytest.raises(CamcalError, match="distortion model 'polynomial', the camera has 'division'"):
+        rig.with_camera(left, {1001: Lens(ZOOMED.K, Distortion("polynomial", {"k1": 0.1, "k2": 0.0}))})

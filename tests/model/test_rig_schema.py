@@ -12,7 +12,7 @@ from camcal.base.schema import schema_errors
 from camcal.cli import main
 from camcal.model.distortion import MODEL_PARAMS, Distortion
 from camcal.model.quality import ParameterCovariance, Quality
-from camcal.model.rig import Camera, Frame, Rectification, Rig, make_provenance
+from camcal.model.rig import Camera, Frame, Lens, Rectification, Rig, make_provenance
 from camcal.model.rig_schema import RIG_SCHEMA, rig_schema_json, validate_rig_dict
 from camcal.model.spline import SplineField
 
@@ -33,7 +33,8 @@ def _rotation(angle_deg):
 
 def full_rig() -> Rig:
     """A rig with every optional part the file holds: each lens model, a correction field, rectification,
-    quality with sigmas and covariance, frames with images, points and a board shape in the provenance."""
+    quality with sigmas and covariance, frames with images and per-frame lenses, points and a board shape in the
+    provenance."""
     cameras = []
     for index, model in enumerate(CORE_MODELS):
         required, optional = MODEL_PARAMS[model]
@@ -50,7 +51,10 @@ def full_rig() -> Rig:
                             n_outliers=0, sigma={"fx": 0.4, "k1": 1e-4, "rotation_deg": 0.01},
                             worst_projection_sigma_px=0.1,
                             covariance=ParameterCovariance(("fx", "cx"), ((0.16, 0.01), (0.01, 0.09))))))
-    frames = (Frame(0, np.eye(3), [0.0, 0.0, 0.0], {"cam0": "a.png"}), Frame(1, _rotation(5.0), [0.0, 0.1, 0.0]))
+    zoomed = {"cam3": Lens(_K(fx=760.0, fy=758.0), Distortion("division", {"lambda": -1e-7}), 50.0, 2.5),
+              "cam2": Lens(_K(cx=318.0), cameras[2].distortion)}
+    frames = (Frame(0, np.eye(3), [0.0, 0.0, 0.0], {"cam0": "a.png"}),
+              Frame(1, _rotation(5.0), [0.0, 0.1, 0.0], lenses=zoomed))
     shape = {"surface": "legendre", "degree": 2, "centre": [4.0, 2.5], "half_size": [4.0, 2.5],
              "coefficients": [[2, 0, 0.01], [1, 1, -0.02]], "in_plane": [[2, 0, 0.001, 0.0]]}
     return Rig(tuple(cameras), units="m", frames=frames, points="points.ply",
@@ -109,6 +113,10 @@ BROKEN = [
     (("cameras", 0, "sensor_width_mm"), 0, "/cameras/0/sensor_width_mm"),
     (("frames", 0, "index"), "first", "/frames/0/index"),
     (("frames", 0, "images", "cam0"), 3, "/frames/0/images/cam0"),
+    (("frames", 1, "lenses", "cam3", "K", 1, 1), 0.0, "/frames/1/lenses/cam3/K/1/1"),
+    (("frames", 1, "lenses", "cam3", "focus_m"), 0.0, "/frames/1/lenses/cam3/focus_m"),
+    (("frames", 1, "lenses", "cam3", "distortion"), _DELETE, "missing key 'distortion'"),
+    (("frames", 1, "lenses", "cam3", "iris"), 2.8, "unknown key 'iris'"),
 ]
 
 

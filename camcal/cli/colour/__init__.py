@@ -1,4 +1,4 @@
-"""``camcal colour fit | export | match | sensitivities``: one module per sub-verb."""
+"""``camcal colour fit | export | match | sensitivities | flatfield``: one module per sub-verb."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ SUBVERBS = {
     "export": "export fits as OCIO colour spaces (config + CLF) and ICC camera profiles",
     "match": "match one camera's colours to another's (stereo pair or chart)",
     "sensitivities": "estimate (or load measured) camera spectral sensitivities: *.ssf.json + CSV",
+    "flatfield": "fit a lens's flat field and vignetting from grey cards: JSON, gain EXR, Lensfun entry",
 }
 
 

@@ -26,6 +26,9 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="chart detection without --corners: camcal's segmentation, OpenCV's cv2.mcc, or auto "
                              "(segmentation, then cv2.mcc); both on a normalised sRGB view of a raw file (default: %(default)s)")
     parser.add_argument("--keep-clipped", action="store_true", help="keep patches flagged clipped")
+    parser.add_argument("--flat-field", metavar="FLAT.json",
+                        help="divide the chart photo by this flat field (colour flatfield) before sampling; the photo "
+                             "must be raw or linear (--linearise none)")
     parser.add_argument("--model", default="auto",
                         help="auto | matrix3x3[:white-preserving] | polynomial:N | root-polynomial:D "
                              "| rbf[:KERNEL] (default: auto)")
@@ -108,7 +111,7 @@ def _fit(args: argparse.Namespace) -> int:
         test_patches=args.test_patches, camera=args.camera, for_illuminant=args.for_illuminant,
         sensitivities=args.sensitivities, training_reflectances=args.training_reflectances,
         validation_reflectances=args.validation_reflectances, plausible_cameras=args.plausible_cameras,
-        out=args.out, report=args.report, log=print)
+        flat_field=args.flat_field, out=args.out, report=args.report, log=print)
     for line in result.lines():
         print(line)
     out = summary_of(args)

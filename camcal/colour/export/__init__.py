@@ -4,7 +4,10 @@ Modules: ``ocio_config`` (specs, :func:`build_ocio_config`), ``ocio_fit``
 (:func:`colour_space_from_fit`, :func:`look_from_match`,
 :func:`fit_processor`), ``icc`` (:func:`icc_profile_from_fit`,
 :func:`check_icc`), ``lcms`` (LittleCMS through ctypes, an independent
-reader). The files are written by :mod:`camcal.io.ocio` and :mod:`camcal.io.icc`.
+reader), and the ACES hand-off: ``aces`` (the camera's input transform with
+its ACES transform ID, as CLF), ``amf`` (the ACES Metadata File naming it),
+``dctl`` (the same transform for DaVinci Resolve). The files are written by
+:mod:`camcal.io.ocio`, :mod:`camcal.io.icc` and :mod:`camcal.io.aces`.
 """
 
 from camcal.colour.export.icc import check_icc, icc_profile_from_fit

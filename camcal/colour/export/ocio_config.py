@@ -36,6 +36,7 @@ __all__ = [
     "FAMILY",
     "CATS",
     "CURVE_SAMPLES",
+    "INTEROP_ID_VERSION",
     "LUT_DIR",
     "colour_space_name",
     "slug",
@@ -53,6 +54,8 @@ CAMCAL_BASE = "camcal"
 FAMILY = "Input/camcal"
 CATS = ("Bradford", "CAT02")
 CURVE_SAMPLES = 4096
+#: The first OCIO profile version whose colour spaces have an ``interop_id``.
+INTEROP_ID_VERSION = (2, 5)
 LUT_DIR = "luts"
 
 
@@ -203,6 +206,11 @@ class ColourSpaceSpec:
     aliases
         Other names OCIO finds the space by (short, as the ACES configs'
         ``arri_logc3_ei800``).
+    interop_id
+        The Color Interop Forum ID (``namespace:name_scene``, as the ACES
+        studio configs' ``ocio:arrilogc4_awg4_scene``): written, and added to
+        the aliases (OCIO requires a namespaced ID to name a space), in
+        configs of profile version 2.5 and later, which have the field.
     """
 
     name: str
@@ -213,6 +221,7 @@ class ColourSpaceSpec:
     files: dict = field(default_factory=dict)
     categories: tuple[str, ...] = ("file-io",)
     aliases: tuple[str, ...] = ()
+    interop_id: str | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -313,16 +322,20 @@ def build_ocio_config(spec: ConfigSpec):
             config.addSearchPath(path)
     if spec.files and LUT_DIR not in config.getSearchPaths():
         config.addSearchPath(LUT_DIR)
+    interop = (config.getMajorVersion(), config.getMinorVersion()) >= INTEROP_ID_VERSION
     for space in spec.colour_spaces:
         if config.getColorSpace(space.name) is not None:
             raise CamcalError(f"colour space {space.name!r} already exists in the base config")
-        taken = [alias for alias in space.aliases if config.getColorSpace(alias) is not None]
+        aliases = (*space.aliases, space.interop_id) if interop and space.interop_id else space.aliases
+        taken = [alias for alias in aliases if config.getColorSpace(alias) is not None]
         if taken:
             raise CamcalError(f"alias {taken[0]!r} of colour space {space.name!r} already names a space in the "
                               f"config (rename the camera)")
         cs = ocio.ColorSpace(referenceSpace=ocio.REFERENCE_SPACE_SCENE, name=space.name, family=space.family,
                              encoding=space.encoding, description=space.description,
-                             categories=list(space.categories), aliases=list(space.aliases))
+                             categories=list(space.categories), aliases=list(aliases))
+        if interop and space.interop_id:
+            cs.setInteropID(space.interop_id)
         cs.setTransform(ocio.GroupTransform(list(space.to_reference)), ocio.COLORSPACE_DIR_TO_REFERENCE)
         config.addColorSpace(cs)
     for look in spec.looks:

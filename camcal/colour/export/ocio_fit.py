@@ -5,7 +5,8 @@ OCIO config, named as the ACES studio configs name camera spaces:
 ``camcal <camera>`` (the name the Blender add-on looks for), family
 ``Input/<maker>`` (the raw capture's make, :func:`maker_family`) or
 ``Input/camcal`` or one given, a short alias ``camcal_<camera>``
-(:func:`space_alias`), category
+(:func:`space_alias`), a Color Interop Forum ID ``camcal:<camera>_scene``
+(:func:`space_interop_id`, in configs of OCIO profile 2.5 and later), category
 ``file-io``, encoding ``log`` for a log curve and ``scene-linear`` otherwise
 (:func:`space_encoding`) and a description naming
 the chart, the light it was shot under and the one it is for, the model
@@ -88,6 +89,7 @@ __all__ = [
     "maker_family",
     "space_encoding",
     "space_alias",
+    "space_interop_id",
     "chart_gamut_samples",
     "bake_samples",
     "bake_fit",
@@ -102,6 +104,7 @@ __all__ = [
     "output_matrix",
     "FitProcessor",
     "fit_processor",
+    "fit_transforms",
 ]
 
 
@@ -157,6 +160,20 @@ def space_alias(name: str) -> str:
     'camcal_a7s_left_d65'
     """
     return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
+
+
+def space_interop_id(name: str) -> str:
+    """The Color Interop Forum ID of a camera space: ``camcal:<alias without camcal_>_scene``.
+
+    A namespaced ID (camcal's spaces are not in the Forum's list), lower
+    case, ending ``_scene`` as a scene-referred space's does.
+
+    Examples
+    --------
+    >>> space_interop_id("camcal A7S-left (D65)")
+    'camcal:a7s_left_d65_scene'
+    """
+    return f"camcal:{space_alias(name).removeprefix('camcal_')}_scene"
 
 
 def chart_gamut_samples(fit: ColourFit, n: int = 21) -> np.ndarray:
@@ -301,7 +318,7 @@ def colour_space_from_fit(
                    f"{fit.linearisation.label}; {_held_out(fit.evaluation)}; XYZ ({fit.target_white}) "
                    f"to the reference with {cat}; model {how}.")
     spec = ColourSpaceSpec(name, family or maker_family(fit), description, tuple(steps), files=files,
-                           encoding=space_encoding(fit), aliases=(space_alias(name),))
+                           encoding=space_encoding(fit), aliases=(space_alias(name),), interop_id=space_interop_id(name))
     report = SpaceExport(name, camera, model.label, baked.kind, baked.lut_size, baked.bake_error, lin_error, clf)
     return spec, report
 
@@ -557,12 +574,28 @@ def fit_processor(fit: ColourFit, space: str = "CIE XYZ", *, cat: str = "Bradfor
     FitProcessor
     """
     ocio = ocio_module()
-    out = output_matrix(fit.target_white_XYZ, space, cat)
-    lin, _ = linearisation_transforms(fit.linearisation)
-    baked = bake_fit(fit, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
-    if baked.kind == "matrix":
-        steps = [*lin, matrix_transform(out @ baked.matrix)]
-    else:
-        steps = [*lin, *list(baked.transform), matrix_transform(out)]
+    steps, baked, _ = fit_transforms(fit, space, cat=cat, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
     cpu = cpu_processor(ocio.GroupTransform(steps))
     return FitProcessor(space, baked.kind, baked.bake_error, cpu)
+
+
+def fit_transforms(fit: ColourFit, space: str = "CIE XYZ", *, cat: str = "Bradford", max_delta_E: float = 0.2,
+                   lut_sizes: Sequence[int] = LUT_SIZES) -> tuple[list, BakedTransform, float]:
+    """The OCIO transforms of a characterisation from code values to ``space``, inline (no file).
+
+    The linearisation (:func:`linearisation_transforms`), the model (an exact
+    matrix, merged with the output matrix, or the baked Lut3D of
+    :func:`bake_fit`), then :func:`output_matrix`.
+
+    Returns
+    -------
+    transforms, baked, linearisation_error
+        The list of OCIO transforms, the baked model and the largest relative
+        error of a sampled linearisation (0 when exact).
+    """
+    out = output_matrix(fit.target_white_XYZ, space, cat)
+    lin, lin_error = linearisation_transforms(fit.linearisation)
+    baked = bake_fit(fit, max_delta_E=max_delta_E, lut_sizes=lut_sizes)
+    if baked.kind == "matrix":
+        return [*lin, matrix_transform(out @ baked.matrix)], baked, lin_error
+    return [*lin, *list(baked.transform), matrix_transform(out)], baked, lin_error

@@ -64,7 +64,8 @@ def test_auto_refuses_what_the_exporter_refuses(tmp_path, sim):
         export_ocio([("nikon", fit)], tmp_path / "refused", base="camcal", lut_sizes=(17,))
 
 
-@pytest.mark.parametrize("camera", ["Nikon 5100 (NPL)", "Sigma SDMerill (NPL)"])
+# the Sigma (a minute of auto ranking) runs with the slow tests; the Nikon is its fast sibling
+@pytest.mark.parametrize("camera", ["Nikon 5100 (NPL)", pytest.param("Sigma SDMerill (NPL)", marks=pytest.mark.slow)])
 def test_auto_pick_exports_through_both_exporters(tmp_path, sim_factory, camera):
     sim = sim_factory(camera)
     fit = load_fit(save_colour_file(make_fit(sim, "auto"), tmp_path / "cam.colour.json"))  # the new keys round-trip

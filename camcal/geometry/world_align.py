@@ -1,0 +1,291 @@
+"""The world of a reconstruction set from constraints: up axis, ground plane, origin, heading and scale.
+
+Structure from motion fixes its world only up to a similarity (7 degrees of
+freedom: rotation, translation, scale). A matchmove wants the set's: the
+ground at ``z = 0`` with ``+z`` up (Blender's convention; the rig file's
+world is right-handed), the origin at a chosen point, lengths in a known unit.
+:func:`world_from_constraints` builds the similarity ``X_new = s R X + t``
+that does it from
+
+- an up direction (the normal of the ground plane, :func:`ground_plane_RANSAC`,
+  or the cameras' mean up, :func:`mean_camera_up`), which ``R`` turns to
+  ``+z``;
+- a heading: a direction whose ground projection ``R`` turns to ``+y``
+  (the first camera's viewing direction by default: the shot looks down
+  ``+y``, Blender's front view);
+- an origin, which goes to ``(0, 0, 0)``;
+- a scale: two points and their known distance.
+
+Pure maths on arrays; the solve applies the result to its cameras and points
+(:mod:`camcal.pipelines.solve_world`).
+
+References
+----------
+Fischler, M. A. & Bolles, R. C. (1981). Random Sample Consensus: A Paradigm
+for Model Fitting with Applications to Image Analysis and Automated
+Cartography. Communications of the ACM 24(6).
+Umeyama, S. (1991). Least-Squares Estimation of Transformation Parameters
+Between Two Point Patterns. IEEE TPAMI 13(4) (the similarity ``s R X + t``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from camcal.base.errors import CamcalError
+
+__all__ = [
+    "MAX_GROUND_TILT_DEG",
+    "GroundPlane",
+    "Similarity",
+    "ground_plane_RANSAC",
+    "mean_camera_up",
+    "point_under",
+    "world_from_constraints",
+]
+
+#: the ground's normal may lean this far from the cameras' up (degrees): half way between the floor (0 deg
+#: from a level camera's up) and a wall (90 deg), so a camera pitched by less than that still finds the floor.
+MAX_GROUND_TILT_DEG = 45.0
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """``X_new = s R X + t``: a 3D similarity (rotation ``R``, scale ``s > 0``, translation ``t``).
+
+    Attributes
+    ----------
+    s : float
+    R : ndarray, shape (3, 3)
+    t : ndarray, shape (3,)
+
+    Examples
+    --------
+    >>> S = Similarity(2.0, np.eye(3), np.array([0.0, 0.0, 1.0]))
+    >>> S.apply([[1.0, 0.0, 0.0]]).tolist(), S.inverse().apply(S.apply([[1.0, 2.0, 3.0]])).tolist()
+    ([[2.0, 0.0, 1.0]], [[1.0, 2.0, 3.0]])
+    """
+
+    s: float
+    R: NDArray[np.float64]
+    t: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        R = np.asarray(self.R, dtype=np.float64).reshape(3, 3)
+        t = np.asarray(self.t, dtype=np.float64).reshape(3)
+        if not (np.isfinite(self.s) and self.s > 0):
+            raise CamcalError(f"a similarity's scale must be positive and finite, got {self.s!r}")
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-9) or np.linalg.det(R) < 0:
+            raise CamcalError("a similarity's R must be a rotation")
+        object.__setattr__(self, "s", float(self.s))
+        object.__setattr__(self, "R", R)
+        object.__setattr__(self, "t", t)
+
+    def apply(self, X: ArrayLike) -> NDArray[np.float64]:
+        """The points ``X`` (shape (N, 3)) in the new world."""
+        return self.s * np.asarray(X, dtype=np.float64).reshape(-1, 3) @ self.R.T + self.t
+
+    def inverse(self) -> Similarity:
+        """``X = (R^T (X_new - t)) / s``."""
+        return Similarity(1.0 / self.s, self.R.T, -self.R.T @ self.t / self.s)
+
+    def pose(self, R_cam: ArrayLike, c: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """A camera's pose (``R`` world -> camera, centre ``c``) in the new world: ``R R_S^T``, ``s R_S c + t``."""
+        return np.asarray(R_cam, dtype=np.float64) @ self.R.T, self.apply(c)[0]
+
+
+@dataclass(frozen=True)
+class GroundPlane:
+    """A plane ``n . X = d`` (``n`` unit) and the points that lie on it.
+
+    Attributes
+    ----------
+    normal : ndarray, shape (3,)
+        Unit normal, on the side of the cameras when they were given.
+    offset : float
+        ``d``.
+    inliers : ndarray of bool, shape (N,)
+        The points within the RANSAC threshold of the plane.
+    threshold : float
+        That threshold (the points' units).
+    """
+
+    normal: NDArray[np.float64]
+    offset: float
+    inliers: NDArray[np.bool_]
+    threshold: float
+
+
+def _unit(v: ArrayLike, what: str) -> NDArray[np.float64]:
+    v = np.asarray(v, dtype=np.float64).reshape(3)
+    norm = float(np.linalg.norm(v))
+    if not np.isfinite(norm) or norm < 1e-12:
+        raise CamcalError(f"{what} has no direction (length {norm:.3g})")
+    return v / norm
+
+
+def _plane_through(points: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
+    """Least-squares plane through ``points`` (the smallest singular vector of the centred points)."""
+    centre = points.mean(axis=0)
+    normal = np.linalg.svd(points - centre)[2][-1]
+    return normal, float(normal @ centre)
+
+
+def ground_plane_RANSAC(points: ArrayLike, threshold: float | None = None, iterations: int = 500, seed: int = 0,
+                        cameras: ArrayLike | None = None, up_hint: ArrayLike | None = None,
+                        max_tilt_deg: float = MAX_GROUND_TILT_DEG) -> GroundPlane:
+    """The dominant plane of a point cloud (Fischler & Bolles 1981), refitted to its inliers.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        Sparse points (N >= 3).
+    threshold : float, optional
+        Inlier distance; default 1 % of the median distance of the points to
+        their median (a scale-free choice: the reconstruction's units are
+        arbitrary).
+    iterations : int
+        Random triples tried.
+    seed : int
+        Seeds the triples: the same points give the same plane.
+    cameras : array_like, shape (M, 3), optional
+        Camera centres: the normal is turned towards their majority (the
+        cameras stand above the ground).
+    up_hint : array_like, shape (3,), optional
+        A rough up (e.g. :func:`mean_camera_up`): only planes whose normal is
+        within ``max_tilt_deg`` of it count, so that a wall with more points
+        than the floor is not taken for the ground.
+    max_tilt_deg : float
+        That tolerance (degrees).
+
+    Returns
+    -------
+    GroundPlane
+
+    Notes
+    -----
+    Of all triples, the plane with the most points within ``threshold``
+    wins (the first in draw order on a tie); its inliers are then fitted by
+    least squares (total least squares: the normal is the smallest right
+    singular vector of the centred inliers), the threshold narrowed to
+    ``4 sigma`` of the inliers' distances (sigma from their median absolute
+    deviation, 1.4826 MAD) when that is narrower, and the plane fitted again
+    to the inliers that leaves.
+    """
+    X = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    X = X[np.all(np.isfinite(X), axis=1)]
+    if len(X) < 3:
+        raise CamcalError(f"a ground plane needs at least 3 points, got {len(X)}")
+    if threshold is None:
+        threshold = 0.01 * float(np.median(np.linalg.norm(X - np.median(X, axis=0), axis=1)))
+    if not threshold > 0:
+        raise CamcalError(f"the ground plane's inlier threshold must be positive, got {threshold!r}")
+    hint = None if up_hint is None else _unit(up_hint, "the up hint")
+    min_cos = float(np.cos(np.radians(max_tilt_deg)))
+    rng = np.random.default_rng(seed)
+    best_count, best = -1, None
+    for _ in range(int(iterations)):
+        a, b, c = X[rng.choice(len(X), 3, replace=False)]
+        normal = np.cross(b - a, c - a)
+        norm = np.linalg.norm(normal)
+        if norm < 1e-12:
+            continue
+        normal /= norm
+        if hint is not None and abs(normal @ hint) < min_cos:
+            continue
+        count = int(np.count_nonzero(np.abs((X - a) @ normal) < threshold))
+        if count > best_count:
+            best_count, best = count, (normal, float(normal @ a))
+    if best is None:
+        within = "" if hint is None else f" within {max_tilt_deg:g} deg of level"
+        raise CamcalError(f"no plane{within} through the points (collinear, or no ground seen)")
+    inliers = np.abs(X @ best[0] - best[1]) < threshold
+    normal, offset = _plane_through(X[inliers])
+    distance = np.abs(X @ normal - offset)
+    spread = 4.0 * 1.4826 * float(np.median(distance[distance < threshold]))
+    if 0 < spread < threshold:
+        threshold = spread
+        normal, offset = _plane_through(X[distance < threshold])
+    inliers = np.abs(X @ normal - offset) < threshold
+    if cameras is not None:
+        side = np.asarray(cameras, dtype=np.float64).reshape(-1, 3) @ normal - offset
+        if np.sum(np.sign(side)) < 0:
+            normal, offset = -normal, -offset
+    return GroundPlane(normal, offset, inliers, float(threshold))
+
+
+def mean_camera_up(rotations: ArrayLike) -> NDArray[np.float64]:
+    """The cameras' mean up direction in the world: the mean of ``-R^T e_y`` (camera y points down).
+
+    Parameters
+    ----------
+    rotations : array_like, shape (M, 3, 3)
+        Each camera's ``R`` (world -> camera).
+    """
+    R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    if not len(R):
+        raise CamcalError("the mean camera up needs at least one camera")
+    return _unit(-R[:, 1, :].mean(axis=0), "the cameras' mean up")
+
+
+def point_under(plane: GroundPlane, X: ArrayLike) -> NDArray[np.float64]:
+    """The foot of ``X`` on the plane: ``X - (n . X - d) n``."""
+    X = np.asarray(X, dtype=np.float64).reshape(3)
+    return X - (plane.normal @ X - plane.offset) * plane.normal
+
+
+def _rotation_to(up: NDArray[np.float64], heading: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The rotation taking ``up`` to ``+z`` and the ground projection of ``heading`` to ``+y``."""
+    z = _unit(up, "the up direction")
+    y = heading - (heading @ z) * z
+    if np.linalg.norm(y) < 1e-9 * max(np.linalg.norm(heading), 1e-300):
+        raise CamcalError("the heading is parallel to the up direction: it gives no direction on the ground")
+    y = _unit(y, "the heading on the ground")
+    x = np.cross(y, z)
+    return np.stack([x, y, z])  # rows: the old coordinates of the new axes
+
+
+def world_from_constraints(up: ArrayLike | None, heading: ArrayLike, origin: ArrayLike | None = None,
+                           scale: tuple[ArrayLike, ArrayLike, float] | None = None) -> Similarity:
+    """The similarity ``X_new = s R X + t`` that puts a reconstruction in the set's world.
+
+    Parameters
+    ----------
+    up : array_like, shape (3,), or None
+        The world's up, in the reconstruction's coordinates: becomes ``+z``;
+        None keeps the reconstruction's axes (``R = I``).
+    heading : array_like, shape (3,)
+        A direction (e.g. the first camera's viewing axis ``R[2]``) whose
+        projection on the ground becomes ``+y`` (unused without ``up``).
+    origin : array_like, shape (3,), optional
+        The point that becomes ``(0, 0, 0)``; default: the reconstruction's origin stays.
+    scale : (A, B, distance), optional
+        Two points (reconstruction coordinates) and their distance in the
+        new world's units: ``s = distance / |B - A|``; default ``s = 1``.
+
+    Returns
+    -------
+    Similarity
+
+    Examples
+    --------
+    >>> S = world_from_constraints([0, 0, 2], [0, 1, 0], [1, 1, 1], ([0, 0, 0], [0, 0, 4], 2.0))
+    >>> S.s, S.apply([[1, 1, 1]]).tolist()
+    (0.5, [[0.0, 0.0, 0.0]])
+    """
+    R = np.eye(3) if up is None else _rotation_to(np.asarray(up, dtype=np.float64).reshape(3),
+                                                  np.asarray(heading, dtype=np.float64).reshape(3))
+    s = 1.0
+    if scale is not None:
+        A, B, distance = scale
+        length = float(np.linalg.norm(np.asarray(B, dtype=np.float64) - np.asarray(A, dtype=np.float64)))
+        if not (np.isfinite(distance) and distance > 0):
+            raise CamcalError(f"the known distance must be positive, got {distance!r}")
+        if not length > 0:
+            raise CamcalError("the two scale points are the same point: their distance sets no scale")
+        s = float(distance) / length
+    t = np.zeros(3) if origin is None else -s * R @ np.asarray(origin, dtype=np.float64).reshape(3)
+    return Similarity(s, R, t)

@@ -1,0 +1,199 @@
+"""The world of a solve set after the fact: up axis, origin, scale and units (``solve --up --origin --scale``).
+
+The options are read and checked before any work (:func:`world_spec`), then
+applied to the refined reconstruction (:func:`align_world`): the similarity
+of :func:`camcal.geometry.world_align.world_from_constraints` moves the
+COLMAP model, and with it the rig's frames and the sparse points written
+beside it. The ground is ``z = 0`` with ``+z`` up, the first camera looks
+down ``+y``.
+
+A point is named by its row in the solve's ``points.ply`` (0-based: the same
+images and command give the same points, so a first solve's PLY names
+them for the second) or by its coordinates ``x:y:z`` in the solve's own
+world.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from camcal.base.errors import CamcalError
+from camcal.geometry.world_align import (Similarity, ground_plane_RANSAC, mean_camera_up, point_under,
+                                         world_from_constraints)
+from camcal.model.quality import ParameterCovariance
+from camcal.model.rig import Rig
+
+__all__ = ["UP_SOURCES", "WorldSpec", "align_world", "scaled_translations", "world_spec"]
+
+#: where ``--up`` comes from: the ground plane of the sparse points, or the cameras' mean up.
+UP_SOURCES = ("ground", "cameras")
+
+_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_POINT = re.compile(rf"^\s*(?:(?P<index>\d+)|(?P<xyz>{_NUMBER}:{_NUMBER}:{_NUMBER}))\s*$")
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    """What ``--up``, ``--origin``, ``--scale`` and ``--units`` asked for, checked.
+
+    Attributes
+    ----------
+    up : {"ground", "cameras"} or None
+    origin : str or int or ndarray or None
+        ``"ground"`` (the ground under the first camera), a point row, or coordinates.
+    scale : (point, point, float) or None
+        Two points (rows or coordinates) and their distance.
+    units : str or None
+        The units of that distance (the rig's ``units``).
+    """
+
+    up: str | None = None
+    origin: str | int | NDArray[np.float64] | None = None
+    scale: tuple[int | NDArray[np.float64], int | NDArray[np.float64], float] | None = None
+    units: str | None = None
+
+    @property
+    def active(self) -> bool:
+        """Whether anything is to be moved."""
+        return self.up is not None or self.origin is not None or self.scale is not None
+
+
+def _point(text: str, option: str) -> int | NDArray[np.float64]:
+    match = _POINT.match(text)
+    if match is None:
+        raise CamcalError(f"{option} {text!r}: a point is its row in points.ply (e.g. 12) or its coordinates x:y:z "
+                          "(e.g. 0.5:-1.2:3)")
+    if match["index"] is not None:
+        return int(match["index"])
+    return np.array([float(v) for v in match["xyz"].split(":")])
+
+
+def world_spec(up: str | None = None, origin: str | None = None, scale: str | None = None,
+               units: str | None = None) -> WorldSpec:
+    """Read the world options (before any work, so that a typo costs nothing).
+
+    Parameters
+    ----------
+    up : {"ground", "cameras"}, optional
+    origin : str, optional
+        ``ground``, a point row (``12``) or coordinates (``0.5:-1.2:3``).
+    scale : str, optional
+        ``A,B=DIST``: two points (rows or coordinates) and their distance, e.g. ``12,40=1.5``.
+    units : str, optional
+        The distance's unit (default ``m`` with ``scale``); the rig's ``units``.
+    """
+    if up is not None and up not in UP_SOURCES:
+        raise CamcalError(f"unknown --up {up!r}, expected one of: {', '.join(UP_SOURCES)}")
+    where = None
+    if origin is not None:
+        where = "ground" if origin.strip() == "ground" else _point(origin, "--origin")
+    pair = None
+    if scale is not None:
+        left, equals, distance = scale.partition("=")
+        points = left.split(",")
+        if not equals or len(points) != 2:
+            raise CamcalError(f"--scale {scale!r}: expected A,B=DISTANCE, e.g. 12,40=1.5 (two points of points.ply "
+                              "or x:y:z coordinates, and their distance)")
+        try:
+            length = float(distance)
+        except ValueError:
+            raise CamcalError(f"--scale {scale!r}: the distance {distance!r} is not a number") from None
+        if not (np.isfinite(length) and length > 0):
+            raise CamcalError(f"--scale {scale!r}: the distance must be positive")
+        pair = (_point(points[0], "--scale"), _point(points[1], "--scale"), length)
+    if units is not None and pair is None:
+        raise CamcalError(f"--units {units!r} names the unit of --scale's distance: give --scale too")
+    if units is not None and not units.strip():
+        raise CamcalError("--units must not be empty")
+    return WorldSpec(up, where, pair, (units or "m") if pair is not None else None)
+
+
+def _where(point: int | NDArray[np.float64], xyz: NDArray[np.float64], option: str) -> NDArray[np.float64]:
+    if isinstance(point, int):
+        if point >= len(xyz):
+            raise CamcalError(f"{option}: point {point} does not exist: the solve has {len(xyz)} points "
+                              f"(rows 0-{len(xyz) - 1} of points.ply)")
+        return xyz[point]
+    return point
+
+
+def align_world(xyz: NDArray[np.float64], rotations: NDArray[np.float64], centres: NDArray[np.float64],
+                spec: WorldSpec, seed: int = 0) -> tuple[Similarity, list[str]]:
+    """The similarity that puts a solve in the set's world, and what it did in words.
+
+    Parameters
+    ----------
+    xyz : ndarray, shape (P, 3)
+        The sparse points, in the order of ``points.ply``.
+    rotations, centres : ndarray, shapes (M, 3, 3), (M, 3)
+        The registered images' ``R`` (world -> camera) and centres, the
+        first camera's first frame first (its view sets the heading).
+    spec : WorldSpec
+    seed : int
+        Seeds the ground plane's RANSAC.
+
+    Returns
+    -------
+    Similarity
+        ``X_new = s R X + t``.
+    list of str
+        One line per constraint.
+    """
+    lines = []
+    plane = None
+    if spec.up == "ground" or spec.origin == "ground":
+        plane = ground_plane_RANSAC(xyz, cameras=centres, seed=seed, up_hint=mean_camera_up(rotations))
+        lines.append(f"ground plane: {int(plane.inliers.sum())} of {len(xyz)} points within {plane.threshold:.3g} "
+                     "(RANSAC)")
+    up = None
+    if spec.up == "ground":
+        up = plane.normal
+        lines.append("up: the ground plane's normal (+z), the first camera looking down +y")
+    elif spec.up == "cameras":
+        up = mean_camera_up(rotations)
+        lines.append(f"up: the mean up of {len(rotations)} cameras (+z), the first camera looking down +y")
+    origin = None
+    if spec.origin == "ground":
+        origin = point_under(plane, centres[0])
+        lines.append("origin: the ground under the first camera")
+    elif spec.origin is not None:
+        origin = _where(spec.origin, xyz, "--origin")
+        lines.append(f"origin: {_named(spec.origin)}")
+    scale = None
+    if spec.scale is not None:
+        A, B, distance = spec.scale
+        scale = (_where(A, xyz, "--scale"), _where(B, xyz, "--scale"), distance)
+    similarity = world_from_constraints(up, rotations[0][2], origin, scale)
+    if scale is not None:
+        lines.append(f"scale: {_named(spec.scale[0])} to {_named(spec.scale[1])} = {spec.scale[2]:g} {spec.units} "
+                     f"(x {similarity.s:.6g})")
+    return similarity, lines
+
+
+def _named(point: int | NDArray[np.float64]) -> str:
+    if isinstance(point, int):
+        return f"point {point}"
+    return "(" + ", ".join(f"{v:g}" for v in point) + ")"
+
+
+def scaled_translations(rig: Rig, s: float) -> Rig:
+    """The rig's fit quality after its world was scaled by ``s``: the covariance rows of translations
+    (``tx``, ``ty``, ``tz``, any camera's) scale by ``s`` (the poses themselves were moved with the model)."""
+    if s == 1.0:
+        return rig
+    cameras = []
+    for camera in rig.cameras:
+        covariance = camera.quality.covariance if camera.quality else None
+        if covariance is None:
+            cameras.append(camera)
+            continue
+        factor = [s if name.rsplit(".", 1)[-1].removeprefix("gauge_") in ("tx", "ty", "tz") else 1.0
+                  for name in covariance.names]
+        scaled = ParameterCovariance(covariance.names, covariance.array * np.outer(factor, factor))
+        cameras.append(dataclasses.replace(camera, quality=dataclasses.replace(camera.quality, covariance=scaled)))
+    return dataclasses.replace(rig, cameras=tuple(cameras))
