@@ -111,6 +111,7 @@ def calibrate_export_read_back(size, n_views, samples, holdout, tmp_path):
           f"the same noise): squeeze error {100 * (floor_squeeze / SQUEEZE - 1):+.4f} %, training "
           f"{floor.rms_px:.4f} px, held out {floor.heldout_rms_px:.4f} px")
     assert abs(squeeze / SQUEEZE - 1.0) < 5e-4
+    assert camera.distortion.params["lens_rotation_deg"] == pytest.approx(COEFFICIENTS["lens_rotation_deg"], abs=0.02)
     assert result.heldout_rms_px < 1.3 * floor.heldout_rms_px
     # export to Nuke (its LDPK node, its LensDistortion node) and 3DE, read each back
     nuke, tde = tmp_path / "shot.nk", tmp_path / "lens.txt"
@@ -138,8 +139,8 @@ def calibrate_export_read_back(size, n_views, samples, holdout, tmp_path):
 
 
 def test_rendered_anamorphic_lens_calibrated_exported_and_read_back(tmp_path):
-    """Fast: 640 x 360 images, one ray per pixel, 10 views (2 held out)."""
-    calibrate_export_read_back((640, 360), 10, 1, [8, 9], tmp_path)
+    """Fast: 640 x 360 images, 2 x 2 rays per pixel, 10 views (2 held out)."""
+    calibrate_export_read_back((640, 360), 10, 2, [8, 9], tmp_path)
 
 
 @pytest.mark.slow
