@@ -302,7 +302,8 @@ def _root_format(text: str) -> tuple[tuple[int, int] | None, float]:
     """The image size (None without one) and pixel aspect (1 without one) of the Root's format knob."""
     root = blocks(text, "Root")
     fmt = (knob_text(root[0][1], "format") or "").strip('"').split() if root else []
-    size = (int(parse_number(fmt[0], "Root format")), int(parse_number(fmt[1], "Root format"))) if len(fmt) >= 2 else None
+    size = ((int(parse_number(fmt[0], "Root format")), int(parse_number(fmt[1], "Root format")))
+            if len(fmt) >= 2 else None)
     pixel_aspect = parse_number(fmt[6], "Root format pixel aspect") if len(fmt) >= 7 else 1.0
     if not pixel_aspect > 0.0:
         raise CamcalError(f"Root format: pixel aspect {fmt[6]} is not positive")

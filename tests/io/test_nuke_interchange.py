@@ -42,7 +42,8 @@ def nuke_project(body, frame, X_camcal, size, pixel_aspect=1.0):
     scale = 2 * float(knob(body, "focal")) / float(knob(body, "haperture"))
     win = [float(v) for v in knob(body, "win_translate").strip("{}").split()]
     screen = np.column_stack([scale * local[:, 0] / -local[:, 2] + win[0], scale * local[:, 1] / -local[:, 2] + win[1]])
-    return np.column_stack([(screen[:, 0] + 1) * width / 2 - 0.5, height / 2 - screen[:, 1] * width * pixel_aspect / 2 - 0.5])
+    return np.column_stack([(screen[:, 0] + 1) * width / 2 - 0.5,
+                            height / 2 - screen[:, 1] * width * pixel_aspect / 2 - 0.5])
 
 
 def ideal_pixels(camera, X):
