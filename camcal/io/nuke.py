@@ -10,12 +10,16 @@ width in mm (36 without one)::
 
     focal         = fx haperture / W
     vaperture     = haperture H / W
-    win_translate = ((cx - W/2 + 0.5) 2 / W,  (H/2 - 0.5 - cy) 2 / W)
+    win_translate = ((cx - W/2 + 0.5) 2 / W,  (H/2 - 0.5 - cy) 2 / (W pixel_aspect))
 
-Nuke's camera projection has one focal scale for x and y (the format's
-pixel aspect does the rest) and no skew: a camera with ``fx != fy`` or skew
-is written with ``fx`` and no skew and the max pixel residual of the
-(undistorted) projection is reported.
+Nuke's camera projection has one focal scale for x and y, the format's
+pixel aspect does the rest (``fy = pixel_aspect fx``: the Root ``format``,
+written with the first camera's ``fy / fx``, as a 2x anamorphic plate's
+format has pixel aspect 2), and no skew: a camera with skew, or whose
+``fy / fx`` differs from the Root format's pixel aspect, is written with
+``fx``, that pixel aspect and no skew, and the max pixel residual of the
+(undistorted) projection is reported. Reading applies the Root format's
+pixel aspect to every Camera3.
 A moving rig animates ``translate`` and ``rotate`` with one key per frame
 (``{curve x<frame> value ...}``). The image size and the camcal lens are
 kept on the node as user knobs (``image_width``, ``image_height``,
@@ -125,24 +129,28 @@ _D = np.diag([1.0, -1.0, -1.0])
 
 
 def nuke_intrinsics(camera: Camera) -> dict[str, float | tuple[float, float]]:
-    """``focal``, ``haperture``, ``vaperture`` and ``win_translate`` of a camera (see the module docstring)."""
+    """``focal``, ``haperture``, ``vaperture`` and ``win_translate`` of a camera (see the module docstring), its
+    ``fy / fx`` the format's pixel aspect."""
     width, height = camera.image_size
     K = camera.K
+    pixel_aspect = K[1, 1] / K[0, 0]
     haperture = camera.sensor_width_mm or DEFAULT_HAPERTURE_MM
     return {
         "focal": K[0, 0] * haperture / width,
         "haperture": haperture,
         "vaperture": haperture * height / width,
-        "win_translate": ((K[0, 2] - width / 2 + 0.5) * 2 / width, (height / 2 - 0.5 - K[1, 2]) * 2 / width),
+        "win_translate": ((K[0, 2] - width / 2 + 0.5) * 2 / width,
+                          (height / 2 - 0.5 - K[1, 2]) * 2 / (width * pixel_aspect)),
     }
 
 
-def _K_from_nuke(focal: float, haperture: float, win_translate, image_size: tuple[int, int]) -> np.ndarray:
+def _K_from_nuke(focal: float, haperture: float, win_translate, image_size: tuple[int, int],
+                 pixel_aspect: float = 1.0) -> np.ndarray:
     width, height = image_size
     f = focal * width / haperture
     cx = win_translate[0] * width / 2 + width / 2 - 0.5
-    cy = height / 2 - 0.5 - win_translate[1] * width / 2
-    return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    cy = height / 2 - 0.5 - win_translate[1] * width * pixel_aspect / 2
+    return np.array([[f, 0.0, cx], [0.0, f * pixel_aspect, cy], [0.0, 0.0, 1.0]])
 
 
 def _transform(R: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -154,10 +162,11 @@ def _node_name(name: str) -> str:
     return re.sub(r"\W", "_", name) if re.match(r"[A-Za-z_]", name) else "cam_" + re.sub(r"\W", "_", name)
 
 
-def _square(camera: Camera) -> Camera:
-    """The camera as Camera3 holds it: one focal scale (``fx``), no skew; the lens kept for the ST-maps."""
+def _square(camera: Camera, pixel_aspect: float) -> Camera:
+    """The camera as Camera3 in a format of ``pixel_aspect`` holds it: one focal scale (``fx``, ``fy = pixel_aspect
+    fx``), no skew; the lens kept for the ST-maps."""
     K = camera.K.copy()
-    K[0, 1], K[1, 1] = 0.0, K[0, 0]
+    K[0, 1], K[1, 1] = 0.0, K[0, 0] * pixel_aspect
     return Camera(camera.name, camera.image_size, K, camera.distortion, camera.R, camera.c, camera.sensor_width_mm)
 
 
@@ -198,15 +207,16 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
              f" first_frame {frames[0] if frames else 1}", f" last_frame {frames[-1] if frames else 1}",
              f" format {format_knob(chosen[0])}", "}"]
     conversions, written, mapped = [], [], 0
+    pixel_aspect = chosen[0].K[1, 1] / chosen[0].K[0, 0]  # the Root format's (format_knob)
     map_dir = out.with_name(out.stem + "_stmaps")
     for index, (camera, node) in enumerate(zip(chosen, names)):
         # per-frame lenses: every lens knob keyed on every frame, each frame's lens refitted on its own
         lens_frames = frames if rig.lens_frames(camera.name) else None
         states = [rig.camera_at_frame(camera.name, f) for f in lens_frames] if lens_frames else [camera]
-        squared = [_square(state) for state in states]
+        squared = [_square(state, pixel_aspect) for state in states]
         exact = all(np.array_equal(a.K, b.K) for a, b in zip(squared, states))
         source = f"{camera.distortion.model}{' with skew' if camera.K[0, 1] else ''}" + (
-            "" if camera.K[1, 1] == camera.K[0, 0] else ", fx != fy")
+            "" if camera.K[1, 1] == camera.K[0, 0] * pixel_aspect else ", fy / fx not the Root format's pixel aspect")
         family = nearest_family(camera.distortion, FORMAT_FAMILIES["nuke"])
         refits = [refit_camera(state, family) for state in states]
         worst = max((refit for _, refit in refits), key=lambda refit: refit.max_px)
@@ -214,7 +224,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
         conversions.append(LensConversion(
             camera.name, source, f"Nuke Camera3 (+ ST-maps for the lens), lens nodes {LDPK_MODEL_NAMES[family]}{keyed}",
             exact, 0.0 if exact else max(max_pixel_residual(a, b, lens=False) for a, b in zip(states, squared)),
-            "one focal scale, no skew", worst))
+            "one focal scale and the Root format's pixel aspect, no skew", worst))
         if frames:
             posed = [rig.camera_at_frame(camera.name, f) for f in frames]
             poses = [_transform(p.R, p.c) for p in posed]
@@ -273,8 +283,9 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
             ]
     notes = []
     if any(abs(c.K[1, 1] / c.K[0, 0] - 1.0) > 1e-9 for c in chosen):
-        notes.append("non-square pixels: the LensDistortion node holds the pixel aspect in its distortionScalingFormat "
-                     "only (not checked in Nuke); the LDPK node (tde4_pixel_aspect) and the ST-maps hold the lens")
+        notes.append("non-square pixels: the pixel aspect is in the Root format and the LensDistortion node's "
+                     "distortionScalingFormat (not checked in Nuke); the LDPK node (tde4_pixel_aspect) and the ST-maps "
+                     "hold the lens")
     if rig.points is not None:
         notes.append("sparse points are not written to Nuke (export USD for a point cloud)")
     if written:
@@ -287,18 +298,25 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
 # -- reading: the Camera3 nodes (camcal's and Nuke's own, static or keyed) ----------------
 
 
-def _root_size(text: str) -> tuple[int, int] | None:
-    """The image size of the Root's format knob, if it has one."""
+def _root_format(text: str) -> tuple[tuple[int, int] | None, float]:
+    """The image size (None without one) and pixel aspect (1 without one) of the Root's format knob."""
     root = blocks(text, "Root")
     fmt = (knob_text(root[0][1], "format") or "").strip('"').split() if root else []
-    return (int(parse_number(fmt[0], "Root format")), int(parse_number(fmt[1], "Root format"))) if len(fmt) >= 2 else None
+    size = ((int(parse_number(fmt[0], "Root format")), int(parse_number(fmt[1], "Root format")))
+            if len(fmt) >= 2 else None)
+    pixel_aspect = parse_number(fmt[6], "Root format pixel aspect") if len(fmt) >= 7 else 1.0
+    if not pixel_aspect > 0.0:
+        raise CamcalError(f"Root format: pixel aspect {fmt[6]} is not positive")
+    return size, pixel_aspect
 
 
-def _K_at(focal, haperture, win, frame: int | None, size: tuple[int, int], where: str) -> np.ndarray:
-    """``K`` of a Camera3's (keyed or constant) ``focal``, ``haperture`` and ``win_translate`` at ``frame``."""
+def _K_at(focal, haperture, win, frame: int | None, size: tuple[int, int], where: str,
+          pixel_aspect: float) -> np.ndarray:
+    """``K`` of a Camera3's (keyed or constant) ``focal``, ``haperture`` and ``win_translate`` at ``frame``, in a
+    format of ``pixel_aspect``."""
     return _K_from_nuke(float(value_at(focal, frame, f"{where} focal")[0]),
                         float(value_at(haperture, frame, f"{where} haperture")[0]),
-                        value_at(win, frame, f"{where} win_translate"), size)
+                        value_at(win, frame, f"{where} win_translate"), size, pixel_aspect)
 
 
 def _parse_lens(tokens: Sequence[str], where: str) -> tuple[dict[str, float], tuple[float, ...] | None, dict[str, float]]:
@@ -341,7 +359,8 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None) -> ImportResu
     text = path.read_text(errors="replace")
     bodies = [body for _, body in blocks(text, r"Camera[23]?")]
     lens_node_bodies = lens_nodes_of(text)
-    root_size = _root_size(text) or image_size
+    root_size, pixel_aspect = _root_format(text)
+    root_size = root_size or image_size
     if not bodies:
         return _lens_only(lens_node_bodies, root_size)
     cameras, conversions, animated, lenses = [], [], [], []
@@ -385,10 +404,10 @@ def load(path: Path, *, image_size: tuple[int, int] | None = None) -> ImportResu
             per_frame = {}
             for f in frames:  # the lens from camcal's knob, else the lens node's keys, else the camera's lens
                 lens, state = keyed_lenses.get(f, (node_lens[f][1] if f in node_lens else distortion, {}))
-                per_frame[f] = (_K_at(focal, haperture, win, f, size, where), lens, state)
+                per_frame[f] = (_K_at(focal, haperture, win, f, size, where, pixel_aspect), lens, state)
             lenses.append(per_frame or None)
             K, distortion = per_frame[frames[0]][:2] if per_frame else (
-                _K_at(focal, haperture, win, None, size, where), distortion)
+                _K_at(focal, haperture, win, None, size, where, pixel_aspect), distortion)
             if isinstance(translate, dict) or isinstance(rotate, dict):
                 keys = sorted(translate if isinstance(translate, dict) else rotate)
                 poses = {f: _pose_order(value_at(translate, f, f"{where} translate"),
