@@ -16,6 +16,12 @@ that does it from
 - an origin, which goes to ``(0, 0, 0)``;
 - a scale: two points and their known distance.
 
+Or, all at once, from a calibration board lying in the set
+(:func:`world_from_board`): its corners triangulated from the solved cameras
+(:func:`triangulate_corners`) are matched to the board's own coordinates by
+a similarity, so that the board's plane becomes the ground, its first inner
+corner the origin, its columns ``+x`` and its square size the unit.
+
 Pure maths on arrays; the solve applies the result to its cameras and points
 (:mod:`camcal.pipelines.solve_world`).
 
@@ -26,6 +32,10 @@ for Model Fitting with Applications to Image Analysis and Automated
 Cartography. Communications of the ACM 24(6).
 Umeyama, S. (1991). Least-Squares Estimation of Transformation Parameters
 Between Two Point Patterns. IEEE TPAMI 13(4) (the similarity ``s R X + t``).
+Rousseeuw, P. J. (1984). Least Median of Squares Regression. Journal of the
+American Statistical Association 79(388).
+Hartley, R. & Zisserman, A. (2004). Multiple View Geometry in Computer Vision,
+2nd ed., section 12.2 (linear triangulation).
 """
 
 from __future__ import annotations
@@ -36,14 +46,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.model.camera import similarity_Umeyama1991
 
 __all__ = [
     "MAX_GROUND_TILT_DEG",
+    "BoardWorld",
     "GroundPlane",
     "Similarity",
     "ground_plane_RANSAC",
     "mean_camera_up",
     "point_under",
+    "triangulate_corners",
+    "world_from_board",
     "world_from_constraints",
 ]
 
@@ -289,3 +303,136 @@ def world_from_constraints(up: ArrayLike | None, heading: ArrayLike, origin: Arr
         s = float(distance) / length
     t = np.zeros(3) if origin is None else -s * R @ np.asarray(origin, dtype=np.float64).reshape(3)
     return Similarity(s, R, t)
+
+
+def triangulate_corners(rotations: ArrayLike, translations: ArrayLike, ids: list[ArrayLike],
+                        rays: list[ArrayLike]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Each corner seen in two views or more, triangulated linearly (Hartley & Zisserman 2004, 12.2).
+
+    Parameters
+    ----------
+    rotations, translations : array_like, shapes (V, 3, 3), (V, 3)
+        Each view's pose ``x_cam = R X + t``.
+    ids : list of array_like of int
+        Per view, the corners it saw (ids of the board's points).
+    rays : list of array_like, shape (M_v, 2)
+        Per view, those corners' normalised image coordinates ``(x / z, y / z)`` (lens distortion removed).
+
+    Returns
+    -------
+    ids : ndarray of int, shape (N,)
+        The corners seen at least twice, increasing.
+    points : ndarray, shape (N, 3)
+        Their positions: the smallest right singular vector of the stacked
+        rows ``x P_3 - P_1``, ``y P_3 - P_2`` of every view ``P = [R | t]``
+        (each row scaled to unit length), exact for exact rays.
+    """
+    R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    t = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
+    if not (len(R) == len(t) == len(ids) == len(rays)):
+        raise CamcalError("triangulation needs one pose, one id list and one ray list per view")
+    rows: dict[int, list[NDArray[np.float64]]] = {}
+    for view, (view_ids, view_rays) in enumerate(zip(ids, rays)):
+        P = np.column_stack([R[view], t[view]])
+        for corner, (x, y) in zip(np.asarray(view_ids, dtype=np.int64), np.asarray(view_rays, dtype=np.float64)):
+            for row in (x * P[2] - P[0], y * P[2] - P[1]):
+                rows.setdefault(int(corner), []).append(row / np.linalg.norm(row))
+    seen = np.array(sorted(corner for corner, stacked in rows.items() if len(stacked) >= 4), dtype=np.int64)
+    points = np.empty((len(seen), 3))
+    for k, corner in enumerate(seen):
+        X = np.linalg.svd(np.array(rows[int(corner)]))[2][-1]
+        points[k] = X[:3] / X[3]
+    return seen, points
+
+
+@dataclass(frozen=True)
+class BoardWorld:
+    """A world set from a board (:func:`world_from_board`).
+
+    Attributes
+    ----------
+    similarity : Similarity
+        Reconstruction -> the board's world.
+    n_corners : int
+        The corners the similarity was fitted to.
+    rms : float
+        Their residual after the fit, RMS, in the board's units.
+    """
+
+    similarity: Similarity
+    n_corners: int
+    rms: float
+
+
+def world_from_board(object_points: ArrayLike, points: ArrayLike, centres: ArrayLike, seed: int = 0,
+                     trials: int = 200) -> BoardWorld:
+    """The similarity that puts a reconstruction in the world of a board seen in it.
+
+    The board's corners in the reconstruction (e.g. :func:`triangulate_corners`)
+    are matched to the board's own coordinates (columns along ``x``, rows
+    along ``y``, ``z = 0``; in the board's units) by a least-squares
+    similarity (Umeyama 1991) after a least-median-of-squares search over
+    triples of corners (Rousseeuw 1984): corners farther than ``4 sigma``
+    from the triple with the smallest median residual (sigma: 1.4826 times
+    that median) are dropped before the fit. The board's ``z`` axis is then turned towards the cameras (a
+    half turn about ``x``, if they stand on its ``-z`` side, as they do for a
+    board seen from its printed side): the board's plane is the ground
+    ``z = 0``, ``+z`` up on the cameras' side, the first corner the origin,
+    the columns ``+x``, the board's unit the world's.
+
+    Parameters
+    ----------
+    object_points : array_like, shape (N, 3)
+        The corners in the board's coordinates (:attr:`camcal.geometry.board.Board.object_points` rows).
+    points : array_like, shape (N, 3)
+        The same corners in the reconstruction.
+    centres : array_like, shape (M, 3)
+        Camera centres in the reconstruction (which side of the board is up).
+    seed : int
+        Seeds the triples: the same corners give the same world.
+    trials : int
+        Triples tried.
+
+    Returns
+    -------
+    BoardWorld
+
+    Examples
+    --------
+    >>> board = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], dtype=float)
+    >>> seen = 2.0 * board + [0.0, 0.0, 5.0]  # the board at z = 5, twice as large, seen from z = 0
+    >>> fit = world_from_board(board, seen, [[0.0, 0.0, 0.0]])
+    >>> fit.similarity.apply([[0.0, 0.0, 0.0]]).round(12).tolist(), fit.n_corners
+    ([[0.0, 0.0, 2.5]], 4)
+    """
+    board = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
+    X = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(board) != len(X):
+        raise CamcalError(f"{len(board)} board corners against {len(X)} reconstructed ones")
+    keep = np.all(np.isfinite(X), axis=1)
+    if keep.sum() < 3 or np.linalg.matrix_rank(board[keep] - board[keep].mean(axis=0), tol=1e-9) < 2:
+        raise CamcalError(f"the board's pose needs 3 corners not on one line, got {int(keep.sum())}")
+    candidates = np.flatnonzero(keep)
+    rng = np.random.default_rng(seed)
+    best_median, best = np.inf, None
+    for _ in range(int(trials)):
+        triple = rng.choice(candidates, 3, replace=False)
+        if np.linalg.norm(np.cross(board[triple[1]] - board[triple[0]], board[triple[2]] - board[triple[0]])) < 1e-12:
+            continue
+        s, R, t = similarity_Umeyama1991(X[triple], board[triple])
+        median = float(np.median(np.linalg.norm(s * X[keep] @ R.T + t - board[keep], axis=1)))
+        if median < best_median:
+            best_median, best = median, (s, R, t)
+    if best is not None:
+        s, R, t = best
+        residual = np.linalg.norm(s * X @ R.T + t - board, axis=1)
+        inliers = keep & (residual <= max(4.0 * 1.4826 * best_median, 1e-12 * float(np.ptp(board))))
+        if inliers.sum() >= 3:
+            keep = inliers
+    s, R, t = similarity_Umeyama1991(X[keep], board[keep])
+    rms = float(np.sqrt(np.mean(np.sum((s * X[keep] @ R.T + t - board[keep]) ** 2, axis=1))))
+    heights = (s * np.asarray(centres, dtype=np.float64).reshape(-1, 3) @ R.T + t)[:, 2]
+    if np.sum(np.sign(heights)) < 0:
+        flip = np.diag([1.0, -1.0, -1.0])
+        R, t = flip @ R, flip @ t
+    return BoardWorld(Similarity(s, R, t), int(keep.sum()), rms)
