@@ -44,6 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
 from camcal.model.camera import similarity_Umeyama1991
@@ -364,54 +366,53 @@ class BoardWorld:
     rms: float
 
 
-def world_from_board(object_points: ArrayLike, points: ArrayLike, centres: ArrayLike, seed: int = 0,
-                     trials: int = 200) -> BoardWorld:
-    """The similarity that puts a reconstruction in the world of a board seen in it.
+def world_from_board(object_points: ArrayLike, rotations: ArrayLike, translations: ArrayLike,
+                     ids: list[ArrayLike], rays: list[ArrayLike], seed: int = 0, trials: int = 200) -> BoardWorld:
+    """The similarity that puts a reconstruction in the world of a board its cameras saw.
 
-    The board's corners in the reconstruction (e.g. :func:`triangulate_corners`)
-    are matched to the board's own coordinates (columns along ``x``, rows
-    along ``y``, ``z = 0``; in the board's units) by a least-squares
-    similarity (Umeyama 1991) after a least-median-of-squares search over
-    triples of corners (Rousseeuw 1984): corners farther than ``4 sigma``
-    from the triple with the smallest median residual (sigma: 1.4826 times
-    that median) are dropped before the fit. The board's ``z`` axis is then turned towards the cameras (a
-    half turn about ``x``, if they stand on its ``-z`` side, as they do for a
-    board seen from its printed side): the board's plane is the ground
-    ``z = 0``, ``+z`` up on the cameras' side, the first corner the origin,
-    the columns ``+x``, the board's unit the world's.
+    1. The corners seen twice or more are triangulated
+       (:func:`triangulate_corners`) and matched to the board's own
+       coordinates (columns along ``x``, rows along ``y``, ``z = 0``; in the
+       board's units) by a least-squares similarity (Umeyama 1991) after a
+       least-median-of-squares search over triples of corners (Rousseeuw
+       1984): corners farther than ``4 sigma`` from the triple with the
+       smallest median residual (sigma: 1.4826 times that median) are
+       dropped.
+    2. The board's pose and size in the reconstruction (7 parameters) are
+       then refined on the kept corners' rays of every view, by least
+       squares of the normalised reprojection error: the maximum-likelihood
+       pose of a rigid board, where step 1 weighs the triangulations' poor
+       depths as much as their good directions.
+    3. The board's ``z`` axis is turned towards the cameras (a half turn
+       about ``x``, if they stand on its ``-z`` side, as they do for a board
+       seen from its printed side): the board's plane is the ground
+       ``z = 0``, ``+z`` up on the cameras' side, the first corner the
+       origin, the columns ``+x``, the board's unit the world's.
 
     Parameters
     ----------
     object_points : array_like, shape (N, 3)
-        The corners in the board's coordinates (:attr:`camcal.geometry.board.Board.object_points` rows).
-    points : array_like, shape (N, 3)
-        The same corners in the reconstruction.
-    centres : array_like, shape (M, 3)
-        Camera centres in the reconstruction (which side of the board is up).
+        The board's corners in its own coordinates
+        (:attr:`camcal.geometry.board.Board.object_points`), indexed by the ids.
+    rotations, translations, ids, rays
+        The views, as :func:`triangulate_corners` takes them.
     seed : int
-        Seeds the triples: the same corners give the same world.
+        Seeds the triples: the same views give the same world.
     trials : int
         Triples tried.
 
     Returns
     -------
     BoardWorld
-
-    Examples
-    --------
-    >>> board = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], dtype=float)
-    >>> seen = 2.0 * board + [0.0, 0.0, 5.0]  # the board at z = 5, twice as large, seen from z = 0
-    >>> fit = world_from_board(board, seen, [[0.0, 0.0, 0.0]])
-    >>> fit.similarity.apply([[0.0, 0.0, 0.0]]).round(12).tolist(), fit.n_corners
-    ([[0.0, 0.0, 2.5]], 4)
     """
-    board = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
-    X = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if len(board) != len(X):
-        raise CamcalError(f"{len(board)} board corners against {len(X)} reconstructed ones")
+    board_all = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
+    R_views = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    t_views = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
+    seen, X = triangulate_corners(R_views, t_views, ids, rays)
+    board = board_all[seen]
     keep = np.all(np.isfinite(X), axis=1)
     if keep.sum() < 3 or np.linalg.matrix_rank(board[keep] - board[keep].mean(axis=0), tol=1e-9) < 2:
-        raise CamcalError(f"the board's pose needs 3 corners not on one line, got {int(keep.sum())}")
+        raise CamcalError(f"the board's pose needs 3 corners not on one line seen in two views, got {int(keep.sum())}")
     candidates = np.flatnonzero(keep)
     rng = np.random.default_rng(seed)
     best_median, best = np.inf, None
@@ -430,9 +431,37 @@ def world_from_board(object_points: ArrayLike, points: ArrayLike, centres: Array
         if inliers.sum() >= 3:
             keep = inliers
     s, R, t = similarity_Umeyama1991(X[keep], board[keep])
+    s, R, t = _refine_board_pose(Similarity(s, R, t).inverse(), board_all, set(seen[keep].tolist()), R_views,
+                                 t_views, ids, rays)
     rms = float(np.sqrt(np.mean(np.sum((s * X[keep] @ R.T + t - board[keep]) ** 2, axis=1))))
-    heights = (s * np.asarray(centres, dtype=np.float64).reshape(-1, 3) @ R.T + t)[:, 2]
+    heights = -s * np.einsum("vji,vj->vi", R_views, t_views) @ R.T[:, 2] + t[2]  # the camera centres' z
     if np.sum(np.sign(heights)) < 0:
         flip = np.diag([1.0, -1.0, -1.0])
         R, t = flip @ R, flip @ t
     return BoardWorld(Similarity(s, R, t), int(keep.sum()), rms)
+
+
+def _refine_board_pose(board_to_world: Similarity, board: NDArray[np.float64], kept: set[int],
+                       rotations: NDArray[np.float64], translations: NDArray[np.float64], ids: list[ArrayLike],
+                       rays: list[ArrayLike]) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """The board's pose and size in the reconstruction that best reproject its kept corners onto every view's
+    rays (Levenberg-Marquardt from ``board_to_world``); returned as the inverse: ``s, R, t`` world -> board."""
+    views = []
+    for view, (view_ids, view_rays) in enumerate(zip(ids, rays)):
+        mask = np.isin(np.asarray(view_ids), list(kept))
+        views.append((view, board[np.asarray(view_ids)[mask]], np.asarray(view_rays, dtype=np.float64)[mask]))
+
+    def residuals(params: NDArray[np.float64]) -> NDArray[np.float64]:
+        Q = Rotation.from_rotvec(params[:3]).as_matrix()
+        out = []
+        for view, corners, observed in views:
+            x_cam = (np.exp(params[6]) * corners @ Q.T + params[3:6]) @ rotations[view].T + translations[view]
+            out.append((x_cam[:, :2] / x_cam[:, 2:] - observed).ravel())
+        return np.concatenate(out)
+
+    start = np.concatenate([Rotation.from_matrix(board_to_world.R).as_rotvec(), board_to_world.t,
+                            [np.log(board_to_world.s)]])
+    solution = least_squares(residuals, start, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    refined = Similarity(float(np.exp(solution.x[6])), Rotation.from_rotvec(solution.x[:3]).as_matrix(),
+                         solution.x[3:6]).inverse()
+    return refined.s, refined.R, refined.t

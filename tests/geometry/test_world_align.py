@@ -135,7 +135,8 @@ def test_a_board_seen_by_the_solved_cameras_sets_the_world_exactly(seed):
     board, board_to_set, origin, centres, rotations, R_s, t_s, ids, rays, solved = _board_seen(seed)
     seen, X = triangulate_corners(R_s, t_s, ids, rays)
     np.testing.assert_array_equal(seen, np.arange(board.n_corners))  # every corner is in two views at least
-    fit = world_from_board(board.object_points[seen], X, [solved.pose(R, c)[1] for R, c in zip(rotations, centres)])
+    np.testing.assert_allclose(X, solved.apply(board.object_points @ board_to_set.T + origin), atol=1e-9)
+    fit = world_from_board(board.object_points, R_s, t_s, ids, rays)
     assert fit.n_corners == board.n_corners and fit.rms < 1e-9
     # the board's world: x along the columns, y = z x x on the ground, z up (the set's up here)
     axes = board_to_set @ np.diag([1.0, -1.0, -1.0])  # columns: the world's axes in the set
@@ -148,10 +149,12 @@ def test_a_board_seen_by_the_solved_cameras_sets_the_world_exactly(seed):
 
 
 def test_a_board_corner_far_off_is_dropped_and_too_few_corners_are_one_error():
-    board, *_, solved = _board_seen(3)
-    X = solved.apply(board.object_points)
-    X[5] += 0.5  # a corner triangulated from a wrong match
-    fit = world_from_board(board.object_points, X, solved.apply([[0.0, 0.0, -1.0]]))
+    board, board_to_set, origin, centres, rotations, R_s, t_s, ids, rays, solved = _board_seen(3)
+    rays[0][ids[0] == 5] += 0.05  # a corner detected far off in one view (a wrong match)
+    fit = world_from_board(board.object_points, R_s, t_s, ids, rays)
     assert fit.n_corners == board.n_corners - 1 and fit.rms < 1e-9
+    axes = board_to_set @ np.diag([1.0, -1.0, -1.0])
+    np.testing.assert_allclose(fit.similarity.pose(*solved.pose(rotations[0], centres[0]))[1],
+                               axes.T @ (centres[0] - origin), atol=1e-9)
     with pytest.raises(CamcalError, match="3 corners not on one line"):
-        world_from_board(board.object_points[:9], X[:9], [[0.0, 0.0, 1.0]])
+        world_from_board(board.object_points, R_s, t_s, [i[:9] for i in ids], [r[:9] for r in rays])
