@@ -130,7 +130,8 @@ def _solve(args: argparse.Namespace) -> int:
     held-out residual; the principal point and the lens are refined under the sensor's Gaussian priors and the
     user's (--prior), and what the images do not determine is said with its sigma; or the lens of a grid
     calibration is held (--intrinsics). Frames that cannot be registered are named by number. The world can be set
-    after the solve (--up, --origin, --scale, or --world-board). Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
+    after the solve (--up, --origin, --scale, or --world-board). Writes OUT/solve.rig.json, OUT/points.ply and the
+    COLMAP model.
     """
     from camcal.api.reconstruction import solve
 
@@ -141,7 +142,8 @@ def _solve(args: argparse.Namespace) -> int:
                    matcher=args.matcher, mapper=args.mapper, loss=args.loss, refine=not args.no_refine,
                    compare_pycolmap=args.compare_pycolmap, intrinsics=args.intrinsics,
                    intrinsics_mode=args.intrinsics_mode, require_all=args.require_all, up=args.up, origin=args.origin,
-                   scale=args.scale, units=args.units, world_board=args.world_board, seed=args.seed, verbose=args.verbose)
+                   scale=args.scale, units=args.units, world_board=args.world_board, seed=args.seed,
+                   verbose=args.verbose)
     for line in result.lines():
         print(line)
     out = summary_of(args)

@@ -113,7 +113,8 @@ def _board_seen(seed):
     corners = board.object_points @ board_to_set.T + origin
     centres = np.array([[x, -1.0, 1.5 + 0.1 * x] for x in (-2.0, -1.0, 1.0, 2.0)])
     rotations = np.array([look_at(c, origin + [0.1, 0.1, 0.0]) for c in centres])
-    truth = Similarity(float(rng.uniform(0.2, 5.0)), Rotation.random(random_state=seed).as_matrix(), rng.normal(0, 3, 3))
+    truth = Similarity(float(rng.uniform(0.2, 5.0)), Rotation.random(random_state=seed).as_matrix(),
+                       rng.normal(0, 3, 3))
     solved = truth.inverse()
     poses = [solved.pose(R, c) for R, c in zip(rotations, centres)]
     R_s = np.array([R for R, _ in poses])

@@ -152,7 +152,8 @@ def render_board_plate(root: Path, n_frames: int = 5, size: tuple[int, int] = (4
         centre = np.array([4.6 - 0.35 * i, 4.0 + 0.25 * i, 1.7 + 0.05 * i])
         camera = Camera("left", size, K, Distortion("polynomial", {"k1": -0.05, "k2": 0.0}),
                         look_at(centre, [1.6 + 0.1 * i, 1.4, 0.5]), centre)
-        cv2.imwrite(str(root / "left" / f"{i:04d}.png"), render_planes(camera, room_corner_planes() + (plane,), textures))
+        image = render_planes(camera, room_corner_planes() + (plane,), textures)
+        cv2.imwrite(str(root / "left" / f"{i:04d}.png"), image)
         cameras.append(camera)
     return cameras, origin, axes
 
