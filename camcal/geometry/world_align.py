@@ -318,7 +318,8 @@ def triangulate_corners(rotations: ArrayLike, translations: ArrayLike, ids: list
     ids : list of array_like of int
         Per view, the corners it saw (ids of the board's points).
     rays : list of array_like, shape (M_v, 2)
-        Per view, those corners' normalised image coordinates ``(x / z, y / z)`` (lens distortion removed).
+        Per view, those corners' normalised image coordinates ``(x / z, y / z)`` (lens distortion removed; a
+        non-finite one is left out).
 
     Returns
     -------
@@ -337,6 +338,8 @@ def triangulate_corners(rotations: ArrayLike, translations: ArrayLike, ids: list
     for view, (view_ids, view_rays) in enumerate(zip(ids, rays)):
         P = np.column_stack([R[view], t[view]])
         for corner, (x, y) in zip(np.asarray(view_ids, dtype=np.int64), np.asarray(view_rays, dtype=np.float64)):
+            if not (np.isfinite(x) and np.isfinite(y)):  # a pixel the lens model cannot unproject
+                continue
             for row in (x * P[2] - P[0], y * P[2] - P[1]):
                 rows.setdefault(int(corner), []).append(row / np.linalg.norm(row))
     seen = np.array(sorted(corner for corner, stacked in rows.items() if len(stacked) >= 4), dtype=np.int64)
