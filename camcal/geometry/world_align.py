@@ -451,8 +451,9 @@ def _refine_board_pose(board_to_world: Similarity, board: NDArray[np.float64], k
     rays (Levenberg-Marquardt from ``board_to_world``); returned as the inverse: ``s, R, t`` world -> board."""
     views = []
     for view, (view_ids, view_rays) in enumerate(zip(ids, rays)):
-        mask = np.isin(np.asarray(view_ids), list(kept))
-        views.append((view, board[np.asarray(view_ids)[mask]], np.asarray(view_rays, dtype=np.float64)[mask]))
+        view_rays = np.asarray(view_rays, dtype=np.float64).reshape(-1, 2)
+        mask = np.isin(np.asarray(view_ids), list(kept)) & np.all(np.isfinite(view_rays), axis=1)
+        views.append((view, board[np.asarray(view_ids)[mask]], view_rays[mask]))
 
     def residuals(params: NDArray[np.float64]) -> NDArray[np.float64]:
         Q = Rotation.from_rotvec(params[:3]).as_matrix()
