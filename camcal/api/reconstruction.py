@@ -172,6 +172,7 @@ def solve(
     origin: str | None = None,
     scale: str | None = None,
     units: str | None = None,
+    world_board: str | None = None,
     seed: int = 0,
     verbose: bool = False,
     progress: bool | Callable[[str], None] = True,
@@ -244,7 +245,13 @@ def solve(
     scale : str, optional
         ``"A,B=DIST"``: two points (rows or coordinates) and their known distance, e.g. ``"12,40=1.5"``.
     units : str, optional
-        The unit of that distance, recorded in the rig (default ``"m"`` with ``scale``).
+        The unit of that distance or of ``world_board``'s squares, recorded in the rig (default ``"m"`` with
+        ``scale`` or ``world_board``).
+    world_board : str, optional
+        A board lying in the set, e.g. ``"chessboard:9x6:0.04"`` (the ``calibrate board`` spec): found in up to
+        24 registered images, its corners triangulated from the solved cameras, it sets the world: its plane the
+        ground (+z towards the cameras), its first inner corner the origin, +x along its columns, its squares
+        the scale. Not with ``up``, ``origin`` or ``scale``.
     seed : int
         Seeds every random choice: the same images and options give the same rig.
     verbose : bool
@@ -294,7 +301,7 @@ def solve(
     grid = intrinsics if isinstance(intrinsics, Rig) or intrinsics is None else Rig.load(intrinsics)
     if grid is not None and (model is not None or camera_model is not None):
         raise CamcalError("--intrinsics gives the lens: --model and --camera-model choose one, give one or the other")
-    world = world_spec(up, origin, scale, units)
+    world = world_spec(up, origin, scale, units, world_board)
     if features < 100:
         raise CamcalError(f"--features must be at least 100, got {features}")
     # auto (or nothing): choose among LENS_MODELS; a named model: only it; camera_model alone: keep it

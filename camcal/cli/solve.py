@@ -81,9 +81,16 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scale", metavar="A,B=DIST",
                         help="two points (rows of points.ply or x:y:z coordinates) and their known distance, e.g. "
                         "12,40=1.5: the world is scaled to it (default: the solve's own scale, units arbitrary)")
+    parser.add_argument("--world-board", metavar="SPEC",
+                        help="a board lying in the set, chessboard:WxH:SQUARE or charuco:DICT:WxH:SQUARE:MARKER (as "
+                        "calibrate board's --board), found in up to 24 of the solved frames and triangulated: its "
+                        "plane becomes the ground (+z towards the cameras), its first inner corner the origin, its "
+                        "columns +x, its squares the scale; instead of --up, --origin and --scale (default: none)")
     parser.add_argument("--units", metavar="NAME",
-                        help="the unit of --scale's distance, recorded in the rig (default: m)")
-    only_with(parser, "--units", "--scale", lambda args: args.scale is not None)
+                        help="the unit of --scale's distance or of --world-board's squares, recorded in the rig "
+                        "(default: m)")
+    only_with(parser, "--units", "--scale or --world-board",
+              lambda args: args.scale is not None or args.world_board is not None)
     loss_option(parser, "robust loss of camcal's bundle adjustment (scale 1 px; default: %(default)s)")
     parser.add_argument("--no-refine", action="store_true", help="keep pycolmap's result, skip camcal's refinement")
     parser.add_argument("--compare-pycolmap", action="store_true",
@@ -104,6 +111,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         "# a plate with the lens of the day's grid held, every frame required, the world set on the ground",
         "camcal solve plates/shot.%04d.exr --frames 1001-1240 --matcher sequential --intrinsics grid.rig.json "
         "--require-all --up ground --origin ground --scale 12,40=1.5 --out solve",
+        "# the world set on a 9x6 chessboard of 4 cm squares lying on the set's floor",
+        "camcal solve plates/shot.%04d.exr --frames 1001-1240 --matcher sequential --world-board chessboard:9x6:0.04 "
+        "--out solve",
     ])
 
 
@@ -120,7 +130,8 @@ def _solve(args: argparse.Namespace) -> int:
     held-out residual; the principal point and the lens are refined under the sensor's Gaussian priors and the
     user's (--prior), and what the images do not determine is said with its sigma; or the lens of a grid
     calibration is held (--intrinsics). Frames that cannot be registered are named by number. The world can be set
-    after the solve (--up, --origin, --scale). Writes OUT/solve.rig.json, OUT/points.ply and the COLMAP model.
+    after the solve (--up, --origin, --scale, or --world-board). Writes OUT/solve.rig.json, OUT/points.ply and the
+    COLMAP model.
     """
     from camcal.api.reconstruction import solve
 
@@ -131,7 +142,8 @@ def _solve(args: argparse.Namespace) -> int:
                    matcher=args.matcher, mapper=args.mapper, loss=args.loss, refine=not args.no_refine,
                    compare_pycolmap=args.compare_pycolmap, intrinsics=args.intrinsics,
                    intrinsics_mode=args.intrinsics_mode, require_all=args.require_all, up=args.up, origin=args.origin,
-                   scale=args.scale, units=args.units, seed=args.seed, verbose=args.verbose)
+                   scale=args.scale, units=args.units, world_board=args.world_board, seed=args.seed,
+                   verbose=args.verbose)
     for line in result.lines():
         print(line)
     out = summary_of(args)

@@ -16,6 +16,12 @@ that does it from
 - an origin, which goes to ``(0, 0, 0)``;
 - a scale: two points and their known distance.
 
+Or, all at once, from a calibration board lying in the set
+(:func:`world_from_board`): its corners triangulated from the solved cameras
+(:func:`triangulate_corners`) are matched to the board's own coordinates by
+a similarity, so that the board's plane becomes the ground, its first inner
+corner the origin, its columns ``+x`` and its square size the unit.
+
 Pure maths on arrays; the solve applies the result to its cameras and points
 (:mod:`camcal.pipelines.solve_world`).
 
@@ -26,6 +32,10 @@ for Model Fitting with Applications to Image Analysis and Automated
 Cartography. Communications of the ACM 24(6).
 Umeyama, S. (1991). Least-Squares Estimation of Transformation Parameters
 Between Two Point Patterns. IEEE TPAMI 13(4) (the similarity ``s R X + t``).
+Rousseeuw, P. J. (1984). Least Median of Squares Regression. Journal of the
+American Statistical Association 79(388).
+Hartley, R. & Zisserman, A. (2004). Multiple View Geometry in Computer Vision,
+2nd ed., section 12.2 (linear triangulation).
 """
 
 from __future__ import annotations
@@ -34,16 +44,22 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
+from camcal.model.camera import similarity_Umeyama1991
 
 __all__ = [
     "MAX_GROUND_TILT_DEG",
+    "BoardWorld",
     "GroundPlane",
     "Similarity",
     "ground_plane_RANSAC",
     "mean_camera_up",
     "point_under",
+    "triangulate_corners",
+    "world_from_board",
     "world_from_constraints",
 ]
 
@@ -289,3 +305,167 @@ def world_from_constraints(up: ArrayLike | None, heading: ArrayLike, origin: Arr
         s = float(distance) / length
     t = np.zeros(3) if origin is None else -s * R @ np.asarray(origin, dtype=np.float64).reshape(3)
     return Similarity(s, R, t)
+
+
+def triangulate_corners(rotations: ArrayLike, translations: ArrayLike, ids: list[ArrayLike],
+                        rays: list[ArrayLike]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Each corner seen in two views or more, triangulated linearly (Hartley & Zisserman 2004, 12.2).
+
+    Parameters
+    ----------
+    rotations, translations : array_like, shapes (V, 3, 3), (V, 3)
+        Each view's pose ``x_cam = R X + t``.
+    ids : list of array_like of int
+        Per view, the corners it saw (ids of the board's points).
+    rays : list of array_like, shape (M_v, 2)
+        Per view, those corners' normalised image coordinates ``(x / z, y / z)`` (lens distortion removed; a
+        non-finite one is left out).
+
+    Returns
+    -------
+    ids : ndarray of int, shape (N,)
+        The corners seen at least twice, increasing.
+    points : ndarray, shape (N, 3)
+        Their positions: the smallest right singular vector of the stacked
+        rows ``x P_3 - P_1``, ``y P_3 - P_2`` of every view ``P = [R | t]``
+        (each row scaled to unit length), exact for exact rays.
+    """
+    R = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    t = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
+    if not (len(R) == len(t) == len(ids) == len(rays)):
+        raise CamcalError("triangulation needs one pose, one id list and one ray list per view")
+    rows: dict[int, list[NDArray[np.float64]]] = {}
+    for view, (view_ids, view_rays) in enumerate(zip(ids, rays)):
+        P = np.column_stack([R[view], t[view]])
+        for corner, (x, y) in zip(np.asarray(view_ids, dtype=np.int64), np.asarray(view_rays, dtype=np.float64)):
+            if not (np.isfinite(x) and np.isfinite(y)):  # a pixel the lens model cannot unproject
+                continue
+            for row in (x * P[2] - P[0], y * P[2] - P[1]):
+                rows.setdefault(int(corner), []).append(row / np.linalg.norm(row))
+    seen = np.array(sorted(corner for corner, stacked in rows.items() if len(stacked) >= 4), dtype=np.int64)
+    points = np.empty((len(seen), 3))
+    for k, corner in enumerate(seen):
+        X = np.linalg.svd(np.array(rows[int(corner)]))[2][-1]
+        points[k] = X[:3] / X[3]
+    return seen, points
+
+
+@dataclass(frozen=True)
+class BoardWorld:
+    """A world set from a board (:func:`world_from_board`).
+
+    Attributes
+    ----------
+    similarity : Similarity
+        Reconstruction -> the board's world.
+    n_corners : int
+        The corners the similarity was fitted to.
+    rms : float
+        Their residual after the fit, RMS, in the board's units.
+    """
+
+    similarity: Similarity
+    n_corners: int
+    rms: float
+
+
+def world_from_board(object_points: ArrayLike, rotations: ArrayLike, translations: ArrayLike,
+                     ids: list[ArrayLike], rays: list[ArrayLike], seed: int = 0, trials: int = 200) -> BoardWorld:
+    """The similarity that puts a reconstruction in the world of a board its cameras saw.
+
+    1. The corners seen twice or more are triangulated
+       (:func:`triangulate_corners`) and matched to the board's own
+       coordinates (columns along ``x``, rows along ``y``, ``z = 0``; in the
+       board's units) by a least-squares similarity (Umeyama 1991) after a
+       least-median-of-squares search over triples of corners (Rousseeuw
+       1984): corners farther than ``4 sigma`` from the triple with the
+       smallest median residual (sigma: 1.4826 times that median) are
+       dropped.
+    2. The board's pose and size in the reconstruction (7 parameters) are
+       then refined on the kept corners' rays of every view, by least
+       squares of the normalised reprojection error: the maximum-likelihood
+       pose of a rigid board, where step 1 weighs the triangulations' poor
+       depths as much as their good directions.
+    3. The board's ``z`` axis is turned towards the cameras (a half turn
+       about ``x``, if they stand on its ``-z`` side, as they do for a board
+       seen from its printed side): the board's plane is the ground
+       ``z = 0``, ``+z`` up on the cameras' side, the first corner the
+       origin, the columns ``+x``, the board's unit the world's.
+
+    Parameters
+    ----------
+    object_points : array_like, shape (N, 3)
+        The board's corners in its own coordinates
+        (:attr:`camcal.geometry.board.Board.object_points`), indexed by the ids.
+    rotations, translations, ids, rays
+        The views, as :func:`triangulate_corners` takes them.
+    seed : int
+        Seeds the triples: the same views give the same world.
+    trials : int
+        Triples tried.
+
+    Returns
+    -------
+    BoardWorld
+    """
+    board_all = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
+    R_views = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    t_views = np.asarray(translations, dtype=np.float64).reshape(-1, 3)
+    seen, X = triangulate_corners(R_views, t_views, ids, rays)
+    board = board_all[seen]
+    keep = np.all(np.isfinite(X), axis=1)
+    if keep.sum() < 3 or np.linalg.matrix_rank(board[keep] - board[keep].mean(axis=0), tol=1e-9) < 2:
+        raise CamcalError(f"the board's pose needs 3 corners not on one line seen in two views, got {int(keep.sum())}")
+    candidates = np.flatnonzero(keep)
+    rng = np.random.default_rng(seed)
+    best_median, best = np.inf, None
+    for _ in range(int(trials)):
+        triple = rng.choice(candidates, 3, replace=False)
+        if np.linalg.norm(np.cross(board[triple[1]] - board[triple[0]], board[triple[2]] - board[triple[0]])) < 1e-12:
+            continue
+        s, R, t = similarity_Umeyama1991(X[triple], board[triple])
+        median = float(np.median(np.linalg.norm(s * X[keep] @ R.T + t - board[keep], axis=1)))
+        if median < best_median:
+            best_median, best = median, (s, R, t)
+    if best is not None:
+        s, R, t = best
+        residual = np.linalg.norm(s * X @ R.T + t - board, axis=1)
+        inliers = keep & (residual <= max(4.0 * 1.4826 * best_median, 1e-12 * float(np.ptp(board))))
+        if inliers.sum() >= 3:
+            keep = inliers
+    s, R, t = similarity_Umeyama1991(X[keep], board[keep])
+    s, R, t = _refine_board_pose(Similarity(s, R, t).inverse(), board_all, set(seen[keep].tolist()), R_views,
+                                 t_views, ids, rays)
+    rms = float(np.sqrt(np.mean(np.sum((s * X[keep] @ R.T + t - board[keep]) ** 2, axis=1))))
+    heights = -s * np.einsum("vji,vj->vi", R_views, t_views) @ R.T[:, 2] + t[2]  # the camera centres' z
+    if np.sum(np.sign(heights)) < 0:
+        flip = np.diag([1.0, -1.0, -1.0])
+        R, t = flip @ R, flip @ t
+    return BoardWorld(Similarity(s, R, t), int(keep.sum()), rms)
+
+
+def _refine_board_pose(board_to_world: Similarity, board: NDArray[np.float64], kept: set[int],
+                       rotations: NDArray[np.float64], translations: NDArray[np.float64], ids: list[ArrayLike],
+                       rays: list[ArrayLike]) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """The board's pose and size in the reconstruction that best reproject its kept corners onto every view's
+    rays (Levenberg-Marquardt from ``board_to_world``); returned as the inverse: ``s, R, t`` world -> board."""
+    views = []
+    for view, (view_ids, view_rays) in enumerate(zip(ids, rays)):
+        view_rays = np.asarray(view_rays, dtype=np.float64).reshape(-1, 2)
+        mask = np.isin(np.asarray(view_ids), list(kept)) & np.all(np.isfinite(view_rays), axis=1)
+        views.append((view, board[np.asarray(view_ids)[mask]], view_rays[mask]))
+
+    def residuals(params: NDArray[np.float64]) -> NDArray[np.float64]:
+        Q = Rotation.from_rotvec(params[:3]).as_matrix()
+        out = []
+        for view, corners, observed in views:
+            x_cam = (np.exp(params[6]) * corners @ Q.T + params[3:6]) @ rotations[view].T + translations[view]
+            out.append((x_cam[:, :2] / x_cam[:, 2:] - observed).ravel())
+        return np.concatenate(out)
+
+    start = np.concatenate([Rotation.from_matrix(board_to_world.R).as_rotvec(), board_to_world.t,
+                            [np.log(board_to_world.s)]])
+    solution = least_squares(residuals, start, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    refined = Similarity(float(np.exp(solution.x[6])), Rotation.from_rotvec(solution.x[:3]).as_matrix(),
+                         solution.x[3:6]).inverse()
+    return refined.s, refined.R, refined.t

@@ -18,7 +18,8 @@ rig pose (:func:`camcal.geometry.selfcal.self_calibrate`); or, with a lens
 from a grid calibration, that lens held or refined under its sigmas
 (:mod:`camcal.pipelines.solve_lens`). Images the mapper cannot register are
 named by frame number (or refused, ``require_all``); the world can be set
-after the solve: up, origin, scale and units (:mod:`camcal.pipelines.solve_world`).
+after the solve: up, origin, scale and units, or all from a board seen in the images
+(:mod:`camcal.pipelines.solve_world`).
 
 References
 ----------
@@ -65,7 +66,7 @@ from camcal.pipelines.solve_inputs import (check_one_size_per_camera, collect_im
                                            stage_masks, unregistered_line, video_of)
 from camcal.pipelines.solve_lens import GridLens, drift_lines, grid_lens, hold_in_database, lens_priors
 from camcal.pipelines.solve_plain import PycolmapPeer, solve_pycolmap_plain
-from camcal.pipelines.solve_world import WorldSpec, align_world, scaled_translations
+from camcal.pipelines.solve_world import WorldSpec, align_world, board_world, scaled_translations
 
 __all__ = [
     "COLMAP_LOG",
@@ -396,7 +397,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     world_scale = 1.0
     if world is not None and world.active:
         _say(progress, "setting the world")
-        world_scale, lines = _set_world(pycolmap, reconstruction, list(folders), world, seed)
+        world_scale, lines = _set_world(pycolmap, reconstruction, list(folders), world, seed, image_dir)
         for line in lines:
             _say(progress, line)
             notes.append(line)
@@ -444,15 +445,19 @@ def _camcal_names(colmap_name: str, model: str) -> set[str]:
     return {colmap_name}
 
 
-def _set_world(pycolmap, reconstruction, camera_names: list[str], world: WorldSpec, seed: int) -> tuple[float, list[str]]:
+def _set_world(pycolmap, reconstruction, camera_names: list[str], world: WorldSpec, seed: int,
+               image_dir: Path) -> tuple[float, list[str]]:
     """Move the reconstruction into the world ``world`` asks for (points, frames and the rig's baselines); the
     scale and what was done."""
-    xyz = np.array([point.xyz for point in reconstruction.points3D.values()]).reshape(-1, 3)
-    poses = sorted((camera_names.index(image.name.split("/")[0]), image.name, image.cam_from_world())
-                   for image in reconstruction.images.values() if image.has_pose)
-    rotations = np.array([pose.rotation.matrix() for _, _, pose in poses])
-    centres = np.array([-pose.rotation.matrix().T @ pose.translation for _, _, pose in poses])
-    similarity, lines = align_world(xyz, rotations, centres, world, seed)
+    if world.board is not None:
+        similarity, lines = board_world(reconstruction, image_dir, world.board, world.units, seed)
+    else:
+        xyz = np.array([point.xyz for point in reconstruction.points3D.values()]).reshape(-1, 3)
+        poses = sorted((camera_names.index(image.name.split("/")[0]), image.name, image.cam_from_world())
+                       for image in reconstruction.images.values() if image.has_pose)
+        rotations = np.array([pose.rotation.matrix() for _, _, pose in poses])
+        centres = np.array([-pose.rotation.matrix().T @ pose.translation for _, _, pose in poses])
+        similarity, lines = align_world(xyz, rotations, centres, world, seed)
     reconstruction.transform(pycolmap.Sim3d(similarity.s, pycolmap.Rotation3d(similarity.R), similarity.t))
     return similarity.s, lines
 

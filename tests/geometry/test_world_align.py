@@ -5,8 +5,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
+from camcal.geometry.board import parse_board
 from camcal.geometry.world_align import (Similarity, ground_plane_RANSAC, mean_camera_up, point_under,
-                                         world_from_constraints)
+                                         triangulate_corners, world_from_board, world_from_constraints)
 from camcal.model.camera import look_at
 
 
@@ -97,3 +98,65 @@ def test_a_wall_with_more_points_than_the_floor_is_not_the_ground_given_the_came
     plane = ground_plane_RANSAC(X, cameras=cameras, up_hint=pitched)
     np.testing.assert_allclose(plane.normal, [0.0, 0.0, 1.0], atol=1e-4)  # a wall point at the foot may pull
     assert plane.inliers[:200].all() and plane.inliers.sum() < 260  # the floor, and the wall's foot within reach
+
+
+def _board_seen(seed):
+    """A 9x6 board of 4 cm squares, printed side up, rotated and moved on the set's ground, and 4 cameras around
+    it (the set's world); the set then moved into a world of its own (a random similarity), and each camera's
+    view of the board's corners (exact normalised rays, some corners out of some views)."""
+    rng = np.random.default_rng(seed)
+    board = parse_board("chessboard:9x6:0.04")
+    turn = Rotation.from_euler("z", rng.uniform(-np.pi, np.pi)).as_matrix()
+    # the board's x along its columns, its y along its rows, its z into its printed side: here the ground's -z
+    board_to_set = turn @ np.diag([1.0, -1.0, -1.0])
+    origin = np.array([rng.uniform(-1, 1), rng.uniform(2, 3), 0.0])
+    corners = board.object_points @ board_to_set.T + origin
+    centres = np.array([[x, -1.0, 1.5 + 0.1 * x] for x in (-2.0, -1.0, 1.0, 2.0)])
+    rotations = np.array([look_at(c, origin + [0.1, 0.1, 0.0]) for c in centres])
+    truth = Similarity(float(rng.uniform(0.2, 5.0)), Rotation.random(random_state=seed).as_matrix(),
+                       rng.normal(0, 3, 3))
+    solved = truth.inverse()
+    poses = [solved.pose(R, c) for R, c in zip(rotations, centres)]
+    R_s = np.array([R for R, _ in poses])
+    t_s = np.array([-R @ c for R, c in poses])
+    ids, rays = [], []
+    for view, (R, c) in enumerate(zip(rotations, centres)):
+        seen = np.arange(board.n_corners)[view::1] if view < 2 else np.arange(board.n_corners)[: 40 + view]
+        x_cam = (corners[seen] - c) @ R.T
+        ids.append(seen)
+        rays.append(x_cam[:, :2] / x_cam[:, 2:])
+    return board, board_to_set, origin, centres, rotations, R_s, t_s, ids, rays, solved
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_board_seen_by_the_solved_cameras_sets_the_world_exactly(seed):
+    """Exact rays: the corners triangulate to the set's corners in the solve's world, and the board's world puts
+    every camera where it stands relative to the board (the board's plane the ground, +z towards the cameras, its
+    first corner the origin, its columns +x, its metres) to 1e-9."""
+    board, board_to_set, origin, centres, rotations, R_s, t_s, ids, rays, solved = _board_seen(seed)
+    seen, X = triangulate_corners(R_s, t_s, ids, rays)
+    np.testing.assert_array_equal(seen, np.arange(board.n_corners))  # every corner is in two views at least
+    np.testing.assert_allclose(X, solved.apply(board.object_points @ board_to_set.T + origin), atol=1e-9)
+    fit = world_from_board(board.object_points, R_s, t_s, ids, rays)
+    assert fit.n_corners == board.n_corners and fit.rms < 1e-9
+    # the board's world: x along the columns, y = z x x on the ground, z up (the set's up here)
+    axes = board_to_set @ np.diag([1.0, -1.0, -1.0])  # columns: the world's axes in the set
+    assert abs(fit.similarity.s - 1.0 / solved.s) < 1e-9 / solved.s
+    for R, c in zip(rotations, centres):
+        R_new, c_new = fit.similarity.pose(*solved.pose(R, c))
+        np.testing.assert_allclose(c_new, axes.T @ (c - origin), atol=1e-9)
+        np.testing.assert_allclose(R_new, R @ axes, atol=1e-9)
+        assert c_new[2] > 0
+
+
+def test_a_board_corner_far_off_is_dropped_and_too_few_corners_are_one_error():
+    board, board_to_set, origin, centres, rotations, R_s, t_s, ids, rays, solved = _board_seen(3)
+    rays[0][ids[0] == 5] += 0.05  # a corner detected far off in one view (a wrong match)
+    rays[1][ids[1] == 7] = np.nan  # a corner the lens model cannot unproject in another
+    fit = world_from_board(board.object_points, R_s, t_s, ids, rays)
+    assert fit.n_corners == board.n_corners - 1 and fit.rms < 1e-9
+    axes = board_to_set @ np.diag([1.0, -1.0, -1.0])
+    np.testing.assert_allclose(fit.similarity.pose(*solved.pose(rotations[0], centres[0]))[1],
+                               axes.T @ (centres[0] - origin), atol=1e-9)
+    with pytest.raises(CamcalError, match="3 corners not on one line"):
+        world_from_board(board.object_points, R_s, t_s, [i[:9] for i in ids], [r[:9] for r in rays])
