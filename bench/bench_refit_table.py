@@ -24,8 +24,8 @@ Usage::
     python bench/bench_refit_table.py [--set DIR PATTERN COLUMNS ROWS]... [--corners FILE]... [--models M,M,...]
 
 ``--set``: images matching PATTERN in DIR, a chessboard of COLUMNS x ROWS inner corners (camcal's detector).
-``--corners``: a JSON of corners (tests/data/real_boards format). Default: the shared stereo pair
-(../shared/data/stereo_chessboard, left*.jpg and right*.jpg, 9x6). Runs single-threaded (OpenCV threads off).
+``--corners``: a JSON of corners (tests/data/real_boards format). It prints what it ran on (each set's folder and
+pattern or corners file, image size, board, views) before its tables. OpenCV runs on one thread.
 """
 
 from __future__ import annotations
@@ -95,6 +95,7 @@ class Row:
 
     @property
     def exact(self) -> bool:
+        """True when the target's family holds the source lens (the core did not fit)."""
         return self.refit is not None and self.refit.exact
 
 
@@ -180,8 +181,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--models", default=",".join(MODELS))
     args = parser.parse_args(argv)
     if not args.set and not args.corners:
-        shared = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "stereo_chessboard"
-        args.set = [[str(shared), "left*.jpg", "9", "6"], [str(shared), "right*.jpg", "9", "6"]]
+        parser.error("give at least one --set DIR PATTERN COLUMNS ROWS or --corners FILE")
     cv2.setNumThreads(1)
     sets = [_image_set(Path(d), p, int(c), int(r)) for d, p, c, r in args.set]
     sets += [_corners_set(path) for path in args.corners]
