@@ -5,7 +5,7 @@ default (``model="auto"``, ``board_shape="auto"``) and with the model it picked 
 board: the single fit a user would run) and with ``opencv``; the ratio auto / single. Then the held-out RMS of
 auto's calibration against OpenCV's best model (default, rational, rational + thin prism, ``cv2.fisheye``) on the
 same corners and the same split (every 6th view held out, each held-out view posed with the fitted intrinsics
-held: camcal's ``_posed_residuals``, the same for every model).
+held: camcal's ``posed_residuals``, the same for every model).
 
 Sets: the shared stereo pair (``left*.jpg``, ``right*.jpg``, 9x6; OpenCV's SB corners, cached with ``--cache``), a
 dense synthetic 24x17 board seen 21 times by an industrial lens (OpenCV rational distortion), and a synthetic
