@@ -30,13 +30,18 @@ from scipy.spatial.transform import Rotation
 
 from bench_lens_models import opencv_models, posed_rms, sb_detections
 from camcal.geometry.board import Board, Detection
-from camcal.geometry.zhang import SPLINE_SUFFIX, calibrate_board
+from camcal.geometry.board_shape import AUTO_SHAPES
+from camcal.geometry.zhang import AUTO_MODELS, SPLINE_SUFFIX, calibrate_board
+from camcal.geometry.zhang_fit import calibrate_model
+from camcal.geometry.zhang_refit import shape_specs, surface_fit
+from camcal.geometry.zhang_starts import FIT_ERRORS, checked_views
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "stereo_chessboard"
 NOISE_PX = 0.1
 HELD_EVERY = 6
+OPTIONS = dict(units="m", outlier_factor=3.0, min_outlier_px=1.0, loss="trivial", loss_scale=1.0)
 
 
 def projected_views(camera: Camera, board: Board, n: int, seed: int, distance: tuple[float, float],
@@ -101,7 +106,33 @@ def run(name: str, board: Board, views: list[Detection]) -> None:
           f"opencv {t_opencv:.1f} s; auto / single {t_auto / t_single:.2f}, auto / opencv {t_auto / t_opencv:.2f}")
     print(f"  held out: auto {auto.heldout_rms_px:.4f} px, best OpenCV ({best}) {peers[best]:.4f} px, "
           f"auto / best {auto.heldout_rms_px / peers[best]:.3f}")
+    t_lenses, t_shapes = floor(board, detections, holdout, picked)
+    print(f"  floor (any ranking fits every candidate once): every lens model once {t_lenses:.1f} s "
+          f"({t_lenses / t_single:.1f}x single), every board surface once with {picked} {t_shapes:.1f} s "
+          f"({(t_lenses + t_shapes) / t_single:.1f}x single with both)")
     sys.stdout.flush()
+
+
+def floor(board: Board, detections: dict, holdout: set[int], picked: str) -> tuple[float, float]:
+    """CPU seconds of one scoring fit of every lens model of ``auto`` on the training views, and of one surface fit
+    of every board shape with ``picked`` (the least any ranking by held-out error must pay)."""
+    names, by_frame, holdout = checked_views(detections, board, holdout)
+    training = [{f: d for f, d in by_frame[0].items() if f not in holdout}]
+    start, full = time.process_time(), None
+    for model in AUTO_MODELS:
+        try:
+            fit = calibrate_model(board, names, training, model, set(), scoring=True, **OPTIONS)
+        except FIT_ERRORS:
+            continue
+        full = fit if model == picked else full
+    t_lenses = time.process_time() - start
+    start = time.process_time()
+    for spec in shape_specs(board, AUTO_SHAPES) if full is not None else ():
+        try:
+            surface_fit(board, full, training[0], picked, spec)
+        except FIT_ERRORS:
+            continue
+    return t_lenses, time.process_time() - start
 
 
 def main() -> None:

@@ -41,7 +41,11 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    ``model="auto"`` every model of :data:`AUTO_MODELS` is fitted with
    every 4th training frame held out, the simplest within 1 % of the
    lowest RMS on those is kept and fitted on all training frames: the
-   choice never sees ``holdout``. One camera with enough views: the best
+   choice never sees ``holdout``. One camera: the folds are fitted only for
+   the finalists of a screen, each model fitted once on every training
+   frame and its leave-one-view-out error estimated from that fit
+   (:mod:`camcal.geometry.zhang_loo`); the board's shapes are screened
+   the same way. One camera with enough views: the best
    model is also scored with a smooth correction field over the image
    (``<model>+spline``, :mod:`camcal.geometry.spline_fit`), taken only
    when it is better held out by more than 1 % and by more than one
@@ -147,7 +151,9 @@ def calibrate_board(
         COLMAP's RAD_TAN_THIN_PRISM_FISHEYE).
         ``auto`` ranks every model by leave-views-out cross-validation on
         the training views (:func:`rank_models`; ``holdout`` is never used
-        to choose) and keeps the simplest (order of :data:`AUTO_MODELS`)
+        to choose; one camera: only the finalists of a one-fit-per-model
+        leave-one-view-out estimate are refitted fold by fold, the others are
+        ranked out as screened) and keeps the simplest (order of :data:`AUTO_MODELS`)
         within :data:`AUTO_MARGIN` (1 %) of the best; a model that cannot be
         fitted is ranked out with its reason; the chosen model is fitted on
         every training view, and if that fit fails, fails
@@ -262,7 +268,9 @@ def calibrate_board(
     ranking, squared, corners = rank_models(board, names, training, options, fold_results)
     scored = [score for score in ranking if score.rms_px is not None]
     parametric = [score for score in scored if not score.model.endswith(SPLINE_SUFFIX)]
-    order = [score.model for score in parametric] or ["polynomial"]
+    # the models the screen left out of the folds come after the scored ones (best estimate first)
+    order = [score.model for score in parametric] + [score.model for score in ranking if score.screened_out]
+    order = order or ["polynomial"]
     if parametric:  # parsimony: the simplest model within AUTO_MARGIN of the best goes first
         simplest = simplest_within_margin(parametric)
         order.remove(simplest)

@@ -6,6 +6,10 @@ correction field or a board surface is taken only when it is better held out by 
 by more than one standard error of the paired per-view differences (:func:`spline_chosen`; Hastie, Tibshirani &
 Friedman 2009, section 7.10). :func:`with_board_shape` chooses the board's surface on the same folds.
 
+The folds cost a fit per fold; one camera's models and surfaces are first screened by the leave-one-view-out
+error estimated from their one fit on every training view (:mod:`camcal.geometry.zhang_loo`, no refit), and only
+the finalists within noise of the best are fitted fold by fold.
+
 References
 ----------
 Hastie, T., Tibshirani, R. & Friedman, J. (2009). The Elements of Statistical Learning, 2nd ed., section 7.10.
@@ -24,12 +28,13 @@ from camcal.geometry.board import Board
 from camcal.geometry.board_shape import AUTO_SHAPES, SHAPE_SPECS, n_shape_params
 from camcal.geometry.spline_fit import fit_spline_lens, grid_shape
 from camcal.geometry.zhang_fit import calibrate_model, posed_residuals
-from camcal.geometry.zhang_refit import SPLINE_SUFFIX, calibrate_shaped, fit_shape, shape_specs
+from camcal.geometry.zhang_loo import leave_one_view_out, leave_one_view_out_on_shape
+from camcal.geometry.zhang_refit import SPLINE_SUFFIX, calibrate_shaped, fit_shape, shape_specs, surface_fit
 from camcal.geometry.zhang_result import CalibrationResult, ModelScore, fold_radius_px, quality_problems
 from camcal.geometry.zhang_starts import FIT_ERRORS, MIN_IMAGES, MODELS, one_line
 
 __all__ = ["AUTO_MODELS", "AUTO_MARGIN", "with_board_shape", "simplest_within_margin", "SPLINE_MIN_VIEWS",
-           "rank_models", "spline_chosen", "BOARD_SHAPES"]
+           "rank_models", "SCREEN_MARGIN", "MAX_FINALISTS", "spline_chosen", "BOARD_SHAPES"]
 
 #: The models ``model="auto"`` chooses among, simplest first (the parsimony order): every model.
 AUTO_MODELS = ("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational", "opencv-thin-prism",
@@ -73,9 +78,11 @@ def with_board_shape(board: Board, names: list[str], by_frame: list[dict], model
             return flat, (), []
         folds = fold_results["folds"]
         fits = fold_results.setdefault("shape_fits", {})
-        shapes = _score_shapes(board, training[0], model, folds, fold_results[base], corners, squared, fits=fits)
+        shapes = _score_shapes(board, training[0], model, folds, fold_results[base], corners, squared, fits=fits,
+                               screen=fold_results)
         if base != model:  # the field's parametric lens on every surface too: a surface may do the field's work
-            shapes += _score_shapes(board, training[0], base, folds, fold_results[base], corners, squared, fits=fits)
+            shapes += _score_shapes(board, training[0], base, folds, fold_results[base], corners, squared, fits=fits,
+                                    screen=fold_results)
         lens, spec = _shape_choice(flat_score, shapes, squared)
         ranked = [flat_score, *shapes]
         if spec and lens != model:
@@ -94,7 +101,7 @@ def with_board_shape(board: Board, names: list[str], by_frame: list[dict], model
                 have = {s.model for s in ranked}
                 again = _score_shapes(board, training[0], chosen, folds, fold_results[chosen], corners, squared,
                                       tuple(s for s in shape_specs(board, AUTO_SHAPES)
-                                            if f"{chosen}{_SHAPE_TAG}{s}" not in have), fits)
+                                            if f"{chosen}{_SHAPE_TAG}{s}" not in have), fits, fold_results)
                 chosen_flat = next(s for s in scored if s.model == chosen)
                 ranked += [chosen_flat] * (chosen not in have) + again
                 lens_shapes = [s for s in ranked if s.model.startswith(f"{chosen}{_SHAPE_TAG}")]
@@ -113,7 +120,8 @@ def with_board_shape(board: Board, names: list[str], by_frame: list[dict], model
                     ranked += field
                 if spline_chosen(field[0], plain, squared):
                     chosen += SPLINE_SUFFIX
-        shape_ranking = tuple(sorted(ranked, key=lambda s: (s.rms_px is None, s.rms_px or 0.0)))
+        shape_ranking = tuple(sorted(ranked, key=lambda s: (s.rms_px is None, not s.screened_out,
+                                                            s.rms_px or s.estimate_px or 0.0)))
         if not spec:
             return flat, shape_ranking, notes + ["board shape auto: flat (no surface beats the flat board held out)"]
     try:
@@ -186,6 +194,17 @@ def rank_models(board: Board, names: list[str], training: list[dict], options: d
     With fewer than ``MIN_IMAGES + 1`` frames nothing can be held out and
     every model is ranked out.
 
+    One camera: the folds are fitted only for the finalists of a screen
+    (:func:`_screen`): every model fitted once on every training frame, its
+    leave-one-view-out error estimated from that fit
+    (:func:`camcal.geometry.zhang_loo.leave_one_view_out`), and the models
+    within :data:`SCREEN_MARGIN` of the best estimate or not worse than it by
+    two standard errors of the paired per-view differences kept, at most
+    :data:`MAX_FINALISTS` (the simplest within :data:`AUTO_MARGIN` of the
+    best estimate always among them); the others are ranked out as screened
+    (:attr:`ModelScore.estimate_px`), after the scored models, best
+    estimate first.
+
     One camera with at least :data:`SPLINE_MIN_VIEWS` training frames and
     the plain least-squares loss: the best-scored model is also scored
     with a correction field (:mod:`camcal.geometry.spline_fit`), fitted
@@ -209,7 +228,11 @@ def rank_models(board: Board, names: list[str], training: list[dict], options: d
     fold_results = {} if fold_results is None else fold_results
     fold_results["folds"] = folds
     shared: dict = {}  # the OpenCV starts every model of a fold shares
+    screened = _screen(board, names, training, options, shared, fold_results) if len(names) == 1 else {}
     for candidate in AUTO_MODELS:
+        if candidate in screened:
+            scores.append(screened[candidate])
+            continue
         per_view, results, reason = [], [], ""
         for fold in folds:
             try:
@@ -232,8 +255,62 @@ def rank_models(board: Board, names: list[str], training: list[dict], options: d
     if fitted and len(names) == 1 and len(frames) >= SPLINE_MIN_VIEWS and options["loss"] == "trivial":
         base = min(fitted, key=lambda score: score.rms_px).model
         scores.append(_score_spline(board, names[0], training[0], base, folds, fold_results[base], corners, squared))
-    ranked = sorted(scores, key=lambda s: (s.rms_px is None, s.rms_px or 0.0, s.n_params))
+    ranked = sorted(scores, key=lambda s: (s.rms_px is None, not s.screened_out, s.rms_px or s.estimate_px or 0.0,
+                                           s.n_params))
     return tuple(ranked), squared, corners
+
+
+#: The screen keeps for the exact folds the models whose estimate is within this share of the best estimate ...
+SCREEN_MARGIN = 0.03
+#: ... at most this many of them.
+MAX_FINALISTS = 3
+
+
+def _screen(board: Board, names: list[str], training: list[dict], options: dict,
+            shared: dict, store: dict) -> dict[str, ModelScore]:
+    """The models of :data:`AUTO_MODELS` that the exact folds of :func:`rank_models` need not fit: each one
+    ranked out, as refused by its fit on every training frame (with the reason) or screened out by its
+    leave-one-view-out estimate (:func:`camcal.geometry.zhang_loo.leave_one_view_out`).
+
+    Kept (not in the result): the models whose estimated RMS is within :data:`SCREEN_MARGIN` of the best or
+    whose paired per-view differences from the best are within two standard errors of zero (the noise of the
+    ranking itself), the :data:`MAX_FINALISTS` best of them, the simplest within :data:`AUTO_MARGIN` of the best
+    estimate replacing the last when it is not among them. Nothing is screened when no estimate could be made.
+    ``store`` gets ``"full"`` (each model's fit on every training frame) and ``"estimates"`` (each model's
+    estimated ``sum |r|^2`` per training frame, the frames in order), which the board shapes' screen starts from.
+    """
+    estimates, failed = {}, {}
+    fulls = store.setdefault("full", {})
+    for candidate in AUTO_MODELS:
+        n_params = 4 + len(MODELS[candidate])
+        try:
+            full = calibrate_model(board, names, training, candidate, set(), scoring=True, shared=shared, **options)
+            per_view = leave_one_view_out(board, full, candidate, names, training)
+        except FIT_ERRORS as error:
+            failed[candidate] = ModelScore(candidate, None, n_params, one_line(error))
+            continue
+        estimates[candidate] = np.array([per_view[key] for key in sorted(per_view)])
+        fulls[candidate] = full
+    store["estimates"] = estimates
+    if not estimates:
+        return {}
+    corners = sum(len(d.ids) for views in training for d in views.values())
+    rms = {m: float(np.sqrt(sq.sum() / corners)) for m, sq in estimates.items()}
+    best = min(rms, key=rms.get)
+
+    def within_noise(model: str) -> bool:
+        d = estimates[model] - estimates[best]
+        return len(d) > 1 and float(d.sum()) <= 2.0 * float(np.sqrt(len(d)) * np.std(d, ddof=1))
+
+    kept = sorted((m for m in rms if rms[m] <= (1.0 + SCREEN_MARGIN) * rms[best] or within_noise(m)), key=rms.get)
+    finalists = kept[:MAX_FINALISTS]
+    simplest = min((m for m in rms if rms[m] <= (1.0 + AUTO_MARGIN) * rms[best]), key=AUTO_MODELS.index)
+    if simplest not in finalists:
+        finalists[-1] = simplest
+    screened = {m: ModelScore(m, None, 4 + len(MODELS[m]), f"screened out: {rms[m]:.4f} px estimated leave one view "
+                              f"out from its one fit ({100 * (rms[m] / rms[best] - 1):.1f} % above the best "
+                              f"estimate, {best})", rms[m]) for m in rms if m not in finalists}
+    return {**failed, **screened}
 
 
 def _score_spline(board: Board, name: str, views: dict, base: str, folds: list[set[int]],
@@ -289,16 +366,21 @@ _SHAPE_TAG = "@board-"
 
 def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int]],
                   results: list[CalibrationResult], corners: NDArray, squared: dict,
-                  specs: Sequence[str] | None = None, fits: dict | None = None) -> list[ModelScore]:
+                  specs: Sequence[str] | None = None, fits: dict | None = None,
+                  screen: dict | None = None) -> list[ModelScore]:
     """``<model>@board-<shape>`` for every shape of ``specs`` (default: every shape of :data:`AUTO_SHAPES` the
     board holds), scored on the folds of :func:`rank_models` from each fold's flat fit (adds each one's per-view
-    squared errors to ``squared``; ``fits``: :func:`fit_shape`'s)."""
+    squared errors to ``squared``; ``fits``: :func:`fit_shape`'s). ``screen``: :func:`_screen`'s store; with it,
+    a parametric ``model`` and several shapes, the shapes are screened first (:func:`_screen_shapes`) and only
+    the finalists are fitted fold by fold."""
+    specs = shape_specs(board, AUTO_SHAPES) if specs is None else tuple(specs)
     scores = []
-    for spec in shape_specs(board, AUTO_SHAPES) if specs is None else specs:
+    if (screen is not None and len(specs) > 1 and not model.endswith(SPLINE_SUFFIX)
+            and model in screen.get("full", {})):
+        specs, scores = _screen_shapes(board, view_sets, model, specs, screen, fits)
+    for spec in specs:
         name = f"{model}{_SHAPE_TAG}{spec}"
-        n_params = 4 + len(MODELS[model.removesuffix(SPLINE_SUFFIX)]) + n_shape_params(board, spec)
-        if model.endswith(SPLINE_SUFFIX):
-            n_params += 2 * math.prod(grid_shape(next(iter(view_sets.values())).image_size))
+        n_params = _shape_params(board, view_sets, model, spec)
         per_view, reason = [], ""
         for fold, result in zip(folds, results):
             train = {f: d for f, d in view_sets.items() if f not in fold}
@@ -318,6 +400,55 @@ def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int
         scores.append(ModelScore(name, None if reason else float(np.sqrt(squared[name].sum() / corners.sum())),
                                  n_params, reason))
     return scores
+
+
+def _shape_params(board: Board, view_sets: dict, model: str, spec: str) -> int:
+    """The parameters of ``model`` (lens, correction field) on the surface ``spec``."""
+    n_params = 4 + len(MODELS[model.removesuffix(SPLINE_SUFFIX)]) + n_shape_params(board, spec)
+    if model.endswith(SPLINE_SUFFIX):
+        n_params += 2 * math.prod(grid_shape(next(iter(view_sets.values())).image_size))
+    return n_params
+
+
+def _screen_shapes(board: Board, view_sets: dict, model: str, specs: Sequence[str], screen: dict,
+                   fits: dict | None) -> tuple[tuple[str, ...], list[ModelScore]]:
+    """The shapes of ``specs`` worth the folds for the parametric lens ``model``, and the others ranked out.
+
+    Each surface is fitted once on every training frame from the model's fit there (:func:`_screen`'s) and its
+    leave-one-view-out error estimated from that fit
+    (:func:`camcal.geometry.zhang_loo.leave_one_view_out_on_shape`). Kept: the shapes whose estimate is below
+    the flat board's estimate, the :data:`MAX_FINALISTS` best of them, the one with fewest parameters within
+    :data:`AUTO_MARGIN` of the best estimate replacing the last when it is not among them (the rule of
+    :func:`_shape_choice` takes a shape only when it beats the flat board held out; among those, the one with
+    fewest parameters within the margin). A shape whose fit fails on every frame is ranked out with the reason.
+    """
+    full, flat = screen["full"][model], screen["estimates"][model]
+    corners = sum(len(d.ids) for d in view_sets.values())
+    estimates, out = {}, []
+    for spec in specs:
+        try:
+            fit = surface_fit(board, full, view_sets, model, spec, fits)
+            per_view = leave_one_view_out_on_shape(board, fit, MODELS[model], view_sets)
+        except FIT_ERRORS as error:
+            out.append(ModelScore(f"{model}{_SHAPE_TAG}{spec}", None, _shape_params(board, view_sets, model, spec),
+                                  one_line(error)))
+            continue
+        estimates[spec] = float(np.sqrt(sum(per_view.values()) / corners))
+    flat_rms = float(np.sqrt(flat.sum() / corners))
+    better = sorted((spec for spec in estimates if estimates[spec] < flat_rms), key=estimates.get)
+    finalists = better[:MAX_FINALISTS]
+    if better:
+        best = estimates[better[0]]
+        simplest = min((spec for spec in better if estimates[spec] <= (1.0 + AUTO_MARGIN) * best),
+                       key=lambda spec: n_shape_params(board, spec))
+        if simplest not in finalists:
+            finalists[-1] = simplest
+    for spec, rms in estimates.items():
+        if spec not in finalists:
+            out.append(ModelScore(f"{model}{_SHAPE_TAG}{spec}", None, _shape_params(board, view_sets, model, spec),
+                                  f"screened out: {rms:.4f} px estimated leave one view out from its one fit "
+                                  f"(flat board {flat_rms:.4f} px)", rms))
+    return tuple(spec for spec in specs if spec in finalists), out
 
 
 def _shape_choice(flat: ModelScore, shapes: list[ModelScore], squared: dict) -> tuple[str, str]:

@@ -16,14 +16,15 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection
-from camcal.geometry.board_shape import SHAPE_SPECS, BoardShape, fit_board_shape, max_degree, parse_shape
+from camcal.geometry.board_shape import (SHAPE_SPECS, BoardShape, BoardShapeFit, fit_board_shape, max_degree,
+                                        parse_shape)
 from camcal.geometry.spline_fit import fit_spline_lens
 from camcal.geometry.zhang_fit import calibrate_model, heldout_fields, heldout_figures
 from camcal.geometry.zhang_result import CalibrationResult
 from camcal.geometry.zhang_starts import MODELS
 from camcal.model.rig import Camera, Rig
 
-__all__ = ["SPLINE_SUFFIX", "calibrate_spline", "shape_specs", "fit_shape", "calibrate_shaped"]
+__all__ = ["SPLINE_SUFFIX", "calibrate_spline", "shape_specs", "surface_fit", "fit_shape", "calibrate_shaped"]
 
 #: The name of a model with a correction field: ``<model>+spline``.
 SPLINE_SUFFIX = "+spline"
@@ -85,6 +86,26 @@ def shape_specs(board: Board, names: Sequence[str] = SHAPE_SPECS) -> tuple[str, 
     return tuple(s for s in names if parse_shape(board, s)[0] <= max_degree(board))
 
 
+def surface_fit(board: Board, result: CalibrationResult, views: Mapping[int, Detection], model: str, spec: str,
+                fits: dict | None = None) -> BoardShapeFit:
+    """The board's surface ``spec`` fitted with the parametric lens ``model`` on the views ``result`` kept, started
+    from its flat fit and board poses (:func:`camcal.geometry.board_shape.fit_board_shape`); ``fits``: the fits
+    already made, by flat fit, lens, shape and views (each made once)."""
+    camera = result.rig.cameras[0]
+    kept = {image for _, image in result.images}
+    train = {f: d for f, d in views.items() if d.image in kept}
+    key = (id(result), model, spec, tuple(sorted(train)))
+    fit = None if fits is None else fits.get(key)
+    if fit is None:
+        degree, in_plane = parse_shape(board, spec)
+        poses = {f: (R, t) for f, R, t in result.board_poses}
+        fit = fit_board_shape(board, train, camera.K, camera.distortion.without_correction(), MODELS[model], poses,
+                              degree, in_plane)
+        if fits is not None:
+            fits[key] = fit
+    return fit
+
+
 def fit_shape(board: Board, result: CalibrationResult, views: Mapping[int, Detection], model: str, spec: str,
                fits: dict | None = None):
     """``(camera, shape, training residuals, views kept)``: the board's surface fitted with the lens on the views
@@ -93,17 +114,7 @@ def fit_shape(board: Board, result: CalibrationResult, views: Mapping[int, Detec
     surface under ``<model>+spline`` is ``<model>``'s on it: made once)."""
     base = model.removesuffix(SPLINE_SUFFIX)
     camera = result.rig.cameras[0]
-    kept = {image for _, image in result.images}
-    train = {f: d for f, d in views.items() if d.image in kept}
-    poses = {f: (R, t) for f, R, t in result.board_poses}
-    degree, in_plane = parse_shape(board, spec)
-    key = (id(result), base, spec, tuple(sorted(train)))
-    fit = None if fits is None else fits.get(key)
-    if fit is None:
-        fit = fit_board_shape(board, train, camera.K, camera.distortion.without_correction(), MODELS[base], poses,
-                              degree, in_plane)
-        if fits is not None:
-            fits[key] = fit
+    fit = surface_fit(board, result, views, base, spec, fits)
     K, distortion, residuals = fit.K, fit.distortion, fit.residuals_px
     if base != model:
         splined = fit_spline_lens(board, fit.views, K, distortion, MODELS[base], points=fit.shape.points(board))

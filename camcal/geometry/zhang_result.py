@@ -41,12 +41,22 @@ class ModelScore:
         Lens parameters (focal lengths, principal point, distortion).
     reason : str
         Why the model was ranked out (empty when scored).
+    estimate_px : float or None
+        The leave-one-view-out RMS estimated from the model's one fit on every training view
+        (:mod:`camcal.geometry.zhang_loo`), when the ranking screened the model with it; a model it screened
+        out has this and no ``rms_px``.
     """
 
     model: str
     rms_px: float | None
     n_params: int
     reason: str = ""
+    estimate_px: float | None = None
+
+    @property
+    def screened_out(self) -> bool:
+        """True when the one-fit estimate left the model out of the exact folds (it was fitted, not refused)."""
+        return self.rms_px is None and self.estimate_px is not None
 
     def describe(self) -> str:
         """``opencv-rational  0.3821 px  (12 parameters)`` or ``... ranked out: <reason>``."""

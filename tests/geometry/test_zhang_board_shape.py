@@ -224,7 +224,7 @@ def test_a_flat_pick_with_a_field_has_the_surface_chosen_with_its_parametric_len
     squared = {s.model: per_view(s.rms_px) for s in scored}
     scored_shapes = []
 
-    def fake_scores(board, views, model, folds, results, corners, squared, specs=None, fits=None):
+    def fake_scores(board, views, model, folds, results, corners, squared, specs=None, fits=None, screen=None):
         out = []
         for spec in zhang_rank.shape_specs(board, AUTO_SHAPES) if specs is None else specs:
             name = f"{model}@board-{spec}"
@@ -268,7 +268,7 @@ def test_a_flat_pick_without_a_surface_path_has_the_surface_chosen_with_the_simp
     squared = {s.model: per_view(s.rms_px) for s in scored}
     scored_for = []
 
-    def fake_scores(board, views, model, folds, results, corners, squared, specs=None, fits=None):
+    def fake_scores(board, views, model, folds, results, corners, squared, specs=None, fits=None, screen=None):
         out = []
         for spec in zhang_rank.shape_specs(board, AUTO_SHAPES) if specs is None else specs:
             name = f"{model}@board-{spec}"

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from camcal.geometry import zhang_rank
 from camcal.geometry.board import Board
 from camcal.geometry.zhang_fit import calibrate_model
 from camcal.geometry.zhang_rank import rank_models
@@ -34,13 +35,14 @@ def test_scoring_fold_fit_gives_the_full_fits_heldout_errors(model):
     assert scoring.covariance.size == 0 and "worst_projection_sigma_px" not in scoring.rig.cameras[0].quality.to_dict()
 
 
-def test_ranking_with_shared_opencv_starts_scores_as_each_model_alone():
+def test_ranking_with_shared_opencv_starts_scores_as_each_model_alone(monkeypatch):
     """The ranking shares OpenCV's model-free starts (the pinhole check, ``cv2.fisheye``'s) among the models of a
     fold: every model's held-out errors equal its fold fits made on their own. (The rational and thin-prism fits
     of ten views are ill-conditioned: two runs of the same fit differ by up to 1e-4 there, so they are left out; the others agree to 1e-6.)"""
     detections = views(CAMERA, BOARD, 10, np.random.default_rng(9), distance=(0.5, 0.8))["cam"]
     training = [dict(enumerate(detections))]
     fold_results: dict = {}
+    monkeypatch.setattr(zhang_rank, "_screen", lambda *args: {})  # every model on the folds (no screen)
     ranking, squared, corners = rank_models(BOARD, ["cam"], training, OPTIONS, fold_results)
     compared = ("none", "division", "polynomial", "kannala-brandt", "opencv", "kannala-brandt-thin-prism")
     assert all(s.rms_px is not None for s in ranking if s.model in compared)
