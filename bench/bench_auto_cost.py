@@ -5,17 +5,26 @@ default (``model="auto"``, ``board_shape="auto"``) and with the model it picked 
 board: the single fit a user would run) and with ``opencv``; the ratio auto / single. Then the held-out RMS of
 auto's calibration against OpenCV's best model (default, rational, rational + thin prism, ``cv2.fisheye``) on the
 same corners and the same split (every 6th view held out, each held-out view posed with the fitted intrinsics
-held: camcal's ``posed_residuals``, the same for every model).
+held: camcal's ``zhang_fit.posed_residuals``, the same for every model).
 
 Sets: the shared stereo pair (``left*.jpg``, ``right*.jpg``, 9x6; OpenCV's SB corners, cached with ``--cache``), a
 dense synthetic 24x17 board seen 21 times by an industrial lens (OpenCV rational distortion), and a synthetic
 fisheye (Kannala-Brandt, 185-degree class lens) seen 20 times; synthetic corners carry 0.1 px Gaussian noise
 (seeded).
 
-Last run (``--only left``, a loaded two-core machine): shared pair left, auto picked polynomial on a fitted
-surface; CPU auto 60.1 s against 0.4 s for the single polynomial fit (144x: the board shapes' fits dominate);
-held out 0.1358 px against OpenCV's best (default) 0.1645 px (0.825). The dense and fisheye sets were not run
-yet (the dense board's ``free`` surfaces have over a thousand parameters each).
+The floor: one scoring fit of every lens model and one surface fit of every board shape with the model picked,
+no held-out scoring at all (what any ranking by held-out error must pay at least).
+
+Last run (``--only pair``, a two-core machine shared by other jobs, load about 13: the single fit's CPU time
+varied from 0.3 s to 1.3 s between runs, so compare auto's own CPU before and after): with the one-fit
+leave-one-view-out screen (:mod:`camcal.geometry.zhang_loo`), shared pair left: auto picked polynomial on the
+``free+plane`` surface, held out 0.1358 px against OpenCV's best (default) 0.1645 px (0.825), CPU auto 36.1 s
+(58.2 s before the screen), single polynomial 0.7 s (51x); right: the same pick, 0.1333 px against OpenCV's best
+(fisheye) 0.1695 px (0.786), auto 21.7 s (34.7 s before), single 0.6 s (34x). Floor: every lens model once
+1.5 s (2.2-2.4x the single fit), with every surface once 5.3-5.7x: with the board's shapes among the candidates
+the 2x target is below the cost of fitting each candidate once. What remains above the floor: the finalists'
+folds (3 lens models and 3 surfaces, 4 folds each), the correction field's folds, the finalists' lenses on the
+surface taken. The dense 24x17 set was not run (its ``free`` surfaces have over a thousand parameters each).
 
 Usage: python bench/bench_auto_cost.py [--cache DIR] [--quick] [--only TEXT]   (``--quick``: synthetic sets only;
 ``--only``: the sets whose name holds TEXT)
