@@ -3,7 +3,7 @@
 Every tool gets the same corners (OpenCV ``findChessboardCornersSB``, EXHAUSTIVE | ACCURACY) and the same
 split (every 6th view held out). Each tool's held-out views are posed against that tool's own board: camcal's
 (its default, ``board_shape="auto"``: flat or the fitted surface) inside ``calibrate_board``; OpenCV's flat models
-by camcal's ``_posed_residuals`` (LM over the pose with the fitted intrinsics held, the same for every model);
+by camcal's ``posed_residuals`` (LM over the pose with the fitted intrinsics held, the same for every model);
 OpenCV's release-object fits (``calibrateCameraRO``, rational and rational + thin prism: the board's points refined)
 by ``solvePnP`` + ``solvePnPRefineLM`` against the board they estimated; mrcal's by mrcal itself
 (``bench/mrcal_peer.py``, run with the system python3 that Debian's python3-mrcal installs into; skipped with a
@@ -61,7 +61,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from camcal.geometry import zhang
+from camcal.geometry import zhang, zhang_fit, zhang_starts
 from camcal.geometry.board import Board, Detection
 from camcal.geometry.board_shape import max_degree, n_shape_params
 from camcal.geometry.spline_fit import grid_shape
@@ -104,7 +104,7 @@ def sb_detections(folder: Path, pattern: str, board: Board, cache: Path | None =
 
 def posed_rms(board, camera, views, points=None) -> float:
     """RMS (px) of ``views`` each posed with ``camera``'s intrinsics held, against the flat board or ``points``."""
-    r = np.concatenate([zhang._posed_residuals(board, camera, d, points) for d in views])
+    r = np.concatenate([zhang_fit.posed_residuals(board, camera, d, points) for d in views])
     return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
 
 
@@ -136,7 +136,7 @@ def opencv_models(board, train, size):
             print(f"  opencv {name}: failed ({error})")
     try:
         crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-        flags = zhang._fisheye_flags("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW")
+        flags = zhang_starts.fisheye_flags("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW")
         _, K, D, _, _ = cv2.fisheye.calibrate([o.reshape(1, -1, 3).astype(np.float64) for o in obj],
                                               [i.reshape(1, -1, 2).astype(np.float64) for i in img], size, None, None,
                                               flags=flags, criteria=crit)

@@ -8,7 +8,7 @@ gradient orthogonality, a third estimator: :func:`subpix_refined`). Pipelines, e
 - camcal default: ``calibrate_board`` (model auto, board shape auto) on camcal's corners, each held-out view
   posed against its board (flat or the fitted surface) with the intrinsics held;
 - OpenCV on SB's corners and on SB + cornerSubPix's: ``calibrateCamera`` (default, rational, rational + thin
-  prism), ``cv2.fisheye.calibrate`` (posed by LM with the intrinsics held, ``zhang._posed_residuals``) and
+  prism), ``cv2.fisheye.calibrate`` (posed by LM with the intrinsics held, ``zhang_fit.posed_residuals``) and
   ``calibrateCameraRO`` (rational, + thin prism: the board's points refined; posed by ``solvePnP`` +
   ``solvePnPRefineLM`` against the board it estimated);
 - mrcal on SB's corners: OPENCV8 and splined stereographic fits, flat and with its board warp

@@ -239,9 +239,9 @@ def test_bad_input_raises_the_line_the_command_prints(shots, tmp_path, capsys):
 def test_the_quality_gate_refuses_in_the_api_as_in_the_command(shots, corners, tmp_path, capsys, monkeypatch):
     """A gate of 0.001 px refuses the pair (RMS about 0.03 px): CamcalError and exit 2, nothing written; with
     force, the rig is written, its problems listed and the command exits 3."""
-    import camcal.geometry.zhang as zhang
+    import camcal.geometry.zhang_result as zhang_result
 
-    monkeypatch.setattr(zhang, "MAX_RMS_PX", 0.001)
+    monkeypatch.setattr(zhang_result, "MAX_RMS_PX", 0.001)
     images = {"left": f"{shots}/left*.png"}
     argv = ["calibrate", "board", "--board", BOARD, "--images", f"left={shots}/left*.png", "--model", "polynomial",
             "--cache", corners, "--out", tmp_path / "cli.rig.json"]

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from camcal.geometry import zhang
+from camcal.geometry import zhang, zhang_fit
 from camcal.geometry.board import Board, Detection, detect_board, parse_board
 from camcal.geometry.labelling import board_symmetries, relabelled, relabelled_pose
 from camcal.model.camera import rotation_angle_deg
@@ -155,7 +155,7 @@ def test_ring_around_a_two_sided_chessboard_against_truth(ring, monkeypatch):
     assert peer["as detected"] > 1.0  # the peer has no two-sided labelling: a user's corners break it
 
     # without the labelling the same views break the rig
-    monkeypatch.setattr(zhang, "resolve_labellings", lambda board, names, by_frame, starts: (by_frame, starts, [], []))
+    monkeypatch.setattr(zhang_fit, "resolve_labellings", lambda board, names, by_frame, starts: (by_frame, starts, [], []))
     try:
         broken = zhang.calibrate_board(board, detections, intrinsics={c.name: c for c in volume.cameras})
     except Exception:

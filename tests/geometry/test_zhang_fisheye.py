@@ -10,7 +10,8 @@ from scipy.spatial.transform import Rotation
 from camcal.cli import main
 from camcal.geometry.board import Board, Detection
 from camcal.model.distortion import Distortion
-from camcal.geometry.zhang import _corners_in_front, _fisheye_flags, calibrate_board
+from camcal.geometry.zhang import calibrate_board
+from camcal.geometry.zhang_starts import corners_in_front, fisheye_flags
 from camcal.model.rig import Camera, Rig
 
 BOARD = Board("chessboard", 12, 9, 0.04)
@@ -66,7 +67,7 @@ def opencv_fisheye(detections):
     object_points = [BOARD.object_points.reshape(1, -1, 3) for _ in detections]
     image_points = [d.corners_px.reshape(1, -1, 2) for d in detections]
     # OpenCV 4 keeps the fisheye flags in cv2.fisheye, OpenCV 5 in cv2
-    flags = _fisheye_flags("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW")
+    flags = fisheye_flags("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW")
     rms, K, D, _, _ = cv2.fisheye.calibrate(object_points, image_points, TRUTH.image_size, None, None, flags=flags,
                                             criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12))
     return Camera("cv2", TRUTH.image_size, K, Distortion("kannala-brandt", dict(zip(KB, D.ravel()))), np.eye(3), np.zeros(3))
@@ -143,7 +144,7 @@ def test_corners_beyond_89_degrees_at_the_start_pose_are_left_out():
         R = Rotation.align_vectors(X - X.mean(axis=0), centred)[0].as_matrix()
         starts[f] = (R, X.mean(axis=0) - BOARD.object_points.mean(axis=0) @ R.T)
         assert np.allclose(BOARD.object_points @ R.T + starts[f][1], X)
-    kept, n_left_out = _corners_in_front(BOARD, [dict(enumerate(detections))], [starts])
+    kept, n_left_out = corners_in_front(BOARD, [dict(enumerate(detections))], [starts])
     assert n_left_out == 1
     assert sorted(kept[0]) == list(range(12))
     assert len(kept[0][1].ids) == BOARD.n_corners - 1

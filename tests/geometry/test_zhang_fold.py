@@ -58,7 +58,7 @@ def test_auto_moves_past_a_pick_that_folds_inside_the_image(monkeypatch):
     turns over 334 px out) folds inside the image, auto takes the next model and says why."""
     views = central_views_of_a_fisheye(16, 5)
     assert zhang.fold_radius_px(zhang.calibrate_board(BOARD, {"fish": views}, model="opencv").rig.cameras[0]) < 479
-    rank = zhang._rank_models
+    rank = zhang.rank_models
 
     def opencv_first(*args, **kwargs):
         ranking, squared, corners = rank(*args, **kwargs)
@@ -66,7 +66,7 @@ def test_auto_moves_past_a_pick_that_folds_inside_the_image(monkeypatch):
         forced = [dataclasses.replace(s, rms_px=0.9 * best) if s.model == "opencv" else s for s in ranking]
         return tuple(sorted(forced, key=lambda s: (s.rms_px is None, s.rms_px or 0.0))), squared, corners
 
-    monkeypatch.setattr(zhang, "_rank_models", opencv_first)
+    monkeypatch.setattr(zhang, "rank_models", opencv_first)
     result = zhang.calibrate_board(BOARD, {"fish": views})
     assert result.model != "opencv"
     assert zhang.fold_radius_px(result.rig.cameras[0]) is None

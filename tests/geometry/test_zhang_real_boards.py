@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 import pytest
 
-from camcal.geometry import zhang
+from camcal.geometry import zhang, zhang_fit, zhang_starts
 from camcal.geometry.board import Board, Detection
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera
@@ -50,7 +50,7 @@ def load(name: str):
 
 
 def heldout_rms(board, camera, views) -> float:
-    r = np.concatenate([zhang._posed_residuals(board, camera, d) for d in views])
+    r = np.concatenate([zhang_fit.posed_residuals(board, camera, d) for d in views])
     return float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
 
 
@@ -79,7 +79,7 @@ def opencv_heldout(board, train, held, size) -> dict[str, float]:
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     _, K, D, _, _ = cv2.fisheye.calibrate([o.reshape(1, -1, 3).astype(np.float64) for o in obj],
                                           [i.reshape(1, -1, 2).astype(np.float64) for i in img], size, None, None,
-                                          flags=zhang._fisheye_flags("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW"),
+                                          flags=zhang_starts.fisheye_flags("CALIB_RECOMPUTE_EXTRINSIC", "CALIB_FIX_SKEW"),
                                           criteria=criteria)
     lens = Distortion("kannala-brandt", dict(zip(("k1", "k2", "k3", "k4"), D.ravel())))
     out["fisheye"] = heldout_rms(board, Camera("cv", size, K, lens, np.eye(3), np.zeros(3)), held)

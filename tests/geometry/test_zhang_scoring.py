@@ -3,8 +3,10 @@
 import numpy as np
 import pytest
 
+from camcal.geometry import zhang_rank
 from camcal.geometry.board import Board
-from camcal.geometry.zhang import _calibrate, _rank_models
+from camcal.geometry.zhang_fit import calibrate_model
+from camcal.geometry.zhang_rank import rank_models
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera
 from tests.geometry.test_zhang_models import views
@@ -22,8 +24,8 @@ def test_scoring_fold_fit_gives_the_full_fits_heldout_errors(model):
     detections = views(CAMERA, BOARD, 12, np.random.default_rng(7), distance=(0.5, 0.8))["cam"]
     by_frame = [dict(enumerate(detections))]
     fold = {1, 5, 9}
-    full = _calibrate(BOARD, ["cam"], by_frame, model, fold, **OPTIONS)
-    scoring = _calibrate(BOARD, ["cam"], by_frame, model, fold, scoring=True, **OPTIONS)
+    full = calibrate_model(BOARD, ["cam"], by_frame, model, fold, **OPTIONS)
+    scoring = calibrate_model(BOARD, ["cam"], by_frame, model, fold, scoring=True, **OPTIONS)
     assert len(full.heldout_view_rms_px) == len(fold) and full.covariance.size > 0
     np.testing.assert_allclose(scoring.heldout_view_rms_px, full.heldout_view_rms_px, rtol=0, atol=1e-6)
     np.testing.assert_allclose(scoring.heldout_residuals_px, full.heldout_residuals_px, rtol=0, atol=1e-6)
@@ -33,17 +35,18 @@ def test_scoring_fold_fit_gives_the_full_fits_heldout_errors(model):
     assert scoring.covariance.size == 0 and "worst_projection_sigma_px" not in scoring.rig.cameras[0].quality.to_dict()
 
 
-def test_ranking_with_shared_opencv_starts_scores_as_each_model_alone():
+def test_ranking_with_shared_opencv_starts_scores_as_each_model_alone(monkeypatch):
     """The ranking shares OpenCV's model-free starts (the pinhole check, ``cv2.fisheye``'s) among the models of a
     fold: every model's held-out errors equal its fold fits made on their own. (The rational and thin-prism fits
     of ten views are ill-conditioned: two runs of the same fit differ by up to 1e-4 there, so they are left out; the others agree to 1e-6.)"""
     detections = views(CAMERA, BOARD, 10, np.random.default_rng(9), distance=(0.5, 0.8))["cam"]
     training = [dict(enumerate(detections))]
     fold_results: dict = {}
-    ranking, squared, corners = _rank_models(BOARD, ["cam"], training, OPTIONS, fold_results)
+    monkeypatch.setattr(zhang_rank, "_screen", lambda *args: {})  # every model on the folds (no screen)
+    ranking, squared, corners = rank_models(BOARD, ["cam"], training, OPTIONS, fold_results)
     compared = ("none", "division", "polynomial", "kannala-brandt", "opencv", "kannala-brandt-thin-prism")
     assert all(s.rms_px is not None for s in ranking if s.model in compared)
     for model in compared:
-        alone = np.concatenate([_calibrate(BOARD, ["cam"], training, model, fold, scoring=True,
+        alone = np.concatenate([calibrate_model(BOARD, ["cam"], training, model, fold, scoring=True,
                                            **OPTIONS).heldout_view_rms_px for fold in fold_results["folds"]])
         np.testing.assert_allclose(squared[model], np.square(alone) * corners, rtol=1e-6, atol=0, err_msg=model)
