@@ -72,7 +72,7 @@ NEEDS_ANOTHER = [
     (["colour", "fit", "--patches", "p.csv", "--out", "f.colour.json", "--adaptation", "CAT02"],
      "--adaptation has no effect without --target-white"),
     (["colour", "export", "f.colour.json", "--icc", "f.icc", "--adaptation", "CAT02"],
-     "--adaptation has no effect without --ocio"),
+     "--adaptation has no effect without --ocio, --clf or --dctl"),
     (["colour", "export", "f.colour.json", "--ocio", "o", "--icc-version", "2"], "--icc-version has no effect without --icc"),
     (["distortion", "fit", "--lines", "l.json", "--board", "chessboard:9x6", "--out", "l.json"],
      "--board has no effect without images (--images)"),
