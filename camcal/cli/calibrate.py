@@ -7,7 +7,7 @@ import argparse
 
 from camcal.cli.options import (handler, image_size, image_size_option, loss_option, named_option, only_with,
                                 out_option, report_option, verb_group)
-from camcal.cli.summary import summary_of
+from camcal.cli.summary import report_result, summary_of
 
 __all__ = ["register"]
 
@@ -228,10 +228,5 @@ def _profile(args: argparse.Namespace) -> int:
     result = calibrate_profile(args.state, args.board, model=args.model, holdout=args.holdout,
                                cache=False if args.no_cache else (args.cache or True), force=args.force,
                                suggest=args.suggest, out=args.out, log=print)
-    for line in result.lines():
-        print(line)
-    out = summary_of(args)
-    out.figures(**result.figures())
-    for path, kind in result.files:
-        out.wrote(path, kind)
+    report_result(args, result)
     return 0

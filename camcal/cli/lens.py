@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.cli.options import handler, out_option
-from camcal.cli.summary import summary_of
+from camcal.cli.summary import report_result
 
 __all__ = ["register"]
 
@@ -54,10 +54,5 @@ def _lens(args: argparse.Namespace) -> int:
 
     result = lens_rig(args.profile, args.focal, args.focus, metadata=args.metadata, encoders=args.encoders,
                       extrapolate=args.extrapolate, name=args.name, out=args.out)
-    for line in result.lines():
-        print(line)
-    out = summary_of(args)
-    out.figures(**result.figures())
-    for path, kind in result.files:
-        out.wrote(path, kind)
+    report_result(args, result)
     return 0

@@ -6,7 +6,7 @@ import argparse
 
 from camcal.api.reconstruction import UNCERTAINTY
 from camcal.cli.options import every_option, handler, loss_option, named_option, only_with, out_option
-from camcal.cli.summary import summary_of
+from camcal.cli.summary import report_result
 
 __all__ = ["register"]
 
@@ -144,10 +144,5 @@ def _solve(args: argparse.Namespace) -> int:
                    intrinsics_mode=args.intrinsics_mode, require_all=args.require_all, up=args.up, origin=args.origin,
                    scale=args.scale, units=args.units, world_board=args.world_board, seed=args.seed,
                    verbose=args.verbose)
-    for line in result.lines():
-        print(line)
-    out = summary_of(args)
-    out.figures(**result.figures())
-    for path, kind in result.files:
-        out.wrote(path, kind, say=False)
+    report_result(args, result, say=False)
     return 0

@@ -17,6 +17,7 @@ __all__ = [
     "SUMMARY_FORMAT",
     "SUMMARY_VERSION",
     "VerbSummary",
+    "report_result",
     "summary_of",
 ]
 
@@ -87,6 +88,20 @@ def summary_of(args: argparse.Namespace) -> VerbSummary:
         summary = VerbSummary(getattr(args, "_verb", "camcal"))
         args._summary = summary
     return summary
+
+
+def report_result(args: argparse.Namespace, result: Any, *, say: bool = True) -> VerbSummary:
+    """Print an API result's lines, record its figures and its ``files`` ((path, kind) pairs) in the summary.
+
+    ``say`` also prints ``wrote PATH`` for each file (off where the result's own lines name them).
+    """
+    for line in result.lines():
+        print(line)
+    out = summary_of(args)
+    out.figures(**result.figures())
+    for path, kind in result.files:
+        out.wrote(path, kind, say=say)
+    return out
 
 
 def _json_default(value: Any) -> Any:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.cli.options import adaptation_option, handler, only_with
-from camcal.cli.summary import summary_of
+from camcal.cli.summary import report_result
 
 __all__ = ["register"]
 
@@ -98,10 +98,5 @@ def _export(args: argparse.Namespace) -> int:
         base=args.base, ocio_version=args.ocio_version, family=args.family, adaptation=args.cat,
         icc_version=args.icc_version, max_bake_error=args.max_bake_error, clf=args.clf, amf=args.amf,
         dctl=args.dctl, aces_space=args.aces_space, applied=args.applied)
-    for line in result.lines():
-        print(line)
-    out = summary_of(args)
-    out.figures(**result.figures())
-    for path, kind in result.files:
-        out.wrote(path, kind, say=False)
+    report_result(args, result, say=False)
     return 0

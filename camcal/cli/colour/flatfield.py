@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from camcal.cli.options import handler, image_size, image_size_option, out_option
-from camcal.cli.summary import summary_of
+from camcal.cli.summary import report_result
 
 __all__ = ["register"]
 
@@ -77,10 +77,5 @@ def _flatfield(args: argparse.Namespace) -> int:
         mask=args.mask, linear=args.linear, smooth_degree=args.smooth_degree, fit_centre=not args.fixed_centre,
         out=args.out, gain_exr=args.gain_exr, lensfun=args.lensfun, focal_mm=args.focal_mm, aperture=args.aperture,
         distance_m=args.distance_m, lens_name=args.lens_name, sensor_width_mm=args.sensor_width_mm)
-    for line in result.lines():
-        print(line)
-    out = summary_of(args)
-    out.figures(**result.figures())
-    for path, kind in result.files:
-        out.wrote(path, kind)
+    report_result(args, result)
     return 0
