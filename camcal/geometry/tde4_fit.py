@@ -213,12 +213,17 @@ def fit_tde4_lens(object_points: NDArray[np.float64], views: Sequence[tuple[NDAr
     jac = solution.jac.toarray() if scipy.sparse.issparse(solution.jac) else np.asarray(solution.jac)
     dof = max(jac.shape[0] - jac.shape[1], 1)
     sigma2 = 2.0 * solution.cost / dof
+    parameter_names = ("fx", "fy", "cx", "cy", *names)
+    degenerate = (f"the {model} calibration is degenerate (singular normal equations): vary the board poses more")
     try:
         covariance = sigma2 * np.linalg.inv(jac.T @ jac)[:n_lens, :n_lens]
     except np.linalg.LinAlgError:
-        raise CamcalError(f"the {model} calibration is degenerate (singular normal equations): vary the board "
-                          "poses more") from None
+        raise CamcalError(degenerate) from None
+    variances = np.diag(covariance)
+    undetermined = [name for name, value in zip(parameter_names, variances) if not (np.isfinite(value) and value >= 0.0)]
+    if undetermined:  # an inverse of near-singular normal equations: rounding gives negative variances
+        raise CamcalError(f"{degenerate}; not determined: {', '.join(undetermined)}")
     fitted_poses = tuple((cv2.Rodrigues(solution.x[n_lens + 6 * n: n_lens + 6 * n + 3])[0],
                           solution.x[n_lens + 6 * n + 3: n_lens + 6 * n + 6].copy()) for n in range(len(points)))
     return Tde4Fit(K=K_fit, distortion=lens_fit, poses=fitted_poses, residuals_px=residual, covariance=covariance,
-                   parameter_names=("fx", "fy", "cx", "cy", *names))
+                   parameter_names=parameter_names)

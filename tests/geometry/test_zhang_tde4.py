@@ -106,3 +106,22 @@ def test_every_3de_model_calibrates_to_the_noise(model, K, coefficients):
     assert camera.distortion.params[degree_2] == pytest.approx(coefficients[degree_2], abs=2e-3)
     assert result.rms_px < 1.2 * SIGMA_PX * np.sqrt(2)
     assert result.heldout_rms_px < 1.3 * SIGMA_PX * np.sqrt(2)
+
+
+def test_a_fit_whose_covariance_has_no_positive_variance_is_one_error(monkeypatch):
+    """Near-singular normal equations invert with negative variances by rounding: one line naming the parameters,
+    not a NaN sigma that the quality record refuses later (seen on a 3DE4 fisheye fit of a wide action camera)."""
+    import camcal.geometry.tde4_fit as tde4_fit
+
+    real_inv = np.linalg.inv
+
+    def rounding_inverse(matrix):
+        inverse = real_inv(matrix)
+        if inverse.ndim == 2 and inverse.shape[0] > 30:  # the lens + poses normal equations, not a 3x3
+            inverse[0, 0] = -abs(inverse[0, 0])  # fx's variance as rounding leaves it on a singular system
+        return inverse
+
+    monkeypatch.setattr(tde4_fit.np.linalg, "inv", rounding_inverse)
+    detections = board_views(TRUTH, 6, np.random.default_rng(5))
+    with pytest.raises(CamcalError, match=r"degenerate .*not determined: fx$"):
+        calibrate_board(BOARD, detections, model="3de4-anamorphic-deg4")
