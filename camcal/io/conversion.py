@@ -121,6 +121,10 @@ class Refit:
         Share of the border's grid pixels the source images one-to-one
         (a ray, inside the source lens' fold): the border figures and the
         fit cover these only.
+    image_usable : float
+        The same share over the image: below 1 for a lens that turns over
+        inside its own frame (beyond the views that calibrated it); the
+        image's figures and the fit cover these pixels only.
     """
 
     family: str
@@ -132,13 +136,16 @@ class Refit:
     overscan: float
     n_lost: int = 0
     border_usable: float = 1.0
+    image_usable: float = 1.0
 
     def describe(self) -> str:
         """``max / RMS`` inside the image and over the border, in one line."""
         lost = f", {self.n_lost} grid pixels not imaged" if self.n_lost else ""
         usable = (f" ({100 * self.border_usable:.0f} % of it inside the source lens' fold)"
                   if self.border_usable < 1.0 else "")
-        return (f"max residual {self.max_px:.3g} px, RMS {self.rms_px:.3g} px inside the image; "
+        image = (f" ({100 * self.image_usable:.1f} % of it inside the source lens' fold)"
+                 if self.image_usable < 1.0 else "")
+        return (f"max residual {self.max_px:.3g} px, RMS {self.rms_px:.3g} px inside the image{image}; "
                 f"max {self.border_max_px:.3g} px, RMS {self.border_rms_px:.3g} px over the "
                 f"{self.overscan:g} overscan border{usable}{lost}")
 
@@ -437,7 +444,7 @@ def projection_figures(source: Camera, project: Callable[[NDArray[np.float64]], 
     """:func:`residual_figures` of a lens given as its projection ``project(rays) -> distorted pixels`` (NaN where
     it images no ray), for a family camcal has no lens model of."""
     grid, inside = _dense_grid(source.image_size, overscan)
-    rays = _source_rays(source, grid, inside)
+    rays = _source_rays(source, grid)
     seen = np.all(np.isfinite(rays), axis=1)
     projected = project(rays[seen])
     distances = np.linalg.norm(projected - grid[seen], axis=1)
@@ -448,7 +455,8 @@ def projection_figures(source: Camera, project: Callable[[NDArray[np.float64]], 
                           f"{family} lens")
     border_max, border_rms = _figures(distances[~inside[seen]])
     usable = float(np.mean(seen[~inside])) if np.any(~inside) else 1.0
-    return Refit(family, False, max_px, rms_px, border_max, border_rms, float(overscan), n_lost, usable)
+    return Refit(family, False, max_px, rms_px, border_max, border_rms, float(overscan), n_lost, usable,
+                 float(np.mean(seen[inside])))
 
 
 #: Steps along the great circle from the optical axis to a border pixel's ray on which the source lens' image must
@@ -456,10 +464,12 @@ def projection_figures(source: Camera, project: Callable[[NDArray[np.float64]], 
 _FOLD_STEPS = 32
 #: A border pixel's ray must project back onto it within this distance (the source's inverse converged).
 _ROUND_TRIP_PX = 1e-3
+#: Rays closer than this to the axis (radians) are the axis: no fold to test.
+_AXIS_RAD = 1e-9
 
 
-def _source_rays(camera: Camera, grid: NDArray[np.float64], inside: NDArray[np.bool_]) -> NDArray[np.float64]:
-    """The source camera's rays of the grid's pixels, NaN for a border pixel beyond the lens' fold.
+def _source_rays(camera: Camera, grid: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The source camera's rays of the grid's pixels, NaN for a pixel beyond the lens' fold.
 
     A lens with a polynomial or rational radial function turns over at
     some angle (its distorted radius stops growing): past that the pixels
@@ -473,14 +483,17 @@ def _source_rays(camera: Camera, grid: NDArray[np.float64], inside: NDArray[np.b
     mapping is one-to-one from the axis out to ``v`` (the monotone radial
     distortion condition; cf. Kannala & Brandt 2006 on the turning point
     of their polynomial), and when the source projects ``v`` back onto
-    the pixel (its inverse converged). Pixels inside the image keep their
-    ray.
+    the pixel (its inverse converged). Pixels inside the image are tested
+    alike: a lens calibrated on views that did not reach its frame's
+    corners may turn over inside the image (an OpenCV fit of a wide
+    action camera: distances of 1e19 px where Newton's inverse found no
+    ray).
     """
     rays = camera.distortion.rays_from_pixels(grid, camera.K)
-    border = ~inside & np.all(np.isfinite(rays), axis=1)
-    if not np.any(border):
+    imaged = np.all(np.isfinite(rays), axis=1)
+    if not np.any(imaged):
         return rays
-    ray = rays[border]
+    ray = rays[imaged]
     theta = np.arctan2(np.hypot(ray[:, 0], ray[:, 1]), ray[:, 2])
     phi = np.arctan2(ray[:, 1], ray[:, 0])
     angles = theta[:, None] * np.linspace(0.0, 1.0, _FOLD_STEPS + 1)[None, 1:]
@@ -490,10 +503,11 @@ def _source_rays(camera: Camera, grid: NDArray[np.float64], inside: NDArray[np.b
     images = camera.distortion.project_rays(path, camera.K).reshape(len(ray), _FOLD_STEPS, 2)
     with np.errstate(invalid="ignore"):
         radius = np.linalg.norm(images - centre, axis=2)
-        monotone = np.all(np.diff(radius, axis=1) > 0.0, axis=1) & np.all(np.isfinite(radius), axis=1)
+        monotone = np.all(np.diff(radius, axis=1) > 0.0, axis=1) | (theta < _AXIS_RAD)  # the axis itself is kept
+        monotone &= np.all(np.isfinite(radius), axis=1)
         # and the ray is the pixel's (the inverse converged): its image is the pixel
-        monotone &= np.linalg.norm(images[:, -1] - grid[border], axis=1) < _ROUND_TRIP_PX
-    folded = np.flatnonzero(border)[~monotone]
+        monotone &= np.linalg.norm(images[:, -1] - grid[imaged], axis=1) < _ROUND_TRIP_PX
+    folded = np.flatnonzero(imaged)[~monotone]
     rays[folded] = np.nan
     return rays
 
@@ -605,7 +619,7 @@ def _fitting_grid(camera: Camera, family: str, overscan: float,
     """The refit's distorted pixels, their rays (at least 3 degrees in front of the image plane unless
     ``fisheye``) and weights (1 inside the image, :data:`_BORDER_WEIGHT` over the border)."""
     grid, inside = _dense_grid(camera.image_size, overscan)
-    rays = _source_rays(camera, grid, inside)
+    rays = _source_rays(camera, grid)
     usable = np.all(np.isfinite(rays), axis=1)
     if not fisheye:  # the others image rays in front of the camera only
         usable &= rays[:, 2] > _MIN_DEPTH * np.linalg.norm(rays, axis=1)

@@ -185,3 +185,23 @@ def test_a_wide_rational_lens_refit_is_no_worse_inside_the_image_than_the_image_
     assert refit.border_rms_px == pytest.approx(border_rms, rel=0.1)
     assert refit.border_usable == pytest.approx(border[uniform].sum() / (~inside[uniform]).sum(), abs=0.02)
     assert 0.5 < refit.border_usable < 1.0 and "inside the source lens' fold" in refit.describe()
+
+
+def test_a_lens_that_turns_over_inside_its_frame_is_measured_and_fitted_inside_its_fold_only():
+    """An OpenCV lens (k1 -0.35, k2 0.03, f 500 px on 1280x960) whose distorted radius peaks at 0.683 f (341 px) and
+    then falls: beyond it the frame's pixels are imaged by a ray past the fold only. Those pixels are left out of
+    the figures and of the fit, and their share said; inside the fold the same family is exact and a family that
+    holds the first branch fits it (before, the folded rays gave 1e14 px figures and spoiled every refit)."""
+    K = np.array([[500.0, 0.0, 639.5], [0.0, 500.0, 479.5], [0.0, 0.0, 1.0]])
+    camera = Camera("folding", (1280, 960), K,
+                    Distortion("opencv", {"k1": -0.35, "k2": 0.03, "p1": 0.0, "p2": 0.0, "k3": 0.0}),
+                    np.eye(3), np.zeros(3))
+    r = np.linspace(0.0, 1.5, 3001)
+    peak = 500.0 * np.max(r * (1 - 0.35 * r**2 + 0.03 * r**4))  # the first branch's largest distorted radius, px
+    share = np.pi * peak**2 / (1280 * 960)  # the disc inside the fold, wholly inside the frame
+    same, same_figures = refit_camera(camera, "polynomial")
+    assert same_figures.exact is False and same_figures.max_px < 1e-9
+    assert same_figures.image_usable == pytest.approx(share, abs=0.01)
+    assert "inside the source lens' fold" in same_figures.describe()
+    _, figures = refit_camera(camera, "kannala-brandt")
+    assert figures.image_usable == pytest.approx(share, abs=0.01) and figures.rms_px < 0.01
