@@ -304,6 +304,10 @@ def test_colour_export_api_and_cli_write_the_same_files(train_csv, tmp_path, cap
     from camcal.colour.export.icc import check_icc
     from camcal.colour.export.ocio_config import STUDIO_CONFIG
 
+    ocio = pytest.importorskip("PyOpenColorIO")
+    wanted = options.get("ocio_version", "2.3")
+    if tuple(map(int, ocio.__version__.split(".")[:2])) < tuple(map(int, wanted.split("."))):
+        pytest.skip(f"needs OpenColorIO {wanted} or newer (profile {wanted}); installed: {ocio.__version__}")
     fit = tmp_path / "nikon.colour.json"
     camcal.fit_colour(train_csv, illuminant="D65", model=model, camera="nikon", out=fit)
     result = camcal.export_colour([fit], ocio=tmp_path / "api", icc=tmp_path / "api.icc", base="camcal", **options)

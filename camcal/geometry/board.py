@@ -113,10 +113,13 @@ _SUBPIX_WINDOW_FRACTION = 0.45
 _SUBPIX_WINDOW_PX = (3, 15)
 #: Most squares (or inner corners) per side of a board: beyond it a spec is a typo, not a print.
 MAX_BOARD_SIDE = 1000
+#: A refined ChArUco corner this far (px) from the detector's, and rejected by the X-junction fit, is the
+#: detector's again (its own corners are within about 0.5 px: opencv/opencv#25539's bias).
+_CHARUCO_JUMP_PX = 1.0
 #: Fewest ChArUco corners kept in one image (a pose needs non-collinear points).
 MIN_CHARUCO_CORNERS = 6
 #: Part of every cache key: change it whenever detection changes what it returns.
-_DETECTOR_VERSION = "reduced-classic-reduced-sb-subpix-adaptive-xfit-v9"
+_DETECTOR_VERSION = "reduced-classic-reduced-sb-subpix-adaptive-xfit-v10"
 #: The detector's version and settings: a detection cached under others is not reused.
 DETECTOR_SETTINGS = f"{_DETECTOR_VERSION}|{_SB_FLAGS}|{_CLASSIC_FLAGS}|{_SUBPIX_CRITERIA}|{cv2.__version__}"
 
@@ -373,12 +376,12 @@ def _canonical_chessboard(gray: NDArray[np.uint8], corners: NDArray[np.float64],
 
 
 def _refine(gray: NDArray[np.uint8], corners: NDArray, grid: NDArray[np.int64], clear: float
-            ) -> tuple[NDArray[np.float64], int]:
+            ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """The X-junction fit of :func:`camcal.geometry.corners.refine_corners` (``clear``: part of a square free of
-    markers): the corners and how many of them the fit rejected (kept where they were)."""
+    markers): the corners and which of them the fit accepted (a rejected one is kept where it was)."""
     corners = corners.reshape(-1, 2).astype(np.float64)
     result = refine_corners(gray, corners, clear * grid_spacing_px(corners, grid))
-    return result.corners_px, int(np.count_nonzero(~result.ok))
+    return result.corners_px, result.ok
 
 
 def _charuco_corners(board: Board, gray: NDArray[np.uint8]):
@@ -449,10 +452,16 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
             return None
         # OpenCV <= 4.12 returns ChArUco corners biased by +0.5 px (opencv/opencv#25539): refine
         # them again with cornerSubPix, which converges to the saddle point whatever the start
+        detected = corners.reshape(-1, 2).astype(np.float64)
         corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), _SUBPIX_CRITERIA)
         ids = ids.ravel().astype(np.int64)
         grid = np.stack([ids % (board.columns - 1), ids // (board.columns - 1)], axis=1)
-        corners, _ = _refine(gray, corners, grid, 0.8 * (board.square - board.marker) / board.square)
+        corners, ok = _refine(gray, corners, grid, 0.8 * (board.square - board.marker) / board.square)
+        # on a steep view of small squares cornerSubPix can jump to a marker's corner (1.7 px off where OpenCV
+        # 4.11's own corner was 0.3 px off): a corner it moved that far that the X-junction fit rejects
+        # goes back to the detector's
+        jumped = ~ok & (np.linalg.norm(corners - detected, axis=1) > _CHARUCO_JUMP_PX)
+        corners = np.where(jumped[:, None], detected, corners)
         order = np.argsort(ids)
         return Detection(name, (width, height), ids[order], corners[order], charuco)
     pattern = (board.columns, board.rows)
@@ -483,7 +492,8 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         spacing = min(np.linalg.norm(np.diff(grid, axis=axis), axis=2).min() for axis in (0, 1))
         half = int(np.clip(round(_SUBPIX_WINDOW_FRACTION * spacing), *_SUBPIX_WINDOW_PX))
         corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
-        refined, n_rejected = _refine(gray, corners, grid_ids, 1.0)
+        refined, ok = _refine(gray, corners, grid_ids, 1.0)
+        n_rejected = int(np.count_nonzero(~ok))
         if best is None or n_rejected < best[2]:
             best = (refined, which, n_rejected, factor)
         if n_rejected == 0:

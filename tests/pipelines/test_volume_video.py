@@ -78,6 +78,9 @@ def test_must_show_command_against_truth_and_calibrate_multiview(recording, monk
     assert all(h < 1.1 * floor for h, floor in zip(heldout, floors))
 
     # the peer on the same corners: views with every corner (calibrateMultiview wants whole boards)
+    if not hasattr(cv2, "calibrateMultiview"):
+        pytest.skip(f"the peer cv2.calibrateMultiview needs OpenCV 5 (checked against the truth above); "
+                    f"installed: {cv2.__version__}")
     obj = np.asarray(board.object_points, np.float32)
     frames = sorted({frame_number(d.image) for c in volume.cameras for d in detections[c.name].detections
                      if len(d.ids) == board.n_corners and frame_number(d.image) % 2 == 0})

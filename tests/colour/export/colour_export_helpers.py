@@ -30,6 +30,17 @@ def make_fit(sim, model, linearise="gamma-offset", target_white=None, camera="ni
                         target_white=target_white, camera=camera, loo=False).fit
 
 
+def needs_ocio_writing(profile):
+    """Skip unless the installed OpenColorIO writes profile ``profile`` (``"2.5"``): a release writes its own and older.
+
+    The reason names the release needed, from the installed one's version (``make test-lowest`` runs 2.4).
+    """
+    import PyOpenColorIO as ocio
+
+    if tuple(int(part) for part in ocio.__version__.split(".")[:2]) < tuple(int(part) for part in profile.split(".")):
+        pytest.skip(f"needs OpenColorIO {profile} or newer (profile {profile}); installed: {ocio.__version__}")
+
+
 def code_grid(n=9):
     g = np.linspace(0.0, 1.0, n)
     return np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
