@@ -19,9 +19,13 @@ A rig whose frames carry a camera's lens (``frames[i].lenses``, read by
   the current frame, or the last key before it, on every frame change,
   playback and render included.
 
-The sensor size and the render's pixel aspect are the first frame's: a lens
-whose pixel aspect (``fy / fx``) or skew changes over the shot is imported with
-a warning. The compositor's Translate offset after Movie Distortion
+The sensor size is the first frame's. A lens whose pixel aspect (``fy / fx``)
+changes over the shot (a profile fitted from boards gives each state its own)
+has its render pixel aspect per frame too: Blender cannot key the scene's
+``render.pixel_aspect_x/y`` (not animatable), so each frame's is stored on the
+camera as ``camcal_pixel_aspect_keys`` and the same handler sets the scene's
+render pixel aspect from its active camera's keys. A skew (Blender has none)
+is imported with a warning. The compositor's Translate offset after Movie Distortion
 (:func:`.importer.distortion_shift`) is measured on the camera's own lens.
 A Kannala-Brandt lens (Cycles' fisheye camera) keeps the camera's own
 polynomial, said in a warning. Rectified imports (fixed ``K_rect``) take no per-frame lens.
@@ -36,11 +40,13 @@ from bpy.app.handlers import persistent
 
 from . import mapping, rigfile, tracking
 
-__all__ = ["LENS_KEYS", "animate_lenses", "apply_lens_keys", "ensure_handler", "register", "set_tracking_camera",
-           "tracking_key", "unregister"]
+__all__ = ["ASPECT_KEYS", "LENS_KEYS", "animate_lenses", "apply_lens_keys", "ensure_handler", "register",
+           "set_tracking_camera", "tracking_key", "unregister"]
 
 #: The custom property of a MovieClip holding its tracking camera per Blender frame.
 LENS_KEYS = "camcal_lens_keys"
+#: The custom property of a Blender camera holding the render's pixel aspect per Blender frame.
+ASPECT_KEYS = "camcal_pixel_aspect_keys"
 
 
 def tracking_key(lens, sensor_width_mm):
@@ -72,10 +78,15 @@ def _key_at(keys, frame):
 
 @persistent
 def apply_lens_keys(scene, *_):
-    """Frame-change handler: every clip with :data:`LENS_KEYS` gets its tracking camera at ``scene``'s frame."""
+    """Frame-change handler: every clip with :data:`LENS_KEYS` gets its tracking camera at ``scene``'s frame, and
+    ``scene``'s render its active camera's pixel aspect (:data:`ASPECT_KEYS`) there."""
     for clip in bpy.data.movieclips:
         if LENS_KEYS in clip:
             set_tracking_camera(clip, _key_at(json.loads(clip[LENS_KEYS]), scene.frame_current))
+    camera = scene.camera
+    if camera is not None and camera.type == "CAMERA" and ASPECT_KEYS in camera.data:
+        aspect_x, aspect_y = _key_at(json.loads(camera.data[ASPECT_KEYS]), scene.frame_current)
+        scene.render.pixel_aspect_x, scene.render.pixel_aspect_y = aspect_x, aspect_y
 
 
 def ensure_handler():
@@ -141,12 +152,13 @@ def animate_lenses(rig, cams, result, frame_start, lens_model, overscan):
         os_obj, os_clip = _overscan_parts(dist_scene) if dist_scene is not None else (None, None)
         W, H = cam.size
         mx, my = tracking.overscan_margins(cam.size, overscan)
-        clip_keys, os_keys, aspects, worst_fit = {}, {}, set(), 0.0
+        clip_keys, os_keys, aspect_keys, skewed, worst_fit = {}, {}, {}, False, 0.0
         for frame in frames:
             number = frame_start + frame.index
             K, distortion = rig.lens_at(cam.name, frame)
             b = _key_intrinsics(obj.data, K, cam.size, cam.sensor_width_mm, number)
-            aspects.add((round(b.pixel_aspect_x, 12), round(b.pixel_aspect_y, 12), abs(b.skew) > 1e-9 * K[0][0]))
+            aspect_keys[str(number)] = [b.pixel_aspect_x, b.pixel_aspect_y]
+            skewed = skewed or abs(b.skew) > 1e-9 * K[0][0]
             if os_obj is not None:
                 K_os = ((K[0][0], K[0][1], K[0][2] + mx), (0.0, K[1][1], K[1][2] + my), (0.0, 0.0, 1.0))
                 _key_intrinsics(os_obj.data, K_os, (W + 2 * mx, H + 2 * my),
@@ -165,9 +177,13 @@ def animate_lenses(rig, cams, result, frame_start, lens_model, overscan):
             if target is not None and keys:
                 target[LENS_KEYS] = json.dumps(keys)
                 keyed = True
-        if len(aspects) > 1:
-            result.warnings.append(f"camera {cam.name!r}: its pixel aspect or skew changes over the shot; the "
-                                   "render keeps the first frame's pixel aspect and Blender has no skew")
+        if len({tuple(aspect) for aspect in aspect_keys.values()}) > 1:
+            for camera_object in (obj, os_obj):
+                if camera_object is not None:
+                    camera_object.data[ASPECT_KEYS] = json.dumps(aspect_keys)
+            keyed = True
+        if skewed:
+            result.warnings.append(f"camera {cam.name!r}: its lens has skew over the shot; Blender has none")
         if worst_fit > 0.0:
             result.warnings.append(f"camera {cam.name!r}: the per-frame tracking lenses are fits, worst "
                                    f"{worst_fit:.3g} px over the frames")
