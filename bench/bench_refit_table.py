@@ -6,8 +6,8 @@ taken to every lens family an export writes through the one refit core
 (:func:`camcal.io.conversion.refit_camera`; Lensfun's poly3 / poly5 / ptlens through
 :func:`camcal.io.lensfun.fit_lens`, which runs the same core's grid, weights and solver). The table prints the
 core's own figures (:class:`camcal.io.conversion.Refit`): max / RMS residual in pixels inside the image and over
-the 1.25 overscan border, ``exact`` where the family holds the model (< 1e-6 px), the share of the border inside
-the source lens' fold when it is not all of it, and the grid pixels the target lens does not image.
+the 1.25 overscan border, ``exact`` where the family holds the model (< 1e-6 px), the shares of the image and of the
+border inside the source lens' fold when they are not all of it, and the grid pixels the target lens does not image.
 
 Targets (column -> the formats that write it):
 
@@ -135,9 +135,10 @@ def _cell(row: Row) -> str:
     if refit.exact and refit.max_px < EXACT_PX and refit.border_max_px < EXACT_PX:
         return "exact"
     border = "n/a" if math.isnan(refit.border_max_px) else f"{refit.border_max_px:.3g}/{refit.border_rms_px:.3g}"
+    image = f" ({100 * refit.image_usable:.1f}%)" if refit.image_usable < 1.0 else ""
     usable = f" ({100 * refit.border_usable:.0f}%)" if refit.border_usable < 1.0 else ""
     lost = f" [{refit.n_lost} lost]" if refit.n_lost else ""
-    return f"{refit.max_px:.3g}/{refit.rms_px:.3g} \\| {border}{usable}{lost}"
+    return f"{refit.max_px:.3g}/{refit.rms_px:.3g}{image} \\| {border}{usable}{lost}"
 
 
 def format_table(rows: Sequence[Row], camera: str) -> str:
@@ -186,8 +187,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     sets = [_image_set(Path(d), p, int(c), int(r)) for d, p, c, r in args.set]
     sets += [_corners_set(path) for path in args.corners]
     models = args.models.split(",")
-    print(f"overscan {DEFAULT_OVERSCAN:g}; cell: max/RMS px inside the image | max/RMS px over the border "
-          f"(share of the border inside the source lens' fold) [grid pixels the target does not image]")
+    print(f"overscan {DEFAULT_OVERSCAN:g}; cell: max/RMS px inside the image (share of the image inside the source "
+          f"lens' fold) | max/RMS px over the border (share of the border inside the fold) "
+          f"[grid pixels the target does not image]")
     for name, board, views in sets:
         size = views[0].image_size
         print(f"\n### {name}: {size[0]}x{size[1]}, {board.columns}x{board.rows} board, {len(views)} views")
