@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import (handler, image_size, image_size_option, loss_option, named_option, only_with,
-                                out_option, report_option, verb_group)
+from camcal.cli.options import (cache_options, corner_cache, handler, image_size, image_size_option, loss_option,
+                                named_option, only_with, out_option, report_option, verb_group)
 from camcal.cli.summary import report_result, summary_of
 
 __all__ = ["register"]
@@ -94,10 +94,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     board.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                        help="detect video frames on this Dask cluster (its workers must see the videos); without "
                        "it, videos of 2000 frames or more (after --every) run on a local Dask cluster, fewer in threads")
-    board.add_argument("--cache", metavar="DIR",
-                       help="corner cache directory, keyed by image content and detector settings "
-                       "(default: $XDG_CACHE_HOME/camcal/corners)")
-    board.add_argument("--no-cache", action="store_true", help="detect again, do not read or write the cache")
+    cache_options(board)
     board.add_argument("--force", action="store_true",
                        help="write a rig that fails the quality gate (principal point outside the image, RMS over "
                        "1.5 px, sigma fx over 5 %%) and exit 3 instead of refusing it")
@@ -143,9 +140,7 @@ def _register_profile(verbs) -> None:
     profile.add_argument("--suggest", action="store_true",
                          help="print the lens state to shoot next: where the profile's worst projection sigma over "
                          "the focal x focus range is largest")
-    profile.add_argument("--cache", metavar="DIR", help="corner cache directory (default: $XDG_CACHE_HOME/camcal/"
-                         "corners)")
-    profile.add_argument("--no-cache", action="store_true", help="detect again, do not read or write the cache")
+    cache_options(profile)
     profile.add_argument("--force", action="store_true",
                          help="keep a state whose calibration fails calibrate board's quality gate")
     out_option(profile, "FILE.profile.json", "the lens profile to write")
@@ -201,7 +196,7 @@ def _board(args: argparse.Namespace) -> int:
         timestamps=args.timestamps, time_tolerance_s=args.time_tolerance, intrinsics=args.intrinsics,
         refine_intrinsics=args.refine_intrinsics, holdout=args.holdout, max_views=args.max_views, loss=args.loss,
         loss_scale=args.loss_scale, workers=args.workers, scheduler=args.scheduler,
-        cache=False if args.no_cache else (args.cache or True), force=args.force, suggest=args.suggest,
+        cache=corner_cache(args), force=args.force, suggest=args.suggest,
         out=args.out, report=args.report, suggest_preview=args.suggest_preview, log=print)
     for line in result.lines():
         print(line)
@@ -226,7 +221,7 @@ def _profile(args: argparse.Namespace) -> int:
     from camcal.api.profile import calibrate_profile
 
     result = calibrate_profile(args.state, args.board, model=args.model, holdout=args.holdout,
-                               cache=False if args.no_cache else (args.cache or True), force=args.force,
+                               cache=corner_cache(args), force=args.force,
                                suggest=args.suggest, out=args.out, log=print)
     report_result(args, result)
     return 0

@@ -33,7 +33,9 @@ __all__ = [
     "UsageError",
     "adaptation_option",
     "after_parsing",
+    "cache_options",
     "camera_label_option",
+    "corner_cache",
     "camera_option",
     "deprecated_option",
     "distance_option",
@@ -398,6 +400,19 @@ def every_option(parser) -> None:
     """``--every N``: of a video given for a camera's images, every N-th frame (0, N, 2N...)."""
     parser.add_argument("--every", type=int, default=1, metavar="N",
                         help="videos (.mp4 .mov .avi .mkv, streamed): every N-th frame (frames 0, N, 2N...; default 1)")
+
+
+def cache_options(parser) -> None:
+    """``--cache DIR`` / ``--no-cache``: the corner cache of the board-detecting verbs (read by :func:`corner_cache`)."""
+    parser.add_argument("--cache", metavar="DIR",
+                        help="corner cache directory, keyed by image content and detector settings "
+                        "(default: $XDG_CACHE_HOME/camcal/corners)")
+    parser.add_argument("--no-cache", action="store_true", help="detect again, do not read or write the cache")
+
+
+def corner_cache(args) -> str | bool:
+    """The API's ``cache`` argument from :func:`cache_options`: False, a directory, or True (the default one)."""
+    return False if args.no_cache else (args.cache or True)
 
 
 def loss_option(parser, help: str) -> None:
