@@ -160,3 +160,51 @@ def test_pip_install_without_extras_in_a_fresh_venv(tmp_path):
     for argv, extra in _heavy_commands(tmp_path, rig):
         result = run([venv.camcal, *argv], tmp_path, venv.env)
         _check_missing_extra(argv, extra, result.returncode, result.stderr, tmp_path)
+
+
+
+def test_models_refused_for_a_missing_extra_are_ranked_out_on_one_line(monkeypatch):
+    """Without pycolmap and pyceres each lens model the Ceres engine fits is refused; ``calibrate board``'s ranking
+    says why once, on one line naming every such model and the extra, where a scored model keeps its own line."""
+    from camcal.geometry.board import Board
+    from camcal.geometry.zhang_fit import calibrate_model
+    from camcal.geometry.zhang_result import ModelScore, ranking_lines
+    from camcal.geometry.zhang_starts import FIT_ERRORS, one_line
+    from tests.geometry.test_zhang_models import views
+
+    board = Board("chessboard", 9, 6, 0.03)
+    camera = example_camera("cam", image_size=(640, 480), fx=600.0, fy=600.0, principal_point=(321.0, 238.0),
+                            distortion=Distortion("polynomial", {"k1": -0.1, "k2": 0.02}))
+    training = [dict(enumerate(views(camera, board, 5, np.random.default_rng(3), distance=(0.4, 0.6))["cam"]))]
+    for module in ("pycolmap", "pyceres"):
+        monkeypatch.setitem(sys.modules, module, None)
+    ceres_models = ("none", "division", "polynomial", "opencv")
+    scores = []
+    for model in ceres_models:
+        with pytest.raises(FIT_ERRORS) as refused:
+            calibrate_model(board, ["cam"], training, model, set(), scoring=True, units="m", outlier_factor=3.0,
+                            min_outlier_px=1.0, loss="trivial", loss_scale=1.0)
+        scores.append(ModelScore(model, None, 4, one_line(refused.value)))
+    scored = ModelScore("opencv-thin-prism", 0.25, 16)
+    ranking = (scored, *scores, ModelScore("kannala-brandt", None, 8, "OpenCV fisheye.calibrate failed"))
+    lines = ranking_lines(ranking)
+    extra = [line for line in lines if "extra" in line]
+    assert extra == [f"{', '.join(ceres_models)}: ranked out: the Ceres engine's fit needs the 'calibrate' extra "
+                     "(pycolmap is not installed): pip install 'camcal[calibrate]'"], "\n".join(lines)
+    assert lines == [scored.describe(), extra[0], "kannala-brandt: ranked out: OpenCV fisheye.calibrate failed"]
+
+
+@pytest.mark.slow
+def test_auto_without_the_calibrate_extra_names_it_once(tmp_path):
+    """``calibrate board`` (model auto) on the shipped board set with pycolmap and pyceres hidden: it calibrates on
+    OpenCV's fits, the camera the set was rendered with comes back, and the extra is named on one line."""
+    argv = ["calibrate", "board", "--board", "chessboard:9x6:0.03",
+            "--images", f"cam={ROOT / 'tests/data/boards/*.png'}",
+            "--no-cache", "--out", str(tmp_path / "cam.rig.json")]
+    result = subprocess.run([sys.executable, "-c", _WITHOUT_EXTRAS, json.dumps(["pycolmap", "pyceres"]),
+                             json.dumps([argv])], capture_output=True, text=True, cwd=tmp_path)
+    assert result.returncode == 0 and json.loads(result.stdout.split("RESULTS ", 1)[1])[0][0] == 0, result.stderr
+    extra = [line for line in result.stdout.splitlines() if "'calibrate' extra" in line]
+    assert len(extra) == 1 and extra[0].count("ranked out") == 1, result.stdout
+    camera = Rig.load(tmp_path / "cam.rig.json").cameras[0]
+    np.testing.assert_allclose([camera.K[0, 0], camera.K[1, 1]], [700.0, 700.0], rtol=0.01)

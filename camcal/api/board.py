@@ -102,15 +102,17 @@ class BoardCalibration:
 
     def lines(self) -> list[str]:
         """The summary ``calibrate board`` prints after its run: rankings, RMS, each camera, the next views."""
+        from camcal.geometry.zhang_result import ranking_lines
+
         result = self.calibration
         lines = list(result.notes)
         if result.model_ranking:
             lines.append(f"model auto: views held out in turn, chose {result.model}")
-            lines += ["  " + score.describe() for score in result.model_ranking]
+            lines += ["  " + line for line in ranking_lines(result.model_ranking)]
         if result.shape_ranking:
             lines.append("board shape auto: views held out in turn (the same folds; the lenses ranked again on the "
                          "surface taken)")
-            lines += ["  " + score.describe() for score in result.shape_ranking]
+            lines += ["  " + line for line in ranking_lines(result.shape_ranking)]
         if result.dropped:
             lines.append("dropped (no corner labelling agrees with the rig): "
                          + ", ".join(image for _, image in result.dropped))

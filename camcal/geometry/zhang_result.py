@@ -8,7 +8,7 @@ before writing, and the ranking before taking a model).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,7 +17,8 @@ from numpy.typing import NDArray
 from camcal.geometry.board_shape import BoardShape
 from camcal.model.rig import Camera, Rig
 
-__all__ = ["MAX_RMS_PX", "MAX_FOCAL_SIGMA_REL", "ModelScore", "CalibrationResult", "quality_problems", "fold_radius_px"]
+__all__ = ["MAX_RMS_PX", "MAX_FOCAL_SIGMA_REL", "ModelScore", "ranking_lines", "CalibrationResult",
+           "quality_problems", "fold_radius_px"]
 
 #: Quality gate (:func:`quality_problems`): a calibration beyond these is not written without --force.
 MAX_RMS_PX = 1.5
@@ -63,6 +64,25 @@ class ModelScore:
         if self.rms_px is None:
             return f"{self.model}: ranked out: {self.reason}"
         return f"{self.model}: {self.rms_px:.4f} px held out ({self.n_params} parameters)"
+
+
+def ranking_lines(scores: Sequence[ModelScore]) -> list[str]:
+    """:meth:`ModelScore.describe` of each score in order, the models ranked out for the same reason on one line.
+
+    ``none, division: ranked out: <reason>`` at the place of the first of them: a reason several models share
+    (a missing extra refuses every fit on the Ceres engine) is said once.
+    """
+    shared: dict[str, list[str]] = {}
+    for score in scores:
+        if score.rms_px is None:
+            shared.setdefault(score.reason, []).append(score.model)
+    lines = []
+    for score in scores:
+        if score.rms_px is not None:
+            lines.append(score.describe())
+        elif shared[score.reason][0] == score.model:
+            lines.append(f"{', '.join(shared[score.reason])}: ranked out: {score.reason}")
+    return lines
 
 
 @dataclass(frozen=True)

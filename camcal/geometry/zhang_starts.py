@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
+from camcal.base.extras import missing_extra
 from camcal.geometry.board import Board, Detection, frame_number
 from camcal.model.camera import chordal_mean_rotation
 from camcal.model.distortion import Distortion
@@ -484,5 +485,9 @@ FIT_ERRORS = (CamcalError, cv2.error, ValueError, np.linalg.LinAlgError)
 
 
 def one_line(error: Exception) -> str:
+    """The last line of ``error``'s message (a missing extra: the line naming it, as the Ceres engine's need)."""
+    missing = missing_extra(error)
+    if missing is not None:
+        return missing.line("the Ceres engine's fit")
     text = str(error).strip().splitlines()
     return text[-1] if text else type(error).__name__
