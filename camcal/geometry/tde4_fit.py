@@ -27,7 +27,14 @@ classic model's ``anamorphic_squeeze`` (held at 1). The anamorphic model's
 lens rotation is fitted (from 0): with a pixel aspect ``pa != 1`` its
 linear part ``Rot P Rot^-1 P^-1`` shears the image, which no zero-skew
 ``K`` and no board pose takes up (a 2x lens turned by 0.5 degrees held at
-0 leaves 0.4 px RMS and the squeeze 0.09 % off).
+0 leaves 0.4 px RMS and the squeeze 0.09 % off). With square pixels the
+rotation only turns the axes of the lens's anisotropic terms, which a
+nearly round lens hardly has: the corners then barely determine it (6 +/- 4
+degrees on a synthetic square-pixel lens, and on a real action camera the
+free fit wandered until corners left the image). So the lens is first
+refined with the rotation held at 0; the rotation is freed, from there,
+only when its standard error at 0 (the free problem's covariance at the held
+solution) is within :data:`MAX_ROTATION_SIGMA_DEG`; :attr:`Tde4Fit.held` says why.
 
 Uncertainty: ``Sigma = sigma^2 (J^T J)^-1`` at the solution with
 ``sigma^2 = 2 cost / (m - n)``, the board poses marginalised out (sampling
@@ -37,6 +44,7 @@ noise of the corners only, as for camcal's other models).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+import dataclasses
 from dataclasses import dataclass
 from types import MappingProxyType
 
@@ -50,7 +58,7 @@ from camcal.base.errors import CamcalError
 from camcal.model.distortion import Distortion, frame_grid
 from camcal.model.tde4 import FILMBACK_KEYS, TDE4_MODELS
 
-__all__ = ["FITTED_PARAMS", "Tde4Fit", "fit_tde4_lens", "nearest_tde4_lens"]
+__all__ = ["FITTED_PARAMS", "MAX_ROTATION_SIGMA_DEG", "Tde4Fit", "fit_tde4_lens", "nearest_tde4_lens"]
 
 #: The coefficients a board calibration fits for each 3DE model (the others held at LDPK's defaults).
 FITTED_PARAMS: Mapping[str, tuple[str, ...]] = MappingProxyType({
@@ -60,6 +68,9 @@ FITTED_PARAMS: Mapping[str, tuple[str, ...]] = MappingProxyType({
                              "lens_rotation_deg"),
     "3de4-fisheye-deg8": ("c2", "c4", "c6", "c8"),
 })
+#: The anamorphic lens rotation is held at 0 when its free fit's standard error exceeds this (degrees): a rotation
+#: known no better than a degree is the noise turning the lens's anisotropy, not a measurement of the lens.
+MAX_ROTATION_SIGMA_DEG = 1.0
 #: camcal's robust loss names (Ceres') -> scipy's.
 _LOSSES = {"trivial": "linear", "huber": "huber", "soft_l1": "soft_l1", "cauchy": "cauchy"}
 #: What a corner the lens cannot image (NaN) costs in the refinement, in pixels.
@@ -85,7 +96,9 @@ class Tde4Fit:
     covariance : ndarray, shape (P, P)
         Of :attr:`parameter_names`, the poses marginalised out.
     parameter_names : tuple of str
-        ``fx, fy, cx, cy`` and the fitted coefficients (:data:`FITTED_PARAMS`).
+        ``fx, fy, cx, cy`` and the fitted coefficients (:data:`FITTED_PARAMS`, but a held lens rotation).
+    held : str
+        Why the anamorphic lens rotation was held at 0 (empty when fitted or not in the model).
     """
 
     K: NDArray[np.float64]
@@ -94,12 +107,14 @@ class Tde4Fit:
     residuals_px: NDArray[np.float64]
     covariance: NDArray[np.float64]
     parameter_names: tuple[str, ...]
+    held: str = ""
 
 
 def nearest_tde4_lens(source: Distortion, K: NDArray[np.float64], image_size: tuple[int, int],
-                      model: str) -> Distortion:
-    """The 3DE lens of ``model`` (its :data:`FITTED_PARAMS`, the rest at LDPK's defaults) that undistorts a grid of
-    pixels over the image as ``source`` does, with the same ``K`` (step 1 of the module docstring).
+                      model: str, fitted: Sequence[str] | None = None) -> Distortion:
+    """The 3DE lens of ``model`` (its ``fitted`` coefficients, default :data:`FITTED_PARAMS`, the rest at LDPK's
+    defaults) that undistorts a grid of pixels over the image as ``source`` does, with the same ``K`` (step 1 of
+    the module docstring).
 
     The fit is in the undistorting direction, both sides closed form, on the pixels whose ray ``source`` puts
     within 75 degrees of the axis, each error weighed by ``1 / (1 + tan^2 theta)`` (the angle it makes).
@@ -122,7 +137,7 @@ def nearest_tde4_lens(source: Distortion, K: NDArray[np.float64], image_size: tu
     grid, ideal = grid[keep], ideal[keep]
     # pinhole pixels grow as tan(theta): weigh by d(theta)/d(tan theta) so that the rim does not outweigh the rest
     weight = 1.0 / (1.0 + normalised[keep] ** 2)[:, None]
-    names = FITTED_PARAMS[model]
+    names = tuple(FITTED_PARAMS[model] if fitted is None else fitted)
     filmback = dict(zip(FILMBACK_KEYS, (float(image_size[0]), float(image_size[1]))))
 
     def residuals(vector: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -170,7 +185,33 @@ def fit_tde4_lens(object_points: NDArray[np.float64], views: Sequence[tuple[NDAr
         raise CamcalError(f"{len(views)} views but {len(poses)} poses")
     K = np.asarray(K, dtype=np.float64)
     names = FITTED_PARAMS[model]
-    lens = nearest_tde4_lens(start, K, image_size, model)
+    fixed = (object_points, views, model, loss, loss_scale)
+    if "lens_rotation_deg" not in names:
+        return _refine(*fixed, names, K, nearest_tde4_lens(start, K, image_size, model), poses)
+    held_names = tuple(name for name in names if name != "lens_rotation_deg")
+    held = _refine(*fixed, held_names, K, nearest_tde4_lens(start, K, image_size, model, held_names), poses)
+    held = dataclasses.replace(held, distortion=Distortion(model, {**held.distortion.params, "lens_rotation_deg": 0.0}))
+    try:  # the rotation's standard error at 0: the covariance of the free problem at the held solution
+        probe = _refine(*fixed, names, held.K, held.distortion, held.poses, max_nfev=1)
+        index = probe.parameter_names.index("lens_rotation_deg")
+        sigma = float(np.sqrt(probe.covariance[index, index]))
+    except CamcalError:  # singular normal equations: the rotation is not determined at all
+        sigma = float("inf")
+    if sigma > MAX_ROTATION_SIGMA_DEG:
+        return dataclasses.replace(held, held=f"lens rotation held at 0 deg: the corners do not determine it (its "
+                                   f"standard error there {sigma:.2g} deg, over {MAX_ROTATION_SIGMA_DEG:g})")
+    try:
+        return _refine(*fixed, names, held.K, held.distortion, held.poses)
+    except CamcalError as error:
+        return dataclasses.replace(held, held=f"lens rotation held at 0 deg: its fit failed ({error})")
+
+
+def _refine(object_points: NDArray[np.float64], views: Sequence[tuple[NDArray[np.int64], NDArray[np.float64]]],
+            model: str, loss: str, loss_scale: float, names: tuple[str, ...], K: NDArray[np.float64],
+            lens: Distortion, poses: Sequence[tuple[NDArray[np.float64], NDArray[np.float64]]],
+            max_nfev: int | None = None) -> Tde4Fit:
+    """Step 2 of the module docstring: ``K``, the coefficients ``names`` of ``lens`` (the others held) and the
+    poses refined from those given. ``max_nfev=1``: no step taken, the fit's figures at the start."""
     held = {key: value for key, value in lens.params.items() if key not in names}
     n_lens = 4 + len(names)
     points = [np.asarray(object_points, dtype=np.float64)[ids] for ids, _ in views]
@@ -205,7 +246,7 @@ def fit_tde4_lens(object_points: NDArray[np.float64], views: Sequence[tuple[NDAr
         pattern[np.arange(len(rows)), n_lens + 6 * rows + column] = 1
     sparsity = scipy.sparse.csr_matrix(pattern)
     solution = scipy.optimize.least_squares(residuals, start_vector, jac_sparsity=sparsity, method="trf",
-                                            x_scale="jac", loss=_LOSSES[loss], f_scale=loss_scale)
+                                            x_scale="jac", loss=_LOSSES[loss], f_scale=loss_scale, max_nfev=max_nfev)
     K_fit, lens_fit = unpack(solution.x)
     residual = residuals(solution.x).reshape(-1, 2)
     if not np.all(np.abs(residual) < _LOST_PX):

@@ -97,7 +97,6 @@ import numpy as np
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection, opencv_threads_off
 from camcal.geometry.board_shape import BoardShape
-from camcal.geometry.tde4_fit import FITTED_PARAMS as TDE4_FITTED_PARAMS
 from camcal.geometry.tde4_fit import fit_tde4_lens
 from camcal.geometry.zhang_fit import calibrate_model, heldout_fields, heldout_figures
 from camcal.geometry.zhang_rank import (AUTO_MARGIN, AUTO_MODELS, BOARD_SHAPES, SPLINE_MIN_VIEWS, rank_models,
@@ -326,13 +325,14 @@ def _calibrate_tde4(board: Board, detections: Mapping[str, Sequence[Detection]],
                     intrinsics: Mapping[str, Camera] | None, board_shape: str | BoardShape,
                     **options) -> CalibrationResult:
     """3DE's models (:mod:`camcal.model.tde4`), one camera on a flat board: the ``opencv`` calibration
-    (``kannala-brandt`` for the fisheye; its outliers dropped) refined into the 3DE lens, K and poses by
+    (``kannala-brandt`` for the fisheye; its outliers dropped; a scoring fit: its covariance and jackknife would
+    be thrown away) refined into the 3DE lens, K and poses by
     :func:`camcal.geometry.tde4_fit.fit_tde4_lens`; held-out views measured as for every model."""
     if len(detections) != 1 or intrinsics is not None or board_shape not in ("auto", "flat"):
         raise CamcalError(f"model {model} calibrates one camera on a flat board, without given intrinsics")
     names, by_frame, holdout = checked_views(detections, board, holdout)
     start_model = "kannala-brandt" if model == "3de4-fisheye-deg8" else "opencv"
-    start = calibrate_model(board, names, by_frame, start_model, holdout, **options)
+    start = calibrate_model(board, names, by_frame, start_model, holdout, scoring=True, **options)  # K, lens, poses
     camera = start.rig.cameras[0]
     views = [by_frame[0][f] for f, _, _ in start.board_poses]
     fit = fit_tde4_lens(board.object_points, [(view.ids, view.corners_px) for view in views], camera.K,
@@ -350,7 +350,7 @@ def _calibrate_tde4(board: Board, detections: Mapping[str, Sequence[Detection]],
         heldout_rms, per_camera, heldout_images, heldout, per_view = heldout_figures(board, rig, held)
         rig = Rig((dataclasses.replace(rig.cameras[0], quality={**rig.cameras[0].quality, "heldout_rms_px": heldout_rms}),),
                   units=rig.units, provenance=rig.provenance)
-    held_params = [f"{p.key} {p.default:g}" for p in LDPK_PARAMETERS[model] if p.key not in TDE4_FITTED_PARAMS[model]]
+    held_params = [f"{p.key} {p.default:g}" for p in LDPK_PARAMETERS[model] if p.key not in fit.parameter_names]
     return dataclasses.replace(
         start, rig=rig, residuals_px=fit.residuals_px, points_px=np.concatenate([view.corners_px for view in views]),
         camera_of_point=np.zeros(len(norms), np.int64),
@@ -359,6 +359,7 @@ def _calibrate_tde4(board: Board, detections: Mapping[str, Sequence[Detection]],
         parameter_names=tuple(f"{camera.name}.{label}" for label in fit.parameter_names), model=model,
         heldout_rms_px=heldout_rms, heldout_images=heldout_images, heldout_view_rms_px=per_view,
         notes=start.notes + (f"{model}: started from the {start_model} fit (its outlier images dropped); held at "
-                             f"LDPK's defaults: {', '.join(held_params)} (the pixel aspect is fy / fx)",),
+                             f"LDPK's defaults: {', '.join(held_params)} (the pixel aspect is fy / fx)",)
+        + ((f"{model}: {fit.held}",) if fit.held else ()),
         board_poses=tuple((f, R, t) for (f, _, _), (R, t) in zip(start.board_poses, fit.poses)),
         **heldout_fields(heldout))

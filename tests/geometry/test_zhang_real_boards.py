@@ -159,3 +159,27 @@ def test_default_beats_mrcal_by_three_percent(mrcal_measured):
     # calobject_warp solved; the same corners and split. The car camera: 0.5619 against mrcal OPENCV8+warp 0.7689.
     name, result, peers = mrcal_measured
     assert result.heldout_rms_px <= 0.97 * min(peers.values()), (name, result.model, result.heldout_rms_px, peers)
+
+
+@pytest.mark.slow
+def test_3de_anamorphic_model_calibrates_the_gopro(monkeypatch):
+    """3DE4 Anamorphic Standard Degree 4 on the GoPro's square pixels (a free lens rotation from 0 once wandered
+    until corners left the image): it calibrates, and freeing the rotation from the held fit is worth it held out,
+    against the same fit with the rotation held (its bound set to 0). The fast sibling of holding it is
+    ``test_zhang_tde4``'s square-pixel lens."""
+    from camcal.geometry import tde4_fit
+
+    board, views = load("udacity_gopro")
+    holdout = set(range(0, len(views), 6))
+    free = zhang.calibrate_board(board, {"gopro": views}, model="3de4-anamorphic-deg4", holdout=holdout)
+    bound = tde4_fit.MAX_ROTATION_SIGMA_DEG
+    monkeypatch.setattr(tde4_fit, "MAX_ROTATION_SIGMA_DEG", 0.0)
+    held = zhang.calibrate_board(board, {"gopro": views}, model="3de4-anamorphic-deg4", holdout=holdout)
+    sigma = free.rig.cameras[0].quality.sigma["lens_rotation_deg"]
+    rotation = free.rig.cameras[0].distortion.params["lens_rotation_deg"]
+    print(f"GoPro 3DE4 anamorphic: rotation {rotation:.2f} +/- {sigma:.2f} deg, held out {free.heldout_rms_px:.3f} px "
+          f"(rotation held: {held.heldout_rms_px:.3f} px)")
+    assert sigma <= bound and not any("held at 0 deg" in note for note in free.notes)
+    assert held.rig.cameras[0].distortion.params["lens_rotation_deg"] == 0.0
+    assert any("lens rotation held at 0 deg" in note for note in held.notes)
+    assert free.heldout_rms_px < held.heldout_rms_px

@@ -1,12 +1,14 @@
 """Board calibration with 3DE's lens models: a 2x anamorphic lens recovered from synthetic board views."""
 
+import re
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection
-from camcal.geometry.tde4_fit import FITTED_PARAMS
+from camcal.geometry.tde4_fit import FITTED_PARAMS, MAX_ROTATION_SIGMA_DEG
 from camcal.geometry.zhang import calibrate_board
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera
@@ -125,3 +127,21 @@ def test_a_fit_whose_covariance_has_no_positive_variance_is_one_error(monkeypatc
     detections = board_views(TRUTH, 6, np.random.default_rng(5))
     with pytest.raises(CamcalError, match=r"degenerate .*not determined: fx$"):
         calibrate_board(BOARD, detections, model="3de4-anamorphic-deg4")
+
+
+def test_anamorphic_model_holds_the_rotation_a_square_pixel_lens_does_not_determine():
+    """A round lens on square pixels (no anisotropic term): turning it changes nothing the corners see, so the lens
+    rotation is held at 0 and said so (its standard error there, above the bound); the rest of the fit is sound."""
+    truth = Camera("round", (W, H), [[1400.0, 0, 965.0], [0, 1400.0, 536.0], [0, 0, 1]],
+                   Distortion("3de4-anamorphic-deg4", {"filmback_width_px": W, "filmback_height_px": H, "cx02": -0.05,
+                                                        "cy02": -0.05, "cx04": 0.01, "cy04": 0.01}),
+                   np.eye(3), np.zeros(3))
+    result = calibrate_board(BOARD, board_views(truth, 6, np.random.default_rng(5)), model="3de4-anamorphic-deg4")
+    camera = result.rig.cameras[0]
+    assert camera.distortion.params["lens_rotation_deg"] == 0.0 and "lens_rotation_deg" not in camera.quality.sigma
+    [note] = [note for note in result.notes if "lens rotation held at 0 deg" in note]
+    sigma = float(re.search(r"standard error there ([\d.e+]+) deg", note).group(1))
+    assert sigma > MAX_ROTATION_SIGMA_DEG, note
+    assert any("lens_rotation_deg 0" in note for note in result.notes)
+    assert np.allclose(camera.K, truth.K, rtol=2e-3, atol=1.0)
+    assert result.rms_px < 1.2 * SIGMA_PX * np.sqrt(2)
