@@ -26,10 +26,11 @@ if TYPE_CHECKING:
     from camcal.model.lens_profile import LensProfile, LensState
     from camcal.model.rig import Camera, Rig
 
-__all__ = ["DEFAULT_PROFILE_MODEL", "PROFILE_FORMATS", "ProfileCalibration", "calibrate_profile", "export_profile"]
+__all__ = ["DEFAULT_PROFILE_MODEL", "PROFILE_FORMATS", "TDE_INFINITY_M", "ProfileCalibration", "calibrate_profile",
+           "export_profile"]
 
 #: The formats a lens profile exports to (``camcal rig export PROFILE OUT --to FORMAT``).
-PROFILE_FORMATS = ("lensfun", "lens-table")
+PROFILE_FORMATS = ("lensfun", "lens-table", "opentrackio", "3de")
 #: A lens table's encoder grid: at most this many zoom and focus steps (each at most one per state calibrated
 #: between them, with a step between each two).
 _TABLE_STEPS = (9, 5)
@@ -308,11 +309,16 @@ def calibrate_profile(
 
 
 def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.PathLike, to: str | None = None, *,
-                   name: str | None = None) -> Any:
+                   name: str | None = None, sensor_width_mm: float | None = None) -> Any:
     """Write a lens profile for another tool (``camcal rig export lens.profile.json lens.xml --to lensfun``, or
-    ``lens.json --to lens-table``).
+    ``lens.json --to lens-table`` / ``--to opentrackio``, or ``lens.txt --to 3de``).
 
     lens-table: the profile sampled on a grid of OpenTrackIO's normalised encoders (:mod:`camcal.io.lens_table`).
+    opentrackio: the same grid as OpenTrackIO lens samples, Brown-Conrady in mm on the sensor
+    (:mod:`camcal.io.opentrackio`; needs ``sensor_width_mm``), the worst state's residual in the result.
+    3de: a 3DEqualizer lens file with dynamic distortion (:mod:`camcal.io.tde`): the same grid as a rig with a lens
+    per frame, keyed over focal length, focus distance or both (a 2D LUT), each state's refit residual in the
+    result; a focus at infinity is keyed at :data:`TDE_INFINITY_M` (3DE keys distances).
     lensfun: one ``<lens>`` with a ``<distortion>`` per focal length calibrated, each the profile's camera at
     that focal length focused at the farthest focus calibrated (Lensfun's lenses do not change with focus), in
     the one Lensfun model (``poly3``, ``poly5``, ``ptlens``) that fits every focal length best, its residual
@@ -322,11 +328,14 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
     ----------
     profile : path or LensProfile
     path : path
-        The ``.xml`` (lensfun) or ``.json`` (lens-table) to write.
+        The ``.xml`` (lensfun), ``.json`` (lens-table, opentrackio) or ``.txt`` (3de) to write.
     to : str, optional
-        One of :data:`PROFILE_FORMATS` (default: lensfun).
+        One of :data:`PROFILE_FORMATS` (default: 3de for a ``.txt``, else lensfun).
     name : str, optional
         The lens' ``<model>`` (default: the profile file's name without ``.profile.json``).
+    sensor_width_mm : float, optional
+        The sensor's active width in mm: required by opentrackio (the profile holds pixels only); 3de: its film
+        back (default 36 mm).
 
     Returns
     -------
@@ -338,10 +347,15 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
     from camcal.io.lensfun import export_states
     from camcal.model.lens_profile import LensProfile
 
-    fmt = to or "lensfun"
+    fmt = to or ("3de" if Path(path).suffix.lower() == ".txt" else "lensfun")
     if fmt not in PROFILE_FORMATS:
         raise CamcalError(f"a lens profile exports to {', '.join(PROFILE_FORMATS)}, not {fmt!r} (export a camera at "
                           "one lens state with camcal lens first)")
+    if sensor_width_mm is not None and fmt not in ("opentrackio", "3de"):
+        raise CamcalError(f"a sensor width applies to opentrackio and 3de, not {fmt}")
+    if fmt == "opentrackio" and sensor_width_mm is None:
+        raise CamcalError("an OpenTrackIO lens is in mm on the sensor and a lens profile holds pixels only: give the "
+                          "sensor's width (--sensor-width MM)")
     if not isinstance(profile, LensProfile):
         stem = Path(profile).name.removesuffix(".json").removesuffix(".profile")
         profile = LensProfile.load(profile)
@@ -349,6 +363,14 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
         stem = "lens"
     if fmt == "lens-table":
         return _export_table(profile, Path(path), name or stem)
+    if fmt == "opentrackio":
+        from camcal.io.opentrackio import LensSample, write_opentrackio_lens
+
+        return write_opentrackio_lens(Path(path), [LensSample(*sample) for sample in _encoder_grid(profile)],
+                                      name=name or stem, sensor_width_mm=sensor_width_mm,
+                                      focal_range=profile.focal_range, focus_range=profile.focus_range)
+    if fmt == "3de":
+        return _export_tde(profile, Path(path), name or stem, sensor_width_mm)
     far = profile.focus_range[1]
     focals = sorted({state.focal_mm for state in profile.states})
     result = export_states([(focal, camera_at(profile, focal, far, f"{focal:g}mm")) for focal in focals], Path(path),
@@ -359,22 +381,58 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
     return replace(result, notes=notes)
 
 
-def _export_table(profile: LensProfile, path: Path, name: str) -> Any:
-    """The lens table (:mod:`camcal.io.lens_table`) on a grid of OpenTrackIO encoders over the calibrated range."""
+#: A profile's focus at infinity as 3DE keys it (3DE's dynamic distortion is a curve over focus distance): 10 km,
+#: where the profile's lens is the one at infinity to 1e-4 dioptre.
+TDE_INFINITY_M = 1.0e4
+
+
+def _encoder_grid(profile: LensProfile,
+                  infinity_m: float = math.inf) -> list[tuple[float, float, float, float, Camera]]:
+    """``(zoom encoder, focus encoder, focal_mm, focus_m, camera)`` on a grid of OpenTrackIO encoders over the
+    calibrated range (at most :data:`_TABLE_STEPS`, one step between each two states calibrated); a focus at
+    infinity is taken at ``infinity_m``."""
     from camcal.geometry.lens_profile import camera_at
-    from camcal.io.conversion import ExportResult
-    from camcal.io.lens_table import write_lens_table
 
     counts = [min(limit, 2 * len({key(s) for s in profile.states}) - 1)
               for limit, key in zip(_TABLE_STEPS, (lambda s: s.focal_mm, lambda s: s.focus_m))]
-    zooms, focuses = (np.linspace(0.0, 1.0, n) for n in counts)
     samples = []
-    for zoom in zooms:
-        for focus in focuses:
+    for zoom in np.linspace(0.0, 1.0, counts[0]):
+        for focus in np.linspace(0.0, 1.0, counts[1]):
             focal_mm, focus_m = (float(v) for v in profile.from_encoders(zoom, focus))
+            focus_m = infinity_m if math.isinf(focus_m) else focus_m
             samples.append((float(zoom), float(focus), focal_mm, focus_m, camera_at(profile, focal_mm, focus_m)))
+    return samples
+
+
+def _export_table(profile: LensProfile, path: Path, name: str) -> Any:
+    """The lens table (:mod:`camcal.io.lens_table`) on a grid of OpenTrackIO encoders over the calibrated range."""
+    from camcal.io.conversion import ExportResult
+    from camcal.io.lens_table import write_lens_table
+
+    samples = _encoder_grid(profile)
     write_lens_table(path, samples, name=name, image_size=profile.image_size, focal_range=profile.focal_range,
                      focus_range=profile.focus_range)
+    counts = (len({s[0] for s in samples}), len({s[1] for s in samples}))
     worst = max(camera.quality.worst_projection_sigma_px for *_, camera in samples)
     return ExportResult((path,), (), (f"{len(samples)} samples ({counts[0]} zoom x {counts[1]} focus encoder "
                                       f"values); worst projection sigma {worst:.3g} px",))
+
+
+def _export_tde(profile: LensProfile, path: Path, name: str, sensor_width_mm: float | None) -> Any:
+    """3DE dynamic distortion: the encoder grid as a rig with a lens per frame, written by :mod:`camcal.io.tde`."""
+    from dataclasses import replace
+
+    from camcal.io.interchange import export_rig
+    from camcal.model.rig import Frame, Lens, Rig, make_provenance
+
+    samples = _encoder_grid(profile, TDE_INFINITY_M)
+    cameras = [replace(camera, name=name, sensor_width_mm=sensor_width_mm) for *_, camera in samples]
+    frames = tuple(Frame(index, np.eye(3), np.zeros(3), lenses={name: Lens(camera.K, camera.distortion, focal, focus)})
+                   for index, ((_, _, focal, focus, _), camera) in enumerate(zip(samples, cameras)))
+    rig = Rig((cameras[0],), units="unknown", frames=frames, provenance=make_provenance("rig export"))
+    result = export_rig(rig, "3de", path)
+    notes = list(result.notes)
+    if math.isinf(profile.focus_range[1]):
+        notes.append(f"the focus at infinity is keyed at {TDE_INFINITY_M / 1000:g} km (3DE keys focus distances)")
+    return replace(result, notes=(f"{len(samples)} lens states (frame i: the i-th, zoom over focus encoders)",
+                                  *notes))

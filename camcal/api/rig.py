@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from camcal.io.conversion import ExportResult, ImportResult, LensConversion
+    from camcal.model.lens_profile import LensProfile
     from camcal.model.rig import Rig
 
 __all__ = ["RigImport", "export_rig", "import_rig", "load_rig"]
@@ -36,8 +37,9 @@ def load_rig(path: str | os.PathLike) -> Rig:
     return Rig.load(path)
 
 
-def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | None = None, *,
-               cameras: Sequence[str] | None = None, stmaps: bool = False) -> ExportResult:
+def export_rig(rig: Rig | LensProfile | str | os.PathLike, path: str | os.PathLike, to: str | None = None, *,
+               cameras: Sequence[str] | None = None, stmaps: bool = False,
+               sensor_width_mm: float | None = None) -> ExportResult:
     """Write a rig for another tool (``camcal rig export``).
 
     opencv: ``.yaml`` / ``.yml`` / ``.xml`` FileStorage (one camera or a stereo
@@ -50,9 +52,9 @@ def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | 
 
     Parameters
     ----------
-    rig : Rig or path
-        The rig, or its ``*.rig.json`` (whose sparse-points PLY is found beside it), or a lens profile
-        ``*.profile.json`` (:func:`camcal.api.profile.export_profile`: lensfun).
+    rig : Rig, LensProfile or path
+        The rig, or its ``*.rig.json`` (whose sparse-points PLY is found beside it), or a lens profile (or its
+        ``*.profile.json``: :func:`camcal.api.profile.export_profile`: lensfun, lens-table, opentrackio, 3de).
     path : path
         The file (a folder for colmap) to write.
     to : str, optional
@@ -62,6 +64,8 @@ def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | 
         Export only these cameras.
     stmaps : bool
         usd: also write each lens' ST-maps beside the stage and reference them from its camera.
+    sensor_width_mm : float, optional
+        A lens profile's opentrackio (required) and 3de exports: the sensor's active width in mm.
 
     Returns
     -------
@@ -74,16 +78,20 @@ def export_rig(rig: Rig | str | os.PathLike, path: str | os.PathLike, to: str | 
         Unknown format, a rig the format cannot hold, or an unwritable output; nothing is written then.
     """
     from camcal.io.interchange import export_rig as export_as
+    from camcal.model.lens_profile import LensProfile
     from camcal.model.rig import Rig
 
-    if not isinstance(rig, Rig) and os.fspath(rig).endswith(".profile.json"):
+    if isinstance(rig, LensProfile) or (not isinstance(rig, Rig) and os.fspath(rig).endswith(".profile.json")):
         from camcal.api.profile import export_profile
 
-        return export_profile(rig, path, to)
-    if to == "lens-table":
-        from camcal.base.errors import CamcalError
+        return export_profile(rig, path, to, sensor_width_mm=sensor_width_mm)
+    from camcal.base.errors import CamcalError
 
-        raise CamcalError("--to lens-table exports a lens profile (*.profile.json, camcal calibrate profile), not a rig")
+    if to in ("lens-table", "opentrackio"):
+        raise CamcalError(f"--to {to} exports a lens profile (*.profile.json, camcal calibrate profile), not a rig")
+    if sensor_width_mm is not None:
+        raise CamcalError("a sensor width applies to a lens profile's opentrackio and 3de exports (a rig's camera "
+                          "carries its own)")
     rig_path = None if isinstance(rig, Rig) else rig
     loaded = rig if isinstance(rig, Rig) else Rig.load(rig)
     return export_as(loaded, to, path, cameras=cameras, rig_path=rig_path, stmaps=stmaps)
@@ -161,7 +169,22 @@ def import_rig(path: str | os.PathLike, from_: str | None = None, *,
     from camcal.io.interchange import format_of, import_rig as import_as
     from camcal.model.rig import make_provenance
 
-    fmt = format_of(path, from_)
-    result = import_as(path, fmt, image_size=image_size)
+    if from_ == "opentrackio":
+        from pathlib import Path
+
+        from camcal.base.errors import CamcalError
+        from camcal.io.opentrackio import load
+
+        if image_size is not None:
+            raise CamcalError("an image size applies to usd, 3de and nuke only (opentrackio files hold their own)")
+        if not Path(path).is_file():
+            raise CamcalError(f"opentrackio input not found: {path}")
+        try:
+            fmt, result = from_, load(Path(path))
+        except CamcalError as error:
+            raise CamcalError(f"{path}: {error}") from None
+    else:
+        fmt = format_of(path, from_)
+        result = import_as(path, fmt, image_size=image_size)
     rig = dataclasses.replace(result.rig, provenance=make_provenance("import", format=fmt, source=str(path)))
     return RigImport(rig, fmt, result)

@@ -25,14 +25,19 @@ def register(parser: argparse.ArgumentParser) -> None:
         "camcal rig show board.rig.json --validate",
     ])
     export = verbs.add_parser("export", help="write a rig for another tool (OpenCV, Kalibr, COLMAP, USD, Nuke, 3DE)")
-    rig_argument(export, help="a *.rig.json file, or a lens profile *.profile.json (to lensfun or lens-table)")
-    export.add_argument("--to", choices=FORMATS + ("lens-table",), metavar="FORMAT",
+    rig_argument(export, help="a *.rig.json file, or a lens profile *.profile.json (to lensfun, lens-table, "
+                              "opentrackio or 3de)")
+    export.add_argument("--to", choices=FORMATS + ("lens-table", "opentrackio"), metavar="FORMAT",
                         help=f"one of: {', '.join(FORMATS)}, lens-table (a lens profile sampled over its "
-                        "encoders, JSON) (default: from OUT's suffix, .nk .usd* .txt)")
+                        "encoders, JSON), opentrackio (a lens profile as OpenTrackIO lens samples over its encoders, "
+                        "JSON; needs --sensor-width) (default: from OUT's suffix, .nk .usd* .txt)")
     export.add_argument("out", metavar="OUT", help="the file (a directory for colmap) to write")
     export.add_argument("--camera", action="append", metavar="NAME", help="export only this camera (repeatable)")
     export.add_argument("--stmaps", action="store_true",
                         help="usd: also write each lens' ST-maps beside the stage and reference them from its camera")
+    export.add_argument("--sensor-width", type=float, metavar="MM",
+                        help="a lens profile to opentrackio (required: its lens is in mm on the sensor) or 3de (its "
+                        "film back; default 36): the sensor's active width in mm")
     handler(export, _export, [
         "camcal rig export board.rig.json --to opencv board.yaml",
         "camcal rig export board.rig.json board.nk --camera left",
@@ -40,11 +45,15 @@ def register(parser: argparse.ArgumentParser) -> None:
         "camcal rig export solve/solve.rig.json solve.usda --stmaps",
         "# a lens profile as a Lensfun lens, one entry per focal length calibrated",
         "camcal rig export lens.profile.json lens.xml --to lensfun",
+        "# a lens profile as OpenTrackIO lens samples, and as 3DEqualizer dynamic distortion",
+        "camcal rig export lens.profile.json lens.json --to opentrackio --sensor-width 36",
+        "camcal rig export lens.profile.json lens.txt --to 3de",
     ], notes=["Which lens each format holds exactly:\n" + exactness_table()])
     imp = verbs.add_parser("import", help="read another tool's camera file as a rig")
     imp.add_argument("file", metavar="FILE", help="the other tool's file")
-    imp.add_argument("--from", dest="fmt", choices=FORMATS, metavar="FORMAT",
-                     help=f"one of: {', '.join(FORMATS)} (default: from FILE's suffix, .nk .usd* .txt)")
+    imp.add_argument("--from", dest="fmt", choices=FORMATS + ("opentrackio",), metavar="FORMAT",
+                     help=f"one of: {', '.join(FORMATS)}, opentrackio (camcal's OpenTrackIO lens samples: a frame "
+                     "per lens state) (default: from FILE's suffix, .nk .usd* .txt)")
     out_option(imp, "RIG.rig.json", "the rig file to write")
     image_size_option(imp, "usd, 3de, nuke: the image size of cameras that carry none (USD cameras, 3DE lens "
                            "files and LDPK nodes not written by camcal)")
@@ -79,7 +88,9 @@ def _print_conversions(args: argparse.Namespace, conversions, notes) -> None:
 def _export(args: argparse.Namespace) -> int:
     """Write RIG as FORMAT. opencv: .yaml/.yml/.xml FileStorage (one camera or a stereo pair); kalibr:
     camchain.yaml; colmap: a directory with cameras.txt, images.txt, points3D.txt; usd: .usda/.usdc/.usd;
-    nuke: .nk; 3de: a 3DEqualizer lens file (.txt, one camera). A lens or skew the format cannot hold is
+    nuke: .nk; 3de: a 3DEqualizer lens file (.txt, one camera; from a lens profile, its dynamic distortion over
+    focal length and focus distance). A lens profile also goes to lens-table and opentrackio (OpenTrackIO lens
+    samples, Brown-Conrady in mm on a sensor --sensor-width wide). A lens or skew the format cannot hold is
     fitted with the nearest model it holds and its pixel residual is printed (for the 3DEqualizer models:
     max and RMS inside the image and over a 1.25 overscan border); exact conversions say so.
     """
@@ -89,7 +100,8 @@ def _export(args: argparse.Namespace) -> int:
     from camcal.io.interchange import format_of
 
     fmt = format_of(args.out, args.to)
-    result = export_rig(args.rig, args.out, fmt, cameras=args.camera, stmaps=args.stmaps)
+    result = export_rig(args.rig, args.out, fmt, cameras=args.camera, stmaps=args.stmaps,
+                        sensor_width_mm=args.sensor_width)
     _print_conversions(args, result.conversions, result.notes)
     for path in result.paths:
         summary_of(args).wrote(path, fmt if path == Path(args.out) or path.parent == Path(args.out) else "stmap")
