@@ -178,7 +178,7 @@ def test_models_refused_for_a_missing_extra_are_ranked_out_on_one_line(monkeypat
     training = [dict(enumerate(views(camera, board, 5, np.random.default_rng(3), distance=(0.4, 0.6))["cam"]))]
     for module in ("pycolmap", "pyceres"):
         monkeypatch.setitem(sys.modules, module, None)
-    ceres_models = ("none", "division", "polynomial", "opencv")
+    ceres_models = ("none", "polynomial")
     scores = []
     for model in ceres_models:
         with pytest.raises(FIT_ERRORS) as refused:

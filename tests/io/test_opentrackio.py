@@ -193,11 +193,16 @@ def test_a_zoom_and_focus_profile_as_3de_dynamic_distortion_reads_back(tmp_path)
                          9)
 
 
-def test_a_lens_camcal_cannot_hold_is_one_line_and_no_rig(profile_file, tmp_path, capsys):
+def test_a_lens_camcal_cannot_hold_is_one_line_and_no_rig(tmp_path, capsys):
     """OpenLensIO's default direction (distorted to undistorted) and a distortion centre off the principal point
     have no camcal lens: refused in one line naming the file, no rig written."""
+    from camcal.io.opentrackio import LensSample, write_opentrackio_lens
+
     out = tmp_path / "lens.json"
-    camcal.export_rig(profile_file, out, "opentrackio", sensor_width_mm=SENSOR_WIDTH_MM)
+    truth = camera_at(_profile("opencv"), 30.0, 2.0)
+    samples = [LensSample(0.0, 0.0, 30.0, 2.0, truth), LensSample(1.0, 0.0, 30.0, 2.0, truth)]
+    write_opentrackio_lens(out, samples, name="lens", sensor_width_mm=SENSOR_WIDTH_MM, focal_range=(24.0, 50.0),
+                           focus_range=(1.2, math.inf))
     data = json.loads(out.read_text())
     for change, message in ((lambda lens: lens["distortion"][0].update(model="Brown-Conrady D-U"), "U-D"),
                             (lambda lens: lens["distortionOffset"].update(x=0.1), "distortion offset")):
