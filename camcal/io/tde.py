@@ -116,7 +116,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
     mode = _dynamic_mode(camera.name, [(frame.index, frame.lenses[camera.name].focal_mm,
                                         frame.lenses[camera.name].focus_m)
                                        for frame in rig.frames if camera.name in frame.lenses])
-    states = _lens_states(rig, camera, family) if mode not in _STATIC else []
+    states = _lens_states(rig, camera, family, (converted, refit)) if mode not in _STATIC else []
     lines = [camera.name,
              " ".join(_number(v) for v in (builtin.filmback_width_cm, builtin.filmback_height_cm,
                                            builtin.focal_length_cm,
@@ -158,12 +158,14 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
 # -- dynamic distortion: the lens over focal length and / or focus distance (a zoom, a rack focus) -------------
 
 
-def _lens_states(rig: Rig, camera: Camera, family: str) -> list[tuple[int, float | None, float | None, Camera, Refit]]:
+def _lens_states(rig: Rig, camera: Camera, family: str,
+                 own: tuple[Camera, Refit]) -> list[tuple[int, float | None, float | None, Camera, Refit]]:
     """``(frame, focal_mm, focus_m, the camera with its 3DE lens, its refit)`` of each frame with a lens of ``camera``.
 
     Each frame's lens is refitted to ``family`` with the camera's own
     principal point and pixel aspect (a 3DE lens has one lens centre and
-    film back) and the frame's focal length.
+    film back) and the frame's focal length; a frame whose lens is the
+    camera's own takes ``own``, the camera's refit.
     """
     out = []
     for frame in rig.frames:
@@ -174,7 +176,8 @@ def _lens_states(rig: Rig, camera: Camera, family: str) -> list[tuple[int, float
         K = camera.K.copy()
         K[0, 1] = 0.0
         K[0, 0], K[1, 1] = at.K[0, 0], at.K[0, 0] * camera.K[1, 1] / camera.K[0, 0]
-        lens_camera, refit = refit_camera(at, family, K=K)
+        same = np.array_equal(K, own[0].K) and np.array_equal(at.K, camera.K) and at.distortion == camera.distortion
+        lens_camera, refit = own if same else refit_camera(at, family, K=K)
         out.append((frame.index, state.focal_mm, state.focus_m, lens_camera, refit))
     return out
 
