@@ -84,7 +84,7 @@ from camcal.io.conversion import ExportResult, ImportResult, LensConversion, max
 from camcal.model.distortion import Distortion, frame_grid
 from camcal.model.rig import Camera, Frame, Lens, Rig, make_provenance
 
-__all__ = ["OPENTRACKIO_FORMAT", "MODEL_NAME", "LensSample", "load", "write_opentrackio_lens"]
+__all__ = ["OPENTRACKIO_FORMAT", "MODEL_NAME", "LensSample", "load", "overscan", "write_opentrackio_lens"]
 
 OPENTRACKIO_FORMAT = "camcal.opentrackio_lens"
 #: The distortion model camcal writes and reads (OpenTrackIO's name for the undistorted -> distorted direction).
