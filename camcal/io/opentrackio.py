@@ -140,8 +140,8 @@ def _lens_object(camera: Camera, sample: LensSample, pitch: NDArray[np.float64])
 
 
 def overscan(camera: Camera) -> float:
-    """OpenLensIO's overscan of ``camera`` (its appendix A.1): ``max(1, 2 max(|x_u|, |y_u| W / H) / W)`` over the
-    frame's pixels undistorted, ``x_u``, ``y_u`` measured from the sensor's centre in pixels."""
+    """OpenLensIO's overscan of ``camera`` (its appendix A.1, in pixels): ``max(1, max(2 |x_u| / W, 2 |y_u| / H))``
+    over the frame's pixels (edges included) undistorted, ``x_u``, ``y_u`` measured from the sensor's centre."""
     width, height = camera.image_size
     centre = _sensor_centre(camera.image_size)
     # the frame's pixel centres stretched to its edges (pixel -0.5 to W - 0.5), about the sensor's centre
@@ -192,6 +192,8 @@ def write_opentrackio_lens(out: Path, samples: Sequence[LensSample], *, name: st
     """
     if out.suffix.lower() != ".json":
         raise CamcalError(f"an OpenTrackIO lens file is a .json file, got {out.name!r}")
+    if not samples:
+        raise CamcalError("an OpenTrackIO lens file needs at least one lens state")
     if not (isinstance(sensor_width_mm, (int, float)) and math.isfinite(sensor_width_mm) and sensor_width_mm > 0):
         raise CamcalError(f"the sensor width must be a positive number of mm, got {sensor_width_mm!r}")
     size = samples[0].camera.image_size
