@@ -171,6 +171,19 @@ def report(figures: dict[str, dict[str, float]]) -> None:
               f"{f['profile_rms_px']:.4f} / {f['direct_rms_px']:.4f} px, {f['ratio']:.3f}")
 
 
+def state_chi_square(profile: LensProfile, lens) -> dict[str, float]:
+    """Each calibrated state's parameters against the truth's, ``r^T C^-1 r`` with the state's own covariance
+    (chi-square of as many degrees of freedom as parameters when that covariance is right)."""
+    figures = {}
+    for state in profile.states:
+        truth = truth_camera(state.focal_mm, state.focus_m, lens)
+        expected = {"fx": truth.K[0, 0], "fy": truth.K[1, 1], "cx": truth.K[0, 2], "cy": truth.K[1, 2],
+                    **truth.distortion.params}
+        r = np.array([state.params[name] - expected[name] for name in profile.parameters])
+        figures[state.label] = float(r @ np.linalg.solve(state.covariance, r))
+    return figures
+
+
 def assert_targets(figures: dict[str, dict[str, float]]) -> None:
     for label, f in figures.items():
         assert f["within"] >= 0.95, (label, f)
@@ -265,7 +278,13 @@ def test_held_out_states_of_the_real_zoom_rendered_in_blender(tmp_path):
         states[f"check_{label}"] = (truth, state_poses(focal, focus, lens, CHECK_VIEWS, seed + 50))
     globs = render_states(tmp_path, states)
     training = {format_state(f, d): globs[format_state(f, d)] for f, d in TRAINING}
-    profile = camcal.calibrate_profile(training, BOARD.spec(), model=MODEL, cache=False, progress=False).profile
+    result = camcal.calibrate_profile(training, BOARD.spec(), model=MODEL, cache=False, progress=False)
+    profile = result.profile
+    print("\n".join(result.lines()))
+    chi_square = state_chi_square(profile, lens)
+    print(f"states against the truth, chi-square of {len(profile.parameters)} parameters with their own covariance: "
+          + ", ".join(f"{label} {value:.1f}" for label, value in chi_square.items())
+          + f" (median {np.median(list(chi_square.values())):.1f})")
     figures = {}
     for focal, focus in HELD_OUT:
         label = format_state(focal, focus)
