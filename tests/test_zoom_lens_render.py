@@ -73,7 +73,8 @@ TRAINING = ((17, 0.5), (17, math.inf), (19, 1.5), (22, 0.5), (26, math.inf), (30
 HELD_OUT = ((18, 0.7), (28, 3.0), (45, 1.0))
 VIEWS = 8
 CHECK_VIEWS = 4
-#: The fast sibling's views a state (its calibrations stay under 0.2 s each).
+#: The fast sibling's views a state: below 5 (:data:`camcal.geometry.jackknife.MIN_FRAMES`) a board fit runs no
+#: delete-one-view jackknife, so each state's covariance is the Jacobian's and its fit takes about 0.1 s.
 FAST_VIEWS = 4
 #: Blender's samples a pixel (Cycles, emission only: no noise but the edges' anti-aliasing).
 SAMPLES = 8
