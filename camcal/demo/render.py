@@ -18,14 +18,16 @@ from camcal.base.errors import CamcalError
 from camcal.model.rig import Camera
 
 __all__ = [
-    "stage_render",
+    "chessboard_texture", "pinhole_shot", "redistort_maps", "stage_render", "write_plate",
 ]
 
 
 # -- stage: render -----------------------------------------------------------------------
 
 
-def _chessboard_texture(board, path: Path, px: int = 64) -> Path:
+def chessboard_texture(board, path: Path, px: int = 64) -> Path:
+    """Write the printed chessboard (its squares and one white square of margin, :func:`board_outline`) as an
+    8-bit PNG of ``px`` pixels a square, the texture of a board quad of :func:`render_shots`."""
     import cv2  # noqa: PLC0415
 
     cols, rows = board.columns + 1, board.rows + 1
@@ -38,30 +40,33 @@ def _chessboard_texture(board, path: Path, px: int = 64) -> Path:
     return path
 
 
-def _shot(camera: Camera, quads: Sequence[str], out: Path) -> dict:
-    """A Blender shot of the undistorted overscan camera of ``camera``."""
+def pinhole_shot(camera: Camera, quads: Sequence[str], out: Path, overscan: float = OVERSCAN) -> dict:
+    """A shot of :func:`~camcal.demo.blender_scene.render_shots`: the undistorted ``overscan`` canvas of ``camera``
+    (a pinhole, Cycles has no lens distortion), which :func:`redistort_maps` turns into ``camera``'s plate."""
     from camcal.geometry.undistort import undistorted_view  # noqa: PLC0415
 
-    view = undistorted_view(camera, "overscan", OVERSCAN)
+    view = undistorted_view(camera, "overscan", overscan)
     return {"camera": {"K": view.K_new.tolist(), "R": camera.R.tolist(), "c": camera.c.tolist(),
                        "image_size": list(view.image_size)},
             "quads": list(quads), "out": str(out)}
 
 
-def _redistort_maps(camera: Camera) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """Plate pixel -> overscan render pixel (camcal's exact redistort mapping)."""
+def redistort_maps(camera: Camera, overscan: float = OVERSCAN) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Plate pixel -> pixel of the :func:`pinhole_shot` render of the same ``overscan`` (camcal's exact redistort
+    mapping, :func:`camcal.geometry.stmap.make_stmaps`), as ``cv2.remap``'s x and y maps."""
     from camcal.geometry.stmap import make_stmaps, pixels_from_st  # noqa: PLC0415
     from camcal.geometry.undistort import undistorted_view  # noqa: PLC0415
 
-    maps = make_stmaps(camera, OVERSCAN)
+    maps = make_stmaps(camera, overscan)
     x, y = pixels_from_st(maps.redistort, maps.plate_size)  # in the undistorted image's format, the plate's
     # the render's canvas holds that format at the overscan view's offset
-    dx, dy = undistorted_view(camera, "overscan", OVERSCAN).K_new[:2, 2] - camera.K[:2, 2]
+    dx, dy = undistorted_view(camera, "overscan", overscan).K_new[:2, 2] - camera.K[:2, 2]
     return (x + dx).astype(np.float32), (y + dy).astype(np.float32)
 
 
-def _write_plate(render: Path, maps, out: Path, bits: int) -> Path:
-    """Apply the lens to a render and write it as a linear 8- or 16-bit PNG."""
+def write_plate(render: Path, maps, out: Path, bits: int) -> Path:
+    """Apply the lens to a render (an EXR of :func:`pinhole_shot`, through :func:`redistort_maps`, one cubic remap)
+    and write it as a linear 8- or 16-bit PNG (atomically)."""
     import cv2  # noqa: PLC0415
 
     from camcal.io.stmap import read_exr  # noqa: PLC0415
@@ -86,7 +91,7 @@ def stage_render(ctx: DemoContext) -> StageResult:
     board = parse_board(truth.board_spec)
     renders = ctx.out_dir / "renders"
     renders.mkdir(parents=True, exist_ok=True)
-    texture = _chessboard_texture(board, renders / "chessboard.png")
+    texture = chessboard_texture(board, renders / "chessboard.png")
     outline = board_outline(board)
     quads, shots, plates = [], [], []
     names = [camera.name for camera in truth.rig.cameras]
@@ -94,7 +99,8 @@ def stage_render(ctx: DemoContext) -> StageResult:
         quads.append({"name": f"board_{k:02d}", "corners": (outline @ R.T + t).tolist(), "texture": str(texture),
                       "shader": "emission", "interpolation": "Closest"})
         for name in names:
-            shots.append(_shot(truth.rig.camera(name), [f"board_{k:02d}"], renders / f"board_{name}_{k:02d}.exr"))
+            shots.append(pinhole_shot(truth.rig.camera(name), [f"board_{k:02d}"],
+                                      renders / f"board_{name}_{k:02d}.exr"))
             plates.append((name, ctx.path("images", "board", name, f"{name}_{k + 1:02d}.png"), 8))
     run_solve = config.stages is None or "solve" in config.stages
     if run_solve:
@@ -102,14 +108,14 @@ def stage_render(ctx: DemoContext) -> StageResult:
         quads += room
         for frame in truth.rig.frames:
             for name in names:
-                shots.append(_shot(truth.rig.camera_at_frame(name, frame.index), [q["name"] for q in room],
+                shots.append(pinhole_shot(truth.rig.camera_at_frame(name, frame.index), [q["name"] for q in room],
                                    renders / f"room_{name}_{frame.index:02d}.exr"))
                 plates.append((name, ctx.path("images", "room", name, f"{frame.index:04d}.png"), 8))
     albedos = chart_albedos(truth)
     chart_quads, seen, grid = make_chart_quads(truth, albedos)
     quads += chart_quads
     for name in names:
-        shots.append(_shot(truth.rig.camera(name), seen[name], renders / f"chart_{name}.exr"))
+        shots.append(pinhole_shot(truth.rig.camera(name), seen[name], renders / f"chart_{name}.exr"))
         plates.append((name, ctx.path("images", "chart", f"{name}.png"), 16))
     run_match = config.stages is None or "colour match" in config.stages
     if run_match:
@@ -117,7 +123,7 @@ def stage_render(ctx: DemoContext) -> StageResult:
         match_quads, match_seen = make_match_quads(truth, albedos, N, renders, np.random.default_rng(config.seed + 1))
         quads += match_quads
         for name in names:
-            shots.append(_shot(truth.rig.camera(name), match_seen[name], renders / f"match_{name}.exr"))
+            shots.append(pinhole_shot(truth.rig.camera(name), match_seen[name], renders / f"match_{name}.exr"))
             plates.append((name, ctx.path("images", "match", f"{name}.png"), 16))
         ctx.artifacts["match_images"] = {n: ctx.out_dir / "images" / "match" / f"{n}.png" for n in names}
         ctx.artifacts["match_truth"] = N
@@ -126,9 +132,9 @@ def stage_render(ctx: DemoContext) -> StageResult:
            # irradiance pi along the chart's normal: radiance = albedo (Lambertian, albedo E / pi)
            "suns": [{"direction": (R_chart @ [0.0, 0.0, 1.0]).tolist(), "strength": float(np.pi)}]}
     exrs = render_shots(job, renders)
-    maps = {name: _redistort_maps(truth.rig.camera(name)) for name in names}
+    maps = {name: redistort_maps(truth.rig.camera(name)) for name in names}
     for exr, (name, plate, bits) in zip(exrs, plates):
-        _write_plate(exr, maps[name], plate, bits)
+        write_plate(exr, maps[name], plate, bits)
     ctx.artifacts["board_images"] = {n: sorted(str(p) for c, p, _ in plates if c == n and "board" in p.parts)
                                      for n in names}
     if run_solve:
