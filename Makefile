@@ -23,11 +23,16 @@ $(STAMP): pyproject.toml $(LOCK) | python
 	$(PY) tests/colour/export/ocio_releases.py install $(VENV)/ocio
 	touch $(STAMP)
 
+# The tests run on every core (pytest-xdist), each test file in one worker so that its
+# module fixtures are built once; serially: make test WORKERS=0
+WORKERS ?= auto
+XDIST   := -n $(WORKERS) --dist loadfile
+
 test: $(STAMP)
-	$(PY) -m pytest -m "not slow" -q
+	$(PY) -m pytest -m "not slow" -q $(XDIST)
 
 test-all: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q $(XDIST)
 
 # The fast suite at the lowest and at the newest versions pyproject.toml allows, each in its own venv
 # (.venv-lowest: requirements/lowest-py313.txt as constraints, written by requirements/lowest.py;
@@ -40,7 +45,7 @@ define versions_venv
 	$(1)/bin/python -m pip install --quiet $(2) -e ".[all,blender,test]"
 	$(1)/bin/python tests/colour/export/ocio_releases.py install $(1)/ocio
 	@$(1)/bin/python -m pip list --format=freeze > $(1)/versions.txt
-	$(1)/bin/python -m pytest -m "not slow" -q -p no:cacheprovider --continue-on-collection-errors $(TESTS)
+	$(1)/bin/python -m pytest -m "not slow" -q -p no:cacheprovider --continue-on-collection-errors $(XDIST) $(TESTS)
 endef
 
 test-lowest: python
