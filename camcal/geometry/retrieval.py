@@ -18,10 +18,11 @@ same part of the set have a high cosine similarity ``v_i . v_j``.
 
 A pair of frames far apart in time is a revisit (:func:`revisit_pairs`) when
 each is the other's most similar frame outside its time window (mutual
-nearest neighbours) and the similarity stands out of that frame's
-similarities to the frames outside the window (a robust z-score: above the
-median by ``min_score`` median absolute deviations). Frames whose best
-match is merely the least unlike give no pair.
+nearest neighbours), the similarity stands out of that frame's similarities
+to the frames outside the window (a robust z-score: above the median by
+``min_score`` median absolute deviations), and it is at least ``min_ratio``
+of the similarity frames have to their neighbours inside the window (which
+do overlap). Frames whose best match is merely the least unlike give no pair.
 
 References
 ----------
@@ -54,12 +55,11 @@ def _unit_rows(descriptors: ArrayLike) -> NDArray[np.float32]:
 
 
 def _nearest(rows: NDArray[np.float32], centres: NDArray[np.float32]) -> NDArray[np.intp]:
-    """Index of the nearest centre (Euclidean) of every row."""
-    distances = (rows * rows).sum(1)[:, None] - 2.0 * rows @ centres.T + (centres * centres).sum(1)[None, :]
-    return np.argmin(distances, axis=1)
+    """Index of the nearest centre (Euclidean) of every row: the smallest ``|c|^2 - 2 x . c``."""
+    return np.argmin((centres * centres).sum(1)[None, :] - 2.0 * rows @ centres.T, axis=1)
 
 
-def train_vocabulary(descriptors: ArrayLike, n_words: int = 32, seed: int = 0, iterations: int = 20,
+def train_vocabulary(descriptors: ArrayLike, n_words: int = 32, seed: int = 0, iterations: int = 10,
                      max_samples: int = 20_000) -> NDArray[np.float32]:
     """A visual vocabulary: k-means (k-means++ seeding, Lloyd's iterations) over unit-length descriptors.
 
@@ -136,7 +136,7 @@ def vlad(descriptors: ArrayLike, vocabulary: ArrayLike) -> NDArray[np.float32]:
 
 
 def revisit_pairs(vectors: ArrayLike, times: ArrayLike, min_gap: int, min_score: float = 3.0,
-                  per_frame: int = 1) -> list[tuple[int, int, float]]:
+                  min_ratio: float = 0.5, per_frame: int = 1) -> list[tuple[int, int, float]]:
     """Pairs of frames far apart in time that see the same thing: mutual nearest neighbours that stand out.
 
     Parameters
@@ -151,6 +151,11 @@ def revisit_pairs(vectors: ArrayLike, times: ArrayLike, min_gap: int, min_score:
     min_score : float
         How far a pair's similarity must stand above the frame's others
         outside the window: ``(s - median) / (1.4826 MAD)`` for both frames.
+    min_ratio : float
+        A pair's similarity must also be at least ``min_ratio`` times the
+        median over frames of each frame's highest similarity to a frame
+        inside the window (a neighbour it overlaps), the shot's own scale
+        of "alike".
     per_frame : int
         Each frame's ``per_frame`` most similar frames outside the window are
         its candidates; a pair is kept when each frame is among the other's.
@@ -165,7 +170,10 @@ def revisit_pairs(vectors: ArrayLike, times: ArrayLike, min_gap: int, min_score:
     if v.ndim != 2 or len(v) != len(t):
         raise CamcalError(f"need one vector per frame time, got {v.shape} vectors and {t.shape} times")
     similarity = v @ v.T
-    far = np.abs(t[:, None] - t[None, :]) >= int(min_gap)
+    gaps = np.abs(t[:, None] - t[None, :])
+    far = gaps >= int(min_gap)
+    near = np.where((gaps > 0) & ~far, similarity, -np.inf).max(axis=1)
+    alike = float(np.median(near[np.isfinite(near)])) if np.isfinite(near).any() else 0.0
     candidates: list[set[int]] = []
     scores = np.full(similarity.shape, -np.inf)
     for i in range(len(v)):
@@ -182,6 +190,7 @@ def revisit_pairs(vectors: ArrayLike, times: ArrayLike, min_gap: int, min_score:
     pairs = []
     for i in range(len(v)):
         for j in sorted(candidates[i]):
-            if i < j and i in candidates[j] and min(scores[i, j], scores[j, i]) >= min_score:
+            if (i < j and i in candidates[j] and min(scores[i, j], scores[j, i]) >= min_score
+                    and similarity[i, j] >= min_ratio * alike):
                 pairs.append((i, j, float(similarity[i, j])))
     return pairs

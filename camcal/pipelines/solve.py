@@ -381,7 +381,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     missing = unregistered_line([name for name in staged if name not in registered], staged)
     if missing and require_all:
         raise CamcalError(f"{missing} (--require-all)")
-    notes = loop_notes + ([missing] if missing else [])
+    notes = ([missing] if missing else []) + loop_notes
     bundle = calibration = None
     if refine:
         _say(progress, "bundle adjustment (camcal)")
