@@ -259,6 +259,8 @@ def solve_sfm(
         raise CamcalError("need at least one image folder")
     if matcher not in MATCHERS:
         raise CamcalError(f"unknown matcher {matcher!r}, expected one of: {', '.join(MATCHERS)}")
+    if loops not in LOOP_MODES:
+        raise CamcalError(f"unknown loop closure {loops!r}, expected one of: {', '.join(LOOP_MODES)}")
     if mapper not in MAPPERS:
         raise CamcalError(f"unknown mapper {mapper!r}, expected one of: {', '.join(MAPPERS)}")
     if jackknife is not None and jackknife not in JACKKNIFE_METHODS:
@@ -271,8 +273,6 @@ def solve_sfm(
         missing = [name for name in images if name not in {camera.name for camera in known_rig.cameras}]
         if missing:
             raise CamcalError(f"the known rig has no camera named {', '.join(map(repr, missing))}")
-    if loops not in LOOP_MODES:
-        raise CamcalError(f"unknown loop closure {loops!r}: one of {', '.join(LOOP_MODES)}")
     if int(every) < 1:
         raise CamcalError(f"--every must be 1 or more, got {every}")
     videos = {name: video_of(paths) for name, paths in images.items()}
