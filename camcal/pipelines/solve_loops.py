@@ -31,7 +31,7 @@ __all__ = ["LOOP_MODES", "LoopClosure", "close_loops", "keyframe_times"]
 LOOP_MODES = ("auto", "off")
 #: words of the VLAD vocabulary (32 x 128 SIFT dimensions: a 4096-long vector per keyframe).
 _WORDS = 32
-#: local descriptors per keyframe pooled for the vocabulary (each keyframe's first ones: COLMAP keeps the largest).
+#: local descriptors per keyframe pooled for the vocabulary (spread evenly over the keyframe's).
 _PER_KEYFRAME = 400
 
 
@@ -68,6 +68,11 @@ def keyframe_times(names: list[str], step: int) -> dict[str, int]:
     return {name: index for frames in per_camera.values() for index, name in enumerate(frames) if index % step == 0}
 
 
+def _spread(rows: np.ndarray, count: int) -> np.ndarray:
+    """At most ``count`` of ``rows``, evenly spaced (a copy: the whole array is not kept alive)."""
+    return rows[::max(1, -(-len(rows) // count))][:count].copy()
+
+
 def close_loops(pycolmap, database: Path, window: int, matching, verification, seed: int) -> LoopClosure:
     """Retrieve the revisits of a plate matched by frame order (``window`` frames each way) and match them.
 
@@ -90,14 +95,15 @@ def close_loops(pycolmap, database: Path, window: int, matching, verification, s
         images = {image.name: image.image_id for image in db.read_all_images()}
         times = keyframe_times(list(images), max(1, window // 3))
         names = sorted(times)
-        descriptors = {name: np.asarray(db.read_descriptors(images[name]).data) for name in names}
+        # two passes over the keyframes, one held at a time: a long plate's descriptors do not fit in memory
+        pooled = [_spread(np.asarray(db.read_descriptors(images[name]).data), _PER_KEYFRAME) for name in names]
+        if len(names) < 4 or sum(len(block) for block in pooled) < 10 * _WORDS:
+            return LoopClosure(len(names), (), 0)
+        vocabulary = train_vocabulary(np.concatenate(pooled), _WORDS, seed)
+        del pooled
+        vectors = np.stack([vlad(np.asarray(db.read_descriptors(images[name]).data), vocabulary) for name in names])
     finally:
         db.close()
-    pooled = [descriptors[name][:_PER_KEYFRAME] for name in names if len(descriptors[name])]
-    if len(names) < 4 or sum(len(block) for block in pooled) < 10 * _WORDS:
-        return LoopClosure(len(names), (), 0)
-    vocabulary = train_vocabulary(np.concatenate(pooled), _WORDS, seed)
-    vectors = np.stack([vlad(descriptors[name], vocabulary) for name in names])
     found = revisit_pairs(vectors, [times[name] for name in names], min_gap=window + 1)
     db = pycolmap.Database.open(database)
     try:
