@@ -224,7 +224,7 @@ def solve(
     matcher : {"exhaustive", "sequential"}
     loops : {"auto", "off"}
         With the sequential matcher, ``auto`` also matches the frames a retrieval finds revisiting an earlier
-        part of the shot (VLAD over a vocabulary of the plate's own features, every third frame), verified by
+        part of the shot (VLAD over a vocabulary of the plate's own features, every second frame), verified by
         COLMAP; the pairs added and verified are a line of the result. The exhaustive matcher ignores it.
     mapper : {"incremental", "global"}
     loss : str

@@ -66,7 +66,7 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="COLMAP's pair matching: every pair, or neighbours in file order (video, long "
                         "sequences) (default: %(default)s)")
     parser.add_argument("--loops", choices=("auto", "off"),
-                        help="with --matcher sequential, loop closure for shots that revisit: every third frame "
+                        help="with --matcher sequential, loop closure for shots that revisit: every second frame "
                         "gets a global descriptor (VLAD over a vocabulary of the plate's own SIFT features), frames "
                         "further apart than the matching window that look alike are matched too and kept if COLMAP's "
                         "geometric verification holds them; the pairs added and verified are printed "

@@ -16,7 +16,11 @@ Zisserman 2013), the whole vector square-rooted with its sign kept (power
 normalisation, Jégou et al. 2012) and L2-normalised. Two frames that see the
 same part of the set have a high cosine similarity ``v_i . v_j``.
 
-A pair of frames far apart in time is a revisit (:func:`revisit_pairs`) when
+The frames' vectors are compared centred on their mean and re-normalised:
+what every frame of the shot shares (the texture of the whole set) says
+nothing about where a frame is (Jégou & Chum 2012 centre VLAD likewise
+before whitening). A pair of frames far apart in time is a revisit
+(:func:`revisit_pairs`) when
 each is the other's most similar frame outside its time window (mutual
 nearest neighbours), the similarity stands out of that frame's similarities
 to the frames outside the window (a robust z-score: above the median by
@@ -31,6 +35,8 @@ descriptors into a compact image representation. CVPR.
 Arandjelović, R. & Zisserman, A. (2013). All About VLAD. CVPR.
 Jégou, H., Perronnin, F., Douze, M., Sánchez, J., Pérez, P. & Schmid, C.
 (2012). Aggregating local image descriptors into compact codes. IEEE TPAMI.
+Jégou, H. & Chum, O. (2012). Negative evidence and co-occurrences in image
+retrieval: the benefit of PCA and whitening. ECCV.
 Arthur, D. & Vassilvitskii, S. (2007). k-means++: the advantages of careful
 seeding. SODA.
 """
@@ -142,7 +148,8 @@ def revisit_pairs(vectors: ArrayLike, times: ArrayLike, min_gap: int, min_score:
     Parameters
     ----------
     vectors : array_like, shape (n, d)
-        A unit global descriptor per frame (:func:`vlad`).
+        A global descriptor per frame (:func:`vlad`), centred on the
+        frames' mean and scaled to unit length here.
     times : array_like of int, shape (n,)
         Each frame's position in the shot (frame index).
     min_gap : int
@@ -169,6 +176,8 @@ def revisit_pairs(vectors: ArrayLike, times: ArrayLike, min_gap: int, min_score:
     t = np.asarray(times, dtype=np.int64)
     if v.ndim != 2 or len(v) != len(t):
         raise CamcalError(f"need one vector per frame time, got {v.shape} vectors and {t.shape} times")
+    v = v - v.mean(axis=0)
+    v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
     similarity = v @ v.T
     gaps = np.abs(t[:, None] - t[None, :])
     far = gaps >= int(min_gap)

@@ -3,8 +3,8 @@
 COLMAP's own loop detection in the sequential matcher needs a vocabulary-tree
 file trained elsewhere; this one trains its vocabulary on the plate's own
 features (:mod:`camcal.geometry.retrieval`). After feature extraction and the
-matching by frame order, every ``step``-th frame of each camera is a
-keyframe; the keyframes' SIFT descriptors (as COLMAP's database holds them)
+matching by frame order, every second frame of each camera is a keyframe
+(:data:`KEYFRAME_STEP`); the keyframes' SIFT descriptors (as COLMAP's database holds them)
 give each a VLAD vector; keyframe pairs further apart in time than the
 matching window whose vectors stand out as mutual nearest neighbours are
 handed to COLMAP's matcher as a list of image pairs, and COLMAP's geometric
@@ -26,9 +26,12 @@ import numpy as np
 from camcal.geometry.retrieval import revisit_pairs, train_vocabulary, vlad
 from camcal.pipelines.solve_colmap import MIN_PAIR_MATCHES
 
-__all__ = ["LOOP_MODES", "LoopClosure", "close_loops", "keyframe_times"]
+__all__ = ["KEYFRAME_STEP", "LOOP_MODES", "LoopClosure", "close_loops", "keyframe_times"]
 
 LOOP_MODES = ("auto", "off")
+#: every this many frames of each camera is a keyframe (every third missed the revisit of a rendered orbit with
+#: some vocabulary seeds, every second found it with each).
+KEYFRAME_STEP = 2
 #: words of the VLAD vocabulary (32 x 128 SIFT dimensions: a 4096-long vector per keyframe).
 _WORDS = 32
 #: local descriptors per keyframe pooled for the vocabulary (spread evenly over the keyframe's).
@@ -83,7 +86,7 @@ def close_loops(pycolmap, database: Path, window: int, matching, verification, s
         COLMAP's database, features extracted and matched by frame order.
     window : int
         The sequential matcher's overlap: pairs nearer in time are matched
-        already; keyframes are every ``max(1, window // 3)``-th frame.
+        already.
     matching, verification
         The ``FeatureMatchingOptions`` and ``TwoViewGeometryOptions`` of the
         sequential matching (the revisits are matched and verified alike).
@@ -93,7 +96,7 @@ def close_loops(pycolmap, database: Path, window: int, matching, verification, s
     db = pycolmap.Database.open(database)
     try:
         images = {image.name: image.image_id for image in db.read_all_images()}
-        times = keyframe_times(list(images), max(1, window // 3))
+        times = keyframe_times(list(images), KEYFRAME_STEP)
         names = sorted(times)
         # two passes over the keyframes, one held at a time: a long plate's descriptors do not fit in memory
         pooled = [_spread(np.asarray(db.read_descriptors(images[name]).data), _PER_KEYFRAME) for name in names]
