@@ -161,6 +161,7 @@ def solve(
     features: int = 8192,
     guided_matching: bool = False,
     matcher: str = "exhaustive",
+    loops: str = "auto",
     mapper: str = "incremental",
     loss: str = "trivial",
     refine: bool = True,
@@ -221,6 +222,10 @@ def solve(
         SIFT features per image (at least 100).
     guided_matching : bool
     matcher : {"exhaustive", "sequential"}
+    loops : {"auto", "off"}
+        With the sequential matcher, ``auto`` also matches the frames a retrieval finds revisiting an earlier
+        part of the shot (VLAD over a vocabulary of the plate's own features, every second frame), verified by
+        COLMAP; the pairs added and verified are a line of the result. The exhaustive matcher ignores it.
     mapper : {"incremental", "global"}
     loss : str
         Robust loss of camcal's bundle adjustment (scale 1 px).
@@ -313,8 +318,8 @@ def solve(
     camera_model = camera_model or (MAPPING_MODELS[model] if mapped else "SIMPLE_RADIAL")
     say = _say_on_stderr if progress is True else (progress or None)
     out = Path(out)
-    result = solve_sfm(found, out, camera_model=camera_model, matcher=matcher, mapper=mapper, seed=seed,
-                       refine=refine, known_rig=known_rig, loss=loss, lens_models=lens_models,
+    result = solve_sfm(found, out, camera_model=camera_model, matcher=matcher, loops=loops, mapper=mapper,
+                       seed=seed, refine=refine, known_rig=known_rig, loss=loss, lens_models=lens_models,
                        principal_point=principal_point, max_num_features=features, jackknife=UNCERTAINTY[uncertainty],
                        priors=tuple(parse_prior(p) if isinstance(p, str) else p for p in priors), verbose=verbose,
                        guided_matching=guided_matching, every=every, masks=mattes, progress=say, intrinsics=grid,

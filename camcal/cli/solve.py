@@ -65,6 +65,13 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--matcher", default="exhaustive", choices=("exhaustive", "sequential"),
                         help="COLMAP's pair matching: every pair, or neighbours in file order (video, long "
                         "sequences) (default: %(default)s)")
+    parser.add_argument("--loops", choices=("auto", "off"),
+                        help="with --matcher sequential, loop closure for shots that revisit: every second frame "
+                        "gets a global descriptor (VLAD over a vocabulary of the plate's own SIFT features), frames "
+                        "further apart than the matching window that look alike are matched too and kept if COLMAP's "
+                        "geometric verification holds them; the pairs added and verified are printed "
+                        "(default: auto)")
+    only_with(parser, "--loops", "--matcher sequential", lambda args: args.matcher == "sequential", default="auto")
     parser.add_argument("--mapper", default="incremental", choices=("incremental", "global"),
                         help="COLMAP's incremental or global mapper (default: %(default)s)")
     parser.add_argument("--require-all", action="store_true",
@@ -111,6 +118,8 @@ def register(parser: argparse.ArgumentParser) -> None:
         "# a plate with the lens of the day's grid held, every frame required, the world set on the ground",
         "camcal solve plates/shot.%04d.exr --frames 1001-1240 --matcher sequential --intrinsics grid.rig.json "
         "--require-all --up ground --origin ground --scale 12,40=1.5 --out solve",
+        "# a handheld shot that comes back to where it started, matched by frame order, no loop closure",
+        "camcal solve plates/walk.%04d.png --matcher sequential --loops off --out solve",
         "# the world set on a 9x6 chessboard of 4 cm squares lying on the set's floor",
         "camcal solve plates/shot.%04d.exr --frames 1001-1240 --matcher sequential --world-board chessboard:9x6:0.04 "
         "--out solve",
@@ -139,8 +148,8 @@ def _solve(args: argparse.Namespace) -> int:
                    rig=args.rig, model=args.model,
                    camera_model=args.camera_model, principal_point=args.principal_point, priors=args.prior,
                    uncertainty=args.uncertainty, features=args.features, guided_matching=args.guided_matching,
-                   matcher=args.matcher, mapper=args.mapper, loss=args.loss, refine=not args.no_refine,
-                   compare_pycolmap=args.compare_pycolmap, intrinsics=args.intrinsics,
+                   matcher=args.matcher, loops=args.loops, mapper=args.mapper, loss=args.loss,
+                   refine=not args.no_refine, compare_pycolmap=args.compare_pycolmap, intrinsics=args.intrinsics,
                    intrinsics_mode=args.intrinsics_mode, require_all=args.require_all, up=args.up, origin=args.origin,
                    scale=args.scale, units=args.units, world_board=args.world_board, seed=args.seed,
                    verbose=args.verbose)

@@ -65,6 +65,7 @@ from camcal.pipelines.solve_colmap import (COLMAP_LOG, MAPPERS, MATCHERS, OWNED,
 from camcal.pipelines.solve_inputs import (check_one_size_per_camera, collect_images, list_images, stage_images,
                                            stage_masks, unregistered_line, video_of)
 from camcal.pipelines.solve_lens import GridLens, drift_lines, grid_lens, hold_in_database, lens_priors
+from camcal.pipelines.solve_loops import LOOP_MODES, close_loops
 from camcal.pipelines.solve_plain import PycolmapPeer, solve_pycolmap_plain
 from camcal.pipelines.solve_world import WorldSpec, align_world, board_world, scaled_translations
 
@@ -150,6 +151,7 @@ def solve_sfm(
     intrinsics_source: str = "the grid",
     world: WorldSpec | None = None,
     require_all: bool = False,
+    loops: str = "auto",
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -237,6 +239,12 @@ def solve_sfm(
     world : WorldSpec, optional
         Up, origin, scale and units to set after the solve
         (:func:`camcal.pipelines.solve_world.world_spec`).
+    loops : {"auto", "off"}
+        With the sequential matcher, ``auto`` also matches the keyframes a
+        retrieval finds revisiting an earlier part of the shot
+        (:mod:`camcal.pipelines.solve_loops`); how many such pairs were
+        matched and verified is a note. The exhaustive matcher matches every
+        pair already.
     require_all : bool
         An image that cannot be registered is an error (nothing is written)
         instead of a line naming it.
@@ -251,6 +259,8 @@ def solve_sfm(
         raise CamcalError("need at least one image folder")
     if matcher not in MATCHERS:
         raise CamcalError(f"unknown matcher {matcher!r}, expected one of: {', '.join(MATCHERS)}")
+    if loops not in LOOP_MODES:
+        raise CamcalError(f"unknown loop closure {loops!r}, expected one of: {', '.join(LOOP_MODES)}")
     if mapper not in MAPPERS:
         raise CamcalError(f"unknown mapper {mapper!r}, expected one of: {', '.join(MAPPERS)}")
     if jackknife is not None and jackknife not in JACKKNIFE_METHODS:
@@ -281,7 +291,7 @@ def solve_sfm(
                                jackknife, guided_matching, priors, every, masks or {},
                                intrinsics=None if intrinsics is None else (intrinsics, intrinsics_mode,
                                                                            intrinsics_source),
-                               world=world, require_all=require_all)
+                               world=world, require_all=require_all, loops=loops)
     return dataclasses.replace(result, reconstruction_dir=final_path(result.reconstruction_dir, staging, target))
 
 
@@ -289,7 +299,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
               known_rig, loss, lens_models, principal_point, max_num_features, progress, jackknife,
               guided_matching: bool, priors: tuple[PriorSpec, ...], every: int = 1,
               masks: dict[str, list[Path]] | None = None, intrinsics: tuple[Rig, str, str] | None = None,
-              world: WorldSpec | None = None, require_all: bool = False) -> SfmResult:
+              world: WorldSpec | None = None, require_all: bool = False, loops: str = "auto") -> SfmResult:
     """:func:`solve_sfm`'s work inside its (temporary) output folder, COLMAP's output captured."""
     image_dir = out_dir / "images"
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
@@ -331,6 +341,13 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
     match(database, matching_options=matching, verification_options=verification_options(pycolmap, seed),
           device=pycolmap.Device.cpu)
+    loop_notes = []
+    if matcher == "sequential" and loops == "auto":
+        _say(progress, "loop closure: retrieving revisits")
+        closure = close_loops(pycolmap, database, pycolmap.SequentialPairingOptions().overlap, matching,
+                              verification_options(pycolmap, seed), seed)
+        _say(progress, closure.line())
+        loop_notes.append(closure.line())
     check_parallax(pycolmap, database, len(staged))
     sparse = out_dir / "sparse"
     sparse.mkdir()
@@ -364,7 +381,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     missing = unregistered_line([name for name in staged if name not in registered], staged)
     if missing and require_all:
         raise CamcalError(f"{missing} (--require-all)")
-    notes = [missing] if missing else []
+    notes = ([missing] if missing else []) + loop_notes
     bundle = calibration = None
     if refine:
         _say(progress, "bundle adjustment (camcal)")

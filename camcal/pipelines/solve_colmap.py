@@ -21,6 +21,7 @@ __all__ = [
     "COLMAP_LOG",
     "MAPPERS",
     "MATCHERS",
+    "MIN_PAIR_MATCHES",
     "OWNED",
     "UPSAMPLE_BELOW_PX",
     "check_parallax",
@@ -136,15 +137,15 @@ def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: 
 
 
 #: a pair of images counts as matched with at least this many verified matches.
-_MIN_PAIR_MATCHES = 15
+MIN_PAIR_MATCHES = 15
 
 
 def _verified_pairs(pycolmap, database: Path) -> list:
-    """The two-view geometries of the pairs with at least :data:`_MIN_PAIR_MATCHES` verified matches."""
+    """The two-view geometries of the pairs with at least :data:`MIN_PAIR_MATCHES` verified matches."""
     db = pycolmap.Database.open(database)
     try:
         return [geometry for geometry in db.read_two_view_geometries()[1]
-                if len(geometry.inlier_matches) >= _MIN_PAIR_MATCHES]
+                if len(geometry.inlier_matches) >= MIN_PAIR_MATCHES]
     finally:
         db.close()
 
