@@ -135,22 +135,44 @@ def _state_from_camera(label: str, focal: float, focus: float, camera: Camera, c
 
 
 def _covariance_from_fit(calibration: BoardCalibration, camera: Camera) -> Callable:
-    """The board fit's covariance of the named parameters (``camera.fx`` ...); sigmas where it has none."""
+    """The covariance of the named parameters from a board fit: the camera's own
+    (:func:`_carried_covariance`), else the fit's rows (``camera.fx`` ...), else its sigmas."""
     result = calibration.calibration
     index = {name: i for i, name in enumerate(result.parameter_names)}
 
     def covariance(names: list[str]):
         keys = [f"{camera.name}.{name}" for name in names]
-        if all(key in index for key in keys):
+        carried = _carried_covariance(camera, names)
+        if carried is None and all(key in index for key in keys):
             rows = [index[key] for key in keys]
             return result.covariance[np.ix_(rows, rows)]
-        return _covariance_from_sigma(camera, "the calibration")(names)
+        return carried if carried is not None else _covariance_from_camera(camera, "the calibration")(names)
 
     return covariance
 
 
-def _covariance_from_sigma(camera: Camera, where: str) -> Callable:
+def _carried_covariance(camera: Camera, names: list[str]) -> np.ndarray | None:
+    """The rows ``names`` of the camera's ``quality.covariance``; None when it does not hold them all.
+
+    That covariance is what the camera's projection sigma uses: a board fit of at least 5 views scales it by the
+    design effect of its delete-one-view jackknife (:mod:`camcal.geometry.view_jackknife`: the corners' errors
+    are correlated within a view), and it keeps the parameters' correlations (fx with fy, k1 with k2), which a
+    diagonal of ``quality.sigma`` drops. The fit's own ``sigma^2 (J^T J)^-1`` has not got the design effect."""
+    carried = camera.quality.covariance
+    if carried is None or not all(name in carried.names for name in names):
+        return None
+    rows = [carried.names.index(name) for name in names]
+    return carried.array[np.ix_(rows, rows)]
+
+
+def _covariance_from_camera(camera: Camera, where: str) -> Callable:
+    """The covariance of the named parameters as the camera carries it (:func:`_carried_covariance`), else a
+    diagonal of its sigmas."""
+
     def covariance(names: list[str]):
+        carried = _carried_covariance(camera, names)
+        if carried is not None:
+            return carried
         sigma = camera.quality.sigma
         missing = [name for name in names if name not in sigma]
         if missing:
@@ -272,7 +294,7 @@ def calibrate_profile(
                                   f"{board.spec()} (every state on one board)")
             camera = rig.cameras[0]
             _check_alike(label, camera, lens_states, sizes)
-            state = _state_from_camera(label, focal, focus, camera, _covariance_from_sigma(camera, where),
+            state = _state_from_camera(label, focal, focus, camera, _covariance_from_camera(camera, where),
                                        int(camera.quality.n_views or 0), float(camera.quality.rms_px or 0.0))
             say(f"{label}: read {where}")
         else:
