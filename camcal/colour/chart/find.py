@@ -102,31 +102,40 @@ class SegmentationResult:
     score: float
 
 
-def _candidates(grey: np.ndarray) -> np.ndarray:
-    """Patch-like regions: ``(K, 4)`` centre x, y, side, angle (degrees) of their rectangles."""
+def _candidates(small: np.ndarray, flat: bool = False) -> np.ndarray:
+    """Patch-like regions: ``(K, 4)`` centre x, y, side, angle (degrees) of their rectangles.
+
+    ``flat``: the regions between colour edges too (:func:`_flat_regions`).
+    """
     import cv2
 
+    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
     height, width = grey.shape
     long_side = max(height, width)
     clahe = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8)).apply(grey)
     found = []
     min_area = max(36.0, (long_side / 160.0) ** 2)
     max_area = height * width / 30.0
+
+    def add(mask: np.ndarray) -> None:
+        contours, _ = cv2.findContours(mask, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
+        for contour in contours:
+            area = cv2.contourArea(contour)
+            if not min_area <= area <= max_area:
+                continue
+            (cx, cy), (w, h), angle = cv2.minAreaRect(contour)
+            if w <= 0 or h <= 0 or max(w, h) > 2 * min(w, h) or area < 0.75 * w * h:
+                continue
+            found.append((cx, cy, np.sqrt(w * h), angle))
+
     for source in (grey, clahe):
         for divisor in (12, 24, 48):
             block = max(3, int(long_side / divisor) | 1)
             for polarity, c in ((cv2.THRESH_BINARY, -2), (cv2.THRESH_BINARY_INV, 2)):
                 mask = cv2.adaptiveThreshold(source, 255, cv2.ADAPTIVE_THRESH_MEAN_C, polarity, block, c)
-                mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-                contours, _ = cv2.findContours(mask, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
-                for contour in contours:
-                    area = cv2.contourArea(contour)
-                    if not min_area <= area <= max_area:
-                        continue
-                    (cx, cy), (w, h), angle = cv2.minAreaRect(contour)
-                    if w <= 0 or h <= 0 or max(w, h) > 2 * min(w, h) or area < 0.75 * w * h:
-                        continue
-                    found.append((cx, cy, np.sqrt(w * h), angle))
+                add(cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)))
+    if flat:
+        add(_flat_regions(small))
     if not found:
         return np.zeros((0, 4))
     found = np.array(found)
@@ -134,9 +143,25 @@ def _candidates(grey: np.ndarray) -> np.ndarray:
     order = np.argsort(-found[:, 2])
     kept: list[int] = []
     for i in order:
-        if all(np.hypot(*(found[i, :2] - found[j, :2])) > 0.5 * found[j, 2] for j in kept):
+        if not kept or np.all(np.hypot(*(found[kept, :2] - found[i, :2]).T) > 0.5 * found[kept, 2]):
             kept.append(int(i))
     return found[kept]
+
+
+def _flat_regions(small: np.ndarray) -> np.ndarray:
+    """A mask of the regions between colour edges: patches that touch their neighbours (IT8.7/2, no gaps).
+
+    The colour gradient (the largest Sobel magnitude of the three channels
+    after a Gaussian blur, sigma 1 px) marks an edge where it exceeds four
+    times its median (the noise of flat areas) and at least 8 code values.
+    """
+    import cv2
+
+    blurred = cv2.GaussianBlur(small, (0, 0), 1.0).astype(np.float32)
+    gradient = np.max([np.hypot(cv2.Sobel(blurred[:, :, k], cv2.CV_32F, 1, 0),
+                                cv2.Sobel(blurred[:, :, k], cv2.CV_32F, 0, 1)) for k in range(3)], axis=0)
+    edges = gradient > max(8.0, 4.0 * float(np.median(gradient)))
+    return np.where(edges, 0, 255).astype(np.uint8)
 
 
 def _groups(cand: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
@@ -275,18 +300,47 @@ def colour_score(measured: np.ndarray, reference: np.ndarray) -> float:
 
 
 def _orientations(rows: int, columns: int):
-    """Chart (row, column) -> lattice offsets for the four rotations, with the window's size."""
+    """Chart (row, column) -> lattice offsets for the four rotations and their four mirror images,
+    with the window's size and whether the chart is mirrored."""
     r, c = np.divmod(np.arange(rows * columns), columns)
-    return [
+    turns = [
         ((columns, rows), np.column_stack([c, r])),
         ((columns, rows), np.column_stack([columns - 1 - c, rows - 1 - r])),
         ((rows, columns), np.column_stack([rows - 1 - r, c])),
         ((rows, columns), np.column_stack([r, columns - 1 - c])),
     ]
+    # a mirror image: the lattice's first axis reversed
+    return [(size, offsets, False) for size, offsets in turns] + [
+        (size, np.column_stack([size[0] - 1 - offsets[:, 0], offsets[:, 1]]), True) for size, offsets in turns]
+
+
+@dataclass(frozen=True)
+class _Segments:
+    """The candidate patches of a view and their groups (shared by every layout searched for)."""
+
+    small: np.ndarray
+    scale: float
+    cand: np.ndarray
+    groups: list
+    near: np.ndarray
+
+
+def _segment(view: np.ndarray, flat: bool) -> _Segments:
+    import cv2
+
+    scale = min(1.0, _MAX_SIDE / max(view.shape[:2]))
+    small = view if scale == 1.0 else cv2.resize(view, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    cand = _candidates(small, flat)
+    groups, near = _groups(cand) if len(cand) >= 8 else ([], np.zeros((0, 0), dtype=bool))
+    return _Segments(small, scale, cand, groups, near)
+
+
+#: The share of a chart's patches the segmentation must see (and at least 8).
+MIN_PATCH_SHARE = 1.0 / 3.0
 
 
 def find_chart_segmentation(
-    view: np.ndarray, reference_RGB: np.ndarray, rows: int = 4, columns: int = 6
+    view: np.ndarray, reference_RGB: np.ndarray, rows: int = 4, columns: int = 6, *, cache: dict | None = None
 ) -> SegmentationResult | None:
     """Find a ``rows x columns`` chart on an 8-bit view by segmentation (see the module docstring).
 
@@ -297,42 +351,56 @@ def find_chart_segmentation(
     reference_RGB
         ``(rows * columns, 3)`` the chart's linear RGB (any RGB space with
         positive values: only orderings of log ratios are used).
+    cache
+        A dict kept between calls on the same view (searching it for several
+        layouts): its segmentations are made once.
 
     Returns
     -------
     SegmentationResult or None
         ``None`` when no group of patches forms the chart.
     """
-    import cv2
+    cache = {} if cache is None else cache
+    for flat in (False, True):
+        if flat not in cache:
+            cache[flat] = _segment(view, flat)
+        found = _search(cache[flat], reference_RGB, rows, columns)
+        if found is not None:
+            return found
+    return None
 
-    scale = min(1.0, _MAX_SIDE / max(view.shape[:2]))
-    small = view if scale == 1.0 else cv2.resize(view, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
-    linear = np.power(small.astype(np.float64) / 255.0, 2.2)
-    cand = _candidates(grey)
+
+def _search(seg: _Segments, reference_RGB: np.ndarray, rows: int, columns: int) -> SegmentationResult | None:
+    """The best placement of the chart in the lattices of a view's segmentation (module docstring, step 4)."""
+    small, scale, cand = seg.small, seg.scale, seg.cand
     if len(cand) < 8:
         return None
-    groups, near = _groups(cand)
+    linear = np.power(small.astype(np.float64) / 255.0, 2.2)
     reference_RGB = np.asarray(reference_RGB, dtype=np.float64)
+    least = max(8, int(np.ceil(MIN_PATCH_SHARE * rows * columns)))
     best = None
-    for members in groups[:4]:
-        found = _lattice(cand, members, near)
+    for members in seg.groups[:4]:
+        if len(members) < least:
+            continue
+        found = _lattice(cand, members, seg.near)
         if found is None:
             continue
         ids, lattice, H, pitch = found
         lo, hi = lattice.min(axis=0), lattice.max(axis=0)
         radius = max(1, int(0.15 * pitch))
         height, width = small.shape[:2]
-        for (wp, wq), offsets in _orientations(rows, columns):
+        for (wp, wq), offsets, mirrored in _orientations(rows, columns):
             for p0 in range(hi[0] - wp + 1, lo[0] + 1):
                 for q0 in range(hi[1] - wq + 1, lo[1] + 1):
+                    inside = ((lattice[:, 0] >= p0) & (lattice[:, 0] < p0 + wp)
+                              & (lattice[:, 1] >= q0) & (lattice[:, 1] < q0 + wq))
+                    if best is not None and int(inside.sum()) < best[0][0]:
+                        continue
                     cells = offsets + [p0, q0]
                     centres = _project(H, cells.astype(np.float64))
                     x, y = np.round(centres).astype(int).T
                     if x.min() < radius or y.min() < radius or x.max() >= width - radius or y.max() >= height - radius:
                         continue
-                    inside = ((lattice[:, 0] >= p0) & (lattice[:, 0] < p0 + wp)
-                              & (lattice[:, 1] >= q0) & (lattice[:, 1] < q0 + wq))
                     measured = np.array([linear[yy - radius: yy + radius + 1, xx - radius: xx + radius + 1]
                                          .reshape(-1, 3).mean(axis=0) for xx, yy in zip(x, y)])
                     score = colour_score(measured, reference_RGB)
@@ -343,7 +411,7 @@ def find_chart_segmentation(
                         pts = cand[ids, :2]
                         ok = index >= 0
                         best = (key, (pts[ok] + 0.5) / scale - 0.5, index[ok])
-    if best is None or best[0][0] < 8 or best[0][1] < MIN_COLOUR_SCORE:
+    if best is None or best[0][0] < least or best[0][1] < MIN_COLOUR_SCORE:
         return None
     (count, score), centres, index = best
     return SegmentationResult(centres, index, len(cand), float(score))
