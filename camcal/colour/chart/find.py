@@ -117,11 +117,11 @@ def _candidates(small: np.ndarray, flat: bool = False) -> np.ndarray:
     min_area = max(36.0, (long_side / 160.0) ** 2)
     max_area = height * width / 30.0
 
-    def add(mask: np.ndarray) -> None:
+    def add(mask: np.ndarray, least: float = min_area) -> None:
         contours, _ = cv2.findContours(mask, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
         for contour in contours:
             area = cv2.contourArea(contour)
-            if not min_area <= area <= max_area:
+            if not least <= area <= max_area:
                 continue
             (cx, cy), (w, h), angle = cv2.minAreaRect(contour)
             if w <= 0 or h <= 0 or max(w, h) > 2 * min(w, h) or area < 0.75 * w * h:
@@ -135,7 +135,8 @@ def _candidates(small: np.ndarray, flat: bool = False) -> np.ndarray:
                 mask = cv2.adaptiveThreshold(source, 255, cv2.ADAPTIVE_THRESH_MEAN_C, polarity, block, c)
                 add(cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)))
     if flat:
-        add(_flat_regions(small))
+        # regions bounded by thin edges: smaller than a thresholded patch of the same pitch
+        add(_flat_regions(small), max(16.0, (long_side / 300.0) ** 2))
     if not found:
         return np.zeros((0, 4))
     found = np.array(found)
@@ -151,17 +152,29 @@ def _candidates(small: np.ndarray, flat: bool = False) -> np.ndarray:
 def _flat_regions(small: np.ndarray) -> np.ndarray:
     """A mask of the regions between colour edges: patches that touch their neighbours (IT8.7/2, no gaps).
 
-    The colour gradient (the largest Sobel magnitude of the three channels
-    after a Gaussian blur, sigma 1 px) marks an edge where it exceeds four
-    times its median (the noise of flat areas) and at least 8 code values.
+    Edges: Canny's (hysteresis thresholds ``t / 2`` and ``t``, L2 gradient)
+    on CIELAB's three channels (OpenCV's 8-bit ``L``, ``a``, ``b``; ``a``
+    and ``b`` stretched so that their 1st to 99th percentiles span 0-255:
+    a dim or desaturated capture's colour differences become edges) after a
+    Gaussian blur (sigma 0.7 px), ``t`` per channel four times its median
+    gradient (the noise of flat areas) and at least 6 code values; thickened
+    to 2 px so that no region leaks into its diagonal neighbour.
     """
     import cv2
 
-    blurred = cv2.GaussianBlur(small, (0, 0), 1.0).astype(np.float32)
-    gradient = np.max([np.hypot(cv2.Sobel(blurred[:, :, k], cv2.CV_32F, 1, 0),
-                                cv2.Sobel(blurred[:, :, k], cv2.CV_32F, 0, 1)) for k in range(3)], axis=0)
-    edges = gradient > max(8.0, 4.0 * float(np.median(gradient)))
-    return np.where(edges, 0, 255).astype(np.uint8)
+    Lab = cv2.cvtColor(cv2.GaussianBlur(small, (0, 0), 0.7), cv2.COLOR_RGB2Lab).astype(np.float32)
+    for k in (1, 2):
+        lo, hi = np.percentile(Lab[:, :, k], [1, 99])
+        Lab[:, :, k] = (Lab[:, :, k] - lo) * (255.0 / max(hi - lo, 1.0))
+    channels = np.clip(Lab, 0, 255).astype(np.uint8)
+    edges = np.zeros(small.shape[:2], np.uint8)
+    for k in range(3):
+        channel = np.ascontiguousarray(channels[:, :, k])
+        gradient = np.hypot(cv2.Sobel(channel, cv2.CV_32F, 1, 0), cv2.Sobel(channel, cv2.CV_32F, 0, 1))
+        high = max(6.0, 4.0 * float(np.median(gradient)))
+        edges |= cv2.Canny(channel, high / 2, high, L2gradient=True)
+    edges = cv2.dilate(edges, np.ones((2, 2), np.uint8))
+    return np.where(edges > 0, 0, 255).astype(np.uint8)
 
 
 def _groups(cand: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:

@@ -157,3 +157,39 @@ def render_chart(path, camera: SimulatedCamera, layout: str, *, tilt_deg: float 
                                full_well=full_well, seed=seed)
     p = np.column_stack([centres, np.ones(len(centres))]) @ H.T
     return Render(path, layout, p[:, :2] / p[:, 2:], reference, RGB * exposure, actual, mirrored)
+
+
+#: The conditions of the rendered test set: name -> how a seed's parameters are drawn.
+CONDITIONS = {
+    "perspective 45 deg": lambda rng: dict(tilt_deg=45.0, share=0.25, turn_deg=rng.uniform(-20, 20)),
+    "5 % of the frame": lambda rng: dict(tilt_deg=rng.uniform(0, 30), share=0.05, turn_deg=rng.uniform(-20, 20)),
+    "60 % of the frame": lambda rng: dict(tilt_deg=rng.uniform(0, 15), share=0.6, turn_deg=rng.uniform(-5, 5)),
+    "rotated 180 deg": lambda rng: dict(tilt_deg=rng.uniform(0, 30), share=0.25, turn_deg=180 + rng.uniform(-10, 10)),
+    "mirrored": lambda rng: dict(tilt_deg=rng.uniform(0, 30), share=0.25, turn_deg=rng.uniform(-20, 20),
+                                 mirrored=True),
+    "3 stops under": lambda rng: dict(tilt_deg=rng.uniform(0, 30), share=0.25, turn_deg=rng.uniform(-20, 20),
+                                      stops_under=3.0),
+}
+LAYOUT_ORDER = ("classic", "passport", "mini", "nano", "digital-sg", "it8")
+CAMERAS = (("Nikon 5100 (NPL)", "D65"), ("Sigma SDMerill (NPL)", "A"))
+
+
+def render_case(folder, layout: str, condition: str, seed: int, cameras: dict) -> Render:
+    """One capture of the test set: ``layout`` under ``condition``, parameters drawn from ``seed``; the camera
+    alternates by seed (Nikon 5100 under D65, Sigma SD Merrill under A); ``cameras`` caches them."""
+    name, illuminant = CAMERAS[seed % 2]
+    if name not in cameras:
+        cameras[name] = SimulatedCamera.from_colour(name, illuminant)
+    rng = np.random.default_rng([seed, LAYOUT_ORDER.index(layout), list(CONDITIONS).index(condition)])
+    stem = f"{layout}_{condition.split()[0]}_{seed}"
+    return render_chart(Path(folder) / f"{stem}.dng", cameras[name], layout, seed=seed + 100 * LAYOUT_ORDER.index(layout),
+                        **CONDITIONS[condition](rng))
+
+
+def found_in_order(centres: np.ndarray, truth: np.ndarray) -> tuple[bool, float]:
+    """Every patch centre within a quarter of the patch pitch of the truth, in chart order; the worst error (px)."""
+    d = np.linalg.norm(truth[:, None] - truth[None], axis=2)
+    np.fill_diagonal(d, np.inf)
+    pitch = float(np.median(d.min(axis=1)))
+    error = float(np.linalg.norm(np.asarray(centres) - truth, axis=1).max())
+    return error < 0.25 * pitch, error
