@@ -19,7 +19,7 @@ from BabelColor's average reflectances; the Digital SG from X-Rite's XYZ
 (colour-science, D50) adapted to the illuminant and taken to camera RGB by
 the 3x3 matrix that best maps the rawtoaces 190 reflectances' XYZ to their
 camera RGB; the IT8.7/2 from reflectances (264 of rawtoaces 190 and the
-Munsell validation set, 24 flat greys from 90 % to 3 %), whose D50 XYZ are
+CIE 2017 colour fidelity samples, 24 flat greys from 90 % to 3 %), whose D50 XYZ are
 written as the chart's CGATS reference file beside the DNG.
 """
 
@@ -34,7 +34,7 @@ from raw_chart_scenes import _texture_passport, cluttered_wall, write_raw_scene
 
 from camcal.colour.chart.layouts import chart_layout, it8_patch_names
 from camcal.colour.chart.reference import ReferenceChart, reference_chart, reference_from_measurements
-from camcal.colour.spectral.data import adapt_XYZ, reflectance_set, reflectance_XYZ
+from camcal.colour.spectral.data import adapt_XYZ, reflectance_set, resample_spectral
 from camcal.colour.spectral.simulate import SimulatedCamera
 from camcal.io.cgats import read_cgats, write_cgats
 
@@ -54,15 +54,26 @@ class Render:
     mirrored: bool
 
 
+_CACHE: dict = {}
+
+
+def _reflectances(name: str, camera: SimulatedCamera) -> np.ndarray:
+    """A reflectance set on the camera's grid (kept: every render reads the same few)."""
+    key = (name, camera.wavelengths.tobytes())
+    if key not in _CACHE:
+        _CACHE[key] = reflectance_set(name, camera.wavelengths)[1]
+    return _CACHE[key]
+
+
 def _camera_matrix(camera: SimulatedCamera) -> np.ndarray:
     """The 3x3 ``M`` with camera RGB ~ XYZ @ M over the rawtoaces 190 set (least squares)."""
-    _, R = reflectance_set("rawtoaces 190", camera.wavelengths)
+    R = _reflectances("rawtoaces 190", camera)
     return np.linalg.lstsq(camera.XYZ(R), camera.RGB(R), rcond=None)[0]
 
 
 def _it8_reflectances(camera: SimulatedCamera, rng) -> np.ndarray:
-    _, a = reflectance_set("rawtoaces 190", camera.wavelengths)
-    _, b = reflectance_set("Munsell validation", camera.wavelengths)
+    a = _reflectances("rawtoaces 190", camera)
+    b = _reflectances("CIE 2017 TCS", camera)
     pool = np.vstack([a, b])
     colours = pool[rng.permutation(len(pool))[:264]]
     greys = np.geomspace(0.9, 0.03, 24)[:, None] * np.ones((1, len(camera.wavelengths)))
@@ -73,15 +84,16 @@ def _patch_colours(camera: SimulatedCamera, layout: str, folder: Path, stem: str
     """Camera RGB of every patch and the reference chart camcal is given."""
     chart = chart_layout(layout)
     if chart.family == "24":
-        _, R = reflectance_set("BabelColor Average", camera.wavelengths)
-        return camera.RGB(R), reference_chart(chart.reference, "D50")
+        return camera.RGB(_reflectances("BabelColor Average", camera)), reference_chart(chart.reference, "D50")
     if layout == "digital-sg":
         reference = reference_chart(chart.reference, "D50")
         XYZ = adapt_XYZ(reference.XYZ, reference.white_XYZ, camera.white_XYZ, "CAT02")
         return np.clip(XYZ @ _camera_matrix(camera), 1e-4, None), reference
     R = _it8_reflectances(camera, rng)
-    shape = (camera.wavelengths[0], camera.wavelengths[-1], camera.wavelengths[1] - camera.wavelengths[0])
-    XYZ, _ = reflectance_XYZ(R, "D50", shape)
+    import colour
+
+    D50 = resample_spectral(colour.SDS_ILLUMINANTS["D50"], camera.wavelengths)
+    XYZ = (R * D50) @ camera.cmfs / float(D50 @ camera.cmfs[:, 1])  # on the camera's grid, white Y = 1
     path = write_cgats(folder / f"{stem}.it8.txt", it8_patch_names(), XYZ, identifier="IT8.7/2")
     data = read_cgats(path)
     return camera.RGB(R), reference_from_measurements(path.name, data.names, data.XYZ, "it8")
@@ -92,7 +104,7 @@ def _texture(layout: str, RGB: np.ndarray, camera: SimulatedCamera, rng):
     chart = chart_layout(layout)
     grey = camera.RGB(np.full((1, len(camera.wavelengths)), 1.0))[0]
     if layout == "passport":
-        _, R_other = reflectance_set("rawtoaces 190", camera.wavelengths)
+        R_other = _reflectances("rawtoaces 190", camera)
         other = camera.RGB(R_other[rng.permutation(len(R_other))[:40]])
         return _texture_passport(RGB, other, 48, float(0.03 * grey[1]), 0.08)
     cell = {"24": 48, "digital-sg": 30, "it8": 22}[chart.family]
@@ -145,7 +157,7 @@ def render_chart(path, camera: SimulatedCamera, layout: str, *, tilt_deg: float 
     rng = np.random.default_rng(seed)
     RGB, reference = _patch_colours(camera, layout, path.parent, path.stem, rng)
     tex, centres = _texture(layout, RGB, camera, rng)
-    _, R_other = reflectance_set("rawtoaces 190", camera.wavelengths)
+    R_other = _reflectances("rawtoaces 190", camera)
     scene = cluttered_wall(camera, camera.RGB(R_other[rng.permutation(len(R_other))[:40]]), size, rng)
     H, actual = _placement(tex.shape[:2], size, rng, tilt_deg, share, turn_deg, mirrored)
     height, width = size
