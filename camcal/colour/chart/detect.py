@@ -7,7 +7,11 @@ a lattice, oriented by the reference chart's colours; it also finds the
 classic chart on a ColorChecker Passport page), and where it finds none,
 OpenCV's ``cv2.mcc`` (contrib), its patch order checked against the
 reference's colours. A homography from the chart's patch grid to
-the image is fitted to the patch centres found. A manual override takes the four
+the image is fitted to the patch centres found. Any layout of
+:mod:`camcal.colour.chart.layouts` (ColorChecker Classic, Passport, Mini,
+Nano, Digital SG, IT8.7/2) is found by the segmentation, turned or seen in
+a mirror (reported: :attr:`ChartDetection.mirrored`; the patches still come
+in chart order); cv2.mcc finds the 24-patch charts only. A manual override takes the four
 outer corners of the patch grid instead, in the order top-left (the corner
 of ``dark skin``), top-right (``bluish green``), bottom-right
 (``black``), bottom-left (``white``), pixel (0, 0) the centre of the

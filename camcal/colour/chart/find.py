@@ -1,4 +1,4 @@
-"""Finding a ColorChecker on raw data: a normalised, encoded view and a segmentation detector.
+"""Finding a colour chart on raw data: a normalised, encoded view and a segmentation detector.
 
 A raw image is linear camera RGB, often dim (a chart 3 or more stops under,
 the white patch at a few per cent of full scale) and green-heavy. Neither
@@ -14,29 +14,29 @@ OpenCV's ``cv2.mcc``:
 1. candidate patches: connected regions of adaptive thresholds of the grey
    view (several block sizes, after contrast equalisation, CLAHE) whose
    minimum-area rectangle they fill to 75 % or more, with an aspect ratio
-   within 2:1;
+   within 2:1; where those form no chart, the regions between colour edges
+   too (:func:`_flat_regions`: patches that touch, as on an IT8.7/2);
 2. neighbours: patches of similar area (ratio within 2) whose centres are
-   closer than 1.9 patch sides; each connected group of eight or more is a
-   candidate chart;
+   closer than 1.9 patch sides; each connected group of eight or more (and
+   a third of the chart's patches) is a candidate chart;
 3. a lattice: the two step directions are the medians of the two clusters
    of neighbour steps (right-handed in the image); a breadth-first walk
    gives each patch integer lattice coordinates; a homography from the
    lattice to the centres (RANSAC, then least squares on the inliers)
    keeps the patches that fit;
 4. the chart in the lattice: every placement of a ``rows x columns`` window
-   (either way round) and each of its four rotations is scored first by the
-   number of patches it holds, then by how well the sampled colours agree
-   with the reference chart's: the correlations of log luminance and of the
-   log chromaticity ratios ``R/G`` and ``B/G`` over the patches (a camera's
-   RGB is not sRGB, but these orderings survive any white balance and any
-   monotone response). This also finds the classic chart on a
+   (either way round), each of its four rotations and their four mirror
+   images (a chart seen in a mirror, or a flipped image) is scored first by
+   the number of patches it holds, then by how well the sampled colours
+   agree with the reference chart's: the correlations of log luminance and
+   of the log chromaticity ratios ``R/G`` and ``B/G`` over the patches (a
+   camera's RGB is not sRGB, but these orderings survive any white balance
+   and any monotone response). This also finds the classic chart on a
    ColorChecker Passport page (held either way round), beside the other
    page's patches of another size;
 5. the grid: a homography from the chart's patch centres to the image by
-   least squares over the patches found.
-
-Only rotations, not mirror images, are tried: a chart is seen from its
-front.
+   least squares over the patches found (a mirrored chart's turns the other
+   way: :attr:`camcal.colour.chart.detect.ChartDetection.mirrored`).
 """
 
 from __future__ import annotations
@@ -45,8 +45,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["detection_view", "colour_score", "sample_view", "MIN_COLOUR_SCORE", "SegmentationResult",
-           "find_chart_segmentation"]
+__all__ = ["detection_view", "colour_score", "sample_view", "MIN_COLOUR_SCORE", "MIN_PATCH_SHARE",
+           "SegmentationResult", "find_chart_segmentation"]
 
 _MAX_SIDE = 1600
 #: The least colour agreement (:func:`colour_score`, at most 3) a chart's orientation must reach:
