@@ -15,10 +15,12 @@ OpenCV's ``cv2.mcc``:
    view (several block sizes, after contrast equalisation, CLAHE) whose
    minimum-area rectangle they fill to 75 % or more, with an aspect ratio
    within 2:1; where those form no chart, the regions between colour edges
-   too (:func:`_flat_regions`: patches that touch, as on an IT8.7/2);
+   instead (:func:`_flat_regions`: patches that touch, as on an IT8.7/2), kept
+   when they fill 80 % of their convex hull (a patch in steep perspective
+   is a parallelogram), the most common size kept where regions overlap;
 2. neighbours: patches of similar area (ratio within 2) whose centres are
    closer than 1.9 patch sides; each connected group of eight or more (and
-   a third of the chart's patches) is a candidate chart;
+   a quarter of the chart's patches) is a candidate chart;
 3. a lattice: the two step directions are the medians of the two clusters
    of neighbour steps (right-handed in the image); a breadth-first walk
    gives each patch integer lattice coordinates; a homography from the
@@ -105,7 +107,7 @@ class SegmentationResult:
 def _candidates(small: np.ndarray, flat: bool = False) -> np.ndarray:
     """Patch-like regions: ``(K, 4)`` centre x, y, side, angle (degrees) of their rectangles.
 
-    ``flat``: the regions between colour edges too (:func:`_flat_regions`).
+    ``flat``: the regions between colour edges (:func:`_flat_regions`) instead of the thresholded ones.
     """
     import cv2
 
@@ -117,31 +119,39 @@ def _candidates(small: np.ndarray, flat: bool = False) -> np.ndarray:
     min_area = max(36.0, (long_side / 160.0) ** 2)
     max_area = height * width / 30.0
 
-    def add(mask: np.ndarray, least: float = min_area) -> None:
+    def add(mask: np.ndarray, least: float = min_area, convex: bool = False) -> None:
         contours, _ = cv2.findContours(mask, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
         for contour in contours:
             area = cv2.contourArea(contour)
             if not least <= area <= max_area:
                 continue
             (cx, cy), (w, h), angle = cv2.minAreaRect(contour)
-            if w <= 0 or h <= 0 or max(w, h) > 2 * min(w, h) or area < 0.75 * w * h:
+            if w <= 0 or h <= 0 or max(w, h) > 2 * min(w, h):
                 continue
-            found.append((cx, cy, np.sqrt(w * h), angle))
+            if convex:  # a patch in steep perspective is a parallelogram: convex, not filling its rectangle
+                if area < 0.8 * cv2.contourArea(cv2.convexHull(contour)):
+                    continue
+                # the side of the cell: the region, the pixel its contour runs through and the 2 px edge
+                found.append((cx, cy, np.sqrt(area) + 3.0, angle))
+            elif area >= 0.75 * w * h:
+                found.append((cx, cy, np.sqrt(w * h), angle))
 
-    for source in (grey, clahe):
-        for divisor in (12, 24, 48):
-            block = max(3, int(long_side / divisor) | 1)
-            for polarity, c in ((cv2.THRESH_BINARY, -2), (cv2.THRESH_BINARY_INV, 2)):
-                mask = cv2.adaptiveThreshold(source, 255, cv2.ADAPTIVE_THRESH_MEAN_C, polarity, block, c)
-                add(cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)))
     if flat:
         # regions bounded by thin edges: smaller than a thresholded patch of the same pitch
-        add(_flat_regions(small), max(16.0, (long_side / 300.0) ** 2))
+        add(_flat_regions(small), max(16.0, (long_side / 300.0) ** 2), convex=True)
+    else:
+        for source in (grey, clahe):
+            for divisor in (12, 24, 48):
+                block = max(3, int(long_side / divisor) | 1)
+                for polarity, c in ((cv2.THRESH_BINARY, -2), (cv2.THRESH_BINARY_INV, 2)):
+                    mask = cv2.adaptiveThreshold(source, 255, cv2.ADAPTIVE_THRESH_MEAN_C, polarity, block, c)
+                    add(cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)))
     if not found:
         return np.zeros((0, 4))
     found = np.array(found)
-    # one candidate per region: the passes see the same patch many times
-    order = np.argsort(-found[:, 2])
+    # one candidate per region: the passes see the same patch many times, and keep the largest; between
+    # edges, a region of two or three merged patches overlaps its patches: keep the most common size
+    order = np.argsort(np.abs(np.log(found[:, 2] / np.median(found[:, 2])))) if flat else np.argsort(-found[:, 2])
     kept: list[int] = []
     for i in order:
         if not kept or np.all(np.hypot(*(found[kept, :2] - found[i, :2]).T) > 0.5 * found[kept, 2]):
@@ -234,21 +244,14 @@ def _lattice(cand: np.ndarray, members: np.ndarray, near: np.ndarray):
     if a[0] * b[1] - a[1] * b[0] < 0:  # still left-handed: flip one axis
         b = -b
     basis_inv = np.linalg.inv(np.column_stack([a, b]))
-    seed = int(members[np.argmax(near[members][:, members].sum(axis=1))])
-    coords = {seed: (0, 0)}
-    queue = [seed]
-    while queue:
-        i = queue.pop(0)
-        for j in np.flatnonzero(near[i]):
-            j = int(j)
-            if j not in member_set or j in coords:
-                continue
-            pq = basis_inv @ (xy[j] - xy[i])
-            r = np.round(pq)
-            if np.abs(pq - r).max() > 0.3 or np.abs(r).sum() == 0:
-                continue
-            coords[j] = (coords[i][0] + int(r[0]), coords[i][1] + int(r[1]))
-            queue.append(j)
+    # the walk from the best connected patches (one may be two patches merged, off the lattice): the largest
+    coords: dict = {}
+    for seed in members[np.argsort(-near[members][:, members].sum(axis=1), kind="stable")[:3]]:
+        walk = _walk(int(seed), xy, near, member_set, basis_inv)
+        if len(walk) > len(coords):
+            coords = walk
+        if len(coords) > 0.5 * len(members):
+            break
     if len(coords) < 8:
         return None
     ids = np.array(list(coords))
@@ -263,6 +266,25 @@ def _lattice(cand: np.ndarray, members: np.ndarray, near: np.ndarray):
     if H is None:
         return None
     return ids[keep], lattice[keep].astype(int), H, pitch
+
+
+def _walk(seed: int, xy: np.ndarray, near: np.ndarray, member_set: set, basis_inv: np.ndarray) -> dict:
+    """Integer lattice coordinates by a breadth-first walk over neighbours from ``seed``."""
+    coords = {seed: (0, 0)}
+    queue = [seed]
+    while queue:
+        i = queue.pop(0)
+        for j in np.flatnonzero(near[i]):
+            j = int(j)
+            if j not in member_set or j in coords:
+                continue
+            pq = basis_inv @ (xy[j] - xy[i])
+            r = np.round(pq)
+            if np.abs(pq - r).max() > 0.3 or np.abs(r).sum() == 0:
+                continue
+            coords[j] = (coords[i][0] + int(r[0]), coords[i][1] + int(r[1]))
+            queue.append(j)
+    return coords
 
 
 def _project(H: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -349,7 +371,7 @@ def _segment(view: np.ndarray, flat: bool) -> _Segments:
 
 
 #: The share of a chart's patches the segmentation must see (and at least 8).
-MIN_PATCH_SHARE = 1.0 / 3.0
+MIN_PATCH_SHARE = 0.25
 
 
 def find_chart_segmentation(
