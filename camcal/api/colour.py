@@ -27,10 +27,6 @@ if TYPE_CHECKING:
 
 __all__ = ["ColourExport", "ColourFit", "export_colour", "fit_colour"]
 
-#: The reference chart of ``chart`` by default (colour-science's name).
-DEFAULT_REFERENCE = "ColorChecker24 - After November 2014"
-
-
 @dataclass(frozen=True)
 class ColourFit:
     """What :func:`fit_colour` fitted and wrote.
@@ -96,7 +92,8 @@ def fit_colour(
     patches: str | os.PathLike | PatchSet | None = None,
     *,
     chart: str | os.PathLike | None = None,
-    reference: str = DEFAULT_REFERENCE,
+    reference: str | os.PathLike | None = None,
+    chart_type: str = "auto",
     corners: Sequence[Sequence[float]] | str | None = None,
     detector: str = "auto",
     keep_clipped: bool = False,
@@ -135,10 +132,15 @@ def fit_colour(
         Training patches: a CSV ``R,G,B,X,Y,Z`` (camera RGB, reference XYZ under ``illuminant``, optional first
         column name). Give this or ``chart``.
     chart : path, optional
-        A photo of a 24-patch ColorChecker (PNG / TIFF / JPEG / EXR, or raw: DNG, CR2, NEF, ARW..., read as
-        linear camera RGB).
-    reference : str
-        The chart's reference data (colour-science name or cc24, cc24-2005, babel, sg).
+        A photo of a chart (PNG / TIFF / JPEG / EXR, or raw: DNG, CR2, NEF, ARW..., read as linear camera RGB):
+        a ColorChecker Classic, Passport, Mini or Nano, a Digital SG or an IT8.7/2, in perspective, turned or
+        mirrored.
+    reference : str or path, optional
+        The chart's reference data: a colour-science name (or cc24, cc24-2005, babel, sg), the chart's CGATS file
+        (an IT8.7/2's is needed), or None for the chart type's own (X-Rite's values).
+    chart_type : str
+        ``auto`` (the Digital SG or the 24-patch ColorChecker, found in the photo; an IT8.7/2 by its CGATS file)
+        or ``classic``, ``passport``, ``mini``, ``nano``, ``digital-sg``, ``it8``.
     corners : 4 (x, y) or str, optional
         The patch grid's corners instead of detection: top-left (dark skin), top-right, bottom-right,
         bottom-left; or the command's ``"X,Y,..."`` text.
@@ -207,12 +209,13 @@ def fit_colour(
                                   "with --linearise none")
             flat = load_flat_field(flat_field)
         found = patches_from_chart(chart, reference, corners=grid, keep_clipped=keep_clipped,
-                                   illuminant=illuminant, detector=detector, flat_field=flat)
+                                   illuminant=illuminant, detector=detector, flat_field=flat, chart_type=chart_type)
         train = found.patches
         clipped = "saturated" if is_raw(chart) else "clipped"
         excluded = f" (dropped {clipped}: {', '.join(found.excluded)})" if found.excluded else ""
         say(f"chart found by {found.detection.method}: {len(train)} / {len(found.reference.patch_names)} patches "
             f"used{excluded}")
+        say(_chart_line(found, chart_type))
         if found.too_dark:
             say(f"too dark: {len(found.too_dark)} patch(es) measured and weighted down by their signal-to-noise "
                 f"ratio (kept): {', '.join(found.too_dark)}")
@@ -227,6 +230,8 @@ def fit_colour(
             raise CamcalError("--flat-field applies to --chart only")
         if detector != "auto":
             raise CamcalError("--detector applies to --chart only")
+        if chart_type != "auto":
+            raise CamcalError("--chart-type applies to --chart only")
         train = patches if isinstance(patches, PatchSet) else read_patch_csv(patches)
         if not isinstance(patches, PatchSet):
             say(f"read {len(train)} patches from {patches}")
@@ -252,6 +257,17 @@ def fit_colour(
     files = _write(fit, fitted, None if for_illuminant else report, camera, out)
     return ColourFit(fit, fitted, len(train), found, for_illuminant,
                      validation_reflectances if for_illuminant else None, files)
+
+
+def _chart_line(found: ChartPatches, chart_type: str) -> str:
+    """What chart was found and how it was seen: its type, and whether mirrored."""
+    from camcal.colour.chart.layouts import chart_layout
+
+    layout = chart_layout(found.reference.layout or "classic")
+    title = ("ColorChecker 24 (Classic, Passport, Mini or Nano look alike)"
+             if layout.family == "24" and chart_type == "auto" else layout.title)
+    seen = "seen mirrored, patches in chart order" if found.detection.mirrored else "seen from its front"
+    return f"chart type: {title}, reference {found.reference.name}; {seen}"
 
 
 def _for_illuminant(train, reference, linearise, source, illuminant, for_illuminant, sensitivities, test_patches,

@@ -25,7 +25,7 @@ import numpy as np
 from camcal.base.errors import CamcalError
 from camcal.colour.chart.detect import ChartPatches, patches_from_image
 from camcal.colour.chart.linearise import Linearisation
-from camcal.colour.chart.reference import DEFAULT_CHART, reference_chart
+from camcal.colour.chart.reference import ReferenceChart, reference_chart
 from camcal.colour.fit.record import ColourFit
 from camcal.colour.flatfield import FlatField, correct_flat_field
 from camcal.colour.match.models import LUT_SMOOTHING
@@ -40,18 +40,79 @@ from camcal.io.patches import read_patch_csv
 from camcal.io.raw import is_raw, read_raw
 from camcal.io.ssf import read_illuminant_spd
 
-__all__ = ["patches_from_chart", "capture_from_chart", "match_images", "match_image_files", "match_patch_files"]
+__all__ = ["chart_references", "patches_from_chart", "capture_from_chart", "match_images", "match_image_files", "match_patch_files"]
+
+
+#: Suffixes of a chart's own reference file (CGATS.17) given as ``reference``.
+CGATS_SUFFIXES = (".txt", ".it8", ".cgats", ".cie", ".cxf.txt")
+
+
+def chart_references(reference: str | os.PathLike | None = None, chart_type: str = "auto",
+                     illuminant: str = "D50") -> list[ReferenceChart]:
+    """The reference charts a photo is searched for, in the order they are tried.
+
+    Parameters
+    ----------
+    reference
+        A reference name (:func:`camcal.colour.chart.reference.reference_chart`),
+        a chart's CGATS.17 file (:mod:`camcal.io.cgats`: the IT8.7/2's, or any
+        chart's own measurements, patches row by row), or ``None``: the chart
+        type's own data (X-Rite's, from colour-science).
+    chart_type
+        ``auto`` or a layout of :data:`camcal.colour.chart.layouts.LAYOUTS`.
+        ``auto`` with no ``reference`` tries the Digital SG, then the 24-patch
+        ColorChecker (Classic, Passport, Mini and Nano look alike); a given
+        reference names the chart's family itself (a CGATS file's by its
+        number of patches: 288 IT8.7/2, 140 Digital SG, 24 ColorChecker).
+    illuminant
+        White the reference XYZ are adapted to.
+
+    Raises
+    ------
+    CamcalError
+        An unknown chart type, an IT8.7/2 without its CGATS file, a reference
+        whose grid is not the chart type's.
+    """
+    from camcal.colour.chart.layouts import LAYOUT_FAMILIES, chart_layout
+    from camcal.colour.chart.reference import reference_from_measurements
+    from camcal.io.cgats import read_cgats
+
+    layout = None if chart_type == "auto" else chart_layout(chart_type)
+    if reference is not None and (os.fspath(reference).lower().endswith(CGATS_SUFFIXES) or os.path.isfile(reference)):
+        data = read_cgats(reference)
+        if layout is None:
+            by_count = {chart_layout(name).n_patches: name for name in LAYOUT_FAMILIES}
+            if len(data.names) not in by_count:
+                raise CamcalError(f"{reference}: {len(data.names)} patches is no chart camcal knows (288 IT8.7/2, "
+                                  "140 Digital SG, 24 ColorChecker); name it with --chart-type")
+            layout = chart_layout(by_count[len(data.names)])
+        return [reference_from_measurements(os.path.basename(os.fspath(reference)), data.names, data.XYZ,
+                                            layout.name, illuminant=illuminant)]
+    if layout is not None and layout.reference is None:
+        raise CamcalError(f"the {layout.title} chart's reference values come with it: give its CGATS file with "
+                          "--reference FILE")
+    if reference is None:
+        names = [layout.name] if layout is not None else [n for n in LAYOUT_FAMILIES if chart_layout(n).reference]
+        return [dataclasses.replace(reference_chart(chart_layout(n).reference, illuminant), layout=n) for n in names]
+    chart = reference_chart(os.fspath(reference), illuminant)
+    if layout is None:
+        return [chart]
+    if (chart.rows, chart.columns) != (layout.rows, layout.columns) or len(chart.XYZ) != layout.n_patches:
+        raise CamcalError(f"reference {chart.name!r} has {len(chart.XYZ)} patches in {chart.rows} x {chart.columns}, "
+                          f"the {layout.title} {layout.n_patches} in {layout.rows} x {layout.columns}")
+    return [dataclasses.replace(chart, layout=layout.name)]
 
 
 def patches_from_chart(
     image_path: str | os.PathLike,
-    reference: str = DEFAULT_CHART,
+    reference: str | os.PathLike | None = None,
     *,
     corners: Any = None,
     keep_clipped: bool = False,
     illuminant: str = "D50",
     detector: str = "auto",
     flat_field: FlatField | None = None,
+    chart_type: str = "auto",
 ) -> ChartPatches:
     """Detect, sample and pair a chart photo's patches with reference XYZ.
 
@@ -60,7 +121,8 @@ def patches_from_chart(
     image_path
         The photo (8/16-bit or float, or a raw file; :func:`camcal.io.colourimage.read_image`).
     reference
-        Reference chart name (see :func:`camcal.colour.chart.reference.reference_chart`).
+        Reference chart name or CGATS file, ``None`` for the chart type's own
+        (:func:`chart_references`).
     corners
         ``(4, 2)`` manual grid corners; ``None`` detects the chart
         (:func:`camcal.colour.chart.detect.detect_chart`, on a normalised,
@@ -78,6 +140,8 @@ def patches_from_chart(
     flat_field
         A lens's flat field the photo is divided by before sampling
         (:func:`camcal.colour.flatfield.correct_flat_field`; the photo must be linear).
+    chart_type
+        ``auto`` (detected) or a layout (:func:`chart_references`).
 
     Returns
     -------
@@ -85,16 +149,18 @@ def patches_from_chart(
         Code values normalised to [0, 1] and XYZ relative to the chart's
         white (:func:`camcal.colour.chart.detect.patches_from_image`).
     """
-    chart = reference_chart(reference, illuminant)
+    charts = chart_references(reference, chart_type, illuminant)
+    if corners is not None and len(charts) > 1:
+        charts = charts[-1:]  # corners without a chart type: the 24-patch ColorChecker, as before
     if is_raw(image_path):
         raw = read_raw(image_path)
         RGB = raw.RGB if flat_field is None else correct_flat_field(raw.RGB, flat_field)
-        return patches_from_image(RGB, chart, corners=corners, keep_clipped=keep_clipped,
+        return patches_from_image(RGB, charts, corners=corners, keep_clipped=keep_clipped,
                                   saturated=raw.saturated, linear=True, detector=detector)
     image = read_image(image_path)
     if flat_field is not None:
         image = correct_flat_field(image, flat_field)
-    return patches_from_image(image, chart, corners=corners, keep_clipped=keep_clipped, detector=detector)
+    return patches_from_image(image, charts, corners=corners, keep_clipped=keep_clipped, detector=detector)
 
 
 def capture_from_chart(
@@ -116,7 +182,7 @@ def capture_from_chart(
     """
     check_chart_spectra(reflectances)
     wavelengths = np.asarray(wavelengths, dtype=np.float64)
-    found = patches_from_chart(image_path, corners=corners)
+    found = patches_from_chart(image_path, corners=corners, chart_type="classic")
     names = found.patches.names
     R = chart_reflectances(names, reflectances, wavelengths)
     return Capture(names, R, found.patches.RGB, read_illuminant_spd(illuminant, wavelengths), illuminant,

@@ -13,18 +13,27 @@ __all__ = ["register"]
 def register(parser: argparse.ArgumentParser) -> None:
     """The options of ``camcal colour fit``."""
     source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--chart", metavar="IMAGE", help="photo of a 24-patch ColorChecker (PNG/TIFF/JPEG/EXR, or "
-                                                          "raw: DNG, CR2, NEF, ARW... read as linear camera RGB)")
+    source.add_argument("--chart", metavar="IMAGE", help="photo of a colour chart (PNG/TIFF/JPEG/EXR, or raw: DNG, "
+                                                          "CR2, NEF, ARW... read as linear camera RGB), in perspective, "
+                                                          "turned or mirrored")
     source.add_argument("--patches", metavar="FILE.csv", help="training patches (see below)")
-    parser.add_argument("--reference", default="ColorChecker24 - After November 2014", metavar="NAME",
-                        help="reference chart for --chart (colour-science name or cc24, cc24-2005, "
-                             "babel, sg; default: %(default)s)")
+    parser.add_argument("--reference", default=None, metavar="NAME|FILE",
+                        help="reference data for --chart: colour-science name (or cc24, cc24-2005, babel, sg) or the "
+                             "chart's CGATS file (an IT8.7/2's is needed); default: the chart type's own, X-Rite's "
+                             "ColorChecker24 - After November 2014 or ColorCheckerSG - After November 2014")
+    parser.add_argument("--chart-type", default="auto",
+                        choices=("auto", "classic", "passport", "mini", "nano", "digital-sg", "it8"),
+                        help="the chart in --chart: auto finds a Digital SG or a 24-patch ColorChecker (Classic, "
+                             "Passport, Mini and Nano look alike), or the chart of a --reference CGATS file "
+                             "(default: %(default)s)")
     parser.add_argument("--corners", metavar="X,Y,...",
                         help="manual chart corners instead of detection: 8 numbers, top-left (dark "
-                             "skin), top-right, bottom-right, bottom-left of the patch grid")
+                             "skin, A1), top-right, bottom-right, bottom-left of the patch grid (an IT8.7/2's: "
+                             "rows A-L, its grey scale below)")
     parser.add_argument("--detector", choices=("auto", "segmentation", "cv2.mcc"), default="auto",
-                        help="chart detection without --corners: camcal's segmentation, OpenCV's cv2.mcc, or auto "
-                             "(segmentation, then cv2.mcc); both on a normalised sRGB view of a raw file (default: %(default)s)")
+                        help="chart detection without --corners: camcal's segmentation, OpenCV's cv2.mcc (24-patch "
+                             "charts), or auto (segmentation, then cv2.mcc); both on a normalised sRGB view of a raw "
+                             "file (default: %(default)s)")
     parser.add_argument("--keep-clipped", action="store_true", help="keep patches flagged clipped")
     parser.add_argument("--flat-field", metavar="FLAT.json",
                         help="divide the chart photo by this flat field (colour flatfield) before sampling; the photo "
@@ -64,6 +73,8 @@ def register(parser: argparse.ArgumentParser) -> None:
     handler(parser, _fit, [
         "camcal colour fit --chart chart.png --illuminant D65 --camera-name left --out "
         "left.colour.json --report colour_report",
+        "# an IT8.7/2 with the reference file of its batch",
+        "camcal colour fit --chart it8.dng --chart-type it8 --reference R190808.txt --out cam.colour.json",
         "camcal colour fit --patches patches.csv --model root-polynomial:2 --target-white D65 "
         "--adaptation CAT02 --out cam.colour.json",
         "# a fit for tungsten light from a chart shot under D65 and the camera's sensitivities",
@@ -104,7 +115,8 @@ def _fit(args: argparse.Namespace) -> int:
     from camcal.api.colour import fit_colour
 
     result = fit_colour(
-        args.patches, chart=args.chart, reference=args.reference, corners=args.corners, detector=args.detector,
+        args.patches, chart=args.chart, reference=args.reference, chart_type=args.chart_type, corners=args.corners,
+        detector=args.detector,
         keep_clipped=args.keep_clipped, model=args.model, objective=args.objective,
         regularisation=args.regularisation, linearise=args.linearise, illuminant=args.illuminant,
         target_white=args.target_white, adaptation=args.adaptation, spectra=args.spectra,

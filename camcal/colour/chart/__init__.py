@@ -1,6 +1,7 @@
 """Chart stage: reference charts, detection and sampling in an image array, patch sets, linearisation.
 
-Modules: ``reference`` (:func:`reference_chart`), ``detect``
+Modules: ``layouts`` (the charts crews carry: where their patches sit),
+``reference`` (:func:`reference_chart`), ``detect``
 (:func:`detect_chart`, :func:`sample_patches`, :func:`patches_from_image`),
 ``find`` (the detection view of a raw image and camcal's segmentation detector),
 ``patches`` (:class:`PatchSet`), ``linearise`` (:func:`fit_linearisation`).

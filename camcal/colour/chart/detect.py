@@ -7,7 +7,11 @@ a lattice, oriented by the reference chart's colours; it also finds the
 classic chart on a ColorChecker Passport page), and where it finds none,
 OpenCV's ``cv2.mcc`` (contrib), its patch order checked against the
 reference's colours. A homography from the chart's patch grid to
-the image is fitted to the patch centres found. A manual override takes the four
+the image is fitted to the patch centres found. Any layout of
+:mod:`camcal.colour.chart.layouts` (ColorChecker Classic, Passport, Mini,
+Nano, Digital SG, IT8.7/2) is found by the segmentation, turned or seen in
+a mirror (reported: :attr:`ChartDetection.mirrored`; the patches still come
+in chart order); cv2.mcc finds the 24-patch charts only. A manual override takes the four
 outer corners of the patch grid instead, in the order top-left (the corner
 of ``dark skin``), top-right (``bluish green``), bottom-right
 (``black``), bottom-left (``white``), pixel (0, 0) the centre of the
@@ -45,7 +49,8 @@ reference chart's XYZ, weights set (an image file:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -53,6 +58,9 @@ from camcal.base.errors import CamcalError
 from camcal.base.extras import require
 from camcal.colour.chart.patches import PatchSet
 from camcal.colour.chart.reference import ReferenceChart
+
+if TYPE_CHECKING:
+    from camcal.colour.chart.layouts import ChartLayout
 
 __all__ = [
     "ChartDetection",
@@ -90,6 +98,9 @@ class ChartDetection:
     fit_rms_px
         RMS distance between the detector's patch centres and the fitted
         grid (0 for manual corners).
+    layout
+        The chart's layout name (:data:`camcal.colour.chart.layouts.LAYOUTS`),
+        ``""`` for a plain ``rows x columns`` grid.
     """
 
     H: np.ndarray
@@ -98,10 +109,29 @@ class ChartDetection:
     columns: int
     method: str
     fit_rms_px: float = 0.0
+    layout: str = ""
+
+    def _layout(self) -> ChartLayout:
+        from camcal.colour.chart.layouts import ChartLayout, chart_layout
+
+        if self.layout:
+            return chart_layout(self.layout)
+        return ChartLayout("grid", "grid", self.rows, self.columns, 1.0, None)
 
     def patch_centres(self) -> np.ndarray:
-        """``(rows * columns, 2)`` pixel centres in chart order."""
-        return _apply_H(self.H, _grid_centres(self.rows, self.columns))
+        """``(N, 2)`` pixel centres of every patch of the layout in chart order."""
+        return _apply_H(self.H, self._layout().patch_uv())
+
+    @property
+    def mirrored(self) -> bool:
+        """The chart is seen mirrored (in a mirror, or a flipped image): its grid's corners turn the other way.
+
+        The signed area of the corners top-left, top-right, bottom-right,
+        bottom-left is positive for a chart seen from its front (image ``y``
+        down, grid ``v`` down).
+        """
+        x, y = self.corners[:, 0], self.corners[:, 1]
+        return bool(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)) < 0)
 
 
 def _grid_centres(rows: int, columns: int) -> np.ndarray:
@@ -117,7 +147,7 @@ def _apply_H(H: np.ndarray, uv: np.ndarray) -> np.ndarray:
 _UNIT_CORNERS = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
 
 
-def chart_from_corners(corners: Any, rows: int = 4, columns: int = 6) -> ChartDetection:
+def chart_from_corners(corners: Any, rows: int = 4, columns: int = 6, layout: str = "") -> ChartDetection:
     """A detection from four manual corners of the patch grid.
 
     Parameters
@@ -135,7 +165,7 @@ def chart_from_corners(corners: Any, rows: int = 4, columns: int = 6) -> ChartDe
     if area < 16.0:
         raise CamcalError("the 4 chart corners enclose no area")
     H = cv2.getPerspectiveTransform(_UNIT_CORNERS.astype(np.float32), corners.astype(np.float32))
-    return ChartDetection(np.asarray(H, dtype=np.float64), corners, rows, columns, "manual")
+    return ChartDetection(np.asarray(H, dtype=np.float64), corners, rows, columns, "manual", 0.0, layout)
 
 
 def _mcc(view: np.ndarray, rows: int, columns: int) -> np.ndarray | None:
@@ -159,7 +189,8 @@ def _mcc(view: np.ndarray, rows: int, columns: int) -> np.ndarray | None:
     return quads.mean(axis=1)
 
 
-def _grid_fit(centres: np.ndarray, index: np.ndarray, rows: int, columns: int, method: str) -> ChartDetection:
+def _grid_fit(centres: np.ndarray, index: np.ndarray, rows: int, columns: int, method: str,
+              layout: str = "") -> ChartDetection:
     """The chart grid's homography by least squares on the patch centres found (``index``: chart order).
 
     A centre more than 3 times the median distance (and over 1 px) from
@@ -180,7 +211,7 @@ def _grid_fit(centres: np.ndarray, index: np.ndarray, rows: int, columns: int, m
             break
         keep = ~outlier
     rms = float(np.sqrt(np.mean(distance[keep] ** 2)))
-    return ChartDetection(H, _apply_H(H, _UNIT_CORNERS), rows, columns, method, rms)
+    return ChartDetection(H, _apply_H(H, _UNIT_CORNERS), rows, columns, method, rms, layout)
 
 
 def _oriented(view: np.ndarray, centres: np.ndarray, reference_RGB: Any, rows: int, columns: int):
@@ -207,30 +238,40 @@ def detect_chart(
     linear: bool = False,
     reference_RGB: Any = None,
     detector: str = "auto",
+    layout: str = "",
+    cache: dict | None = None,
 ) -> ChartDetection:
-    """Find a 24-patch ColorChecker: camcal's segmentation, then OpenCV's ``cv2.mcc``.
+    """Find a chart: camcal's segmentation, then OpenCV's ``cv2.mcc`` (24-patch charts).
 
     Both run on :func:`camcal.colour.chart.find.detection_view` (a linear
     image normalised per channel and sRGB-encoded), never on the linear
     values themselves. ``auto`` takes the segmentation's answer
     (:func:`camcal.colour.chart.find.find_chart_segmentation`, which needs
-    ``reference_RGB`` to orient the chart) when it finds the chart, else
-    cv2.mcc's: on synthesised raw captures (bench/bench_chart_detect.py)
-    the segmentation found more charts, more accurately. With ``reference_RGB``,
-    cv2.mcc's patch order is checked against the reference's colours too:
-    it can return the chart a half turn round (seen on dim raw views), and
-    its answer is refused when the colours do not agree
-    (:data:`camcal.colour.chart.find.MIN_COLOUR_SCORE`).
+    ``reference_RGB`` to orient the chart, turned or mirrored) when it finds
+    the chart, else cv2.mcc's (24-patch charts only): on synthesised raw captures
+    (bench/bench_chart_detect.py) the segmentation found more charts, more
+    accurately. With ``reference_RGB``, cv2.mcc's patch order is checked
+    against the reference's colours too: it can return the chart a half turn
+    round (seen on dim raw views), and its answer is refused when the colours
+    do not agree (:data:`camcal.colour.chart.find.MIN_COLOUR_SCORE`).
 
     Parameters
     ----------
     image
         ``(H, W, 3)`` RGB: normalised code values, or linear with black 0
         when ``linear`` (raw).
+    rows, columns
+        The main patch grid (overridden by ``layout``).
     reference_RGB
-        ``(24, 3)`` the chart's linear RGB (for the segmentation's orientation).
+        ``(rows * columns, 3)`` the main grid's linear RGB (for the segmentation's orientation).
     detector
         ``auto``, ``cv2.mcc`` or ``segmentation``.
+    layout
+        A layout of :data:`camcal.colour.chart.layouts.LAYOUTS` (its grid and
+        where its other patches sit), or ``""`` for a plain grid.
+    cache
+        A dict kept between calls on the same image (one image searched for
+        several layouts): the segmentation is made once.
 
     Returns
     -------
@@ -242,22 +283,31 @@ def detect_chart(
         When no chart is found ("no ColorChecker found in the image").
     """
     from camcal.colour.chart.find import MIN_COLOUR_SCORE, detection_view, find_chart_segmentation
+    from camcal.colour.chart.layouts import chart_layout
 
-    if (rows, columns) != (4, 6):
-        raise CamcalError(
-            "automatic detection supports the 24-patch ColorChecker only; give --corners "
-            "for other charts, or give --patches"
-        )
+    if layout:
+        rows, columns = chart_layout(layout).rows, chart_layout(layout).columns
     if detector not in DETECTORS:
         raise CamcalError(f"unknown chart detector {detector!r}, expected one of: {', '.join(DETECTORS)}")
-    view = detection_view(image, linear=linear)
+    if detector == "cv2.mcc" and (rows, columns) != (4, 6):
+        raise CamcalError("the cv2.mcc detector finds 24-patch ColorCheckers only; use the segmentation detector "
+                          "or give --corners")
+    if reference_RGB is not None:
+        reference_RGB = np.asarray(reference_RGB, dtype=np.float64)[: rows * columns]
+    if cache is not None and "view" in cache:
+        view = cache["view"]
+    else:
+        view = detection_view(image, linear=linear)
+        if cache is not None:
+            cache["view"] = view
     tried = []
     if detector in ("auto", "segmentation") and reference_RGB is not None:
         tried.append("segmentation")
-        found = find_chart_segmentation(view, reference_RGB, rows, columns)
+        found = find_chart_segmentation(view, reference_RGB, rows, columns,
+                                        cache=None if cache is None else cache.setdefault("segments", {}))
         if found is not None:
-            return _grid_fit(found.centres, found.index, rows, columns, "segmentation")
-    if detector in ("auto", "cv2.mcc"):
+            return _grid_fit(found.centres, found.index, rows, columns, "segmentation", layout)
+    if detector in ("auto", "cv2.mcc") and (rows, columns) == (4, 6):
         tried.append("cv2.mcc")
         centres = _mcc(view, rows, columns)
         if centres is not None and reference_RGB is not None:
@@ -265,9 +315,10 @@ def detect_chart(
             if score < MIN_COLOUR_SCORE:
                 centres = None
         if centres is not None:
-            return _grid_fit(centres, np.arange(rows * columns), rows, columns, "cv2.mcc")
+            return _grid_fit(centres, np.arange(rows * columns), rows, columns, "cv2.mcc", layout)
+    what = chart_layout(layout).title if layout and (rows, columns) != (4, 6) else "ColorChecker"
     raise CamcalError(
-        f"no ColorChecker found in the image ({' nor '.join(tried)}); give its corners with --corners"
+        f"no {what} found in the image ({' nor '.join(tried) or 'no detector ran'}); give its corners with --corners"
     )
 
 
@@ -370,18 +421,19 @@ def sample_patches(
     if not 0 < fraction <= 1 or not 0 <= trim < 0.5:
         raise CamcalError(f"need 0 < fraction <= 1 and 0 <= trim < 0.5, got {fraction}, {trim}")
     height, width = image.shape[:2]
-    rows, columns = detection.rows, detection.columns
-    N = rows * columns
+    layout = detection._layout()
+    grid = layout.patch_uv()
+    N = len(grid)
     RGB = np.zeros((N, 3))
     std = np.zeros((N, 3))
     n_pixels = np.zeros(N, dtype=int)
     clipped = np.zeros(N, dtype=bool)
     snr = np.full(N, np.inf)
-    grid = _grid_centres(rows, columns)
-    half = np.array([0.5 / columns, 0.5 / rows]) * fraction
+    # the sampled square: ``fraction`` of the cell (a patch and its share of the gap)
+    half = layout.patch_half_size() / layout.patch_fraction * fraction
     square = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=np.float64)
     for i in range(N):
-        quad = _apply_H(detection.H, grid[i] + square * half)
+        quad = _apply_H(detection.H, grid[i] + square * half[i])
         x0, y0 = np.floor(quad.min(axis=0)).astype(int)
         x1, y1 = np.ceil(quad.max(axis=0)).astype(int) + 1
         if x0 < 0 or y0 < 0 or x1 > width or y1 > height:
@@ -430,7 +482,7 @@ class ChartPatches:
 
 def patches_from_image(
     image: np.ndarray,
-    chart: ReferenceChart,
+    chart: ReferenceChart | Sequence[ReferenceChart],
     *,
     corners: Any = None,
     keep_clipped: bool = False,
@@ -447,7 +499,10 @@ def patches_from_image(
         :func:`camcal.io.colourimage.read_image` gives).
     chart
         The reference chart (:func:`camcal.colour.chart.reference.reference_chart`),
-        its XYZ under the white the patches are for.
+        its XYZ under the white the patches are for, its layout
+        (:attr:`ReferenceChart.layout`) what is looked for; or several, tried
+        in turn (the chart type detected: the first found is used, so give the
+        larger layouts first, :data:`camcal.colour.chart.layouts.LAYOUT_FAMILIES`).
     corners
         ``(4, 2)`` manual grid corners; ``None`` detects (:func:`detect_chart`).
     keep_clipped
@@ -468,11 +523,26 @@ def patches_from_image(
         Code values normalised to [0, 1] and XYZ relative to the chart's
         white.
     """
-    if corners is None:
-        detection = detect_chart(image, chart.rows, chart.columns, linear=linear,
-                                 reference_RGB=reference_linear_RGB(chart), detector=detector)
+    charts = [chart] if isinstance(chart, ReferenceChart) else list(chart)
+    if corners is not None:
+        chart = charts[0]
+        detection = chart_from_corners(corners, chart.rows, chart.columns, chart.layout)
     else:
-        detection = chart_from_corners(corners, chart.rows, chart.columns)
+        misses, cache = [], {}
+        for candidate in charts:
+            if detector == "cv2.mcc" and len(charts) > 1 and (candidate.rows, candidate.columns) != (4, 6):
+                continue
+            try:
+                detection = detect_chart(image, candidate.rows, candidate.columns, linear=linear,
+                                         reference_RGB=reference_linear_RGB(candidate), detector=detector,
+                                         layout=candidate.layout, cache=cache)
+            except CamcalError as error:
+                misses.append(str(error).split(";")[0])
+                continue
+            chart = candidate
+            break
+        else:
+            raise CamcalError(f"{'; '.join(misses)}; give the chart type and its corners with --corners")
     if linear:
         samples = sample_patches(image, detection, clip_low=None, saturated=saturated)
     else:

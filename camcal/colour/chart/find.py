@@ -1,4 +1,4 @@
-"""Finding a ColorChecker on raw data: a normalised, encoded view and a segmentation detector.
+"""Finding a colour chart on raw data: a normalised, encoded view and a segmentation detector.
 
 A raw image is linear camera RGB, often dim (a chart 3 or more stops under,
 the white patch at a few per cent of full scale) and green-heavy. Neither
@@ -14,29 +14,31 @@ OpenCV's ``cv2.mcc``:
 1. candidate patches: connected regions of adaptive thresholds of the grey
    view (several block sizes, after contrast equalisation, CLAHE) whose
    minimum-area rectangle they fill to 75 % or more, with an aspect ratio
-   within 2:1;
+   within 2:1; where those form no chart, the regions between colour edges
+   instead (:func:`_flat_regions`: patches that touch, as on an IT8.7/2), kept
+   when they fill 80 % of their convex hull (a patch in steep perspective
+   is a parallelogram), the most common size kept where regions overlap;
 2. neighbours: patches of similar area (ratio within 2) whose centres are
-   closer than 1.9 patch sides; each connected group of eight or more is a
-   candidate chart;
+   closer than 1.9 patch sides; each connected group of eight or more (and
+   a quarter of the chart's patches) is a candidate chart;
 3. a lattice: the two step directions are the medians of the two clusters
    of neighbour steps (right-handed in the image); a breadth-first walk
    gives each patch integer lattice coordinates; a homography from the
    lattice to the centres (RANSAC, then least squares on the inliers)
    keeps the patches that fit;
 4. the chart in the lattice: every placement of a ``rows x columns`` window
-   (either way round) and each of its four rotations is scored first by the
-   number of patches it holds, then by how well the sampled colours agree
-   with the reference chart's: the correlations of log luminance and of the
-   log chromaticity ratios ``R/G`` and ``B/G`` over the patches (a camera's
-   RGB is not sRGB, but these orderings survive any white balance and any
-   monotone response). This also finds the classic chart on a
+   (either way round), each of its four rotations and their four mirror
+   images (a chart seen in a mirror, or a flipped image) is scored first by
+   the number of patches it holds, then by how well the sampled colours
+   agree with the reference chart's: the correlations of log luminance and
+   of the log chromaticity ratios ``R/G`` and ``B/G`` over the patches (a
+   camera's RGB is not sRGB, but these orderings survive any white balance
+   and any monotone response). This also finds the classic chart on a
    ColorChecker Passport page (held either way round), beside the other
    page's patches of another size;
 5. the grid: a homography from the chart's patch centres to the image by
-   least squares over the patches found.
-
-Only rotations, not mirror images, are tried: a chart is seen from its
-front.
+   least squares over the patches found (a mirrored chart's turns the other
+   way: :attr:`camcal.colour.chart.detect.ChartDetection.mirrored`).
 """
 
 from __future__ import annotations
@@ -45,8 +47,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["detection_view", "colour_score", "sample_view", "MIN_COLOUR_SCORE", "SegmentationResult",
-           "find_chart_segmentation"]
+__all__ = ["detection_view", "colour_score", "sample_view", "MIN_COLOUR_SCORE", "MIN_PATCH_SHARE",
+           "SegmentationResult", "find_chart_segmentation"]
 
 _MAX_SIDE = 1600
 #: The least colour agreement (:func:`colour_score`, at most 3) a chart's orientation must reach:
@@ -102,41 +104,87 @@ class SegmentationResult:
     score: float
 
 
-def _candidates(grey: np.ndarray) -> np.ndarray:
-    """Patch-like regions: ``(K, 4)`` centre x, y, side, angle (degrees) of their rectangles."""
+def _candidates(small: np.ndarray, flat: bool = False) -> np.ndarray:
+    """Patch-like regions: ``(K, 4)`` centre x, y, side, angle (degrees) of their rectangles.
+
+    ``flat``: the regions between colour edges (:func:`_flat_regions`) instead of the thresholded ones.
+    """
     import cv2
 
+    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
     height, width = grey.shape
     long_side = max(height, width)
     clahe = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8)).apply(grey)
     found = []
     min_area = max(36.0, (long_side / 160.0) ** 2)
     max_area = height * width / 30.0
-    for source in (grey, clahe):
-        for divisor in (12, 24, 48):
-            block = max(3, int(long_side / divisor) | 1)
-            for polarity, c in ((cv2.THRESH_BINARY, -2), (cv2.THRESH_BINARY_INV, 2)):
-                mask = cv2.adaptiveThreshold(source, 255, cv2.ADAPTIVE_THRESH_MEAN_C, polarity, block, c)
-                mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-                contours, _ = cv2.findContours(mask, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
-                for contour in contours:
-                    area = cv2.contourArea(contour)
-                    if not min_area <= area <= max_area:
-                        continue
-                    (cx, cy), (w, h), angle = cv2.minAreaRect(contour)
-                    if w <= 0 or h <= 0 or max(w, h) > 2 * min(w, h) or area < 0.75 * w * h:
-                        continue
-                    found.append((cx, cy, np.sqrt(w * h), angle))
+
+    def add(mask: np.ndarray, least: float = min_area, convex: bool = False) -> None:
+        contours, _ = cv2.findContours(mask, cv2.RETR_LIST, cv2.CHAIN_APPROX_SIMPLE)
+        for contour in contours:
+            area = cv2.contourArea(contour)
+            if not least <= area <= max_area:
+                continue
+            (cx, cy), (w, h), angle = cv2.minAreaRect(contour)
+            if w <= 0 or h <= 0 or max(w, h) > 2 * min(w, h):
+                continue
+            if convex:  # a patch in steep perspective is a parallelogram: convex, not filling its rectangle
+                if area < 0.8 * cv2.contourArea(cv2.convexHull(contour)):
+                    continue
+                # the side of the cell: the region, the pixel its contour runs through and the 2 px edge
+                found.append((cx, cy, np.sqrt(area) + 3.0, angle))
+            elif area >= 0.75 * w * h:
+                found.append((cx, cy, np.sqrt(w * h), angle))
+
+    if flat:
+        # regions bounded by thin edges: smaller than a thresholded patch of the same pitch
+        add(_flat_regions(small), max(16.0, (long_side / 300.0) ** 2), convex=True)
+    else:
+        for source in (grey, clahe):
+            for divisor in (12, 24, 48):
+                block = max(3, int(long_side / divisor) | 1)
+                for polarity, c in ((cv2.THRESH_BINARY, -2), (cv2.THRESH_BINARY_INV, 2)):
+                    mask = cv2.adaptiveThreshold(source, 255, cv2.ADAPTIVE_THRESH_MEAN_C, polarity, block, c)
+                    add(cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)))
     if not found:
         return np.zeros((0, 4))
     found = np.array(found)
-    # one candidate per region: the passes see the same patch many times
-    order = np.argsort(-found[:, 2])
+    # one candidate per region: the passes see the same patch many times, and keep the largest; between
+    # edges, a region of two or three merged patches overlaps its patches: keep the most common size
+    order = np.argsort(np.abs(np.log(found[:, 2] / np.median(found[:, 2])))) if flat else np.argsort(-found[:, 2])
     kept: list[int] = []
     for i in order:
-        if all(np.hypot(*(found[i, :2] - found[j, :2])) > 0.5 * found[j, 2] for j in kept):
+        if not kept or np.all(np.hypot(*(found[kept, :2] - found[i, :2]).T) > 0.5 * found[kept, 2]):
             kept.append(int(i))
     return found[kept]
+
+
+def _flat_regions(small: np.ndarray) -> np.ndarray:
+    """A mask of the regions between colour edges: patches that touch their neighbours (IT8.7/2, no gaps).
+
+    Edges: Canny's (hysteresis thresholds ``t / 2`` and ``t``, L2 gradient)
+    on CIELAB's three channels (OpenCV's 8-bit ``L``, ``a``, ``b``; ``a``
+    and ``b`` stretched so that their 1st to 99th percentiles span 0-255:
+    a dim or desaturated capture's colour differences become edges) after a
+    Gaussian blur (sigma 0.7 px), ``t`` per channel four times its median
+    gradient (the noise of flat areas) and at least 6 code values; thickened
+    to 2 px so that no region leaks into its diagonal neighbour.
+    """
+    import cv2
+
+    Lab = cv2.cvtColor(cv2.GaussianBlur(small, (0, 0), 0.7), cv2.COLOR_RGB2Lab).astype(np.float32)
+    for k in (1, 2):
+        lo, hi = np.percentile(Lab[:, :, k], [1, 99])
+        Lab[:, :, k] = (Lab[:, :, k] - lo) * (255.0 / max(hi - lo, 1.0))
+    channels = np.clip(Lab, 0, 255).astype(np.uint8)
+    edges = np.zeros(small.shape[:2], np.uint8)
+    for k in range(3):
+        channel = np.ascontiguousarray(channels[:, :, k])
+        gradient = np.hypot(cv2.Sobel(channel, cv2.CV_32F, 1, 0), cv2.Sobel(channel, cv2.CV_32F, 0, 1))
+        high = max(6.0, 4.0 * float(np.median(gradient)))
+        edges |= cv2.Canny(channel, high / 2, high, L2gradient=True)
+    edges = cv2.dilate(edges, np.ones((2, 2), np.uint8))
+    return np.where(edges > 0, 0, 255).astype(np.uint8)
 
 
 def _groups(cand: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
@@ -196,21 +244,14 @@ def _lattice(cand: np.ndarray, members: np.ndarray, near: np.ndarray):
     if a[0] * b[1] - a[1] * b[0] < 0:  # still left-handed: flip one axis
         b = -b
     basis_inv = np.linalg.inv(np.column_stack([a, b]))
-    seed = int(members[np.argmax(near[members][:, members].sum(axis=1))])
-    coords = {seed: (0, 0)}
-    queue = [seed]
-    while queue:
-        i = queue.pop(0)
-        for j in np.flatnonzero(near[i]):
-            j = int(j)
-            if j not in member_set or j in coords:
-                continue
-            pq = basis_inv @ (xy[j] - xy[i])
-            r = np.round(pq)
-            if np.abs(pq - r).max() > 0.3 or np.abs(r).sum() == 0:
-                continue
-            coords[j] = (coords[i][0] + int(r[0]), coords[i][1] + int(r[1]))
-            queue.append(j)
+    # the walk from the best connected patches (one may be two patches merged, off the lattice): the largest
+    coords: dict = {}
+    for seed in members[np.argsort(-near[members][:, members].sum(axis=1), kind="stable")[:3]]:
+        walk = _walk(int(seed), xy, near, member_set, basis_inv)
+        if len(walk) > len(coords):
+            coords = walk
+        if len(coords) > 0.5 * len(members):
+            break
     if len(coords) < 8:
         return None
     ids = np.array(list(coords))
@@ -225,6 +266,25 @@ def _lattice(cand: np.ndarray, members: np.ndarray, near: np.ndarray):
     if H is None:
         return None
     return ids[keep], lattice[keep].astype(int), H, pitch
+
+
+def _walk(seed: int, xy: np.ndarray, near: np.ndarray, member_set: set, basis_inv: np.ndarray) -> dict:
+    """Integer lattice coordinates by a breadth-first walk over neighbours from ``seed``."""
+    coords = {seed: (0, 0)}
+    queue = [seed]
+    while queue:
+        i = queue.pop(0)
+        for j in np.flatnonzero(near[i]):
+            j = int(j)
+            if j not in member_set or j in coords:
+                continue
+            pq = basis_inv @ (xy[j] - xy[i])
+            r = np.round(pq)
+            if np.abs(pq - r).max() > 0.3 or np.abs(r).sum() == 0:
+                continue
+            coords[j] = (coords[i][0] + int(r[0]), coords[i][1] + int(r[1]))
+            queue.append(j)
+    return coords
 
 
 def _project(H: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -275,18 +335,47 @@ def colour_score(measured: np.ndarray, reference: np.ndarray) -> float:
 
 
 def _orientations(rows: int, columns: int):
-    """Chart (row, column) -> lattice offsets for the four rotations, with the window's size."""
+    """Chart (row, column) -> lattice offsets for the four rotations and their four mirror images,
+    with the window's size and whether the chart is mirrored."""
     r, c = np.divmod(np.arange(rows * columns), columns)
-    return [
+    turns = [
         ((columns, rows), np.column_stack([c, r])),
         ((columns, rows), np.column_stack([columns - 1 - c, rows - 1 - r])),
         ((rows, columns), np.column_stack([rows - 1 - r, c])),
         ((rows, columns), np.column_stack([r, columns - 1 - c])),
     ]
+    # a mirror image: the lattice's first axis reversed
+    return [(size, offsets, False) for size, offsets in turns] + [
+        (size, np.column_stack([size[0] - 1 - offsets[:, 0], offsets[:, 1]]), True) for size, offsets in turns]
+
+
+@dataclass(frozen=True)
+class _Segments:
+    """The candidate patches of a view and their groups (shared by every layout searched for)."""
+
+    small: np.ndarray
+    scale: float
+    cand: np.ndarray
+    groups: list
+    near: np.ndarray
+
+
+def _segment(view: np.ndarray, flat: bool) -> _Segments:
+    import cv2
+
+    scale = min(1.0, _MAX_SIDE / max(view.shape[:2]))
+    small = view if scale == 1.0 else cv2.resize(view, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    cand = _candidates(small, flat)
+    groups, near = _groups(cand) if len(cand) >= 8 else ([], np.zeros((0, 0), dtype=bool))
+    return _Segments(small, scale, cand, groups, near)
+
+
+#: The share of a chart's patches the segmentation must see (and at least 8).
+MIN_PATCH_SHARE = 0.25
 
 
 def find_chart_segmentation(
-    view: np.ndarray, reference_RGB: np.ndarray, rows: int = 4, columns: int = 6
+    view: np.ndarray, reference_RGB: np.ndarray, rows: int = 4, columns: int = 6, *, cache: dict | None = None
 ) -> SegmentationResult | None:
     """Find a ``rows x columns`` chart on an 8-bit view by segmentation (see the module docstring).
 
@@ -297,42 +386,56 @@ def find_chart_segmentation(
     reference_RGB
         ``(rows * columns, 3)`` the chart's linear RGB (any RGB space with
         positive values: only orderings of log ratios are used).
+    cache
+        A dict kept between calls on the same view (searching it for several
+        layouts): its segmentations are made once.
 
     Returns
     -------
     SegmentationResult or None
         ``None`` when no group of patches forms the chart.
     """
-    import cv2
+    cache = {} if cache is None else cache
+    for flat in (False, True):
+        if flat not in cache:
+            cache[flat] = _segment(view, flat)
+        found = _search(cache[flat], reference_RGB, rows, columns)
+        if found is not None:
+            return found
+    return None
 
-    scale = min(1.0, _MAX_SIDE / max(view.shape[:2]))
-    small = view if scale == 1.0 else cv2.resize(view, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
-    linear = np.power(small.astype(np.float64) / 255.0, 2.2)
-    cand = _candidates(grey)
+
+def _search(seg: _Segments, reference_RGB: np.ndarray, rows: int, columns: int) -> SegmentationResult | None:
+    """The best placement of the chart in the lattices of a view's segmentation (module docstring, step 4)."""
+    small, scale, cand = seg.small, seg.scale, seg.cand
     if len(cand) < 8:
         return None
-    groups, near = _groups(cand)
+    linear = np.power(small.astype(np.float64) / 255.0, 2.2)
     reference_RGB = np.asarray(reference_RGB, dtype=np.float64)
+    least = max(8, int(np.ceil(MIN_PATCH_SHARE * rows * columns)))
     best = None
-    for members in groups[:4]:
-        found = _lattice(cand, members, near)
+    for members in seg.groups[:4]:
+        if len(members) < least:
+            continue
+        found = _lattice(cand, members, seg.near)
         if found is None:
             continue
         ids, lattice, H, pitch = found
         lo, hi = lattice.min(axis=0), lattice.max(axis=0)
         radius = max(1, int(0.15 * pitch))
         height, width = small.shape[:2]
-        for (wp, wq), offsets in _orientations(rows, columns):
+        for (wp, wq), offsets, mirrored in _orientations(rows, columns):
             for p0 in range(hi[0] - wp + 1, lo[0] + 1):
                 for q0 in range(hi[1] - wq + 1, lo[1] + 1):
+                    inside = ((lattice[:, 0] >= p0) & (lattice[:, 0] < p0 + wp)
+                              & (lattice[:, 1] >= q0) & (lattice[:, 1] < q0 + wq))
+                    if best is not None and int(inside.sum()) < best[0][0]:
+                        continue
                     cells = offsets + [p0, q0]
                     centres = _project(H, cells.astype(np.float64))
                     x, y = np.round(centres).astype(int).T
                     if x.min() < radius or y.min() < radius or x.max() >= width - radius or y.max() >= height - radius:
                         continue
-                    inside = ((lattice[:, 0] >= p0) & (lattice[:, 0] < p0 + wp)
-                              & (lattice[:, 1] >= q0) & (lattice[:, 1] < q0 + wq))
                     measured = np.array([linear[yy - radius: yy + radius + 1, xx - radius: xx + radius + 1]
                                          .reshape(-1, 3).mean(axis=0) for xx, yy in zip(x, y)])
                     score = colour_score(measured, reference_RGB)
@@ -343,7 +446,7 @@ def find_chart_segmentation(
                         pts = cand[ids, :2]
                         ok = index >= 0
                         best = (key, (pts[ok] + 0.5) / scale - 0.5, index[ok])
-    if best is None or best[0][0] < 8 or best[0][1] < MIN_COLOUR_SCORE:
+    if best is None or best[0][0] < least or best[0][1] < MIN_COLOUR_SCORE:
         return None
     (count, score), centres, index = best
     return SegmentationResult(centres, index, len(cand), float(score))

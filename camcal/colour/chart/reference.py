@@ -15,6 +15,7 @@ Reference XYZ are relative with Y = 1 for the perfect white. A chart's
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from camcal.base.extras import require
 from camcal.colour.difference import XYZ_to_Lab
 from camcal.colour.spectral.data import adapt_XYZ, illuminant_white_XYZ, reflectance_XYZ
 
-__all__ = ["DEFAULT_CHART", "CHART_ALIASES", "ReferenceChart", "reference_chart"]
+__all__ = ["DEFAULT_CHART", "CHART_ALIASES", "ReferenceChart", "reference_chart", "reference_from_measurements"]
 
 
 DEFAULT_CHART = "ColorChecker24 - After November 2014"
@@ -56,6 +57,9 @@ class ReferenceChart:
         XYZ of that white (Y = 1).
     rows, columns
         Patch grid.
+    layout
+        The chart's layout (:data:`camcal.colour.chart.layouts.LAYOUTS`):
+        ``classic`` for a 4 x 6 grid, ``digital-sg`` for 10 x 14 unless named.
     """
 
     name: str
@@ -65,6 +69,12 @@ class ReferenceChart:
     white_XYZ: np.ndarray
     rows: int
     columns: int
+    layout: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.layout:
+            object.__setattr__(self, "layout", {(4, 6): "classic", (10, 14): "digital-sg"}.get(
+                (self.rows, self.columns), ""))
 
     @property
     def neutral(self) -> np.ndarray:
@@ -116,3 +126,52 @@ def reference_chart(name: str = DEFAULT_CHART, illuminant: str = "D50") -> Refer
     else:
         XYZ = adapt_XYZ(XYZ, chart_white, white, "CAT02")
     return ReferenceChart(key, tuple(cc.data.keys()), XYZ, illuminant, white, int(cc.rows), int(cc.columns))
+
+
+def _patch_key(name: str) -> str:
+    """A patch name compared without case or leading zeros (``A01`` = ``a1``, ``GS00`` = ``GS0``)."""
+    head = name.rstrip("0123456789")
+    digits = name[len(head):]
+    return head.upper() + (str(int(digits)) if digits else "")
+
+
+def reference_from_measurements(name: str, names: Any, XYZ: Any, layout: str, *, measured_under: str = "D50",
+                                illuminant: str = "D50") -> ReferenceChart:
+    """A reference chart from measured XYZ (a chart's own CGATS file), in the layout's patch order.
+
+    Parameters
+    ----------
+    name
+        What the data are called (the file's name, say).
+    names, XYZ
+        The measured patches (any order; names matched without case or
+        leading zeros, ``A01`` = ``A1``) and their XYZ, white Y = 1.
+    layout
+        A layout of :data:`camcal.colour.chart.layouts.LAYOUTS`; for
+        ``it8`` the patches are :func:`camcal.colour.chart.layouts.it8_patch_names`.
+    measured_under, illuminant
+        The white the XYZ are relative to, and the white wanted (adapted with CAT02).
+
+    Raises
+    ------
+    CamcalError
+        When a patch of the layout is missing from the data.
+    """
+    from camcal.colour.chart.layouts import chart_layout, it8_patch_names
+
+    chart = chart_layout(layout)
+    XYZ = np.asarray(XYZ, dtype=np.float64)
+    given = {_patch_key(str(n)): k for k, n in enumerate(names)}
+    wanted = it8_patch_names() if chart.name == "it8" else tuple(str(n) for n in names)
+    missing = [n for n in wanted if _patch_key(n) not in given]
+    if missing:
+        raise CamcalError(f"reference data {name!r} lack {len(missing)} patch(es) of the {chart.title} "
+                          f"chart: {', '.join(missing[:6])}{' ...' if len(missing) > 6 else ''}")
+    if len(wanted) != chart.n_patches:
+        raise CamcalError(f"reference data {name!r} hold {len(wanted)} patches, the {chart.title} chart "
+                          f"{chart.n_patches}")
+    XYZ = XYZ[[given[_patch_key(n)] for n in wanted]]
+    source, white = illuminant_white_XYZ(measured_under), illuminant_white_XYZ(illuminant)
+    if not np.allclose(source, white, atol=1e-6):
+        XYZ = adapt_XYZ(XYZ, source, white, "CAT02")
+    return ReferenceChart(name, wanted, XYZ, illuminant, white, chart.rows, chart.columns, chart.name)

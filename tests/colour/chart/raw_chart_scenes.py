@@ -85,6 +85,18 @@ def _texture_passport(RGB: np.ndarray, other: np.ndarray, cell: int, body: float
     return tex, centres
 
 
+def cluttered_wall(camera: SimulatedCamera, other: np.ndarray, size, rng, n: int = 25) -> np.ndarray:
+    """A grey wall (25 % reflectance) with ``n`` random ellipses of the colours ``other``, ``(H, W, 3)`` float32."""
+    height, width = size
+    scene = np.full((height, width, 3), 0.25, np.float32) * camera.RGB(np.full((1, len(camera.wavelengths)), 1.0))[0]
+    for _ in range(n):
+        rgb = other[rng.integers(len(other))]
+        centre = (int(rng.uniform(0, width)), int(rng.uniform(0, height)))
+        axes = (int(rng.uniform(15, 90)), int(rng.uniform(15, 90)))
+        cv2.ellipse(scene, centre, axes, float(rng.uniform(0, 180)), 0, 360, tuple(float(v) for v in rgb), -1)
+    return scene
+
+
 def render_scene(camera: SimulatedCamera, layout: str = "classic", size=(700, 1000), seed: int = 0,
                  chart_frac: float = 0.45, tilt: float = 0.12, rotation: float = 8.0):
     """Linear camera RGB of a chart scene (half-size) and the true patch centres; white patch G ~ 0.9."""
@@ -100,13 +112,7 @@ def render_scene(camera: SimulatedCamera, layout: str = "classic", size=(700, 10
     else:
         tex, centres = _texture_passport(RGB, other, cell, black_body, 0.08)
     height, width = size
-    # background: a grey wall with random coloured clutter
-    scene = np.full((height, width, 3), 0.25, np.float32) * camera.RGB(np.full((1, len(camera.wavelengths)), 1.0))[0]
-    for _ in range(25):
-        rgb = other[rng.integers(len(other))]
-        centre = (int(rng.uniform(0, width)), int(rng.uniform(0, height)))
-        axes = (int(rng.uniform(15, 90)), int(rng.uniform(15, 90)))
-        cv2.ellipse(scene, centre, axes, float(rng.uniform(0, 180)), 0, 360, tuple(float(v) for v in rgb), -1)
+    scene = cluttered_wall(camera, other, size, rng)
     th, tw = tex.shape[:2]
     scale = chart_frac * width / tw
     src = np.array([[0, 0], [tw, 0], [tw, th], [0, th]], np.float32)
@@ -129,6 +135,14 @@ def write_raw_chart(path, camera: SimulatedCamera, *, layout: str = "classic", s
                     model: str = "") -> RawChart:
     """Synthesise and write a raw capture (see the module docstring)."""
     scene, centres, names, R, RGB = render_scene(camera, layout, size, seed)
+    exposure = write_raw_scene(path, scene, camera, stops_under=stops_under, full_well=full_well,
+                               read_noise=read_noise, seed=seed, model=model)
+    return RawChart(Path(path), centres, camera, names, R, RGB * exposure)
+
+
+def write_raw_scene(path, scene: np.ndarray, camera: SimulatedCamera, *, stops_under: float = 0.0,
+                    full_well: float = 20000.0, read_noise: float = 3.0, seed: int = 0, model: str = "") -> float:
+    """A half-size linear scene mosaicked (RGGB), with noise, written as a 14-bit DNG; returns the exposure."""
     exposure = 2.0 ** -stops_under
     signal_half = np.clip(scene * exposure, 0, None)
     height, width = signal_half.shape[:2]
@@ -141,4 +155,4 @@ def write_raw_chart(path, camera: SimulatedCamera, *, layout: str = "classic", s
     dn = BLACK + electrons * gain + read_noise * rng.standard_normal(signal.shape)
     write_cfa_dng(path, np.clip(np.round(dn), 0, WHITE).astype(np.uint16), "RGGB", (BLACK,) * 4, WHITE,
                   "camcal synthetic", model or camera.name)
-    return RawChart(Path(path), centres, camera, names, R, RGB * exposure)
+    return exposure
