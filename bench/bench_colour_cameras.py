@@ -15,32 +15,38 @@ training reflectances), CIEDE2000 from colour-science against the same XYZ.
   Finlayson 2015, Vandermonde with every parameter; "best" is the lowest
   independent mean per camera, an oracle pick that favours the peer.
 
-A third column trains on the independent colours themselves:
-:func:`same_distribution_floor`, 10-fold cross-validation on the 190 over
-nine models (up to root-polynomial degree 4, 20-term polynomials and two
-RBFs), each with ``auto``'s ridge grid, the best picked with hindsight. It
-is what a fit of these models reaches when its training colours come from
-the test distribution, a bound no chart or other training set is expected
-to beat; issue 31's target is judged against it.
+Two more columns. ``hind.``: every candidate ``auto`` ranked on the chart,
+refitted and judged on the independent colours, the best picked with
+hindsight (``bench_colour.candidate_scores``): no rule choosing among
+``auto``'s candidates does better. ``own CV``: the fit trained on the
+independent colours themselves, :func:`same_distribution_floor`, 10-fold
+cross-validation on the 190 over nine models (up to root-polynomial degree
+4, 20-term polynomials and two RBFs), each with ``auto``'s ridge grid, the
+best picked with hindsight: what a fit of these models reaches when its
+training colours come from the test distribution, a bound no chart or
+other training set is expected to beat.
 
-Issue 31 asks for camcal's default at <= 0.85 x colour-science's best on
-average and better on every camera. Measured (D65, 2026-11-26): better on
-all 15, mean ratio 0.930 (0.851 Dalsa to 0.979 ARRI D-21), the peer's best
-Finlayson 2015 degree 2 on 14 of them; trained on the 190 themselves (the
-floor above) the ratio is 0.879 (0.805 to 0.972), so 0.85 is out of reach of
-these models whatever they train on. ``--spectra`` (the chart's spectral
-route, training on the 99 CIE 2017 samples and 300 Munsell colours through
-sensitivities estimated from the chart): mean ratio 0.901, better on 14
-(Sigma SD1, a Foveon, 1.003; before the CIE 2017 samples and its own ridge:
-0.924). The last lines follow the project's form ``name: ours X, peer Y,
-ratio Y/X``.
+The target: camcal's default at <= 0.90 x colour-science's best on average
+and better on every camera. Measured (D65, 2026-11-29): better on all 15,
+mean ratio 0.930 (0.851 Dalsa to 0.979 ARRI D-21), the peer's best
+Finlayson 2015 degree 2 on 14 of them; the best of ``auto``'s candidates
+picked with hindsight 0.908 (0.851 to 0.953), so 0.90 lies below what any
+rule choosing among the chart's candidates reaches; ``auto``'s pick is
+within 2 % of that best candidate on 9 of 15 (median 1.6 %, ARRI D-21
+11.6 %). Trained on the 190 themselves (2026-11-26) the ratio is 0.879
+(0.805 to 0.972). ``--spectra`` (the chart's spectral route, training on
+the 99 CIE 2017 samples and 300 Munsell colours through sensitivities
+estimated from the chart, 2026-11-26): mean ratio 0.901, better on 14
+(Sigma SD1, a Foveon, 1.003). The last lines follow the project's form
+``name: ours X, peer Y, ratio Y/X``.
 
-Run with ``.venv/bin/python bench/bench_colour_cameras.py [--spectra] [ILLUMINANT ...]``
-(default D65).
+Run with ``.venv/bin/python bench/bench_colour_cameras.py [--spectra] [--no-floor] [ILLUMINANT ...]``
+(default D65; ``--no-floor`` skips the cross-validation on the independent colours, the slow part).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import sys
 import time
@@ -71,9 +77,19 @@ COLOUR_SCIENCE = (
     + [("Vandermonde", {"degree": d}) for d in (1, 2, 3)]
 )
 
+#: the target: ``colour fit``'s default at most this mean ratio to colour-science's best, better on every camera
+RATIO_TARGET = 0.90
 FLOOR_FOLDS = 10
 FLOOR_MODELS = ("matrix3x3", "polynomial:7", "polynomial:10", "polynomial:20", "root-polynomial:2",
                 "root-polynomial:3", "root-polynomial:4", "rbf:polyharmonic-3", "rbf:thin-plate")
+
+
+def _bench_colour():
+    """bench_colour.py beside this file (its ``candidate_scores``); loaded when needed, it loads this one."""
+    spec = importlib.util.spec_from_file_location("bench_colour", Path(__file__).with_name("bench_colour.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def load_camera(path: Path, illuminant: str) -> SimulatedCamera:
@@ -140,18 +156,19 @@ def same_distribution_floor(test: PatchSet, white: np.ndarray, models: tuple[str
     return value, f"{model} ({objective}{'' if model.startswith('rbf') else f', lambda {lam:g}'})"
 
 
-def main(illuminants: list[str], spectra: bool = False) -> int:
+def main(illuminants: list[str], spectra: bool = False, floor: bool = True) -> int:
     files = sorted(DATA.glob("*.json"))
     if not files:
         print(f"skipped: no sensitivity files in {DATA}")
         return 0
     summary = []
+    candidate_scores = _bench_colour().candidate_scores
     for illuminant in illuminants:
         print(f"\nunder {illuminant}, 0.2 % noise: train ColorChecker 24, independent rawtoaces 190, mean CIEDE2000")
         print(f"{'camera':22s} {'camcal auto':>11s} {'p95':>6s} {'+spectra':>9s} {'p95':>6s} | "
-              f"{'c-s best':>8s} {'p95':>6s} {'ratio':>6s} {'ratio+sp':>8s} | {'own CV':>6s} {'ratio':>6s}  "
-              "pick / peer / own CV's pick")
-        ratios, ratios_sp, floors = [], [], []
+              f"{'c-s best':>8s} {'p95':>6s} {'ratio':>6s} {'ratio+sp':>8s} | {'hind.':>6s} {'ratio':>6s} | "
+              f"{'own CV':>6s} {'ratio':>6s}  pick / peer / own CV's pick")
+        ratios, ratios_sp, floors, hindsight = [], [], [], []
         for path in files:
             cam = load_camera(path, illuminant)
             train, test = scene(cam)
@@ -163,32 +180,44 @@ def main(illuminants: list[str], spectra: bool = False) -> int:
                                     illuminant=illuminant) if spectra else auto
             seconds = time.perf_counter() - start
             peer, peer_p95, peer_label = colour_science_best(train, test, white)
-            floor, floor_label = same_distribution_floor(test, white)
+            own, own_label = same_distribution_floor(test, white) if floor else (float("nan"), "-")
+            best = candidate_scores(auto, auto.train, auto.test, white)[0][0]
             a, s = auto.result.stats_test, spectral.result.stats_test
+            hindsight.append(best / peer)
             ratios.append(a.mean / peer)
             ratios_sp.append(s.mean / peer)
-            floors.append(floor / peer)
+            floors.append(own / peer)
             sp = (f"{s.mean:9.3f} {s.p95:6.3f}" if spectra else f"{'-':>9s} {'-':>6s}")
             sp_ratio = f"{s.mean / peer:8.3f}" if spectra else f"{'-':>8s}"
             print(f"{cam.name:22s} {a.mean:11.3f} {a.p95:6.3f} {sp} | {peer:8.3f} "
-                  f"{peer_p95:6.3f} {a.mean / peer:6.3f} {sp_ratio} | {floor:6.3f} {floor / peer:6.3f}  "
-                  f"{auto.selection.picked.label} / {peer_label} / {floor_label} ({seconds:.0f} s)", flush=True)
-        summary.append((illuminant, ratios, ratios_sp, floors))
+                  f"{peer_p95:6.3f} {a.mean / peer:6.3f} {sp_ratio} | {best:6.3f} {best / peer:6.3f} | "
+                  f"{own:6.3f} {own / peer:6.3f}  "
+                  f"{auto.selection.picked.label} / {peer_label} / {own_label} ({seconds:.0f} s)", flush=True)
+        summary.append((illuminant, ratios, ratios_sp, floors, hindsight))
     print()
-    for illuminant, ratios, ratios_sp, floors in summary:
+    for illuminant, ratios, ratios_sp, floors, hindsight in summary:
         for what, r in (("auto", ratios), ("auto --spectra", ratios_sp))[:2 if spectra else 1]:
             r = np.asarray(r)
             print(f"colour {len(r)} cameras under {illuminant}, camcal {what} / colour-science best: mean ratio "
-                  f"{r.mean():.3f} (issue 31: <= 0.85), worst {r.max():.3f}, better on {int(np.sum(r < 1))} of "
-                  f"{len(r)}")
+                  f"{r.mean():.3f} (target <= {RATIO_TARGET:.2f}), worst {r.max():.3f}, better on "
+                  f"{int(np.sum(r < 1))} of {len(r)}")
         f, r = np.asarray(floors), np.asarray(ratios)
-        print(f"colour {len(f)} cameras under {illuminant}, trained on the independent colours themselves "
-              f"({FLOOR_FOLDS}-fold cross-validation, the best of {len(FLOOR_MODELS)} models with hindsight) / "
-              f"colour-science best: mean ratio {f.mean():.3f} (min {f.min():.3f}); camcal auto within "
-              f"{100 * (r / f - 1).max():+.1f} % of it, at or below it on {int(np.sum(r <= f))} of {len(f)}")
+        if floor:
+            print(f"colour {len(f)} cameras under {illuminant}, trained on the independent colours themselves "
+                  f"({FLOOR_FOLDS}-fold cross-validation, the best of {len(FLOOR_MODELS)} models with hindsight) / "
+                  f"colour-science best: mean ratio {f.mean():.3f} (min {f.min():.3f}); camcal auto within "
+                  f"{100 * (r / f - 1).max():+.1f} % of it, at or below it on {int(np.sum(r <= f))} of {len(f)}")
+        h = np.asarray(hindsight)
+        gap = 100 * (r / h - 1)
+        print(f"colour {len(h)} cameras under {illuminant}, the best of auto's chart candidates picked with hindsight "
+              f"on the independent colours / colour-science best: mean ratio {h.mean():.3f} (worst {h.max():.3f}): "
+              f"no rule choosing among those candidates does better; auto's pick above that best candidate by "
+              f"{np.median(gap):.1f} % (median), {gap.max():.1f} % (worst), within 2 % on {int(np.sum(gap <= 2))} "
+              f"of {len(gap)}")
     return 0
 
 
 if __name__ == "__main__":
     args = sys.argv[1:]
-    sys.exit(main([a for a in args if a != "--spectra"] or ["D65"], "--spectra" in args))
+    sys.exit(main([a for a in args if not a.startswith("--")] or ["D65"], "--spectra" in args,
+                  "--no-floor" not in args))
