@@ -23,6 +23,8 @@ Hastie, T., Tibshirani, R. & Friedman, J. (2009). The Elements of Statistical Le
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -102,6 +104,14 @@ def shape_by_estimate(board: Board, names: list[str], by_frame: list[dict], mode
         spec, ranking = _shape_screen(board, training[0], lens, start, flat_score, squared, corners, fits)
         if not spec:
             return flat, ranking, notes + ["board shape auto: flat (no surface beats the flat board held out)"]
+        lenses = _lenses_on_shape(board, training[0], spec, {lens: start, **store.get("full", {})}, corners)
+        ranking = tuple(sorted([*ranking, *(s for s in lenses if not s.model.startswith(f"{lens}{SHAPE_TAG}"))],
+                               key=lambda s: (s.rms_px is None, not s.screened_out, s.rms_px or s.estimate_px or 0.0)))
+        chosen = simplest_within_margin([dataclasses.replace(s, model=s.model.rsplit(SHAPE_TAG, 1)[0])
+                                         for s in lenses if s.rms_px is not None])
+        if chosen != lens:
+            notes.append(f"board shape auto: {chosen} ranked first on the {spec} surface ({lens} on the flat board)")
+            lens = chosen
     return shaped_or_flat(board, names, by_frame, lens, holdout, spec, flat, lens == model, board_shape, ranking,
                           notes, options, fits)
 
@@ -160,6 +170,32 @@ def _shape_screen(board: Board, views: dict, lens: str, start: CalibrationResult
     ranking = tuple(sorted([flat_score, *fitted, *out.values()],
                            key=lambda s: (s.rms_px is None, not s.screened_out, s.rms_px or s.estimate_px or 0.0)))
     return shape_choice(flat_score, fitted, squared)[1], ranking
+
+
+def _lenses_on_shape(board: Board, views: dict, spec: str, fulls: dict[str, CalibrationResult], corners: NDArray
+                     ) -> list[ModelScore]:
+    """Every lens with a surface fit (``fulls``: its flat fit on the training ``views``) scored on the surface
+    ``spec`` by its leave-one-view-out error estimated to first order from its flat fit, as :func:`_shape_screen`
+    screens (the same estimate for every lens: the thorough ranking's lenses ranked again on the surface taken,
+    without their fits); a lens whose estimate fails is ranked out with the reason."""
+    out = []
+    for lens, start in fulls.items():
+        if lens not in SHAPE_LENSES:
+            continue
+        name, n_params = f"{lens}{SHAPE_TAG}{spec}", shape_params(board, views, lens, spec)
+        camera = start.rig.cameras[0]
+        kept = {image for _, image in start.images}
+        try:
+            at_flat = flat_start(board, {f: d for f, d in views.items() if d.image in kept}, camera.K,
+                                 camera.distortion.without_correction(), {f: (R, t) for f, R, t in start.board_poses},
+                                 *parse_shape(board, spec))
+            squared = sum(leave_one_view_out_on_shape(board, at_flat, MODELS[lens], views).values())
+        except FIT_ERRORS as error:
+            out.append(ModelScore(name, None, n_params, one_line(error)))
+            continue
+        rms = float(np.sqrt(squared / corners.sum()))
+        out.append(ModelScore(name, rms, n_params, "", rms))
+    return out
 
 
 def _per_view(per_view: dict[int, float]) -> NDArray[np.float64]:
