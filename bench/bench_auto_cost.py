@@ -37,14 +37,18 @@ Usage: python bench/bench_auto_cost.py [--cache DIR] [--quick] [--only TEXT]   (
 ``--only``: the sets whose name holds TEXT)
 """
 
+import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bench_lens_models import opencv_models, posed_rms, sb_detections
+from bench_lens_models import opencv_held_out_rms, opencv_models, posed_rms, release_object_fit, sb_detections
+import camcal
 from camcal.geometry.board import Board, Detection
 from camcal.geometry.board_shape import AUTO_SHAPES
 from camcal.geometry.zhang import AUTO_MODELS, SPLINE_SUFFIX, calibrate_board
@@ -55,6 +59,7 @@ from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "stereo_chessboard"
+REAL_BOARDS = Path(__file__).resolve().parents[1] / "tests" / "data" / "real_boards"
 NOISE_PX = 0.1
 HELD_EVERY = 6
 OPTIONS = dict(units="m", outlier_factor=3.0, min_outlier_px=1.0, loss="trivial", loss_scale=1.0)
@@ -87,6 +92,12 @@ def data_sets(cache: Path | None, quick: bool):
         board = Board("chessboard", 9, 6, 1.0)
         for side in ("left", "right"):
             yield f"shared pair {side}", board, sb_detections(SHARED, f"{side}*.jpg", board, cache)
+    for path in sorted(REAL_BOARDS.glob("*.json")) if not quick else ():
+        data = json.loads(path.read_text())
+        board = Board("chessboard", data["board"]["columns"], data["board"]["rows"], 1.0)
+        yield path.stem, board, [Detection(f"view{n:03d}.jpg", tuple(data["image_size"]), np.arange(board.n_corners),
+                                           np.asarray(corners, np.float64), "sb")
+                                 for n, corners in enumerate(data["corners_px"].values())]
     dense = Board("chessboard", 24, 17, 0.02)
     industrial = Camera("industrial", (2448, 2048), np.array([[3500.0, 0, 1230.3], [0, 3500.0, 1018.7], [0, 0, 1]]),
                         Distortion.from_opencv_coefficients([-0.09, 0.12, 2e-4, -3e-4, -0.05, 0.02, 0.05, -0.03]),
@@ -106,26 +117,64 @@ def timed(function, *args, **kwargs):
     return result, time.process_time() - start
 
 
-def run(name: str, board: Board, views: list[Detection]) -> None:
+def opencv_peers(board: Board, train: list[Detection], held: list[Detection]) -> dict[str, float]:
+    """Held-out RMS of OpenCV's flat-board models (:func:`opencv_models`) and of its release-object fits (rational,
+    rational + thin prism: the board's points refined, each held-out view posed against them)."""
+    size = train[0].image_size
+    peers = {peer: posed_rms(board, camera, held) for peer, camera in opencv_models(board, train, size)}
+    for name, flags in (("RO rational", cv2.CALIB_RATIONAL_MODEL),
+                        ("RO rational+thin-prism", cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL)):
+        try:
+            _, K, dist, points = release_object_fit(board, train, size, flags)
+            peers[name] = opencv_held_out_rms(points, held, K, dist)
+        except cv2.error as error:
+            print(f"  opencv {name}: failed ({error})")
+    return peers
+
+
+def run(name: str, board: Board, views: list[Detection], thorough: bool) -> None:
     holdout = set(range(0, len(views), HELD_EVERY))
     detections = {"cam": views}
     auto, t_auto = timed(calibrate_board, board, detections, holdout=holdout)
     picked = auto.rig.provenance.get("model", auto.model).split("@")[0].removesuffix(SPLINE_SUFFIX)
-    _, t_single = timed(calibrate_board, board, detections, model=picked, holdout=holdout)
-    _, t_opencv = timed(calibrate_board, board, detections, model="opencv", holdout=holdout)
+    _, t_single = timed(calibrate_board, board, detections, model=picked, holdout=holdout, board_shape="flat")
+    _, t_opencv = timed(calibrate_board, board, detections, model="opencv", holdout=holdout, board_shape="flat")
     train = [v for n, v in enumerate(views) if n not in holdout]
     held = [v for n, v in enumerate(views) if n in holdout]
-    peers = {peer: posed_rms(board, camera, held) for peer, camera in opencv_models(board, train, views[0].image_size)}
+    peers = opencv_peers(board, train, held)
     best = min(peers, key=peers.get)
-    shape = "" if auto.board_shape is None else " (board surface fitted)"
-    print(f"{name}: auto picked {auto.model}{shape}; CPU auto {t_auto:.1f} s, single {picked} {t_single:.1f} s, "
-          f"opencv {t_opencv:.1f} s; auto / single {t_auto / t_single:.2f}, auto / opencv {t_auto / t_opencv:.2f}")
+    shape = "" if auto.board_shape is None else f" on the {auto.notes[-1].split(' on ')[-1].split()[0]} surface"
+    print(f"{name}: auto picked {auto.model}{shape}; fit CPU auto {t_auto:.2f} s, single {picked} {t_single:.2f} s, "
+          f"opencv {t_opencv:.2f} s; auto / single {t_auto / t_single:.1f}, auto / opencv {t_auto / t_opencv:.1f}")
     print(f"  held out: auto {auto.heldout_rms_px:.4f} px, best OpenCV ({best}) {peers[best]:.4f} px, "
           f"auto / best {auto.heldout_rms_px / peers[best]:.3f}")
+    if thorough:
+        full, t_full = timed(calibrate_board, board, detections, holdout=holdout, thorough=True)
+        print(f"  thorough: {full.model}, held out {full.heldout_rms_px:.4f} px (/ best {full.heldout_rms_px / peers[best]:.3f}), "
+              f"fit CPU {t_full:.1f} s ({t_full / t_single:.0f}x single)")
     t_lenses, t_shapes = floor(board, detections, holdout, picked)
-    print(f"  floor (any ranking fits every candidate once): every lens model once {t_lenses:.1f} s "
-          f"({t_lenses / t_single:.1f}x single), every board surface once with {picked} {t_shapes:.1f} s "
-          f"({(t_lenses + t_shapes) / t_single:.1f}x single with both)")
+    print(f"  floor: every lens model fitted once {t_lenses:.2f} s ({t_lenses / t_single:.1f}x single), every board "
+          f"surface once with {picked} {t_shapes:.2f} s ({(t_lenses + t_shapes) / t_single:.1f}x single with both)")
+    sys.stdout.flush()
+
+
+def end_to_end(name: str, images: dict[str, str], board: str) -> None:
+    """``calibrate board`` as the command runs it (:func:`camcal.calibrate_board`: detection, the fit, the rig), the
+    default against the single fit of the model it picked (``board_shape="flat"``), CPU seconds of this process:
+    each with a fresh corner cache (detection included), then each again with its cache warm."""
+    with tempfile.TemporaryDirectory() as tmp:
+        def command(cache: str, **kwargs):
+            return timed(camcal.calibrate_board, images, board, cache=Path(tmp) / cache, progress=False, **kwargs)
+
+        auto, t_auto = command("auto")
+        picked = auto.calibration.rig.provenance.get("model", auto.calibration.model).split("@")[0]
+        _, t_single = command("single", model=picked, board_shape="flat")
+        _, w_auto = command("auto")
+        _, w_single = command("single", model=picked, board_shape="flat")
+    shape = "" if auto.calibration.board_shape is None else " on a board surface"
+    print(f"{name} end to end: auto picked {auto.calibration.model}{shape}; fresh cache: auto {t_auto:.1f} s, single "
+          f"{picked} {t_single:.1f} s, auto / single {t_auto / t_single:.2f}; warm cache: auto {w_auto:.1f} s, single "
+          f"{w_single:.1f} s, auto / single {w_auto / w_single:.2f}")
     sys.stdout.flush()
 
 
@@ -155,9 +204,17 @@ def main() -> None:
     args = sys.argv[1:]
     cache = Path(args[args.index("--cache") + 1]) if "--cache" in args else None
     only = args[args.index("--only") + 1] if "--only" in args else ""
+    image_sets = [args[k + 1:k + 5] for k, a in enumerate(args) if a == "--images"]
+    if SHARED.is_dir() and "--quick" not in args and "shared pair".startswith(only[:11]):
+        pair = {side: str(SHARED / f"{side}*.jpg") for side in ("left", "right")}
+        end_to_end("shared pair (the rig)", pair, "chessboard:9x6:1")
+        end_to_end("shared pair left", {"left": pair["left"]}, "chessboard:9x6:1")
+    for name, folder, pattern, grid in image_sets:
+        if only in name:
+            end_to_end(name, {"cam": str(Path(folder) / pattern)}, f"chessboard:{grid}:1")
     for name, board, views in data_sets(cache, "--quick" in args):
         if only in name:
-            run(name, board, views)
+            run(name, board, views, "--thorough" in args)
 
 
 if __name__ == "__main__":

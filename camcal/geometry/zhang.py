@@ -62,6 +62,13 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    again for a new lens, and the correction field scored on top of the
    surface (taken by its rule). A shape can be named, or given and held
    (a rig seeing the same board again).
+8. By default (plain loss) steps 6-7 take each candidate's leave-one-view-out
+   error estimated from its one fit instead of the folds
+   (:mod:`camcal.geometry.zhang_quick`): every lens model fitted once, every
+   shape scored to first order from the chosen lens's flat fit and the two the
+   rule depends on fitted, the lenses scored on the surface taken to first
+   order too, no correction field; the same rules. ``thorough=True`` runs the
+   folds.
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
