@@ -109,6 +109,9 @@ def shape_by_estimate(board: Board, names: list[str], by_frame: list[dict], mode
                                key=lambda s: (s.rms_px is None, not s.screened_out, s.rms_px or s.estimate_px or 0.0)))
         chosen = simplest_within_margin([dataclasses.replace(s, model=s.model.rsplit(SHAPE_TAG, 1)[0])
                                          for s in lenses if s.rms_px is not None])
+        if chosen != lens:  # confirmed at its own solution: the first-order estimate's error differs between lenses
+            chosen = _confirmed(board, training[0], spec, lens, chosen, store["full"][chosen], ranking, squared,
+                                corners, fits)
         if chosen != lens:
             notes.append(f"board shape auto: {chosen} ranked first on the {spec} surface ({lens} on the flat board)")
             lens = chosen
@@ -196,6 +199,25 @@ def _lenses_on_shape(board: Board, views: dict, spec: str, fulls: dict[str, Cali
         rms = float(np.sqrt(squared / corners.sum()))
         out.append(ModelScore(name, rms, n_params, "", rms))
     return out
+
+
+def _confirmed(board: Board, views: dict, spec: str, lens: str, other: str, start: CalibrationResult,
+               ranking: tuple[ModelScore, ...], squared: dict, corners: NDArray, fits: dict) -> str:
+    """``other`` or ``lens`` on the surface ``spec``: ``other`` (ranked first there to first order) fitted on it from
+    its flat fit ``start`` and scored at its own solution like ``lens`` (fitted by :func:`_shape_screen`), the
+    simplest within :data:`AUTO_MARGIN` of the better taken; ``lens`` when ``other``'s fit fails."""
+    taken = next((s for s in ranking if s.model == f"{lens}{SHAPE_TAG}{spec}" and s.rms_px is not None), None)
+    try:
+        fit = surface_fit(board, start, views, other, spec, fits)
+        per_view = _per_view(leave_one_view_out_on_shape(board, fit, MODELS[other], views))
+    except FIT_ERRORS:
+        return lens
+    if taken is None:
+        return other
+    rms = float(np.sqrt(per_view.sum() / corners.sum()))
+    squared[f"{other}{SHAPE_TAG}{spec}"] = per_view
+    return simplest_within_margin([dataclasses.replace(taken, model=lens),
+                                   ModelScore(other, rms, taken.n_params, "", rms)])
 
 
 def _per_view(per_view: dict[int, float]) -> NDArray[np.float64]:
