@@ -1,40 +1,43 @@
 """The cost of camcal's default lens model choice (``model="auto"``) against a single-model fit, and its held-out error.
 
-Per data set: the CPU time (``time.process_time``: this process, every thread) of ``calibrate_board`` with the
-default (``model="auto"``, ``board_shape="auto"``) and with the model it picked named (its parametric lens, flat
-board: the single fit a user would run) and with ``opencv``; the ratio auto / single. Then the held-out RMS of
-auto's calibration against OpenCV's best model (default, rational, rational + thin prism, ``cv2.fisheye``) on the
-same corners and the same split (every 6th view held out, each held-out view posed with the fitted intrinsics
-held: camcal's ``zhang_fit.posed_residuals``, the same for every model).
+End to end (``calibrate board`` as the command runs it, :func:`camcal.calibrate_board`: detection, the fit, the
+rig; the interpreter's start-up, the same for both, left out): the CPU time (``time.process_time``: this process,
+every thread) of the default and of the single-model command for the model it picked (``board_shape="flat"``), each
+with a fresh corner cache (detection included), then each again with its cache warm; on the shared stereo pair (the
+rig, and its left camera) and on every ``--images NAME DIR PATTERN COLUMNSxROWS`` given.
 
-Sets: the shared stereo pair (``left*.jpg``, ``right*.jpg``, 9x6; OpenCV's SB corners, cached with ``--cache``), a
-dense synthetic 24x17 board seen 21 times by an industrial lens (OpenCV rational distortion), and a synthetic
-fisheye (Kannala-Brandt, 185-degree class lens) seen 20 times; synthetic corners carry 0.1 px Gaussian noise
-(seeded).
+Per corner set: the CPU time of the fit alone (:func:`camcal.geometry.zhang.calibrate_board`) with the default
+(``model="auto"``, ``board_shape="auto"``), with the model it picked named (flat board) and with ``opencv``; the
+held-out RMS of the default against OpenCV's best model (default, rational, rational + thin prism, ``cv2.fisheye``,
+and the release-object fits ``calibrateCameraRO`` rational and rational + thin prism, each held-out view posed
+against the board it estimated) on the same corners and split (every 6th view held out); ``--thorough``: the
+thorough ranking (the folds) too. Sets: the shared stereo pair (OpenCV's SB corners, cached with ``--cache``), the
+public corner sets of ``tests/data/real_boards``, a dense synthetic 24x17 board seen 21 times by an industrial lens
+(OpenCV rational distortion) and a synthetic fisheye (Kannala-Brandt) seen 20 times; synthetic corners carry
+0.1 px Gaussian noise (seeded). The floor: one scoring fit of every lens model and one surface fit of every board
+shape with the model picked (what a ranking that fits every candidate pays).
 
-The floor: one scoring fit of every lens model and one surface fit of every board shape with the model picked,
-no held-out scoring at all (what any ranking by held-out error must pay at least).
+Run with ``OPENBLAS_NUM_THREADS=1`` on a shared machine: OpenBLAS threads spinning on busy cores multiply the CPU
+time of every dense solve (the jackknife of a single fit: 0.07 s on one thread, 1.3-4.4 s with the default threads
+on this two-core machine under a load of 20).
 
-Last run (``--only pair``, a two-core machine shared by other jobs, load about 13: the single fit's CPU time
-varied from 0.3 s to 1.3 s between runs, so compare auto's own CPU before and after): with the one-fit
-leave-one-view-out screen (:mod:`camcal.geometry.zhang_loo`), shared pair left: auto picked polynomial on the
-``free+plane`` surface, held out 0.1358 px against OpenCV's best (default) 0.1645 px (0.825), CPU auto 36.1 s
-(58.2 s before the screen), single polynomial 0.7 s (51x); right: the same pick, 0.1333 px against OpenCV's best
-(fisheye) 0.1695 px (0.786), auto 21.7 s (34.7 s before), single 0.6 s (34x). Floor: every lens model once
-1.5 s (2.2-2.4x the single fit), with every surface once 5.3-5.7x: with the board's shapes among the candidates
-the 2x target is below the cost of fitting each candidate once. What remains above the floor: the finalists'
-folds (3 lens models and 3 surfaces, 4 folds each), the correction field's folds, the finalists' lenses on the
-surface taken. Synthetic fisheye (``--only fisheye``): kannala-brandt picked before and after, held out
-0.1414 px against OpenCV's best (rational) 0.1422 px (0.994), auto 11.4 s (13.3 s before), single 0.5 s (23x),
-floor 4.7x. The public GoPro set of the tests (35 views, every 6th held out, as
-``tests/geometry/test_zhang_real_boards.py`` splits it): auto took kannala-brandt-thin-prism+spline on a degree-12
-surface, 0.2318 px held out against OpenCV's best (release-object rational) 0.2449 px (0.946), 273.5 s CPU; the
-dashcam (16 views): kannala-brandt on the free surface, 0.5619 px against 0.6008 px (0.935, the figure recorded
-before the screen), 26.4 s CPU. The
-dense 24x17 set was not run (its ``free`` surfaces have over a thousand parameters each).
+Last run (one BLAS thread, a two-core machine at a load of about 20; the udacity image sets of
+``tests/data/real_boards/README.md`` as ``--images``). End to end, fresh cache, default / single: shared pair rig
+9.7 / 7.3 s (1.34), its left camera 6.8 / 4.4 s (1.56), GoPro 36 images 28.1 / 21.9 s (1.29), car camera 18
+images 10.0 / 9.3 s (1.08): within 2x everywhere. Warm cache: 2.9 / 0.4 s (7.3), 2.5 / 0.1 s (18), 7.5 / 0.4 s
+(19), 1.9 / 0.3 s (6.0): the single fit of a plain lens costs 0.1-0.4 s, and fitting every lens model once
+(the floor, 2.5-10x it) and one or two board surfaces cannot be within 2x of it. Fit alone and held out (every 6th
+view): car camera kannala-brandt on the free surface, 1.29 / 0.29 s, 0.5619 px against OpenCV's best (RO
+rational) 0.6008 px (0.935); GoPro kannala-brandt-thin-prism on 6+plane, 13.49 / 0.52 s (two surface fits of that lens: most of it; the
+floor, every lens once and every surface once, 29x), 0.2369 px against 0.2449 (RO
+rational, 0.967; 273.5 s CPU with the folds before); shared pair left polynomial on 6+plane, 1.65 / 0.12 s,
+0.1370 px against 0.1284 (RO rational, 1.067; camcal's opencv lens on that surface: 0.1303); right 1.52 / 0.12 s,
+0.1333 against 0.1307 (RO rational + thin prism, 1.020); synthetic 24x17 opencv on the flat board, 7.66 / 0.99 s
+(more than 22 minutes with the folds before), 0.1387 px, OpenCV's default the same (OpenCV's release-object fits refuse partial views).
 
-Usage: python bench/bench_auto_cost.py [--cache DIR] [--quick] [--only TEXT]   (``--quick``: synthetic sets only;
-``--only``: the sets whose name holds TEXT)
+Usage: OPENBLAS_NUM_THREADS=1 python bench/bench_auto_cost.py [--cache DIR] [--quick] [--only TEXT] [--thorough]
+[--images NAME DIR PATTERN COLUMNSxROWS ...]   (``--quick``: synthetic sets only; ``--only``: the sets whose name
+holds TEXT)
 """
 
 import json
