@@ -33,7 +33,8 @@ floor, every lens once and every surface once, 29x), 0.2369 px against 0.2449 (R
 rational, 0.967; 273.5 s CPU with the folds before); shared pair left polynomial on 6+plane, 1.65 / 0.12 s,
 0.1370 px against 0.1284 (RO rational, 1.067; camcal's opencv lens on that surface: 0.1303); right 1.52 / 0.12 s,
 0.1333 against 0.1307 (RO rational + thin prism, 1.020); synthetic 24x17 opencv on the flat board, 7.66 / 0.99 s
-(more than 22 minutes with the folds before), 0.1387 px, OpenCV's default the same (OpenCV's release-object fits refuse partial views); synthetic fisheye
+(more than 22 minutes with the folds before; fitting every surface once would take 90.5 s, 95x: the first-order
+screen fits none on a flat board), 0.1387 px, OpenCV's default the same (OpenCV's release-object fits refuse partial views); synthetic fisheye
 kannala-brandt on the flat board, 0.99 / 0.21 s, 0.1414 px against OpenCV's rational 0.1422 (0.994).
 
 Usage: OPENBLAS_NUM_THREADS=1 python bench/bench_auto_cost.py [--cache DIR] [--quick] [--only TEXT] [--thorough]
