@@ -106,12 +106,15 @@ class BoardCalibration:
 
         result = self.calibration
         lines = list(result.notes)
+        estimated = any(s.estimated for s in (*result.model_ranking, *result.shape_ranking))
+        how = ("each one's leave-one-view-out error estimated from its one fit" if estimated
+               else "views held out in turn")
         if result.model_ranking:
-            lines.append(f"model auto: views held out in turn, chose {result.model}")
+            lines.append(f"model auto: {how}, chose {result.model}")
             lines += ["  " + line for line in ranking_lines(result.model_ranking)]
         if result.shape_ranking:
-            lines.append("board shape auto: views held out in turn (the same folds; the lenses ranked again on the "
-                         "surface taken)")
+            lines.append(f"board shape auto: {how}" + ("" if estimated else " (the same folds; the lenses ranked "
+                                                       "again on the surface taken)"))
             lines += ["  " + line for line in ranking_lines(result.shape_ranking)]
         if result.dropped:
             lines.append("dropped (no corner labelling agrees with the rig): "
@@ -181,6 +184,7 @@ def calibrate_board(
     *,
     model: str = "auto",
     board_shape: str = "auto",
+    thorough: bool = False,
     units: str = "m",
     every: int = 1,
     timestamps: str | os.PathLike | Timestamps | None = None,
@@ -224,9 +228,13 @@ def calibrate_board(
         :class:`camcal.geometry.board.Board`.
     model : str
         Lens model (:data:`camcal.geometry.zhang.MODELS`, ``MODEL+spline``) or ``"auto"`` (ranked by views held
-        out in turn; the simplest within 1 % of the best).
+        out, each candidate's leave-one-view-out error estimated from its one fit; the simplest within 1 % of the
+        best).
     board_shape : str
         ``"auto"``, ``"flat"``, or a surface (``"2"``, ``"4+plane"``, ``"free"``...), one camera.
+    thorough : bool
+        With ``"auto"``: rank by views held out in turn, fold by fold (the correction field and the lenses on the
+        board surface taken ranked too): dozens of fits instead of about one per candidate.
     units : str
         Unit of the board's square size, stored in the rig.
     every : int
@@ -355,7 +363,8 @@ def calibrate_board(
                 f"{len(frames) - len(chosen)} are held out")
             held |= frames - set(chosen)
     result = fit_board(board, detections, model=model, units=units, loss=loss, loss_scale=loss_scale, holdout=held,
-                       intrinsics=held_intrinsics, refine_intrinsics=refine_intrinsics, board_shape=shape)
+                       intrinsics=held_intrinsics, refine_intrinsics=refine_intrinsics, board_shape=shape,
+                       thorough=thorough)
     problems = tuple(quality_problems(result))
     if problems and not force:
         raise CamcalError("calibration refused, its own figures show it broken: " + "; ".join(problems)

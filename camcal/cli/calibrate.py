@@ -68,8 +68,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                        "kannala-brandt-thin-prism COLMAP's RAD_TAN_THIN_PRISM_FISHEYE (six radial terms, "
                        "tangential, thin prism); " + ", ".join(_TDE4_MODELS) + " are 3DEqualizer's LDPK models "
                        "(one camera, fitted in their own distorted-to-undistorted direction); division estimates fx and fy (its aspect = fx / fy); auto "
-                       "(default) ranks every model by views held out in turn and keeps the simplest within 1 %% "
-                       "of the best")
+                       "(default) ranks every model by views held out (each one's leave-one-view-out error estimated "
+                       "from its one fit; --thorough: fold by fold) and keeps the simplest within 1 %% of the best")
     board.add_argument("--board-shape", default="auto", metavar="SHAPE",
                        choices=("auto", "flat") + tuple(f"{d}{p}" for d in ("2", "3", "4", "6", "free")
                                                         for p in ("", "+plane")),
@@ -79,6 +79,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                        "(default): with --model "
                        "auto, a surface only where it beats the flat board on views held out in turn; with "
                        "--intrinsics RIG whose board has a fitted surface, that surface is held)")
+    board.add_argument("--thorough", action="store_true",
+                       help="with --model auto (the lens model and the board shape): rank by views held out in turn, fold by fold, "
+                       "and also rank a correction field and every lens model again on the board surface taken "
+                       "(dozens of fits; default: off, each candidate's held-out error estimated from its one fit, "
+                       "about the cost of a few single-model fits), e.g. --model auto --thorough")
     board.add_argument("--holdout", metavar="FRAMES",
                        help="frames left out of the fit and reported as held-out RMS (PnP, intrinsics held): "
                        "numbers and ranges (21-25) or a fraction (0.2)")
@@ -105,6 +110,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     board.add_argument("--suggest-preview", metavar="FILE.png",
                        help="where --suggest draws its shot list (default: OUT without .rig.json + .suggest.png)")
     only_with(board, "--suggest-preview", "--suggest N", lambda args: args.suggest > 0)
+    only_with(board, "--thorough", "--model auto", lambda args: args.model == "auto")
     out_option(board, "FILE.rig.json", "the rig file to write")
     report_option(board, "write PNG plots: residuals, per-image RMS, coverage, projection sigma heat maps")
     handler(board, _board, [
@@ -192,7 +198,8 @@ def _board(args: argparse.Namespace) -> int:
     from camcal.api.board import calibrate_board
 
     result = calibrate_board(
-        args.camera, args.board, model=args.model, board_shape=args.board_shape, units=args.units, every=args.every,
+        args.camera, args.board, model=args.model, board_shape=args.board_shape, thorough=args.thorough,
+        units=args.units, every=args.every,
         timestamps=args.timestamps, time_tolerance_s=args.time_tolerance, intrinsics=args.intrinsics,
         refine_intrinsics=args.refine_intrinsics, holdout=args.holdout, max_views=args.max_views, loss=args.loss,
         loss_scale=args.loss_scale, workers=args.workers, scheduler=args.scheduler,

@@ -45,15 +45,15 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-import scipy.optimize
 from numpy.polynomial import legendre
 from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.board import Board, Detection
+from camcal.geometry.spline_fit import levenberg_marquardt
 from camcal.model.distortion import Distortion
 
-__all__ = ["BoardShape", "BoardShapeFit", "SHAPE_SPECS", "AUTO_SHAPES", "fit_board_shape", "max_degree",
+__all__ = ["BoardShape", "BoardShapeFit", "SHAPE_SPECS", "AUTO_SHAPES", "fit_board_shape", "flat_start", "max_degree",
            "n_shape_params", "n_shape_terms", "parse_shape"]
 
 #: Named board shapes: a surface of total degree 2, 3, 4 or 6, or ``free`` (every corner's height free: the
@@ -279,6 +279,43 @@ class BoardShapeFit:
     views: Mapping[int, Detection]
 
 
+def _imaged(board: Board, views: Mapping[int, Detection], poses: Mapping[int, tuple[NDArray, NDArray]]
+            ) -> dict[int, Detection]:
+    """The views (frame -> detection) without the corners no lens images at their pose ``(R, t)`` (a fisheye's
+    beyond 90 degrees: further than ``_MAX_ANGLE_DEG`` off the optical axis); a view left with fewer than 4 is
+    dropped."""
+    cos_limit = np.cos(np.radians(_MAX_ANGLE_DEG))
+    kept = {}
+    for f in sorted(views):
+        R, t = poses[f]
+        X = board.object_points[views[f].ids] @ np.asarray(R).T + np.asarray(t).ravel()
+        front = X[:, 2] > cos_limit * np.linalg.norm(X, axis=1)
+        if front.sum() >= 4:
+            d = views[f]
+            kept[f] = d if front.all() else dataclasses.replace(d, ids=d.ids[front], corners_px=d.corners_px[front])
+    return kept
+
+
+def flat_start(board: Board, views: Mapping[int, Detection], K: NDArray, distortion: Distortion,
+               poses: Mapping[int, tuple[NDArray, NDArray]], degree: int, in_plane: bool = False) -> BoardShapeFit:
+    """The start of :func:`fit_board_shape` as a fit: the flat calibration ``K, distortion, poses`` (frame ->
+    ``cam_from_board`` ``(R, t)``) with every term of the surface of ``degree`` (and, with ``in_plane``, of the
+    in-plane displacement) present at zero, on the views it keeps (the corners no lens images left out). The
+    point a first-order estimate of that surface's fit is taken from
+    (:func:`camcal.geometry.zhang_loo.leave_one_view_out_on_shape`)."""
+    kept = _imaged(board, views, poses)
+    every = _terms(degree, board, lowest=0)
+    shape = BoardShape(degree, {term: 0.0 for term in every}, *_frame(board),
+                       {term: (0.0, 0.0) for term in every} if in_plane else {})
+    rvecs = {f: cv2.Rodrigues(np.asarray(poses[f][0], np.float64))[0].ravel() for f in kept}
+    tvecs = {f: np.asarray(poses[f][1], np.float64).ravel() for f in kept}
+    data = np.concatenate([distortion.project_rays(board.object_points[kept[f].ids] @ np.asarray(poses[f][0]).T
+                                                   + tvecs[f], K) - kept[f].corners_px for f in sorted(kept)])
+    return BoardShapeFit(K=np.asarray(K, np.float64), distortion=distortion, shape=shape,
+                         poses={f: (rvecs[f], tvecs[f]) for f in kept}, residuals_px=data,
+                         rms_px=float(np.sqrt(np.mean(np.sum(data * data, axis=1)))), views=kept)
+
+
 def fit_board_shape(board: Board, views: Mapping[int, Detection], K: NDArray, distortion: Distortion,
                     refine: Sequence[str], poses: Mapping[int, tuple[NDArray, NDArray]], degree: int,
                     in_plane: bool = False) -> BoardShapeFit:
@@ -319,15 +356,7 @@ def fit_board_shape(board: Board, views: Mapping[int, Detection], K: NDArray, di
     else:
         Qx = Qy = np.zeros((board.n_corners, 0))
     n_terms = n_z + Qx.shape[1]
-    cos_limit = np.cos(np.radians(_MAX_ANGLE_DEG))
-    kept = {}
-    for f in frames:  # corners no lens images at the start pose (a fisheye's beyond 90 degrees) are left out
-        R, t = poses[f]
-        X = board.object_points[views[f].ids] @ np.asarray(R).T + np.asarray(t).ravel()
-        front = X[:, 2] > cos_limit * np.linalg.norm(X, axis=1)
-        if front.sum() >= 4:
-            d = views[f]
-            kept[f] = d if front.all() else dataclasses.replace(d, ids=d.ids[front], corners_px=d.corners_px[front])
+    kept = _imaged(board, views, poses)
     frames = sorted(kept)
     ids = [kept[f].ids for f in frames]
     corner = np.concatenate(ids)  # each observation's corner id, views in order
@@ -406,9 +435,9 @@ def fit_board_shape(board: Board, views: Mapping[int, Detection], K: NDArray, di
                                             for f in frames]), np.zeros(n_terms)])
     if len(x) * 2 <= len(start):
         raise CamcalError(f"board shape: {len(x)} corners cannot fit {len(start)} parameters")
-    solution = scipy.optimize.least_squares(residuals, start, jac=jacobian, method="lm", x_scale="jac",
-                                            xtol=1e-12, ftol=1e-12, max_nfev=100)
-    p = solution.x
+    # Marquardt's damping on the normal equations (BLAS): MINPACK's unblocked QR of the dense Jacobian cost seconds
+    # per step on a few thousand corners
+    p = levenberg_marquardt(residuals, jacobian, start, max_iter=100, tol=1e-12)
     data = project(p) - x
     if not np.all(np.isfinite(p)) or not np.all(np.isfinite(data)):
         raise CamcalError("the board shape fit diverged (non-finite parameters or corners left unprojected)")

@@ -41,7 +41,7 @@ from camcal.geometry.board import Board, Detection
 from camcal.model.distortion import Distortion, capped_rays
 from camcal.model.spline import SplineField
 
-__all__ = ["SplineFit", "fit_spline_lens", "grid_shape", "pose_view"]
+__all__ = ["levenberg_marquardt", "SplineFit", "fit_spline_lens", "grid_shape", "pose_view"]
 
 #: Default control points across the image width.
 DEFAULT_NX = 10
@@ -116,7 +116,7 @@ def _second_differences(ny: int, nx: int) -> scipy.sparse.csr_matrix:
                                 scipy.sparse.kron(d2(ny), scipy.sparse.eye(nx))]).tocsr()
 
 
-def _levenberg_marquardt(residuals, jacobian, start: NDArray[np.float64], max_iter: int = 60,
+def levenberg_marquardt(residuals, jacobian, start: NDArray[np.float64], max_iter: int = 60,
                          tol: float = 1e-10) -> NDArray[np.float64]:
     """Levenberg-Marquardt with Marquardt's scaling ``(J^T J + mu diag(J^T J)) dp = -J^T r`` (Marquardt 1963).
 
@@ -237,7 +237,7 @@ def fit_spline_lens(board: Board, views: Mapping[int, Detection], K: NDArray, di
 
     start = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], [base.params[name] for name in refine],
                             np.concatenate([np.concatenate([r, t]) for r, t, _ in starts]), np.zeros(2 * m)])
-    solution = _levenberg_marquardt(residuals, jacobian, start)
+    solution = levenberg_marquardt(residuals, jacobian, start)
     if not np.all(np.isfinite(solution)):
         raise CamcalError("the spline lens fit diverged (non-finite parameters)")
     fun = residuals(solution)

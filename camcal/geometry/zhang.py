@@ -62,6 +62,13 @@ Pipeline (Zhang 2000, extended to rigs as in multi-camera toolboxes):
    again for a new lens, and the correction field scored on top of the
    surface (taken by its rule). A shape can be named, or given and held
    (a rig seeing the same board again).
+8. By default (plain loss) steps 6-7 take each candidate's leave-one-view-out
+   error estimated from its one fit instead of the folds
+   (:mod:`camcal.geometry.zhang_quick`): every lens model fitted once, every
+   shape scored to first order from the chosen lens's flat fit and the two the
+   rule depends on fitted, the lenses scored on the surface taken to first
+   order too, no correction field; the same rules. ``thorough=True`` runs the
+   folds.
 
 Conventions: ``x ~ K [R | -R c] X`` with ``R`` world -> camera; the world
 is the reference camera's frame (``R = I``, ``c = 0``); lengths are in the
@@ -101,6 +108,7 @@ from camcal.geometry.tde4_fit import fit_tde4_lens
 from camcal.geometry.zhang_fit import calibrate_model, heldout_fields, heldout_figures
 from camcal.geometry.zhang_rank import (AUTO_MARGIN, AUTO_MODELS, BOARD_SHAPES, SPLINE_MIN_VIEWS, rank_models,
                                         simplest_within_margin, spline_chosen, with_board_shape)
+from camcal.geometry.zhang_quick import rank_by_estimate, shape_by_estimate
 from camcal.geometry.zhang_refit import SPLINE_SUFFIX, calibrate_shaped, calibrate_spline, shape_specs
 from camcal.geometry.zhang_result import CalibrationResult, ModelScore, fold_radius_px, quality_problems
 from camcal.geometry.zhang_starts import (COLMAP_MODELS, FIT_ERRORS, MIN_IMAGES, MODELS, checked_views, known_lenses,
@@ -127,6 +135,7 @@ def calibrate_board(
     intrinsics: Mapping[str, Camera] | None = None,
     refine_intrinsics: bool = False,
     board_shape: str | BoardShape = "auto",
+    thorough: bool = False,
 ) -> CalibrationResult:
     """Calibrate one camera or an N-camera rig from images of a planar board.
 
@@ -204,6 +213,15 @@ def calibrate_board(
         A :class:`~camcal.geometry.board_shape.BoardShape` (e.g. a rig file's ``provenance.board_shape``) is
         held: the same board seen again, by any number of cameras, with any model (its corners are the
         bundle's constant points; the held-out views are posed against it).
+        Without ``thorough`` (default) and with the plain loss, ``auto`` (model and shape) takes each candidate's
+        leave-one-view-out error estimated from its one fit instead of the folds
+        (:mod:`camcal.geometry.zhang_quick`: every lens model fitted once on every training view, every board
+        shape scored to first order from the lens's flat fit and the two its rule depends on fitted, no
+        correction field scored), with the same rules: about as costly as a few single-model fits.
+    thorough : bool
+        ``model="auto"``: rank by the folds as described above (the finalists of the screen fold by fold, the
+        correction field, the lenses ranked again on the surface taken), dozens of fits; always so with a robust
+        loss (the one-fit estimate is of plain least squares).
 
     Returns
     -------
@@ -264,7 +282,10 @@ def calibrate_board(
     # the choice never sees the held-out frames
     training = [{f: d for f, d in views.items() if f not in holdout} for views in by_frame]
     fold_results: dict = {}
-    ranking, squared, corners = rank_models(board, names, training, options, fold_results)
+    # the folds (thorough), or each candidate's one fit (its leave-one-view-out error estimated: plain least squares)
+    quick = not thorough and loss == "trivial"
+    ranking, squared, corners = (rank_by_estimate if quick else rank_models)(board, names, training, options,
+                                                                             fold_results)
     scored = [score for score in ranking if score.rms_px is not None]
     parametric = [score for score in scored if not score.model.endswith(SPLINE_SUFFIX)]
     # the models the screen left out of the folds come after the scored ones (best estimate first)
@@ -296,7 +317,7 @@ def calibrate_board(
         if not scored:
             notes.append("model auto: too few views to hold any out (need "
                          f"{MIN_IMAGES + 1}); the polynomial model is fitted without a choice")
-        result, shape_ranking, shape_notes = with_board_shape(
+        result, shape_ranking, shape_notes = (shape_by_estimate if quick else with_board_shape)(
             board, names, by_frame, candidate, holdout, result, board_shape, spec, scored, squared, corners,
             fold_results, training, options)
         return dataclasses.replace(result, model_ranking=ranking, notes=result.notes + tuple(notes + shape_notes),

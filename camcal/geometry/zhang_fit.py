@@ -333,6 +333,7 @@ def _calibrate_opencv(board: Board, names: list[str], by_frame: list[dict], mode
         images=tuple((name, views[f].image) for f in kept), rms_px=float(np.sqrt(np.mean(norms**2))),
         worst_px=float(norms.max()), outliers=tuple((name, views[f].image) for f in sorted(outliers)),
         covariance=covariance, parameter_names=labels, model=model,
+        board_poses=tuple((f, cv2.Rodrigues(r)[0], np.ravel(t).copy()) for f, r, t in zip(kept, rvecs, tvecs)),
         notes=(f"{model}: fitted by OpenCV's calibrateCamera (the Ceres engine's COLMAP models have no thin prism); "
                "its covariance is diagonal",),
     )

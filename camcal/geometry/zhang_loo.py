@@ -141,12 +141,13 @@ def _deletion_errors(Jg: NDArray, Jp: NDArray, r: NDArray, row_view: NDArray,
         Q = np.linalg.qr(Jp[rows])[0]  # P_f v = v - Q Q^T v
         reduced.append((int(n), rows, A - Q @ (Q.T @ A), r_f - Q @ (Q.T @ r_f)))
     S = sum(PA.T @ PA for _, _, PA, _ in reduced)
+    G = sum(PA.T @ Pr for _, _, PA, Pr in reduced)  # zero at a solution; else the step starts from a linearisation
     # directions no view constrains (a gauge the poses hold) carries no gradient: a ridge far below every
     # constrained direction's curvature (unit columns) gives the minimum-norm step without an SVD per view
     ridge = 1e-10 * np.eye(len(S))
     out: dict[tuple[int, int], float] = {}
     for n, rows, PA, Pr in reduced:
-        delta = np.linalg.solve(S - PA.T @ PA + ridge, PA.T @ Pr)
+        delta = np.linalg.solve(S - PA.T @ PA + ridge, PA.T @ Pr - G)
         e = Pr + PA @ delta
         for j in np.unique(row_cam[rows]):
             out[(int(j), n)] = float(np.sum(e[row_cam[rows] == j] ** 2))

@@ -34,7 +34,8 @@ from camcal.geometry.zhang_result import CalibrationResult, ModelScore, fold_rad
 from camcal.geometry.zhang_starts import FIT_ERRORS, MIN_IMAGES, MODELS, one_line
 
 __all__ = ["AUTO_MODELS", "AUTO_MARGIN", "with_board_shape", "simplest_within_margin", "SPLINE_MIN_VIEWS",
-           "rank_models", "SCREEN_MARGIN", "MAX_FINALISTS", "spline_chosen", "BOARD_SHAPES"]
+           "rank_models", "SCREEN_MARGIN", "MAX_FINALISTS", "spline_chosen", "BOARD_SHAPES", "SHAPE_LENSES", "SHAPE_TAG",
+           "shape_choice", "shape_params", "model_estimates", "shaped_or_flat"]
 
 #: The models ``model="auto"`` chooses among, simplest first (the parsimony order): every model.
 AUTO_MODELS = ("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational", "opencv-thin-prism",
@@ -52,7 +53,7 @@ def with_board_shape(board: Board, names: list[str], by_frame: list[dict], model
     """``model="auto"``'s result on the board shape of ``board_shape`` (see :func:`calibrate_board`): the flat
     result, or a model refitted on the surface chosen (or named); with the shapes' ranking and notes.
 
-    ``auto``: the shape is chosen for the flat-ranked ``model`` (:func:`_shape_choice`; with a correction field,
+    ``auto``: the shape is chosen for the flat-ranked ``model`` (:func:`shape_choice`; with a correction field,
     among its surfaces and its parametric lens's, against ``model`` on the flat board), then the lens model is
     ranked again on that surface (:func:`_lens_on_shape`) and, when that changes it, the shape is chosen again
     for the new lens (the flat board among the candidates); the pair taken is printed in the notes."""
@@ -60,9 +61,9 @@ def with_board_shape(board: Board, names: list[str], by_frame: list[dict], model
         return flat, (), []
     picked = model
     notes: list[str] = []
-    if not spec and model.removesuffix(SPLINE_SUFFIX) not in _SHAPE_LENSES:
+    if not spec and model.removesuffix(SPLINE_SUFFIX) not in SHAPE_LENSES:
         # OpenCV's own fit has no surface path: the surface is chosen with the simplest lens that has one
-        capable = [s for s in scored if s.model in _SHAPE_LENSES]
+        capable = [s for s in scored if s.model in SHAPE_LENSES]
         if not capable:
             return flat, (), []
         model = simplest_within_margin(capable)
@@ -83,7 +84,7 @@ def with_board_shape(board: Board, names: list[str], by_frame: list[dict], model
         if base != model:  # the field's parametric lens on every surface too: a surface may do the field's work
             shapes += _score_shapes(board, training[0], base, folds, fold_results[base], corners, squared, fits=fits,
                                     screen=fold_results)
-        lens, spec = _shape_choice(flat_score, shapes, squared)
+        lens, spec = shape_choice(flat_score, shapes, squared)
         ranked = [flat_score, *shapes]
         if spec and lens != model:
             notes.append(f"board shape auto: {lens} on the {spec} surface beats {model} on the flat board held out "
@@ -91,8 +92,8 @@ def with_board_shape(board: Board, names: list[str], by_frame: list[dict], model
             model = lens
         if spec:
             done = {s.model for s in shapes}
-            lenses = [s for lens in AUTO_MODELS if lens != model and lens in fold_results and lens in _SHAPE_LENSES
-                      and f"{lens}{_SHAPE_TAG}{spec}" not in done
+            lenses = [s for lens in AUTO_MODELS if lens != model and lens in fold_results and lens in SHAPE_LENSES
+                      and f"{lens}{SHAPE_TAG}{spec}" not in done
                       for s in _score_shapes(board, training[0], lens, folds, fold_results[lens], corners, squared,
                                              (spec,), fits)]
             ranked += lenses
@@ -101,19 +102,19 @@ def with_board_shape(board: Board, names: list[str], by_frame: list[dict], model
                 have = {s.model for s in ranked}
                 again = _score_shapes(board, training[0], chosen, folds, fold_results[chosen], corners, squared,
                                       tuple(s for s in shape_specs(board, AUTO_SHAPES)
-                                            if f"{chosen}{_SHAPE_TAG}{s}" not in have), fits, fold_results)
+                                            if f"{chosen}{SHAPE_TAG}{s}" not in have), fits, fold_results)
                 chosen_flat = next(s for s in scored if s.model == chosen)
                 ranked += [chosen_flat] * (chosen not in have) + again
-                lens_shapes = [s for s in ranked if s.model.startswith(f"{chosen}{_SHAPE_TAG}")]
-                respec = _shape_choice(chosen_flat, lens_shapes, squared)[1]
+                lens_shapes = [s for s in ranked if s.model.startswith(f"{chosen}{SHAPE_TAG}")]
+                respec = shape_choice(chosen_flat, lens_shapes, squared)[1]
                 notes.append(f"board shape auto: {chosen} ranked first on the {spec} surface "
                              f"({model} on the flat board); "
                              + (f"its surface: {respec}" if respec else f"flat beats every surface for it, "
                                 f"{model} on {spec} kept"))
                 chosen, spec = (chosen, respec) if respec else (model, spec)
             if not chosen.endswith(SPLINE_SUFFIX):
-                plain = next(s for s in ranked if s.model == f"{chosen}{_SHAPE_TAG}{spec}")
-                field = [s for s in ranked if s.model == f"{chosen}{SPLINE_SUFFIX}{_SHAPE_TAG}{spec}"]
+                plain = next(s for s in ranked if s.model == f"{chosen}{SHAPE_TAG}{spec}")
+                field = [s for s in ranked if s.model == f"{chosen}{SPLINE_SUFFIX}{SHAPE_TAG}{spec}"]
                 if not field:  # not scored yet (a field on the flat-ranked lens was)
                     field = _score_shapes(board, training[0], chosen + SPLINE_SUFFIX, folds, fold_results[chosen],
                                           corners, squared, (spec,), fits)
@@ -124,10 +125,22 @@ def with_board_shape(board: Board, names: list[str], by_frame: list[dict], model
                                                             s.rms_px or s.estimate_px or 0.0)))
         if not spec:
             return flat, shape_ranking, notes + ["board shape auto: flat (no surface beats the flat board held out)"]
+    return shaped_or_flat(board, names, by_frame, chosen, holdout, spec, flat, chosen == picked, board_shape,
+                          shape_ranking, notes, options)
+
+
+def shaped_or_flat(board: Board, names: list[str], by_frame: list[dict], chosen: str, holdout: set[int], spec: str,
+                   flat: CalibrationResult, from_flat: bool, board_shape: str, shape_ranking: tuple[ModelScore, ...],
+                   notes: list[str], options: dict, fits: dict | None = None
+                   ) -> tuple[CalibrationResult, tuple[ModelScore, ...], list[str]]:
+    """``chosen`` refitted on the surface ``spec`` (:func:`calibrate_shaped`; from ``flat`` when ``from_flat`` and
+    ``chosen`` has no correction field; ``fits``: surface fits already made), or ``flat`` with the reason when that
+    fit fails or fails the quality gate (:func:`quality_problems`, a lens folding inside the image); with the
+    shapes' ranking and the notes."""
     try:
         shaped = calibrate_shaped(board, names, by_frame, chosen, holdout, spec,
-                                   flat=flat if chosen == picked and not picked.endswith(SPLINE_SUFFIX) else None,
-                                   **options)
+                                   flat=flat if from_flat and not chosen.endswith(SPLINE_SUFFIX) else None,
+                                   fits=fits, **options)
     except FIT_ERRORS as error:
         return flat, shape_ranking, notes + [f"board shape: {chosen} on the {spec} surface failed "
                                              f"({one_line(error)}); flat kept"]
@@ -154,8 +167,8 @@ def _lens_on_shape(model: str, spec: str, scores: list[ModelScore], squared: dic
     (``<lens>@board-<spec>``), the simplest (order of :data:`AUTO_MODELS`) within :data:`AUTO_MARGIN` of the
     best, as on the flat board; ``model`` with a correction field stays when its score on ``spec`` beats the
     best parametric one there by :func:`spline_chosen`'s rule."""
-    on = {s.model.rsplit(_SHAPE_TAG, 1)[0]: s for s in scores
-          if s.rms_px is not None and s.model.endswith(f"{_SHAPE_TAG}{spec}")}
+    on = {s.model.rsplit(SHAPE_TAG, 1)[0]: s for s in scores
+          if s.rms_px is not None and s.model.endswith(f"{SHAPE_TAG}{spec}")}
     parametric = [s for lens, s in on.items() if not lens.endswith(SPLINE_SUFFIX)]
     if not parametric:
         return model
@@ -163,7 +176,7 @@ def _lens_on_shape(model: str, spec: str, scores: list[ModelScore], squared: dic
     if model.endswith(SPLINE_SUFFIX) and model in on and spline_chosen(on[model], best, squared):
         return model
     limit = (1.0 + AUTO_MARGIN) * best.rms_px
-    return min((s.model.rsplit(_SHAPE_TAG, 1)[0] for s in parametric if s.rms_px <= limit), key=AUTO_MODELS.index)
+    return min((s.model.rsplit(SHAPE_TAG, 1)[0] for s in parametric if s.rms_px <= limit), key=AUTO_MODELS.index)
 
 
 #: Most folds of the leave-views-out cross-validation of ``model="auto"``.
@@ -279,19 +292,7 @@ def _screen(board: Board, names: list[str], training: list[dict], options: dict,
     ``store`` gets ``"full"`` (each model's fit on every training frame) and ``"estimates"`` (each model's
     estimated ``sum |r|^2`` per training frame, the frames in order), which the board shapes' screen starts from.
     """
-    estimates, failed = {}, {}
-    fulls = store.setdefault("full", {})
-    for candidate in AUTO_MODELS:
-        n_params = 4 + len(MODELS[candidate])
-        try:
-            full = calibrate_model(board, names, training, candidate, set(), scoring=True, shared=shared, **options)
-            per_view = leave_one_view_out(board, full, candidate, names, training)
-        except FIT_ERRORS as error:
-            failed[candidate] = ModelScore(candidate, None, n_params, one_line(error))
-            continue
-        estimates[candidate] = np.array([per_view[key] for key in sorted(per_view)])
-        fulls[candidate] = full
-    store["estimates"] = estimates
+    estimates, failed = model_estimates(board, names, training, options, shared, store)
     if not estimates:
         return {}
     corners = sum(len(d.ids) for views in training for d in views.values())
@@ -311,6 +312,29 @@ def _screen(board: Board, names: list[str], training: list[dict], options: dict,
                               f"out from its one fit ({100 * (rms[m] / rms[best] - 1):.1f} % above the best "
                               f"estimate, {best})", rms[m]) for m in rms if m not in finalists}
     return {**failed, **screened}
+
+
+def model_estimates(board: Board, names: list[str], training: list[dict], options: dict, shared: dict, store: dict
+                    ) -> tuple[dict[str, NDArray[np.float64]], dict[str, ModelScore]]:
+    """Every model of :data:`AUTO_MODELS` fitted once on every training frame (a scoring fit; ``shared``:
+    :func:`opencv_start`'s) and its leave-one-view-out error estimated from that fit
+    (:func:`camcal.geometry.zhang_loo.leave_one_view_out`): ``(estimates, failed)``, each model's estimated
+    ``sum |r|^2`` per training view (the views ``(camera, frame)`` in order) and the models refused, ranked out
+    with the reason. ``store`` gets ``"full"`` (each model's fit) and ``"estimates"``."""
+    estimates, failed = {}, {}
+    fulls = store.setdefault("full", {})
+    for candidate in AUTO_MODELS:
+        n_params = 4 + len(MODELS[candidate])
+        try:
+            full = calibrate_model(board, names, training, candidate, set(), scoring=True, shared=shared, **options)
+            per_view = leave_one_view_out(board, full, candidate, names, training)
+        except FIT_ERRORS as error:
+            failed[candidate] = ModelScore(candidate, None, n_params, one_line(error))
+            continue
+        estimates[candidate] = np.array([per_view[key] for key in sorted(per_view)])
+        fulls[candidate] = full
+    store["estimates"] = estimates
+    return estimates, failed
 
 
 def _score_spline(board: Board, name: str, views: dict, base: str, folds: list[set[int]],
@@ -357,11 +381,11 @@ BOARD_SHAPES = ("auto", "flat") + SHAPE_SPECS
 
 
 #: The lens models a board surface is fitted with (opencv-thin-prism is OpenCV's fit: no surface path).
-_SHAPE_LENSES = tuple(m for m in AUTO_MODELS if m != "opencv-thin-prism")
+SHAPE_LENSES = tuple(m for m in AUTO_MODELS if m != "opencv-thin-prism")
 
 
 #: The name of a lens model fitted on a board shape in :attr:`CalibrationResult.shape_ranking`: ``<model>@board-<shape>``.
-_SHAPE_TAG = "@board-"
+SHAPE_TAG = "@board-"
 
 
 def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int]],
@@ -379,8 +403,8 @@ def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int
             and model in screen.get("full", {})):
         specs, scores = _screen_shapes(board, view_sets, model, specs, screen, fits)
     for spec in specs:
-        name = f"{model}{_SHAPE_TAG}{spec}"
-        n_params = _shape_params(board, view_sets, model, spec)
+        name = f"{model}{SHAPE_TAG}{spec}"
+        n_params = shape_params(board, view_sets, model, spec)
         per_view, reason = [], ""
         for fold, result in zip(folds, results):
             train = {f: d for f, d in view_sets.items() if f not in fold}
@@ -402,7 +426,7 @@ def _score_shapes(board: Board, view_sets: dict, model: str, folds: list[set[int
     return scores
 
 
-def _shape_params(board: Board, view_sets: dict, model: str, spec: str) -> int:
+def shape_params(board: Board, view_sets: dict, model: str, spec: str) -> int:
     """The parameters of ``model`` (lens, correction field) on the surface ``spec``."""
     n_params = 4 + len(MODELS[model.removesuffix(SPLINE_SUFFIX)]) + n_shape_params(board, spec)
     if model.endswith(SPLINE_SUFFIX):
@@ -419,7 +443,7 @@ def _screen_shapes(board: Board, view_sets: dict, model: str, specs: Sequence[st
     (:func:`camcal.geometry.zhang_loo.leave_one_view_out_on_shape`). Kept: the shapes whose estimate is below
     the flat board's estimate, the :data:`MAX_FINALISTS` best of them, the one with fewest parameters within
     :data:`AUTO_MARGIN` of the best estimate replacing the last when it is not among them (the rule of
-    :func:`_shape_choice` takes a shape only when it beats the flat board held out; among those, the one with
+    :func:`shape_choice` takes a shape only when it beats the flat board held out; among those, the one with
     fewest parameters within the margin). A shape whose fit fails on every frame is ranked out with the reason.
     """
     full, flat = screen["full"][model], screen["estimates"][model]
@@ -430,7 +454,7 @@ def _screen_shapes(board: Board, view_sets: dict, model: str, specs: Sequence[st
             fit = surface_fit(board, full, view_sets, model, spec, fits)
             per_view = leave_one_view_out_on_shape(board, fit, MODELS[model], view_sets)
         except FIT_ERRORS as error:
-            out.append(ModelScore(f"{model}{_SHAPE_TAG}{spec}", None, _shape_params(board, view_sets, model, spec),
+            out.append(ModelScore(f"{model}{SHAPE_TAG}{spec}", None, shape_params(board, view_sets, model, spec),
                                   one_line(error)))
             continue
         estimates[spec] = float(np.sqrt(sum(per_view.values()) / corners))
@@ -445,13 +469,13 @@ def _screen_shapes(board: Board, view_sets: dict, model: str, specs: Sequence[st
             finalists[-1] = simplest
     for spec, rms in estimates.items():
         if spec not in finalists:
-            out.append(ModelScore(f"{model}{_SHAPE_TAG}{spec}", None, _shape_params(board, view_sets, model, spec),
+            out.append(ModelScore(f"{model}{SHAPE_TAG}{spec}", None, shape_params(board, view_sets, model, spec),
                                   f"screened out: {rms:.4f} px estimated leave one view out from its one fit "
                                   f"(flat board {flat_rms:.4f} px)", rms))
     return tuple(spec for spec in specs if spec in finalists), out
 
 
-def _shape_choice(flat: ModelScore, shapes: list[ModelScore], squared: dict) -> tuple[str, str]:
+def shape_choice(flat: ModelScore, shapes: list[ModelScore], squared: dict) -> tuple[str, str]:
     """``(lens, shape)`` taken among ``shapes`` (``<lens>@board-<shape>``; ``("", "")``: the flat board, ``flat``):
     the one with fewest parameters within :data:`AUTO_MARGIN` of the best among those better than ``flat`` by more
     than :data:`AUTO_MARGIN` and one standard error of the paired per-view differences (:func:`spline_chosen`'s
@@ -461,5 +485,5 @@ def _shape_choice(flat: ModelScore, shapes: list[ModelScore], squared: dict) -> 
         return "", ""
     best = min(s.rms_px for s in better)
     simplest = min((s for s in better if s.rms_px <= (1.0 + AUTO_MARGIN) * best), key=lambda s: s.n_params)
-    lens, spec = simplest.model.rsplit(_SHAPE_TAG, 1)
+    lens, spec = simplest.model.rsplit(SHAPE_TAG, 1)
     return lens, spec

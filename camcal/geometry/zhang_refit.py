@@ -123,17 +123,19 @@ def fit_shape(board: Board, result: CalibrationResult, views: Mapping[int, Detec
 
 
 def calibrate_shaped(board: Board, names: list[str], by_frame: list[dict], model: str, holdout: set[int],
-                      spec: str, flat: CalibrationResult | None = None, **options) -> CalibrationResult:
+                      spec: str, flat: CalibrationResult | None = None, fits: dict | None = None,
+                      **options) -> CalibrationResult:
     """``model`` on a board of shape ``spec`` (:mod:`camcal.geometry.board_shape`): the flat fit of its
     parametric part (:func:`calibrate_model`; ``flat`` when it is already made), then the surface, the lens and the
-    poses refined jointly (and the correction field on top, with the surface held); the held-out views posed
-    against the fitted surface. One camera. The covariance and the sigmas are the flat fit's."""
+    poses refined jointly (and the correction field on top, with the surface held; ``fits``: :func:`surface_fit`'s,
+    the surface fits already made); the held-out views posed against the fitted surface. One camera. The
+    covariance and the sigmas are the flat fit's."""
     if len(names) > 1:
         raise CamcalError(f"a board surface is fitted with one camera at a time; got {len(names)} cameras")
     result = flat if flat is not None else calibrate_model(board, names, by_frame, model.removesuffix(SPLINE_SUFFIX),
                                                       holdout, **options)
     training = {f: d for f, d in by_frame[0].items() if f not in holdout}
-    camera, shape, residuals, views = fit_shape(board, result, training, model, spec)
+    camera, shape, residuals, views = fit_shape(board, result, training, model, spec, fits)
     return _refitted(board, result, camera, residuals, views, by_frame[0], holdout, model,
                      (shape.describe(board) + f"; training RMS {result.rms_px:.4f} px on a flat board",
                       f"{model} on board shape {spec}: its covariance is the flat fit's"), shape)

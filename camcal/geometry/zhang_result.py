@@ -45,7 +45,8 @@ class ModelScore:
     estimate_px : float or None
         The leave-one-view-out RMS estimated from the model's one fit on every training view
         (:mod:`camcal.geometry.zhang_loo`), when the ranking screened the model with it; a model it screened
-        out has this and no ``rms_px``.
+        out has this and no ``rms_px``; the default ranking (:mod:`camcal.geometry.zhang_quick`) scores by it
+        (``rms_px`` equal to it).
     """
 
     model: str
@@ -53,6 +54,12 @@ class ModelScore:
     n_params: int
     reason: str = ""
     estimate_px: float | None = None
+
+    @property
+    def estimated(self) -> bool:
+        """True when ``rms_px`` is the one-fit leave-one-view-out estimate itself (the default ``auto``'s
+        ranking, :mod:`camcal.geometry.zhang_quick`), not the folds' figure."""
+        return self.rms_px is not None and self.rms_px == self.estimate_px
 
     @property
     def screened_out(self) -> bool:
@@ -63,7 +70,8 @@ class ModelScore:
         """``opencv-rational  0.3821 px  (12 parameters)`` or ``... ranked out: <reason>``."""
         if self.rms_px is None:
             return f"{self.model}: ranked out: {self.reason}"
-        return f"{self.model}: {self.rms_px:.4f} px held out ({self.n_params} parameters)"
+        how = "estimated leave one view out" if self.estimated else "held out"
+        return f"{self.model}: {self.rms_px:.4f} px {how} ({self.n_params} parameters)"
 
 
 def ranking_lines(scores: Sequence[ModelScore]) -> list[str]:

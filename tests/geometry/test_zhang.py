@@ -375,7 +375,7 @@ def test_model_auto_chooses_by_heldout_rms():
     """
     truth = [dataclass_replace(c, distortion=Distortion("division", {"lambda": -6e-7})) for c in true_rig(1, "division")]
     detections = board_views(truth, 16, np.random.default_rng(8))
-    result = calibrate_board(BOARD, detections)  # auto is the default
+    result = calibrate_board(BOARD, detections, thorough=True)  # the folds (auto is the default)
     scores = result.model_heldout_rms_px
     # every model, and the best one with a correction field (one camera, 13 training views): not taken here
     ranked = {score.model for score in result.model_ranking}
