@@ -28,7 +28,7 @@ process's peak resident memory from ``getrusage``), on the same PNG frames:
 - ``blender``: Blender's own tracker (libmv, in bpy, headless: a Clip
   Editor area of the background window and ``context.temp_override``):
   the true lens on the clip's tracking camera (held: the tracker refines
-  nothing), features detected every 8 frames (Harris, min distance 16 px)
+  nothing), features detected every 12 frames (Harris, threshold 0.002, 40 px apart)
   and tracked forward (affine motion model, pattern 15 px, search 61 px,
   correlation >= 0.75, brute-force pre-pass), tracks under 10 frames
   dropped, keyframes chosen by Blender, camera solved; then tracks whose
@@ -45,8 +45,9 @@ error (deg); the focal error (%) where the lens is free.
 ``--growth``: the first 60 / 120 / 240 / 480 frames of one 480-frame walk,
 camcal and plain pycolmap: time and peak memory per frame.
 
-Usage: ``python bench/bench_plates.py`` (comparison and growth, ~40 min on 2
-cores), ``--quick`` (60 frames, no blur variant, no growth), ``--frames N``,
+Usage: ``python bench/bench_plates.py`` (comparison at 240 frames and growth:
+hours on 2 cores; one 60-frame solve of camcal took 35-70 min on a machine
+running 20 processes), ``--quick`` (60 frames, no blur variant, no growth), ``--frames N``,
 ``--shots walk,loop``, ``--methods camcal,pycolmap``, ``--no-growth``,
 ``--growth`` (growth only), ``--cache DIR`` (renders kept between runs).
 """
@@ -264,14 +265,16 @@ def run_blender(plate: Path, out: Path) -> dict:
     region = next(r for r in area.regions if r.type == "WINDOW")
     with bpy.context.temp_override(window=window, screen=window.screen, area=area, region=region, space_data=space,
                                    edit_movieclip=clip):
-        for frame in range(1, n, 8):
+        for frame in range(1, n, 12):
             scene.frame_set(frame)
             before = {track.name for track in tracking.tracks}
             bpy.ops.clip.select_all(action="DESELECT")
-            bpy.ops.clip.detect_features(placement="FRAME", margin=16, threshold=0.0005, min_distance=16)
+            bpy.ops.clip.detect_features(placement="FRAME", margin=16, threshold=0.002, min_distance=40)
             for track in tracking.tracks:
                 track.select = track.name not in before
             bpy.ops.clip.track_markers(backwards=False, sequence=True)
+            print(f"frame {frame}: {len(tracking.tracks) - len(before)} tracks detected and tracked, "
+                  f"{time.perf_counter() - start:.0f} s", flush=True)
         bpy.ops.clip.select_all(action="SELECT")
         bpy.ops.clip.clean_tracks(frames=10, error=0.0, action="DELETE_TRACK")
         bpy.ops.clip.solve_camera()
