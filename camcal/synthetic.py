@@ -19,7 +19,7 @@ from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera
 
 __all__ = ["example_camera", "example_stereo_rig", "points_in_view", "procedural_texture", "colour_texture", "layered_stereo_pair",
-           "room_corner_planes", "orbit_set_planes", "render_planes", "render_stereo_sequence", "orbit_rig_poses",
+           "room_corner_planes", "orbit_set_planes", "pixel_rays", "render_planes", "render_stereo_sequence", "orbit_rig_poses",
            "lateral_rig_poses", "render_rig_orbit", "render_rig_poses"]
 
 
@@ -175,15 +175,42 @@ def orbit_set_planes(
     return tuple(planes)
 
 
+def pixel_rays(camera: Camera) -> NDArray[np.float64]:
+    """Unit directions in the camera frame of every pixel of ``camera`` (its distortion included), row by row.
+
+    A plate's lens does not change from frame to frame: these rays, computed
+    once (the inverse of the distortion is iterative, the costly part of a
+    render), serve every frame through :func:`render_planes`' ``camera_rays``.
+
+    Returns
+    -------
+    ndarray, shape (H * W, 3)
+    """
+    width, height = camera.image_size
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    return camera.distortion.rays_from_pixels(np.stack([u.ravel(), v.ravel()], axis=1), camera.K)
+
+
 def render_planes(
     camera: Camera,
     planes: tuple[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]], ...],
     textures: tuple[NDArray[np.uint8], ...],
+    camera_rays: NDArray[np.float64] | None = None,
 ) -> NDArray[np.uint8]:
     """Ray-cast textured planar patches through ``camera`` (its distortion included).
 
     Each plane is ``origin + s axis_s + t axis_t`` for s, t in [0, 1], carrying
-    the matching texture. Pixel (0, 0) is the centre of the top-left pixel.
+    the matching texture (sampled bilinearly at the nearest hit of each
+    pixel's ray). Pixel (0, 0) is the centre of the top-left pixel.
+
+    Parameters
+    ----------
+    camera : Camera
+    planes : tuple of (origin, axis_s, axis_t)
+    textures : tuple of ndarray
+        One square grey texture per plane.
+    camera_rays : ndarray, shape (H * W, 3), optional
+        :func:`pixel_rays` of ``camera``'s lens, when several frames share it.
 
     Returns
     -------
@@ -193,30 +220,39 @@ def render_planes(
     import cv2  # noqa: PLC0415
 
     width, height = camera.image_size
-    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    rays_camera = pixel_rays(camera) if camera_rays is None else camera_rays
     # world directions of every pixel (wide fisheye rays beyond 90 degrees included)
-    rays = camera.distortion.rays_from_pixels(np.stack([u.ravel(), v.ravel()], axis=1), camera.K) @ camera.R
+    rays = rays_camera @ camera.R
     best = np.full(len(rays), np.inf)
-    map_s = np.full(len(rays), -1.0, np.float32)
-    map_t = np.full(len(rays), -1.0, np.float32)
-    image = np.zeros(len(rays), np.float32)
-    for (origin, axis_s, axis_t), texture in zip(planes, textures):
+    plane_of = np.full(len(rays), -1)
+    texture_s = np.zeros(len(rays))
+    texture_t = np.zeros(len(rays))
+    for index, (origin, axis_s, axis_t) in enumerate(planes):
         normal = np.cross(axis_s, axis_t)
         with np.errstate(divide="ignore", invalid="ignore"):
             depth = ((origin - camera.c) @ normal) / (rays @ normal)
-        hits = camera.c + rays * depth[:, None] - origin
+        nearer = np.flatnonzero((depth > 0) & (depth < best))
+        hits = camera.c + rays[nearer] * depth[nearer, None] - origin
         s = hits @ axis_s / (axis_s @ axis_s)
         t = hits @ axis_t / (axis_t @ axis_t)
-        visible = (depth > 0) & (depth < best) & (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+        inside = (s >= 0) & (s <= 1) & (t >= 0) & (t <= 1)
+        visible = nearer[inside]
         best[visible] = depth[visible]
-        size = texture.shape[0] - 1
-        map_s[:] = -1.0
-        map_t[:] = -1.0
-        map_s[visible] = s[visible] * size
-        map_t[visible] = t[visible] * size
-        sampled = cv2.remap(texture.astype(np.float32), map_s.reshape(height, width), map_t.reshape(height, width),
-                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT).ravel()
-        image[visible] = sampled[visible]
+        plane_of[visible] = index
+        texture_s[visible], texture_t[visible] = s[inside], t[inside]
+    image = np.zeros(len(rays), np.float32)
+    row = 1024  # cv2.remap takes maps under 32767 columns: the hit pixels as rows of this length
+    for index, texture in enumerate(textures):
+        seen = np.flatnonzero(plane_of == index)
+        if not len(seen):
+            continue
+        map_s = np.zeros(-(-len(seen) // row) * row, np.float32)
+        map_t = np.zeros_like(map_s)
+        map_s[:len(seen)] = texture_s[seen] * (texture.shape[0] - 1)
+        map_t[:len(seen)] = texture_t[seen] * (texture.shape[0] - 1)
+        sampled = cv2.remap(texture.astype(np.float32), map_s.reshape(-1, row), map_t.reshape(-1, row),
+                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        image[seen] = sampled.ravel()[:len(seen)]
     return np.clip(image, 0, 255).round().astype(np.uint8).reshape(height, width)
 
 
