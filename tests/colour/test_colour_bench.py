@@ -20,5 +20,5 @@ def test_bench_without_colprof_prints_skipped(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "skipped: colprof not installed" in out
     assert "colour-science best" in out and "ratio" in out
-    assert "auto gap: picked" in out and "(issue 31: <= 2 %)" in out
+    assert "auto gap: picked" in out and "(target <= 2 %)" in out
     assert "trained on the independent colours themselves (10-fold cross-validation, the best of 1 models" in out

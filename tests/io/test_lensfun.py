@@ -304,7 +304,7 @@ def test_a_drifting_principal_point_is_the_lensfun_residual_printed(tmp_path):
         largest, rms = _measured(_state_view(out, size, focal), camera)
         assert rms == pytest.approx(conversion.refit.rms_px, rel=0.1, abs=0.005)
     assert max(c.refit.rms_px for c in result.conversions) > 1.0  # 5 px from the mean centre at 24 mm
-    with pytest.raises(CamcalError, match="a lens profile exports to lensfun, lens-table, not 'nuke'"):
+    with pytest.raises(CamcalError, match="a lens profile exports to lensfun, lens-table, opentrackio, 3de, not 'nuke'"):
         export_rig(path, tmp_path / "zoom.nk", "nuke")
     assert not (tmp_path / "zoom.nk").exists()
 
