@@ -31,7 +31,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="take each camera's lens from this grid calibration (calibrate board; by camera name, or "
                         "its one camera for a one-camera solve) instead of choosing one: a plate of the grid's size "
                         "takes it as is, one of the same aspect at another size takes K scaled (said); another "
-                        "aspect or a crop is an error naming both sizes")
+                        "aspect or a crop is an error naming both sizes; a rig with a lens per frame (a zoom, camcal lens "
+                        "--metadata) is refused: one lens is held for the whole plate")
     parser.add_argument("--intrinsics-mode", choices=("fixed", "prior"),
                         help="hold the grid's lens (fixed) or refine it under a Gaussian prior of the grid's sigmas "
                         "(prior; the move is said in sigmas) (default: fixed)")

@@ -9,6 +9,9 @@ through the whole solve, or refined under its calibration as a prior:
   anything else (a crop, another aspect, an anamorphic squeeze) is one
   error naming both sizes: a crop's offset or a pixel aspect cannot be
   inferred from sizes alone, and a guess would bend every frame;
+- a rig whose frames carry a lens per frame (a zoom or a refocus,
+  ``camcal lens PROFILE --metadata``) is refused, naming its frames: one
+  lens held for the plate would be wrong on every other frame;
 - COLMAP's cameras take the lens before mapping (its model and parameters,
   with ``has_prior_focal_length``), and its mapper holds them
   (:func:`hold_in_database`, :func:`camcal.pipelines.solve_colmap.map_images`);
@@ -26,6 +29,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 from camcal.base.errors import CamcalError
+from camcal.base.frame_ranges import frame_runs
 from camcal.geometry.bundle import PriorSpec
 from camcal.model.colmap import camera_to_colmap
 from camcal.model.distortion import Distortion
@@ -132,6 +136,12 @@ def grid_lens(grid: Rig, sizes: dict[str, tuple[int, int]], mode: str = "fixed",
             camera = grid.cameras[0]
         else:
             raise CamcalError(f"{source} has no camera named {name!r} (it has: {', '.join(names)})")
+        lens_frames = grid.lens_frames(camera.name)
+        if lens_frames:
+            raise CamcalError(f"{source}: camera {camera.name!r} has a lens per frame (a zoom or a refocus: frames "
+                              f"{', '.join(frame_runs(list(lens_frames)))}), but solve holds one lens for the whole "
+                              "plate and would hold the wrong one on every other frame: give the calibration of a "
+                              "fixed lens, or solve without --intrinsics")
         camera_to_colmap(camera)  # a lens COLMAP cannot carry is refused here, before any work
         scaled, s = scaled_camera(camera, size)
         if mode == "prior":

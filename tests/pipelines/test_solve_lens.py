@@ -14,6 +14,7 @@ from camcal.geometry.zhang import calibrate_board
 from camcal.model.camera import chordal_mean_rotation, rotation_angle_deg
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig
+from camcal.model.rig_frames import Frame, Lens
 from camcal.pipelines.solve import solve_sfm
 from camcal.pipelines.solve_lens import grid_lens, scaled_camera
 from camcal.synthetic import render_stereo_sequence
@@ -96,6 +97,44 @@ def test_a_prior_needs_the_grid_s_sigmas_and_a_camera_it_has():
                   {"cam": (256, 192), "right": (256, 192)})
     lens = grid_lens(Rig((camera,)), {"plate": (128, 96)})  # one camera each: the one, at half size, said
     assert lens.cameras["plate"].K[0, 0] == 100.0 and "K scaled x0.5 from its 256x192 to the plate's 128x96" in lens.lines[0]
+
+
+def _zoom_rig(camera: Camera, frames) -> Rig:
+    """``camera`` on a zoom: at each frame of ``frames`` a lens of its own (fx 5 % longer per frame, focal_mm with it)."""
+    lenses = {}
+    for k, index in enumerate(frames):
+        K = camera.K.copy()
+        K[0, 0] *= 1.05 ** k
+        K[1, 1] *= 1.05 ** k
+        lenses[index] = Lens(K, camera.distortion, focal_mm=24.0 * 1.05 ** k)
+    rig = Rig((camera,), frames=tuple(Frame(index, np.eye(3), np.zeros(3)) for index in frames))
+    return rig.with_camera(camera, lenses)
+
+
+def test_a_rig_with_a_lens_per_frame_is_refused_naming_its_frames():
+    """A zoom's rig (``camcal lens --metadata``) held as one lens would be wrong on every frame but one: refused."""
+    camera = Camera("cam", (256, 192), np.array([[200.0, 0, 127.5], [0, 200, 95.5], [0, 0, 1]]),
+                    Distortion("polynomial", {"k1": -0.1, "k2": 0.0}), np.eye(3), np.zeros(3))
+    zoom = _zoom_rig(camera, [1001, 1002, 1003, 1007])
+    assert zoom.camera_at_frame("cam", 1003).K[0, 0] == pytest.approx(200.0 * 1.05 ** 2)
+    for mode in ("fixed", "prior"):
+        with pytest.raises(CamcalError, match=r"shot.rig.json: camera 'cam' has a lens per frame \(a zoom or a "
+                                              r"refocus: frames 1001-1003, 1007\)"):
+            grid_lens(zoom, {"plate": (256, 192)}, mode, "shot.rig.json")
+    assert grid_lens(Rig((camera,), frames=(Frame(1001, np.eye(3), np.zeros(3)),)),
+                     {"plate": (256, 192)}).cameras["plate"].K[0, 0] == 200.0  # frames without lenses: the one lens
+
+
+def test_solve_with_a_lens_per_frame_writes_nothing(tmp_path, capsys):
+    _plate(tmp_path, 2)
+    camera = Camera("cam", (WIDTH, HEIGHT), np.array([[FOCAL, 0, 127.5], [0, FOCAL, 95.5], [0, 0, 1]]),
+                    Distortion.none(), np.eye(3), np.zeros(3))
+    _zoom_rig(camera, [0, 1]).save(tmp_path / "shot.rig.json")
+    code = main(["solve", str(tmp_path / "in" / "left"), "--intrinsics", str(tmp_path / "shot.rig.json"),
+                 "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "camera 'cam' has a lens per frame (a zoom or a refocus: frames 0-1)" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
 
 
 def test_solve_with_a_plate_the_grid_does_not_fit_writes_nothing(tmp_path, capsys):
