@@ -111,29 +111,15 @@ def _zoom_rig(camera: Camera, frames) -> Rig:
     return rig.with_camera(camera, lenses)
 
 
-def test_a_rig_with_a_lens_per_frame_is_refused_naming_its_frames():
-    """A zoom's rig (``camcal lens --metadata``) held as one lens would be wrong on every frame but one: refused."""
-    camera = Camera("cam", (256, 192), np.array([[200.0, 0, 127.5], [0, 200, 95.5], [0, 0, 1]]),
-                    Distortion("polynomial", {"k1": -0.1, "k2": 0.0}), np.eye(3), np.zeros(3))
-    zoom = _zoom_rig(camera, [1001, 1002, 1003, 1007])
-    assert zoom.camera_at_frame("cam", 1003).K[0, 0] == pytest.approx(200.0 * 1.05 ** 2)
-    for mode in ("fixed", "prior"):
-        with pytest.raises(CamcalError, match=r"shot.rig.json: camera 'cam' has a lens per frame \(a zoom or a "
-                                              r"refocus: frames 1001-1003, 1007\)"):
-            grid_lens(zoom, {"plate": (256, 192)}, mode, "shot.rig.json")
-    assert grid_lens(Rig((camera,), frames=(Frame(1001, np.eye(3), np.zeros(3)),)),
-                     {"plate": (256, 192)}).cameras["plate"].K[0, 0] == 200.0  # frames without lenses: the one lens
-
-
-def test_solve_with_a_lens_per_frame_writes_nothing(tmp_path, capsys):
-    _plate(tmp_path, 2)
+def test_solve_with_a_lens_per_frame_missing_plate_frames_writes_nothing(tmp_path, capsys):
+    _plate(tmp_path, 2)  # left/0000.png, left/0001.png
     camera = Camera("cam", (WIDTH, HEIGHT), np.array([[FOCAL, 0, 127.5], [0, FOCAL, 95.5], [0, 0, 1]]),
                     Distortion.none(), np.eye(3), np.zeros(3))
-    _zoom_rig(camera, [0, 1]).save(tmp_path / "shot.rig.json")
+    _zoom_rig(camera, [1, 2, 3]).save(tmp_path / "shot.rig.json")
     code = main(["solve", str(tmp_path / "in" / "left"), "--intrinsics", str(tmp_path / "shot.rig.json"),
                  "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
-    assert code == 2 and "camera 'cam' has a lens per frame (a zoom or a refocus: frames 0-1)" in err
+    assert code == 2 and "shot.rig.json has no lens of camera 'cam' for plate frames 0 (it has frames 1-3)" in err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
 
 
