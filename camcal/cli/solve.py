@@ -31,7 +31,10 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="take each camera's lens from this grid calibration (calibrate board; by camera name, or "
                         "its one camera for a one-camera solve) instead of choosing one: a plate of the grid's size "
                         "takes it as is, one of the same aspect at another size takes K scaled (said); another "
-                        "aspect or a crop is an error naming both sizes")
+                        "aspect or a crop is an error naming both sizes; a rig with a lens per frame (a zoom or a "
+                        "refocus, from camcal lens --metadata) holds each plate frame at the lens of the frame of "
+                        "its number (the last number in its file name; fixed only, one camera) and the solved rig "
+                        "carries those lenses")
     parser.add_argument("--intrinsics-mode", choices=("fixed", "prior"),
                         help="hold the grid's lens (fixed) or refine it under a Gaussian prior of the grid's sigmas "
                         "(prior; the move is said in sigmas) (default: fixed)")
@@ -118,6 +121,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         "# a plate with the lens of the day's grid held, every frame required, the world set on the ground",
         "camcal solve plates/shot.%04d.exr --frames 1001-1240 --matcher sequential --intrinsics grid.rig.json "
         "--require-all --up ground --origin ground --scale 12,40=1.5 --out solve",
+        "# a zoom, each frame held at its lens (shot.rig.json: camcal lens PROFILE --metadata lens.csv)",
+        "camcal solve plates/shot.%04d.exr --frames 1001-1240 --matcher sequential --intrinsics shot.rig.json "
+        "--out solve",
         "# a handheld shot that comes back to where it started, matched by frame order, no loop closure",
         "camcal solve plates/walk.%04d.png --matcher sequential --loops off --out solve",
         "# the world set on a 9x6 chessboard of 4 cm squares lying on the set's floor",

@@ -33,6 +33,7 @@ from camcal.model.colmap import camera_from_colmap
 from camcal.model.camera import from_colmap, pixels_from_colmap
 from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Camera, Frame, Rig, make_provenance
+from camcal.model.rig_frames import Lens
 
 __all__ = [
     "MIN_TRIANGULATION_ANGLE_DEG",
@@ -135,7 +136,7 @@ def relative_poses(rig: Rig, reference: str) -> dict[str, tuple[NDArray[np.float
 
 def sparse_model(reconstruction, camera_names: list[str], originals: dict[str, str], units: str,
                  bundle: BundleResult | None, calibration: SelfCalibration | None,
-                 points_file: str = "points.ply") -> SparseModel:
+                 points_file: str = "points.ply", lenses: Mapping[str, Lens] | None = None) -> SparseModel:
     """Convert a pycolmap reconstruction with one rig into camcal's rig and sparse points.
 
     Parameters
@@ -152,15 +153,22 @@ def sparse_model(reconstruction, camera_names: list[str], originals: dict[str, s
         camcal's refinement and self-calibration, for the cameras' quality.
     points_file : str
         The name the rig gives its points.
+    lenses : mapping of str to Lens, optional
+        A lens per frame (a zoom, a refocus): COLMAP image name -> its lens, which the frame of that image
+        carries (:attr:`camcal.model.rig_frames.Frame.lenses`); the reconstruction then has one COLMAP camera
+        (and rig) per image of one camera, and the rig's camera is the first of them.
     """
-    if reconstruction.num_rigs() != 1:
+    if reconstruction.num_rigs() != 1 and not lenses:
         raise CamcalError(f"expected one rig in the reconstruction, got {reconstruction.num_rigs()}")
     rig = next(iter(reconstruction.rigs.values()))
     cameras = []
     camera_of_sensor: dict[int, str] = {}
-    for camera_id, colmap_camera in reconstruction.cameras.items():
+    for camera_id, colmap_camera in sorted(reconstruction.cameras.items()):
         name = camera_name(reconstruction, camera_id)
-        if rig.is_ref_sensor(_sensor(camera_id)):
+        if name in camera_of_sensor.values():  # a lens per frame: the camera once, its lenses in the frames
+            camera_of_sensor[camera_id] = name
+            continue
+        if lenses or rig.is_ref_sensor(_sensor(camera_id)):
             R, c = np.eye(3), np.zeros(3)
         else:
             sensor_from_rig = rig.sensor_from_rig(_sensor(camera_id))
@@ -184,7 +192,10 @@ def sparse_model(reconstruction, camera_names: list[str], originals: dict[str, s
             image = reconstruction.image(data_id.id)
             images[camera_of_sensor[image.camera_id]] = originals[image.name]
             frame_of_image[image.name] = frame_index
-        frames.append(Frame(frame_index, R, c, images))
+        frame_lenses = {} if not lenses else {
+            camera_of_sensor[reconstruction.image(data_id.id).camera_id]: lenses[reconstruction.image(data_id.id).name]
+            for data_id in frame.image_ids}
+        frames.append(Frame(frame_index, R, c, images, frame_lenses))
     xyz = np.array([p.xyz for p in reconstruction.points3D.values()]).reshape(-1, 3)
     colours = np.array([p.color for p in reconstruction.points3D.values()], dtype=np.uint8).reshape(-1, 3)
     tracks = np.array([p.track.length() for p in reconstruction.points3D.values()], dtype=np.int32)
@@ -344,7 +355,7 @@ def _with_quality(rig: Rig, per_camera: dict[str, tuple[float, int]], bundle: Bu
         quality: dict = {"rms_px": per_camera[camera.name][0], "n_observations": per_camera[camera.name][1]}
         if calibration is not None:
             quality["heldout_rms_px"] = calibration.heldout_rms_px[camera.name][calibration.lens_models[camera.name]]
-        if bundle is not None:
+        if bundle is not None and camera.name in bundle.state.camera_names:
             quality["rms_seed_px"] = bundle.rms_before_px[camera.name]
             index = bundle.state.camera_names.index(camera.name)
             quality["sigma"] = _quality_sigma(bundle.sigmas, camera.name, bundle.state.models[index],

@@ -63,7 +63,7 @@ from camcal.model.rig import Rig
 from camcal.pipelines.solve_colmap import (COLMAP_LOG, MAPPERS, MATCHERS, OWNED, check_parallax, extraction_options,
                                            map_images, number_by_name, verification_options, why_nothing_registered)
 from camcal.pipelines.solve_inputs import (check_one_size_per_camera, collect_images, list_images, stage_images,
-                                           stage_masks, unregistered_line, video_of)
+                                           plate_frame_number, stage_masks, unregistered_line, video_of)
 from camcal.pipelines.solve_lens import GridLens, drift_lines, grid_lens, hold_in_database, lens_priors
 from camcal.pipelines.solve_loops import LOOP_MODES, close_loops
 from camcal.pipelines.solve_plain import PycolmapPeer, solve_pycolmap_plain
@@ -231,7 +231,9 @@ def solve_sfm(
         A grid calibration (``calibrate board``) whose lens each camera takes
         (by name; one camera each: the one), at the plate's size
         (:func:`camcal.pipelines.solve_lens.grid_lens`): the lens-model choice
-        is skipped.
+        is skipped. A rig with a lens per frame (a zoom, a refocus) holds each
+        image at the lens of the frame of its number, and the solved rig's
+        frames carry those lenses (one camera, ``fixed`` only).
     intrinsics_mode : {"fixed", "prior"}
         Hold that lens, or refine it under a Gaussian prior of the grid's sigmas.
     intrinsics_source : str
@@ -311,7 +313,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         unknown = [name for name in folders if name not in sizes]
         if unknown:
             raise CamcalError(f"cannot read the image size of camera {unknown[0]!r} to fit the grid's lens to it")
-        lens = grid_lens(intrinsics[0], {name: sizes[name] for name in folders}, intrinsics[1], intrinsics[2])
+        lens = grid_lens(intrinsics[0], {name: sizes[name] for name in folders}, intrinsics[1], intrinsics[2],
+                         {name: plate_frame_number(path) for name, path in staged.items()})
         for line in lens.lines:
             _say(progress, line)
     image_names = list(staged)
@@ -328,7 +331,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     _say(progress, f"extracting features from {len(image_names)} images")
     pycolmap.set_random_seed(seed)
     pycolmap.extract_features(
-        database, image_dir, image_names=image_names, camera_mode=pycolmap.CameraMode.PER_FOLDER,
+        database, image_dir, image_names=image_names,
+        camera_mode=pycolmap.CameraMode.PER_IMAGE if lens is not None and lens.lenses else pycolmap.CameraMode.PER_FOLDER,
         reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
     )
     number_by_name(pycolmap, database)
@@ -386,6 +390,9 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     if refine:
         _say(progress, "bundle adjustment (camcal)")
         names = {camera_id: camera_name(reconstruction, camera_id) for camera_id in reconstruction.cameras}
+        if lens is not None and lens.lenses:  # a camera per image, each its own rig, held at its frame's lens
+            names = {image.camera_id: image.name for image in reconstruction.images.values()}
+            options = dataclasses.replace(options, refine_sensor_from_rig=False)
         state = state_from_reconstruction(reconstruction, names)
         if known_rig is not None:
             state = hold_rig(state, relative_poses(known_rig, state.camera_names[0]))
@@ -494,7 +501,8 @@ def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir
     adjustment, and the covariance of translations is scaled with it.
     """
     points_path = out_dir / "points.ply"
-    model = sparse_model(reconstruction, camera_names, originals, units, bundle, calibration, points_path.name)
+    model = sparse_model(reconstruction, camera_names, originals, units, bundle, calibration, points_path.name,
+                         None if lens is None else lens.lenses)
     rig = dataclasses.replace(scaled_translations(model.rig, world_scale),
                               provenance={**model.rig.provenance, "seed": seed})
     if lens is not None:

@@ -29,6 +29,7 @@ __all__ = [
     "check_one_size_per_camera",
     "collect_images",
     "list_images",
+    "plate_frame_number",
     "stage_images",
     "stage_masks",
     "unregistered_line",
@@ -183,14 +184,20 @@ def stage_masks(masks: dict[str, list[Path]], staged: dict[str, Path], image_dir
     return mask_dir
 
 
+def plate_frame_number(path: Path) -> int | None:
+    """A plate frame's number: the last number in its file's name (``plate.1001.exr``: 1001), None without one."""
+    digits = re.findall(r"\d+", Path(path).stem)
+    return int(digits[-1]) if digits else None
+
+
 def unregistered_line(names: list[str], staged: dict[str, Path]) -> str:
     """One line naming, per camera, the frames (by number: the last number in each file's name) not registered."""
     if not names:
         return ""
     per_camera: dict[str, list] = {}
     for name in names:
-        digits = re.findall(r"\d+", staged[name].stem)
-        per_camera.setdefault(name.split("/")[0], []).append(int(digits[-1]) if digits else staged[name].name)
+        number = plate_frame_number(staged[name])
+        per_camera.setdefault(name.split("/")[0], []).append(staged[name].name if number is None else number)
     totals = Counter(name.split("/")[0] for name in staged)
     parts = []
     for camera, frames in per_camera.items():

@@ -9,6 +9,12 @@ through the whole solve, or refined under its calibration as a prior:
   anything else (a crop, another aspect, an anamorphic squeeze) is one
   error naming both sizes: a crop's offset or a pixel aspect cannot be
   inferred from sizes alone, and a guess would bend every frame;
+- a rig whose frames carry a lens per frame (a zoom or a refocus,
+  ``camcal lens PROFILE --metadata``) gives each plate frame the lens of
+  the rig's frame of the same number (the last number in its file name;
+  a plate frame without one is an error naming the frames), held: COLMAP
+  gets one camera per plate frame, each held at its lens, and the solved
+  rig carries the lenses in its frames (a one-camera solve, ``fixed`` only);
 - COLMAP's cameras take the lens before mapping (its model and parameters,
   with ``has_prior_focal_length``), and its mapper holds them
   (:func:`hold_in_database`, :func:`camcal.pipelines.solve_colmap.map_images`);
@@ -22,14 +28,16 @@ through the whole solve, or refined under its calibration as a prior:
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from fractions import Fraction
 
 from camcal.base.errors import CamcalError
+from camcal.base.frame_ranges import frame_runs
 from camcal.geometry.bundle import PriorSpec
 from camcal.model.colmap import camera_to_colmap
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig
+from camcal.model.rig_frames import Lens
 
 __all__ = ["LENS_MODES", "PRIOR_NAMES", "GridLens", "drift_lines", "grid_lens", "hold_in_database", "lens_priors",
            "scaled_camera"]
@@ -55,12 +63,22 @@ class GridLens:
         Solve camera name -> the grid's sigma of each intrinsic, at the plate's size (camcal's names).
     lines : tuple of str
         What was taken from where (one line per camera; the scale when there is one).
+    lenses : dict of str to Lens
+        A zoom or a refocus: each image of the solve (COLMAP's name, ``camera/<k>.<suffix>``) -> its frame's
+        lens, at the plate's size; empty for one lens per camera.
     """
 
     cameras: dict[str, Camera]
     mode: str
     sigmas: dict[str, dict[str, float]]
     lines: tuple[str, ...]
+    lenses: dict[str, Lens] = field(default_factory=dict)
+
+    def camera_of(self, image: str) -> Camera:
+        """The lens of one image of the solve (COLMAP's name): its frame's, or its camera's."""
+        camera = self.cameras[image.split("/", 1)[0]]
+        lens = self.lenses.get(image)
+        return camera if lens is None else dataclasses.replace(camera, K=lens.K, distortion=lens.distortion)
 
 
 def scaled_camera(camera: Camera, size: tuple[int, int]) -> tuple[Camera, float]:
@@ -108,7 +126,8 @@ def _scaled_sigmas(camera: Camera, s: float) -> dict[str, float]:
     return {name: float(sigma[name]) * scale.get(name, 1.0) for name in PRIOR_NAMES if name in sigma}
 
 
-def grid_lens(grid: Rig, sizes: dict[str, tuple[int, int]], mode: str = "fixed", source: str = "the grid") -> GridLens:
+def grid_lens(grid: Rig, sizes: dict[str, tuple[int, int]], mode: str = "fixed", source: str = "the grid",
+              frame_numbers: dict[str, int | None] | None = None) -> GridLens:
     """The grid's lens for each camera of the solve (matched by name; one camera each: the one), at the plate's size.
 
     Parameters
@@ -120,11 +139,14 @@ def grid_lens(grid: Rig, sizes: dict[str, tuple[int, int]], mode: str = "fixed",
     mode : {"fixed", "prior"}
     source : str
         How to name the grid in messages (its file).
+    frame_numbers : dict of str to int or None, optional
+        Each image of the solve (COLMAP's name) -> its plate frame number (None: its file name has none): a rig
+        with a lens per frame gives each image the lens of the frame of that number.
     """
     if mode not in LENS_MODES:
         raise CamcalError(f"unknown intrinsics mode {mode!r}, expected one of: {', '.join(LENS_MODES)}")
     names = [camera.name for camera in grid.cameras]
-    cameras, sigmas, lines = {}, {}, []
+    cameras, sigmas, lines, lenses = {}, {}, [], {}
     for name, size in sizes.items():
         if name in names:
             camera = grid.camera(name)
@@ -132,6 +154,15 @@ def grid_lens(grid: Rig, sizes: dict[str, tuple[int, int]], mode: str = "fixed",
             camera = grid.cameras[0]
         else:
             raise CamcalError(f"{source} has no camera named {name!r} (it has: {', '.join(names)})")
+        if grid.lens_frames(camera.name):
+            if mode != "fixed" or len(sizes) != 1 or frame_numbers is None:
+                raise CamcalError(f"{source}: camera {camera.name!r} has a lens per frame (a zoom or a refocus): "
+                                  "those lenses can only be held (--intrinsics-mode fixed), on a one-camera solve")
+            mine = _lenses_per_image(grid, camera, size, frame_numbers, source)
+            lenses.update(mine)
+            focals = sorted(lens.K[0, 0] for lens in mine.values())
+            lines.append(f"{name}: the lens of each frame from {source} (camera {camera.name!r}, "
+                         f"{camera.distortion.model}, {len(mine)} frames, fx {focals[0]:.2f}-{focals[-1]:.2f} px) held")
         camera_to_colmap(camera)  # a lens COLMAP cannot carry is refused here, before any work
         scaled, s = scaled_camera(camera, size)
         if mode == "prior":
@@ -140,24 +171,49 @@ def grid_lens(grid: Rig, sizes: dict[str, tuple[int, int]], mode: str = "fixed",
                 raise CamcalError(f"{source}: camera {camera.name!r} has no sigmas (quality.sigma) to make a prior "
                                   "of: hold its lens (--intrinsics-mode fixed) or calibrate it again")
         cameras[name] = dataclasses.replace(scaled, name=name)
+        if lenses:
+            continue
         how = "held" if mode == "fixed" else "refined under its sigmas as a prior"
         lines.append(f"{name}: the lens of {source} (camera {camera.name!r}, {camera.distortion.model}, "
                      f"fx {scaled.K[0, 0]:.2f} px) {how}"
                      + ("" if s == 1.0 else f"; K scaled x{s:g} from its {camera.image_size[0]}x"
                         f"{camera.image_size[1]} to the plate's {size[0]}x{size[1]}"))
-    return GridLens(cameras, mode, sigmas, tuple(lines))
+    return GridLens(cameras, mode, sigmas, tuple(lines), lenses)
+
+
+def _lenses_per_image(grid: Rig, camera: Camera, size: tuple[int, int], frame_numbers: dict[str, int | None],
+                      source: str) -> dict[str, Lens]:
+    """Each image's lens: the rig's frame of the image's number, at the plate's size; missing frames named."""
+    by_frame = {frame.index: frame.lenses[camera.name] for frame in grid.frames if camera.name in frame.lenses}
+    unnumbered = sorted(image for image, number in frame_numbers.items() if number is None)
+    if unnumbered:
+        raise CamcalError(f"{source} has a lens per frame, but plate image {unnumbered[0]!r} has no frame number in "
+                          "its name to match one by")
+    missing = sorted({number for number in frame_numbers.values() if number not in by_frame})
+    if missing:
+        raise CamcalError(f"{source} has no lens of camera {camera.name!r} for plate frames "
+                          f"{', '.join(frame_runs(missing))} (it has frames {', '.join(frame_runs(sorted(by_frame)))})")
+    lenses = {}
+    for image, number in frame_numbers.items():
+        lens = by_frame[number]
+        scaled, _ = scaled_camera(dataclasses.replace(camera, K=lens.K, distortion=lens.distortion), size)
+        camera_to_colmap(scaled)
+        lenses[image] = Lens(scaled.K, scaled.distortion, lens.focal_mm, lens.focus_m)
+    return lenses
 
 
 def hold_in_database(pycolmap, database, lens: GridLens) -> None:
     """Give each COLMAP camera of a freshly extracted ``database`` the grid's lens (model, parameters, prior focal).
 
-    A camera is named by the folder of its images (``camera/<k>.png``).
+    A camera is named by the folder of its images (``camera/<k>.png``); with a lens per frame
+    (:attr:`GridLens.lenses`), each image has a camera of its own (extracted one camera per image), which takes
+    its frame's lens.
     """
     db = pycolmap.Database.open(database)
     try:
-        name_of = {image.camera_id: image.name.split("/", 1)[0] for image in db.read_all_images()}
+        image_of = {image.camera_id: image.name for image in db.read_all_images()}
         for camera in db.read_all_cameras():
-            grid = lens.cameras[name_of[camera.camera_id]]
+            grid = lens.camera_of(image_of[camera.camera_id])
             colmap = camera_to_colmap(grid)
             held = pycolmap.Camera.create_from_model_name(camera.camera_id, colmap.model, 1.0, colmap.width,
                                                           colmap.height)

@@ -14,6 +14,7 @@ from camcal.geometry.zhang import calibrate_board
 from camcal.model.camera import chordal_mean_rotation, rotation_angle_deg
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig
+from camcal.model.rig_frames import Frame, Lens
 from camcal.pipelines.solve import solve_sfm
 from camcal.pipelines.solve_lens import grid_lens, scaled_camera
 from camcal.synthetic import render_stereo_sequence
@@ -96,6 +97,30 @@ def test_a_prior_needs_the_grid_s_sigmas_and_a_camera_it_has():
                   {"cam": (256, 192), "right": (256, 192)})
     lens = grid_lens(Rig((camera,)), {"plate": (128, 96)})  # one camera each: the one, at half size, said
     assert lens.cameras["plate"].K[0, 0] == 100.0 and "K scaled x0.5 from its 256x192 to the plate's 128x96" in lens.lines[0]
+
+
+def _zoom_rig(camera: Camera, frames) -> Rig:
+    """``camera`` on a zoom: at each frame of ``frames`` a lens of its own (fx 5 % longer per frame, focal_mm with it)."""
+    lenses = {}
+    for k, index in enumerate(frames):
+        K = camera.K.copy()
+        K[0, 0] *= 1.05 ** k
+        K[1, 1] *= 1.05 ** k
+        lenses[index] = Lens(K, camera.distortion, focal_mm=24.0 * 1.05 ** k)
+    rig = Rig((camera,), frames=tuple(Frame(index, np.eye(3), np.zeros(3)) for index in frames))
+    return rig.with_camera(camera, lenses)
+
+
+def test_solve_with_a_lens_per_frame_missing_plate_frames_writes_nothing(tmp_path, capsys):
+    _plate(tmp_path, 2)  # left/0000.png, left/0001.png
+    camera = Camera("cam", (WIDTH, HEIGHT), np.array([[FOCAL, 0, 127.5], [0, FOCAL, 95.5], [0, 0, 1]]),
+                    Distortion.none(), np.eye(3), np.zeros(3))
+    _zoom_rig(camera, [1, 2, 3]).save(tmp_path / "shot.rig.json")
+    code = main(["solve", str(tmp_path / "in" / "left"), "--intrinsics", str(tmp_path / "shot.rig.json"),
+                 "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "shot.rig.json has no lens of camera 'cam' for plate frames 0 (it has frames 1-3)" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
 
 
 def test_solve_with_a_plate_the_grid_does_not_fit_writes_nothing(tmp_path, capsys):

@@ -17,23 +17,23 @@ __all__ = ["state_from_reconstruction", "state_to_reconstruction"]
 
 
 def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | None = None) -> BundleState:
-    """A :class:`BundleState` from a pycolmap ``Reconstruction`` with one rig.
+    """A :class:`BundleState` from a pycolmap ``Reconstruction`` with one rig, or with one camera per rig.
 
     ``camera_names`` maps COLMAP camera ids to names (default ``camera<id>``);
     the rig's reference sensor becomes camera 0. Pixels move from COLMAP's
-    convention (pixel centre 0.5) to camcal's (0).
+    convention (pixel centre 0.5) to camcal's (0). Several rigs of one camera
+    each (a lens per frame: one camera per image) share the identity as their
+    ``sensor_from_rig``: hold it (``refine_sensor_from_rig=False``).
     """
     pycolmap = require("pycolmap")
 
-    if reconstruction.num_rigs() != 1:
-        raise CamcalError(f"expected one rig in the reconstruction, got {reconstruction.num_rigs()}")
-    rig = next(iter(reconstruction.rigs.values()))
+    rig = _the_rig(reconstruction)
     ref = rig.ref_sensor_id.id
     camera_ids = [ref] + sorted(cid for cid in reconstruction.cameras if cid != ref)
     names = camera_names or {cid: f"camera{cid}" for cid in camera_ids}
     sensor_R = np.repeat(np.eye(3)[None], len(camera_ids), axis=0)
     sensor_t = np.zeros((len(camera_ids), 3))
-    for index, cid in enumerate(camera_ids[1:], start=1):
+    for index, cid in enumerate(camera_ids[1:] if reconstruction.num_rigs() == 1 else [], start=1):
         pose = rig.sensor_from_rig(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cid))
         sensor_R[index], sensor_t[index] = pose.rotation.matrix(), pose.translation
     frame_ids = sorted(reconstruction.reg_frame_ids())
@@ -71,11 +71,11 @@ def state_to_reconstruction(state: BundleState, reconstruction) -> None:
     """Write a refined state back into the pycolmap ``Reconstruction`` it came from (in place)."""
     pycolmap = require("pycolmap")
 
-    rig = next(iter(reconstruction.rigs.values()))
+    rig = _the_rig(reconstruction)
     camera_ids = [rig.ref_sensor_id.id] + sorted(cid for cid in reconstruction.cameras if cid != rig.ref_sensor_id.id)
     for index, cid in enumerate(camera_ids):
         reconstruction.cameras[cid].params = state.params[index]
-        if index:
+        if index and reconstruction.num_rigs() == 1:
             rig.set_sensor_from_rig(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cid),
                                     pycolmap.Rigid3d(pycolmap.Rotation3d(state.sensor_R[index]), state.sensor_t[index]))
     for k, fid in enumerate(state.frame_ids):
@@ -83,3 +83,11 @@ def state_to_reconstruction(state: BundleState, reconstruction) -> None:
             pycolmap.Rotation3d(state.frame_R[k]), state.frame_t[k])
     for k, pid in enumerate(state.point_ids):
         reconstruction.points3D[pid].xyz = state.points[k]
+
+
+def _the_rig(reconstruction):
+    """The reconstruction's one rig, or the first of several rigs of one camera each (their sensor is their origin)."""
+    rigs = list(reconstruction.rigs.values())
+    if len(rigs) != 1 and not all(rig.num_sensors() == 1 for rig in rigs):
+        raise CamcalError(f"expected one rig in the reconstruction, got {len(rigs)}")
+    return min(rigs, key=lambda rig: rig.ref_sensor_id.id)
