@@ -1,6 +1,8 @@
 """Board images in EXR (the OpenCV 5 wheels have no EXR codec): detected through camcal.io.frames."""
 
 import json
+import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -12,6 +14,7 @@ from camcal.pipelines.board import detect_in_images
 from camcal.model.distortion import Distortion
 from camcal.io.frames import imwrite
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "geometry"))
 from test_board import render_chessboard
 from test_plumbline import lambda_for_corner_move, render_distorted
 
