@@ -356,12 +356,11 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
     F = _inverse_factor(S)
     P, pk = system.point_rows, system.row_point
     seen = pk >= 0
-    reduced = system.J_c.toarray()  # A - P V^+ W row by row: each row with its point eliminated
-    if G is not None:
-        G_rows = scipy.sparse.csr_matrix((P[seen].ravel(), (np.repeat(np.flatnonzero(seen), 3),
-                                                            (3 * pk[seen, None] + np.arange(3)).ravel())),
-                                         shape=(n_rows, G.shape[0]))
-        reduced -= (G_rows @ G).toarray()
+    # A - P V^+ W row by row (each row with its point eliminated), made dense one frame at a time: dense over
+    # every row it would be observations x (cameras + frames), quadratic in the frame count
+    G_rows = None if G is None else scipy.sparse.csr_matrix(
+        (P[seen].ravel(), (np.repeat(np.flatnonzero(seen), 3), (3 * pk[seen, None] + np.arange(3)).ravel())),
+        shape=(n_rows, G.shape[0]))
     out = []
     for frame in np.unique(system.row_frame[system.row_frame >= 0]):
         rows = np.flatnonzero(system.row_frame == frame)
@@ -370,7 +369,9 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
         key = np.sort(key, kind="stable")
         _, starts, counts = np.unique(key, return_index=True, return_counts=True)
         # D^(+1/2), D = I - P_k V^+ P_k^T: block diagonal, one block per point (its rows in this frame)
-        X, z = reduced[rows].copy(), system.r[rows].copy()
+        X, z = system.J_c[rows].toarray(), system.r[rows].copy()
+        if G_rows is not None:
+            X -= (G_rows[rows] @ G).toarray()
         for c in np.unique(counts):
             at = starts[counts == c, None] + np.arange(c)  # (n, c) positions in rows
             Pb = P[rows[at]]
