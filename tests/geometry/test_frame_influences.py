@@ -3,6 +3,7 @@ replicates and constructed contributions."""
 
 import numpy as np
 import pytest
+import scipy.sparse
 from test_selfcal import stereo_rig, tracks_state
 
 from camcal.geometry.bundle import BundleOptions, bundle_adjust
@@ -12,14 +13,27 @@ from camcal.geometry.uncertainty import shrunk_design_effect
 OPTIONS = BundleOptions(refine_principal_point=True)
 
 
-def test_influences_are_the_one_step_replicates_moves():
+def test_influences_are_the_one_step_replicates_moves(monkeypatch):
     # Woodbury: (H - J_k^T J_k)^-1 J_k^T r_k = H^-1 J_k^T (I - H_kk)^-1 r_k, so the leverage-corrected influence of
     # each frame is the move of the one-step replicate without it (itself within a few percent of a full refit,
     # test_jackknife.py); the scene gauge rides along (the frames turn about more than one axis)
     state = tracks_state(stereo_rig(), np.random.default_rng(5), n_frames=6, n_points=500)
     full = bundle_adjust(state, OPTIONS)
-    frames = np.unique(full.state.obs_frame)
+    frames, per_frame = np.unique(full.state.obs_frame, return_counts=True)
+    shapes = []
+    toarray = scipy.sparse.csr_matrix.toarray
+
+    def spy(matrix, *args, **kwargs):
+        shapes.append(matrix.shape)
+        return toarray(matrix, *args, **kwargs)
+
+    monkeypatch.setattr(scipy.sparse.csr_matrix, "toarray", spy)
     influences = frame_influences(full.state, OPTIONS)
+    monkeypatch.undo()
+    # made dense one frame at a time (or the columns square): never observations x columns over every frame,
+    # which grows with the square of the frame count (gigabytes on a long plate)
+    n_columns = max(columns for _, columns in shapes)
+    assert max(rows for rows, _ in shapes) <= max(2 * per_frame.max(), n_columns) < 2 * per_frame.sum()
     replicates = one_step_replicates(full.state, OPTIONS, [np.array([f]) for f in frames])
     assert influences.values.shape == (len(frames), len(influences.names))
     assert {"gauge.rx", "gauge.ry", "gauge.rz", "right.rx"} <= set(influences.names)

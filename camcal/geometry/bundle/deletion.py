@@ -38,8 +38,8 @@ zero: the Moore-Penrose inverse drops those directions (Pustejovsky &
 Tipton 2018). The points are eliminated from ``H_kk`` too: with ``D = I -
 P_k V^+ P_k^T`` (block diagonal, one block per point) and ``E =
 D^(+1/2) X_k F`` (``X_k`` the frame's rows with the points eliminated, ``F
-F^T = S^+``), ``(I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2)``, one thin
-SVD per frame.
+F^T = S^+``), ``(I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2)``, one eigen-decomposition
+of ``E^T E`` (columns x columns) per frame.
 
 References
 ----------
@@ -356,12 +356,11 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
     F = _inverse_factor(S)
     P, pk = system.point_rows, system.row_point
     seen = pk >= 0
-    reduced = system.J_c.toarray()  # A - P V^+ W row by row: each row with its point eliminated
-    if G is not None:
-        G_rows = scipy.sparse.csr_matrix((P[seen].ravel(), (np.repeat(np.flatnonzero(seen), 3),
-                                                            (3 * pk[seen, None] + np.arange(3)).ravel())),
-                                         shape=(n_rows, G.shape[0]))
-        reduced -= (G_rows @ G).toarray()
+    # A - P V^+ W row by row (each row with its point eliminated), made dense one frame at a time: dense over
+    # every row it would be observations x (cameras + frames), quadratic in the frame count
+    G_rows = None if G is None else scipy.sparse.csr_matrix(
+        (P[seen].ravel(), (np.repeat(np.flatnonzero(seen), 3), (3 * pk[seen, None] + np.arange(3)).ravel())),
+        shape=(n_rows, G.shape[0]))
     out = []
     for frame in np.unique(system.row_frame[system.row_frame >= 0]):
         rows = np.flatnonzero(system.row_frame == frame)
@@ -370,7 +369,9 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
         key = np.sort(key, kind="stable")
         _, starts, counts = np.unique(key, return_index=True, return_counts=True)
         # D^(+1/2), D = I - P_k V^+ P_k^T: block diagonal, one block per point (its rows in this frame)
-        X, z = reduced[rows].copy(), system.r[rows].copy()
+        X, z = system.J_c[rows].toarray(), system.r[rows].copy()
+        if G_rows is not None:
+            X -= (G_rows[rows] @ G).toarray()
         for c in np.unique(counts):
             at = starts[counts == c, None] + np.arange(c)  # (n, c) positions in rows
             Pb = P[rows[at]]
@@ -380,11 +381,15 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
             X[at] = np.einsum("ncd,ndq->ncq", root, X[at])
             z[at] = np.einsum("ncd,nd->nc", root, z[at])
         # (I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2), E = D^(+1/2) X_k F
-        U, singular, _ = np.linalg.svd(X @ F, full_matrices=False)
-        gap = 1.0 - singular**2
+        # by the eigenvectors V of E^T E (eigenvalues s^2, s E's singular values), E's left singular vectors are
+        # E V / s: u = z + E V diag(w) V^T E^T z, w = 1 / (1 - s^2), or -1 / s^2 where 1 - s^2 is null; one
+        # (columns x columns) eigen-decomposition instead of a thin SVD of (rows x columns)
+        E = X @ F
+        squares, V = np.linalg.eigh(E.T @ E)
+        gap = 1.0 - squares
         kept = gap > _LEVERAGE_NULL
-        factor = np.where(kept, 1.0 / np.where(kept, gap, 1.0), 0.0)
-        u = z + U @ ((factor - 1.0) * (U.T @ z))
+        weight = np.where(kept, 1.0 / np.where(kept, gap, 1.0), -1.0 / np.where(kept, 1.0, squares))
+        u = z + E @ (V @ (weight * (V.T @ (E.T @ z))))
         out.append(F @ (F.T @ (X.T @ u)))
     return out
 
