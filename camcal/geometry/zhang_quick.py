@@ -31,9 +31,9 @@ from numpy.typing import NDArray
 from camcal.geometry.board import Board
 from camcal.geometry.board_shape import AUTO_SHAPES, flat_start, parse_shape
 from camcal.geometry.zhang_loo import leave_one_view_out_on_shape
-from camcal.geometry.zhang_rank import (AUTO_MARGIN, SHAPE_LENSES, SHAPE_TAG, SPLINE_MIN_VIEWS,
+from camcal.geometry.zhang_rank import (SHAPE_LENSES, SHAPE_TAG, SPLINE_MIN_VIEWS,
                                         model_estimates, rank_models, shape_choice, shape_params, shaped_or_flat,
-                                        simplest_within_margin, spline_chosen)
+                                        simplest_within_margin, spline_chosen, surface_lens)
 from camcal.geometry.zhang_refit import shape_specs, surface_fit
 from camcal.geometry.zhang_result import CalibrationResult, ModelScore
 from camcal.geometry.zhang_starts import FIT_ERRORS, MIN_IMAGES, MODELS, one_line
@@ -84,15 +84,9 @@ def shape_by_estimate(board: Board, names: list[str], by_frame: list[dict], mode
     """
     if board_shape == "flat":
         return flat, (), []
-    notes: list[str] = []
-    lens = model
-    if model not in SHAPE_LENSES:
-        capable = [s for s in scored if s.model in SHAPE_LENSES]
-        if not capable:
-            return flat, (), []
-        lens = simplest_within_margin(capable)
-        notes.append(f"board shape auto: {model} (ranked on the flat board) has no surface fit; the surface is "
-                     f"chosen with {lens}, the simplest lens within {100 * AUTO_MARGIN:g} % of the best that has one")
+    lens, notes = surface_lens(model, scored)
+    if lens is None:
+        return flat, (), []
     fits: dict = {}
     ranking: tuple[ModelScore, ...] = ()
     # the surfaces start from the flat fit taken (the same views: its surface fit is the one refitted last)

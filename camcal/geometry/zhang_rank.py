@@ -35,7 +35,7 @@ from camcal.geometry.zhang_starts import FIT_ERRORS, MIN_IMAGES, MODELS, one_lin
 
 __all__ = ["AUTO_MODELS", "AUTO_MARGIN", "with_board_shape", "simplest_within_margin", "SPLINE_MIN_VIEWS",
            "rank_models", "SCREEN_MARGIN", "MAX_FINALISTS", "spline_chosen", "BOARD_SHAPES", "SHAPE_LENSES", "SHAPE_TAG",
-           "shape_choice", "shape_params", "model_estimates", "shaped_or_flat"]
+           "shape_choice", "shape_params", "model_estimates", "shaped_or_flat", "surface_lens"]
 
 #: The models ``model="auto"`` chooses among, simplest first (the parsimony order): every model.
 AUTO_MODELS = ("none", "division", "polynomial", "kannala-brandt", "opencv", "opencv-rational", "opencv-thin-prism",
@@ -61,14 +61,10 @@ def with_board_shape(board: Board, names: list[str], by_frame: list[dict], model
         return flat, (), []
     picked = model
     notes: list[str] = []
-    if not spec and model.removesuffix(SPLINE_SUFFIX) not in SHAPE_LENSES:
-        # OpenCV's own fit has no surface path: the surface is chosen with the simplest lens that has one
-        capable = [s for s in scored if s.model in SHAPE_LENSES]
-        if not capable:
+    if not spec:
+        model, notes = surface_lens(model, scored)
+        if model is None:
             return flat, (), []
-        model = simplest_within_margin(capable)
-        notes.append(f"board shape auto: {picked} (ranked on the flat board) has no surface fit; the surface is "
-                     f"chosen with {model}, the simplest lens within {100 * AUTO_MARGIN:g} % of the best that has one")
     base = model.removesuffix(SPLINE_SUFFIX)
     flat_score = next((s for s in scored if s.model == model), None)
     shape_ranking: tuple[ModelScore, ...] = ()
@@ -160,6 +156,20 @@ def simplest_within_margin(scores: list[ModelScore]) -> str:
     the best of ``scores`` (each scored, none with a correction field)."""
     limit = (1.0 + AUTO_MARGIN) * min(s.rms_px for s in scores)
     return min((s.model for s in scores if s.rms_px <= limit), key=AUTO_MODELS.index)
+
+
+def surface_lens(model: str, scored: Sequence[ModelScore]) -> tuple[str | None, list[str]]:
+    """The lens the board's surface is chosen with: ``model`` when it has a surface fit (:data:`SHAPE_LENSES`),
+    else (OpenCV's own fit has no surface path) the simplest scored lens within :data:`AUTO_MARGIN` of the best
+    that has one, said in a note; ``None`` when no scored lens has one."""
+    if model.removesuffix(SPLINE_SUFFIX) in SHAPE_LENSES:
+        return model, []
+    capable = [s for s in scored if s.model in SHAPE_LENSES]
+    if not capable:
+        return None, []
+    lens = simplest_within_margin(capable)
+    return lens, [f"board shape auto: {model} (ranked on the flat board) has no surface fit; the surface is "
+                  f"chosen with {lens}, the simplest lens within {100 * AUTO_MARGIN:g} % of the best that has one"]
 
 
 def _lens_on_shape(model: str, spec: str, scores: list[ModelScore], squared: dict) -> str:
