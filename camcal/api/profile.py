@@ -21,6 +21,7 @@ from camcal.base.errors import CamcalError
 
 if TYPE_CHECKING:
     from camcal.api.board import BoardCalibration, CameraInputs
+    from camcal.colour.flatfield import FlatField
     from camcal.geometry.board import Board
     from camcal.geometry.lens_profile import StateSuggestion
     from camcal.model.lens_profile import LensProfile, LensState
@@ -204,9 +205,10 @@ def _check_alike(label: str, camera: Camera, earlier: list, sizes: Mapping[str, 
 
 
 def calibrate_profile(
-    states: Mapping[str, CameraInputs | Rig | BoardCalibration],
+    states: Mapping[str, CameraInputs | Rig | BoardCalibration] | None,
     board: str | Board,
     *,
+    states_from: tuple[str, str | os.PathLike] | None = None,
     model: str = DEFAULT_PROFILE_MODEL,
     holdout: str | float | None = None,
     cache: str | os.PathLike | bool = True,
@@ -225,9 +227,14 @@ def calibrate_profile(
         Lens state -> its board images (as :func:`camcal.calibrate_board` takes them), or a one-camera
         ``*.rig.json`` or :func:`camcal.calibrate_board` result calibrated at it, e.g.
         ``{"24mm@1.2m": "grids/24_1.2/*.jpg", "35mm@inf": "grids/35_inf/*.jpg"}``
-        (:func:`camcal.model.lens_profile.parse_state`: ``FOCALmm@FOCUSm``, ``@inf``).
+        (:func:`camcal.model.lens_profile.parse_state`: ``FOCALmm@FOCUSm``, ``@inf``); None with ``states_from``.
     board : str or Board
         The board every state's images show (as :func:`camcal.calibrate_board`).
+    states_from : (str, path), optional
+        Instead of ``states``: ``("folders", DIR)`` (a sub-folder per state, named ``24mm@1.2m`` or
+        ``24mm_1.2m``), ``("exif", GLOB)`` (the images grouped by their EXIF ``FocalLength`` and
+        ``SubjectDistance``) or ``("csv", FILE)`` (``image,focal_mm,focus_m``)
+        (:func:`camcal.pipelines.lens_states.states_from`).
     model : str
         The one lens model of every state (:func:`camcal.calibrate_board`'s names); ``auto`` ranks the models
         once, on the state of the shortest focal length (the most distortion), and fits that model everywhere.
@@ -250,8 +257,9 @@ def calibrate_profile(
     ------
     CamcalError
         Fewer than 2 states, a state label that is not ``FOCALmm@FOCUSm``, duplicate states, states of different
-        image sizes, lens models or boards, or a state's calibration refused by its quality gate; nothing is
-        written then.
+        image sizes, lens models or boards, or a state's calibration refused by its quality gate; both or neither
+        of ``states`` and ``states_from``, a folder name that is not a state, images without the EXIF of their
+        state, a bad CSV, or a state with fewer than 3 images; nothing is written then.
 
     Examples
     --------
@@ -268,6 +276,15 @@ def calibrate_profile(
 
     say = log or (lambda line: None)
     board = board if isinstance(board, Board) else parse_board(board)
+    if (states is None) == (states_from is None):
+        raise CamcalError("give the lens states with --state or with --states-from (one of them)")
+    if states_from is not None:
+        from camcal.pipelines.lens_states import states_from as read_states
+
+        source, where = states_from
+        states = read_states(source, where)
+        say(f"--states-from {source}: " + ", ".join(f"{label} ({len(paths)} images)"
+                                                   for label, paths in states.items()))
     if len(states) < 2:
         raise CamcalError(f"--state: a lens profile needs at least 2 lens states, got {len(states)}")
     parsed = {label: parse_state(label) for label in states}
@@ -331,7 +348,8 @@ def calibrate_profile(
 
 
 def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.PathLike, to: str | None = None, *,
-                   name: str | None = None, sensor_width_mm: float | None = None) -> Any:
+                   name: str | None = None, sensor_width_mm: float | None = None,
+                   vignetting: Mapping[str, str | os.PathLike | FlatField] | None = None) -> Any:
     """Write a lens profile for another tool (``camcal rig export lens.profile.json lens.xml --to lensfun``, or
     ``lens.json --to lens-table`` / ``--to opentrackio``, or ``lens.txt --to 3de``).
 
@@ -344,7 +362,9 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
     lensfun: one ``<lens>`` with a ``<distortion>`` per focal length calibrated, each the profile's camera at
     that focal length focused at the farthest focus calibrated (Lensfun's lenses do not change with focus), in
     the one Lensfun model (``poly3``, ``poly5``, ``ptlens``) that fits every focal length best, its residual
-    in the result's notes (:func:`camcal.io.lensfun.export_states`).
+    in the result's notes (:func:`camcal.io.lensfun.export_states`); with ``vignetting``, a ``pa`` vignetting entry
+    per flat field (:mod:`camcal.io.lensfun_vignetting`), fitted about the lens' centre, the largest deviation from
+    the flat field it leaves in the notes.
 
     Parameters
     ----------
@@ -358,10 +378,20 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
     sensor_width_mm : float, optional
         The sensor's active width in mm: required by opentrackio (the profile holds pixels only); 3de: its film
         back (default 36 mm).
+    vignetting : mapping of str to (path or FlatField), optional
+        lensfun: flat fields (``colour flatfield --out``'s ``*.json``) by the lens state and aperture they were
+        shot at, ``FOCALmm@FOCUSm/fN``: ``{"24mm@1.2m/f4": "flat24.json", "50mm@inf/f2.8": "flat50.json"}``;
+        each state inside the profile's calibrated range.
 
     Returns
     -------
     ExportResult
+
+    Raises
+    ------
+    CamcalError
+        An unknown format, an option another format's, a vignetting state without its aperture or outside the
+        calibrated range, given twice, or a flat field of another aspect ratio; nothing is written then.
     """
     from dataclasses import replace
 
@@ -375,6 +405,8 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
                           "one lens state with camcal lens first)")
     if sensor_width_mm is not None and fmt not in ("opentrackio", "3de"):
         raise CamcalError(f"a sensor width applies to opentrackio and 3de, not {fmt}")
+    if vignetting and fmt != "lensfun":
+        raise CamcalError(f"--vignetting applies to lensfun, not {fmt}")
     if fmt == "opentrackio" and sensor_width_mm is None:
         raise CamcalError("an OpenTrackIO lens is in mm on the sensor and a lens profile holds pixels only: give the "
                           "sensor's width (--sensor-width MM)")
@@ -395,12 +427,44 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
         return _export_tde(profile, Path(path), name or stem, sensor_width_mm)
     far = profile.focus_range[1]
     focals = sorted({state.focal_mm for state in profile.states})
+    flats = _vignetting_states(profile, vignetting or {})
     result = export_states([(focal, camera_at(profile, focal, far, f"{focal:g}mm")) for focal in focals], Path(path),
-                           name=name or stem)
+                           name=name or stem, vignetting=flats)
     focus = "inf" if math.isinf(far) else f"{far:g} m"
     notes = (*result.notes, f"each focal length at the farthest focus calibrated ({focus}): Lensfun's lenses do not "
              "change with focus")
     return replace(result, notes=notes)
+
+
+def _vignetting_states(profile: LensProfile, flats: Mapping[str, str | os.PathLike | FlatField]) -> list:
+    """The :class:`~camcal.io.lensfun_vignetting.VignettingState` of each ``FOCALmm@FOCUSm/fN`` -> flat field, in
+    the order given; each state inside the profile's calibrated range, each once."""
+    from camcal.colour.flatfield import FlatField
+    from camcal.io.flatfield import load_flat_field
+    from camcal.io.lensfun_vignetting import VignettingState
+    from camcal.model.lens_profile import parse_state
+
+    states, seen = [], {}
+    for key, flat in flats.items():
+        label, slash, aperture_text = key.rpartition("/")
+        try:
+            aperture = float(aperture_text[1:]) if slash and aperture_text[:1].lower() == "f" else math.nan
+        except ValueError:
+            aperture = math.nan
+        if not (aperture > 0 and math.isfinite(aperture)):
+            raise CamcalError(f"--vignetting {key}: expected FOCALmm@FOCUSm/fN, the lens state and the aperture "
+                              "the flat field was shot at (e.g. 24mm@1.2m/f4)")
+        focal, focus = parse_state(label)
+        (low, high), (near, far) = profile.focal_range, profile.focus_range
+        if not (low <= focal <= high and near <= focus <= far):
+            raise CamcalError(f"--vignetting {key}: outside the profile's calibrated range ({low:g}-{high:g} mm, "
+                              f"focus {near:g} m to " + ("inf" if math.isinf(far) else f"{far:g} m") + ")")
+        if (focal, focus, aperture) in seen:
+            raise CamcalError(f"--vignetting: {seen[focal, focus, aperture]} and {key} are the same lens state")
+        seen[focal, focus, aperture] = key
+        states.append(VignettingState(focal, aperture, focus, flat if isinstance(flat, FlatField)
+                                      else load_flat_field(flat)))
+    return states
 
 
 #: A profile's focus at infinity as 3DE keys it (3DE's dynamic distortion is a curve over focus distance): 10 km,

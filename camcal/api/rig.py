@@ -10,13 +10,14 @@ named.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 
 if TYPE_CHECKING:
+    from camcal.colour.flatfield import FlatField
     from camcal.io.conversion import ExportResult, ImportResult, LensConversion
     from camcal.model.lens_profile import LensProfile
     from camcal.model.rig import Rig
@@ -39,7 +40,8 @@ def load_rig(path: str | os.PathLike) -> Rig:
 
 def export_rig(rig: Rig | LensProfile | str | os.PathLike, path: str | os.PathLike, to: str | None = None, *,
                cameras: Sequence[str] | None = None, stmaps: bool = False,
-               sensor_width_mm: float | None = None) -> ExportResult:
+               sensor_width_mm: float | None = None,
+               vignetting: Mapping[str, str | os.PathLike | FlatField] | None = None) -> ExportResult:
     """Write a rig for another tool (``camcal rig export``).
 
     opencv: ``.yaml`` / ``.yml`` / ``.xml`` FileStorage (one camera or a stereo
@@ -66,6 +68,9 @@ def export_rig(rig: Rig | LensProfile | str | os.PathLike, path: str | os.PathLi
         usd: also write each lens' ST-maps beside the stage and reference them from its camera.
     sensor_width_mm : float, optional
         A lens profile's opentrackio (required) and 3de exports: the sensor's active width in mm.
+    vignetting : mapping of str to (path or FlatField), optional
+        A lens profile's lensfun export: flat fields by the lens state they were shot at
+        (``{"24mm@1.2m/f4": "flat24.json"}``, :func:`camcal.api.profile.export_profile`).
 
     Returns
     -------
@@ -84,8 +89,12 @@ def export_rig(rig: Rig | LensProfile | str | os.PathLike, path: str | os.PathLi
     if isinstance(rig, LensProfile) or (not isinstance(rig, Rig) and os.fspath(rig).endswith(".profile.json")):
         from camcal.api.profile import export_profile
 
-        return export_profile(rig, path, to, sensor_width_mm=sensor_width_mm)
+        return export_profile(rig, path, to, sensor_width_mm=sensor_width_mm, vignetting=vignetting)
     from camcal.base.errors import CamcalError
+
+    if vignetting:
+        raise CamcalError("--vignetting applies to a lens profile's lensfun export (*.profile.json); a rig's lens "
+                          "gets one with camcal colour flatfield --lensfun")
 
     if to in ("lens-table", "opentrackio"):
         raise CamcalError(f"--to {to} exports a lens profile (*.profile.json, camcal calibrate profile), not a rig")

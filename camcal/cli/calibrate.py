@@ -133,8 +133,14 @@ def _register_profile(verbs) -> None:
                          "charuco:...)")
     named_option(profile, "--state", "FOCALmm@FOCUSm=GLOB|RIG", "a lens state and its board images, e.g. "
                  "24mm@1.2m='grids/24_1.2/*.jpg' (focus in m, cm or mm, or inf; repeated or several entries), or "
-                 "a one-camera rig calibrated at that state (24mm@1.2m=cal24.rig.json); at least 2 states",
-                 required=True)
+                 "a one-camera rig calibrated at that state (24mm@1.2m=cal24.rig.json); at least 2 states, or "
+                 "--states-from")
+    profile.add_argument("--states-from", nargs=2, action="append", metavar=("SOURCE", "PATH"),
+                         help="the states and their images instead of --state: folders DIR (a sub-folder per state "
+                         "named like --state, 24mm@1.2m, or with _ for @, 24mm_1.2m), exif GLOB (the images grouped "
+                         "by the focal length and focus distance their EXIF records: FocalLength, SubjectDistance), "
+                         "or csv FILE (columns image,focal_mm,focus_m; images relative to the CSV); at least 3 "
+                         "images per state")
     profile.add_argument("--model", default="polynomial", metavar="MODEL",
                          choices=_BOARD_MODELS + _TDE4_MODELS + ("auto",),
                          help="the one lens model of every state, one of calibrate board's (default: polynomial, "
@@ -155,6 +161,11 @@ def _register_profile(verbs) -> None:
         "camcal calibrate profile --board chessboard:9x6:0.03 --state 24mm@1.2m='grids/24_1.2/*.jpg' "
         "--state 35mm@1.2m='grids/35_1.2/*.jpg' --state 70mm@1.2m='grids/70_1.2/*.jpg' "
         "--state 35mm@inf='grids/35_inf/*.jpg' --out lens.profile.json --suggest",
+        "# the same states from folders named after them (grids/24mm@1.2m/, grids/35mm_inf/, ...)",
+        "camcal calibrate profile --board chessboard:9x6:0.03 --states-from folders grids --out lens.profile.json",
+        "# the images' lens states from their EXIF, or from a CSV (image,focal_mm,focus_m)",
+        "camcal calibrate profile --board chessboard:9x6:0.03 --states-from exif 'grids/*.jpg' --out lens.profile.json",
+        "camcal calibrate profile --board chessboard:9x6:0.03 --states-from csv states.csv --out lens.profile.json",
     ])
 
 
@@ -223,11 +234,17 @@ def _profile(args: argparse.Namespace) -> int:
     infinity), its degrees chosen by leaving one state out in turn, its sigma propagated from each state's
     calibration and widened where the held-out states miss by more. States that every smooth surface misses by
     more than 5 sigma are named. The profile file holds every state and every surface; camcal lens makes a camera
-    at any state from it.
+    at any state from it. The states and their images come from --state, or from folder names, the images' EXIF
+    or a CSV (--states-from).
     """
     from camcal.api.profile import calibrate_profile
+    from camcal.base.errors import CamcalError
 
-    result = calibrate_profile(args.state, args.board, model=args.model, holdout=args.holdout,
+    sources = args.states_from or []
+    if len(sources) > 1:
+        raise CamcalError(f"--states-from: give one source, got {len(sources)} ({', '.join(s for s, _ in sources)})")
+    result = calibrate_profile(args.state or None, args.board, states_from=tuple(sources[0]) if sources else None,
+                               model=args.model, holdout=args.holdout,
                                cache=corner_cache(args), force=args.force,
                                suggest=args.suggest, out=args.out, log=print)
     report_result(args, result)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from camcal.cli.options import handler, image_size, image_size_option, out_option, rig_argument, verb_group
+from camcal.cli.options import (handler, image_size, image_size_option, named_option, out_option, rig_argument,
+                                verb_group)
 from camcal.cli.summary import summary_of
 
 __all__ = ["register"]
@@ -38,6 +39,11 @@ def register(parser: argparse.ArgumentParser) -> None:
     export.add_argument("--sensor-width", type=float, metavar="MM",
                         help="a lens profile to opentrackio (required: its lens is in mm on the sensor) or 3de (its "
                         "film back; default 36): the sensor's active width in mm")
+    named_option(export, "--vignetting", "FOCALmm@FOCUSm/fN=FLAT.json",
+                 "a lens profile to lensfun: a flat field (colour flatfield --out) and the lens state and aperture "
+                 "it was shot at, e.g. 24mm@1.2m/f4=flat24.json, written as a pa vignetting entry fitted about the "
+                 "lens' centre (what it misses of the flat field printed); repeated or several entries; each state "
+                 "inside the profile's calibrated range")
     handler(export, _export, [
         "camcal rig export board.rig.json --to opencv board.yaml",
         "camcal rig export board.rig.json board.nk --camera left",
@@ -45,6 +51,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         "camcal rig export solve/solve.rig.json solve.usda --stmaps",
         "# a lens profile as a Lensfun lens, one entry per focal length calibrated",
         "camcal rig export lens.profile.json lens.xml --to lensfun",
+        "# with the vignetting of grey cards shot at two lens states (colour flatfield --out)",
+        "camcal rig export lens.profile.json lens.xml --to lensfun --vignetting 24mm@1.2m/f4=flat24.json "
+        "70mm@inf/f4=flat70.json",
         "# a lens profile as OpenTrackIO lens samples, and as 3DEqualizer dynamic distortion",
         "camcal rig export lens.profile.json lens.json --to opentrackio --sensor-width 36",
         "camcal rig export lens.profile.json lens.txt --to 3de",
@@ -90,7 +99,8 @@ def _export(args: argparse.Namespace) -> int:
     camchain.yaml; colmap: a directory with cameras.txt, images.txt, points3D.txt; usd: .usda/.usdc/.usd;
     nuke: .nk; 3de: a 3DEqualizer lens file (.txt, one camera; from a lens profile, its dynamic distortion over
     focal length and focus distance). A lens profile also goes to lens-table and opentrackio (OpenTrackIO lens
-    samples, Brown-Conrady in mm on a sensor --sensor-width wide). A lens or skew the format cannot hold is
+    samples, Brown-Conrady in mm on a sensor --sensor-width wide); to lensfun with the vignetting of flat fields
+    per lens state (--vignetting). A lens or skew the format cannot hold is
     fitted with the nearest model it holds and its pixel residual is printed (for the 3DEqualizer models:
     max and RMS inside the image and over a 1.25 overscan border); exact conversions say so.
     """
@@ -101,7 +111,7 @@ def _export(args: argparse.Namespace) -> int:
 
     fmt = format_of(args.out, args.to)
     result = export_rig(args.rig, args.out, fmt, cameras=args.camera, stmaps=args.stmaps,
-                        sensor_width_mm=args.sensor_width)
+                        sensor_width_mm=args.sensor_width, vignetting=args.vignetting)
     _print_conversions(args, result.conversions, result.notes)
     for path in result.paths:
         summary_of(args).wrote(path, fmt if path == Path(args.out) or path.parent == Path(args.out) else "stmap")

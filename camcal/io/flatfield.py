@@ -50,6 +50,7 @@ from camcal.base.jsonfile import read_json, write_json
 from camcal.base.limits import FILE_BYTES, check_file_size
 from camcal.colour.flatfield import FlatField, RadialTerms, common_radial_terms
 from camcal.io.lensfun import DEFAULT_SENSOR_WIDTH_MM
+from camcal.io.lensfun_vignetting import VignettingState, vignetting_element, vignetting_terms
 from camcal.io.points_csv import finite_numbers
 
 __all__ = ["LinearImage", "NeutralPatches", "check_lensfun_file", "load_flat_field", "read_linear_image", "read_neutral_patches",
@@ -191,7 +192,8 @@ def write_lensfun_vignetting(flat: FlatField, path: str | os.PathLike, *, focal_
     path : path
         The ``.xml`` file.
     focal_mm, aperture, distance_m : float
-        The lens state the flat field was shot at (Lensfun interpolates between entries).
+        The lens state the flat field was shot at (Lensfun interpolates between entries; a distance of ``inf`` is
+        written as Lensfun's 1000 m, :mod:`camcal.io.lensfun_vignetting`).
     model, maker, mount : str
         A new file's ``<lens>`` names.
     sensor_width_mm : float, optional
@@ -211,23 +213,17 @@ def write_lensfun_vignetting(flat: FlatField, path: str | os.PathLike, *, focal_
     path = Path(path)
     if path.suffix.lower() != ".xml":
         raise CamcalError(f"a Lensfun database file must end in .xml, got {path.name!r}")
-    for name, value in (("focal length", focal_mm), ("aperture", aperture), ("focus distance", distance_m)):
-        if not (math.isfinite(value) and value > 0):
-            raise CamcalError(f"the Lensfun vignetting entry needs a {name} > 0, got {value}")
+    state = VignettingState(focal_mm, aperture, distance_m, flat)
     width, height = flat.image_size
     unit = (min(width, height) - 1) / 2.0
     image_centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
     aspect = (max(width, height) - 1) / (min(width, height) - 1)
     if path.exists():
         root, entry, offset = _existing_lens(path, aspect)
-        terms = common_radial_terms(flat, image_centre + offset * unit)
+        terms = vignetting_terms(flat, offset)
         calibration = entry.find("calibration")
         if calibration is None:
             calibration = ElementTree.SubElement(entry, "calibration")
-        state = [_number(focal_mm), _number(aperture), _number(distance_m)]
-        for old in calibration.findall("vignetting"):
-            if [old.get(name) for name in ("focal", "aperture", "distance")] == state:
-                calibration.remove(old)
     else:
         terms = common_radial_terms(flat)
         offset = (terms.centre - image_centre) / unit
@@ -242,9 +238,7 @@ def write_lensfun_vignetting(flat: FlatField, path: str | os.PathLike, *, focal_
         ElementTree.SubElement(entry, "aspect-ratio").text = _number(aspect)
         calibration = ElementTree.SubElement(entry, "calibration")
         root.append(ElementTree.Comment(f" camcal image_size {width} {height} "))
-    ElementTree.SubElement(calibration, "vignetting", model="pa", focal=_number(focal_mm),
-                           aperture=_number(aperture), distance=_number(distance_m),
-                           k1=_number(terms.k[0]), k2=_number(terms.k[1]), k3=_number(terms.k[2]))
+    vignetting_element(calibration, state, terms)
     ElementTree.indent(root)
     atomic_write_text(path, '<?xml version="1.0" encoding="utf-8"?>\n' + ElementTree.tostring(root, "unicode") + "\n")
     return terms
