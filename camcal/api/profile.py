@@ -349,7 +349,8 @@ def calibrate_profile(
 
 def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.PathLike, to: str | None = None, *,
                    name: str | None = None, sensor_width_mm: float | None = None,
-                   vignetting: Mapping[str, str | os.PathLike | FlatField] | None = None) -> Any:
+                   vignetting: Mapping[str, str | os.PathLike | FlatField] | None = None,
+                   tca: Mapping[str, CameraInputs] | None = None) -> Any:
     """Write a lens profile for another tool (``camcal rig export lens.profile.json lens.xml --to lensfun``, or
     ``lens.json --to lens-table`` / ``--to opentrackio``, or ``lens.txt --to 3de``).
 
@@ -364,7 +365,8 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
     the one Lensfun model (``poly3``, ``poly5``, ``ptlens``) that fits every focal length best, its residual
     in the result's notes (:func:`camcal.io.lensfun.export_states`); with ``vignetting``, a ``pa`` vignetting entry
     per flat field (:mod:`camcal.io.lensfun_vignetting`), fitted about the lens' centre, the largest deviation from
-    the flat field it leaves in the notes.
+    the flat field it leaves in the notes; with ``tca``, a ``poly3`` TCA entry per focal length
+    (:mod:`camcal.io.lensfun_tca`) from colour board images, the corners' residual in the notes.
 
     Parameters
     ----------
@@ -382,6 +384,9 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
         lensfun: flat fields (``colour flatfield --out``'s ``*.json``) by the lens state and aperture they were
         shot at, ``FOCALmm@FOCUSm/fN``: ``{"24mm@1.2m/f4": "flat24.json", "50mm@inf/f2.8": "flat50.json"}``;
         each state inside the profile's calibrated range.
+    tca : mapping of str to (glob or image files), optional
+        lensfun: 8-bit colour images of the profile's board by the focal length they were shot at, ``FOCALmm``:
+        ``{"24mm": "tca/24/*.png"}`` (:mod:`camcal.pipelines.lateral_ca`); each inside the calibrated range.
 
     Returns
     -------
@@ -391,7 +396,8 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
     ------
     CamcalError
         An unknown format, an option another format's, a vignetting state without its aperture or outside the
-        calibrated range, given twice, or a flat field of another aspect ratio; nothing is written then.
+        calibrated range, given twice, or a flat field of another aspect ratio; a TCA focal length outside the
+        range or images without the board or of another size; nothing is written then.
     """
     from dataclasses import replace
 
@@ -405,8 +411,9 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
                           "one lens state with camcal lens first)")
     if sensor_width_mm is not None and fmt not in ("opentrackio", "3de"):
         raise CamcalError(f"a sensor width applies to opentrackio and 3de, not {fmt}")
-    if vignetting and fmt != "lensfun":
-        raise CamcalError(f"--vignetting applies to lensfun, not {fmt}")
+    for option, given in (("--vignetting", vignetting), ("--tca", tca)):
+        if given and fmt != "lensfun":
+            raise CamcalError(f"{option} applies to lensfun, not {fmt}")
     if fmt == "opentrackio" and sensor_width_mm is None:
         raise CamcalError("an OpenTrackIO lens is in mm on the sensor and a lens profile holds pixels only: give the "
                           "sensor's width (--sensor-width MM)")
@@ -428,12 +435,19 @@ def export_profile(profile: str | os.PathLike | LensProfile, path: str | os.Path
     far = profile.focus_range[1]
     focals = sorted({state.focal_mm for state in profile.states})
     flats = _vignetting_states(profile, vignetting or {})
+    fringes = _tca_states(profile, tca or {})
     result = export_states([(focal, camera_at(profile, focal, far, f"{focal:g}mm")) for focal in focals], Path(path),
-                           name=name or stem, vignetting=flats)
+                           name=name or stem, vignetting=flats, tca=fringes)
     focus = "inf" if math.isinf(far) else f"{far:g} m"
     notes = (*result.notes, f"each focal length at the farthest focus calibrated ({focus}): Lensfun's lenses do not "
              "change with focus")
     return replace(result, notes=notes)
+
+
+def _focal_text(profile: LensProfile) -> str:
+    """The calibrated focal lengths: ``24-70 mm`` (``24 mm`` for one)."""
+    low, high = profile.focal_range
+    return f"{low:g} mm" if low == high else f"{low:g}-{high:g} mm"
 
 
 def _vignetting_states(profile: LensProfile, flats: Mapping[str, str | os.PathLike | FlatField]) -> list:
@@ -457,13 +471,35 @@ def _vignetting_states(profile: LensProfile, flats: Mapping[str, str | os.PathLi
         focal, focus = parse_state(label)
         (low, high), (near, far) = profile.focal_range, profile.focus_range
         if not (low <= focal <= high and near <= focus <= far):
-            raise CamcalError(f"--vignetting {key}: outside the profile's calibrated range ({low:g}-{high:g} mm, "
+            raise CamcalError(f"--vignetting {key}: outside the profile's calibrated range ({_focal_text(profile)}, "
                               f"focus {near:g} m to " + ("inf" if math.isinf(far) else f"{far:g} m") + ")")
         if (focal, focus, aperture) in seen:
             raise CamcalError(f"--vignetting: {seen[focal, focus, aperture]} and {key} are the same lens state")
         seen[focal, focus, aperture] = key
         states.append(VignettingState(focal, aperture, focus, flat if isinstance(flat, FlatField)
                                       else load_flat_field(flat)))
+    return states
+
+
+def _tca_states(profile: LensProfile, images: Mapping[str, CameraInputs]) -> list:
+    """The :class:`~camcal.io.lensfun_tca.TCAState` of each ``FOCALmm`` -> colour board images: the profile's board
+    found in each image and its corners in every channel."""
+    from camcal.geometry.board import parse_board
+    from camcal.io.lensfun_tca import TCAState
+    from camcal.pipelines.lateral_ca import channel_corners_from_files
+
+    states = []
+    for key, value in images.items():
+        try:
+            focal = float(key.strip().removesuffix("mm"))
+        except ValueError:
+            focal = math.nan
+        low, high = profile.focal_range
+        if not low <= focal <= high:
+            raise CamcalError(f"--tca {key}: expected FOCALmm inside the profile's calibrated range "
+                              f"({_focal_text(profile)}), e.g. {low:g}mm")
+        found = channel_corners_from_files(value, parse_board(profile.board), option="--tca", name=key)
+        states.append(TCAState(focal, found.corners, found.image_size))
     return states
 
 

@@ -41,7 +41,8 @@ def load_rig(path: str | os.PathLike) -> Rig:
 def export_rig(rig: Rig | LensProfile | str | os.PathLike, path: str | os.PathLike, to: str | None = None, *,
                cameras: Sequence[str] | None = None, stmaps: bool = False,
                sensor_width_mm: float | None = None,
-               vignetting: Mapping[str, str | os.PathLike | FlatField] | None = None) -> ExportResult:
+               vignetting: Mapping[str, str | os.PathLike | FlatField] | None = None,
+               tca: Mapping[str, str | os.PathLike | Sequence[str | os.PathLike]] | None = None) -> ExportResult:
     """Write a rig for another tool (``camcal rig export``).
 
     opencv: ``.yaml`` / ``.yml`` / ``.xml`` FileStorage (one camera or a stereo
@@ -71,6 +72,8 @@ def export_rig(rig: Rig | LensProfile | str | os.PathLike, path: str | os.PathLi
     vignetting : mapping of str to (path or FlatField), optional
         A lens profile's lensfun export: flat fields by the lens state they were shot at
         (``{"24mm@1.2m/f4": "flat24.json"}``, :func:`camcal.api.profile.export_profile`).
+    tca : mapping of str to (glob or image files), optional
+        A lens profile's lensfun export: colour board images by focal length (``{"24mm": "tca/24/*.png"}``).
 
     Returns
     -------
@@ -89,12 +92,12 @@ def export_rig(rig: Rig | LensProfile | str | os.PathLike, path: str | os.PathLi
     if isinstance(rig, LensProfile) or (not isinstance(rig, Rig) and os.fspath(rig).endswith(".profile.json")):
         from camcal.api.profile import export_profile
 
-        return export_profile(rig, path, to, sensor_width_mm=sensor_width_mm, vignetting=vignetting)
+        return export_profile(rig, path, to, sensor_width_mm=sensor_width_mm, vignetting=vignetting, tca=tca)
     from camcal.base.errors import CamcalError
 
-    if vignetting:
-        raise CamcalError("--vignetting applies to a lens profile's lensfun export (*.profile.json); a rig's lens "
-                          "gets one with camcal colour flatfield --lensfun")
+    if vignetting or tca:
+        raise CamcalError(f"{'--vignetting' if vignetting else '--tca'} applies to a lens profile's lensfun export "
+                          "(*.profile.json), not a rig")
 
     if to in ("lens-table", "opentrackio"):
         raise CamcalError(f"--to {to} exports a lens profile (*.profile.json, camcal calibrate profile), not a rig")

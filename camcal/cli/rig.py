@@ -44,6 +44,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                  "it was shot at, e.g. 24mm@1.2m/f4=flat24.json, written as a pa vignetting entry fitted about the "
                  "lens' centre (what it misses of the flat field printed); repeated or several entries; each state "
                  "inside the profile's calibrated range")
+    named_option(export, "--tca", "FOCALmm=GLOB",
+                 "a lens profile to lensfun: 8-bit colour images of the profile's board shot at a focal length, e.g. "
+                 "24mm='tca/24/*.png', its lateral chromatic aberration (red and blue against green, each corner "
+                 "found in every channel) written as a poly3 TCA entry about the lens' centre (the corners' residual "
+                 "printed); repeated or several entries")
     handler(export, _export, [
         "camcal rig export board.rig.json --to opencv board.yaml",
         "camcal rig export board.rig.json board.nk --camera left",
@@ -54,6 +59,8 @@ def register(parser: argparse.ArgumentParser) -> None:
         "# with the vignetting of grey cards shot at two lens states (colour flatfield --out)",
         "camcal rig export lens.profile.json lens.xml --to lensfun --vignetting 24mm@1.2m/f4=flat24.json "
         "70mm@inf/f4=flat70.json",
+        "# and the lateral chromatic aberration of colour board images at two focal lengths",
+        "camcal rig export lens.profile.json lens.xml --to lensfun --tca 24mm='tca/24/*.png' 70mm='tca/70/*.png'",
         "# a lens profile as OpenTrackIO lens samples, and as 3DEqualizer dynamic distortion",
         "camcal rig export lens.profile.json lens.json --to opentrackio --sensor-width 36",
         "camcal rig export lens.profile.json lens.txt --to 3de",
@@ -100,7 +107,8 @@ def _export(args: argparse.Namespace) -> int:
     nuke: .nk; 3de: a 3DEqualizer lens file (.txt, one camera; from a lens profile, its dynamic distortion over
     focal length and focus distance). A lens profile also goes to lens-table and opentrackio (OpenTrackIO lens
     samples, Brown-Conrady in mm on a sensor --sensor-width wide); to lensfun with the vignetting of flat fields
-    per lens state (--vignetting). A lens or skew the format cannot hold is
+    per lens state (--vignetting) and the lateral chromatic aberration of colour board images per focal length
+    (--tca). A lens or skew the format cannot hold is
     fitted with the nearest model it holds and its pixel residual is printed (for the 3DEqualizer models:
     max and RMS inside the image and over a 1.25 overscan border); exact conversions say so.
     """
@@ -111,7 +119,7 @@ def _export(args: argparse.Namespace) -> int:
 
     fmt = format_of(args.out, args.to)
     result = export_rig(args.rig, args.out, fmt, cameras=args.camera, stmaps=args.stmaps,
-                        sensor_width_mm=args.sensor_width, vignetting=args.vignetting)
+                        sensor_width_mm=args.sensor_width, vignetting=args.vignetting, tca=args.tca)
     _print_conversions(args, result.conversions, result.notes)
     for path in result.paths:
         summary_of(args).wrote(path, fmt if path == Path(args.out) or path.parent == Path(args.out) else "stmap")

@@ -218,6 +218,12 @@ class Board:
         """Number of corners with an id."""
         return len(self.object_points)
 
+    @property
+    def clear_fraction(self) -> float:
+        """The part of a square around a corner free of markers (1 on a chessboard, ``0.8 (square - marker) /
+        square`` on ChArUco): the corner refinement's window stays inside it."""
+        return 1.0 if self.kind != "charuco" else 0.8 * (self.square - self.marker) / self.square
+
     def charuco_board(self) -> cv2.aruco.CharucoBoard:
         """The OpenCV board object (ChArUco only)."""
         if self.kind != "charuco":
@@ -456,7 +462,7 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (5, 5), (-1, -1), _SUBPIX_CRITERIA)
         ids = ids.ravel().astype(np.int64)
         grid = np.stack([ids % (board.columns - 1), ids // (board.columns - 1)], axis=1)
-        corners, ok = _refine(gray, corners, grid, 0.8 * (board.square - board.marker) / board.square)
+        corners, ok = _refine(gray, corners, grid, board.clear_fraction)
         # on a steep view of small squares cornerSubPix can jump to a marker's corner (1.7 px off where OpenCV
         # 4.11's own corner was 0.3 px off): a corner it moved that far that the X-junction fit rejects
         # goes back to the detector's
@@ -492,7 +498,7 @@ def detect_board(board: Board, image: NDArray, name: str = "image") -> Detection
         spacing = min(np.linalg.norm(np.diff(grid, axis=axis), axis=2).min() for axis in (0, 1))
         half = int(np.clip(round(_SUBPIX_WINDOW_FRACTION * spacing), *_SUBPIX_WINDOW_PX))
         corners = cv2.cornerSubPix(gray, corners.astype(np.float32), (half, half), (-1, -1), _SUBPIX_CRITERIA)
-        refined, ok = _refine(gray, corners, grid_ids, 1.0)
+        refined, ok = _refine(gray, corners, grid_ids, board.clear_fraction)
         n_rejected = int(np.count_nonzero(~ok))
         if best is None or n_rejected < best[2]:
             best = (refined, which, n_rejected, factor)

@@ -3,8 +3,8 @@
 Lensfun (the lens correction library darktable, RawTherapee, Hugin and
 GIMP read) keeps lenses in XML files of ``<lens>`` entries; camcal writes
 one entry per camera (:func:`export`), or one lens at several focal lengths
-(:func:`export_states`, with a vignetting entry per flat field given,
-:mod:`camcal.io.lensfun_vignetting`)::
+(:func:`export_states`, with vignetting and TCA entries per lens state given,
+:mod:`camcal.io.lensfun_vignetting`, :mod:`camcal.io.lensfun_tca`)::
 
     <lensdatabase version="1">
       <lens>
@@ -110,8 +110,8 @@ from camcal.io.conversion import (
     refit_projection,
     select_cameras,
 )
-from camcal.io.lensfun_vignetting import (FittedVignetting, VignettingState, check_aspect, describe, vignetting_element,
-                                         vignetting_terms)
+from camcal.io.lensfun_tca import TCAState, add_tca, check_tca
+from camcal.io.lensfun_vignetting import VignettingState, add_vignetting, check_vignetting
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig
 
@@ -356,9 +356,9 @@ def _number(value: float) -> str:
     return f"{value:.9g}"
 
 
-def _lens_element(root: ElementTree.Element, name: str, maker: str, mount: str, lenses: Sequence[LensfunLens],
-                  vignetting: FittedVignetting = ()) -> None:
-    """One ``<lens>``: the first lens' centre, crop factor and aspect ratio, the distortion and vignetting entries."""
+def _lens_element(root: ElementTree.Element, name: str, maker: str, mount: str,
+                  lenses: Sequence[LensfunLens]) -> ElementTree.Element:
+    """One ``<lens>`` (the first lens' centre, crop and aspect ratio, every distortion entry); its calibration."""
     entry = ElementTree.SubElement(root, "lens")
     for tag, text in (("maker", maker), ("model", name), ("mount", mount)):
         ElementTree.SubElement(entry, tag).text = text
@@ -376,8 +376,7 @@ def _lens_element(root: ElementTree.Element, name: str, maker: str, mount: str, 
     for lens in lenses:
         ElementTree.SubElement(calibration, "real-focal-length", focal=_number(lens.focal_mm),
                                **{"real-focal": _number(lens.real_focal_mm)})
-    for state, terms in vignetting:
-        vignetting_element(calibration, state, terms)
+    return calibration
 
 
 def _conversion(camera: Camera, lens: LensfunLens, refit: Refit, refits: Mapping[str, Refit],
@@ -446,7 +445,7 @@ def export(rig: Rig, out: Path, *, cameras: Sequence[str] | None = None, rig_pat
 
 def export_states(states: Sequence[tuple[float, Camera]], out: Path, *, name: str, maker: str = "camcal",
                   mount: str = "Generic", sensor_width_mm: float | None = None,
-                  vignetting: Sequence[VignettingState] = ()) -> ExportResult:
+                  vignetting: Sequence[VignettingState] = (), tca: Sequence[TCAState] = ()) -> ExportResult:
     """Write one lens at several focal lengths (a zoom's states) as one Lensfun ``<lens>``.
 
     Parameters
@@ -460,8 +459,9 @@ def export_states(states: Sequence[tuple[float, Camera]], out: Path, *, name: st
         The lens' ``<model>``.
     maker, mount : str
     sensor_width_mm : float, optional
-    vignetting : sequence of VignettingState
-        Flat fields and their lens states: a ``pa`` entry each (:mod:`camcal.io.lensfun_vignetting`).
+    vignetting, tca : sequence of VignettingState, sequence of TCAState
+        Flat fields per lens state, a board's corners per channel per focal length: a ``pa`` vignetting entry
+        each, a ``poly3`` TCA entry each (:mod:`camcal.io.lensfun_vignetting`, :mod:`camcal.io.lensfun_tca`).
 
     Returns
     -------
@@ -469,7 +469,8 @@ def export_states(states: Sequence[tuple[float, Camera]], out: Path, *, name: st
         One conversion per state. Lensfun holds one distortion model and one
         lens centre per lens: the simplest model within 0.01 px of the best
         worst-state RMS, about the states' mean principal point (its drift
-        is part of the residual). A note per vignetting entry: what it misses.
+        is part of the residual). A note per vignetting and TCA entry: what
+        it misses.
     """
     _check_out(out)
     focals = [focal for focal, _ in states]
@@ -478,8 +479,9 @@ def export_states(states: Sequence[tuple[float, Camera]], out: Path, *, name: st
     sizes = {camera.image_size for _, camera in states}
     if len(sizes) != 1:
         raise CamcalError(f"the lens states have different image sizes: {sorted(sizes)}")
-    for entry in vignetting:
-        check_aspect(entry.flat, _aspect(next(iter(sizes))), f"vignetting at {entry.focal_mm:g} mm")
+    size = sizes.pop()
+    check_vignetting(vignetting, _aspect(size))
+    check_tca(tca, size)
     centre = np.mean([camera.K[:2, 2] for _, camera in states], axis=0)
     states = sorted(states, key=lambda state: state[0])
     fitted = [{model: fit_lens(camera, model, crop_factor(camera, sensor_width_mm), nominal_mm=focal, centre_px=centre)
@@ -496,11 +498,11 @@ def export_states(states: Sequence[tuple[float, Camera]], out: Path, *, name: st
                                        f" at {focal:g} mm")
         conversions.append(conversion)
         notes.append(note)
-    fitted_vignetting = [(entry, vignetting_terms(entry.flat, lenses[0].center)) for entry in vignetting]
-    notes.extend(describe(entry, terms) for entry, terms in fitted_vignetting)
     root = ElementTree.Element("lensdatabase", version="1")
-    _lens_element(root, name, maker, mount, lenses, fitted_vignetting)
-    _write(root, out, sizes.pop())
+    calibration = _lens_element(root, name, maker, mount, lenses)
+    notes += add_vignetting(calibration, vignetting, lenses[0].center)
+    notes += add_tca(calibration, tca, lenses[0].center, size)
+    _write(root, out, size)
     return ExportResult((out,), tuple(conversions), tuple(notes))
 
 

