@@ -41,7 +41,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                            "this command's for another lens state) gets the entry added, fitted about its centre")
     lens.add_argument("--focal-mm", type=float, metavar="F", help="focal length in mm")
     lens.add_argument("--aperture", type=float, metavar="N", help="f-number")
-    lens.add_argument("--distance-m", type=float, metavar="D", help="focus distance in metres")
+    lens.add_argument("--distance-m", type=float, metavar="D",
+                      help="focus distance in metres (inf: written as 1000, as Lensfun's own calibration tool does)")
     lens.add_argument("--lens-name", default="camcal flat field", metavar="NAME",
                       help="the lens' model name (default: %(default)s)")
     lens.add_argument("--sensor-width-mm", type=float, metavar="MM",
