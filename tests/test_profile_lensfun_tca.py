@@ -142,6 +142,7 @@ def test_lensfun_moves_red_and_blue_where_the_rendered_lens_put_them(profile, tc
                         f"24mm={tca_images}"], capsys)
     assert code == 0 and (tmp_path / "api.xml").read_bytes() == (tmp_path / "cli.xml").read_bytes()
     [note] = [note for note in result.notes if note.startswith("TCA at 24 mm")]
+    assert " corners in 6 / 6 images: poly3 red v " in note
     assert f"note: {note}" in out
     [entry] = ElementTree.parse(tmp_path / "cli.xml").getroot().findall("lens/calibration/tca")
     assert entry.get("model") == "poly3" and entry.get("focal") == "24"

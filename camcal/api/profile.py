@@ -499,7 +499,7 @@ def _tca_states(profile: LensProfile, images: Mapping[str, CameraInputs]) -> lis
             raise CamcalError(f"--tca {key}: expected FOCALmm inside the profile's calibrated range "
                               f"({_focal_text(profile)}), e.g. {low:g}mm")
         found = channel_corners_from_files(value, parse_board(profile.board), option="--tca", name=key)
-        states.append(TCAState(focal, found.corners, found.image_size))
+        states.append(TCAState(focal, found.corners, found.image_size, f"{found.n_used} / {found.n_images} images"))
     return states
 
 

@@ -63,12 +63,6 @@ class LateralCA:
     max_px: NDArray[np.float64]
     n_corners: int
 
-    def scale(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``v + c r + b r^2`` of red and blue at normalised radii ``r``: ``(N, 2)``."""
-        r = np.asarray(r, dtype=np.float64)[:, None]
-        terms = np.stack([self.red, self.blue])
-        return terms[:, 0] + r * (terms[:, 1] + r * terms[:, 2])
-
 
 def channel_corners(RGB: NDArray, board: Board, detection: Detection) -> tuple[NDArray[np.float64], NDArray]:
     """The detection's corners found again in each channel of the colour image: ``(N, 3, 2)`` in R, G, B order and

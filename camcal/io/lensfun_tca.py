@@ -39,11 +39,14 @@ class TCAState:
     corners : ndarray, shape (N, 3, 2)
         Each corner in the red, green and blue channel (pixels).
     image_size : (int, int)
+    found_in : str
+        Where the board was found (``"6 / 6 images"``), for the note.
     """
 
     focal_mm: float
     corners: NDArray[np.float64]
     image_size: tuple[int, int]
+    found_in: str = ""
 
 
 def check_tca(states: Sequence[TCAState], image_size: tuple[int, int]) -> None:
@@ -74,8 +77,10 @@ def add_tca(calibration: ElementTree.Element, states: Sequence[TCAState], center
         terms = {f"{name}{channel}": _number(value) for channel, values in (("r", fit.red), ("b", fit.blue))
                  for name, value in zip("vcb", values)}
         ElementTree.SubElement(calibration, "tca", model="poly3", focal=_number(state.focal_mm), **terms)
-        notes.append(f"TCA at {state.focal_mm:g} mm from {fit.n_corners} corners: poly3 red v {fit.red[0]:.6f} c "
-                     f"{fit.red[1]:.3g} b {fit.red[2]:.3g}, blue v {fit.blue[0]:.6f} c {fit.blue[1]:.3g} b "
-                     f"{fit.blue[2]:.3g}; residual RMS red {fit.rms_px[0]:.3f} px, blue {fit.rms_px[1]:.3f} px "
+        found_in = f" in {state.found_in}" if state.found_in else ""
+        notes.append(f"TCA at {state.focal_mm:g} mm from {fit.n_corners} corners{found_in}: poly3 red v "
+                     f"{fit.red[0]:.6f} c {fit.red[1]:.3g} b {fit.red[2]:.3g}, blue v {fit.blue[0]:.6f} c "
+                     f"{fit.blue[1]:.3g} b {fit.blue[2]:.3g}; residual RMS red {fit.rms_px[0]:.3f} px, blue "
+                     f"{fit.rms_px[1]:.3f} px "
                      f"(worst {fit.max_px.max():.3f} px)")
     return notes
