@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import html
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +18,7 @@ from camcal.base.errors import CamcalError
 from camcal.model.rig import Camera
 
 __all__ = [
-    "chessboard_texture", "pinhole_shot", "redistort_maps", "stage_render", "write_plate",
+    "chessboard_texture", "pinhole_shot", "redistort_maps", "render_board_views", "stage_render", "write_plate",
 ]
 
 
@@ -81,6 +81,54 @@ def write_plate(render: Path, maps, out: Path, bits: int) -> Path:
         if not cv2.imwrite(str(tmp), np.ascontiguousarray(codes[..., ::-1])):
             raise CamcalError(f"cannot write {out}")
     return out
+
+
+def render_board_views(board, views: Mapping[str, tuple[Camera, Sequence[tuple[NDArray, NDArray]]]], folder: Path,
+                       samples: int, seed: int = 7) -> dict[str, str]:
+    """Render chessboard views through each camera's exact lens: Cycles, then camcal's redistort map.
+
+    Each view is an undistorted pinhole render of the printed board (emissive, its texture sampled without
+    filtering, no depth of field) on the camera's overscan canvas (:func:`pinhole_shot`: Blender's
+    ``pixel_aspect_x`` / ``pixel_aspect_y`` carry a non-square pixel, e.g. an anamorphic squeeze), turned into
+    the camera's plate by one cubic remap through :func:`redistort_maps` and written as an 8-bit PNG.
+
+    Parameters
+    ----------
+    board : camcal.geometry.board.Board
+        The chessboard printed (its squares and one white square of margin).
+    views : mapping of str to (Camera, sequence of (R, t))
+        A label -> the camera (at the origin, ``R = I``, ``c = 0``) and the board's poses (``cam_from_board``).
+    folder : Path
+        Receives ``LABEL/vNN.png`` (one per pose, in order) and the render job under ``renders/``.
+    samples, seed : int
+        Cycles' samples a pixel and its seed.
+
+    Returns
+    -------
+    dict of str to str
+        Each label -> the glob of its images (``folder/LABEL/v*.png``).
+    """
+    from camcal.demo.blender_scene import render_shots  # noqa: PLC0415
+
+    renders = folder / "renders"
+    renders.mkdir(parents=True, exist_ok=True)
+    texture = chessboard_texture(board, renders / "chessboard.png")
+    outline = board_outline(board)
+    quads, shots, plates = [], [], []
+    for label, (camera, poses) in views.items():
+        for k, (R, t) in enumerate(poses):
+            name = f"{label}_{k:02d}"
+            # the camera sits at the origin looking down +z: the board's world corners are cam_from_board of it
+            quads.append({"name": name, "corners": (outline @ np.transpose(R) + t).tolist(), "texture": str(texture),
+                          "shader": "emission", "interpolation": "Closest"})
+            shots.append(pinhole_shot(camera, [name], renders / f"{name}.exr"))
+            plates.append((label, folder / label / f"v{k:02d}.png"))
+    exrs = render_shots({"samples": samples, "seed": seed, "quads": quads, "shots": shots, "suns": []}, renders)
+    maps = {label: redistort_maps(camera) for label, (camera, _) in views.items()}
+    for exr, (label, plate) in zip(exrs, plates):
+        write_plate(exr, maps[label], plate, 8)
+        exr.unlink()
+    return {label: str(folder / label / "v*.png") for label in views}
 
 
 def stage_render(ctx: DemoContext) -> StageResult:
