@@ -9,40 +9,38 @@ pixel, the bias the rendered anamorphic lens measured); the band-limited resampl
 under a quarter of that.
 """
 
+import cv2
 import numpy as np
 
 from camcal.demo.render import write_plate
 from camcal.geometry.board import Board, detect_board
 from camcal.io.stmap import write_exr
 
-import cv2
-
 BOARD = Board("chessboard", 9, 6, 1.0)
 SIZE = (320, 240)
 SQUARE_PX = 20.0
 ANGLE = np.radians(20.0)
+ROTATION = np.array([[np.cos(ANGLE), -np.sin(ANGLE)], [np.sin(ANGLE), np.cos(ANGLE)]])
+#: The inner corners' centre, in board units (one a square, corner (0, 0) at the origin) and in canvas pixels.
+MIDDLE = np.array([(BOARD.columns - 1) / 2, (BOARD.rows - 1) / 2])
 CENTRE = np.array([161.3, 118.6])
 SHIFT_PX = 0.25
 
 
 def board_to_pixels(points: np.ndarray) -> np.ndarray:
-    """Board units (one a square, the inner corners' centre at the frame's ``CENTRE``) -> canvas pixels."""
-    rotation = np.array([[np.cos(ANGLE), -np.sin(ANGLE)], [np.sin(ANGLE), np.cos(ANGLE)]])
-    middle = np.array([(BOARD.columns - 1) / 2, (BOARD.rows - 1) / 2])
-    return (points - middle) @ rotation.T * SQUARE_PX + CENTRE
+    """Board units -> canvas pixels."""
+    return (points - MIDDLE) @ ROTATION.T * SQUARE_PX + CENTRE
 
 
 def sharp_render() -> np.ndarray:
     """The board (one white square of margin, black around it) area-sampled by 4 x 4 points a pixel."""
-    rotation = np.array([[np.cos(ANGLE), -np.sin(ANGLE)], [np.sin(ANGLE), np.cos(ANGLE)]])
-    middle = np.array([(BOARD.columns - 1) / 2, (BOARD.rows - 1) / 2])
     offsets = (np.arange(4) + 0.5) / 4 - 0.5
     u, v = np.meshgrid(np.arange(SIZE[0], dtype=np.float64), np.arange(SIZE[1], dtype=np.float64))
     value = np.zeros(u.shape)
     for dy in offsets:
         for dx in offsets:
             pixels = np.stack([u + dx, v + dy], axis=-1) - CENTRE
-            x, y = np.moveaxis(pixels / SQUARE_PX @ rotation + middle, -1, 0)  # board units, corner (0, 0) at 0
+            x, y = np.moveaxis(pixels / SQUARE_PX @ ROTATION + MIDDLE, -1, 0)  # board units
             inside = (x > -2) & (x < BOARD.columns + 1) & (y > -2) & (y < BOARD.rows + 1)
             dark = ((np.floor(x) + np.floor(y)) % 2 == 0) & (x > -1) & (x < BOARD.columns) & (y > -1) & (y < BOARD.rows)
             value += inside & ~dark

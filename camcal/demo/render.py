@@ -5,6 +5,7 @@ from __future__ import annotations
 import html
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,6 +17,9 @@ from camcal.demo.truth import (
 )
 from camcal.base.errors import CamcalError
 from camcal.model.rig import Camera
+
+if TYPE_CHECKING:
+    from camcal.geometry.board import Board
 
 __all__ = [
     "chessboard_texture", "pinhole_shot", "redistort_maps", "render_board_views", "stage_render", "write_plate",
@@ -101,7 +105,7 @@ def write_plate(render: Path, maps, out: Path, bits: int, band_limit_px: float =
     return out
 
 
-def render_board_views(board, views: Mapping[str, tuple[Camera, Sequence[tuple[NDArray, NDArray]]]], folder: Path,
+def render_board_views(board: Board, views: Mapping[str, tuple[Camera, Sequence[tuple[NDArray, NDArray]]]], folder: Path,
                        samples: int, seed: int = 7, band_limit_px: float = 0.0) -> dict[str, str]:
     """Render chessboard views through each camera's exact lens: Cycles, then camcal's redistort map.
 

@@ -6,12 +6,12 @@ poses of ``test_zhang_anamorphic``, seeded blur and noise) in the fast test, and
 renders each view as an undistorted pinhole on an overscan canvas whose non-square pixels Blender's own
 ``pixel_aspect_x`` / ``pixel_aspect_y`` carry (no resampling for the squeeze), then camcal's exact redistort map
 applies the lens (:func:`camcal.demo.render.render_board_views`, the demo's renderer, with its band-limited
-resampling: one cubic remap of the sharp render shifts corners with the map's sub-pixel phase). The lens has every degree-2
-and degree-4 coefficient, a lens rotation and squeezes x / y away from 1; its pixel aspect (fy / fx of the pinhole
-the squeezes leave, ``fy sx / (fx sy)``: the squeezes scale the undistorted image along x and y) is 2. camcal
-detects the corners and calibrates with ``model="3de4-anamorphic-deg4"``; the squeeze must come back within 0.05 %,
-the held-out views' error at the floor the data allows (the same fit fed the true corners plus Gaussian noise of
-the detections' own spread), and the fitted parameters at the truth within their own covariance (the truth
+resampling: one cubic remap of the sharp render shifts corners with the map's sub-pixel phase). The lens has every
+degree-2 and degree-4 coefficient, a lens rotation and squeezes x / y away from 1; its pixel aspect (fy / fx of the
+pinhole the squeezes leave, ``fy sx / (fx sy)``: the squeezes scale the undistorted image along x and y) is 2.
+camcal detects the corners and calibrates with ``model="3de4-anamorphic-deg4"``; the squeeze must come back within
+0.05 %, the held-out views' error at the floor the data allows (the same fit fed the true corners plus Gaussian
+noise of the detections' own spread), and the fitted parameters at the truth within their own covariance (the truth
 expressed with the squeezes held at 1, as the fit holds them: a chi-square of the 15 parameters under its 99.9 %
 point, the lens rotation within 3.3 sigma). The calibrated rig then goes to Nuke (LDPK node, LensDistortion node)
 and to a 3DE lens file, and each read back distorts and undistorts a grid of pixels as the exported lens does, to
@@ -144,13 +144,10 @@ def chi_square(fit, expected: dict[str, float]) -> tuple[float, dict[str, float]
     return float(r @ np.linalg.solve(fit.covariance, r)), z
 
 
-def calibrate_export_read_back(truth: Camera, poses, pattern: str, holdout: list[int], tmp_path: Path) -> dict:
+def calibrate_export_read_back(truth: Camera, poses: list[tuple[np.ndarray, np.ndarray]], pattern: str,
+                               holdout: list[int], tmp_path: Path) -> None:
     """Calibrate the images of ``pattern`` (``*NN.png``: the view of ``poses[NN]``) with :data:`MODEL`, check the
-    figures of the module docstring against the truth and the floor, export to Nuke and 3DE, read each back.
-
-    Returns the figures printed (``squeeze_error``, ``heldout_px``, ``floor_heldout_px``, ``chi_square``,
-    ``floor_chi_square``, ``read_back_px``...).
-    """
+    figures of the module docstring against the truth and the floor, export to Nuke and 3DE, read each back."""
     size = truth.image_size
     result = camcal.calibrate_board({"ana": pattern}, BOARD, model=MODEL, holdout=holdout, cache=False,
                                     progress=False)
@@ -169,18 +166,16 @@ def calibrate_export_read_back(truth: Camera, poses, pattern: str, holdout: list
     chi2, z = chi_square(result.calibration, expected)
     floor_chi2, _ = chi_square(floor, expected)
     bound = float(scipy.stats.chi2.ppf(0.999, len(z)))
-    figures = {"sigma_px": sigma_px, "squeeze_error": squeeze / SQUEEZE - 1.0,
-               "floor_squeeze_error": floor_squeeze / SQUEEZE - 1.0, "heldout_px": result.heldout_rms_px,
-               "floor_heldout_px": floor.heldout_rms_px, "chi_square": chi2, "floor_chi_square": floor_chi2}
+    squeeze_error, floor_squeeze_error = squeeze / SQUEEZE - 1.0, floor_squeeze / SQUEEZE - 1.0
     print(f"{size[0]}x{size[1]}, {len(poses)} views ({len(holdout)} held out): detections {sigma_px:.4f} px per "
-          f"axis; squeeze {squeeze:.6f} (error {100 * figures['squeeze_error']:+.4f} %), lens rotation "
+          f"axis; squeeze {squeeze:.6f} (error {100 * squeeze_error:+.4f} %), lens rotation "
           f"{camera.distortion.params['lens_rotation_deg']:.4f} deg (truth {COEFFICIENTS['lens_rotation_deg']}); "
           f"training {result.rms_px:.4f} px, held out {result.heldout_rms_px:.4f} px; the floor (true corners + "
-          f"the same noise): squeeze error {100 * figures['floor_squeeze_error']:+.4f} %, training "
+          f"the same noise): squeeze error {100 * floor_squeeze_error:+.4f} %, training "
           f"{floor.rms_px:.4f} px, held out {floor.heldout_rms_px:.4f} px")
     print(f"against the truth, with the printed sigma: chi-square {chi2:.1f} of {len(z)} parameters (floor "
           f"{floor_chi2:.1f}; 99.9 % bound {bound:.1f}); z " + ", ".join(f"{name} {v:+.2f}" for name, v in z.items()))
-    assert abs(figures["squeeze_error"]) < 5e-4
+    assert abs(squeeze_error) < 5e-4
     assert camera.distortion.params["lens_rotation_deg"] == pytest.approx(COEFFICIENTS["lens_rotation_deg"], abs=0.02)
     assert result.heldout_rms_px < 1.3 * floor.heldout_rms_px
     assert chi2 < bound and abs(z["lens_rotation_deg"]) < 3.3
@@ -207,7 +202,6 @@ def calibrate_export_read_back(truth: Camera, poses, pattern: str, holdout: list
     print("read back, max over a grid (distort and undistort): "
           + ", ".join(f"{name} {worst:.2e} px" for name, worst in read_back.items()))
     assert max(read_back.values()) < 1e-9
-    return {**figures, "read_back_px": max(read_back.values())}
 
 
 def test_rendered_anamorphic_lens_calibrated_exported_and_read_back(tmp_path):
