@@ -49,8 +49,7 @@ from scipy.spatial.transform import Rotation
 
 import camcal
 from camcal.api.board import BoardCalibration
-from camcal.demo.blender_scene import render_shots
-from camcal.demo.render import chessboard_texture, pinhole_shot, redistort_maps, write_plate
+from camcal.demo.render import render_board_views
 from camcal.demo.truth import board_outline
 from camcal.geometry.board import Detection, detect_board, parse_board
 from camcal.geometry.lens_profile import camera_at, projection_sigma_px
@@ -235,25 +234,7 @@ def test_held_out_states_of_the_real_zoom_from_projected_corners():
 def render_states(folder: Path, states: dict[str, tuple[Camera, list]]) -> dict[str, str]:
     """Render each state's board views (Cycles, then the truth's lens by camcal's redistort map) into
     ``folder/LABEL/vNN.png``; returns the label -> glob of its images."""
-    renders = folder / "renders"
-    renders.mkdir(parents=True, exist_ok=True)
-    texture = chessboard_texture(BOARD, renders / "chessboard.png")
-    outline = board_outline(BOARD)
-    quads, shots, plates = [], [], []
-    for label, (camera, poses) in states.items():
-        for k, (R, t) in enumerate(poses):
-            name = f"{label}_{k:02d}"
-            # the camera sits at the origin looking down +z: the board's world corners are cam_from_board of it
-            quads.append({"name": name, "corners": (outline @ R.T + t).tolist(), "texture": str(texture),
-                          "shader": "emission", "interpolation": "Closest"})
-            shots.append(pinhole_shot(camera, [name], renders / f"{name}.exr"))
-            plates.append((label, folder / label / f"v{k:02d}.png"))
-    exrs = render_shots({"samples": SAMPLES, "seed": 7, "quads": quads, "shots": shots, "suns": []}, renders)
-    maps = {label: redistort_maps(camera) for label, (camera, _) in states.items()}
-    for exr, (label, plate) in zip(exrs, plates):
-        write_plate(exr, maps[label], plate, 8)
-        exr.unlink()
-    return {label: str(folder / label / "v*.png") for label in states}
+    return render_board_views(BOARD, states, folder, SAMPLES)
 
 
 def detected(pattern: str) -> list[Detection]:

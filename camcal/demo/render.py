@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import html
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,8 +18,11 @@ from camcal.demo.truth import (
 from camcal.base.errors import CamcalError
 from camcal.model.rig import Camera
 
+if TYPE_CHECKING:
+    from camcal.geometry.board import Board
+
 __all__ = [
-    "chessboard_texture", "pinhole_shot", "redistort_maps", "stage_render", "write_plate",
+    "chessboard_texture", "pinhole_shot", "redistort_maps", "render_board_views", "stage_render", "write_plate",
 ]
 
 
@@ -64,16 +68,34 @@ def redistort_maps(camera: Camera, overscan: float = OVERSCAN) -> tuple[NDArray[
     return (x + dx).astype(np.float32), (y + dy).astype(np.float32)
 
 
-def write_plate(render: Path, maps, out: Path, bits: int) -> Path:
-    """Apply the lens to a render (an EXR of :func:`pinhole_shot`, through :func:`redistort_maps`, one cubic remap)
-    and write it as a linear 8- or 16-bit PNG (atomically)."""
+def write_plate(render: Path, maps, out: Path, bits: int, band_limit_px: float = 0.0) -> Path:
+    """Apply the lens to a render (an EXR of :func:`pinhole_shot`, through :func:`redistort_maps`) and write it as
+    a linear 8- or 16-bit PNG (atomically).
+
+    ``band_limit_px = 0``: one cubic remap (OpenCV's, Keys' kernel with ``a = -0.75``). It shifts the sharp edges
+    of a render with the map's sub-pixel phase, which varies over the plate with the distortion: on a 2x
+    anamorphic 3DE lens, chessboard corners move by up to 0.02-0.04 px (``0.02-0.04 sin(2 pi phase)``), enough to
+    bias a calibrated lens beyond its sigma (docs/benchmarks.md, the rendered anamorphic lens). ``> 0``: the render
+    is first blurred by a Gaussian of that sigma (canvas pixels; 1 band-limits it), then resampled with a cubic
+    B-spline (``scipy.ndimage.map_coordinates``, order 3, its prefilter), whose phase error on such an image is
+    below 0.002 px.
+    """
     import cv2  # noqa: PLC0415
 
     from camcal.io.stmap import read_exr  # noqa: PLC0415
     from camcal.base.atomic import atomic_path  # noqa: PLC0415
 
     rgb = read_exr(render)[..., :3]
-    plate = np.clip(cv2.remap(rgb, maps[0], maps[1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT), 0.0, 1.0)
+    if band_limit_px > 0.0:
+        from scipy.ndimage import map_coordinates  # noqa: PLC0415
+
+        blurred = cv2.GaussianBlur(rgb.astype(np.float64), (0, 0), band_limit_px)
+        where = [maps[1].astype(np.float64), maps[0].astype(np.float64)]
+        plate = np.stack([map_coordinates(blurred[..., c], where, order=3, mode="constant", cval=0.0)
+                          for c in range(3)], axis=-1)
+    else:
+        plate = cv2.remap(rgb, maps[0], maps[1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT)
+    plate = np.clip(plate, 0.0, 1.0)
     top = 255 if bits == 8 else 65535
     codes = np.round(plate * top).astype(np.uint8 if bits == 8 else np.uint16)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -81,6 +103,57 @@ def write_plate(render: Path, maps, out: Path, bits: int) -> Path:
         if not cv2.imwrite(str(tmp), np.ascontiguousarray(codes[..., ::-1])):
             raise CamcalError(f"cannot write {out}")
     return out
+
+
+def render_board_views(board: Board, views: Mapping[str, tuple[Camera, Sequence[tuple[NDArray, NDArray]]]], folder: Path,
+                       samples: int, seed: int = 7, band_limit_px: float = 0.0) -> dict[str, str]:
+    """Render chessboard views through each camera's exact lens: Cycles, then camcal's redistort map.
+
+    Each view is an undistorted pinhole render of the printed board (emissive, its texture sampled without
+    filtering, no depth of field) on the camera's overscan canvas (:func:`pinhole_shot`: Blender's
+    ``pixel_aspect_x`` / ``pixel_aspect_y`` carry a non-square pixel, e.g. an anamorphic squeeze), turned into
+    the camera's plate through :func:`redistort_maps` (:func:`write_plate`) and written as an 8-bit PNG.
+
+    Parameters
+    ----------
+    board : camcal.geometry.board.Board
+        The chessboard printed (its squares and one white square of margin).
+    views : mapping of str to (Camera, sequence of (R, t))
+        A label -> the camera (at the origin, ``R = I``, ``c = 0``) and the board's poses (``cam_from_board``).
+    folder : Path
+        Receives ``LABEL/vNN.png`` (one per pose, in order) and the render job under ``renders/``.
+    samples, seed : int
+        Cycles' samples a pixel and its seed.
+    band_limit_px : float
+        :func:`write_plate`'s: 0 for one cubic remap, > 0 to blur the render by that sigma and resample it with a
+        cubic B-spline (no edge shift with the map's phase).
+
+    Returns
+    -------
+    dict of str to str
+        Each label -> the glob of its images (``folder/LABEL/v*.png``).
+    """
+    from camcal.demo.blender_scene import render_shots  # noqa: PLC0415
+
+    renders = folder / "renders"
+    renders.mkdir(parents=True, exist_ok=True)
+    texture = chessboard_texture(board, renders / "chessboard.png")
+    outline = board_outline(board)
+    quads, shots, plates = [], [], []
+    for label, (camera, poses) in views.items():
+        for k, (R, t) in enumerate(poses):
+            name = f"{label}_{k:02d}"
+            # the camera sits at the origin looking down +z: the board's world corners are cam_from_board of it
+            quads.append({"name": name, "corners": (outline @ np.transpose(R) + t).tolist(), "texture": str(texture),
+                          "shader": "emission", "interpolation": "Closest"})
+            shots.append(pinhole_shot(camera, [name], renders / f"{name}.exr"))
+            plates.append((label, folder / label / f"v{k:02d}.png"))
+    exrs = render_shots({"samples": samples, "seed": seed, "quads": quads, "shots": shots, "suns": []}, renders)
+    maps = {label: redistort_maps(camera) for label, (camera, _) in views.items()}
+    for exr, (label, plate) in zip(exrs, plates):
+        write_plate(exr, maps[label], plate, 8, band_limit_px)
+        exr.unlink()
+    return {label: str(folder / label / "v*.png") for label in views}
 
 
 def stage_render(ctx: DemoContext) -> StageResult:
