@@ -297,6 +297,7 @@ def solve(
     from camcal.pipelines.solve_world import world_spec
 
     folders = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(folder) for folder in folders]
+    shutter = shutter_spec(readout_ms, readout_flag_px, fps)
     if uncertainty not in UNCERTAINTY:
         raise CamcalError(f"unknown uncertainty {uncertainty!r}, expected one of: {', '.join(UNCERTAINTY)}")
     if frames is not None and not any(map(is_sequence_pattern, [*folders, *(images or {}).values()])):
@@ -321,7 +322,6 @@ def solve(
     if grid is not None and (model is not None or camera_model is not None):
         raise CamcalError("--intrinsics gives the lens: --model and --camera-model choose one, give one or the other")
     world = world_spec(up, origin, scale, units, world_board)
-    shutter = shutter_spec(readout_ms, readout_flag_px, fps)
     if features < 100:
         raise CamcalError(f"--features must be at least 100, got {features}")
     # auto (or nothing): choose among LENS_MODELS; a named model: only it; camera_model alone: keep it
