@@ -358,13 +358,13 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
     match(database, matching_options=matching, verification_options=verification_options(pycolmap, seed),
           device=pycolmap.Device.cpu)
-    loop_notes = []
+    stage_notes = []
     if matcher == "sequential" and loops == "auto":
         _say(progress, "loop closure: retrieving revisits")
         closure = close_loops(pycolmap, database, pycolmap.SequentialPairingOptions().overlap, matching,
                               verification_options(pycolmap, seed), seed)
         _say(progress, closure.line())
-        loop_notes.append(closure.line())
+        stage_notes.append(closure.line())
     check_parallax(pycolmap, database, len(staged))
     sparse = out_dir / "sparse"
     sparse.mkdir()
@@ -393,7 +393,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         models, mapping_note = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None)
     if mapping_note:
         _say(progress, mapping_note)
-        loop_notes.append(mapping_note)
+        stage_notes.append(mapping_note)
     if not models:
         raise CamcalError(why_nothing_registered(pycolmap, database, len(staged)))
     reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
@@ -401,7 +401,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     missing = unregistered_line([name for name in staged if name not in registered], staged)
     if missing and require_all:
         raise CamcalError(f"{missing} (--require-all)")
-    notes = ([missing] if missing else []) + loop_notes
+    notes = ([missing] if missing else []) + stage_notes
     bundle = calibration = None
     if refine:
         _say(progress, "bundle adjustment (camcal)")
