@@ -1,8 +1,8 @@
 """The rolling shutter's effect on each solved frame (``solve --readout-ms``): flagged frames, in the rig.
 
 After the solve, each camera's frames (in the order of their plate frame
-numbers, the last number in each image's name; the rig's frame index
-without one) are timed at ``number * frame_interval`` and their velocities
+numbers, the last number in each image's name; the rig's frame order when
+a name has none or two share one, said) are timed at ``number * frame_interval`` and their velocities
 taken from their solved neighbours; the points each image observes (its
 COLMAP observations) give the displacement
 (:func:`camcal.geometry.rolling_shutter.rolling_shutter_frames`). Each frame
@@ -101,15 +101,15 @@ def check_rolling_shutter(reconstruction, rig: Rig, colmap_names: dict[str, str]
     checks: dict[int, dict[str, ShutterCheck]] = {frame.index: {} for frame in rig.frames}
     flagged: dict[str, list[int]] = {}
     largest = (0.0, "", 0)
+    untimed: list[str] = []
     for camera in rig.cameras:
-        timed = []
-        for frame in rig.frames:
-            if camera.name not in frame.images:
-                continue
-            path = frame.images[camera.name]
-            number = plate_frame_number(Path(path))
-            timed.append((frame.index if number is None else number, frame.index, colmap_names[path]))
-        timed.sort()
+        mine = [frame for frame in rig.frames if camera.name in frame.images]
+        numbers = [plate_frame_number(Path(frame.images[camera.name])) for frame in mine]
+        if None in numbers or len(set(numbers)) != len(numbers):  # no frame numbers to time by: the rig's order
+            numbers = [frame.index for frame in mine]
+            untimed.append(camera.name)
+        timed = sorted((number, frame.index, colmap_names[frame.images[camera.name]])
+                       for number, frame in zip(numbers, mine))
         if not timed:
             continue
         posed = [rig.camera_at_frame(camera.name, index) for _, index, _ in timed]
@@ -134,6 +134,9 @@ def check_rolling_shutter(reconstruction, rig: Rig, colmap_names: dict[str, str]
         parts = [f"{name} frames {', '.join(frame_runs(sorted(numbers)))} ({len(numbers)})"
                  for name, numbers in flagged.items()]
         line = f"{head}: flagged {'; '.join(parts)}; {worst}"
+    if untimed:
+        line += (f" ({', '.join(untimed)}: the image names carry no distinct frame numbers, so the frames were timed "
+                 "by their order, one frame interval apart)")
     return dataclasses.replace(rig, frames=frames, provenance=provenance), [line]
 
 
