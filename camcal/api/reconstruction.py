@@ -174,6 +174,9 @@ def solve(
     scale: str | None = None,
     units: str | None = None,
     world_board: str | None = None,
+    readout_ms: float | str | None = None,
+    readout_flag_px: float = 1.0,
+    fps: float | None = None,
     seed: int = 0,
     verbose: bool = False,
     progress: bool | Callable[[str], None] = True,
@@ -257,6 +260,16 @@ def solve(
         24 registered images, its corners triangulated from the solved cameras, it sets the world: its plane the
         ground (+z towards the cameras), its first inner corner the origin, +x along its columns, its squares
         the scale. Not with ``up``, ``origin`` or ``scale``.
+    readout_ms : float or "typical", optional
+        The camera's rolling-shutter readout time (top row to bottom row, ms; ``"typical"``: 30 ms, a consumer
+        camera's): each solved frame's points are moved by the camera's motion during the readout (velocities
+        from the neighbouring frames, :mod:`camcal.geometry.rolling_shutter`); the largest displacement is
+        stored per frame and camera in the rig (``frames[i].rolling_shutter``) and the frames above
+        ``readout_flag_px`` are named in a line. Default: no check (a global shutter assumed).
+    readout_flag_px : float
+        The displacement (px) above which a frame is flagged.
+    fps : float, optional
+        The plate's frame rate, which times the frames for the velocities (default: a movie's own, else 24).
     seed : int
         Seeds every random choice: the same images and options give the same rig.
     verbose : bool
@@ -280,9 +293,11 @@ def solve(
     from camcal.model.rig import Rig
     from camcal.pipelines.solve import collect_images, solve_pycolmap_plain, solve_sfm
     from camcal.pipelines.solve_lens import LENS_MODES
+    from camcal.pipelines.solve_shutter import shutter_spec
     from camcal.pipelines.solve_world import world_spec
 
     folders = [Path(folders)] if isinstance(folders, (str, os.PathLike)) else [Path(folder) for folder in folders]
+    shutter = shutter_spec(readout_ms, readout_flag_px, fps)
     if uncertainty not in UNCERTAINTY:
         raise CamcalError(f"unknown uncertainty {uncertainty!r}, expected one of: {', '.join(UNCERTAINTY)}")
     if frames is not None and not any(map(is_sequence_pattern, [*folders, *(images or {}).values()])):
@@ -325,7 +340,7 @@ def solve(
                        guided_matching=guided_matching, every=every, masks=mattes, progress=say, intrinsics=grid,
                        intrinsics_mode=intrinsics_mode,
                        intrinsics_source=str(intrinsics) if grid is not None and not isinstance(intrinsics, Rig)
-                       else "the grid", world=world, require_all=require_all)
+                       else "the grid", world=world, require_all=require_all, rolling_shutter=shutter)
     peer = (solve_pycolmap_plain(found, out / "pycolmap", seed=seed, verbose=verbose, every=every)
             if compare_pycolmap else None)
     return Solve(result, out, peer)

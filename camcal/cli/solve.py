@@ -101,6 +101,19 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "(default: m)")
     only_with(parser, "--units", "--scale or --world-board",
               lambda args: args.scale is not None or args.world_board is not None)
+    parser.add_argument("--readout-ms", metavar="MS|typical",
+                        help="the camera's rolling-shutter readout time, top row to bottom row, in ms (typical: 30, a "
+                        "consumer camera's): after the solve, each frame's points are moved by the camera's motion "
+                        "during the readout (its speed and turn from the neighbouring frames), the largest move is "
+                        "stored per frame in the rig and frames above --readout-flag-px are named (default: no "
+                        "check, a global shutter)")
+    parser.add_argument("--readout-flag-px", type=float, metavar="PX",
+                        help="flag frames whose points move more than this during the readout (default: 1.0)")
+    only_with(parser, "--readout-flag-px", "--readout-ms", lambda args: args.readout_ms is not None, default=1.0)
+    parser.add_argument("--fps", type=float, metavar="FPS",
+                        help="the plate's frame rate, which times the frames for the rolling-shutter check "
+                        "(default: a movie's own, else 24)")
+    only_with(parser, "--fps", "--readout-ms", lambda args: args.readout_ms is not None)
     loss_option(parser, "robust loss of camcal's bundle adjustment (scale 1 px; default: %(default)s)")
     parser.add_argument("--no-refine", action="store_true", help="keep pycolmap's result, skip camcal's refinement")
     parser.add_argument("--compare-pycolmap", action="store_true",
@@ -126,6 +139,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         "--out solve",
         "# a handheld shot that comes back to where it started, matched by frame order, no loop closure",
         "camcal solve plates/walk.%04d.png --matcher sequential --loops off --out solve",
+        "# driving footage from a phone: frames whose motion during a 30 ms readout moves points over 2 px flagged",
+        "camcal solve drive/frame.%06d.png --matcher sequential --intrinsics phone.rig.json --readout-ms 30 "
+        "--readout-flag-px 2 --fps 30 --out solve",
         "# the world set on a 9x6 chessboard of 4 cm squares lying on the set's floor",
         "camcal solve plates/shot.%04d.exr --frames 1001-1240 --matcher sequential --world-board chessboard:9x6:0.04 "
         "--out solve",
@@ -157,7 +173,8 @@ def _solve(args: argparse.Namespace) -> int:
                    matcher=args.matcher, loops=args.loops, mapper=args.mapper, loss=args.loss,
                    refine=not args.no_refine, compare_pycolmap=args.compare_pycolmap, intrinsics=args.intrinsics,
                    intrinsics_mode=args.intrinsics_mode, require_all=args.require_all, up=args.up, origin=args.origin,
-                   scale=args.scale, units=args.units, world_board=args.world_board, seed=args.seed,
+                   scale=args.scale, units=args.units, world_board=args.world_board, readout_ms=args.readout_ms,
+                   readout_flag_px=args.readout_flag_px, fps=args.fps, seed=args.seed,
                    verbose=args.verbose)
     report_result(args, result, say=False)
     return 0

@@ -5,7 +5,7 @@ The rig file is the one hand-off between camcal's parts (DESIGN.md)::
     {"format": "camcal.rig", "version": 1, "units": "m",
      "cameras": [{"name", "image_size", "K", "distortion", "R", "c",
                   "sensor_width_mm"?, "rectification"?, "quality"?}, ...],
-     "frames": [{"index", "R", "c", "images"?, "lenses"?}, ...],
+     "frames": [{"index", "R", "c", "images"?, "lenses"?, "rolling_shutter"?}, ...],
      "points": null | "points.ply",
      "provenance": {"tool", "method", "created", ...}}   (optional: "unknown")
 
@@ -322,6 +322,10 @@ class Rig(DictEquality):
                     raise CamcalError(f"frame {frame.index} has a lens for unknown camera {name!r}; "
                                       f"the rig has: {', '.join(names)}")
                 _check_frame_lens(cameras[names.index(name)], lens, f"frame {frame.index} lens of {name!r}")
+            unknown = sorted(set(frame.rolling_shutter) - set(names))
+            if unknown:
+                raise CamcalError(f"frame {frame.index} has a rolling-shutter check of unknown camera(s): "
+                                  f"{', '.join(unknown)}")
         object.__setattr__(self, "frames", frames)
         if self.points is not None and (not isinstance(self.points, str) or not self.points):
             raise CamcalError(f"points must be null or a file name, got {self.points!r}")

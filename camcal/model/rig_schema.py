@@ -169,8 +169,22 @@ def _build() -> dict:
                 "lenses": {"type": "object", "additionalProperties": {"$ref": "#/$defs/lens"},
                            "description": "Camera name -> its lens at this frame (a zoom, a refocus); "
                                           "cameras absent keep their own."},
+                "rolling_shutter": {"type": "object", "additionalProperties": {"$ref": "#/$defs/shutter_check"},
+                                    "description": "Camera name -> the rolling shutter's effect at this frame "
+                                                   "(a solve given a readout time)."},
             },
             "required": ["index", "R", "c"],
+            "additionalProperties": False,
+        },
+        "shutter_check": {
+            "type": "object",
+            "description": ("The largest image displacement (px) of a frame's points between their row's readout "
+                            "time and the frame's time, and whether it passed the solve's threshold."),
+            "properties": {
+                "displacement_px": {"type": "number", "minimum": 0},
+                "flagged": {"type": "boolean"},
+            },
+            "required": ["displacement_px", "flagged"],
             "additionalProperties": False,
         },
         "lens": {

@@ -67,6 +67,7 @@ from camcal.pipelines.solve_inputs import (check_one_size_per_camera, collect_im
 from camcal.pipelines.solve_lens import GridLens, drift_lines, grid_lens, hold_in_database, lens_priors
 from camcal.pipelines.solve_loops import LOOP_MODES, close_loops
 from camcal.pipelines.solve_plain import PycolmapPeer, solve_pycolmap_plain
+from camcal.pipelines.solve_shutter import DEFAULT_FPS, ShutterSpec, check_rolling_shutter
 from camcal.pipelines.solve_world import WorldSpec, align_world, board_world, scaled_translations
 
 __all__ = [
@@ -152,6 +153,7 @@ def solve_sfm(
     world: WorldSpec | None = None,
     require_all: bool = False,
     loops: str = "auto",
+    rolling_shutter: ShutterSpec | None = None,
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -250,6 +252,11 @@ def solve_sfm(
     require_all : bool
         An image that cannot be registered is an error (nothing is written)
         instead of a line naming it.
+    rolling_shutter : ShutterSpec, optional
+        A readout time: each solved frame's rolling-shutter displacement is
+        computed, stored in the rig's frames and frames above the threshold
+        named (:mod:`camcal.pipelines.solve_shutter`); the frame rate is the
+        spec's, else a movie's own, else 24.
 
     Returns
     -------
@@ -284,6 +291,11 @@ def solve_sfm(
         where = "; ".join(f"{name}: " + (f"folder {value}" if isinstance(value, (str, os.PathLike)) else
                                           ", ".join(map(str, value)) or "no file") for name, value in folders.items())
         raise CamcalError(f"need at least 2 images, got {n_images} ({where})")
+    shutter = None
+    if rolling_shutter is not None:
+        movies = [video for video in videos.values() if video is not None]
+        fps = rolling_shutter.fps or (video_info(movies[0]).fps if movies else DEFAULT_FPS)
+        shutter = (rolling_shutter, (every if movies else 1) / fps, fps)
     target = Path(out_dir)
     remove_stale_temporaries([target])  # the staging folder of a killed earlier run
     with atomic_dir(target, replace=OWNED + (COLMAP_LOG,)) as staging:
@@ -293,7 +305,7 @@ def solve_sfm(
                                jackknife, guided_matching, priors, every, masks or {},
                                intrinsics=None if intrinsics is None else (intrinsics, intrinsics_mode,
                                                                            intrinsics_source),
-                               world=world, require_all=require_all, loops=loops)
+                               world=world, require_all=require_all, loops=loops, shutter=shutter)
     return dataclasses.replace(result, reconstruction_dir=final_path(result.reconstruction_dir, staging, target))
 
 
@@ -301,7 +313,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
               known_rig, loss, lens_models, principal_point, max_num_features, progress, jackknife,
               guided_matching: bool, priors: tuple[PriorSpec, ...], every: int = 1,
               masks: dict[str, list[Path]] | None = None, intrinsics: tuple[Rig, str, str] | None = None,
-              world: WorldSpec | None = None, require_all: bool = False, loops: str = "auto") -> SfmResult:
+              world: WorldSpec | None = None, require_all: bool = False, loops: str = "auto",
+              shutter: tuple[ShutterSpec, float, float] | None = None) -> SfmResult:
     """:func:`solve_sfm`'s work inside its (temporary) output folder, COLMAP's output captured."""
     image_dir = out_dir / "images"
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
@@ -345,18 +358,18 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
     match(database, matching_options=matching, verification_options=verification_options(pycolmap, seed),
           device=pycolmap.Device.cpu)
-    loop_notes = []
+    stage_notes = []
     if matcher == "sequential" and loops == "auto":
         _say(progress, "loop closure: retrieving revisits")
         closure = close_loops(pycolmap, database, pycolmap.SequentialPairingOptions().overlap, matching,
                               verification_options(pycolmap, seed), seed)
         _say(progress, closure.line())
-        loop_notes.append(closure.line())
+        stage_notes.append(closure.line())
     check_parallax(pycolmap, database, len(staged))
     sparse = out_dir / "sparse"
     sparse.mkdir()
     _say(progress, f"mapping ({mapper})")
-    models = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None)
+    models, mapping_note = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None)
     if len(folders) > 1 and models:
         # COLMAP needs sensor_from_rig to start a rig-constrained mapping: take it
         # from an unconstrained first pass, then map again with the rig.
@@ -377,7 +390,10 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         shutil.rmtree(sparse)
         sparse.mkdir()
         _say(progress, f"mapping ({mapper}) with the rig constraint")
-        models = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None)
+        models, mapping_note = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None)
+    if mapping_note:
+        _say(progress, mapping_note)
+        stage_notes.append(mapping_note)
     if not models:
         raise CamcalError(why_nothing_registered(pycolmap, database, len(staged)))
     reconstruction = max(models.values(), key=lambda r: r.num_reg_images())
@@ -385,7 +401,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     missing = unregistered_line([name for name in staged if name not in registered], staged)
     if missing and require_all:
         raise CamcalError(f"{missing} (--require-all)")
-    notes = ([missing] if missing else []) + loop_notes
+    notes = ([missing] if missing else []) + stage_notes
     bundle = calibration = None
     if refine:
         _say(progress, "bundle adjustment (camcal)")
@@ -432,10 +448,13 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     originals = {name: Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
                  for name, path in staged.items()}
     result = _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle, calibration,
-                        seed, lens, world_scale)
+                        seed, lens, world_scale, shutter)
+    for line in result.notes:
+        _say(progress, line)
     if lens is not None and lens.mode == "prior":
         notes += drift_lines(lens, {camera.name: camera for camera in result.rig.cameras})
-    return dataclasses.replace(result, notes=tuple(([*lens.lines] if lens is not None else []) + notes))
+    return dataclasses.replace(result, notes=tuple(([*lens.lines] if lens is not None else []) + notes
+                                                   + list(result.notes)))
 
 
 def _refine_with_lens(reconstruction, names: dict[int, str], state, options: BundleOptions, lens: GridLens,
@@ -490,7 +509,7 @@ def _set_world(pycolmap, reconstruction, camera_names: list[str], world: WorldSp
 def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir: Path,
                originals: dict[str, str], units: str, bundle: BundleResult | None,
                calibration: SelfCalibration | None, seed: int, lens: GridLens | None = None,
-               world_scale: float = 1.0) -> SfmResult:
+               world_scale: float = 1.0, shutter: tuple[ShutterSpec, float, float] | None = None) -> SfmResult:
     """Convert a pycolmap reconstruction with one rig into camcal's Rig; write its points and the rig.
 
     ``originals`` maps every staged image name (COLMAP's) to the user's
@@ -498,7 +517,8 @@ def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir
     provenance records the seed. A lens held from the grid is written as the
     grid has it (its model and terms); refined under its prior, under the
     grid's model name. ``world_scale``: the world was scaled after the bundle
-    adjustment, and the covariance of translations is scaled with it.
+    adjustment, and the covariance of translations is scaled with it. ``shutter``: the readout to check each
+    frame with, the seconds between frame numbers and the frame rate (the lines it says become the notes).
     """
     points_path = out_dir / "points.ply"
     model = sparse_model(reconstruction, camera_names, originals, units, bundle, calibration, points_path.name,
@@ -508,6 +528,10 @@ def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir
     if lens is not None:
         rig = dataclasses.replace(rig, cameras=tuple(_as_grid_lens(camera, lens) for camera in rig.cameras),
                                   provenance={**rig.provenance, "intrinsics": list(lens.lines)})
+    shutter_lines = []
+    if shutter is not None:
+        rig, shutter_lines = check_rolling_shutter(reconstruction, rig, {path: name for name, path in originals.items()},
+                                                   *shutter)
     write_points_ply(points_path, model.xyz, model.colours, model.track_lengths)
     rig.save(out_dir / "solve.rig.json")
     return SfmResult(
@@ -521,6 +545,7 @@ def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir
         reconstruction_dir=model_dir,
         bundle=bundle,
         self_calibration=calibration,
+        notes=tuple(shutter_lines),
     )
 
 

@@ -13,6 +13,7 @@ CVPR.
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 from camcal.base.errors import CamcalError
@@ -112,28 +113,75 @@ def verification_options(pycolmap, seed: int):
 
 
 def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, seed: int,
-               hold_intrinsics: bool = False) -> dict:
+               hold_intrinsics: bool = False) -> tuple[dict, str]:
     """COLMAP's mapping, seeded and on one thread (multi-threaded Ceres sums in the order threads finish).
 
     ``hold_intrinsics``: the mapper's bundle adjustments keep the cameras' intrinsics as the database has them
     (a lens known from a grid, :mod:`camcal.pipelines.solve_lens`).
+
+    The incremental mapper never starts from a pair whose relative translation points along the view by more
+    than ``init_max_forward_motion`` (0.95 of its length), and its relaxations lower the inliers and the
+    triangulation angle it asks of the first pair, never that bound: on footage that moves forward
+    (driving, walking down a corridor) no pair can start a model, and nothing is registered. When the first
+    run leaves images unregistered, the mapper runs again allowing a forward-moving first pair (the
+    triangulation-angle bound still keeps a degenerate one out), and the run that registers more images is
+    kept (the first on a tie).
+
+    Returns
+    -------
+    models : dict
+        COLMAP's reconstructions by index (written under ``sparse``).
+    note : str
+        What was done beyond one plain run (the forward-motion retry and its outcome), else empty.
     """
     pycolmap.set_random_seed(seed)
-    if mapper == "incremental":
-        options = pycolmap.IncrementalPipelineOptions()
+    if mapper == "global":
+        options = pycolmap.GlobalPipelineOptions()
         options.random_seed = seed
         options.num_threads = 1
         if hold_intrinsics:
-            options.ba_refine_focal_length = options.ba_refine_extra_params = False
-            options.ba_refine_principal_point = False
-        return pycolmap.incremental_mapping(database, image_dir, sparse, options=options)
-    options = pycolmap.GlobalPipelineOptions()
+            adjustment = options.mapper.bundle_adjustment
+            adjustment.refine_focal_length = adjustment.refine_extra_params = adjustment.refine_principal_point = False
+        return pycolmap.global_mapping(database, image_dir, sparse, options=options), ""
+    options = pycolmap.IncrementalPipelineOptions()
     options.random_seed = seed
     options.num_threads = 1
     if hold_intrinsics:
-        adjustment = options.mapper.bundle_adjustment
-        adjustment.refine_focal_length = adjustment.refine_extra_params = adjustment.refine_principal_point = False
-    return pycolmap.global_mapping(database, image_dir, sparse, options=options)
+        options.ba_refine_focal_length = options.ba_refine_extra_params = False
+        options.ba_refine_principal_point = False
+    models = pycolmap.incremental_mapping(database, image_dir, sparse, options=options)
+    n_images = _image_count(pycolmap, database)
+    first = _most_registered(models)
+    if first >= n_images:
+        return models, ""
+    retry = sparse.with_name(sparse.name + ".forward")
+    retry.mkdir()
+    options.mapper.init_max_forward_motion = 1.0
+    pycolmap.set_random_seed(seed)
+    forward = pycolmap.incremental_mapping(database, image_dir, retry, options=options)
+    second = _most_registered(forward)
+    note = (f"the mapper registered {first} of {n_images} images; started again from a pair that may move along "
+            f"its view (forward motion): {second}")
+    if second <= first:
+        shutil.rmtree(retry)
+        return models, note + ", the first run kept"
+    shutil.rmtree(sparse)
+    retry.rename(sparse)
+    return forward, note + ", kept"
+
+
+def _most_registered(models: dict) -> int:
+    """The registered images of the largest of COLMAP's ``models`` (0 for none)."""
+    return max((model.num_reg_images() for model in models.values()), default=0)
+
+
+def _image_count(pycolmap, database: Path) -> int:
+    """The images in a COLMAP ``database``."""
+    db = pycolmap.Database.open(database)
+    try:
+        return db.num_images()
+    finally:
+        db.close()
 
 
 #: a pair of images counts as matched with at least this many verified matches.

@@ -11,6 +11,7 @@ from camcal.base.errors import CamcalError
 from camcal.model.camera import look_at
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Frame, Lens, Rectification, Rig, make_provenance
+from camcal.model.rig_frames import ShutterCheck
 from camcal.synthetic import example_camera, points_in_view
 
 
@@ -105,6 +106,24 @@ def test_lens_state_is_optional_and_round_trips():
     assert bare.to_dict().keys() == {"K", "distortion"}
     assert Lens.from_dict(ZOOMED.to_dict()) == ZOOMED and Lens.from_dict(bare.to_dict()) == bare
     assert ZOOMED.to_dict()["focal_mm"] == 42.5 and ZOOMED.to_dict()["focus_m"] == 3.0
+
+
+def test_rolling_shutter_checks_round_trip_and_bad_ones_are_named():
+    rig = stereo_rig()
+    frames = (dataclasses.replace(rig.frames[0], rolling_shutter={"left": ShutterCheck(3.25, True),
+                                                                  "right": ShutterCheck(0.5, False)}),
+              *rig.frames[1:])
+    checked = dataclasses.replace(rig, frames=frames)
+    again = Rig.from_dict(json.loads(json.dumps(checked.to_dict())))
+    assert again == checked and again.frames[0].rolling_shutter["left"].displacement_px == 3.25
+    assert "rolling_shutter" not in again.frames[1].to_dict()
+    data = checked.to_dict()
+    data["frames"][0]["rolling_shutter"]["left"]["displacement_px"] = -1.0
+    with pytest.raises(CamcalError, match=r"rolling_shutter\['left'\]: displacement_px must be a number >= 0"):
+        Rig.from_dict(data)
+    data["frames"][0]["rolling_shutter"] = {"middle": {"displacement_px": 1.0, "flagged": False}}
+    with pytest.raises(CamcalError, match="rolling-shutter check of unknown camera"):
+        Rig.from_dict(data)
 
 
 def test_rig_show_counts_frames_with_a_lens():

@@ -13,6 +13,7 @@ from camcal.cli import main
 from camcal.model.distortion import MODEL_PARAMS, Distortion
 from camcal.model.quality import ParameterCovariance, Quality
 from camcal.model.rig import Camera, Frame, Lens, Rectification, Rig, make_provenance
+from camcal.model.rig_frames import ShutterCheck
 from camcal.model.rig_schema import RIG_SCHEMA, rig_schema_json, validate_rig_dict
 from camcal.model.spline import SplineField
 
@@ -54,7 +55,8 @@ def full_rig() -> Rig:
     zoomed = {"cam3": Lens(_K(fx=760.0, fy=758.0), Distortion("division", {"lambda": -1e-7}), 50.0, 2.5),
               "cam2": Lens(_K(cx=318.0), cameras[2].distortion)}
     frames = (Frame(0, np.eye(3), [0.0, 0.0, 0.0], {"cam0": "a.png"}),
-              Frame(1, _rotation(5.0), [0.0, 0.1, 0.0], lenses=zoomed))
+              Frame(1, _rotation(5.0), [0.0, 0.1, 0.0], lenses=zoomed,
+                    rolling_shutter={"cam0": ShutterCheck(2.5, True)}))
     shape = {"surface": "legendre", "degree": 2, "centre": [4.0, 2.5], "half_size": [4.0, 2.5],
              "coefficients": [[2, 0, 0.01], [1, 1, -0.02]], "in_plane": [[2, 0, 0.001, 0.0]]}
     return Rig(tuple(cameras), units="m", frames=frames, points="points.ply",

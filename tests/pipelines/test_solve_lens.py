@@ -180,3 +180,42 @@ def test_the_lens_from_a_grid_calibration_is_no_worse_than_the_true_lens_held(tm
     for label in ("grid", "prior"):
         assert errors[label][0] <= 2.0 * errors["true"][0] + 1e-3, errors
         assert errors[label][1] <= 2.0 * errors["true"][1] + 0.02, errors
+
+
+def test_rolling_shutter_displacements_in_the_rig_are_those_of_the_true_cameras(tmp_path):
+    """``solve`` with a readout time: each frame's stored displacement is the one the true cameras give to the
+    points the frame observes (the solve's points moved into the truth's world by the cameras' similarity), at
+    the frame rate given; frames above the threshold are those flagged and named."""
+    import pycolmap
+
+    from camcal.geometry.rolling_shutter import rolling_shutter_frames
+    from camcal.pipelines.solve_shutter import ShutterSpec
+
+    truth = _plate(tmp_path, 4)
+    lens = Rig(cameras=(dataclasses.replace(truth[0], name="cam", R=np.eye(3), c=np.zeros(3)),))
+    result = solve_sfm({"left": tmp_path / "in" / "left"}, tmp_path / "out", max_num_features=512, intrinsics=lens,
+                       rolling_shutter=ShutterSpec(readout_ms=400.0, threshold_px=5.1, fps=2.0))
+    rig = result.rig
+    solved = [rig.camera_at_frame("left", frame.index) for frame in rig.frames]
+    Q = chordal_mean_rotation([t.R.T @ s.R for t, s in zip(truth, solved)])
+    turned, target = np.array([Q @ s.c for s in solved]), np.array([t.c for t in truth])
+    d, e = turned - turned.mean(axis=0), target - target.mean(axis=0)
+    scale = float(np.sum(d * e) / np.sum(d * d))
+    model = pycolmap.Reconstruction(result.reconstruction_dir)
+    points = []
+    for frame in rig.frames:
+        image = model.find_image_with_name(f"left/{frame.index:06d}.png")
+        xyz = np.array([model.points3D[p.point3D_id].xyz for p in image.points2D if p.has_point3D()])
+        points.append(scale * (xyz @ Q.T - turned.mean(axis=0)) + target.mean(axis=0))
+    expected = rolling_shutter_frames(truth[0].K, HEIGHT, [t.R for t in truth], [t.c for t in truth],
+                                      np.arange(4) / 2.0, points, readout_s=0.4, threshold_px=5.1)
+    stored = [frame.rolling_shutter["left"] for frame in rig.frames]
+    for check, peer in zip(stored, expected):
+        assert check.displacement_px == pytest.approx(peer.displacement_px, rel=0.02)
+        assert check.flagged == (check.displacement_px > 5.1)
+    flagged = [frame.index for frame, check in zip(rig.frames, stored) if check.flagged]
+    assert 0 < len(flagged) < 4  # the threshold parts the frames (4.7-5.4 px)
+    assert any(note.startswith("rolling shutter (readout 400 ms at 2 fps, threshold 5.1 px): flagged left frames "
+                               f"{', '.join(map(str, flagged))} ({len(flagged)}); largest ") for note in result.notes)
+    assert json.loads((tmp_path / "out" / "solve.rig.json").read_text())["provenance"]["rolling_shutter"] == {
+        "readout_ms": 400.0, "fps": 2.0, "threshold_px": 5.1}

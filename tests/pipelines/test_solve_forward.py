@@ -1,0 +1,60 @@
+"""The mapper's forward-motion retry: a plate none of whose pairs can start COLMAP's model (driving footage)."""
+
+from types import SimpleNamespace
+
+import pytest
+
+from camcal.pipelines.solve_colmap import map_images
+
+
+class _Model:
+    def __init__(self, registered):
+        self.registered = registered
+
+    def num_reg_images(self):
+        return self.registered
+
+
+class _Database:
+    def num_images(self):
+        return 51
+
+    def close(self):
+        pass
+
+
+def _pycolmap(calls, registered_by_forward):
+    """A stand-in for pycolmap's incremental mapper: the registered images depend on the first-pair bound
+    ``init_max_forward_motion`` (COLMAP's default 0.95 refuses a pair moving along its view), each run recorded
+    with the folder it writes to."""
+    def incremental_mapping(database, image_dir, sparse, options):
+        forward = options.mapper.init_max_forward_motion
+        calls.append((forward, sparse.name))
+        (sparse / "0").mkdir()
+        return {0: _Model(registered_by_forward[forward])} if registered_by_forward[forward] else {}
+
+    def pipeline_options():
+        return SimpleNamespace(mapper=SimpleNamespace(init_max_forward_motion=0.95))
+
+    return SimpleNamespace(set_random_seed=lambda seed: None, IncrementalPipelineOptions=pipeline_options,
+                           incremental_mapping=incremental_mapping,
+                           Database=SimpleNamespace(open=lambda path: _Database()))
+
+
+@pytest.mark.parametrize("first, forward, kept", [(0, 51, 51), (20, 51, 51), (30, 12, 30), (51, 0, 51)])
+def test_the_mapper_retries_with_a_forward_first_pair_and_keeps_the_run_that_registers_more(tmp_path, first, forward,
+                                                                                           kept):
+    calls = []
+    sparse = tmp_path / "sparse"
+    sparse.mkdir()
+    models, note = map_images(_pycolmap(calls, {0.95: first, 1.0: forward}), tmp_path / "db", tmp_path, sparse,
+                              "incremental", 0, hold_intrinsics=True)
+    assert max((m.num_reg_images() for m in models.values()), default=0) == kept
+    if first == 51:  # every image registered: one run, nothing said
+        assert calls == [(0.95, "sparse")] and note == ""
+        return
+    assert calls == [(0.95, "sparse"), (1.0, "sparse.forward")]
+    assert note.startswith(f"the mapper registered {first} of 51 images; started again from a pair that may move "
+                           f"along its view (forward motion): {forward}")
+    assert note.endswith(", kept" if forward > first else ", the first run kept")
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("sparse")) == ["sparse"]
