@@ -37,9 +37,15 @@ rational, 0.967; 273.5 s CPU with the folds before); shared pair left polynomial
 screen fits none on a flat board), 0.1387 px, OpenCV's default the same (OpenCV's release-object fits refuse partial views); synthetic fisheye
 kannala-brandt on the flat board, 0.99 / 0.21 s, 0.1414 px against OpenCV's rational 0.1422 (0.994).
 
+``--rotate``: instead of the fit-alone figures, the held-out comparison on every rotation of the split (each view
+held out once), with a 95 % interval per rotation from resampling its held-out views. Last run: every view held
+out once, the default / OpenCV's best per rotation: shared pair left 1.031 (rotations 0.999-1.067), right 0.964
+(0.773-1.020), car camera 0.954 (0.811-1.136), GoPro 1.044 (0.967-1.147), synthetic 24x17 1.000, synthetic
+fisheye 0.993 (see docs/benchmarks.md).
+
 Usage: OPENBLAS_NUM_THREADS=1 python bench/bench_auto_cost.py [--cache DIR] [--quick] [--only TEXT] [--thorough]
-[--images NAME DIR PATTERN COLUMNSxROWS ...]   (``--quick``: synthetic sets only; ``--only``: the sets whose name
-holds TEXT)
+[--rotate] [--images NAME DIR PATTERN COLUMNSxROWS ...]   (``--quick``: synthetic sets only; ``--only``: the sets
+whose name holds TEXT)
 """
 
 import json
@@ -122,19 +128,31 @@ def timed(function, *args, **kwargs):
     return result, time.process_time() - start
 
 
-def opencv_peers(board: Board, train: list[Detection], held: list[Detection]) -> dict[str, float]:
-    """Held-out RMS of OpenCV's flat-board models (:func:`opencv_models`) and of its release-object fits (rational,
-    rational + thin prism: the board's points refined, each held-out view posed against them)."""
+def opencv_peers(board: Board, train: list[Detection], held: list[Detection]) -> dict[str, np.ndarray]:
+    """Held-out RMS of each held-out view (px) under OpenCV's flat-board models (:func:`opencv_models`) and its
+    release-object fits (rational, rational + thin prism: the board's points refined, each held-out view posed
+    against them)."""
     size = train[0].image_size
-    peers = {peer: posed_rms(board, camera, held) for peer, camera in opencv_models(board, train, size)}
+    peers = {peer: np.array([posed_rms(board, camera, [view]) for view in held])
+             for peer, camera in opencv_models(board, train, size)}
     for name, flags in (("RO rational", cv2.CALIB_RATIONAL_MODEL),
                         ("RO rational+thin-prism", cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL)):
         try:
             _, K, dist, points = release_object_fit(board, train, size, flags)
-            peers[name] = opencv_held_out_rms(points, held, K, dist)
+            peers[name] = np.array([opencv_held_out_rms(points, [view], K, dist) for view in held])
         except cv2.error as error:
             print(f"  opencv {name}: failed ({error})")
     return peers
+
+
+def pooled_rms(view_rms: np.ndarray) -> float:
+    """The RMS over every held-out corner from each view's RMS (every view has the whole board: equal weights)."""
+    return float(np.sqrt(np.mean(np.square(view_rms))))
+
+
+def best_peer(peers: dict[str, np.ndarray]) -> str:
+    """The OpenCV model with the lowest held-out RMS."""
+    return min(peers, key=lambda peer: pooled_rms(peers[peer]))
 
 
 def run(name: str, board: Board, views: list[Detection], thorough: bool) -> None:
@@ -147,19 +165,48 @@ def run(name: str, board: Board, views: list[Detection], thorough: bool) -> None
     train = [v for n, v in enumerate(views) if n not in holdout]
     held = [v for n, v in enumerate(views) if n in holdout]
     peers = opencv_peers(board, train, held)
-    best = min(peers, key=peers.get)
+    best = best_peer(peers)
+    best_rms = pooled_rms(peers[best])
     shape = "" if auto.board_shape is None else f" on the {auto.notes[-1].split(' on ')[-1].split()[0]} surface"
     print(f"{name}: auto picked {auto.model}{shape}; fit CPU auto {t_auto:.2f} s, single {picked} {t_single:.2f} s, "
           f"opencv {t_opencv:.2f} s; auto / single {t_auto / t_single:.1f}, auto / opencv {t_auto / t_opencv:.1f}")
-    print(f"  held out: auto {auto.heldout_rms_px:.4f} px, best OpenCV ({best}) {peers[best]:.4f} px, "
-          f"auto / best {auto.heldout_rms_px / peers[best]:.3f}")
+    print(f"  held out: auto {auto.heldout_rms_px:.4f} px, best OpenCV ({best}) {best_rms:.4f} px, "
+          f"auto / best {auto.heldout_rms_px / best_rms:.3f}")
     if thorough:
         full, t_full = timed(calibrate_board, board, detections, holdout=holdout, thorough=True)
-        print(f"  thorough: {full.model}, held out {full.heldout_rms_px:.4f} px (/ best {full.heldout_rms_px / peers[best]:.3f}), "
+        print(f"  thorough: {full.model}, held out {full.heldout_rms_px:.4f} px (/ best {full.heldout_rms_px / best_rms:.3f}), "
               f"fit CPU {t_full:.1f} s ({t_full / t_single:.0f}x single)")
     t_lenses, t_shapes = floor(board, detections, holdout, picked)
     print(f"  floor: every lens model fitted once {t_lenses:.2f} s ({t_lenses / t_single:.1f}x single), every board "
           f"surface once with {picked} {t_shapes:.2f} s ({(t_lenses + t_shapes) / t_single:.1f}x single with both)")
+    sys.stdout.flush()
+
+
+def rotations(name: str, board: Board, views: list[Detection]) -> None:
+    """The held-out comparison on every rotation of the split (view ``n`` held out in rotation ``n % 6``: each view
+    held out once): per rotation the default / OpenCV's best with a 95 % interval from resampling the held-out
+    views (paired, seeded bootstrap: how much the ratio owes to which few views are held out), then pooled over
+    every view."""
+    rng = np.random.default_rng(0)
+    ours, theirs = [], []
+    for rotation in range(HELD_EVERY):
+        holdout = {n for n in range(len(views)) if n % HELD_EVERY == rotation}
+        auto = calibrate_board(board, {"cam": views}, holdout=holdout)
+        peers = opencv_peers(board, [v for n, v in enumerate(views) if n not in holdout],
+                             [v for n, v in enumerate(views) if n in holdout])
+        best = best_peer(peers)
+        mine, peer = np.asarray(auto.heldout_view_rms_px), peers[best]
+        draws = rng.integers(0, len(mine), (2000, len(mine)))
+        ratios = [pooled_rms(mine[d]) / pooled_rms(peer[d]) for d in draws]
+        low, high = np.percentile(ratios, [2.5, 97.5])
+        print(f"{name} rotation {rotation} ({len(mine)} held out): auto {auto.model} {pooled_rms(mine):.4f} px, "
+              f"OpenCV best ({best}) {pooled_rms(peer):.4f} px, ratio {pooled_rms(mine) / pooled_rms(peer):.3f} "
+              f"(95 % {low:.3f}-{high:.3f})")
+        ours.append(mine)
+        theirs.append(peer)
+    ours, theirs = np.concatenate(ours), np.concatenate(theirs)
+    print(f"{name} every view held out once: auto {pooled_rms(ours):.4f} px, OpenCV best per rotation "
+          f"{pooled_rms(theirs):.4f} px, ratio {pooled_rms(ours) / pooled_rms(theirs):.3f}")
     sys.stdout.flush()
 
 
@@ -218,7 +265,9 @@ def main() -> None:
         if only in name:
             end_to_end(name, {"cam": str(Path(folder) / pattern)}, f"chessboard:{grid}:1")
     for name, board, views in data_sets(cache, "--quick" in args):
-        if only in name:
+        if only in name and "--rotate" in args:
+            rotations(name, board, views)
+        elif only in name:
             run(name, board, views, "--thorough" in args)
 
 

@@ -26,7 +26,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 
-__all__ = ["OPENCV_LOG_ERROR", "OPENCV_LOG_SILENT", "native_output_to", "set_opencv_log_level"]
+__all__ = ["GLOG_ERROR", "OPENCV_LOG_ERROR", "OPENCV_LOG_SILENT", "glog_level", "native_output_to", "set_opencv_log_level"]
 
 _CHUNK = 65536
 
@@ -130,6 +130,30 @@ def native_output_to(log_path: str | os.PathLike, echo: bool = False, fds: tuple
             os.close(saved[fd])
         os.close(read_end)
         log.close()
+
+
+#: glog's severity of errors (``google::GLOG_ERROR``): a ``minloglevel`` of 2 drops INFO and WARNING lines
+GLOG_ERROR = 2
+
+
+@contextlib.contextmanager
+def glog_level(module: ModuleType, level: int = GLOG_ERROR) -> Iterator[None]:
+    """Raise the glog ``minloglevel`` of a native module (``pyceres``, ``pycolmap``) while the block runs.
+
+    Each wheel links its own glog: Ceres inside ``pyceres.solve`` warns
+    through pyceres' copy (``W... levenberg_marquardt_strategy.cc:123]
+    Linear solver failure``: a rejected Levenberg-Marquardt step, which the
+    solver handles by raising its damping), which ``pycolmap.logging`` does
+    not reach. glog reads the flag at every log call, so the level holds
+    exactly for the block; the previous level is restored after it.
+    """
+    logging = module.logging
+    previous = logging.minloglevel
+    logging.minloglevel = max(int(previous), int(level))
+    try:
+        yield
+    finally:
+        logging.minloglevel = previous
 
 
 #: OpenCV's log levels (``cv::utils::logging::LogLevel``), the same numbers in OpenCV 4 and 5

@@ -57,3 +57,20 @@ def test_opencv_log_level_is_set_through_either_opencv_api():
     levels = [3]  # OpenCV 4's shape: no cv2.utils.logging, the setter at the top
     opencv4 = SimpleNamespace(utils=SimpleNamespace(), getLogLevel=lambda: levels[-1], setLogLevel=levels.append)
     assert set_opencv_log_level(opencv4, OPENCV_LOG_ERROR) == 3 and levels == [3, 2]
+
+
+def test_glog_level_drops_ceres_warnings_for_the_block_only():
+    """pyceres' own glog (Ceres' "Linear solver failure" warnings in a bundle adjustment): silent inside the block,
+    as before after it, the previous level restored."""
+    script = textwrap.dedent("""
+        import pyceres
+        from camcal.base.native_log import glog_level
+        with glog_level(pyceres):
+            pyceres.logging.warning("inside the block")
+        pyceres.logging.warning("after the block")
+        print(pyceres.logging.minloglevel)
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert "inside the block" not in run.stderr and "after the block" in run.stderr
+    assert run.stdout.strip() == "0"
+

@@ -369,3 +369,23 @@ def test_progress_reports_iterations_and_its_exceptions_stop_the_solve():
 
     with pytest.raises(KeyboardInterrupt):
         bundle_adjust(state, BundleOptions(), progress=interrupt)
+
+
+def test_ceres_warnings_stay_out_of_the_output(monkeypatch):
+    """Ceres warns of rejected steps through pyceres' own glog (``Linear solver failure``): the adjuster's solve runs
+    with that glog at ERROR, and the level is back where it was afterwards."""
+    import pyceres
+
+    levels = []
+    solve = pyceres.solve
+
+    def solve_recording_the_level(*args):
+        levels.append(pyceres.logging.minloglevel)
+        return solve(*args)
+
+    monkeypatch.setattr(pyceres, "solve", solve_recording_the_level)
+    _, seed_model = synthetic(frames=3, points=60, seed=5)
+    before = pyceres.logging.minloglevel
+    bundle_adjust(state_from_reconstruction(seed_model), BundleOptions(compute_sigmas=False))
+    assert levels and all(level >= 2 for level in levels)
+    assert pyceres.logging.minloglevel == before

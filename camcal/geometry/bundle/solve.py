@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
+from camcal.base.native_log import glog_level
 from camcal.geometry.bundle.covariance import is_free_block, marginal_covariance
 from camcal.geometry.bundle.prior import Prior, posterior_sigma, prior_weights, resolve_priors
 from camcal.geometry.bundle.state import BundleOptions, BundleResult, BundleState, model_layout, residuals
@@ -296,7 +297,8 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
     if progress is not None:
         solver_options.callbacks = [_iteration_callback(progress, total)]
     summary = pyceres.SolverSummary()
-    pyceres.solve(solver_options, problem, summary)
+    with glog_level(pyceres):  # Ceres' warnings of rejected steps are the solver's own business
+        pyceres.solve(solver_options, problem, summary)
     # Ceres counts its iteration 0 (the start) as a successful step
     iterations = int(summary.num_successful_steps + summary.num_unsuccessful_steps) - 1
     initial_cost = float(summary.initial_cost)
@@ -306,7 +308,8 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
         for cost in costs:
             cost.weight = solved / cost.prior.sigma
         summary = pyceres.SolverSummary()
-        pyceres.solve(solver_options, problem, summary)
+        with glog_level(pyceres):
+            pyceres.solve(solver_options, problem, summary)
         iterations += int(summary.num_successful_steps + summary.num_unsuccessful_steps) - 1
     if inspect is not None:
         inspect(problem, colmap)
