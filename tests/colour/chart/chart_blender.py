@@ -197,9 +197,10 @@ def blender_job(folder: Path, cases: list[BlenderCase], cameras: dict) -> dict:
     """The Blender job (:func:`render_shots`) rendering every case on its own table with its own lamps."""
     tables = _tables(folder, cameras, sorted({case.seed for case in cases}))
     quads, points, suns, shots = [], [], [], []
-    for n, case in enumerate(cases):
+    for case in cases:
         width = WIDTH_M[case.layout]
-        rng = np.random.default_rng([n, case.seed])
+        rng = np.random.default_rng([case.seed, LAYOUT_ORDER.index(case.layout), list(CONDITIONS).index(case.condition),
+                                     1])
         # every case's chart at the origin, its table turned and shifted (a shot sees its own quads and lamps only)
         theta = rng.uniform(0, 2 * np.pi)
         rot = np.array([[np.cos(theta), -np.sin(theta), 0], [np.sin(theta), np.cos(theta), 0], [0, 0, 1]])
