@@ -117,91 +117,121 @@ def _colours_agree(colours: np.ndarray, truth: np.ndarray) -> bool:
     return colour_score(colours, truth) >= MIN_COLOUR_SCORE and _corr(lum(colours), lum(truth)) > 0.95
 
 
+COLUMNS = ("camcal", "camcal auto", "cv2.mcc in order", "cv2.mcc located", "ccd in order", "ccd located")
+
+
+class Tally:
+    """Found / tried per column: in total, per layout and per (layout, condition); camcal's centre errors and every
+    detector's seconds. :meth:`score` runs the three detectors on one capture, :meth:`print_summary` the tables."""
+
+    def __init__(self) -> None:
+        self.totals = {c: [0, 0] for c in COLUMNS}
+        self.per_layout = {layout: {c: [0, 0] for c in COLUMNS} for layout in LAYOUT_ORDER}
+        self.errors: list[float] = []
+        self.seconds = {"camcal": 0.0, "cv2.mcc": 0.0, "ccd": 0.0}
+        self.ccd_installed = True
+        self.general = {"digital-sg": reference_chart("sg", "D50"), "24": reference_chart("cc24", "D50")}
+
+    def score(self, render) -> dict[str, bool]:
+        """camcal (given the type, and auto), cv2.mcc and colour-checker-detection on one capture (a chart_renders
+        ``Render``: its DNG and truth); adds to the tallies and returns ``{column: found}``."""
+        layout = render.layout
+        chart = chart_layout(layout)
+        image = read_raw(render.path).RGB
+        view = detection_view(image, linear=True)
+        n_main = chart.rows * chart.columns
+        truth_main = render.centres[:n_main]
+        result = {}
+        t = time.perf_counter()
+        try:
+            found = patches_from_image(image, render.reference, linear=True)
+            ok, err = found_in_order(found.detection.patch_centres(), render.centres)
+            result["camcal"] = ok and found.detection.mirrored == render.mirrored
+            if result["camcal"]:
+                self.errors.append(err)
+        except CamcalError:
+            result["camcal"] = False
+        self.seconds["camcal"] += time.perf_counter() - t
+        candidates = ([render.reference] if layout == "it8" else []) + [self.general["digital-sg"], self.general["24"]]
+        try:
+            found = patches_from_image(image, candidates, linear=True)
+            result["camcal auto"] = (chart_layout(found.reference.layout).family == chart.family
+                                     and found_in_order(found.detection.patch_centres(), render.centres)[0])
+        except CamcalError:
+            result["camcal auto"] = False
+        t = time.perf_counter()
+        centres = _mcc(view, layout)
+        self.seconds["cv2.mcc"] += time.perf_counter() - t
+        if centres is not None:
+            right_size = len(centres) == n_main
+            result["cv2.mcc in order"] = right_size and found_in_order(centres, truth_main)[0]
+            result["cv2.mcc located"] = right_size and any(
+                found_in_order(centres[np.argsort(order)], truth_main)[0]
+                for order in _grid_orders(chart.rows, chart.columns))
+        t = time.perf_counter()
+        swatches = _ccd(view, layout)
+        self.seconds["ccd"] += time.perf_counter() - t
+        if swatches is None and layout in CCD_SETTINGS:
+            self.ccd_installed = False
+        if swatches is not None:
+            truth_RGB = render.RGB[:n_main]
+            good = [np.asarray(s, float) for s in swatches if len(s) == n_main]
+            result["ccd in order"] = any(_colours_agree(s, truth_RGB) for s in good)
+            result["ccd located"] = any(_colours_agree(s[np.argsort(order)], truth_RGB) for s in good
+                                        for order in _grid_orders(chart.rows, chart.columns))
+        for column, value in result.items():
+            for table in (self.totals, self.per_layout[layout]):
+                table[column][0] += bool(value)
+                table[column][1] += 1
+        return result
+
+    @staticmethod
+    def header() -> str:
+        return f"{'layout':11s} {'condition':20s} " + " | ".join(f"{c:>16s}" for c in COLUMNS)
+
+    @staticmethod
+    def row(layout: str, condition: str, counts: dict) -> str:
+        return f"{layout:11s} {condition:20s} " + " | ".join(
+            f"{counts[c][0]:>11d} / {counts[c][1]:<2d}" if counts[c][1] else f"{'n/a':>16s}" for c in COLUMNS)
+
+    def print_summary(self) -> None:
+        """Per layout, per column, the worst centre error and seconds, and the project's last line."""
+        print()
+        for layout in LAYOUT_ORDER:
+            print(self.row(layout, "all", self.per_layout[layout]))
+        n = self.totals["camcal"][1]
+        print()
+        for column in COLUMNS:
+            done, tried = self.totals[column]
+            if column.startswith("ccd") and not self.ccd_installed:
+                print(f"{column}: not installed")
+                continue
+            share = f" ({100.0 * done / tried:.1f} %)" if tried else ""
+            print(f"{column}: found {done} / {tried}{share}"
+                  + (" (layouts it has no type for left out)" if tried < n else ""))
+        print(f"camcal worst centre error when found: {max(self.errors, default=float('nan')):.2f} px (half-size "
+              f"pixels); seconds per image: camcal {self.seconds['camcal'] / n:.2f}, "
+              f"cv2.mcc {self.seconds['cv2.mcc'] / n:.2f}, colour-checker-detection {self.seconds['ccd'] / n:.2f}")
+        peer = max(self.totals["cv2.mcc in order"][0], self.totals["ccd in order"][0] if self.ccd_installed else 0)
+        print(f"charts found in order: ours {self.totals['camcal'][0]}, peer {peer}, "
+              f"ratio {peer / max(self.totals['camcal'][0], 1):.3f}")
+
+
 def main() -> None:
     warnings.filterwarnings("ignore")
     seeds = int(sys.argv[1]) if len(sys.argv) > 1 else 3
     tmp = Path(tempfile.mkdtemp(prefix="bench_chart_layouts_"))
-    columns = ("camcal", "camcal auto", "cv2.mcc in order", "cv2.mcc located", "ccd in order", "ccd located")
-    totals = {c: [0, 0] for c in columns}
-    per_layout = {layout: {c: [0, 0] for c in columns} for layout in LAYOUT_ORDER}
-    errors, seconds, cameras = [], {"camcal": 0.0, "cv2.mcc": 0.0, "ccd": 0.0}, {}
-    general = {"digital-sg": reference_chart("sg", "D50"), "24": reference_chart("cc24", "D50")}
-    ccd_installed = True
-    print(f"{'layout':11s} {'condition':20s} " + " | ".join(f"{c:>16s}" for c in columns), flush=True)
+    tally, cameras = Tally(), {}
+    print(tally.header(), flush=True)
     for layout in LAYOUT_ORDER:
-        chart = chart_layout(layout)
         for condition in CONDITIONS:
-            counts = {c: [0, 0] for c in columns}
+            counts = {c: [0, 0] for c in COLUMNS}
             for seed in range(seeds):
-                render = render_case(tmp, layout, condition, seed, cameras)
-                image = read_raw(render.path).RGB
-                view = detection_view(image, linear=True)
-                n_main = chart.rows * chart.columns
-                truth_main = render.centres[:n_main]
-                result = {}
-                t = time.perf_counter()
-                try:
-                    found = patches_from_image(image, render.reference, linear=True)
-                    ok, err = found_in_order(found.detection.patch_centres(), render.centres)
-                    result["camcal"] = ok and found.detection.mirrored == render.mirrored
-                    if result["camcal"]:
-                        errors.append(err)
-                except CamcalError:
-                    result["camcal"] = False
-                seconds["camcal"] += time.perf_counter() - t
-                candidates = ([render.reference] if layout == "it8" else []) + [general["digital-sg"], general["24"]]
-                try:
-                    found = patches_from_image(image, candidates, linear=True)
-                    result["camcal auto"] = (chart_layout(found.reference.layout).family == chart.family
-                                             and found_in_order(found.detection.patch_centres(), render.centres)[0])
-                except CamcalError:
-                    result["camcal auto"] = False
-                t = time.perf_counter()
-                centres = _mcc(view, layout)
-                seconds["cv2.mcc"] += time.perf_counter() - t
-                if centres is not None:
-                    right_size = len(centres) == n_main
-                    result["cv2.mcc in order"] = right_size and found_in_order(centres, truth_main)[0]
-                    result["cv2.mcc located"] = right_size and any(
-                        found_in_order(centres[np.argsort(order)], truth_main)[0]
-                        for order in _grid_orders(chart.rows, chart.columns))
-                t = time.perf_counter()
-                swatches = _ccd(view, layout)
-                seconds["ccd"] += time.perf_counter() - t
-                if swatches is None and layout in CCD_SETTINGS:
-                    ccd_installed = False
-                if swatches is not None:
-                    truth_RGB = render.RGB[:n_main]
-                    good = [np.asarray(s, float) for s in swatches if len(s) == n_main]
-                    result["ccd in order"] = any(_colours_agree(s, truth_RGB) for s in good)
-                    result["ccd located"] = any(_colours_agree(s[np.argsort(order)], truth_RGB) for s in good
-                                                for order in _grid_orders(chart.rows, chart.columns))
-                for column, value in result.items():
-                    for table in (counts, totals, per_layout[layout]):
-                        table[column][0] += bool(value)
-                        table[column][1] += 1
-            print(f"{layout:11s} {condition:20s} " + " | ".join(
-                f"{counts[c][0]:>11d} / {counts[c][1]:<2d}" if counts[c][1] else f"{'n/a':>16s}" for c in columns),
-                flush=True)
-    print()
-    for layout in LAYOUT_ORDER:
-        print(f"{layout:11s} {'all':20s} " + " | ".join(
-            f"{per_layout[layout][c][0]:>11d} / {per_layout[layout][c][1]:<2d}" if per_layout[layout][c][1]
-            else f"{'n/a':>16s}" for c in columns))
-    n = totals["camcal"][1]
-    print()
-    for column in columns:
-        done, tried = totals[column]
-        if column.startswith("ccd") and not ccd_installed:
-            print(f"{column}: not installed")
-            continue
-        share = f" ({100.0 * done / tried:.1f} %)" if tried else ""
-        print(f"{column}: found {done} / {tried}{share}" + (" (layouts it has no type for left out)" if tried < n else ""))
-    print(f"camcal worst centre error when found: {max(errors):.2f} px (half-size pixels); "
-          f"seconds per image: camcal {seconds['camcal'] / n:.2f}, cv2.mcc {seconds['cv2.mcc'] / n:.2f}, "
-          f"colour-checker-detection {seconds['ccd'] / n:.2f}")
-    peer = max(totals["cv2.mcc in order"][0], totals["ccd in order"][0] if ccd_installed else 0)
-    print(f"charts found in order: ours {totals['camcal'][0]}, peer {peer}, ratio {peer / max(totals['camcal'][0], 1):.3f}")
+                for column, value in tally.score(render_case(tmp, layout, condition, seed, cameras)).items():
+                    counts[column][0] += bool(value)
+                    counts[column][1] += 1
+            print(tally.row(layout, condition, counts), flush=True)
+    tally.print_summary()
 
 
 if __name__ == "__main__":

@@ -6,9 +6,9 @@ interpreter; only that child imports bpy (inside :func:`_main`), so importing
 this module is cheap and free of Blender.
 
 The job describes planar quads (a texture or a flat colour, emissive or
-diffuse), optional sun lamps, and shots: a pinhole camera (camcal's ``K, R,
+diffuse), optional sun and point lamps, and shots: a pinhole camera (camcal's ``K, R,
 c, image_size``; no distortion: Cycles has none for perspective cameras),
-which quads it sees, and the EXR file to write (scene-linear float, no view
+which quads and lamps it sees, and the EXR file to write (scene-linear float, no view
 transform). Cameras are set with the Blender add-on's own intrinsics mapping
 (``addon/mapping.py``: ``blender_intrinsics``, ``camera_matrix_local``), so
 a world point renders where ``Camera.project`` puts it (checked to < 1e-3 px
@@ -40,12 +40,20 @@ def render_shots(job: dict, work_dir: str | os.PathLike, threads: int = 0) -> li
     ----------
     job : dict
         ``{"samples": int, "seed": int, "quads": [...], "suns": [...],
-        "shots": [...]}``. A quad: ``{"name", "corners": (4, 3) world
-        metres, "texture": PNG path or None, "colour": [r, g, b] linear,
+        "points": [...], "shots": [...]}``. A quad: ``{"name", "corners":
+        (4, 3) world metres, "texture": PNG or EXR path (its values used as
+        they are, no colour conversion) or None, "colour": [r, g, b] linear,
         "shader": "emission" | "diffuse", "interpolation": "Closest" |
         "Linear"}``. A sun: ``{"direction": [x, y, z] the light travels
-        along, "strength": W/m^2}``. A shot: ``{"camera": {"K", "R", "c",
-        "image_size"}, "quads": [names seen], "out": EXR path}``.
+        along, "strength": W/m^2}`` and optionally a ``"name"`` (default
+        ``sun0``, ``sun1``...). A point lamp (``"points"``, radius 0: no
+        sampling noise): ``{"name", "position": [x, y, z], "power": W}``;
+        Cycles' point lamp of power ``P`` lights a Lambertian surface of
+        albedo ``a`` at distance ``d`` and incidence ``t`` to the radiance
+        ``a P cos(t) / (4 pi^2 d^2)`` (a sun of strength ``S``:
+        ``a S cos(t) / pi``). A shot: ``{"camera": {"K", "R", "c",
+        "image_size"}, "quads": [names seen], "out": EXR path}`` and
+        optionally ``"lights": [names lit]`` (default: every lamp).
     work_dir : path
         Receives the job file ``render_job.json`` and the render log.
     threads : int
@@ -180,14 +188,25 @@ def _main(job_path: str) -> None:  # pragma: no cover - runs in the bpy subproce
     objects = {}
     for quad in job["quads"]:
         objects[quad["name"]] = _quad(bpy, scene, quad)
+    lamps = {}
     for i, sun in enumerate(job.get("suns", [])):
-        light = bpy.data.lights.new(f"sun{i}", "SUN")
+        name = sun.get("name", f"sun{i}")
+        light = bpy.data.lights.new(name, "SUN")
         light.energy = float(sun["strength"])
         light.angle = 0.0
-        obj = bpy.data.objects.new(f"sun{i}", light)
+        obj = bpy.data.objects.new(name, light)
         obj.rotation_mode = "QUATERNION"
         obj.rotation_quaternion = (-_vector(sun["direction"])).to_track_quat("Z", "Y")
         scene.collection.objects.link(obj)
+        lamps[name] = obj
+    for point in job.get("points", []):
+        light = bpy.data.lights.new(point["name"], "POINT")
+        light.energy = float(point["power"])
+        light.shadow_soft_size = 0.0
+        obj = bpy.data.objects.new(point["name"], light)
+        obj.location = [float(v) for v in point["position"]]
+        scene.collection.objects.link(obj)
+        lamps[point["name"]] = obj
 
     data = bpy.data.cameras.new("camera")
     camera = bpy.data.objects.new("camera", data)
@@ -208,6 +227,9 @@ def _main(job_path: str) -> None:  # pragma: no cover - runs in the bpy subproce
         seen = set(shot["quads"])
         for name, obj in objects.items():
             obj.hide_render = name not in seen
+        lit = set(shot.get("lights", lamps))
+        for name, obj in lamps.items():
+            obj.hide_render = name not in lit
         out = Path(shot["out"])
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = out.with_name(f".{out.stem}.tmp.exr")
