@@ -77,6 +77,15 @@ def register(parser: argparse.ArgumentParser) -> None:
     only_with(parser, "--loops", "--matcher sequential", lambda args: args.matcher == "sequential", default="auto")
     parser.add_argument("--mapper", default="incremental", choices=("incremental", "global"),
                         help="COLMAP's incremental or global mapper (default: %(default)s)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="extract the features on this Dask cluster, one task per image (its workers must see "
+                       "OUT's folder and the images); each image's features are kept in OUT/.camcal-features until "
+                       "the solve ends, so a rerun of a killed solve extracts only the images it had not finished; "
+                       "the features are the same as in this process, matching and mapping stay here (default: "
+                       "extraction in this process, on every core)")
+    where.add_argument("--workers", type=int, metavar="N",
+                       help="the same on a local Dask cluster of N worker processes (default: no Dask)")
     parser.add_argument("--require-all", action="store_true",
                         help="an image that cannot be registered is an error (nothing written); by default each is "
                         "named by its frame number in one line and the solve goes on")
@@ -126,6 +135,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         "--out solve",
         "# a handheld shot that comes back to where it started, matched by frame order, no loop closure",
         "camcal solve plates/walk.%04d.png --matcher sequential --loops off --out solve",
+        "# a long plate's features extracted on a Dask cluster (rerun the same command after a crash to resume)",
+        "camcal solve plates/shot.%04d.exr --frames 1001-1960 --matcher sequential --scheduler tcp://farm:8786 "
+        "--out solve",
         "# the world set on a 9x6 chessboard of 4 cm squares lying on the set's floor",
         "camcal solve plates/shot.%04d.exr --frames 1001-1240 --matcher sequential --world-board chessboard:9x6:0.04 "
         "--out solve",
@@ -158,6 +170,6 @@ def _solve(args: argparse.Namespace) -> int:
                    refine=not args.no_refine, compare_pycolmap=args.compare_pycolmap, intrinsics=args.intrinsics,
                    intrinsics_mode=args.intrinsics_mode, require_all=args.require_all, up=args.up, origin=args.origin,
                    scale=args.scale, units=args.units, world_board=args.world_board, seed=args.seed,
-                   verbose=args.verbose)
+                   scheduler=args.scheduler, workers=args.workers, verbose=args.verbose)
     report_result(args, result, say=False)
     return 0
