@@ -263,7 +263,7 @@ def solve(
         Seeds every random choice: the same images and options give the same rig.
     scheduler : str, optional
         Extract the features on the Dask cluster of this scheduler (``"tcp://farm:8786"``), one task per image,
-        whose workers must see ``out``'s folder and the images: the same features as in this process, each
+        whose workers must see the images and the folder ``out`` is in: the same features as in this process, each
         image's kept in ``out/.camcal-features`` until the solve ends, so that a rerun of a killed solve extracts
         only the images it had not finished. Matching and mapping stay in this process.
     workers : int, optional

@@ -80,7 +80,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                        help="extract the features on this Dask cluster, one task per image (its workers must see "
-                       "OUT's folder and the images); each image's features are kept in OUT/.camcal-features until "
+                       "the images and the folder OUT is in); each image's features are kept in OUT/.camcal-features until "
                        "the solve ends, so a rerun of a killed solve extracts only the images it had not finished; "
                        "the features are the same as in this process, matching and mapping stay here (default: "
                        "extraction in this process, on every core)")

@@ -256,7 +256,7 @@ def solve_sfm(
     scheduler : str, optional
         Extract the features on the Dask cluster of this scheduler
         (``tcp://host:8786``), one task per image, whose workers must see
-        ``out_dir``'s parent folder; each image's features are cached in
+        the images and ``out_dir``'s parent folder; each image's features are cached in
         ``out_dir/.camcal-features`` until the solve ends, so that a rerun of a
         killed solve extracts only the images it had not finished
         (:mod:`camcal.pipelines.solve_features`). The same features as in
