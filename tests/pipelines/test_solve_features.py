@@ -8,6 +8,7 @@ run the same task function as a farm's); the slow test in
 import logging
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -44,10 +45,10 @@ def images(tmp_path_factory):
     return folder, sorted(p.relative_to(folder).as_posix() for p in (folder / "left").iterdir())
 
 
-def _extract(images, database, dask=None, progress=None):
+def _extract(images, database, dask=None, progress=None, mask_dir=None):
     folder, names = images
     extraction = extraction_options(pycolmap, [folder / names[0]], 512, -1)
-    extract_features(pycolmap, database, folder, names, pycolmap.CameraMode.PER_FOLDER, "SIMPLE_RADIAL", None,
+    extract_features(pycolmap, database, folder, names, pycolmap.CameraMode.PER_FOLDER, "SIMPLE_RADIAL", mask_dir,
                      extraction, 0, dask, progress=progress)
     number_by_name(pycolmap, database)
     return extraction
@@ -68,11 +69,11 @@ def _contents(database):
     return cameras, images, features, rigs, frames
 
 
-def _same_database(ours, local):
+def _same_database(ours, local, n_images=3):
     *rows, features, rigs, frames = _contents(ours)
     *local_rows, local_features, local_rigs, local_frames = _contents(local)
     assert rows == local_rows and rigs == local_rigs and frames == local_frames
-    assert list(features) == list(local_features) and len(features) == 3
+    assert list(features) == list(local_features) and len(features) == n_images
     for name, (keypoints, descriptors) in features.items():
         assert len(keypoints) > 50, name
         np.testing.assert_array_equal(keypoints, local_features[name][0])  # bit for bit
@@ -108,6 +109,22 @@ def test_dask_tasks_give_the_in_process_features_and_a_rerun_takes_what_a_killed
     assert {path: path.stat().st_mtime_ns for path in kept} == kept  # taken, not extracted again
     assert not [p for p in tmp_path.rglob("*") if TEMPORARY_TAG in p.name]
     _same_database(tmp_path / "resumed.db", tmp_path / "local.db")
+
+
+def test_masks_reach_the_tasks(images, scheduler, tmp_path):
+    """COLMAP's masks (white: no feature), given to the tasks: the in-process masked features, none on the left."""
+    folder, names = images
+    one = (folder, names[:1])
+    edge = SIZE[0] // 2
+    mask = np.full((SIZE[1], SIZE[0]), 255, np.uint8)
+    mask[:, :edge] = 0  # COLMAP's mask: 0 where no feature is taken
+    (tmp_path / "masks" / "left").mkdir(parents=True)
+    cv2.imwrite(str(tmp_path / "masks" / f"{names[0]}.png"), mask)
+    _extract(one, tmp_path / "local.db", mask_dir=tmp_path / "masks")
+    _extract(one, tmp_path / "dask.db", DaskExtraction(tmp_path / "cache", scheduler=scheduler),
+             mask_dir=tmp_path / "masks")
+    _same_database(tmp_path / "dask.db", tmp_path / "local.db", n_images=1)
+    assert _contents(tmp_path / "dask.db")[2][names[0]][0][:, 0].min() >= edge
 
 
 def test_scheduler_and_workers_are_one_or_the_other(tmp_path, capsys):
