@@ -303,7 +303,7 @@ def solve_sfm(
         raise CamcalError(f"--workers must be at least 1, got {workers}")
     target = Path(out_dir)
     remove_stale_temporaries([target])  # the staging folder of a killed earlier run
-    new_target = not target.exists()
+    new_target = not target.exists() or [entry.name for entry in target.iterdir()] == [FEATURE_CACHE]
     dask = (DaskExtraction(target / FEATURE_CACHE, scheduler, workers)
             if scheduler is not None or workers is not None else None)
     try:

@@ -6,7 +6,6 @@ run the same task function as a farm's); the slow test in
 """
 
 import logging
-from pathlib import Path
 
 import cv2
 import numpy as np
