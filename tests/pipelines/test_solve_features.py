@@ -132,13 +132,16 @@ def test_scheduler_and_workers_are_one_or_the_other(tmp_path, capsys):
 
 
 def test_a_frame_colmap_cannot_read_is_one_error_naming_it_and_nothing_is_left(images, scheduler, tmp_path):
-    """The tasks of the other frames wrote their features: the failed solve removes them with the rest."""
+    """The tasks of the other frames wrote their features: the failed solve removes them, and the folder a killed
+    run left with only its cache, with the rest."""
     folder, _ = images
     plate = tmp_path / "plate"
     plate.mkdir()
     for index, png in enumerate(sorted((folder / "left").iterdir())):
         (plate / f"shot.{1001 + index}.png").write_bytes(png.read_bytes())
     (plate / "shot.1004.png").write_bytes(b"not a png")
+    (tmp_path / "out" / FEATURE_CACHE / "left").mkdir(parents=True)  # a killed run's cache, and all it left
+    (tmp_path / "out" / FEATURE_CACHE / "left" / "000000.png.npz").write_bytes(b"of another plate")
     with pytest.raises(CamcalError, match=r"feature extraction of .*shot\.1004\.png: COLMAP cannot read it"):
         solve_sfm({"left": plate}, tmp_path / "out", max_num_features=512, scheduler=scheduler)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plate"]
