@@ -178,6 +178,8 @@ def solve(
     readout_flag_px: float = 1.0,
     fps: float | None = None,
     seed: int = 0,
+    scheduler: str | None = None,
+    workers: int | None = None,
     verbose: bool = False,
     progress: bool | Callable[[str], None] = True,
 ) -> Solve:
@@ -272,6 +274,13 @@ def solve(
         The plate's frame rate, which times the frames for the velocities (default: a movie's own, else 24).
     seed : int
         Seeds every random choice: the same images and options give the same rig.
+    scheduler : str, optional
+        Extract the features on the Dask cluster of this scheduler (``"tcp://farm:8786"``), one task per image,
+        whose workers must see the images and the folder ``out`` is in: the same features as in this process, each
+        image's kept in ``out/.camcal-features`` until the solve ends, so that a rerun of a killed solve extracts
+        only the images it had not finished. Matching and mapping stay in this process.
+    workers : int, optional
+        The same on a local Dask cluster of this many worker processes (not with ``scheduler``).
     verbose : bool
         Also show COLMAP's own log lines on stderr.
     progress : bool or callable
@@ -340,7 +349,8 @@ def solve(
                        guided_matching=guided_matching, every=every, masks=mattes, progress=say, intrinsics=grid,
                        intrinsics_mode=intrinsics_mode,
                        intrinsics_source=str(intrinsics) if grid is not None and not isinstance(intrinsics, Rig)
-                       else "the grid", world=world, require_all=require_all, rolling_shutter=shutter)
+                       else "the grid", world=world, require_all=require_all, rolling_shutter=shutter,
+                       scheduler=scheduler, workers=workers)
     peer = (solve_pycolmap_plain(found, out / "pycolmap", seed=seed, verbose=verbose, every=every)
             if compare_pycolmap else None)
     return Solve(result, out, peer)

@@ -38,7 +38,7 @@ from pathlib import Path
 from camcal.base.errors import CamcalError
 
 __all__ = ["TEMPORARY_TAG", "atomic_dir", "atomic_path", "atomic_write_text", "final_path",
-           "is_temporary_of", "output_folder", "remove_stale_temporaries"]
+           "is_temporary_of", "output_folder", "remove_stale_temporaries", "scratch_dir"]
 
 #: The word every temporary name carries: ``.NAME.camcal-tmp.XXXXXXXX[SUFFIX]``.
 TEMPORARY_TAG = "camcal-tmp"
@@ -130,6 +130,24 @@ def atomic_dir(target: str | os.PathLike, replace: Iterable[str] = ()) -> Iterat
         _remove_empty(created)
         raise
     shutil.rmtree(staging, ignore_errors=True)  # what a merge into an existing folder left: empty folders
+
+
+@contextlib.contextmanager
+def scratch_dir(target: str | os.PathLike) -> Iterator[Path]:
+    """Yield a new, empty folder beside ``target`` for the work of writing it, removed on exit whatever happens.
+
+    It carries ``target``'s temporary name (``.NAME.camcal-tmp.XXXXXXXX``),
+    so what a process killed outright left is cleared by
+    :func:`remove_stale_temporaries` for ``target``, as its
+    :func:`atomic_path` temporary would be.
+    """
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    scratch = Path(tempfile.mkdtemp(prefix=_prefix(target), dir=target.parent))
+    try:
+        yield scratch
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 @contextlib.contextmanager

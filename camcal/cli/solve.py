@@ -77,6 +77,15 @@ def register(parser: argparse.ArgumentParser) -> None:
     only_with(parser, "--loops", "--matcher sequential", lambda args: args.matcher == "sequential", default="auto")
     parser.add_argument("--mapper", default="incremental", choices=("incremental", "global"),
                         help="COLMAP's incremental or global mapper (default: %(default)s)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="extract the features on this Dask cluster, one task per image (its workers must see "
+                       "the images and the folder OUT is in); each image's features are kept in OUT/.camcal-features until "
+                       "the solve ends, so a rerun of a killed solve extracts only the images it had not finished; "
+                       "the features are the same as in this process, matching and mapping stay here (default: "
+                       "extraction in this process, on every core)")
+    where.add_argument("--workers", type=int, metavar="N",
+                       help="the same on a local Dask cluster of N worker processes (default: no Dask)")
     parser.add_argument("--require-all", action="store_true",
                         help="an image that cannot be registered is an error (nothing written); by default each is "
                         "named by its frame number in one line and the solve goes on")
@@ -142,6 +151,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         "# driving footage from a phone: frames whose motion during a 30 ms readout moves points over 2 px flagged",
         "camcal solve drive/frame.%06d.png --matcher sequential --intrinsics phone.rig.json --readout-ms 30 "
         "--readout-flag-px 2 --fps 30 --out solve",
+        "# a long plate's features extracted on a Dask cluster (rerun the same command after a crash to resume)",
+        "camcal solve plates/shot.%04d.exr --frames 1001-1960 --matcher sequential --scheduler tcp://farm:8786 "
+        "--out solve",
         "# the world set on a 9x6 chessboard of 4 cm squares lying on the set's floor",
         "camcal solve plates/shot.%04d.exr --frames 1001-1240 --matcher sequential --world-board chessboard:9x6:0.04 "
         "--out solve",
@@ -175,6 +187,6 @@ def _solve(args: argparse.Namespace) -> int:
                    intrinsics_mode=args.intrinsics_mode, require_all=args.require_all, up=args.up, origin=args.origin,
                    scale=args.scale, units=args.units, world_board=args.world_board, readout_ms=args.readout_ms,
                    readout_flag_px=args.readout_flag_px, fps=args.fps, seed=args.seed,
-                   verbose=args.verbose)
+                   scheduler=args.scheduler, workers=args.workers, verbose=args.verbose)
     report_result(args, result, say=False)
     return 0

@@ -28,7 +28,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-from collections.abc import Callable, Iterator, Mapping
+import time
+from collections.abc import Callable, Collection, Iterator, Mapping
 from typing import Any
 
 import cv2
@@ -39,7 +40,8 @@ from camcal.geometry.board import Board, Detection, DetectionReport, detect_boar
 from camcal.io.video import iter_frames, video_info
 from camcal.pipelines.board import read_video_cache, video_cache_file, video_report, write_video_cache
 
-__all__ = ["CHUNK_FRAMES", "DASK_MIN_FRAMES", "dask_client", "detect_frame_range", "detect_in_videos", "use_dask"]
+__all__ = ["CHUNK_FRAMES", "DASK_MIN_FRAMES", "cancel_and_wait", "dask_client", "detect_frame_range",
+           "detect_in_videos", "use_dask"]
 
 #: Frames of one video per Dask task: enough tasks to balance the workers and move the progress line, while the
 #: seek at a range's start (decoding from the key frame before it) stays small beside decoding the range.
@@ -80,6 +82,27 @@ def dask_client(workers: int | None, scheduler: str | None) -> Iterator[Any]:
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                       silence_logs=logging.CRITICAL) as cluster, Client(cluster) as client:
         yield client
+
+
+def _running_keys(dask_worker: Any) -> list[str]:
+    """On a worker: the keys of the tasks occupying its threads, cancelled ones included."""
+    return [str(task.key) for task in dask_worker.state.all_running_tasks]
+
+
+def cancel_and_wait(client: Any, futures: Collection[Any], timeout: float = 600.0) -> None:
+    """Cancel ``futures`` and wait, at most ``timeout`` seconds, until none of them still runs on a worker.
+
+    Dask cannot stop a task that has started: cancelled, it runs to its end on its worker, side effects (files
+    written) included. A job that fails and removes what its tasks wrote waits here first.
+    """
+    keys = {str(future.key) for future in futures}
+    client.cancel(list(futures))
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        running = client.run(_running_keys, on_error="ignore")
+        if not keys.intersection(key for worker_keys in running.values() for key in worker_keys):
+            return
+        time.sleep(0.05)
 
 
 def detect_frame_range(board: Board, path: str, start: int, stop: int | None, every: int,

@@ -62,6 +62,7 @@ from camcal.io.video import video_info
 from camcal.model.rig import Rig
 from camcal.pipelines.solve_colmap import (COLMAP_LOG, MAPPERS, MATCHERS, OWNED, check_parallax, extraction_options,
                                            map_images, number_by_name, verification_options, why_nothing_registered)
+from camcal.pipelines.solve_features import FEATURE_CACHE, DaskExtraction, extract_features
 from camcal.pipelines.solve_inputs import (check_one_size_per_camera, collect_images, list_images, stage_images,
                                            plate_frame_number, stage_masks, unregistered_line, video_of)
 from camcal.pipelines.solve_lens import GridLens, drift_lines, grid_lens, hold_in_database, lens_priors
@@ -154,6 +155,8 @@ def solve_sfm(
     require_all: bool = False,
     loops: str = "auto",
     rolling_shutter: ShutterSpec | None = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
 ) -> SfmResult:
     """Run pycolmap SfM, refine it with camcal's bundle adjustment, convert it to a Rig.
 
@@ -257,6 +260,16 @@ def solve_sfm(
         computed, stored in the rig's frames and frames above the threshold
         named (:mod:`camcal.pipelines.solve_shutter`); the frame rate is the
         spec's, else a movie's own, else 24.
+    scheduler : str, optional
+        Extract the features on the Dask cluster of this scheduler
+        (``tcp://host:8786``), one task per image, whose workers must see
+        the images and ``out_dir``'s parent folder; each image's features are cached in
+        ``out_dir/.camcal-features`` until the solve ends, so that a rerun of a
+        killed solve extracts only the images it had not finished
+        (:mod:`camcal.pipelines.solve_features`). The same features as in
+        this process, bit for bit; matching and mapping stay here.
+    workers : int, optional
+        The same on a local Dask cluster of this many worker processes.
 
     Returns
     -------
@@ -296,16 +309,31 @@ def solve_sfm(
         movies = [video for video in videos.values() if video is not None]
         fps = rolling_shutter.fps or (video_info(movies[0]).fps if movies else DEFAULT_FPS)
         shutter = (rolling_shutter, (every if movies else 1) / fps, fps)
+    if scheduler is not None and workers is not None:
+        raise CamcalError("give a Dask scheduler or a number of local workers, not both")
+    if workers is not None and workers < 1:
+        raise CamcalError(f"--workers must be at least 1, got {workers}")
     target = Path(out_dir)
     remove_stale_temporaries([target])  # the staging folder of a killed earlier run
-    with atomic_dir(target, replace=OWNED + (COLMAP_LOG,)) as staging:
-        with native_output_to(staging / COLMAP_LOG, echo=verbose):
-            result = _solve_in(pycolmap, images, folders, staging, camera_model, matcher, mapper, seed, num_threads,
-                               refine, known_rig, loss, lens_models, principal_point, max_num_features, progress,
-                               jackknife, guided_matching, priors, every, masks or {},
-                               intrinsics=None if intrinsics is None else (intrinsics, intrinsics_mode,
-                                                                           intrinsics_source),
-                               world=world, require_all=require_all, loops=loops, shutter=shutter)
+    new_target = not target.exists() or [entry.name for entry in target.iterdir()] == [FEATURE_CACHE]
+    dask = (DaskExtraction(target / FEATURE_CACHE, scheduler, workers)
+            if scheduler is not None or workers is not None else None)
+    try:
+        with atomic_dir(target, replace=OWNED + (COLMAP_LOG,)) as staging:
+            with native_output_to(staging / COLMAP_LOG, echo=verbose):
+                result = _solve_in(pycolmap, images, folders, staging, camera_model, matcher, mapper, seed,
+                                   num_threads, refine, known_rig, loss, lens_models, principal_point,
+                                   max_num_features, progress, jackknife, guided_matching, priors, every, masks or {},
+                                   intrinsics=None if intrinsics is None else (intrinsics, intrinsics_mode,
+                                                                               intrinsics_source),
+                                   world=world, require_all=require_all, loops=loops, shutter=shutter,
+                                   dask=dask)
+    except CamcalError:  # an error of the input: nothing left, the feature cache of an interrupted run included
+        shutil.rmtree(target / FEATURE_CACHE, ignore_errors=True)
+        if new_target and target.is_dir() and not any(target.iterdir()):
+            target.rmdir()
+        raise
+    shutil.rmtree(target / FEATURE_CACHE, ignore_errors=True)  # the database holds the features now
     return dataclasses.replace(result, reconstruction_dir=final_path(result.reconstruction_dir, staging, target))
 
 
@@ -314,7 +342,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
               guided_matching: bool, priors: tuple[PriorSpec, ...], every: int = 1,
               masks: dict[str, list[Path]] | None = None, intrinsics: tuple[Rig, str, str] | None = None,
               world: WorldSpec | None = None, require_all: bool = False, loops: str = "auto",
-              shutter: tuple[ShutterSpec, float, float] | None = None) -> SfmResult:
+              shutter: tuple[ShutterSpec, float, float] | None = None,
+              dask: DaskExtraction | None = None) -> SfmResult:
     """:func:`solve_sfm`'s work inside its (temporary) output folder, COLMAP's output captured."""
     image_dir = out_dir / "images"
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
@@ -333,21 +362,14 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     image_names = list(staged)
     database = out_dir / "database.db"
 
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = camera_model
-    if masks:
-        reader.mask_path = stage_masks(masks, staged, image_dir, out_dir / "masks")
+    mask_dir = stage_masks(masks, staged, image_dir, out_dir / "masks") if masks else None
     firsts: dict[str, Path] = {}
     for name in image_names:
         firsts.setdefault(name.split("/")[0], image_dir / name)
     extraction = extraction_options(pycolmap, list(firsts.values()), max_num_features, num_threads)
-    _say(progress, f"extracting features from {len(image_names)} images")
-    pycolmap.set_random_seed(seed)
-    pycolmap.extract_features(
-        database, image_dir, image_names=image_names,
-        camera_mode=pycolmap.CameraMode.PER_IMAGE if lens is not None and lens.lenses else pycolmap.CameraMode.PER_FOLDER,
-        reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
-    )
+    extract_features(pycolmap, database, image_dir, image_names,
+                     pycolmap.CameraMode.PER_IMAGE if lens is not None and lens.lenses else pycolmap.CameraMode.PER_FOLDER,
+                     camera_model, mask_dir, extraction, seed, dask, labels=staged, progress=progress)
     number_by_name(pycolmap, database)
     if lens is not None:
         hold_in_database(pycolmap, database, lens)
