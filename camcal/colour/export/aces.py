@@ -275,7 +275,9 @@ def clf_text(transform: InputTransform, app_release: str = "") -> str:
     user name; ``Description`` says what the transform is, the descriptors
     name its input and output, and ``Info`` holds ``AppRelease``,
     ``ACEStransformID``, ``ACESuserName`` and then the camera, chart, light
-    and fit (:attr:`InputTransform.metadata`).
+    and fit (:attr:`InputTransform.metadata`). OpenColorIO 2.6 writes ST
+    2136-1's XML namespace; 2.3-2.5 write the same elements as the Academy's
+    CLF 3 (S-2014-006), without a namespace, which those releases read.
     """
     if transform.baked is None:
         raise CamcalError("a CLF holds the OCIO transforms: build the input transform with bake=True")
