@@ -13,14 +13,11 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
-import cloudpickle
 import numpy as np
 import OpenEXR
 import pytest
-from distributed.diagnostics.plugin import WorkerPlugin
 
 from camcal.base.atomic import TEMPORARY_TAG
 from camcal.cli import main
@@ -28,13 +25,11 @@ from camcal.model.distortion import Distortion
 from camcal.model.rig import Rig
 from camcal.pipelines.batch import RECORD_DIR, make_job, process_frame, run_batch
 from camcal.synthetic import example_camera
+from dask_faults import StallOnce, drain, temporaries, wait_for_pid
 
 SIZE = (64, 48)
 FRAMES = tuple(range(1001, 1013))
 ROOT = Path(__file__).resolve().parents[2]
-
-cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the plugin below, for the worker processes
-
 
 def _rig(tmp: Path) -> Path:
     camera = example_camera("left", image_size=SIZE, fx=60.0, fy=60.0, principal_point=(31.7, 24.2),
@@ -54,60 +49,6 @@ def _sequence(tmp: Path, frames=FRAMES) -> str:
     return pattern
 
 
-class _StallOnce(WorkerPlugin):
-    """Worker plugin: the first write of each chosen output stops halfway and waits to be killed."""
-
-    name = "camcal-test-stall-once"
-
-    def __init__(self, markers: dict[str, str]) -> None:
-        self.markers = markers  # output file name -> marker file (created by the one write that stalls)
-
-    def setup(self, worker) -> None:
-        import camcal.io.frames as frames
-
-        original = getattr(frames, "_unstalled_write_exr", frames._write_exr)
-        frames._unstalled_write_exr = original
-        markers = self.markers
-
-        def stalling_write(path, frame):
-            original(path, frame)
-            output = Path(path).name.split(f".{TEMPORARY_TAG}.")[0][1:]
-            if output not in markers:
-                return
-            try:
-                handle = os.open(markers[output], os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-            except FileExistsError:
-                return  # stalled once already: this is the retry
-            os.truncate(path, os.path.getsize(path) // 2)
-            os.write(handle, str(os.getpid()).encode())
-            os.close(handle)
-            time.sleep(600)
-
-        frames._write_exr = stalling_write
-
-
-def _wait_for_pid(marker: Path, process: subprocess.Popen) -> int:
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        text = marker.read_text() if marker.exists() else ""
-        if text:
-            return int(text)
-        assert process.poll() is None, "the batch ended before the write stalled"
-        time.sleep(0.05)
-    raise AssertionError(f"no write stalled on {marker.name}")
-
-
-def _drain(dask) -> None:
-    """Wait until the scheduler holds no task (only this test's cluster teardown may kill a worker after)."""
-    deadline = time.monotonic() + 60
-    while dask.run_on_scheduler(lambda dask_scheduler: len(dask_scheduler.tasks)) and time.monotonic() < deadline:
-        time.sleep(0.1)
-
-
-def _temporaries(folder: Path) -> list[str]:
-    return sorted(p.name for p in folder.rglob("*") if TEMPORARY_TAG in p.name)
-
-
 @pytest.mark.slow
 def test_worker_killed_mid_write_then_client_killed_then_rerun(tmp_path):
     from distributed import Client, LocalCluster
@@ -122,7 +63,7 @@ def test_worker_killed_mid_write_then_client_killed_then_rerun(tmp_path):
     markers = {frame: tmp_path / f"stalled.{frame}" for frame in (worker_victim, client_victim)}
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as dask:
-        dask.register_plugin(_StallOnce({f"left.{frame}.exr": str(path) for frame, path in markers.items()}))
+        dask.register_plugin(StallOnce("camcal.io.frames", "_write_exr", {f"left.{frame}.exr": str(path) for frame, path in markers.items()}))
         command = ["batch", str(rig), "--camera", "left", "--images", pattern, "--frames", f"{FRAMES[0]}-{FRAMES[-1]}",
                    "--undistort", "--out", str(out_dir / "left.%04d.exr"), "--scheduler", cluster.scheduler_address,
                    "--quiet"]
@@ -130,25 +71,25 @@ def test_worker_killed_mid_write_then_client_killed_then_rerun(tmp_path):
         process = subprocess.Popen([sys.executable, "-m", "camcal", *command], cwd=tmp_path, env=env,
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
-            os.kill(_wait_for_pid(markers[worker_victim], process), signal.SIGKILL)  # a worker, mid-write
-            stalled = _wait_for_pid(markers[client_victim], process)  # the other frame's write, later
+            os.kill(wait_for_pid(markers[worker_victim], process), signal.SIGKILL)  # a worker, mid-write
+            stalled = wait_for_pid(markers[client_victim], process)  # the other frame's write, later
         finally:
             os.killpg(process.pid, signal.SIGKILL)  # the client, mid-run
             process.wait(timeout=30)
         os.kill(stalled, signal.SIGKILL)  # and the worker still writing for it
-        partial = _temporaries(out_dir)
+        partial = temporaries(out_dir)
         assert [name.split(f".{TEMPORARY_TAG}.")[0] for name in partial] == [
             f".left.{frame}.exr" for frame in sorted(markers)]  # the killed writes' half files, as before the fix
         before = sorted(p.name for p in out_dir.glob("left.*.exr"))
         assert 0 < len(before) < len(FRAMES)
 
-        _drain(dask)  # the killed client's tasks still queued or running finish (or are forgotten)
+        drain(dask)  # the killed client's tasks still queued or running finish (or are forgotten)
         assert main(command + ["--resume"]) == 0
-        _drain(dask)
+        drain(dask)
 
     written = sorted(p.relative_to(out_dir).as_posix() for p in out_dir.rglob("*") if p.is_file())
     assert written == sorted([f"left.{f}.exr" for f in FRAMES] + [f"{RECORD_DIR}/left.{f}.exr.json" for f in FRAMES])
-    assert _temporaries(tmp_path) == []
+    assert temporaries(tmp_path) == []
     for frame in FRAMES:  # every output complete and equal to the uninterrupted run's, byte for byte
         assert (out_dir / f"left.{frame}.exr").read_bytes() == reference.output_path(frame).read_bytes(), frame
 
