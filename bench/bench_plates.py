@@ -43,7 +43,10 @@ frame the camera-centre error in % of the true path length and the rotation
 error (deg); the focal error (%) where the lens is free.
 
 ``--growth``: the first 60 / 120 / 240 / 480 frames of one 480-frame walk,
-camcal and plain pycolmap: time and peak memory per frame.
+camcal and plain pycolmap back to back at each size: time and peak memory
+per frame, their ratios, camcal's errors; from 200 frames camcal solves the
+plate twice and its cameras are compared bit for bit (``--growth-sizes
+60,120`` for fewer).
 
 Usage: ``python bench/bench_plates.py`` (comparison at 240 frames and growth:
 hours on 2 cores; one 60-frame solve of camcal took 35-70 min on a machine
@@ -401,29 +404,57 @@ def compare(cache: Path, shots: list[str], n_frames: int, methods: list[str], wo
     return rows
 
 
-def growth(cache: Path, work: Path) -> list[dict]:
-    """Time and peak memory per frame of camcal and plain pycolmap on the first N frames of a 480-frame walk."""
-    longest = max(GROWTH)
+def same_cameras(a: dict, b: dict) -> bool:
+    """Whether two runs' cameras are equal bit for bit: the same frames, rotations, centres and focal length."""
+    return (a["focal"] == b["focal"] and a["poses"].keys() == b["poses"].keys() and all(
+        np.array_equal(a["poses"][k][0], b["poses"][k][0]) and np.array_equal(a["poses"][k][1], b["poses"][k][1])
+        for k in a["poses"]))
+
+
+def growth(cache: Path, work: Path, sizes: tuple[int, ...] = GROWTH, twice_from: int = 200) -> list[dict]:
+    """Time and peak memory per frame of camcal and plain pycolmap on the first N frames of one walk, back to back
+    (the ratio measured under the same load); camcal's errors at each size; from ``twice_from`` frames camcal
+    solves the plate a second time and its cameras are compared bit for bit.
+
+    The walk's poses do not depend on the shot's length, so the first N frames of the longest render are the
+    N-frame walk."""
+    longest = max(sizes)
     full = cache / f"walk-{longest}"
-    render_shot(full, "walk", longest)
+    truth = render_shot(full, "walk", longest)
     rows = []
-    print(f"cost growth (the first N frames of one {longest}-frame walk):")
-    for n in GROWTH:
+    print(f"cost growth (the first N frames of one {longest}-frame walk; camcal then plain pycolmap, back to back):")
+    for n in sizes:
         plate = cache / f"walk-{longest}-first{n}"
         if not plate.is_dir():
             plate.mkdir()
             for k in range(n):
                 os.link(full / f"plate.{FIRST + k}.png", plate / f"plate.{FIRST + k}.png")
+        first = {k: truth[k] for k in range(FIRST, FIRST + n)}
+        results = {}
         for method in ("camcal", "pycolmap"):
             result = run_method(method, plate, work / f"growth-{n}")
             if "error" in result:
                 print(f"  {n:4d} frames {method:9s} failed: {result['error']}", flush=True)
                 continue
-            rows.append({"frames": n, "method": method, "seconds": result["seconds"], "peak_mb": result["peak_mb"],
-                         "registered": len(result["poses"])})
+            results[method] = result
+            row = summary(method, result, first)
+            rows.append(dict(row, frames=n, growth=True, cpu_seconds=result["cpu_seconds"]))
             print(f"  {n:4d} frames {method:9s} registered {len(result['poses']):3d}, {result['seconds']:7.1f} s "
-                  f"({1000 * result['seconds'] / n:.0f} ms/frame), peak {result['peak_mb']:.0f} MB "
-                  f"({result['peak_mb'] / n:.2f} MB/frame)", flush=True)
+                  f"({1000 * result['seconds'] / n:.0f} ms/frame; process CPU {result['cpu_seconds']:.0f} s), "
+                  f"peak {result['peak_mb']:.0f} MB ({result['peak_mb'] / n:.2f} MB/frame), position "
+                  f"{_cell(row, 'position_pct', '.4f')} % of path, rotation {_cell(row, 'rotation_deg', '.4f')} deg, "
+                  f"focal {_cell(row, 'focal_pct', '+.3f')} %", flush=True)
+        if len(results) == 2:
+            mine, peer = results["camcal"], results["pycolmap"]
+            print(f"  {n:4d} frames camcal / pycolmap: time {mine['seconds'] / peer['seconds']:.2f}, process CPU "
+                  f"{mine['cpu_seconds'] / peer['cpu_seconds']:.2f}, peak memory {mine['peak_mb'] / peer['peak_mb']:.2f}",
+                  flush=True)
+        if n >= twice_from and "camcal" in results:
+            again = run_method("camcal", plate, work / f"growth-{n}-again")
+            same = "error" not in again and same_cameras(results["camcal"], again)
+            rows.append({"frames": n, "growth": True, "method": "camcal-twice", "same_bit_for_bit": same})
+            print(f"  {n:4d} frames camcal solved again: the same cameras bit for bit: {'yes' if same else 'NO'}",
+                  flush=True)
     return rows
 
 
@@ -436,6 +467,8 @@ def main() -> None:
     parser.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated, of {', '.join(METHODS)}")
     parser.add_argument("--growth", action="store_true", help="only the cost growth")
     parser.add_argument("--no-growth", action="store_true", help="only the comparison")
+    parser.add_argument("--growth-sizes", default=",".join(map(str, GROWTH)),
+                        help="comma-separated frame counts of the growth (default %(default)s)")
     parser.add_argument("--json", type=Path, help="also write every row here")
     parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -454,7 +487,7 @@ def main() -> None:
         if not args.growth:
             rows += compare(cache, shots, frames, [m for m in args.methods.split(",") if m], Path(tmp) / "work")
         if not args.quick and not args.no_growth:
-            rows += growth(cache, Path(tmp) / "work")
+            rows += growth(cache, Path(tmp) / "work", tuple(int(n) for n in args.growth_sizes.split(",") if n))
         if args.json:
             args.json.write_text(json.dumps(rows, indent=1))
 

@@ -42,7 +42,7 @@ from camcal.geometry.bundle.deletion import DeletionUnsupported, FrameInfluences
 from camcal.geometry.bundle.prior import (ASPECT_PRIOR, PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, PriorSpec,
                                          mean_focal, undetermined)
 from camcal.geometry.bundle.state import model_layout
-from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife
+from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife, without_frames
 from camcal.model.colmap import camera_from_colmap, camera_to_colmap
 from camcal.model.distortion import Distortion, fit_distortion
 from camcal.model.rig import Camera
@@ -54,6 +54,7 @@ __all__ = [
     "FIXED_PARAMS",
     "FOCAL_UNDETERMINED",
     "HELDOUT_FRACTION",
+    "LENS_CHOICE_FRAMES",
     "LENS_MODELS",
     "LENS_MODEL_MARGIN",
     "MAPPING_MODELS",
@@ -87,6 +88,11 @@ PRINCIPAL_POINT_MODES = ("auto", "refine", "centre")
 LENS_MODEL_MARGIN = 0.01
 #: fraction of the sparse points (whole tracks) held out of the fit to choose the lens model.
 HELDOUT_FRACTION = 0.2
+#: a longer plate chooses its lens model on this many of its frames, spread evenly over it (the final fit is on
+#: every frame): neighbouring frames of a plate see the same points from nearly the same place, so the held-out
+#: residual of a lens model is decided by the field of view the points cover, not by the frame count, and each
+#: candidate's bundle adjustment on every frame of a long plate costs as much as the final one.
+LENS_CHOICE_FRAMES = 40
 #: relative sigma of a focal length above which the report says that the images barely determine it: no
 #: better than a lens's marked focal length (ISO 517 allows the marking +-5 % of the measured focal length).
 FOCAL_UNDETERMINED = 0.05
@@ -441,7 +447,8 @@ def self_calibrate(
     -----
     Lens model: :data:`HELDOUT_FRACTION` of the points (whole tracks) are
     left out; each candidate model is fitted, with the principal point free,
-    on the rest; the held-out points are re-triangulated through each fit
+    on the rest (on a plate of more than :data:`LENS_CHOICE_FRAMES` frames,
+    on that many frames spread evenly over it); the held-out points are re-triangulated through each fit
     (:func:`heldout_rms`) and each camera takes the model with the lowest
     held-out RMS (a model later in ``lens_models``, simplest first, must beat
     an earlier one by more than :data:`LENS_MODEL_MARGIN`). Principal point
@@ -471,12 +478,16 @@ def self_calibrate(
         raise CamcalError(f"unknown lens model {unknown[0]!r}, expected one of: {', '.join(MODELS)}")
     names = state.camera_names
     held_mask = np.random.default_rng(seed).random(len(state.points)) < HELDOUT_FRACTION
-    train, heldout = state.subset(~held_mask), state.subset(held_mask)
+    frames = np.unique(state.obs_frame)
+    spread = frames[np.unique(np.round(np.linspace(0, len(frames) - 1, min(len(frames), LENS_CHOICE_FRAMES))).astype(int))]
+    left_out = np.setdiff1d(frames, spread)
+    train, heldout = without_frames(state.subset(~held_mask), left_out), without_frames(state.subset(held_mask), left_out)
+    on = f" on {len(spread)} of {len(frames)} frames" if len(left_out) else ""
     free_pp = dataclasses.replace(options, refine_principal_point=principal_point != "centre",
                                   default_priors=principal_point != "refine")
     table: dict[str, dict[str, float]] = {name: {} for name in names}
     for model in lens_models:
-        _say(progress, f"lens model {model}: fitting {len(train.points)} points, {len(heldout.points)} held out")
+        _say(progress, f"lens model {model}: fitting {len(train.points)} points, {len(heldout.points)} held out{on}")
         lenses = dict.fromkeys(names, model)
         fit = bundle_adjust(_with_lenses(train, lenses), dataclasses.replace(_fixed(free_pp, lenses), compute_sigmas=False))
         for name, value in heldout_rms(fit.state, heldout).items():
@@ -523,7 +534,7 @@ def self_calibrate(
                                                    for key in {**covariance_sigmas, **jackknife_sigmas}})
     said = [i for i, prior in enumerate(final.priors) if prior.spec.source != _HELD]  # held: its own aspect line
     report = SelfCalibration(
-        lens_models=chosen, heldout_rms_px=table, n_heldout_points=int(held_mask.sum()),
+        lens_models=chosen, heldout_rms_px=table, n_heldout_points=len(heldout.points),
         principal_point=decisions,
         undetermined=tuple(undetermined(tuple(final.priors[i] for i in said),
                                         tuple(final.prior_posterior_sigmas[i] for i in said)) + _undetermined_focals(final)),

@@ -391,7 +391,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     sparse = out_dir / "sparse"
     sparse.mkdir()
     _say(progress, f"mapping ({mapper})")
-    models, mapping_note = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None)
+    models, mapping_note = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None,
+                                        sequential=matcher == "sequential")
     if len(folders) > 1 and models:
         # COLMAP needs sensor_from_rig to start a rig-constrained mapping: take it
         # from an unconstrained first pass, then map again with the rig.
@@ -412,7 +413,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         shutil.rmtree(sparse)
         sparse.mkdir()
         _say(progress, f"mapping ({mapper}) with the rig constraint")
-        models, mapping_note = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None)
+        models, mapping_note = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None,
+                                            sequential=matcher == "sequential")
     if mapping_note:
         _say(progress, mapping_note)
         stage_notes.append(mapping_note)
@@ -443,7 +445,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
             # the mapper's principal point is the image centre: free it once, then drop the matches
             # that no camera model explains (mismatches, features astride an occluding edge)
             _say(progress, "bundle adjustment (camcal) with the principal point free, then outlier rejection")
-            pre = bundle_adjust(state, dataclasses.replace(options, **free_pp))
+            pre = bundle_adjust(state, dataclasses.replace(options, **free_pp, compute_sigmas=False))
             state_to_reconstruction(pre.state, reconstruction)
             _say(progress, reject_outliers(reconstruction))
             state = state_from_reconstruction(reconstruction, names)
@@ -485,7 +487,7 @@ def _refine_with_lens(reconstruction, names: dict[int, str], state, options: Bun
     the grid's sigmas (every other intrinsic held, no default prior: the grid measured the lens)."""
     held = dataclasses.replace(options, constant_intrinsics=tuple(state.camera_names))
     _say(progress, "bundle adjustment (camcal) with the grid's lens held, then outlier rejection")
-    pre = bundle_adjust(state, held)
+    pre = bundle_adjust(state, dataclasses.replace(held, compute_sigmas=False))  # only its solution is used
     state_to_reconstruction(pre.state, reconstruction)
     _say(progress, reject_outliers(reconstruction))
     state = state_from_reconstruction(reconstruction, names)

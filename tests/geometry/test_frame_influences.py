@@ -7,6 +7,7 @@ import scipy.sparse
 from test_selfcal import stereo_rig, tracks_state
 
 from camcal.geometry.bundle import BundleOptions, bundle_adjust
+from camcal.geometry.bundle import deletion
 from camcal.geometry.bundle.deletion import frame_influences, one_step_replicates
 from camcal.geometry.uncertainty import shrunk_design_effect
 
@@ -62,3 +63,21 @@ def test_shrunk_design_effect_on_constructed_contributions():
     c = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
     delta = len(c) * np.var(c, ddof=1) / (c.sum() - model) ** 2
     assert shrunk_design_effect(model, c) == pytest.approx((delta * model + (1 - delta) * c.sum()) / model)
+
+
+def test_one_step_replicates_by_updated_sums_are_those_summed_again(monkeypatch):
+    # a group's reduced system is the full one with the terms of the points it touches taken out and put back
+    # without it (a few frames' worth on a long plate): the same replicates as the kept rows summed again
+    state = tracks_state(stereo_rig(), np.random.default_rng(5), n_frames=6, n_points=300)
+    full = bundle_adjust(state, OPTIONS)
+    groups = [np.array([0]), np.array([2, 3]), np.array([5])]  # frame 0 holds the gauge: the pseudo-inverse
+    runs = {}
+    for share in (0.0, np.inf):
+        monkeypatch.setattr(deletion, "_UPDATE_BELOW", share)
+        runs[share] = one_step_replicates(full.state, OPTIONS, groups)
+    for again, updated in zip(runs[0.0], runs[np.inf]):
+        for a, b in zip(again.params, updated.params):
+            assert np.allclose(a, b, rtol=1e-10, atol=0), (a, b)
+        assert np.allclose(again.frame_t, updated.frame_t, rtol=0, atol=1e-10)
+        assert np.allclose(again.frame_R, updated.frame_R, rtol=0, atol=1e-10)
+        assert not np.array_equal(again.params[0], full.state.params[0])  # the group moved the solution

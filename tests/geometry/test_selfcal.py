@@ -14,6 +14,7 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleState
 from camcal.geometry.bundle.prior import PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO
 from camcal.model.camera import rotation_angle_deg
+from camcal.geometry import selfcal
 from camcal.geometry.selfcal import FOCAL_UNDETERMINED, SelfCalibration, self_calibrate
 from camcal.model.colmap import camera_from_colmap
 from camcal.synthetic import example_stereo_rig, orbit_rig_poses
@@ -107,15 +108,22 @@ def test_self_calibration_recovers_offcentre_principal_points_and_division_lens(
     assert rotation_error_deg(result.state.sensor_R[1], true_rotation) < 0.05
 
 
-def test_lens_model_chosen_by_heldout_residual_is_the_true_one_when_it_matters():
-    # a strong division lens: a 2-term polynomial cannot follow it to the corners; the held-out points say so
+@pytest.mark.parametrize("choice_frames", [None, 6])
+def test_lens_model_chosen_by_heldout_residual_is_the_true_one_when_it_matters(monkeypatch, choice_frames):
+    # a strong division lens: a 2-term polynomial cannot follow it to the corners; the held-out points say so,
+    # also when the choice is made on fewer frames spread over the sequence (a long plate's)
     rng = np.random.default_rng(5)
     cameras = stereo_rig(lam=(-6e-7, -6e-7))
-    _, decisions = self_calibrate(tracks_state(cameras, rng), BundleOptions(), ("polynomial", "division"))
+    state = tracks_state(cameras, rng)
+    if choice_frames:
+        monkeypatch.setattr(selfcal, "LENS_CHOICE_FRAMES", choice_frames)
+    said = []
+    _, decisions = self_calibrate(state, BundleOptions(), ("polynomial", "division"), progress=said.append)
     print("\n".join(decisions.lines()))
     for name in ("left", "right"):
         table = decisions.heldout_rms_px[name]
         assert decisions.lens_models[name] == "division" and table["division"] < table["polynomial"]
+    assert any(line.endswith(f"held out on {choice_frames} of 10 frames") for line in said) == bool(choice_frames)
 
 
 def test_principal_point_the_views_do_not_determine_is_the_prior_and_says_so():

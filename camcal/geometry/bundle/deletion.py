@@ -39,7 +39,8 @@ Tipton 2018). The points are eliminated from ``H_kk`` too: with ``D = I -
 P_k V^+ P_k^T`` (block diagonal, one block per point) and ``E =
 D^(+1/2) X_k F`` (``X_k`` the frame's rows with the points eliminated, ``F
 F^T = S^+``), ``(I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2)``, one eigen-decomposition
-of ``E^T E`` (columns x columns) per frame.
+per frame over the columns the frame touches (its intrinsics, rig and the frames that share its points:
+a few hundred on a long plate, whatever its length).
 
 References
 ----------
@@ -78,6 +79,10 @@ __all__ = ["DeletionUnsupported", "FrameInfluences", "frame_influences", "one_st
 _NULL_RATIO = 1e-11
 #: a point's 3x3 block with ``lambda_min`` below this share of ``lambda_max`` is left free along that direction.
 _POINT_NULL_RATIO = 1e-10
+#: a replicate's reduced system is the full one with the terms of the points the group touches taken out and put
+#: back without it when their rows are fewer than this share of the rows kept (two sums over them against one over
+#: every kept row); else it is summed again over the kept rows.
+_UPDATE_BELOW = 0.5
 #: a leverage (a hat matrix eigenvalue) within this of 1: the cluster's residuals are zero along it.
 _LEVERAGE_NULL = 1e-8
 
@@ -317,12 +322,25 @@ def _steps(state: BundleState, options: BundleOptions, colmap, problem,
            groups: list[NDArray[np.int64]]) -> list[BundleState]:
     """The one-step replicate of ``state`` without each group of frames (module docstring)."""
     system = _system(state, options, colmap, problem)
+    S_all = b_all = None
     replicates = []
     for group in groups:
         deleted = np.isin(system.row_frame, group)
         counts = np.bincount(system.row_point[~deleted & (system.row_point >= 0)], minlength=system.n_points) // 2
         kept = ~deleted & ((system.row_point < 0) | (counts[np.maximum(system.row_point, 0)] >= 2))
-        _, _, S, b = _point_elimination(system, kept)
+        # S and b are sums over the points (and the rows without one): only the terms of the points that lose a
+        # row, and of the rows without a point that go, change; those are taken out and put back without the
+        # group, over the rows of those points alone (a few frames' worth of a long plate, not all of it), unless
+        # they are most of the rows (a short plate, an orbit whose frames all see every point)
+        touched = np.isin(system.row_point, np.unique(system.row_point[~kept & (system.row_point >= 0)]))
+        if np.count_nonzero(touched) < _UPDATE_BELOW * np.count_nonzero(kept):
+            if S_all is None:
+                _, _, S_all, b_all = _point_elimination(system, np.ones(len(system.r), dtype=bool))
+            _, _, S_before, b_before = _point_elimination(system, touched | (~kept & (system.row_point < 0)))
+            _, _, S_after, b_after = _point_elimination(system, touched & kept)
+            S, b = S_all - S_before + S_after, b_all - b_before + b_after
+        else:
+            _, _, S, b = _point_elimination(system, kept)
         delta_c = -_pseudo_solve(S, b, singular=bool(np.isin(group, system.gauge).any()))
         replicates.append(_apply(state, system.blocks, delta_c))
     return replicates
@@ -354,10 +372,12 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
     n_rows, n_c = system.J_c.shape
     H_inv, G, S, _ = _point_elimination(system, np.ones(n_rows, dtype=bool))
     F = _inverse_factor(S)
+    S_plus = F @ F.T
     P, pk = system.point_rows, system.row_point
     seen = pk >= 0
-    # A - P V^+ W row by row (each row with its point eliminated), made dense one frame at a time: dense over
-    # every row it would be observations x (cameras + frames), quadratic in the frame count
+    # A - P V^+ W row by row (each row with its point eliminated), one frame at a time and only on the columns it
+    # touches (the intrinsics, the rig, the frames that share its points): dense over every row and column it
+    # would be observations x (cameras + frames), and each frame's products (cameras + frames)^2
     G_rows = None if G is None else scipy.sparse.csr_matrix(
         (P[seen].ravel(), (np.repeat(np.flatnonzero(seen), 3), (3 * pk[seen, None] + np.arange(3)).ravel())),
         shape=(n_rows, G.shape[0]))
@@ -368,10 +388,12 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
         rows = rows[np.argsort(key, kind="stable")]
         key = np.sort(key, kind="stable")
         _, starts, counts = np.unique(key, return_index=True, return_counts=True)
-        # D^(+1/2), D = I - P_k V^+ P_k^T: block diagonal, one block per point (its rows in this frame)
-        X, z = system.J_c[rows].toarray(), system.r[rows].copy()
+        X_sparse = system.J_c[rows]
         if G_rows is not None:
-            X -= (G_rows[rows] @ G).toarray()
+            X_sparse = (X_sparse - G_rows[rows] @ G).tocsr()
+        columns = np.unique(X_sparse.indices)
+        X, z = X_sparse[:, columns].toarray(), system.r[rows].copy()
+        # D^(+1/2), D = I - P_k V^+ P_k^T: block diagonal, one block per point (its rows in this frame)
         for c in np.unique(counts):
             at = starts[counts == c, None] + np.arange(c)  # (n, c) positions in rows
             Pb = P[rows[at]]
@@ -380,18 +402,26 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
             root = _pinv_sqrt(D)
             X[at] = np.einsum("ncd,ndq->ncq", root, X[at])
             z[at] = np.einsum("ncd,nd->nc", root, z[at])
-        # (I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2), E = D^(+1/2) X_k F
-        # by the eigenvectors V of E^T E (eigenvalues s^2, s E's singular values), E's left singular vectors are
-        # E V / s: u = z + E V diag(w) V^T E^T z, w = 1 / (1 - s^2), or -1 / s^2 where 1 - s^2 is null; one
-        # (columns x columns) eigen-decomposition instead of a thin SVD of (rows x columns)
-        E = X @ F
+        # (I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2), E = D^(+1/2) X_k F. E E^T = X Q X^T with Q = S^+ on the
+        # frame's columns: any R with R R^T = Q gives E' = X R with E's left singular vectors and singular values
+        # (the nonzero ones; zero ones add nothing below), so the (columns x columns) eigen-decomposition is of
+        # E'^T E' over the frame's columns alone. By its eigenvectors V (eigenvalues s^2), E''s left singular
+        # vectors are E' V / s: u = z + E' V diag(w) V^T E'^T z, w = 1 / (1 - s^2), or -1 / s^2 where 1 - s^2 is null
+        E = X @ _psd_root(S_plus[np.ix_(columns, columns)])
         squares, V = np.linalg.eigh(E.T @ E)
         gap = 1.0 - squares
         kept = gap > _LEVERAGE_NULL
         weight = np.where(kept, 1.0 / np.where(kept, gap, 1.0), -1.0 / np.where(kept, 1.0, squares))
         u = z + E @ (V @ (weight * (V.T @ (E.T @ z))))
-        out.append(F @ (F.T @ (X.T @ u)))
+        out.append(S_plus[:, columns] @ (X.T @ u))
     return out
+
+
+def _psd_root(Q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``R`` with ``R R^T = Q`` for a symmetric positive semi-definite ``Q`` (its eigen-decomposition, rounding's
+    negative eigenvalues as 0)."""
+    values, vectors = np.linalg.eigh(Q)
+    return vectors * np.sqrt(np.clip(values, 0.0, None))
 
 
 def _apply(state: BundleState, blocks: list[_Block], delta: NDArray[np.float64]) -> BundleState:
