@@ -35,14 +35,21 @@ def K_of(focal_px: float, offset: tuple[float, float]) -> np.ndarray:
                      [0, 0, 1]])
 
 
-def render_board(K: np.ndarray, R: np.ndarray, t: np.ndarray, size=SIZE, px: int = 20) -> np.ndarray:
-    """The board (0.04 m squares, a white margin) at ``cam_from_board = (R, t)`` through the pinhole ``K``."""
+def board_texture(px: int) -> tuple[np.ndarray, np.ndarray]:
+    """The board's texture (0.04 m squares, a white margin), ``px`` pixels a square, and the map from its pixels to
+    the board's plane (m, its first inner corner at the origin)."""
     squares = np.indices((ROWS + 3, COLUMNS + 3)).sum(axis=0) % 2
     texture = np.where(squares == 1, 25, 230).astype(np.uint8)
     texture[0, :] = texture[-1, :] = texture[:, 0] = texture[:, -1] = 230
     texture = np.kron(texture, np.ones((px, px), np.uint8))
     corner0 = 2 * px - 0.5
     scale = np.array([[0.04 / px, 0, -corner0 * 0.04 / px], [0, 0.04 / px, -corner0 * 0.04 / px], [0, 0, 1]])
+    return texture, scale
+
+
+def render_board(K: np.ndarray, R: np.ndarray, t: np.ndarray, size=SIZE, px: int = 20) -> np.ndarray:
+    """The board (0.04 m squares, a white margin) at ``cam_from_board = (R, t)`` through the pinhole ``K``."""
+    texture, scale = board_texture(px)
     H = K @ np.column_stack([R[:, 0], R[:, 1], t]) @ scale
     return cv2.GaussianBlur(cv2.warpPerspective(texture, H, size, flags=cv2.INTER_AREA, borderValue=128), (0, 0), 0.7)
 

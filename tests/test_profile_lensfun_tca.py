@@ -21,7 +21,7 @@ from camcal.io.lensfun import export_states
 from camcal.io.lensfun_tca import TCAState
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig
-from test_api_profile import BOARD, COLUMNS, ROWS, SIZE, K_of, cli
+from test_api_profile import BOARD, COLUMNS, ROWS, SIZE, K_of, board_texture, cli
 
 lensfunpy = pytest.importorskip("lensfunpy")
 
@@ -45,12 +45,8 @@ def render_fringed(K: np.ndarray, R: np.ndarray, t: np.ndarray, px: int = 12) ->
     green one scaled by the true poly3 TCA about the lens centre, as BGR: channel X at pixel p shows the board
     point green images at q, ``p - c = (q - c) s_X(|q - c| / unit)`` (solved for q); every channel drawn alike
     (bilinear from the texture, then blurred)."""
-    squares = np.indices((ROWS + 3, COLUMNS + 3)).sum(axis=0) % 2
-    texture = np.where(squares == 1, 25, 230).astype(np.float32)
-    texture[0, :] = texture[-1, :] = texture[:, 0] = texture[:, -1] = 230
-    texture = np.kron(texture, np.ones((px, px), np.float32))
-    corner0 = 2 * px - 0.5
-    scale = np.array([[0.04 / px, 0, -corner0 * 0.04 / px], [0, 0.04 / px, -corner0 * 0.04 / px], [0, 0, 1]])
+    texture, scale = board_texture(px)
+    texture = texture.astype(np.float32)
     from_pixel = np.linalg.inv(K @ np.column_stack([R[:, 0], R[:, 1], t]) @ scale)
     width, height = SIZE
     p = np.stack(np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64)), axis=-1)

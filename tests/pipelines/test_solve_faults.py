@@ -25,21 +25,10 @@ from camcal.cli import main
 from camcal.pipelines.solve_features import FEATURE_CACHE
 from camcal.synthetic import render_stereo_sequence
 from dask_faults import StallOnce, drain, temporaries, wait_for_pid
+from test_solve import _numbers
 
 ROOT = Path(__file__).resolve().parents[2]
 N_FRAMES = 6
-
-def _numbers(value, path=""):
-    """Every leaf of a rig file's JSON by its path, the creation time left out (it is the clock's)."""
-    if isinstance(value, dict):
-        for key, item in value.items():
-            if key != "created":
-                yield from _numbers(item, f"{path}.{key}")
-    elif isinstance(value, list):
-        for index, item in enumerate(value):
-            yield from _numbers(item, f"{path}[{index}]")
-    else:
-        yield path, value
 
 
 @pytest.mark.slow
