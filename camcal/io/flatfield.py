@@ -50,6 +50,7 @@ from camcal.base.jsonfile import read_json, write_json
 from camcal.base.limits import FILE_BYTES, check_file_size
 from camcal.colour.flatfield import FlatField, RadialTerms, common_radial_terms
 from camcal.io.lensfun import DEFAULT_SENSOR_WIDTH_MM
+from camcal.io.lensfun_units import lensfun_aspect, lensfun_number, lensfun_unit_px
 from camcal.io.lensfun_vignetting import VignettingState, vignetting_element, vignetting_terms
 from camcal.io.points_csv import finite_numbers
 
@@ -172,10 +173,6 @@ def write_gain_exr(flat: FlatField, path: str | os.PathLike) -> Path:
     return imwrite(path, np.ascontiguousarray(flat.gain()[:, :, ::-1]))
 
 
-def _number(value: float) -> str:
-    return f"{value:.9g}"
-
-
 def write_lensfun_vignetting(flat: FlatField, path: str | os.PathLike, *, focal_mm: float, aperture: float,
                              distance_m: float, model: str = "camcal flat field", maker: str = "camcal",
                              mount: str = "Generic", sensor_width_mm: float | None = None) -> RadialTerms:
@@ -215,9 +212,9 @@ def write_lensfun_vignetting(flat: FlatField, path: str | os.PathLike, *, focal_
         raise CamcalError(f"a Lensfun database file must end in .xml, got {path.name!r}")
     state = VignettingState(focal_mm, aperture, distance_m, flat)
     width, height = flat.image_size
-    unit = (min(width, height) - 1) / 2.0
+    unit = lensfun_unit_px(flat.image_size)
     image_centre = np.array([(width - 1) / 2.0, (height - 1) / 2.0])
-    aspect = (max(width, height) - 1) / (min(width, height) - 1)
+    aspect = lensfun_aspect(flat.image_size)
     if path.exists():
         root, entry, offset = _existing_lens(path, aspect)
         terms = vignetting_terms(flat, offset)
@@ -233,9 +230,9 @@ def write_lensfun_vignetting(flat: FlatField, path: str | os.PathLike, *, focal_
         entry = ElementTree.SubElement(root, "lens")
         for tag, text in (("maker", maker), ("model", model), ("mount", mount)):
             ElementTree.SubElement(entry, tag).text = text
-        ElementTree.SubElement(entry, "center", x=_number(offset[0]), y=_number(offset[1]))
-        ElementTree.SubElement(entry, "cropfactor").text = _number(crop)
-        ElementTree.SubElement(entry, "aspect-ratio").text = _number(aspect)
+        ElementTree.SubElement(entry, "center", x=lensfun_number(offset[0]), y=lensfun_number(offset[1]))
+        ElementTree.SubElement(entry, "cropfactor").text = lensfun_number(crop)
+        ElementTree.SubElement(entry, "aspect-ratio").text = lensfun_number(aspect)
         calibration = ElementTree.SubElement(entry, "calibration")
         root.append(ElementTree.Comment(f" camcal image_size {width} {height} "))
     vignetting_element(calibration, state, terms)

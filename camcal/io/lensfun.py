@@ -111,6 +111,7 @@ from camcal.io.conversion import (
     select_cameras,
 )
 from camcal.io.lensfun_tca import TCAState, add_tca, check_tca
+from camcal.io.lensfun_units import lensfun_aspect, lensfun_centre_px, lensfun_number, lensfun_unit_px
 from camcal.io.lensfun_vignetting import VignettingState, add_vignetting, check_vignetting
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Rig
@@ -169,22 +170,17 @@ class LensfunLens:
     def undistorted_focal_px(self, image_size: tuple[int, int]) -> float:
         """``F``: the undistorted image's focal length in pixels at ``image_size`` (modifier.cpp's units)."""
         undistorted_mm = self.focal_mm if self.real_focal_mm is None else self.real_focal_mm / self.centre_scale()
-        return undistorted_mm * _unit_px(image_size) / self.unit_mm()
+        return undistorted_mm * lensfun_unit_px(image_size) / self.unit_mm()
 
     def unit_mm(self) -> float:
         """Lensfun's ``NormalizedInMillimeters``: the normalised unit in mm."""
         return _FULL_FRAME_DIAGONAL_MM / 2.0 / math.sqrt(self.aspect**2 + 1.0) / self.crop
 
 
-def _unit_px(image_size: tuple[int, int]) -> float:
-    return (min(image_size) - 1) / 2.0
-
-
 def _aspect(image_size: tuple[int, int]) -> float:
-    width, height = (max(image_size) - 1, min(image_size) - 1)
-    if height < 1:
+    if min(image_size) < 2:
         raise CamcalError(f"a Lensfun lens needs an image of at least 2x2 pixels, got {image_size}")
-    return width / height
+    return lensfun_aspect(image_size)
 
 
 def crop_factor(camera: Camera, sensor_width_mm: float | None = None) -> float:
@@ -255,7 +251,7 @@ def _exact_lens(camera: Camera, model: str, crop: float) -> LensfunLens | None:
             or K[0, 1] != 0.0 or model == "ptlens" or any(params.get(name, 0.0) != 0.0 for name in higher)
             or (model == "poly3" and params.get("k2", 0.0))):
         return None
-    focal, unit = K[0, 0], _unit_px(camera.image_size)
+    focal, unit = K[0, 0], lensfun_unit_px(camera.image_size)
     k1, k2 = params.get("k1", 0.0) * unit**2 / focal**2, params.get("k2", 0.0) * unit**4 / focal**4
     if model == "poly5":
         terms, undistorted_focal = {"k1": k1, "k2": k2}, focal
@@ -274,7 +270,7 @@ def _lens(camera: Camera, model: str, terms: Mapping[str, float], undistorted_fo
     ``undistorted_focal`` pixels, keyed by ``nominal_mm`` (default the camera's focal length in mm); a fisheye
     camera's is Lensfun's equidistant fisheye type."""
     width, height = camera.image_size
-    unit = _unit_px(camera.image_size)
+    unit = lensfun_unit_px(camera.image_size)
     centre_px = camera.K[:2, 2] if centre_px is None else centre_px
     centre = (centre_px[0] - (width - 1) / 2.0) / unit, (centre_px[1] - (height - 1) / 2.0) / unit
     lens = LensfunLens(model, terms, 0.0, crop, _aspect(camera.image_size), centre,
@@ -297,7 +293,7 @@ def fit_lens(camera: Camera, model: str, crop: float, *, nominal_mm: float | Non
     skew, which Lensfun has not, are part of the residual. ``nominal_mm``
     is the entry's ``focal`` (default the camera's focal length in mm).
     """
-    unit = _unit_px(camera.image_size)
+    unit = lensfun_unit_px(camera.image_size)
     centre = np.array(camera.K[:2, 2] if centre_px is None else centre_px, dtype=np.float64)
     project = _projector(model, centre, unit, camera.distortion.is_fisheye)
     exact = _exact_lens(camera, model, crop) if np.array_equal(centre, camera.K[:2, 2]) else None
@@ -328,7 +324,7 @@ def camera_of(lens: LensfunLens, image_size: tuple[int, int], name: str) -> Came
 
     ``ptlens`` needs ``a = c = 0`` (it is then ``poly3`` with ``k1 = b``).
     """
-    unit = _unit_px(image_size)
+    unit = lensfun_unit_px(image_size)
     undistorted_focal = lens.undistorted_focal_px(image_size)
     terms = lens.terms
     if lens.model == "ptlens":
@@ -344,16 +340,12 @@ def camera_of(lens: LensfunLens, image_size: tuple[int, int], name: str) -> Came
         focal = undistorted_focal * (1.0 - k1)
         params = {"k1": k1 * undistorted_focal**2 / (unit**2 * (1.0 - k1)), "k2": 0.0, "k3": 0.0}
     width, height = image_size
-    K = np.array([[focal, 0.0, (width - 1) / 2.0 + lens.center[0] * unit],
-                  [0.0, focal, (height - 1) / 2.0 + lens.center[1] * unit], [0.0, 0.0, 1.0]])
+    cx, cy = lensfun_centre_px(lens.center, image_size)
+    K = np.array([[focal, 0.0, cx], [0.0, focal, cy], [0.0, 0.0, 1.0]])
     sensor_width_mm = _FULL_FRAME_DIAGONAL_MM / lens.crop * width / math.hypot(width, height)
     distortion = Distortion("kannala-brandt", {**params, "k3": 0.0, "k4": 0.0}) if lens.lens_type == "fisheye" \
         else Distortion("polynomial", params)
     return Camera(name, image_size, K, distortion, np.eye(3), np.zeros(3), sensor_width_mm=sensor_width_mm)
-
-
-def _number(value: float) -> str:
-    return f"{value:.9g}"
 
 
 def _lens_element(root: ElementTree.Element, name: str, maker: str, mount: str,
@@ -366,16 +358,16 @@ def _lens_element(root: ElementTree.Element, name: str, maker: str, mount: str,
     if first.lens_type != "rectilinear":
         ElementTree.SubElement(entry, "type").text = first.lens_type
     if first.center != (0.0, 0.0):
-        ElementTree.SubElement(entry, "center", x=_number(first.center[0]), y=_number(first.center[1]))
-    ElementTree.SubElement(entry, "cropfactor").text = _number(first.crop)
-    ElementTree.SubElement(entry, "aspect-ratio").text = _number(first.aspect)
+        ElementTree.SubElement(entry, "center", x=lensfun_number(first.center[0]), y=lensfun_number(first.center[1]))
+    ElementTree.SubElement(entry, "cropfactor").text = lensfun_number(first.crop)
+    ElementTree.SubElement(entry, "aspect-ratio").text = lensfun_number(first.aspect)
     calibration = ElementTree.SubElement(entry, "calibration")
     for lens in lenses:
-        ElementTree.SubElement(calibration, "distortion", model=lens.model, focal=_number(lens.focal_mm),
-                               **{term: _number(value) for term, value in lens.terms.items()})
+        ElementTree.SubElement(calibration, "distortion", model=lens.model, focal=lensfun_number(lens.focal_mm),
+                               **{term: lensfun_number(value) for term, value in lens.terms.items()})
     for lens in lenses:
-        ElementTree.SubElement(calibration, "real-focal-length", focal=_number(lens.focal_mm),
-                               **{"real-focal": _number(lens.real_focal_mm)})
+        ElementTree.SubElement(calibration, "real-focal-length", focal=lensfun_number(lens.focal_mm),
+                               **{"real-focal": lensfun_number(lens.real_focal_mm)})
     return calibration
 
 

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.lateral_ca import LateralCA, fit_lateral_ca
+from camcal.io.lensfun_units import lensfun_centre_px, lensfun_number, lensfun_unit_px
 
 __all__ = ["TCAState", "add_tca", "check_tca"]
 
@@ -60,23 +61,17 @@ def check_tca(states: Sequence[TCAState], image_size: tuple[int, int]) -> None:
                               f"{state.image_size[1]} px, the lens' {image_size[0]}x{image_size[1]} px")
 
 
-def _number(value: float) -> str:
-    return f"{value:.9g}"
-
-
 def add_tca(calibration: ElementTree.Element, states: Sequence[TCAState], center: tuple[float, float],
             image_size: tuple[int, int]) -> list[str]:
     """Fit each state's ``poly3`` terms about the lens centre ``center`` (normalised), append its ``<tca>`` to the
     ``<calibration>`` and return one note per state: the terms and the residual of the corners in pixels."""
-    width, height = image_size
-    unit = (min(width, height) - 1) / 2.0
-    centre_px = np.array([(width - 1) / 2.0 + center[0] * unit, (height - 1) / 2.0 + center[1] * unit])
+    unit, centre_px = lensfun_unit_px(image_size), lensfun_centre_px(center, image_size)
     notes = []
     for state in sorted(states, key=lambda state: state.focal_mm):
         fit: LateralCA = fit_lateral_ca(state.corners, centre_px, unit)
-        terms = {f"{name}{channel}": _number(value) for channel, values in (("r", fit.red), ("b", fit.blue))
+        terms = {f"{name}{channel}": lensfun_number(value) for channel, values in (("r", fit.red), ("b", fit.blue))
                  for name, value in zip("vcb", values)}
-        ElementTree.SubElement(calibration, "tca", model="poly3", focal=_number(state.focal_mm), **terms)
+        ElementTree.SubElement(calibration, "tca", model="poly3", focal=lensfun_number(state.focal_mm), **terms)
         found_in = f" in {state.found_in}" if state.found_in else ""
         notes.append(f"TCA at {state.focal_mm:g} mm from {fit.n_corners} corners{found_in}: poly3 red v "
                      f"{fit.red[0]:.6f} c {fit.red[1]:.3g} b {fit.red[2]:.3g}, blue v {fit.blue[0]:.6f} c "

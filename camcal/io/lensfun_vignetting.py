@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.colour.flatfield import FlatField, RadialTerms, common_radial_terms
+from camcal.io.lensfun_units import lensfun_aspect, lensfun_centre_px, lensfun_number
 
 __all__ = ["LENSFUN_INFINITY_M", "VignettingState", "add_vignetting", "check_aspect", "check_vignetting",
            "describe", "vignetting_element", "vignetting_terms"]
@@ -68,16 +69,12 @@ class VignettingState:
                 raise CamcalError(f"the Lensfun vignetting entry needs a {name} > 0, got {value}")
 
 
-def _aspect(image_size: tuple[int, int]) -> float:
-    return (max(image_size) - 1) / (min(image_size) - 1)
-
-
 def check_aspect(flat: FlatField, aspect: float, where: str) -> None:
     """Refuse a flat field whose images have not got the lens' aspect ratio ``(max - 1) / (min - 1)``."""
-    if abs(_aspect(flat.image_size) / aspect - 1.0) > 0.01:
+    if abs(lensfun_aspect(flat.image_size) / aspect - 1.0) > 0.01:
         width, height = flat.image_size
         raise CamcalError(f"{where}: the flat field is of {width}x{height} images (aspect ratio "
-                          f"{_aspect(flat.image_size):.4g}), the lens' images have {aspect:.4g}")
+                          f"{lensfun_aspect(flat.image_size):.4g}), the lens' images have {aspect:.4g}")
 
 
 def check_vignetting(states: Sequence[VignettingState], aspect: float) -> None:
@@ -89,14 +86,7 @@ def check_vignetting(states: Sequence[VignettingState], aspect: float) -> None:
 def vignetting_terms(flat: FlatField, center: NDArray | tuple[float, float]) -> RadialTerms:
     """The ``pa`` terms of ``flat`` about a Lensfun lens centre ``center`` (normalised: half the shorter side,
     about the image centre) and the largest deviation from the flat field they leave over the frame."""
-    width, height = flat.image_size
-    unit = (min(width, height) - 1) / 2.0
-    centre_px = np.array([(width - 1) / 2.0, (height - 1) / 2.0]) + np.asarray(center, dtype=np.float64) * unit
-    return common_radial_terms(flat, centre_px)
-
-
-def _number(value: float) -> str:
-    return f"{value:.9g}"
+    return common_radial_terms(flat, lensfun_centre_px(np.asarray(center, dtype=np.float64), flat.image_size))
 
 
 def vignetting_element(calibration: ElementTree.Element, state: VignettingState,
@@ -104,13 +94,13 @@ def vignetting_element(calibration: ElementTree.Element, state: VignettingState,
     """Append ``<vignetting model="pa" focal aperture distance k1 k2 k3/>`` to a ``<calibration>``, replacing an
     entry of the same lens state."""
     distance = LENSFUN_INFINITY_M if math.isinf(state.distance_m) else state.distance_m
-    key = [_number(state.focal_mm), _number(state.aperture), _number(distance)]
+    key = [lensfun_number(state.focal_mm), lensfun_number(state.aperture), lensfun_number(distance)]
     for old in calibration.findall("vignetting"):
         if [old.get(name) for name in ("focal", "aperture", "distance")] == key:
             calibration.remove(old)
     return ElementTree.SubElement(calibration, "vignetting", model="pa", focal=key[0], aperture=key[1],
-                                  distance=key[2], k1=_number(terms.k[0]), k2=_number(terms.k[1]),
-                                  k3=_number(terms.k[2]))
+                                  distance=key[2], k1=lensfun_number(terms.k[0]), k2=lensfun_number(terms.k[1]),
+                                  k3=lensfun_number(terms.k[2]))
 
 
 def describe(state: VignettingState, terms: RadialTerms) -> str:
