@@ -7,7 +7,11 @@ standard error, not through Python's ``sys.stderr``: redirecting
 ``sys.stderr`` does not silence them. :func:`native_output_to` redirects
 the descriptors themselves (``os.dup2`` onto a pipe) for the duration of a
 ``with`` block; a thread copies what arrives into the log file and, when
-asked, on to the real stderr. Python's own ``sys.stdout`` / ``sys.stderr``
+asked, on to the real stderr. The block's end is an end marker written
+into the pipe, not the pipe's end of file: a process started inside the
+block (a Dask worker restarted by a nanny, a child of a native library)
+inherits the pipe as its descriptors 1 / 2 and may outlive the block, and
+waiting for its end of file would wait for it. Python's own ``sys.stdout`` / ``sys.stderr``
 are pointed at the real descriptors meanwhile, so the caller's lines
 (progress, messages) still reach the terminal and stay out of the log.
 
@@ -22,6 +26,7 @@ import ctypes
 import os
 import sys
 import threading
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
@@ -84,16 +89,33 @@ def native_output_to(log_path: str | os.PathLike, echo: bool = False, fds: tuple
     log = open(log_path, "ab")  # noqa: SIM115 - closed in the finally below
     echo_fd = saved.get(2, 2)
 
+    # written once, atomically (shorter than PIPE_BUF), after the block's own output: the copier stops there
+    end_marker = b"\0camcal-native-log-end:" + uuid.uuid4().hex.encode() + b"\0"
+
+    def emit(data: bytes) -> None:
+        if not data:
+            return
+        log.write(data)
+        log.flush()
+        if echo:
+            with contextlib.suppress(OSError):
+                os.write(echo_fd, data)
+
     def copy() -> None:
+        pending = b""
         while True:
             chunk = os.read(read_end, _CHUNK)
             if not chunk:
+                emit(pending)
                 return
-            log.write(chunk)
-            log.flush()
-            if echo:
-                with contextlib.suppress(OSError):
-                    os.write(echo_fd, chunk)
+            pending += chunk
+            at = pending.find(end_marker)
+            if at >= 0:
+                emit(pending[:at])
+                return
+            held = _marker_prefix_length(pending, end_marker)
+            emit(pending[:len(pending) - held])
+            pending = pending[len(pending) - held:]
 
     copier = threading.Thread(target=copy, name="native-output-log", daemon=True)
     copier.start()
@@ -124,12 +146,21 @@ def native_output_to(log_path: str | os.PathLike, echo: bool = False, fds: tuple
         _flush_c_stdio()
         for fd in fds:
             os.dup2(saved[fd], fd)
-        os.close(write_end)  # the last writer: the copier reads to the end, then stops
+        os.write(write_end, end_marker)  # after everything the block wrote: the copier stops there
+        os.close(write_end)
         copier.join()
         for fd in fds:
             os.close(saved[fd])
-        os.close(read_end)
+        os.close(read_end)  # a process that outlives the block now gets EPIPE instead of filling the pipe
         log.close()
+
+
+def _marker_prefix_length(data: bytes, marker: bytes) -> int:
+    """The length of the longest end of ``data`` that begins ``marker`` (bytes held back until the next read)."""
+    for length in range(min(len(marker) - 1, len(data)), 0, -1):
+        if data.endswith(marker[:length]):
+            return length
+    return 0
 
 
 #: glog's severity of errors (``google::GLOG_ERROR``): a ``minloglevel`` of 2 drops INFO and WARNING lines

@@ -74,3 +74,39 @@ def test_glog_level_drops_ceres_warnings_for_the_block_only():
     assert "inside the block" not in run.stderr and "after the block" in run.stderr
     assert run.stdout.strip() == "0"
 
+
+
+def test_a_process_started_in_the_block_that_outlives_it_does_not_hold_the_block_open(tmp_path):
+    """A child inherits the capture pipe as its fds 1 / 2 (a Dask worker a nanny restarts inside the block) and is
+    still running when the block ends: the block ends anyway, with the child's earlier line in the log, and what the
+    child writes afterwards is neither in the log nor on the terminal."""
+    script = textwrap.dedent(f"""
+        import os, pathlib, subprocess, sys, threading
+        from camcal.base.native_log import native_output_to
+        log = {str(tmp_path / "native.log")!r}
+        child_code = "import os, sys; os.write(2, b'child before\\\\n'); sys.stdin.read(); os.write(2, b'child after\\\\n')"
+        ended = threading.Event()
+
+        def block():
+            with native_output_to(log):
+                child = subprocess.Popen([sys.executable, "-c", child_code], stdin=subprocess.PIPE)
+                os.write(2, b"parent in the block\\n")
+                while "child before" not in pathlib.Path(log).read_text():
+                    pass
+            block.child = child
+            ended.set()
+
+        worker = threading.Thread(target=block, daemon=True)
+        worker.start()
+        worker.join(120)
+        print("ended" if ended.is_set() else "held open")
+        child = block.child
+        print("child running" if child.poll() is None else "child gone")
+        child.stdin.close()
+        child.wait()
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert run.stdout.splitlines() == ["ended", "child running"], run.stdout + run.stderr
+    log = (tmp_path / "native.log").read_text()
+    assert "parent in the block" in log and "child before" in log
+    assert "child after" not in log and "child after" not in run.stderr
