@@ -87,6 +87,11 @@ def missing_extra(error: BaseException) -> MissingExtraError | None:
     return MissingExtraError(top, EXTRAS[top])
 
 
+#: modules imported before an optional one: pycolmap's extension carries its own libpng and zlib, and a process
+#: that imports it before OpenCV aborts in OpenCV's PNG writer ("double free", pycolmap 4.2.1 / OpenCV 5.0.0)
+_IMPORT_BEFORE: dict[str, tuple[str, ...]] = {"pycolmap": ("cv2",)}
+
+
 def require(module: str) -> ModuleType:
     """Import an optional module, or raise the one line naming the extra that installs it.
 
@@ -117,6 +122,8 @@ def require(module: str) -> ModuleType:
     if top not in EXTRAS:
         raise ValueError(f"{top} is not an optional module of camcal, expected one of: {', '.join(sorted(EXTRAS))}")
     try:
+        for first in _IMPORT_BEFORE.get(top, ()):
+            importlib.import_module(first)
         return importlib.import_module(module)
     except ModuleNotFoundError as error:
         missing = missing_extra(error)

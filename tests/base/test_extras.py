@@ -149,3 +149,23 @@ def test_a_bare_import_of_a_missing_extra_still_gives_the_one_line(monkeypatch, 
     assert main(["rig", "show", "any.rig.json"]) == 2
     assert capsys.readouterr().err.splitlines() == [
         "camcal: error: camcal rig show needs the 'usd' extra (pxr is not installed): pip install 'camcal[usd]'"]
+
+
+def test_pycolmap_required_before_opencv_leaves_opencv_able_to_write_png(tmp_path):
+    """pycolmap's extension carries its own libpng / zlib: imported before OpenCV, OpenCV's PNG writer aborts
+    ("double free"). ``require("pycolmap")`` imports OpenCV first, so the PNGs are written and read back equal."""
+    import subprocess
+    import textwrap
+
+    script = textwrap.dedent(f"""
+        from camcal.base.extras import require
+        require("pycolmap")
+        import cv2, numpy as np
+        image = (np.random.default_rng(0).random((120, 160, 3)) * 255).astype(np.uint8)
+        for index in range(5):
+            path = {str(tmp_path)!r} + f"/{{index}}.png"
+            assert cv2.imwrite(path, image) and (cv2.imread(path) == image).all()
+        print("written")
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0 and run.stdout.strip() == "written", run.stderr[-2000:]
