@@ -32,7 +32,7 @@ def test_the_world_of_a_rendered_plate_is_set_on_its_floor_with_the_scale_given(
     The sigma: the ground plane's normal from its points' spread (the rig's provenance, ``up_sigma_deg``) and the
     cameras' pointing from their principal point's covariance (:func:`_pointing_tilt_sigma_deg`), independent.
     Measured (4 frames of 256 x 192): error 1.00 deg, sigma 0.17 (plane) and 0.90 (pointing) deg with the lock's
-    versions; 2.09 deg, 0.16 and 0.85 deg at the lowest allowed (OpenCV 4.11 finds other features).
+    and the newest versions; 2.09 deg, 0.15 and 0.85 deg at the lowest allowed (444 points solved there, 402 here).
     """
     truth = render_stereo_sequence(tmp_path / "in", n_frames=4, image_size=(WIDTH, HEIGHT),
                                    K=K)
@@ -60,7 +60,7 @@ def test_the_world_of_a_rendered_plate_is_set_on_its_floor_with_the_scale_given(
     sigma_deg = np.hypot(plane_deg, _pointing_tilt_sigma_deg(solved[0]))
     print(f"up: {error_deg:.3f} deg off the truth, sigma {sigma_deg:.3f} deg (plane {plane_deg:.3f} deg)")
     # 3 sigma: a one-axis Gaussian error passes 99.7 % of the time; sigma under 1.5 deg keeps the bound below the
-    # cameras' 7 deg down-look, so a solve that took their mean up (or a wall) for the floor's normal fails
+    # cameras' 7-10 deg down-look, so a solve that took their mean up (or a wall) for the floor's normal fails
     assert sigma_deg < 1.5 and error_deg < 3.0 * sigma_deg
     n_floor = int(np.sum(np.abs(xyz[:, 2]) < 0.01 * np.ptp(xyz[:, 2])))
     assert n_floor > 30  # the floor's points at z = 0
