@@ -35,7 +35,11 @@ Between Two Point Patterns. IEEE TPAMI 13(4) (the similarity ``s R X + t``).
 Rousseeuw, P. J. (1984). Least Median of Squares Regression. Journal of the
 American Statistical Association 79(388).
 Hartley, R. & Zisserman, A. (2004). Multiple View Geometry in Computer Vision,
-2nd ed., section 12.2 (linear triangulation).
+2nd ed., section 12.2 (linear triangulation); section 5.2 (the covariance of a
+least-squares estimate, ``sigma^2 (J^T J)^-1``).
+Pathak, K., Birk, A., Vaskevicius, N. & Poppinga, J. (2010). Fast Registration
+Based on Noisy Planes With Unknown Correspondences for 3-D Mapping. IEEE
+Transactions on Robotics 26(3) (the covariance of a fitted plane's normal).
 """
 
 from __future__ import annotations
@@ -57,6 +61,7 @@ __all__ = [
     "Similarity",
     "ground_plane_RANSAC",
     "mean_camera_up",
+    "plane_normal_covariance",
     "point_under",
     "triangulate_corners",
     "world_from_board",
@@ -127,12 +132,20 @@ class GroundPlane:
         The points within the RANSAC threshold of the plane.
     threshold : float
         That threshold (the points' units).
+    normal_covariance : ndarray, shape (3, 3)
+        The normal's covariance from its inliers' scatter (:func:`plane_normal_covariance`; NaN with only 3).
     """
 
     normal: NDArray[np.float64]
     offset: float
     inliers: NDArray[np.bool_]
     threshold: float
+    normal_covariance: NDArray[np.float64]
+
+    @property
+    def tilt_sigma_deg(self) -> float:
+        """The normal's one-sigma tilt, degrees: the RMS angle of its error, ``sqrt(trace(normal_covariance))``."""
+        return float(np.degrees(np.sqrt(np.trace(self.normal_covariance))))
 
 
 def _unit(v: ArrayLike, what: str) -> NDArray[np.float64]:
@@ -148,6 +161,44 @@ def _plane_through(points: NDArray[np.float64]) -> tuple[NDArray[np.float64], fl
     centre = points.mean(axis=0)
     normal = np.linalg.svd(points - centre)[2][-1]
     return normal, float(normal @ centre)
+
+
+def plane_normal_covariance(points: ArrayLike) -> NDArray[np.float64]:
+    """The covariance of the normal of the least-squares plane through ``points`` (radians squared).
+
+    The centred points' scatter ``sum (X - c)(X - c)^T`` has eigenvalues
+    ``l1 >= l2 >= l3`` and eigenvectors ``u, v, n`` (``n`` the normal). Tilting
+    the normal to ``n + a u + b v`` changes each point's distance by
+    ``a (X - c).u + b (X - c).v``, so the Jacobian's normal matrix of
+    ``(a, b)`` is ``diag(l1, l2)`` and the covariance of the estimate is
+    ``sigma^2 (J^T J)^-1`` (Hartley & Zisserman 2004, 5.2; Pathak et al.
+    2010): ``sigma^2 (u u^T / l1 + v v^T / l2)``, the points' spread off the
+    plane ``sigma^2 = l3 / (N - 3)`` (three parameters fitted).
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        The plane's points (its inliers).
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        In the points' axes; NaN with ``N <= 3`` (no spread to measure).
+
+    Examples
+    --------
+    >>> grid = np.array([[x, y, 0.01 * (-1) ** (x + y)] for x in range(10) for y in range(10)], dtype=float)
+    >>> C = plane_normal_covariance(grid)  # sigma^2 = 100 * 0.01^2 / 97, l1 = l2 = 10 * 82.5
+    >>> [round(float(np.degrees(np.sqrt(abs(C[k, k])))), 4) for k in range(3)]  # the normal: z
+    [0.0203, 0.0203, 0.0]
+    """
+    X = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(X) <= 3:
+        return np.full((3, 3), np.nan)
+    _, singular, axes = np.linalg.svd(X - X.mean(axis=0), full_matrices=False)
+    spread = singular**2
+    sigma2 = spread[2] / (len(X) - 3)
+    return sigma2 * (np.outer(axes[0], axes[0]) / spread[0] + np.outer(axes[1], axes[1]) / spread[1])
 
 
 def ground_plane_RANSAC(points: ArrayLike, threshold: float | None = None, iterations: int = 500, seed: int = 0,
@@ -189,7 +240,8 @@ def ground_plane_RANSAC(points: ArrayLike, threshold: float | None = None, itera
     singular vector of the centred inliers), the threshold narrowed to
     ``4 sigma`` of the inliers' distances (sigma from their median absolute
     deviation, 1.4826 MAD) when that is narrower, and the plane fitted again
-    to the inliers that leaves.
+    to the inliers that leaves; its normal's covariance is that of the fit to
+    them (:func:`plane_normal_covariance`).
     """
     X = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     X = X[np.all(np.isfinite(X), axis=1)]
@@ -230,7 +282,7 @@ def ground_plane_RANSAC(points: ArrayLike, threshold: float | None = None, itera
         side = np.asarray(cameras, dtype=np.float64).reshape(-1, 3) @ normal - offset
         if np.sum(np.sign(side)) < 0:
             normal, offset = -normal, -offset
-    return GroundPlane(normal, offset, inliers, float(threshold))
+    return GroundPlane(normal, offset, inliers, float(threshold), plane_normal_covariance(X[inliers]))
 
 
 def mean_camera_up(rotations: ArrayLike) -> NDArray[np.float64]:

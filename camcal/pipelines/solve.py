@@ -69,7 +69,7 @@ from camcal.pipelines.solve_lens import GridLens, drift_lines, grid_lens, hold_i
 from camcal.pipelines.solve_loops import LOOP_MODES, close_loops
 from camcal.pipelines.solve_plain import PycolmapPeer, solve_pycolmap_plain
 from camcal.pipelines.solve_shutter import DEFAULT_FPS, ShutterSpec, check_rolling_shutter
-from camcal.pipelines.solve_world import WorldSpec, align_world, board_world, scaled_translations
+from camcal.pipelines.solve_world import WorldAlignment, WorldSpec, align_world, board_world, scaled_translations
 
 __all__ = [
     "COLMAP_LOG",
@@ -458,11 +458,12 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
             reconstruction.cameras[camera_ids[name]].model = getattr(pycolmap.CameraModelId, model)
         state_to_reconstruction(bundle.state, reconstruction)
     units = known_rig.units if known_rig is not None else "arbitrary"
-    world_scale = 1.0
+    world_scale, world_record = 1.0, None
     if world is not None and world.active:
         _say(progress, "setting the world")
-        world_scale, lines = _set_world(pycolmap, reconstruction, list(folders), world, seed, image_dir)
-        for line in lines:
+        alignment = _set_world(pycolmap, reconstruction, list(folders), world, seed, image_dir)
+        world_scale, world_record = alignment.similarity.s, alignment.record()
+        for line in alignment.lines:
             _say(progress, line)
             notes.append(line)
         units = world.units or units
@@ -472,7 +473,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     originals = {name: Path(os.path.relpath(path.resolve(), out_dir.resolve())).as_posix()
                  for name, path in staged.items()}
     result = _to_result(reconstruction, list(folders), out_dir, model_dir, originals, units, bundle, calibration,
-                        seed, lens, world_scale, shutter)
+                        seed, lens, world_scale, shutter, world_record)
     for line in result.notes:
         _say(progress, line)
     if lens is not None and lens.mode == "prior":
@@ -513,27 +514,28 @@ def _camcal_names(colmap_name: str, model: str) -> set[str]:
 
 
 def _set_world(pycolmap, reconstruction, camera_names: list[str], world: WorldSpec, seed: int,
-               image_dir: Path) -> tuple[float, list[str]]:
-    """Move the reconstruction into the world ``world`` asks for (points, frames and the rig's baselines); the
-    scale and what was done."""
+               image_dir: Path) -> WorldAlignment:
+    """Move the reconstruction into the world ``world`` asks for (points, frames and the rig's baselines); how."""
     if world.board is not None:
-        similarity, lines = board_world(reconstruction, image_dir, world.board, world.units, seed)
+        alignment = board_world(reconstruction, image_dir, world.board, world.units, seed)
     else:
         xyz = np.array([point.xyz for point in reconstruction.points3D.values()]).reshape(-1, 3)
         poses = sorted((camera_names.index(image.name.split("/")[0]), image.name, image.cam_from_world())
                        for image in reconstruction.images.values() if image.has_pose)
         rotations = np.array([pose.rotation.matrix() for _, _, pose in poses])
         centres = np.array([-pose.rotation.matrix().T @ pose.translation for _, _, pose in poses])
-        similarity, lines = align_world(xyz, rotations, centres, world, seed)
+        alignment = align_world(xyz, rotations, centres, world, seed)
+    similarity = alignment.similarity
     reconstruction.transform(pycolmap.Sim3d(similarity.s, pycolmap.Rotation3d(similarity.R), similarity.t))
-    return similarity.s, lines
+    return alignment
 
 
 
 def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir: Path,
                originals: dict[str, str], units: str, bundle: BundleResult | None,
                calibration: SelfCalibration | None, seed: int, lens: GridLens | None = None,
-               world_scale: float = 1.0, shutter: tuple[ShutterSpec, float, float] | None = None) -> SfmResult:
+               world_scale: float = 1.0, shutter: tuple[ShutterSpec, float, float] | None = None,
+               world_record: dict | None = None) -> SfmResult:
     """Convert a pycolmap reconstruction with one rig into camcal's Rig; write its points and the rig.
 
     ``originals`` maps every staged image name (COLMAP's) to the user's
@@ -543,12 +545,14 @@ def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir
     grid's model name. ``world_scale``: the world was scaled after the bundle
     adjustment, and the covariance of translations is scaled with it. ``shutter``: the readout to check each
     frame with, the seconds between frame numbers and the frame rate (the lines it says become the notes).
+    ``world_record``: how the world was set (:meth:`WorldAlignment.record`), the provenance's ``world``.
     """
     points_path = out_dir / "points.ply"
     model = sparse_model(reconstruction, camera_names, originals, units, bundle, calibration, points_path.name,
                          None if lens is None else lens.lenses)
     rig = dataclasses.replace(scaled_translations(model.rig, world_scale),
-                              provenance={**model.rig.provenance, "seed": seed})
+                              provenance={**model.rig.provenance, "seed": seed,
+                                          **({} if world_record is None else {"world": world_record})})
     if lens is not None:
         rig = dataclasses.replace(rig, cameras=tuple(_as_grid_lens(camera, lens) for camera in rig.cameras),
                                   provenance={**rig.provenance, "intrinsics": list(lens.lines)})

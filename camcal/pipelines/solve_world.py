@@ -41,8 +41,8 @@ from camcal.io.frames import imread
 from camcal.model.quality import ParameterCovariance
 from camcal.model.rig import Rig
 
-__all__ = ["BOARD_FRAMES", "UP_SOURCES", "WorldSpec", "align_world", "board_world", "scaled_translations",
-           "world_spec"]
+__all__ = ["BOARD_FRAMES", "UP_SOURCES", "WorldAlignment", "WorldSpec", "align_world", "board_world",
+           "scaled_translations", "world_spec"]
 
 #: where ``--up`` comes from: the ground plane of the sparse points, or the cameras' mean up.
 UP_SOURCES = ("ground", "cameras")
@@ -82,6 +82,34 @@ class WorldSpec:
     def active(self) -> bool:
         """Whether anything is to be moved."""
         return self.up is not None or self.origin is not None or self.scale is not None or self.board is not None
+
+
+@dataclass(frozen=True)
+class WorldAlignment:
+    """A solve's world as set (:func:`align_world`, :func:`board_world`).
+
+    Attributes
+    ----------
+    similarity : Similarity
+        Reconstruction -> the set's world.
+    lines : tuple of str
+        What was done, one line per constraint.
+    up_sigma_deg : float or None
+        The up axis's one-sigma tilt (degrees, the RMS angle of its error) when the ground plane set it: its
+        normal's uncertainty from its points' spread off it
+        (:attr:`camcal.geometry.world_align.GroundPlane.tilt_sigma_deg`), relative to the solve's points. A
+        camera's pointing has its own uncertainty on top (its principal point's: a shift of ``d`` pixels turns it
+        by about ``d / f``).
+    """
+
+    similarity: Similarity
+    lines: tuple[str, ...]
+    up_sigma_deg: float | None = None
+
+    def record(self) -> dict:
+        """The rig provenance's ``world`` entry: ``notes`` (the lines) and, when known, ``up_sigma_deg``."""
+        return {"notes": list(self.lines),
+                **({} if self.up_sigma_deg is None else {"up_sigma_deg": self.up_sigma_deg})}
 
 
 def _point(text: str, option: str) -> int | NDArray[np.float64]:
@@ -155,8 +183,8 @@ def _where(point: int | NDArray[np.float64], xyz: NDArray[np.float64], option: s
 
 
 def align_world(xyz: NDArray[np.float64], rotations: NDArray[np.float64], centres: NDArray[np.float64],
-                spec: WorldSpec, seed: int = 0) -> tuple[Similarity, list[str]]:
-    """The similarity that puts a solve in the set's world, and what it did in words.
+                spec: WorldSpec, seed: int = 0) -> WorldAlignment:
+    """The similarity that puts a solve in the set's world, what it did in words and the up axis's sigma.
 
     Parameters
     ----------
@@ -171,10 +199,8 @@ def align_world(xyz: NDArray[np.float64], rotations: NDArray[np.float64], centre
 
     Returns
     -------
-    Similarity
-        ``X_new = s R X + t``.
-    list of str
-        One line per constraint.
+    WorldAlignment
+        ``X_new = s R X + t``, one line per constraint, and with ``up="ground"`` the up axis's sigma.
     """
     lines = []
     plane = None
@@ -182,10 +208,11 @@ def align_world(xyz: NDArray[np.float64], rotations: NDArray[np.float64], centre
         plane = ground_plane_RANSAC(xyz, cameras=centres, seed=seed, up_hint=mean_camera_up(rotations))
         lines.append(f"ground plane: {int(plane.inliers.sum())} of {len(xyz)} points within {plane.threshold:.3g} "
                      "(RANSAC)")
-    up = None
+    up, up_sigma_deg = None, None
     if spec.up == "ground":
-        up = plane.normal
-        lines.append("up: the ground plane's normal (+z), the first camera looking down +y")
+        up, up_sigma_deg = plane.normal, plane.tilt_sigma_deg
+        lines.append(f"up: the ground plane's normal (+z, +- {up_sigma_deg:.2g} deg at 1 sigma from its points' "
+                     "spread), the first camera looking down +y")
     elif spec.up == "cameras":
         up = mean_camera_up(rotations)
         lines.append(f"up: the mean up of {len(rotations)} cameras (+z), the first camera looking down +y")
@@ -204,12 +231,13 @@ def align_world(xyz: NDArray[np.float64], rotations: NDArray[np.float64], centre
     if scale is not None:
         lines.append(f"scale: {_named(spec.scale[0])} to {_named(spec.scale[1])} = {spec.scale[2]:g} {spec.units} "
                      f"(x {similarity.s:.6g})")
-    return similarity, lines
+    return WorldAlignment(similarity, tuple(lines), up_sigma_deg)
 
 
 def board_world(reconstruction, image_dir: Path, board: Board, units: str, seed: int = 0,
-                max_frames: int = BOARD_FRAMES) -> tuple[Similarity, list[str]]:
-    """The similarity that sets a solve's world on a board seen in its images, and what it did in words.
+                max_frames: int = BOARD_FRAMES) -> WorldAlignment:
+    """The similarity that sets a solve's world on a board seen in its images, and what it did in words (no up
+    sigma: the board's pose is fitted to its corners' rays, :func:`camcal.geometry.world_align.world_from_board`).
 
     Parameters
     ----------
@@ -255,7 +283,7 @@ def board_world(reconstruction, image_dir: Path, board: Board, units: str, seed:
              f"{fit.n_corners} of {board.n_corners} corners fitted, triangulated within {fit.rms:.3g} {units} RMS",
              "up: the board's normal (+z, towards the cameras); origin: its first inner corner; +x along its columns",
              f"scale: the board's squares = {board.square:g} {units} (x {fit.similarity.s:.6g})"]
-    return fit.similarity, lines
+    return WorldAlignment(fit.similarity, tuple(lines))
 
 
 def _named(point: int | NDArray[np.float64]) -> str:

@@ -27,7 +27,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ocio-version", metavar="X.Y",
                         help="OCIO profile version to write, the oldest OpenColorIO that must load the config: 2.1 "
                              "to 2.6 (default: 2.3, loaded by Blender 4.2 and later and the VFX Reference Platform "
-                             "CY2024 and later; 2.5: Blender 5.2, CY2026)")
+                             "CY2024 and later; 2.5: Blender 5.2 and 5.3, CY2026)")
     parser.add_argument("--family", metavar="FAMILY",
                         help="family of the camera spaces, e.g. a studio's own 'Input/Witness' (default: Input/<maker> "
                              "from the raw capture, else Input/camcal)")

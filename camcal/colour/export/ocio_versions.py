@@ -9,7 +9,7 @@ profile    hosts linking that OpenColorIO release (or a newer one)
 =========  ===============================================================
 2.3        Blender 4.2 LTS (OCIO 2.3.2), VFX Reference Platform CY2024
 2.4        Blender 5.0, VFX Reference Platform CY2025
-2.5        Blender 5.2 (OCIO 2.5.0), VFX Reference Platform CY2026
+2.5        Blender 5.2 and 5.3 (OCIO 2.5.0), VFX Reference Platform CY2026
 2.6        OpenColorIO 2.6
 =========  ===============================================================
 
@@ -57,7 +57,7 @@ __all__ = [
 #: The profile versions camcal writes (those the running OpenColorIO knows are a prefix of this list).
 PROFILE_VERSIONS = ("2.1", "2.2", "2.3", "2.4", "2.5", "2.6")
 
-#: Loads in Blender 4.2-5.2 and the VFX Reference Platform CY2024-CY2026 hosts.
+#: Loads in Blender 4.2-5.3 and the VFX Reference Platform CY2024-CY2026 hosts.
 DEFAULT_PROFILE_VERSION = "2.3"
 
 def parse_profile_version(text: str | tuple[int, int]) -> tuple[int, int]:
