@@ -139,9 +139,10 @@ def undistort(
 
     if every < 1:
         raise CamcalError(f"--every must be 1 or more, got {every}")
-    if isinstance(images, (str, os.PathLike)):
-        images = _files(os.fspath(images))
-    images = [os.fspath(path) for path in images]
+    from camcal.base.globs import file_or_glob
+
+    entries = [images] if isinstance(images, (str, os.PathLike)) else images
+    images = [path for entry in entries for path in file_or_glob("--images", entry)]
     videos = [path for path in images if is_video(path)]
     if videos and len(videos) != len(images):
         raise CamcalError("give images or videos, not both (undistort them in two runs)")
@@ -161,14 +162,3 @@ def undistort(
     return Undistortion(undistorted, undistorted.camera(camera), mode, os.fspath(out), rig_path, tuple(written),
                         bool(videos), summary, sigma_path)
 
-
-def _files(pattern: str) -> list[str]:
-    """One file or video as given, else the files a glob matches (:func:`camcal.base.globs.expand_glob`)."""
-    from camcal.base.globs import expand_glob
-
-    if os.path.exists(pattern):
-        return [pattern]
-    try:
-        return expand_glob("images", "", pattern)
-    except CamcalError:
-        raise CamcalError(f"{pattern}: no image or video matches") from None

@@ -7,7 +7,7 @@ import os
 
 from camcal.base.errors import CamcalError
 
-__all__ = ["expand_glob"]
+__all__ = ["expand_glob", "file_or_glob"]
 
 
 def expand_glob(option: str, name: str, pattern: str, root: str | os.PathLike | None = None,
@@ -24,4 +24,24 @@ def expand_glob(option: str, name: str, pattern: str, root: str | os.PathLike | 
     if not files:
         where = f" (in {root})" if root and not os.path.isabs(pattern) else ""
         raise CamcalError(f"{option} {name}={pattern}: no {what} matches{where}")
+    return files
+
+
+def file_or_glob(option: str, pattern: str | os.PathLike) -> list[str]:
+    """A file (or video) that exists, as given; else the files ``pattern`` matches as a glob, sorted.
+
+    Raises
+    ------
+    CamcalError
+        ``"--images shots/*.png: no image or video matches"`` when a glob matches nothing,
+        ``"cannot read shot.png (missing file)"`` for a file that is not there.
+    """
+    text = os.path.expanduser(os.fspath(pattern))
+    if os.path.exists(text):  # a file named shot[1].png is that file
+        return [text]
+    if not glob.has_magic(text):
+        raise CamcalError(f"cannot read {text} (missing file)")
+    files = sorted(path for path in glob.glob(text) if os.path.isfile(path))
+    if not files:
+        raise CamcalError(f"{option} {text}: no image or video matches")
     return files

@@ -70,6 +70,7 @@ def _fit(args: argparse.Namespace) -> int:
     from camcal.geometry.plumbline import fit_plumbline
     from camcal.io.lines import read_lines
     from camcal.io.frames import imread
+    from camcal.base.globs import file_or_glob
     from camcal.base.jsonfile import write_json
 
     if bool(args.images) == bool(args.lines):
@@ -82,8 +83,10 @@ def _fit(args: argparse.Namespace) -> int:
             raise CamcalError(f"--every must be 1 or more, got {args.every}")
         names: list[str] = []  # each image's name, as it is read (a video's frames are streamed)
 
+        paths = [path for entry in args.images for path in file_or_glob("--images", entry)]
+
         def frames():
-            for path in args.images:
+            for path in paths:
                 if is_video(path):
                     for k, image in iter_frames(path, every=args.every):
                         names.append(video_frame_label(path, k))

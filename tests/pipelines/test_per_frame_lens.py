@@ -90,6 +90,7 @@ def test_images_map_to_frames_by_the_rigs_list_or_their_number(shot, tmp_path):
     assert image_frame(rig, "cam", plates[1]) == 8  # plate.0008.png
     with pytest.raises(CamcalError, match="not one of a frame's images, nor numbered like one"):
         image_frame(rig, "cam", tmp_path / "plate.0042.png")
+    (tmp_path / "still.png").write_bytes(Path(plates[0]).read_bytes())
     with pytest.raises(CamcalError, match="not one of a frame's images") as info:
         undistort(rig, "cam", [str(plates[0]), str(tmp_path / "still.png")], tmp_path / "out")
     assert "\n" not in str(info.value) and not (tmp_path / "out").exists()

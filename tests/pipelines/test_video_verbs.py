@@ -166,3 +166,36 @@ def test_solve_on_videos_as_on_their_frames(tmp_path, capsys):
     for a, b in zip(video.cameras, png.cameras):
         assert a.name == b.name and np.allclose(a.K, b.K, rtol=1e-6) and np.allclose(a.c, b.c, atol=1e-6)
     print(f"\n{from_video.splitlines()[1]}\n{from_png.splitlines()[1]}")
+
+
+def test_distortion_fit_expands_a_quoted_glob(tmp_path, capsys):
+    """``--images 'shots/*.png'`` (quoted: the shell leaves the glob to camcal) names the same images as the files
+    the shell would list: the same lens; a glob that matches nothing and a missing file are one line each."""
+    import cv2
+
+    from camcal.base.errors import CamcalError
+    from camcal.base.globs import file_or_glob
+    from camcal.cli import main
+    from camcal.synthetic_boards import board_homography, render_board_view
+
+    rng = np.random.default_rng(3)
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    for number, tilt in enumerate((0.0, 25.0, -25.0), start=1):
+        H = board_homography((640, 480), 9, 6, 38.0, tilt_deg=tilt, tilt_axis_deg=30.0 * number, roll_deg=5.0,
+                             centre_px=(320.0, 240.0), focal_px=500.0)
+        view = render_board_view(rng, (640, 480), H, 9, 6, 0.7, distortion=-8e-7, distortion_centre=(320.0, 240.0),
+                                 jpeg_quality=None)
+        cv2.imwrite(str(shots / f"s{number}.png"), view.image)
+    listed = sorted(str(path) for path in shots.glob("*.png"))
+    assert file_or_glob("--images", str(shots / "*.png")) == listed
+    lenses = {}
+    for name, images in (("glob", [str(shots / "*.png")]), ("files", listed)):
+        out = tmp_path / f"{name}.lens.json"
+        assert main(["distortion", "fit", "--images", *images, "--board", "chessboard:9x6", "--out", str(out)]) == 0
+        lenses[name] = json.loads(out.read_text())["distortion"]
+    assert lenses["glob"] == lenses["files"] and lenses["glob"]["params"]["lambda"] < 0
+    with pytest.raises(CamcalError, match=r"--images .*nothing\*\.png: no image or video matches"):
+        file_or_glob("--images", str(shots / "nothing*.png"))
+    with pytest.raises(CamcalError, match=r"cannot read .*gone\.png \(missing file\)"):
+        file_or_glob("--images", str(shots / "gone.png"))
