@@ -52,15 +52,20 @@ from numpy.typing import NDArray
 
 from camcal.base.atomic import atomic_path, remove_stale_temporaries, scratch_dir
 from camcal.base.errors import CamcalError
+from camcal.base.native_log import glog_level
 from camcal.base.extras import require
 from camcal.pipelines.distributed import dask_client, run_tasks
 
-__all__ = ["FEATURE_CACHE", "DaskExtraction", "cache_file", "extract_features", "extract_image", "feature_key",
-           "read_cached"]
+__all__ = ["FEATURE_CACHE", "TASK_GLOG_LEVEL", "DaskExtraction", "cache_file", "extract_features", "extract_image",
+           "feature_key", "read_cached"]
 
 #: The folder, inside a solve's output folder, of the per-image feature files of an extraction on Dask.
 FEATURE_CACHE = ".camcal-features"
 _CACHE_FORMAT = "camcal.sift-features.1"
+#: COLMAP's log lines a task lets through (glog's severities: 0 info, 1 warning, 2 error): a worker's output is the
+#: terminal of ``solve --workers`` or a farm's worker log, not the solve's ``colmap.log``, so its progress lines stay
+#: out and its warnings go on.
+TASK_GLOG_LEVEL = 1
 
 
 @dataclass(frozen=True)
@@ -164,7 +169,7 @@ def extract_image(image_dir: str, name: str, mask_dir: str | None, extraction: d
     pycolmap = require("pycolmap")
     options = pycolmap.FeatureExtractionOptions(extraction)
     options.num_threads = 1
-    with scratch_dir(target) as scratch:
+    with scratch_dir(target) as scratch, glog_level(pycolmap, TASK_GLOG_LEVEL):
         database = scratch / "database.db"
         pycolmap.set_random_seed(seed)
         pycolmap.extract_features(database, image_dir, image_names=[name], camera_mode=pycolmap.CameraMode.SINGLE,

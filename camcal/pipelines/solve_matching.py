@@ -61,8 +61,9 @@ from numpy.typing import NDArray
 from camcal.base.atomic import atomic_path, remove_stale_temporaries, scratch_dir
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
+from camcal.base.native_log import glog_level
 from camcal.pipelines.distributed import dask_client, run_tasks
-from camcal.pipelines.solve_features import DaskExtraction, cache_file, read_cached
+from camcal.pipelines.solve_features import TASK_GLOG_LEVEL, DaskExtraction, cache_file, read_cached
 
 __all__ = ["BLOCK_PAIRS", "PairMatcher", "block_file", "dask_stages", "match_block", "matcher_pairs", "read_block"]
 
@@ -214,7 +215,7 @@ def match_block(cameras: list[tuple], images: list[tuple], pairs: list[tuple[str
     pycolmap = require("pycolmap")
     matching_options = pycolmap.FeatureMatchingOptions(matching)
     matching_options.num_threads = 1
-    with scratch_dir(target) as scratch:
+    with scratch_dir(target) as scratch, glog_level(pycolmap, TASK_GLOG_LEVEL):
         database = scratch / "database.db"
         db = pycolmap.Database.open(database)
         try:

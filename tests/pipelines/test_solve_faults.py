@@ -17,7 +17,6 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -131,16 +130,17 @@ def test_worker_killed_mid_matching_then_client_killed_then_rerun(tmp_path, monk
         _killed_run(command, tmp_path, markers, worker_victim, client_victim)
         drain(dask)
 
+        cut = [f"out/{FEATURE_CACHE}/.matches-exhaustive-{index:05d}.npz.{TEMPORARY_TAG}.*.npz" for index in markers]
         assert [re.sub(r"camcal-tmp\.\w{8}", "camcal-tmp.*", name) for name in temporaries(tmp_path)] == [
-            f".out.{TEMPORARY_TAG}.*"] + [f"out/{FEATURE_CACHE}/.matches-exhaustive-{index:05d}.npz.{TEMPORARY_TAG}.*.npz"
-                                          for index in sorted(markers)]  # the staging folder, the cut writes
+            f".out.{TEMPORARY_TAG}.*"] + sorted(cut)  # the staging folder, the cut writes
         complete = sorted(p.name for p in (out / FEATURE_CACHE).glob("matches-*.npz"))
         assert 0 < len(complete) < n_blocks and f"matches-exhaustive-{client_victim:05d}.npz" not in complete
         capsys.readouterr()
         assert main(command) == 0  # the rerun, on the same cluster
         drain(dask)
     err = capsys.readouterr().err
-    assert f"extracting features from {n_frames} images on Dask ({n_frames} taken from an interrupted run's cache)" in err
+    assert (f"extracting features from {n_frames} images on Dask ({n_frames} taken from an interrupted run's "
+            "cache)") in err
     assert (f"matching {n_frames * (n_frames - 1) // 2} image pairs in {n_blocks} blocks on Dask ({len(complete)} "
             "taken from an interrupted run's cache)") in err
     _same_as_uninterrupted(out, tmp_path / "uninterrupted")

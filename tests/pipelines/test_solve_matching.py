@@ -39,7 +39,7 @@ def scheduler():
 def plate(tmp_path_factory):
     """Six frames of one camera of a rendered stereo sequence: the folder of its PNG files."""
     root = tmp_path_factory.mktemp("matching")
-    width = 256
+    width = 192
     focal, height = 500.0 * width / 640, width * 3 // 4
     render_stereo_sequence(root, n_frames=N_FRAMES, image_size=(width, height),
                            K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
@@ -77,16 +77,21 @@ def _same_rows(ours, local):
     for pair, rows in matches.items():
         np.testing.assert_array_equal(rows, local_matches[pair])  # bit for bit
     for pair, geometry in geometries.items():
-        theirs = local_geometries[pair]
-        assert geometry.keys() == theirs.keys()
-        for field, value in geometry.items():
-            if field == "cam2_from_cam1" and value is not None:
-                value, theirs[field] = value.matrix(), theirs[field].matrix()
-            if isinstance(value, np.ndarray) or isinstance(theirs[field], np.ndarray):
-                np.testing.assert_array_equal(value, theirs[field], err_msg=f"{pair} {field}")
-            else:
-                assert value == theirs[field], (pair, field)
+        _same_value(geometry, local_geometries[pair], str(pair))
     return matches, geometries
+
+
+def _same_value(ours, theirs, where):
+    """Equal bit for bit, through pycolmap's ``todict()`` nesting (the relative pose's rotation and translation)."""
+    if isinstance(ours, dict):
+        assert isinstance(theirs, dict) and ours.keys() == theirs.keys(), where
+        for field, value in ours.items():
+            _same_value(value, theirs[field], f"{where}.{field}")
+    elif isinstance(ours, np.ndarray) or isinstance(theirs, np.ndarray):
+        np.testing.assert_array_equal(ours, theirs, err_msg=where)
+        assert np.asarray(ours).dtype == np.asarray(theirs).dtype, where
+    else:
+        assert ours == theirs, where
 
 
 def _copy(database, path, prior_focal_length=False):
@@ -103,41 +108,43 @@ def _copy(database, path, prior_focal_length=False):
     return path
 
 
-def _matcher(database, dask=None, keys=None, lines=None):
+def _matcher(database, dask=None, keys=None, lines=None, relative_pose=False):
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = -1
-    return PairMatcher(pycolmap, database, matching, verification_options(pycolmap, 0), dask, keys,
+    verification = verification_options(pycolmap, 0)
+    verification.compute_relative_pose = relative_pose
+    return PairMatcher(pycolmap, database, matching, verification, dask, keys,
                        progress=None if lines is None else lines.append)
 
 
-@pytest.mark.parametrize("matcher", ["sequential", "exhaustive"])
-def test_blocks_on_dask_write_the_in_process_matches_and_geometries_bit_for_bit(extracted, matcher, tmp_path,
+@pytest.mark.parametrize(("matcher", "prior"), [("sequential", False), ("exhaustive", True)])
+def test_blocks_on_dask_write_the_in_process_matches_and_geometries_bit_for_bit(extracted, matcher, prior, tmp_path,
                                                                                 monkeypatch):
-    """In 3-pair blocks, then a listed pair (the loop closure's path): every row as COLMAP's own matcher wrote it,
-    with the focal length unknown (fundamental matrices) and known (essential matrices)."""
+    """In 3-pair blocks, then listed pairs (the loop closure's path): every row as COLMAP's own matcher wrote it,
+    with the focal length unknown (fundamental matrices) or known (essential matrices and relative poses)."""
     database, dask, keys = extracted
     monkeypatch.setattr(solve_matching, "BLOCK_PAIRS", 3)
-    for prior in (False, True):
-        local, ours = (_copy(database, tmp_path / f"{name}.{prior}.db", prior) for name in ("local", "dask"))
-        generated = matcher_pairs(pycolmap, local, matcher)
-        _matcher(local).match(matcher)
-        lines = []
-        _matcher(ours, dask, keys, lines).match(matcher)
-        assert lines == [f"matching {len(generated)} image pairs in {-(-len(generated) // 3)} blocks on Dask"]
-        matches, geometries = _same_rows(ours, local)
-        assert {pycolmap.pair_id_to_image_pair(pair) for pair in matches} <= set(generated)
-        assert len(geometries) >= N_FRAMES - 1
-        configs = {geometry["config"] for geometry in geometries.values()}
-        calibrated = int(pycolmap.TwoViewGeometryConfiguration.CALIBRATED)
-        assert (calibrated in configs) == prior
-        assert any(geometry["E"] is not None for geometry in geometries.values()) == prior
-        assert all(geometry["F"] is not None for geometry in geometries.values() if geometry["config"] == calibrated)
-        if matcher == "sequential":  # frames the sequential pairs skip, as the loop closure hands them over
-            unmatched = [(f"left/{a:04d}.png", f"left/{b:04d}.png") for a, b in ((0, 3), (1, 4))]
-            assert not {pycolmap.image_pair_to_pair_id(a + 1, b + 1) for a, b in ((0, 3), (1, 4))} & set(matches)
-            _matcher(local).match_pairs(unmatched)
-            _matcher(ours, dask, keys).match_pairs(unmatched)
-            assert len(_same_rows(ours, local)[0]) == len(matches) + 2
+    local, ours = (_copy(database, tmp_path / f"{name}.db", prior) for name in ("local", "dask"))
+    generated = matcher_pairs(pycolmap, local, matcher)
+    _matcher(local, relative_pose=prior).match(matcher)
+    lines = []
+    _matcher(ours, dask, keys, lines, relative_pose=prior).match(matcher)
+    assert lines == [f"matching {len(generated)} image pairs in {-(-len(generated) // 3)} blocks on Dask"]
+    matches, geometries = _same_rows(ours, local)
+    assert {pycolmap.pair_id_to_image_pair(pair) for pair in matches} <= set(generated)
+    assert len(geometries) >= N_FRAMES - 1
+    configs = {geometry["config"] for geometry in geometries.values()}
+    calibrated = int(pycolmap.TwoViewGeometryConfiguration.CALIBRATED)
+    assert (calibrated in configs) == prior
+    assert any(geometry["E"] is not None for geometry in geometries.values()) == prior
+    assert any(geometry["cam2_from_cam1"] is not None for geometry in geometries.values()) == prior
+    assert all(geometry["F"] is not None for geometry in geometries.values() if geometry["config"] == calibrated)
+    if matcher == "sequential":  # frames the sequential pairs skip, as the loop closure hands them over
+        unmatched = [(f"left/{a:04d}.png", f"left/{b:04d}.png") for a, b in ((0, 3), (1, 4))]
+        assert not {pycolmap.image_pair_to_pair_id(a + 1, b + 1) for a, b in ((0, 3), (1, 4))} & set(matches)
+        _matcher(local).match_pairs(unmatched)
+        _matcher(ours, dask, keys).match_pairs(unmatched)
+        assert len(_same_rows(ours, local)[0]) == len(matches) + 2
     assert not [p for p in tmp_path.parent.rglob("*") if TEMPORARY_TAG in p.name]
 
 
