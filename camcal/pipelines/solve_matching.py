@@ -339,6 +339,7 @@ class PairMatcher:
             db.close()
         matching, verification = self.matching.todict(), self.verification.todict()
         blocks = [pairs[start:start + BLOCK_PAIRS] for start in range(0, len(pairs), BLOCK_PAIRS)]
+        targets = [block_file(dask.cache, stage, index) for index in range(len(blocks))]
         tasks, keys = {}, []
         for index, block in enumerate(blocks):
             names = sorted({name for pair in block for name in pair})
@@ -348,10 +349,8 @@ class PairMatcher:
                               bool(c.has_prior_focal_length))
                              for c in (cameras[camera_id] for camera_id in sorted({row[2] for row in rows}))]
             keys.append(_block_key(pycolmap, block_cameras, rows, block, matching, verification))
-            target = block_file(dask.cache, stage, index)
             tasks[index] = (match_block, (block_cameras, rows, block, matching, verification, descriptor_type,
-                                          keys[index], str(target)))
-        targets = [block_file(dask.cache, stage, index) for index in range(len(blocks))]
+                                          keys[index], str(targets[index])))
         remove_stale_temporaries(targets)  # what killed writers left
         todo = {index: task for index, task in tasks.items() if read_block(targets[index], keys[index]) is None}
         if self.progress is not None:
