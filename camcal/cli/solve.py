@@ -80,7 +80,7 @@ def register(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
                        help="extract and match the features on this Dask cluster: one task per image, then one per "
-                       "block of 50 image pairs matched and verified (its workers must see the images and the "
+                       "block of 100 image pairs matched and verified (its workers must see the images and the "
                        "folder OUT is in); each image's features and each block's matches are kept in "
                        "OUT/.camcal-features until the solve ends, so a rerun of a killed solve does only what it "
                        "had not finished; the features, matches and rig are the same as in this process, the "

@@ -67,9 +67,12 @@ from camcal.pipelines.solve_features import TASK_GLOG_LEVEL, DaskExtraction, cac
 
 __all__ = ["BLOCK_PAIRS", "PairMatcher", "block_file", "dask_stages", "match_block", "matcher_pairs", "read_block"]
 
-#: Image pairs per Dask task: at 8192 features a pair costs about a second of a core, so a block is under a minute
-#: of a worker (what a killed worker loses), and a 1000-frame plate matched by frame order is about 100 tasks.
-BLOCK_PAIRS = 50
+#: Image pairs per Dask task. Each task loads its images' features and COLMAP builds each image's matching index
+#: again in every block the image is in: on the 60-frame walk of ``bench/bench_plates.py`` (8192 features, 297
+#: sequential pairs, one thread, a loaded machine) blocks of 50 pairs took 1.18x the time of one run over the
+#: whole plate (168 image loads against 60), blocks of 150 1.05x (92). 100 pairs are under a minute of a worker
+#: (what a killed worker loses) and a 1000-frame plate matched by frame order about 60 tasks.
+BLOCK_PAIRS = 100
 _CACHE_FORMAT = "camcal.sift-matches.1"
 #: The two-view geometry's matrices, each stored only where COLMAP estimated it.
 _MATRICES = ("E", "F", "H")

@@ -105,12 +105,12 @@ def test_worker_killed_mid_extraction_then_client_killed_then_rerun(tmp_path, mo
 
 @pytest.mark.slow
 def test_worker_killed_mid_matching_then_client_killed_then_rerun(tmp_path, monkeypatch, capsys):
-    """Exhaustive matching of 15 frames: 105 pairs in 3 blocks. A worker is killed writing block 0's matches (Dask
+    """Exhaustive matching of 21 frames: 210 pairs in 3 blocks. A worker is killed writing block 0's matches (Dask
     matches it again), the client once block 2's write stalls (block 1 done); the rerun takes every image's
     features and the complete blocks, matches the others, and gives the uninterrupted in-process run's rig."""
     from distributed import Client, LocalCluster
 
-    n_frames = 15
+    n_frames = 21
     n_blocks = -(-n_frames * (n_frames - 1) // 2 // BLOCK_PAIRS)
     assert n_blocks == 3
     _render(tmp_path / "in", n_frames)
