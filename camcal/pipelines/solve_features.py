@@ -52,8 +52,8 @@ from numpy.typing import NDArray
 
 from camcal.base.atomic import atomic_path, remove_stale_temporaries, scratch_dir
 from camcal.base.errors import CamcalError
-from camcal.base.native_log import glog_level
 from camcal.base.extras import require
+from camcal.base.native_log import glog_level
 from camcal.pipelines.distributed import dask_client, run_tasks
 
 __all__ = ["FEATURE_CACHE", "TASK_GLOG_LEVEL", "DaskExtraction", "cache_file", "extract_features", "extract_image",
