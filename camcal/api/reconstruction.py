@@ -276,9 +276,10 @@ def solve(
         Seeds every random choice: the same images and options give the same rig.
     scheduler : str, optional
         Extract the features on the Dask cluster of this scheduler (``"tcp://farm:8786"``), one task per image,
-        whose workers must see the images and the folder ``out`` is in: the same features as in this process, each
-        image's kept in ``out/.camcal-features`` until the solve ends, so that a rerun of a killed solve extracts
-        only the images it had not finished. Matching and mapping stay in this process.
+        then match them there, one task per block of image pairs (matched and verified), whose workers must see
+        the images and the folder ``out`` is in: the same features, matches and rig as in this process, each
+        image's features and each block's matches kept in ``out/.camcal-features`` until the solve ends, so that
+        a rerun of a killed solve does only what it had not finished. The mapping stays in this process.
     workers : int, optional
         The same on a local Dask cluster of this many worker processes (not with ``scheduler``).
     verbose : bool

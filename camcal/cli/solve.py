@@ -79,11 +79,12 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="COLMAP's incremental or global mapper (default: %(default)s)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
-                       help="extract the features on this Dask cluster, one task per image (its workers must see "
-                       "the images and the folder OUT is in); each image's features are kept in OUT/.camcal-features until "
-                       "the solve ends, so a rerun of a killed solve extracts only the images it had not finished; "
-                       "the features are the same as in this process, matching and mapping stay here (default: "
-                       "extraction in this process, on every core)")
+                       help="extract and match the features on this Dask cluster: one task per image, then one per "
+                       "block of 100 image pairs matched and verified (its workers must see the images and the "
+                       "folder OUT is in); each image's features and each block's matches are kept in "
+                       "OUT/.camcal-features until the solve ends, so a rerun of a killed solve does only what it "
+                       "had not finished; the features, matches and rig are the same as in this process, the "
+                       "mapping stays here (default: extraction and matching in this process, on every core)")
     where.add_argument("--workers", type=int, metavar="N",
                        help="the same on a local Dask cluster of N worker processes (default: no Dask)")
     parser.add_argument("--require-all", action="store_true",
@@ -151,7 +152,8 @@ def register(parser: argparse.ArgumentParser) -> None:
         "# driving footage from a phone: frames whose motion during a 30 ms readout moves points over 2 px flagged",
         "camcal solve drive/frame.%06d.png --matcher sequential --intrinsics phone.rig.json --readout-ms 30 "
         "--readout-flag-px 2 --fps 30 --out solve",
-        "# a long plate's features extracted on a Dask cluster (rerun the same command after a crash to resume)",
+        "# a long plate's features extracted and matched on a Dask cluster (rerun the same command after a crash to "
+        "resume)",
         "camcal solve plates/shot.%04d.exr --frames 1001-1960 --matcher sequential --scheduler tcp://farm:8786 "
         "--out solve",
         "# the world set on a 9x6 chessboard of 4 cm squares lying on the set's floor",

@@ -29,7 +29,7 @@ import contextlib
 import logging
 import os
 import time
-from collections.abc import Callable, Collection, Iterator, Mapping
+from collections.abc import Callable, Collection, Hashable, Iterator, Mapping
 from typing import Any
 
 import cv2
@@ -41,7 +41,7 @@ from camcal.io.video import iter_frames, video_info
 from camcal.pipelines.board import read_video_cache, video_cache_file, video_report, write_video_cache
 
 __all__ = ["CHUNK_FRAMES", "DASK_MIN_FRAMES", "cancel_and_wait", "dask_client", "detect_frame_range",
-           "detect_in_videos", "use_dask"]
+           "detect_in_videos", "run_tasks", "use_dask"]
 
 #: Frames of one video per Dask task: enough tasks to balance the workers and move the progress line, while the
 #: seek at a range's start (decoding from the key frame before it) stays small beside decoding the range.
@@ -103,6 +103,37 @@ def cancel_and_wait(client: Any, futures: Collection[Any], timeout: float = 600.
         if not keys.intersection(key for worker_keys in running.values() for key in worker_keys):
             return
         time.sleep(0.05)
+
+
+def run_tasks(client: Any, tasks: Mapping[Hashable, tuple[Callable[..., Any], tuple]],
+              failed: Callable[[Hashable, str], str]) -> dict[Hashable, Any]:
+    """Run one Dask task per entry of ``tasks`` (label -> function and arguments) and wait for them all.
+
+    The first task that fails (its own error, or its workers lost: ``distributed.KilledWorker``) cancels the
+    others, waits until none of them still runs (:func:`cancel_and_wait`: they write no file after the caller
+    has cleaned up) and raises ``CamcalError(failed(label, what))``, ``what`` being a :class:`CamcalError`'s
+    text or the error's type and text.
+
+    Returns
+    -------
+    dict
+        Label -> the task's result.
+    """
+    from distributed import as_completed
+
+    futures = {client.submit(function, *arguments, pure=False): label
+               for label, (function, arguments) in tasks.items()}
+    results = {}
+    for future in as_completed(futures):
+        label = futures[future]
+        try:
+            results[label] = future.result()
+        except Exception as error:  # a task's error, or its workers lost (distributed.KilledWorker)
+            cancel_and_wait(client, futures)
+            what = str(error) if isinstance(error, CamcalError) else f"failed on Dask: {type(error).__name__}: {error}"
+            raise CamcalError(failed(label, what)) from None
+        future.release()
+    return results
 
 
 def detect_frame_range(board: Board, path: str, start: int, stop: int | None, every: int,

@@ -67,6 +67,7 @@ from camcal.pipelines.solve_inputs import (check_one_size_per_camera, collect_im
                                            plate_frame_number, stage_masks, unregistered_line, video_of)
 from camcal.pipelines.solve_lens import GridLens, drift_lines, grid_lens, hold_in_database, lens_priors
 from camcal.pipelines.solve_loops import LOOP_MODES, close_loops
+from camcal.pipelines.solve_matching import PairMatcher, dask_stages
 from camcal.pipelines.solve_plain import PycolmapPeer, solve_pycolmap_plain
 from camcal.pipelines.solve_shutter import DEFAULT_FPS, ShutterSpec, check_rolling_shutter
 from camcal.pipelines.solve_world import WorldAlignment, WorldSpec, align_world, board_world, scaled_translations
@@ -263,11 +264,14 @@ def solve_sfm(
     scheduler : str, optional
         Extract the features on the Dask cluster of this scheduler
         (``tcp://host:8786``), one task per image, whose workers must see
-        the images and ``out_dir``'s parent folder; each image's features are cached in
-        ``out_dir/.camcal-features`` until the solve ends, so that a rerun of a
-        killed solve extracts only the images it had not finished
-        (:mod:`camcal.pipelines.solve_features`). The same features as in
-        this process, bit for bit; matching and mapping stay here.
+        the images and ``out_dir``'s parent folder, then match them there,
+        one task per block of image pairs; each image's features and each
+        block's matches are cached in ``out_dir/.camcal-features`` until the
+        solve ends, so that a rerun of a killed solve extracts and matches
+        only what it had not finished (:mod:`camcal.pipelines.solve_features`,
+        :mod:`camcal.pipelines.solve_matching`). The same features, matches
+        and verified geometries as in this process, bit for bit; the mapping
+        stays here.
     workers : int, optional
         The same on a local Dask cluster of this many worker processes.
 
@@ -316,10 +320,9 @@ def solve_sfm(
     target = Path(out_dir)
     remove_stale_temporaries([target])  # the staging folder of a killed earlier run
     new_target = not target.exists() or [entry.name for entry in target.iterdir()] == [FEATURE_CACHE]
-    dask = (DaskExtraction(target / FEATURE_CACHE, scheduler, workers)
-            if scheduler is not None or workers is not None else None)
     try:
-        with atomic_dir(target, replace=OWNED + (COLMAP_LOG,)) as staging:
+        with dask_stages(target / FEATURE_CACHE, scheduler, workers) as dask, \
+                atomic_dir(target, replace=OWNED + (COLMAP_LOG,)) as staging:
             with native_output_to(staging / COLMAP_LOG, echo=verbose):
                 result = _solve_in(pycolmap, images, folders, staging, camera_model, matcher, mapper, seed,
                                    num_threads, refine, known_rig, loss, lens_models, principal_point,
@@ -367,9 +370,10 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     for name in image_names:
         firsts.setdefault(name.split("/")[0], image_dir / name)
     extraction = extraction_options(pycolmap, list(firsts.values()), max_num_features, num_threads)
-    extract_features(pycolmap, database, image_dir, image_names,
-                     pycolmap.CameraMode.PER_IMAGE if lens is not None and lens.lenses else pycolmap.CameraMode.PER_FOLDER,
-                     camera_model, mask_dir, extraction, seed, dask, labels=staged, progress=progress)
+    feature_keys = extract_features(pycolmap, database, image_dir, image_names,
+                                    pycolmap.CameraMode.PER_IMAGE if lens is not None and lens.lenses
+                                    else pycolmap.CameraMode.PER_FOLDER,
+                                    camera_model, mask_dir, extraction, seed, dask, labels=staged, progress=progress)
     number_by_name(pycolmap, database)
     if lens is not None:
         hold_in_database(pycolmap, database, lens)
@@ -377,14 +381,14 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = num_threads
     matching.guided_matching = guided_matching
-    match = pycolmap.match_exhaustive if matcher == "exhaustive" else pycolmap.match_sequential
-    match(database, matching_options=matching, verification_options=verification_options(pycolmap, seed),
-          device=pycolmap.Device.cpu)
+    pair_matcher = PairMatcher(pycolmap, database, matching, verification_options(pycolmap, seed), dask,
+                               feature_keys, labels=staged, progress=progress)
+    pair_matcher.match(matcher)
     stage_notes = []
     if matcher == "sequential" and loops == "auto":
         _say(progress, "loop closure: retrieving revisits")
-        closure = close_loops(pycolmap, database, pycolmap.SequentialPairingOptions().overlap, matching,
-                              verification_options(pycolmap, seed), seed)
+        closure = close_loops(pycolmap, database, pycolmap.SequentialPairingOptions().overlap,
+                              pair_matcher.match_pairs, seed)
         _say(progress, closure.line())
         stage_notes.append(closure.line())
     check_parallax(pycolmap, database, len(staged))

@@ -11,7 +11,8 @@ the cache file ``OUT/.camcal-features/<camera>/<image>.npz``
 and images with COLMAP's image reader (``pycolmap.import_images``, the reader
 the extraction uses, so the cameras are the same) and writes each image's
 features into the database in name order, that is frame order. The matching
-and the mapper stay on the client.
+runs on Dask too, from these cache files (:mod:`camcal.pipelines.solve_matching`); the mapper stays on the
+client.
 
 The same features
 -----------------
@@ -36,6 +37,7 @@ was killed.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -43,6 +45,7 @@ import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,33 +53,46 @@ from numpy.typing import NDArray
 from camcal.base.atomic import atomic_path, remove_stale_temporaries, scratch_dir
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
-from camcal.pipelines.distributed import cancel_and_wait, dask_client
+from camcal.base.native_log import glog_level
+from camcal.pipelines.distributed import dask_client, run_tasks
 
-__all__ = ["FEATURE_CACHE", "DaskExtraction", "cache_file", "extract_features", "extract_image", "feature_key",
-           "read_cached"]
+__all__ = ["FEATURE_CACHE", "TASK_GLOG_LEVEL", "DaskExtraction", "cache_file", "extract_features", "extract_image",
+           "feature_key", "read_cached"]
 
 #: The folder, inside a solve's output folder, of the per-image feature files of an extraction on Dask.
 FEATURE_CACHE = ".camcal-features"
 _CACHE_FORMAT = "camcal.sift-features.1"
+#: COLMAP's log lines a task lets through (glog's severities: 0 info, 1 warning, 2 error): a worker's output is the
+#: terminal of ``solve --workers`` or a farm's worker log, not the solve's ``colmap.log``, so its progress lines stay
+#: out and its warnings go on.
+TASK_GLOG_LEVEL = 1
 
 
 @dataclass(frozen=True)
 class DaskExtraction:
-    """Where a solve's features are extracted on Dask, and the cache its tasks write.
+    """Where a solve's features are extracted (and matched) on Dask, and the cache its tasks write.
 
     Attributes
     ----------
     cache : Path
-        The folder of the per-image feature files (``OUT/.camcal-features``).
+        The folder of the per-image feature files (``OUT/.camcal-features``) and of the per-block match files.
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:8786``); its workers must see the solve's output folder.
     workers : int, optional
         Otherwise, worker processes of a local cluster (default: one per core).
+    client : distributed.Client, optional
+        A client already open on that cluster, which each stage uses instead of opening its own.
     """
 
     cache: Path
     scheduler: str | None = None
     workers: int | None = None
+    client: Any = None
+
+    def connect(self) -> contextlib.AbstractContextManager:
+        """A ``with`` block's client: :attr:`client`, else a new one on the scheduler or a local cluster."""
+        return contextlib.nullcontext(self.client) if self.client is not None else dask_client(self.workers,
+                                                                                                self.scheduler)
 
 
 def cache_file(cache: str | os.PathLike, name: str) -> Path:
@@ -153,7 +169,7 @@ def extract_image(image_dir: str, name: str, mask_dir: str | None, extraction: d
     pycolmap = require("pycolmap")
     options = pycolmap.FeatureExtractionOptions(extraction)
     options.num_threads = 1
-    with scratch_dir(target) as scratch:
+    with scratch_dir(target) as scratch, glog_level(pycolmap, TASK_GLOG_LEVEL):
         database = scratch / "database.db"
         pycolmap.set_random_seed(seed)
         pycolmap.extract_features(database, image_dir, image_names=[name], camera_mode=pycolmap.CameraMode.SINGLE,
@@ -185,7 +201,7 @@ def _reader(pycolmap, camera_model: str, mask_dir: str | os.PathLike | None):
 def extract_features(pycolmap, database: Path, image_dir: Path, image_names: Sequence[str], camera_mode,
                      camera_model: str, mask_dir: Path | None, extraction, seed: int, dask: DaskExtraction | None = None,
                      labels: Mapping[str, object] | None = None,
-                     progress: Callable[[str], None] | None = None) -> None:
+                     progress: Callable[[str], None] | None = None) -> dict[str, str] | None:
     """Extract the features of ``image_names`` into a new COLMAP ``database``: in this process, or on Dask.
 
     Parameters
@@ -209,6 +225,11 @@ def extract_features(pycolmap, database: Path, image_dir: Path, image_names: Seq
     progress : callable, optional
         Receives the stage's line.
 
+    Returns
+    -------
+    dict of str to str or None
+        On Dask, image name -> :func:`feature_key` of its feature file (what the matching tasks read); else None.
+
     Raises
     ------
     CamcalError
@@ -221,7 +242,7 @@ def extract_features(pycolmap, database: Path, image_dir: Path, image_names: Seq
         pycolmap.set_random_seed(seed)
         pycolmap.extract_features(database, image_dir, image_names=list(image_names), camera_mode=camera_mode,
                                   reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
-        return
+        return None
     names = sorted(image_names)
     targets = {name: cache_file(dask.cache, name) for name in names}
     remove_stale_temporaries(targets.values())  # what killed writers left
@@ -248,22 +269,14 @@ def extract_features(pycolmap, database: Path, image_dir: Path, image_names: Seq
             db.write_descriptors(ids[name], pycolmap.FeatureDescriptors(extraction.type, features[1]))
     finally:
         db.close()
+    return keys
 
 
 def _run_tasks(todo: list[str], image_dir: Path, mask_dir: Path | None, extraction: dict, keys: dict[str, str],
                targets: dict[str, Path], seed: int, dask: DaskExtraction, labels: Mapping[str, object]) -> None:
     """Submit one :func:`extract_image` task per image of ``todo`` and wait for them all; a failure names its image."""
-    with dask_client(dask.workers, dask.scheduler) as client:
-        from distributed import as_completed
-
-        futures = {client.submit(extract_image, str(image_dir), name, None if mask_dir is None else str(mask_dir),
-                                 extraction, keys[name],
-                                 str(targets[name]), seed, pure=False): name for name in todo}
-        for future in as_completed(futures):
-            name = futures[future]
-            try:
-                future.result()
-            except Exception as error:  # a task's error, or its workers lost (distributed.KilledWorker)
-                cancel_and_wait(client, futures)  # the tasks still running write no file after the solve's end
-                what = str(error) if isinstance(error, CamcalError) else f"failed on Dask: {type(error).__name__}: {error}"
-                raise CamcalError(f"feature extraction of {labels.get(name, name)}: {what}") from None
+    with dask.connect() as client:
+        run_tasks(client, {name: (extract_image, (str(image_dir), name, None if mask_dir is None else str(mask_dir),
+                                                  extraction, keys[name], str(targets[name]), seed))
+                           for name in todo},
+                  lambda name, what: f"feature extraction of {labels.get(name, name)}: {what}")

@@ -18,6 +18,7 @@ descriptors into a compact image representation. CVPR.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,7 +77,8 @@ def _spread(rows: np.ndarray, count: int) -> np.ndarray:
     return rows[::max(1, -(-len(rows) // count))][:count].copy()
 
 
-def close_loops(pycolmap, database: Path, window: int, matching, verification, seed: int) -> LoopClosure:
+def close_loops(pycolmap, database: Path, window: int, match_pairs: Callable[[Sequence[tuple[str, str]]], None],
+                seed: int) -> LoopClosure:
     """Retrieve the revisits of a plate matched by frame order (``window`` frames each way) and match them.
 
     Parameters
@@ -87,9 +89,10 @@ def close_loops(pycolmap, database: Path, window: int, matching, verification, s
     window : int
         The sequential matcher's overlap: pairs nearer in time are matched
         already.
-    matching, verification
-        The ``FeatureMatchingOptions`` and ``TwoViewGeometryOptions`` of the
-        sequential matching (the revisits are matched and verified alike).
+    match_pairs : callable
+        Matches and verifies a list of image pairs (COLMAP's names) as the
+        sequential matching did
+        (:meth:`camcal.pipelines.solve_matching.PairMatcher.match_pairs`).
     seed : int
         Seeds the vocabulary.
     """
@@ -116,14 +119,7 @@ def close_loops(pycolmap, database: Path, window: int, matching, verification, s
         db.close()
     if not pairs:
         return LoopClosure(len(names), (), 0)
-    pair_list = database.with_name("loop_pairs.txt")
-    pair_list.write_text("".join(f"{a} {b}\n" for a, b in pairs))
-    try:
-        pycolmap.match_image_pairs(database, matching_options=matching,
-                                   pairing_options=pycolmap.ImportedPairingOptions(match_list_path=str(pair_list)),
-                                   verification_options=verification, device=pycolmap.Device.cpu)
-    finally:
-        pair_list.unlink()
+    match_pairs(pairs)
     db = pycolmap.Database.open(database)
     try:
         verified = sum(db.exists_two_view_geometry(images[a], images[b])
