@@ -10,7 +10,7 @@ order in ``tau`` (constant velocity over the readout; Hedborg et al. 2012),
 with ``R_k, c_k`` the frame's pose at its middle row and ``omega_k, v_k``
 its angular and linear velocity from the neighbouring frames' poses
 (:func:`camcal.geometry.rolling_shutter.camera_velocities`: central
-differences, one-sided at the ends). The observation is the pinhole image
+differences, second-order one-sided at the ends). The observation is the pinhole image
 of ``X_j`` from that pose (Meingast et al. 2005):
 
     u_jk = K_k pi(R(tau) (X_j - c(tau))),
@@ -64,13 +64,16 @@ from scipy.spatial.transform import Rotation
 from camcal.base.errors import CamcalError
 from camcal.geometry.rolling_shutter import camera_velocities
 
-__all__ = ["DETERMINED_FRACTION", "MAX_POINTS", "ReadoutEstimate", "estimate_readout"]
+__all__ = ["DETERMINED_FRACTION", "MAX_POINTS", "MIN_TRACK", "ReadoutEstimate", "estimate_readout"]
 
 #: the readout counts as determined when its standard deviation is at most this fraction of the frame interval
 #: (4.2 ms at 24 fps): a readout cannot exceed the interval, and a wider one says little about it.
 DETERMINED_FRACTION = 0.1
 #: at most this many points (those seen in the most frames first, ties by a seeded draw) enter the adjustment.
 MAX_POINTS = 1500
+#: points seen in fewer frames are left out: over a few neighbouring frames their depth is barely determined,
+#: which leaves the adjustment a long, curved valley to crawl along.
+MIN_TRACK = 5
 
 
 @dataclass(frozen=True)
@@ -188,12 +191,13 @@ def estimate_readout(K: ArrayLike, height: int, rotations: ArrayLike, centres: A
 
 
 def _chosen_observations(point_of: NDArray[np.intp], n_points: int, max_points: int, seed: int) -> NDArray[np.bool_]:
-    """The observations of at most ``max_points`` points seen in 2 frames or more, the longest tracks first."""
+    """The observations of at most ``max_points`` points seen in :data:`MIN_TRACK` frames or more, the longest
+    tracks first."""
     counts = np.bincount(point_of, minlength=n_points)
     tie = np.random.default_rng(seed).permutation(n_points)
     order = np.lexsort((tie, -counts))
     chosen = order[:max_points]
-    chosen = chosen[counts[chosen] >= 2]
+    chosen = chosen[counts[chosen] >= MIN_TRACK]
     return np.isin(point_of, chosen)
 
 
@@ -247,10 +251,15 @@ def _jacobian(residuals, x: NDArray[np.float64], r: NDArray[np.float64], pattern
 
 def _levenberg_marquardt(residuals, pattern, groups, steps, free, max_iterations: int = 50):
     """Minimise ``|residuals(x)|^2`` from ``x = 0`` over the ``free`` unknowns (Levenberg-Marquardt on the sparse
-    normal equations, damping ``lambda diag(J^T J)``); the solution, its residuals and ``J^T J`` there."""
+    normal equations, damping ``lambda diag(J^T J)``); the solution, its residuals and ``J^T J`` there.
+
+    It stops when a step lowers the chi-square (the cost over the residuals' variance) by less than 0.01: the
+    Gauss-Newton step then left every unknown within about a tenth of its standard deviation of the optimum.
+    """
     x = np.zeros(free.size)
     r = residuals(x)
     cost, damping = float(r @ r), 1e-4
+    dof = max(r.size - int(free.sum()), 1)
     for _ in range(max_iterations):
         J = _jacobian(residuals, x, r, pattern, groups, steps)[:, free]
         A, gradient = (J.T @ J).tocsc(), J.T @ r
@@ -265,9 +274,9 @@ def _levenberg_marquardt(residuals, pattern, groups, steps, free, max_iterations
             damping *= 10.0
         else:
             break
-        decrease = (cost - cost_trial) / cost
+        chi_square_drop = (cost - cost_trial) / (cost_trial / dof)
         x, r, cost, damping = trial, r_trial, cost_trial, max(damping / 10.0, 1e-9)
-        if decrease < 1e-7:
+        if chi_square_drop < 0.01:
             break
     J = _jacobian(residuals, x, r, pattern, groups, steps)[:, free]
     return x, r, (J.T @ J).tocsc()

@@ -72,10 +72,9 @@ def plate(readout_s: float, motion: str, seed: int, n_frames: int = 12, n_points
     X = rng.uniform([-6.0, -3.0, 5.0], [8.0, 3.0, 14.0], (n_points, 3))
 
     def image(x: np.ndarray) -> np.ndarray:
-        normalised = x[:, :2] / x[:, 2:]
         if lens is None:
-            return normalised * FOCAL + K[:2, 2]
-        return np.asarray(lens.img_from_cam(normalised), dtype=np.float64) - 0.5
+            return x[:, :2] / x[:, 2:] * FOCAL + K[:2, 2]
+        return np.asarray(lens.img_from_cam(np.ascontiguousarray(x)), dtype=np.float64) - 0.5
 
     frame_of, point_of, pixels = [], [], []
     for k, t in enumerate(times):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from rolling_shutter_plates import plate
+from tests.geometry.rolling_shutter_plates import plate
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.rolling_shutter_ba import estimate_readout
