@@ -1,4 +1,4 @@
-"""A plate's readout time estimated over seeded draws: bias, spread against the printed sigma, and when it is undetermined.
+"""A plate's readout time estimated over seeded draws: bias, spread against its sigma, and when it is undetermined.
 
 The plates of ``tests/geometry/rolling_shutter_plates.py`` (640 x 360, f 500 px, 30 fps, 100 points 5-14 m
 away, 0.5 px noise a coordinate, the solve imitated by the true poses and points slightly perturbed), each point

@@ -154,7 +154,7 @@ def register(parser: argparse.ArgumentParser) -> None:
         "# driving footage from a phone: frames whose motion during a 30 ms readout moves points over 2 px flagged",
         "camcal solve drive/frame.%06d.png --matcher sequential --intrinsics phone.rig.json --readout-ms 30 "
         "--readout-flag-px 2 --fps 30 --out solve",
-        "# a handheld phone plate that pans and tilts: its readout time estimated from the plate, frames checked with it",
+        "# a handheld phone plate that pans and tilts: its readout estimated from the plate, frames checked with it",
         "camcal solve walk/frame.%04d.png --matcher sequential --intrinsics phone.rig.json --readout-ms estimate "
         "--fps 30 --out solve",
         "# a long plate's features extracted on a Dask cluster (rerun the same command after a crash to resume)",

@@ -58,19 +58,19 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.sparse import coo_matrix, diags
-from scipy.sparse.linalg import spsolve, splu
 from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.rolling_shutter import camera_velocities
 
-__all__ = ["DETERMINED_FRACTION", "MAX_POINTS", "MIN_TRACK", "ReadoutEstimate", "estimate_readout"]
+__all__ = ["DETERMINED_FRACTION", "MAX_OBSERVATIONS", "MIN_TRACK", "ReadoutEstimate", "estimate_readout"]
 
 #: the readout counts as determined when its standard deviation is at most this fraction of the frame interval
 #: (4.2 ms at 24 fps): a readout cannot exceed the interval, and a wider one says little about it.
 DETERMINED_FRACTION = 0.1
-#: at most this many points (those seen in the most frames first, ties by a seeded draw) enter the adjustment.
-MAX_POINTS = 1500
+#: at most this many observations enter the adjustment: those of the points seen in the most frames, taken until
+#: the next would pass it (ties by a seeded draw).
+MAX_OBSERVATIONS = 20000
 #: points seen in fewer frames are left out: over a few neighbouring frames their depth is barely determined,
 #: which leaves the adjustment a long, curved valley to crawl along.
 MIN_TRACK = 5
@@ -106,7 +106,8 @@ class ReadoutEstimate:
 
 def estimate_readout(K: ArrayLike, height: int, rotations: ArrayLike, centres: ArrayLike, times: ArrayLike,
                      points: ArrayLike, frame_of: ArrayLike, point_of: ArrayLike, pixels: ArrayLike,
-                     rows: ArrayLike | None = None, *, max_points: int = MAX_POINTS, seed: int = 0
+                     rows: ArrayLike | None = None, *, max_observations: int = MAX_OBSERVATIONS,
+                     seed: int = 0
                      ) -> ReadoutEstimate:
     """Refine poses, points and one readout time on the rolling-shutter model (module notes) and judge it.
 
@@ -128,8 +129,8 @@ def estimate_readout(K: ArrayLike, height: int, rotations: ArrayLike, centres: A
         Each observation in undistorted pinhole pixels of ``K`` (pixel centres at integers).
     rows : array_like, shape (P,), optional
         The sensor row each observation was read on (its distorted row; default ``pixels[:, 1]``).
-    max_points : int
-        At most this many points are adjusted (:data:`MAX_POINTS`).
+    max_observations : int
+        At most this many observations are adjusted (:data:`MAX_OBSERVATIONS`).
     seed : int
         Seeds the choice among equally long tracks.
 
@@ -151,7 +152,7 @@ def estimate_readout(K: ArrayLike, height: int, rotations: ArrayLike, centres: A
         raise CamcalError(f"estimating a readout time needs at least 3 solved frames, got {len(R0)}")
     camera_velocities(R0, c0, t)  # checks the lengths and the times' order
     Ks = np.broadcast_to(np.asarray(K, dtype=np.float64), (len(R0), 3, 3))
-    keep = _chosen_observations(point_of, len(X0), max_points, seed)
+    keep = _chosen_observations(point_of, len(X0), max_observations, seed)
     frame_of, point_of, uv, y = frame_of[keep], point_of[keep], uv[keep], y[keep]
     used_points, point_of = np.unique(point_of, return_inverse=True)
     X0 = X0[used_points]
@@ -177,12 +178,13 @@ def estimate_readout(K: ArrayLike, height: int, rotations: ArrayLike, centres: A
     depth = float(np.median(np.linalg.norm(X0[point_of] - c0[frame_of], axis=1)))
     steps = np.r_[1e-4, np.full(3 * n_frames, 1e-6), np.full(3 * n_frames + 3 * n_points, 1e-6 * depth)]
     free = _gauge_free(c0, n_points)
-    x, r, A = _levenberg_marquardt(residuals, pattern, _column_groups(n_frames, n_points), steps, free)
+    n_points_free = 3 * n_points  # the points' unknowns, all free, come last
+    x, r, A = _levenberg_marquardt(residuals, pattern, _column_groups(n_frames, n_points), steps, free, n_points_free)
     cost = float(r @ r)
     variance = cost / max(2 * n_obs - int(free.sum()), 1)
     try:
-        readout_variance = float(splu(A.tocsc()).solve(np.eye(A.shape[0], 1).ravel())[0])
-    except RuntimeError:  # exactly singular: nothing determines the readout
+        readout_variance = float(_reduced_inverse_first(A, n_points_free))
+    except np.linalg.LinAlgError:  # exactly singular: nothing determines the readout
         readout_variance = np.inf
     sigma_s = float(np.sqrt(variance * abs(readout_variance))) * 1e-3
     limit = DETERMINED_FRACTION * float(np.median(np.diff(t)))
@@ -190,14 +192,15 @@ def estimate_readout(K: ArrayLike, height: int, rotations: ArrayLike, centres: A
                            float(np.sqrt(cost / max(n_obs, 1))), n_frames, n_points, n_obs)
 
 
-def _chosen_observations(point_of: NDArray[np.intp], n_points: int, max_points: int, seed: int) -> NDArray[np.bool_]:
-    """The observations of at most ``max_points`` points seen in :data:`MIN_TRACK` frames or more, the longest
-    tracks first."""
+def _chosen_observations(point_of: NDArray[np.intp], n_points: int, max_observations: int, seed: int
+                         ) -> NDArray[np.bool_]:
+    """The observations of the points seen in :data:`MIN_TRACK` frames or more, the longest tracks first, until
+    their number would pass ``max_observations``."""
     counts = np.bincount(point_of, minlength=n_points)
     tie = np.random.default_rng(seed).permutation(n_points)
     order = np.lexsort((tie, -counts))
-    chosen = order[:max_points]
-    chosen = chosen[counts[chosen] >= MIN_TRACK]
+    order = order[counts[order] >= MIN_TRACK]
+    chosen = order[np.cumsum(counts[order]) <= max_observations]
     return np.isin(point_of, chosen)
 
 
@@ -249,9 +252,10 @@ def _jacobian(residuals, x: NDArray[np.float64], r: NDArray[np.float64], pattern
     return coo_matrix((values, (rows, cols)), shape=pattern.shape).tocsc()
 
 
-def _levenberg_marquardt(residuals, pattern, groups, steps, free, max_iterations: int = 50):
+def _levenberg_marquardt(residuals, pattern, groups, steps, free, n_points: int, max_iterations: int = 50):
     """Minimise ``|residuals(x)|^2`` from ``x = 0`` over the ``free`` unknowns (Levenberg-Marquardt on the sparse
-    normal equations, damping ``lambda diag(J^T J)``); the solution, its residuals and ``J^T J`` there.
+    normal equations, damping ``lambda diag(J^T J)``, the last ``n_points`` unknowns, 3 a point, eliminated by
+    :func:`_schur_solve`); the solution, its residuals and ``J^T J`` there.
 
     It stops when a step lowers the chi-square (the cost over the residuals' variance) by less than 0.01: the
     Gauss-Newton step then left every unknown within about a tenth of its standard deviation of the optimum.
@@ -264,7 +268,10 @@ def _levenberg_marquardt(residuals, pattern, groups, steps, free, max_iterations
         J = _jacobian(residuals, x, r, pattern, groups, steps)[:, free]
         A, gradient = (J.T @ J).tocsc(), J.T @ r
         while damping < 1e8:
-            step = spsolve(A + diags(damping * A.diagonal()), -gradient)
+            try:
+                step = _schur_solve(A + diags(damping * A.diagonal()), -gradient, n_points)
+            except np.linalg.LinAlgError:
+                step = np.full(gradient.size, np.nan)
             trial = x.copy()
             trial[free] += step
             r_trial = residuals(trial)
@@ -280,3 +287,37 @@ def _levenberg_marquardt(residuals, pattern, groups, steps, free, max_iterations
             break
     J = _jacobian(residuals, x, r, pattern, groups, steps)[:, free]
     return x, r, (J.T @ J).tocsc()
+
+
+def _split(A, n_points: int):
+    """``A``'s camera block and camera-point block (dense) and the inverses of its 3 x 3 point blocks (sparse)."""
+    n_camera = A.shape[0] - n_points
+    A = A.tocsr()
+    cameras = A[:n_camera, :n_camera].toarray()
+    coupling = A[:n_camera, n_camera:].toarray()
+    points = A[n_camera:, n_camera:].tocoo()
+    same = points.row // 3 == points.col // 3
+    blocks = np.zeros((n_points // 3, 3, 3))
+    blocks[points.row[same] // 3, points.row[same] % 3, points.col[same] % 3] = points.data[same]
+    inverse = np.linalg.inv(blocks)
+    index = np.arange(n_points).reshape(-1, 3)
+    rows, cols = np.repeat(index, 3, axis=1).ravel(), np.tile(index, (1, 3)).ravel()
+    return cameras, coupling, coo_matrix((inverse.ravel(), (rows, cols)), shape=(n_points, n_points)).tocsr()
+
+
+def _schur_solve(A, b: NDArray[np.float64], n_points: int) -> NDArray[np.float64]:
+    """``A^-1 b`` with the points (the last ``n_points`` unknowns, block diagonal in 3 x 3) eliminated: the
+    cameras from ``S = B - E C^-1 E^T``, then the points (Triggs et al. 2000, section 6.1)."""
+    n_camera = A.shape[0] - n_points
+    cameras, coupling, points_inverse = _split(A, n_points)
+    reduced = cameras - (points_inverse.T @ coupling.T).T @ coupling.T
+    camera_step = np.linalg.solve(reduced, b[:n_camera] - coupling @ (points_inverse @ b[n_camera:]))
+    return np.r_[camera_step, points_inverse @ (b[n_camera:] - coupling.T @ camera_step)]
+
+
+def _reduced_inverse_first(A, n_points: int) -> float:
+    """``(A^-1)_00``, the first unknown's (the readout's) entry: that of the inverse of the points' Schur
+    complement."""
+    cameras, coupling, points_inverse = _split(A, n_points)
+    reduced = cameras - (points_inverse.T @ coupling.T).T @ coupling.T
+    return float(np.linalg.solve(reduced, np.eye(len(reduced), 1).ravel())[0])

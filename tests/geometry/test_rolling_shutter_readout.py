@@ -43,12 +43,14 @@ def test_straight_constant_motion_does_not_determine_the_readout(motion):
 
 
 def test_the_estimate_keeps_the_longest_tracks_when_capped():
-    """Capped at 40 points, the adjustment keeps the 40 seen in the most frames and still finds the readout."""
+    """Capped at 400 observations, the adjustment keeps the points seen in the most frames up to that many
+    observations and still finds the readout."""
     synthetic = plate(TRUE_READOUT, "turning", 4)
-    estimate = estimate_readout(*synthetic.estimate_arguments(), max_points=40)
-    counts = np.bincount(synthetic.point_of)
-    assert estimate.n_points == 40
-    assert estimate.n_observations == np.sort(counts)[::-1][:40].sum()
+    estimate = estimate_readout(*synthetic.estimate_arguments(), max_observations=400)
+    counts = np.sort(np.bincount(synthetic.point_of))[::-1]
+    longest = counts[np.cumsum(counts) <= 400]
+    assert (estimate.n_points, estimate.n_observations) == (len(longest), longest.sum())
+    assert 350 < estimate.n_observations <= 400
     assert abs(estimate.readout_s - TRUE_READOUT) < 3.0 * estimate.sigma_s
 
 
