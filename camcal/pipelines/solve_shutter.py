@@ -135,7 +135,14 @@ def check_rolling_shutter(reconstruction, rig: Rig, colmap_names: dict[str, str]
         times = np.array([number for number, _, _ in timed], dtype=float) * frame_interval_s
         readout_ms = spec.readout_ms
         if readout_ms is None:
-            estimate = _estimate(reconstruction, camera.image_size[1], posed, times, [n for _, _, n in timed], seed)
+            try:
+                estimate = _estimate(reconstruction, camera.image_size[1], posed, times, [n for _, _, n in timed],
+                                     seed)
+            except CamcalError as problem:  # too little to estimate from: said, like an undetermined readout
+                estimates[camera.name] = {"determined": False, "reason": str(problem)}
+                lines.append(f"rolling-shutter readout of {camera.name}: cannot be estimated ({problem}), so its "
+                             "frames are not checked; give --readout-ms")
+                continue
             estimates[camera.name] = _estimate_record(estimate)
             lines.append(_estimate_line(camera.name, estimate))
             if not estimate.determined:
@@ -189,7 +196,7 @@ def _estimate(reconstruction, height: int, posed, times: np.ndarray, names: list
         pixels.append(normalised[:, :2] @ camera.K[:2, :2].T + camera.K[:2, 2])
         rows.append(xy[:, 1] - 0.5)
     if not pixels:
-        raise CamcalError("no solved frame observes a point: nothing to estimate the readout time from")
+        raise CamcalError("no solved frame observes a point")
     ids, point_of = np.unique(point_ids, return_inverse=True)
     xyz = np.array([reconstruction.points3D[int(i)].xyz for i in ids]).reshape(-1, 3)
     return estimate_readout(np.array([c.K for c in posed]), height, np.array([c.R for c in posed]),
@@ -200,7 +207,8 @@ def _estimate(reconstruction, height: int, posed, times: np.ndarray, names: list
 def _estimate_record(estimate: ReadoutEstimate) -> dict:
     """A camera's entry in the provenance's ``rolling_shutter.estimate`` (the readout only when determined)."""
     record = {"readout_ms": estimate.readout_s * 1000.0} if estimate.determined else {}
-    return {**record, "sigma_ms": estimate.sigma_s * 1000.0, "determined": estimate.determined,
+    sigma = estimate.sigma_s * 1000.0 if np.isfinite(estimate.sigma_s) else None  # None: nothing determines it
+    return {**record, "sigma_ms": sigma, "determined": estimate.determined,
             "limit_ms": estimate.limit_s * 1000.0, "rms_px": estimate.rms_px, "frames": estimate.n_frames,
             "points": estimate.n_points, "observations": estimate.n_observations}
 

@@ -158,3 +158,17 @@ def test_a_plate_that_does_not_determine_its_readout_says_so_and_checks_nothing(
     assert not record["determined"] and "readout_ms" not in record and record["sigma_ms"] > record["limit_ms"]
     assert len(lines) == 1 and "the plate's motion does not determine it" in lines[0]
     assert all(not frame.rolling_shutter for frame in checked.frames)
+
+
+def test_a_plate_too_short_to_estimate_from_says_so_and_checks_nothing():
+    import dataclasses
+
+    from camcal.pipelines.solve_shutter import check_rolling_shutter
+
+    model, rig, names = _solved_plate("turning")
+    short = dataclasses.replace(rig, frames=rig.frames[:2])
+    checked, lines = check_rolling_shutter(model, short, names, ShutterSpec(None, 1.0, 30.0), 1 / 30, 30.0)
+    assert lines == ["rolling-shutter readout of cam: cannot be estimated (estimating a readout time needs at least 3 "
+                     "solved frames, got 2), so its frames are not checked; give --readout-ms"]
+    assert checked.provenance["rolling_shutter"]["estimate"]["cam"]["determined"] is False
+    assert all(not frame.rolling_shutter for frame in checked.frames)
