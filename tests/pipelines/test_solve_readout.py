@@ -1,6 +1,6 @@
 """``solve --readout-ms estimate`` end to end: a plate rendered through a rolling shutter, solved, its readout found.
 
-Each frame is ray-cast (:func:`camcal.synthetic.render_planes`) band by band, every 4 rows from the camera's pose
+Each frame is ray-cast (:func:`camcal.synthetic.render_planes`) band by band, every 8 rows from the camera's pose
 at those rows' read-out time, in the textured set of the rendered plate benchmark (``bench/bench_plates.py``), the
 camera walking and panning to and fro. The fast siblings: ``tests/geometry/test_rolling_shutter_readout.py``
 (the estimate on point plates, over seeds) and ``tests/pipelines/test_solve_shutter.py`` (the solve's hook).
@@ -26,7 +26,7 @@ from bench_plates import CENTRE, K_TRUE, LENS, SIZE  # noqa: E402
 
 READOUT_S = 0.030
 FPS = 24.0
-BAND_ROWS = 4
+BAND_ROWS = 8
 
 
 def _pose(t: float) -> tuple[np.ndarray, np.ndarray]:
