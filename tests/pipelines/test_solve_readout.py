@@ -67,5 +67,7 @@ def test_a_rendered_rolling_shutter_plate_solves_to_its_readout(tmp_path):
     record = result.rig.provenance["rolling_shutter"]["estimate"]["plate"]
     print(record, *result.sfm.notes, sep="\n")
     assert record["determined"]
-    assert abs(record["readout_ms"] - READOUT_S * 1000) < max(3.0 * record["sigma_ms"], 1.0)
+    # within 1 ms (3 %): measured 29.23 +- 0.06 ms, the sigma counting the noise only; the model's error (velocities
+    # from central differences, the solve's poses) dominates on 20000 observations
+    assert abs(record["readout_ms"] - READOUT_S * 1000) < 1.0
     assert any(frame.rolling_shutter["plate"].flagged for frame in result.rig.frames)
