@@ -257,7 +257,7 @@ def _jacobian(residuals, x: NDArray[np.float64], r: NDArray[np.float64], pattern
     return coo_matrix((values, (rows, cols)), shape=pattern.shape).tocsc()
 
 
-def _levenberg_marquardt(residuals, pattern, groups, steps, free, n_points: int, max_iterations: int = 50):
+def _levenberg_marquardt(residuals, pattern, groups, steps, free, n_points: int, max_iterations: int = 30):
     """Minimise ``|residuals(x)|^2`` from ``x = 0`` over the ``free`` unknowns (Levenberg-Marquardt on the sparse
     normal equations, damping ``lambda diag(J^T J)``, the last ``n_points`` unknowns, 3 a point, eliminated by
     :func:`_schur_solve`); the solution, its residuals and ``J^T J`` there.
