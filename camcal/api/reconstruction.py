@@ -262,12 +262,16 @@ def solve(
         24 registered images, its corners triangulated from the solved cameras, it sets the world: its plane the
         ground (+z towards the cameras), its first inner corner the origin, +x along its columns, its squares
         the scale. Not with ``up``, ``origin`` or ``scale``.
-    readout_ms : float or "typical", optional
+    readout_ms : float, "typical" or "estimate", optional
         The camera's rolling-shutter readout time (top row to bottom row, ms; ``"typical"``: 30 ms, a consumer
         camera's): each solved frame's points are moved by the camera's motion during the readout (velocities
         from the neighbouring frames, :mod:`camcal.geometry.rolling_shutter`); the largest displacement is
         stored per frame and camera in the rig (``frames[i].rolling_shutter``) and the frames above
-        ``readout_flag_px`` are named in a line. Default: no check (a global shutter assumed).
+        ``readout_flag_px`` are named in a line. ``"estimate"``: the readout is estimated per camera by a
+        rolling-shutter bundle adjustment of the solved plate (:mod:`camcal.geometry.rolling_shutter_ba`), stored
+        with its standard deviation in ``rig.provenance["rolling_shutter"]["estimate"]`` and used for the check;
+        where the plate's motion does not determine it (moving straight or sideways at a constant speed), a line
+        says so and that camera's frames are not checked. Default: no check (a global shutter assumed).
     readout_flag_px : float
         The displacement (px) above which a frame is flagged.
     fps : float, optional

@@ -111,12 +111,15 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "(default: m)")
     only_with(parser, "--units", "--scale or --world-board",
               lambda args: args.scale is not None or args.world_board is not None)
-    parser.add_argument("--readout-ms", metavar="MS|typical",
+    parser.add_argument("--readout-ms", metavar="MS|typical|estimate",
                         help="the camera's rolling-shutter readout time, top row to bottom row, in ms (typical: 30, a "
                         "consumer camera's): after the solve, each frame's points are moved by the camera's motion "
                         "during the readout (its speed and turn from the neighbouring frames), the largest move is "
-                        "stored per frame in the rig and frames above --readout-flag-px are named (default: no "
-                        "check, a global shutter)")
+                        "stored per frame in the rig and frames above --readout-flag-px are named; estimate: the "
+                        "readout is estimated from the solved plate by a rolling-shutter bundle adjustment, stored "
+                        "with its standard deviation and used for the check, or said to be undetermined where the "
+                        "camera moves straight or sideways at a constant speed (default: no check, a global "
+                        "shutter)")
     parser.add_argument("--readout-flag-px", type=float, metavar="PX",
                         help="flag frames whose points move more than this during the readout (default: 1.0)")
     only_with(parser, "--readout-flag-px", "--readout-ms", lambda args: args.readout_ms is not None, default=1.0)
@@ -152,6 +155,9 @@ def register(parser: argparse.ArgumentParser) -> None:
         "# driving footage from a phone: frames whose motion during a 30 ms readout moves points over 2 px flagged",
         "camcal solve drive/frame.%06d.png --matcher sequential --intrinsics phone.rig.json --readout-ms 30 "
         "--readout-flag-px 2 --fps 30 --out solve",
+        "# a handheld phone plate that pans and tilts: its readout estimated from the plate, frames checked with it",
+        "camcal solve walk/frame.%04d.png --matcher sequential --intrinsics phone.rig.json --readout-ms estimate "
+        "--fps 30 --out solve",
         "# a long plate's features extracted and matched on a Dask cluster (rerun the same command after a crash to "
         "resume)",
         "camcal solve plates/shot.%04d.exr --frames 1001-1960 --matcher sequential --scheduler tcp://farm:8786 "

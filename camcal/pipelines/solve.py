@@ -257,10 +257,10 @@ def solve_sfm(
         An image that cannot be registered is an error (nothing is written)
         instead of a line naming it.
     rolling_shutter : ShutterSpec, optional
-        A readout time: each solved frame's rolling-shutter displacement is
-        computed, stored in the rig's frames and frames above the threshold
-        named (:mod:`camcal.pipelines.solve_shutter`); the frame rate is the
-        spec's, else a movie's own, else 24.
+        A readout time (or one to estimate from the plate): each solved frame's
+        rolling-shutter displacement is computed, stored in the rig's frames and
+        frames above the threshold named (:mod:`camcal.pipelines.solve_shutter`);
+        the frame rate is the spec's, else a movie's own, else 24.
     scheduler : str, optional
         Extract the features on the Dask cluster of this scheduler
         (``tcp://host:8786``), one task per image, whose workers must see
@@ -563,7 +563,7 @@ def _to_result(reconstruction, camera_names: list[str], out_dir: Path, model_dir
     shutter_lines = []
     if shutter is not None:
         rig, shutter_lines = check_rolling_shutter(reconstruction, rig, {path: name for name, path in originals.items()},
-                                                   *shutter)
+                                                   *shutter, seed=seed)
     write_points_ply(points_path, model.xyz, model.colours, model.track_lengths)
     rig.save(out_dir / "solve.rig.json")
     return SfmResult(
