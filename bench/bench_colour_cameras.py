@@ -166,7 +166,7 @@ def main(illuminants: list[str], spectra: bool = False, floor: bool = True) -> i
     for illuminant in illuminants:
         print(f"\nunder {illuminant}, 0.2 % noise: train ColorChecker 24, independent rawtoaces 190, mean CIEDE2000")
         print(f"{'camera':22s} {'camcal auto':>11s} {'p95':>6s} {'+spectra':>9s} {'p95':>6s} | "
-              f"{'c-s best':>8s} {'p95':>6s} {'ratio':>6s} {'ratio+sp':>8s} | {'hind.':>6s} {'ratio':>6s} | "
+              f"{'c-s best':>8s} {'p95':>6s} {'ratio':>6s} {'ratio+sp':>8s} | {'hind.':>6s} {'ratio':>6s} {'gap':>6s} | "
               f"{'own CV':>6s} {'ratio':>6s}  pick / peer / own CV's pick")
         ratios, ratios_sp, floors, hindsight = [], [], [], []
         for path in files:
@@ -190,7 +190,8 @@ def main(illuminants: list[str], spectra: bool = False, floor: bool = True) -> i
             sp = (f"{s.mean:9.3f} {s.p95:6.3f}" if spectra else f"{'-':>9s} {'-':>6s}")
             sp_ratio = f"{s.mean / peer:8.3f}" if spectra else f"{'-':>8s}"
             print(f"{cam.name:22s} {a.mean:11.3f} {a.p95:6.3f} {sp} | {peer:8.3f} "
-                  f"{peer_p95:6.3f} {a.mean / peer:6.3f} {sp_ratio} | {best:6.3f} {best / peer:6.3f} | "
+                  f"{peer_p95:6.3f} {a.mean / peer:6.3f} {sp_ratio} | {best:6.3f} {best / peer:6.3f} "
+                  f"{100 * (a.mean / best - 1):+5.1f}% | "
                   f"{own:6.3f} {own / peer:6.3f}  "
                   f"{auto.selection.picked.label} / {peer_label} / {own_label} ({seconds:.0f} s)", flush=True)
         summary.append((illuminant, ratios, ratios_sp, floors, hindsight))

@@ -175,8 +175,8 @@ def _check_curve(value: Any, where: str) -> None:
 
 def _check_model(value: Any, where: str) -> None:
     kind = _string(_keys(value, where, ("kind",), ("terms", "coefficients", "white_preserving", "objective",
-                                                    "regularisation", "kernel", "smoothing", "centres",
-                                                    "weights", "linear"))["kind"], f"{where}.kind", MODEL_KINDS)
+                                                    "regularisation", "shrinkage", "kernel", "smoothing",
+                                                    "centres", "weights", "linear"))["kind"], f"{where}.kind", MODEL_KINDS)
     if kind == "rbf":
         _keys(value, where, ("kind", "kernel", "smoothing", "centres", "weights", "linear", "objective"))
         _string(value["kernel"], f"{where}.kernel", RBF_KERNELS)

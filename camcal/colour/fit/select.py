@@ -23,6 +23,19 @@ D65, the demo's rendered Sigma SDMerill chart) its leave-one-out was the
 lowest of the three, and on the independent set it lay between the two
 fits, within 1.8 % of the better one.
 
+Stage 4 shrinks each chart candidate with more terms than the matrix toward
+the ``matrix3x3`` fit of its objective: the blend ``(1 - alpha) f + alpha
+f_3x3`` (``shrinkage``, :func:`camcal.colour.fit.fitting.fit_linear_terms`),
+one model of the candidate's terms, whose leave-one-out predictions are the
+blend of the two fits' (no refit). The ``alpha`` of :data:`SHRINKAGE_GRID`
+with the lowest leave-one-out is kept when it beats the unshrunk candidate.
+Shrinking a many-parameter estimate toward a few-parameter one trades a
+little bias for less variance (James & Stein 1961; the two-model case of
+Breiman's 1996 stacked regressions, the weight chosen on held-out
+predictions): the ridge ``lambda`` shrinks the non-linear coefficients
+toward zero, which is not the 3x3 fit once the linear ones move with them.
+The spectral route's candidates are not shrunk.
+
 The score of a candidate is its leave-one-out mean CIEDE2000 over the
 chart's patches (weighted by the patches' ``weights`` when given).
 Leave-one-out over 24 patches is noisy: the lowest score is often a
