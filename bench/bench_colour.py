@@ -130,7 +130,8 @@ def candidate_scores(out, train: PatchSet, test: PatchSet, white: np.ndarray) ->
         extra = None
         if c.training == "spectral":
             extra = (out.synthetic.training.RGB, out.synthetic.training.XYZ)
-        model = fitter(c.spec, c.objective, c.regularisation, white, extra)(train.RGB, train.XYZ, train.weights)
+        model = fitter(c.spec, c.objective, c.regularisation, white, extra,
+                       shrinkage=c.shrinkage)(train.RGB, train.XYZ, train.weights)
         scored.append((float(np.mean(delta_E(model.apply(test.RGB), test.XYZ, white))), c.label, c, model))
     return sorted(scored, key=lambda t: t[0])
 

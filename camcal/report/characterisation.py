@@ -54,9 +54,10 @@ def write_report(outcome: Characterisation, out_dir: str | os.PathLike, title: s
     if outcome.selection is not None:
         path = directory / "candidates.csv"
         with atomic_path(path) as tmp, open(tmp, "w") as handle:
-            handle.write("model,objective,regularisation,score,score_se,loo_mean,loo_p95,picked\n")
+            handle.write("model,objective,regularisation,shrinkage,score,score_se,loo_mean,loo_p95,picked\n")
             for c in sorted(outcome.selection.candidates, key=lambda c: c.score):
-                handle.write(f"{c.spec.label},{c.objective},{c.regularisation:g},{c.score:.4f},{c.score_se:.4f},"
+                handle.write(f"{c.spec.label},{c.objective},{c.regularisation:g},{c.shrinkage:g},{c.score:.4f},"
+                             f"{c.score_se:.4f},"
                              f"{c.loo_mean:.4f},"
                              f"{c.loo_p95:.4f},{'yes' if c is outcome.selection.picked else ''}\n")
         written.append(path)

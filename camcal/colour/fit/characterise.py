@@ -233,7 +233,9 @@ def characterise(
         spec = selection.picked.spec
         chosen_objective = selection.picked.objective
         regularisation = selection.picked.regularisation
+        shrinkage = selection.picked.shrinkage
     else:
+        shrinkage = 0.0
         spec = parse_model_spec(model)
         chosen_objective = objective or "xyz"
         if not (np.isfinite(regularisation) and regularisation >= 0):
@@ -248,7 +250,7 @@ def characterise(
         RGB_white = (Y @ RGB[neutral]) / (Y @ Y)
 
     extra = spectral if selection is not None and selection.picked.training == "spectral" else None
-    fit = fitter(spec, chosen_objective, regularisation, target_XYZ, extra, RGB_white)
+    fit = fitter(spec, chosen_objective, regularisation, target_XYZ, extra, RGB_white, shrinkage)
 
     result = evaluate_model(
         fit, RGB, XYZ, target_XYZ,

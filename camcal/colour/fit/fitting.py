@@ -13,6 +13,17 @@ terms and its predictions are the mean of theirs; the model average
 ``auto`` ranks, :mod:`camcal.colour.fit.select`). Regularisation ``lambda`` is a ridge penalty on the
 non-linear terms only: ``|A M^T - XYZ|^2 / N + lambda |M_nl|^2``.
 
+Shrinkage ``alpha`` (0 <= alpha < 1) pulls a polynomial or root-polynomial fit
+toward the ``matrix3x3`` fit of the same patches, objective, weights and white
+constraint: ``M = (1 - alpha) M_full + alpha [M_3x3, 0]`` (the 3x3 placed on the
+terms R, G, B, zeros elsewhere). Its predictions are that convex combination of
+the two fits' predictions, held out too: shrinkage of a high-variance estimate
+toward a low-variance one (James & Stein 1961), the two-model case of stacked
+regression, whose weight is chosen on held-out predictions (Breiman 1996,
+Stacked regressions, Machine Learning 24, 49-64); ``auto`` chooses it by the
+chart's leave-one-out (:mod:`camcal.colour.fit.select`). A convex combination
+of two white-preserving fits preserves the white too.
+
 Weights (``weights``, ``(N,)`` positive, e.g. a chart photo's
 signal-to-noise weights, :func:`camcal.colour.chart.detect.snr_weights`)
 make every objective a weighted one: each patch's squared residual counts
@@ -87,6 +98,7 @@ def fit_linear_terms(
     RGB_white: Any = None,
     max_nfev: int = 400,
     weights: Any = None,
+    shrinkage: float = 0.0,
 ) -> LinearTermsModel:
     """Fit ``XYZ = M @ expand(RGB, terms)``.
 
@@ -111,6 +123,9 @@ def fit_linear_terms(
         preserving: ``M @ expand(RGB_white) = white_XYZ`` exactly.
     weights
         ``(N,)`` patch weights (see the module docstring), ``None`` for equal.
+    shrinkage
+        ``alpha`` in [0, 1): the weight of the ``matrix3x3`` fit blended in
+        (see the module docstring); the terms must hold R, G and B.
 
     Returns
     -------
@@ -119,6 +134,20 @@ def fit_linear_terms(
     if objective not in OBJECTIVES:
         raise CamcalError(f"unknown objective {objective!r}, expected one of: {', '.join(OBJECTIVES)}")
     terms = tuple(terms)
+    if not (np.isfinite(shrinkage) and 0.0 <= shrinkage < 1.0):
+        raise CamcalError(f"shrinkage must be a number in [0, 1), got {shrinkage}")
+    if shrinkage > 0:
+        if not {"R", "G", "B"} <= set(terms) or kind == "matrix3x3":
+            raise CamcalError(f"shrinkage toward the 3x3 matrix needs a {kind} model with the terms R, G and B")
+        options = dict(objective=objective, white_XYZ=white_XYZ, RGB_white=RGB_white, max_nfev=max_nfev,
+                       weights=weights)
+        full = fit_linear_terms(RGB, XYZ, terms, kind=kind, regularisation=regularisation, **options)
+        matrix = fit_linear_terms(RGB, XYZ, ("R", "G", "B"), kind="matrix3x3", **options)
+        M = (1 - shrinkage) * full.M
+        M[:, [terms.index(t) for t in ("R", "G", "B")]] += shrinkage * matrix.M
+        return LinearTermsModel(kind=kind, terms=terms, M=M, white_preserving=full.white_preserving,
+                                objective=objective, regularisation=float(regularisation),
+                                shrinkage=float(shrinkage))
     T = len(terms)
     RGB, XYZ = _check_training(RGB, XYZ, T if regularisation == 0 else 3, kind)
     N = RGB.shape[0]
@@ -385,6 +414,7 @@ def fit_model(
     RGB_white: Any = None,
     smoothing: float | None = None,
     weights: Any = None,
+    shrinkage: float = 0.0,
 ) -> Model:
     """Fit the model ``spec`` to training patches (the one dispatcher).
 
@@ -408,6 +438,9 @@ def fit_model(
     weights
         ``(N,)`` positive patch weights (signal-to-noise weights of a chart
         photo); ``None`` weighs every patch equally.
+    shrinkage
+        Weight ``alpha`` of the ``matrix3x3`` fit blended into a polynomial
+        or root-polynomial one (module docstring); 0 for none.
 
     Returns
     -------
@@ -415,6 +448,9 @@ def fit_model(
     """
     if isinstance(spec, str):
         spec = parse_model_spec(spec)
+    if shrinkage and spec.kind in ("rbf", "matrix3x3"):
+        raise CamcalError(f"shrinkage toward the 3x3 matrix applies to polynomial and root-polynomial models, "
+                          f"not {spec.label}")
     if spec.kind == "rbf":
         return fit_rbf(RGB, XYZ, kernel=spec.kernel, smoothing=smoothing,
                        white_XYZ=white_XYZ, objective=objective, weights=weights)
@@ -432,4 +468,5 @@ def fit_model(
         white_XYZ=white_XYZ,
         RGB_white=RGB_white if spec.white_preserving else None,
         weights=weights,
+        shrinkage=shrinkage,
     )

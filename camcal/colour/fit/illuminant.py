@@ -157,7 +157,7 @@ def adapt_model(model: Any, gains: Any, M: Any) -> LinearTermsModel:
         scale.append(factor ** (1.0 / degree) if root and degree > 1 else factor)
     coefficients = np.asarray(M, dtype=np.float64) @ model.M * np.array(scale)[None, :]
     return LinearTermsModel(model.kind, model.terms, coefficients, model.white_preserving, model.objective,
-                            model.regularisation)
+                            model.regularisation, model.shrinkage)
 
 
 @dataclass(frozen=True)

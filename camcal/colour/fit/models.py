@@ -86,6 +86,9 @@ class LinearTermsModel:
         target white exactly.
     objective, regularisation
         How it was fitted (recorded in the file).
+    shrinkage
+        Weight of the ``matrix3x3`` fit blended in (recorded in the file when
+        not 0; :func:`camcal.colour.fit.fitting.fit_linear_terms`).
     """
 
     kind: str
@@ -94,6 +97,7 @@ class LinearTermsModel:
     white_preserving: bool = False
     objective: str = "xyz"
     regularisation: float = 0.0
+    shrinkage: float = 0.0
 
     def __post_init__(self) -> None:
         M = np.array(self.M, dtype=np.float64)
@@ -132,7 +136,7 @@ class LinearTermsModel:
             "white_preserving": bool(self.white_preserving),
             "objective": self.objective,
             "regularisation": float(self.regularisation),
-        }
+        } | ({"shrinkage": float(self.shrinkage)} if self.shrinkage else {})
 
     def __eq__(self, other: object) -> bool:
         return type(other) is type(self) and self.to_dict() == other.to_dict()  # type: ignore[attr-defined]
@@ -265,6 +269,7 @@ def model_from_dict(data: dict) -> Model:
         white_preserving=bool(data["white_preserving"]),
         objective=data["objective"],
         regularisation=float(data["regularisation"]),
+        shrinkage=float(data.get("shrinkage", 0.0)),
     )
 
 

@@ -62,10 +62,11 @@ samples, linear interpolation, linear extension beyond the domain),
     {"kind": "polynomial", "terms": ["R", "G", "B", "R*G", ..., "1"],
      "coefficients": [[...T...], [...T...], [...T...]],   # rows X, Y, Z
      "white_preserving": false, "objective": "xyz" | "de2000" | "xyz+de2000",
-     "regularisation": 0.0}
+     "regularisation": 0.0, "shrinkage": 0.1}
 
 with ``XYZ = coefficients @ terms(RGB)``; root terms read
-``"(R*G)^(1/2)"``. For ``rbf``::
+``"(R*G)^(1/2)"``; ``shrinkage`` (optional, 0 when absent) is the weight of the
+3x3 matrix fit blended into the coefficients (``auto`` chooses it). For ``rbf``::
 
     {"kind": "rbf", "kernel": "polyharmonic-3" | "polyharmonic-1" | "thin-plate",
      "smoothing": 1e-4, "centres": [[R, G, B], ...], "weights": [[X, Y, Z], ...],
@@ -174,8 +175,8 @@ def _check_curve(value: Any, where: str) -> None:
 
 def _check_model(value: Any, where: str) -> None:
     kind = _string(_keys(value, where, ("kind",), ("terms", "coefficients", "white_preserving", "objective",
-                                                    "regularisation", "kernel", "smoothing", "centres",
-                                                    "weights", "linear"))["kind"], f"{where}.kind", MODEL_KINDS)
+                                                    "regularisation", "shrinkage", "kernel", "smoothing",
+                                                    "centres", "weights", "linear"))["kind"], f"{where}.kind", MODEL_KINDS)
     if kind == "rbf":
         _keys(value, where, ("kind", "kernel", "smoothing", "centres", "weights", "linear", "objective"))
         _string(value["kernel"], f"{where}.kernel", RBF_KERNELS)
@@ -188,7 +189,8 @@ def _check_model(value: Any, where: str) -> None:
         _matrix(linear["coefficients"], f"{where}.linear.coefficients", 3, 4)
         _string(value["objective"], f"{where}.objective", ("xyz",))
         return
-    _keys(value, where, ("kind", "terms", "coefficients", "white_preserving", "objective", "regularisation"))
+    _keys(value, where, ("kind", "terms", "coefficients", "white_preserving", "objective", "regularisation"),
+          ("shrinkage",))
     terms = value["terms"]
     if not isinstance(terms, list) or not terms:
         raise CamcalError(f"{where}.terms: expected a non-empty list of term strings, got {terms!r}")
@@ -198,13 +200,22 @@ def _check_model(value: Any, where: str) -> None:
     _boolean(value["white_preserving"], f"{where}.white_preserving")
     _string(value["objective"], f"{where}.objective", OBJECTIVES)
     _number(value["regularisation"], f"{where}.regularisation", 0.0)
+    if "shrinkage" in value:
+        _shrinkage(value["shrinkage"], f"{where}.shrinkage")
+
+
+def _shrinkage(value: Any, where: str) -> None:
+    if _number(value, where, 0.0) >= 1.0:
+        raise CamcalError(f"{where}: must be < 1, got {value!r}")
 
 
 def _check_candidate(value: Any, where: str) -> None:
     _keys(value, where, ("model", "objective", "regularisation", "loo_mean", "loo_p95"),
-          ("exportable", "bake_error_max", "score", "score_se", "validation_mean", "training"))
+          ("exportable", "bake_error_max", "score", "score_se", "validation_mean", "training", "shrinkage"))
     if "training" in value:
         _string(value["training"], f"{where}.training", ("chart", "spectral"))
+    if "shrinkage" in value:
+        _shrinkage(value["shrinkage"], f"{where}.shrinkage")
     for key in ("score", "score_se", "validation_mean"):
         if key in value:
             _number(value[key], f"{where}.{key}", 0.0)

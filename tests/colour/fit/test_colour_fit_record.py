@@ -76,6 +76,8 @@ def _mutate(tmp_path, fit, change):
         (lambda d: d["linearisation"]["channels"].pop(), "linearisation.channels: expected 3 curves"),
         (lambda d: d["linearisation"]["channels"][0].update(kind="gamma-offset"), r"linearisation.channels\[0\]: missing key 'gamma'"),
         (lambda d: d["training"].update(n_patches=True), "training.n_patches: expected an integer"),
+        (lambda d: d["model"].update(shrinkage=1.0), "model.shrinkage: must be < 1"),
+        (lambda d: d["model"].update(shrinkage=-0.2), "model.shrinkage: must be >= 0"),
     ],
 )
 def test_bad_field_named_in_one_error(tmp_path, fits, change, message):
@@ -96,3 +98,17 @@ def test_missing_and_malformed_files(tmp_path):
 def test_atomic_write_leaves_no_temporary(tmp_path, fits):
     save_colour_file(fits["matrix3x3"], tmp_path / "a.colour.json")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.colour.json"]
+
+
+def test_shrunk_model_round_trips(tmp_path, fits, sim):
+    """A fit whose model was shrunk toward the 3x3 matrix (auto's stage 4) is written and read back exactly."""
+    from dataclasses import replace
+
+    from camcal.colour.fit.fitting import fit_model
+
+    model = fit_model("root-polynomial:2", sim.RGB_train, sim.XYZ_train, white_XYZ=sim.white, shrinkage=0.2)
+    fit = replace(fits["root-polynomial:2"], model=model)
+    path = save_colour_file(fit, tmp_path / "shrunk.colour.json")
+    assert json.loads(path.read_text())["model"]["shrinkage"] == 0.2
+    again = load_fit(path)
+    assert again == fit and again.model.shrinkage == 0.2

@@ -149,3 +149,28 @@ def test_fit_rejects_nan_and_too_few_patches():
 def test_malformed_term_rejected():
     with pytest.raises(CamcalError, match="canonical"):
         LinearTermsModel("polynomial", ("G*R",), np.zeros((3, 1))).apply(RGB)
+
+
+@pytest.mark.parametrize("spec,objective", [("root-polynomial:2", "xyz"), ("polynomial:7", "de2000")])
+def test_shrinkage_blends_the_fit_with_the_matrix_fit(sim, spec, objective):
+    """Shrinkage alpha: the predictions are (1 - alpha) times the unshrunk fit's plus alpha times the matrix3x3
+    fit's (same patches, objective), anywhere in the RGB cube; it is recorded and read back."""
+    a = 0.3
+    full, matrix, shrunk = (fit_model(s, sim.RGB_train, sim.XYZ_train, objective=objective, white_XYZ=sim.white,
+                                      regularisation=1e-5 if s != "matrix3x3" else 0.0, shrinkage=k)
+                            for s, k in ((spec, 0.0), ("matrix3x3", 0.0), (spec, a)))
+    np.testing.assert_allclose(shrunk.apply(RGB), (1 - a) * full.apply(RGB) + a * matrix.apply(RGB), atol=1e-12)
+    assert shrunk.to_dict()["shrinkage"] == a and "shrinkage" not in full.to_dict()
+    assert model_from_dict(shrunk.to_dict()) == shrunk
+
+
+def test_shrinkage_keeps_the_white_and_refuses_what_it_cannot_do(sim):
+    white_rgb = sim.camera.RGB_white
+    model = fit_model("root-polynomial:3:white-preserving", sim.RGB_train, sim.XYZ_train, white_XYZ=sim.white,
+                      RGB_white=white_rgb, regularisation=1e-6, shrinkage=0.4)
+    np.testing.assert_allclose(model.apply(white_rgb[None])[0], sim.white, atol=1e-12)
+    for spec, alpha, message in (("matrix3x3", 0.2, "polynomial and root-polynomial"),
+                                 ("rbf:thin-plate", 0.2, "polynomial and root-polynomial"),
+                                 ("root-polynomial:2", 1.0, r"\[0, 1\)"), ("root-polynomial:2", -0.1, r"\[0, 1\)")):
+        with pytest.raises(CamcalError, match=message):
+            fit_model(spec, sim.RGB_train, sim.XYZ_train, white_XYZ=sim.white, shrinkage=alpha)

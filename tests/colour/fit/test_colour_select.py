@@ -107,10 +107,32 @@ def test_spectral_candidates_take_the_ridge_their_held_out_colours_prefer(sim):
     selection = select_model(train.RGB, train.XYZ, sim.white, objectives=("xyz",), candidates=("root-polynomial:2",),
                              validation=(held.RGB, held.XYZ), spectral=extra)
     spectral = sorted((c for c in selection.candidates if c.training == "spectral"), key=lambda c: c.score)
-    chart = min((c for c in selection.candidates if c.training == "chart"), key=lambda c: c.score)
+    chart = min((c for c in selection.candidates if c.training == "chart" and not c.shrinkage), key=lambda c: c.score)
     errors = {lam: float(np.mean(delta_E(fitter(spectral[0].spec, "xyz", lam, sim.white, extra)(
         train.RGB, train.XYZ).apply(held.RGB), held.XYZ, sim.white))) for lam in RIDGE_GRID}
     assert {c.regularisation for c in spectral} == {min(errors, key=errors.get), chart.regularisation}
     assert len(spectral) == len({c.regularisation for c in spectral})
     assert spectral[0].regularisation == min(errors, key=errors.get)
     assert spectral[0].validation_mean == pytest.approx(min(errors.values()), rel=1e-9)
+
+
+def test_shrunk_candidate_scores_as_its_refit_and_beats_its_base(sim):
+    """Stage 4: a candidate blended with the matrix3x3 fit at the grid weight with the lowest leave-one-out. Its
+    score, computed from the two fits' held-out predictions without a refit, is the leave-one-out of the shrunk
+    model refitted on every 23 patches, and it is lower than the unshrunk candidate's."""
+    from camcal.colour.difference import delta_E
+    from camcal.colour.fit.evaluate import leave_one_out_predictions
+    from camcal.colour.fit.select import SHRINKAGE_GRID, fitter
+
+    selection = select_model(sim.RGB_train, sim.XYZ_train, sim.white, objectives=("xyz",),
+                             candidates=("matrix3x3", "root-polynomial:3"))
+    shrunk = [c for c in selection.candidates if c.shrinkage]
+    assert shrunk and all(c.shrinkage in SHRINKAGE_GRID and "shrunk" in c.label for c in shrunk)
+    c = min(shrunk, key=lambda c: c.loo_mean)
+    base = next(b for b in selection.candidates if b.spec == c.spec and b.regularisation == c.regularisation
+                and b.objective == c.objective and not b.shrinkage)
+    assert c.loo_mean < base.loo_mean
+    loo = leave_one_out_predictions(fitter(c.spec, c.objective, c.regularisation, sim.white, shrinkage=c.shrinkage),
+                                    sim.RGB_train, sim.XYZ_train)
+    assert c.loo_mean == pytest.approx(float(np.mean(delta_E(loo, sim.XYZ_train, sim.white))), rel=1e-9)
+    assert c.to_dict()["shrinkage"] == c.shrinkage
