@@ -83,19 +83,31 @@ def spread_with_aspect_free(held: BundleResult, loose_options: BundleOptions, ca
     cannot tell from an aspect; ``z`` is then known only to the prior's
     ``s = ASPECT_PRIOR f``. Each parameter moves with ``z`` by the regression
     ``g = C a / (a^T C a)`` of the prior's fit (``C``: its covariance at the held
-    solution, Ceres with no iteration; ``a``: ``z``'s row), so the covariance
-    gains ``s^2 g g^T`` (fx, fy: ``g = +-1/2``, the mean focal unchanged; the
-    principal point along fy's weak direction too).
+    solution; ``a``: ``z``'s row), so the covariance gains ``s^2 g g^T`` (fx,
+    fy: ``g = +-1/2``, the mean focal unchanged; the principal point along
+    fy's weak direction too).
+
+    One camera held: the hold adds ``a a^T / sigma_held^2`` to the prior fit's
+    information, so by the Sherman-Morrison identity its covariance is ``C_held
+    + C_held a a^T C_held / (sigma_held^2 - a^T C_held a)``, and ``C a`` is
+    ``C_held a`` times a scalar that ``g`` divides out: ``g = C_held a / (a^T
+    C_held a)``, from the held fit's own covariance. Several: the prior fit's
+    covariance at the held solution (Ceres with no iteration).
     """
-    loose = bundle_adjust(held.state, dataclasses.replace(loose_options, max_iterations=0))
     names = held.covariance_names
-    if loose.covariance_names != names or not names:
-        raise CamcalError("the covariance of the fit with the aspect free does not match the held fit's")
+    if not names:
+        raise CamcalError("the held fit has no covariance to widen")
+    spread = held.covariance
+    if len(cameras) > 1:
+        loose = bundle_adjust(held.state, dataclasses.replace(loose_options, max_iterations=0))
+        if loose.covariance_names != names:
+            raise CamcalError("the covariance of the fit with the aspect free does not match the held fit's")
+        spread = loose.covariance
     covariance = held.covariance.copy()
     for camera in cameras:
         a = np.zeros(len(names))
         a[names.index(f"{camera}.fx")], a[names.index(f"{camera}.fy")] = 1.0, -1.0
-        g = loose.covariance @ a / float(a @ loose.covariance @ a)
+        g = spread @ a / float(a @ spread @ a)
         s = ASPECT_PRIOR * mean_focal(held.state, held.state.camera_names.index(camera))
         covariance += s * s * np.outer(g, g)
     variance = dict(zip(names, np.diag(covariance)))
