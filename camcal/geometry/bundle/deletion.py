@@ -68,7 +68,7 @@ from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
-from camcal.geometry.bundle.covariance import is_free_block
+from camcal.geometry.bundle.covariance import is_free_block, point_schur_terms
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import BundleOptions, BundleState, model_layout
 from camcal.geometry.uncertainty import scene_gauge_rows
@@ -83,9 +83,6 @@ _POINT_NULL_RATIO = 1e-10
 #: back without it when their rows are fewer than this share of the rows kept (two sums over them against one over
 #: every kept row); else it is summed again over the kept rows.
 _UPDATE_BELOW = 0.5
-#: points whose Schur terms are made dense together (:func:`_point_elimination`): 3 rows each, times the columns
-#: the chunk touches (at most every camera and frame column: 3000 x 2900 doubles, 70 MB, on a 480-frame plate).
-_POINTS_PER_CHUNK = 1000
 #: a leverage (a hat matrix eigenvalue) within this of 1: the cluster's residuals are zero along it.
 _LEVERAGE_NULL = 1e-8
 
@@ -289,11 +286,9 @@ def _point_elimination(system: _System, kept: NDArray[np.bool_], with_gain: bool
     """The points' 3x3 inverses ``V^+``, ``G = V^+ W`` (``with_gain``, else None) and the reduced system ``S``,
     ``b`` over the rows ``kept`` (Schur complement of the points, Triggs et al. 2000, section 6.1).
 
-    With ``G``, ``S = A^T A - W^T G`` as a sparse product. Without it (the jackknife's replicates, one reduced
-    system each), ``W^T V^+ W = L^T L`` with ``L = R^T W`` (``R R^T = V^+``, each point's 3x3 block): ``L`` is
-    made dense a chunk of points at a time (in the order of their mean frame, so that a chunk of a long plate
-    touches a band of frames) on the columns the chunk touches, and ``L^T L`` is one dense product per chunk:
-    the same ``S`` to rounding (1e-15 of its largest entry on a 60-frame plate), a third of the time.
+    With ``G``, ``S = A^T A - W^T G`` as a sparse product (:func:`_influences` depends on its rounding: its
+    leverages near 1 are inverted). Without it (the jackknife's replicates, one reduced system each), the
+    points' terms by dense products (:func:`camcal.geometry.bundle.covariance.point_schur_terms`).
     """
     import scipy.sparse  # noqa: PLC0415
 
@@ -326,17 +321,9 @@ def _point_elimination(system: _System, kept: NDArray[np.bool_], with_gain: bool
         S -= (H_pc.T @ G).toarray()
         b -= G.T @ b_p.ravel()
     elif n_points:
-        counts = np.bincount(pk[seen], minlength=n_points)
-        frames = np.bincount(pk[seen], system.row_frame[rows][seen], minlength=n_points)
-        order = np.argsort(frames / np.maximum(counts, 1), kind="stable")
-        c_p = np.einsum("pji,pj->pi", root, b_p)  # R^T b_p
-        for chunk in np.array_split(order, -(-n_points // _POINTS_PER_CHUNK)):
-            block = H_pc[(3 * chunk[:, None] + np.arange(3)).ravel()]
-            columns = np.unique(block.indices)
-            L = np.einsum("pji,pjc->pic", root[chunk], block[:, columns].toarray().reshape(len(chunk), 3, len(columns)))
-            L = L.reshape(3 * len(chunk), len(columns))
-            S[np.ix_(columns, columns)] -= L.T @ L
-            b[columns] -= L.T @ c_p[chunk].ravel()
+        terms, vector = point_schur_terms(H_pc, root, b_p)
+        S -= terms
+        b -= vector
     return H_inv, G, S, b
 
 
