@@ -34,18 +34,17 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
 from camcal.geometry.bundle.deletion import DeletionUnsupported, FrameInfluences, frame_influences
 from camcal.geometry.bundle.prior import (ASPECT_PRIOR, PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, PriorSpec,
                                          mean_focal, undetermined)
-from camcal.geometry.bundle.state import model_layout
 from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife, without_frames
-from camcal.model.colmap import camera_from_colmap, camera_to_colmap
-from camcal.model.distortion import Distortion, fit_distortion
-from camcal.model.rig import Camera
+from camcal.geometry.selfcal_aspect import (ASPECT_HELD, FEATURE_BIAS_PX, SQUARE_PIXELS_HELD, aspect_visibility,
+                                            spread_with_aspect_free)
+from camcal.geometry.selfcal_models import (FIXED_PARAMS, LENS_MODELS, MAPPING_MODELS, MODELS, as_lens_model,
+                                            heldout_rms, with_fixed_params, with_lenses)
 
 __all__ = [
     "ASPECT_HELD",
@@ -68,20 +67,6 @@ __all__ = [
     "self_calibrate",
 ]
 
-#: camcal's distortion models and the COLMAP camera model with two focal lengths (fx, fy) that the
-#: self-calibration refines each of them as: ``polynomial`` (k1, k2) is ``OPENCV`` with ``p1 = p2 = 0``
-#: held (:data:`FIXED_PARAMS`), COLMAP having no two-focal radial model.
-MODELS = {"division": "DIVISION", "polynomial": "OPENCV", "opencv": "OPENCV", "none": "PINHOLE",
-          "kannala-brandt": "OPENCV_FISHEYE"}
-#: COLMAP parameters held at 0 in each camcal lens model's twin (:data:`MODELS`).
-FIXED_PARAMS = {"polynomial": ("p1", "p2")}
-#: the COLMAP model structure from motion maps a camcal lens model with (one focal length where COLMAP has one:
-#: the mapper's early bundle adjustments on two or three images do not determine the aspect).
-MAPPING_MODELS = {"division": "SIMPLE_DIVISION", "polynomial": "RADIAL", "opencv": "OPENCV", "none": "SIMPLE_PINHOLE",
-                  "kannala-brandt": "OPENCV_FISHEYE"}
-#: the lens models ``solve`` chooses among by held-out residual (``--model auto``), simplest first;
-#: pinhole models only: ``kannala-brandt`` (a fisheye) is used when named, never chosen.
-LENS_MODELS = ("division", "polynomial", "opencv")
 PRINCIPAL_POINT_MODES = ("auto", "refine", "centre")
 #: a lens model later in the list must lower the held-out RMS by more than this fraction to be chosen
 #: (held-out RMS of division and 2-term polynomial lenses differ by ~0.1 % where both fit).
@@ -96,22 +81,12 @@ LENS_CHOICE_FRAMES = 40
 #: relative sigma of a focal length above which the report says that the images barely determine it: no
 #: better than a lens's marked focal length (ISO 517 allows the marking +-5 % of the measured focal length).
 FOCAL_UNDETERMINED = 0.05
-#: systematic error of feature positions shared by every image (px): the part of a detector's or a lens model's
-#: misfit that does not average out over observations. DoG / SIFT keypoints are located to about a tenth of a
-#: pixel (Lowe, D. G. (2004). Distinctive Image Features from Scale-Invariant Keypoints. IJCV: a quadratic fit
-#: of the scale-space extremum). A property of features, not fitted to a data set: a change of ``fx - fy`` by
-#: the square-pixel prior's sigma that moves the images by less than this could be such an error
-#: (:func:`aspect_visibility`). Rendered features carry less (a rendered arc recovers fy / fx to 0.02 % with
-#: the aspect free, where holding it costs 0.09 %); real ones carry it (Strecha's scenes: fy 0.2-0.45 % off).
-FEATURE_BIAS_PX = 0.1
 #: fewest frames for which the delete-one-frame jackknife is a fair copy of the problem: with fewer, deleting one
 #: frame leaves a weaker problem (a chain of frames cut), and the sigma it widens errs wide. Rendered orbits
 #: (tests/pipelines/test_solve_coverage.py): 6-12 frames put 92.8-97.7 % of pixel errors within 2 sigma at a
 #: median error / sigma of 0.32-0.41, the jackknife's design effect 15-212 on stereo orbits of 5-7 frames;
 #: 18-24 frames put 91.3-97.1 % within 2 sigma at 0.61-0.78, design effect 1.0-4.6.
 FEW_JACKKNIFE_GROUPS = 12
-#: sigma of ``(fx - fy) / f`` of the prior that holds square pixels where the motion does not determine the aspect.
-ASPECT_HELD = 1e-6
 
 
 @dataclass(frozen=True)
@@ -261,141 +236,6 @@ class SelfCalibration:
         return rows
 
 
-def _lens_params(state: BundleState, camera: int, model: str) -> NDArray[np.float64]:
-    """Camera ``camera``'s COLMAP parameters in the COLMAP twin of camcal ``model`` (:data:`MODELS`).
-
-    The focal lengths and principal point carry over; the distortion is
-    :func:`camcal.model.distortion.fit_distortion` of the current one over
-    the frame at the mean focal length (COLMAP's distortion acts on
-    normalised coordinates: with ``fx`` and ``fy`` put back it is the
-    start of the refinement, which moves all of them).
-    """
-    names = state.param_names(camera)
-    if state.models[camera] == MODELS[model]:
-        params = state.params[camera].copy()
-        params[[names.index(key) for key in FIXED_PARAMS.get(model, ())]] = 0.0
-        return params
-    name, size = state.camera_names[camera], state.image_sizes[camera]
-    lens = camera_from_colmap(name, state.models[camera], size, state.params[camera], np.eye(3), np.zeros(3))
-    fx, fy = float(lens.K[0, 0]), float(lens.K[1, 1])
-    K = lens.K.copy()
-    K[0, 0] = K[1, 1] = 0.5 * (fx + fy)
-    K[0, 1] = 0.0
-    if model == "none":
-        distortion = Distortion.none()
-    else:
-        distortion = fit_distortion(lens.distortion, K, size, model).distortion
-        if model == "opencv":
-            distortion = Distortion("opencv", {**distortion.params, "k3": 0.0})
-    colmap = camera_to_colmap(dataclasses.replace(lens, K=K, distortion=distortion))
-    single = colmap.model != "OPENCV" and not colmap.model.endswith("FISHEYE")
-    params = (fx, fy) + colmap.params[1:] if single else (fx, fy) + colmap.params[2:]
-    if model == "polynomial":  # RADIAL (f, cx, cy, k1, k2) -> OPENCV (fx, fy, cx, cy, k1, k2, p1, p2)
-        params += (0.0, 0.0)
-    if len(params) != len(model_layout(MODELS[model])[0]):
-        raise CamcalError(f"camera {name!r}: {model} converted to COLMAP {colmap.model}, expected {MODELS[model]}")
-    return np.array(params, dtype=np.float64)
-
-
-def as_lens_model(camera: Camera, model: str) -> Camera:
-    """The camera with its distortion named as camcal lens model ``model`` (the same projection).
-
-    ``polynomial`` is refined as COLMAP's ``OPENCV`` with ``p1 = p2 = 0``
-    held (:data:`MODELS`), which comes back as an ``opencv`` lens: its
-    ``k1, k2`` are the polynomial's.
-    """
-    distortion = camera.distortion
-    if model == "polynomial" and distortion.model == "opencv":
-        params = distortion.params
-        if any(params.get(key, 0.0) != 0.0 for key in ("p1", "p2", "k3")):
-            raise CamcalError(f"camera {camera.name!r}: an opencv lens with tangential or k3 terms is not polynomial")
-        return dataclasses.replace(camera, distortion=Distortion("polynomial", {"k1": params["k1"], "k2": params["k2"]}))
-    return camera
-
-
-def _fixed(options: BundleOptions, lenses: dict[str, str]) -> BundleOptions:
-    """``options`` with each camera's :data:`FIXED_PARAMS` held as well (``camera name -> camcal model``)."""
-    fixed = {name: tuple(held) for name, held in options.fixed_params.items()}
-    for name, model in lenses.items():
-        fixed[name] = tuple(dict.fromkeys(fixed.get(name, ()) + FIXED_PARAMS.get(model, ())))
-    return dataclasses.replace(options, fixed_params={name: held for name, held in fixed.items() if held})
-
-
-def _with_lenses(state: BundleState, lenses: dict[str, str]) -> BundleState:
-    """The state with each camera's lens model replaced (``camera name -> camcal model``)."""
-    params = tuple(_lens_params(state, k, lenses[name]) for k, name in enumerate(state.camera_names))
-    return dataclasses.replace(state, models=tuple(MODELS[lenses[name]] for name in state.camera_names), params=params)
-
-
-def _project_observations(state: BundleState, X: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Pixels (camcal convention) of the points ``X`` (one per observation) through camcal's cameras."""
-    out = np.full((len(X), 2), np.nan)
-    lenses = [camera_from_colmap(name, model, size, params, np.eye(3), np.zeros(3))
-              for name, model, size, params in zip(state.camera_names, state.models, state.image_sizes, state.params)]
-    pairs = np.unique(np.stack([state.obs_camera, state.obs_frame], axis=1), axis=0)
-    for camera, frame in pairs:
-        mask = (state.obs_camera == camera) & (state.obs_frame == frame)
-        R = state.sensor_R[camera] @ state.frame_R[frame]
-        t = state.sensor_R[camera] @ state.frame_t[frame] + state.sensor_t[camera]
-        posed = dataclasses.replace(lenses[camera], R=R, c=-R.T @ t)
-        with np.errstate(invalid="ignore"):
-            out[mask] = posed.project(X[mask])
-    return out
-
-
-def heldout_rms(fitted: BundleState, heldout: BundleState, iterations: int = 6) -> dict[str, float]:
-    """RMS reprojection error per camera of points left out of a fit.
-
-    Parameters
-    ----------
-    fitted : BundleState
-        The fit: its cameras, rig and frame poses are held.
-    heldout : BundleState
-        The same cameras and frames with the held-out points and their
-        observations (the points' coordinates are only the start).
-
-    Returns
-    -------
-    dict of str to float
-        Camera name -> RMS in pixels, each held-out point re-triangulated
-        by Gauss-Newton on its reprojection error through the fitted
-        cameras (forward-difference Jacobian, 3 columns per point).
-
-    Notes
-    -----
-    A point seen ``n`` times leaves ``2 n - 3`` degrees of freedom, so the
-    RMS sits slightly below the noise; it is the same for every lens model
-    compared on the same points, which is what the comparison needs.
-    """
-    state = dataclasses.replace(heldout, models=fitted.models, params=fitted.params, sensor_R=fitted.sensor_R,
-                                sensor_t=fitted.sensor_t, frame_R=fitted.frame_R, frame_t=fitted.frame_t)
-    points = state.points.copy()
-    n = len(points)
-    for _ in range(iterations):
-        X = points[state.obs_point]
-        r = _project_observations(state, X) - state.obs_xy
-        step = 1e-6 * max(1.0, float(np.abs(points).max()))
-        J = np.empty((len(X), 2, 3))
-        for axis in range(3):
-            shifted = X.copy()
-            shifted[:, axis] += step
-            J[:, :, axis] = (_project_observations(state, shifted) - state.obs_xy - r) / step
-        usable = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(J), axis=(1, 2))
-        H = np.zeros((n, 3, 3))
-        g = np.zeros((n, 3))
-        np.add.at(H, state.obs_point[usable], np.einsum("nki,nkj->nij", J[usable], J[usable]))
-        np.add.at(g, state.obs_point[usable], np.einsum("nki,nk->ni", J[usable], r[usable]))
-        H += 1e-9 * np.trace(H, axis1=1, axis2=2)[:, None, None] * np.eye(3) + 1e-300 * np.eye(3)
-        points = points - np.linalg.solve(H, g[:, :, None])[:, :, 0]
-    r = _project_observations(state, points[state.obs_point]) - state.obs_xy
-    rms = {}
-    for index, name in enumerate(state.camera_names):
-        mine = r[(state.obs_camera == index) & np.all(np.isfinite(r), axis=1)]
-        if len(mine):
-            rms[name] = float(np.sqrt(np.mean(np.sum(mine * mine, axis=1))))
-    return rms
-
-
 def self_calibrate(
     state: BundleState,
     options: BundleOptions,
@@ -489,7 +329,7 @@ def self_calibrate(
     for model in lens_models:
         _say(progress, f"lens model {model}: fitting {len(train.points)} points, {len(heldout.points)} held out{on}")
         lenses = dict.fromkeys(names, model)
-        fit = bundle_adjust(_with_lenses(train, lenses), dataclasses.replace(_fixed(free_pp, lenses), compute_sigmas=False))
+        fit = bundle_adjust(with_lenses(train, lenses), dataclasses.replace(with_fixed_params(free_pp, lenses), compute_sigmas=False))
         for name, value in heldout_rms(fit.state, heldout).items():
             table[name][model] = value
     chosen = {}
@@ -500,8 +340,8 @@ def self_calibrate(
                 best = model
         chosen[name] = best
     _say(progress, "bundle adjustment with the chosen lens models")
-    final_options = _fixed(free_pp, chosen)
-    final = bundle_adjust(_with_lenses(state, chosen), final_options)
+    final_options = with_fixed_params(free_pp, chosen)
+    final = bundle_adjust(with_lenses(state, chosen), final_options)
     visibility: dict[str, float] = {}
     if free_pp.default_priors:
         given = {spec.camera for spec in options.priors if spec.name == "aspect"}
@@ -511,9 +351,9 @@ def self_calibrate(
     if held:
         _say(progress, f"bundle adjustment with square pixels held ({', '.join(held)}: the motion does not determine fx/fy)")
         final_options = dataclasses.replace(final_options, priors=final_options.priors + tuple(
-            PriorSpec(name, "aspect", 0.0, ASPECT_HELD * mean_focal(final.state, names.index(name)), _HELD)
-            for name in held))
-        final = _spread_with_aspect_free(bundle_adjust(final.state, final_options), loose_options, held)
+            PriorSpec(name, "aspect", 0.0, ASPECT_HELD * mean_focal(final.state, names.index(name)),
+                      SQUARE_PIXELS_HELD) for name in held))
+        final = spread_with_aspect_free(bundle_adjust(final.state, final_options), loose_options, held)
     decisions = tuple(_principal_point_decision(final, k, principal_point) for k in range(len(names)))
     covariance_sigmas, jackknife_sigmas, groups, influences = dict(final.sigmas), {}, 0, None
     n_frames = len(np.unique(final.state.obs_frame))
@@ -532,7 +372,7 @@ def self_calibrate(
         # a singular covariance leaves keys only the jackknife has
         final = dataclasses.replace(final, sigmas={key: max(covariance_sigmas.get(key, 0.0), jackknife_sigmas.get(key, 0.0))
                                                    for key in {**covariance_sigmas, **jackknife_sigmas}})
-    said = [i for i, prior in enumerate(final.priors) if prior.spec.source != _HELD]  # held: its own aspect line
+    said = [i for i, prior in enumerate(final.priors) if prior.spec.source != SQUARE_PIXELS_HELD]  # held: its own aspect line
     report = SelfCalibration(
         lens_models=chosen, heldout_rms_px=table, n_heldout_points=len(heldout.points),
         principal_point=decisions,
@@ -546,77 +386,6 @@ def self_calibrate(
         aspect_visibility_px=visibility, aspect_held=held,
     )
     return final, report
-
-
-#: the source of the prior that holds square pixels (:func:`self_calibrate`).
-_HELD = "square pixels held: the motion does not determine fx - fy"
-
-
-def aspect_visibility(result: BundleResult, camera: int) -> float:
-    """RMS image displacement (px) of a change of ``fx - fy`` by the square-pixel prior's sigma, the rest re-adjusted.
-
-    The images' own information on ``z = fx - fy``, every other parameter
-    (poses, points, the other intrinsics) marginalised, is the posterior's
-    minus the priors' on ``z``: ``1 / s_z^2 = 1 / (a^T C a) - sum 1 /
-    sigma_prior^2`` (a prior on ``z`` alone adds its precision to ``z``'s
-    marginal). It is ``sum_i |g_i|^2 / s^2`` with ``g_i`` the displacement of
-    observation ``i`` per pixel of ``z`` after the best compensation and
-    ``s`` the per-axis noise of the covariance (residuals over their degrees
-    of freedom), so ``dz sqrt(sum |g_i|^2 / N)`` is the RMS
-    displacement of a change ``dz``. Motion about one axis makes a stretch
-    of the scene along it trade against fy with no displacement at all
-    (Sturm, P. (1997). Critical Motion Sequences for Monocular
-    Self-Calibration and Uncalibrated Euclidean Reconstruction. CVPR); near
-    it, a feature error shared by every image of that size moves ``z`` by
-    ``dz`` (:data:`FEATURE_BIAS_PX`). NaN without a covariance or ``fx``, ``fy``.
-    """
-    state, name = result.state, result.state.camera_names[camera]
-    keys = (f"{name}.fx", f"{name}.fy")
-    if not all(key in result.covariance_names for key in keys):
-        return float("nan")
-    rows = [result.covariance_names.index(key) for key in keys]
-    a = np.array([1.0, -1.0])
-    posterior = float(a @ result.covariance[np.ix_(rows, rows)] @ a)
-    names = state.param_names(camera)
-    pair = {names.index("fx"): 1.0, names.index("fy"): -1.0}
-    prior_precision = sum(1.0 / prior.sigma ** 2 for prior in result.priors if prior.camera == camera and
-                          dict(zip(prior.indices, prior.coefficients)) in (pair, {i: -c for i, c in pair.items()}))
-    if not posterior > 0:
-        return float("nan")
-    precision = max(1.0 / posterior - prior_precision, 0.0)
-    n, dof = int(np.sum(state.obs_camera == camera)), result.n_residuals - result.n_parameters
-    if dof <= 0:
-        return float("nan")
-    noise2 = 2.0 * result.final_cost / dof  # the covariance's own per-axis noise (the priors' few rows included)
-    return float(ASPECT_PRIOR * mean_focal(state, camera) * np.sqrt(noise2 * precision / max(n, 1)))
-
-
-def _spread_with_aspect_free(held: BundleResult, loose_options: BundleOptions, cameras: tuple[str, ...]) -> BundleResult:
-    """The held fit's covariance and sigmas widened by the square-pixel prior's spread of ``z = fx - fy``, carried
-    to every parameter that re-adjusts with it.
-
-    Holding ``z`` at 0 guards the estimate against a feature error the motion
-    cannot tell from an aspect; ``z`` is then known only to the prior's
-    ``s = ASPECT_PRIOR f``. Each parameter moves with ``z`` by the regression
-    ``g = C a / (a^T C a)`` of the prior's fit (``C``: its covariance at the held
-    solution, Ceres with no iteration; ``a``: ``z``'s row), so the covariance
-    gains ``s^2 g g^T`` (fx, fy: ``g = +-1/2``, the mean focal unchanged; the
-    principal point along fy's weak direction too).
-    """
-    loose = bundle_adjust(held.state, dataclasses.replace(loose_options, max_iterations=0))
-    names = held.covariance_names
-    if loose.covariance_names != names or not names:
-        raise CamcalError("the covariance of the fit with the aspect free does not match the held fit's")
-    covariance = held.covariance.copy()
-    for camera in cameras:
-        a = np.zeros(len(names))
-        a[names.index(f"{camera}.fx")], a[names.index(f"{camera}.fy")] = 1.0, -1.0
-        g = loose.covariance @ a / float(a @ loose.covariance @ a)
-        s = ASPECT_PRIOR * mean_focal(held.state, held.state.camera_names.index(camera))
-        covariance += s * s * np.outer(g, g)
-    variance = dict(zip(names, np.diag(covariance)))
-    sigmas = {key: float(np.sqrt(variance[key])) if key in variance else value for key, value in held.sigmas.items()}
-    return dataclasses.replace(held, covariance=covariance, sigmas=sigmas)
 
 
 def _undetermined_focals(final: BundleResult) -> list[str]:

@@ -370,3 +370,43 @@ def test_aspect_lines_name_the_held_camera_and_the_rest():
     assert "0.83 px RMS (right))" in lines[1] and "mid" not in lines[1] and "skew: 0" in lines[1]
     lines = [line for line in report((), {"left": 0.5}).lines() if line.startswith("aspect:")]
     assert lines == [line for line in lines if line.startswith("aspect: fx and fy refined apart")] and len(lines) == 1
+
+
+def test_one_held_camera_spreads_as_the_aspect_free_covariance_at_the_held_solution():
+    """One camera held: the spread of fx - fy is taken from the held fit's own covariance (Sherman-Morrison: the
+    hold is a rank-one term of the information along fx - fy, which the regression divides out), with no second
+    covariance. Peer: the prior fit's covariance computed at the held solution (Ceres, no iteration), the way
+    several held cameras still take it; the widened covariance and sigmas agree to 1e-6 of their scale."""
+    from camcal.geometry.bundle import bundle_adjust
+    from camcal.geometry.bundle.prior import ASPECT_PRIOR, mean_focal
+    from camcal.geometry.selfcal_aspect import ASPECT_HELD, SQUARE_PIXELS_HELD, spread_with_aspect_free
+    from camcal.geometry.selfcal_models import with_lenses
+
+    rng = np.random.default_rng(5)
+    both = tracks_state(non_square(stereo_rig(), 1.0017), rng, poses=planar_poses(rng))
+    left = both.obs_camera == 0  # the left camera alone
+    state = both.subset(np.bincount(both.obs_point[left], minlength=len(both.points)) >= 2, left)
+    state = dataclasses.replace(state, camera_names=state.camera_names[:1], models=state.models[:1],
+                                image_sizes=state.image_sizes[:1], params=state.params[:1], sensor_R=state.sensor_R[:1],
+                                sensor_t=state.sensor_t[:1])
+    state = with_lenses(state, {"left": "division"})
+    loose = BundleOptions(refine_principal_point=True, default_priors=True)
+    final = bundle_adjust(state, dataclasses.replace(loose, compute_sigmas=False))
+    held_options = dataclasses.replace(loose, priors=(
+        PriorSpec("left", "aspect", 0.0, ASPECT_HELD * mean_focal(final.state, 0), SQUARE_PIXELS_HELD),))
+    held = bundle_adjust(final.state, held_options)
+    widened = spread_with_aspect_free(held, loose, ("left",))
+
+    names = held.covariance_names
+    a = np.zeros(len(names))
+    a[names.index("left.fx")], a[names.index("left.fy")] = 1.0, -1.0
+    C = bundle_adjust(held.state, dataclasses.replace(loose, max_iterations=0)).covariance
+    g = C @ a / (a @ C @ a)
+    s = ASPECT_PRIOR * mean_focal(held.state, 0)
+    expected = held.covariance + s * s * np.outer(g, g)
+    scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))
+    assert np.max(np.abs(widened.covariance - expected) / scale) < 1e-6
+    assert g[names.index("left.fx")] - g[names.index("left.fy")] == pytest.approx(1.0, rel=1e-9)
+    for key in ("left.fx", "left.fy", "left.cx", "left.cy"):
+        assert widened.sigmas[key] == pytest.approx(np.sqrt(expected[names.index(key), names.index(key)]), rel=1e-6)
+        assert widened.sigmas[key] >= held.sigmas[key]

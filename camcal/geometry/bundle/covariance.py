@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from camcal.base.extras import require
 
-__all__ = ["MIN_POINT_SINGULAR_RATIO", "ceres_covariance", "is_free_block", "marginal_covariance"]
+__all__ = ["MIN_POINT_SINGULAR_RATIO", "ceres_covariance", "is_free_block", "marginal_covariance", "point_schur_terms"]
 
 #: A free 3D point whose Jacobian has ``sigma_min < MIN_POINT_SINGULAR_RATIO x sigma_max`` (its depth
 #: is not determined to the rounding of the Jacobian) is left out of the covariance, not of the fit
@@ -34,6 +34,9 @@ MIN_POINT_SINGULAR_RATIO = 1e-10
 #: Points whose 3x3 information block has ``lambda_min`` below this share of ``lambda_max`` are eliminated
 #: through the SVD of their own Jacobian rows instead of the normal equations (:func:`marginal_covariance`).
 _NORMAL_EQUATIONS_MIN_RATIO = 1e-10
+#: points whose Schur terms are made dense together (:func:`point_schur_terms`): 3 rows each, times the columns
+#: the chunk touches (at most every camera and frame column: 3000 x 2900 doubles, 70 MB, on a 480-frame plate).
+_POINTS_PER_CHUNK = 1000
 
 
 def is_free_block(problem, block: NDArray[np.float64]) -> bool:
@@ -144,7 +147,6 @@ def marginal_covariance(problem, reconstruction, blocks: list[NDArray[np.float64
     ``min_reciprocal_condition_number``) means singular.
     """
     import scipy.linalg  # noqa: PLC0415
-    import scipy.sparse  # noqa: PLC0415
 
     J, n_wanted, n_camera = _jacobian(problem, reconstruction, blocks, num_threads)
     n_points = (J.shape[1] - n_camera) // 3
@@ -181,11 +183,7 @@ def marginal_covariance(problem, reconstruction, blocks: list[NDArray[np.float64
         S -= JcU @ JcU.T
     if n_points:
         inverse_eigen = np.where(by_normal_equations[:, None], 1.0 / np.where(by_normal_equations[:, None], eigenvalues, 1.0), 0.0)
-        H_pp_inverse = scipy.sparse.bsr_matrix(
-            (np.einsum("pij,pj,pkj->pik", eigenvectors, inverse_eigen, eigenvectors), np.arange(n_points),
-             np.arange(n_points + 1)), shape=(3 * n_points, 3 * n_points))
-        H_pc = (kept[:, n_camera:].T @ J_c).tocsr()
-        S -= (H_pc.T @ (H_pp_inverse @ H_pc)).toarray()
+        S -= point_schur_terms((kept[:, n_camera:].T @ J_c).tocsr(), eigenvectors * np.sqrt(inverse_eigen)[:, None, :])[0]
     n_left_out = int(left_out.sum())
 
     d = np.sqrt(np.diag(S))
@@ -202,6 +200,50 @@ def marginal_covariance(problem, reconstruction, blocks: list[NDArray[np.float64
     scaled = scipy.linalg.cho_solve((factor, True), unit)[:n_wanted]
     covariance = scaled / np.outer(d[:n_wanted], d[:n_wanted])
     return 0.5 * (covariance + covariance.T), n_left_out
+
+
+def point_schur_terms(H_pc, root: NDArray[np.float64], rhs: NDArray[np.float64] | None = None,
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """The points' Schur complement terms ``H_cp V^+ H_pc`` (and ``H_cp V^+ rhs``), dense.
+
+    Parameters
+    ----------
+    H_pc : scipy.sparse.csr_matrix, shape (3 n, c)
+        Each point's 3 rows of ``J_p^T J_c``.
+    root : ndarray, shape (n, 3, 3)
+        ``R`` with ``R R^T = V^+`` for each point's 3x3 block ``V = J_p^T J_p`` (zero where a point is not
+        eliminated).
+    rhs : ndarray, shape (n, 3), optional
+        Each point's ``J_p^T r``.
+
+    Notes
+    -----
+    ``H_cp V^+ H_pc = L^T L`` with ``L = R^T H_pc``: ``L`` is made dense a chunk of points at a time on
+    the columns the chunk touches, the points in the order of their mean column (so that a chunk of a long
+    plate touches a band of frames), and ``L^T L`` is one dense product per chunk (Triggs et al. 2000,
+    section 6.1). A sparse product of ``H_pc^T`` and ``V^+ H_pc`` does the same sums one entry at a time:
+    on a 60-frame plate whose points are each seen in 35 frames the dense products take a third of its
+    time, the same terms to 1e-15 of their largest.
+    """
+    n_points, n_columns = len(root), H_pc.shape[1]
+    terms = np.zeros((n_columns, n_columns))
+    vector = None if rhs is None else np.zeros(n_columns)
+    if n_points == 0:
+        return terms, vector
+    point_of_entry = np.repeat(np.arange(3 * n_points) // 3, np.diff(H_pc.indptr))
+    entries = np.bincount(point_of_entry, minlength=n_points)
+    mean_column = np.bincount(point_of_entry, H_pc.indices, minlength=n_points) / np.maximum(entries, 1)
+    order = np.argsort(mean_column, kind="stable")
+    projected = None if rhs is None else np.einsum("pji,pj->pi", root, rhs)  # R^T rhs
+    for chunk in np.array_split(order, -(-n_points // _POINTS_PER_CHUNK)):
+        block = H_pc[(3 * chunk[:, None] + np.arange(3)).ravel()]
+        columns = np.unique(block.indices)
+        L = np.einsum("pji,pjc->pic", root[chunk], block[:, columns].toarray().reshape(len(chunk), 3, len(columns)))
+        L = L.reshape(3 * len(chunk), len(columns))
+        terms[np.ix_(columns, columns)] += L.T @ L
+        if vector is not None:
+            vector[columns] += L.T @ projected[chunk].ravel()
+    return terms, vector
 
 
 def _jacobian(problem, reconstruction, blocks: list[NDArray[np.float64]], num_threads: int = 2):

@@ -68,7 +68,7 @@ from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
-from camcal.geometry.bundle.covariance import is_free_block
+from camcal.geometry.bundle.covariance import is_free_block, point_schur_terms
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import BundleOptions, BundleState, model_layout
 from camcal.geometry.uncertainty import scene_gauge_rows
@@ -282,9 +282,14 @@ def _system(state: BundleState, options: BundleOptions, colmap, problem) -> _Sys
     return _System(blocks, J[:, :n_c].tocsr(), point_rows, r, row_frame, row_point, n_points, gauge)
 
 
-def _point_elimination(system: _System, kept: NDArray[np.bool_]):
-    """The points' 3x3 inverses ``V^+``, ``G = V^+ W`` and the reduced system ``S``, ``b`` over the rows ``kept``
-    (Schur complement of the points, Triggs et al. 2000, section 6.1)."""
+def _point_elimination(system: _System, kept: NDArray[np.bool_], with_gain: bool = False):
+    """The points' 3x3 inverses ``V^+``, ``G = V^+ W`` (``with_gain``, else None) and the reduced system ``S``,
+    ``b`` over the rows ``kept`` (Schur complement of the points, Triggs et al. 2000, section 6.1).
+
+    With ``G``, ``S = A^T A - W^T G`` as a sparse product (:func:`_influences` depends on its rounding: its
+    leverages near 1 are inverted). Without it (the jackknife's replicates, one reduced system each), the
+    points' terms by dense products (:func:`camcal.geometry.bundle.covariance.point_schur_terms`).
+    """
     import scipy.sparse  # noqa: PLC0415
 
     n_points = system.n_points
@@ -298,9 +303,10 @@ def _point_elimination(system: _System, kept: NDArray[np.bool_]):
         for j in range(i, 3):
             H_pp[:, i, j] = H_pp[:, j, i] = np.bincount(pk[seen], P[seen, i] * P[seen, j], minlength=n_points)
     values, vectors = np.linalg.eigh(H_pp)
-    inverse_values = np.where(values > _POINT_NULL_RATIO * np.maximum(values[:, 2:], 1e-300),
-                              1.0 / np.where(values > 0, values, 1.0), 0.0)
+    used = values > _POINT_NULL_RATIO * np.maximum(values[:, 2:], 1e-300)
+    inverse_values = np.where(used, 1.0 / np.where(values > 0, values, 1.0), 0.0)
     H_inv = np.einsum("pij,pj,pkj->pik", vectors, inverse_values, vectors)
+    root = vectors * np.sqrt(inverse_values)[:, None, :]  # V^+ = R R^T
     # H_pc: each row's point block (3 entries) times its camera row, summed per point
     rows_of = np.flatnonzero(seen)
     W = scipy.sparse.csr_matrix((P[rows_of].ravel(), (np.repeat(3 * pk[rows_of], 3) + np.tile(np.arange(3), len(rows_of)),
@@ -309,12 +315,15 @@ def _point_elimination(system: _System, kept: NDArray[np.bool_]):
     S = (A.T @ A).toarray()
     b = A.T @ rk
     G = None
-    if n_points:
-        H_inv_sparse = scipy.sparse.bsr_matrix((H_inv, np.arange(n_points), np.arange(n_points + 1)),
-                                               shape=(3 * n_points, 3 * n_points))
-        G = (H_inv_sparse @ H_pc).tocsr()
+    if n_points and with_gain:
+        G = (scipy.sparse.bsr_matrix((H_inv, np.arange(n_points), np.arange(n_points + 1)),
+                                     shape=(3 * n_points, 3 * n_points)) @ H_pc).tocsr()
         S -= (H_pc.T @ G).toarray()
         b -= G.T @ b_p.ravel()
+    elif n_points:
+        terms, vector = point_schur_terms(H_pc, root, b_p)
+        S -= terms
+        b -= vector
     return H_inv, G, S, b
 
 
@@ -339,6 +348,11 @@ def _steps(state: BundleState, options: BundleOptions, colmap, problem,
             _, _, S_before, b_before = _point_elimination(system, touched | (~kept & (system.row_point < 0)))
             _, _, S_after, b_after = _point_elimination(system, touched & kept)
             S, b = S_all - S_before + S_after, b_all - b_before + b_after
+            # a frame left with no rows: its terms cancel to rounding (summed in other chunks), not to 0
+            rows_left = np.bincount(system.row_frame[kept & (system.row_frame >= 0)], minlength=len(state.frame_R))
+            for block in system.blocks:
+                if block.kind == "frame" and rows_left[block.index] == 0:
+                    S[block.columns, :] = S[:, block.columns] = b[block.columns] = 0.0
         else:
             _, _, S, b = _point_elimination(system, kept)
         delta_c = -_pseudo_solve(S, b, singular=bool(np.isin(group, system.gauge).any()))
@@ -370,7 +384,7 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
     import scipy.sparse  # noqa: PLC0415
 
     n_rows, n_c = system.J_c.shape
-    H_inv, G, S, _ = _point_elimination(system, np.ones(n_rows, dtype=bool))
+    H_inv, G, S, _ = _point_elimination(system, np.ones(n_rows, dtype=bool), with_gain=True)
     F = _inverse_factor(S)
     S_plus = F @ F.T
     P, pk = system.point_rows, system.row_point
@@ -381,7 +395,7 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
     G_rows = None if G is None else scipy.sparse.csr_matrix(
         (P[seen].ravel(), (np.repeat(np.flatnonzero(seen), 3), (3 * pk[seen, None] + np.arange(3)).ravel())),
         shape=(n_rows, G.shape[0]))
-    out = []
+    out, roots = [], {}
     for frame in np.unique(system.row_frame[system.row_frame >= 0]):
         rows = np.flatnonzero(system.row_frame == frame)
         key = np.where(pk[rows] >= 0, pk[rows], -1 - np.arange(len(rows)))  # a row without a point: its own block
@@ -407,7 +421,10 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
         # (the nonzero ones; zero ones add nothing below), so the (columns x columns) eigen-decomposition is of
         # E'^T E' over the frame's columns alone. By its eigenvectors V (eigenvalues s^2), E''s left singular
         # vectors are E' V / s: u = z + E' V diag(w) V^T E'^T z, w = 1 / (1 - s^2), or -1 / s^2 where 1 - s^2 is null
-        E = X @ _psd_root(S_plus[np.ix_(columns, columns)])
+        key = columns.tobytes()
+        if key not in roots:  # frames of a closed set all touch every column: one root serves them
+            roots = {key: _psd_root(S_plus[np.ix_(columns, columns)])}
+        E = X @ roots[key]
         squares, V = np.linalg.eigh(E.T @ E)
         gap = 1.0 - squares
         kept = gap > _LEVERAGE_NULL
