@@ -6,7 +6,6 @@ run the same task function as a farm's); the slow test in
 """
 
 import json
-import logging
 import shutil
 
 import numpy as np
@@ -20,19 +19,12 @@ from camcal.pipelines.solve_features import FEATURE_CACHE, DaskExtraction, extra
 from camcal.pipelines.solve_matching import PairMatcher, block_file, matcher_pairs
 from camcal.synthetic import render_stereo_sequence
 from test_solve import _numbers
+from test_solve_features import scheduler  # noqa: F401 - the fixture: a Dask cluster of 2 threads in this process
 
 pycolmap = pytest.importorskip("pycolmap")
 distributed = pytest.importorskip("distributed")
 
 N_FRAMES = 6
-
-
-@pytest.fixture(scope="module")
-def scheduler():
-    """The address of a Dask cluster of 2 worker threads in this process."""
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0",
-                                  silence_logs=logging.CRITICAL) as cluster:
-        yield cluster.scheduler_address
 
 
 @pytest.fixture(scope="module")
