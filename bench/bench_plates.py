@@ -359,7 +359,7 @@ def summary(method: str, result: dict, truth: dict) -> dict:
     if "error" in result:
         return {"method": method, "error": result["error"]}
     row = {"method": method, "registered": len(result["poses"]), "frames": len(truth), "seconds": result["seconds"],
-           "peak_mb": result["peak_mb"]}
+           "cpu_seconds": result["cpu_seconds"], "peak_mb": result["peak_mb"]}
     if len(result["poses"]) >= 3:
         position, rotation = similarity_errors(result["poses"], truth)
         row |= {"position_pct": float(position.mean()), "position_max_pct": float(position.max()),
@@ -388,7 +388,7 @@ def compare(cache: Path, shots: list[str], n_frames: int, methods: list[str], wo
             print(f"  {method:14s} registered {row['registered']:3d}/{row['frames']}, position "
                   f"{_cell(row, 'position_pct', '.3f')} % of path (max {_cell(row, 'position_max_pct', '.3f')}), "
                   f"rotation {_cell(row, 'rotation_deg', '.3f')} deg, focal {_cell(row, 'focal_pct', '+.3f')} %, "
-                  f"{row['seconds']:.1f} s, {row['peak_mb']:.0f} MB", flush=True)
+                  f"{row['seconds']:.1f} s (process CPU {row['cpu_seconds']:.0f} s), {row['peak_mb']:.0f} MB", flush=True)
         for ours in ("camcal", "camcal-held"):
             peers = [results[m] for m in ("pycolmap", "pycolmap-held", "blender") if m in results]
             if ours not in results or "position_pct" not in results[ours]:
@@ -399,7 +399,9 @@ def compare(cache: Path, shots: list[str], n_frames: int, methods: list[str], wo
                 if scored:
                     print(f"  {ours} / better peer (every frame registered) {key}: {mine[key] / min(scored):.2f}")
             if "pycolmap" in results and "seconds" in results["pycolmap"]:
-                print(f"  {ours} / pycolmap time: {mine['seconds'] / results['pycolmap']['seconds']:.2f}")
+                peer = results["pycolmap"]
+                print(f"  {ours} / pycolmap time: {mine['seconds'] / peer['seconds']:.2f}, process CPU "
+                      f"{mine['cpu_seconds'] / peer['cpu_seconds']:.2f}")
         rows += [dict(row, shot=shot) for row in results.values()]
     return rows
 
@@ -438,7 +440,7 @@ def growth(cache: Path, work: Path, sizes: tuple[int, ...] = GROWTH, twice_from:
                 continue
             results[method] = result
             row = summary(method, result, first)
-            rows.append(dict(row, frames=n, growth=True, cpu_seconds=result["cpu_seconds"]))
+            rows.append(dict(row, frames=n, growth=True))
             print(f"  {n:4d} frames {method:9s} registered {len(result['poses']):3d}, {result['seconds']:7.1f} s "
                   f"({1000 * result['seconds'] / n:.0f} ms/frame; process CPU {result['cpu_seconds']:.0f} s), "
                   f"peak {result['peak_mb']:.0f} MB ({result['peak_mb'] / n:.2f} MB/frame), position "
