@@ -375,7 +375,8 @@ def summary(method: str, result: dict, truth: dict) -> dict:
     if len(result["poses"]) >= 3:
         position, rotation = similarity_errors(result["poses"], truth)
         row |= {"position_pct": float(position.mean()), "position_max_pct": float(position.max()),
-                "rotation_deg": float(rotation.mean())}
+                "position_median_pct": float(np.median(position)), "rotation_deg": float(rotation.mean()),
+                "rotation_median_deg": float(np.median(rotation)), "rotation_max_deg": float(rotation.max())}
     if result.get("focal") and not method.endswith("-held") and method != "blender":
         row["focal_pct"] = 100 * (result["focal"] / K_TRUE[0, 0] - 1)
     return row
