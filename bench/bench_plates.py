@@ -28,12 +28,15 @@ process's peak resident memory from ``getrusage``), on the same PNG frames:
 - ``blender``: Blender's own tracker (libmv, in bpy, headless: a Clip
   Editor area of the background window and ``context.temp_override``):
   the true lens on the clip's tracking camera (held: the tracker refines
-  nothing), features detected every 12 frames (Harris, threshold 0.002, 40 px apart)
-  and tracked forward (affine motion model, pattern 15 px, search 61 px,
+  nothing), the solve's two keyframes Blender's defaults (frames 1 and 30;
+  ``--blender-keyframes auto``: chosen by Blender, slow on long plates: its
+  selection solves from every consecutive pair of its candidates), features
+  detected every 12 frames (Harris, threshold 0.002, 40 px apart) and
+  tracked forward (affine motion model, pattern 15 px, search 61 px,
   correlation >= 0.75, brute-force pre-pass), tracks under 10 frames
-  dropped, keyframes chosen by Blender, camera solved; then tracks whose
-  reprojection error exceeds 2 px dropped and the camera solved again
-  (Blender manual's clean-up loop).
+  dropped, camera solved; then tracks whose reprojection error exceeds 2 px
+  dropped and the camera solved again from the same keyframes (Blender
+  manual's clean-up loop).
 
 Errors: each method's registered cameras are aligned to the truth by a
 similarity (rotation: the chordal mean of ``R_est^T R_true`` over the frames,
@@ -51,7 +54,7 @@ plate twice and its cameras are compared bit for bit (``--growth-sizes
 Usage: ``python bench/bench_plates.py`` (comparison at 240 frames and growth:
 hours on 2 cores; one 60-frame solve of camcal took 35-70 min on a machine
 running 20 processes), ``--quick`` (60 frames, no blur variant, no growth), ``--frames N``,
-``--shots walk,loop``, ``--methods camcal,pycolmap``, ``--no-growth``,
+``--shots walk,loop``, ``--methods camcal,pycolmap``, ``--blender-keyframes auto``, ``--no-growth``,
 ``--growth`` (growth only), ``--cache DIR`` (renders kept between runs).
 """
 
@@ -89,6 +92,7 @@ METHODS = ("camcal", "camcal-held", "pycolmap", "pycolmap-held", "blender")
 GROWTH = (60, 120, 240, 480)
 BLUR_SAMPLES = 5
 SHUTTER = 0.5  # of the frame interval: a 180 degree shutter
+BLENDER_KEYFRAMES = "1,30"  # Blender's own default pair (use_keyframe_selection off)
 RENDER_VERSION = 1  # bump when the shots or the renderer change: the cache is keyed by it
 
 
@@ -229,7 +233,7 @@ def run_pycolmap(plate: Path, out: Path, held: bool) -> dict:
     return {"seconds": seconds, "poses": poses, "focal": float(camera.focal_length_x)}
 
 
-def run_blender(plate: Path, out: Path) -> dict:
+def run_blender(plate: Path, out: Path, keyframes: str) -> dict:
     import bpy
 
     from camcal.blender_bridge import load_addon
@@ -256,7 +260,9 @@ def run_blender(plate: Path, out: Path) -> dict:
     settings.default_correlation_min = 0.75
     settings.use_default_brute = True
     settings.default_margin = 8
-    settings.use_keyframe_selection = True
+    settings.use_keyframe_selection = keyframes == "auto"
+    if keyframes != "auto":
+        tracking.objects.active.keyframe_a, tracking.objects.active.keyframe_b = map(int, keyframes.split(","))
     settings.refine_intrinsics_focal_length = False
     settings.refine_intrinsics_principal_point = False
     settings.refine_intrinsics_radial_distortion = False
@@ -281,8 +287,12 @@ def run_blender(plate: Path, out: Path) -> dict:
         bpy.ops.clip.select_all(action="SELECT")
         bpy.ops.clip.clean_tracks(frames=10, error=0.0, action="DELETE_TRACK")
         bpy.ops.clip.solve_camera()
+        chosen = (tracking.objects.active.keyframe_a, tracking.objects.active.keyframe_b)
+        print(f"first solve: keyframes {chosen}, error {tracking.reconstruction.average_error:.3f} px, "
+              f"{time.perf_counter() - start:.0f} s", flush=True)
         bpy.ops.clip.select_all(action="SELECT")
         bpy.ops.clip.clean_tracks(frames=0, error=2.0, action="DELETE_TRACK")
+        settings.use_keyframe_selection = False  # solve again from the keyframes the first solve used
         bpy.ops.clip.solve_camera()
     seconds = time.perf_counter() - start
     flip = np.diag([1.0, -1.0, -1.0])  # Blender's camera looks down -z with +y up
@@ -292,17 +302,18 @@ def run_blender(plate: Path, out: Path) -> dict:
         R_world_from_camera = matrix[:3, :3] / np.linalg.norm(matrix[:3, 0])
         poses[FIRST + camera.frame - 1] = (flip @ R_world_from_camera.T, matrix[:3, 3].copy())
     return {"seconds": seconds, "poses": poses, "focal": float(tracking.camera.focal_length_pixels),
-            "tracks": len(tracking.tracks), "blender_error_px": float(tracking.reconstruction.average_error)}
+            "tracks": len(tracking.tracks), "blender_error_px": float(tracking.reconstruction.average_error),
+            "keyframes": list(chosen)}
 
 
-def child(method: str, plate: Path, out: Path, result_file: Path) -> None:
+def child(method: str, plate: Path, out: Path, result_file: Path, blender_keyframes: str) -> None:
     """Run one method and write its cameras, time and the process's peak memory to ``result_file``."""
     if method.startswith("camcal"):
         result = run_camcal(plate, out, method.endswith("-held"))
     elif method.startswith("pycolmap"):
         result = run_pycolmap(plate, out, method.endswith("-held"))
     else:
-        result = run_blender(plate, out)
+        result = run_blender(plate, out, blender_keyframes)
     usage = resource.getrusage(resource.RUSAGE_SELF)
     result["peak_mb"] = usage.ru_maxrss / 1024.0
     result["cpu_seconds"] = usage.ru_utime + usage.ru_stime  # the whole process, imports included
@@ -311,7 +322,7 @@ def child(method: str, plate: Path, out: Path, result_file: Path) -> None:
     result_file.write_text(json.dumps(result))
 
 
-def run_method(method: str, plate: Path, work: Path) -> dict:
+def run_method(method: str, plate: Path, work: Path, blender_keyframes: str = BLENDER_KEYFRAMES) -> dict:
     """:func:`child` in a fresh process: its result, or ``{"error": ...}``."""
     out = work / method
     shutil.rmtree(out, ignore_errors=True)
@@ -319,7 +330,8 @@ def run_method(method: str, plate: Path, work: Path) -> dict:
     result_file = out / "result.json"
     log = out / "log.txt"
     with open(log, "w") as handle:
-        proc = subprocess.run([sys.executable, __file__, "--child", method, str(plate), str(out), str(result_file)],
+        proc = subprocess.run([sys.executable, __file__, "--child", method, str(plate), str(out), str(result_file),
+                               blender_keyframes],
                               stdout=handle, stderr=subprocess.STDOUT)
     if proc.returncode != 0 or not result_file.is_file():
         lines = [line for line in log.read_text().splitlines() if line.strip()]
@@ -359,11 +371,12 @@ def summary(method: str, result: dict, truth: dict) -> dict:
     if "error" in result:
         return {"method": method, "error": result["error"]}
     row = {"method": method, "registered": len(result["poses"]), "frames": len(truth), "seconds": result["seconds"],
-           "peak_mb": result["peak_mb"]}
+           "cpu_seconds": result["cpu_seconds"], "peak_mb": result["peak_mb"]}
     if len(result["poses"]) >= 3:
         position, rotation = similarity_errors(result["poses"], truth)
         row |= {"position_pct": float(position.mean()), "position_max_pct": float(position.max()),
-                "rotation_deg": float(rotation.mean())}
+                "position_median_pct": float(np.median(position)), "rotation_deg": float(rotation.mean()),
+                "rotation_median_deg": float(np.median(rotation)), "rotation_max_deg": float(rotation.max())}
     if result.get("focal") and not method.endswith("-held") and method != "blender":
         row["focal_pct"] = 100 * (result["focal"] / K_TRUE[0, 0] - 1)
     return row
@@ -373,14 +386,16 @@ def _cell(row: dict, key: str, fmt: str) -> str:
     return format(row[key], fmt) if key in row else "-"
 
 
-def compare(cache: Path, shots: list[str], n_frames: int, methods: list[str], work: Path) -> list[dict]:
+def compare(cache: Path, shots: list[str], n_frames: int, methods: list[str], work: Path,
+            blender_keyframes: str = BLENDER_KEYFRAMES) -> list[dict]:
     rows = []
     for shot in shots:
         truth = render_shot(cache / f"{shot}-{n_frames}", shot, n_frames)
         print(f"{shot} ({n_frames} frames):")
         results = {}
         for method in methods:
-            results[method] = summary(method, run_method(method, cache / f"{shot}-{n_frames}", work / shot), truth)
+            results[method] = summary(method, run_method(method, cache / f"{shot}-{n_frames}", work / shot, blender_keyframes),
+                                      truth)
             row = results[method]
             if "error" in row:
                 print(f"  {method:14s} failed: {row['error']}", flush=True)
@@ -388,7 +403,7 @@ def compare(cache: Path, shots: list[str], n_frames: int, methods: list[str], wo
             print(f"  {method:14s} registered {row['registered']:3d}/{row['frames']}, position "
                   f"{_cell(row, 'position_pct', '.3f')} % of path (max {_cell(row, 'position_max_pct', '.3f')}), "
                   f"rotation {_cell(row, 'rotation_deg', '.3f')} deg, focal {_cell(row, 'focal_pct', '+.3f')} %, "
-                  f"{row['seconds']:.1f} s, {row['peak_mb']:.0f} MB", flush=True)
+                  f"{row['seconds']:.1f} s (process CPU {row['cpu_seconds']:.0f} s), {row['peak_mb']:.0f} MB", flush=True)
         for ours in ("camcal", "camcal-held"):
             peers = [results[m] for m in ("pycolmap", "pycolmap-held", "blender") if m in results]
             if ours not in results or "position_pct" not in results[ours]:
@@ -399,7 +414,9 @@ def compare(cache: Path, shots: list[str], n_frames: int, methods: list[str], wo
                 if scored:
                     print(f"  {ours} / better peer (every frame registered) {key}: {mine[key] / min(scored):.2f}")
             if "pycolmap" in results and "seconds" in results["pycolmap"]:
-                print(f"  {ours} / pycolmap time: {mine['seconds'] / results['pycolmap']['seconds']:.2f}")
+                peer = results["pycolmap"]
+                print(f"  {ours} / pycolmap time: {mine['seconds'] / peer['seconds']:.2f}, process CPU "
+                      f"{mine['cpu_seconds'] / peer['cpu_seconds']:.2f}")
         rows += [dict(row, shot=shot) for row in results.values()]
     return rows
 
@@ -438,7 +455,7 @@ def growth(cache: Path, work: Path, sizes: tuple[int, ...] = GROWTH, twice_from:
                 continue
             results[method] = result
             row = summary(method, result, first)
-            rows.append(dict(row, frames=n, growth=True, cpu_seconds=result["cpu_seconds"]))
+            rows.append(dict(row, frames=n, growth=True))
             print(f"  {n:4d} frames {method:9s} registered {len(result['poses']):3d}, {result['seconds']:7.1f} s "
                   f"({1000 * result['seconds'] / n:.0f} ms/frame; process CPU {result['cpu_seconds']:.0f} s), "
                   f"peak {result['peak_mb']:.0f} MB ({result['peak_mb'] / n:.2f} MB/frame), position "
@@ -470,11 +487,14 @@ def main() -> None:
     parser.add_argument("--growth-sizes", default=",".join(map(str, GROWTH)),
                         help="comma-separated frame counts of the growth (default %(default)s)")
     parser.add_argument("--json", type=Path, help="also write every row here")
-    parser.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
+    parser.add_argument("--blender-keyframes", default=BLENDER_KEYFRAMES,
+                        help="Blender's two keyframes A,B, or auto (chosen by Blender: slow on long plates; "
+                             "default %(default)s, Blender's own)")
+    parser.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        method, plate, out, result_file = args.child
-        child(method, Path(plate), Path(out), Path(result_file))
+        method, plate, out, result_file, blender_keyframes = args.child
+        child(method, Path(plate), Path(out), Path(result_file), blender_keyframes)
         return
     shots = [s for s in args.shots.split(",") if s]
     frames = args.frames
@@ -485,7 +505,8 @@ def main() -> None:
         cache.mkdir(parents=True, exist_ok=True)
         rows = []
         if not args.growth:
-            rows += compare(cache, shots, frames, [m for m in args.methods.split(",") if m], Path(tmp) / "work")
+            rows += compare(cache, shots, frames, [m for m in args.methods.split(",") if m], Path(tmp) / "work",
+                            args.blender_keyframes)
         if not args.quick and not args.no_growth:
             rows += growth(cache, Path(tmp) / "work", tuple(int(n) for n in args.growth_sizes.split(",") if n))
         if args.json:
