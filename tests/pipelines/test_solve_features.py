@@ -6,6 +6,7 @@ run the same task function as a farm's); the slow test in
 """
 
 import logging
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -95,10 +96,7 @@ def test_dask_tasks_give_the_in_process_features_and_a_rerun_takes_what_a_killed
     assert all(path.is_file() for path in files)
     np.savez(files[0], keypoints=np.zeros((1, 6), np.float32), descriptors=np.zeros((1, 128), np.uint8),
              key=np.array("of other options"))
-    cut = files[1].with_name(f".{files[1].name}.{TEMPORARY_TAG}.k1ll3d00.npz")
-    cut.write_bytes(files[1].read_bytes()[:100])
-    files[1].unlink()
-    (files[2].with_name(f".{files[2].name}.{TEMPORARY_TAG}.k1ll3d01") / "database.db").parent.mkdir()
+    leave_a_killed_runs_files(cut=files[1], scratch_beside=files[2])
     kept = {files[2]: files[2].stat().st_mtime_ns}
     assert feature_key(pycolmap, folder / names[0], None, extraction) != "of other options"
 
@@ -145,3 +143,12 @@ def test_a_frame_colmap_cannot_read_is_one_error_naming_it_and_nothing_is_left(i
     with pytest.raises(CamcalError, match=r"feature extraction of .*shot\.1004\.png: COLMAP cannot read it"):
         solve_sfm({"left": plate}, tmp_path / "out", max_num_features=512, scheduler=scheduler)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plate"]
+
+
+def leave_a_killed_runs_files(cut: Path, scratch_beside: Path) -> None:
+    """What a killed run leaves in a cache: ``cut``'s write cut short (its temporary holds 100 bytes, the file is
+    gone) and a task's scratch folder (with a database) beside ``scratch_beside``."""
+    partial = cut.with_name(f".{cut.name}.{TEMPORARY_TAG}.k1ll3d00.npz")
+    partial.write_bytes(cut.read_bytes()[:100])
+    cut.unlink()
+    (scratch_beside.with_name(f".{scratch_beside.name}.{TEMPORARY_TAG}.k1ll3d01") / "database.db").parent.mkdir()

@@ -19,6 +19,7 @@ from camcal.pipelines.solve_features import FEATURE_CACHE, DaskExtraction, extra
 from camcal.pipelines.solve_matching import PairMatcher, block_file, matcher_pairs
 from camcal.synthetic import render_stereo_sequence
 from test_solve import _numbers
+from test_solve_features import leave_a_killed_runs_files
 from test_solve_features import scheduler  # noqa: F401 - the fixture: a Dask cluster of 2 threads in this process
 
 pycolmap = pytest.importorskip("pycolmap")
@@ -159,10 +160,7 @@ def test_a_rerun_takes_the_blocks_a_killed_run_finished(extracted, tmp_path, mon
     with np.load(files[0]) as data:
         np.savez(files[0], **{name: data[name] for name in data.files if name != "key"},
                  key=np.array("of other options"))
-    cut = files[1].with_name(f".{files[1].name}.{TEMPORARY_TAG}.k1ll3d00.npz")
-    cut.write_bytes(files[1].read_bytes()[:100])
-    files[1].unlink()
-    (files[2].with_name(f".{files[2].name}.{TEMPORARY_TAG}.k1ll3d01") / "database.db").parent.mkdir()
+    leave_a_killed_runs_files(cut=files[1], scratch_beside=files[2])
     kept = {files[2]: files[2].stat().st_mtime_ns}
 
     lines = []
