@@ -27,13 +27,14 @@ def expand_glob(option: str, name: str, pattern: str, root: str | os.PathLike | 
     return files
 
 
-def file_or_glob(option: str, pattern: str | os.PathLike) -> list[str]:
+def file_or_glob(option: str, pattern: str | os.PathLike, what: str = "image or video") -> list[str]:
     """A file (or video) that exists, as given; else the files ``pattern`` matches as a glob, sorted.
 
     Raises
     ------
     CamcalError
-        ``"--images shots/*.png: no image or video matches"`` when a glob matches nothing,
+        ``"--images shots/*.png: no image or video matches"`` when a glob matches nothing (``what`` names
+        the kind of file),
         ``"cannot read shot.png (missing file)"`` for a file that is not there.
     """
     text = os.path.expanduser(os.fspath(pattern))
@@ -43,5 +44,5 @@ def file_or_glob(option: str, pattern: str | os.PathLike) -> list[str]:
         raise CamcalError(f"cannot read {text} (missing file)")
     files = sorted(path for path in glob.glob(text) if os.path.isfile(path))
     if not files:
-        raise CamcalError(f"{option} {text}: no image or video matches")
+        raise CamcalError(f"{option} {text}: no {what} matches")
     return files

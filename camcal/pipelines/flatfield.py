@@ -9,7 +9,6 @@
 
 from __future__ import annotations
 
-import glob
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from camcal.base.errors import CamcalError
+from camcal.base.globs import file_or_glob
 from camcal.colour.flatfield import FlatField, fit_flat_field, samples_from_images, samples_from_patches
 from camcal.io.flatfield import read_linear_image, read_neutral_patches
 
@@ -24,18 +24,9 @@ __all__ = ["expand_images", "flat_field_from_image_files", "flat_field_from_patc
 
 
 def expand_images(images: Sequence[str | os.PathLike] | str | os.PathLike) -> list[Path]:
-    """Files and globs (``grey/*.exr``) as the sorted files they name; each glob must match a file."""
+    """Files and globs (``grey/*.exr``) as the sorted files they name; each glob must match a file, each file exist."""
     entries = [images] if isinstance(images, (str, os.PathLike)) else list(images)
-    files: list[Path] = []
-    for entry in entries:
-        text = os.path.expanduser(os.fspath(entry))
-        if glob.has_magic(text) and not os.path.isfile(text):  # a file named shot[1].exr is that file
-            matches = sorted(Path(path) for path in glob.glob(text) if os.path.isfile(path))
-            if not matches:
-                raise CamcalError(f"--images {text}: no image matches")
-            files += matches
-        else:
-            files.append(Path(text))
+    files = [Path(path) for entry in entries for path in file_or_glob("--images", entry, what="image")]
     if not files:
         raise CamcalError("no grey-card image given (--images)")
     return files

@@ -160,6 +160,7 @@ def bad_inputs(grey: Path, tmp_path: Path) -> list[tuple[list, str]]:
         (["--images", grey / "grey0.exr", "--lensfun", tmp_path / "o" / "lens.xml", "--focal-mm", "35"],
          "--lensfun needs the lens state: --aperture, --distance-m"),
         (["--images", f"{tmp_path}/nothing*.exr"], "no image matches"),
+        (["--images", grey / "grey0.exr", tmp_path / "gone.exr"], "gone.exr (missing file)"),
         (["--images", grey / "grey0.exr", "--lensfun", tmp_path / "two.xml", *LENS_STATE],
          "a Lensfun file with one <lens>, this one has 2"),
         (["--patches", tmp_path / "p.csv"], "--patches needs --image-size W H"),
