@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import bpy
 from mathutils import Matrix
 
-from . import fisheye, lens_animation, mapping, plyfile, pngfile, rigfile, tracking
+from . import compositor, fisheye, lens_animation, mapping, plyfile, pngfile, rigfile, tracking
 from .rigfile import RigFileError
 
 __all__ = [
@@ -544,22 +544,6 @@ def _point_cloud(rig, cloud, base, collection, root):
 # Compositor: distort the render with Movie Distortion, with overscan.
 
 
-def _new_compositor(scene, name):
-    """An empty compositor tree and its output node (Blender 5.0 and 4.x)."""
-    if hasattr(scene, "compositing_node_group"):
-        tree = bpy.data.node_groups.new(name, "CompositorNodeTree")
-        scene.compositing_node_group = tree
-        tree.interface.new_socket("Image", in_out="OUTPUT", socket_type="NodeSocketColor")
-        out = tree.nodes.new("NodeGroupOutput")
-    else:  # Blender 4.x
-        scene.use_nodes = True
-        tree = scene.node_tree
-        tree.nodes.clear()
-        out = tree.nodes.new("CompositorNodeComposite")
-    scene.render.use_compositing = True
-    return tree, out
-
-
 def _movie_distortion(tree, clip):
     node = tree.nodes.new("CompositorNodeMovieDistortion")
     node.clip = clip
@@ -630,7 +614,7 @@ def _distortion_setup(scene, cam, obj, overscan, result, rig_path, aux_directory
     _copy_render_settings(scene, dist_scene)
     dist_scene.render.resolution_x, dist_scene.render.resolution_y = W, H
     dist_scene.camera = os_obj
-    tree, out = _new_compositor(dist_scene, f"{obj.name} distort")
+    tree, out = compositor.new_compositor_tree(dist_scene, f"{obj.name} distort")
     layers = tree.nodes.new("CompositorNodeRLayers")
     layers.scene = os_scene
     # Blender scales another scene's render to this scene's width (one factor
@@ -713,7 +697,7 @@ def distortion_shift(clip, lens, margins, size):
         cam_obj = bpy.data.objects.new("camcal shift probe", bpy.data.cameras.new("camcal shift probe"))
         probe.collection.objects.link(cam_obj)
         probe.camera = cam_obj
-        tree, out = _new_compositor(probe, "camcal shift probe")
+        tree, out = compositor.new_compositor_tree(probe, "camcal shift probe")
         image = tree.nodes.new("CompositorNodeImage")
         image.image = ramp
         md = _movie_distortion(tree, clip)
@@ -741,7 +725,7 @@ def distortion_shift(clip, lens, margins, size):
         sx = sum(s[0] for s in shifts) / len(shifts)
         sy = sum(s[1] for s in shifts) / len(shifts)
     finally:
-        tree = probe.compositing_node_group if hasattr(probe, "compositing_node_group") else None
+        tree = compositor.compositor_tree(probe) if hasattr(probe, "compositing_node_group") else None
         bpy.data.scenes.remove(probe)
         if tree is not None:
             bpy.data.node_groups.remove(tree)

@@ -38,7 +38,7 @@ import json
 import bpy
 from bpy.app.handlers import persistent
 
-from . import mapping, rigfile, tracking
+from . import compositor, mapping, rigfile, tracking
 
 __all__ = ["ASPECT_KEYS", "LENS_KEYS", "animate_lenses", "apply_lens_keys", "ensure_handler", "register",
            "set_tracking_camera", "tracking_key", "unregister"]
@@ -119,7 +119,7 @@ def _key_intrinsics(data, K, size, sensor_width_mm, frame_number):
 
 def _overscan_parts(dist_scene):
     """The overscan camera and the clip of the Movie Distortion node of a ``<camera> distorted`` scene."""
-    tree = getattr(dist_scene, "compositing_node_group", None) or dist_scene.node_tree
+    tree = compositor.compositor_tree(dist_scene)
     clips = [node.clip for node in tree.nodes if node.bl_idname == "CompositorNodeMovieDistortion"]
     return dist_scene.camera, (clips[0] if clips else None)
 

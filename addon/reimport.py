@@ -19,7 +19,7 @@ import os
 
 import bpy
 
-from . import importer, rigfile
+from . import compositor, importer, rigfile
 
 __all__ = ["SOURCE_CLIP", "previous_imports", "remove_import", "import_in_place"]
 
@@ -71,7 +71,7 @@ def _owned(root, collection):
         if distorted.camera is not None:
             objects.add(distorted.camera)
         embedded = getattr(distorted, "node_tree", None)  # Blender 4.x
-        tree = getattr(distorted, "compositing_node_group", None) or embedded
+        tree = compositor.compositor_tree(distorted)
         if tree is None:
             continue
         if tree != embedded:

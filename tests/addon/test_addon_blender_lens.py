@@ -10,6 +10,7 @@ holds the position of the undistorted pixel Blender sampled for it; camcal's
 lens applied to that position must give the output pixel back.
 """
 
+import importlib
 import subprocess
 import sys
 
@@ -102,12 +103,12 @@ def _ramp(bpy, size):
     return image
 
 
-def _sampled_positions(bpy, dist_scene, node, size, margins, tmp_path):
+def _sampled_positions(bpy, addon, dist_scene, node, size, margins, tmp_path):
     """Render ``dist_scene``'s compositor with a coordinate ramp of the overscan frame fed into ``node`` in place of
     the render: for each output pixel, where Blender sampled, as a camcal pixel of the camera's frame (H, W, 2)."""
     (W, H), (mx, my) = size, margins
     Wo, Ho = W + 2 * mx, H + 2 * my
-    tree = dist_scene.compositing_node_group
+    tree = importlib.import_module(f"{addon.__name__}.compositor").compositor_tree(dist_scene)
     for other in [n for n in tree.nodes if n.bl_idname in ("CompositorNodeRLayers", "CompositorNodeScale")]:
         tree.nodes.remove(other)
     ramp = tree.nodes.new("CompositorNodeImage")
@@ -139,10 +140,10 @@ def test_movie_distortion_in_blender_equals_camcal_within_0_01_px(bpy, addon, tm
     dist_scene = result.distorted_scenes["cam"]
     mx, my = bpy.data.scenes[f"{result.cameras['cam'].name} overscan"]["camcal_overscan_margins"]
     Wo, Ho = W + 2 * mx, H + 2 * my
-    tree = dist_scene.compositing_node_group
+    tree = importlib.import_module(f"{addon.__name__}.compositor").compositor_tree(dist_scene)
     md = next(node for node in tree.nodes if node.bl_idname == "CompositorNodeMovieDistortion")
     assert md.clip.tracking.camera.distortion_model == model
-    sampled = _sampled_positions(bpy, dist_scene, md, size, (mx, my), tmp_path)
+    sampled = _sampled_positions(bpy, addon, dist_scene, md, size, (mx, my), tmp_path)
     v, u = np.mgrid[0:H, 0:W]
     output = np.stack([u, v], axis=-1).astype(np.float64)
     # pixels whose sample lies in the ramp (bilinear reads of a ramp are exact there, clamped beyond)
@@ -207,7 +208,8 @@ def test_cli_blender_import_reports_the_refit(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.blend", "r.rig.json", "r_lens"]
     assert (tmp_path / "r_lens" / "cam_blender_uv.exr").is_file()
     script = ("import bpy, sys; bpy.ops.wm.open_mainfile(filepath=sys.argv[1]); "
-              "t = [s for s in bpy.data.scenes if s.name.endswith(' distorted')][0].compositing_node_group; "
+              "s = [s for s in bpy.data.scenes if s.name.endswith(' distorted')][0]; "
+              "t = s.compositor_effects.active.node_group if hasattr(s, 'compositor_effects') else s.compositing_node_group; "
               "print(sorted(n.bl_idname for n in t.nodes))")
     proc = subprocess.run([sys.executable, "-c", script, str(tmp_path / "r.blend")], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
@@ -231,10 +233,10 @@ def test_map_uv_path_in_blender_equals_camcal_within_0_01_px(bpy, addon, tmp_pat
     result = addon.import_rig(scene, str(rig_path), aux_directory=str(tmp_path / "lens"), uv_maps=uv_maps)
     dist_scene = result.distorted_scenes["cam"]
     mx, my = addon.tracking.overscan_margins(size, 1.1)
-    tree = dist_scene.compositing_node_group
+    tree = importlib.import_module(f"{addon.__name__}.compositor").compositor_tree(dist_scene)
     map_uv = next(node for node in tree.nodes if node.bl_idname == "CompositorNodeMapUV")
     assert not [n for n in tree.nodes if n.bl_idname == "CompositorNodeMovieDistortion"]
-    sampled = _sampled_positions(bpy, dist_scene, map_uv, size, (mx, my), tmp_path)
+    sampled = _sampled_positions(bpy, addon, dist_scene, map_uv, size, (mx, my), tmp_path)
     v, u = np.mgrid[0:H, 0:W]
     output = np.stack([u, v], axis=-1).reshape(-1, 2).astype(np.float64)
     lens = Distortion.from_dict(RATIONAL)

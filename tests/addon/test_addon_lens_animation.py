@@ -111,7 +111,8 @@ def test_the_overscan_render_camera_and_its_clip_follow_the_zoom(bpy, addon, tmp
     os_scene = bpy.data.scenes[f"{result.cameras['cam'].name} overscan"]
     mx, my = os_scene["camcal_overscan_margins"]
     size_os = (SIZE[0] + 2 * mx, SIZE[1] + 2 * my)
-    os_clip = [n.clip for n in dist_scene.compositing_node_group.nodes if n.bl_idname == "CompositorNodeMovieDistortion"][0]
+    tree = importlib.import_module(f"{addon.__name__}.compositor").compositor_tree(dist_scene)
+    os_clip = [n.clip for n in tree.nodes if n.bl_idname == "CompositorNodeMovieDistortion"][0]
     rng = np.random.default_rng(8)
     for frame in rig.frames:
         scene.frame_set(FRAME_START + frame.index)  # the handler sets the clips' lenses
