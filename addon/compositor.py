@@ -10,7 +10,12 @@ from __future__ import annotations
 
 import bpy
 
-__all__ = ["compositor_tree", "new_compositor_tree"]
+__all__ = ["compositor_tree", "new_compositor_tree", "tree_is_a_node_group"]
+
+
+def tree_is_a_node_group(scene) -> bool:
+    """Blender 5.x: the compositor tree is a data-block of its own (removed apart from the scene)."""
+    return "compositing_node_group" in scene.bl_rna.properties  # hasattr would read it: a warning in 5.3
 
 
 def compositor_tree(scene):
@@ -18,14 +23,14 @@ def compositor_tree(scene):
     effects = getattr(scene, "compositor_effects", None)
     if effects is not None:  # Blender 5.3
         return effects.active.node_group if effects.active is not None else None
-    if hasattr(scene, "compositing_node_group"):  # Blender 5.0-5.2
+    if tree_is_a_node_group(scene):  # Blender 5.0-5.2
         return scene.compositing_node_group
     return scene.node_tree  # Blender 4.x
 
 
 def new_compositor_tree(scene, name):
     """An empty compositor tree for ``scene`` and its output node (Group Output in 5.x, Composite in 4.x)."""
-    if hasattr(scene, "compositing_node_group"):
+    if tree_is_a_node_group(scene):
         tree = bpy.data.node_groups.new(name, "CompositorNodeTree")
         effects = getattr(scene, "compositor_effects", None)
         if effects is not None:

@@ -725,7 +725,7 @@ def distortion_shift(clip, lens, margins, size):
         sx = sum(s[0] for s in shifts) / len(shifts)
         sy = sum(s[1] for s in shifts) / len(shifts)
     finally:
-        tree = compositor.compositor_tree(probe) if hasattr(probe, "compositing_node_group") else None
+        tree = compositor.compositor_tree(probe) if compositor.tree_is_a_node_group(probe) else None
         bpy.data.scenes.remove(probe)
         if tree is not None:
             bpy.data.node_groups.remove(tree)
