@@ -87,8 +87,10 @@ def close_loops(pycolmap, database: Path, window: int, match_pairs: Callable[[Se
     database : Path
         COLMAP's database, features extracted and matched by frame order.
     window : int
-        The sequential matcher's overlap: pairs nearer in time are matched
-        already.
+        The sequential matcher's overlap: revisits nearer in time are left
+        to it. With COLMAP's default quadratic overlap it matches the gaps
+        1, 2, 4, 8, ... (pycolmap 4.2.1), not every gap up to ``window``;
+        pairs it matched already are skipped here.
     match_pairs : callable
         Matches and verifies a list of image pairs (COLMAP's names) as the
         sequential matching did
