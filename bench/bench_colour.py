@@ -108,10 +108,12 @@ def _cameras_bench():
 CAMERAS = _cameras_bench()
 
 
-def scene(camera: str, illuminant: str, seed: int = 0):
+def scene(camera: str, illuminant: str, seed: int = 0, independent: str = "rawtoaces 190"):
+    """The camera simulated under the illuminant, its ColorChecker 24 captures (training) and the
+    ``independent`` reflectance set's (judging), each with 0.2 % noise of its own seed."""
     cam = SimulatedCamera.from_colour(camera, illuminant)
     names_cc, R_cc = reflectance_set("BabelColor Average", cam.wavelengths)
-    names_ind, R_ind = reflectance_set("rawtoaces 190", cam.wavelengths)
+    names_ind, R_ind = reflectance_set(independent, cam.wavelengths)
     train = PatchSet(names_cc, cam.RGB(R_cc, NOISE, seed), cam.XYZ(R_cc))
     test = PatchSet(names_ind, cam.RGB(R_ind, NOISE, seed + 100), cam.XYZ(R_ind))
     return cam, train, test
