@@ -21,4 +21,6 @@ def test_bench_without_colprof_prints_skipped(monkeypatch, capsys):
     assert "skipped: colprof not installed" in out
     assert "colour-science best" in out and "ratio" in out
     assert "auto gap: picked" in out and "(target <= 2 %)" in out
+    assert "auto chart resolution (24 patches held out one at a time)" in out
+    assert "2 % apart are ranked right with probability 0." in out
     assert "trained on the independent colours themselves (10-fold cross-validation, the best of 1 models" in out
