@@ -136,3 +136,41 @@ def test_shrunk_candidate_scores_as_its_refit_and_beats_its_base(sim):
                                     sim.RGB_train, sim.XYZ_train)
     assert c.loo_mean == pytest.approx(float(np.mean(delta_E(loo, sim.XYZ_train, sim.white))), rel=1e-9)
     assert c.to_dict()["shrinkage"] == c.shrinkage
+
+
+def test_surface_spread_is_the_jackknife_standard_deviation(sim):
+    """Half the n refits predict A, half B: the jackknife standard deviation at that colour is
+    sqrt(n - 1) * dE(A, B) / 2 (Efron & Stein 1981), CIEDE2000 being near linear over a small step."""
+    from camcal.colour.difference import delta_E
+    from camcal.colour.fit.select import surface_spread
+
+    A = sim.XYZ_train[:2]
+    B = A * np.array([1.004, 0.998, 1.003])
+    n = 24
+    replicates = np.stack([A if i % 2 else B for i in range(n)])
+    D = delta_E(A, B, sim.white)
+    assert surface_spread(replicates, sim.white) == pytest.approx(float(np.mean(np.sqrt(n - 1) * D / 2)), rel=0.01)
+    assert surface_spread(np.stack([A] * n), sim.white) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_among_the_tied_the_least_spread_off_the_chart_is_picked(sim):
+    """With plausible surface colours given, simplicity within the margin is how little the candidate's
+    leave-one-out refits spread there: the pick spreads least of the candidates within one standard error
+    of the best, and its recorded spread is that of its own refits."""
+    from camcal.colour.bake.samples import plausible_surface_samples
+    from camcal.colour.fit.evaluate import leave_one_out_replicates
+    from camcal.colour.fit.select import fitter, surface_spread
+    from camcal.colour.fit.terms import parse_model_spec
+
+    matrix = fitter(parse_model_spec("matrix3x3"), "xyz", 0.0, sim.white)(sim.RGB_train, sim.XYZ_train)
+    surfaces = plausible_surface_samples(matrix.apply, sim.white, "D65")
+    selection = select_model(sim.RGB_train, sim.XYZ_train, sim.white, objectives=("xyz",),
+                             candidates=("matrix3x3", "root-polynomial:2"), surfaces=surfaces)
+    best, p = selection.best, selection.picked
+    tied = [c for c in selection.candidates if c.score <= best.score + c.score_se + 1e-12]
+    assert len(tied) >= 2 and all(c.surface_spread is not None for c in tied)
+    assert p.surface_spread == min(c.surface_spread for c in tied)
+    replicates = leave_one_out_replicates(fitter(p.spec, p.objective, p.regularisation, sim.white,
+                                                 shrinkage=p.shrinkage), sim.RGB_train, sim.XYZ_train, at=surfaces)[1]
+    assert p.surface_spread == pytest.approx(surface_spread(replicates, sim.white), rel=1e-6)
+    assert "steadiest off the chart" in selection.reason and p.to_dict()["surface_spread"] == p.surface_spread
