@@ -29,7 +29,7 @@ import numpy as np
 
 from camcal.base.errors import CamcalError
 from camcal.base.clock import utc_timestamp
-from camcal.colour.bake.samples import bake_model, plausible_surface_samples
+from camcal.colour.bake.samples import bake_model
 from camcal.colour.chart.linearise import Linearisation, fit_linearisation
 from camcal.colour.chart.patches import PatchSet
 from camcal.colour.difference import XYZ_to_Lab
@@ -227,14 +227,9 @@ def characterise(
         spectral = (synthetic.training.RGB, target(synthetic.training.XYZ))
     if model == "auto":
         objectives = ("xyz", "de2000") if objective is None else (objective,)
-        # plausible surface colours off the chart (camera RGB through the 3x3 matrix fit): where auto measures
-        # how much each candidate depends on which patches it saw
-        matrix = fitter(parse_model_spec("matrix3x3"), "xyz", 0.0, target_XYZ)(RGB, XYZ, train.weights)
-        surfaces = plausible_surface_samples(matrix.apply, target_XYZ, illuminant or white_name)
         selection = select_model(RGB, XYZ, target_XYZ, objectives=objectives, candidates=candidates,
                                  exportable=_export_check(target_XYZ, reference, white_name),
-                                 weights=train.weights, validation=validation, spectral=spectral,
-                                 surfaces=surfaces)
+                                 weights=train.weights, validation=validation, spectral=spectral)
         spec = selection.picked.spec
         chosen_objective = selection.picked.objective
         regularisation = selection.picked.regularisation

@@ -25,8 +25,7 @@ import numpy as np
 
 from camcal.colour.difference import DELTA_E_METHODS, DeltaEStats, XYZ_to_Lab, delta_E
 
-__all__ = ["leave_one_out_predictions", "leave_one_out_replicates", "ColourFitResult", "evaluate_model",
-           "patch_table"]
+__all__ = ["leave_one_out_predictions", "ColourFitResult", "evaluate_model", "patch_table"]
 
 
 def leave_one_out_predictions(
@@ -50,48 +49,18 @@ def leave_one_out_predictions(
     numpy.ndarray
         ``(N, 3)`` leave-one-out predicted XYZ.
     """
-    return leave_one_out_replicates(fit, RGB, XYZ, weights)[0]
-
-
-def leave_one_out_replicates(
-    fit: Callable[..., Any], RGB: Any, XYZ: Any, weights: Any = None, at: Any = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Each patch predicted by the model refitted without it, and what each of those refits predicts at ``at``.
-
-    The refits are the jackknife replicates of the fit (Efron & Stein 1981,
-    The jackknife estimate of variance, Annals of Statistics 9(3)): their
-    spread at colours off the chart estimates how much the fit there depends
-    on which patches it saw.
-
-    Parameters
-    ----------
-    fit, RGB, XYZ, weights
-        As :func:`leave_one_out_predictions`.
-    at
-        ``(M, 3)`` camera RGB where every refit is also applied; ``None``: none.
-
-    Returns
-    -------
-    tuple of numpy.ndarray
-        ``(N, 3)`` leave-one-out predicted XYZ and ``(N, M, 3)`` the XYZ the
-        refit without patch ``i`` predicts at ``at`` (``M = 0`` without it).
-    """
     RGB = np.asarray(RGB, dtype=np.float64)
     XYZ = np.asarray(XYZ, dtype=np.float64)
-    at = np.zeros((0, 3)) if at is None else np.asarray(at, dtype=np.float64)
     N = RGB.shape[0]
     weights = None if weights is None else np.asarray(weights, dtype=np.float64)
     out = np.empty_like(XYZ)
-    replicates = np.empty((N, len(at), 3))
     keep = np.ones(N, dtype=bool)
     for i in range(N):
         keep[i] = False
         model = fit(RGB[keep], XYZ[keep]) if weights is None else fit(RGB[keep], XYZ[keep], weights[keep])
         out[i] = model.apply(RGB[i : i + 1])[0]
-        if len(at):
-            replicates[i] = model.apply(at)
         keep[i] = True
-    return out, replicates
+    return out
 
 
 @dataclass(frozen=True, eq=False)

@@ -211,13 +211,12 @@ def _shrinkage(value: Any, where: str) -> None:
 
 def _check_candidate(value: Any, where: str) -> None:
     _keys(value, where, ("model", "objective", "regularisation", "loo_mean", "loo_p95"),
-          ("exportable", "bake_error_max", "score", "score_se", "validation_mean", "training", "shrinkage",
-           "surface_spread"))
+          ("exportable", "bake_error_max", "score", "score_se", "validation_mean", "training", "shrinkage"))
     if "training" in value:
         _string(value["training"], f"{where}.training", ("chart", "spectral"))
     if "shrinkage" in value:
         _shrinkage(value["shrinkage"], f"{where}.shrinkage")
-    for key in ("score", "score_se", "validation_mean", "surface_spread"):
+    for key in ("score", "score_se", "validation_mean"):
         if key in value:
             _number(value[key], f"{where}.{key}", 0.0)
     if "exportable" in value:

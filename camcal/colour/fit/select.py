@@ -113,12 +113,11 @@ import numpy as np
 
 from camcal.base.errors import CamcalError
 from camcal.colour.difference import delta_E
-from camcal.colour.fit.evaluate import leave_one_out_replicates
+from camcal.colour.fit.evaluate import leave_one_out_predictions
 from camcal.colour.fit.fitting import fit_model
 from camcal.colour.fit.terms import ModelSpec, parse_model_spec
 
-__all__ = ["RIDGE_GRID", "N_REFINE", "SHRINKAGE_GRID", "Candidate", "Selection", "fitter", "surface_spread",
-           "select_model"]
+__all__ = ["RIDGE_GRID", "N_REFINE", "SHRINKAGE_GRID", "Candidate", "Selection", "fitter", "select_model"]
 
 RIDGE_GRID = (0.0, 1e-6, 1e-5, 1e-4, 1e-3)
 N_REFINE = 3
@@ -145,7 +144,6 @@ class Candidate:
     validation_mean: float | None = None
     training: str = "chart"
     shrinkage: float = 0.0
-    surface_spread: float | None = None
 
     @property
     def n_params(self) -> int:
@@ -165,8 +163,6 @@ class Candidate:
                "score": float(self.score), "score_se": float(self.score_se), "training": self.training}
         if self.shrinkage:
             out["shrinkage"] = float(self.shrinkage)
-        if self.surface_spread is not None:
-            out["surface_spread"] = float(self.surface_spread)
         if self.validation_mean is not None:
             out["validation_mean"] = float(self.validation_mean)
         if self.exportable is not None:
@@ -198,9 +194,7 @@ class Selection:
         best = self.best
         refused = [c for c in self.candidates if c.exportable is False]
         within = self.picked.score <= best.score + self.picked.score_se + 1e-12
-        simplest = ("steadiest off the chart (the least spread of its leave-one-out refits over plausible surface "
-                    "colours)" if self.picked.surface_spread is not None else "simplest")
-        text = (f"{simplest} of {len(self.candidates)} candidates within one standard error of the lowest "
+        text = (f"simplest of {len(self.candidates)} candidates within one standard error of the lowest "
                 f"{self.score_name_of(self.picked)} mean CIEDE2000: {self.picked.score:.3f}" if within else
                 f"lowest {self.score_name_of(self.picked)} mean CIEDE2000 of the {len(self.candidates)} candidates "
                 f"that export (none within one standard error of the best does): {self.picked.score:.3f}")
@@ -232,15 +226,13 @@ class Selection:
                     f"  bake refused ({c.bake_error_max if c.bake_error_max is not None else float('nan'):.2f})")
             mark = "  <- picked" if c is self.picked else ""
             held = "" if c.validation_mean is None else f", synthesised held-out {c.validation_mean:.3f}"
-            spread = "" if c.surface_spread is None else f"  spread off the chart {c.surface_spread:.3f}"
             lines.append(f"  {c.label:54s} score {c.score:.3f} +- {c.score_se:.3f} "
-                         f"(LOO {c.loo_mean:.3f}{held}){spread}{bake}{mark}")
+                         f"(LOO {c.loo_mean:.3f}{held}){bake}{mark}")
         return lines
 
     def to_dict(self) -> dict:
-        return {"method": "auto: simplest (chart candidates: least spread off the chart) within one standard error "
-                          "of the lowest leave-one-out mean CIEDE2000 (spectral candidates: synthesised held-out), "
-                          "among fits that export",
+        return {"method": "auto: simplest within one standard error of the lowest leave-one-out mean CIEDE2000 "
+                          "(spectral candidates: synthesised held-out), among fits that export",
                 "picked": self.picked.to_dict(), "reason": self.reason,
                 "candidates": [c.to_dict() for c in self.candidates]}
 
@@ -264,36 +256,12 @@ def fitter(spec: ModelSpec, objective: str, lam: float, white_XYZ: Any, extra: t
 
 
 def _predictions(spec: ModelSpec, objective: str, lam: float, RGB, XYZ, white_XYZ, weights, validation,
-                 extra=None, surfaces=None):
-    """Leave-one-out XYZ of every patch, with a validation set the XYZ predicted for it, and the leave-one-out
-    refits' XYZ at ``surfaces`` (jackknife replicates, ``(N, M, 3)``)."""
+                 extra=None):
+    """Leave-one-out XYZ of every patch and, with a validation set, the XYZ predicted for it."""
     fit = fitter(spec, objective, lam, white_XYZ, extra)
-    loo, replicates = leave_one_out_replicates(fit, RGB, XYZ, weights, surfaces)
+    loo = leave_one_out_predictions(fit, RGB, XYZ, weights)
     held = None if validation is None else fit(RGB, XYZ, weights).apply(validation[0])
-    return loo, held, replicates
-
-
-def surface_spread(replicates: np.ndarray, white_XYZ: Any) -> float:
-    """The jackknife standard deviation of a fit's prediction, in CIEDE2000, averaged over the colours.
-
-    ``sqrt((n - 1) / n * sum_i dE(f_(i), f_(.))^2)`` at each colour, ``f_(i)``
-    the fit without patch ``i``, ``f_(.)`` their mean (Efron & Stein 1981).
-
-    Parameters
-    ----------
-    replicates
-        ``(n, M, 3)`` XYZ predicted at ``M`` colours by the ``n`` leave-one-out refits.
-    white_XYZ
-        White of the XYZ.
-
-    Returns
-    -------
-    float
-    """
-    n, m = replicates.shape[:2]
-    centre = np.broadcast_to(replicates.mean(axis=0), replicates.shape)
-    d = delta_E(replicates.reshape(-1, 3), centre.reshape(-1, 3), white_XYZ).reshape(n, m)
-    return float(np.mean(np.sqrt((n - 1) * np.mean(d**2, axis=0))))
+    return loo, held
 
 
 def _spectral_lambda(spec: ModelSpec, RGB, XYZ, white_XYZ, weights, validation, extra) -> float:
@@ -306,12 +274,6 @@ def _spectral_lambda(spec: ModelSpec, RGB, XYZ, white_XYZ, weights, validation, 
     scores = [(float(np.mean(delta_E(fitter(spec, "xyz", lam, white_XYZ, extra)(RGB, XYZ, weights).apply(
         validation[0]), validation[1], white_XYZ))), lam) for lam in RIDGE_GRID]
     return min(scores)[1]
-
-
-def _blend(a: tuple, b: tuple, alpha: float) -> tuple:
-    """``(1 - alpha) a + alpha b`` of two fits' prediction tuples (leave-one-out, validation, replicates): the
-    predictions of the blend of two fits of the same terms, held out too."""
-    return tuple(None if x is None else (1 - alpha) * x + alpha * y for x, y in zip(a, b))
 
 
 def _paired_se(errors: np.ndarray, best: np.ndarray, w: np.ndarray) -> float:
@@ -332,7 +294,6 @@ def select_model(
     weights: Any = None,
     validation: tuple[Any, Any] | None = None,
     spectral: tuple[Any, Any] | None = None,
-    surfaces: Any = None,
 ) -> Selection:
     """Pick model, objective and ridge ``lambda`` by held-out CIEDE2000 with parsimony (module docstring).
 
@@ -365,11 +326,6 @@ def select_model(
         patches (the spectral route, :func:`fitter`). The simplest-within-margin
         spectral candidate and chart candidate are then compared on the
         chart's own patches held out (leave-one-out), the better one picked.
-    surfaces
-        ``(M, 3)`` camera RGB of plausible surface colours off the chart: among
-        the chart candidates within the margin, the one whose leave-one-out
-        refits spread least there is picked (:func:`surface_spread`) instead of
-        the one with the fewest terms; ``None`` or empty: the fewest terms.
 
     Returns
     -------
@@ -389,16 +345,14 @@ def select_model(
     if spectral is not None and validation is None:
         raise CamcalError("the spectral candidates are scored on held-out colours: give validation too")
     extra = None if spectral is None else tuple(np.asarray(a, dtype=np.float64) for a in spectral)
-    surfaces = None if surfaces is None or len(surfaces) == 0 else np.asarray(surfaces, dtype=np.float64)
 
     predictions: dict[int, tuple] = {}
 
     def candidate(spec: ModelSpec, objective: str, lam: float, route: str = "chart",
                   given: tuple | None = None, shrinkage: float = 0.0) -> Candidate:
         spectral_route = route == "spectral"
-        loo_xyz, held_xyz, at = given if given is not None else _predictions(
-            spec, objective, lam, RGB, XYZ, white_XYZ, weights, validation, extra if spectral_route else None,
-            None if spectral_route else surfaces)
+        loo_xyz, held_xyz = given if given is not None else _predictions(
+            spec, objective, lam, RGB, XYZ, white_XYZ, weights, validation, extra if spectral_route else None)
         loo = delta_E(loo_xyz, XYZ, white_XYZ)
         held = None if held_xyz is None else delta_E(held_xyz, validation[1], white_XYZ)
         loo_mean = float(np.average(loo, weights=w))
@@ -407,7 +361,7 @@ def select_model(
                       validation_mean=None if held is None else float(np.mean(held)), training=route,
                       shrinkage=shrinkage)
         errors[id(c)] = held if spectral_route else loo
-        predictions[id(c)] = (loo_xyz, held_xyz, at)
+        predictions[id(c)] = (loo_xyz, held_xyz)
         return c
 
     def averaged(fits: list[Candidate]) -> list[Candidate]:
@@ -418,8 +372,9 @@ def select_model(
             x = next((c for c in fits if c.objective == "xyz" and c.spec == d.spec and c.training == d.training
                       and c.regularisation == d.regularisation), None)
             if x is not None:
+                (lx, hx), (ld, hd) = predictions[id(x)], predictions[id(d)]
                 out.append(candidate(d.spec, "xyz+de2000", d.regularisation, d.training,
-                                     _blend(predictions[id(x)], predictions[id(d)], 0.5)))
+                                     ((lx + ld) / 2, None if hx is None else (hx + hd) / 2)))
         return out
 
     matrix_predictions: dict[str, tuple] = {}
@@ -428,10 +383,11 @@ def select_model(
         """Leave-one-out (and validation) XYZ of the chart's matrix3x3 fit with ``objective``."""
         if objective not in matrix_predictions:
             if objective == "xyz+de2000":
-                matrix_predictions[objective] = _blend(matrix_fit("xyz"), matrix_fit("de2000"), 0.5)
+                (lx, hx), (ld, hd) = matrix_fit("xyz"), matrix_fit("de2000")
+                matrix_predictions[objective] = ((lx + ld) / 2, None if hx is None else (hx + hd) / 2)
             else:
                 matrix_predictions[objective] = _predictions(parse_model_spec("matrix3x3"), objective, 0.0, RGB,
-                                                             XYZ, white_XYZ, weights, validation, None, surfaces)
+                                                             XYZ, white_XYZ, weights, validation)
         return matrix_predictions[objective]
 
     def shrunk(fits: list[Candidate]) -> list[Candidate]:
@@ -440,12 +396,13 @@ def select_model(
         the blend's predictions, held out too, are the blend of theirs, no refit needed."""
         out = []
         for c in (c for c in fits if c.training == "chart" and c.spec.kind in ("polynomial", "root-polynomial")):
-            own, matrix = predictions[id(c)], matrix_fit(c.objective)
-            blends = [(float(np.average(delta_E((1 - a) * own[0] + a * matrix[0], XYZ, white_XYZ), weights=w)), a)
+            (lc, hc), (lm, hm) = predictions[id(c)], matrix_fit(c.objective)
+            blends = [(float(np.average(delta_E((1 - a) * lc + a * lm, XYZ, white_XYZ), weights=w)), a)
                       for a in SHRINKAGE_GRID]
             score, a = min(blends)
             if score < c.loo_mean:
-                out.append(candidate(c.spec, c.objective, c.regularisation, "chart", _blend(own, matrix, a), a))
+                out.append(candidate(c.spec, c.objective, c.regularisation, "chart",
+                                     ((1 - a) * lc + a * lm, None if hc is None else (1 - a) * hc + a * hm), a))
         return out
 
     stage1: list[Candidate] = []
@@ -497,16 +454,6 @@ def select_model(
             scored.update({id(c): replace(c, score_se=_paired_se(errors[id(c)], errors[id(top)], ew(c)))
                            for c in pool})
 
-    spreads: dict[int, float] = {}
-
-    def steadiness(c: Candidate) -> tuple:
-        """Simplicity within the margin: the spread of the leave-one-out refits off the chart, else the terms."""
-        if c.training != "chart" or surfaces is None:
-            return (c.n_params, c.score)
-        if id(c) not in spreads:
-            spreads[id(c)] = surface_spread(predictions[id(c)][2], white_XYZ)
-        return (spreads[id(c)], c.score)
-
     def parsimonious(route: str) -> Candidate | None:
         pool = [c for c in remaining if c.training == route]
         if not pool:
@@ -517,7 +464,7 @@ def select_model(
         close = [c for c in pool if c.score <= best.score + _paired_se(errors[id(c)], errors[id(best)], ew(c))]
         if not close:
             return min(pool, key=lambda c: c.score)
-        return min(close, key=steadiness)
+        return min(close, key=lambda c: (c.n_params, c.score))
 
     rivals: tuple = ()
     while True:
@@ -544,7 +491,7 @@ def select_model(
             continue
         checked[id(picked)] = replace(scored[id(picked)], exportable=True, bake_error_max=error)
         break
-    everything = tuple(replace(checked.get(id(c), scored[id(c)]), surface_spread=spreads.get(id(c))) for c in final)
+    everything = tuple(checked.get(id(c), scored[id(c)]) for c in final)
     final_of = {id(c): x for c, x in zip(final, everything)}
     picked = final_of[id(picked)]
     return Selection(picked=picked, candidates=everything, rivals=tuple(final_of[id(r)] for r in rivals))
