@@ -40,7 +40,7 @@ linear acceleration (second differences of the neighbours' poses,
 e_T`` and ``r_4`` the residuals there with that model (the adjustment
 itself keeps the constant velocities of the central differences, whose
 Jacobian touches one neighbour a side; on the synthetic plates the step
-lands within 0.1 % of that model's own optimum).
+lands within 0.15 % of that model's own optimum).
 
 Two standard deviations are computed. The observations' noise alone gives
 ``s^2 (J^T J)^-1_TT``, read from the points' Schur complement, ``s^2`` the
