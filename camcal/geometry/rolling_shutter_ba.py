@@ -94,7 +94,8 @@ from scipy.spatial.transform import Rotation
 from camcal.base.errors import CamcalError
 from camcal.geometry.rolling_shutter import camera_velocities
 
-__all__ = ["DETERMINED_FRACTION", "JACKKNIFE_BLOCKS", "MAX_OBSERVATIONS", "MIN_TRACK", "ReadoutEstimate", "estimate_readout"]
+__all__ = ["DETERMINED_FRACTION", "JACKKNIFE_BLOCKS", "MAX_OBSERVATIONS", "MIN_TRACK", "ReadoutEstimate",
+           "estimate_readout"]
 
 #: the readout counts as determined when its standard deviation is at most this fraction of the frame interval
 #: (4.2 ms at 24 fps): a readout cannot exceed the interval, and a wider one says little about it.
