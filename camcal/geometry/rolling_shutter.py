@@ -37,6 +37,9 @@ Meingast, M., Geyer, C. & Sastry, S. (2005). Geometric Models of
 Rolling-Shutter Cameras. OMNIVIS (the row-time projection model).
 Hedborg, J., Forssen, P.-E., Felsberg, M. & Ringaby, E. (2012). Rolling
 Shutter Bundle Adjustment. CVPR (constant velocity over a frame's readout).
+Richardson, L. F. (1911). The approximate arithmetical solution by finite
+differences of physical problems. Phil. Trans. R. Soc. A 210 (the
+extrapolation of :func:`camera_velocities`' fourth order).
 """
 
 from __future__ import annotations
@@ -74,7 +77,7 @@ class ShutterFrame:
     flagged: bool
 
 
-def camera_velocities(rotations: ArrayLike, centres: ArrayLike, times: ArrayLike
+def camera_velocities(rotations: ArrayLike, centres: ArrayLike, times: ArrayLike, *, order: int = 2
                       ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Each frame's angular velocity (camera axes, rad/s) and linear velocity (world units/s) from its neighbours.
 
@@ -86,6 +89,11 @@ def camera_velocities(rotations: ArrayLike, centres: ArrayLike, times: ArrayLike
         Camera centres in world coordinates.
     times : array_like, shape (N,)
         Each frame's time in seconds, strictly increasing.
+    order : {2, 4}
+        4: at a frame whose two neighbours on each side lie at ``+-h`` and ``+-2h``, the Richardson
+        extrapolation ``(4 D(h) - D(2h)) / 3`` of the central differences over them (``D(h) = log(R(t + h)
+        R(t - h)^T) / 2h`` is even in ``h``: the ``h^2`` term cancels, leaving an error of order ``h^4``;
+        Richardson 1911); elsewhere the second-order ones.
 
     Returns
     -------
@@ -106,6 +114,8 @@ def camera_velocities(rotations: ArrayLike, centres: ArrayLike, times: ArrayLike
         raise CamcalError(f"rotations, centres and times differ in length ({len(R)}, {len(c)}, {len(t)})")
     if np.any(np.diff(t) <= 0):
         raise CamcalError("frame times must increase strictly")
+    if order not in (2, 4):
+        raise CamcalError(f"the velocities' order must be 2 or 4, got {order}")
     n = len(t)
     omega, velocity = np.zeros((n, 3)), np.zeros((n, 3))
     if n < 2:
@@ -123,6 +133,17 @@ def camera_velocities(rotations: ArrayLike, centres: ArrayLike, times: ArrayLike
             turns = Rotation.from_matrix(R[[near, far]] @ R[end].T).as_rotvec()
             omega[end] = w1 * turns[0] + w2 * turns[1]
             velocity[end] = w1 * (c[near] - c[end]) + w2 * (c[far] - c[end])
+    if order == 4 and n >= 5:
+        middle = np.arange(2, n - 2)
+        h = t[middle + 1] - t[middle]
+        even = np.isclose(t[middle] - t[middle - 1], h) & np.isclose(t[middle + 2] - t[middle + 1], h) & np.isclose(
+            t[middle - 1] - t[middle - 2], h)
+        middle = middle[even]
+        wide = np.einsum("nij,nkj->nik", R[middle + 2], R[middle - 2])
+        omega_wide = Rotation.from_matrix(wide).as_rotvec() / (t[middle + 2] - t[middle - 2])[:, None]
+        velocity_wide = (c[middle + 2] - c[middle - 2]) / (t[middle + 2] - t[middle - 2])[:, None]
+        omega[middle] = (4.0 * omega[middle] - omega_wide) / 3.0
+        velocity[middle] = (4.0 * velocity[middle] - velocity_wide) / 3.0
     return omega, velocity
 
 

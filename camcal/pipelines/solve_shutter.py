@@ -15,7 +15,8 @@ solved frames first go through a rolling-shutter bundle adjustment
 (:func:`camcal.geometry.rolling_shutter_ba.estimate_readout`: its
 observations undistorted through the solved lens, its poses and points
 refined with one readout time): where the plate's motion determines it, the
-estimate and its standard deviation are recorded (provenance
+estimate and its standard deviation (the larger of the observations' noise's
+and a jackknife's over blocks of frames) are recorded (provenance
 ``rolling_shutter.estimate``) and the frames are checked with it; where it
 does not (a camera moving straight or sideways at a constant speed), one
 line says so and that camera's frames are not checked.
@@ -207,8 +208,10 @@ def _estimate(reconstruction, height: int, posed, times: np.ndarray, names: list
 def _estimate_record(estimate: ReadoutEstimate) -> dict:
     """A camera's entry in the provenance's ``rolling_shutter.estimate`` (the readout only when determined)."""
     record = {"readout_ms": estimate.readout_s * 1000.0} if estimate.determined else {}
-    sigma = estimate.sigma_s * 1000.0 if np.isfinite(estimate.sigma_s) else None  # None: nothing determines it
-    return {**record, "sigma_ms": sigma, "determined": estimate.determined,
+    sigmas = [value * 1000.0 if np.isfinite(value) else None  # None: nothing determines it
+              for value in (estimate.sigma_s, estimate.noise_sigma_s, estimate.jackknife_sigma_s)]
+    return {**record, "sigma_ms": sigmas[0], "noise_sigma_ms": sigmas[1], "jackknife_sigma_ms": sigmas[2],
+            "determined": estimate.determined,
             "limit_ms": estimate.limit_s * 1000.0, "rms_px": estimate.rms_px, "frames": estimate.n_frames,
             "points": estimate.n_points, "observations": estimate.n_observations}
 
@@ -218,8 +221,10 @@ def _estimate_line(name: str, estimate: ReadoutEstimate) -> str:
     used = f"{estimate.n_frames} frames, {estimate.n_points} points, {estimate.n_observations} observations"
     if estimate.determined:
         return (f"rolling-shutter readout of {name} estimated from the plate: {estimate.readout_s * 1000:.2f} +- "
-                f"{estimate.sigma_s * 1000:.2f} ms from the observations' noise ({used}, {estimate.rms_px:.2f} px RMS; "
-                "the constant-velocity model's own error, about 1-3 % on rendered handheld plates, is not in it)")
+                f"{estimate.sigma_s * 1000:.2f} ms ({used}, {estimate.rms_px:.2f} px RMS; the sigma the larger of the "
+                f"observations' noise, {estimate.noise_sigma_s * 1000:.2f} ms, and a jackknife over blocks of frames, "
+                f"{estimate.jackknife_sigma_s * 1000:.2f} ms, which also sees the model's misfit; an error every frame "
+                "shares alike is in neither)")
     return (f"rolling-shutter readout of {name}: the plate's motion does not determine it (its standard deviation "
             f"{estimate.sigma_s * 1000:.3g} ms is over {estimate.limit_s * 1000:.2g} ms: a camera moving straight or "
             "sideways at a constant speed sees the same with any readout), so its frames are not checked; give "

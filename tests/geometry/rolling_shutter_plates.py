@@ -46,12 +46,16 @@ class Plate:
 
 
 def pose(t: np.ndarray | float, motion: str) -> tuple[np.ndarray, np.ndarray]:
-    """World -> camera rotations and centres at times ``t`` of a ``"turning"``, ``"sideways"`` or ``"forward"`` path."""
+    """World -> camera rotations and centres at times ``t`` of a ``"turning"``, ``"shaking"``, ``"sideways"`` or
+    ``"forward"`` path."""
     t = np.asarray(t, dtype=np.float64)
     zero = np.zeros_like(t)
-    if motion == "turning":  # walking with a handheld pan (up to 75 deg/s), tilt and roll
+    if motion in ("turning", "shaking"):  # walking with a handheld pan (up to 75 deg/s), tilt and roll
         angles = np.stack([0.12 * np.sin(2 * np.pi * 1.1 * t), 0.35 * np.sin(2 * np.pi * 0.6 * t),
                            0.05 * np.sin(2 * np.pi * 0.9 * t)], -1)
+        if motion == "shaking":  # and a hand's tremor at 3 Hz: the velocity changes much within a frame interval
+            angles += np.stack([0.02 * np.sin(2 * np.pi * 3.0 * t + 1.0), 0.03 * np.sin(2 * np.pi * 2.7 * t),
+                                zero], -1)
         centres = np.stack([0.4 * t, 0.03 * np.sin(2 * np.pi * 1.3 * t), 0.2 * t], -1)
     elif motion == "sideways":  # a dolly along the set at 1 m/s, no turn
         angles, centres = np.stack([zero] * 3, -1), np.stack([1.0 * t, zero, zero], -1)

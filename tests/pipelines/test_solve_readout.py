@@ -67,7 +67,12 @@ def test_a_rendered_rolling_shutter_plate_solves_to_its_readout(tmp_path):
     record = result.rig.provenance["rolling_shutter"]["estimate"]["plate"]
     print(record, *result.sfm.notes, sep="\n")
     assert record["determined"]
-    # within 1 ms (3 %): measured 29.23 +- 0.06 ms, the sigma counting the noise only; the model's error (velocities
-    # from central differences, the solve's poses) dominates on 20000 observations
+    # within 1 ms (3 %): measured 29.25 ms, 2.5 % low. Not the model: the same tracks imaged exactly through the
+    # renderer's bands, lens and motion give 29.96 ms. The features' positions carry 2.4 % less of the shutter's shear
+    # than the renderer put in (in the part that fixes the readout, most in the fast-panning frames), about half of
+    # it from the renderer's 8-row bands (a pose per row: 29.57 ms from the true poses): an error every frame shares
+    # alike, which the sigma (0.13 ms) does not cover
     assert abs(record["readout_ms"] - READOUT_S * 1000) < 1.0
+    # the features' misfit is seen frame by frame: the block jackknife's sigma is twice the noise's (0.13, 0.06 ms)
+    assert record["jackknife_sigma_ms"] > 1.5 * record["noise_sigma_ms"]
     assert any(frame.rolling_shutter["plate"].flagged for frame in result.rig.frames)
