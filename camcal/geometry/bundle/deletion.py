@@ -419,18 +419,20 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
         # (I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2), E = D^(+1/2) X_k F. E E^T = X Q X^T with Q = S^+ on the
         # frame's columns: any R with R R^T = Q gives E' = X R with E's left singular vectors and singular values
         # (the nonzero ones; zero ones add nothing below), so the (columns x columns) eigen-decomposition is of
-        # E'^T E' over the frame's columns alone. By its eigenvectors V (eigenvalues s^2), E''s left singular
-        # vectors are E' V / s: u = z + E' V diag(w) V^T E'^T z, w = 1 / (1 - s^2), or -1 / s^2 where 1 - s^2 is null
+        # E'^T E' = R^T (X^T X) R over the frame's columns alone. By its eigenvectors V (eigenvalues s^2), E''s left
+        # singular vectors are E' V / s: u = z + E' V diag(w) V^T E'^T z, w = 1 / (1 - s^2), or -1 / s^2 where
+        # 1 - s^2 is null; only X^T u is wanted, X^T z + (X^T X) R V diag(w) V^T R^T X^T z: one product X^T X over
+        # the frame's rows, the rest over its columns
         key = columns.tobytes()
         if key not in roots:  # frames of a closed set all touch every column: one root serves them
             roots = {key: _psd_root(S_plus[np.ix_(columns, columns)])}
-        E = X @ roots[key]
-        squares, V = np.linalg.eigh(E.T @ E)
+        XtX, Xtz = X.T @ X, X.T @ z
+        squares, V = np.linalg.eigh(roots[key].T @ XtX @ roots[key])
         gap = 1.0 - squares
         kept = gap > _LEVERAGE_NULL
         weight = np.where(kept, 1.0 / np.where(kept, gap, 1.0), -1.0 / np.where(kept, 1.0, squares))
-        u = z + E @ (V @ (weight * (V.T @ (E.T @ z))))
-        out.append(S_plus[:, columns] @ (X.T @ u))
+        RV = roots[key] @ V
+        out.append(S_plus[:, columns] @ (Xtz + XtX @ (RV @ (weight * (RV.T @ Xtz)))))
     return out
 
 
