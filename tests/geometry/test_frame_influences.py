@@ -110,5 +110,6 @@ def test_one_step_replicates_by_updated_sums_are_the_dense_normal_equations_solv
         reference = _dense_replicate(full.state, group)
         for replicate in (again, updated):
             for mine, peer, start in zip(replicate.params, reference.params, full.state.params):
-                assert np.allclose(mine - start, peer - start, rtol=1e-7, atol=1e-12 * np.abs(start).max()), (mine, peer)
+                moved, expected = mine - start, peer - start
+                assert np.allclose(moved, expected, rtol=1e-7, atol=1e-12 * np.abs(start).max()), (mine, peer)
             assert np.allclose(replicate.frame_t, reference.frame_t, rtol=0, atol=1e-9)
