@@ -204,9 +204,9 @@ class BundleOptions:
         Ceres' initial trust region radius. Levenberg-Marquardt damps each
         step by its inverse on the Jacobi-scaled normal equations and widens
         the radius about 3 times per successful step, so a direction the
-        data barely fix (``fx - fy`` on a critical motion: eigenvalues 1e-8
-        of the scaled system's) is approached over some 12 iterations from
-        Ceres' default 1e4, which suits a start far from the solution. A
+        data barely fix (``fx - fy`` on a critical motion) is approached
+        over 10-14 iterations from Ceres' default 1e4 (a rendered 60-frame
+        plate), which suits a start far from the solution. A
         start already near it (a solved model refined again) takes
         Gauss-Newton steps from the first iteration with a large radius
         (:data:`WARM_START_RADIUS`); a step that raises the cost is
