@@ -44,6 +44,7 @@ from camcal.base.errors import CamcalError
 from camcal.base.extras import require
 from camcal.base.native_log import native_output_to
 from camcal.geometry.bundle import (
+    WARM_START_RADIUS,
     BundleOptions,
     BundleResult,
     PriorSpec,
@@ -453,7 +454,9 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
             state_to_reconstruction(pre.state, reconstruction)
             _say(progress, reject_outliers(reconstruction))
             state = state_from_reconstruction(reconstruction, names)
-            bundle, calibration = self_calibrate(state, options, tuple(lens_models), principal_point, seed, progress,
+            # each of its refinements starts from the one above (the lens converted), near its solution
+            warm = dataclasses.replace(options, trust_region_radius=WARM_START_RADIUS)
+            bundle, calibration = self_calibrate(state, warm, tuple(lens_models), principal_point, seed, progress,
                                                  jackknife)
             for line in calibration.lines():
                 _say(progress, line)

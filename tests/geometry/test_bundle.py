@@ -10,6 +10,7 @@ import camcal.geometry.bundle.covariance as covariance_module
 import camcal.geometry.bundle.solve as solve_module
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import (
+    WARM_START_RADIUS,
     BoardObservations,
     BundleOptions,
     attach_board,
@@ -189,6 +190,8 @@ def test_bad_inputs():
     state = state_from_reconstruction(seed_model)
     with pytest.raises(CamcalError, match="unknown loss"):
         BundleOptions(loss="tukey")
+    with pytest.raises(CamcalError, match="trust region radius must be positive"):
+        BundleOptions(trust_region_radius=0.0)
     with pytest.raises(CamcalError, match="NaN"):
         dataclasses.replace(state, obs_xy=np.full_like(state.obs_xy, np.nan))
     with pytest.raises(CamcalError, match="not among the solved cameras"):
@@ -389,3 +392,25 @@ def test_ceres_warnings_stay_out_of_the_output(monkeypatch):
     bundle_adjust(state_from_reconstruction(seed_model), BundleOptions(compute_sigmas=False))
     assert levels and all(level >= 2 for level in levels)
     assert pyceres.logging.minloglevel == before
+
+
+def test_a_warm_start_reaches_the_solution_in_fewer_iterations_with_a_wide_trust_region():
+    _, seed_model = synthetic(model="OPENCV", params=(500.0, 505.0, 321.0, 239.0, -0.05, 0.01, 1e-3, -1e-3), points=200)
+    options = BundleOptions(refine_principal_point=True, compute_sigmas=False)
+    solved = bundle_adjust(state_from_reconstruction(seed_model), options).state
+    # a solved model refined again from a little off its solution (as a lens model converted, or a prior added)
+    start = dataclasses.replace(solved, params=tuple(p * (1.0 + 1e-3 * np.arange(1, len(p) + 1) / len(p))
+                                                     for p in solved.params))
+    converged = bundle_adjust(start, dataclasses.replace(options, tolerance=0.0, max_iterations=500)).state
+    cold = bundle_adjust(start, options)
+    warm = bundle_adjust(start, dataclasses.replace(options, trust_region_radius=WARM_START_RADIUS))
+
+    def distance(state) -> float:
+        return max(float(np.abs(state.params[0] - converged.params[0]).max()),
+                   float(np.abs(state.frame_t - converged.frame_t).max()))
+
+    assert warm.n_iterations < cold.n_iterations
+    assert warm.final_cost <= cold.final_cost
+    # the default radius stops short along the weakly determined directions (k2, the principal point)
+    assert distance(warm.state) <= distance(cold.state)
+    assert distance(warm.state) < 1e-3

@@ -1,6 +1,8 @@
 """Each frame's influence on a bundle adjustment (the projection sigma's design effect), against the one-step
 replicates and constructed contributions."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.sparse
@@ -65,9 +67,32 @@ def test_shrunk_design_effect_on_constructed_contributions():
     assert shrunk_design_effect(model, c) == pytest.approx((delta * model + (1 - delta) * c.sum()) / model)
 
 
-def test_one_step_replicates_by_updated_sums_are_those_summed_again(monkeypatch):
-    # a group's reduced system is the full one with the terms of the points it touches taken out and put back
-    # without it (a few frames' worth on a long plate): the same replicates as the kept rows summed again
+def _dense_replicate(state, group):
+    """The one-step replicate without ``group`` from the dense normal equations of the rows kept (points
+    included, nothing eliminated): the reference the reduced systems are checked against."""
+    systems = []
+    bundle_adjust(state, dataclasses.replace(OPTIONS, max_iterations=0, compute_sigmas=False),
+                  inspect=lambda problem, colmap: systems.append(deletion._system(state, OPTIONS, colmap, problem)))
+    system = systems[0]
+    rows = len(system.r)
+    point_columns = np.zeros((rows, 3 * system.n_points))
+    seen = np.flatnonzero(system.row_point >= 0)
+    point_columns[seen[:, None], 3 * system.row_point[seen, None] + np.arange(3)] = system.point_rows[seen]
+    J = np.hstack([system.J_c.toarray(), point_columns])
+    deleted = np.isin(system.row_frame, group)
+    counts = np.bincount(system.row_point[~deleted & (system.row_point >= 0)], minlength=system.n_points) // 2
+    kept = ~deleted & ((system.row_point < 0) | (counts[np.maximum(system.row_point, 0)] >= 2))
+    columns = np.flatnonzero(np.any(J[kept] != 0, axis=0))  # the deleted frames' poses and dropped points go
+    step = np.zeros(J.shape[1])
+    step[columns] = -np.linalg.solve(J[np.ix_(kept, columns)].T @ J[np.ix_(kept, columns)],
+                                     J[np.ix_(kept, columns)].T @ system.r[kept])
+    return deletion._apply(state, system.blocks, step[:system.J_c.shape[1]])
+
+
+def test_one_step_replicates_by_updated_sums_are_the_dense_normal_equations_solved(monkeypatch):
+    # a group's reduced system is the full one less the sums over the rows that go, its points' terms taken out
+    # and put back without it (a few frames' worth on a long plate) or summed again over every point: both the
+    # one Gauss-Newton step of the dense normal equations of the rows kept
     state = tracks_state(stereo_rig(), np.random.default_rng(5), n_frames=6, n_points=300)
     full = bundle_adjust(state, OPTIONS)
     groups = [np.array([0]), np.array([2, 3]), np.array([5])]  # frame 0 holds the gauge: the pseudo-inverse
@@ -81,3 +106,10 @@ def test_one_step_replicates_by_updated_sums_are_those_summed_again(monkeypatch)
         assert np.allclose(again.frame_t, updated.frame_t, rtol=0, atol=1e-10)
         assert np.allclose(again.frame_R, updated.frame_R, rtol=0, atol=1e-10)
         assert not np.array_equal(again.params[0], full.state.params[0])  # the group moved the solution
+    for group, again, updated in zip(groups[1:], runs[0.0][1:], runs[np.inf][1:]):  # the gauge held: one solution
+        reference = _dense_replicate(full.state, group)
+        for replicate in (again, updated):
+            for mine, peer, start in zip(replicate.params, reference.params, full.state.params):
+                moved, expected = mine - start, peer - start
+                assert np.allclose(moved, expected, rtol=1e-7, atol=1e-12 * np.abs(start).max()), (mine, peer)
+            assert np.allclose(replicate.frame_t, reference.frame_t, rtol=0, atol=1e-9)

@@ -29,6 +29,7 @@ from camcal.geometry.bundle.reconstruction import state_from_reconstruction, sta
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import (
     LOSSES,
+    WARM_START_RADIUS,
     BoardObservations,
     BundleOptions,
     BundleResult,
@@ -42,6 +43,7 @@ from camcal.geometry.bundle.state import (
 __all__ = [
     "LOSSES",
     "MIN_POINT_SINGULAR_RATIO",
+    "WARM_START_RADIUS",
     "BoardObservations",
     "BundleOptions",
     "BundleResult",

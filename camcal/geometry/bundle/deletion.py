@@ -79,9 +79,9 @@ __all__ = ["DeletionUnsupported", "FrameInfluences", "frame_influences", "one_st
 _NULL_RATIO = 1e-11
 #: a point's 3x3 block with ``lambda_min`` below this share of ``lambda_max`` is left free along that direction.
 _POINT_NULL_RATIO = 1e-10
-#: a replicate's reduced system is the full one with the terms of the points the group touches taken out and put
-#: back without it when their rows are fewer than this share of the rows kept (two sums over them against one over
-#: every kept row); else it is summed again over the kept rows.
+#: a replicate's points' Schur terms are the full ones with those of the points the group touches taken out and put
+#: back without it when they are fewer than this share of the points (two sums over them against one over every
+#: point); else they are summed again over every point.
 _UPDATE_BELOW = 0.5
 #: a leverage (a hat matrix eigenvalue) within this of 1: the cluster's residuals are zero along it.
 _LEVERAGE_NULL = 1e-8
@@ -282,18 +282,28 @@ def _system(state: BundleState, options: BundleOptions, colmap, problem) -> _Sys
     return _System(blocks, J[:, :n_c].tocsr(), point_rows, r, row_frame, row_point, n_points, gauge)
 
 
-def _point_elimination(system: _System, kept: NDArray[np.bool_], with_gain: bool = False):
-    """The points' 3x3 inverses ``V^+``, ``G = V^+ W`` (``with_gain``, else None) and the reduced system ``S``,
-    ``b`` over the rows ``kept`` (Schur complement of the points, Triggs et al. 2000, section 6.1).
+@dataclasses.dataclass
+class _Sums:
+    """The normal equations over some rows before the points are eliminated: ``A^T A`` and ``A^T r`` on the
+    camera / rig / frame columns, each point's 3x3 block ``V = P^T P`` and ``P^T r``, and ``H_pc`` (each
+    point's 3 rows of ``P^T A``, sparse)."""
 
-    With ``G``, ``S = A^T A - W^T G`` as a sparse product (:func:`_influences` depends on its rounding: its
-    leverages near 1 are inverted). Without it (the jackknife's replicates, one reduced system each), the
-    points' terms by dense products (:func:`camcal.geometry.bundle.covariance.point_schur_terms`).
-    """
+    AtA: NDArray[np.float64]
+    Atr: NDArray[np.float64]
+    H_pp: NDArray[np.float64]
+    b_p: NDArray[np.float64]
+    H_pc: object  # scipy.sparse.csr_matrix, 3 n_points x columns
+
+    def __sub__(self, other: _Sums) -> _Sums:
+        return _Sums(self.AtA - other.AtA, self.Atr - other.Atr, self.H_pp - other.H_pp, self.b_p - other.b_p,
+                     (self.H_pc - other.H_pc).tocsr())
+
+
+def _sums(system: _System, rows: NDArray[np.int64]) -> _Sums:
+    """:class:`_Sums` over the rows ``rows`` of the system."""
     import scipy.sparse  # noqa: PLC0415
 
     n_points = system.n_points
-    rows = np.flatnonzero(kept)
     A, rk, P, pk = system.J_c[rows], system.r[rows], system.point_rows[rows], system.row_point[rows]
     seen = pk >= 0
     H_pp = np.zeros((n_points, 3, 3))
@@ -302,59 +312,88 @@ def _point_elimination(system: _System, kept: NDArray[np.bool_], with_gain: bool
         b_p[:, i] = np.bincount(pk[seen], P[seen, i] * rk[seen], minlength=n_points)
         for j in range(i, 3):
             H_pp[:, i, j] = H_pp[:, j, i] = np.bincount(pk[seen], P[seen, i] * P[seen, j], minlength=n_points)
-    values, vectors = np.linalg.eigh(H_pp)
-    used = values > _POINT_NULL_RATIO * np.maximum(values[:, 2:], 1e-300)
-    inverse_values = np.where(used, 1.0 / np.where(values > 0, values, 1.0), 0.0)
-    H_inv = np.einsum("pij,pj,pkj->pik", vectors, inverse_values, vectors)
-    root = vectors * np.sqrt(inverse_values)[:, None, :]  # V^+ = R R^T
     # H_pc: each row's point block (3 entries) times its camera row, summed per point
     rows_of = np.flatnonzero(seen)
     W = scipy.sparse.csr_matrix((P[rows_of].ravel(), (np.repeat(3 * pk[rows_of], 3) + np.tile(np.arange(3), len(rows_of)),
                                                       np.repeat(rows_of, 3))), shape=(3 * n_points, len(rows)))
-    H_pc = (W @ A).tocsr()
-    S = (A.T @ A).toarray()
-    b = A.T @ rk
-    G = None
-    if n_points and with_gain:
+    return _Sums((A.T @ A).toarray(), A.T @ rk, H_pp, b_p, (W @ A).tocsr())
+
+
+def _point_inverses(H_pp: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Each point's ``V^+`` and ``R`` with ``R R^T = V^+`` (eigenvalues below :data:`_POINT_NULL_RATIO` of its
+    largest are null: a point left free along that direction, or not seen at all)."""
+    values, vectors = np.linalg.eigh(H_pp)
+    used = values > _POINT_NULL_RATIO * np.maximum(values[:, 2:], 1e-300)
+    inverse_values = np.where(used, 1.0 / np.where(values > 0, values, 1.0), 0.0)
+    return (np.einsum("pij,pj,pkj->pik", vectors, inverse_values, vectors),
+            vectors * np.sqrt(inverse_values)[:, None, :])
+
+
+def _point_terms(sums: _Sums, root: NDArray[np.float64], points: NDArray[np.int64] | None = None,
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The Schur terms ``H_cp V^+ H_pc``, ``H_cp V^+ b_p`` of the points ``points`` (all by default), by dense
+    products (:func:`camcal.geometry.bundle.covariance.point_schur_terms`)."""
+    if points is None:
+        return point_schur_terms(sums.H_pc, root, sums.b_p)
+    return point_schur_terms(sums.H_pc[(3 * points[:, None] + np.arange(3)).ravel()], root[points], sums.b_p[points])
+
+
+def _point_elimination(system: _System):
+    """The points' 3x3 inverses ``V^+``, ``G = V^+ W`` and the reduced system ``S``, ``b`` over every row (Schur
+    complement of the points, Triggs et al. 2000, section 6.1), ``S = A^T A - W^T G`` as a sparse product
+    (:func:`_influences` depends on its rounding: its leverages near 1 are inverted)."""
+    import scipy.sparse  # noqa: PLC0415
+
+    n_points = system.n_points
+    sums = _sums(system, np.arange(len(system.r)))
+    H_inv, _ = _point_inverses(sums.H_pp)
+    S, b, G = sums.AtA, sums.Atr, None
+    if n_points:
         G = (scipy.sparse.bsr_matrix((H_inv, np.arange(n_points), np.arange(n_points + 1)),
-                                     shape=(3 * n_points, 3 * n_points)) @ H_pc).tocsr()
-        S -= (H_pc.T @ G).toarray()
-        b -= G.T @ b_p.ravel()
-    elif n_points:
-        terms, vector = point_schur_terms(H_pc, root, b_p)
-        S -= terms
-        b -= vector
+                                     shape=(3 * n_points, 3 * n_points)) @ sums.H_pc).tocsr()
+        S = S - (sums.H_pc.T @ G).toarray()
+        b = b - G.T @ sums.b_p.ravel()
     return H_inv, G, S, b
 
 
 def _steps(state: BundleState, options: BundleOptions, colmap, problem,
            groups: list[NDArray[np.int64]]) -> list[BundleState]:
-    """The one-step replicate of ``state`` without each group of frames (module docstring)."""
+    """The one-step replicate of ``state`` without each group of frames (module docstring).
+
+    Every sum over the rows kept is the full one less the sum over the rows that go (the group's, and those of
+    the points left with fewer than two observations): a few frames' worth, however long the plate. The points'
+    Schur terms are then summed again over the points the group touches (their 3x3 blocks changed), the full
+    ones of those points taken out, unless they are most of the points (a short plate, long tracks): then over
+    every point.
+    """
     system = _system(state, options, colmap, problem)
-    S_all = b_all = None
+    full = _sums(system, np.arange(len(system.r)))
+    _, full_root = _point_inverses(full.H_pp)
+    full_terms = None
     replicates = []
     for group in groups:
         deleted = np.isin(system.row_frame, group)
         counts = np.bincount(system.row_point[~deleted & (system.row_point >= 0)], minlength=system.n_points) // 2
         kept = ~deleted & ((system.row_point < 0) | (counts[np.maximum(system.row_point, 0)] >= 2))
-        # S and b are sums over the points (and the rows without one): only the terms of the points that lose a
-        # row, and of the rows without a point that go, change; those are taken out and put back without the
-        # group, over the rows of those points alone (a few frames' worth of a long plate, not all of it), unless
-        # they are most of the rows (a short plate, an orbit whose frames all see every point)
-        touched = np.isin(system.row_point, np.unique(system.row_point[~kept & (system.row_point >= 0)]))
-        if np.count_nonzero(touched) < _UPDATE_BELOW * np.count_nonzero(kept):
-            if S_all is None:
-                _, _, S_all, b_all = _point_elimination(system, np.ones(len(system.r), dtype=bool))
-            _, _, S_before, b_before = _point_elimination(system, touched | (~kept & (system.row_point < 0)))
-            _, _, S_after, b_after = _point_elimination(system, touched & kept)
-            S, b = S_all - S_before + S_after, b_all - b_before + b_after
-            # a frame left with no rows: its terms cancel to rounding (summed in other chunks), not to 0
-            rows_left = np.bincount(system.row_frame[kept & (system.row_frame >= 0)], minlength=len(state.frame_R))
-            for block in system.blocks:
-                if block.kind == "frame" and rows_left[block.index] == 0:
-                    S[block.columns, :] = S[:, block.columns] = b[block.columns] = 0.0
+        sums = full - _sums(system, np.flatnonzero(~kept))
+        # a point with no row left: its sums cancel to rounding, not to 0
+        sums.H_pp[counts < 2] = 0.0
+        sums.b_p[counts < 2] = 0.0
+        _, root = _point_inverses(sums.H_pp)
+        touched = np.unique(system.row_point[~kept & (system.row_point >= 0)])
+        if len(touched) < _UPDATE_BELOW * system.n_points:
+            if full_terms is None:
+                full_terms = _point_terms(full, full_root)
+            before, after = _point_terms(full, full_root, touched), _point_terms(sums, root, touched)
+            terms, vector = full_terms[0] - before[0] + after[0], full_terms[1] - before[1] + after[1]
         else:
-            _, _, S, b = _point_elimination(system, kept)
+            terms, vector = _point_terms(sums, root)
+        S, b = sums.AtA - terms, sums.Atr - vector
+        # a frame left with no rows: its terms cancel to rounding, not to 0
+        rows_left = np.bincount(system.row_frame[kept & (system.row_frame >= 0)], minlength=len(state.frame_R))
+        for block in system.blocks:
+            if block.kind == "frame" and rows_left[block.index] == 0:
+                S[block.columns, :] = S[:, block.columns] = b[block.columns] = 0.0
         delta_c = -_pseudo_solve(S, b, singular=bool(np.isin(group, system.gauge).any()))
         replicates.append(_apply(state, system.blocks, delta_c))
     return replicates
@@ -384,7 +423,7 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
     import scipy.sparse  # noqa: PLC0415
 
     n_rows, n_c = system.J_c.shape
-    H_inv, G, S, _ = _point_elimination(system, np.ones(n_rows, dtype=bool), with_gain=True)
+    H_inv, G, S, _ = _point_elimination(system)
     F = _inverse_factor(S)
     S_plus = F @ F.T
     P, pk = system.point_rows, system.row_point
@@ -419,18 +458,20 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
         # (I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2), E = D^(+1/2) X_k F. E E^T = X Q X^T with Q = S^+ on the
         # frame's columns: any R with R R^T = Q gives E' = X R with E's left singular vectors and singular values
         # (the nonzero ones; zero ones add nothing below), so the (columns x columns) eigen-decomposition is of
-        # E'^T E' over the frame's columns alone. By its eigenvectors V (eigenvalues s^2), E''s left singular
-        # vectors are E' V / s: u = z + E' V diag(w) V^T E'^T z, w = 1 / (1 - s^2), or -1 / s^2 where 1 - s^2 is null
+        # E'^T E' = R^T (X^T X) R over the frame's columns alone. By its eigenvectors V (eigenvalues s^2), E''s left
+        # singular vectors are E' V / s: u = z + E' V diag(w) V^T E'^T z, w = 1 / (1 - s^2), or -1 / s^2 where
+        # 1 - s^2 is null; only X^T u is wanted, X^T z + (X^T X) R V diag(w) V^T R^T X^T z: one product X^T X over
+        # the frame's rows, the rest over its columns
         key = columns.tobytes()
         if key not in roots:  # frames of a closed set all touch every column: one root serves them
             roots = {key: _psd_root(S_plus[np.ix_(columns, columns)])}
-        E = X @ roots[key]
-        squares, V = np.linalg.eigh(E.T @ E)
+        XtX, Xtz = X.T @ X, X.T @ z
+        squares, V = np.linalg.eigh(roots[key].T @ XtX @ roots[key])
         gap = 1.0 - squares
         kept = gap > _LEVERAGE_NULL
         weight = np.where(kept, 1.0 / np.where(kept, gap, 1.0), -1.0 / np.where(kept, 1.0, squares))
-        u = z + E @ (V @ (weight * (V.T @ (E.T @ z))))
-        out.append(S_plus[:, columns] @ (X.T @ u))
+        RV = roots[key] @ V
+        out.append(S_plus[:, columns] @ (Xtz + XtX @ (RV @ (weight * (RV.T @ Xtz)))))
     return out
 
 

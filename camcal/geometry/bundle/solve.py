@@ -246,6 +246,7 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
     solver.gradient_tolerance = 1e-12
     solver.parameter_tolerance = 1e-12
     solver.max_num_iterations = options.max_iterations
+    solver.initial_trust_region_radius = options.trust_region_radius
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in reconstruction.images:
         config.add_image(image_id)
