@@ -81,3 +81,25 @@ def test_one_step_replicates_by_updated_sums_are_those_summed_again(monkeypatch)
         assert np.allclose(again.frame_t, updated.frame_t, rtol=0, atol=1e-10)
         assert np.allclose(again.frame_R, updated.frame_R, rtol=0, atol=1e-10)
         assert not np.array_equal(again.params[0], full.state.params[0])  # the group moved the solution
+
+
+def test_leverage_correction_is_the_pseudo_inverse_of_one_minus_the_hat_matrix():
+    # X^T (I - X Q X^T)^+ z by its definition (a dense pseudo-inverse over the rows) against the form on the
+    # columns alone; the hat matrix has two leverages of exactly 1 (what only the frame fixes), a null direction
+    # of Q (the gauge) and leverages just inside the threshold
+    rng = np.random.default_rng(3)
+    n_rows, n_columns = 40, 12
+    left, _ = np.linalg.qr(rng.normal(size=(n_rows, n_columns)))
+    right, _ = np.linalg.qr(rng.normal(size=(n_columns, n_columns)))
+    singular = np.sqrt(np.r_[1.0, 1.0, 1.0 - 1e-6, rng.uniform(0.05, 0.95, n_columns - 3)])
+    X = left @ np.diag(singular) @ right.T  # E = X R with R = I: leverages singular^2
+    z = rng.normal(size=n_rows)
+    hat = X @ X.T
+    expected = X.T @ np.linalg.pinv(np.eye(n_rows) - hat, rcond=1e-9, hermitian=True) @ z
+    got = deletion._leverage_corrected(X, z, np.eye(n_columns))
+    assert np.allclose(got, expected, rtol=1e-8, atol=1e-8 * np.abs(expected).max())
+    # a root R with a null column (Q singular along a gauge direction): the same as X R R^T X^T spelled out
+    R = rng.normal(size=(n_columns, n_columns)) @ np.diag(np.r_[0.0, np.ones(n_columns - 1)])
+    R *= 0.9 / np.linalg.norm(X @ R, 2)  # every leverage below 1
+    expected = X.T @ np.linalg.solve(np.eye(n_rows) - X @ R @ R.T @ X.T, z)
+    assert np.allclose(deletion._leverage_corrected(X, z, R), expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
