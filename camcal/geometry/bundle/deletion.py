@@ -405,7 +405,7 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
         X_sparse = system.J_c[rows]
         if G_rows is not None:
             X_sparse = (X_sparse - G_rows[rows] @ G).tocsr()
-        columns = np.unique(X_sparse.indices)
+        columns = np.flatnonzero(np.bincount(X_sparse.indices, minlength=n_c))  # np.unique without its sort
         X, z = X_sparse[:, columns].toarray(), system.r[rows].copy()
         # D^(+1/2), D = I - P_k V^+ P_k^T: block diagonal, one block per point (its rows in this frame)
         for c in np.unique(counts):
