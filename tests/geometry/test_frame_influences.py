@@ -3,6 +3,7 @@ replicates and constructed contributions."""
 
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.sparse
 from test_selfcal import stereo_rig, tracks_state
 
@@ -83,7 +84,7 @@ def test_one_step_replicates_by_updated_sums_are_those_summed_again(monkeypatch)
         assert not np.array_equal(again.params[0], full.state.params[0])  # the group moved the solution
 
 
-def test_leverage_correction_is_the_pseudo_inverse_of_one_minus_the_hat_matrix():
+def test_leverage_correction_is_the_pseudo_inverse_of_one_minus_the_hat_matrix(monkeypatch):
     # X^T (I - X Q X^T)^+ z by its definition (a dense pseudo-inverse over the rows) against the form on the
     # columns alone; the hat matrix has two leverages of exactly 1 (what only the frame fixes), a null direction
     # of Q (the gauge) and leverages just inside the threshold
@@ -98,6 +99,11 @@ def test_leverage_correction_is_the_pseudo_inverse_of_one_minus_the_hat_matrix()
     expected = X.T @ np.linalg.pinv(np.eye(n_rows) - hat, rcond=1e-9, hermitian=True) @ z
     got = deletion._leverage_corrected(X, z, np.eye(n_columns))
     assert np.allclose(got, expected, rtol=1e-8, atol=1e-8 * np.abs(expected).max())
+    # where Cholesky refuses (a leverage at the threshold's rounding), every eigenpair gives the same
+    with monkeypatch.context() as patch:
+        patch.setattr(scipy.linalg, "cho_factor", lambda *args, **kwargs: (_ for _ in ()).throw(np.linalg.LinAlgError()))
+        fallback = deletion._leverage_corrected(X, z, np.eye(n_columns))
+    assert np.allclose(fallback, expected, rtol=1e-8, atol=1e-8 * np.abs(expected).max())
     # a root R with a null column (Q singular along a gauge direction): the same as X R R^T X^T spelled out
     R = rng.normal(size=(n_columns, n_columns)) @ np.diag(np.r_[0.0, np.ones(n_columns - 1)])
     R *= 0.9 / np.linalg.norm(X @ R, 2)  # every leverage below 1

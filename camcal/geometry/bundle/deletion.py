@@ -452,8 +452,14 @@ def _leverage_corrected(X: NDArray[np.float64], z: NDArray[np.float64], R: NDArr
     g = R.T @ y
     squares, N = scipy.linalg.eigh(K, subset_by_value=(1.0 - _LEVERAGE_NULL, np.inf), driver="evr")
     along = N.T @ g
-    factor = scipy.linalg.cho_factor(np.eye(len(K)) - K + N @ N.T, lower=True)
-    h = scipy.linalg.cho_solve(factor, g - N @ along) - N @ (along / squares)
+    try:
+        factor = scipy.linalg.cho_factor(np.eye(len(K)) - K + N @ N.T, lower=True)
+        h = scipy.linalg.cho_solve(factor, g - N @ along) - N @ (along / squares)
+    except np.linalg.LinAlgError:  # a leverage at the threshold's rounding: every eigenpair, as the weights say
+        squares, V = np.linalg.eigh(K)
+        gap = 1.0 - squares
+        kept = gap > _LEVERAGE_NULL
+        h = V @ (np.where(kept, 1.0 / np.where(kept, gap, 1.0), -1.0 / np.where(kept, 1.0, squares)) * (V.T @ g))
     return y + M @ (R @ h)
 
 
