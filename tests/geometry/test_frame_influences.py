@@ -5,6 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.sparse
 from test_selfcal import stereo_rig, tracks_state
 
@@ -113,3 +114,30 @@ def test_one_step_replicates_by_updated_sums_are_the_dense_normal_equations_solv
                 moved, expected = mine - start, peer - start
                 assert np.allclose(moved, expected, rtol=1e-7, atol=1e-12 * np.abs(start).max()), (mine, peer)
             assert np.allclose(replicate.frame_t, reference.frame_t, rtol=0, atol=1e-9)
+
+
+def test_leverage_correction_is_the_pseudo_inverse_of_one_minus_the_hat_matrix(monkeypatch):
+    # X^T (I - X Q X^T)^+ z by its definition (a dense pseudo-inverse over the rows) against the form on the
+    # columns alone; the hat matrix has two leverages of exactly 1 (what only the frame fixes), a null direction
+    # of Q (the gauge) and leverages just inside the threshold
+    rng = np.random.default_rng(3)
+    n_rows, n_columns = 40, 12
+    left, _ = np.linalg.qr(rng.normal(size=(n_rows, n_columns)))
+    right, _ = np.linalg.qr(rng.normal(size=(n_columns, n_columns)))
+    singular = np.sqrt(np.r_[1.0, 1.0, 1.0 - 1e-6, rng.uniform(0.05, 0.95, n_columns - 3)])
+    X = left @ np.diag(singular) @ right.T  # E = X R with R = I: leverages singular^2
+    z = rng.normal(size=n_rows)
+    hat = X @ X.T
+    expected = X.T @ np.linalg.pinv(np.eye(n_rows) - hat, rcond=1e-9, hermitian=True) @ z
+    got = deletion._leverage_corrected(X, z, np.eye(n_columns))
+    assert np.allclose(got, expected, rtol=1e-8, atol=1e-8 * np.abs(expected).max())
+    # where Cholesky refuses (a leverage at the threshold's rounding), every eigenpair gives the same
+    with monkeypatch.context() as patch:
+        patch.setattr(scipy.linalg, "cho_factor", lambda *args, **kwargs: (_ for _ in ()).throw(np.linalg.LinAlgError()))
+        fallback = deletion._leverage_corrected(X, z, np.eye(n_columns))
+    assert np.allclose(fallback, expected, rtol=1e-8, atol=1e-8 * np.abs(expected).max())
+    # a root R with a null column (Q singular along a gauge direction): the same as X R R^T X^T spelled out
+    R = rng.normal(size=(n_columns, n_columns)) @ np.diag(np.r_[0.0, np.ones(n_columns - 1)])
+    R *= 0.9 / np.linalg.norm(X @ R, 2)  # every leverage below 1
+    expected = X.T @ np.linalg.solve(np.eye(n_rows) - X @ R @ R.T @ X.T, z)
+    assert np.allclose(deletion._leverage_corrected(X, z, R), expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())

@@ -444,7 +444,7 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
         X_sparse = system.J_c[rows]
         if G_rows is not None:
             X_sparse = (X_sparse - G_rows[rows] @ G).tocsr()
-        columns = np.unique(X_sparse.indices)
+        columns = np.flatnonzero(np.bincount(X_sparse.indices, minlength=n_c))  # np.unique without its sort
         X, z = X_sparse[:, columns].toarray(), system.r[rows].copy()
         # D^(+1/2), D = I - P_k V^+ P_k^T: block diagonal, one block per point (its rows in this frame)
         for c in np.unique(counts):
@@ -465,14 +465,43 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
         key = columns.tobytes()
         if key not in roots:  # frames of a closed set all touch every column: one root serves them
             roots = {key: _psd_root(S_plus[np.ix_(columns, columns)])}
-        XtX, Xtz = X.T @ X, X.T @ z
-        squares, V = np.linalg.eigh(roots[key].T @ XtX @ roots[key])
+        out.append(S_plus[:, columns] @ _leverage_corrected(X, z, roots[key]))
+    return out
+
+
+def _leverage_corrected(X: NDArray[np.float64], z: NDArray[np.float64], R: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``X^T u``, ``u = z + E V diag(w) V^T E^T z`` of :func:`_influences` (``E = X R``), without ``E``.
+
+    With ``M = X^T X`` and ``y = X^T z``: ``E^T E = R^T M R``, ``E^T z = R^T y`` and ``X^T u = y + M R h``,
+    ``h = V diag(w) V^T R^T y``: one product over the frame's rows (``M``, where ``E`` and ``E^T E`` took two),
+    the rest on the frame's columns. ``h`` needs the eigenvectors of ``K = R^T M R`` only where ``1 - s^2`` is
+    null (``w = -1 / s^2``; a few: the frame's own pose): elsewhere ``V diag(1 / (1 - s^2)) V^T`` is the inverse
+    of ``I - K`` there, solved by Cholesky of ``I - K + N N^T`` (``N`` those few eigenvectors, which the added
+    term lifts to ``2 - s^2``). On a plate whose frames all share points (every column in every frame) this
+    replaces a full eigen-decomposition and two products over the frame's rows per frame, each growing with the
+    cube of the frame count (the eigenpairs of an interval alone: LAPACK's ``syevr``, Dhillon, I. S. & Parlett,
+    B. N. (2004). Multiple representations to compute orthogonal eigenvectors of symmetric tridiagonal matrices.
+    Linear Algebra and its Applications 387).
+    """
+    import scipy.linalg  # noqa: PLC0415
+
+    M = scipy.linalg.blas.dsyrk(1.0, X.T)  # upper triangle of X^T X (X.T: Fortran order, no copy)
+    M = np.triu(M) + np.triu(M, 1).T
+    y = X.T @ z
+    K = R.T @ M @ R
+    K = 0.5 * (K + K.T)
+    g = R.T @ y
+    squares, N = scipy.linalg.eigh(K, subset_by_value=(1.0 - _LEVERAGE_NULL, np.inf), driver="evr")
+    along = N.T @ g
+    try:
+        factor = scipy.linalg.cho_factor(np.eye(len(K)) - K + N @ N.T, lower=True)
+        h = scipy.linalg.cho_solve(factor, g - N @ along) - N @ (along / squares)
+    except np.linalg.LinAlgError:  # a leverage at the threshold's rounding: every eigenpair, as the weights say
+        squares, V = np.linalg.eigh(K)
         gap = 1.0 - squares
         kept = gap > _LEVERAGE_NULL
-        weight = np.where(kept, 1.0 / np.where(kept, gap, 1.0), -1.0 / np.where(kept, 1.0, squares))
-        RV = roots[key] @ V
-        out.append(S_plus[:, columns] @ (Xtz + XtX @ (RV @ (weight * (RV.T @ Xtz)))))
-    return out
+        h = V @ (np.where(kept, 1.0 / np.where(kept, gap, 1.0), -1.0 / np.where(kept, 1.0, squares)) * (V.T @ g))
+    return y + M @ (R @ h)
 
 
 def _psd_root(Q: NDArray[np.float64]) -> NDArray[np.float64]:
