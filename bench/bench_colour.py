@@ -75,7 +75,7 @@ from camcal.base.errors import CamcalError  # noqa: E402
 from camcal.colour.bake.samples import bake_model  # noqa: E402
 from camcal.colour.fit.characterise import characterise  # noqa: E402
 from camcal.colour.fit.evaluate import leave_one_out_predictions  # noqa: E402
-from camcal.colour.fit.select import _paired_se, fitter  # noqa: E402
+from camcal.colour.fit.select import fitter, paired_standard_error  # noqa: E402
 from camcal.colour.difference import DeltaEStats, delta_E  # noqa: E402
 from camcal.colour.chart.patches import PatchSet  # noqa: E402
 from camcal.colour.spectral.simulate import SimulatedCamera  # noqa: E402
@@ -198,7 +198,7 @@ def chart_resolution(out, train: PatchSet, test: PatchSet, white: np.ndarray) ->
                                                          shrinkage=c.shrinkage), train.RGB, train.XYZ, train.weights),
                         train.XYZ, white) for c in (pick, best)]
     difference = float(np.average(held_out[0] - held_out[1], weights=w))
-    se = _paired_se(held_out[0], held_out[1], w)
+    se = paired_standard_error(held_out[0], held_out[1], w)
     independent = float(out.result.stats_test.mean)
     return (f"chart resolution ({len(train)} patches held out one at a time): the paired standard error between "
             f"the {len(relative)} contenders (leave-one-out within {100 * (CONTENDERS - 1):.0f} % of the lowest) is "

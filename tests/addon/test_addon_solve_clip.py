@@ -142,8 +142,18 @@ def _wait_for(condition, timeout_s=20.0):
         time.sleep(0.02)
 
 
+@pytest.fixture
+def sigint_handled():
+    """SIGINT handled in this process while the test runs: a test run started in the background by a shell ignores
+    SIGINT, and so would the run the job starts (an ignored signal stays ignored across exec; a handled one is reset
+    to the default): the run then gets the disposition it has under an interactive Blender."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize("mode", ["hang", "stubborn"])
-def test_cancel_stops_camcal_and_leaves_nothing(addon, fake_camcal, tmp_path, monkeypatch, mode):
+def test_cancel_stops_camcal_and_leaves_nothing(addon, fake_camcal, tmp_path, monkeypatch, sigint_handled, mode):
     """hang cleans up on SIGINT as camcal does; stubborn ignores it: killed after the grace time, its staging
     folder removed by the job."""
     import importlib

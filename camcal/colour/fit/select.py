@@ -130,7 +130,8 @@ from camcal.colour.fit.evaluate import leave_one_out_predictions
 from camcal.colour.fit.fitting import fit_model
 from camcal.colour.fit.terms import ModelSpec, parse_model_spec
 
-__all__ = ["RIDGE_GRID", "N_REFINE", "SHRINKAGE_GRID", "Candidate", "Selection", "fitter", "select_model"]
+__all__ = ["RIDGE_GRID", "N_REFINE", "SHRINKAGE_GRID", "Candidate", "Selection", "fitter", "paired_standard_error",
+           "select_model"]
 
 RIDGE_GRID = (0.0, 1e-6, 1e-5, 1e-4, 1e-3)
 N_REFINE = 3
@@ -289,8 +290,12 @@ def _spectral_lambda(spec: ModelSpec, RGB, XYZ, white_XYZ, weights, validation, 
     return min(scores)[1]
 
 
-def _paired_se(errors: np.ndarray, best: np.ndarray, w: np.ndarray) -> float:
-    """Standard error of the weighted mean of the paired differences ``errors - best``."""
+def paired_standard_error(errors: np.ndarray, best: np.ndarray, w: np.ndarray) -> float:
+    """Standard error of the weighted mean of the paired differences ``d = errors - best``.
+
+    ``sqrt(sum w^2 (d - dbar)^2) / sum w``, ``dbar = sum w d / sum w``: how far two candidates' held-out means
+    on the same patches can be told apart.
+    """
     d = errors - best
     mean = float(np.sum(w * d) / np.sum(w))
     return float(np.sqrt(np.sum(w**2 * (d - mean) ** 2)) / np.sum(w))
@@ -464,7 +469,7 @@ def select_model(
         pool = [c for c in final if c.training == route]
         if pool:
             top = min(pool, key=lambda c: c.score)
-            scored.update({id(c): replace(c, score_se=_paired_se(errors[id(c)], errors[id(top)], ew(c)))
+            scored.update({id(c): replace(c, score_se=paired_standard_error(errors[id(c)], errors[id(top)], ew(c)))
                            for c in pool})
 
     def parsimonious(route: str) -> Candidate | None:
@@ -474,7 +479,8 @@ def select_model(
         # the margin is one standard error from the best candidate of all, refused ones included: once the
         # export check has refused the best, simplicity is not bought with more than that
         best = min((c for c in final if c.training == route), key=lambda c: c.score)
-        close = [c for c in pool if c.score <= best.score + _paired_se(errors[id(c)], errors[id(best)], ew(c))]
+        close = [c for c in pool
+                 if c.score <= best.score + paired_standard_error(errors[id(c)], errors[id(best)], ew(c))]
         if not close:
             return min(pool, key=lambda c: c.score)
         return min(close, key=lambda c: (c.n_params, c.score))
