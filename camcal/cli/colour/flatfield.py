@@ -27,7 +27,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                              "almost always display-encoded)")
     parser.add_argument("--smooth-degree", type=int, default=0, metavar="N",
                         help="degree 0 to 4 of a smooth non-radial term beside the radial falloff (default: "
-                             "%(default)s, radial only)")
+                             "%(default)s, radial only; 2 also holds a wide lens's natural falloff in the corners "
+                             "a card does not reach)")
     parser.add_argument("--fixed-centre", action="store_true",
                         help="keep the optical centre at the image centre (default: fitted)")
     out_option(parser, "FLAT.json", "the flat field to write (JSON: model, image size, coefficients, residual)")
