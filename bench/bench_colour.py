@@ -149,11 +149,12 @@ def candidate_scores(out, train: PatchSet, test: PatchSet, white: np.ndarray) ->
     return sorted(scored, key=lambda t: t[0])
 
 
-def selection_gap(out, train: PatchSet, test: PatchSet, white: np.ndarray,
-                  illuminant: str) -> tuple[float, float, str, float, str]:
+def selection_gap(out, train: PatchSet, test: PatchSet, white: np.ndarray, illuminant: str,
+                  scored: list[tuple] | None = None) -> tuple[float, float, str, float, str]:
     """Independent mean of ``auto``'s pick, of the best candidate it ranked (each refitted) and of the best
-    that exports (the exporters' bake check, as ``auto`` runs it), with their labels."""
-    scored = candidate_scores(out, train, test, white)
+    that exports (the exporters' bake check, as ``auto`` runs it), with their labels; ``scored``: the
+    :func:`candidate_scores` of ``out`` when already computed."""
+    scored = candidate_scores(out, train, test, white) if scored is None else scored
     for value, label, c, model in scored:  # the best that exports: bake checked as auto does, best first
         if c.exportable is None:
             try:
@@ -166,8 +167,9 @@ def selection_gap(out, train: PatchSet, test: PatchSet, white: np.ndarray,
     return float(out.result.stats_test.mean), scored[0][0], scored[0][1], value, label
 
 
-def chart_resolution(out, train: PatchSet, test: PatchSet, white: np.ndarray) -> str:
-    """What the chart's patches held out one at a time can tell apart, against the gap target.
+def chart_resolution(out, train: PatchSet, white: np.ndarray, scored: list[tuple]) -> str:
+    """What the chart's patches held out one at a time can tell apart, against the gap target (``scored``: the
+    :func:`candidate_scores` of ``out``).
 
     Two figures, both from the paired per-patch leave-one-out CIEDE2000 (the
     standard error ``auto``'s one-standard-error rule uses, ``score_se``):
@@ -192,7 +194,7 @@ def chart_resolution(out, train: PatchSet, test: PatchSet, white: np.ndarray) ->
     resolution = float(np.median(relative)) if relative else float("nan")
     probability = NormalDist().cdf((GAP_TARGET - 1) / resolution) if relative else float("nan")
     pick = out.selection.picked
-    value, _, best, _ = next(s for s in candidate_scores(out, train, test, white) if s[2].training == "chart")
+    value, _, best, _ = next(s for s in scored if s[2].training == "chart")
     w = np.ones(len(train)) if train.weights is None else np.asarray(train.weights, dtype=np.float64)
     held_out = [delta_E(leave_one_out_predictions(fitter(c.spec, c.objective, c.regularisation, white,
                                                          shrinkage=c.shrinkage), train.RGB, train.XYZ, train.weights),
@@ -221,9 +223,11 @@ def run_camcal(train: PatchSet, test: PatchSet, white: np.ndarray, illuminant: s
             label = f"camcal {out.result.model.label} ({out.fit.model.to_dict()['objective']})"
             if out.selection is not None:
                 label = f"camcal {model} -> {out.selection.picked.label}"
-                gaps.append((model, out.selection.picked.label, *selection_gap(out, train, test, white, illuminant)))
+                scored = candidate_scores(out, train, test, white)
+                gaps.append((model, out.selection.picked.label,
+                             *selection_gap(out, train, test, white, illuminant, scored)))
                 if model == "auto":
-                    gaps[-1] += (chart_resolution(out, train, test, white),)
+                    gaps[-1] += (chart_resolution(out, train, white, scored),)
             rows.append(row(label, r.delta_E_train, r.delta_E_test, seconds))
     return rows, gaps
 
