@@ -106,8 +106,8 @@ MAX_OBSERVATIONS = 20000
 #: points seen in fewer frames are left out: over a few neighbouring frames their depth is barely determined,
 #: which leaves the adjustment a long, curved valley to crawl along.
 MIN_TRACK = 5
-#: the delete-a-block jackknife leaves out one of this many contiguous blocks of frames at a time (at most one a
-#: frame): its variance then has about this many less one degrees of freedom.
+#: the infinitesimal jackknife over blocks (:func:`_block_jackknife_sigma`) splits the frames into this many
+#: contiguous blocks (at most one a frame): its variance then has about this many less one degrees of freedom.
 JACKKNIFE_BLOCKS = 10
 
 
@@ -123,7 +123,7 @@ class ReadoutEstimate:
     noise_sigma_s : float
         The standard deviation the observations' noise alone gives (the inverse Gauss-Newton matrix).
     jackknife_sigma_s : float
-        The delete-a-block jackknife's over contiguous blocks of frames: it also sees the model's misfit.
+        The infinitesimal jackknife's over contiguous blocks of frames: it also sees the model's misfit.
     determined : bool
         ``sigma_s`` at most :data:`DETERMINED_FRACTION` of the frame interval; otherwise ``readout_s`` means nothing.
     limit_s : float

@@ -460,8 +460,7 @@ def _influences(system: _System) -> list[NDArray[np.float64]]:
         # (the nonzero ones; zero ones add nothing below), so the (columns x columns) eigen-decomposition is of
         # E'^T E' = R^T (X^T X) R over the frame's columns alone. By its eigenvectors V (eigenvalues s^2), E''s left
         # singular vectors are E' V / s: u = z + E' V diag(w) V^T E'^T z, w = 1 / (1 - s^2), or -1 / s^2 where
-        # 1 - s^2 is null; only X^T u is wanted, X^T z + (X^T X) R V diag(w) V^T R^T X^T z: one product X^T X over
-        # the frame's rows, the rest over its columns
+        # 1 - s^2 is null; only X^T u is wanted (:func:`_leverage_corrected`)
         key = columns.tobytes()
         if key not in roots:  # frames of a closed set all touch every column: one root serves them
             roots = {key: _psd_root(S_plus[np.ix_(columns, columns)])}
