@@ -34,6 +34,11 @@ def addon():
     return package
 
 
+def compositor_tree(addon, scene):
+    """The scene's compositor node tree, through the add-on's own version switch (``addon/compositor.py``)."""
+    return importlib.import_module(f"{addon.__name__}.compositor").compositor_tree(scene)
+
+
 @pytest.fixture
 def bpy():
     """The bpy module, reset to an empty factory scene for each test."""

@@ -10,14 +10,13 @@ holds the position of the undistorted pixel Blender sampled for it; camcal's
 lens applied to that position must give the output pixel back.
 """
 
-import importlib
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
-from addon_helpers import camera_dict, write_rig
+from addon_helpers import camera_dict, compositor_tree, write_rig
 from addon_helpers import addon, bpy  # noqa: F401  (fixtures)
 from camcal.model.distortion import Distortion
 
@@ -108,7 +107,7 @@ def _sampled_positions(bpy, addon, dist_scene, node, size, margins, tmp_path):
     the render: for each output pixel, where Blender sampled, as a camcal pixel of the camera's frame (H, W, 2)."""
     (W, H), (mx, my) = size, margins
     Wo, Ho = W + 2 * mx, H + 2 * my
-    tree = importlib.import_module(f"{addon.__name__}.compositor").compositor_tree(dist_scene)
+    tree = compositor_tree(addon, dist_scene)
     for other in [n for n in tree.nodes if n.bl_idname in ("CompositorNodeRLayers", "CompositorNodeScale")]:
         tree.nodes.remove(other)
     ramp = tree.nodes.new("CompositorNodeImage")
@@ -140,7 +139,7 @@ def test_movie_distortion_in_blender_equals_camcal_within_0_01_px(bpy, addon, tm
     dist_scene = result.distorted_scenes["cam"]
     mx, my = bpy.data.scenes[f"{result.cameras['cam'].name} overscan"]["camcal_overscan_margins"]
     Wo, Ho = W + 2 * mx, H + 2 * my
-    tree = importlib.import_module(f"{addon.__name__}.compositor").compositor_tree(dist_scene)
+    tree = compositor_tree(addon, dist_scene)
     md = next(node for node in tree.nodes if node.bl_idname == "CompositorNodeMovieDistortion")
     assert md.clip.tracking.camera.distortion_model == model
     sampled = _sampled_positions(bpy, addon, dist_scene, md, size, (mx, my), tmp_path)
@@ -233,7 +232,7 @@ def test_map_uv_path_in_blender_equals_camcal_within_0_01_px(bpy, addon, tmp_pat
     result = addon.import_rig(scene, str(rig_path), aux_directory=str(tmp_path / "lens"), uv_maps=uv_maps)
     dist_scene = result.distorted_scenes["cam"]
     mx, my = addon.tracking.overscan_margins(size, 1.1)
-    tree = importlib.import_module(f"{addon.__name__}.compositor").compositor_tree(dist_scene)
+    tree = compositor_tree(addon, dist_scene)
     map_uv = next(node for node in tree.nodes if node.bl_idname == "CompositorNodeMapUV")
     assert not [n for n in tree.nodes if n.bl_idname == "CompositorNodeMovieDistortion"]
     sampled = _sampled_positions(bpy, addon, dist_scene, map_uv, size, (mx, my), tmp_path)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from addon_helpers import addon, blender_project, bpy, points_in_view  # noqa: F401  (fixtures)
+from addon_helpers import compositor_tree
 from camcal.model.camera import look_at
 from camcal.model.distortion import Distortion
 from camcal.model.rig import Camera, Frame, Lens, Rig
@@ -111,7 +112,7 @@ def test_the_overscan_render_camera_and_its_clip_follow_the_zoom(bpy, addon, tmp
     os_scene = bpy.data.scenes[f"{result.cameras['cam'].name} overscan"]
     mx, my = os_scene["camcal_overscan_margins"]
     size_os = (SIZE[0] + 2 * mx, SIZE[1] + 2 * my)
-    tree = importlib.import_module(f"{addon.__name__}.compositor").compositor_tree(dist_scene)
+    tree = compositor_tree(addon, dist_scene)
     os_clip = [n.clip for n in tree.nodes if n.bl_idname == "CompositorNodeMovieDistortion"][0]
     rng = np.random.default_rng(8)
     for frame in rig.frames:
