@@ -32,7 +32,8 @@ def register(parser: argparse.ArgumentParser) -> None:
                         help="output space of --colour (default: ACES2065-1; CIE XYZ is the fit's own XYZ)")
     only_with(parser, "--colour-space", "--colour", lambda args: args.colour is not None, default="ACES2065-1")
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="use a running Dask scheduler")
+    where.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                       help="use a running Dask scheduler (its workers must see the input and output folders)")
     where.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: one per core)")
     parser.add_argument("--resume", action="store_true", help="skip frames already complete and unchanged")
     parser.add_argument("--retries", type=int, default=2, metavar="N", help="retries of a failed frame (default: 2)")

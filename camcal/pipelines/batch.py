@@ -64,7 +64,7 @@ import threading
 import time
 import uuid
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -648,7 +648,10 @@ def _run(job: BatchJob, todo: list[int], written: list[FrameResult], failed: lis
         from distributed import as_completed
 
         n_workers = len(dask.scheduler_info(n_workers=-1)["workers"])
-        futures = dask.map(process_frame, todo, job=job, run=run, retries=retries, pure=False)
+        # absolute patterns: a farm's workers do not share the client's working directory
+        remote = replace(job, in_pattern=os.path.abspath(job.in_pattern),
+                         out_pattern=os.path.abspath(job.out_pattern))
+        futures = dask.map(process_frame, todo, job=remote, run=run, retries=retries, pure=False)
         frame_of = {future.key: frame for future, frame in zip(futures, todo)}
         for future in as_completed(futures):
             if future.status == "finished":

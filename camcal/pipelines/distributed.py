@@ -137,8 +137,12 @@ def run_tasks(client: Any, tasks: Mapping[Hashable, tuple[Callable[..., Any], tu
 
 
 def detect_frame_range(board: Board, path: str, start: int, stop: int | None, every: int,
-                       skip: frozenset[int] = frozenset()) -> tuple[list[tuple[int, Detection | None]], int]:
+                       skip: frozenset[int] = frozenset(),
+                       label: str | None = None) -> tuple[list[tuple[int, Detection | None]], int]:
     """One task: detect ``board`` in frames ``start <= k < stop`` (``k % every == 0``, not in ``skip``) of a video.
+
+    ``label`` names the detections (``LABEL#K``; default ``path``): the path as the user gave it, where ``path``
+    is the absolute one a farm's worker opens (it does not share the client's working directory).
 
     Returns
     -------
@@ -158,7 +162,7 @@ def detect_frame_range(board: Board, path: str, start: int, stop: int | None, ev
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # one thread per worker process: the processes are the parallelism
     try:
-        results = [(k, detect_board(board, image, video_frame_label(path, k)))
+        results = [(k, detect_board(board, image, video_frame_label(label or path, k)))
                    for k, image in iter_frames(path, every=every, wanted=wanted, start=start, stop=stop)]
     finally:
         cv2.setNumThreads(threads)
@@ -246,7 +250,8 @@ def detect_in_videos(
         from distributed import as_completed
 
         [shared_board] = dask.scatter([board], broadcast=True, hash=False)
-        futures = {dask.submit(detect_frame_range, shared_board, path, a, b, every, skip, pure=False): name
+        futures = {dask.submit(detect_frame_range, shared_board, os.path.abspath(path), a, b, every, skip, path,
+                               pure=False): name
                    for name, path, a, b, skip in tasks}
         if progress is not None:
             progress(0, total)

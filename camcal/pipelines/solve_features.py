@@ -276,7 +276,9 @@ def _run_tasks(todo: list[str], image_dir: Path, mask_dir: Path | None, extracti
                targets: dict[str, Path], seed: int, dask: DaskExtraction, labels: Mapping[str, object]) -> None:
     """Submit one :func:`extract_image` task per image of ``todo`` and wait for them all; a failure names its image."""
     with dask.connect() as client:
-        run_tasks(client, {name: (extract_image, (str(image_dir), name, None if mask_dir is None else str(mask_dir),
-                                                  extraction, keys[name], str(targets[name]), seed))
+        # absolute paths: a farm's workers do not share the client's working directory
+        run_tasks(client, {name: (extract_image, (os.path.abspath(image_dir), name,
+                                                  None if mask_dir is None else os.path.abspath(mask_dir),
+                                                  extraction, keys[name], os.path.abspath(targets[name]), seed))
                            for name in todo},
                   lambda name, what: f"feature extraction of {labels.get(name, name)}: {what}")

@@ -346,14 +346,14 @@ class PairMatcher:
         tasks, keys = {}, []
         for index, block in enumerate(blocks):
             names = sorted({name for pair in block for name in pair})
-            rows = [(images[name].image_id, name, images[name].camera_id, str(cache_file(dask.cache, name)),
+            rows = [(images[name].image_id, name, images[name].camera_id, os.path.abspath(cache_file(dask.cache, name)),
                      self.feature_keys[name]) for name in names]
             block_cameras = [(c.camera_id, c.model.name, c.width, c.height, [float(p) for p in c.params],
                               bool(c.has_prior_focal_length))
                              for c in (cameras[camera_id] for camera_id in sorted({row[2] for row in rows}))]
             keys.append(_block_key(pycolmap, block_cameras, rows, block, matching, verification))
             tasks[index] = (match_block, (block_cameras, rows, block, matching, verification, descriptor_type,
-                                          keys[index], str(targets[index])))
+                                          keys[index], os.path.abspath(targets[index])))
         remove_stale_temporaries(targets)  # what killed writers left
         todo = {index: task for index, task in tasks.items() if read_block(targets[index], keys[index]) is None}
         if self.progress is not None:

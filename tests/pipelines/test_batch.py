@@ -237,6 +237,23 @@ def test_two_worker_cluster_equals_single_process_bit_for_bit(tmp_path, client, 
         assert read_frame(job.output_path(FRAMES[0])).size == (172, 124)
 
 
+def test_relative_patterns_reach_workers_in_another_working_directory(tmp_path, client, monkeypatch):
+    """A farm's workers do not share the client's working directory: patterns relative to the client's still work.
+
+    This cluster's worker processes started in the directory pytest runs in; the client runs in ``tmp_path``."""
+    rig = _rig(tmp_path)
+    pattern = _sequence(tmp_path, "png16", FRAMES[:3])
+    monkeypatch.chdir(tmp_path)
+    assert {Path(w).resolve() for w in client.run(os.getcwd).values()} != {tmp_path.resolve()}
+    relative = str(Path(pattern).relative_to(tmp_path))
+    job = make_job(rig, "left", relative, "out/left.%04d.png", "undistort")
+    report = run_batch(job, FRAMES[:3], client=client, progress=False)
+    assert report.ok and [r.frame for r in report.written] == list(FRAMES[:3])
+    reference = _single_process(job, FRAMES[:3], tmp_path / "single")
+    for frame in FRAMES[:3]:
+        assert (tmp_path / job.output_path(frame)).read_bytes() == reference.output_path(frame).read_bytes()
+
+
 def test_corrupt_frame_is_reported_by_number_and_the_others_are_written(tmp_path, capsys):
     rig = _rig(tmp_path)
     pattern = _sequence(tmp_path, "exr", FRAMES[:6])

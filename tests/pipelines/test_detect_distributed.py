@@ -1,5 +1,6 @@
 """Board detection on Dask (frame ranges decoded in worker processes) against the in-process path, frame for frame."""
 
+import os
 import sys
 from pathlib import Path
 
@@ -68,6 +69,19 @@ def test_cache_is_shared_with_the_in_process_path(videos, client, tmp_path):
     same_reports(reports["cam0"], detect_in_video(board, copy, cache=tmp_path / "cache"))
     again = detect_in_videos(board, {"cam0": copy}, client=client, cache=tmp_path / "cache")  # no task
     same_reports(again["cam0"], reports["cam0"])
+
+
+def test_relative_video_paths_reach_workers_in_another_working_directory(videos, client, monkeypatch):
+    """A farm's workers do not share the client's working directory: a path relative to the client's still opens,
+    and the detections keep the name the user gave (the in-process path's)."""
+    board, paths = videos
+    folder = Path(paths["cam2"]).parent
+    monkeypatch.chdir(folder)
+    assert {Path(w).resolve() for w in client.run(os.getcwd).values()} != {folder.resolve()}
+    relative = Path(paths["cam2"]).name
+    reports = detect_in_videos(board, {"cam2": relative}, every=3, client=client, chunk_frames=8)
+    same_reports(reports["cam2"], detect_in_video(board, relative, every=3))
+    assert reports["cam2"].detections and all(d.image.startswith(relative + "#") for d in reports["cam2"].detections)
 
 
 def test_bad_input_is_one_error(videos, client, tmp_path):

@@ -6,7 +6,10 @@ run the same task function as a farm's); the slow test in
 """
 
 import json
+import logging
+import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -187,3 +190,21 @@ def test_a_solve_matched_on_dask_gives_the_in_process_rig_bit_for_bit(plate, sch
     assert (tmp_path / "dask" / "points.ply").read_bytes() == (tmp_path / "local" / "points.ply").read_bytes()
     assert sorted(p.name for p in (tmp_path / "dask").iterdir()) == sorted(
         p.name for p in (tmp_path / "local").iterdir())
+
+
+def test_a_farm_whose_workers_run_elsewhere_gets_paths_relative_to_the_client(plate, tmp_path, monkeypatch):
+    """A farm's workers do not share the client's working directory: a solve given relative paths (the plate, OUT)
+    extracts and matches on worker processes started in another directory, and gives the in-process rig."""
+    monkeypatch.setattr(solve_matching, "BLOCK_PAIRS", 4)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=logging.CRITICAL) as cluster, distributed.Client(cluster) as client:
+        monkeypatch.chdir(plate.parent)
+        assert Path(*client.run(os.getcwd).values()).resolve() != plate.parent.resolve()
+        for out, where in ((tmp_path / "local", None), (Path("farm"), cluster.scheduler_address)):
+            solve_sfm({"left": Path(plate.name)}, out, matcher="sequential", max_num_features=512, refine=False,
+                      scheduler=where)
+    ours, theirs = ({key: value for key, value in _numbers(json.loads((out / "solve.rig.json").read_text()))
+                     if ".images." not in key}  # the frames' image paths, relative to each rig's folder
+                    for out in (plate.parent / "farm", tmp_path / "local"))
+    assert ours == theirs and len(ours) > 6 * N_FRAMES
+    shutil.rmtree(plate.parent / "farm")
