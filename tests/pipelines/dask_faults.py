@@ -5,6 +5,7 @@ The plugin truncates the temporary file of the first write of a chosen output to
 a marker file and waits there, the way a process killed mid-write leaves it; the retry writes normally.
 """
 
+import contextlib
 import importlib
 import os
 import subprocess
@@ -82,3 +83,18 @@ def drain(dask) -> None:
 def temporaries(folder: Path) -> list[str]:
     """camcal's temporary files below ``folder``, relative to it."""
     return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if TEMPORARY_TAG in p.name)
+
+
+@contextlib.contextmanager
+def workers_elsewhere(client, folder: Path):
+    """The cluster's workers in ``folder`` for the block (as a farm's: they do not share the client's working
+    directory), then back where they were; the block must leave ``folder`` empty."""
+    folder.mkdir(parents=True, exist_ok=True)
+    before = client.run(os.getcwd)
+    client.run(os.chdir, str(folder))
+    try:
+        yield
+    finally:
+        for worker, cwd in before.items():
+            client.run(os.chdir, cwd, workers=[worker])
+    assert not list(folder.iterdir()), "a worker wrote into its own working directory"

@@ -1,6 +1,5 @@
 """Board detection on Dask (frame ranges decoded in worker processes) against the in-process path, frame for frame."""
 
-import os
 import sys
 from pathlib import Path
 
@@ -14,6 +13,7 @@ from camcal.pipelines.distributed import dask_client, detect_in_videos
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "geometry"))
 from capture_volume import make_volume, write_videos  # noqa: E402
+from dask_faults import workers_elsewhere  # noqa: E402
 
 SPEC = "charuco:DICT_4X4_1000:4x5:0.054:0.0405:inverted:two-sided"
 
@@ -71,15 +71,14 @@ def test_cache_is_shared_with_the_in_process_path(videos, client, tmp_path):
     same_reports(again["cam0"], reports["cam0"])
 
 
-def test_relative_video_paths_reach_workers_in_another_working_directory(videos, client, monkeypatch):
+def test_relative_video_paths_reach_workers_in_another_working_directory(videos, client, monkeypatch, tmp_path):
     """A farm's workers do not share the client's working directory: a path relative to the client's still opens,
     and the detections keep the name the user gave (the in-process path's)."""
     board, paths = videos
-    folder = Path(paths["cam2"]).parent
-    monkeypatch.chdir(folder)
-    assert {Path(w).resolve() for w in client.run(os.getcwd).values()} != {folder.resolve()}
+    monkeypatch.chdir(Path(paths["cam2"]).parent)
     relative = Path(paths["cam2"]).name
-    reports = detect_in_videos(board, {"cam2": relative}, every=3, client=client, chunk_frames=8)
+    with workers_elsewhere(client, tmp_path / "worker"):
+        reports = detect_in_videos(board, {"cam2": relative}, every=3, client=client, chunk_frames=8)
     same_reports(reports["cam2"], detect_in_video(board, relative, every=3))
     assert reports["cam2"].detections and all(d.image.startswith(relative + "#") for d in reports["cam2"].detections)
 

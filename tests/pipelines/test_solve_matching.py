@@ -22,6 +22,7 @@ from camcal.pipelines.solve_features import FEATURE_CACHE, DaskExtraction, extra
 from camcal.pipelines.solve_matching import PairMatcher, block_file, matcher_pairs
 from camcal.synthetic import render_stereo_sequence
 from test_solve import _numbers
+from dask_faults import workers_elsewhere
 from test_solve_features import leave_a_killed_runs_files
 from test_solve_features import scheduler  # noqa: F401 - the fixture: a Dask cluster of 2 threads in this process
 
@@ -194,17 +195,15 @@ def test_a_solve_matched_on_dask_gives_the_in_process_rig_bit_for_bit(plate, sch
 
 def test_a_farm_whose_workers_run_elsewhere_gets_paths_relative_to_the_client(plate, tmp_path, monkeypatch):
     """A farm's workers do not share the client's working directory: a solve given relative paths (the plate, OUT)
-    extracts and matches on worker processes started in another directory, and gives the in-process rig."""
+    extracts and matches on a worker process in another directory, and gives the in-process rig."""
     monkeypatch.setattr(solve_matching, "BLOCK_PAIRS", 4)
+    monkeypatch.chdir(plate.parent)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
                                   silence_logs=logging.CRITICAL) as cluster, distributed.Client(cluster) as client:
-        monkeypatch.chdir(plate.parent)
-        assert Path(*client.run(os.getcwd).values()).resolve() != plate.parent.resolve()
-        for out, where in ((tmp_path / "local", None), (Path("farm"), cluster.scheduler_address)):
-            solve_sfm({"left": Path(plate.name)}, out, matcher="sequential", max_num_features=512, refine=False,
-                      scheduler=where)
-    ours, theirs = ({key: value for key, value in _numbers(json.loads((out / "solve.rig.json").read_text()))
-                     if ".images." not in key}  # the frames' image paths, relative to each rig's folder
-                    for out in (plate.parent / "farm", tmp_path / "local"))
+        for out, where in ((tmp_path / "local", None), (tmp_path / "farm", cluster.scheduler_address)):
+            with workers_elsewhere(client, tmp_path / "worker"):
+                solve_sfm({"left": Path(plate.name)}, Path(os.path.relpath(out)), matcher="sequential",
+                          max_num_features=512, refine=False, scheduler=where)
+    ours, theirs = ({key: value for key, value in _numbers(json.loads((out / "solve.rig.json").read_text()))}
+                    for out in (tmp_path / "farm", tmp_path / "local"))
     assert ours == theirs and len(ours) > 6 * N_FRAMES
-    shutil.rmtree(plate.parent / "farm")
