@@ -11,11 +11,13 @@ moves with the intrinsics.
 
 The two forms differ where the rows kept leave directions free: the group's own frame poses (only its rows
 see them) and the gauge, when the group held it. ``I - H_gg`` is singular there and its Moore-Penrose inverse
-(Pustejovsky & Tipton 2018) picks the move ``delta`` with ``n^T S delta = 0`` for every free direction ``n``
-(``S``: the reduced system of every row, points eliminated): with ``u = (I - H_gg)^+ z`` orthogonal to ``X n``,
-``X`` the group's rows, and ``S - S_(g) = X^T X``, ``S_(g) n = 0``. That is the step of the reduced system
-without the group plus the free directions' share that minimises ``delta^T S delta``: the group's frames
-resected against the moved solution, the gauge held as the whole problem holds it (:func:`frame_influences`).
+(Pustejovsky & Tipton 2018), taken with the points eliminated (``X``: the group's rows of the reduced system,
+``z`` its residuals, so that ``S - S_(g) = X^T X`` with ``S`` the reduced system of every row and ``S_(g)``
+that of the rows kept), picks the move ``delta`` with ``n^T S delta = 0`` for every free direction ``n``
+(``S_(g) n = 0``): ``u = (I - H_gg)^+ z`` is orthogonal to the null space's ``X n``, and ``n^T X^T u = n^T S
+delta``. That is the step of the reduced system without the group plus the free directions' share that
+minimises ``delta^T S delta``: the group's frames resected against the moved solution, the gauge held as the
+whole problem holds it (:func:`frame_influences`).
 So each group costs the one-step replicate's sums over its rows and one Cholesky factorisation of the reduced
 system (``(6 F + 5)^3 / 3`` flops for ``F`` frames) plus a solve over a few free directions; the Woodbury form
 costs an eigen-decomposition over every column the group's points touch, and a group's rows times their
