@@ -69,8 +69,8 @@ from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
 from camcal.geometry.bundle.deletion import DeletionUnsupported, one_step_replicates
 
-__all__ = ["MAX_GROUPS", "METHODS", "MIN_FRAMES", "FrameJackknife", "frame_jackknife", "interval_factor",
-           "without_frames"]
+__all__ = ["MAX_GROUPS", "METHODS", "MIN_FRAMES", "FrameJackknife", "frame_groups", "frame_jackknife",
+           "interval_factor", "without_frames"]
 
 #: fewer frames give a variance estimate with too few degrees of freedom to print.
 MIN_FRAMES = 5
@@ -118,6 +118,13 @@ class FrameJackknife:
 def interval_factor(n_groups: int) -> float:
     """``t_(n-1, 0.975) / z_0.975``: Tukey's t interval over the normal one for a jackknife over ``n`` groups."""
     return float(t.ppf(0.975, n_groups - 1) / norm.ppf(0.975))
+
+
+def frame_groups(state: BundleState, max_groups: int = MAX_GROUPS) -> list[NDArray[np.int64]]:
+    """The frames with observations in at most ``max_groups`` groups of consecutive frames (one frame each when
+    there are fewer), the groups the jackknife leaves out in turn."""
+    frames = np.unique(state.obs_frame)
+    return np.array_split(frames, min(len(frames), max_groups))
 
 
 def without_frames(state: BundleState, frames: NDArray[np.int64]) -> BundleState:
@@ -202,7 +209,7 @@ def frame_jackknife(result: BundleResult, options: BundleOptions,
     intrinsics = {f"{state.camera_names[k]}.{name}": (k, i) for k in range(len(state.camera_names))
                   for i, name in enumerate(state.param_names(k))}
     values: dict[str, list[NDArray[np.float64]]] = {key: [] for key in intrinsics}
-    groups = np.array_split(frames, min(len(frames), max_groups))
+    groups = frame_groups(state, max_groups)
     steps = None
     if method == "step":
         try:

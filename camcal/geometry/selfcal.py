@@ -37,10 +37,11 @@ import numpy as np
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
-from camcal.geometry.bundle.deletion import DeletionUnsupported, FrameInfluences, frame_influences
+from camcal.geometry.bundle.deletion import DeletionUnsupported
+from camcal.geometry.bundle.influences import FrameInfluences, frame_influences
 from camcal.geometry.bundle.prior import (ASPECT_PRIOR, PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, PriorSpec,
                                          mean_focal, undetermined)
-from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife, without_frames
+from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_groups, frame_jackknife, without_frames
 from camcal.geometry.selfcal_aspect import (ASPECT_HELD, FEATURE_BIAS_PX, SQUARE_PIXELS_HELD, aspect_visibility,
                                             spread_with_aspect_free)
 from camcal.geometry.selfcal_models import (FIXED_PARAMS, LENS_MODELS, MAPPING_MODELS, MODELS, as_lens_model,
@@ -164,8 +165,8 @@ class SelfCalibration:
         Cameras whose aspect the motion does not determine: square pixels
         held, the prior's spread of fx - fy carried into the covariance (:func:`self_calibrate`).
     frame_influences : FrameInfluences or None
-        Each frame's influence on the final fit, scene gauge included
-        (:func:`camcal.geometry.bundle.deletion.frame_influences`): the
+        Each jackknife group's influence on the final fit, scene gauge included
+        (:func:`camcal.geometry.bundle.influences.frame_influences`): the
         projection sigma's design effect
         (:func:`camcal.geometry.uncertainty.shrunk_design_effect`); None when
         the jackknife was not run or the problem has no one-step form.
@@ -366,7 +367,7 @@ def self_calibrate(
         spread = frame_jackknife(final, loose_options, method=jackknife)
         jackknife_sigmas, groups = spread.widened_sigmas, spread.n_groups
         try:
-            influences = frame_influences(final.state, final_options)
+            influences = frame_influences(final.state, final_options, frame_groups(final.state))
         except DeletionUnsupported:
             influences = None
         # a singular covariance leaves keys only the jackknife has

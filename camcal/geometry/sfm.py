@@ -309,9 +309,10 @@ def _projection_quality(rig: Rig, camera: Camera, bundle: BundleResult, calibrat
 
     With the delete-one-frame jackknife the covariance is scaled by the design effect of the camera's projection
     (:func:`camcal.geometry.uncertainty.shrunk_design_effect`: the features' errors are correlated within a
-    frame), pooled over a grid of its frame: each frame's influence on the intrinsics, the rig pose and the
-    scene gauge together (:func:`camcal.geometry.bundle.deletion.frame_influences`) projected, so that a
-    principal point's move and the gauge's turn that cancel in the projection cancel in it too."""
+    frame and between neighbouring frames), pooled over a grid of its frame: each jackknife group's influence
+    (one frame, or contiguous frames on a plate) on the intrinsics, the rig pose and the scene gauge together
+    (:func:`camcal.geometry.bundle.influences.frame_influences`) projected, so that a principal point's move and
+    the gauge's turn that cancel in the projection cancel in it too."""
     state = bundle.state
     if not len(bundle.covariance_names) or camera.name not in state.camera_names:
         return {}

@@ -1,5 +1,5 @@
-"""Each frame's influence on a bundle adjustment (the projection sigma's design effect), against the one-step
-replicates and constructed contributions."""
+"""Each frame's (or group of frames') influence on a bundle adjustment (the projection sigma's design effect),
+against the one-step replicates, the dense normal equations and constructed contributions."""
 
 import dataclasses
 
@@ -10,8 +10,9 @@ import scipy.sparse
 from test_selfcal import stereo_rig, tracks_state
 
 from camcal.geometry.bundle import BundleOptions, bundle_adjust
-from camcal.geometry.bundle import deletion
-from camcal.geometry.bundle.deletion import frame_influences, one_step_replicates
+from camcal.geometry.bundle import deletion, influences
+from camcal.geometry.bundle.deletion import one_step_replicates
+from camcal.geometry.bundle.influences import frame_influences
 from camcal.geometry.uncertainty import shrunk_design_effect
 
 OPTIONS = BundleOptions(refine_principal_point=True)
@@ -73,7 +74,7 @@ def _dense_replicate(state, group):
     included, nothing eliminated): the reference the reduced systems are checked against."""
     systems = []
     bundle_adjust(state, dataclasses.replace(OPTIONS, max_iterations=0, compute_sigmas=False),
-                  inspect=lambda problem, colmap: systems.append(deletion._system(state, OPTIONS, colmap, problem)))
+                  inspect=lambda problem, colmap: systems.append(deletion.linearise(state, OPTIONS, colmap, problem)))
     system = systems[0]
     rows = len(system.r)
     point_columns = np.zeros((rows, 3 * system.n_points))
@@ -116,28 +117,43 @@ def test_one_step_replicates_by_updated_sums_are_the_dense_normal_equations_solv
             assert np.allclose(replicate.frame_t, reference.frame_t, rtol=0, atol=1e-9)
 
 
-def test_leverage_correction_is_the_pseudo_inverse_of_one_minus_the_hat_matrix(monkeypatch):
-    # X^T (I - X Q X^T)^+ z by its definition (a dense pseudo-inverse over the rows) against the form on the
-    # columns alone; the hat matrix has two leverages of exactly 1 (what only the frame fixes), a null direction
-    # of Q (the gauge) and leverages just inside the threshold
-    rng = np.random.default_rng(3)
-    n_rows, n_columns = 40, 12
-    left, _ = np.linalg.qr(rng.normal(size=(n_rows, n_columns)))
-    right, _ = np.linalg.qr(rng.normal(size=(n_columns, n_columns)))
-    singular = np.sqrt(np.r_[1.0, 1.0, 1.0 - 1e-6, rng.uniform(0.05, 0.95, n_columns - 3)])
-    X = left @ np.diag(singular) @ right.T  # E = X R with R = I: leverages singular^2
-    z = rng.normal(size=n_rows)
-    hat = X @ X.T
-    expected = X.T @ np.linalg.pinv(np.eye(n_rows) - hat, rcond=1e-9, hermitian=True) @ z
-    got = deletion._leverage_corrected(X, z, np.eye(n_columns))
-    assert np.allclose(got, expected, rtol=1e-8, atol=1e-8 * np.abs(expected).max())
-    # where Cholesky refuses (a leverage at the threshold's rounding), every eigenpair gives the same
-    with monkeypatch.context() as patch:
-        patch.setattr(scipy.linalg, "cho_factor", lambda *args, **kwargs: (_ for _ in ()).throw(np.linalg.LinAlgError()))
-        fallback = deletion._leverage_corrected(X, z, np.eye(n_columns))
-    assert np.allclose(fallback, expected, rtol=1e-8, atol=1e-8 * np.abs(expected).max())
-    # a root R with a null column (Q singular along a gauge direction): the same as X R R^T X^T spelled out
-    R = rng.normal(size=(n_columns, n_columns)) @ np.diag(np.r_[0.0, np.ones(n_columns - 1)])
-    R *= 0.9 / np.linalg.norm(X @ R, 2)  # every leverage below 1
-    expected = X.T @ np.linalg.solve(np.eye(n_rows) - X @ R @ R.T @ X.T, z)
-    assert np.allclose(deletion._leverage_corrected(X, z, R), expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+def test_group_influences_are_the_dense_delete_a_cluster_moves():
+    # each group's influence, from the dense normal equations (points included, nothing eliminated): the move the
+    # rows that go make, (J_kept^T J_kept)^+ J_gone^T r_gone, with what the rows kept leave free (the group's
+    # frame poses; the gauge where the group holds frame 0 or the scale) chosen as the Woodbury form's
+    # pseudo-inverse of I - H_gg chooses it: least energy delta_c^T S delta_c in the reduced system S of every
+    # row. Single frames, contiguous groups (a plate's clusters) and the groups that hold the gauge
+    state = tracks_state(stereo_rig(), np.random.default_rng(5), n_frames=8, n_points=250)
+    full = bundle_adjust(state, OPTIONS)
+    groups = [np.array([0]), np.array([1]), np.array([4]), np.array([0, 1, 2]), np.array([3, 4]), np.array([5, 6, 7])]
+    got = frame_influences(full.state, OPTIONS, groups)
+    found = []
+    bundle_adjust(full.state, dataclasses.replace(OPTIONS, max_iterations=0, compute_sigmas=False),
+                  inspect=lambda problem, colmap: found.append(deletion.linearise(full.state, OPTIONS, colmap, problem))
+                  or found.append(influences._parameter_rows(full.state, found[0], colmap)[1]))
+    system, B = found
+    n_c = system.J_c.shape[1]
+    point_columns = np.zeros((len(system.r), 3 * system.n_points))
+    seen = np.flatnonzero(system.row_point >= 0)
+    point_columns[seen[:, None], 3 * system.row_point[seen, None] + np.arange(3)] = system.point_rows[seen]
+    J = np.hstack([system.J_c.toarray(), point_columns])
+    H = J.T @ J
+    S = H[:n_c, :n_c] - H[:n_c, n_c:] @ np.linalg.solve(H[n_c:, n_c:], H[n_c:, :n_c])
+    for group, mine in zip(groups, got.values):
+        deleted = np.isin(system.row_frame, group)
+        counts = np.bincount(system.row_point[~deleted & (system.row_point >= 0)], minlength=system.n_points) // 2
+        kept = ~deleted & ((system.row_point < 0) | (counts[np.maximum(system.row_point, 0)] >= 2))
+        H_kept = J[kept].T @ J[kept]
+        scale = 1.0 / np.sqrt(np.where(np.diag(H_kept) > 0, np.diag(H_kept), 1.0))
+        values, vectors = np.linalg.eigh(H_kept * np.outer(scale, scale))
+        used = values > 1e-11 * values[-1]
+        step = scale * (vectors[:, used] @ ((vectors[:, used].T @ (scale * (J[~kept].T @ system.r[~kept]))) / values[used]))
+        free, spread, _ = np.linalg.svd((scale[:, None] * vectors[:, ~used])[:n_c], full_matrices=False)
+        free = free[:, spread > 1e-8 * spread.max()]  # a dropped point's own direction has no camera part
+        free /= np.sqrt(np.diag(free.T @ S @ free))  # free directions of unit energy: a well-conditioned solve
+        step = step[:n_c] - free @ np.linalg.solve(free.T @ S @ free, free.T @ S @ step[:n_c])
+        expected = B @ step
+        print(group, np.round(mine, 7), np.round(expected, 7))
+        assert np.allclose(mine, expected, rtol=0, atol=1e-5 * np.abs(expected).max()), group
+    # single frames are the default
+    assert np.array_equal(frame_influences(full.state, OPTIONS).values[[0, 1, 4]], got.values[:3])

@@ -11,7 +11,12 @@
 - :mod:`~camcal.geometry.bundle.covariance`: the marginal covariance of the
   intrinsics and rig poses (:func:`marginal_covariance`);
 - :mod:`~camcal.geometry.bundle.prior`: Gaussian priors on intrinsics
-  (:class:`PriorSpec`, :func:`parse_prior`, the sensor's defaults).
+  (:class:`PriorSpec`, :func:`parse_prior`, the sensor's defaults);
+- :mod:`~camcal.geometry.bundle.deletion`: the solution without groups of
+  frames by one Gauss-Newton step (the jackknife's replicates);
+- :mod:`~camcal.geometry.bundle.influences`: each group of frames'
+  influence on the intrinsics, rig poses and scene gauge (the projection
+  sigma's design effect).
 
 References
 ----------

@@ -24,34 +24,13 @@ any other gauge choice would. This is the one-step jackknife (Efron & Stein
 from the full refit by the curvature of the problem over one frame's
 influence, small where the jackknife itself is meaningful.
 
-The same deletion gives each frame's influence without a solve per frame
-(:func:`frame_influences`): by the Woodbury identity the step above is
-``H^-1 J_k^T (I - H_kk)^-1 r_k`` with ``H = J^T J`` of the whole problem
-and ``H_kk = J_k H^-1 J_k^T`` the frame's block of the hat matrix, the
-delete-one-cluster form of MacKinnon & White's (1985) jackknife
-covariance (Bell & McCaffrey 2002 call it CR3). It is taken over every
-free column, the frames' poses included, so that the scene gauge's turn
-(:func:`camcal.geometry.uncertainty.scene_gauge_rows`) moves with the
-intrinsics in each replicate. ``I - H_kk`` is singular along what only the
-frame fixes (its own pose, points it alone sees), where its residuals are
-zero: the Moore-Penrose inverse drops those directions (Pustejovsky &
-Tipton 2018). The points are eliminated from ``H_kk`` too: with ``D = I -
-P_k V^+ P_k^T`` (block diagonal, one block per point) and ``E =
-D^(+1/2) X_k F`` (``X_k`` the frame's rows with the points eliminated, ``F
-F^T = S^+``), ``(I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2)``, one eigen-decomposition
-per frame over the columns the frame touches (its intrinsics, rig and the frames that share its points:
-a few hundred on a long plate, whatever its length).
+The frames' influences on the projection sigma
+(:mod:`camcal.geometry.bundle.influences`) are the same steps with the
+directions the rows kept leave free chosen as the whole problem would
+(:meth:`FrameDeletion.step` returns a basis of them).
 
 References
 ----------
-MacKinnon, J. G. & White, H. (1985). Some heteroskedasticity-consistent
-covariance matrix estimators with improved finite sample properties.
-Journal of Econometrics 29.
-Bell, R. M. & McCaffrey, D. F. (2002). Bias reduction in standard errors
-for linear regression with multi-stage samples. Survey Methodology 28.
-Pustejovsky, J. E. & Tipton, E. (2018). Small-sample methods for
-cluster-robust variance estimation and hypothesis testing in fixed effects
-models. Journal of Business & Economic Statistics 36.
 Triggs, B., McLauchlan, P., Hartley, R. & Fitzgibbon, A. (2000). Bundle
 Adjustment - A Modern Synthesis. Vision Algorithms: Theory and Practice.
 Efron, B. & Stein, C. (1981). The jackknife estimate of variance. Annals
@@ -61,6 +40,7 @@ of Statistics 9.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,9 +51,8 @@ from camcal.base.extras import require
 from camcal.geometry.bundle.covariance import is_free_block, point_schur_terms
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import BundleOptions, BundleState, model_layout
-from camcal.geometry.uncertainty import scene_gauge_rows
 
-__all__ = ["DeletionUnsupported", "FrameInfluences", "frame_influences", "one_step_replicates"]
+__all__ = ["DeletionUnsupported", "FrameDeletion", "LinearisedBundle", "linearise", "one_step_replicates"]
 
 #: eigenvalues of the Jacobi-scaled reduced system below this share of the largest are its null space (the gauge).
 _NULL_RATIO = 1e-11
@@ -83,8 +62,6 @@ _POINT_NULL_RATIO = 1e-10
 #: back without it when they are fewer than this share of the points (two sums over them against one over every
 #: point); else they are summed again over every point.
 _UPDATE_BELOW = 0.5
-#: a leverage (a hat matrix eigenvalue) within this of 1: the cluster's residuals are zero along it.
-_LEVERAGE_NULL = 1e-8
 
 
 class DeletionUnsupported(CamcalError):
@@ -177,8 +154,10 @@ def _layout(state: BundleState, options: BundleOptions, colmap, problem) -> tupl
     return blocks, arrays, n_cameras
 
 
-def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64], singular: bool) -> NDArray[np.float64]:
-    """``S^+ b`` for a symmetric positive semi-definite ``S``: Cholesky unless ``singular`` or it fails, else eigen.
+def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64], singular: bool,
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``S^+ b`` for a symmetric positive semi-definite ``S`` and a basis of ``S``'s null space (columns):
+    Cholesky unless ``singular`` or it fails, else eigen.
 
     ``singular``: ``S`` is known to have a null space (the group held a gauge
     frame). Cholesky would not reliably refuse it: the Jacobi-scaled
@@ -186,15 +165,18 @@ def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64], singular: bool
     of any threshold, and where it passes the step gains a null-space
     component of ``b``'s rounding over that pivot, a different one per run
     (the baseline direction's jackknife sigma moved by 1e-4 relative when
-    the solution moved by 1e-11). The eigen-decomposition drops it.
+    the solution moved by 1e-11). The eigen-decomposition drops it. The
+    null space: the columns with nothing on the diagonal and the
+    eigenvectors dropped (Jacobi scaling undone).
     """
     import scipy.linalg  # noqa: PLC0415
 
     out = np.zeros_like(b)
     d = np.diag(S).copy()
     used = d > 0
+    null = np.eye(len(b))[:, ~used]
     if not np.any(used):
-        return out
+        return out, null
     scale = 1.0 / np.sqrt(d[used])
     scaled = S[np.ix_(used, used)] * np.outer(scale, scale)
     rhs = b[used] * scale
@@ -209,26 +191,51 @@ def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64], singular: bool
         values, vectors = np.linalg.eigh(scaled)
         keep = values > _NULL_RATIO * values[-1]
         x = vectors[:, keep] @ ((vectors[:, keep].T @ rhs) / values[keep])
+        dropped = np.zeros((len(b), int(np.sum(~keep))))
+        dropped[used] = scale[:, None] * vectors[:, ~keep]
+        null = np.hstack([null, dropped])
     out[used] = x * scale
-    return out
+    return out, null
 
 
 @dataclasses.dataclass
-class _System:
-    """The linearised problem at the solution: the Jacobian split into its camera / rig / frame columns and its
-    points' (3 per row), the residuals, and each row's frame and point (-1: none, e.g. a prior's row)."""
+class LinearisedBundle:
+    """A bundle adjustment linearised at its solution (Ceres' Jacobian and residuals, the loss applied).
+
+    Attributes
+    ----------
+    blocks : list
+        The free parameter blocks in column order (``kind``: camera, sensor, frame or point; ``index``: its
+        position in the state; ``columns``: its slice; ``free``: a camera's free COLMAP parameters, a frame's
+        free translation axes).
+    J_c : scipy.sparse.csr_matrix
+        The Jacobian's camera, rig and frame columns (rows x columns).
+    point_rows : ndarray, shape (rows, 3)
+        Each row's derivative by its point (zero where it has no free point).
+    r : ndarray
+        The residuals.
+    row_frame, row_point : ndarray of int
+        Each row's frame and point (-1: none, e.g. a prior's row).
+    n_points : int
+        Free points.
+    n_frames : int
+        Frames in the state.
+    gauge : list of int
+        Frame positions that hold the gauge (constant, or with a held translation axis).
+    """
 
     blocks: list[_Block]
-    J_c: object  # scipy.sparse.csr_matrix, rows x camera/rig/frame columns
-    point_rows: NDArray[np.float64]  # rows x 3: the row's derivative by its point
+    J_c: object
+    point_rows: NDArray[np.float64]
     r: NDArray[np.float64]
     row_frame: NDArray[np.int64]
     row_point: NDArray[np.int64]
     n_points: int
-    gauge: list[int]  # frame positions that hold the gauge (constant, or a held translation axis)
+    n_frames: int
+    gauge: list[int]
 
 
-def _system(state: BundleState, options: BundleOptions, colmap, problem) -> _System:
+def linearise(state: BundleState, options: BundleOptions, colmap, problem) -> LinearisedBundle:
     """The problem's Jacobian and residuals at ``state`` (Ceres' own, the loss applied), rows assigned to frames."""
     pyceres = require("pyceres")
     import scipy.sparse  # noqa: PLC0415
@@ -279,7 +286,8 @@ def _system(state: BundleState, options: BundleOptions, colmap, problem) -> _Sys
     # the gauge frames: held constant, or with a held translation axis; without one, S is singular
     gauge = [frame for frame in colmap.frame_ids if not any(block.kind == "frame" and block.index == frame
                                                              and len(block.free) == 3 for block in blocks)]
-    return _System(blocks, J[:, :n_c].tocsr(), point_rows, r, row_frame, row_point, n_points, gauge)
+    return LinearisedBundle(blocks, J[:, :n_c].tocsr(), point_rows, r, row_frame, row_point, n_points,
+                            len(state.frame_R), gauge)
 
 
 @dataclasses.dataclass
@@ -299,7 +307,7 @@ class _Sums:
                      (self.H_pc - other.H_pc).tocsr())
 
 
-def _sums(system: _System, rows: NDArray[np.int64]) -> _Sums:
+def _sums(system: LinearisedBundle, rows: NDArray[np.int64]) -> _Sums:
     """:class:`_Sums` over the rows ``rows`` of the system."""
     import scipy.sparse  # noqa: PLC0415
 
@@ -338,176 +346,72 @@ def _point_terms(sums: _Sums, root: NDArray[np.float64], points: NDArray[np.int6
     return point_schur_terms(sums.H_pc[(3 * points[:, None] + np.arange(3)).ravel()], root[points], sums.b_p[points])
 
 
-def _point_elimination(system: _System):
-    """The points' 3x3 inverses ``V^+``, ``G = V^+ W`` and the reduced system ``S``, ``b`` over every row (Schur
-    complement of the points, Triggs et al. 2000, section 6.1), ``S = A^T A - W^T G`` as a sparse product
-    (:func:`_influences` depends on its rounding: its leverages near 1 are inverted)."""
-    import scipy.sparse  # noqa: PLC0415
-
-    n_points = system.n_points
-    sums = _sums(system, np.arange(len(system.r)))
-    H_inv, _ = _point_inverses(sums.H_pp)
-    S, b, G = sums.AtA, sums.Atr, None
-    if n_points:
-        G = (scipy.sparse.bsr_matrix((H_inv, np.arange(n_points), np.arange(n_points + 1)),
-                                     shape=(3 * n_points, 3 * n_points)) @ sums.H_pc).tocsr()
-        S = S - (sums.H_pc.T @ G).toarray()
-        b = b - G.T @ sums.b_p.ravel()
-    return H_inv, G, S, b
-
-
-def _steps(state: BundleState, options: BundleOptions, colmap, problem,
-           groups: list[NDArray[np.int64]]) -> list[BundleState]:
-    """The one-step replicate of ``state`` without each group of frames (module docstring).
+class FrameDeletion:
+    """The one-step moves of a linearised bundle adjustment without groups of frames (module docstring).
 
     Every sum over the rows kept is the full one less the sum over the rows that go (the group's, and those of
     the points left with fewer than two observations): a few frames' worth, however long the plate. The points'
     Schur terms are then summed again over the points the group touches (their 3x3 blocks changed), the full
     ones of those points taken out, unless they are most of the points (a short plate, long tracks): then over
     every point.
+
+    Parameters
+    ----------
+    system : LinearisedBundle
+        The problem at its solution (:func:`linearise`).
     """
-    system = _system(state, options, colmap, problem)
-    full = _sums(system, np.arange(len(system.r)))
-    _, full_root = _point_inverses(full.H_pp)
-    full_terms = None
-    replicates = []
-    for group in groups:
+
+    def __init__(self, system: LinearisedBundle) -> None:
+        self.system = system
+        self._full = _sums(system, np.arange(len(system.r)))
+        self._full_root = _point_inverses(self._full.H_pp)[1]
+
+    @functools.cached_property
+    def _full_terms(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return _point_terms(self._full, self._full_root)
+
+    @functools.cached_property
+    def reduced(self) -> NDArray[np.float64]:
+        """``S``: the reduced system of every row on the camera, rig and frame columns (points eliminated)."""
+        return self._full.AtA - self._full_terms[0]
+
+    def step(self, group: NDArray[np.int64], group_gradient: bool = False,
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The move of the camera, rig and frame columns without the frames ``group`` and a basis (columns) of
+        the directions the rows kept leave free: the group's frame poses, and the gauge where the group held
+        it (the step has no component along them).
+
+        ``group_gradient``: the move the rows that go make, ``(J_(g)^T J_(g))^+ J_g^T r_g``, without the step
+        of the whole problem's gradient at its solution (its solver's tolerance, the same for every group):
+        the Woodbury form's move (:mod:`camcal.geometry.bundle.influences`)."""
+        system, full = self.system, self._full
         deleted = np.isin(system.row_frame, group)
         counts = np.bincount(system.row_point[~deleted & (system.row_point >= 0)], minlength=system.n_points) // 2
         kept = ~deleted & ((system.row_point < 0) | (counts[np.maximum(system.row_point, 0)] >= 2))
-        sums = full - _sums(system, np.flatnonzero(~kept))
+        gone = _sums(system, np.flatnonzero(~kept))
+        sums = full - gone
         # a point with no row left: its sums cancel to rounding, not to 0
         sums.H_pp[counts < 2] = 0.0
         sums.b_p[counts < 2] = 0.0
         _, root = _point_inverses(sums.H_pp)
         touched = np.unique(system.row_point[~kept & (system.row_point >= 0)])
         if len(touched) < _UPDATE_BELOW * system.n_points:
-            if full_terms is None:
-                full_terms = _point_terms(full, full_root)
-            before, after = _point_terms(full, full_root, touched), _point_terms(sums, root, touched)
-            terms, vector = full_terms[0] - before[0] + after[0], full_terms[1] - before[1] + after[1]
+            before, after = _point_terms(full, self._full_root, touched), _point_terms(sums, root, touched)
+            terms = self._full_terms[0] - before[0] + after[0]
+            vector = self._full_terms[1] - before[1] + after[1]
         else:
             terms, vector = _point_terms(sums, root)
         S, b = sums.AtA - terms, sums.Atr - vector
+        if group_gradient:  # the points' 3x3 blocks without the group, their gradient the group's
+            b = -(gone.Atr - _point_terms(dataclasses.replace(sums, b_p=gone.b_p * (counts >= 2)[:, None]), root,
+                                          touched)[1])
         # a frame left with no rows: its terms cancel to rounding, not to 0
-        rows_left = np.bincount(system.row_frame[kept & (system.row_frame >= 0)], minlength=len(state.frame_R))
+        rows_left = np.bincount(system.row_frame[kept & (system.row_frame >= 0)], minlength=system.n_frames)
         for block in system.blocks:
             if block.kind == "frame" and rows_left[block.index] == 0:
                 S[block.columns, :] = S[:, block.columns] = b[block.columns] = 0.0
-        delta_c = -_pseudo_solve(S, b, singular=bool(np.isin(group, system.gauge).any()))
-        replicates.append(_apply(state, system.blocks, delta_c))
-    return replicates
-
-
-def _inverse_factor(S: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``F`` with ``F F^T = S^+`` for a symmetric positive semi-definite ``S`` (Jacobi-scaled eigen-decomposition,
-    null directions dropped as :func:`_pseudo_solve` drops them)."""
-    d = np.diag(S).copy()
-    scale = np.where(d > 0, 1.0 / np.sqrt(np.where(d > 0, d, 1.0)), 0.0)
-    values, vectors = np.linalg.eigh(S * np.outer(scale, scale))
-    keep = values > _NULL_RATIO * values[-1]
-    return scale[:, None] * vectors[:, keep] / np.sqrt(values[keep])
-
-
-def _pinv_sqrt(blocks: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``(B^+)^(1/2)`` of each symmetric positive semi-definite block ``B`` (shape (n, c, c)); eigenvalues
-    below :data:`_LEVERAGE_NULL` of the largest are null."""
-    values, vectors = np.linalg.eigh(blocks)
-    used = values > _LEVERAGE_NULL * np.maximum(values[:, -1:], 1e-300)
-    return np.einsum("nij,nj,nkj->nik", vectors, np.where(used, 1.0 / np.sqrt(np.where(used, values, 1.0)), 0.0),
-                     vectors)
-
-
-def _influences(system: _System) -> list[NDArray[np.float64]]:
-    """Each frame's influence on the camera, rig and frame columns (:func:`frame_influences`)."""
-    import scipy.sparse  # noqa: PLC0415
-
-    n_rows, n_c = system.J_c.shape
-    H_inv, G, S, _ = _point_elimination(system)
-    F = _inverse_factor(S)
-    S_plus = F @ F.T
-    P, pk = system.point_rows, system.row_point
-    seen = pk >= 0
-    # A - P V^+ W row by row (each row with its point eliminated), one frame at a time and only on the columns it
-    # touches (the intrinsics, the rig, the frames that share its points): dense over every row and column it
-    # would be observations x (cameras + frames), and each frame's products (cameras + frames)^2
-    G_rows = None if G is None else scipy.sparse.csr_matrix(
-        (P[seen].ravel(), (np.repeat(np.flatnonzero(seen), 3), (3 * pk[seen, None] + np.arange(3)).ravel())),
-        shape=(n_rows, G.shape[0]))
-    out, roots = [], {}
-    for frame in np.unique(system.row_frame[system.row_frame >= 0]):
-        rows = np.flatnonzero(system.row_frame == frame)
-        key = np.where(pk[rows] >= 0, pk[rows], -1 - np.arange(len(rows)))  # a row without a point: its own block
-        rows = rows[np.argsort(key, kind="stable")]
-        key = np.sort(key, kind="stable")
-        _, starts, counts = np.unique(key, return_index=True, return_counts=True)
-        X_sparse = system.J_c[rows]
-        if G_rows is not None:
-            X_sparse = (X_sparse - G_rows[rows] @ G).tocsr()
-        columns = np.flatnonzero(np.bincount(X_sparse.indices, minlength=n_c))  # np.unique without its sort
-        X, z = X_sparse[:, columns].toarray(), system.r[rows].copy()
-        # D^(+1/2), D = I - P_k V^+ P_k^T: block diagonal, one block per point (its rows in this frame)
-        for c in np.unique(counts):
-            at = starts[counts == c, None] + np.arange(c)  # (n, c) positions in rows
-            Pb = P[rows[at]]
-            points = pk[rows[at[:, 0]]]
-            D = np.eye(c) - np.einsum("nci,nij,ndj->ncd", Pb, H_inv[np.maximum(points, 0)], Pb) * (points >= 0)[:, None, None]
-            root = _pinv_sqrt(D)
-            X[at] = np.einsum("ncd,ndq->ncq", root, X[at])
-            z[at] = np.einsum("ncd,nd->nc", root, z[at])
-        # (I - H_kk)^+ = D^(+1/2) (I - E E^T)^+ D^(+1/2), E = D^(+1/2) X_k F. E E^T = X Q X^T with Q = S^+ on the
-        # frame's columns: any R with R R^T = Q gives E' = X R with E's left singular vectors and singular values
-        # (the nonzero ones; zero ones add nothing below), so the (columns x columns) eigen-decomposition is of
-        # E'^T E' = R^T (X^T X) R over the frame's columns alone. By its eigenvectors V (eigenvalues s^2), E''s left
-        # singular vectors are E' V / s: u = z + E' V diag(w) V^T E'^T z, w = 1 / (1 - s^2), or -1 / s^2 where
-        # 1 - s^2 is null; only X^T u is wanted (:func:`_leverage_corrected`)
-        key = columns.tobytes()
-        if key not in roots:  # frames of a closed set all touch every column: one root serves them
-            roots = {key: _psd_root(S_plus[np.ix_(columns, columns)])}
-        out.append(S_plus[:, columns] @ _leverage_corrected(X, z, roots[key]))
-    return out
-
-
-def _leverage_corrected(X: NDArray[np.float64], z: NDArray[np.float64], R: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``X^T u``, ``u = z + E V diag(w) V^T E^T z`` of :func:`_influences` (``E = X R``), without ``E``.
-
-    With ``M = X^T X`` and ``y = X^T z``: ``E^T E = R^T M R``, ``E^T z = R^T y`` and ``X^T u = y + M R h``,
-    ``h = V diag(w) V^T R^T y``: one product over the frame's rows (``M``, where ``E`` and ``E^T E`` took two),
-    the rest on the frame's columns. ``h`` needs the eigenvectors of ``K = R^T M R`` only where ``1 - s^2`` is
-    null (``w = -1 / s^2``; a few: the frame's own pose): elsewhere ``V diag(1 / (1 - s^2)) V^T`` is the inverse
-    of ``I - K`` there, solved by Cholesky of ``I - K + N N^T`` (``N`` those few eigenvectors, which the added
-    term lifts to ``2 - s^2``). On a plate whose frames all share points (every column in every frame) this
-    replaces a full eigen-decomposition and two products over the frame's rows per frame, each growing with the
-    cube of the frame count (the eigenpairs of an interval alone: LAPACK's ``syevr``, Dhillon, I. S. & Parlett,
-    B. N. (2004). Multiple representations to compute orthogonal eigenvectors of symmetric tridiagonal matrices.
-    Linear Algebra and its Applications 387).
-    """
-    import scipy.linalg  # noqa: PLC0415
-
-    M = scipy.linalg.blas.dsyrk(1.0, X.T)  # upper triangle of X^T X (X.T: Fortran order, no copy)
-    M = np.triu(M) + np.triu(M, 1).T
-    y = X.T @ z
-    K = R.T @ M @ R
-    K = 0.5 * (K + K.T)
-    g = R.T @ y
-    squares, N = scipy.linalg.eigh(K, subset_by_value=(1.0 - _LEVERAGE_NULL, np.inf), driver="evr")
-    along = N.T @ g
-    try:
-        factor = scipy.linalg.cho_factor(np.eye(len(K)) - K + N @ N.T, lower=True)
-        h = scipy.linalg.cho_solve(factor, g - N @ along) - N @ (along / squares)
-    except np.linalg.LinAlgError:  # a leverage at the threshold's rounding: every eigenpair, as the weights say
-        squares, V = np.linalg.eigh(K)
-        gap = 1.0 - squares
-        kept = gap > _LEVERAGE_NULL
-        h = V @ (np.where(kept, 1.0 / np.where(kept, gap, 1.0), -1.0 / np.where(kept, 1.0, squares)) * (V.T @ g))
-    return y + M @ (R @ h)
-
-
-def _psd_root(Q: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``R`` with ``R R^T = Q`` for a symmetric positive semi-definite ``Q`` (its eigen-decomposition, rounding's
-    negative eigenvalues as 0)."""
-    values, vectors = np.linalg.eigh(Q)
-    return vectors * np.sqrt(np.clip(values, 0.0, None))
+        delta, free = _pseudo_solve(S, b, singular=bool(np.isin(group, system.gauge).any()))
+        return -delta, free
 
 
 def _apply(state: BundleState, blocks: list[_Block], delta: NDArray[np.float64]) -> BundleState:
@@ -562,70 +466,9 @@ def one_step_replicates(state: BundleState, options: BundleOptions,
     out: list[list[BundleState]] = []
 
     def inspect(problem, colmap) -> None:
-        out.append(_steps(state, options, colmap, problem, groups))
-
-    bundle_adjust(state, dataclasses.replace(options, max_iterations=0, compute_sigmas=False), inspect=inspect)
-    return out[0]
-
-
-
-@dataclasses.dataclass(frozen=True)
-class FrameInfluences:
-    """Each frame's influence on a bundle adjustment's intrinsics, rig poses and scene gauge.
-
-    Attributes
-    ----------
-    names : tuple of str
-        :attr:`camcal.geometry.bundle.BundleResult.covariance_names`' names
-        (``CAMERA.f``..., ``CAMERA.rx``..., ``gauge.rx``...; rotations as
-        rotation vectors).
-    values : ndarray, shape (n_frames, len(names))
-        ``theta_(k) - theta`` of each frame ``k``: the solution without its
-        observations, to first order (:func:`frame_influences`).
-    """
-
-    names: tuple[str, ...]
-    values: NDArray[np.float64]
-
-
-def frame_influences(state: BundleState, options: BundleOptions) -> FrameInfluences:
-    """How much leaving out each frame moves the solution, the scene gauge included (module docstring).
-
-    Raises
-    ------
-    DeletionUnsupported
-        As :func:`one_step_replicates`.
-    """
-    out: list[FrameInfluences] = []
-
-    def inspect(problem, colmap) -> None:
-        system = _system(state, options, colmap, problem)
-        influences = _influences(system)
-        names, columns, scales = [], [], []
-        for block in system.blocks:
-            if block.kind == "camera":
-                param_names = state.param_names(block.index)
-                names += [f"{state.camera_names[block.index]}.{param_names[k]}" for k in block.free]
-                scales += [1.0] * len(block.free)
-            elif block.kind == "sensor":
-                names += [f"{state.camera_names[block.index]}.{axis}" for axis in ("rx", "ry", "rz", "tx", "ty", "tz")]
-                scales += [2.0, 2.0, 2.0, 1.0, 1.0, 1.0]  # Ceres' quaternion tangent is half the rotation vector
-            else:
-                continue
-            columns += list(range(block.columns.start, block.columns.stop))
-        B = np.zeros((len(names), system.J_c.shape[1]))
-        B[np.arange(len(names)), columns] = scales
-        frames = sorted(colmap.frame_ids.items())
-        rows = scene_gauge_rows([colmap.reconstruction.frame(fid).rig_from_world.rotation.matrix() for _, fid in frames])
-        if rows is not None:  # the scene gauge of the frames' turns, held frames unperturbed (as the covariance's)
-            gauge = np.zeros((3, B.shape[1]))
-            for i, (frame, _) in enumerate(frames):
-                for block in system.blocks:
-                    if block.kind == "frame" and block.index == frame:
-                        gauge[:, block.columns.start:block.columns.start + 3] = 2.0 * rows[:, 3 * i:3 * i + 3]
-            B = np.vstack([B, gauge])
-            names += ["gauge.rx", "gauge.ry", "gauge.rz"]
-        out.append(FrameInfluences(tuple(names), np.array([B @ g for g in influences])))
+        system = linearise(state, options, colmap, problem)
+        deletion = FrameDeletion(system)
+        out.append([_apply(state, system.blocks, deletion.step(group)[0]) for group in groups])
 
     bundle_adjust(state, dataclasses.replace(options, max_iterations=0, compute_sigmas=False), inspect=inspect)
     return out[0]
