@@ -135,7 +135,8 @@ JACKKNIFE_BLOCKS = 10
 #: gave 1.9 to 11 times it (a plate whose velocities change within a frame interval, 1.9 too: searched in vain).
 START_MISFIT = 1.5
 #: the readouts, as fractions of the frame interval, at which the adjustment is also started from the solve's
-#: rotations with the centres and points the linear constraints give there (:func:`camcal.geometry.rolling_shutter_start.linear_start`; module notes).
+#: rotations with the centres and points the linear constraints give there
+#: (:func:`camcal.geometry.rolling_shutter_start.linear_start`; module notes).
 START_FRACTIONS = np.arange(-4, 5) / 4
 #: each start is adjusted this many iterations with its readout held before the best one is continued.
 START_ITERATIONS = 3
@@ -244,8 +245,7 @@ def estimate_readout(K: ArrayLike, height: int, rotations: ArrayLike, centres: A
     fit = model.adjust(R0, c0, X0, 0.0)
     sigmas = _sigmas(fit, frame_of, n_frames)
     if sigmas[2] > START_MISFIT * sigmas[1]:
-        seeded = _seeded_fit(model, R0, 1e3 * float(np.median(np.diff(t))), focal, centre, t, frame_of, point_of, uv,
-                             row_fraction, seed)
+        seeded = _seeded_fit(model, R0, 1e3 * float(np.median(np.diff(t))), seed)
         if seeded is not None and seeded.cost < fit.cost:
             fit, sigmas = seeded, _sigmas(seeded, frame_of, n_frames)
     x, residuals, cost = fit.x, fit.residuals, fit.cost
@@ -342,15 +342,14 @@ def _sigmas(fit: _Fit, frame_of: NDArray[np.intp], n_frames: int) -> tuple[NDArr
             _block_jackknife_sigma(influence, fit.r, frame_of, n_frames))
 
 
-def _seeded_fit(model: _Model, rotations: NDArray[np.float64], interval_ms: float, focal: NDArray[np.float64],
-                centre: NDArray[np.float64], times: NDArray[np.float64], frame_of: NDArray[np.intp],
-                point_of: NDArray[np.intp], pixels: NDArray[np.float64], row_fraction: NDArray[np.float64],
-                seed: int) -> _Fit | None:
-    """The adjustment from the best of the linear starts (:func:`camcal.geometry.rolling_shutter_start.linear_start`) at the readouts
+def _seeded_fit(model: _Model, rotations: NDArray[np.float64], interval_ms: float, seed: int) -> _Fit | None:
+    """``model``'s adjustment from the best of the linear starts
+    (:func:`camcal.geometry.rolling_shutter_start.linear_start`) with ``rotations`` at the readouts
     :data:`START_FRACTIONS` of the frame interval, each ranked by its cost after :data:`START_ITERATIONS` with its
     readout held, on the observations of the longest tracks (:data:`START_OBSERVATIONS`); None if none could be
     made."""
-    n_points = model.n_points
+    focal, centre, times, frame_of, point_of = model.focal, model.centre, model.times, model.frame_of, model.point_of
+    pixels, row_fraction, n_points = model.pixels, model.row_fraction, model.n_points
     ranked = _chosen_observations(point_of, n_points, START_OBSERVATIONS, seed)
     ranked_points, ranked_point_of = np.unique(point_of[ranked], return_inverse=True)
     ranking = _Model(focal[ranked], centre[ranked], times, frame_of[ranked], ranked_point_of, pixels[ranked],
@@ -473,9 +472,10 @@ def _jacobian(residuals, x: NDArray[np.float64], r: NDArray[np.float64], pattern
 
 def _levenberg_marquardt(residuals, pattern, groups, steps, free, n_points: int, max_iterations: int = 30,
                          readout_ms: float = 0.0, jacobian: bool = True):
-    """Minimise ``|residuals(x)|^2`` from ``x = (readout_ms, 0, ...)`` over the ``free`` unknowns (Levenberg-Marquardt on the sparse
-    normal equations, damping ``lambda diag(J^T J)``, the last ``n_points`` unknowns, 3 a point, eliminated by
-    :func:`camcal.geometry.rolling_shutter_start.schur_solve`); the solution, its residuals, ``J`` and ``J^T J`` there.
+    """Minimise ``|residuals(x)|^2`` from ``x = (readout_ms, 0, ...)`` over the ``free`` unknowns
+    (Levenberg-Marquardt on the sparse normal equations, damping ``lambda diag(J^T J)``, the last ``n_points``
+    unknowns, 3 a point, eliminated by :func:`camcal.geometry.rolling_shutter_start.schur_solve`); the solution, its
+    residuals, ``J`` and ``J^T J`` there (None without ``jacobian``).
 
     It stops when a step lowers the chi-square (the cost over the residuals' variance) by less than 0.01: the
     Gauss-Newton step then left every unknown within about a tenth of its standard deviation of the optimum.

@@ -1,9 +1,10 @@
 """``solve --readout-ms estimate`` end to end: a plate rendered through a rolling shutter, solved, its readout found.
 
 Each frame is ray-cast (:func:`camcal.synthetic.render_planes`) row by row, each row from the camera's pose at its
-read-out time (a true rolling shutter; bands of 8 rows from one pose moved the estimate by 1 %), in the textured set of the rendered plate benchmark (``bench/bench_plates.py``), the
-camera walking and panning to and fro. The fast siblings: ``tests/geometry/test_rolling_shutter_readout.py``
-(the estimate on point plates, over seeds) and ``tests/pipelines/test_solve_shutter.py`` (the solve's hook).
+read-out time (a true rolling shutter; bands of 8 rows from one pose moved the estimate by 1 %), in the textured
+set of the rendered plate benchmark (``bench/bench_plates.py``), the camera walking and panning to and fro. The
+fast siblings: ``tests/geometry/test_rolling_shutter_readout.py`` (the estimate on point plates, over seeds, and
+from a global-shutter solve's start) and ``tests/pipelines/test_solve_shutter.py`` (the solve's hook).
 """
 
 from __future__ import annotations
