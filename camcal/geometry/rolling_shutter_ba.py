@@ -26,6 +26,24 @@ velocities are not free: they follow the poses, so the readout is fixed by
 how far the frames' rows disagree with the motion between frames; the
 intrinsics stay the solve's.
 
+The adjustment starts from the solve's poses and points at readout 0. A
+global-shutter solve absorbs what it can of the shutter's shear into its
+path and points, and where the motion leaves the depths weakly determined
+(a camera that mostly pans) it can bend them into another minimum of the
+rolling-shutter model, which the adjustment then does not leave (a plate
+rendered a pose per row, 30 ms: 25.8 ms and 0.385 px RMS from there, 29.6 ms
+and 0.223 px from the true poses). Its residuals then disagree frame by
+frame, so where the block jackknife's sigma passes the noise's
+:data:`START_MISFIT` times, the adjustment is also started from starts that
+need no poses but the solve's rotations:
+:func:`camcal.geometry.rolling_shutter_start.linear_start` gives the
+centres and points that fit the observations best, linearly, at each
+readout of a grid over the frame interval (:data:`START_FRACTIONS`); each is
+adjusted a few iterations with its readout held (:data:`START_ITERATIONS`,
+on the longest tracks' observations, :data:`START_OBSERVATIONS`), the
+cheapest adjusted on all the observations with the readout held, then free,
+and of it and the first adjustment the lower cost is kept.
+
 The constant-velocity model takes the velocities from central differences,
 which slow a motion that oscillates at ``f`` Hz by ``(2 pi f dt)^2 / 6``
 and make the readout high by as much (0.9 % for 1.1 Hz at 30 fps, 6.6 % for
@@ -84,6 +102,7 @@ generalized linear models. Biometrika 73(1).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,9 +112,10 @@ from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.rolling_shutter import camera_velocities
+from camcal.geometry.rolling_shutter_start import linear_start, schur_solve
 
-__all__ = ["DETERMINED_FRACTION", "JACKKNIFE_BLOCKS", "MAX_OBSERVATIONS", "MIN_TRACK", "ReadoutEstimate",
-           "estimate_readout"]
+__all__ = ["DETERMINED_FRACTION", "JACKKNIFE_BLOCKS", "MAX_OBSERVATIONS", "MIN_TRACK", "START_FRACTIONS",
+           "START_ITERATIONS", "START_MISFIT", "START_OBSERVATIONS", "ReadoutEstimate", "estimate_readout"]
 
 #: the readout counts as determined when its standard deviation is at most this fraction of the frame interval
 #: (4.2 ms at 24 fps): a readout cannot exceed the interval, and a wider one says little about it.
@@ -109,6 +129,19 @@ MIN_TRACK = 5
 #: the infinitesimal jackknife over blocks (:func:`_block_jackknife_sigma`) splits the frames into this many
 #: contiguous blocks (at most one a frame): its variance then has about this many less one degrees of freedom.
 JACKKNIFE_BLOCKS = 10
+#: other starts are tried when the first adjustment's block jackknife sigma exceeds its noise sigma this many times
+#: (a misfit: a wrong minimum, or a model that does not fit). Where the model fits, the jackknife over
+#: :data:`JACKKNIFE_BLOCKS` blocks scatters by about a quarter around the noise's sigma; the wrong minima measured
+#: gave 1.9 to 11 times it (a plate whose velocities change within a frame interval, 1.9 too: searched in vain).
+START_MISFIT = 1.5
+#: the readouts, as fractions of the frame interval, at which the adjustment is also started from the solve's
+#: rotations with the centres and points the linear constraints give there
+#: (:func:`camcal.geometry.rolling_shutter_start.linear_start`; module notes).
+START_FRACTIONS = np.arange(-4, 5) / 4
+#: each start is adjusted this many iterations with its readout held before the best one is continued.
+START_ITERATIONS = 3
+#: the starts are ranked on the observations of the longest tracks, at most this many (:func:`_chosen_observations`).
+START_OBSERVATIONS = 5000
 
 
 @dataclass(frozen=True)
@@ -200,46 +233,25 @@ def estimate_readout(K: ArrayLike, height: int, rotations: ArrayLike, centres: A
         raise CamcalError(f"no point is seen in {MIN_TRACK} frames or more")
     used_points, point_of = np.unique(point_of, return_inverse=True)
     X0 = X0[used_points]
-    n_frames, n_points = len(R0), len(X0)
+    n_frames, n_points, n_obs = len(R0), len(X0), len(uv)
     row_fraction = y / max(int(height) - 1, 1) - 0.5
     focal, centre = Ks[frame_of][:, [0, 1], [0, 1]], Ks[frame_of][:, :2, 2]
-
-    def residuals(x: NDArray[np.float64], order: int = 2) -> NDArray[np.float64]:
-        readout = x[0] * 1e-3  # the unknown is in ms: its step is then on the poses' scale
-        rotation = np.einsum("nij,njk->nik", Rotation.from_rotvec(x[1:1 + 3 * n_frames].reshape(-1, 3)).as_matrix(),
-                             R0)
-        c = c0 + x[1 + 3 * n_frames:1 + 6 * n_frames].reshape(-1, 3)
-        X = X0 + x[1 + 6 * n_frames:].reshape(-1, 3)
-        omega, velocity = camera_velocities(rotation, c, t, order=order)
-        tau = (readout * row_fraction)[:, None]
-        turn, shift = tau * omega[frame_of], tau * velocity[frame_of]
-        if order == 4:  # and the acceleration over the readout (module notes)
-            angular, linear = _accelerations(rotation, c, t)
-            turn, shift = turn + tau ** 2 / 2 * angular[frame_of], shift + tau ** 2 / 2 * linear[frame_of]
-        at_frame = np.einsum("nij,nj->ni", rotation[frame_of], X[point_of] - c[frame_of] - shift)
-        camera = np.einsum("nij,nj->ni", Rotation.from_rotvec(turn).as_matrix(), at_frame)
-        projected = camera[:, :2] / camera[:, 2:3] * focal + centre
-        return (projected - uv).ravel()
-
-    n_obs = len(uv)
-    pattern = _sparsity(frame_of, point_of, n_frames, n_points)
-    depth = float(np.median(np.linalg.norm(X0[point_of] - c0[frame_of], axis=1)))
-    steps = np.r_[1e-4, np.full(3 * n_frames, 1e-6), np.full(3 * n_frames + 3 * n_points, 1e-6 * depth)]
-    free = _gauge_free(c0, n_points)
-    n_points_free = 3 * n_points  # the points' unknowns, all free, come last
-    x, r, J, A = _levenberg_marquardt(residuals, pattern, _column_groups(n_frames, n_points), steps, free,
-                                      n_points_free)
-    cost = float(r @ r)
-    variance = cost / max(2 * n_obs - int(free.sum()), 1)
-    try:
-        readout_column = _schur_solve(A, np.eye(A.shape[0], 1).ravel(), n_points_free)  # (A^-1)[:, 0]
-    except np.linalg.LinAlgError:  # exactly singular: nothing determines the readout
-        readout_column = np.full(A.shape[0], np.inf)
-    influence = J @ readout_column  # d(readout) / d(residuals) of a Gauss-Newton step, up to the sign
+    # the solve's poses and points adjusted with the readout free; where the block jackknife sees a misfit beyond the
+    # noise's, other starts too: the solve's rotations with the centres and points the linear constraints give at
+    # each readout of a grid over the frame interval, ranked by their cost after a few iterations with that readout
+    # held (on the longest tracks' observations), the best adjusted on all of them with the readout held, then free;
+    # the lower cost is kept (module notes)
+    model = _Model(focal, centre, t, frame_of, point_of, uv, row_fraction)
+    fit = model.adjust(R0, c0, X0, 0.0)
+    sigmas = _sigmas(fit, frame_of, n_frames)
+    if sigmas[2] > START_MISFIT * sigmas[1]:
+        seeded = _seeded_fit(model, R0, 1e3 * float(np.median(np.diff(t))), seed)
+        if seeded is not None and seeded.cost < fit.cost:
+            fit, sigmas = seeded, _sigmas(seeded, frame_of, n_frames)
+    x, residuals, cost = fit.x, fit.residuals, fit.cost
+    influence, noise_sigma_ms, jackknife_sigma_ms = sigmas
     # the Gauss-Newton step of the fourth-order velocities and the accelerations from the optimum (module notes)
     readout_ms = float(x[0] - influence @ residuals(x, order=4))
-    noise_sigma_ms = float(np.sqrt(variance * abs(readout_column[0])))
-    jackknife_sigma_ms = _block_jackknife_sigma(influence, r, frame_of, n_frames)
     sigma_s = max(noise_sigma_ms, jackknife_sigma_ms) * 1e-3
     if not np.isfinite(readout_ms):
         readout_ms, sigma_s = float(x[0]), np.inf
@@ -247,6 +259,116 @@ def estimate_readout(K: ArrayLike, height: int, rotations: ArrayLike, centres: A
     return ReadoutEstimate(readout_ms * 1e-3, sigma_s, noise_sigma_ms * 1e-3, jackknife_sigma_ms * 1e-3,
                            bool(sigma_s <= limit), limit, float(np.sqrt(cost / max(n_obs, 1))), n_frames, n_points,
                            n_obs)
+
+
+@dataclass(frozen=True)
+class _Fit:
+    """A Levenberg-Marquardt adjustment's solution ``x``, residuals ``r``, Jacobian ``J``, ``A = J^T J`` (both over
+    the ``free`` unknowns), the residual function (of ``x`` and the velocities' order) and the poses and points."""
+
+    x: NDArray[np.float64]
+    r: NDArray[np.float64]
+    J: object
+    A: object
+    free: NDArray[np.bool_]
+    residuals: Callable[..., NDArray[np.float64]]
+    state: Callable[[], tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]]
+
+    @property
+    def cost(self) -> float:
+        return float(self.r @ self.r)
+
+
+class _Model:
+    """The rolling-shutter residuals of a set of observations (module notes), adjusted from a start."""
+
+    def __init__(self, focal: NDArray[np.float64], centre: NDArray[np.float64], times: NDArray[np.float64],
+                 frame_of: NDArray[np.intp], point_of: NDArray[np.intp], pixels: NDArray[np.float64],
+                 row_fraction: NDArray[np.float64]) -> None:
+        self.focal, self.centre, self.times, self.frame_of, self.point_of = focal, centre, times, frame_of, point_of
+        self.pixels, self.row_fraction = pixels, row_fraction
+        self.n_frames, self.n_points = len(times), int(point_of.max()) + 1
+        self.pattern = _sparsity(frame_of, point_of, self.n_frames, self.n_points)
+        self.groups = _column_groups(self.n_frames, self.n_points)
+
+    def adjust(self, rotations: NDArray[np.float64], centres: NDArray[np.float64], points: NDArray[np.float64],
+               readout_ms: float, *, hold_readout: bool = False, max_iterations: int = 30, jacobian: bool = True
+               ) -> _Fit:
+        """Levenberg-Marquardt from these poses, points and readout (ms); the unknowns ``x`` are the readout in ms,
+        then the frames' rotation vectors and centres' and the points' offsets from the start (``J``, ``A`` None
+        without ``jacobian``)."""
+        n_frames, frame_of, point_of = self.n_frames, self.frame_of, self.point_of
+
+        def state(x: NDArray[np.float64]):
+            rotation = np.einsum("nij,njk->nik",
+                                 Rotation.from_rotvec(x[1:1 + 3 * n_frames].reshape(-1, 3)).as_matrix(), rotations)
+            return (rotation, centres + x[1 + 3 * n_frames:1 + 6 * n_frames].reshape(-1, 3),
+                    points + x[1 + 6 * n_frames:].reshape(-1, 3))
+
+        def residuals(x: NDArray[np.float64], order: int = 2) -> NDArray[np.float64]:
+            readout = x[0] * 1e-3  # the unknown is in ms: its step is then on the poses' scale
+            rotation, c, X = state(x)
+            omega, velocity = camera_velocities(rotation, c, self.times, order=order)
+            tau = (readout * self.row_fraction)[:, None]
+            turn, shift = tau * omega[frame_of], tau * velocity[frame_of]
+            if order == 4:  # and the acceleration over the readout (module notes)
+                angular, linear = _accelerations(rotation, c, self.times)
+                turn, shift = turn + tau ** 2 / 2 * angular[frame_of], shift + tau ** 2 / 2 * linear[frame_of]
+            at_frame = np.einsum("nij,nj->ni", rotation[frame_of], X[point_of] - c[frame_of] - shift)
+            camera = np.einsum("nij,nj->ni", Rotation.from_rotvec(turn).as_matrix(), at_frame)
+            projected = camera[:, :2] / camera[:, 2:3] * self.focal + self.centre
+            return (projected - self.pixels).ravel()
+
+        depth = float(np.median(np.linalg.norm(points[point_of] - centres[frame_of], axis=1)))
+        steps = np.r_[1e-4, np.full(3 * n_frames, 1e-6), np.full(3 * n_frames + 3 * self.n_points, 1e-6 * depth)]
+        free = _gauge_free(centres, self.n_points)
+        free[0] = not hold_readout
+        x, r, J, A = _levenberg_marquardt(residuals, self.pattern, self.groups, steps, free, 3 * self.n_points,
+                                          max_iterations, readout_ms, jacobian)
+        return _Fit(x, r, J, A, free, residuals, lambda: state(x))
+
+
+def _sigmas(fit: _Fit, frame_of: NDArray[np.intp], n_frames: int) -> tuple[NDArray[np.float64], float, float]:
+    """The readout's influence ``J (J^T J)^-1 e_T`` on the residuals and its standard deviations (ms): the
+    observations' noise's, ``s^2 (J^T J)^-1_TT``, and the block jackknife's (module notes)."""
+    variance = fit.cost / max(fit.r.size - int(fit.free.sum()), 1)
+    n_points = int(fit.free.size - 1 - 6 * n_frames)  # the points' unknowns come last
+    try:
+        readout_column = schur_solve(fit.A, np.eye(fit.A.shape[0], 1).ravel(), n_points)  # (A^-1)[:, 0]
+    except np.linalg.LinAlgError:  # exactly singular: nothing determines the readout
+        readout_column = np.full(fit.A.shape[0], np.inf)
+    influence = fit.J @ readout_column  # d(readout) / d(residuals) of a Gauss-Newton step, up to the sign
+    return (influence, float(np.sqrt(variance * abs(readout_column[0]))),
+            _block_jackknife_sigma(influence, fit.r, frame_of, n_frames))
+
+
+def _seeded_fit(model: _Model, rotations: NDArray[np.float64], interval_ms: float, seed: int) -> _Fit | None:
+    """``model``'s adjustment from the best of the linear starts
+    (:func:`camcal.geometry.rolling_shutter_start.linear_start`) with ``rotations`` at the readouts
+    :data:`START_FRACTIONS` of the frame interval, each ranked by its cost after :data:`START_ITERATIONS` with its
+    readout held, on the observations of the longest tracks (:data:`START_OBSERVATIONS`); None if none could be
+    made."""
+    focal, centre, times, frame_of, point_of = model.focal, model.centre, model.times, model.frame_of, model.point_of
+    pixels, row_fraction, n_points = model.pixels, model.row_fraction, model.n_points
+    ranked = _chosen_observations(point_of, n_points, START_OBSERVATIONS, seed)
+    ranked_points, ranked_point_of = np.unique(point_of[ranked], return_inverse=True)
+    ranking = _Model(focal[ranked], centre[ranked], times, frame_of[ranked], ranked_point_of, pixels[ranked],
+                     row_fraction[ranked])
+    best = (np.inf,)
+    for readout in START_FRACTIONS * interval_ms:
+        try:
+            c, X = linear_start(focal, centre, rotations, times, frame_of, point_of, pixels,
+                                 row_fraction * readout * 1e-3, n_points)
+        except np.linalg.LinAlgError:  # a point the start's rays do not fix
+            continue
+        cost = ranking.adjust(rotations, c, X[ranked_points], readout, hold_readout=True,
+                              max_iterations=START_ITERATIONS, jacobian=False).cost
+        best = min(best, (cost, readout, c, X), key=lambda entry: entry[0])
+    if not np.isfinite(best[0]):
+        return None
+    held = model.adjust(rotations, best[2], best[3], best[1], hold_readout=True, max_iterations=START_ITERATIONS,
+                        jacobian=False)
+    return model.adjust(*held.state(), best[1])
 
 
 def _accelerations(rotations: NDArray[np.float64], centres: NDArray[np.float64], times: NDArray[np.float64]
@@ -348,15 +470,18 @@ def _jacobian(residuals, x: NDArray[np.float64], r: NDArray[np.float64], pattern
     return coo_matrix((values, (rows, cols)), shape=pattern.shape).tocsc()
 
 
-def _levenberg_marquardt(residuals, pattern, groups, steps, free, n_points: int, max_iterations: int = 30):
-    """Minimise ``|residuals(x)|^2`` from ``x = 0`` over the ``free`` unknowns (Levenberg-Marquardt on the sparse
-    normal equations, damping ``lambda diag(J^T J)``, the last ``n_points`` unknowns, 3 a point, eliminated by
-    :func:`_schur_solve`); the solution, its residuals, ``J`` and ``J^T J`` there.
+def _levenberg_marquardt(residuals, pattern, groups, steps, free, n_points: int, max_iterations: int = 30,
+                         readout_ms: float = 0.0, jacobian: bool = True):
+    """Minimise ``|residuals(x)|^2`` from ``x = (readout_ms, 0, ...)`` over the ``free`` unknowns
+    (Levenberg-Marquardt on the sparse normal equations, damping ``lambda diag(J^T J)``, the last ``n_points``
+    unknowns, 3 a point, eliminated by :func:`camcal.geometry.rolling_shutter_start.schur_solve`); the solution, its
+    residuals, ``J`` and ``J^T J`` there (None without ``jacobian``).
 
     It stops when a step lowers the chi-square (the cost over the residuals' variance) by less than 0.01: the
     Gauss-Newton step then left every unknown within about a tenth of its standard deviation of the optimum.
     """
     x = np.zeros(free.size)
+    x[0] = readout_ms
     r = residuals(x)
     cost, damping = float(r @ r), 1e-4
     dof = max(r.size - int(free.sum()), 1)
@@ -365,7 +490,7 @@ def _levenberg_marquardt(residuals, pattern, groups, steps, free, n_points: int,
         A, gradient = (J.T @ J).tocsc(), J.T @ r
         while damping < 1e8:
             try:
-                step = _schur_solve(A + diags(damping * A.diagonal()), -gradient, n_points)
+                step = schur_solve(A + diags(damping * A.diagonal()), -gradient, n_points)
             except np.linalg.LinAlgError:
                 step = np.full(gradient.size, np.nan)
             trial = x.copy()
@@ -381,31 +506,7 @@ def _levenberg_marquardt(residuals, pattern, groups, steps, free, n_points: int,
         x, r, cost, damping = trial, r_trial, cost_trial, max(damping / 10.0, 1e-9)
         if chi_square_drop < 0.01:
             break
+    if not jacobian:
+        return x, r, None, None
     J = _jacobian(residuals, x, r, pattern, groups, steps)[:, free]
     return x, r, J, (J.T @ J).tocsc()
-
-
-def _split(A, n_points: int):
-    """``A``'s camera block and camera-point block (dense) and the inverses of its 3 x 3 point blocks (sparse)."""
-    n_camera = A.shape[0] - n_points
-    A = A.tocsr()
-    cameras = A[:n_camera, :n_camera].toarray()
-    coupling = A[:n_camera, n_camera:].toarray()
-    points = A[n_camera:, n_camera:].tocoo()
-    same = points.row // 3 == points.col // 3
-    blocks = np.zeros((n_points // 3, 3, 3))
-    blocks[points.row[same] // 3, points.row[same] % 3, points.col[same] % 3] = points.data[same]
-    inverse = np.linalg.inv(blocks)
-    index = np.arange(n_points).reshape(-1, 3)
-    rows, cols = np.repeat(index, 3, axis=1).ravel(), np.tile(index, (1, 3)).ravel()
-    return cameras, coupling, coo_matrix((inverse.ravel(), (rows, cols)), shape=(n_points, n_points)).tocsr()
-
-
-def _schur_solve(A, b: NDArray[np.float64], n_points: int) -> NDArray[np.float64]:
-    """``A^-1 b`` with the points (the last ``n_points`` unknowns, block diagonal in 3 x 3) eliminated: the
-    cameras from ``S = B - E C^-1 E^T``, then the points (Triggs et al. 2000, section 6.1)."""
-    n_camera = A.shape[0] - n_points
-    cameras, coupling, points_inverse = _split(A, n_points)
-    reduced = cameras - (points_inverse.T @ coupling.T).T @ coupling.T
-    camera_step = np.linalg.solve(reduced, b[:n_camera] - coupling @ (points_inverse @ b[n_camera:]))
-    return np.r_[camera_step, points_inverse @ (b[n_camera:] - coupling.T @ camera_step)]

@@ -1,21 +1,24 @@
 """Rolling-shutter plates with a known readout: points imaged on the row whose read-out time put them there.
 
-A camera follows a smooth path (a handheld pan and tilt while walking, a
-sideways dolly, a forward drive); each point of a frame at time ``t_k`` is
+A camera follows a smooth path (a handheld pan and tilt while walking, the
+same pan while walking slowly, a sideways dolly, a forward drive); each point of a frame at time ``t_k`` is
 imaged from the camera at ``t_k + T (y / (H - 1) - 1/2)``, ``y`` the row it
 lands on (found by fixed-point iteration, the exact rolling-shutter image
 of Meingast et al. 2005, not the first-order model the estimator fits).
 The solve's answer is imitated by the true frame poses and points with a
-small perturbation.
+small perturbation, or (:func:`global_shutter_solve`) by a global-shutter
+bundle adjustment from there, which absorbs what it can of the shutter's
+shear into the path and the points, as a solve does.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from camcal.geometry.rolling_shutter_ba import _Model
 from camcal.model.camera import look_at
 
 WIDTH, HEIGHT, FOCAL = 640, 360, 500.0
@@ -46,10 +49,13 @@ class Plate:
 
 
 def pose(t: np.ndarray | float, motion: str) -> tuple[np.ndarray, np.ndarray]:
-    """World -> camera rotations and centres at times ``t`` of a ``"turning"``, ``"shaking"``, ``"sideways"`` or
-    ``"forward"`` path."""
+    """World -> camera rotations and centres at times ``t`` of a ``"turning"``, ``"shaking"``, ``"slow"``,
+    ``"sideways"`` or ``"forward"`` path."""
     t = np.asarray(t, dtype=np.float64)
     zero = np.zeros_like(t)
+    if motion == "slow":  # the turning walk at 0.3 times the pace (0.13 m/s): the same pan, a third of the parallax
+        R, centres = pose(t, "turning")
+        return R, 0.3 * centres
     if motion in ("turning", "shaking"):  # walking with a handheld pan (up to 75 deg/s), tilt and roll
         angles = np.stack([0.12 * np.sin(2 * np.pi * 1.1 * t), 0.35 * np.sin(2 * np.pi * 0.6 * t),
                            0.05 * np.sin(2 * np.pi * 0.9 * t)], -1)
@@ -98,3 +104,18 @@ def plate(readout_s: float, motion: str, seed: int, n_frames: int = 12, n_points
     return Plate(rotations, c_true + rng.normal(0.0, 0.01, c_true.shape), times,
                  X + rng.normal(0.0, 0.02, X.shape), np.array(frame_of), np.array(point_of), pixels,
                  pixels[:, 1].copy(), R_true, c_true, X)
+
+
+def global_shutter_solve(synthetic: Plate) -> Plate:
+    """``synthetic`` with its poses and points replaced by a global-shutter bundle adjustment's from them: every
+    observation imaged from its frame's pose (the rolling-shutter adjustment's own Levenberg-Marquardt with the
+    readout held at 0, the first frame's pose and one coordinate of the last centre held)."""
+    seen, point_of = np.unique(synthetic.point_of, return_inverse=True)
+    n = len(point_of)
+    model = _Model(np.full((n, 2), FOCAL), np.broadcast_to(K[:2, 2], (n, 2)), synthetic.times, synthetic.frame_of,
+                   point_of, synthetic.pixels, np.zeros(n))
+    R, c, X = model.adjust(synthetic.rotations, synthetic.centres, synthetic.points[seen], 0.0, hold_readout=True,
+                           jacobian=False).state()
+    points = synthetic.points.copy()
+    points[seen] = X
+    return replace(synthetic, rotations=R, centres=c, points=points)

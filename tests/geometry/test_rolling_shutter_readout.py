@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tests.geometry.rolling_shutter_plates import plate
+from tests.geometry.rolling_shutter_plates import HEIGHT, K, global_shutter_solve, plate
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.rolling_shutter_ba import estimate_readout
+from camcal.geometry.rolling_shutter_start import linear_start
 
 TRUE_READOUT = 0.025  # s
 
@@ -42,6 +43,60 @@ def test_the_readouts_sigma_covers_its_error_over_many_seeds(motion, n_frames):
     z = _z_scores(motion, n_frames, range(100, 120))
     assert 0.61 < np.sqrt(np.mean(z ** 2)) < 1.37, z
     assert abs(np.mean(z)) < 3.0 / np.sqrt(len(z)), z
+
+
+def _from_a_global_shutter_solve(seed: int):
+    """A slow walk panning (0.13 m/s, +-20 deg: little parallax) read out in 30 ms, 24 frames at 24 fps: the
+    estimate from its global-shutter solve (which bends the path and points to absorb the shear) and from the
+    perturbed true poses and points."""
+    synthetic = plate(0.030, "slow", seed, n_frames=24, fps=24.0)
+    return (estimate_readout(*global_shutter_solve(synthetic).estimate_arguments()),
+            estimate_readout(*synthetic.estimate_arguments()))
+
+
+def test_the_estimate_leaves_the_minimum_a_global_shutter_solve_put_it_in():
+    """Started from the global-shutter solve alone the adjustment stopped in another minimum (measured: 29.98 +-
+    1.44 ms and 0.700 px RMS, against 30.03 +- 0.26 ms and 0.663 px from the true poses); from the linear starts it
+    reaches the noise's level (0.5 px a coordinate: about 0.66 px after the fit's degrees of freedom) and a sigma
+    like the true poses' (measured 29.88 +- 0.26 ms, 0.664 px)."""
+    synthetic = plate(0.030, "slow", 0, n_frames=24, fps=24.0)
+    estimate = estimate_readout(*global_shutter_solve(synthetic).estimate_arguments())
+    assert estimate.rms_px < 0.675
+    assert estimate.sigma_s < 0.4e-3
+    assert abs(estimate.readout_s - 0.030) < 3.0 * estimate.sigma_s
+
+
+@pytest.mark.parametrize(("readout", "tolerance"), [(0.0, 1e-8), (TRUE_READOUT, 0.05)])
+def test_the_linear_start_gives_the_true_centres_and_points_from_the_true_rotations(readout, tolerance):
+    """Noise-free observations of the walk and the true rotations and readout: the linear constraints alone give
+    the true centres and points up to the scale and origin the observations leave free (the first centre at the
+    origin): exactly for a global shutter; read out in 25 ms, within the first-order model's own error on this
+    short path (measured 2.8 % of it: the plate is imaged exactly, row by row)."""
+    synthetic = plate(readout, "turning", 5, noise_px=0.0)
+    tracked = np.bincount(synthetic.point_of)[synthetic.point_of] >= 3  # points seen from three frames or more
+    seen, point_of = np.unique(synthetic.point_of[tracked], return_inverse=True)
+    n = len(point_of)
+    tau = readout * (synthetic.rows[tracked] / (HEIGHT - 1) - 0.5)
+    centres, points = linear_start(np.full((n, 2), K[0, 0]), np.broadcast_to(K[:2, 2], (n, 2)),
+                                   synthetic.true_rotations, synthetic.times, synthetic.frame_of[tracked], point_of,
+                                   synthetic.pixels[tracked], tau, len(seen))
+    true_centres = synthetic.true_centres - synthetic.true_centres[0]
+    scale = np.sum(centres * true_centres) / np.sum(centres * centres)
+    path = np.linalg.norm(true_centres[-1])
+    assert np.max(np.linalg.norm(scale * centres - true_centres, axis=1)) < tolerance * path
+    true_points = synthetic.true_points[seen] - synthetic.true_centres[0]
+    assert np.median(np.linalg.norm(scale * points - true_points, axis=1) / np.linalg.norm(true_points, axis=1)) < (
+        tolerance)
+
+
+@pytest.mark.slow
+def test_the_estimate_leaves_the_global_shutter_minimum_over_seeds():
+    """The fast test over 10 seeds: at least 6 reach the true poses' minimum, and those within 3 sigma of the truth."""
+    results = [_from_a_global_shutter_solve(seed) for seed in range(10)]
+    reached = [estimate.rms_px < from_truth.rms_px + 0.003 for estimate, from_truth in results]
+    assert np.mean(reached) >= 0.6, [(e.rms_px, t.rms_px) for e, t in results]
+    z = np.array([(e.readout_s - 0.030) / e.sigma_s for (e, _), ok in zip(results, reached) if ok])
+    assert np.all(np.abs(z) < 3.0), z
 
 
 def test_a_global_shutter_plate_gives_zero_within_its_sigma():
