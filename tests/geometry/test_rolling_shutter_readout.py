@@ -54,6 +54,7 @@ def _from_a_global_shutter_solve(seed: int):
             estimate_readout(*synthetic.estimate_arguments()))
 
 
+@pytest.mark.slow  # 20-45 s; the fast sibling: the linear start's test below
 def test_the_estimate_leaves_the_minimum_a_global_shutter_solve_put_it_in():
     """Started from the global-shutter solve alone the adjustment stopped in another minimum (measured: 29.98 +-
     1.44 ms and 0.700 px RMS, against 30.03 +- 0.26 ms and 0.663 px from the true poses); from the linear starts it
@@ -91,7 +92,7 @@ def test_the_linear_start_gives_the_true_centres_and_points_from_the_true_rotati
 
 @pytest.mark.slow
 def test_the_estimate_leaves_the_global_shutter_minimum_over_seeds():
-    """The fast test over 10 seeds: at least 6 reach the true poses' minimum, and those within 3 sigma of the truth."""
+    """The test above over 10 seeds: at least 6 reach the true poses' minimum, and those within 3 sigma of the truth."""
     results = [_from_a_global_shutter_solve(seed) for seed in range(10)]
     reached = [estimate.rms_px < from_truth.rms_px + 0.003 for estimate, from_truth in results]
     assert np.mean(reached) >= 0.6, [(e.rms_px, t.rms_px) for e, t in results]
