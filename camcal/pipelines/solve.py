@@ -397,7 +397,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
     sparse.mkdir()
     _say(progress, f"mapping ({mapper})")
     models, mapping_note = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None,
-                                        sequential=matcher == "sequential")
+                                      sequential=matcher == "sequential", refined=refine)
     if len(folders) > 1 and models:
         # COLMAP needs sensor_from_rig to start a rig-constrained mapping: take it
         # from an unconstrained first pass, then map again with the rig.
@@ -419,7 +419,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         sparse.mkdir()
         _say(progress, f"mapping ({mapper}) with the rig constraint")
         models, mapping_note = map_images(pycolmap, database, image_dir, sparse, mapper, seed, lens is not None,
-                                            sequential=matcher == "sequential")
+                                          sequential=matcher == "sequential", refined=refine)
     if mapping_note:
         _say(progress, mapping_note)
         stage_notes.append(mapping_note)

@@ -24,6 +24,7 @@ __all__ = [
     "MATCHERS",
     "MIN_PAIR_MATCHES",
     "OWNED",
+    "REFINED_GLOBAL_BA_RATIO",
     "SEQUENTIAL_INIT_TRI_ANGLE_DEG",
     "UPSAMPLE_BELOW_PX",
     "check_parallax",
@@ -114,13 +115,15 @@ def verification_options(pycolmap, seed: int):
 
 
 def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: str, seed: int,
-               hold_intrinsics: bool = False, sequential: bool = False) -> tuple[dict, str]:
+               hold_intrinsics: bool = False, sequential: bool = False, refined: bool = False) -> tuple[dict, str]:
     """COLMAP's mapping, seeded and on one thread (multi-threaded Ceres sums in the order threads finish).
 
     ``hold_intrinsics``: the mapper's bundle adjustments keep the cameras' intrinsics as the database has them
     (a lens known from a grid, :mod:`camcal.pipelines.solve_lens`). ``sequential``: the pairs were matched in
     frame order (a plate): the incremental mapper looks for its initial pair with the triangulation angle
-    :data:`SEQUENTIAL_INIT_TRI_ANGLE_DEG` from the start.
+    :data:`SEQUENTIAL_INIT_TRI_ANGLE_DEG` from the start; with ``refined`` as well (camcal's bundle adjustment
+    refines the whole model afterwards), its global bundle adjustments run as the model grows by
+    :data:`REFINED_GLOBAL_BA_RATIO` instead of COLMAP's 1.1.
 
     The incremental mapper never starts from a pair whose relative translation points along the view by more
     than ``init_max_forward_motion`` (0.95 of its length), and its relaxations lower the inliers and the
@@ -151,6 +154,8 @@ def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: 
     options.num_threads = 1
     if sequential:
         options.mapper.init_min_tri_angle = SEQUENTIAL_INIT_TRI_ANGLE_DEG
+        if refined:
+            options.ba_global_frames_ratio = options.ba_global_points_ratio = REFINED_GLOBAL_BA_RATIO
     if hold_intrinsics:
         options.ba_refine_focal_length = options.ba_refine_extra_params = False
         options.ba_refine_principal_point = False
@@ -197,6 +202,13 @@ def _image_count(pycolmap, database: Path) -> int:
 #: last relaxed angle (the inliers still asked) found the same initial pair and the same reconstruction, bit
 #: for bit, on rendered walk and orbit plates.
 SEQUENTIAL_INIT_TRI_ANGLE_DEG = 4.0
+#: the growth of the model (registered frames or points) between two of the incremental mapper's global bundle
+#: adjustments on a plate matched in frame order whose model camcal refines afterwards (COLMAP's default: 1.1, a
+#: global adjustment at almost every frame of a short plate, 26 on a 60-frame orbit; the cost of all of them is
+#: about 1 / (1 - 1 / ratio) times the last one's). Each frame is still registered against its neighbours and
+#: refined by the mapper's local bundle adjustment, and the whole model is adjusted once more when the mapper
+#: ends; camcal's bundle adjustment then refines every frame, point and intrinsic from that model.
+REFINED_GLOBAL_BA_RATIO = 1.5
 #: a pair of images counts as matched with at least this many verified matches.
 MIN_PAIR_MATCHES = 15
 

@@ -4,7 +4,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from camcal.pipelines.solve_colmap import map_images
+from camcal.pipelines.solve_colmap import REFINED_GLOBAL_BA_RATIO, SEQUENTIAL_INIT_TRI_ANGLE_DEG, map_images
 
 
 class _Model:
@@ -58,3 +58,27 @@ def test_the_mapper_retries_with_a_forward_first_pair_and_keeps_the_run_that_reg
                            f"along its view (forward motion): {forward}")
     assert note.endswith(", kept" if forward > first else ", the first run kept")
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("sparse")) == ["sparse"]
+
+
+@pytest.mark.parametrize("sequential, refined", [(True, True), (True, False), (False, True)])
+def test_the_mapper_adjusts_the_whole_model_less_often_only_on_a_plate_camcal_refines_afterwards(tmp_path, sequential,
+                                                                                                  refined):
+    """COLMAP's own growth ratio (1.1) unless the pairs were matched in frame order and camcal's bundle adjustment
+    refines the model afterwards; the real pipeline's options object carries both names."""
+    import pycolmap
+
+    seen = []
+
+    def incremental_mapping(database, image_dir, sparse, options):
+        seen.append((options.ba_global_frames_ratio, options.ba_global_points_ratio, options.mapper.init_min_tri_angle))
+        return {0: _Model(51)}
+
+    stand_in = SimpleNamespace(set_random_seed=lambda seed: None,
+                               IncrementalPipelineOptions=pycolmap.IncrementalPipelineOptions,
+                               incremental_mapping=incremental_mapping,
+                               Database=SimpleNamespace(open=lambda path: _Database()))
+    map_images(stand_in, tmp_path / "db", tmp_path, tmp_path, "incremental", 0, sequential=sequential, refined=refined)
+    default = pycolmap.IncrementalPipelineOptions()
+    ratio = REFINED_GLOBAL_BA_RATIO if sequential and refined else default.ba_global_frames_ratio
+    assert seen == [(ratio, ratio, SEQUENTIAL_INIT_TRI_ANGLE_DEG if sequential else default.mapper.init_min_tri_angle)]
+    assert REFINED_GLOBAL_BA_RATIO > default.ba_global_frames_ratio == default.ba_global_points_ratio
