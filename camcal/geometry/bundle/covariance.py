@@ -25,7 +25,8 @@ from numpy.typing import NDArray
 
 from camcal.base.extras import require
 
-__all__ = ["MIN_POINT_SINGULAR_RATIO", "ceres_covariance", "is_free_block", "marginal_covariance", "point_schur_terms"]
+__all__ = ["MIN_POINT_SINGULAR_RATIO", "ceres_covariance", "is_free_block", "marginal_covariance", "point_schur_terms",
+           "point_schur_vector"]
 
 #: A free 3D point whose Jacobian has ``sigma_min < MIN_POINT_SINGULAR_RATIO x sigma_max`` (its depth
 #: is not determined to the rounding of the Jacobian) is left out of the covariance, not of the fit
@@ -246,6 +247,21 @@ def point_schur_terms(H_pc, root: NDArray[np.float64], rhs: NDArray[np.float64] 
         if vector is not None:
             vector[columns] += L.T @ projected[chunk].ravel()
     return terms, vector
+
+
+def point_schur_vector(H_pc, root: NDArray[np.float64], rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The points' Schur term ``H_cp V^+ rhs`` alone (:func:`point_schur_terms`' second term), by one sparse
+    product: ``H_pc^T (R R^T rhs)``, no dense block made.
+
+    Parameters
+    ----------
+    H_pc : scipy.sparse.csr_matrix, shape (3 n, c)
+    root : ndarray, shape (n, 3, 3)
+    rhs : ndarray, shape (n, 3)
+        As :func:`point_schur_terms`'.
+    """
+    projected = np.einsum("pji,pj->pi", root, rhs)  # R^T rhs
+    return H_pc.T @ np.einsum("pij,pj->pi", root, projected).ravel()
 
 
 def _jacobian(problem, reconstruction, blocks: list[NDArray[np.float64]], num_threads: int = 2):
