@@ -10,7 +10,7 @@ import scipy.sparse
 from test_selfcal import stereo_rig, tracks_state
 
 from camcal.geometry.bundle import BundleOptions, bundle_adjust
-from camcal.geometry.bundle import deletion, influences
+from camcal.geometry.bundle import covariance, deletion, influences
 from camcal.geometry.bundle.deletion import one_step_replicates
 from camcal.geometry.bundle.influences import frame_influences
 from camcal.geometry.bundle.prior import PriorSpec, mean_focal
@@ -40,8 +40,8 @@ def test_influences_are_the_one_step_replicates_moves(monkeypatch):
     monkeypatch.undo()
     # made dense one frame at a time (or the columns square): never observations x columns over every frame,
     # which grows with the square of the frame count (gigabytes on a long plate)
-    n_columns = max(columns for _, columns in shapes)
-    assert max(rows for rows, _ in shapes) <= max(2 * per_frame.max(), n_columns) < 2 * per_frame.sum()
+    n_columns = max((columns for _, columns in shapes), default=0)
+    assert all(rows <= max(2 * per_frame.max(), n_columns) < 2 * per_frame.sum() for rows, _ in shapes)
     replicates = one_step_replicates(full.state, OPTIONS, [np.array([f]) for f in frames])
     assert influences.values.shape == (len(frames), len(influences.names))
     assert {"gauge.rx", "gauge.ry", "gauge.rz", "right.rx"} <= set(influences.names)
@@ -200,3 +200,29 @@ def test_replicates_and_influences_in_one_pass_are_the_two_passes(monkeypatch):
     replicates, shared = influences.replicates_and_influences(fit, dataclasses.replace(held, refine_principal_point=False),
                                                               held, groups)
     assert len(built) == 2 and np.array_equal(shared.values, frame_influences(fit, held, groups).values)
+
+
+def test_point_schur_terms_are_the_dense_products():
+    # H_cp V^+ H_pc and H_cp V^+ b over points spread over several chunks, each seeing a few columns of a band
+    # (a plate's frames) and the shared ones (intrinsics), against the dense block-diagonal product
+    rng = np.random.default_rng(3)
+    n_points, n_columns = 700, 60
+    rows, cols = [], []
+    for p in range(n_points):
+        start = rng.integers(5, n_columns - 12)
+        seen = np.r_[0:5, start:start + rng.integers(3, 12)]
+        rows += [3 * p + k for k in range(3) for _ in seen]
+        cols += [c for _ in range(3) for c in seen]
+    H_pc = scipy.sparse.csr_matrix((rng.standard_normal(len(rows)), (rows, cols)), shape=(3 * n_points, n_columns))
+    root = rng.standard_normal((n_points, 3, 3))
+    root[::7] = 0.0  # points not eliminated
+    rhs = rng.standard_normal((n_points, 3))
+    V_plus = scipy.linalg.block_diag(*(r @ r.T for r in root))
+    dense = H_pc.toarray()
+    terms, vector = covariance.point_schur_terms(H_pc, root, rhs)
+    expected = dense.T @ V_plus @ dense
+    assert np.allclose(terms, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    assert np.array_equal(terms, terms.T)
+    expected = dense.T @ V_plus @ rhs.ravel()
+    assert np.allclose(vector, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    assert np.allclose(covariance.point_schur_vector(H_pc, root, rhs), expected, rtol=0, atol=1e-12 * np.abs(expected).max())
