@@ -49,11 +49,12 @@ from scipy.spatial.transform import Rotation
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
 from camcal.geometry.bundle.covariance import is_free_block, point_schur_terms, point_schur_vector
+from camcal.geometry.bundle.prior import resolve_priors
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import BundleOptions, BundleState, model_layout
 
 __all__ = ["DeletionUnsupported", "FrameDeletion", "LinearisedBundle", "linearise", "apply_step",
-           "one_step_replicates", "same_observations", "split_priors"]
+           "one_step_replicates", "prior_sums", "split_priors"]
 
 #: eigenvalues of the Jacobi-scaled reduced system below this share of the largest are its null space (the gauge).
 _NULL_RATIO = 1e-11
@@ -464,18 +465,46 @@ def split_priors(system: LinearisedBundle,
     return alone, ((P.T @ P).toarray(), P.T @ system.r[~observed])
 
 
-def same_observations(system: LinearisedBundle, other: LinearisedBundle) -> bool:
-    """Whether two linearised problems have the same columns and the same observations' rows (Jacobian and
-    residuals to the bit): they differ at most in their priors (:func:`split_priors`)."""
-    mine, theirs = _observed(system), _observed(other)
-    return bool(len(system.blocks) == len(other.blocks) and system.J_c.shape[1] == other.J_c.shape[1]
-                and all((a.kind, a.index, a.columns, a.free) == (b.kind, b.index, b.columns, b.free)
-                        for a, b in zip(system.blocks, other.blocks))
-                and np.array_equal(system.row_frame[mine], other.row_frame[theirs])
-                and np.array_equal(system.row_point[mine], other.row_point[theirs])
-                and np.array_equal(system.r[mine], other.r[theirs])
-                and np.array_equal(system.point_rows[mine], other.point_rows[theirs])
-                and (system.J_c[np.flatnonzero(mine)] != other.J_c[np.flatnonzero(theirs)]).nnz == 0)
+def prior_sums(state: BundleState, system: LinearisedBundle, options: BundleOptions, other: BundleOptions,
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The normal equations ``(P^T P, P^T r)`` of the priors ``other`` puts on the problem that ``system``
+    linearises with ``options`` (:func:`split_priors`' second part for ``other``, without building its problem).
+
+    Each prior is a row ``w (a . x - mean)`` with ``w = s / sigma`` on one camera's parameters
+    (:mod:`camcal.geometry.bundle.prior`): ``s``, the noise both problems weigh their priors with (it is the
+    observations'), is read from ``system``'s own prior rows, and ``other``'s rows are made with it. None when
+    those rows are not the priors ``options`` resolves to, row by row (then linearise ``other``'s problem).
+    """
+    columns = {}
+    for block in system.blocks:
+        if block.kind == "camera":
+            columns.update({(block.index, i): block.columns.start + k for k, i in enumerate(block.free)})
+    free = {camera: {i for c, i in columns if c == camera} for camera, _ in columns}
+
+    def rows(specs: BundleOptions) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Each prior's row for ``w = 1``, its ``a . x - mean`` and its sigma."""
+        priors = resolve_priors(state, specs.priors, specs.default_priors, free)[0]
+        unit = np.zeros((len(priors), system.J_c.shape[1]))
+        for k, prior in enumerate(priors):
+            for i, coefficient in zip(prior.indices, prior.coefficients):
+                if (prior.camera, i) in columns:
+                    unit[k, columns[prior.camera, i]] = coefficient
+        offsets = np.array([prior.value(state.params[prior.camera]) - prior.mean for prior in priors])
+        return unit, offsets, np.array([prior.sigma for prior in priors])
+
+    observed = _observed(system)
+    P, r = system.J_c[np.flatnonzero(~observed)].toarray(), system.r[~observed]
+    unit, offsets, sigmas = rows(options)
+    if len(P) != len(unit) or len(P) == 0:
+        return None
+    weights = np.sum(P * unit, axis=1) / np.sum(unit * unit, axis=1)
+    noise = weights * sigmas
+    if not (np.allclose(noise, noise[0], rtol=1e-12, atol=0) and np.allclose(P, weights[:, None] * unit, rtol=1e-12, atol=0)
+            and np.allclose(r, weights * offsets, rtol=1e-9, atol=1e-12 * max(np.abs(r).max(), 1.0))):
+        return None
+    unit, offsets, sigmas = rows(other)
+    Q = (noise[0] / sigmas)[:, None] * unit
+    return Q.T @ Q, Q.T @ ((noise[0] / sigmas) * offsets)
 
 
 def apply_step(state: BundleState, blocks: list[_Block], delta: NDArray[np.float64]) -> BundleState:

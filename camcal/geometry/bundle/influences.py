@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from camcal.geometry.bundle.deletion import (FrameDeletion, LinearisedBundle, apply_step, linearise, one_step_replicates,
-                                             same_observations, split_priors)
+                                             prior_sums, split_priors)
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import BundleOptions, BundleState
 from camcal.geometry.uncertainty import scene_gauge_rows
@@ -155,11 +155,11 @@ def replicates_and_influences(state: BundleState, replicate_options: BundleOptio
     :func:`frame_influences` under ``options`` over the same groups, from one pass over the groups' sums.
 
     Where the two options differ only in their priors (the self-calibration's replicates leave the aspect under
-    its prior, its fit held it: :func:`camcal.geometry.selfcal.self_calibrate`), both problems are linearised
-    and the sums over each group's observations are shared, each problem adding its own priors' normal
-    equations (:meth:`~camcal.geometry.bundle.deletion.FrameDeletion.moves`: a few rows on the intrinsics,
-    kept by every group); where they differ otherwise, or their observations' rows do, each is computed on
-    its own.
+    its prior, its fit held it: :func:`camcal.geometry.selfcal.self_calibrate`), the sums over each group's
+    observations are shared, each problem adding its own priors' normal equations
+    (:meth:`~camcal.geometry.bundle.deletion.FrameDeletion.moves`: a few rows on the intrinsics, kept by every
+    group; the replicates' made as ``options``' are, :func:`~camcal.geometry.bundle.deletion.prior_sums`);
+    where they differ otherwise, or the priors' rows are not as made, each is computed on its own.
 
     Parameters
     ----------
@@ -194,10 +194,9 @@ def replicates_and_influences(state: BundleState, replicate_options: BundleOptio
     if linear(replicate_options) != linear(options):
         if dataclasses.replace(linear(replicate_options), priors=options.priors) != linear(options):
             return apart()
-        other = _linearised(state, replicate_options)[0]
-        if not same_observations(system, other):
+        step_priors = prior_sums(state, system, options, replicate_options)
+        if step_priors is None:
             return apart()
-        step_priors = split_priors(other)[1]
     deletion = FrameDeletion(observations)
     reduced = deletion.reduced + own_priors[0]
     replicates, values = [], []
