@@ -473,7 +473,8 @@ def prior_sums(state: BundleState, system: LinearisedBundle, options: BundleOpti
     Each prior is a row ``w (a . x - mean)`` with ``w = s / sigma`` on one camera's parameters
     (:mod:`camcal.geometry.bundle.prior`): ``s``, the noise both problems weigh their priors with (it is the
     observations'), is read from ``system``'s own prior rows, and ``other``'s rows are made with it. None when
-    those rows are not the priors ``options`` resolves to, row by row (then linearise ``other``'s problem).
+    those rows are not the priors ``options`` resolves to, row by row (then ``other``'s problem is to be
+    linearised on its own).
     """
     columns = {}
     for block in system.blocks:
@@ -499,7 +500,8 @@ def prior_sums(state: BundleState, system: LinearisedBundle, options: BundleOpti
         return None
     weights = np.sum(P * unit, axis=1) / np.sum(unit * unit, axis=1)
     noise = weights * sigmas
-    if not (np.allclose(noise, noise[0], rtol=1e-12, atol=0) and np.allclose(P, weights[:, None] * unit, rtol=1e-12, atol=0)
+    if not (np.allclose(noise, noise[0], rtol=1e-12, atol=0)
+            and np.allclose(P, weights[:, None] * unit, rtol=1e-12, atol=0)
             and np.allclose(r, weights * offsets, rtol=1e-9, atol=1e-12 * max(np.abs(r).max(), 1.0))):
         return None
     unit, offsets, sigmas = rows(other)

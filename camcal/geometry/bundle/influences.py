@@ -23,6 +23,11 @@ system (``(6 F + 5)^3 / 3`` flops for ``F`` frames) plus a solve over a few free
 costs an eigen-decomposition over every column the group's points touch, and a group's rows times their
 columns squared to build it: per frame, on a plate whose frames all share points, ``F^3`` each.
 
+The frame jackknife's one-step replicates (:func:`camcal.geometry.jackknife.frame_jackknife`) are the same
+groups' steps with the whole gradient: :func:`replicates_and_influences` makes both from one pass over the
+groups' sums, on the observations' rows, each problem adding its own priors' normal equations (the
+self-calibration's replicates and its fit differ only there).
+
 Clusters: one frame each on a short sequence; on a long plate the contiguous groups of the frame jackknife
 (:func:`camcal.geometry.jackknife.frame_groups`), a bounded count whatever the length. Neighbouring frames of a
 plate see the same points from nearly the same place and their features are tracked from one to the next, so
