@@ -68,6 +68,7 @@ from scipy.stats import norm, t
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
 from camcal.geometry.bundle.deletion import DeletionUnsupported, one_step_replicates
+from camcal.geometry.bundle.influences import FrameInfluences, frame_influences, replicates_and_influences
 
 __all__ = ["MAX_GROUPS", "METHODS", "MIN_FRAMES", "FrameJackknife", "frame_groups", "frame_jackknife",
            "interval_factor", "without_frames"]
@@ -100,6 +101,11 @@ class FrameJackknife:
     method : str
         How the replicates were solved (:data:`METHODS`); ``refit`` also
         when ``step`` was asked of a problem it does not handle.
+    influences : FrameInfluences or None
+        Each group's influence on the fit
+        (:func:`camcal.geometry.bundle.influences.frame_influences`) when
+        asked for (``influence_options`` of :func:`frame_jackknife`) and the
+        problem has a one-step form; else None.
     """
 
     sigmas: dict[str, float]
@@ -107,6 +113,7 @@ class FrameJackknife:
     n_frames: int
     n_groups: int
     method: str = "refit"
+    influences: FrameInfluences | None = None
 
     @property
     def widened_sigmas(self) -> dict[str, float]:
@@ -164,7 +171,8 @@ def _rig_deviations(full: BundleState, replicate: BundleState, frames: NDArray[n
 
 def frame_jackknife(result: BundleResult, options: BundleOptions,
                     progress: Callable[[int, int], None] | None = None,
-                    max_groups: int = MAX_GROUPS, method: str = "step") -> FrameJackknife:
+                    max_groups: int = MAX_GROUPS, method: str = "step",
+                    influence_options: BundleOptions | None = None) -> FrameJackknife:
     """Sigmas of a refinement's intrinsics and rig pose by leaving out one frame at a time.
 
     Parameters
@@ -183,6 +191,11 @@ def frame_jackknife(result: BundleResult, options: BundleOptions,
         (:func:`~camcal.geometry.bundle.deletion.one_step_replicates`; falls
         back to refits where it does not apply, e.g. with a board) or by a
         full bundle adjustment.
+    influence_options : BundleOptions, optional
+        Also each group's influence on the fit under these options (the
+        fit's own; they may differ from ``options`` in their priors), with
+        the ``step`` replicates from the same sums
+        (:func:`~camcal.geometry.bundle.influences.replicates_and_influences`).
 
     Returns
     -------
@@ -210,12 +223,20 @@ def frame_jackknife(result: BundleResult, options: BundleOptions,
                   for i, name in enumerate(state.param_names(k))}
     values: dict[str, list[NDArray[np.float64]]] = {key: [] for key in intrinsics}
     groups = frame_groups(state, max_groups)
-    steps = None
+    steps, influences = None, None
     if method == "step":
         try:
-            steps = one_step_replicates(state, quiet, groups)
+            if influence_options is None:
+                steps = one_step_replicates(state, quiet, groups)
+            else:
+                steps, influences = replicates_and_influences(state, quiet, influence_options, groups)
         except DeletionUnsupported:
             method = "refit"
+    elif influence_options is not None:
+        try:
+            influences = frame_influences(state, influence_options, groups)
+        except DeletionUnsupported:
+            influences = None
     for done, group in enumerate(groups, start=1):
         replicate = steps[done - 1] if steps is not None else bundle_adjust(without_frames(state, group), quiet).state
         for key, (k, i) in intrinsics.items():
@@ -230,4 +251,5 @@ def frame_jackknife(result: BundleResult, options: BundleOptions,
     replicates = {key: np.array(v) for key, v in values.items()
                   if key not in intrinsics or np.any(np.array(v) != state.params[intrinsics[key][0]][intrinsics[key][1]])}
     sigmas = {key: float(np.sqrt((n - 1) / n * np.sum((v - v.mean(axis=0)) ** 2))) for key, v in replicates.items()}
-    return FrameJackknife(sigmas=sigmas, replicates=replicates, n_frames=len(frames), n_groups=n, method=method)
+    return FrameJackknife(sigmas=sigmas, replicates=replicates, n_frames=len(frames), n_groups=n, method=method,
+                          influences=influences)

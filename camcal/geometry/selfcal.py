@@ -37,11 +37,10 @@ import numpy as np
 
 from camcal.base.errors import CamcalError
 from camcal.geometry.bundle import BundleOptions, BundleResult, BundleState, bundle_adjust
-from camcal.geometry.bundle.deletion import DeletionUnsupported
-from camcal.geometry.bundle.influences import FrameInfluences, frame_influences
+from camcal.geometry.bundle.influences import FrameInfluences
 from camcal.geometry.bundle.prior import (ASPECT_PRIOR, PRINCIPAL_POINT_PRIOR, UNDETERMINED_RATIO, PriorSpec,
                                          mean_focal, undetermined)
-from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_groups, frame_jackknife, without_frames
+from camcal.geometry.jackknife import MAX_GROUPS, METHODS, MIN_FRAMES, frame_jackknife, without_frames
 from camcal.geometry.selfcal_aspect import (ASPECT_HELD, FEATURE_BIAS_PX, SQUARE_PIXELS_HELD, aspect_visibility,
                                             spread_with_aspect_free)
 from camcal.geometry.selfcal_models import (FIXED_PARAMS, LENS_MODELS, MAPPING_MODELS, MODELS, as_lens_model,
@@ -363,13 +362,9 @@ def self_calibrate(
     if not skipped:
         _say(progress, f"uncertainty: delete-one-frame jackknife ({min(n_frames, MAX_GROUPS)} groups of frames)")
         # held cameras: the replicates refit with the aspect under its prior (the hold moves the estimate, not
-        # its spread over the frames)
-        spread = frame_jackknife(final, loose_options, method=jackknife)
-        jackknife_sigmas, groups = spread.widened_sigmas, spread.n_groups
-        try:
-            influences = frame_influences(final.state, final_options, frame_groups(final.state))
-        except DeletionUnsupported:
-            influences = None
+        # its spread over the frames); the influences are the fit's own, from the same pass over the groups
+        spread = frame_jackknife(final, loose_options, method=jackknife, influence_options=final_options)
+        jackknife_sigmas, groups, influences = spread.widened_sigmas, spread.n_groups, spread.influences
         # a singular covariance leaves keys only the jackknife has
         final = dataclasses.replace(final, sigmas={key: max(covariance_sigmas.get(key, 0.0), jackknife_sigmas.get(key, 0.0))
                                                    for key in {**covariance_sigmas, **jackknife_sigmas}})

@@ -10,9 +10,12 @@ import scipy.sparse
 from test_selfcal import stereo_rig, tracks_state
 
 from camcal.geometry.bundle import BundleOptions, bundle_adjust
-from camcal.geometry.bundle import deletion, influences
+from camcal.geometry.bundle import covariance, deletion, influences
 from camcal.geometry.bundle.deletion import one_step_replicates
 from camcal.geometry.bundle.influences import frame_influences
+from camcal.geometry.bundle.prior import PriorSpec, mean_focal
+from camcal.geometry.selfcal_aspect import ASPECT_HELD, SQUARE_PIXELS_HELD
+from camcal.geometry.selfcal_models import with_fixed_params, with_lenses
 from camcal.geometry.uncertainty import shrunk_design_effect
 
 OPTIONS = BundleOptions(refine_principal_point=True)
@@ -37,8 +40,8 @@ def test_influences_are_the_one_step_replicates_moves(monkeypatch):
     monkeypatch.undo()
     # made dense one frame at a time (or the columns square): never observations x columns over every frame,
     # which grows with the square of the frame count (gigabytes on a long plate)
-    n_columns = max(columns for _, columns in shapes)
-    assert max(rows for rows, _ in shapes) <= max(2 * per_frame.max(), n_columns) < 2 * per_frame.sum()
+    n_columns = max((columns for _, columns in shapes), default=0)
+    assert all(rows <= max(2 * per_frame.max(), n_columns) < 2 * per_frame.sum() for rows, _ in shapes)
     replicates = one_step_replicates(full.state, OPTIONS, [np.array([f]) for f in frames])
     assert influences.values.shape == (len(frames), len(influences.names))
     assert {"gauge.rx", "gauge.ry", "gauge.rz", "right.rx"} <= set(influences.names)
@@ -88,7 +91,7 @@ def _dense_replicate(state, group):
     step = np.zeros(J.shape[1])
     step[columns] = -np.linalg.solve(J[np.ix_(kept, columns)].T @ J[np.ix_(kept, columns)],
                                      J[np.ix_(kept, columns)].T @ system.r[kept])
-    return deletion._apply(state, system.blocks, step[:system.J_c.shape[1]])
+    return deletion.apply_step(state, system.blocks, step[:system.J_c.shape[1]])
 
 
 def test_one_step_replicates_by_updated_sums_are_the_dense_normal_equations_solved(monkeypatch):
@@ -157,3 +160,71 @@ def test_group_influences_are_the_dense_delete_a_cluster_moves():
         assert np.allclose(mine, expected, rtol=0, atol=1e-5 * np.abs(expected).max()), group
     # single frames are the default
     assert np.array_equal(frame_influences(full.state, OPTIONS).values[[0, 1, 4]], got.values[:3])
+
+
+def test_replicates_and_influences_in_one_pass_are_the_two_passes(monkeypatch):
+    # the self-calibration's uncertainty: the jackknife's replicates under the loose aspect prior and the
+    # influences under the fit's (square pixels held on one camera: its aspect prior a million times tighter)
+    # from one linearisation and one pass over the groups' sums, each problem adding its priors' rows (the
+    # loose ones made with the noise read off the fit's): the same as each on its own, which the dense normal
+    # equations check above. With the same options one factorisation serves both
+    lenses = dict.fromkeys(("left", "right"), "division")
+    loose = with_fixed_params(dataclasses.replace(OPTIONS, default_priors=True), lenses)
+    state = with_lenses(tracks_state(stereo_rig(), np.random.default_rng(7), n_frames=8, n_points=250), lenses)
+    seed = bundle_adjust(state, loose).state
+    held = dataclasses.replace(loose, priors=(PriorSpec("left", "aspect", 0.0, ASPECT_HELD * mean_focal(seed, 0),
+                                                        SQUARE_PIXELS_HELD),))
+    fit = bundle_adjust(seed, held).state
+    groups = [np.array([0]), np.array([1, 2]), np.array([3, 4]), np.array([5, 6, 7])]
+    built, original = [], deletion.FrameDeletion
+    for module in (deletion, influences):
+        monkeypatch.setattr(module, "FrameDeletion", lambda system: built.append(system) or original(system))
+    for replicate_options in (loose, held):
+        built.clear()
+        replicates, shared = influences.replicates_and_influences(fit, replicate_options, held, groups)
+        assert len(built) == 1  # one problem linearised, one pass over the groups
+        peers = one_step_replicates(fit, replicate_options, groups)
+        alone = frame_influences(fit, held, groups)
+        assert shared.names == alone.names
+        # the same to the rounding of the sums over the problem's condition (1e-10 of each column seen)
+        scale = np.abs(alone.values).max(axis=0)
+        print(np.max(np.abs(shared.values - alone.values) / scale))
+        assert np.all(np.abs(shared.values - alone.values) <= 1e-9 * scale)
+        for mine, peer in zip(replicates, peers):
+            for camera, start in enumerate(fit.params):
+                moved, expected = mine.params[camera] - start, peer.params[camera] - start
+                print(replicate_options is held, np.max(np.abs(moved - expected) / np.abs(expected).max()))
+                assert np.allclose(moved, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
+            assert np.allclose(mine.frame_t, peer.frame_t, rtol=0, atol=1e-12)
+            assert np.allclose(mine.frame_R, peer.frame_R, rtol=0, atol=1e-12)
+    # options that differ in more than their priors: each on its own
+    built.clear()
+    replicates, shared = influences.replicates_and_influences(fit, dataclasses.replace(held, refine_principal_point=False),
+                                                              held, groups)
+    assert len(built) == 2 and np.array_equal(shared.values, frame_influences(fit, held, groups).values)
+
+
+def test_point_schur_terms_are_the_dense_products():
+    # H_cp V^+ H_pc and H_cp V^+ b over points spread over several chunks, each seeing a few columns of a band
+    # (a plate's frames) and the shared ones (intrinsics), against the dense block-diagonal product
+    rng = np.random.default_rng(3)
+    n_points, n_columns = 700, 60
+    rows, cols = [], []
+    for p in range(n_points):
+        start = rng.integers(5, n_columns - 12)
+        seen = np.r_[0:5, start:start + rng.integers(3, 12)]
+        rows += [3 * p + k for k in range(3) for _ in seen]
+        cols += [c for _ in range(3) for c in seen]
+    H_pc = scipy.sparse.csr_matrix((rng.standard_normal(len(rows)), (rows, cols)), shape=(3 * n_points, n_columns))
+    root = rng.standard_normal((n_points, 3, 3))
+    root[::7] = 0.0  # points not eliminated
+    rhs = rng.standard_normal((n_points, 3))
+    V_plus = scipy.linalg.block_diag(*(r @ r.T for r in root))
+    dense = H_pc.toarray()
+    terms, vector = covariance.point_schur_terms(H_pc, root, rhs)
+    expected = dense.T @ V_plus @ dense
+    assert np.allclose(terms, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    assert np.array_equal(terms, terms.T)
+    expected = dense.T @ V_plus @ rhs.ravel()
+    assert np.allclose(vector, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+    assert np.allclose(covariance.point_schur_vector(H_pc, root, rhs), expected, rtol=0, atol=1e-12 * np.abs(expected).max())

@@ -48,11 +48,13 @@ from scipy.spatial.transform import Rotation
 
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
-from camcal.geometry.bundle.covariance import is_free_block, point_schur_terms
+from camcal.geometry.bundle.covariance import is_free_block, point_schur_terms, point_schur_vector
+from camcal.geometry.bundle.prior import resolve_priors
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import BundleOptions, BundleState, model_layout
 
-__all__ = ["DeletionUnsupported", "FrameDeletion", "LinearisedBundle", "linearise", "one_step_replicates"]
+__all__ = ["DeletionUnsupported", "FrameDeletion", "LinearisedBundle", "linearise", "apply_step",
+           "one_step_replicates", "prior_sums", "split_priors"]
 
 #: eigenvalues of the Jacobi-scaled reduced system below this share of the largest are its null space (the gauge).
 _NULL_RATIO = 1e-11
@@ -157,7 +159,7 @@ def _layout(state: BundleState, options: BundleOptions, colmap, problem) -> tupl
 def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64], singular: bool,
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """``S^+ b`` for a symmetric positive semi-definite ``S`` and a basis of ``S``'s null space (columns):
-    Cholesky unless ``singular`` or it fails, else eigen.
+    Cholesky unless ``singular`` or it fails, else eigen. ``b``: one right side, or several (columns).
 
     ``singular``: ``S`` is known to have a null space (the group held a gauge
     frame). Cholesky would not reliably refuse it: the Jacobi-scaled
@@ -179,7 +181,9 @@ def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64], singular: bool
         return out, null
     scale = 1.0 / np.sqrt(d[used])
     scaled = S[np.ix_(used, used)] * np.outer(scale, scale)
-    rhs = b[used] * scale
+    column = (-1,) + (1,) * (b.ndim - 1)  # a vector per row, against one right side or several
+    row_scale = scale.reshape(column)
+    rhs = b[used] * row_scale
     try:
         if singular:
             raise np.linalg.LinAlgError("a gauge frame left out")
@@ -190,11 +194,11 @@ def _pseudo_solve(S: NDArray[np.float64], b: NDArray[np.float64], singular: bool
     except np.linalg.LinAlgError:
         values, vectors = np.linalg.eigh(scaled)
         keep = values > _NULL_RATIO * values[-1]
-        x = vectors[:, keep] @ ((vectors[:, keep].T @ rhs) / values[keep])
+        x = vectors[:, keep] @ ((vectors[:, keep].T @ rhs) / values[keep].reshape(column))
         dropped = np.zeros((len(b), int(np.sum(~keep))))
         dropped[used] = scale[:, None] * vectors[:, ~keep]
         null = np.hstack([null, dropped])
-    out[used] = x * scale
+    out[used] = x * row_scale
     return out, null
 
 
@@ -384,6 +388,34 @@ class FrameDeletion:
         ``group_gradient``: the move the rows that go make, ``(J_(g)^T J_(g))^+ J_g^T r_g``, without the step
         of the whole problem's gradient at its solution (its solver's tolerance, the same for every group):
         the Woodbury form's move (:mod:`camcal.geometry.bundle.influences`)."""
+        S, b, b_group, singular = self._reduced(group, step=not group_gradient, own=group_gradient)
+        delta, free = _pseudo_solve(S, b_group if group_gradient else b, singular)
+        return -delta, free
+
+    def moves(self, group: NDArray[np.int64], step_priors: tuple[NDArray[np.float64], NDArray[np.float64]],
+              own_priors: tuple[NDArray[np.float64], NDArray[np.float64]],
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`step`'s two moves without the frames ``group`` from one set of sums, on a system of
+        observations alone (:func:`split_priors`): the replicate's step with the priors' normal equations
+        ``step_priors`` added, the group's own move (``group_gradient``) with ``own_priors``, and the basis of
+        the directions the rows kept leave free (of the latter).
+
+        Every group keeps the priors' rows, so each problem is the observations' reduced system plus its priors'
+        sums: two problems that differ only in their priors (the self-calibration's replicates and its fit)
+        share the sums over the group. The same priors for both: one factorisation solves both.
+        """
+        S, b, b_group, singular = self._reduced(group, step=True, own=True)
+        if step_priors is own_priors:
+            both, free = _pseudo_solve(S + own_priors[0], np.column_stack([b + own_priors[1], b_group]), singular)
+            return -both[:, 0], -both[:, 1], free
+        step = _pseudo_solve(S + step_priors[0], b + step_priors[1], singular)[0]
+        own, free = _pseudo_solve(S + own_priors[0], b_group, singular)
+        return -step, -own, free
+
+    def _reduced(self, group: NDArray[np.int64], step: bool, own: bool,
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, NDArray[np.float64] | None, bool]:
+        """The reduced system without the frames ``group``, the right sides of its step (``step``) and of the
+        group's own move (``own``; :meth:`step`), and whether the group held the gauge."""
         system, full = self.system, self._full
         deleted = np.isin(system.row_frame, group)
         counts = np.bincount(system.row_point[~deleted & (system.row_point >= 0)], minlength=system.n_points) // 2
@@ -401,20 +433,83 @@ class FrameDeletion:
             vector = self._full_terms[1] - before[1] + after[1]
         else:
             terms, vector = _point_terms(sums, root)
-        S, b = sums.AtA - terms, sums.Atr - vector
-        if group_gradient:  # the points' 3x3 blocks without the group, their gradient the group's
-            b = -(gone.Atr - _point_terms(dataclasses.replace(sums, b_p=gone.b_p * (counts >= 2)[:, None]), root,
-                                          touched)[1])
+        S = sums.AtA - terms
+        b = sums.Atr - vector if step else None
+        # the points' 3x3 blocks without the group, their gradient the group's
+        b_group = -(gone.Atr - point_schur_vector(sums.H_pc, root, gone.b_p * (counts >= 2)[:, None])) if own else None
         # a frame left with no rows: its terms cancel to rounding, not to 0
         rows_left = np.bincount(system.row_frame[kept & (system.row_frame >= 0)], minlength=system.n_frames)
         for block in system.blocks:
             if block.kind == "frame" and rows_left[block.index] == 0:
-                S[block.columns, :] = S[:, block.columns] = b[block.columns] = 0.0
-        delta, free = _pseudo_solve(S, b, singular=bool(np.isin(group, system.gauge).any()))
-        return -delta, free
+                S[block.columns, :] = S[:, block.columns] = 0.0
+                for right in (b, b_group):
+                    if right is not None:
+                        right[block.columns] = 0.0
+        return S, b, b_group, bool(np.isin(group, system.gauge).any())
 
 
-def _apply(state: BundleState, blocks: list[_Block], delta: NDArray[np.float64]) -> BundleState:
+def _observed(system: LinearisedBundle) -> NDArray[np.bool_]:
+    """The rows of an observation (of a frame or a point); the others are priors on the intrinsics."""
+    return (system.row_frame >= 0) | (system.row_point >= 0)
+
+
+def split_priors(system: LinearisedBundle,
+                 ) -> tuple[LinearisedBundle, tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """The system's observations' rows alone, and the normal equations ``(P^T P, P^T r)`` of its other rows
+    (priors on the intrinsics: of no frame and no point, kept by every group) on its camera, rig and frame
+    columns (:meth:`FrameDeletion.moves`)."""
+    observed = _observed(system)
+    rows, P = np.flatnonzero(observed), system.J_c[np.flatnonzero(~observed)]
+    alone = dataclasses.replace(system, J_c=system.J_c[rows], point_rows=system.point_rows[rows], r=system.r[rows],
+                                row_frame=system.row_frame[rows], row_point=system.row_point[rows])
+    return alone, ((P.T @ P).toarray(), P.T @ system.r[~observed])
+
+
+def prior_sums(state: BundleState, system: LinearisedBundle, options: BundleOptions, other: BundleOptions,
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The normal equations ``(P^T P, P^T r)`` of the priors ``other`` puts on the problem that ``system``
+    linearises with ``options`` (:func:`split_priors`' second part for ``other``, without building its problem).
+
+    Each prior is a row ``w (a . x - mean)`` with ``w = s / sigma`` on one camera's parameters
+    (:mod:`camcal.geometry.bundle.prior`): ``s``, the noise both problems weigh their priors with (it is the
+    observations'), is read from ``system``'s own prior rows, and ``other``'s rows are made with it. None when
+    those rows are not the priors ``options`` resolves to, row by row (then ``other``'s problem is to be
+    linearised on its own).
+    """
+    columns = {}
+    for block in system.blocks:
+        if block.kind == "camera":
+            columns.update({(block.index, i): block.columns.start + k for k, i in enumerate(block.free)})
+    free = {camera: {i for c, i in columns if c == camera} for camera, _ in columns}
+
+    def rows(specs: BundleOptions) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Each prior's row for ``w = 1``, its ``a . x - mean`` and its sigma."""
+        priors = resolve_priors(state, specs.priors, specs.default_priors, free)[0]
+        unit = np.zeros((len(priors), system.J_c.shape[1]))
+        for k, prior in enumerate(priors):
+            for i, coefficient in zip(prior.indices, prior.coefficients):
+                if (prior.camera, i) in columns:
+                    unit[k, columns[prior.camera, i]] = coefficient
+        offsets = np.array([prior.value(state.params[prior.camera]) - prior.mean for prior in priors])
+        return unit, offsets, np.array([prior.sigma for prior in priors])
+
+    observed = _observed(system)
+    P, r = system.J_c[np.flatnonzero(~observed)].toarray(), system.r[~observed]
+    unit, offsets, sigmas = rows(options)
+    if len(P) != len(unit) or len(P) == 0:
+        return None
+    weights = np.sum(P * unit, axis=1) / np.sum(unit * unit, axis=1)
+    noise = weights * sigmas
+    if not (np.allclose(noise, noise[0], rtol=1e-12, atol=0)
+            and np.allclose(P, weights[:, None] * unit, rtol=1e-12, atol=0)
+            and np.allclose(r, weights * offsets, rtol=1e-9, atol=1e-12 * max(np.abs(r).max(), 1.0))):
+        return None
+    unit, offsets, sigmas = rows(other)
+    Q = (noise[0] / sigmas)[:, None] * unit
+    return Q.T @ Q, Q.T @ ((noise[0] / sigmas) * offsets)
+
+
+def apply_step(state: BundleState, blocks: list[_Block], delta: NDArray[np.float64]) -> BundleState:
     """The state moved by a tangent-space step of its cameras, rig sensors and frames (Ceres' manifolds)."""
     params = [p.copy() for p in state.params]
     sensor_R, sensor_t = state.sensor_R.copy(), state.sensor_t.copy()
@@ -468,7 +563,7 @@ def one_step_replicates(state: BundleState, options: BundleOptions,
     def inspect(problem, colmap) -> None:
         system = linearise(state, options, colmap, problem)
         deletion = FrameDeletion(system)
-        out.append([_apply(state, system.blocks, deletion.step(group)[0]) for group in groups])
+        out.append([apply_step(state, system.blocks, deletion.step(group)[0]) for group in groups])
 
     bundle_adjust(state, dataclasses.replace(options, max_iterations=0, compute_sigmas=False), inspect=inspect)
     return out[0]

@@ -23,6 +23,11 @@ system (``(6 F + 5)^3 / 3`` flops for ``F`` frames) plus a solve over a few free
 costs an eigen-decomposition over every column the group's points touch, and a group's rows times their
 columns squared to build it: per frame, on a plate whose frames all share points, ``F^3`` each.
 
+The frame jackknife's one-step replicates (:func:`camcal.geometry.jackknife.frame_jackknife`) are the same
+groups' steps with the whole gradient: :func:`replicates_and_influences` makes both from one pass over the
+groups' sums, on the observations' rows, each problem adding its own priors' normal equations (the
+self-calibration's replicates and its fit differ only there).
+
 Clusters: one frame each on a short sequence; on a long plate the contiguous groups of the frame jackknife
 (:func:`camcal.geometry.jackknife.frame_groups`), a bounded count whatever the length. Neighbouring frames of a
 plate see the same points from nearly the same place and their features are tracked from one to the next, so
@@ -48,12 +53,13 @@ import dataclasses
 import numpy as np
 from numpy.typing import NDArray
 
-from camcal.geometry.bundle.deletion import FrameDeletion, LinearisedBundle, linearise
+from camcal.geometry.bundle.deletion import (FrameDeletion, LinearisedBundle, apply_step, linearise, one_step_replicates,
+                                             prior_sums, split_priors)
 from camcal.geometry.bundle.solve import bundle_adjust
 from camcal.geometry.bundle.state import BundleOptions, BundleState
 from camcal.geometry.uncertainty import scene_gauge_rows
 
-__all__ = ["FrameInfluences", "frame_influences"]
+__all__ = ["FrameInfluences", "frame_influences", "replicates_and_influences"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,13 +81,13 @@ class FrameInfluences:
     values: NDArray[np.float64]
 
 
-def _resected(deletion: FrameDeletion, group: NDArray[np.int64]) -> NDArray[np.float64]:
-    """The group's move with the directions the rows kept leave free chosen as the Woodbury form's
-    Moore-Penrose inverse chooses them: ``delta + N a`` with ``N^T S (delta + N a) = 0`` (module docstring)."""
-    delta, free = deletion.step(group, group_gradient=True)
+def _resected(reduced: NDArray[np.float64], delta: NDArray[np.float64], free: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A group's own move (:meth:`~camcal.geometry.bundle.deletion.FrameDeletion.step` with ``group_gradient``)
+    with the directions ``free`` the rows kept leave free chosen as the Woodbury form's Moore-Penrose inverse
+    chooses them: ``delta + N a`` with ``N^T S (delta + N a) = 0`` (module docstring; ``S``: ``reduced``)."""
     if free.shape[1] == 0:
         return delta
-    S_free = deletion.reduced @ free
+    S_free = reduced @ free
     inner = free.T @ S_free
     scale = 1.0 / np.sqrt(np.maximum(np.diag(inner), np.finfo(float).tiny))
     share = np.linalg.pinv(inner * np.outer(scale, scale), rcond=1e-12, hermitian=True) @ (scale * (S_free.T @ delta))
@@ -142,13 +148,79 @@ def frame_influences(state: BundleState, options: BundleOptions,
     """
     if groups is None:
         groups = [np.array([frame]) for frame in np.unique(state.obs_frame)]
-    out: list[FrameInfluences] = []
+    system, names, B = _linearised(state, options)
+    deletion = FrameDeletion(system)
+    return FrameInfluences(tuple(names), np.array([B @ _resected(deletion.reduced, *deletion.step(group, group_gradient=True))
+                                                   for group in groups]))
+
+
+def replicates_and_influences(state: BundleState, replicate_options: BundleOptions, options: BundleOptions,
+                              groups: list[NDArray[np.int64]]) -> tuple[list[BundleState], FrameInfluences]:
+    """:func:`~camcal.geometry.bundle.deletion.one_step_replicates` under ``replicate_options`` and
+    :func:`frame_influences` under ``options`` over the same groups, from one pass over the groups' sums.
+
+    Where the two options differ only in their priors (the self-calibration's replicates leave the aspect under
+    its prior, its fit held it: :func:`camcal.geometry.selfcal.self_calibrate`), the sums over each group's
+    observations are shared, each problem adding its own priors' normal equations
+    (:meth:`~camcal.geometry.bundle.deletion.FrameDeletion.moves`: a few rows on the intrinsics, kept by every
+    group; the replicates' made as ``options``' are, :func:`~camcal.geometry.bundle.deletion.prior_sums`);
+    where they differ otherwise, or the priors' rows are not as made, each is computed on its own.
+
+    Parameters
+    ----------
+    state : BundleState
+        A converged bundle adjustment (every frame).
+    replicate_options, options : BundleOptions
+        The replicates' options and the influences' (the fit's).
+    groups : list of ndarray of int
+        Frame positions left out together.
+
+    Returns
+    -------
+    list of BundleState
+        One replicate per group (:func:`~camcal.geometry.bundle.deletion.one_step_replicates`).
+    FrameInfluences
+        One row per group (:func:`frame_influences`).
+
+    Raises
+    ------
+    DeletionUnsupported
+        As :func:`camcal.geometry.bundle.deletion.one_step_replicates`.
+    """
+    def linear(given: BundleOptions) -> BundleOptions:
+        return dataclasses.replace(given, max_iterations=0, compute_sigmas=False)
+
+    def apart() -> tuple[list[BundleState], FrameInfluences]:
+        return one_step_replicates(state, replicate_options, groups), frame_influences(state, options, groups)
+
+    system, names, B = _linearised(state, options)
+    observations, own_priors = split_priors(system)
+    step_priors = own_priors
+    if linear(replicate_options) != linear(options):
+        if dataclasses.replace(linear(replicate_options), priors=options.priors) != linear(options):
+            return apart()
+        step_priors = prior_sums(state, system, options, replicate_options)
+        if step_priors is None:
+            return apart()
+    deletion = FrameDeletion(observations)
+    reduced = deletion.reduced + own_priors[0]
+    replicates, values = [], []
+    for group in groups:
+        step, own, free = deletion.moves(group, step_priors, own_priors)
+        replicates.append(apply_step(state, system.blocks, step))
+        values.append(B @ _resected(reduced, own, free))
+    return replicates, FrameInfluences(tuple(names), np.array(values))
+
+
+def _linearised(state: BundleState, options: BundleOptions,
+                ) -> tuple[LinearisedBundle, list[str], NDArray[np.float64]]:
+    """The problem of ``options`` at ``state`` (:func:`~camcal.geometry.bundle.deletion.linearise`) and its
+    parameters' names and rows (:func:`_parameter_rows`)."""
+    out = []
 
     def inspect(problem, colmap) -> None:
         system = linearise(state, options, colmap, problem)
-        names, B = _parameter_rows(state, system, colmap)
-        deletion = FrameDeletion(system)
-        out.append(FrameInfluences(tuple(names), np.array([B @ _resected(deletion, group) for group in groups])))
+        out.append((system, *_parameter_rows(state, system, colmap)))
 
     bundle_adjust(state, dataclasses.replace(options, max_iterations=0, compute_sigmas=False), inspect=inspect)
     return out[0]
