@@ -354,7 +354,10 @@ def self_calibrate(
         final_options = dataclasses.replace(final_options, priors=final_options.priors + tuple(
             PriorSpec(name, "aspect", 0.0, ASPECT_HELD * mean_focal(final.state, names.index(name)),
                       SQUARE_PIXELS_HELD) for name in held))
-        final = spread_with_aspect_free(bundle_adjust(final.state, final_options), loose_options, held)
+        # it starts at the free fit's solution, whose solved noise weighs its priors (no second solve to re-weigh them)
+        noise = final.noise_px if np.isfinite(final.noise_px) and final.noise_px > 0 else None
+        final = spread_with_aspect_free(bundle_adjust(final.state, dataclasses.replace(final_options, prior_noise_px=noise)),
+                                        loose_options, held)
     decisions = tuple(_principal_point_decision(final, k, principal_point) for k in range(len(names)))
     covariance_sigmas, jackknife_sigmas, groups, influences = dict(final.sigmas), {}, 0, None
     n_frames = len(np.unique(final.state.obs_frame))

@@ -304,7 +304,8 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
     iterations = int(summary.num_successful_steps + summary.num_unsuccessful_steps) - 1
     initial_cost = float(summary.initial_cost)
     solved = np.sqrt(_image_sigma2(colmap, summary, costs))
-    if costs and options.prior_noise_px is None and solved > 0 and abs(np.log(noise / solved)) > np.log(_NOISE_RATIO):
+    if (costs and options.prior_noise_px is None and options.reweigh_priors and solved > 0
+            and abs(np.log(noise / solved)) > np.log(_NOISE_RATIO)):
         # the start's residuals misjudged the noise that weighs the priors: solve again with the solved noise
         for cost in costs:
             cost.weight = solved / cost.prior.sigma
@@ -312,6 +313,7 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
         with glog_level(pyceres):
             pyceres.solve(solver_options, problem, summary)
         iterations += int(summary.num_successful_steps + summary.num_unsuccessful_steps) - 1
+        solved = np.sqrt(_image_sigma2(colmap, summary, costs))
     if inspect is not None:
         inspect(problem, colmap)
     if progress is not None:
@@ -334,6 +336,7 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
         n_residuals=int(summary.num_residuals), n_parameters=int(summary.num_effective_parameters_reduced),
         covariance=covariance, covariance_names=covariance_names, n_points_out_of_covariance=n_left_out,
         termination=str(summary.message), priors=priors, prior_posterior_sigmas=posterior, unused_priors=unused,
+        noise_px=float(solved),
     )
 
 
