@@ -1,4 +1,4 @@
-"""Outlier rejection before camcal's refinement, and the solved noise that weighs the priors, against peers."""
+"""The refinement's Ceres solves and its outlier rejection, against peers on the same input."""
 
 import re
 
@@ -92,3 +92,30 @@ def test_a_fit_that_does_not_reweigh_its_priors_solves_once(monkeypatch):
                                                prior_noise_px=solve_module._noise_px(state)))
     np.testing.assert_array_equal(once.state.params[0], given.state.params[0])
     assert np.abs(once.state.params[0] - both.state.params[0]).max() > 1e-3  # the re-weighing mattered here
+
+
+def test_dense_and_sparse_schur_reach_the_same_solution_on_a_long_sequence(monkeypatch):
+    """Above 50 images pycolmap takes the sparse Schur solver; camcal solves its reduced camera system dense."""
+    options = pycolmap.SyntheticDatasetOptions(
+        num_rigs=1, num_cameras_per_rig=1, num_frames_per_rig=60, num_points3D=150, camera_width=640,
+        camera_height=480, camera_model_id=pycolmap.CameraModelId.SIMPLE_RADIAL,
+        camera_params=[500.0, 320.0, 240.0, -0.05])
+    pycolmap.set_random_seed(3)
+    scene = pycolmap.synthesize_dataset(options)
+    rng = np.random.default_rng(3)
+    for image in scene.images.values():
+        for point in image.points2D:
+            point.xy = point.xy + rng.normal(0.0, 0.5, 2)
+    state = state_from_reconstruction(scene)
+    used = []
+    pyceres = solve_module.require("pyceres")
+    solve = pyceres.solve
+    monkeypatch.setattr(pyceres, "solve", lambda o, p, s: (solve(o, p, s), used.append(s.linear_solver_type_used)))
+    fit = BundleOptions(compute_sigmas=False)
+    dense = bundle_adjust(state, fit)
+    monkeypatch.setattr(solve_module, "DENSE_SCHUR_MAX_FRAMES", 59)
+    sparse = bundle_adjust(state, fit)
+    assert used == [pyceres.LinearSolverType.DENSE_SCHUR, pyceres.LinearSolverType.SPARSE_SCHUR]
+    np.testing.assert_allclose(dense.state.params[0], sparse.state.params[0], rtol=1e-9)
+    np.testing.assert_allclose(dense.state.frame_t, sparse.state.frame_t, atol=1e-9)
+    assert dense.final_cost == pytest.approx(sparse.final_cost, rel=1e-10)
