@@ -48,8 +48,8 @@ _NOISE_RATIO = 1.5
 #: up to this many frames the reduced camera system is solved dense (Ceres' ``DENSE_SCHUR``) where pycolmap's
 #: adjuster takes ``SPARSE_SCHUR`` (above 50 images): a plate's points are seen by 16-60 frames each, so the
 #: system of 6 parameters per frame is nearly full within a band of frames and the sparse solver's block
-#: bookkeeping costs more than the dense Cholesky factorisation it saves (a rendered 240-frame plate: -20 % CPU
-#: per iteration, 120 frames: -10 %, the same solution to 1e-15).
+#: bookkeeping costs more than the dense Cholesky factorisation it saves (rendered 240-frame plates: -19 % CPU
+#: per iteration, 120 frames: -10 %, the same solution to 1e-15; not measured beyond 240 frames).
 DENSE_SCHUR_MAX_FRAMES = 300
 
 
