@@ -103,14 +103,8 @@ def reject_outliers(reconstruction, n_sigma: float = 4.0) -> str:
     """
     pycolmap = require("pycolmap")
 
-    errors = []
-    for image in reconstruction.images.values():
-        if not image.has_pose:
-            continue
-        for point in image.get_observation_points2D():
-            projected = image.project_point(reconstruction.points3D[point.point3D_id].xyz)
-            errors.append(np.inf if projected is None else float(np.linalg.norm(point.xy - projected)))
-    if not errors:
+    errors = _reprojection_errors(reconstruction)
+    if not len(errors):
         raise CamcalError("the reconstruction has no observations to refine")
     sigma = float(np.median(errors)) / np.sqrt(2.0 * np.log(2.0))
     threshold = n_sigma * sigma
@@ -123,6 +117,29 @@ def reject_outliers(reconstruction, n_sigma: float = 4.0) -> str:
     return (f"dropped {dropped} of {len(errors)} observations beyond {threshold:.3f} px "
             f"({n_sigma:g} sigma; sigma {sigma:.3f} px from the median residual) and {narrow} of the points "
             f"triangulated under {MIN_TRIANGULATION_ANGLE_DEG:g} deg")
+
+
+def _reprojection_errors(reconstruction) -> NDArray[np.float64]:
+    """Reprojection error (px) of every observation of every posed image, image by image; inf behind the camera."""
+    points = reconstruction.points3D
+    ids = np.fromiter(points.keys(), dtype=np.int64, count=len(points))
+    order = np.argsort(ids)
+    xyz = np.array([point.xyz for point in points.values()], dtype=np.float64).reshape(-1, 3)[order]
+    ids = ids[order]
+    errors = []
+    for image in reconstruction.images.values():
+        if not image.has_pose:
+            continue
+        observed = image.get_observation_points2D()
+        if not observed:
+            continue
+        xy = np.array([point.xy for point in observed], dtype=np.float64)
+        which = np.searchsorted(ids, np.array([point.point3D_id for point in observed], dtype=np.int64))
+        # img_from_cam with its cheirality check: NaN for a point behind the camera
+        projected = reconstruction.cameras[image.camera_id].img_from_cam(image.cam_from_world() * xyz[which])
+        error = np.linalg.norm(xy - projected, axis=1)
+        errors.append(np.where(np.isnan(error), np.inf, error))
+    return np.concatenate(errors) if errors else np.zeros(0)
 
 
 def relative_poses(rig: Rig, reference: str) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:

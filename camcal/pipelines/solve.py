@@ -450,7 +450,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
             # the mapper's principal point is the image centre: free it once, then drop the matches
             # that no camera model explains (mismatches, features astride an occluding edge)
             _say(progress, "bundle adjustment (camcal) with the principal point free, then outlier rejection")
-            pre = bundle_adjust(state, dataclasses.replace(options, **free_pp, compute_sigmas=False))
+            pre = bundle_adjust(state, dataclasses.replace(options, **free_pp, compute_sigmas=False,
+                                                           reweigh_priors=False))
             state_to_reconstruction(pre.state, reconstruction)
             _say(progress, reject_outliers(reconstruction))
             state = state_from_reconstruction(reconstruction, names)

@@ -380,3 +380,18 @@ def test_a_jackknife_over_few_frames_says_its_sigmas_err_wide(groups, says_wide)
     assert bool(wide) is says_wide
     if says_wide:
         assert wide[0].startswith(f"uncertainty: {groups} groups of frames, fewer than 12")
+
+
+def test_lens_candidates_fitted_to_a_looser_tolerance_choose_as_fits_to_the_default_one(monkeypatch):
+    rng = np.random.default_rng(5)
+    state = tracks_state(stereo_rig(lam=(-6e-7, -6e-7)), rng, n_frames=6, n_points=600)
+    loose_result, loose = self_calibrate(state, BundleOptions(), ("polynomial", "division"), jackknife=None)
+    monkeypatch.setattr(selfcal, "LENS_CHOICE_TOLERANCE", BundleOptions().tolerance)
+    tight_result, tight = self_calibrate(state, BundleOptions(), ("polynomial", "division"), jackknife=None)
+    assert loose.lens_models == tight.lens_models
+    for name, table in tight.heldout_rms_px.items():
+        for model, rms in table.items():
+            assert loose.heldout_rms_px[name][model] == pytest.approx(rms, rel=1e-4)
+    # the final fit starts from the seed, not from a candidate: the same answer
+    np.testing.assert_array_equal(loose_result.state.params[0], tight_result.state.params[0])
+    assert loose_result.sigmas == tight_result.sigmas

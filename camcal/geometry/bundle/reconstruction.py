@@ -41,18 +41,17 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
     frame_R = np.array([reconstruction.frame(fid).rig_from_world.rotation.matrix() for fid in frame_ids])
     frame_t = np.array([reconstruction.frame(fid).rig_from_world.translation for fid in frame_ids])
     point_ids = sorted(reconstruction.points3D)
-    point_pos = {pid: k for k, pid in enumerate(point_ids)}
     camera_pos = {cid: k for k, cid in enumerate(camera_ids)}
-    cams, frames, pts, xys = [], [], [], []
+    # image by image, its observations in keypoint order
+    cams, frames, pts, xys = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 2))]
     for image in reconstruction.images.values():
         if not image.has_pose or image.frame_id not in frame_pos:
             continue
-        for p in image.points2D:
-            if p.has_point3D():
-                cams.append(camera_pos[image.camera_id])
-                frames.append(frame_pos[image.frame_id])
-                pts.append(point_pos[p.point3D_id])
-                xys.append(p.xy)
+        observed = image.get_observation_points2D()
+        cams.append(np.full(len(observed), camera_pos[image.camera_id], dtype=np.int64))
+        frames.append(np.full(len(observed), frame_pos[image.frame_id], dtype=np.int64))
+        pts.append(np.array([p.point3D_id for p in observed], dtype=np.int64))
+        xys.append(np.array([p.xy for p in observed], dtype=np.float64).reshape(-1, 2))
     cameras = [reconstruction.cameras[cid] for cid in camera_ids]
     return BundleState(
         camera_names=tuple(names[cid] for cid in camera_ids),
@@ -62,8 +61,9 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
         sensor_R=sensor_R, sensor_t=sensor_t, frame_R=frame_R, frame_t=frame_t, frame_ids=tuple(frame_ids),
         points=np.array([reconstruction.points3D[pid].xyz for pid in point_ids]).reshape(-1, 3),
         point_ids=tuple(point_ids),
-        obs_camera=np.array(cams, dtype=np.int64), obs_frame=np.array(frames, dtype=np.int64),
-        obs_point=np.array(pts, dtype=np.int64), obs_xy=pixels_from_colmap(np.array(xys, dtype=np.float64).reshape(-1, 2)),
+        obs_camera=np.concatenate(cams), obs_frame=np.concatenate(frames),
+        obs_point=np.searchsorted(np.array(point_ids, dtype=np.int64), np.concatenate(pts)),
+        obs_xy=pixels_from_colmap(np.concatenate(xys)),
     )
 
 

@@ -231,6 +231,12 @@ class BundleOptions:
         Reprojection noise (px per axis) that weighs the priors against the
         images in the fit; None: from the start's median residual. The
         covariance re-weighs them with the solved noise.
+    reweigh_priors : bool
+        With ``prior_noise_px`` None, solve again with the solved noise when
+        the start's estimate was off by more than 1.5 times (each solve costs
+        Ceres' preprocessing of the whole problem again). False for a fit
+        whose priors need only be weighed roughly: one that only finds the
+        outliers.
     """
 
     refine_focal_length: bool = True
@@ -249,6 +255,7 @@ class BundleOptions:
     priors: tuple[PriorSpec, ...] = ()
     default_priors: bool = False
     prior_noise_px: float | None = None
+    reweigh_priors: bool = True
 
     def __post_init__(self) -> None:
         if self.loss not in LOSSES:
@@ -305,6 +312,10 @@ class BundleResult:
         without a covariance).
     unused_priors : tuple of PriorSpec
         Given priors on an intrinsic the camera's model does not have.
+    noise_px : float
+        The images' per-axis reprojection noise at the solution (residuals
+        over their degrees of freedom, the priors' left out), which weighs
+        the priors in the covariance; NaN without redundancy.
     """
 
     state: BundleState
@@ -323,6 +334,7 @@ class BundleResult:
     priors: tuple[Prior, ...] = ()
     prior_posterior_sigmas: tuple[float, ...] = ()
     unused_priors: tuple[PriorSpec, ...] = ()
+    noise_px: float = float("nan")
 
     def summary(self) -> str:
         """Per-camera RMS before -> after and the cost."""
