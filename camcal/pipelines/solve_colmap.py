@@ -25,6 +25,7 @@ __all__ = [
     "MIN_PAIR_MATCHES",
     "OWNED",
     "REFINED_GLOBAL_BA_RATIO",
+    "REFINED_GLOBAL_BA_REFINEMENTS",
     "SEQUENTIAL_INIT_TRI_ANGLE_DEG",
     "UPSAMPLE_BELOW_PX",
     "check_parallax",
@@ -123,7 +124,7 @@ def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: 
     frame order (a plate): the incremental mapper looks for its initial pair with the triangulation angle
     :data:`SEQUENTIAL_INIT_TRI_ANGLE_DEG` from the start; with ``refined`` as well (camcal's bundle adjustment
     refines the whole model afterwards), its global bundle adjustments run as the model grows by
-    :data:`REFINED_GLOBAL_BA_RATIO` instead of COLMAP's 1.1.
+    :data:`REFINED_GLOBAL_BA_RATIO` instead of COLMAP's 1.1, each once (:data:`REFINED_GLOBAL_BA_REFINEMENTS`).
 
     The incremental mapper never starts from a pair whose relative translation points along the view by more
     than ``init_max_forward_motion`` (0.95 of its length), and its relaxations lower the inliers and the
@@ -156,6 +157,7 @@ def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: 
         options.mapper.init_min_tri_angle = SEQUENTIAL_INIT_TRI_ANGLE_DEG
         if refined:
             options.ba_global_frames_ratio = options.ba_global_points_ratio = REFINED_GLOBAL_BA_RATIO
+            options.ba_global_max_refinements = REFINED_GLOBAL_BA_REFINEMENTS
     if hold_intrinsics:
         options.ba_refine_focal_length = options.ba_refine_extra_params = False
         options.ba_refine_principal_point = False
@@ -209,6 +211,11 @@ SEQUENTIAL_INIT_TRI_ANGLE_DEG = 4.0
 #: refined by the mapper's local bundle adjustment, and the whole model is adjusted once more when the mapper
 #: ends; camcal's bundle adjustment then refines every frame, point and intrinsic from that model.
 REFINED_GLOBAL_BA_RATIO = 1.5
+#: on such a plate each of those global adjustments runs once (COLMAP's default: up to 5 rounds of adjustment,
+#: re-triangulation and outlier filtering while more than 0.05 % of the observations change). camcal's own bundle
+#: adjustment, outlier rejection and re-triangulation follow the mapper: on the rendered 240-frame orbit the
+#: mapper took 20 % less CPU, on the walk 4 %; the refined cameras' errors moved by a few % either way.
+REFINED_GLOBAL_BA_REFINEMENTS = 1
 #: a pair of images counts as matched with at least this many verified matches.
 MIN_PAIR_MATCHES = 15
 

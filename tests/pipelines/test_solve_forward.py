@@ -4,7 +4,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from camcal.pipelines.solve_colmap import REFINED_GLOBAL_BA_RATIO, SEQUENTIAL_INIT_TRI_ANGLE_DEG, map_images
+from camcal.pipelines.solve_colmap import (REFINED_GLOBAL_BA_RATIO, REFINED_GLOBAL_BA_REFINEMENTS,
+                                          SEQUENTIAL_INIT_TRI_ANGLE_DEG, map_images)
 
 
 class _Model:
@@ -70,7 +71,8 @@ def test_the_mapper_adjusts_the_whole_model_less_often_only_on_a_plate_camcal_re
     seen = []
 
     def incremental_mapping(database, image_dir, sparse, options):
-        seen.append((options.ba_global_frames_ratio, options.ba_global_points_ratio, options.mapper.init_min_tri_angle))
+        seen.append((options.ba_global_frames_ratio, options.ba_global_points_ratio, options.ba_global_max_refinements,
+                     options.mapper.init_min_tri_angle))
         return {0: _Model(51)}
 
     stand_in = SimpleNamespace(set_random_seed=lambda seed: None,
@@ -80,5 +82,7 @@ def test_the_mapper_adjusts_the_whole_model_less_often_only_on_a_plate_camcal_re
     map_images(stand_in, tmp_path / "db", tmp_path, tmp_path, "incremental", 0, sequential=sequential, refined=refined)
     default = pycolmap.IncrementalPipelineOptions()
     ratio = REFINED_GLOBAL_BA_RATIO if sequential and refined else default.ba_global_frames_ratio
-    assert seen == [(ratio, ratio, SEQUENTIAL_INIT_TRI_ANGLE_DEG if sequential else default.mapper.init_min_tri_angle)]
+    rounds = REFINED_GLOBAL_BA_REFINEMENTS if sequential and refined else default.ba_global_max_refinements
+    assert seen == [(ratio, ratio, rounds, SEQUENTIAL_INIT_TRI_ANGLE_DEG if sequential else default.mapper.init_min_tri_angle)]
     assert REFINED_GLOBAL_BA_RATIO > default.ba_global_frames_ratio == default.ba_global_points_ratio
+    assert REFINED_GLOBAL_BA_REFINEMENTS < default.ba_global_max_refinements
