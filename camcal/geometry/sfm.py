@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
 from camcal.geometry.bundle import BundleResult
+from camcal.geometry.bundle.reconstruction import image_observations
 from camcal.geometry.selfcal import SelfCalibration, as_lens_model
 from camcal.geometry.uncertainty import (covariance_from_colmap, projection_covariance, projection_sigma,
                                          shrunk_design_effect, sigma_grid)
@@ -130,11 +131,9 @@ def _reprojection_errors(reconstruction) -> NDArray[np.float64]:
     for image in reconstruction.images.values():
         if not image.has_pose:
             continue
-        observed = image.get_observation_points2D()
-        if not observed:
+        which, xy = image_observations(image, ids)
+        if not len(which):
             continue
-        xy = np.array([point.xy for point in observed], dtype=np.float64)
-        which = np.searchsorted(ids, np.array([point.point3D_id for point in observed], dtype=np.int64))
         # img_from_cam with its cheirality check: NaN for a point behind the camera
         projected = reconstruction.cameras[image.camera_id].img_from_cam(image.cam_from_world() * xyz[which])
         error = np.linalg.norm(xy - projected, axis=1)

@@ -7,13 +7,14 @@ here (:func:`camcal.model.camera.pixels_from_colmap`).
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
 from camcal.geometry.bundle.state import BundleState
 from camcal.model.camera import pixels_from_colmap
 
-__all__ = ["state_from_reconstruction", "state_to_reconstruction"]
+__all__ = ["image_observations", "state_from_reconstruction", "state_to_reconstruction"]
 
 
 def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | None = None) -> BundleState:
@@ -41,17 +42,18 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
     frame_R = np.array([reconstruction.frame(fid).rig_from_world.rotation.matrix() for fid in frame_ids])
     frame_t = np.array([reconstruction.frame(fid).rig_from_world.translation for fid in frame_ids])
     point_ids = sorted(reconstruction.points3D)
+    sorted_ids = np.array(point_ids, dtype=np.int64)
     camera_pos = {cid: k for k, cid in enumerate(camera_ids)}
     # image by image, its observations in keypoint order
     cams, frames, pts, xys = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 2))]
     for image in reconstruction.images.values():
         if not image.has_pose or image.frame_id not in frame_pos:
             continue
-        observed = image.get_observation_points2D()
-        cams.append(np.full(len(observed), camera_pos[image.camera_id], dtype=np.int64))
-        frames.append(np.full(len(observed), frame_pos[image.frame_id], dtype=np.int64))
-        pts.append(np.array([p.point3D_id for p in observed], dtype=np.int64))
-        xys.append(np.array([p.xy for p in observed], dtype=np.float64).reshape(-1, 2))
+        which, xy = image_observations(image, sorted_ids)
+        cams.append(np.full(len(which), camera_pos[image.camera_id], dtype=np.int64))
+        frames.append(np.full(len(which), frame_pos[image.frame_id], dtype=np.int64))
+        pts.append(which)
+        xys.append(xy)
     cameras = [reconstruction.cameras[cid] for cid in camera_ids]
     return BundleState(
         camera_names=tuple(names[cid] for cid in camera_ids),
@@ -62,9 +64,18 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
         points=np.array([reconstruction.points3D[pid].xyz for pid in point_ids]).reshape(-1, 3),
         point_ids=tuple(point_ids),
         obs_camera=np.concatenate(cams), obs_frame=np.concatenate(frames),
-        obs_point=np.searchsorted(np.array(point_ids, dtype=np.int64), np.concatenate(pts)),
+        obs_point=np.concatenate(pts),
         obs_xy=pixels_from_colmap(np.concatenate(xys)),
     )
+
+
+
+def image_observations(image, point_ids: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """A pycolmap image's observations of 3D points in keypoint order: each one's position in ``point_ids`` (the
+    reconstruction's point ids, ascending) and its keypoint (COLMAP's pixels, shape (n, 2))."""
+    observed = image.get_observation_points2D()
+    which = np.searchsorted(point_ids, np.array([point.point3D_id for point in observed], dtype=np.int64))
+    return which, np.array([point.xy for point in observed], dtype=np.float64).reshape(-1, 2)
 
 
 def state_to_reconstruction(state: BundleState, reconstruction) -> None:
