@@ -363,8 +363,8 @@ def self_calibrate(
                       SQUARE_PIXELS_HELD) for name in held))
         # it starts at the free fit's solution, whose solved noise weighs its priors (no second solve to re-weigh them)
         noise = final.noise_px if np.isfinite(final.noise_px) and final.noise_px > 0 else None
-        final = spread_with_aspect_free(bundle_adjust(final.state, dataclasses.replace(final_options, prior_noise_px=noise)),
-                                        loose_options, held)
+        held_fit = bundle_adjust(final.state, dataclasses.replace(final_options, prior_noise_px=noise, compute_sigmas=False))
+        final = spread_with_aspect_free(final, held_fit, held)
     decisions = tuple(_principal_point_decision(final, k, principal_point) for k in range(len(names)))
     covariance_sigmas, jackknife_sigmas, groups, influences = dict(final.sigmas), {}, 0, None
     n_frames = len(np.unique(final.state.obs_frame))

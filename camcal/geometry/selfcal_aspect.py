@@ -15,9 +15,10 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from numpy.typing import NDArray
 
 from camcal.base.errors import CamcalError
-from camcal.geometry.bundle import BundleOptions, BundleResult, bundle_adjust
+from camcal.geometry.bundle import BundleResult, with_covariance
 from camcal.geometry.bundle.prior import ASPECT_PRIOR, mean_focal
 
 __all__ = ["ASPECT_HELD", "FEATURE_BIAS_PX", "SQUARE_PIXELS_HELD", "aspect_visibility", "spread_with_aspect_free"]
@@ -75,41 +76,60 @@ def aspect_visibility(result: BundleResult, camera: int) -> float:
     return float(ASPECT_PRIOR * mean_focal(state, camera) * np.sqrt(noise2 * precision / max(n, 1)))
 
 
-def spread_with_aspect_free(held: BundleResult, loose_options: BundleOptions, cameras: tuple[str, ...]) -> BundleResult:
-    """The held fit's covariance and sigmas widened by the square-pixel prior's spread of ``z = fx - fy``, carried
-    to every parameter that re-adjusts with it.
+def spread_with_aspect_free(free: BundleResult, held: BundleResult, cameras: tuple[str, ...]) -> BundleResult:
+    """The held fit with its covariance: the free fit's with the hold's information added, widened by the
+    square-pixel prior's spread of ``z = fx - fy``, carried to every parameter that re-adjusts with it.
 
     Holding ``z`` at 0 guards the estimate against a feature error the motion
-    cannot tell from an aspect; ``z`` is then known only to the prior's
-    ``s = ASPECT_PRIOR f``. Each parameter moves with ``z`` by the regression
-    ``g = C a / (a^T C a)`` of the prior's fit (``C``: its covariance at the held
-    solution; ``a``: ``z``'s row), so the covariance gains ``s^2 g g^T`` (fx,
-    fy: ``g = +-1/2``, the mean focal unchanged; the principal point along
-    fy's weak direction too).
+    cannot tell from an aspect. The hold is a prior ``a^T x ~ N(0, sigma_h^2)``
+    (``a``: ``z``'s row), so it adds ``a a^T / sigma_h^2`` to the free fit's
+    information ``C^-1`` and, by the Sherman-Morrison identity, the held fit's
+    covariance is ``C_h = C - C a a^T C / (sigma_h^2 + a^T C a)``, one camera
+    after another (``C``: the free fit's covariance, at its solution: the held
+    solution differs from it by the aspect's move, a fraction of a sigma, and
+    the free fit's noise weighs both, as it weighs the held fit's priors). ``z``
+    is then known only to the prior's ``s = ASPECT_PRIOR f``. Each parameter
+    moves with ``z`` by the regression ``g = C a / (a^T C a)`` of the fit with
+    the prior alone, so the covariance gains ``s^2 g g^T`` (fx, fy: ``g =
+    +-1/2``, the mean focal unchanged; the principal point along fy's weak
+    direction too).
 
-    One camera held: the hold adds ``a a^T / sigma_held^2`` to the prior fit's
-    information, so by the Sherman-Morrison identity its covariance is ``C_held
-    + C_held a a^T C_held / (sigma_held^2 - a^T C_held a)``, and ``C a`` is
-    ``C_held a`` times a scalar that ``g`` divides out: ``g = C_held a / (a^T
-    C_held a)``, from the held fit's own covariance. Several: the prior fit's
-    covariance at the held solution (Ceres with no iteration).
+    Parameters
+    ----------
+    free : BundleResult
+        The fit with the aspect under its prior, with its covariance.
+    held : BundleResult
+        The fit from its solution with square pixels held (:data:`SQUARE_PIXELS_HELD` priors); its covariance is
+        not needed.
+    cameras : tuple of str
+        The cameras held.
     """
-    names = held.covariance_names
+    names = free.covariance_names
     if not names:
-        raise CamcalError("the held fit has no covariance to widen")
-    spread = held.covariance
-    if len(cameras) > 1:
-        loose = bundle_adjust(held.state, dataclasses.replace(loose_options, max_iterations=0))
-        if loose.covariance_names != names:
-            raise CamcalError("the covariance of the fit with the aspect free does not match the held fit's")
-        spread = loose.covariance
-    covariance = held.covariance.copy()
-    for camera in cameras:
+        raise CamcalError("the fit with the aspect free has no covariance to hold square pixels in")
+    state = held.state
+
+    def row(camera: int, coefficients: dict[str, float]) -> NDArray[np.float64]:
         a = np.zeros(len(names))
-        a[names.index(f"{camera}.fx")], a[names.index(f"{camera}.fy")] = 1.0, -1.0
-        g = spread @ a / float(a @ spread @ a)
-        s = ASPECT_PRIOR * mean_focal(held.state, held.state.camera_names.index(camera))
-        covariance += s * s * np.outer(g, g)
-    variance = dict(zip(names, np.diag(covariance)))
-    sigmas = {key: float(np.sqrt(variance[key])) if key in variance else value for key, value in held.sigmas.items()}
-    return dataclasses.replace(held, covariance=covariance, sigmas=sigmas)
+        for parameter, value in coefficients.items():
+            a[names.index(f"{state.camera_names[camera]}.{parameter}")] += value
+        return a
+
+    covariance = free.covariance.copy()
+    for prior in held.priors:
+        if prior.spec.source == SQUARE_PIXELS_HELD:
+            params = state.param_names(prior.camera)
+            a = row(prior.camera, {params[i]: c for i, c in zip(prior.indices, prior.coefficients)})
+            Ca = covariance @ a
+            covariance -= np.outer(Ca, Ca) / (prior.sigma ** 2 + float(a @ Ca))
+    widened = covariance.copy()
+    for camera in cameras:
+        index = state.camera_names.index(camera)
+        a = row(index, {"fx": 1.0, "fy": -1.0})
+        g = free.covariance @ a / float(a @ free.covariance @ a)
+        s = ASPECT_PRIOR * mean_focal(state, index)
+        widened += s * s * np.outer(g, g)
+    result = with_covariance(held, covariance, names, free.n_points_out_of_covariance)
+    variance = dict(zip(names, np.diag(widened)))
+    sigmas = {key: float(np.sqrt(variance[key])) if key in variance else value for key, value in result.sigmas.items()}
+    return dataclasses.replace(result, covariance=widened, sigmas=sigmas)

@@ -75,12 +75,20 @@ from camcal.pipelines.solve_world import WorldAlignment, WorldSpec, align_world,
 
 __all__ = [
     "COLMAP_LOG",
+    "PRE_REJECTION_TOLERANCE",
     "PycolmapPeer",
     "SfmResult",
     "collect_images",
     "solve_pycolmap_plain",
     "solve_sfm",
 ]
+
+#: Ceres' function tolerance of the bundle adjustment that frees the mapper's principal point before the outlier
+#: rejection (camcal's default, 1e-10, for the others): that fit only places the residuals the rejection thresholds
+#: at 4 sigma of their median, and every fit after it converges fully from its solution. On the rendered 120- and
+#: 240-frame walks it stops after 6-8 iterations instead of 14-15, its cost within 4e-6 of the converged one, the
+#: observations rejected within 0.05 % of the same; the chosen fit after it takes as many iterations as before.
+PRE_REJECTION_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -451,7 +459,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
             # that no camera model explains (mismatches, features astride an occluding edge)
             _say(progress, "bundle adjustment (camcal) with the principal point free, then outlier rejection")
             pre = bundle_adjust(state, dataclasses.replace(options, **free_pp, compute_sigmas=False,
-                                                           reweigh_priors=False))
+                                                           reweigh_priors=False, tolerance=PRE_REJECTION_TOLERANCE))
             state_to_reconstruction(pre.state, reconstruction)
             _say(progress, reject_outliers(reconstruction))
             state = state_from_reconstruction(reconstruction, names)

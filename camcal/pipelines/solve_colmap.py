@@ -26,6 +26,7 @@ __all__ = [
     "OWNED",
     "REFINED_GLOBAL_BA_RATIO",
     "REFINED_GLOBAL_BA_REFINEMENTS",
+    "REFINED_LOCAL_BA_REFINEMENTS",
     "SEQUENTIAL_INIT_TRI_ANGLE_DEG",
     "UPSAMPLE_BELOW_PX",
     "check_parallax",
@@ -124,7 +125,8 @@ def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: 
     frame order (a plate): the incremental mapper looks for its initial pair with the triangulation angle
     :data:`SEQUENTIAL_INIT_TRI_ANGLE_DEG` from the start; with ``refined`` as well (camcal's bundle adjustment
     refines the whole model afterwards), its global bundle adjustments run as the model grows by
-    :data:`REFINED_GLOBAL_BA_RATIO` instead of COLMAP's 1.1, each once (:data:`REFINED_GLOBAL_BA_REFINEMENTS`).
+    :data:`REFINED_GLOBAL_BA_RATIO` instead of COLMAP's 1.1, each once (:data:`REFINED_GLOBAL_BA_REFINEMENTS`), and
+    each local one once (:data:`REFINED_LOCAL_BA_REFINEMENTS`).
 
     The incremental mapper never starts from a pair whose relative translation points along the view by more
     than ``init_max_forward_motion`` (0.95 of its length), and its relaxations lower the inliers and the
@@ -158,6 +160,7 @@ def map_images(pycolmap, database: Path, image_dir: Path, sparse: Path, mapper: 
         if refined:
             options.ba_global_frames_ratio = options.ba_global_points_ratio = REFINED_GLOBAL_BA_RATIO
             options.ba_global_max_refinements = REFINED_GLOBAL_BA_REFINEMENTS
+            options.ba_local_max_refinements = REFINED_LOCAL_BA_REFINEMENTS
     if hold_intrinsics:
         options.ba_refine_focal_length = options.ba_refine_extra_params = False
         options.ba_refine_principal_point = False
@@ -216,6 +219,12 @@ REFINED_GLOBAL_BA_RATIO = 1.5
 #: adjustment, outlier rejection and re-triangulation follow the mapper: on the rendered 240-frame orbit the
 #: mapper took 20 % less CPU, on the walk 4 %; the refined cameras' errors moved by a few % either way.
 REFINED_GLOBAL_BA_REFINEMENTS = 1
+#: on such a plate the local bundle adjustment after each registered frame runs once too (COLMAP's default: up to
+#: 2 rounds of adjustment, track merging and completion, and filtering). A plate's points are seen by 16-60 frames,
+#: so each local adjustment carries every observation of the points its 6 frames see, a good part of the model.
+#: On the rendered 240-frame walk the mapper took 34 % less CPU (175 against 265 s), the refined cameras' errors
+#: within 7 % of before (position 6 % lower, rotation 2 % higher).
+REFINED_LOCAL_BA_REFINEMENTS = 1
 #: a pair of images counts as matched with at least this many verified matches.
 MIN_PAIR_MATCHES = 15
 

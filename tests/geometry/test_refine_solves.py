@@ -1,5 +1,6 @@
 """The refinement's Ceres solves and its outlier rejection, against peers on the same input."""
 
+import dataclasses
 import re
 
 import numpy as np
@@ -119,3 +120,38 @@ def test_dense_and_sparse_schur_reach_the_same_solution_on_a_long_sequence(monke
     np.testing.assert_allclose(dense.state.params[0], sparse.state.params[0], rtol=1e-9)
     np.testing.assert_allclose(dense.state.frame_t, sparse.state.frame_t, atol=1e-9)
     assert dense.final_cost == pytest.approx(sparse.final_cost, rel=1e-10)
+
+
+def test_the_pre_rejection_fit_stops_early_and_the_solve_after_it_converges_fully(tmp_path, monkeypatch):
+    """The fit that frees the mapper's principal point before the outlier rejection stops at
+    ``PRE_REJECTION_TOLERANCE``, every fit after it at camcal's default; the early stop leaves its cost within
+    1e-5 of the converged fit's (a 5-frame rendered stereo solve)."""
+    import camcal.geometry.selfcal as selfcal
+    import camcal.pipelines.solve as pipeline
+    from camcal.pipelines.solve import PRE_REJECTION_TOLERANCE, solve_sfm
+    from camcal.synthetic import render_stereo_sequence
+
+    fits = []
+
+    def spy(module):
+        inner = module.bundle_adjust
+
+        def bundle_adjust(state, options=BundleOptions(), **kwargs):
+            result = inner(state, options, **kwargs)
+            fits.append((state, options, result))
+            return result
+        monkeypatch.setattr(module, "bundle_adjust", bundle_adjust)
+
+    spy(pipeline)
+    spy(selfcal)
+    width, height = 256, 192
+    focal = 500.0 * width / 640
+    render_stereo_sequence(tmp_path / "in", n_frames=5, image_size=(width, height),
+                           K=((focal, 0.0, (width - 1) / 2), (0.0, focal, (height - 1) / 2), (0.0, 0.0, 1.0)))
+    solve_sfm({"left": tmp_path / "in/left", "right": tmp_path / "in/right"}, tmp_path / "out", max_num_features=512)
+    (state, options, pre), rest = fits[0], fits[1:]
+    assert options.tolerance == PRE_REJECTION_TOLERANCE > BundleOptions().tolerance and not options.compute_sigmas
+    assert rest and all(o.tolerance in (BundleOptions().tolerance, selfcal.LENS_CHOICE_TOLERANCE) for _, o, _ in rest)
+    assert rest[-1][1].tolerance == BundleOptions().tolerance
+    converged = bundle_adjust(state, dataclasses.replace(options, tolerance=BundleOptions().tolerance))
+    assert converged.final_cost <= pre.final_cost <= converged.final_cost * (1 + 1e-5)

@@ -372,11 +372,12 @@ def test_aspect_lines_name_the_held_camera_and_the_rest():
     assert lines == [line for line in lines if line.startswith("aspect: fx and fy refined apart")] and len(lines) == 1
 
 
-def test_one_held_camera_spreads_as_the_aspect_free_covariance_at_the_held_solution():
-    """One camera held: the spread of fx - fy is taken from the held fit's own covariance (Sherman-Morrison: the
-    hold is a rank-one term of the information along fx - fy, which the regression divides out), with no second
-    covariance. Peer: the prior fit's covariance computed at the held solution (Ceres, no iteration), the way
-    several held cameras still take it; the widened covariance and sigmas agree to 1e-6 of their scale."""
+def test_held_covariance_is_the_free_one_with_the_hold_added():
+    """The held fit's covariance from the free fit's by the Sherman-Morrison identity (the hold is a rank-one term
+    of the information along fx - fy), widened by the prior's spread. Peers: Ceres' covariance of the problem with
+    the hold at the free solution (the same linearisation: to 1e-6 of its scale), and at the held solution, as
+    the held fit's own covariance was taken before (here the hold moves fx - fy by 0.17 % of f, far more than
+    where the motion leaves it to the prior: to 2 % of a sigma)."""
     from camcal.geometry.bundle import bundle_adjust
     from camcal.geometry.bundle.prior import ASPECT_PRIOR, mean_focal
     from camcal.geometry.selfcal_aspect import ASPECT_HELD, SQUARE_PIXELS_HELD, spread_with_aspect_free
@@ -391,22 +392,26 @@ def test_one_held_camera_spreads_as_the_aspect_free_covariance_at_the_held_solut
                                 sensor_t=state.sensor_t[:1])
     state = with_lenses(state, {"left": "division"})
     loose = BundleOptions(refine_principal_point=True, default_priors=True)
-    final = bundle_adjust(state, dataclasses.replace(loose, compute_sigmas=False))
+    final = bundle_adjust(state, loose)
     held_options = dataclasses.replace(loose, priors=(
         PriorSpec("left", "aspect", 0.0, ASPECT_HELD * mean_focal(final.state, 0), SQUARE_PIXELS_HELD),))
-    held = bundle_adjust(final.state, held_options)
-    widened = spread_with_aspect_free(held, loose, ("left",))
+    held = bundle_adjust(final.state, dataclasses.replace(held_options, compute_sigmas=False))
+    widened = spread_with_aspect_free(final, held, ("left",))
+    assert widened.state is held.state
 
-    names = held.covariance_names
+    names = final.covariance_names
     a = np.zeros(len(names))
     a[names.index("left.fx")], a[names.index("left.fy")] = 1.0, -1.0
-    C = bundle_adjust(held.state, dataclasses.replace(loose, max_iterations=0)).covariance
-    g = C @ a / (a @ C @ a)
+    g = final.covariance @ a / (a @ final.covariance @ a)
     s = ASPECT_PRIOR * mean_focal(held.state, 0)
-    expected = held.covariance + s * s * np.outer(g, g)
-    scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))
-    assert np.max(np.abs(widened.covariance - expected) / scale) < 1e-6
     assert g[names.index("left.fx")] - g[names.index("left.fy")] == pytest.approx(1.0, rel=1e-9)
-    for key in ("left.fx", "left.fy", "left.cx", "left.cy"):
-        assert widened.sigmas[key] == pytest.approx(np.sqrt(expected[names.index(key), names.index(key)]), rel=1e-6)
-        assert widened.sigmas[key] >= held.sigmas[key]
+    for at, tolerance in ((final.state, 1e-6), (held.state, 0.02)):
+        with_hold = bundle_adjust(at, dataclasses.replace(held_options, max_iterations=0))
+        assert with_hold.covariance_names == names
+        expected = with_hold.covariance + s * s * np.outer(g, g)
+        scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))
+        assert np.max(np.abs(widened.covariance - expected) / scale) < tolerance
+        for key in ("left.fx", "left.fy", "left.cx", "left.cy"):
+            assert widened.sigmas[key] == pytest.approx(np.sqrt(expected[names.index(key), names.index(key)]),
+                                                        rel=tolerance)
+            assert widened.sigmas[key] >= with_hold.sigmas[key] * (1 - tolerance)

@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import pytest
 
 from camcal.pipelines.solve_colmap import (REFINED_GLOBAL_BA_RATIO, REFINED_GLOBAL_BA_REFINEMENTS,
-                                          SEQUENTIAL_INIT_TRI_ANGLE_DEG, map_images)
+                                          REFINED_LOCAL_BA_REFINEMENTS, SEQUENTIAL_INIT_TRI_ANGLE_DEG, map_images)
 
 
 class _Model:
@@ -64,7 +64,7 @@ def test_the_mapper_retries_with_a_forward_first_pair_and_keeps_the_run_that_reg
 @pytest.mark.parametrize("sequential, refined", [(True, True), (True, False), (False, True)])
 def test_the_mapper_adjusts_the_whole_model_less_often_only_on_a_plate_camcal_refines_afterwards(tmp_path, sequential,
                                                                                                   refined):
-    """COLMAP's own growth ratio (1.1) unless the pairs were matched in frame order and camcal's bundle adjustment
+    """COLMAP's own growth ratio (1.1) and rounds of global and local adjustment unless the pairs were matched in frame order and camcal's bundle adjustment
     refines the model afterwards; the real pipeline's options object carries both names."""
     import pycolmap
 
@@ -72,7 +72,7 @@ def test_the_mapper_adjusts_the_whole_model_less_often_only_on_a_plate_camcal_re
 
     def incremental_mapping(database, image_dir, sparse, options):
         seen.append((options.ba_global_frames_ratio, options.ba_global_points_ratio, options.ba_global_max_refinements,
-                     options.mapper.init_min_tri_angle))
+                     options.ba_local_max_refinements, options.mapper.init_min_tri_angle))
         return {0: _Model(51)}
 
     stand_in = SimpleNamespace(set_random_seed=lambda seed: None,
@@ -83,6 +83,9 @@ def test_the_mapper_adjusts_the_whole_model_less_often_only_on_a_plate_camcal_re
     default = pycolmap.IncrementalPipelineOptions()
     ratio = REFINED_GLOBAL_BA_RATIO if sequential and refined else default.ba_global_frames_ratio
     rounds = REFINED_GLOBAL_BA_REFINEMENTS if sequential and refined else default.ba_global_max_refinements
-    assert seen == [(ratio, ratio, rounds, SEQUENTIAL_INIT_TRI_ANGLE_DEG if sequential else default.mapper.init_min_tri_angle)]
+    local = REFINED_LOCAL_BA_REFINEMENTS if sequential and refined else default.ba_local_max_refinements
+    assert seen == [(ratio, ratio, rounds, local,
+                     SEQUENTIAL_INIT_TRI_ANGLE_DEG if sequential else default.mapper.init_min_tri_angle)]
     assert REFINED_GLOBAL_BA_RATIO > default.ba_global_frames_ratio == default.ba_global_points_ratio
     assert REFINED_GLOBAL_BA_REFINEMENTS < default.ba_global_max_refinements
+    assert REFINED_LOCAL_BA_REFINEMENTS < default.ba_local_max_refinements

@@ -45,7 +45,7 @@ def test_solve_rig_keeps_the_covariance_in_camcal_names(solved):
     # aspect prior's spread into it; covariance_sigmas are its diagonal)
     fx, fy = bundle.covariance_names.index("left.fx"), bundle.covariance_names.index("left.fy")
     factor = covariance.array[names.index("fx"), names.index("fx")] / bundle.covariance[fx, fx]
-    assert factor >= 1.0
+    assert factor >= 1.0 - 1e-9  # a design effect of 1 comes back through the conversion to camcal names to rounding
     assert bundle.covariance[fx, fx] == pytest.approx(calibration.covariance_sigmas["left.fx"] ** 2, rel=1e-9)
     assert covariance.array[names.index("fy"), names.index("fy")] == pytest.approx(factor * bundle.covariance[fy, fy],
                                                                                    rel=1e-6)

@@ -31,7 +31,7 @@ covariance estimation.
 from camcal.geometry.bundle.covariance import MIN_POINT_SINGULAR_RATIO, ceres_covariance, marginal_covariance
 from camcal.geometry.bundle.prior import PriorSpec, parse_prior
 from camcal.geometry.bundle.reconstruction import state_from_reconstruction, state_to_reconstruction
-from camcal.geometry.bundle.solve import bundle_adjust
+from camcal.geometry.bundle.solve import bundle_adjust, with_covariance
 from camcal.geometry.bundle.state import (
     LOSSES,
     WARM_START_RADIUS,
@@ -64,4 +64,5 @@ __all__ = [
     "robust_cost",
     "state_from_reconstruction",
     "state_to_reconstruction",
+    "with_covariance",
 ]

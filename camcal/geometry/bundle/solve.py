@@ -41,7 +41,7 @@ from camcal.geometry.bundle.state import BundleOptions, BundleResult, BundleStat
 from camcal.geometry.uncertainty import scene_gauge_rows
 from camcal.model.camera import pixels_to_colmap
 
-__all__ = ["DENSE_SCHUR_MAX_FRAMES", "bundle_adjust"]
+__all__ = ["DENSE_SCHUR_MAX_FRAMES", "bundle_adjust", "with_covariance"]
 
 #: the priors are weighed again with the solved noise when the start's estimate was off by more than this factor.
 _NOISE_RATIO = 1.5
@@ -328,25 +328,31 @@ def bundle_adjust(state: BundleState, options: BundleOptions = BundleOptions(),
     if progress is not None:
         progress(options.max_iterations, total)
     refined = _from_colmap(state, colmap)
-    covariance, covariance_names, sigmas, n_left_out = np.zeros((0, 0)), (), {}, 0
-    posterior = tuple(float("nan") for _ in priors)
+    result = BundleResult(
+        state=refined, initial_cost=initial_cost, final_cost=float(summary.final_cost),
+        rms_before_px=rms_before, rms_after_px=_rms(refined), n_iterations=iterations,
+        n_residuals=int(summary.num_residuals), n_parameters=int(summary.num_effective_parameters_reduced),
+        termination=str(summary.message), priors=priors, prior_posterior_sigmas=tuple(float("nan") for _ in priors),
+        unused_priors=unused, noise_px=float(solved),
+    )
     if options.compute_sigmas:
-        covariance, covariance_names, n_left_out = _covariance(state, options, colmap, problem, summary, costs)
-        sigmas = _sigmas(refined, covariance, covariance_names)
-        posterior = tuple(posterior_sigma(prior, covariance, covariance_names, state.param_names(prior.camera),
-                                          state.camera_names[prior.camera]) if len(covariance_names) else float("nan")
-                          for prior in priors)
+        result = with_covariance(result, *_covariance(state, options, colmap, problem, summary, costs))
         if progress is not None:
             progress(total, total)
-    return BundleResult(
-        state=refined, initial_cost=initial_cost, final_cost=float(summary.final_cost),
-        rms_before_px=rms_before, rms_after_px=_rms(refined), sigmas=sigmas,
-        n_iterations=iterations,
-        n_residuals=int(summary.num_residuals), n_parameters=int(summary.num_effective_parameters_reduced),
-        covariance=covariance, covariance_names=covariance_names, n_points_out_of_covariance=n_left_out,
-        termination=str(summary.message), priors=priors, prior_posterior_sigmas=posterior, unused_priors=unused,
-        noise_px=float(solved),
-    )
+    return result
+
+
+def with_covariance(result: BundleResult, covariance: NDArray[np.float64], names: tuple[str, ...],
+                    n_points_left_out: int) -> BundleResult:
+    """``result`` with the covariance ``covariance`` of the quantities ``names`` (:attr:`BundleResult.covariance`),
+    its sigmas and its priors' posterior sigmas (:func:`~camcal.geometry.bundle.prior.posterior_sigma`)."""
+    state = result.state
+    posterior = tuple(posterior_sigma(prior, covariance, names, state.param_names(prior.camera),
+                                      state.camera_names[prior.camera]) if len(names) else float("nan")
+                      for prior in result.priors)
+    return dataclasses.replace(result, covariance=covariance, covariance_names=names,
+                               n_points_out_of_covariance=n_points_left_out, sigmas=_sigmas(state, covariance, names),
+                               prior_posterior_sigmas=posterior)
 
 
 def _pyceres_solver_options(colmap_options):
