@@ -43,7 +43,8 @@ similarity (rotation: the chordal mean of ``R_est^T R_true`` over the frames,
 well posed for a straight dolly where the centres alone leave a roll about
 the line free; then scale and offset by least squares on the centres); per
 frame the camera-centre error in % of the true path length and the rotation
-error (deg); the focal error (%) where the lens is free.
+error (deg); the focal error (%) where the lens is free, with camcal's own sigma of it (the frames' floor: a
+focal error below it is as close as the frames determine the focal length).
 
 ``--growth``: the first 60 / 120 / 240 / 480 frames of one 480-frame walk,
 camcal and plain pycolmap back to back at each size: time and peak memory
@@ -194,7 +195,10 @@ def run_camcal(plate: Path, out: Path, held: bool) -> dict:
     for frame in rig.frames:
         camera = rig.camera_at_frame("plate", frame.index)
         poses[_frame_number(next(iter(frame.images.values())))] = (camera.R, camera.c)
-    return {"seconds": seconds, "poses": poses, "focal": float(rig.camera("plate").K[0, 0])}
+    camera = rig.camera("plate")
+    sigma = (camera.quality or {}).get("sigma", {}).get("fx")  # absent where the lens is held
+    return {"seconds": seconds, "poses": poses, "focal": float(camera.K[0, 0]),
+            "focal_sigma": None if sigma is None else float(sigma)}
 
 
 def run_pycolmap(plate: Path, out: Path, held: bool) -> dict:
@@ -379,6 +383,8 @@ def summary(method: str, result: dict, truth: dict) -> dict:
                 "rotation_median_deg": float(np.median(rotation)), "rotation_max_deg": float(rotation.max())}
     if result.get("focal") and not method.endswith("-held") and method != "blender":
         row["focal_pct"] = 100 * (result["focal"] / K_TRUE[0, 0] - 1)
+        if result.get("focal_sigma"):
+            row["focal_sigma_pct"] = 100 * result["focal_sigma"] / K_TRUE[0, 0]
     return row
 
 
@@ -402,8 +408,9 @@ def compare(cache: Path, shots: list[str], n_frames: int, methods: list[str], wo
                 continue
             print(f"  {method:14s} registered {row['registered']:3d}/{row['frames']}, position "
                   f"{_cell(row, 'position_pct', '.3f')} % of path (max {_cell(row, 'position_max_pct', '.3f')}), "
-                  f"rotation {_cell(row, 'rotation_deg', '.3f')} deg, focal {_cell(row, 'focal_pct', '+.3f')} %, "
-                  f"{row['seconds']:.1f} s (process CPU {row['cpu_seconds']:.0f} s), {row['peak_mb']:.0f} MB", flush=True)
+                  f"rotation {_cell(row, 'rotation_deg', '.3f')} deg, focal {_cell(row, 'focal_pct', '+.3f')} %"
+                  + (f" (its sigma {row['focal_sigma_pct']:.3f} %)" if "focal_sigma_pct" in row else "")
+                  + f", {row['seconds']:.1f} s (process CPU {row['cpu_seconds']:.0f} s), {row['peak_mb']:.0f} MB", flush=True)
         for ours in ("camcal", "camcal-held"):
             peers = [results[m] for m in ("pycolmap", "pycolmap-held", "blender") if m in results]
             if ours not in results or "position_pct" not in results[ours]:
@@ -413,6 +420,12 @@ def compare(cache: Path, shots: list[str], n_frames: int, methods: list[str], wo
                 scored = [p[key] for p in peers if key in p and p["registered"] == p["frames"]]
                 if scored:
                     print(f"  {ours} / better peer (every frame registered) {key}: {mine[key] / min(scored):.2f}")
+            scored = [abs(p["focal_pct"]) for p in peers if "focal_pct" in p and p["registered"] == p["frames"]]
+            if scored and "focal_pct" in mine:
+                # the floor: how well the frames determine the focal length (camcal's own sigma of it)
+                floor = f", the frames determine it to {mine['focal_sigma_pct']:.3f} %" if "focal_sigma_pct" in mine else ""
+                print(f"  {ours} / better peer (every frame registered) |focal error|: "
+                      f"{abs(mine['focal_pct']) / max(min(scored), 1e-12):.2f}{floor}")
             if "pycolmap" in results and "seconds" in results["pycolmap"]:
                 peer = results["pycolmap"]
                 print(f"  {ours} / pycolmap time: {mine['seconds'] / peer['seconds']:.2f}, process CPU "
