@@ -69,7 +69,6 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
     )
 
 
-
 def image_observations(image, point_ids: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """A pycolmap image's observations of 3D points in keypoint order: each one's position in ``point_ids`` (the
     reconstruction's point ids, ascending) and its keypoint (COLMAP's pixels, shape (n, 2))."""
