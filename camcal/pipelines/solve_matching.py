@@ -1,8 +1,8 @@
-"""A solve's feature matching: in this process on COLMAP's threads, or its image pairs in blocks on Dask, resumable.
+"""A solve's feature matching: in this process on one thread, or its image pairs in blocks on Dask, resumable.
 
 In this process, :class:`PairMatcher` calls pycolmap's ``match_exhaustive``
 or ``match_sequential`` (and ``match_image_pairs`` for a list of pairs, the
-loop closure's), as ``solve`` always did. On Dask (the solve's
+loop closure's), on one thread (:data:`camcal.pipelines.solve.MATCHING_THREADS`). On Dask (the solve's
 :class:`~camcal.pipelines.solve_features.DaskExtraction`), the pairs COLMAP's
 matcher would match are taken from COLMAP's own pair generator
 (``pycolmap.SequentialPairGenerator`` / ``ExhaustivePairGenerator`` on the
@@ -22,8 +22,10 @@ The same matches
 ----------------
 COLMAP matches and verifies each pair on its own, from the two images'
 features, their cameras and the options alone (the RANSAC of each pair
-seeded with the solve's seed): a pair's matches and two-view geometry do not
-depend on the other pairs, the other images or the thread count. The matches
+seeded with the solve's seed): on one thread, a pair's matches and two-view
+geometry do not depend on the other pairs or the other images. (On several
+threads pycolmap 4.2.1's CPU matcher matched some pairs differently from run
+to run, and worse: :data:`camcal.pipelines.solve.MATCHING_THREADS`.) The matches
 and geometries written back are the in-process run's bit for bit, and so is
 the reconstruction (checked by the tests: every row of both databases, then
 the solved rig). The pair orientation (which image is first) is the

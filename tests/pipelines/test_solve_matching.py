@@ -16,7 +16,7 @@ import pytest
 
 from camcal.base.atomic import TEMPORARY_TAG
 from camcal.pipelines import solve_matching
-from camcal.pipelines.solve import solve_sfm
+from camcal.pipelines.solve import MATCHING_THREADS, solve_sfm
 from camcal.pipelines.solve_colmap import extraction_options, number_by_name, verification_options
 from camcal.pipelines.solve_features import FEATURE_CACHE, DaskExtraction, extract_features
 from camcal.pipelines.solve_matching import PairMatcher, block_file, matcher_pairs
@@ -107,7 +107,7 @@ def _copy(database, path, prior_focal_length=False):
 
 def _matcher(database, dask=None, keys=None, lines=None, relative_pose=False):
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = -1
+    matching.num_threads = MATCHING_THREADS  # as the solve matches in this process
     verification = verification_options(pycolmap, 0)
     verification.compute_relative_pose = relative_pose
     return PairMatcher(pycolmap, database, matching, verification, dask, keys,
@@ -191,6 +191,25 @@ def test_a_solve_matched_on_dask_gives_the_in_process_rig_bit_for_bit(plate, sch
     assert (tmp_path / "dask" / "points.ply").read_bytes() == (tmp_path / "local" / "points.ply").read_bytes()
     assert sorted(p.name for p in (tmp_path / "dask").iterdir()) == sorted(
         p.name for p in (tmp_path / "local").iterdir())
+
+
+def test_a_solve_matches_in_this_process_on_one_thread(plate, tmp_path, monkeypatch):
+    """COLMAP's CPU matcher on several threads matches some pairs differently from run to run (pycolmap 4.2.1): the
+    solve's sequential matching and its loop closure's listed pairs run on one thread, whatever ``num_threads``."""
+    threads = []
+
+    def recording(function):
+        def call(*args, matching_options, **kwargs):
+            threads.append((function.__name__, matching_options.num_threads))
+            return function(*args, matching_options=matching_options, **kwargs)
+        return call
+
+    for name in ("match_sequential", "match_image_pairs"):
+        monkeypatch.setattr(pycolmap, name, recording(getattr(pycolmap, name)))
+    solve_sfm({"left": plate}, tmp_path / "out", matcher="sequential", max_num_features=512, refine=False,
+              num_threads=2)
+    assert MATCHING_THREADS == 1
+    assert threads[0] == ("match_sequential", 1) and {n for _, n in threads} == {1}
 
 
 def test_a_farm_whose_workers_run_elsewhere_gets_paths_relative_to_the_client(plate, tmp_path, monkeypatch):
