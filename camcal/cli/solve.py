@@ -84,9 +84,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                        "folder OUT is in); each image's features and each block's matches are kept in "
                        "OUT/.camcal-features until the solve ends, so a rerun of a killed solve does only what it "
                        "had not finished; the features, matches and rig are the same as in this process, the "
-                       "mapping stays here (default: extraction and matching in this process, on every core)")
+                       "mapping stays here (default: in this process, the extraction on every core, the matching on one "
+                       "thread, so that two runs give the same cameras)")
     where.add_argument("--workers", type=int, metavar="N",
-                       help="the same on a local Dask cluster of N worker processes (default: no Dask)")
+                       help="the same on a local Dask cluster of N worker processes: the matching in parallel, each block "
+                       "on one thread (default: no Dask)")
     parser.add_argument("--require-all", action="store_true",
                         help="an image that cannot be registered is an error (nothing written); by default each is "
                         "named by its frame number in one line and the solve goes on")
