@@ -8,8 +8,8 @@ track of the solve's model (``OUT/sparse/best``, pixels in COLMAP's convention)
 is triangulated again with the TRUE poses and the true lens
 (``bench_plates.K_TRUE``, ``bench_plates.LENS``) at focal lengths around the
 truth, and the focal length whose triangulated tracks leave the least squared
-reprojection error is printed (a parabola through the three lowest of a
-0.1 % grid). Near 0 %: the features are unbiased in scale, and a focal error of
+reprojection error is printed (a parabola through the lowest three of a
+grid of 0.1 % steps). Near 0 %: the features are unbiased in scale, and a focal error of
 the solve comes from the poses. Also printed: the residuals' mean radial
 component by radius, and their correlation along the tracks (the same point
 ``lag`` frames later), which no covariance of independent errors models.
@@ -107,11 +107,11 @@ def main() -> None:
           f"{OUTLIER_PX} px of the true cameras, tracks of 3 or more)")
     costs = np.array([np.sum(tracks.residuals(s)[tracks.keep] ** 2) for s in GRID])
     lowest = int(np.clip(np.argmin(costs), 1, len(GRID) - 2))
-    a, b, _ = np.polyfit(GRID[lowest - 1:lowest + 2], costs[lowest - 1:lowest + 2], 2)
+    curvature, slope, _ = np.polyfit(GRID[lowest - 1:lowest + 2], costs[lowest - 1:lowest + 2], 2)
     residual = tracks.residuals()
     kept = residual[tracks.keep]
     print(f"with the true poses and lens: RMS {np.sqrt(np.mean(kept ** 2)):.4f} px at the true focal length; "
-          f"the features' own focal length {-b / (2 * a) * 100:+.4f} % of the truth")
+          f"the features' own focal length {-slope / (2 * curvature) * 100:+.4f} % of the truth")
     offset = tracks.xy[tracks.keep] - K_TRUE[:2, 2]
     radius = np.linalg.norm(offset, axis=1)
     radial = np.sum(kept * offset / radius[:, None], axis=1)
@@ -126,9 +126,10 @@ def main() -> None:
                           if (p, f + lag) in index and tracks.keep[n] and tracks.keep[index[p, f + lag]]])
         if len(pairs) < 100:
             continue
-        a_, b_ = residual[pairs[:, 0]], residual[pairs[:, 1]]
-        print(f"  residual correlation along the tracks, {lag:2d} frames apart: x {np.corrcoef(a_[:, 0], b_[:, 0])[0, 1]:+.3f}, "
-              f"y {np.corrcoef(a_[:, 1], b_[:, 1])[0, 1]:+.3f} ({len(pairs)} pairs)")
+        earlier, later = residual[pairs[:, 0]], residual[pairs[:, 1]]
+        x, y = (np.corrcoef(earlier[:, k], later[:, k])[0, 1] for k in (0, 1))
+        print(f"  residual correlation along the tracks, {lag:2d} frames apart: x {x:+.3f}, y {y:+.3f} "
+              f"({len(pairs)} pairs)")
 
 
 if __name__ == "__main__":
