@@ -75,7 +75,6 @@ from camcal.pipelines.solve_world import WorldAlignment, WorldSpec, align_world,
 
 __all__ = [
     "COLMAP_LOG",
-    "MATCHING_THREADS",
     "PRE_REJECTION_TOLERANCE",
     "PycolmapPeer",
     "SfmResult",
@@ -90,14 +89,6 @@ __all__ = [
 #: 240-frame walks it stops after 6-8 iterations instead of 14-15, its cost within 4e-6 of the converged one, the
 #: observations rejected within 0.05 % of the same; the chosen fit after it takes as many iterations as before.
 PRE_REJECTION_TOLERANCE = 1e-6
-
-#: COLMAP's matching threads in this process. pycolmap 4.2.1's CPU matcher on several threads matched a few pairs of
-#: a plate differently from run to run: on 80 frames of the rendered blurred walk, 2 to 17 of 436 pairs, keeping as
-#: few as 681 of the 3,778 matches the single-threaded matcher finds between two neighbouring frames, which moved
-#: the solved focal length by 1e-4 between runs. On one thread each pair's matches and geometry depend on its two
-#: images and the options alone. Dask (``workers``, ``scheduler``) matches blocks of pairs in parallel, each on one
-#: thread.
-MATCHING_THREADS = 1
 
 
 @dataclass(frozen=True)
@@ -207,10 +198,11 @@ def solve_sfm(
         rig (recorded in its provenance).
     num_threads : int
         Threads of feature extraction (-1: every core); its features do not
-        depend on scheduling. Matching in this process runs on
-        :data:`MATCHING_THREADS` (one) and the mapper on one thread, so that
-        two runs give the same cameras; matching in parallel: ``workers``
-        or ``scheduler`` (Dask, each block of pairs on one thread).
+        depend on scheduling. The matching runs on one thread
+        (:data:`camcal.pipelines.solve_matching.MATCHING_THREADS`), and so
+        does the mapper, so that two runs give the same cameras; matching in
+        parallel: ``workers`` or ``scheduler`` (Dask, each block of pairs on
+        one thread).
     refine : bool
         Run camcal's bundle adjustment after pycolmap's mapping.
     known_rig : Rig, optional
@@ -399,7 +391,6 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         hold_in_database(pycolmap, database, lens)
     _say(progress, f"matching ({matcher})")
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = MATCHING_THREADS
     matching.guided_matching = guided_matching
     pair_matcher = PairMatcher(pycolmap, database, matching, verification_options(pycolmap, seed), dask,
                                feature_keys, labels=staged, progress=progress)

@@ -2,7 +2,7 @@
 
 In this process, :class:`PairMatcher` calls pycolmap's ``match_exhaustive``
 or ``match_sequential`` (and ``match_image_pairs`` for a list of pairs, the
-loop closure's), on one thread (:data:`camcal.pipelines.solve.MATCHING_THREADS`). On Dask (the solve's
+loop closure's), on one thread (:data:`MATCHING_THREADS`). On Dask (the solve's
 :class:`~camcal.pipelines.solve_features.DaskExtraction`), the pairs COLMAP's
 matcher would match are taken from COLMAP's own pair generator
 (``pycolmap.SequentialPairGenerator`` / ``ExhaustivePairGenerator`` on the
@@ -25,7 +25,7 @@ features, their cameras and the options alone (the RANSAC of each pair
 seeded with the solve's seed): on one thread, a pair's matches and two-view
 geometry do not depend on the other pairs or the other images. (On several
 threads pycolmap 4.2.1's CPU matcher matched some pairs differently from run
-to run, and worse: :data:`camcal.pipelines.solve.MATCHING_THREADS`.) The matches
+to run, and worse: :data:`MATCHING_THREADS`.) The matches
 and geometries written back are the in-process run's bit for bit, and so is
 the reconstruction (checked by the tests: every row of both databases, then
 the solved rig). The pair orientation (which image is first) is the
@@ -67,7 +67,8 @@ from camcal.base.native_log import glog_level
 from camcal.pipelines.distributed import dask_client, run_tasks
 from camcal.pipelines.solve_features import TASK_GLOG_LEVEL, DaskExtraction, cache_file, read_cached
 
-__all__ = ["BLOCK_PAIRS", "PairMatcher", "block_file", "dask_stages", "match_block", "matcher_pairs", "read_block"]
+__all__ = ["BLOCK_PAIRS", "MATCHING_THREADS", "PairMatcher", "block_file", "dask_stages", "match_block", "matcher_pairs",
+           "read_block"]
 
 #: Image pairs per Dask task. Each task loads its images' features and COLMAP builds each image's matching index
 #: again in every block the image is in: on the 60-frame walk of ``bench/bench_plates.py`` (8192 features, 297
@@ -75,6 +76,13 @@ __all__ = ["BLOCK_PAIRS", "PairMatcher", "block_file", "dask_stages", "match_blo
 #: whole plate (168 image loads against 60), blocks of 150 1.05x (92). 100 pairs are under a minute of a worker
 #: (what a killed worker loses) and a 1000-frame plate matched by frame order about 60 tasks.
 BLOCK_PAIRS = 100
+#: COLMAP's matching threads, in this process (:class:`PairMatcher`) and in each Dask block (:func:`match_block`),
+#: whatever the options say. pycolmap 4.2.1's CPU matcher on several threads matched a few pairs of a plate
+#: differently from run to run: on 80 frames of the rendered blurred walk, 2 to 17 of 436 pairs, keeping as few as
+#: 681 of the 3,778 matches the single-threaded matcher finds between two neighbouring frames, which moved the
+#: solved focal length by 1e-4 between runs. On one thread each pair's matches and geometry depend on its two
+#: images and the options alone. Dask (``workers``, ``scheduler``) matches blocks of pairs in parallel.
+MATCHING_THREADS = 1
 _CACHE_FORMAT = "camcal.sift-matches.1"
 #: The two-view geometry's matrices, each stored only where COLMAP estimated it.
 _MATRICES = ("E", "F", "H")
@@ -219,7 +227,7 @@ def match_block(cameras: list[tuple], images: list[tuple], pairs: list[tuple[str
     """
     pycolmap = require("pycolmap")
     matching_options = pycolmap.FeatureMatchingOptions(matching)
-    matching_options.num_threads = 1
+    matching_options.num_threads = MATCHING_THREADS
     with scratch_dir(target) as scratch, glog_level(pycolmap, TASK_GLOG_LEVEL):
         database = scratch / "database.db"
         db = pycolmap.Database.open(database)
@@ -276,7 +284,8 @@ class PairMatcher:
     database : Path
         The solve's database, its features extracted (and its images numbered in name order).
     matching, verification
-        The solve's ``FeatureMatchingOptions`` and ``TwoViewGeometryOptions``.
+        The solve's ``FeatureMatchingOptions`` and ``TwoViewGeometryOptions``; the matching runs on
+        :data:`MATCHING_THREADS` whatever ``matching.num_threads`` (a copy is changed, not ``matching``).
     dask : DaskExtraction, optional
         Match on this Dask cluster, from the feature cache of the extraction there; None: in this process.
     feature_keys : mapping, optional
@@ -294,7 +303,8 @@ class PairMatcher:
         if dask is not None and feature_keys is None:
             raise ValueError("matching on Dask takes the features' keys of their extraction on Dask")
         self.pycolmap, self.database, self.dask = pycolmap, Path(database), dask
-        self.matching, self.verification = matching, verification
+        self.matching, self.verification = pycolmap.FeatureMatchingOptions(matching.todict()), verification
+        self.matching.num_threads = MATCHING_THREADS
         self.feature_keys, self.labels, self.progress = feature_keys or {}, labels or {}, progress
 
     def match(self, matcher: str) -> None:

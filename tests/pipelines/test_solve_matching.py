@@ -16,10 +16,10 @@ import pytest
 
 from camcal.base.atomic import TEMPORARY_TAG
 from camcal.pipelines import solve_matching
-from camcal.pipelines.solve import MATCHING_THREADS, solve_sfm
+from camcal.pipelines.solve import solve_sfm
 from camcal.pipelines.solve_colmap import extraction_options, number_by_name, verification_options
 from camcal.pipelines.solve_features import FEATURE_CACHE, DaskExtraction, extract_features
-from camcal.pipelines.solve_matching import PairMatcher, block_file, matcher_pairs
+from camcal.pipelines.solve_matching import MATCHING_THREADS, PairMatcher, block_file, matcher_pairs
 from camcal.synthetic import render_stereo_sequence
 from test_solve import _numbers
 from dask_faults import workers_elsewhere
@@ -107,7 +107,7 @@ def _copy(database, path, prior_focal_length=False):
 
 def _matcher(database, dask=None, keys=None, lines=None, relative_pose=False):
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = MATCHING_THREADS  # as the solve matches in this process
+    matching.num_threads = -1  # every core asked: the matcher runs on MATCHING_THREADS all the same
     verification = verification_options(pycolmap, 0)
     verification.compute_relative_pose = relative_pose
     return PairMatcher(pycolmap, database, matching, verification, dask, keys,
