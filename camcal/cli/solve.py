@@ -75,6 +75,11 @@ def register(parser: argparse.ArgumentParser) -> None:
                         "geometric verification holds them; the pairs added and verified are printed "
                         "(default: auto)")
     only_with(parser, "--loops", "--matcher sequential", lambda args: args.matcher == "sequential", default="auto")
+    parser.add_argument("--tracks", default="auto", choices=("auto", "refine", "detected"),
+                        help="the observations camcal's bundle adjustment takes: each aligned to its track's middle "
+                        "observation by an affine patch alignment (refine: a detected SIFT position moves with the "
+                        "viewpoint, and on a pan the focal length absorbs it), or the keypoints as detected; auto "
+                        "refines with --matcher sequential (default: %(default)s)")
     parser.add_argument("--mapper", default="incremental", choices=("incremental", "global"),
                         help="COLMAP's incremental or global mapper (default: %(default)s)")
     where = parser.add_mutually_exclusive_group()
@@ -192,7 +197,7 @@ def _solve(args: argparse.Namespace) -> int:
                    rig=args.rig, model=args.model,
                    camera_model=args.camera_model, principal_point=args.principal_point, priors=args.prior,
                    uncertainty=args.uncertainty, features=args.features, guided_matching=args.guided_matching,
-                   matcher=args.matcher, loops=args.loops, mapper=args.mapper, loss=args.loss,
+                   matcher=args.matcher, loops=args.loops, tracks=args.tracks, mapper=args.mapper, loss=args.loss,
                    refine=not args.no_refine, compare_pycolmap=args.compare_pycolmap, intrinsics=args.intrinsics,
                    intrinsics_mode=args.intrinsics_mode, require_all=args.require_all, up=args.up, origin=args.origin,
                    scale=args.scale, units=args.units, world_board=args.world_board, readout_ms=args.readout_ms,

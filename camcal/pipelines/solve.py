@@ -37,6 +37,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from camcal.base.atomic import atomic_dir, final_path, remove_stale_temporaries
@@ -47,17 +48,22 @@ from camcal.geometry.bundle import (
     WARM_START_RADIUS,
     BundleOptions,
     BundleResult,
+    BundleState,
     PriorSpec,
     bundle_adjust,
     hold_rig,
+    observations_to_reconstruction,
     state_from_reconstruction,
+    state_images,
     state_to_reconstruction,
 )
 from camcal.geometry.jackknife import METHODS as JACKKNIFE_METHODS
 from camcal.geometry.bundle.state import model_layout
 from camcal.geometry.selfcal import LENS_MODELS, SelfCalibration, as_lens_model, self_calibrate
+from camcal.geometry.track_refine import refine_tracks
 from camcal.geometry.sfm import (camera_name, check_every_camera_registered, reject_outliers, relative_poses,
                                  sparse_model)
+from camcal.io.frames import imread
 from camcal.io.ply import write_points_ply
 from camcal.io.video import video_info
 from camcal.model.rig import Rig
@@ -78,6 +84,7 @@ __all__ = [
     "PRE_REJECTION_TOLERANCE",
     "PycolmapPeer",
     "SfmResult",
+    "TRACK_MODES",
     "collect_images",
     "solve_pycolmap_plain",
     "solve_sfm",
@@ -89,6 +96,8 @@ __all__ = [
 #: 240-frame walks it stops after 6-8 iterations instead of 14-15, its cost within 4e-6 of the converged one, the
 #: observations rejected within 0.05 % of the same; the chosen fit after it takes as many iterations as before.
 PRE_REJECTION_TOLERANCE = 1e-6
+#: what the bundle adjustment takes as the observations of a track (:func:`solve_sfm`'s ``tracks``).
+TRACK_MODES = ("auto", "refine", "detected")
 
 
 @dataclass(frozen=True)
@@ -164,6 +173,7 @@ def solve_sfm(
     world: WorldSpec | None = None,
     require_all: bool = False,
     loops: str = "auto",
+    tracks: str = "auto",
     rolling_shutter: ShutterSpec | None = None,
     scheduler: str | None = None,
     workers: int | None = None,
@@ -265,6 +275,17 @@ def solve_sfm(
         (:mod:`camcal.pipelines.solve_loops`); how many such pairs were
         matched and verified is a note. The exhaustive matcher matches every
         pair already.
+    tracks : {"auto", "refine", "detected"}
+        ``refine``: before camcal's bundle adjustment, every observation of
+        every track is aligned to its track's middle observation by an
+        affine patch alignment (:mod:`camcal.geometry.track_refine`), so
+        that the observations of a track image one point (a SIFT keypoint's
+        position moves with the viewpoint: on a pan the focal length
+        absorbs it); an observation the alignment does not settle keeps its
+        detected position; a line says how many moved. ``detected``: the
+        keypoints as detected. ``auto``: ``refine`` with the sequential
+        matcher (the frames of a shot, whose neighbours look alike),
+        ``detected`` otherwise.
     require_all : bool
         An image that cannot be registered is an error (nothing is written)
         instead of a line naming it.
@@ -299,6 +320,8 @@ def solve_sfm(
         raise CamcalError(f"unknown matcher {matcher!r}, expected one of: {', '.join(MATCHERS)}")
     if loops not in LOOP_MODES:
         raise CamcalError(f"unknown loop closure {loops!r}, expected one of: {', '.join(LOOP_MODES)}")
+    if tracks not in TRACK_MODES:
+        raise CamcalError(f"unknown track mode {tracks!r}, expected one of: {', '.join(TRACK_MODES)}")
     if mapper not in MAPPERS:
         raise CamcalError(f"unknown mapper {mapper!r}, expected one of: {', '.join(MAPPERS)}")
     if jackknife is not None and jackknife not in JACKKNIFE_METHODS:
@@ -342,7 +365,8 @@ def solve_sfm(
                                    intrinsics=None if intrinsics is None else (intrinsics, intrinsics_mode,
                                                                                intrinsics_source),
                                    world=world, require_all=require_all, loops=loops, shutter=shutter,
-                                   dask=dask)
+                                   dask=dask, refine_tracks=tracks == "refine" or (tracks == "auto"
+                                                                                   and matcher == "sequential"))
     except CamcalError:  # an error of the input: nothing left, the feature cache of an interrupted run included
         shutil.rmtree(target / FEATURE_CACHE, ignore_errors=True)
         if new_target and target.is_dir() and not any(target.iterdir()):
@@ -358,7 +382,7 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
               masks: dict[str, list[Path]] | None = None, intrinsics: tuple[Rig, str, str] | None = None,
               world: WorldSpec | None = None, require_all: bool = False, loops: str = "auto",
               shutter: tuple[ShutterSpec, float, float] | None = None,
-              dask: DaskExtraction | None = None) -> SfmResult:
+              dask: DaskExtraction | None = None, refine_tracks: bool = False) -> SfmResult:
     """:func:`solve_sfm`'s work inside its (temporary) output folder, COLMAP's output captured."""
     image_dir = out_dir / "images"
     options = BundleOptions(loss=loss, refine_sensor_from_rig=known_rig is None, priors=tuple(priors))
@@ -451,6 +475,8 @@ def _solve_in(pycolmap, images, folders, out_dir: Path, camera_model, matcher, m
         state = state_from_reconstruction(reconstruction, names)
         if known_rig is not None:
             state = hold_rig(state, relative_poses(known_rig, state.camera_names[0]))
+        if refine_tracks:
+            state = _refined_tracks(reconstruction, state, image_dir, num_threads, progress)
         if lens is not None:
             bundle = _refine_with_lens(reconstruction, names, state, options, lens, progress)
         elif lens_models is None:
@@ -520,6 +546,20 @@ def _refine_with_lens(reconstruction, names: dict[int, str], state, options: Bun
         fixed[name] = tuple(param for param in colmap_names if _camcal_names(param, state.models[index]) - known)
     return bundle_adjust(state, dataclasses.replace(options, refine_principal_point=True, default_priors=False,
                                                     priors=options.priors + lens_priors(lens), fixed_params=fixed))
+
+
+def _refined_tracks(reconstruction, state: BundleState, image_dir: Path, num_threads: int,
+                    progress: Callable[[str], None] | None) -> BundleState:
+    """The state's observations aligned along their tracks (:func:`refine_tracks`), written into
+    ``reconstruction``'s keypoints too (its outlier rejection and the model written then see them)."""
+    names = state_images(reconstruction)
+    _say(progress, f"refining the tracks: {len(state.obs_xy)} observations of {len(state.points)} points")
+    refinement = refine_tracks(state, lambda camera, frame: imread(image_dir / names[camera, frame],
+                                                                   cv2.IMREAD_GRAYSCALE),
+                               threads=os.cpu_count() or 1 if num_threads < 1 else num_threads)
+    observations_to_reconstruction(refinement.state, reconstruction)
+    _say(progress, refinement.line())
+    return refinement.state
 
 
 def _camcal_names(colmap_name: str, model: str) -> set[str]:

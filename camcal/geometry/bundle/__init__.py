@@ -30,7 +30,8 @@ covariance estimation.
 
 from camcal.geometry.bundle.covariance import MIN_POINT_SINGULAR_RATIO, ceres_covariance, marginal_covariance
 from camcal.geometry.bundle.prior import PriorSpec, parse_prior
-from camcal.geometry.bundle.reconstruction import state_from_reconstruction, state_to_reconstruction
+from camcal.geometry.bundle.reconstruction import (observations_to_reconstruction, state_from_reconstruction, state_images,
+                                                   state_to_reconstruction)
 from camcal.geometry.bundle.solve import bundle_adjust, with_covariance
 from camcal.geometry.bundle.state import (
     LOSSES,
@@ -59,10 +60,12 @@ __all__ = [
     "ceres_covariance",
     "hold_rig",
     "marginal_covariance",
+    "observations_to_reconstruction",
     "parse_prior",
     "residuals",
     "robust_cost",
     "state_from_reconstruction",
+    "state_images",
     "state_to_reconstruction",
     "with_covariance",
 ]

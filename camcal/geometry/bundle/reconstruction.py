@@ -12,9 +12,10 @@ from numpy.typing import NDArray
 from camcal.base.errors import CamcalError
 from camcal.base.extras import require
 from camcal.geometry.bundle.state import BundleState
-from camcal.model.camera import pixels_from_colmap
+from camcal.model.camera import pixels_from_colmap, pixels_to_colmap
 
-__all__ = ["image_observations", "state_from_reconstruction", "state_to_reconstruction"]
+__all__ = ["image_observations", "observations_to_reconstruction", "state_from_reconstruction",
+           "state_images", "state_to_reconstruction"]
 
 
 def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | None = None) -> BundleState:
@@ -29,8 +30,7 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
     pycolmap = require("pycolmap")
 
     rig = _the_rig(reconstruction)
-    ref = rig.ref_sensor_id.id
-    camera_ids = [ref] + sorted(cid for cid in reconstruction.cameras if cid != ref)
+    camera_ids = _camera_order(reconstruction)
     names = camera_names or {cid: f"camera{cid}" for cid in camera_ids}
     sensor_R = np.repeat(np.eye(3)[None], len(camera_ids), axis=0)
     sensor_t = np.zeros((len(camera_ids), 3))
@@ -38,20 +38,16 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
         pose = rig.sensor_from_rig(pycolmap.sensor_t(pycolmap.SensorType.CAMERA, cid))
         sensor_R[index], sensor_t[index] = pose.rotation.matrix(), pose.translation
     frame_ids = sorted(reconstruction.reg_frame_ids())
-    frame_pos = {fid: k for k, fid in enumerate(frame_ids)}
     frame_R = np.array([reconstruction.frame(fid).rig_from_world.rotation.matrix() for fid in frame_ids])
     frame_t = np.array([reconstruction.frame(fid).rig_from_world.translation for fid in frame_ids])
     point_ids = sorted(reconstruction.points3D)
     sorted_ids = np.array(point_ids, dtype=np.int64)
-    camera_pos = {cid: k for k, cid in enumerate(camera_ids)}
     # image by image, its observations in keypoint order
     cams, frames, pts, xys = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 2))]
-    for image in reconstruction.images.values():
-        if not image.has_pose or image.frame_id not in frame_pos:
-            continue
+    for image, (camera, frame) in _posed_images(reconstruction):
         which, xy = image_observations(image, sorted_ids)
-        cams.append(np.full(len(which), camera_pos[image.camera_id], dtype=np.int64))
-        frames.append(np.full(len(which), frame_pos[image.frame_id], dtype=np.int64))
+        cams.append(np.full(len(which), camera, dtype=np.int64))
+        frames.append(np.full(len(which), frame, dtype=np.int64))
         pts.append(which)
         xys.append(xy)
     cameras = [reconstruction.cameras[cid] for cid in camera_ids]
@@ -69,6 +65,42 @@ def state_from_reconstruction(reconstruction, camera_names: dict[int, str] | Non
     )
 
 
+def _camera_order(reconstruction) -> list[int]:
+    """COLMAP camera ids in a state's camera order: the rig's reference sensor first, then by id."""
+    ref = _the_rig(reconstruction).ref_sensor_id.id
+    return [ref] + sorted(cid for cid in reconstruction.cameras if cid != ref)
+
+
+def _posed_images(reconstruction):
+    """Each posed image of a registered frame with its (camera, frame) indices in a state, in the state's order."""
+    camera_pos = {cid: k for k, cid in enumerate(_camera_order(reconstruction))}
+    frame_pos = {fid: k for k, fid in enumerate(sorted(reconstruction.reg_frame_ids()))}
+    for image in reconstruction.images.values():
+        if image.has_pose and image.frame_id in frame_pos:
+            yield image, (camera_pos[image.camera_id], frame_pos[image.frame_id])
+
+
+def state_images(reconstruction) -> dict[tuple[int, int], str]:
+    """The image name of each (camera, frame) of :func:`state_from_reconstruction`'s state."""
+    return {key: image.name for image, key in _posed_images(reconstruction)}
+
+
+def observations_to_reconstruction(state: BundleState, reconstruction) -> None:
+    """Write a state's observed pixels (``obs_xy``, moved by :func:`camcal.geometry.track_refine.refine_tracks`)
+    into the keypoints of the pycolmap ``Reconstruction`` it came from (in place), in the order
+    :func:`state_from_reconstruction` read them."""
+    xy = pixels_to_colmap(state.obs_xy)
+    done = 0
+    for image, _ in _posed_images(reconstruction):
+        points2D = image.points2D
+        for index, point in enumerate(points2D):
+            if point.has_point3D():
+                points2D[index].xy = xy[done]
+                done += 1
+    if done != len(xy):
+        raise CamcalError(f"the state has {len(xy)} observations, the reconstruction {done}: not the state's source")
+
+
 def image_observations(image, point_ids: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """A pycolmap image's observations of 3D points in keypoint order: each one's position in ``point_ids`` (the
     reconstruction's point ids, ascending) and its keypoint (COLMAP's pixels, shape (n, 2))."""
@@ -82,7 +114,7 @@ def state_to_reconstruction(state: BundleState, reconstruction) -> None:
     pycolmap = require("pycolmap")
 
     rig = _the_rig(reconstruction)
-    camera_ids = [rig.ref_sensor_id.id] + sorted(cid for cid in reconstruction.cameras if cid != rig.ref_sensor_id.id)
+    camera_ids = _camera_order(reconstruction)
     for index, cid in enumerate(camera_ids):
         reconstruction.cameras[cid].params = state.params[index]
         if index and reconstruction.num_rigs() == 1:
