@@ -237,7 +237,7 @@ def solve(
         neighbourhood best matches the track's middle observation under an affine warp
         (:mod:`camcal.geometry.track_refine`); the detected SIFT positions move with the viewpoint, which on a
         pan the focal length absorbs (a rendered 240-frame dolly with a 30 deg pan: focal error +0.26 % from the
-        detected positions, +0.05 % refined). ``detected``: the keypoints as detected. ``auto``: ``refine`` with
+        detected positions, +0.07 % refined). ``detected``: the keypoints as detected. ``auto``: ``refine`` with
         the sequential matcher, ``detected`` otherwise.
     mapper : {"incremental", "global"}
     loss : str

@@ -7,7 +7,7 @@ centre moves against the projection of one scene point by a few hundredths of
 a pixel, the same way on every track that crosses the same part of the image
 at the same time. On a pan such errors trade against the focal length (a
 rendered 240-frame dolly with a 30 deg pan: +0.26 % from the SIFT positions,
-+0.05 % refined). Aligning the neighbourhood of each observation to the neighbourhood
++0.07 % refined). Aligning the neighbourhood of each observation to the neighbourhood
 of one reference observation of its track, with an affine warp that absorbs the
 change of scale, rotation and foreshortening, makes the observations of a track
 the images of one point: the inverse compositional Lucas-Kanade algorithm
