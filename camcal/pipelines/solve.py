@@ -207,8 +207,8 @@ def solve_sfm(
         lens-model choice. The same images and options then give the same
         rig (recorded in its provenance).
     num_threads : int
-        Threads of feature extraction (-1: every core); its features do not
-        depend on scheduling. The matching runs on one thread
+        Threads of feature extraction and of the track refinement (-1: every
+        core); neither's result depends on scheduling. The matching runs on one thread
         (:data:`camcal.pipelines.solve_matching.MATCHING_THREADS`), and so
         does the mapper, so that two runs give the same cameras; matching in
         parallel: ``workers`` or ``scheduler`` (Dask, each block of pairs on
@@ -556,7 +556,7 @@ def _refined_tracks(reconstruction, state: BundleState, image_dir: Path, num_thr
     _say(progress, f"refining the tracks: {len(state.obs_xy)} observations of {len(state.points)} points")
     refinement = refine_tracks(state, lambda camera, frame: imread(image_dir / names[camera, frame],
                                                                    cv2.IMREAD_GRAYSCALE),
-                               threads=os.cpu_count() or 1 if num_threads < 1 else num_threads)
+                               threads=(os.cpu_count() or 1) if num_threads < 1 else num_threads)
     observations_to_reconstruction(refinement.state, reconstruction)
     _say(progress, refinement.line())
     return refinement.state
