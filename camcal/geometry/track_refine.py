@@ -70,8 +70,8 @@ class TrackRefinement:
     refined : ndarray of bool, shape (N,)
         The observations moved to their alignment (the references and the
         rejected keep their detected position).
-    n_references, n_rejected : int
-        One reference per track; the alignments rejected (see the module's notes).
+    n_references : int
+        One reference per track.
     shift_px : float
         RMS distance the refined observations moved.
     """
@@ -79,8 +79,12 @@ class TrackRefinement:
     state: BundleState
     refined: NDArray[np.bool_]
     n_references: int
-    n_rejected: int
     shift_px: float
+
+    @property
+    def n_rejected(self) -> int:
+        """The alignments rejected (see the module's notes): neither references nor refined."""
+        return int(len(self.refined) - self.n_references - self.refined.sum())
 
     def line(self) -> str:
         n = len(self.refined)
@@ -122,7 +126,7 @@ def _normalised(patches: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDAr
 
 
 def refine_tracks(state: BundleState, read_image: Callable[[int, int], NDArray], patch: int = PATCH_PX,
-                  threads: int = 1, progress: Callable[[int, int], None] | None = None) -> TrackRefinement:
+                  threads: int = 1) -> TrackRefinement:
     """Align every observation of every track to the track's middle observation (by frame); see the module.
 
     Parameters
@@ -137,8 +141,6 @@ def refine_tracks(state: BundleState, read_image: Callable[[int, int], NDArray],
         Side of the aligned patch, px (odd).
     threads : int
         Images aligned at once (each image's work is its own: the result does not depend on it).
-    progress : callable, optional
-        ``progress(done, total)`` after each image of each pass (``total`` = twice the images).
 
     Returns
     -------
@@ -157,7 +159,6 @@ def refine_tracks(state: BundleState, read_image: Callable[[int, int], NDArray],
     by_image = np.argsort(image_key, kind="stable")
     bounds = np.flatnonzero(np.r_[True, np.diff(image_key[by_image]) != 0, True])
     groups = [by_image[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
-    total = 2 * len(groups)
 
     def image_of(obs: NDArray[np.int64]) -> NDArray[np.float32]:
         return _spline(read_image(int(state.obs_camera[obs[0]]), int(state.obs_frame[obs[0]])))
@@ -189,20 +190,15 @@ def refine_tracks(state: BundleState, read_image: Callable[[int, int], NDArray],
 
     # each task writes only its own rows: the same result on any number of threads
     with ThreadPoolExecutor(max(1, threads)) as pool:
-        for done, _ in enumerate(pool.map(reference, groups), start=1):
-            if progress is not None:
-                progress(done, total)
-        for done, _ in enumerate(pool.map(align, groups), start=len(groups) + 1):
-            if progress is not None:
-                progress(done, total)
+        list(pool.map(reference, groups))  # every template before any alignment
+        list(pool.map(align, groups))
     shifts = refined_xy[refined] - state.obs_xy[refined]
     return TrackRefinement(state=replace(state, obs_xy=refined_xy), refined=refined,
                            n_references=int(is_reference.sum()),
-                           n_rejected=int(n_obs - is_reference.sum() - refined.sum()),
                            shift_px=float(np.sqrt(np.mean(np.sum(shifts ** 2, axis=1)))) if len(shifts) else 0.0)
 
 
-def _templates(image: NDArray[np.float64], xy: NDArray[np.float64], grid: NDArray[np.float64]) -> tuple[
+def _templates(image: NDArray[np.float32], xy: NDArray[np.float64], grid: NDArray[np.float64]) -> tuple[
         NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """The reference patches around ``xy``: normalised values (N, P), gradients (N, 2, P), inverse Hessians of
     the affine warp (N, 6, 6; zero where too flat to align) and whether each can be aligned to."""
@@ -237,7 +233,6 @@ def _align(image: NDArray, start: NDArray[np.float64], template: NDArray, gradie
     warp[:, 0, 0] = warp[:, 1, 1] = warp[:, 2, 2] = 1.0
     warp[:, :2, 2] = start
     active = np.arange(n)
-    converged = np.zeros(n, dtype=bool)
     correlation = np.zeros(n)
     last_step = np.full(n, np.inf)
     basis = np.stack([grid[:, 0], grid[:, 1], np.ones(size)], axis=1)  # (P, 3): u, v, 1
@@ -259,13 +254,10 @@ def _align(image: NDArray, start: NDArray[np.float64], template: NDArray, gradie
         before = w[:, :2, 2].copy()
         warp[active] = w @ np.linalg.inv(increment)
         moved = np.linalg.norm(warp[active, :2, 2] - before, axis=1)
-        done = moved < CONVERGED_PX
-        converged[active[done]] = True
         last_step[active] = moved
-        active = active[~done]
-    converged |= last_step < SETTLED_PX
+        active = active[moved >= CONVERGED_PX]
     centre = warp[:, :2, 2]
     scale = np.sqrt(np.abs(np.linalg.det(warp[:, :2, :2])))
-    ok = (converged & (np.linalg.norm(centre - start, axis=1) < MAX_SHIFT_PX) & (correlation > MIN_CORRELATION)
+    ok = ((last_step < SETTLED_PX) & (np.linalg.norm(centre - start, axis=1) < MAX_SHIFT_PX) & (correlation > MIN_CORRELATION)
           & (scale < MAX_SCALE_CHANGE) & (scale > 1.0 / MAX_SCALE_CHANGE))
     return centre, ok
